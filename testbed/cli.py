@@ -1,0 +1,131 @@
+"""The command line (SPEC §4): a thin layer over the library.
+
+Each sub-command parses its arguments, calls one library function and prints where its output
+went. Bad input is an `InputError`: one line on stderr, exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from testbed.errors import InputError
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"{text} must be > 0")
+    return v
+
+
+def _cmd_truth(args) -> int:
+    from testbed.data import config_text
+    from testbed.errors import atomic_write_text
+    from testbed.truth import analytic_config
+
+    config, comments = analytic_config(args.mjcf, args.speed)
+    text = config_text(config, comments)
+    if args.out:
+        atomic_write_text(args.out, text)
+        print(args.out)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def _cmd_simulate(args) -> int:
+    from testbed.scenario import simulate
+
+    run = simulate(args.scenario, seed=args.seed, out=args.out, force=args.force,
+                   duration=args.duration, speed=args.speed, mjcf=args.mjcf,
+                   progress=not args.quiet)  # fmt: skip
+    print(run)
+    return 0
+
+
+def _cmd_identify(args) -> int:
+    from testbed.estimators import identify_command
+
+    return identify_command(args)
+
+
+def _cmd_analyze(args) -> int:
+    from testbed.analysis import analyze_command
+
+    return analyze_command(args)
+
+
+def _cmd_replay(args) -> int:
+    from testbed.report import replay
+
+    return replay(args.run)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (no usage block) and exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="testbed", description="Simulate a submerged body and identify its "
+                "manoeuvring coefficients (Kim & Rhee).")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
+
+    s = sub.add_parser("truth", help="write the analytic linear model of an MJCF body (TOML)")
+    s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
+    s.add_argument("--speed", type=_positive, default=None, help="trim speed U, m/s (default: cruise)")
+    s.add_argument("--out", type=Path, help="output TOML (default: stdout)")
+    s.set_defaults(func=_cmd_truth)
+
+    s = sub.add_parser("simulate", help="generate a scenario run directory")
+    s.add_argument("--scenario", required=True,
+                   help="I, II, turn, zigzag, zigzag-vertical")  # fmt: skip
+    s.add_argument("--seed", type=int, default=0, help="noise and PRBS seed (default 0)")
+    s.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<N>)")
+    s.add_argument("--force", action="store_true", help="replace an existing run directory")
+    s.add_argument("--duration", type=_positive, help="seconds per experiment (default: the scenario's)")
+    s.add_argument("--speed", type=_positive, help="cruise speed, m/s (default: the vehicle's)")
+    s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(func=_cmd_simulate)
+
+    s = sub.add_parser("identify", help="estimate the free coefficients from data")
+    s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
+    s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-nr, ml-nm, mekf, ekf")
+    s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
+    s.add_argument("--out", type=Path, help="estimates JSON (default: stdout)")
+    s.add_argument("--start", default="config",
+                   help="config (a-priori values, default), auto, equation-error or mekf")  # fmt: skip
+    s.add_argument("--max-iter", type=int, default=None, help="iteration limit")
+    s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
+    s.set_defaults(func=_cmd_identify)
+
+    s = sub.add_parser("analyze", help="identifiability: Fisher information, CRLB, drift groups")
+    s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
+    s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
+    s.add_argument("--out", type=Path, help="identifiability JSON (default: stdout)")
+    s.set_defaults(func=_cmd_analyze)
+
+    s = sub.add_parser("replay", help="open a run's recording.rrd in the Rerun viewer")
+    s.add_argument("run", type=Path, help="run directory or .rrd file")
+    s.set_defaults(func=_cmd_replay)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except InputError as exc:
+        print(f"testbed {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"testbed {args.command}: interrupted; nothing was written", file=sys.stderr)
+        return 130

@@ -1,0 +1,166 @@
+"""The paper's linear model, SPEC §2: `Mt ẋ = At x + Bt δ + St`.
+
+Every matrix is affine in the 35 coefficients, so the model is held as a constant part plus one
+derivative matrix per coefficient (`Structure`); `tilde` evaluates it, `continuous` gives
+`A = Mt⁻¹At, B = Mt⁻¹Bt, S = Mt⁻¹St`, and `discretize` gives the exact zero-order-hold model
+through the block-matrix exponential (valid for singular A: ψ and z are pure integrators).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Mapping
+
+import numpy as np
+from scipy.linalg import expm
+
+STATES = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z")
+INPUTS = ("delta_r", "delta_er", "delta_el")
+COEFFICIENTS = (
+    "X_udot", "X_u",
+    "Y_vdot", "Y_pdot", "Y_rdot", "Y_v", "Y_p", "Y_r", "Y_dr",
+    "Z_wdot", "Z_qdot", "Z_w", "Z_q", "Z_de",
+    "K_vdot", "K_pdot", "K_rdot", "K_v", "K_p", "K_r", "K_dr", "K_der", "K_del",
+    "M_wdot", "M_qdot", "M_w", "M_q", "M_de",
+    "N_vdot", "N_pdot", "N_rdot", "N_v", "N_p", "N_r", "N_dr",
+)  # fmt: skip
+NX, NU, NTHETA = len(STATES), len(INPUTS), len(COEFFICIENTS)
+IX = {name: i for i, name in enumerate(STATES)}
+ITHETA = {name: i for i, name in enumerate(COEFFICIENTS)}
+
+# Where each coefficient sits: (matrix, row, column, factor); Mt entries carry a minus sign.
+_PLACES = {
+    "X_udot": [("Mt", "u", "u", -1)], "X_u": [("At", "u", "u", 1)],
+    "Y_vdot": [("Mt", "v", "v", -1)], "Y_pdot": [("Mt", "v", "p", -1)],
+    "Y_rdot": [("Mt", "v", "r", -1)], "Y_v": [("At", "v", "v", 1)],
+    "Y_p": [("At", "v", "p", 1)], "Y_r": [("At", "v", "r", 1)], "Y_dr": [("Bt", "v", 0, 1)],
+    "Z_wdot": [("Mt", "w", "w", -1)], "Z_qdot": [("Mt", "w", "q", -1)],
+    "Z_w": [("At", "w", "w", 1)], "Z_q": [("At", "w", "q", 1)],
+    "Z_de": [("Bt", "w", 1, 0.5), ("Bt", "w", 2, 0.5)],
+    "K_vdot": [("Mt", "p", "v", -1)], "K_pdot": [("Mt", "p", "p", -1)],
+    "K_rdot": [("Mt", "p", "r", -1)], "K_v": [("At", "p", "v", 1)],
+    "K_p": [("At", "p", "p", 1)], "K_r": [("At", "p", "r", 1)], "K_dr": [("Bt", "p", 0, 1)],
+    "K_der": [("Bt", "p", 1, 1)], "K_del": [("Bt", "p", 2, -1)],
+    "M_wdot": [("Mt", "q", "w", -1)], "M_qdot": [("Mt", "q", "q", -1)],
+    "M_w": [("At", "q", "w", 1)], "M_q": [("At", "q", "q", 1)],
+    "M_de": [("Bt", "q", 1, 0.5), ("Bt", "q", 2, 0.5)],
+    "N_vdot": [("Mt", "r", "v", -1)], "N_pdot": [("Mt", "r", "p", -1)],
+    "N_rdot": [("Mt", "r", "r", -1)], "N_v": [("At", "r", "v", 1)],
+    "N_p": [("At", "r", "p", 1)], "N_r": [("At", "r", "r", 1)], "N_dr": [("Bt", "r", 0, 1)],
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """The known constants of SPEC §2 (SI; CB relative to the CG in body axes)."""
+
+    mass: float
+    Ix: float
+    Iy: float
+    Iz: float
+    weight: float
+    buoyancy: float
+    xB: float
+    yB: float
+    zB: float
+    speed: float
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+
+@dataclass(frozen=True)
+class Structure:
+    """`Mt = Mt0 + Σ θ_i dMt[i]`, and likewise At, Bt, St, for one vehicle."""
+
+    Mt0: np.ndarray
+    At0: np.ndarray
+    Bt0: np.ndarray
+    St0: np.ndarray
+    dMt: np.ndarray = field(repr=False)  # (35, 10, 10)
+    dAt: np.ndarray = field(repr=False)  # (35, 10, 10)
+    dBt: np.ndarray = field(repr=False)  # (35, 10, 3)
+    dSt: np.ndarray = field(repr=False)  # (35, 10), all zero: restoring terms are known
+
+
+def structure(vehicle: Vehicle) -> Structure:
+    """The affine structure of SPEC §2's table for `vehicle`."""
+    m, U, W, B = vehicle.mass, vehicle.speed, vehicle.weight, vehicle.buoyancy
+    xB, yB, zB = vehicle.xB, vehicle.yB, vehicle.zB
+    i = IX
+    Mt0 = np.eye(NX)
+    Mt0[i["u"], i["u"]] = Mt0[i["v"], i["v"]] = Mt0[i["w"], i["w"]] = m
+    Mt0[i["p"], i["p"]], Mt0[i["q"], i["q"]], Mt0[i["r"], i["r"]] = vehicle.Ix, vehicle.Iy, vehicle.Iz
+    At0 = np.zeros((NX, NX))
+    St0 = np.zeros(NX)
+    At0[i["u"], i["theta"]] = -(W - B)
+    At0[i["v"], i["r"]] = -m * U
+    At0[i["v"], i["phi"]] = W - B
+    At0[i["w"], i["q"]] = m * U
+    St0[i["w"]] = W - B
+    At0[i["p"], i["phi"]] = zB * B
+    St0[i["p"]] = -yB * B
+    At0[i["q"], i["theta"]] = zB * B
+    St0[i["q"]] = xB * B
+    At0[i["r"], i["phi"]] = -xB * B
+    At0[i["r"], i["theta"]] = -yB * B
+    for angle, rate in (("phi", "p"), ("theta", "q"), ("psi", "r")):
+        At0[i[angle], i[rate]] = 1.0
+    At0[i["z"], i["w"]] = 1.0
+    At0[i["z"], i["theta"]] = -U
+    d = {"Mt": np.zeros((NTHETA, NX, NX)), "At": np.zeros((NTHETA, NX, NX)),
+         "Bt": np.zeros((NTHETA, NX, NU))}  # fmt: skip
+    for k, name in enumerate(COEFFICIENTS):
+        for matrix, row, col, factor in _PLACES[name]:
+            d[matrix][k, i[row], col if isinstance(col, int) else i[col]] = factor
+    return Structure(Mt0, At0, np.zeros((NX, NU)), St0, d["Mt"], d["At"], d["Bt"],
+                     np.zeros((NTHETA, NX)))  # fmt: skip
+
+
+def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
+    """The 35 coefficients in `COEFFICIENTS` order; a missing name is 0."""
+    unknown = set(coefficients) - set(COEFFICIENTS)
+    if unknown:
+        raise KeyError(f"unknown coefficient {sorted(unknown)[0]!r}")
+    return np.array([float(coefficients.get(n, 0.0)) for n in COEFFICIENTS])
+
+
+def tilde(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`Mt, At, Bt, St` at the full coefficient vector `theta` (35,)."""
+    return (s.Mt0 + np.tensordot(theta, s.dMt, 1), s.At0 + np.tensordot(theta, s.dAt, 1),
+            s.Bt0 + np.tensordot(theta, s.dBt, 1), s.St0 + theta @ s.dSt)  # fmt: skip
+
+
+def continuous(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`A, B, S` of `ẋ = A x + B δ + S`; raises `np.linalg.LinAlgError` if Mt is singular."""
+    Mt, At, Bt, St = tilde(s, theta)
+    sol = np.linalg.solve(Mt, np.column_stack([At, Bt, St]))
+    return sol[:, :NX], sol[:, NX:NX + NU], sol[:, -1]
+
+
+def discretize(A: np.ndarray, B: np.ndarray, S: np.ndarray, dt: float):
+    """Exact zero-order-hold model `x[k+1] = Φ x[k] + Γ δ[k] + s`.
+
+    One exponential of the block matrix [[A, B, S], [0, 0, 0]] Δ, so singular A is fine.
+    """
+    n, m = B.shape
+    big = np.zeros((n + m + 1, n + m + 1))
+    big[:n, :n], big[:n, n:n + m], big[:n, -1] = A, B, S
+    E = expm(big * dt)
+    return E[:n, :n], E[:n, n:n + m], E[:n, -1]
+
+
+def derivatives(s: Structure, theta: np.ndarray, A: np.ndarray, B: np.ndarray, S: np.ndarray,
+                index: np.ndarray | None = None):  # fmt: skip
+    """∂A/∂θ_i, ∂B/∂θ_i, ∂S/∂θ_i for the coefficients `index` (default all), stacked first.
+
+    From `Mt A = At`: ∂A = Mt⁻¹(∂At − ∂Mt A); likewise for B and S.
+    """
+    index = np.arange(NTHETA) if index is None else np.asarray(index)
+    Mt = s.Mt0 + np.tensordot(theta, s.dMt, 1)
+    dMt = s.dMt[index]
+    rhs = np.concatenate([s.dAt[index] - dMt @ A, s.dBt[index] - dMt @ B,
+                          (s.dSt[index] - dMt @ S)[:, :, None]], axis=2)  # fmt: skip
+    sol = np.linalg.solve(Mt[None], rhs)
+    return sol[:, :, :NX], sol[:, :, NX:NX + NU], sol[:, :, -1]
