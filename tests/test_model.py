@@ -1,0 +1,63 @@
+"""SPEC §2: the affine structure against the table written out by hand."""
+
+import numpy as np
+
+from testbed.model import (COEFFICIENTS, Vehicle, continuous, derivatives, discretize, structure,
+                           tilde)
+
+
+def test_matrices_match_the_spec_table():
+    veh = Vehicle(30.51, 0.177, 3.45, 3.6, 299.0, 306.0, 0.01, 0.002, -0.0196, 1.54)
+    c = dict(zip(COEFFICIENTS, np.random.default_rng(1).normal(size=35)))
+    m, U, W, B = veh.mass, veh.speed, veh.weight, veh.buoyancy
+    Mt, At, Bt, St = tilde(structure(veh), np.array([c[n] for n in COEFFICIENTS]))
+    M, A, Bm, S = np.eye(10), np.zeros((10, 10)), np.zeros((10, 3)), np.zeros(10)
+    u, v, w, p, q, r, phi, th, psi, z = range(10)
+    M[u, u] = m - c["X_udot"]; A[u, u] = c["X_u"]; A[u, th] = -(W - B)
+    M[v, v] = m - c["Y_vdot"]; M[v, p] = -c["Y_pdot"]; M[v, r] = -c["Y_rdot"]
+    A[v, v], A[v, p], A[v, r], A[v, phi] = c["Y_v"], c["Y_p"], c["Y_r"] - m * U, W - B
+    Bm[v, 0] = c["Y_dr"]
+    M[w, w] = m - c["Z_wdot"]; M[w, q] = -c["Z_qdot"]
+    A[w, w], A[w, q], S[w] = c["Z_w"], c["Z_q"] + m * U, W - B
+    Bm[w, 1] = Bm[w, 2] = c["Z_de"] / 2
+    M[p, v], M[p, p], M[p, r] = -c["K_vdot"], veh.Ix - c["K_pdot"], -c["K_rdot"]
+    A[p, v], A[p, p], A[p, r], A[p, phi], S[p] = c["K_v"], c["K_p"], c["K_r"], veh.zB * B, -veh.yB * B
+    Bm[p] = c["K_dr"], c["K_der"], -c["K_del"]
+    M[q, w], M[q, q] = -c["M_wdot"], veh.Iy - c["M_qdot"]
+    A[q, w], A[q, q], A[q, th], S[q] = c["M_w"], c["M_q"], veh.zB * B, veh.xB * B
+    Bm[q, 1] = Bm[q, 2] = c["M_de"] / 2
+    M[r, v], M[r, p], M[r, r] = -c["N_vdot"], -c["N_pdot"], veh.Iz - c["N_rdot"]
+    A[r, v], A[r, p], A[r, r], A[r, phi], A[r, th] = c["N_v"], c["N_p"], c["N_r"], -veh.xB * B, -veh.yB * B
+    Bm[r, 0] = c["N_dr"]
+    A[phi, p] = A[th, q] = A[psi, r] = 1
+    A[z, w], A[z, th] = 1, -U
+    for got, want in ((Mt, M), (At, A), (Bt, Bm), (St, S)):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_derivatives_against_central_differences():
+    veh = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
+    s = structure(veh)
+    theta = np.random.default_rng(2).normal(size=35) * 0.2
+    A, B, S = continuous(s, theta)
+    dA, dB, dS = derivatives(s, theta, A, B, S)
+    h = 1e-6
+    for i in range(35):
+        e = np.zeros(35)
+        e[i] = h
+        (Ap, Bp, Sp), (Am, Bmn, Sm) = continuous(s, theta + e), continuous(s, theta - e)
+        np.testing.assert_allclose(dA[i], (Ap - Am) / (2 * h), atol=1e-7)
+        np.testing.assert_allclose(dB[i], (Bp - Bmn) / (2 * h), atol=1e-7)
+        np.testing.assert_allclose(dS[i], (Sp - Sm) / (2 * h), atol=1e-7)
+
+
+def test_discretize_handles_pure_integrators():
+    # ẋ1 = x2, ẋ2 = u + s: A singular; closed form for a double integrator.
+    A = np.array([[0.0, 1.0], [0.0, 0.0]])
+    B = np.array([[0.0], [1.0]])
+    S = np.array([0.0, 0.5])
+    dt = 0.3
+    Phi, Gamma, s = discretize(A, B, S, dt)
+    np.testing.assert_allclose(Phi, [[1, dt], [0, 1]])
+    np.testing.assert_allclose(Gamma[:, 0], [dt**2 / 2, dt])
+    np.testing.assert_allclose(s, [0.5 * dt**2 / 2, 0.5 * dt])
