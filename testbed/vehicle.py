@@ -1,0 +1,241 @@
+"""The vehicle: load and check an MJCF submerged body, and read its constants.
+
+An MJCF body is usable by testbed when it has a body `hull` with a free joint `hull` whose frame
+origin is the CG of the whole vehicle (x forward, y port, z up: MuJoCo is z-up), hinge joints
+`rudder`, `elevator_right`, `elevator_left` driven by position actuators of the same names, a
+motor `thruster`, and `fluidshape="ellipsoid"` geoms (which carry its hydrodynamics and, here,
+its displaced volume). SPEC §1's body axes (x forward, y starboard, z down) are the MuJoCo
+hull axes turned half a turn about x: `FLIP = diag(1, -1, -1)`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from testbed.errors import InputError
+from testbed.model import Vehicle
+
+FINS = ("rudder", "elevator_right", "elevator_left")
+FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> SPEC body axes (FRD); also ENU-ish world <-> NED
+
+
+def default_mjcf() -> Path:
+    """The bundled torpedo."""
+    return Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "torpedo.xml"
+
+
+def load_model(path: str | Path | None = None) -> mujoco.MjModel:
+    """Compile `path` (default: the bundled torpedo) and check it has what the plant needs."""
+    path = Path(path) if path is not None else default_mjcf()
+    if not path.is_file():
+        raise InputError(f"{path}: no such MJCF file")
+    try:
+        model = mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as exc:
+        first = " ".join(str(exc).split())[:200]
+        raise InputError(f"{path}: not a valid MJCF ({first})") from None
+    check_model(model, str(path))
+    return model
+
+
+def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
+    """Raise `InputError` naming the first missing or wrong element the plant relies on."""
+
+    def need(kind, name, what):
+        if mujoco.mj_name2id(model, kind, name) < 0:
+            raise InputError(f"{source}: no {what} named {name!r}; expected {_NEEDS}")
+
+    need(mujoco.mjtObj.mjOBJ_BODY, "hull", "body")
+    need(mujoco.mjtObj.mjOBJ_JOINT, "hull", "joint")
+    hull = model.joint("hull")
+    if mujoco.mjtJoint(int(hull.type[0])) != mujoco.mjtJoint.mjJNT_FREE or hull.bodyid[0] != model.body("hull").id:
+        raise InputError(f"{source}: joint 'hull' must be the free joint of body 'hull'")
+    for fin in FINS:
+        need(mujoco.mjtObj.mjOBJ_JOINT, fin, "hinge joint")
+        if mujoco.mjtJoint(int(model.joint(fin).type[0])) != mujoco.mjtJoint.mjJNT_HINGE:
+            raise InputError(f"{source}: joint {fin!r} must be a hinge")
+        need(mujoco.mjtObj.mjOBJ_ACTUATOR, fin, "position actuator")
+        if model.actuator(fin).trnid[0] != model.joint(fin).id:
+            raise InputError(f"{source}: actuator {fin!r} must drive joint {fin!r}")
+    need(mujoco.mjtObj.mjOBJ_ACTUATOR, "thruster", "motor actuator")
+    if not np.intersect1d(fluid_geoms(model), _geom_on(model, "hull")).size:
+        raise InputError(f"{source}: body 'hull' has no geom with fluidshape=\"ellipsoid\"")
+    if model.opt.density <= 0:
+        raise InputError(f"{source}: option density={model.opt.density}; expected > 0 (a fluid)")
+
+
+_NEEDS = ("a body 'hull' with free joint 'hull', hinge joints and position actuators 'rudder', "
+          "'elevator_right', 'elevator_left', a motor 'thruster', ellipsoid fluid geoms")  # fmt: skip
+
+
+def _geom_on(model, body):
+    return np.flatnonzero(model.geom_bodyid == model.body(body).id)
+
+
+def fluid_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Indices of the geoms with `fluidshape="ellipsoid"` (geom_fluid[:, 0] is its switch)."""
+    return np.flatnonzero(model.geom_fluid[:, 0] > 0)
+
+
+def semi_axes(model: mujoco.MjModel, g: int) -> np.ndarray:
+    """The equivalent ellipsoid MuJoCo's fluid model uses for geom `g` (its semi-axes, m)."""
+    size, kind = model.geom_size[g], mujoco.mjtGeom(int(model.geom_type[g]))
+    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return np.full(3, size[0])
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        return np.array([size[0], size[0], size[1] + size[0]])
+    if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+        return np.array([size[0], size[0], size[1]])
+    if kind in (mujoco.mjtGeom.mjGEOM_ELLIPSOID, mujoco.mjtGeom.mjGEOM_BOX):
+        return np.array(size[:3])
+    raise InputError(f"geom {model.geom(g).name!r}: fluid geom type {kind} is not supported; "
+                     "expected sphere, capsule, cylinder, ellipsoid or box")  # fmt: skip
+
+
+def volume(model: mujoco.MjModel, g: int) -> float:
+    """Displaced volume of fluid geom `g`: its equivalent ellipsoid's."""
+    return float(4.0 / 3.0 * np.pi * np.prod(semi_axes(model, g)))
+
+
+@dataclass(frozen=True)
+class Hydrostatics:
+    """Per body of the tree: its fluid geoms' added mass and displaced volume, in its own frame."""
+
+    bodies: np.ndarray  # (nb,) body ids that carry fluid geoms
+    added_mass: np.ndarray  # (nb, 6, 6) about the body origin, body axes, order (lin, ang)
+    volume: np.ndarray  # (nb,) m^3
+    centroid: np.ndarray  # (nb, 3) centre of the displaced volume, body frame
+
+
+def hydrostatics(model: mujoco.MjModel) -> Hydrostatics:
+    """Group the fluid geoms by body: added mass (from `geom_fluid`, times density) and volume.
+
+    Geom g's added mass is diagonal in its own frame at its centre; seen from its body's origin
+    it is `Xᵀ diag(m_A, I_A) X` with X the rigid transform from body to geom velocities.
+    """
+    rho = model.opt.density
+    geoms = fluid_geoms(model)
+    bodies = np.unique(model.geom_bodyid[geoms])
+    M = np.zeros((len(bodies), 6, 6))
+    V = np.zeros(len(bodies))
+    C = np.zeros((len(bodies), 3))
+    for g in geoms:
+        k = int(np.searchsorted(bodies, model.geom_bodyid[g]))
+        Q = np.empty(9)
+        mujoco.mju_quat2Mat(Q, model.geom_quat[g])
+        Qt = Q.reshape(3, 3).T
+        p = model.geom_pos[g]
+        X = np.zeros((6, 6))
+        X[:3, :3] = Qt
+        X[:3, 3:] = -Qt @ skew(p)
+        X[3:, 3:] = Qt
+        M[k] += X.T @ np.diag(rho * model.geom_fluid[g, 6:12]) @ X
+        v = volume(model, g)
+        C[k] += v * p
+        V[k] += v
+    return Hydrostatics(bodies, M, V, C / V[:, None])
+
+
+def skew(a: np.ndarray) -> np.ndarray:
+    """[a]× so that skew(a) @ b = a × b."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def cruise_speed(model: mujoco.MjModel) -> float:
+    """The vehicle's cruise speed (custom numeric `cruise_speed`, else 1 body length per second)."""
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, "cruise_speed")
+    if i >= 0:
+        return float(model.numeric_data[model.numeric_adr[i]])
+    return float(2 * semi_axes(model, int(_geom_on(model, "hull")[0])).max())
+
+
+def fin_rate_limit(model: mujoco.MjModel) -> float:
+    """Fin slew-rate limit, rad/s (custom numeric `fin_rate_limit`, else unlimited)."""
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, "fin_rate_limit")
+    return float(model.numeric_data[model.numeric_adr[i]]) if i >= 0 else np.inf
+
+
+def rigid_body_mass(model: mujoco.MjModel) -> np.ndarray:
+    """6×6 rigid-body mass matrix of the whole vehicle about its CG, SPEC body axes, fins at 0."""
+    M = _spatial_sum(model, lambda d, b: _body_rigid(model, d, b))
+    return M
+
+
+def added_mass(model: mujoco.MjModel) -> np.ndarray:
+    """6×6 added-mass matrix (M_A, positive) of all fluid geoms about the CG, SPEC body axes."""
+    h = hydrostatics(model)
+    lookup = {int(b): h.added_mass[k] for k, b in enumerate(h.bodies)}
+    return _spatial_sum(model, lambda d, b: lookup.get(b))
+
+
+def _body_rigid(model, data, b):
+    """Body b's rigid-body 6×6 about its own origin, its own axes."""
+    m, c = model.body_mass[b], model.body_ipos[b]
+    R = np.empty(9)
+    mujoco.mju_quat2Mat(R, model.body_iquat[b])
+    R = R.reshape(3, 3)
+    I = R @ np.diag(model.body_inertia[b]) @ R.T  # about the body's CoM, body axes
+    S = skew(c)
+    out = np.zeros((6, 6))
+    out[:3, :3] = m * np.eye(3)
+    out[:3, 3:] = -m * S
+    out[3:, :3] = m * S
+    out[3:, 3:] = I - m * S @ S
+    return out
+
+
+def _spatial_sum(model, per_body):
+    """Σ over the hull's subtree of per-body 6×6 matrices moved to the hull frame, FRD axes.
+
+    Uses the zero pose (fins at 0); the hull frame origin is the CG by construction.
+    """
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    hull = model.body("hull").id
+    Rh, ph = data.xmat[hull].reshape(3, 3), data.xpos[hull]
+    total = np.zeros((6, 6))
+    for b in range(model.nbody):
+        if b != hull and model.body_rootid[b] != hull:
+            continue
+        Mb = per_body(data, b)
+        if Mb is None:
+            continue
+        R = Rh.T @ data.xmat[b].reshape(3, 3)  # hull from body
+        p = Rh.T @ (data.xpos[b] - ph)
+        X = np.zeros((6, 6))  # body velocity from hull velocity
+        X[:3, :3] = R.T
+        X[:3, 3:] = -R.T @ skew(p)
+        X[3:, 3:] = R.T
+        total += X.T @ Mb @ X
+    F = np.kron(np.eye(2), FLIP)
+    return F @ total @ F
+
+
+def constants(model: mujoco.MjModel, speed: float) -> Vehicle:
+    """SPEC §2's known constants: mass, inertias about the CG, W, B, centre of buoyancy, U."""
+    if not speed > 0:
+        raise InputError(f"speed={speed}; expected a trim speed > 0 m/s")
+    M = rigid_body_mass(model)
+    g = float(np.linalg.norm(model.opt.gravity))
+    xb = buoyancy_centre(model)
+    V = hydrostatics(model).volume.sum()
+    return Vehicle(mass=float(M[0, 0]), Ix=float(M[3, 3]), Iy=float(M[4, 4]), Iz=float(M[5, 5]),
+                   weight=float(M[0, 0]) * g, buoyancy=float(model.opt.density * V * g),
+                   xB=float(xb[0]), yB=float(xb[1]), zB=float(xb[2]), speed=float(speed))  # fmt: skip
+
+
+def buoyancy_centre(model: mujoco.MjModel) -> np.ndarray:
+    """Centre of the displaced volume relative to the CG, SPEC body axes, fins at 0."""
+    h = hydrostatics(model)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    hull = model.body("hull").id
+    Rh, ph = data.xmat[hull].reshape(3, 3), data.xpos[hull]
+    c = np.zeros(3)
+    for b, v, cb in zip(h.bodies, h.volume, h.centroid):
+        c += v * (Rh.T @ (data.xpos[b] + data.xmat[b].reshape(3, 3) @ cb - ph))
+    return FLIP @ (c / h.volume.sum())
