@@ -102,3 +102,191 @@ def _groups(names, basis, tol: float = 1e-6) -> tuple[tuple[str, ...], ...]:
     for i in sorted(involved):
         groups.setdefault(find(i), []).append(names[i])
     return tuple(tuple(g) for g in groups.values())
+
+
+# -- practical identifiability and the identifiability report ------------------------------------
+
+CORRELATED = 0.95  # |correlation| above which two coefficients drift together in practice
+UNCERTAIN = 0.5  # relative Cramér-Rao bound above which a coefficient is practically unknown
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """What the data can tell about the free coefficients of a config (SPEC §3's analyze JSON)."""
+
+    free: tuple[str, ...]
+    values: np.ndarray  # the coefficients analysed (the config's)
+    fisher: np.ndarray
+    crlb_std: np.ndarray  # inf where structurally unidentifiable
+    correlation: np.ndarray  # from the pseudo-inverse of the Fisher information
+    structural: Structural
+    practical_groups: tuple[tuple[str, ...], ...]
+    uncertain: tuple[str, ...]  # relative bound > UNCERTAIN
+    summary: tuple[str, ...]
+
+    @property
+    def drift_groups(self) -> tuple[tuple[str, ...], ...]:
+        """Structural groups first, then the practical ones not already inside one."""
+        seen = [set(g) for g in self.structural.drift_groups]
+        extra = tuple(g for g in self.practical_groups if not any(set(g) <= s for s in seen))
+        return self.structural.drift_groups + extra
+
+    def to_json(self) -> str:
+        import json
+
+        def num(x):
+            return float(x) if np.isfinite(x) else None
+
+        doc = {
+            "free": list(self.free),
+            "crlb_std": {n: num(s) for n, s in zip(self.free, self.crlb_std)},
+            "correlation": [[round(float(c), 6) for c in row] for row in self.correlation],
+            "null_directions": self.structural.null_directions,
+            "drift_groups": [list(g) for g in self.drift_groups],
+            "structural_drift_groups": [list(g) for g in self.structural.drift_groups],
+            "practical_drift_groups": [list(g) for g in self.practical_groups],
+            "null_basis": [[float(v) for v in row] for row in self.structural.basis],
+            "relative_crlb": {n: num(s / abs(v)) if v else None
+                              for n, s, v in zip(self.free, self.crlb_std, self.values)},
+            "practically_unidentifiable": list(self.uncertain),
+            "fisher_condition": num(np.linalg.cond(self.fisher)),
+            "summary": list(self.summary),
+        }  # fmt: skip
+        return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+
+def identifiability(experiments, config) -> Identifiability:
+    """Fisher information, Cramér-Rao bounds, correlations, structural and practical drift groups
+    of `config.free` at the config's coefficients, for the given experiments."""
+    from testbed.estimators.outputerror import information
+    from testbed.model import structure, theta_vector
+
+    info = information(experiments, config)
+    free = tuple(config.free)
+    theta = theta_vector(config.coefficients)
+    measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
+    struct = structural(structure(config.vehicle), theta, free, measured)
+    F = np.asarray(info.fisher)
+    cov = np.linalg.pinv(F, rcond=1e-12, hermitian=True)
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    for v in struct.basis:  # directions with no information: the bound is infinite
+        std[np.abs(v) > 1e-9] = np.inf
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.sqrt(np.diag(cov))
+        corr = np.nan_to_num(cov / np.outer(d, d))
+    np.fill_diagonal(corr, 1.0)
+    values = theta[[ITHETA[n] for n in free]]
+    pairs = np.argwhere(np.triu(np.abs(corr) > CORRELATED, 1))
+    practical = _groups(free, np.array([np.eye(len(free))[i] + np.eye(len(free))[j] for i, j in pairs])) \
+        if len(pairs) else ()  # fmt: skip
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(values != 0, std / np.abs(values), np.inf)
+    uncertain = tuple(n for n, r, s in zip(free, rel, std) if np.isfinite(s) and r > UNCERTAIN)
+    summary = _summary(free, struct, practical, uncertain, corr, rel)
+    return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary)
+
+
+def _summary(free, struct, practical, uncertain, corr, rel) -> tuple[str, ...]:
+    """Plain sentences: what cannot be identified, and what to fix or measure."""
+    lines = []
+    for g in struct.drift_groups:
+        lines.append(f"Exactly unidentifiable: {', '.join(g)} can drift together without changing "
+                     "the outputs (rows of Mt ẋ = At x + Bt δ scale together); fix one of them "
+                     "(e.g. an added-mass term from theory) or free fewer coefficients.")  # fmt: skip
+    index = {n: i for i, n in enumerate(free)}
+    for g in practical:
+        worst = max(abs(corr[index[a], index[b]]) for a in g for b in g if a != b)
+        lines.append(f"Practically inseparable in these data: {', '.join(g)} (|correlation| up to "
+                     f"{worst:.3f}); add a manoeuvre that excites them differently (PRBS input, "
+                     "other mode) or fix one.")  # fmt: skip
+    for n in uncertain:
+        lines.append(f"Poorly determined: {n} (Cramér-Rao bound {100 * rel[index[n]]:.0f} % of its "
+                     "value); the data hardly excite it.")  # fmt: skip
+    if not lines:
+        lines.append("All free coefficients are identifiable from these data; the largest relative "
+                     f"bound is {100 * np.nanmax(rel):.2g} %.")  # fmt: skip
+    return tuple(lines)
+
+
+def analyze_command(args) -> int:
+    """`testbed analyze DATA... [--config] [--out]`: the identifiability JSON."""
+    import sys
+
+    from testbed.data import load_data, read_config
+    from testbed.errors import InputError, atomic_write_text
+
+    experiments, run_config = load_data(args.data)
+    config = read_config(args.config) if args.config else run_config
+    if config is None:
+        raise InputError("no model config: give --config TOML (or a run directory with model.toml)")
+    if not config.free:
+        raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to analyse")
+    result = identifiability(experiments, config)
+    text = result.to_json()
+    if args.out:
+        atomic_write_text(args.out, text)
+        print(args.out)
+    else:
+        sys.stdout.write(text)
+    for line in result.summary:
+        print(line, file=sys.stderr)
+    return 0
+
+
+# -- comparison with the analytic model -----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Identified versus analytic coefficients; `truth_fit` (fit to noise-free data) splits the
+    error into the linear model's bias (truth_fit − analytic) and noise (identified − truth_fit)."""
+
+    names: tuple[str, ...]
+    analytic: np.ndarray
+    identified: np.ndarray
+    std: np.ndarray
+    truth_fit: np.ndarray | None = None
+
+    def rows(self) -> list[dict]:
+        out = []
+        for k, n in enumerate(self.names):
+            a, x, s = self.analytic[k], self.identified[k], self.std[k]
+            row = {"name": n, "analytic": float(a), "identified": float(x), "std": float(s),
+                   "relative_error": float((x - a) / abs(a)) if a else None,
+                   "error_sigmas": float((x - a) / s) if s > 0 else None}  # fmt: skip
+            if self.truth_fit is not None:
+                t = self.truth_fit[k]
+                row["truth_fit"] = float(t)
+                row["model_bias_relative"] = float((t - a) / abs(a)) if a else None
+                row["noise_sigmas"] = float((x - t) / s) if s > 0 else None
+            out.append(row)
+        return out
+
+    def table(self) -> str:
+        head = f"{'coefficient':<12}{'analytic':>12}{'identified':>12}{'std':>10}{'rel.err':>9}{'sigmas':>8}"
+        if self.truth_fit is not None:
+            head += f"{'truth fit':>12}{'lin.bias':>9}{'noise σ':>8}"
+        lines = [head]
+
+        def f(v, fmt):
+            return format(v, fmt) if v is not None else "-"
+
+        for r in self.rows():
+            line = (f"{r['name']:<12}{r['analytic']:>12.4g}{r['identified']:>12.4g}{r['std']:>10.2g}"
+                    f"{f(r['relative_error'], '>9.1%')}{f(r['error_sigmas'], '>8.1f')}")  # fmt: skip
+            if self.truth_fit is not None:
+                line += (f"{r['truth_fit']:>12.4g}{f(r['model_bias_relative'], '>9.1%')}"
+                         f"{f(r['noise_sigmas'], '>8.1f')}")  # fmt: skip
+            lines.append(line)
+        return "\n".join(lines)
+
+
+def compare(estimate, analytic_config, truth_estimate=None) -> Comparison:
+    """Compare an `Estimate` with a model config's coefficients (and a fit to noise-free data)."""
+    names = tuple(estimate.free)
+    analytic = np.array([analytic_config.coefficients[n] for n in names])
+    truth = None
+    if truth_estimate is not None:
+        t = truth_estimate.coefficients
+        truth = np.array([t[n] for n in names])
+    return Comparison(names, analytic, np.asarray(estimate.values), np.asarray(estimate.std), truth)

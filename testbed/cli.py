@@ -49,9 +49,69 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_identify(args) -> int:
-    from testbed.estimators import identify_command
+    import json
 
-    return identify_command(args)
+    from testbed.analysis import compare
+    from testbed.data import load_data, read_config
+    from testbed.errors import atomic_write_text
+    from testbed.estimators import Status, identify
+
+    experiments, run_config = load_data(args.data)
+    config = read_config(args.config) if args.config else run_config
+    if config is None:
+        raise InputError("no model config: give --config TOML (or a run directory with model.toml)")
+    if args.perturb:
+        config = _perturbed(config, args.perturb, args.seed)
+    options = {"start": args.start}
+    if args.max_iter is not None:
+        options["max_iter"] = args.max_iter
+    iterations = []
+    estimate = identify(experiments, config, method=args.method,
+                        callback=lambda k, values, cost: iterations.append((k, list(values), cost)),
+                        **options)  # fmt: skip
+    if estimate.status is Status.DIVERGED:
+        raise InputError(f"--method {args.method}: {estimate.status.message} on {args.data[0]}; "
+                         "no estimate written (try --start auto or a better a-priori config)")  # fmt: skip
+    doc = json.loads(estimate.to_json())
+    comparison = None
+    truth = _truth_experiments(args.data)
+    if run_config is not None:
+        truth_fit = identify(truth, config, method=args.method, **options) if truth else None
+        comparison = compare(estimate, run_config, truth_fit)
+        doc["comparison"] = {"analytic_model": run_config.source, "rows": comparison.rows()}
+        print(comparison.table(), file=sys.stderr)
+    text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
+    if args.out:
+        atomic_write_text(args.out, text)
+        print(args.out)
+    else:
+        sys.stdout.write(text)
+    if args.rrd:
+        from testbed.report import log_fit
+
+        log_fit(args.rrd, experiments, config, estimate, iterations, comparison)
+        print(args.rrd, file=sys.stderr)
+    if not estimate.converged:
+        print(f"testbed identify: not converged: {estimate.status.message}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _perturbed(config, fraction: float, seed: int):
+    """The config with every free coefficient's start moved by ±fraction (signs from `seed`)."""
+    import numpy as np
+
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(config.free))
+    return config.with_coefficients({n: config.coefficients[n] * (1 + s * fraction)
+                                     for n, s in zip(config.free, signs)})  # fmt: skip
+
+
+def _truth_experiments(paths):
+    """The noise-free `<experiment>.truth.csv` of every run directory among `paths`."""
+    from testbed.data import read_csv
+
+    return [read_csv(f, f.name.removesuffix(".truth.csv"))
+            for p in map(Path, paths) if p.is_dir() for f in sorted(p.glob("*.truth.csv"))]  # fmt: skip
 
 
 def _cmd_analyze(args) -> int:
@@ -104,6 +164,10 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--start", default="config",
                    help="config (a-priori values, default), auto, equation-error or mekf")  # fmt: skip
     s.add_argument("--max-iter", type=int, default=None, help="iteration limit")
+    s.add_argument("--perturb", type=_positive, default=None,
+                   help="move every free coefficient's start by this fraction (e.g. 0.4), to test "
+                        "convergence from a poor a-priori model")
+    s.add_argument("--seed", type=int, default=0, help="signs of --perturb (default 0)")
     s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
     s.set_defaults(func=_cmd_identify)
 
