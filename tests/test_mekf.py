@@ -1,0 +1,215 @@
+"""The MEKF and the conventional EKF: kernels against filterpy and complex steps, estimates
+against the truth of simulated data, numerical soundness, divergence detection."""
+
+import json
+
+import numpy as np
+import pytest
+from filterpy.kalman import KalmanFilter, SquareRootKalmanFilter
+
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError
+from testbed.estimators import Status, identify
+from testbed.estimators.mekf import (
+    discrete_jacobian, history_csv_text, noise_from_data, sqrt_predict, sqrt_update, tria,
+)  # fmt: skip
+from testbed.model import (
+    COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, derivatives, discretize, structure,
+    theta_vector,
+)  # fmt: skip
+
+# A torpedo like the bundled one at 20 m/s (SPEC units); CB slightly off the CG so S ≠ 0.
+VEHICLE = Vehicle(170.75, 2.16, 67.25, 67.24, 1675.1, 1675.1, 0.0, 0.0, -0.0179, 20.0)
+TRUTH = {
+    "X_udot": -8.11, "X_u": -265.6, "Y_vdot": -158.6, "Y_pdot": -2.99, "Y_rdot": -2.35,
+    "Y_v": -2135.1, "Y_p": -4.30, "Y_r": 2217.8, "Y_dr": 42505.7, "Z_wdot": -158.6,
+    "Z_qdot": 2.35, "Z_w": -2135.1, "Z_q": -2217.8, "Z_de": -42505.7, "K_vdot": -2.99,
+    "K_pdot": -0.395, "K_rdot": -0.426, "K_v": -4.30, "K_p": -124.8, "K_r": 2.48, "K_dr": 0.0,
+    "K_der": -3613.0, "K_del": -3613.0, "M_wdot": 2.35, "M_qdot": -55.76, "M_w": 630.6,
+    "M_q": -2791.2, "M_de": -47273.4, "N_vdot": -2.35, "N_pdot": -0.426, "N_rdot": -55.76,
+    "N_v": -630.6, "N_p": -55.41, "N_r": -2791.1, "N_dr": -47273.4,
+}  # fmt: skip
+SWAY_YAW = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr")  # *dot terms fixed: well posed
+NOISE = np.array([0.01, 0.01, 0.01, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.01])
+
+
+def _prbs(rng, n, dt, amp, hold):
+    k = max(1, round(hold / dt))
+    return np.repeat(rng.choice([-amp, amp], size=n // k + 1), k)[:n]
+
+
+def _simulate(coefficients, inputs, dt, noise, seed, name="run"):
+    """Exact ZOH simulation of the SPEC model from trim; all ten states measured."""
+    A, B, S = continuous(structure(VEHICLE), theta_vector(coefficients))
+    Phi, Gamma, s = discretize(A, B, S, dt)
+    x, X = np.zeros(10), np.zeros((len(inputs), 10))
+    for k, d in enumerate(inputs):
+        X[k], x = x, Phi @ x + Gamma @ d + s
+    Y = X + np.random.default_rng(seed).normal(size=X.shape) * noise
+    Y[:, 0] += VEHICLE.speed
+    return Experiment(name, np.arange(len(inputs)) * dt, STATES, Y, inputs)
+
+
+def _horizontal(seed, T=30.0, dt=0.05, noise=NOISE):
+    rng = np.random.default_rng(seed)
+    n = round(T / dt)
+    inputs = np.zeros((n, 3))
+    inputs[:, 0] = _prbs(rng, n, dt, np.deg2rad(2.0), 0.5)
+    return _simulate(TRUTH, inputs, dt, noise, seed + 1000, "horizontal")
+
+
+def _start(free, seed=3, spread=0.3):
+    rng = np.random.default_rng(seed)
+    start = {n: TRUTH[n] * (1 + spread * rng.choice([-1, 1])) for n in free}
+    return ModelConfig(VEHICLE, dict(TRUTH), tuple(free)).with_coefficients(start)
+
+
+def _spd(rng, n):
+    G = rng.normal(size=(n, n))
+    return G @ G.T + n * np.eye(n)
+
+
+def test_square_root_kernels_match_joseph_form_and_filterpy():
+    rng = np.random.default_rng(0)
+    n, m = 8, 3
+    P, Q, R = _spd(rng, n), _spd(rng, n) * 0.1, _spd(rng, m)
+    F, H = rng.normal(size=(n, n)) * 0.5, rng.normal(size=(m, n))
+    x, z = rng.normal(size=n), rng.normal(size=m)
+
+    kf = KalmanFilter(dim_x=n, dim_z=m)  # filterpy's update is the Joseph form
+    kf.x, kf.P, kf.F, kf.Q, kf.H, kf.R = x.copy(), P.copy(), F, Q, H, R
+    kf.predict()
+    kf.update(z)
+
+    J = sqrt_predict(F, np.linalg.cholesky(P), np.linalg.cholesky(Q))
+    np.testing.assert_allclose(J @ J.T, F @ P @ F.T + Q, rtol=1e-12, atol=1e-12)
+    K, Linv, J_post = sqrt_update(J, H, np.linalg.cholesky(R))
+    x_post = F @ x + K @ (z - H @ F @ x)
+    scale = np.abs(kf.P).max()
+    assert np.abs(J_post @ J_post.T - kf.P).max() < 1e-10 * scale
+    np.testing.assert_allclose(K, kf.K, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(x_post, kf.x, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.inv(Linv.T @ Linv), kf.S, rtol=1e-10)
+    # Roots are lower triangular with a non-negative diagonal, like a Cholesky factor.
+    np.testing.assert_allclose(J_post, np.linalg.cholesky(kf.P), rtol=1e-8, atol=1e-10)
+
+    sr = SquareRootKalmanFilter(dim_x=n, dim_z=m)  # the same array algorithm, linear only
+    sr.x, sr.P, sr.F, sr.Q, sr.H, sr.R = x[:, None].copy(), P, F, Q, H, R
+    sr.predict()
+    sr.update(z[:, None])
+    np.testing.assert_allclose(sr.P, kf.P, rtol=1e-9)
+    np.testing.assert_allclose(tria(np.hstack([F, F])) @ tria(np.hstack([F, F])).T, 2 * F @ F.T,
+                               rtol=1e-12, atol=1e-12)  # fmt: skip
+
+
+def test_discrete_jacobian_matches_complex_step():
+    vehicle = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.01, 0.002, -0.0196, 1.54)
+    s = structure(vehicle)
+    theta = theta_vector({n: v / 40 for n, v in TRUTH.items()}) + 0.1  # K_dr ≠ 0 too
+    idx = np.array([ITHETA[n] for n in ("Y_vdot", "Y_r", "Z_de", "K_pdot", "K_del", "N_rdot")])
+    A, B, S = continuous(s, theta)
+    for dt in (0.02, 0.5):  # ‖AΔ‖ below and far above the scaling threshold
+        E, dE = discrete_jacobian(A, B, S, *derivatives(s, theta, A, B, S, idx), dt)
+        ref = np.hstack([m if m.ndim == 2 else m[:, None] for m in discretize(A, B, S, dt)])
+        assert np.abs(E - ref).max() < 1e-12 * np.abs(ref).max()
+        h = 1e-30
+        for j, i in enumerate(idx):
+            th = theta.astype(complex)
+            th[i] += 1j * h
+            Phi, Gamma, sv = discretize(*continuous(s, th), dt)
+            ref = np.hstack([Phi, Gamma, sv[:, None]]).imag / h
+            assert np.abs(dE[j] - ref).max() < 1e-11 * np.abs(ref).max()
+
+
+def test_noise_from_data_recovers_the_measurement_noise():
+    # Slow signals: the third difference is noise alone.
+    t = np.arange(2000) * 0.05
+    rng = np.random.default_rng(1)
+    slow = np.sin(0.3 * t)[:, None] * np.arange(1, 11) + rng.normal(size=(2000, 10)) * NOISE
+    sigma = noise_from_data([Experiment("slow", t, STATES, slow, np.zeros((2000, 3)))])
+    np.testing.assert_allclose([sigma[n] for n in STATES], NOISE, rtol=0.08)
+    # A manoeuvre: fast roll and yaw rates leak in, never below the noise, at most 1.6×.
+    sigma = noise_from_data([_horizontal(seed=1, T=60.0)])
+    ratio = np.array([sigma[n] for n in STATES]) / NOISE
+    assert np.all(ratio > 0.9) and np.all(ratio < 1.6), ratio
+
+
+def test_mekf_estimates_lie_within_a_few_sigma_of_the_truth():
+    e = _horizontal(seed=2)
+    config = _start(SWAY_YAW)
+    truth = np.array([TRUTH[n] for n in SWAY_YAW])
+    seen = []
+    for method in ("mekf", "ekf"):
+        est = identify([e], config, method, callback=lambda i, v, s: seen.append(i))
+        assert est.status is Status.CONVERGED, est.extra
+        assert np.all(np.abs(est.values - truth) < 4 * est.std), (est.values - truth) / est.std
+        assert np.all(est.std < 0.05 * np.abs(truth))  # far tighter than the 50 % prior
+        assert est.iterations == len(e.t) and est.history.shape == (len(e.t), len(SWAY_YAW))
+        np.testing.assert_array_equal(est.history[-1], est.values)
+        np.testing.assert_allclose(est.history_std[-1], est.std)
+        assert est.history_std[0, 0] > 10 * est.history_std[-1, 0]
+    assert seen == list(range(len(e.t))) * 2
+    doc = json.loads(est.to_json())  # histories stay out of the JSON
+    assert set(doc["coefficients"]) == set(SWAY_YAW) and len(json.dumps(doc)) < 2000
+    csv = np.loadtxt(history_csv_text(est).splitlines()[1:], delimiter=",")
+    np.testing.assert_allclose(csv[:, 1], est.history[:, 0], rtol=1e-9)
+
+
+def test_experiments_in_sequence_carry_the_coefficients_and_their_covariance():
+    e1, e2 = _horizontal(seed=4, T=15.0), _horizontal(seed=5, T=15.0)
+    config = _start(SWAY_YAW)
+    noise = dict(zip(STATES, NOISE))
+    one = identify([e1], config, "mekf", noise_std=noise)
+    both = identify([e1, e2], config, "mekf", noise_std=noise)
+    assert both.iterations == len(e1.t) + len(e2.t)
+    np.testing.assert_array_equal(both.history[: len(e1.t)], one.history)
+    assert np.all(both.std < 0.9 * one.std)
+    assert np.all(np.diff(both.history_t) > 0)
+
+
+def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
+    # Coefficients from 2.5 to 47 000 with 50 % a-priori σ, measurements to a micro-unit: the
+    # conventional P − K C P cancels ~10 orders of magnitude and loses definiteness; the
+    # square root never forms P and stays sound. (The start is within 1 %: from farther, at this
+    # signal-to-noise, any EKF's linearisation error outgrows its covariance.)
+    free = tuple(n for n in COEFFICIENTS if not n.endswith("dot") and n != "K_dr")
+    rng = np.random.default_rng(6)
+    n = 200
+    inputs = np.column_stack([_prbs(rng, n, 0.05, 0.03, 0.5), _prbs(rng, n, 0.05, 0.03, 0.4),
+                              _prbs(rng, n, 0.05, 0.03, 0.7)])  # fmt: skip
+    e = _simulate(TRUTH, inputs, 0.05, 1e-6, seed=7)
+    config = _start(free, spread=0.01)
+    opts = dict(noise_std={s: 1e-6 for s in STATES}, refresh_tol=0.0)
+    ekf = identify([e], config, "ekf", **opts)
+    assert ekf.status is Status.DIVERGED
+    assert "positive definite" in ekf.extra["diverged"]["reason"]
+    P = ekf.covariance
+    assert np.abs(P - P.T).max() > 0  # lost symmetry ...
+    assert np.linalg.eigvalsh((P + P.T) / 2).min() < 0  # ... and definiteness
+
+    mekf = identify([e], config, "mekf", **opts)
+    assert mekf.status is Status.CONVERGED, mekf.extra
+    J = mekf.covariance_root
+    assert np.all(np.isfinite(J)) and np.all(np.diag(J) >= 0) and np.allclose(J, np.tril(J))
+    truth = np.array([TRUTH[n] for n in free])
+    assert np.all(np.abs(mekf.values - truth) < 4 * mekf.std)
+
+
+def test_a_wildly_wrong_model_is_reported_as_diverged():
+    e = _horizontal(seed=8, T=20.0)
+    wrong = {**TRUTH, "K_p": 10 * abs(TRUTH["K_p"]), "N_r": -0.1 * TRUTH["N_r"]}  # unstable
+    config = ModelConfig(VEHICLE, wrong, ("Y_dr",))
+    for method in ("mekf", "ekf"):
+        est = identify([e], config, method)
+        assert est.status is Status.DIVERGED and not est.converged
+        assert est.iterations < len(e.t)
+        assert "diverged" in est.extra
+
+
+def test_bad_options_are_input_errors():
+    e = _horizontal(seed=9, T=2.0)
+    config = _start(SWAY_YAW)
+    for bad in ({"no_such_option": 1}, {"prior_frac": -1.0}, {"noise_std": {"u": 0.0}},
+                {"noise_std": {"nope": 1.0}}, {"start": "equation-error"}, {"max_iter": 0}):  # fmt: skip
+        with pytest.raises(InputError):
+            identify([e], config, "mekf", **bad)
