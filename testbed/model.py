@@ -145,7 +145,7 @@ def discretize(A: np.ndarray, B: np.ndarray, S: np.ndarray, dt: float):
     One exponential of the block matrix [[A, B, S], [0, 0, 0]] Δ, so singular A is fine.
     """
     n, m = B.shape
-    big = np.zeros((n + m + 1, n + m + 1))
+    big = np.zeros((n + m + 1, n + m + 1), dtype=np.result_type(A, B, S))  # complex-step safe
     big[:n, :n], big[:n, n:n + m], big[:n, -1] = A, B, S
     E = expm(big * dt)
     return E[:n, :n], E[:n, n:n + m], E[:n, -1]

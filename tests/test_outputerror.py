@@ -1,0 +1,168 @@
+"""Output-error core: exact sensitivities, exact discretisation, initial states, bounds, bad input."""
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from studies.montecarlo import FREE, NOISE, TRUTH, experiments, truth_config  # noqa: E402
+
+from testbed.errors import InputError  # noqa: E402
+from testbed.estimators import outputerror as oe  # noqa: E402
+from testbed.model import IX, NX, continuous  # noqa: E402
+
+VERTICAL_SUBSET = ("u", "w", "q", "theta", "z", "p", "phi")
+
+
+def _data(duration=3.0, noise=NOISE):
+    """Two experiments; the second measures a subset, so measured sets differ per experiment."""
+    h, v = experiments(seed=0, duration=duration, noise=noise)
+    cols = [v.measured.index(s) for s in VERTICAL_SUBSET]
+    return [h, replace(v, measured=VERTICAL_SUBSET, y=v.y[:, cols])]
+
+
+def _problem(duration=3.0, free=FREE):
+    prob = oe.problem(_data(duration), truth_config(free))
+    return prob, oe.initial_states(prob, prob.start)
+
+
+def test_first_order_sensitivities_match_complex_step():
+    prob, p = _problem()
+    sens = oe.sensitivities(prob, p)
+    h = 1e-30
+    for j in range(prob.n_params):
+        pc = p.astype(complex)
+        pc[j] += 1j * h
+        for r, (_, S), yc in zip(prob.records, sens, oe.outputs(prob, pc)):
+            ref, cols = yc.imag / h, list(prob.columns(r))
+            if j not in cols:  # another experiment's initial state
+                assert not ref.any()
+                continue
+            np.testing.assert_allclose(S[:, :, cols.index(j)], ref, rtol=1e-9,
+                                       atol=1e-12 * np.abs(ref).max())  # fmt: skip
+
+
+def test_second_order_sensitivities_match_complex_step():
+    prob, p = _problem(duration=2.0)
+    rng = np.random.default_rng(3)
+    random = [rng.normal(size=r.y.shape) for r in prob.records]
+    one_hot = [np.zeros(r.y.shape) for r in prob.records]
+    one_hot[1][25, VERTICAL_SUBSET.index("q")] = 1.0  # ∂²q[25]/∂p∂p of the second experiment
+    h = 1e-30
+    for weights in (random, one_hot):
+        H = oe.curvature(prob, p, weights)
+        ref = np.zeros_like(H)
+        for j in range(prob.n_params):
+            pc = p.astype(complex)
+            pc[j] += 1j * h
+            for r, w, (_, S) in zip(prob.records, weights, oe.sensitivities(prob, pc)):
+                ref[prob.columns(r), j] += np.einsum("nk,nkp->p", w, S.imag / h)
+        np.testing.assert_allclose(H, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
+        np.testing.assert_allclose(H, H.T, atol=1e-12 * np.abs(H).max())
+
+
+def test_zero_order_hold_model_matches_fine_rk4_with_singular_A():
+    prob, p = _problem(duration=4.0)
+    A, B, S = continuous(prob.structure, prob.theta)
+    assert np.linalg.matrix_rank(A) < NX  # ψ and z are pure integrators
+    for r, yhat in zip(prob.records, oe.outputs(prob, p)):
+        x, h, sub = prob.x0(r, p).copy(), r.dt / 200, 200
+        f = lambda x, u: A @ x + B @ u + S  # noqa: E731
+        ref = [x[r.measured]]
+        for k in range(len(r.y) - 1):
+            for _ in range(sub):  # the input is held over the interval
+                k1 = f(x, r.inputs[k])
+                k2 = f(x + h / 2 * k1, r.inputs[k])
+                k3 = f(x + h / 2 * k2, r.inputs[k])
+                k4 = f(x + h * k3, r.inputs[k])
+                x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            ref.append(x[r.measured])
+        np.testing.assert_allclose(yhat, np.array(ref), rtol=1e-9, atol=1e-11)
+
+
+def test_initial_states_are_recovered_exactly_from_noise_free_data():
+    x0 = np.zeros(NX)
+    x0[[IX["v"], IX["w"], IX["q"], IX["phi"], IX["z"]]] = 0.05, -0.03, 0.02, 0.04, 1.5
+    cfg = truth_config()
+    t, u = np.arange(0, 5, 0.05), np.zeros((100, 3))
+    exp = oe.synthetic(cfg, t, u, x0=x0, name="release")
+    prob = oe.problem([exp], cfg)
+    p, outs = oe.fit_initial_states(prob, prob.start)
+    np.testing.assert_allclose(p[prob.n_free:], x0, atol=1e-9)
+    np.testing.assert_allclose(outs[0], prob.records[0].y, atol=1e-9)
+    # predict returns absolute u, as in the data
+    np.testing.assert_allclose(oe.predict([exp], cfg)[0], exp.y, atol=1e-9)
+
+
+def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
+    prob, p = _problem(duration=1.5)
+    rng = np.random.default_rng(5)
+    sens = oe.sensitivities(prob, p)
+    res = [rng.normal(size=r.y.shape) * 0.01 + 0.004 * np.sin(np.arange(len(r.y)))[:, None]
+           for r in prob.records]  # colored  # fmt: skip
+    R = oe.noise_variance(prob, res)
+    ref = np.zeros((prob.n_params, prob.n_params))
+    for r, (_, S), v in zip(prob.records, sens, res):
+        n, cols = len(v), prob.columns(r)
+        W = S / R[r.channels][None, :, None]
+        for i in range(n):
+            for j in range(n):
+                tau = j - i  # R_vv(τ) = 1/N Σ_m v(m) v(m+τ)ᵀ
+                Rvv = (v[:n - tau].T @ v[tau:] if tau >= 0 else v[-tau:].T @ v[:n + tau]) / n
+                ref[np.ix_(cols, cols)] += W[i].T @ Rvv @ W[j]
+    np.testing.assert_allclose(oe.colored_middle(prob, sens, res, R), ref,
+                               rtol=1e-9, atol=1e-12 * np.abs(ref).max())  # fmt: skip
+
+
+def test_information_is_consistent():
+    data = _data(duration=30.0)
+    info = oe.information(data, truth_config())
+    F = info.fisher
+    np.testing.assert_allclose(F, F.T, rtol=1e-12)
+    # crlb of the coefficients with the initial states as nuisance = the Schur complement's inverse
+    np.testing.assert_allclose(info.crlb_std, np.sqrt(np.diag(np.linalg.inv(F))), rtol=1e-6)
+    np.testing.assert_allclose(np.diag(info.correlation), 1.0, rtol=1e-9)
+    for state, sd in info.noise_std.items():  # residual std at the truth ≈ the simulated noise
+        assert abs(sd / NOISE[state] - 1) < 0.1, state
+    # the bound ignoring colour and the corrected one agree for white residuals (within noise)
+    ratio = info.crlb_corrected_std / info.crlb_std
+    assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
+    # values override the config: a 10 % change of one free coefficient raises the cost
+    worse = oe.information(data, truth_config(), {"N_r": 0.9 * TRUTH["N_r"]})
+    assert worse.cost > info.cost
+
+
+def test_equation_error_recovers_noise_free_truth():
+    data = experiments(seed=0, duration=30.0, noise=None)
+    prior = truth_config().with_coefficients({n: 0.6 * TRUTH[n] for n in FREE})
+    ee = oe.equation_error(data, prior)
+    got = np.array([ee.coefficients[n] for n in FREE])
+    want = np.array([TRUTH[n] for n in FREE])
+    np.testing.assert_allclose(got, want, rtol=0.01)
+
+
+def test_bad_input():
+    data = _data()
+    with pytest.raises(InputError, match="Y_bogus"):
+        oe.problem(data, replace(truth_config(), free=("Y_v", "Y_bogus")))
+    y = data[0].y.copy()
+    y[3, 1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        oe.problem([replace(data[0], y=y)], truth_config())
+    t = data[0].t.copy()
+    t[5] += 0.01
+    with pytest.raises(InputError, match="uniform"):
+        oe.problem([replace(data[0], t=t)], truth_config())
+    with pytest.raises(InputError, match="expected 15"):
+        oe.information(data, truth_config(), np.zeros(3))
+
+
+def test_unmeasured_initial_states_stay_at_trim():
+    prob, p = _problem()
+    r = prob.records[1]
+    assert prob.n_params == len(FREE) + NX + len(VERTICAL_SUBSET)
+    unmeasured = np.setdiff1d(np.arange(NX), r.measured)
+    assert np.all(prob.x0(r, p)[unmeasured] == 0)
