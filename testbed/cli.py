@@ -7,8 +7,14 @@ went. Bad input is an `InputError`: one line on stderr, exit status 2.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
+
+# The numerical core works on small dense matrices: one BLAS thread is fastest, and numpy's and
+# scipy's OpenBLAS pools contend on small machines. Set before numpy loads; the user's choice wins.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 from testbed.errors import InputError
 
@@ -31,6 +37,12 @@ def _cmd_truth(args) -> int:
     config, comments = analytic_config(args.mjcf, args.speed)
     text = config_text(config, comments)
     if args.out:
+        if getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
+            from testbed.estimators.mekf import history_csv_text
+
+            history = args.out.with_suffix(".history.csv")
+            atomic_write_text(history, history_csv_text(estimate))
+            print(history)
         atomic_write_text(args.out, text)
         print(args.out)
     else:
@@ -65,10 +77,10 @@ def _cmd_identify(args) -> int:
     options = {"start": args.start}
     if args.max_iter is not None:
         options["max_iter"] = args.max_iter
-    iterations = []
-    estimate = identify(experiments, config, method=args.method,
-                        callback=lambda k, values, cost: iterations.append((k, list(values), cost)),
-                        **options)  # fmt: skip
+    iterations = []  # (iteration, values, cost) of the off-line methods, for the Rerun log
+    if args.method.startswith("ml-"):
+        options["callback"] = lambda k, values, cost: iterations.append((k, list(values), cost))
+    estimate = identify(experiments, config, method=args.method, **options)
     if estimate.status is Status.DIVERGED:
         raise InputError(f"--method {args.method}: {estimate.status.message} on {args.data[0]}; "
                          "no estimate written (try --start auto or a better a-priori config)")  # fmt: skip
@@ -76,12 +88,19 @@ def _cmd_identify(args) -> int:
     comparison = None
     truth = _truth_experiments(args.data)
     if run_config is not None:
-        truth_fit = identify(truth, config, method=args.method, **options) if truth else None
+        quiet = {k: v for k, v in options.items() if k != "callback"}
+        truth_fit = identify(truth, config, method=args.method, **quiet) if truth else None
         comparison = compare(estimate, run_config, truth_fit)
         doc["comparison"] = {"analytic_model": run_config.source, "rows": comparison.rows()}
         print(comparison.table(), file=sys.stderr)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     if args.out:
+        if getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
+            from testbed.estimators.mekf import history_csv_text
+
+            history = args.out.with_suffix(".history.csv")
+            atomic_write_text(history, history_csv_text(estimate))
+            print(history)
         atomic_write_text(args.out, text)
         print(args.out)
     else:
@@ -160,7 +179,8 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-nr, ml-nm, mekf, ekf")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
-    s.add_argument("--out", type=Path, help="estimates JSON (default: stdout)")
+    s.add_argument("--out", type=Path, help="estimates JSON (default: stdout); mekf and ekf also "
+                   "write the estimate and ±σ histories to OUT with suffix .history.csv")
     s.add_argument("--start", default="config",
                    help="config (a-priori values, default), auto, equation-error or mekf")  # fmt: skip
     s.add_argument("--max-iter", type=int, default=None, help="iteration limit")
