@@ -37,12 +37,6 @@ def _cmd_truth(args) -> int:
     config, comments = analytic_config(args.mjcf, args.speed)
     text = config_text(config, comments)
     if args.out:
-        if getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
-            from testbed.estimators.mekf import history_csv_text
-
-            history = args.out.with_suffix(".history.csv")
-            atomic_write_text(history, history_csv_text(estimate))
-            print(history)
         atomic_write_text(args.out, text)
         print(args.out)
     else:

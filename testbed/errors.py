@@ -58,6 +58,9 @@ def atomic_directory(path: str | os.PathLike, force: bool = False):
     try:
         parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=parent))
+        umask = os.umask(0)
+        os.umask(umask)
+        tmp.chmod(0o777 & ~umask)  # mkdtemp makes it private; a run directory is not
     except OSError as exc:
         raise InputError(f"{path}: cannot create ({exc.strerror})") from None
     try:

@@ -130,13 +130,14 @@ class Plant:
         R = np.empty(9)
         mujoco.mju_quat2Mat(R, quat)
         R = R.reshape(3, 3)
-        v_body = FLIP @ (R.T @ d.qvel[self._vadr:self._vadr + 3])
-        w_body = FLIP @ d.qvel[self._vadr + 3:self._vadr + 6]
-        Rn = FLIP @ R @ FLIP  # NED from FRD
-        phi = math.atan2(Rn[2, 1], Rn[2, 2])
-        theta = -math.asin(max(-1.0, min(1.0, Rn[2, 0])))
-        psi = math.atan2(Rn[1, 0], Rn[0, 0])
-        return np.concatenate([v_body, w_body, [phi, theta, psi, -d.qpos[self._qadr + 2]]])
+        v = R.T @ d.qvel[self._vadr:self._vadr + 3]
+        w = d.qvel[self._vadr + 3:self._vadr + 6]
+        # NED-from-FRD is FLIP R FLIP: entries (2,1), (2,2), (2,0), (1,0), (0,0) of it below.
+        phi = math.atan2(R[2, 1], R[2, 2])
+        theta = -math.asin(max(-1.0, min(1.0, -R[2, 0])))
+        psi = math.atan2(-R[1, 0], R[0, 0])
+        return np.array([v[0], -v[1], -v[2], w[0], -w[1], -w[2], phi, theta, psi,
+                         -d.qpos[self._qadr + 2]])  # fmt: skip
 
     def position(self) -> np.ndarray:
         """CG position, NED (m)."""
@@ -157,13 +158,13 @@ class Plant:
         cmd = np.clip(np.asarray(fin_commands, float), self._fin_limit[:, 0], self._fin_limit[:, 1])
         slew = self._rate * m.opt.timestep
         d.ctrl[self._thruster] = self.thrust
-        settled = np.array_equal(cmd, self.reference)
+        settled = (cmd == self.reference).all()
         for _ in range(n):
             if not settled:
                 gap = cmd - self.reference
                 self.reference = np.where(np.abs(gap) <= slew, cmd, self.reference + np.sign(gap) * slew)
                 d.ctrl[self._fin_act] = self.reference
-                settled = np.array_equal(cmd, self.reference)
+                settled = (cmd == self.reference).all()
             if self.rk4:
                 self._rk4_step()
             elif self.complete:

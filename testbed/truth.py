@@ -42,7 +42,10 @@ _T6 = np.kron(np.eye(2), FLIP)  # MuJoCo hull axes (FLU) <-> SPEC body axes (FRD
 # Default [identify] free: every damping and control coefficient; the added-mass (*dot) terms stay
 # fixed at their potential-flow values (with all 35 free, SPEC's model has exactly unidentifiable
 # directions: testbed.analysis.structural).
-FREE = tuple(n for n in COEFFICIENTS if not n.endswith("dot"))
+# The default [identify] free list: the damping and control derivatives. The *dot terms stay
+# fixed (with them free the rows of Mt can be rescaled: the simultaneous drift), and so does X_u:
+# at constant thrust no scenario excites surge, and the speed lost in turns is second order.
+FREE = tuple(n for n in COEFFICIENTS if not n.endswith("dot") and n != "X_u")
 
 
 @dataclass(frozen=True)
@@ -372,7 +375,11 @@ def analytic_config(mjcf: str | Path | None = None, speed: float | None = None):
     """
     model = load_model(mjcf)
     speed = cruise_speed(model) if speed is None else float(speed)
-    lin = analytic_model(model, speed)
+    return model_config(analytic_model(model, speed), mjcf)
+
+
+def model_config(lin: LinearModel, mjcf=None):
+    """`(ModelConfig, comments)` of an analytic model already computed (see `analytic_config`)."""
     return ModelConfig(lin.vehicle, dict(lin.coefficients), FREE, str(mjcf or "")), _comments(lin, mjcf)
 
 
