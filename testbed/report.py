@@ -42,8 +42,9 @@ def _open(path: str | os.PathLike, title: str) -> tuple[rr.RecordingStream, Path
     path = Path(path)
     if not path.parent.is_dir():
         raise InputError(f"{path}: folder {path.parent} does not exist")
-    rec = rr.RecordingStream(title)
+    rec = rr.RecordingStream("testbed")
     rec.save(str(path.with_name(path.name + ".tmp")))
+    rec.send_recording_name(title)
     return rec, path
 
 
