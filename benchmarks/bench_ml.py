@@ -55,7 +55,7 @@ def main() -> int:
     prior = prior_config(error=0.3)
     truth = np.array([TRUTH[n] for n in FREE])
     t0 = time.perf_counter()
-    est = identify(data, prior, method="ml-gn")
+    est = identify(data, prior, method="ml-gn", start="config")
     t_gn = time.perf_counter() - t0
     t0 = time.perf_counter()
     values, nfev, rounds = scipy_fit(data, prior)

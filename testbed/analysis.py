@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import null_space
 
-from testbed.model import COEFFICIENTS, ITHETA, IX, NX, Structure, tilde
+from testbed.model import ITHETA, IX, NX, Structure, tilde
 
 
 @dataclass(frozen=True)
@@ -169,8 +169,8 @@ def identifiability(experiments, config) -> Identifiability:
     F = np.asarray(info.fisher)
     cov = np.linalg.pinv(F, rcond=1e-12, hermitian=True)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    for v in struct.basis:  # directions with no information: the bound is infinite
-        std[np.abs(v) > 1e-9] = np.inf
+    drifting = {n for g in struct.drift_groups for n in g}  # no information: an infinite bound
+    std[[n in drifting for n in free]] = np.inf
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.sqrt(np.diag(cov))
         corr = np.nan_to_num(cov / np.outer(d, d))
@@ -181,12 +181,13 @@ def identifiability(experiments, config) -> Identifiability:
         if len(pairs) else ()  # fmt: skip
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(values != 0, std / np.abs(values), np.inf)
-    uncertain = tuple(n for n, r, s in zip(free, rel, std) if np.isfinite(s) and r > UNCERTAIN)
-    summary = _summary(free, struct, practical, uncertain, corr, rel)
+    uncertain = tuple(n for n, r, s in zip(free, rel, std)
+                      if np.isfinite(s) and np.isfinite(r) and r > UNCERTAIN)  # fmt: skip
+    summary = _summary(free, struct, practical, uncertain, corr, rel, std)
     return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary)
 
 
-def _summary(free, struct, practical, uncertain, corr, rel) -> tuple[str, ...]:
+def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, ...]:
     """Plain sentences: what cannot be identified, and what to fix or measure."""
     lines = []
     for g in struct.drift_groups:
@@ -202,35 +203,14 @@ def _summary(free, struct, practical, uncertain, corr, rel) -> tuple[str, ...]:
     for n in uncertain:
         lines.append(f"Poorly determined: {n} (Cramér-Rao bound {100 * rel[index[n]]:.0f} % of its "
                      "value); the data hardly excite it.")  # fmt: skip
+    for n in free:
+        if not np.isfinite(rel[index[n]]) and np.isfinite(std[index[n]]):
+            lines.append(f"{n} is analysed at 0, so it has no relative bound: its Cramér-Rao bound "
+                         f"is {std[index[n]]:.3g}; compare that with the values you expect.")  # fmt: skip
     if not lines:
         lines.append("All free coefficients are identifiable from these data; the largest relative "
                      f"bound is {100 * np.nanmax(rel):.2g} %.")  # fmt: skip
     return tuple(lines)
-
-
-def analyze_command(args) -> int:
-    """`testbed analyze DATA... [--config] [--out]`: the identifiability JSON."""
-    import sys
-
-    from testbed.data import load_data, read_config
-    from testbed.errors import InputError, atomic_write_text
-
-    experiments, run_config = load_data(args.data)
-    config = read_config(args.config) if args.config else run_config
-    if config is None:
-        raise InputError("no model config: give --config TOML (or a run directory with model.toml)")
-    if not config.free:
-        raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to analyse")
-    result = identifiability(experiments, config)
-    text = result.to_json()
-    if args.out:
-        atomic_write_text(args.out, text)
-        print(args.out)
-    else:
-        sys.stdout.write(text)
-    for line in result.summary:
-        print(line, file=sys.stderr)
-    return 0
 
 
 # -- comparison with the analytic model -----------------------------------------------------------
@@ -246,6 +226,7 @@ class Comparison:
     identified: np.ndarray
     std: np.ndarray
     truth_fit: np.ndarray | None = None
+    note: str = ""  # why there is no truth fit, when one was tried
 
     def rows(self) -> list[dict]:
         out = []
@@ -262,31 +243,41 @@ class Comparison:
             out.append(row)
         return out
 
+    def to_dict(self) -> dict:
+        return {"rows": self.rows(), **({"note": self.note} if self.note else {})}
+
     def table(self) -> str:
         head = f"{'coefficient':<12}{'analytic':>12}{'identified':>12}{'std':>10}{'rel.err':>9}{'sigmas':>8}"
         if self.truth_fit is not None:
             head += f"{'truth fit':>12}{'lin.bias':>9}{'noise σ':>8}"
         lines = [head]
 
-        def f(v, fmt):
-            return format(v, fmt) if v is not None else "-"
+        def f(v, fmt, width):
+            return format(v, fmt) if v is not None else "-".rjust(width)
 
         for r in self.rows():
             line = (f"{r['name']:<12}{r['analytic']:>12.4g}{r['identified']:>12.4g}{r['std']:>10.2g}"
-                    f"{f(r['relative_error'], '>9.1%')}{f(r['error_sigmas'], '>8.1f')}")  # fmt: skip
+                    f"{f(r['relative_error'], '>9.1%', 9)}{f(r['error_sigmas'], '>8.1f', 8)}")  # fmt: skip
             if self.truth_fit is not None:
-                line += (f"{r['truth_fit']:>12.4g}{f(r['model_bias_relative'], '>9.1%')}"
-                         f"{f(r['noise_sigmas'], '>8.1f')}")  # fmt: skip
+                line += (f"{r['truth_fit']:>12.4g}{f(r['model_bias_relative'], '>9.1%', 9)}"
+                         f"{f(r['noise_sigmas'], '>8.1f', 8)}")  # fmt: skip
             lines.append(line)
+        if self.note:
+            lines.append(self.note)
         return "\n".join(lines)
 
 
 def compare(estimate, analytic_config, truth_estimate=None) -> Comparison:
-    """Compare an `Estimate` with a model config's coefficients (and a fit to noise-free data)."""
+    """Compare an `Estimate` with a model config's coefficients (and a fit to noise-free data,
+    used only if it converged)."""
     names = tuple(estimate.free)
     analytic = np.array([analytic_config.coefficients[n] for n in names])
-    truth = None
-    if truth_estimate is not None:
+    truth, note = None, ""
+    if truth_estimate is not None and truth_estimate.converged:
         t = truth_estimate.coefficients
         truth = np.array([t[n] for n in names])
-    return Comparison(names, analytic, np.asarray(estimate.values), np.asarray(estimate.std), truth)
+    elif truth_estimate is not None:
+        note = (f"no linear-model bias column: the {truth_estimate.method} fit to the noise-free "
+                f"truth did not converge ({truth_estimate.status.message})")  # fmt: skip
+    return Comparison(names, analytic, np.asarray(estimate.values), np.asarray(estimate.std),
+                      truth, note)  # fmt: skip

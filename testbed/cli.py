@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -24,9 +25,15 @@ def _positive(text: str) -> float:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"{text} must be > 0")
+    if not 0 < v < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
     return v
+
+
+def _writable(path: Path | None, flag: str) -> None:
+    """Fail before the work, not after it, when an output cannot be written."""
+    if path is not None and not (path.parent if str(path.parent) else Path(".")).is_dir():
+        raise InputError(f"{flag} {path}: folder {path.parent} does not exist")
 
 
 def _cmd_truth(args) -> int:
@@ -54,38 +61,53 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
-def _cmd_identify(args) -> int:
-    import json
-
-    from testbed.analysis import compare
+def _inputs(args):
+    """The experiments, the model config to use, and the run's analytic model (or None)."""
     from testbed.data import load_data, read_config
-    from testbed.errors import atomic_write_text
-    from testbed.estimators import Status, identify
 
     experiments, run_config = load_data(args.data)
     config = read_config(args.config) if args.config else run_config
     if config is None:
         raise InputError("no model config: give --config TOML (or a run directory with model.toml)")
+    return experiments, config, run_config
+
+
+def _cmd_identify(args) -> int:
+    import json
+
+    from testbed.analysis import compare
+    from testbed.errors import atomic_write_text
+    from testbed.estimators import Status, identify
+
+    _writable(args.out, "--out")
+    _writable(args.rrd, "--rrd")
+    experiments, config, run_config = _inputs(args)
     if args.perturb:
         config = _perturbed(config, args.perturb, args.seed)
-    options = {"start": args.start}
+    offline = args.method.startswith("ml-")
+    if args.start is not None and not offline:
+        raise InputError(f"--start {args.start}: only the ml-* methods take a start; "
+                         f"{args.method} starts from the config")  # fmt: skip
+    options = {"start": args.start or "auto"} if offline else {}
     if args.max_iter is not None:
         options["max_iter"] = args.max_iter
     iterations = []  # (iteration, values, cost) of the off-line methods, for the Rerun log
-    if args.method.startswith("ml-"):
+    if offline:
         options["callback"] = lambda k, values, cost: iterations.append((k, list(values), cost))
     estimate = identify(experiments, config, method=args.method, **options)
     if estimate.status is Status.DIVERGED:
-        raise InputError(f"--method {args.method}: {estimate.status.message} on {args.data[0]}; "
-                         "no estimate written (try --start auto or a better a-priori config)")  # fmt: skip
+        why = estimate.extra.get("diverged", {}).get("reason")
+        raise InputError(f"--method {args.method}: {estimate.status.message}"
+                         f"{f' ({why})' if why else ''} on {', '.join(map(str, args.data))}; "
+                         "no estimate written (try another --start or a better a-priori config)")  # fmt: skip
+    if estimate.start != "config" and "start_reason" in estimate.extra:
+        print(f"testbed identify: started from the {estimate.start} estimate: "
+              f"{estimate.extra['start_reason']}", file=sys.stderr)  # fmt: skip
     doc = json.loads(estimate.to_json())
     comparison = None
-    truth = _truth_experiments(args.data)
     if run_config is not None:
-        quiet = {k: v for k, v in options.items() if k != "callback"}
-        truth_fit = identify(truth, config, method=args.method, **quiet) if truth else None
-        comparison = compare(estimate, run_config, truth_fit)
-        doc["comparison"] = {"analytic_model": run_config.source, "rows": comparison.rows()}
+        comparison = compare(estimate, run_config, _truth_fit(args.data, run_config, estimate.free))
+        doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
         print(comparison.table(), file=sys.stderr)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     if args.out:
@@ -119,18 +141,40 @@ def _perturbed(config, fraction: float, seed: int):
                                      for n, s in zip(config.free, signs)})  # fmt: skip
 
 
-def _truth_experiments(paths):
-    """The noise-free `<experiment>.truth.csv` of every run directory among `paths`."""
-    from testbed.data import read_csv
+def _truth_fit(paths, analytic, free):
+    """The linear model's own bias: `ml-gn` on the noise-free `<experiment>.truth.csv` of the run
+    directories among `paths`, from the analytic model, whatever method made the estimate (the
+    bias belongs to the model, and a filter needs noise to work). None without truth files."""
+    from dataclasses import replace
 
-    return [read_csv(f, f.name.removesuffix(".truth.csv"))
-            for p in map(Path, paths) if p.is_dir() for f in sorted(p.glob("*.truth.csv"))]  # fmt: skip
+    from testbed.data import read_csv, run_csvs
+    from testbed.estimators import identify
+
+    truth = [read_csv(f, f.name.removesuffix(".truth.csv")) for p in map(Path, paths)
+             if (p / "manifest.json").exists() for f in run_csvs(p, ".truth.csv")]  # fmt: skip
+    if not truth:
+        return None
+    return identify(truth, replace(analytic, free=tuple(free)), method="ml-gn", start="config")
 
 
 def _cmd_analyze(args) -> int:
-    from testbed.analysis import analyze_command
+    from testbed.analysis import identifiability
+    from testbed.errors import atomic_write_text
 
-    return analyze_command(args)
+    _writable(args.out, "--out")
+    experiments, config, _ = _inputs(args)
+    if not config.free:
+        raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to analyse")
+    result = identifiability(experiments, config)
+    text = result.to_json()
+    if args.out:
+        atomic_write_text(args.out, text)
+        print(args.out)
+    else:
+        sys.stdout.write(text)
+    for line in result.summary:
+        print(line, file=sys.stderr)
+    return 0
 
 
 def _cmd_replay(args) -> int:
@@ -147,6 +191,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def parser() -> argparse.ArgumentParser:
+    from testbed.scenario import EXPERIMENTS
+
     p = _Parser(prog="testbed", description="Simulate a submerged body and identify its "
                 "manoeuvring coefficients (Kim & Rhee).")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
@@ -158,8 +204,7 @@ def parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_truth)
 
     s = sub.add_parser("simulate", help="generate a scenario run directory")
-    s.add_argument("--scenario", required=True,
-                   help="I, II, turn, zigzag, zigzag-vertical")  # fmt: skip
+    s.add_argument("--scenario", required=True, help=", ".join(EXPERIMENTS))
     s.add_argument("--seed", type=int, default=0, help="noise and PRBS seed (default 0)")
     s.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<N>)")
     s.add_argument("--force", action="store_true", help="replace an existing run directory")
@@ -175,8 +220,9 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument("--out", type=Path, help="estimates JSON (default: stdout); mekf and ekf also "
                    "write the estimate and ±σ histories to OUT with suffix .history.csv")
-    s.add_argument("--start", default="config",
-                   help="config (a-priori values, default), auto, equation-error or mekf")  # fmt: skip
+    s.add_argument("--start", default=None,
+                   help="ml-* only: auto (default: the a-priori values, or the equation-error "
+                        "estimate if output error fails from them), config, equation-error or mekf")  # fmt: skip
     s.add_argument("--max-iter", type=int, default=None, help="iteration limit")
     s.add_argument("--perturb", type=_positive, default=None,
                    help="move every free coefficient's start by this fraction (e.g. 0.4), to test "
@@ -197,8 +243,13 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def _terminate(signum, frame):
+    raise KeyboardInterrupt  # `kill` cleans up like Ctrl-C: temporary outputs are removed
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)
     except InputError as exc:
@@ -207,3 +258,5 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"testbed {args.command}: interrupted; nothing was written", file=sys.stderr)
         return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)

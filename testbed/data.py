@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import tomllib
 from dataclasses import dataclass, replace
@@ -187,19 +188,40 @@ def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:
     return atomic_write_text(path, config_text(config, comments))
 
 
+def run_csvs(run: Path, suffix: str = ".csv") -> list[Path]:
+    """The measurement CSVs (or, with `suffix=".truth.csv"`, the noise-free ones) of a run directory."""
+    manifest = run / "manifest.json"
+    if manifest.exists():
+        try:
+            names = json.loads(manifest.read_text())["experiments"]
+            if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
+                raise TypeError
+        except (OSError, ValueError, KeyError, TypeError):
+            raise InputError(f"{manifest}: expected JSON with an 'experiments' list of names") from None
+        files = [run / f"{n}{suffix}" for n in names]
+        for f in files:
+            if not f.exists():
+                raise InputError(f"{f}: missing; {manifest} lists experiment {f.name.removesuffix(suffix)!r}")
+    else:
+        files = sorted(f for f in run.glob(f"*{suffix}")
+                       if suffix != ".csv" or not f.name.endswith((".truth.csv", ".history.csv")))
+    if not files:
+        raise InputError(f"{run}: no measurement CSV in this directory")
+    return files
+
+
 def load_data(paths: Iterable[str | Path]) -> tuple[list[Experiment], ModelConfig | None]:
     """Experiments from run directories and/or CSVs, and the run's `model.toml` if there is one.
 
-    A run directory contributes every `<experiment>.csv` (not the `.truth.csv` files).
+    A run directory contributes the experiments its `manifest.json` lists, or without a manifest
+    every `<experiment>.csv` but the `.truth.csv` files (so outputs written beside them, such as
+    filter histories, are not mistaken for experiments).
     """
     experiments: list[Experiment] = []
     config = None
     for p in map(Path, paths):
         if p.is_dir():
-            csvs = sorted(f for f in p.glob("*.csv") if not f.name.endswith(".truth.csv"))
-            if not csvs:
-                raise InputError(f"{p}: no measurement CSV in this directory")
-            experiments += [read_csv(f) for f in csvs]
+            experiments += [read_csv(f) for f in run_csvs(p)]
             if config is None and (p / "model.toml").exists():
                 config = read_config(p / "model.toml")
         elif p.exists():

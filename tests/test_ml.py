@@ -71,7 +71,7 @@ def test_auto_restarts_from_equation_error_when_the_a_priori_start_fails(data, f
     # ±40 % alternating makes the a-priori yaw-sway model unstable: output error from it stalls
     prior = truth_config().with_coefficients(
         {n: TRUTH[n] * (1.4 if i % 2 else 0.6) for i, n in enumerate(FREE)})
-    est = identify(data, prior, method="ml-gn", start="auto")
+    est = identify(data, prior, method="ml-gn")  # start="auto" is the default
     assert est.converged and est.start == "equation-error"
     assert "a-priori" in est.extra["start_reason"]
     _same_optimum(est, from_truth, 0.01)
@@ -96,7 +96,7 @@ def test_ml_nr_divergence_is_reported_not_raised():
     # roll mode unstable, while Gauss-Newton converges from the same start (the paper's finding).
     data = experiments(seed=1, duration=10.0)[1:]
     prior = truth_config(("K_p",)).with_coefficients({"K_p": 3 * TRUTH["K_p"]})
-    est = identify(data, prior, method="ml-nr", max_iter=30)
+    est = identify(data, prior, method="ml-nr", max_iter=30, start="config")
     assert est.status is Status.DIVERGED and not est.converged
     assert np.all(np.isfinite(est.values)) and np.isfinite(est.cost) and np.all(np.isfinite(est.std))
     assert json.loads(est.to_json())["converged"] is False
@@ -118,7 +118,7 @@ def test_unknown_coefficient_in_free_is_input_error(data):
 def test_diverging_a_priori_model_is_input_error(data):
     prior = truth_config().with_coefficients({"M_q": 3 * abs(TRUTH["M_q"])})  # pitch unstable
     with pytest.raises(InputError, match="a-priori model diverges.*experiment"):
-        identify(data, prior, method="ml-gn")
+        identify(data, prior, method="ml-gn", start="config")
     with pytest.raises(InputError, match="start 'sideways'"):
         identify(data, truth_config(), method="ml-gn", start="sideways")
 

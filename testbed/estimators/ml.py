@@ -28,7 +28,6 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, register
 from testbed.estimators import outputerror as oe
-from testbed.model import continuous
 
 Callback = Callable[[int, np.ndarray, float], None]
 
@@ -226,20 +225,12 @@ def _start(prob: oe.Problem, experiments, config: ModelConfig, start: str) -> np
                 raise
             raise InputError("start 'mekf': the MEKF estimator is not available; expected "
                              "start config, equation-error or auto") from None
+        if est.status is Status.DIVERGED:
+            why = est.extra.get("diverged", {}).get("reason", est.status.message)
+            raise InputError(f"{prob.source}: start 'mekf': the MEKF diverged ({why}); expected "
+                             "a filter that converges, or start auto or equation-error")  # fmt: skip
         return np.array([est.coefficients[n] for n in prob.free])
     raise InputError(f"start {start!r}: expected config, equation-error, mekf or auto")
-
-
-def _diverging_start(prob: oe.Problem, p: np.ndarray) -> str | None:
-    """Why the model at `p` diverges (with its least stable eigenvalue), or None."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        why = oe.exploded(prob, oe.outputs(prob, p))
-    if why is None:
-        return None
-    A = continuous(prob.structure, prob.coefficients(p[:prob.n_free]))[0]
-    ev = np.linalg.eigvals(A)
-    worst = ev[np.argmax(ev.real)]
-    return f"{why}; A's largest eigenvalue real part is {worst.real:.3g} 1/s"
 
 
 def _estimate(name: str, prob: oe.Problem, out: Outcome, start: str, t0: float,
@@ -255,37 +246,37 @@ def _estimate(name: str, prob: oe.Problem, out: Outcome, start: str, t0: float,
 
 
 def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelConfig,
-         max_iter: int | None, start: str, callback: Callback | None, opts: dict,
-         auto_budget: int | None) -> Estimate:  # fmt: skip
+         max_iter: int | None, start: str, callback: Callback | None, opts: dict) -> Estimate:  # fmt: skip
     t0 = time.perf_counter()
     prob = oe.problem(experiments, config)
     opts = opts | ({"max_iter": max_iter} if max_iter is not None else {})
 
-    def run(p: np.ndarray, **limit) -> Outcome:
-        return optimiser(prob, p, callback=callback, **(opts | limit))
+    def run(p: np.ndarray) -> Outcome:
+        return optimiser(prob, p, callback=callback, **opts)
 
     if start != "auto":
-        p0 = oe.initial_states(prob, _start(prob, experiments, config, start))
-        why = _diverging_start(prob, p0)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is reported below
+            p0 = oe.initial_states(prob, _start(prob, experiments, config, start))
+        why = oe.divergence(prob, p0)
         if why is not None and start == "config":
             raise InputError(f"{prob.source}: the a-priori model diverges ({why}); expected "
                              "coefficients giving a bounded response, or start auto")  # fmt: skip
         out = run(p0) if why is None else Outcome(p0, Status.DIVERGED, 0, p0[None, :prob.n_free])
         return _estimate(name, prob, out, start, t0)
 
-    # auto: the a-priori values, unless they diverge, do not converge (within `auto_budget`
-    # iterations if given) or converge to a worse fit than the equation-error model has before
-    # any iteration; then the equation-error start, and the better of the two if neither converges.
+    # auto: the a-priori values, unless they diverge, do not converge or converge to a worse fit
+    # than the equation-error model has before any iteration; then the equation-error start, and
+    # the better of the two if neither converges.
     def cost(p):
         return oe.negative_log_likelihood(prob, oe.residuals(prob, p))
 
-    p0 = oe.initial_states(prob, prob.start)
-    p_ee = oe.initial_states(prob, _start(prob, experiments, config, "equation-error"))
-    cost_ee = np.inf if _diverging_start(prob, p_ee) else cost(p_ee)
+    with np.errstate(over="ignore", invalid="ignore"):  # diverging starts are handled below
+        p0 = oe.initial_states(prob, prob.start)
+        p_ee = oe.initial_states(prob, _start(prob, experiments, config, "equation-error"))
+    cost_ee = np.inf if oe.divergence(prob, p_ee) else cost(p_ee)
     first, reason = None, "the a-priori model diverges"
-    if _diverging_start(prob, p0) is None:
-        budget = {"max_iter": min(opts.get("max_iter", auto_budget), auto_budget)} if auto_budget else {}
-        first = run(p0, **budget)
+    if oe.divergence(prob, p0) is None:
+        first = run(p0)
         if first.status is Status.CONVERGED and cost(first.p) <= cost_ee:
             return _estimate(name, prob, first, "config", t0)
         reason = (f"from the a-priori values: {first.status.message}"
@@ -294,7 +285,7 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
     if not np.isfinite(cost_ee):
         if first is None:
             raise InputError(f"{prob.source}: the a-priori model diverges "
-                             f"({_diverging_start(prob, p0)}) and so does the equation-error one")  # fmt: skip
+                             f"({oe.divergence(prob, p0)}) and so does the equation-error one")  # fmt: skip
         return _estimate(name, prob, first, "config", t0)
     second = run(p_ee)
     if first is not None and second.status is not Status.CONVERGED and cost(first.p) < cost(second.p):
@@ -302,11 +293,10 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
     return _estimate(name, prob, second, "equation-error", t0, {"start_reason": reason})
 
 
-def _method(name: str, optimiser, doc: str, auto_budget: int | None = None):
+def _method(name: str, optimiser, doc: str):
     def fn(experiments: Sequence[Experiment], config: ModelConfig, *, max_iter: int | None = None,
-           start: str = "config", callback: Callback | None = None, **opts) -> Estimate:  # fmt: skip
-        return _fit(name, optimiser, experiments, config, max_iter, start, callback, opts,
-                    auto_budget)
+           start: str = "auto", callback: Callback | None = None, **opts) -> Estimate:  # fmt: skip
+        return _fit(name, optimiser, experiments, config, max_iter, start, callback, opts)
 
     fn.__name__, fn.__doc__ = name.replace("-", "_"), doc
     return register(name)(fn)
@@ -314,14 +304,15 @@ def _method(name: str, optimiser, doc: str, auto_budget: int | None = None):
 
 _DOC = """Fit `config.free` to `experiments` by {what}.
 
-`start`: "config" (a-priori values; a diverging a-priori model is an InputError), "equation-error",
-"mekf" or "auto" (config, restarting from equation error if that fails; `Estimate.start` and
-`extra["start_reason"]` say which); `callback(iteration, values, cost)` after every iteration
+`start`: "auto" (default: the a-priori values, restarting from the equation-error estimate if the
+a-priori model diverges or the fit from it fails; `Estimate.start` and `extra["start_reason"]` say
+which), "config" (a-priori values only; a diverging a-priori model is an InputError),
+"equation-error" or "mekf"; `callback(iteration, values, cost)` after every iteration
 (cost: {cost}); `opts`: the optimiser's tolerances ({opts}).
 """
 ml_gn = _method("ml-gn", gauss_newton, _DOC.format(
     what="Gauss-Newton / Levenberg-Marquardt output error", opts="tol",
-    cost="negative log-likelihood"), auto_budget=20)
+    cost="negative log-likelihood"))
 ml_nr = _method("ml-nr", newton_raphson, _DOC.format(
     what="the paper's modified Newton-Raphson (Eq. 10)", opts="tol",
     cost="negative log-likelihood"))

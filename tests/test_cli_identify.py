@@ -1,0 +1,156 @@
+"""`testbed identify` and `testbed analyze` end to end on a short Scenario II run (SPEC §3, §4)."""
+
+import csv
+import json
+import shutil
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from testbed.cli import main
+from testbed.data import config_text, read_config
+from testbed.model import COEFFICIENTS
+from testbed.scenario import simulate
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    return simulate("II", seed=4, duration=12.0, out=tmp_path_factory.mktemp("r") / "II", progress=False)
+
+
+def _entities(path):
+    return {str(c.entity_path) for c in RrdReader(str(path)).stream()}
+
+
+def _ok(capsys, argv):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    assert code in (0, 1), out.err  # 1: a fit that did not converge (reported, not an error)
+    return code, out
+
+
+@pytest.mark.parametrize("method, limit", [("ml-gn", None), ("ml-nr", 2), ("ml-nm", 40), ("mekf", None)])
+def test_every_method_on_a_scenario_ii_run(run, tmp_path, capsys, method, limit):
+    out, rrd = tmp_path / f"{method}.json", tmp_path / f"{method}.rrd"
+    argv = ["identify", run, "--method", method, "--out", out, "--rrd", rrd]
+    code, printed = _ok(capsys, argv + (["--max-iter", limit] if limit else []))
+    doc = json.loads(out.read_text())
+    free = read_config(run / "model.toml").free
+    assert doc["method"] == method and doc["converged"] is (code == 0)
+    assert set(doc["coefficients"]) == set(free)
+    assert all(np.isfinite(c["value"]) and c["std"] > 0 for c in doc["coefficients"].values())
+    assert set(doc["noise_std"]) == {"u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z"}
+    for key in ("iterations", "cost", "wall_time_s"):
+        assert key in doc
+    rows = doc["comparison"]["rows"]
+    assert [r["name"] for r in rows] == list(free)
+    assert all("truth_fit" in r and "noise_sigmas" in r for r in rows)  # the linear model's bias split off
+    assert "analytic" in printed.err and "truth fit" in printed.err  # the table on stderr
+    entities = _entities(rrd)
+    assert "/comparison/table" in entities and any(e.startswith("/parameters/") for e in entities)
+    if method == "mekf":
+        history = out.with_suffix(".history.csv")
+        with history.open() as f:
+            header = next(csv.reader(f))
+        assert header[0] == "t" and {f"{n}_std" for n in free} <= set(header)
+    if limit:
+        assert doc["iterations"] <= limit
+
+
+def test_analyze_a_scenario_ii_run(run, tmp_path, capsys):
+    out = tmp_path / "ident.json"
+    _ok(capsys, ["analyze", run, "--out", out])
+    doc = json.loads(out.read_text())
+    free = doc["free"]
+    assert free == list(read_config(run / "model.toml").free)
+    assert set(doc["crlb_std"]) == set(free) and np.shape(doc["correlation"]) == (len(free),) * 2
+    assert isinstance(doc["null_directions"], int)
+    assert all(set(g) <= set(free) for g in doc["drift_groups"])
+
+
+def test_ml_gn_can_start_from_the_mekf(run, tmp_path, capsys):
+    out = tmp_path / "gn.json"
+    _ok(capsys, ["identify", run, "--method", "ml-gn", "--start", "mekf", "--out", out])
+    assert json.loads(out.read_text())["start"] == "mekf"
+
+
+def _config(run, tmp_path, **changes):
+    cfg = read_config(run / "model.toml")
+    text = config_text(cfg)
+    for old, new in changes.items():
+        text = text.replace(old, new)
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    return path
+
+
+def _csv(run, tmp_path, edit):
+    rows = list(csv.reader((run / "horizontal.csv").open()))
+    rows = edit(rows)
+    path = tmp_path / "trial.csv"
+    path.write_text("\n".join(",".join(r) for r in rows) + "\n")
+    return path
+
+
+def _drop(column):
+    def edit(rows):
+        k = rows[0].index(column)
+        return [r[:k] + r[k + 1:] for r in rows]
+
+    return edit
+
+
+def _set(line, column, value):
+    def edit(rows):
+        rows[line][rows[0].index(column)] = value
+        return rows
+
+    return edit
+
+
+BAD = {
+    "unknown coefficient": (lambda run, tmp: ["--config", _config(run, tmp, **{'free = ["': 'free = ["Y_nope", "'})],
+                            "Y_nope"),
+    "missing vehicle constant": (lambda run, tmp: ["--config", _config(run, tmp, **{"Iy = ": "# Iy = "})],
+                                 "Iy missing"),
+    "csv without an input": (lambda run, tmp: [_csv(run, tmp, _drop("delta_er")), "--config", run / "model.toml"],
+                             "'delta_er' missing"),
+    "non-uniform time": (lambda run, tmp: [_csv(run, tmp, _set(5, "t", "0.091")), "--config", run / "model.toml"],
+                         "not uniformly sampled"),
+    "nan": (lambda run, tmp: [_csv(run, tmp, _set(7, "q", "nan")), "--config", run / "model.toml"],
+            "column 'q'"),
+    "diverging model": (lambda run, tmp: ["--config", _config(run, tmp, **{"M_q = -": "M_q = "}),
+                                          "--start", "config"], "diverges"),
+    "rrd folder missing": (lambda run, tmp: ["--rrd", tmp / "nowhere" / "fit.rrd"], "does not exist"),
+    "start for a filter": (lambda run, tmp: ["--method", "mekf", "--start", "config"], "only the ml-*"),
+}
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_input_is_one_line_status_2_and_writes_nothing(run, tmp_path, capsys, case):
+    make, words = BAD[case]
+    extra = [str(a) for a in make(run, tmp_path)]
+    data = [] if extra[0].endswith(".csv") else [str(run)]
+    out = tmp_path / "est.json"
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code = main(["identify", *data, *extra, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and words in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no estimate, no temporary file
+    if "--rrd" in extra or "--method" in extra:
+        return  # identify's own options
+    analyze = [a for a in extra if a not in ("--start", "config")]
+    assert main(["analyze", *data, *analyze, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and words in err, err
+    assert not out.exists()
+
+
+def test_a_run_directory_reads_only_its_experiments(run, tmp_path, capsys):
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    (copy / "notes.csv").write_text("whatever,else\n1,2\n")  # e.g. a filter history written beside
+    _ok(capsys, ["identify", copy, "--method", "ml-gn", "--max-iter", "1", "--out", tmp_path / "e.json"])
+    assert set(json.loads((tmp_path / "e.json").read_text())["initial_states"]) == {"horizontal", "vertical"}
+    assert all(n in COEFFICIENTS for n in read_config(copy / "model.toml").free)
