@@ -20,7 +20,6 @@ import os
 import shutil
 import subprocess
 import sys
-import tempfile
 import uuid
 from pathlib import Path
 
@@ -29,7 +28,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from testbed.errors import InputError
+from testbed.errors import InputError, atomic_file
 from testbed.model import IX, STATES
 from testbed.vehicle import FINS, FLIP, load_model
 
@@ -58,37 +57,19 @@ def _recording(path: str | os.PathLike, title: str, recording_id: str):
     """Yield a recording stream saving to a unique temporary sibling of `path` (send the
     blueprint last, inside the block), renamed to `path` when the block finishes; on any
     exception (Ctrl-C included) the temporary file is removed, so a recording is whole or absent
-    (the approach of `testbed.errors.atomic_write_bytes`; the file sink writes while we log).
+    (`testbed.errors.atomic_file`; the file sink writes while we log).
 
     No wall-clock start time is sent: the same data give the same decoded contents.
     """
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise InputError(f"{path}: folder {folder} does not exist")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write ({exc.strerror})") from None
-    os.close(fd)
-    rec = None
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; a recording is not
+    with atomic_file(path) as tmp:
         rec = rr.RecordingStream("testbed", recording_id=recording_id, send_properties=False)
-        rec.save(tmp)
-        rec.send_recording_name(title)
-        yield rec
-        rec.flush()
-        rec.disconnect()
-        os.replace(tmp, path)
-    except BaseException:
-        if rec is not None:
+        try:
+            rec.save(str(tmp))
+            rec.send_recording_name(title)
+            yield rec
+            rec.flush()
+        finally:
             rec.disconnect()
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 def _scalars(rec, entity: str, index, values: np.ndarray) -> None:
