@@ -1,6 +1,6 @@
-"""Autopilots designed from the analytic linear model: depth, course rate and roll.
+"""Autopilots designed from the analytic linear model: course rate, depth, roll, and a slow hold.
 
-Each channel is a linear-quadratic regulator with integral action, designed on its block of the
+Each loop is a linear-quadratic regulator with integral action, designed on its block of the
 analytic model (`testbed.truth.analytic_model`) with Bryson's rule (Q = diag(1/x_max²),
 R = 1/δ_max²):
 
@@ -9,32 +9,60 @@ R = 1/δ_max²):
   loop commanding the pitch that gives a depth rate k_z (z_cmd − z), limited to ±`max_pitch`;
 - roll: elevators differentially, δa = (δer − δel)/2, on (p, φ, ∫(φ − φ_cmd)).
 
-Commands are clipped to the fin range; an integrator stops integrating while its fin saturates
-in the direction that would wind it up (conditional integration, no wind-up). The fin rate
-limit is the plant's (`Plant.step`). `Autopilot.step` is the only state: the three integrators.
+The fins are strong (20 deg/s of turn takes under 1 deg of rudder at 20 m/s), so δ_max is small
+to keep the loops from banging between the stops at the 2 rad/s fin rate limit.
+
+Step responses on the analytic model at 20 m/s (`step_response`: the autopilot at 50 Hz on the
+exact zero-order-hold model, fins rate-limited to 2 rad/s; Scenario I's step sizes; rise 10–90 %,
+settling into ±2 % of the step; tested):
+
+| loop | step | rise time | overshoot | settling |
+|---|---|---|---|---|
+| course rate | 0 → 20 deg/s | 0.06 s | 2.9 % | 1.06 s |
+| depth | 100 → 120 m | 3.02 s | 0.0 % | 6.92 s |
+| roll | 0 → 5 deg | 0.14 s | 7.8 % | 1.86 s |
+
+Course rate and roll rise fast and then creep back from their overshoot with the integrator's
+slow mode; depth is first order (k_z = 0.6/s, the pitch command at its 0.45 rad limit for the
+first 0.8 s), so Scenario I's 5 s depth steps reach 95 % but not ±2 %.
+
+Vertical excitation hold (`Design.hold`): in Scenario II's vertical mode both elevators follow a
+PRBS. The torpedo is nearly neutral in pitch (its only restoring moment is zB B: a pole at
+−0.012 rad/s), so an open-loop PRBS random-walks pitch and depth. The hold is a state feedback
+on (θ, z − z_cmd) only, designed on the quasi-steady model of the slow pitch-depth motion (w and
+q eliminated by singular perturbation: θ̇ ≈ −24.5 δe at 20 m/s) with Butterworth poles at
+`hold_bandwidth` = 0.2 rad/s (0.03 Hz) — deliberately far below the PRBS band, so the PRBS
+dominates the elevators above ~0.1 Hz while depth and pitch stay bounded. It has no integrator
+(nothing to wind up).
+
+Fin commands are clipped to ±FIN_LIMIT. An integrator stops integrating while its fin command is
+not realised (saturated, including where the pitch and roll mix on one elevator exceeds the stop)
+and its error would push further into the stop (conditional integration: no wind-up).
+`Autopilot.integrators` is its only state.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from testbed.model import IX
+from testbed.model import IX, NX, discretize
 
 FIN_LIMIT = 0.40  # rad, the torpedo's servo range
+YAW, PITCH, ROLL = 0, 1, 2  # the integrators
 
 
 @dataclass(frozen=True)
 class Channel:
-    """One LQR-with-integrator loop: δ = δ_ff − K_x (x − x_ref) − K_i ∫e."""
+    """One LQR-with-integrator loop: δ = g_ref ref − K x − K_i ∫(x_tracked − ref)."""
 
-    states: tuple[str, ...]  # the states it feeds back
     tracked: str  # the state whose error is integrated
-    Kx: np.ndarray  # (len(states),)
+    K: np.ndarray  # (NX,) full-state gain, zero outside the loop's states
     Ki: float
-    ff: np.ndarray  # steady state (x, δ) per unit of command: x_ss / ref, δ_ss / ref
+    g_ref: float  # feedforward: steady δ per unit ref plus K x_ss per unit ref
 
 
 def design_channel(A, B, states, tracked, x_max, delta_max) -> Channel:
@@ -49,7 +77,7 @@ def design_channel(A, B, states, tracked, x_max, delta_max) -> Channel:
     bb = np.vstack([b, [[0.0]]])
     Q = np.diag(1.0 / np.asarray(x_max, float) ** 2)
     P = solve_continuous_are(aa, bb, Q, np.array([[1.0 / delta_max**2]]))
-    K = (bb.T @ P) * delta_max**2
+    k = (bb.T @ P)[0] * delta_max**2
     # Steady state for a unit command of the tracked state: [a b; e_tracked 0] [x; δ] = [0; 1]
     M = np.zeros((n + 1, n + 1))
     M[:n, :n], M[:n, n] = a, b[:, 0]
@@ -57,85 +85,191 @@ def design_channel(A, B, states, tracked, x_max, delta_max) -> Channel:
     rhs = np.zeros(n + 1)
     rhs[n] = 1.0
     ff = np.linalg.lstsq(M, rhs, rcond=None)[0]
-    return Channel(tuple(states), tracked, K[0, :n], float(K[0, n]), ff)
+    K = np.zeros(NX)
+    K[i] = k[:n]
+    return Channel(tracked, K, float(k[n]), float(ff[n] + k[:n] @ ff[:n]))
+
+
+def design_hold(A, b, bandwidth: float) -> np.ndarray:
+    """Gains (K_θ, K_z) of δe = −K_θ θ − K_z (z − z_cmd) placing the slow pitch-depth poles at
+    `bandwidth` (rad/s, Butterworth), on the quasi-steady model with w and q eliminated."""
+    f, s = [IX["w"], IX["q"]], [IX["theta"], IX["z"]]
+    fast = np.linalg.solve(A[np.ix_(f, f)], np.column_stack([A[np.ix_(f, s)], b[f]]))
+    a = A[np.ix_(s, s)] - A[np.ix_(s, f)] @ fast[:, :2]
+    bs = b[s] - A[np.ix_(s, f)] @ fast[:, 2]
+    # Ackermann: K = [0 1] C⁻¹ φ(a), φ the desired characteristic polynomial s² + √2 ω s + ω².
+    C = np.column_stack([bs, a @ bs])
+    phi = a @ a + np.sqrt(2.0) * bandwidth * a + bandwidth**2 * np.eye(2)
+    return np.linalg.solve(C, np.eye(2))[1] @ phi
 
 
 @dataclass(frozen=True)
 class Design:
-    """The three channels and the depth outer loop."""
+    """The three loops, the depth outer loop and the slow hold of the vertical excitation mode."""
 
     yaw_rate: Channel
     pitch: Channel
     roll: Channel
+    hold: np.ndarray  # (K_θ, K_z), see design_hold
     speed: float
     k_depth: float = 0.6  # 1/s: commanded depth rate per metre of depth error
     max_pitch: float = 0.45  # rad
 
 
-def design(A: np.ndarray, B: np.ndarray, speed: float) -> Design:
+HOLD_BANDWIDTH = 0.2  # rad/s: the vertical-mode hold, far below the PRBS band (0.01–4.4 Hz)
+
+
+def design(A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = HOLD_BANDWIDTH) -> Design:
     """Design the autopilots on the continuous linear model (A, B) at trim `speed` (SPEC order)."""
     rudder = B[:, 0]
     together = B[:, 1] + B[:, 2]  # δer = δel = δe
     differential = B[:, 1] - B[:, 2]  # δer = −δel = δa
     return Design(
-        # The fins are strong (20 deg/s of turn takes under 1 deg of rudder at 20 m/s): small
-        # δ_max keeps the loops from banging between the stops at the 2 rad/s rate limit.
         yaw_rate=design_channel(A, rudder, ("v", "r"), "r", [2.0, 0.3, 0.3], 0.02),
         pitch=design_channel(A, together, ("w", "q", "theta"), "theta", [2.0, 0.3, 0.1, 0.1], 0.05),
         roll=design_channel(A, differential, ("p", "phi"), "phi", [1.0, 0.05, 0.05], 0.01),
+        hold=design_hold(A, together, hold_bandwidth),
         speed=speed,
     )
 
 
 @dataclass
 class Autopilot:
-    """The autopilots with their integrators (the only state). Modes switch channels on or off."""
+    """The autopilots with their integrators (the only state). Modes switch loops on or off."""
 
     design: Design
     dt: float  # control period, s
-    integrators: np.ndarray = field(default_factory=lambda: np.zeros(3))  # yaw rate, pitch, roll
+    integrators: np.ndarray = field(default_factory=lambda: np.zeros(3))  # YAW, PITCH, ROLL
+
+    def __post_init__(self):
+        d = self.design
+        self._loops = (d.yaw_rate, d.pitch, d.roll)
+        self._K = np.array([c.K for c in self._loops])  # one product per step for all loops
+
+    def reset(self) -> None:
+        self.integrators[:] = 0.0
 
     def step(self, x: np.ndarray, *, depth=None, yaw_rate=None, roll=None, rudder=None,
-             elevators=None, elevator_excitation=0.0) -> tuple[np.ndarray, dict]:  # fmt: skip
-        """Fin commands (δr, δer, δel) for state `x` (SPEC order, absolute u).
+             elevators=None, hold_depth=None) -> tuple[tuple[float, float, float], float | None]:  # fmt: skip
+        """Fin commands (δr, δer, δel) for state `x` (SPEC order), and the pitch command
+        (rad; None when depth is not controlled).
 
         Give `depth` (m) to hold or change depth, `yaw_rate` (rad/s), `roll` (rad); or `rudder`
-        / `elevators` (rad) to drive those fins directly (open loop, e.g. a PRBS);
-        `elevator_excitation` is added to both elevators on top of the depth loop. Returns the
-        commands and the inner references used ({"pitch": θ_cmd} when depth is controlled).
+        / `elevators` (rad) to drive those fins directly (open loop, e.g. a PRBS). With
+        `elevators`, `hold_depth` (m) adds the slow hold's correction to both elevators.
         """
-        d, refs = self.design, {}
+        d = self.design
+        kx = (self._K @ x).tolist()
         if rudder is not None:
-            dr = rudder
+            dr = _clip(rudder)
         elif yaw_rate is not None:
-            dr = self._loop(0, d.yaw_rate, x, yaw_rate)
+            u = self._output(YAW, yaw_rate, kx)
+            dr = _clip(u)
+            self._integrate(YAW, x, yaw_rate, u, dr)
         else:
             dr = 0.0
+        theta_cmd = None
         if elevators is not None:
             de, da = elevators, 0.0
+            if hold_depth is not None:
+                de -= d.hold[0] * x[IX["theta"]] + d.hold[1] * (x[IX["z"]] - hold_depth)
         else:
-            de = 0.0
+            de = da = 0.0
             if depth is not None:
-                zdot = d.k_depth * (depth - x[IX["z"]])
-                theta_cmd = _clip(-zdot / d.speed, d.max_pitch)
-                refs["pitch"] = theta_cmd
-                de = self._loop(1, d.pitch, x, theta_cmd)
-            de += elevator_excitation
-            da = self._loop(2, d.roll, x, roll) if roll is not None else 0.0
-        cmd = np.array([_clip(dr), _clip(de + da), _clip(de - da)])
-        return cmd, refs
+                theta_cmd = _clip(-d.k_depth * (depth - x[IX["z"]]) / d.speed, d.max_pitch)
+                de = self._output(PITCH, theta_cmd, kx)
+            if roll is not None:
+                da = self._output(ROLL, roll, kx)
+        er, el = _clip(de + da), _clip(de - da)
+        # What the elevators realise of each loop's demand, after the stops on their sum.
+        if theta_cmd is not None:
+            self._integrate(PITCH, x, theta_cmd, de, 0.5 * (er + el))
+        if roll is not None and elevators is None:
+            self._integrate(ROLL, x, roll, da, 0.5 * (er - el))
+        return (dr, er, el), theta_cmd
 
-    def _loop(self, k: int, ch: Channel, x: np.ndarray, ref: float) -> float:
-        error = x[IX[ch.tracked]] - ref
-        u = ch.ff[-1] * ref - ch.Ki * self.integrators[k]
-        for s, gain, x_ss in zip(ch.states, ch.Kx, ch.ff):
-            u -= gain * (x[IX[s]] - x_ss * ref)
-        # Conditional integration: stop where the fin is saturated and the error would wind up.
-        saturated = abs(u) >= FIN_LIMIT and (-ch.Ki * error > 0) == (u > 0)
-        if not saturated:
-            self.integrators[k] += error * self.dt
-        return _clip(u)
+    def _output(self, k: int, ref: float, kx: list) -> float:
+        ch = self._loops[k]
+        return ch.g_ref * ref - kx[k] - ch.Ki * self.integrators[k]
+
+    def _integrate(self, k: int, x: np.ndarray, ref: float, demanded: float, realised: float) -> None:
+        """Conditional integration: not while the demand is cut by a stop and the error pushes
+        it further in (the integrator's push on δ is −K_i error)."""
+        error = x[IX[self._loops[k].tracked]] - ref
+        cut = demanded - realised  # rounding of the elevator mix is no cut
+        if abs(cut) > 1e-12 and (-self._loops[k].Ki * error > 0) == (cut > 0):
+            return
+        self.integrators[k] += error * self.dt
 
 
 def _clip(value: float, limit: float = FIN_LIMIT) -> float:
-    return float(min(max(value, -limit), limit))
+    return min(max(value, -limit), limit)
+
+
+# -- the design on the analytic model: closed-loop responses -------------------------------------
+
+
+def fly_linear(A: np.ndarray, B: np.ndarray, autopilot: Autopilot, commands: Callable[[float, np.ndarray], dict],
+               duration: float, x0: np.ndarray | None = None, rate_limit: float = 2.0):  # fmt: skip
+    """Fly `autopilot` on the linear model ẋ = A x + B δ (exact zero-order hold at its period).
+
+    `commands(t, x)` gives `Autopilot.step`'s keywords. The fins slew at `rate_limit` (rad/s)
+    towards the commands; each period holds the mean of the fin's start and end angles.
+    Returns times (N,), states (N, NX) and fin angles (N, 3) at the control instants.
+    """
+    dt = autopilot.dt
+    Phi, Gamma, _ = discretize(A, B, np.zeros(NX), dt)
+    n = int(round(duration / dt)) + 1
+    x = np.zeros(NX) if x0 is None else np.array(x0, float)
+    fin = np.zeros(3)
+    xs, fins = np.empty((n, NX)), np.empty((n, 3))
+    for k in range(n):
+        xs[k], fins[k] = x, fin
+        cmd, _ = autopilot.step(x, **commands(k * dt, x))
+        new = fin + np.clip(np.asarray(cmd) - fin, -rate_limit * dt, rate_limit * dt)
+        x = Phi @ x + Gamma @ (0.5 * (fin + new))
+        fin = new
+    return np.arange(n) * dt, xs, fins
+
+
+@dataclass(frozen=True)
+class StepMetrics:
+    rise: float  # s, 10 % to 90 % of the step
+    overshoot: float  # fraction of the step
+    settling: float  # s, last exit from ±2 % of the step around the target
+    final: float  # the response at the end
+
+
+def step_metrics(t: np.ndarray, y: np.ndarray, start: float, target: float) -> StepMetrics:
+    """Rise time, overshoot and settling time of the response `y` to a step start → target."""
+    e = (y - start) / (target - start)  # 0 → 1
+    rise = t[np.argmax(e >= 0.9)] - t[np.argmax(e >= 0.1)]
+    outside = np.flatnonzero(np.abs(e - 1.0) > 0.02)
+    if not len(outside):
+        settling = 0.0
+    elif outside[-1] == len(t) - 1:
+        settling = np.inf  # not settled within the record
+    else:
+        settling = t[outside[-1] + 1]
+    return StepMetrics(float(rise), float(max(0.0, e.max() - 1.0)), float(settling), float(y[-1]))
+
+
+# The documented steps: Scenario I's sizes (course rate and depth), a 5 deg roll step.
+STEPS = {"course rate": ("r", "yaw_rate", 0.0, np.radians(20.0)), "depth": ("z", "depth", 100.0, 120.0),
+         "roll": ("phi", "roll", 0.0, np.radians(5.0))}  # fmt: skip
+
+
+def step_response(A: np.ndarray, B: np.ndarray, design_: Design, loop: str, duration: float = 10.0,
+                  rate: float = 50.0, target: float | None = None):  # fmt: skip
+    """The closed-loop response of `loop` (a key of STEPS) to its step, the other loops holding
+    (course-rate steps hold depth and roll; depth and roll steps hold each other and zero course
+    rate). Returns (t, y, fins, StepMetrics); `target` overrides the step's end value."""
+    state, key, start, end = STEPS[loop]
+    end = end if target is None else target
+    hold = {"yaw_rate": 0.0, "depth": 100.0, "roll": 0.0}
+    x0 = np.zeros(NX)
+    x0[IX["z"]] = 100.0
+    ap = Autopilot(design_, 1.0 / rate)
+    t, xs, fins = fly_linear(A, B, ap, lambda t, x: {**hold, key: end}, duration, x0)
+    y = xs[:, IX[state]]
+    return t, y, fins, step_metrics(t, y, start, end)

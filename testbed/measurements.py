@@ -19,6 +19,7 @@ reproducible for its seed.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -50,8 +51,16 @@ class Sensors:
                 raise InputError(f"noise for {name!r} = {s}; expected >= 0")
 
 
+def check_seed(seed) -> int:
+    """`seed` as an int; InputError unless it is a non-negative integer (numpy's seeds are)."""
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise InputError(f"seed {seed!r}; expected a non-negative integer")
+    return int(seed)
+
+
 def rng_for(seed: int, experiment: int, stream: int = 0) -> np.random.Generator:
     """The generator of one experiment's random stream (0: sensor noise, 1: input sequences)."""
+    seed = check_seed(seed)
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(experiment, stream)))
 
 
