@@ -18,9 +18,9 @@ settling into ±2 % of the step; tested):
 
 | loop | step | rise time | overshoot | settling |
 |---|---|---|---|---|
-| course rate | 0 → 20 deg/s | 0.06 s | 2.9 % | 1.06 s |
+| course rate | 0 → 20 deg/s | 0.06 s | 3.0 % | 1.10 s |
 | depth | 100 → 120 m | 3.02 s | 0.0 % | 6.92 s |
-| roll | 0 → 5 deg | 0.14 s | 7.8 % | 1.86 s |
+| roll | 0 → 5 deg | 0.14 s | 7.8 % | 1.92 s |
 
 Course rate and roll rise fast and then creep back from their overshoot with the integrator's
 slow mode; depth is first order (k_z = 0.6/s, the pitch command at its 0.45 rad limit for the
@@ -214,7 +214,7 @@ def fly_linear(A: np.ndarray, B: np.ndarray, autopilot: Autopilot, commands: Cal
     """Fly `autopilot` on the linear model ẋ = A x + B δ (exact zero-order hold at its period).
 
     `commands(t, x)` gives `Autopilot.step`'s keywords. The fins slew at `rate_limit` (rad/s)
-    towards the commands; each period holds the mean of the fin's start and end angles.
+    towards the commands, as the plant's servos; each period holds the fin's mean angle over it.
     Returns times (N,), states (N, NX) and fin angles (N, 3) at the control instants.
     """
     dt = autopilot.dt
@@ -226,9 +226,11 @@ def fly_linear(A: np.ndarray, B: np.ndarray, autopilot: Autopilot, commands: Cal
     for k in range(n):
         xs[k], fins[k] = x, fin
         cmd, _ = autopilot.step(x, **commands(k * dt, x))
-        new = fin + np.clip(np.asarray(cmd) - fin, -rate_limit * dt, rate_limit * dt)
-        x = Phi @ x + Gamma @ (0.5 * (fin + new))
-        fin = new
+        move = np.clip(np.asarray(cmd) - fin, -rate_limit * dt, rate_limit * dt)
+        # the fin ramps for the fraction |move| / (rate dt) of the period, then holds
+        held = fin + move * (1.0 - 0.5 * np.abs(move) / (rate_limit * dt))
+        x = Phi @ x + Gamma @ held
+        fin = fin + move
     return np.arange(n) * dt, xs, fins
 
 
