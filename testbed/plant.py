@@ -24,16 +24,20 @@ equations for a body in potential flow.
 
 from __future__ import annotations
 
+import copy
 import math
+from pathlib import Path
+from typing import NamedTuple
 
+import llvmlite.binding
 import mujoco
 import numba
 import numpy as np
 
 from testbed.errors import InputError
 from testbed.model import Vehicle
-from testbed.vehicle import (FINS, FLIP, constants, cruise_speed, fin_rate_limit, hydrostatics,
-                             load_model, skew)
+from testbed.vehicle import (FINS, FLIP, check_model, constants, cruise_speed, fin_rate_limit,
+                             hydrostatics, load_model, skew)
 
 
 class Plant:
@@ -41,47 +45,64 @@ class Plant:
 
     `complete=False` runs plain MuJoCo (no added-mass inertia, no buoyancy), for comparison.
     `rk4=True` integrates the same dynamics with fourth-order Runge-Kutta (four evaluations a
-    step, for accuracy studies) instead of the MJCF's integrator.
+    step, for accuracy studies) instead of the MJCF's integrator. A `model` passed in is used
+    as it is (later changes to it reach the plant), except with `timestep`: then the plant
+    works on a copy, and the caller's model keeps its own timestep.
     """
 
     def __init__(self, mjcf=None, timestep: float | None = None, complete: bool = True,
                  model: mujoco.MjModel | None = None, rk4: bool = False):  # fmt: skip
-        self.model = model if model is not None else load_model(mjcf)
+        if model is None:
+            model = load_model(mjcf)
+        else:
+            check_model(model)
+            if timestep is not None:
+                model = copy.copy(model)
         if timestep is not None:
-            if not timestep > 0:
-                raise InputError(f"timestep={timestep}; expected > 0 s")
-            self.model.opt.timestep = timestep
+            if not 0 < timestep < math.inf:
+                raise InputError(f"timestep={timestep}; expected a finite timestep > 0 s")
+            model.opt.timestep = timestep
+        self.model = model
         self.data = mujoco.MjData(self.model)
         self.complete = complete
         self.rk4 = rk4
-        m = self.model
+        m, d = self.model, self.data
         self.hull = m.body("hull").id
         self._qadr = m.jnt_qposadr[m.joint("hull").id]
         self._vadr = m.jnt_dofadr[m.joint("hull").id]
-        self._fin_qadr = np.array([m.jnt_qposadr[m.joint(f).id] for f in FINS])
-        self._fin_act = np.array([m.actuator(f).id for f in FINS])
+        self._fin_qadr = np.array([m.jnt_qposadr[m.joint(f).id] for f in FINS], np.intp)
+        self._fin_act = np.array([m.actuator(f).id for f in FINS], np.intp)
         self._thruster = m.actuator("thruster").id
         self._fin_limit = m.actuator_ctrlrange[self._fin_act].copy()
         self._rate = fin_rate_limit(m)
-        self._dofs = np.concatenate([np.arange(self._vadr, self._vadr + 6),
-                                     [m.jnt_dofadr[m.joint(f).id] for f in FINS]])  # fmt: skip
-        P, self._M_hull, B, c = _added_mass_basis(m)
-        self._P = P.transpose(0, 2, 1, 3, 4).reshape(-1, 81)  # rows (fin, j, i), as basis products
-        self._buoyancy = -m.opt.density * B * m.opt.gravity  # world force, N
-        self._buoyancy_centre = c  # hull axes, m
-        # d.M's CSR entries as (row, col) of the 9×9 matrix over self._dofs (the tree's sparsity).
-        where = np.full(m.nv, -1)
-        where[self._dofs] = np.arange(len(self._dofs))
-        rows, cols = np.repeat(np.arange(m.nv), m.M_rownnz), m.M_colind
-        if (where[rows] < 0).any() or (where[cols] < 0).any():
-            raise InputError("the MJCF has joints beyond the hull's free joint and the three fin "
-                             "hinges; expected only those")  # fmt: skip
-        self._csr = (where[rows], where[cols])
-        self._F = np.zeros(len(self._dofs))
-        self.reference = np.zeros(3)  # rate-limited fin servo reference
-        self.wrench = np.zeros(6)  # external force and moment at the CG, SPEC body axes (N, N m)
+        dofs = np.concatenate([np.arange(self._vadr, self._vadr + 6),
+                               [m.jnt_dofadr[m.joint(f).id] for f in FINS]]).astype(np.intp)  # fmt: skip
+        # d.M's CSR entries as (row, col) of the 9×9 matrix over `dofs` (check_model: nv = 9).
+        where = np.empty(m.nv, np.intp)
+        where[dofs] = np.arange(len(dofs))
+        rows = np.repeat(np.arange(m.nv), m.M_rownnz)
+        P, M_hull, B, c = _added_mass_basis(m)
         self.thrust = 0.0
+        self._addresses = (m._address, d._address)  # the C structs, for the compiled loop
+        self._k = _Kernel(d.xmat, d.qvel, d.qpos, d.M, d.qfrc_applied, d.ctrl, d.warning.number,
+                          self.hull, self._fin_qadr, self._fin_act, self._fin_limit, dofs, where[rows],
+                          where[m.M_colind].astype(np.intp), P, M_hull,
+                          -m.opt.density * B * m.opt.gravity, c, np.zeros(6), np.zeros(len(FINS)))  # fmt: skip
         self.reset()
+
+    @property
+    def wrench(self) -> np.ndarray:
+        """External force and moment at the CG, SPEC body axes (N, N m); set it in place or whole."""
+        return self._k.wrench
+
+    @wrench.setter
+    def wrench(self, value) -> None:
+        self._k.wrench[:] = value
+
+    @property
+    def reference(self) -> np.ndarray:
+        """The fin servos' rate-limited reference (rad)."""
+        return self._k.reference
 
     # -- state -------------------------------------------------------------------------------
 
@@ -99,8 +120,8 @@ class Plant:
     def reset(self, speed: float | None = None, depth: float = 50.0, heading: float = 0.0) -> None:
         """Straight and level at `speed` (default: cruise), fins at 0, thrust = drag at `speed`."""
         speed = cruise_speed(self.model) if speed is None else speed
-        if not speed >= 0:
-            raise InputError(f"speed={speed}; expected >= 0 m/s")
+        if not 0 <= speed < math.inf:
+            raise InputError(f"speed={speed}; expected a finite speed >= 0 m/s")
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
         q = np.array([math.cos(heading / 2), 0.0, 0.0, -math.sin(heading / 2)])  # NED yaw = -z turn
@@ -152,31 +173,31 @@ class Plant:
     def step(self, fin_commands=(0.0, 0.0, 0.0), n: int = 1) -> None:
         """Advance `n` steps with the fin servos commanded to `fin_commands` (rad).
 
-        Commands are clipped to the servo range and approached at the fin rate limit.
+        Commands are clipped to the servo range and approached at the fin rate limit. Raises
+        `InputError` at the first step that MuJoCo flags (it would reset the state and go on) or
+        that leaves the velocities non-finite or beyond `_MAX_VELOCITY` (m/s, rad/s).
         """
-        m, d = self.model, self.data
-        cmd = np.clip(np.asarray(fin_commands, float), self._fin_limit[:, 0], self._fin_limit[:, 1])
+        m, d, k = self.model, self.data, self._k
+        cmd = np.asarray(fin_commands, float).reshape(len(FINS))  # _servo clips it to the range
         slew = self._rate * m.opt.timestep
         d.ctrl[self._thruster] = self.thrust
-        settled = (cmd == self.reference).all()
-        for _ in range(n):
-            if not settled:
-                gap = cmd - self.reference
-                self.reference = np.where(np.abs(gap) <= slew, cmd, self.reference + np.sign(gap) * slew)
-                d.ctrl[self._fin_act] = self.reference
-                settled = (cmd == self.reference).all()
-            if self.rk4:
+        t0 = d.time
+        if self.rk4:
+            done, cause, warned = 0, -1, k.warnings.copy()
+            while done < n and cause < 0:
+                _servo(k, cmd, slew)
                 self._rk4_step()
-            elif self.complete:
-                mujoco.mj_step1(m, d)
-                self._complete()
-                mujoco.mj_step2(m, d)
-            else:
-                self._plain()
-                mujoco.mj_step(m, d)
-        if not np.all(np.isfinite(d.qvel)) or np.abs(d.qvel).max() > 1e4:
-            raise InputError(f"simulation unstable at t={d.time:.3f} s (timestep "
-                             f"{m.opt.timestep} s); expected a finite state — reduce the timestep")  # fmt: skip
+                done, cause = done + 1, _unstable(k, warned)
+        else:
+            # The whole loop is compiled, calling MuJoCo's C API: with Python calling mj_step1,
+            # the completion and mj_step2 each step, the plant ran at 0.5 of mj_step's rate, now
+            # 0.8 (benchmarks/bench_plant.py).
+            done, cause = _advance(*self._addresses, k, n, self.complete, cmd, slew)
+        if cause >= 0:
+            why = (f"velocities non-finite or beyond {_MAX_VELOCITY:g}" if cause == len(k.warnings) else "MuJoCo: " +
+                   mujoco.mju_warningText(cause, int(d.warning.lastinfo[cause])).split(". ")[0])  # fmt: skip
+            raise InputError(f"simulation unstable at t={t0 + done * m.opt.timestep:.4g} s ({why}); "
+                             "expected a bounded state: lower the speed or the timestep, or fix the MJCF")  # fmt: skip
 
     def _acceleration(self) -> np.ndarray:
         """q̈ at the current (qpos, qvel): MuJoCo's forward dynamics, completed."""
@@ -207,26 +228,13 @@ class Plant:
         d.qvel[:] = v0 + h * (w @ np.array(accs))
         d.time += h
 
-    def _hull_wrench(self) -> np.ndarray:
-        """`wrench` in MuJoCo's hull axes."""
-        return self.wrench * _FLIP6
-
     def _plain(self) -> None:
         """Plain MuJoCo: only the external wrench is applied."""
-        d = self.data
-        f = self._hull_wrench()
-        d.qfrc_applied[:] = 0.0
-        d.qfrc_applied[self._dofs[:3]] = d.xmat[self.hull].reshape(3, 3) @ f[:3]
-        d.qfrc_applied[self._dofs[3:6]] = f[3:]
+        _apply_wrench(self._k)
 
     def _complete(self) -> None:
-        """Add the added-mass inertia to d.M; the added-mass bias and buoyancy to qfrc_applied."""
-        m, d = self.model, self.data
-        _completion(d.xmat[self.hull], d.qpos[self._fin_qadr], d.qvel[self._dofs], self._P,
-                    self._M_hull, self._buoyancy, self._buoyancy_centre, self._hull_wrench(),
-                    self._csr[0], self._csr[1], d.M, self._F)  # fmt: skip
-        mujoco.mj_factorM(m, d)
-        d.qfrc_applied[self._dofs] = self._F
+        """Add the added-mass inertia to d.M (refactored); the bias and buoyancy to qfrc_applied."""
+        _complete(*self._addresses, self._k)
 
     def body_accelerations(self) -> np.ndarray:
         """(u̇ v̇ ẇ ṗ q̇ ṙ) in SPEC body axes at the current state, the fins held where they are.
@@ -270,51 +278,151 @@ class Plant:
         return 0.5 * float(d.qvel @ M @ d.qvel)
 
 
-_FLIP6 = np.array([1.0, -1.0, -1.0, 1.0, -1.0, -1.0])
+class _Kernel(NamedTuple):
+    """What the compiled step reads and writes: views of MjData's arrays (valid while the data
+    lives, so made once) and the plant's constants and mutable state."""
+
+    xmat: np.ndarray
+    qvel: np.ndarray
+    qpos: np.ndarray
+    M: np.ndarray  # d.M, the CSR mass matrix
+    qfrc: np.ndarray  # d.qfrc_applied
+    ctrl: np.ndarray
+    warnings: np.ndarray  # d.warning.number, MuJoCo's warning counters
+    hull: int  # body id
+    fin_qadr: np.ndarray
+    fin_act: np.ndarray
+    limits: np.ndarray  # fin servo ctrlrange, (fins, 2)
+    dofs: np.ndarray  # hull's six dofs, then the fins'
+    rows: np.ndarray  # d.M's entries as (row, col) over `dofs`
+    cols: np.ndarray
+    P: np.ndarray  # (fins, 3, 3, 9, 9), see _added_mass_basis
+    M_hull: np.ndarray  # 9×9
+    buoyancy: np.ndarray  # world force, N
+    centre: np.ndarray  # of buoyancy, hull axes, m
+    wrench: np.ndarray  # Plant.wrench, SPEC body axes
+    reference: np.ndarray  # Plant.reference
+
+
+# MuJoCo's C API for the compiled loop, from the library the Python bindings use. The mjModel*
+# and mjData* go in as integer addresses (`_address`): the same calling convention as pointers.
+llvmlite.binding.load_library_permanently(
+    str(next(f for pattern in ("libmujoco.so*", "libmujoco*.dylib", "mujoco*.dll")
+             for f in sorted(Path(mujoco.__file__).parent.glob(pattern)))))  # fmt: skip
+_SIGNATURE = numba.types.void(numba.types.uintp, numba.types.uintp)
+_mj_step = numba.types.ExternalFunction("mj_step", _SIGNATURE)
+_mj_step1 = numba.types.ExternalFunction("mj_step1", _SIGNATURE)
+_mj_step2 = numba.types.ExternalFunction("mj_step2", _SIGNATURE)
+_mj_factorM = numba.types.ExternalFunction("mj_factorM", _SIGNATURE)
+_MAX_VELOCITY = 1e4  # m/s or rad/s: no vehicle gets near; MuJoCo's own limit (1e10) is late
 
 
 @numba.njit(cache=True)
-def _cross(a, b):
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+def _advance(model, data, k, n, complete, cmd, slew):
+    """`n` steps; returns (steps taken, `_unstable`'s cause for the last one, -1 if none)."""
+    warned = k.warnings.copy()
+    for i in range(n):
+        _servo(k, cmd, slew)
+        if complete:
+            _mj_step1(model, data)
+            _complete(model, data, k)
+            _mj_step2(model, data)
+        else:
+            _apply_wrench(k)
+            _mj_step(model, data)
+        cause = _unstable(k, warned)
+        if cause >= 0:
+            return i + 1, cause
+    return n, -1
+
+
+@numba.njit(cache=True)
+def _unstable(k, warned):
+    """The first MuJoCo warning counter that moved since `warned` (on bad qpos, qvel, qacc
+    MuJoCo resets the state and goes on), len(warned) for velocities non-finite or beyond
+    `_MAX_VELOCITY`, or -1 for neither."""
+    for i in range(warned.shape[0]):
+        if k.warnings[i] != warned[i]:
+            return i
+    for i in range(k.qvel.shape[0]):
+        if not abs(k.qvel[i]) <= _MAX_VELOCITY:  # NaN too
+            return warned.shape[0]
+    return -1
+
+
+@numba.njit(cache=True)
+def _servo(k, cmd, slew):
+    """Move the servo reference toward `cmd`, clipped to the servo range, by at most `slew`."""
+    for i in range(cmd.shape[0]):
+        target = min(max(cmd[i], k.limits[i, 0]), k.limits[i, 1])
+        gap = target - k.reference[i]
+        k.reference[i] = target if abs(gap) <= slew else k.reference[i] + np.sign(gap) * slew
+        k.ctrl[k.fin_act[i]] = k.reference[i]
+
+
+@numba.njit(cache=True)
+def _turn(R, x, y, z):
+    """R (x, y, z), as a tuple: a 3-vector product without numpy's small-array overhead."""
+    return (R[0, 0] * x + R[0, 1] * y + R[0, 2] * z, R[1, 0] * x + R[1, 1] * y + R[1, 2] * z,
+            R[2, 0] * x + R[2, 1] * y + R[2, 2] * z)  # fmt: skip
+
+
+@numba.njit(cache=True)
+def _apply_wrench(k):
+    """Plain MuJoCo's applied force: the external wrench alone (SPEC axes turned to MuJoCo's)."""
+    R, w = k.xmat[k.hull].reshape(3, 3), k.wrench
+    f = _turn(R, w[0], -w[1], -w[2])
+    k.qfrc[:] = 0.0
+    for i in range(3):
+        k.qfrc[k.dofs[i]] = f[i]
+        k.qfrc[k.dofs[3 + i]] = w[3 + i] if i == 0 else -w[3 + i]
 
 
 # Compiled: run every physics step, where numpy's per-call overhead on 9×9 arrays would cost
 # three times MuJoCo's own step (numba is a dependency for this loop alone).
 @numba.njit(cache=True)
-def _completion(xmat, delta, qd, P, M_hull, buoyancy, centre, wrench, rows, cols, M_csr, F):
-    """Add Tᵀ M9 T to the CSR mass matrix `M_csr`; write the generalized force to `F`.
+def _complete(model, data, k):
+    """Add Tᵀ M9 T to the CSR mass matrix and refactor it; write the generalized force.
 
-    M9 = M_hull + Σ basis_i basis_j P_ij (X_k affine in basis = (1, cos δ_k, sin δ_k)),
-    F = −M9 γ − (Σ basis_i ḃasis_j P_ij) ν + buoyancy + wrench, in MuJoCo's coordinates.
+    M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij (X_k affine in b = (1, cos δ_k, sin δ_k)),
+    F = −M9 γ − (Σ_k Σ_ij b_i ḃ_j P_kij) ν + buoyancy + wrench, in MuJoCo's coordinates.
     """
-    R = xmat.reshape(3, 3)
-    v = R.T @ qd[:3]
-    w = qd[3:6]
-    nfin = delta.shape[0]
-    coef = np.zeros((2, nfin * 9))
-    for k in range(nfin):
-        c, s, rate = np.cos(delta[k]), np.sin(delta[k]), qd[6 + k]
-        b = (1.0, c, s)
-        bdot = (0.0, -s * rate, c * rate)
-        for j in range(3):
-            for i in range(3):
-                coef[0, 9 * k + 3 * j + i] = b[i] * b[j]
-                coef[1, 9 * k + 3 * j + i] = b[i] * bdot[j]
-    MC = coef @ P
-    M9 = M_hull + MC[0].reshape(9, 9)
-    C9 = MC[1].reshape(9, 9)
-    nu = np.concatenate((v, w, qd[6:]))
-    cw = _cross(w, v)
-    F[:] = -(C9 @ nu)  # and −M9 γ, with γ = (−ω × v, 0, 0):
+    R, q, dofs, P = k.xmat[k.hull].reshape(3, 3), k.qvel, k.dofs, k.P
+    nu = np.empty(9)  # ν = (v, ω, δ̇), v = Rᵀ q̇_lin in hull axes
     for i in range(9):
-        F[i] += M9[i, 0] * cw[0] + M9[i, 1] * cw[1] + M9[i, 2] * cw[2]
-    F[3:6] += _cross(centre, R.T @ buoyancy) + wrench[3:]
-    F[:3] = R @ (F[:3] + wrench[:3]) + buoyancy
+        nu[i] = q[dofs[i]]
+    nu[0], nu[1], nu[2] = _turn(R.T, nu[0], nu[1], nu[2])
+    M9, C9 = k.M_hull.copy(), np.zeros((9, 9))
+    for f in range(P.shape[0]):
+        c, s, rate = np.cos(k.qpos[k.fin_qadr[f]]), np.sin(k.qpos[k.fin_qadr[f]]), nu[6 + f]
+        b, bdot = (1.0, c, s), (0.0, -s * rate, c * rate)
+        for i in range(3):
+            for j in range(3):
+                wm, wc = b[i] * b[j], b[i] * bdot[j]
+                for r in range(9):
+                    for col in range(9):
+                        M9[r, col] += wm * P[f, i, j, r, col]
+                        C9[r, col] += wc * P[f, i, j, r, col]
+    cw = np.cross(nu[3:6], nu[:3])
+    F = np.empty(9)
+    for r in range(9):  # −M9 γ with γ = (−ω × v, 0, 0), and −C9 ν
+        F[r] = M9[r, 0] * cw[0] + M9[r, 1] * cw[1] + M9[r, 2] * cw[2]
+        for col in range(9):
+            F[r] -= C9[r, col] * nu[col]
+    B, w = k.buoyancy, k.wrench
+    torque = np.cross(k.centre, np.array(_turn(R.T, B[0], B[1], B[2])))
+    F[3], F[4], F[5] = F[3] + torque[0] + w[3], F[4] + torque[1] - w[4], F[5] + torque[2] - w[5]
+    F[0], F[1], F[2] = _turn(R, F[0] + w[0], F[1] - w[1], F[2] - w[2])
     # MuJoCo's free-joint linear velocity is in world axes: ν = T q̇, T = diag(Rᵀ, I).
-    M9[:3] = R @ M9[:3]
-    M9[:, :3] = (R @ np.ascontiguousarray(M9[:, :3].T)).T
-    for e in range(rows.shape[0]):
-        M_csr[e] += M9[rows[e], cols[e]]
+    for r in range(9):
+        M9[r, 0], M9[r, 1], M9[r, 2] = _turn(R, M9[r, 0], M9[r, 1], M9[r, 2])  # M9 Rᵀ rows
+    for col in range(9):
+        M9[0, col], M9[1, col], M9[2, col] = _turn(R, M9[0, col], M9[1, col], M9[2, col])
+    for e in range(k.rows.shape[0]):
+        k.M[e] += M9[k.rows[e], k.cols[e]]
+    _mj_factorM(model, data)
+    for i in range(9):
+        k.qfrc[dofs[i]] = F[i] + (B[i] if i < 3 else 0.0)
 
 
 def _added_mass_basis(model: mujoco.MjModel):
@@ -322,8 +430,8 @@ def _added_mass_basis(model: mujoco.MjModel):
 
     Returns P (fins, 3, 3, 9, 9) with X_k = Σ_i basis_i X_ki, basis = (1, cos δ_k, sin δ_k),
     P[k, i, j] = X_kiᵀ M_k X_kj; the hull's 9×9 added mass; the total displaced volume and its
-    centre in hull axes. Fins must hinge about their body origin, and their displaced volume must
-    lie on their hinge axis (so buoyancy makes no hinge moment and does not move with δ).
+    centre in hull axes. `check_model` has made sure that fins hinge about their body origin and
+    that their displaced volume lies on the hinge axis (buoyancy does not move with δ).
     """
     h = hydrostatics(model)
     hull = model.body("hull").id
@@ -335,15 +443,9 @@ def _added_mass_basis(model: mujoco.MjModel):
             M_hull[:6, :6] += Mb
             volume, moment = volume + V, moment + V * cb
             continue
-        names = [f for f in FINS if model.joint(f).bodyid[0] == b]
-        if model.body_parentid[b] != hull or not names:
-            raise InputError(f"body {model.body(b).name!r} has fluid geoms but is not the hull "
-                             "or a fin hinged to it; expected fluid geoms on those only")  # fmt: skip
-        k, j = FINS.index(names[0]), model.joint(names[0]).id
+        fin = next(f for f in FINS if model.joint(f).bodyid[0] == b)  # check_model: one exists
+        k, j = FINS.index(fin), model.joint(fin).id
         a = model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j])
-        if np.linalg.norm(model.jnt_pos[j]) > 1e-9 or np.linalg.norm(np.cross(a, cb)) > 1e-9:
-            raise InputError(f"fin {names[0]!r}: its hinge must pass through its body origin and "
-                             "its fluid geoms' volume centre")  # fmt: skip
         Q0 = np.empty(9)
         mujoco.mju_quat2Mat(Q0, model.body_quat[b])
         Q0 = Q0.reshape(3, 3)  # hull from fin at δ = 0

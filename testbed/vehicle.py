@@ -2,10 +2,12 @@
 
 An MJCF body is usable by testbed when it has a body `hull` with a free joint `hull` whose frame
 origin is the CG of the whole vehicle (x forward, y port, z up: MuJoCo is z-up), hinge joints
-`rudder`, `elevator_right`, `elevator_left` driven by position actuators of the same names, a
-motor `thruster`, and `fluidshape="ellipsoid"` geoms (which carry its hydrodynamics and, here,
-its displaced volume). SPEC §1's body axes (x forward, y starboard, z down) are the MuJoCo
-hull axes turned half a turn about x: `FLIP = diag(1, -1, -1)`.
+`rudder`, `elevator_right`, `elevator_left` (no other joints), each through the origin of a
+child body of `hull`, driven by position servos of the same names, a motor `thruster`, and
+`fluidshape="ellipsoid"` geoms on the hull and the fins (which carry its hydrodynamics and,
+here, its displaced volume; a fin's on its hinge axis). `check_model` names what is missing.
+SPEC §1's body axes (x forward, y starboard, z down) are the MuJoCo hull axes turned half a turn
+about x: `FLIP = diag(1, -1, -1)`.
 """
 
 from __future__ import annotations
@@ -43,7 +45,11 @@ def load_model(path: str | Path | None = None) -> mujoco.MjModel:
 
 
 def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
-    """Raise `InputError` naming the first missing or wrong element the plant relies on."""
+    """Raise `InputError` naming the first missing or wrong element the plant relies on.
+
+    The one check for the plant and the analytic model alike: `load_model` runs it, and so do
+    `Plant` and `truth.analytic_model` on a model passed in (it may have been changed).
+    """
 
     def need(kind, name, what):
         if mujoco.mj_name2id(model, kind, name) < 0:
@@ -51,25 +57,80 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
 
     need(mujoco.mjtObj.mjOBJ_BODY, "hull", "body")
     need(mujoco.mjtObj.mjOBJ_JOINT, "hull", "joint")
-    hull = model.joint("hull")
-    if mujoco.mjtJoint(int(hull.type[0])) != mujoco.mjtJoint.mjJNT_FREE or hull.bodyid[0] != model.body("hull").id:
+    hull, body = model.joint("hull"), model.body("hull").id
+    if mujoco.mjtJoint(int(hull.type[0])) != mujoco.mjtJoint.mjJNT_FREE or hull.bodyid[0] != body:
         raise InputError(f"{source}: joint 'hull' must be the free joint of body 'hull'")
+    fin_bodies = []
     for fin in FINS:
         need(mujoco.mjtObj.mjOBJ_JOINT, fin, "hinge joint")
-        if mujoco.mjtJoint(int(model.joint(fin).type[0])) != mujoco.mjtJoint.mjJNT_HINGE:
+        j = model.joint(fin)
+        if mujoco.mjtJoint(int(j.type[0])) != mujoco.mjtJoint.mjJNT_HINGE:
             raise InputError(f"{source}: joint {fin!r} must be a hinge")
+        b = int(j.bodyid[0])
+        if model.body_parentid[b] != body or b in fin_bodies:
+            raise InputError(f"{source}: joint {fin!r} is on body {model.body(b).name!r}; expected a "
+                             "body of its own, a child of 'hull'")  # fmt: skip
+        if np.abs(j.pos).max() > 1e-9:
+            raise InputError(f"{source}: joint {fin!r} pos=\"{' '.join(f'{x:g}' for x in j.pos)}\"; "
+                             "expected 0 0 0, the hinge through its body's origin")  # fmt: skip
+        fin_bodies.append(b)
         need(mujoco.mjtObj.mjOBJ_ACTUATOR, fin, "position actuator")
-        if model.actuator(fin).trnid[0] != model.joint(fin).id:
+        a = model.actuator(fin)
+        if a.trnid[0] != j.id or mujoco.mjtTrn(int(a.trntype[0])) != mujoco.mjtTrn.mjTRN_JOINT:
             raise InputError(f"{source}: actuator {fin!r} must drive joint {fin!r}")
+        kp = float(a.gainprm[0])
+        if (mujoco.mjtGain(int(a.gaintype[0])) != mujoco.mjtGain.mjGAIN_FIXED
+                or mujoco.mjtBias(int(a.biastype[0])) != mujoco.mjtBias.mjBIAS_AFFINE
+                or mujoco.mjtDyn(int(a.dyntype[0])) == mujoco.mjtDyn.mjDYN_INTEGRATOR
+                or not kp > 0 or a.biasprm[0] != 0 or a.biasprm[1] != -kp):  # fmt: skip
+            raise InputError(f"{source}: actuator {fin!r} is not a position servo (gainprm[0]={kp:g}, "
+                             f"biasprm[:2]=({a.biasprm[0]:g}, {a.biasprm[1]:g})); expected a "
+                             "<position> actuator: gainprm[0] = kp > 0, biasprm[:2] = (0, -kp)")  # fmt: skip
+    if model.njnt != 1 + len(FINS):
+        raise InputError(f"{source}: {model.njnt} joints; expected only the free joint 'hull' and "
+                         f"the hinges {', '.join(map(repr, FINS))}")  # fmt: skip
     need(mujoco.mjtObj.mjOBJ_ACTUATOR, "thruster", "motor actuator")
-    if not np.intersect1d(fluid_geoms(model), _geom_on(model, "hull")).size:
-        raise InputError(f"{source}: body 'hull' has no geom with fluidshape=\"ellipsoid\"")
+    thruster = model.actuator("thruster")
+    if (mujoco.mjtGain(int(thruster.gaintype[0])) != mujoco.mjtGain.mjGAIN_FIXED
+            or mujoco.mjtBias(int(thruster.biastype[0])) != mujoco.mjtBias.mjBIAS_NONE):  # fmt: skip
+        raise InputError(f"{source}: actuator 'thruster' has a gain or bias of its own; expected a "
+                         "<motor> (force = ctrl)")  # fmt: skip
     if model.opt.density <= 0:
         raise InputError(f"{source}: option density={model.opt.density}; expected > 0 (a fluid)")
+    if not np.intersect1d(fluid_geoms(model), _geom_on(model, "hull")).size:
+        raise InputError(f"{source}: body 'hull' has no geom with fluidshape=\"ellipsoid\"")
+    h = hydrostatics(model)
+    for b, centre in zip(h.bodies, h.centroid):
+        if b != body and b not in fin_bodies:
+            raise InputError(f"{source}: body {model.body(b).name!r} has fluid geoms; expected "
+                             "fluid geoms on the hull and the fins only")  # fmt: skip
+        if b != body:
+            fin = FINS[fin_bodies.index(b)]
+            axis = model.joint(fin).axis / np.linalg.norm(model.joint(fin).axis)
+            if np.linalg.norm(np.cross(axis, centre)) > 1e-9:
+                raise InputError(f"{source}: fin {fin!r}: its fluid geoms' volume centre "
+                                 f"({' '.join(f'{x:g}' for x in centre)}) is off its hinge axis; "
+                                 "expected on it")  # fmt: skip
+    M = rigid_body_mass(model)
+    if np.abs(M[:3, 3:]).max() > 1e-6 * M[0, 0]:
+        raise InputError(f"{source}: body 'hull': its frame origin is not the vehicle's CG; "
+                         "expected the CG of the whole vehicle, fins included (SPEC §1)")  # fmt: skip
 
 
 _NEEDS = ("a body 'hull' with free joint 'hull', hinge joints and position actuators 'rudder', "
           "'elevator_right', 'elevator_left', a motor 'thruster', ellipsoid fluid geoms")  # fmt: skip
+MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
+
+
+def trim_speed(speed) -> float:
+    """`speed` as a trim speed (m/s): finite and at least `MIN_SPEED`, else `InputError`."""
+    try:
+        value = float(speed)
+    except (TypeError, ValueError):
+        raise InputError(f"speed={speed!r}; expected a number (m/s)") from None
+    if not MIN_SPEED <= value < np.inf:
+        raise InputError(f"speed={speed}; expected a finite trim speed >= {MIN_SPEED} m/s")
+    return value
 
 
 def _geom_on(model, body):
@@ -217,8 +278,7 @@ def _spatial_sum(model, per_body):
 
 def constants(model: mujoco.MjModel, speed: float) -> Vehicle:
     """SPEC §2's known constants: mass, inertias about the CG, W, B, centre of buoyancy, U."""
-    if not speed > 0:
-        raise InputError(f"speed={speed}; expected a trim speed > 0 m/s")
+    speed = trim_speed(speed)
     M = rigid_body_mass(model)
     g = float(np.linalg.norm(model.opt.gravity))
     xb = buoyancy_centre(model)

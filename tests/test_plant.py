@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from testbed import truth
+from testbed.cli import main
 from testbed.errors import InputError
 from testbed.plant import Plant
-from testbed.vehicle import FINS, added_mass, constants, load_model, rigid_body_mass
+from testbed.vehicle import FINS, added_mass, constants, default_mjcf, load_model, rigid_body_mass
 
 WRENCH = np.array([300.0, -120.0, 80.0, 6.0, -25.0, 40.0])  # N, N m; SPEC body axes at the CG
 
@@ -63,14 +65,13 @@ def test_force_step_through_mujoco_step():
 
 
 def _inviscid(complete):
-    """Fluid coefficients, viscosity and gravity zero; fins free (no servo, no stops), added mass
-    kept; RK4 so that integration error (MuJoCo's Euler is first order) does not mask physics."""
+    """Fluid coefficients, viscosity and gravity zero; fins free (actuation off, no stops), added
+    mass kept; RK4 so that integration error (MuJoCo's Euler is first order) does not mask physics."""
     model = load_model()
     model.opt.gravity[:] = 0.0
     model.opt.viscosity = 0.0
     model.geom_fluid[:, 1:6] = 0.0  # drag, lift and Magnus coefficients (added mass stays)
-    model.actuator_gainprm[:] = 0.0
-    model.actuator_biasprm[:] = 0.0
+    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_ACTUATION
     model.jnt_range[:] = [-1e6, 1e6]
     model.opt.timestep = 0.001
     plant = Plant(model=model, complete=complete, rk4=True)
@@ -154,21 +155,70 @@ def test_stable_for_600_s_with_fins_working():
 
 
 def test_stable_for_600_s_when_added_mass_exceeds_body_mass():
-    """A variant with the hull made light: sway added mass 2.9× the body's; still stable."""
+    """The hull made light (its centre of mass moved to keep the CG): sway and heave added mass
+    2.79× the body's (the bundled torpedo's is 0.93×). 600 s of fin sweeps stay bounded, as
+    physics says: the propulsor, set to the trim drag, cannot drive the vehicle faster than trim
+    (any manoeuvre adds drag), so surge and the Kirchhoff energy ½νᵀ(M_RB + M_A)ν stay at or
+    below their trim values."""
     model = load_model()
     hull = model.body("hull").id
     model.body_mass[hull] *= 0.3
     model.body_inertia[hull] *= 0.3
+    model.body_ipos[hull] /= 0.3
     model.opt.gravity[:] = 0.0  # no longer neutral; keep it from surfacing
     M_RB, M_A = rigid_body_mass(model), added_mass(model)
-    assert M_A[1, 1] > 2 * M_RB[1, 1] and M_A[2, 2] > 2 * M_RB[2, 2]
+    ratio = np.diag(M_A)[1:3] / np.diag(M_RB)[1:3]
+    assert np.allclose(ratio, 2.79, atol=0.01), ratio
     plant = Plant(model=model)
     plant.reset()
-    t = 0.0
-    while t < 600.0:
+    U, trim = plant.state()[0], plant.kinetic_energy()
+    surge, energy = [], []
+    for k in range(round(600.0 / (25 * plant.timestep))):
+        t = 25 * k * plant.timestep
         plant.step(0.2 * np.sign(np.sin([0.9 * t, 0.6 * t, 0.4 * t])), n=25)
-        t += 25 * plant.timestep
-    assert np.all(np.isfinite(plant.state()))
+        surge.append(plant.state()[0])
+        if k % 10 == 0:
+            energy.append(plant.kinetic_energy())
+    assert 0.5 * U < min(surge) and max(surge) < U * (1 + 1e-3), (min(surge), max(surge))
+    assert max(energy) < trim * (1 + 1e-3) and min(energy) > 0.25 * trim, (min(energy), trim)
+
+
+def test_unstable_simulation_is_one_line_input_error(tmp_path, monkeypatch, capsys):
+    """MuJoCo resets an unstable state and goes on (a warning is all it gives): the plant stops
+    at that step instead, and so does the command line, with nothing written."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to MUJOCO_LOG.TXT in the working folder
+    plant = Plant()
+    plant.reset(speed=1e6)
+    with pytest.raises(InputError, match=r"unstable at t=0\.004 s \(MuJoCo: Nan, Inf or huge value in QACC") as e:
+        plant.step(n=10)
+    assert "\n" not in str(e.value)
+    # RK4 has no MuJoCo check; at 20 steps per period of the 30 Hz fin servo it diverges
+    # (the bundled 4 ms step is the implicit integrator's).
+    plant = Plant(timestep=0.05, rk4=True)
+    plant.reset()
+    with pytest.raises(InputError, match=r"unstable at t=0\.1 s \(velocities non-finite or beyond"):
+        plant.step((0.1, 0.0, 0.0), n=100)
+    assert main(["simulate", "--scenario", "I", "--speed", "1e6", "--out", "run", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "simulation unstable at t=" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_timestep_option_leaves_the_callers_model_alone():
+    model = load_model()
+    plant = Plant(model=model, timestep=0.001)
+    assert plant.timestep == 0.001 and model.opt.timestep == 0.004
+    with pytest.raises(InputError, match="timestep"):
+        Plant(model=model, timestep=float("inf"))
+
+
+def _variant(tmp_path, name, old, new):
+    """The bundled torpedo with one piece of its MJCF text replaced."""
+    text = default_mjcf().read_text()
+    assert text.count(old) == 1, old
+    path = tmp_path / f"{name}.xml"
+    path.write_text(text.replace(old, new))
+    return path
 
 
 def test_bad_mjcf_is_one_line_input_error(tmp_path):
@@ -187,3 +237,30 @@ def test_bad_mjcf_is_one_line_input_error(tmp_path):
         load_model(finless)
     with pytest.raises(InputError, match="speed"):
         constants(load_model(), 0.0)
+    # Each is rejected by load_model, and alike by the plant and the analytic model on the
+    # compiled model (one check for both).
+    cases = {
+        "motor fin": ('<position name="rudder" joint="rudder"/>', '<motor name="rudder" joint="rudder"/>',
+                      "actuator 'rudder' is not a position servo .* expected a <position> actuator"),
+        "extra joint": ('<site name="imu" pos="0 0 0"/>',
+                        '<site name="imu" pos="0 0 0"/><body name="flap"><joint name="flap"/>'
+                        '<geom size="0.01" mass="0.001"/></body>', "5 joints; expected only"),
+        "hinge off origin": ('<joint name="rudder" class="fin" axis="0 0 -1"/>',
+                             '<joint name="rudder" class="fin" axis="0 0 -1" pos="0.02 0 0"/>',
+                             "joint 'rudder' pos=\"0.02 0 0\"; expected 0 0 0"),
+        "CG off origin": ('<inertial pos="0.0565274137 0 0.000859924"', '<inertial pos="0.1 0 0"',
+                          "not the vehicle's CG"),
+        "fluid geom off hinge": ('<geom name="elevator_left" class="blade"/>',
+                                 '<geom name="elevator_left" class="blade" pos="0.05 0 0"/>',
+                                 "fin 'elevator_left': its fluid geoms' volume centre .* off its hinge axis"),
+    }  # fmt: skip
+    for name, (old, new, message) in cases.items():
+        path = _variant(tmp_path, name.replace(" ", "_"), old, new)
+        with pytest.raises(InputError, match=message) as e:
+            load_model(path)
+        assert str(e.value).startswith(str(path)) and "\n" not in str(e.value), name
+        model = mujoco.MjModel.from_xml_path(str(path))
+        with pytest.raises(InputError, match=message):
+            Plant(model=model)
+        with pytest.raises(InputError, match=message):
+            truth.analytic_model(model, 20.0)

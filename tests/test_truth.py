@@ -182,8 +182,13 @@ def _one_line_error(argv, capsys):
 
 def test_cli_truth_bad_input(capsys, tmp_path):
     assert "--speed" in _one_line_error(["truth", "--speed", "0"], capsys)
-    with pytest.raises(InputError, match="speed"):
-        truth.analytic_config(None, 0.0)
+    assert "speed" in _one_line_error(["truth", "--speed", "inf"], capsys)
+    assert "speed=1e-300" in _one_line_error(["truth", "--speed", "1e-300"], capsys)  # was NaN, exit 0
+    for speed in (0.0, -1.0, float("inf"), float("nan"), 1e-300):
+        with pytest.raises(InputError, match=r"speed=.*; expected a finite trim speed >= 0\.001 m/s"):
+            truth.analytic_config(None, speed)
+        with pytest.raises(InputError, match="expected a finite trim speed"):
+            truth.analytic_model(load_model(), speed)
     with pytest.raises(InputError, match="speed"):
         truth.numerical_model(load_model(), -1.0)
     bad = tmp_path / "bad.xml"
