@@ -51,8 +51,17 @@ def _cmd_truth(args) -> int:
     return 0
 
 
+def _quiet_mujoco() -> None:
+    """The plant turns MuJoCo's warnings into one-line errors; don't print or log them twice."""
+    import mujoco
+
+    mujoco.set_mju_user_warning(lambda message: None)
+
+
 def _cmd_simulate(args) -> int:
     from testbed.scenario import simulate
+
+    _quiet_mujoco()
 
     run = simulate(args.scenario, seed=args.seed, out=args.out, force=args.force,
                    duration=args.duration, speed=args.speed, mjcf=args.mjcf,
