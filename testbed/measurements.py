@@ -19,6 +19,7 @@ reproducible for its seed.
 
 from __future__ import annotations
 
+import math
 import numbers
 from dataclasses import dataclass, field
 from typing import Mapping
@@ -42,13 +43,15 @@ class Sensors:
     fin_std: float = FIN_NOISE_STD
 
     def __post_init__(self):
-        if not self.rate > 0:
-            raise InputError(f"sample rate {self.rate}; expected > 0 Hz")
+        if not 0 < self.rate < math.inf:
+            raise InputError(f"sample rate {self.rate}; expected a finite number > 0 (Hz)")
         for name, s in self.noise_std.items():
             if name not in STATES:
                 raise InputError(f"noise for {name!r}: not a state; expected one of {', '.join(STATES)}")
-            if not s >= 0:
-                raise InputError(f"noise for {name!r} = {s}; expected >= 0")
+            if not 0 <= s < math.inf:
+                raise InputError(f"noise for {name!r} = {s}; expected a finite number >= 0")
+        if not 0 <= self.fin_std < math.inf:
+            raise InputError(f"fin noise {self.fin_std}; expected a finite number >= 0 (rad)")
 
 
 def check_seed(seed) -> int:
