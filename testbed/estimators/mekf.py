@@ -121,46 +121,94 @@ def sqrt_update(J: np.ndarray, C: np.ndarray, Rh: np.ndarray):
 
 def discrete_jacobian(A, B, S, dA, dB, dS, dt: float):
     """Exact ZOH model and its derivatives: `(E, dE)` with `E = [Φ Γ s]` (10, 14) and
-    `dE[i] = ∂[Φ Γ s]/∂θ_i` (p, 10, 14).
+    `dE[i] = ∂[Φ Γ s]/∂θ_i` (p, 10, 14). See `expm_pair`."""
+    M = np.hstack([A, B, S[:, None]])
+    dM = np.concatenate([dA, dB, dS[:, :, None]], axis=2).transpose(1, 0, 2)
+    E, dE = expm_pair(M, dM, dt)
+    return E, dE.transpose(1, 0, 2)
 
-    Van Loan: the upper-right block of `expm([[M, ∂M_i], [0, M]] Δ)` is `∂expm(MΔ)`. Computed
-    for all i at once by scaling and squaring of the block-triangular pair (E, ∂E) — Taylor at
-    ‖MΔ‖₁/2ˢ ≤ 1/4 until a term is below 1e-17 of the sum, then `∂E ← E ∂E + ∂E E`, `E ← E²`
-    s times — keeping only the top n rows, as M's last m+1 rows are zero. Equal to scipy's
-    `expm` of the block matrix to rounding, at a fraction of its cost. A truncated series
-    (first-order term) is no cheaper shortcut here: the roll mode has ‖AΔ‖ ≈ 2.5 at 20 Hz.
+
+def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float):
+    """`(E, dE)`: the top n rows of `expm(M̄ Δ)` and of its derivatives, where `M̄ = [[M], [0]]`
+    is square (its last q − n rows zero) and `dM[:, i, :] = ∂M/∂θ_i` (n, p, q); `dE` is laid out
+    like `dM`, so `dE @ ξ` is the (n, p) Jacobian `∂(E ξ)/∂θ` in one product.
+
+    Van Loan: the upper-right block of `expm([[M̄, ∂M̄_i], [0, M̄]] Δ)` is `∂expm(M̄Δ)`. Computed
+    for all i at once by scaling and squaring of the block-triangular pair (E, ∂E): Taylor at
+    `h = Δ/2ˢ` with `‖A h‖₁ ≤ 1/2`, then `∂E ← E ∂E + ∂E E`, `E ← E²` s times, top rows only. Only
+    A (the first n columns) enters the powers, so the input columns (B, large for the fins) set
+    neither s nor the number of terms: the k-th term of E and of ∂E is bounded by
+    `‖Ah‖^(k−1)/(k−1)!` of the first, and the series stops where that bound is below 1e-17 (16
+    terms at ‖Ah‖ = 1/2). Equal to scipy's `expm` of the block matrix to rounding (tests: complex
+    step), at a fraction of its cost: at 50 Hz, ‖AΔ‖₁ ≈ 1 for the torpedo's roll mode, s = 1.
     """
-    n, p = A.shape[0], len(dA)
-    a = np.hstack([A, B, S[:, None]])  # top rows of M
-    q = a.shape[1]
-    norm = np.abs(a).sum(0).max() * dt
-    s = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0 else 0
+    n, p, q = dM.shape
+    norm = float(np.abs(M[:, :n]).sum(0).max()) * dt
+    s = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0 else 0
     h = dt / 2**s
-    X = a * h
-    dX = np.concatenate([dA, dB, dS[:, :, None]], axis=2) * h
-    dXcols = dX.transpose(1, 0, 2).reshape(n, p * q)  # [dX_1 ... dX_p] side by side
-
-    # G[0] = the Taylor term of E − I, G[1:] = that of ∂E (top rows): g_k = (g_{k−1} M + ...)/k
-    G = np.concatenate([X[None], dX])
-    total = G.copy()
-    for k in range(2, 20):
-        G_new = (G[:, :, :n].reshape(-1, n) @ X).reshape(p + 1, n, q)
-        G_new[1:] += (G[0, :, :n] @ dXcols).reshape(n, p, q).transpose(1, 0, 2)
-        G = G_new / k
-        total += G
-        if np.abs(G).max() <= 1e-17 * np.abs(total).max():
-            break
-    E, dE = total[0], total[1:]
+    theta, bound, terms = norm / 2**s, 1.0, 1
+    while bound > 2.0**-53 and terms < 40:  # bound of term k+1 relative to the first: θ^k/k!
+        bound *= theta / terms
+        terms += 1
+    X = M * h
+    dX = (dM * h).reshape(n, p * q)
+    T, dT = X, dX.reshape(n, p, q)
+    E, dE = X.copy(), dT.copy()
+    for k in range(2, terms + 1):  # T_k = T_{k−1} X / k, ∂T_k = (∂T_{k−1} X + T_{k−1} ∂X) / k
+        dT = ((dT[:, :, :n].reshape(n * p, n) @ X).reshape(n, p, q)
+              + (T[:, :n] @ dX).reshape(n, p, q)) * (1.0 / k)  # fmt: skip
+        T = (T[:, :n] @ X) * (1.0 / k)
+        E += T
+        dE += dT
     E[:, :n] += np.eye(n)
     for _ in range(s):  # (E, ∂E) ← (E², E ∂E + ∂E E), top rows only
         Ex = E[:, :n]
-        dE_new = (Ex @ dE.transpose(1, 0, 2).reshape(n, p * q)).reshape(n, p, q).transpose(1, 0, 2)
-        dE_new += (dE[:, :, :n].reshape(p * n, n) @ E).reshape(p, n, q)
+        dE_new = (Ex @ dE.reshape(n, p * q)).reshape(n, p, q)
+        dE_new += (dE[:, :, :n].reshape(n * p, n) @ E).reshape(n, p, q)
         dE_new[:, :, n:] += dE[:, :, n:]
         E_new = Ex @ E
         E_new[:, n:] += E[:, n:]
         E, dE = E_new, dE_new
     return E, dE
+
+
+class _Model:
+    """The discrete model `E = [Φ Γ s]` and `∂E/∂θ` (n, p, q) at the free coefficients `th`.
+
+    When no free coefficient enters the mass matrix Mt (no free *dot term: Scenario II's default
+    list), `M = Mt⁻¹[At Bt St]` is affine in θ and its derivatives are constant: both come from
+    one solve at the start and `M(θ)` is one product. Otherwise `continuous`/`derivatives` are
+    evaluated at every refresh."""
+
+    def __init__(self, s, theta: np.ndarray, idx: np.ndarray):
+        self.s, self.theta, self.idx = s, theta.copy(), idx
+        self.th0 = theta[idx].copy()
+        self.affine = not np.any(s.dMt[idx])
+        if self.affine:
+            self.M0, self.dM = self._continuous(self.theta)  # LinAlgError: singular Mt
+            self.dMq = np.ascontiguousarray(self.dM.transpose(0, 2, 1))  # (n, q, p)
+
+    def _continuous(self, theta):
+        A, B, S = continuous(self.s, theta)
+        dA, dB, dS = derivatives(self.s, theta, A, B, S, self.idx)
+        M = np.hstack([A, B, S[:, None]])
+        dM = np.concatenate([dA, dB, dS[:, :, None]], axis=2).transpose(1, 0, 2)
+        return M, np.ascontiguousarray(dM)
+
+    def discrete(self, th: np.ndarray, dt: float) -> np.ndarray:
+        """`E` at `th`; also sets `dEx` ((n·p, q): `(dEx @ ξ).reshape(n, p)` is `∂(Eξ)/∂θ`) and
+        `dEt` ((n·q, p): `(dEt @ Δθ).reshape(n, q)` is E's first-order change)."""
+        if self.affine:
+            M, dM = self.M0 + self.dMq @ (th - self.th0), self.dM
+        else:
+            theta = self.theta.copy()
+            theta[self.idx] = th
+            M, dM = self._continuous(theta)
+        E, dE = expm_pair(M, dM, dt)
+        n, p, q = dE.shape
+        self.dEx = dE.reshape(n * p, q)
+        self.dEt = np.ascontiguousarray(dE.transpose(0, 2, 1)).reshape(n * q, p)
+        return E
 
 
 def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
@@ -193,7 +241,8 @@ class FilterOptions:
     state_noise: float = 0.1  # model-error σ per sample, fraction of the measurement σ
     unmeasured_std: float = 1.0  # initial σ of an unmeasured state (SI)
     unmeasured_noise: float = 1e-3  # process σ per sample of an unmeasured state (SI)
-    refresh_tol: float = 0.1
+    refresh_tol: float = 0.25
+    sqrt: str = "qr"  # time-update root: "qr" (one QR with the update) or "svd" (U Σ, the paper's)
     nis_window: int = 200
     nis_limit: float = 25.0
     explode: float = 100.0
@@ -215,9 +264,17 @@ class FilterOptions:
             raise InputError(f"option prior_floor={o.prior_floor!r}; expected a number > 0")
         if not (isinstance(o.nis_window, int) and o.nis_window >= 1):
             raise InputError(f"option nis_window={o.nis_window!r}; expected an integer ≥ 1")
+        if o.sqrt not in ("qr", "svd"):
+            raise InputError(f"option sqrt={o.sqrt!r}; expected 'qr' or 'svd'")
         for name, d in (("noise_std", o.noise_std), ("prior_std", o.prior_std)):
-            for k, v in (d or {}).items():
-                if not (math.isfinite(v) and v > 0):
+            if d is None:
+                continue
+            if not isinstance(d, Mapping):
+                raise InputError(f"option {name}={d!r}; expected a mapping of name to σ, "
+                                 "e.g. {'u': 0.01}")  # fmt: skip
+            for k, v in d.items():
+                if not (isinstance(v, (int, float)) and not isinstance(v, bool)
+                        and math.isfinite(v) and v > 0):  # fmt: skip
                     raise InputError(f"option {name}[{k!r}]={v!r}; expected a number > 0")
         return o
 
@@ -256,6 +313,221 @@ class _Diverged(Exception):
     """The filter left its domain; the message says how."""
 
 
+@dataclass
+class _State:
+    """What one pass over the experiments carries from sample to sample and experiment to
+    experiment: the free coefficients (updated in place), the root of their covariance, the
+    histories and the totals."""
+
+    th: np.ndarray
+    Jth: np.ndarray
+    qth: np.ndarray
+    th0: np.ndarray
+    sig0: np.ndarray
+    hist: np.ndarray
+    hist_var: np.ndarray
+    hist_t: np.ndarray
+    ldiag: np.ndarray  # |diagonal| of the innovation root per sample (for ln det Σν)
+    total: int
+    count: int = 0
+    cost: float = 0.0  # ½ Σ νᵀ Σν⁻¹ ν; the ln det part is added from ldiag at the end
+    nis_sum: float = 0.0
+    t_offset: float = 0.0
+    t_now: float = 0.0
+    asym: float = 0.0
+    J: np.ndarray | None = None  # the last augmented root (square root) or covariance
+
+
+def _experiment(e: Experiment, sigma_r: Mapping[str, float], U: float, o: FilterOptions):
+    """Measured rows, measurements (u as the perturbation), R's σ, the initial state and its σ,
+    and the states' process σ for one experiment."""
+    rows = np.array([IX[name] for name in e.measured])
+    y = e.y.copy()
+    if "u" in e.measured:
+        y[:, e.measured.index("u")] -= U
+    sr = np.array([sigma_r[name] for name in e.measured])
+    x = np.zeros(NX)
+    x[rows] = y[0]
+    sx0 = np.full(NX, o.unmeasured_std)
+    sx0[rows] = sr
+    qx = np.full(NX, o.unmeasured_noise)
+    qx[rows] = o.state_noise * sr
+    return rows, y, sr, x, sx0, qx
+
+
+def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r, U: float,
+               modified: bool, callback: Callable | None) -> None:  # fmt: skip
+    """One experiment through the square-root filter(s) (module docstring, "Square root")."""
+    n, p = NX, len(st.th)
+    N = n + p
+    rows, y, sr, x, sx0, qx = _experiment(e, sigma_r, U, o)
+    m = len(rows)
+    svd = o.sqrt == "svd"
+    # Pre-arrays [[R½, C J⁻], [0, J⁻]], J⁻ the predicted root: [F J, Q½] (augmented filter) and
+    # [Φ Jx, D Jθ, Qx½] (the MEKF's Kalman filter); on the first sample the initial root.
+    wa, wk = 2 * N, 2 * n + N
+    if svd:  # J⁻ = U Σ from the SVD of that array, then the same QR
+        pre_a, pre_k = np.zeros((m + N, m + N)), np.zeros((m + n, m + n))
+        ja, jk = np.zeros((N, wa)), np.zeros((n, wk))
+    else:
+        pre_a, pre_k = np.zeros((m + N, m + wa)), np.zeros((m + n, m + wk))
+        ja, jk = pre_a[m:, m:], pre_k[m:, m:]  # views: the time update writes into the arrays
+    pre_a[:m, :m] = pre_k[:m, :m] = np.diag(sr)
+    ja[:n, :n] = jk[:, :n] = np.diag(sx0)
+    ja[n:, n:N] = st.Jth
+    sel = m + rows  # rows of C J⁻ within the arrays
+    tri_m, tri_n, tri_N = np.tri(m), np.tri(n), np.tri(N)
+    Ftop = np.zeros((n, N))  # [Φ D], the top rows of F = [[Φ, D], [0, I]]
+    inputs = np.hstack([e.inputs, np.ones((len(e.t), 1))])
+    xk = x.copy()  # the Kalman filter's estimate: the MEKF's linearisation centre
+    th, th0, lim = st.th, st.th0, o.explode * st.sig0
+    tol2 = o.refresh_tol**2
+    window = o.nis_window
+    ring, ring_sum = np.zeros(window), 0.0
+    solve, qr, tri_last = np.linalg.solve, np.linalg.qr, len(e.t) - 1
+    t0, dt, th_model, Ja, c = e.t[0] - st.t_offset, e.dt, None, None, st.count
+    try:
+        for k in range(len(e.t)):
+            if c >= st.total:
+                break
+            st.t_now = e.t[k] - t0
+            # --- measurement update, augmented filter: one QR of the pre-array
+            if svd:
+                Us, sv = np.linalg.svd(ja, full_matrices=False)[:2]
+                pre_a[m:, m:] = Us * sv
+            pre_a[:m, m:] = pre_a[sel, m:]
+            h = qr(pre_a.T, mode="raw")[0]  # its lower triangle: [[L, 0], [K̄, J⁺]]
+            L = h[:m, :m] * tri_m
+            w = solve(L, y[k] - x[rows])  # whitened innovation L⁻¹ν
+            dx = h[m:, :m] @ w  # K ν = K̄ L⁻¹ ν
+            x += dx[:n]
+            th += dx[n:]
+            Ja = h[m:, m:m + N] * tri_N
+            if modified:  # --- the Kalman filter
+                if svd:
+                    Us, sv = np.linalg.svd(jk, full_matrices=False)[:2]
+                    pre_k[m:, m:] = Us * sv
+                pre_k[:m, m:] = pre_k[sel, m:]
+                h = qr(pre_k.T, mode="raw")[0]
+                xk += h[m:, :m] @ solve(h[:m, :m] * tri_m, y[k] - xk[rows])
+                Jx = h[m:, m:m + n] * tri_n
+            else:
+                xk = x
+            nis = float(w @ w)
+            var = np.einsum("ij,ij->i", Ja[n:], Ja[n:])
+            st.hist[c], st.hist_var[c], st.hist_t[c] = th, var, st.t_now
+            st.ldiag[c, :m] = L.diagonal()
+            st.cost += 0.5 * nis
+            st.nis_sum += nis / m
+            # --- divergence (module docstring)
+            if not math.isfinite(nis + xk.sum() + th.sum() + var.sum()):
+                raise _Diverged("a state, coefficient or covariance is not finite")
+            slot = k % window
+            ring_sum += nis / m - ring[slot]
+            ring[slot] = nis / m
+            if slot == window - 1:
+                ring_sum = float(ring.sum())  # no drift of the running sum
+            if k + 1 >= window and ring_sum > o.nis_limit * window:
+                raise _Diverged(f"innovations {math.sqrt(ring_sum / window):.3g}× their "
+                                f"predicted σ over {window} samples")  # fmt: skip
+            if (np.abs(th - th0) > lim).any():
+                far = int(np.argmax(np.abs(th - th0) > lim))
+                raise _Diverged(f"coefficient {far} moved > {o.explode:g} prior σ")
+            c += 1
+            if callback is not None:
+                callback(c - 1, th.copy(), np.sqrt(var))
+            if k == tri_last:
+                break
+            if k == 0:  # process noise from the first time update on
+                ja[:, N:] = np.diag(np.concatenate([qx, st.qth]))
+                jk[:, n + N:] = np.diag(qx)
+            # --- time update
+            if th_model is None or ((th - th_model) ** 2 > tol2 * var).any():
+                th_model = th.copy()
+                E = E0 = model.discrete(th, dt)
+                dEx, dEt = model.dEx, model.dEt
+            else:  # E to first order in the move since the last exact model
+                E = E0 + (dEt @ (th - th_model)).reshape(n, -1)
+            Phi = Ftop[:, :n] = E[:, :n]
+            xi = np.concatenate((xk, inputs[k]))
+            Ftop[:, n:] = D = (dEx @ xi).reshape(n, p)  # ∂(Φx + Γδ + s)/∂θ at the KF's estimate
+            if modified:
+                xk = E @ xi
+                x = E @ np.concatenate((x, inputs[k]))
+                jk[:, :n] = Phi @ Jx
+                jk[:, n:N + n] = D @ Ja[n:]  # the coefficients' uncertainty enters as noise
+            else:
+                x = xk = E @ xi
+            ja[:n, :N] = Ftop @ Ja
+            ja[n:, :N] = Ja[n:]
+    finally:
+        st.count, st.J = c, Ja
+    if Ja is not None:
+        st.Jth = tria(Ja[n:])
+    st.t_offset = st.t_now + e.dt
+
+
+def _conventional_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r,
+                       U: float, callback: Callable | None) -> None:  # fmt: skip
+    """One experiment through the textbook EKF: `P = F P Fᵀ + Q`, `P = P − K C P`."""
+    n, p = NX, len(st.th)
+    rows, y, sr, x, sx0, qx = _experiment(e, sigma_r, U, o)
+    m, R = len(rows), np.diag(sr**2)
+    Q = np.diag(np.concatenate([qx, st.qth]) ** 2)
+    P = np.zeros((n + p, n + p))
+    P[:n, :n] = np.diag(sx0**2)
+    P[n:, n:] = st.Jth @ st.Jth.T
+    F = np.eye(n + p)
+    inputs = np.hstack([e.inputs, np.ones((len(e.t), 1))])
+    ring = np.zeros(o.nis_window)
+    th, th_model, c, t0 = st.th, None, st.count, e.t[0] - st.t_offset
+    try:
+        for k in range(len(e.t)):
+            if c >= st.total:
+                break
+            st.t_now = e.t[k] - t0
+            nu = y[k] - x[rows]
+            Sv = P[np.ix_(rows, rows)] + R
+            Linv = np.linalg.inv(np.linalg.cholesky(Sv))  # LinAlgError: not definite
+            K = np.linalg.solve(Sv, P[rows]).T
+            P = P - K @ P[rows]
+            st.asym = max(st.asym, np.abs(P - P.T).max() / np.abs(P).max())
+            try:
+                np.linalg.cholesky(P)
+            except np.linalg.LinAlgError:
+                raise _Diverged("the covariance lost positive definiteness") from None
+            dx = K @ nu
+            x, th[:] = x + dx[:n], th + dx[n:]
+            w = Linv @ nu
+            nis = float(w @ w)
+            var = np.diag(P)[n:].copy()
+            st.hist[c], st.hist_var[c], st.hist_t[c] = th, var, st.t_now
+            st.ldiag[c, :m] = 1.0 / np.diag(Linv)
+            st.cost += 0.5 * nis
+            st.nis_sum += nis / m
+            _check(x, th, var, nis, ring, k, m, st.th0, st.sig0, o)
+            c += 1
+            if callback is not None:
+                callback(c - 1, th.copy(), np.sqrt(np.maximum(var, 0.0)))
+            if k == len(e.t) - 1:
+                break
+            if th_model is None or np.any((th - th_model) ** 2 > o.refresh_tol**2 * var):
+                th_model = th.copy()
+                E = E0 = model.discrete(th, e.dt)
+                dEx, dEt = model.dEx, model.dEt
+            else:
+                E = E0 + (dEt @ (th - th_model)).reshape(n, -1)
+            F[:n, :n] = E[:, :n]
+            xi = np.concatenate((x, inputs[k]))
+            F[:n, n:] = (dEx @ xi).reshape(n, p)  # at the EKF's own estimate
+            x = E @ xi
+            P = F @ P @ F.T + Q
+    finally:
+        st.count, st.J = c, P
+    st.Jth = np.linalg.cholesky(P[n:, n:])
+    st.t_offset = st.t_now + e.dt
+
+
 def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
          modified: bool, square_root: bool, options: FilterOptions, max_samples: int | None,
          callback: Callable | None) -> FilterEstimate:  # fmt: skip
@@ -282,120 +554,40 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
                              f"{', '.join(sigma_r)}")  # fmt: skip
         sigma_r[name] = float(v)
 
-    Jth = np.diag(sig0)  # root of the coefficients' covariance, carried between experiments
-    Qth = options.param_noise * sig0
     total = sum(len(e.t) for e in experiments)
     if max_samples is not None:
         total = min(total, max_samples)
-    hist = np.full((total, p), np.nan)
-    hist_std = np.full((total, p), np.nan)
-    hist_t = np.full(total, np.nan)
-    cost, nis_sum, count, t_offset, t_now = 0.0, 0.0, 0, 0.0, 0.0
-    diverged, asym = None, 0.0
-    Ja = P = None
-
+    st = _State(th=th0.copy(), Jth=np.diag(sig0), qth=options.param_noise * sig0, th0=th0,
+                sig0=sig0, hist=np.full((total, p), np.nan), hist_var=np.full((total, p), np.nan),
+                hist_t=np.full(total, np.nan), ldiag=np.ones((total, NX)), total=total)  # fmt: skip
+    diverged = None
     try:
+        model = _Model(s, theta, idx)
         for e in experiments:
-            if count >= total:
+            if st.count >= total:
                 break
-            rows = [IX[m] for m in e.measured]
-            m = len(rows)
-            C = np.eye(n)[rows]
-            Ca = np.hstack([C, np.zeros((m, p))])
-            y = e.y.copy()
-            if "u" in e.measured:
-                y[:, e.measured.index("u")] -= U
-            sr = np.array([sigma_r[name] for name in e.measured])
-            Rh, R = np.diag(sr), np.diag(sr**2)
-            x = np.zeros(n)  # the augmented filter's state estimate
-            x[rows] = y[0]
-            xk = x.copy()  # the Kalman filter's: the MEKF's linearisation centre
-            sx0 = np.full(n, options.unmeasured_std)
-            sx0[rows] = sr
-            qx = np.full(n, options.unmeasured_noise)
-            qx[rows] = options.state_noise * sr
-            Qh_x, Qh_a = np.diag(qx), np.diag(np.concatenate([qx, Qth]))
-            Jx = np.diag(sx0)
-            Ja = np.zeros((n + p, n + p))
-            Ja[:n, :n], Ja[n:, n:] = Jx, Jth
-            if not square_root:
-                P = Ja @ Ja.T
-            dt = e.dt
-            F = np.eye(n + p)
-            th_model = None
-            nis_ring = np.zeros(options.nis_window)
-            for k in range(len(e.t)):
-                if count >= total:
-                    break
-                t_now = t_offset + e.t[k] - e.t[0]
-                # --- measurement update
-                nu = y[k] - C @ x
-                if square_root:
-                    Ka, Linv, Ja = sqrt_update(Ja, Ca, Rh)
-                else:
-                    Sv = P[np.ix_(rows, rows)] + R
-                    Linv = np.linalg.inv(np.linalg.cholesky(Sv))  # LinAlgError: not definite
-                    Ka = np.linalg.solve(Sv, P[rows]).T
-                    P = P - Ka @ P[rows]
-                    asym = max(asym, np.abs(P - P.T).max() / np.abs(P).max())
-                    try:
-                        np.linalg.cholesky(P)
-                    except np.linalg.LinAlgError:
-                        raise _Diverged("the covariance lost positive definiteness") from None
-                x = x + Ka[:n] @ nu
-                theta[idx] += Ka[n:] @ nu
-                if modified:
-                    Kx, _, Jx = sqrt_update(Jx, C, Rh)
-                    xk = xk + Kx @ (y[k] - C @ xk)
-                w = Linv @ nu
-                nis = float(w @ w)
-                cost += 0.5 * nis - float(np.log(np.abs(np.diag(Linv))).sum())
-                nis_sum += nis / m
-                var_th = (Ja[n:] ** 2).sum(1) if square_root else np.diag(P)[n:]
-                hist[count], hist_std[count] = theta[idx], np.sqrt(np.maximum(var_th, 0.0))
-                hist_t[count] = t_now
-                _check(xk if modified else x, theta[idx], var_th, nis, nis_ring, k, m, th0, sig0,
-                       options)  # fmt: skip
-                count += 1
-                if callback is not None:
-                    callback(count - 1, theta[idx].copy(), hist_std[count - 1].copy())
-                if k == len(e.t) - 1:
-                    break
-                # --- time update
-                std_now = hist_std[count - 1]
-                if th_model is None or np.any(np.abs(theta[idx] - th_model)
-                                              > options.refresh_tol * std_now):  # fmt: skip
-                    th_model = theta[idx].copy()
-                    A, B, S = continuous(s, theta)
-                    E, dE = discrete_jacobian(A, B, S, *derivatives(s, theta, A, B, S, idx), dt)
-                    Phi = E[:, :n]
-                xi = np.concatenate([x, e.inputs[k], [1.0]])
-                if modified:
-                    xik = np.concatenate([xk, e.inputs[k], [1.0]])
-                    D = (dE @ xik).T  # (n, p): ∂(Φx + Γδ + s)/∂θ at the KF's estimate
-                    xk = E @ xik
-                else:
-                    D = (dE @ xi).T  # at the EKF's own estimate
-                x = E @ xi
-                F[:n, :n], F[:n, n:] = Phi, D
-                if square_root:
-                    if modified:  # the coefficients' uncertainty enters the KF as noise
-                        Jx = sqrt_predict(Phi, Jx, np.hstack([D @ Ja[n:], Qh_x]))
-                    Ja = sqrt_predict(F, Ja, Qh_a)
-                else:
-                    P = F @ P @ F.T + Qh_a**2
-            t_offset = hist_t[count - 1] + e.dt
-            Jth = tria(Ja[n:]) if square_root else np.linalg.cholesky(P[n:, n:])
+            if square_root:
+                _sqrt_pass(e, st, model, options, sigma_r, U, modified, callback)
+            else:
+                _conventional_pass(e, st, model, options, sigma_r, U, callback)
     except _Diverged as exc:
         diverged = str(exc)
     except np.linalg.LinAlgError as exc:
         diverged = f"linear algebra failed ({exc}): a singular Mt or a covariance not positive definite"
     if diverged is not None:
-        diverged = {"reason": diverged, "sample": count, "t": float(t_now)}
+        diverged = {"reason": diverged, "sample": st.count, "t": float(st.t_now)}
 
-    values = theta[idx].copy()
-    cov = (Ja @ Ja.T) if square_root else P
-    std = np.sqrt(np.maximum(np.diag(cov)[n:], 0.0)) if cov is not None else sig0
+    count = st.count
+    values = st.th.copy()
+    Ja = P = None
+    if st.J is not None and square_root:
+        Ja = st.J * np.where(np.diag(st.J) < 0, -1.0, 1.0)  # a Cholesky-like root
+        P = Ja @ Ja.T
+    elif st.J is not None:
+        P = st.J
+    std = np.sqrt(np.maximum(np.diag(P)[n:], 0.0)) if P is not None else sig0
+    hist, hist_std = st.hist[:count], np.sqrt(np.maximum(st.hist_var[:count], 0.0))
+    cost = st.cost + float(np.log(np.abs(st.ldiag[:count])).sum())
     if diverged:
         status = Status.DIVERGED
     elif count < sum(len(e.t) for e in experiments):
@@ -406,22 +598,23 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
         status = Status.CONVERGED if settled else Status.MAX_ITERATIONS
     extra = {"filter": f"{'square-root' if square_root else 'conventional'} "
                        f"{'MEKF' if modified else 'EKF'}",
-             "samples": count, "nis_mean": nis_sum / max(count, 1)}  # fmt: skip
-    if not square_root:
-        extra["max_covariance_asymmetry"] = float(asym)
+             "samples": count, "nis_mean": st.nis_sum / max(count, 1)}  # fmt: skip
+    if square_root:
+        extra["sqrt"] = options.sqrt
+    else:
+        extra["max_covariance_asymmetry"] = float(st.asym)
     if diverged:
         extra["diverged"] = diverged
     return FilterEstimate(
         method=method, status=status, free=tuple(config.free), values=values, std=std,
         cost=cost, iterations=count, wall_time_s=time.perf_counter() - t_start,
-        noise_std=sigma_r, start="config", history=hist[:count], extra=extra,
-        history_t=hist_t[:count], history_std=hist_std[:count], covariance=cov,
-        covariance_root=Ja if square_root else None,
+        noise_std=sigma_r, start="config", history=hist, extra=extra,
+        history_t=st.hist_t[:count], history_std=hist_std, covariance=P, covariance_root=Ja,
     )  # fmt: skip
 
 
 def _check(x, th, var_th, nis, ring, k, m, th0, sig0, o: FilterOptions) -> None:
-    """Raise `_Diverged` if the filter left its domain (module docstring)."""
+    """Raise `_Diverged` if the conventional filter left its domain (module docstring)."""
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(th)) and np.all(np.isfinite(var_th))
             and math.isfinite(nis)):  # fmt: skip
         raise _Diverged("a state, coefficient or covariance is not finite")
