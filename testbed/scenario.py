@@ -8,10 +8,11 @@
   while the rudder is fixed at zero. The torpedo is nearly neutral in pitch (its only restoring
   moment is zB B), so an open-loop PRBS would let pitch and depth random-walk; the vertical
   mode adds the autopilot's slow hold (`testbed.autopilot`, poles at 0.2 rad/s = 0.03 Hz, on θ
-  and depth only) to both elevators. Measured over 20 seeds at the defaults (60 s): the actual
-  (equal) elevator deflection correlates with the PRBS at 0.93–0.94 (the commanded one at
-  0.985–0.996; the rest is the fin servo's lag), the correction carries under 0.5 % of the
-  PRBS's power above 0.1 Hz, |θ| stays under 0.21 rad and the depth within 14 m (tested).
+  and depth only) to both elevators. Measured over seeds 0–19 at the defaults (60 s): the
+  actual (equal) elevator deflection correlates with the PRBS at 0.93–0.94 (the commanded one
+  at 0.986–0.996; the rest is the fin servo's lag), the correction carries 0.2–0.4 % of the
+  PRBS's power above 0.1 Hz, |θ| stays under 0.19 rad and the depth within 12 m (tested with
+  margins: ≥ 0.9, < 1 %, 0.3 rad, 20 m).
 - `turn` (turning circle, rudder 0.2 rad, depth and roll held), `zigzag` (20/20: rudder ±20 deg,
   switched when the heading passes ∓20 deg from the initial one; depth and roll held) and
   `zigzag-vertical` (its counterpart in pitch: elevators together ±20 deg, switched at ∓20 deg
@@ -108,9 +109,9 @@ class Settings:
     prbs_order: int = 10
     prbs_clock: float = 0.1  # s
     prbs_rudder: float = 0.02  # rad, horizontal mode
-    # rad, vertical mode: together the elevators turn the pitch 4x faster than the rudder turns
-    # the heading (θ̇ ≈ 24.5 δe at 20 m/s), and pitch is held only below 0.03 Hz; 0.005 rad keeps
-    # |θ| within about 0.25 rad over 60 s (0.02 would tilt the torpedo by up to 0.8 rad)
+    # rad, vertical mode: the elevators together turn the pitch fast (θ̇ ≈ 24.5 δe at 20 m/s)
+    # and pitch is held only below 0.03 Hz; 0.005 rad keeps |θ| under 0.2 rad over 60 s (0.02
+    # tilts the torpedo by up to 0.75 rad, far outside the linear model)
     prbs_elevators: float = 0.005
     turn_rudder: float = 0.2  # rad
     zigzag_angle: float = math.radians(20.0)  # rad: fin angle and switching angle

@@ -76,7 +76,7 @@ def _power_above(signal, dt, f_min):
     return (np.abs(np.fft.rfft(signal - signal.mean())) ** 2)[f > f_min].sum()
 
 
-@pytest.mark.parametrize("seed", [0, 9])  # the seeds of the largest pitch and depth excursions
+@pytest.mark.parametrize("seed", [0, 9])  # two PRBS phases
 def test_scenario_ii_vertical_elevators_follow_the_prbs(seed):
     """Both elevators follow the PRBS, the slow hold adding only what keeps pitch and depth
     bounded over the default 60 s: the PRBS dominates the elevators above 0.1 Hz."""
