@@ -11,7 +11,8 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
 from testbed.estimators.mekf import (
-    discrete_jacobian, history_csv_text, noise_from_data, sqrt_predict, sqrt_update, tria,
+    FilterOptions, _run, discrete_jacobian, history_csv_text, noise_free_channels,
+    noise_from_data, sqrt_predict, sqrt_update, tria,
 )  # fmt: skip
 from testbed.model import (
     COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, derivatives, discretize, structure,
@@ -169,8 +170,9 @@ def test_experiments_in_sequence_carry_the_coefficients_and_their_covariance():
 
 def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     # Coefficients from 2.5 to 47 000 with 50 % a-priori σ, measurements to a micro-unit: the
-    # conventional P − K C P cancels ~10 orders of magnitude and loses definiteness; the
-    # square root never forms P and stays sound. (The start is within 1 %: from farther, at this
+    # covariance's condition number passes 1/eps within a few samples. The conventional
+    # P − K C P cancels ~10 orders of magnitude and loses symmetry and definiteness; the square
+    # root never forms P and keeps it. (The start is within 1 %: from farther, at this
     # signal-to-noise, any EKF's linearisation error outgrows its covariance.)
     free = tuple(n for n in COEFFICIENTS if not n.endswith("dot") and n != "K_dr")
     rng = np.random.default_rng(6)
@@ -181,16 +183,34 @@ def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     config = _start(free, spread=0.01)
     opts = dict(noise_std={s: 1e-6 for s in STATES}, refresh_tol=0.0)
     ekf = identify([e], config, "ekf", **opts)
-    assert ekf.status is Status.DIVERGED
+    assert ekf.status is Status.DIVERGED and ekf.iterations < 20
     assert "positive definite" in ekf.extra["diverged"]["reason"]
+    eps = np.finfo(float).eps
     P = ekf.covariance
-    assert np.abs(P - P.T).max() > 0  # lost symmetry ...
-    assert np.linalg.eigvalsh((P + P.T) / 2).min() < 0  # ... and definiteness
+    # Asymmetry: one symmetric update rounds at ~eps; this is ~10⁸ eps, accumulated in 4 steps.
+    assert np.abs(P - P.T).max() / np.abs(P).max() > 1e5 * eps
+    assert ekf.extra["max_covariance_asymmetry"] > 1e5 * eps
+
+    # The same EKF (same centre, same model) in square-root form, stopped at the same sample.
+    sq = _run([e], config, method="ekf-sqrt", modified=False, square_root=True,
+              options=FilterOptions.from_options(opts), max_samples=ekf.iterations + 1,
+              callback=None)  # fmt: skip
+    J = sq.covariance_root
+    assert np.allclose(J, np.tril(J)) and np.all(np.diag(J) > 0)  # P = J Jᵀ definite
+    sv = np.linalg.svd(J, compute_uv=False)
+    assert sv[-1] / sv[0] < 1e-8  # cond(P) = cond(J)² > 1e16 > 1/eps: no formed P holds it
+    # The same filter: P agrees with J Jᵀ to rounding in its large entries; its small
+    # directions are below P's rounding (eps ‖P‖), where Cholesky found it indefinite.
+    assert np.abs(J @ J.T - P).max() < 1e-6 * np.abs(P).max()
 
     mekf = identify([e], config, "mekf", **opts)
     assert mekf.status is Status.CONVERGED, mekf.extra
     J = mekf.covariance_root
-    assert np.all(np.isfinite(J)) and np.all(np.diag(J) >= 0) and np.allclose(J, np.tril(J))
+    assert np.all(np.isfinite(J)) and np.allclose(J, np.tril(J)) and np.all(np.diag(J) > 0)
+    Pm = mekf.covariance
+    assert np.abs(Pm - Pm.T).max() <= 4 * eps * np.abs(Pm).max()  # symmetric to rounding
+    sv = np.linalg.svd(J, compute_uv=False)
+    assert sv[-1] / sv[0] < 1e-8 and sv[-1] > 0
     truth = np.array([TRUTH[n] for n in free])
     assert np.all(np.abs(mekf.values - truth) < 4 * mekf.std)
 
@@ -210,6 +230,48 @@ def test_bad_options_are_input_errors():
     e = _horizontal(seed=9, T=2.0)
     config = _start(SWAY_YAW)
     for bad in ({"no_such_option": 1}, {"prior_frac": -1.0}, {"noise_std": {"u": 0.0}},
-                {"noise_std": {"nope": 1.0}}, {"start": "equation-error"}, {"max_iter": 0}):  # fmt: skip
-        with pytest.raises(InputError):
+                {"noise_std": {"nope": 1.0}}, {"start": "equation-error"}, {"max_iter": 0},
+                {"noise_std": {"u": "a"}}, {"noise_std": [0.01] * 10}, {"noise_std": 0.01},
+                {"prior_std": {"Y_v": None}}, {"prior_std": ["Y_v"]}, {"sqrt": "cholesky"}):  # fmt: skip
+        with pytest.raises(InputError) as info:
             identify([e], config, "mekf", **bad)
+        assert "\n" not in str(info.value)  # one line
+
+
+def test_refresh_policy_and_svd_option_match_the_exact_filter():
+    # Between exact refreshes the model is carried to first order: the default's estimates stay
+    # within a small fraction of σ of the filter that recomputes the exact model every sample;
+    # the SVD time-update root is the same filter to rounding.
+    e = _horizontal(seed=10, T=20.0)
+    config = _start(SWAY_YAW)
+    exact = identify([e], config, "mekf", refresh_tol=0.0)
+    default = identify([e], config, "mekf")
+    svd = identify([e], config, "mekf", sqrt="svd")
+    assert exact.status is default.status is svd.status is Status.CONVERGED
+    assert np.max(np.abs(default.values - exact.values) / exact.std) < 0.05
+    assert np.max(np.abs(default.history - exact.history) / exact.history_std) < 0.2
+    np.testing.assert_allclose(svd.values, default.values, rtol=1e-8)
+    np.testing.assert_allclose(svd.std, default.std, rtol=1e-8)
+    assert svd.extra["sqrt"] == "svd" and default.extra["sqrt"] == "qr"
+    # The likelihood: ½ Σ (νᵀ Σν⁻¹ ν + ln det Σν), finite and the same for both roots.
+    assert np.isfinite(default.cost) and abs(svd.cost - default.cost) < 1e-6 * abs(default.cost)
+
+
+def test_noise_free_data_diverge_with_the_reason():
+    # The model differs from the data's (N_r 10 % off, fixed); without measurement noise the
+    # filter has nothing to set that error against: DIVERGED, saying why.
+    n = 400
+    inputs = np.zeros((n, 3))
+    inputs[:, 0] = _prbs(np.random.default_rng(11), n, 0.05, np.deg2rad(2.0), 0.5)
+    e = _simulate({**TRUTH, "N_r": 1.1 * TRUTH["N_r"]}, inputs, 0.05, 0.0, seed=12)
+    assert noise_free_channels([e]) == list(STATES)
+    assert noise_free_channels([_horizontal(seed=12, T=20.0)]) == []
+    config = ModelConfig(VEHICLE, dict(TRUTH), ("Y_v", "N_v", "Y_dr"))
+    est = identify([e], config, "mekf")
+    assert est.status is Status.DIVERGED, est.extra
+    reason = est.extra["diverged"]["reason"]
+    assert "predicted σ" in reason and "noise-free" in reason and "noise_std" in reason
+    assert "\n" not in reason
+    # Given the sensor noise, the same data fit: the model error is then small against it.
+    noisy = identify([e], config, "mekf", noise_std=dict(zip(STATES, NOISE)))
+    assert noisy.status is not Status.DIVERGED, noisy.extra
