@@ -237,11 +237,11 @@ def _recurse(Phi, X, F):
     n, m = X.shape[1], X.shape[2]
     for k in range(F.shape[0]):
         for i in range(n):
-            for j in range(m):
-                acc = F[k, i, j]
-                for l in range(n):
-                    acc += Phi[i, l] * X[k, l, j]
-                X[k + 1, i, j] = acc
+            X[k + 1, i, :] = F[k, i, :]
+            for l in range(n):  # the innermost loop runs along contiguous columns
+                a = Phi[i, l]
+                for j in range(m):
+                    X[k + 1, i, j] += a * X[k, l, j]
 
 
 def _states(record: Record, d: Discrete, x0: np.ndarray) -> np.ndarray:
@@ -376,8 +376,8 @@ def normal_equations(prob: Problem, sens, res, R: np.ndarray) -> tuple[np.ndarra
     """`g = Σ Sᵀ R⁻¹ e` (minus the gradient of the weighted cost) and `M = Σ Sᵀ R⁻¹ S` (Fisher)."""
     g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
     for r, (_, S), e in zip(prob.records, sens, res):
-        S = S.reshape(len(e) * len(r.measured), -1)
-        W = S / np.tile(R[r.channels], len(e))[:, None]
+        W = (S / R[r.channels][None, :, None]).reshape(len(e) * len(r.measured), -1)
+        S = S.reshape(len(W), -1)
         cols = prob.columns(r)
         g[cols] += W.T @ e.ravel()
         M[np.ix_(cols, cols)] += W.T @ S
