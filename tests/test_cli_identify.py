@@ -154,3 +154,13 @@ def test_a_run_directory_reads_only_its_experiments(run, tmp_path, capsys):
     _ok(capsys, ["identify", copy, "--method", "ml-gn", "--max-iter", "1", "--out", tmp_path / "e.json"])
     assert set(json.loads((tmp_path / "e.json").read_text())["initial_states"]) == {"horizontal", "vertical"}
     assert all(n in COEFFICIENTS for n in read_config(copy / "model.toml").free)
+
+
+def test_a_diverging_filter_is_reported_and_not_written(run, tmp_path, capsys):
+    # the noise-free truth of the plant is far from any linear model within the filter's R floor
+    out = tmp_path / "mekf.json"
+    code = main(["identify", str(run / "horizontal.truth.csv"), "--config", str(run / "model.toml"),
+                 "--method", "mekf", "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "diverged" in err, err
+    assert list(tmp_path.iterdir()) == []  # neither the estimate nor its history

@@ -3,7 +3,9 @@
 import hashlib
 import json
 import math
+import os
 import shlex
+import signal
 from dataclasses import asdict, fields
 
 import numpy as np
@@ -245,3 +247,13 @@ def test_library_checks_its_inputs(tmp_path):
     assert rng_for(np.int64(3), 0).integers(1 << 30) == rng_for(3, 0).integers(1 << 30)
     with pytest.raises(InputError, match="unknown; expected one of I, II, turn, zigzag, zigzag-vertical"):
         sc.programs("III", SHORT, 0)
+
+
+def test_kill_leaves_nothing(tmp_path, monkeypatch):
+    def killed(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)  # as `kill PID` would, mid-flight
+        raise AssertionError("SIGTERM did not stop the run")
+
+    monkeypatch.setattr(sc, "fly", killed)
+    assert main(["simulate", "--scenario", "II", "--quiet", "--out", str(tmp_path / "run")]) == 130
+    assert list(tmp_path.iterdir()) == []  # no run directory, no temporary one
