@@ -379,7 +379,7 @@ def _apply_wrench(k):
 
 
 # Compiled: run every physics step, where numpy's per-call overhead on 9×9 arrays would cost
-# three times MuJoCo's own step (numba is a dependency for this loop alone).
+# three times MuJoCo's own step (the loop around it is compiled too: see `_advance`).
 @numba.njit(cache=True)
 def _complete(model, data, k):
     """Add Tᵀ M9 T to the CSR mass matrix and refactor it; write the generalized force.
