@@ -166,3 +166,14 @@ def test_unmeasured_initial_states_stay_at_trim():
     assert prob.n_params == len(FREE) + NX + len(VERTICAL_SUBSET)
     unmeasured = np.setdiff1d(np.arange(NX), r.measured)
     assert np.all(prob.x0(r, p)[unmeasured] == 0)
+
+
+def test_fused_gauss_newton_terms_equal_the_stored_sensitivities():
+    prob, p = _problem()  # two experiments measuring different subsets
+    p = oe.initial_states(prob, prob.start * 1.1)
+    xs, res = oe.states(prob, p), oe.residuals(prob, p)
+    R = oe.noise_variance(prob, res)
+    g, M = oe.normal_equations(prob, oe.sensitivities(prob, p, xs), res, R)
+    g2, M2 = oe.gauss_newton_terms(prob, p, xs, res, R)
+    np.testing.assert_allclose(g2, g, rtol=1e-10, atol=1e-12 * np.abs(g).max())
+    np.testing.assert_allclose(M2, M, rtol=1e-10, atol=1e-12 * np.abs(M).max())

@@ -69,14 +69,13 @@ def _report(callback: Callback | None, prob: oe.Problem, it: int, p: np.ndarray,
 def gauss_newton(prob: oe.Problem, p: np.ndarray, max_iter: int = 50, callback=None,
                  tol: float = 1e-3) -> Outcome:  # fmt: skip
     """Levenberg-Marquardt on `½ Σ eᵀR⁻¹e`, R re-estimated before every step."""
-    history, lam = [p[:prob.n_free].copy()], 0.1
+    history, lam = [p[:prob.n_free].copy()], 0.01
     xs, res = _simulate(prob, p)
     for it in range(max_iter + 1):
         R = oe.noise_variance(prob, res)
-        sens = oe.sensitivities(prob, p, xs)
-        g, M = oe.normal_equations(prob, sens, res, R)
+        g, M = oe.gauss_newton_terms(prob, p, xs, res, R)
         if _decrement(g, M) < tol:
-            return Outcome(p, Status.CONVERGED, it, np.array(history), sens)
+            return Outcome(p, Status.CONVERGED, it, np.array(history))
         if it == max_iter:
             break
         J0, D = oe.weighted_cost(prob, res, R), np.diag(np.maximum(np.diag(M), 1e-300))

@@ -384,6 +384,70 @@ def normal_equations(prob: Problem, sens, res, R: np.ndarray) -> tuple[np.ndarra
     return g, M
 
 
+def gauss_newton_terms(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
+                       res: Sequence[np.ndarray], R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """`normal_equations(prob, sensitivities(prob, p, xs), res, R)`, without storing the (N, 10, q)
+    sensitivities: they are propagated and accumulated sample by sample in one compiled pass, as
+    one Gauss-Newton step needs only g and M (`xs`: the states at `p`)."""
+    models = _models(prob, p[:prob.n_free], 1)
+    g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
+    nf = prob.n_free
+    for r, x, e in zip(prob.records, xs, res):
+        d, k = models[r.dt], len(r.measured)
+        X0 = np.zeros((NX, nf + k))
+        X0[r.measured, nf + np.arange(k)] = 1.0
+        gr, Mr = np.zeros(nf + k), np.zeros((nf + k, nf + k))
+        forcing = _w(x, r.inputs)[:-1] @ d.dE.reshape(nf * NX, NW).T  # (N-1, nf·10): ∂E/∂θ_i w[k]
+        _accumulate(np.ascontiguousarray(d.E[:, :NX]), forcing.reshape(-1, nf, NX), X0,
+                    np.asarray(r.measured, np.int64), np.ascontiguousarray(e), 1.0 / R[r.channels], gr, Mr)  # fmt: skip
+        cols = prob.columns(r)
+        g[cols] += gr
+        M[np.ix_(cols, cols)] += Mr
+    return g, M
+
+
+@numba.njit(cache=True)
+def _accumulate(Phi, forcing, X, measured, e, rinv, g, M):
+    """g += Σ Sᵀ R⁻¹ e, M += Σ Sᵀ R⁻¹ S with S[k] = X[k][measured], X[k+1] = Φ X[k] + (F[k], 0),
+    F[k, i] = ∂E/∂θ_i w[k] given as `forcing` (N-1, nf, 10).
+
+    Output sensitivities are gathered in blocks so that M grows by matrix products, not by
+    per-sample rank-one updates."""
+    n, m = X.shape
+    nf, k, N = forcing.shape[1], len(measured), len(e)
+    block = 64
+    S = np.empty((block * k, m))
+    Sw = np.empty((block * k, m))
+    eb = np.empty(block * k)
+    Xn = np.empty_like(X)
+    filled = 0
+    for t in range(N):
+        for c in range(k):
+            row = filled * k + c
+            for j in range(m):
+                S[row, j] = X[measured[c], j]
+                Sw[row, j] = X[measured[c], j] * rinv[c]
+            eb[row] = e[t, c]
+        filled += 1
+        if filled == block or t == N - 1:
+            rows = filled * k
+            M += Sw[:rows].T @ S[:rows]
+            g += Sw[:rows].T @ eb[:rows]
+            filled = 0
+        if t == N - 1:
+            break
+        for a in range(n):
+            for j in range(m):
+                Xn[a, j] = 0.0
+            for l in range(n):
+                phi = Phi[a, l]
+                for j in range(m):
+                    Xn[a, j] += phi * X[l, j]
+            for i in range(nf):
+                Xn[a, i] += forcing[t, i, a]
+        X, Xn = Xn, X
+
+
 def fit_initial_states(prob: Problem, values: np.ndarray,
                        R: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:  # fmt: skip
     """The parameter vector at the free `values` with the best-fitting initial states, and the
@@ -459,11 +523,11 @@ def colored_middle(prob: Problem, sens, res, R: np.ndarray) -> np.ndarray:
         n = len(e)
         L = 2 * n
         W = S / R[r.channels][None, :, None]
-        Pf = np.einsum("fc,fcp->fp", np.conj(np.fft.rfft(e, L, axis=0)), np.fft.rfft(W, L, axis=0))
+        Pf = np.matmul(np.conj(np.fft.rfft(e, L, axis=0))[:, None, :], np.fft.rfft(W, L, axis=0))[:, 0]
         weight = np.full(len(Pf), 2.0)
         weight[0] = weight[-1] = 1.0  # DC and Nyquist appear once in the full spectrum
         cols = prob.columns(r)
-        mid[np.ix_(cols, cols)] += np.real(np.einsum("f,fp,fq->pq", weight, np.conj(Pf), Pf)) / (L * n)
+        mid[np.ix_(cols, cols)] += np.real((np.conj(Pf) * weight[:, None]).T @ Pf) / (L * n)
     return mid
 
 
