@@ -102,8 +102,17 @@ def _cmd_identify(args) -> int:
         options["max_iter"] = args.max_iter
     iterations = []  # (iteration, values, cost) of the off-line methods, for the Rerun log
     if offline:
-        options["callback"] = lambda k, values, cost: iterations.append((k, list(values), cost))
+        live = sys.stderr.isatty()  # a progress line on long fits (ml-nm runs for minutes)
+
+        def callback(k, values, cost):
+            iterations.append((k, list(values), cost))
+            if live:
+                print(f"\r{args.method}: iteration {k}, cost {cost:.6g}", end="", file=sys.stderr, flush=True)
+
+        options["callback"] = callback
     estimate = identify(experiments, config, method=args.method, **options)
+    if offline and sys.stderr.isatty() and iterations:
+        print(file=sys.stderr)  # end the progress line
     if estimate.status is Status.DIVERGED:
         why = estimate.extra.get("diverged", {}).get("reason")
         raise InputError(f"--method {args.method}: {estimate.status.message}"
