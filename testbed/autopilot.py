@@ -245,7 +245,7 @@ class StepMetrics:
 def step_metrics(t: np.ndarray, y: np.ndarray, start: float, target: float) -> StepMetrics:
     """Rise time, overshoot and settling time of the response `y` to a step start → target."""
     e = (y - start) / (target - start)  # 0 → 1
-    rise = t[np.argmax(e >= 0.9)] - t[np.argmax(e >= 0.1)]
+    rise = t[np.argmax(e >= 0.9)] - t[np.argmax(e >= 0.1)] if np.any(e >= 0.9) else np.inf
     outside = np.flatnonzero(np.abs(e - 1.0) > 0.02)
     if not len(outside):
         settling = 0.0

@@ -7,6 +7,7 @@ went. Bad input is an `InputError`: one line on stderr, exit status 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import sys
@@ -17,7 +18,7 @@ from pathlib import Path
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from testbed.errors import InputError
+from testbed.errors import InputError, atomic_file
 
 
 def _positive(text: str) -> float:
@@ -32,8 +33,12 @@ def _positive(text: str) -> float:
 
 def _writable(path: Path | None, flag: str) -> None:
     """Fail before the work, not after it, when an output cannot be written."""
-    if path is not None and not (path.parent if str(path.parent) else Path(".")).is_dir():
+    if path is None:
+        return
+    if not path.parent.is_dir():
         raise InputError(f"{flag} {path}: folder {path.parent} does not exist")
+    if path.is_dir():
+        raise InputError(f"{flag} {path}: is a folder; expected a file name")
 
 
 def _cmd_truth(args) -> int:
@@ -85,7 +90,6 @@ def _cmd_identify(args) -> int:
     import json
 
     from testbed.analysis import compare
-    from testbed.errors import atomic_write_text
     from testbed.estimators import Status, identify
 
     _writable(args.out, "--out")
@@ -94,6 +98,7 @@ def _cmd_identify(args) -> int:
     if args.perturb:
         config = _perturbed(config, args.perturb, args.seed)
     offline = args.method.startswith("ml-")
+    live = sys.stderr.isatty()  # a progress line on long fits (ml-nm runs for minutes)
     if args.start is not None and not offline:
         raise InputError(f"--start {args.start}: only the ml-* methods take a start; "
                          f"{args.method} starts from the config")  # fmt: skip
@@ -102,7 +107,6 @@ def _cmd_identify(args) -> int:
         options["max_iter"] = args.max_iter
     iterations = []  # (iteration, values, cost) of the off-line methods, for the Rerun log
     if offline:
-        live = sys.stderr.isatty()  # a progress line on long fits (ml-nm runs for minutes)
 
         def callback(k, values, cost):
             iterations.append((k, list(values), cost))
@@ -111,13 +115,14 @@ def _cmd_identify(args) -> int:
 
         options["callback"] = callback
     estimate = identify(experiments, config, method=args.method, **options)
-    if offline and sys.stderr.isatty() and iterations:
+    if offline and live and iterations:
         print(file=sys.stderr)  # end the progress line
     if estimate.status is Status.DIVERGED:
         why = estimate.extra.get("diverged", {}).get("reason")
         raise InputError(f"--method {args.method}: {estimate.status.message}"
                          f"{f' ({why})' if why else ''} on {', '.join(map(str, args.data))}; "
-                         "no estimate written (try another --start or a better a-priori config)")  # fmt: skip
+                         f"no estimate written (try {'another --start or ' if offline else ''}"
+                         "a better a-priori config)")  # fmt: skip
     if estimate.start != "config" and "start_reason" in estimate.extra:
         print(f"testbed identify: started from the {estimate.start} estimate: "
               f"{estimate.extra['start_reason']}", file=sys.stderr)  # fmt: skip
@@ -128,21 +133,25 @@ def _cmd_identify(args) -> int:
         doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
         print(comparison.table(), file=sys.stderr)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
-    if args.out:
-        if getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
-            from testbed.estimators.mekf import history_csv_text
+    history = None
+    if args.out and getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
+        from testbed.estimators.mekf import history_csv_text
 
-            history = args.out.with_suffix(".history.csv")
-            atomic_write_text(history, history_csv_text(estimate))
-            print(history)
-        atomic_write_text(args.out, text)
-        print(args.out)
-    else:
+        history = args.out.with_suffix(".history.csv")
+    with contextlib.ExitStack() as outputs:  # every output, or none of them
+        files = [(outputs.enter_context(atomic_file(path)), path, content) for path, content in
+                 ((history, lambda: history_csv_text(estimate)), (args.out, lambda: text)) if path]  # fmt: skip
+        if args.rrd:
+            from testbed.report import log_fit
+
+            log_fit(args.rrd, experiments, config, estimate, iterations, comparison)
+        for tmp, path, content in files:
+            tmp.write_text(content())
+    for _, path, _ in files:
+        print(path)
+    if not args.out:
         sys.stdout.write(text)
     if args.rrd:
-        from testbed.report import log_fit
-
-        log_fit(args.rrd, experiments, config, estimate, iterations, comparison)
         print(args.rrd, file=sys.stderr)
     if not estimate.converged:
         print(f"testbed identify: not converged: {estimate.status.message}", file=sys.stderr)
@@ -168,10 +177,12 @@ def _truth_fit(paths, analytic, free):
     from testbed.data import read_csv, run_csvs
     from testbed.estimators import identify
 
-    truth = [read_csv(f, f.name.removesuffix(".truth.csv")) for p in map(Path, paths)
-             if (p / "manifest.json").exists() for f in run_csvs(p, ".truth.csv")]  # fmt: skip
-    if not truth:
+    runs = [p for p in map(Path, paths) if (p / "manifest.json").exists()]
+    files = [f for p in runs for f in run_csvs(p, ".csv")]
+    truth = [f.with_name(f.name.removesuffix(".csv") + ".truth.csv") for f in files]
+    if not truth or not all(f.exists() for f in truth):
         return None
+    truth = [read_csv(f, f.name.removesuffix(".truth.csv")) for f in truth]
     return identify(truth, replace(analytic, free=tuple(free)), method="ml-gn", start="config")
 
 

@@ -41,18 +41,20 @@ def atomic_file(path: str | os.PathLike):
     """Yield a unique temporary sibling of `path` that becomes `path` only if the block finishes;
     on any exception (Ctrl-C included) it is removed and `path` is untouched."""
     path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise InputError(f"{path}: folder {folder} does not exist")
+    if not path.parent.is_dir():
+        raise InputError(f"{path}: folder {path.parent} does not exist")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     except OSError as exc:
         raise InputError(f"{path}: cannot write ({exc.strerror})") from None
     try:
         os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes it private; an output is not
         os.close(fd)
         yield Path(tmp)
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -69,7 +71,7 @@ def atomic_directory(path: str | os.PathLike, force: bool = False):
     path = Path(path)
     if path.exists() and not force:
         raise InputError(f"{path}: already exists (use --force to overwrite)")
-    parent = path.parent if str(path.parent) else Path(".")
+    parent = path.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=parent))

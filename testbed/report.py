@@ -202,26 +202,6 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
     return Path(path)
 
 
-def _model_outputs(experiments, fitted, initial) -> list:
-    """Model outputs per experiment (absolute u) at the fitted coefficients, from the estimate's
-    initial states when it gives every measured one; otherwise the missing ones are fitted."""
-    from testbed.estimators import outputerror as oe
-
-    prob = oe.problem(experiments, fitted)
-    if not initial or not all(STATES[i] in initial.get(r.name, {}) for r in prob.records for i in r.measured):
-        return oe.predict(experiments, fitted, initial)
-    p = np.concatenate([prob.start, np.zeros(prob.n_params - prob.n_free)])
-    for r in prob.records:
-        for j, i in enumerate(r.measured):
-            p[r.offset + j] = initial[r.name][STATES[i]] - (prob.speed if i == IX["u"] else 0.0)
-    out = []
-    for r, y in zip(prob.records, oe.outputs(prob, p)):
-        y = y.copy()
-        y[:, r.measured == IX["u"]] += prob.speed
-        out.append(y)
-    return out
-
-
 def log_fit(path, experiments, config, estimate, iterations, comparison=None,
             recording_id: str | None = None) -> Path:  # fmt: skip
     """A recording of a fit: measured vs model outputs, parameters per iteration (or over time for
@@ -236,9 +216,11 @@ def log_fit(path, experiments, config, estimate, iterations, comparison=None,
     if recording_id is None:
         recording_id = _recording_id(title, *[part for e in experiments for part in (e.name, e.t, e.y, e.inputs)],
                                      tuple(estimate.free), np.asarray(estimate.values, float), history_t)  # fmt: skip
+    from testbed.estimators.outputerror import predict
+
     fitted = config.with_coefficients(estimate.coefficients)
     try:
-        outputs = _model_outputs(experiments, fitted, estimate.extra.get("initial_states"))
+        outputs = predict(experiments, fitted, estimate.extra.get("initial_states"))
     except (InputError, np.linalg.LinAlgError, ValueError):
         outputs = [None] * len(experiments)  # a model that cannot be simulated: log the rest
     views = []

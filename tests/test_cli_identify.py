@@ -101,6 +101,11 @@ def _drop(column):
     return edit
 
 
+def _folder(path):
+    path.mkdir()
+    return path
+
+
 def _set(line, column, value):
     def edit(rows):
         rows[line][rows[0].index(column)] = value
@@ -123,6 +128,7 @@ BAD = {
     "diverging model": (lambda run, tmp: ["--config", _config(run, tmp, **{"M_q = -": "M_q = "}),
                                           "--start", "config"], "diverges"),
     "rrd folder missing": (lambda run, tmp: ["--rrd", tmp / "nowhere" / "fit.rrd"], "does not exist"),
+    "rrd is a folder": (lambda run, tmp: ["--rrd", _folder(tmp / "fit.rrd")], "is a folder"),
     "start for a filter": (lambda run, tmp: ["--method", "mekf", "--start", "config"], "only the ml-*"),
 }
 
@@ -164,3 +170,13 @@ def test_a_diverging_filter_is_reported_and_not_written(run, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "diverged" in err, err
     assert list(tmp_path.iterdir()) == []  # neither the estimate nor its history
+
+
+def test_a_run_without_truth_files_is_compared_without_the_bias_column(run, tmp_path, capsys):
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    for f in copy.glob("*.truth.csv"):
+        f.unlink()
+    _ok(capsys, ["identify", copy, "--method", "ml-gn", "--max-iter", "1", "--out", tmp_path / "e.json"])
+    rows = json.loads((tmp_path / "e.json").read_text())["comparison"]["rows"]
+    assert rows and all("analytic" in r and "truth_fit" not in r for r in rows)

@@ -176,7 +176,7 @@ def test_an_exception_leaves_the_old_recording_and_no_temporary_file(tmp_path, m
         raise OSError("disk full")
 
     monkeypatch.setattr(report.os, "replace", failing_replace)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(InputError, match="recording.rrd: cannot write .disk full"):  # one line, exit 2
         report.log_run(path, FLIGHTS)
     assert os.listdir(tmp_path) == ["recording.rrd"] and path.read_bytes() == b"old"
     monkeypatch.undo()

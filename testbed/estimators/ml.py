@@ -19,7 +19,7 @@ Convergence (ml-gn, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
@@ -40,7 +40,6 @@ class Outcome:
     status: Status
     iterations: int
     history: np.ndarray  # (iterations + 1, n_free)
-    sens: list | None = field(default=None, repr=False)  # output sensitivities at p, if known
 
 
 def _decrement(g: np.ndarray, M: np.ndarray) -> float:
@@ -106,7 +105,7 @@ def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callbac
         if it:
             _report(callback, prob, it, p, res)
         R = oe.noise_variance(prob, res)
-        g, M = oe.normal_equations(prob, oe.sensitivities(prob, p, xs), res, R)
+        g, M = oe.gauss_newton_terms(prob, p, xs, res, R)
         if _decrement(g, M) < tol:
             return Outcome(p, Status.CONVERGED, it, np.array(history))
         if it == max_iter:
@@ -234,7 +233,7 @@ def _start(prob: oe.Problem, experiments, config: ModelConfig, start: str) -> np
 
 def _estimate(name: str, prob: oe.Problem, out: Outcome, start: str, t0: float,
               extra: dict | None = None) -> Estimate:  # fmt: skip
-    info = oe.assess(prob, out.p, out.sens)
+    info = oe.assess(prob, out.p)
     return Estimate(
         method=name, status=out.status, free=prob.free, values=info.values, std=info.crlb_std,
         cost=info.cost, iterations=out.iterations, wall_time_s=time.perf_counter() - t0,

@@ -551,11 +551,11 @@ class Information:
         return self.crlb_std / np.maximum(np.abs(self.values), 1e-300)
 
 
-def assess(prob: Problem, p: np.ndarray, sens=None) -> Information:
+def assess(prob: Problem, p: np.ndarray) -> Information:
     """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`."""
     res = residuals(prob, p)
     R = noise_variance(prob, res)
-    sens = sens if sens is not None else sensitivities(prob, p)
+    sens = sensitivities(prob, p)
     _, M = normal_equations(prob, sens, res, R)
     cov = covariance(M)
     corrected = cov @ colored_middle(prob, sens, res, R) @ cov
@@ -623,13 +623,17 @@ def predict(experiments: Sequence[Experiment], config: ModelConfig,
     """Model outputs (N, k) per experiment in its measured columns, absolute u, for plots.
 
     `initial`: experiment → state → x0 (absolute u, as in `Estimate.extra["initial_states"]`);
-    by default the best-fitting initial states.
+    the ones it does not give are the best-fitting initial states (no fit when it gives all).
     """
     prob = problem(experiments, config)
-    p = initial_states(prob, prob.start)
+    given = initial or {}
+    if all(STATES[i] in given.get(r.name, {}) for r in prob.records for i in r.measured):
+        p = np.concatenate([prob.start, np.zeros(prob.n_params - prob.n_free)])
+    else:
+        p = initial_states(prob, prob.start)
     for r in prob.records:
         for j, i in enumerate(r.measured):
-            if initial and STATES[i] in initial.get(r.name, {}):
+            if STATES[i] in given.get(r.name, {}):
                 p[r.offset + j] = initial[r.name][STATES[i]] - (prob.speed if STATES[i] == "u" else 0)
     out = []
     for r, yhat in zip(prob.records, outputs(prob, p)):
