@@ -15,15 +15,17 @@ from __future__ import annotations
 import argparse
 import io
 import sys
-import time
+from pathlib import Path
 
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import atomic_write_text
-from testbed.estimators import identify
 from testbed.estimators.outputerror import synthetic
 from testbed.model import COEFFICIENTS, Vehicle
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
+from studies.seeds import fit_seeds, scatter  # noqa: E402
 
 VEHICLE = Vehicle(mass=30.51, Ix=0.177, Iy=3.45, Iz=3.45, weight=299.0, buoyancy=306.0,
                   xB=0.0, yB=0.0, zB=-0.0196, speed=1.54)  # fmt: skip
@@ -81,44 +83,31 @@ def experiments(seed: int, duration: float = 60.0, dt: float = 0.05,
             for name, (t, u) in inputs(duration, dt).items()]  # fmt: skip
 
 
-def study(seeds: int, duration: float, methods: list[str], start: str = "auto") -> str:
-    """Run the study; return the table as CSV text."""
+def study(seeds: int, duration: float, methods: list[str]) -> str:
+    """Run the study; return the table as CSV text (the bound: ml-gn's mean Cramér-Rao bound)."""
     truth = np.array([TRUTH[n] for n in FREE])
-    prior = prior_config()
-    rows = {m: [] for m in methods}  # per method: (values, std, corrected std, converged)
-    for seed in range(seeds):
-        data = experiments(seed, duration)
-        for m in methods:
-            t0 = time.perf_counter()
-            est = identify(data, prior, method=m, **({"start": start} if m.startswith("ml") else {}))
-            corrected = est.extra.get("crlb_corrected_std", {})
-            rows[m].append((est.values, est.std, np.array([corrected.get(n, np.nan) for n in FREE]),
-                            est.converged))  # fmt: skip
-            print(f"seed {seed:3d} {m:6s} {est.status.name:14s} {est.iterations:4d} it "
-                  f"{time.perf_counter() - t0:6.2f} s", file=sys.stderr)  # fmt: skip
-    ml = methods[0]
-    ok = [r for r in rows[ml] if r[3]]
-    crlb = np.mean([r[1] for r in ok], axis=0)  # the mean Cramér-Rao bound of ml-gn
-    corrected = np.mean([r[2] for r in ok], axis=0)
+    fits = fit_seeds(seeds, lambda seed: experiments(seed, duration), prior_config(), methods)
+    spread = {m: scatter(fits[m], truth) for m in methods}
+    crlb, corrected = spread["ml-gn"].reported, spread["ml-gn"].corrected
     out = io.StringIO()
     head = ["coefficient", "truth", "crlb_mean", "crlb_corrected_over_crlb"]
     for m in methods:
         head += [f"{m}_mean_err_sigma", f"{m}_std_over_crlb", f"{m}_bias", f"{m}_std"]
     out.write(",".join(head) + "\n")
-    verdict = {m: [0, 0] for m in methods}
     for i, name in enumerate(FREE):
         cells = [name, f"{truth[i]:.6g}", f"{crlb[i]:.4g}", f"{corrected[i] / crlb[i]:.3f}"]
         for m in methods:
-            err = np.array([r[0][i] for r in rows[m] if r[3]]) - truth[i]
-            z, ratio = err.mean() / crlb[i], err.std(ddof=1) / crlb[i]
-            verdict[m][0] += abs(z) < 0.5
-            verdict[m][1] += 0.8 <= ratio <= 1.25
-            cells += [f"{z:.3f}", f"{ratio:.3f}", f"{err.mean():.4g}", f"{err.std(ddof=1):.4g}"]
+            sc = spread[m]
+            cells += [f"{sc.bias[i] / crlb[i]:.3f}", f"{sc.std[i] / crlb[i]:.3f}", f"{sc.bias[i]:.4g}",
+                      f"{sc.std[i]:.4g}"]  # fmt: skip
         out.write(",".join(cells) + "\n")
     for m in methods:
-        out.write(f"# {m}: {sum(r[3] for r in rows[m])} of {seeds} seeds converged; "
-                  f"|mean error| < 0.5 sigma for {verdict[m][0]} of {len(FREE)} coefficients, "
-                  f"std/crlb in 0.8-1.25 for {verdict[m][1]} of {len(FREE)}\n")  # fmt: skip
+        sc = spread[m]
+        unbiased = int(np.sum(np.abs(sc.bias / crlb) < 0.5))
+        efficient = int(np.sum((sc.std / crlb >= 0.8) & (sc.std / crlb <= 1.25)))
+        out.write(f"# {m}: {sc.used} of {seeds} seeds {'converged' if m.startswith('ml-') else 'not diverged'}; "
+                  f"|mean error| < 0.5 sigma for {unbiased} of {len(FREE)} coefficients, "
+                  f"std/crlb in 0.8-1.25 for {efficient} of {len(FREE)}\n")  # fmt: skip
     return out.getvalue()
 
 

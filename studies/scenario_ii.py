@@ -17,18 +17,19 @@ from __future__ import annotations
 import argparse
 import io
 import sys
-import time
-
-import numpy as np
+from pathlib import Path
 
 from testbed.data import Experiment
 from testbed.errors import atomic_write_text
-from testbed.estimators import Status, identify
+from testbed.estimators import identify
 from testbed.measurements import measure, rng_for
 from testbed.model import STATES
 from testbed.scenario import Settings, fly_scenario
 from testbed.truth import model_config
 from testbed.vehicle import default_mjcf
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
+from studies.seeds import fit_seeds, scatter  # noqa: E402
 
 METHODS = ("ml-gn", "mekf")
 
@@ -42,45 +43,32 @@ def study(seeds: int, duration: float) -> str:
     reference = identify(truth, config, method="ml-gn", start="config")
     if not reference.converged:
         raise RuntimeError(f"the fit to the noise-free truth did not converge: {reference.status.message}")
-    free, ref = config.free, reference.values
-    rows = {m: [] for m in METHODS}  # per method: (values, std, corrected std, usable)
-    for seed in range(seeds):
-        data = []
-        for k, f in enumerate(flights):
-            y, fins = measure(f.truth, f.fins, settings.sensors, rng_for(seed + 1, k, 0))
-            data.append(Experiment(f.name, f.t, STATES, y, fins))
-        for m in METHODS:
-            t0 = time.perf_counter()
-            est = identify(data, config, method=m)
-            corrected = est.extra.get("crlb_corrected_std", {})
-            # a filter has no iteration to converge: every run it did not report diverged counts
-            usable = est.converged if m.startswith("ml-") else est.status is not Status.DIVERGED
-            rows[m].append((est.values, est.std, np.array([corrected.get(n, np.nan) for n in free]),
-                            usable))  # fmt: skip
-            print(f"seed {seed:3d} {m:6s} {est.status.name:14s} {est.iterations:5d} it "
-                  f"{time.perf_counter() - t0:6.2f} s", file=sys.stderr)  # fmt: skip
-    ok = [r for r in rows["ml-gn"] if r[3]]
-    crlb = np.mean([r[1] for r in ok], axis=0)
-    corrected = np.mean([r[2] for r in ok], axis=0)
+
+    def noisy(seed):  # new sensor noise on the same flight
+        return [Experiment(f.name, f.t, STATES, *measure(f.truth, f.fins, settings.sensors, rng_for(seed + 1, k, 0)))
+                for k, f in enumerate(flights)]  # fmt: skip
+
+    fits = fit_seeds(seeds, noisy, config, METHODS)
+    spread = {m: scatter(fits[m], reference.values) for m in METHODS}
+    crlb, corrected = spread["ml-gn"].reported, spread["ml-gn"].corrected
     out = io.StringIO()
     head = ["coefficient", "analytic", "truth_fit", "linear_model_bias", "crlb_mean",
             "crlb_corrected_over_crlb"]  # fmt: skip
     for m in METHODS:
         head += [f"{m}_mean_err_sigma", f"{m}_std_over_crlb", f"{m}_mean_reported_std_over_crlb"]
     out.write(",".join(head) + "\n")
-    for i, name in enumerate(free):
-        a = config.coefficients[name]
-        cells = [name, f"{a:.6g}", f"{ref[i]:.6g}", f"{(ref[i] - a) / abs(a):.3f}" if a else "",
+    for i, name in enumerate(config.free):
+        a, ref = config.coefficients[name], reference.values[i]
+        cells = [name, f"{a:.6g}", f"{ref:.6g}", f"{(ref - a) / abs(a):.3f}" if a else "",
                  f"{crlb[i]:.4g}", f"{corrected[i] / crlb[i]:.3f}"]  # fmt: skip
         for m in METHODS:
-            good = [r for r in rows[m] if r[3]]
-            err = np.array([r[0][i] for r in good]) - ref[i]
-            cells += [f"{err.mean() / crlb[i]:.3f}", f"{err.std(ddof=1) / crlb[i]:.3f}",
-                      f"{np.mean([r[1][i] for r in good]) / crlb[i]:.3f}"]  # fmt: skip
+            sc = spread[m]
+            cells += [f"{sc.bias[i] / crlb[i]:.3f}", f"{sc.std[i] / crlb[i]:.3f}",
+                      f"{sc.reported[i] / crlb[i]:.3f}"]  # fmt: skip
         out.write(",".join(cells) + "\n")
     for m in METHODS:
-        out.write(f"# {m}: {sum(r[3] for r in rows[m])} of {seeds} seeds used (converged; for the "
-                  "filter: not diverged)\n")  # fmt: skip
+        out.write(f"# {m}: {spread[m].used} of {seeds} seeds "
+                  f"{'converged' if m.startswith('ml-') else 'not diverged'}\n")  # fmt: skip
     return out.getvalue()
 
 

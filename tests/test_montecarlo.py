@@ -49,4 +49,4 @@ def test_reduced_scenario_ii_study(tmp_path):
     assert [r["coefficient"] for r in rows] and all(r["truth_fit"] for r in rows)
     for m in scenario_ii.METHODS:
         assert all(np.isfinite(float(r[f"{m}_mean_err_sigma"])) for r in rows), m
-    assert "ml-gn: 6 of 6 seeds used" in out.read_text()
+    assert "ml-gn: 6 of 6 seeds converged" in out.read_text()

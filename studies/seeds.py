@@ -1,0 +1,53 @@
+"""What the noise studies share: fit every seed with every method, and summarise the scatter."""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+from testbed.data import Experiment, ModelConfig
+from testbed.estimators import Estimate, Status, identify
+
+
+def usable(est: Estimate) -> bool:
+    """An ML fit counts when it converged; a filter, which has no iteration to converge, when it
+    did not diverge."""
+    return est.converged if est.method.startswith("ml-") else est.status is not Status.DIVERGED
+
+
+def fit_seeds(seeds: int, data: Callable[[int], Sequence[Experiment]], config: ModelConfig,
+              methods: Sequence[str]) -> dict[str, list[Estimate]]:  # fmt: skip
+    """Every method on the experiments `data(seed)` of every seed, from `config`."""
+    fits = {m: [] for m in methods}
+    for seed in range(seeds):
+        experiments = data(seed)
+        for m in methods:
+            t0 = time.perf_counter()
+            est = identify(experiments, config, method=m)
+            fits[m].append(est)
+            print(f"seed {seed:3d} {m:6s} {est.status.name:14s} {est.iterations:5d} it "
+                  f"{time.perf_counter() - t0:6.2f} s", file=sys.stderr)  # fmt: skip
+    return fits
+
+
+@dataclass(frozen=True)
+class Scatter:
+    """One method's estimates over the usable seeds, per free coefficient."""
+
+    used: int
+    bias: np.ndarray  # mean error from the reference values
+    std: np.ndarray  # empirical standard deviation (ddof 1)
+    reported: np.ndarray  # mean of the method's own standard errors
+    corrected: np.ndarray  # mean Morelli-Klein bound (NaN where the method gives none)
+
+
+def scatter(fits: Sequence[Estimate], reference: np.ndarray) -> Scatter:
+    good = [e for e in fits if usable(e)]
+    values = np.array([e.values for e in good])
+    corrected = [[e.extra.get("crlb_corrected_std", {}).get(n, np.nan) for n in e.free] for e in good]
+    return Scatter(len(good), values.mean(0) - reference, values.std(0, ddof=1),
+                   np.mean([e.std for e in good], axis=0), np.mean(corrected, axis=0))
