@@ -416,9 +416,9 @@ def _accumulate(Phi, forcing, X, measured, e, rinv, g, M):
     n, m = X.shape
     nf, k, N = forcing.shape[1], len(measured), len(e)
     block = 64
-    S = np.empty((block * k, m))
-    Sw = np.empty((block * k, m))
-    eb = np.empty(block * k)
+    S = np.zeros((block * k, m))  # C-contiguous, as numba hands only those to BLAS
+    SwT = np.zeros((m, block * k))
+    eb = np.zeros(block * k)
     Xn = np.empty_like(X)
     filled = 0
     for t in range(N):
@@ -426,13 +426,14 @@ def _accumulate(Phi, forcing, X, measured, e, rinv, g, M):
             row = filled * k + c
             for j in range(m):
                 S[row, j] = X[measured[c], j]
-                Sw[row, j] = X[measured[c], j] * rinv[c]
+                SwT[j, row] = X[measured[c], j] * rinv[c]
             eb[row] = e[t, c]
         filled += 1
         if filled == block or t == N - 1:
-            rows = filled * k
-            M += Sw[:rows].T @ S[:rows]
-            g += Sw[:rows].T @ eb[:rows]
+            S[filled * k:] = 0.0  # a last, partial block: its stale rows must not count
+            eb[filled * k:] = 0.0
+            M += np.dot(SwT, S)
+            g += np.dot(SwT, eb)
             filled = 0
         if t == N - 1:
             break
