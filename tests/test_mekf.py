@@ -11,8 +11,8 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
 from testbed.estimators.mekf import (
-    FilterOptions, _run, discrete_jacobian, history_csv_text, noise_free_channels,
-    noise_from_data, sqrt_predict, sqrt_update, tria,
+    FilterOptions, _Model, _run, history_csv_text, noise_free_channels, noise_from_data,
+    sqrt_update, svd_root, tria,
 )  # fmt: skip
 from testbed.model import (
     COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, derivatives, discretize, structure,
@@ -70,7 +70,17 @@ def _spd(rng, n):
     return G @ G.T + n * np.eye(n)
 
 
+def _pre_array(Rh, C, Jm):
+    """The filter's pre-array `[[Rh, C J⁻], [0, J⁻]]`, J⁻ (n, k) any root of the prior."""
+    m, (n, k) = len(Rh), Jm.shape
+    pre = np.zeros((m + n, m + k))
+    pre[:m, :m], pre[:m, m:], pre[m:, m:] = Rh, C @ Jm, Jm
+    return pre
+
+
 def test_square_root_kernels_match_joseph_form_and_filterpy():
+    # sqrt_update is the filter's own update: fed, as the filter feeds it, the rectangular
+    # predicted root [F J, Q½] (or its SVD root), it does filterpy's predict and update at once.
     rng = np.random.default_rng(0)
     n, m = 8, 3
     P, Q, R = _spd(rng, n), _spd(rng, n) * 0.1, _spd(rng, m)
@@ -82,44 +92,97 @@ def test_square_root_kernels_match_joseph_form_and_filterpy():
     kf.predict()
     kf.update(z)
 
-    J = sqrt_predict(F, np.linalg.cholesky(P), np.linalg.cholesky(Q))
-    np.testing.assert_allclose(J @ J.T, F @ P @ F.T + Q, rtol=1e-12, atol=1e-12)
-    K, Linv, J_post = sqrt_update(J, H, np.linalg.cholesky(R))
-    x_post = F @ x + K @ (z - H @ F @ x)
+    Jm = np.hstack([F @ np.linalg.cholesky(P), np.linalg.cholesky(Q)])
+    np.testing.assert_allclose(Jm @ Jm.T, F @ P @ F.T + Q, rtol=1e-12, atol=1e-12)
     scale = np.abs(kf.P).max()
-    assert np.abs(J_post @ J_post.T - kf.P).max() < 1e-10 * scale
-    np.testing.assert_allclose(K, kf.K, rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(x_post, kf.x, rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(np.linalg.inv(Linv.T @ Linv), kf.S, rtol=1e-10)
-    # Roots are lower triangular with a non-negative diagonal, like a Cholesky factor.
-    np.testing.assert_allclose(J_post, np.linalg.cholesky(kf.P), rtol=1e-8, atol=1e-10)
+    for root in (Jm, svd_root(Jm)):
+        assert root.shape == (n, 2 * n if root is Jm else n)
+        pre = _pre_array(np.linalg.cholesky(R), H, root)
+        dx, w, L, J_post = sqrt_update(pre, m, z - H @ F @ x)
+        K = sqrt_update(pre, m, np.eye(m))[0]  # ν = I: the gain itself
+        assert np.abs(J_post @ J_post.T - kf.P).max() < 1e-10 * scale
+        np.testing.assert_allclose(K, kf.K, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(F @ x + dx, kf.x, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(L @ L.T, kf.S, rtol=1e-10)
+        np.testing.assert_allclose(w @ w, kf.y @ np.linalg.solve(kf.S, kf.y), rtol=1e-10)
+        # Roots are lower triangular: up to column signs the Cholesky factors.
+        assert np.array_equal(J_post, np.tril(J_post)) and np.array_equal(L, np.tril(L))
+        signs = np.where(np.diag(J_post) < 0, -1.0, 1.0)
+        np.testing.assert_allclose(J_post * signs, np.linalg.cholesky(kf.P), rtol=1e-8, atol=1e-10)
+    # A square triangular prior root (no time update) is the plain array update.
+    pre = _pre_array(np.linalg.cholesky(R), H, np.linalg.cholesky(P))
+    J_post = sqrt_update(pre, m, np.zeros(m))[3]
+    K = np.linalg.solve(H @ P @ H.T + R, H @ P).T
+    np.testing.assert_allclose(J_post @ J_post.T, P - K @ H @ P, rtol=1e-10, atol=1e-10)
 
     sr = SquareRootKalmanFilter(dim_x=n, dim_z=m)  # the same array algorithm, linear only
     sr.x, sr.P, sr.F, sr.Q, sr.H, sr.R = x[:, None].copy(), P, F, Q, H, R
     sr.predict()
     sr.update(z[:, None])
     np.testing.assert_allclose(sr.P, kf.P, rtol=1e-9)
+    np.testing.assert_allclose(sr.x[:, 0], kf.x, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(tria(np.hstack([F, F])) @ tria(np.hstack([F, F])).T, 2 * F @ F.T,
                                rtol=1e-12, atol=1e-12)  # fmt: skip
 
 
-def test_discrete_jacobian_matches_complex_step():
+def test_model_matches_complex_step():
+    # _Model.exact (expm_pair) against scipy's expm (discretize) and complex steps, on both
+    # paths: free *dot terms (continuous/derivatives at every call) and none (affine in θ).
     vehicle = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.01, 0.002, -0.0196, 1.54)
     s = structure(vehicle)
     theta = theta_vector({n: v / 40 for n, v in TRUTH.items()}) + 0.1  # K_dr ≠ 0 too
-    idx = np.array([ITHETA[n] for n in ("Y_vdot", "Y_r", "Z_de", "K_pdot", "K_del", "N_rdot")])
-    A, B, S = continuous(s, theta)
-    for dt in (0.02, 0.5):  # ‖AΔ‖ below and far above the scaling threshold
-        E, dE = discrete_jacobian(A, B, S, *derivatives(s, theta, A, B, S, idx), dt)
-        ref = np.hstack([m if m.ndim == 2 else m[:, None] for m in discretize(A, B, S, dt)])
-        assert np.abs(E - ref).max() < 1e-12 * np.abs(ref).max()
-        h = 1e-30
-        for j, i in enumerate(idx):
-            th = theta.astype(complex)
-            th[i] += 1j * h
-            Phi, Gamma, sv = discretize(*continuous(s, th), dt)
-            ref = np.hstack([Phi, Gamma, sv[:, None]]).imag / h
-            assert np.abs(dE[j] - ref).max() < 1e-11 * np.abs(ref).max()
+    for free in (("Y_vdot", "Y_r", "Z_de", "K_pdot", "K_del", "N_rdot"),
+                 ("Y_v", "Y_r", "Z_de", "K_p", "K_del", "N_r")):  # fmt: skip
+        idx = np.array([ITHETA[n] for n in free])
+        model = _Model(s, theta, idx)
+        assert model.affine == (free[0] == "Y_v")
+        th = theta[idx] * 1.1  # away from the start: the affine path's M(θ) is moved
+        at = theta.copy()
+        at[idx] = th
+        for dt in (0.02, 0.5):  # ‖AΔ‖ below and far above the scaling threshold
+            E, dE = model.exact(th, dt)
+            ref = np.hstack([m if m.ndim == 2 else m[:, None]
+                             for m in discretize(*continuous(s, at), dt)])  # fmt: skip
+            assert np.abs(E - ref).max() < 1e-12 * np.abs(ref).max()
+            h = 1e-30
+            for j, i in enumerate(idx):
+                tc = at.astype(complex)
+                tc[i] += 1j * h
+                Phi, Gamma, sv = discretize(*continuous(s, tc), dt)
+                ref = np.hstack([Phi, Gamma, sv[:, None]]).imag / h
+                assert np.abs(dE[:, j, :] - ref).max() < 1e-11 * np.abs(ref).max()
+
+
+def test_model_refresh_policy_carries_E_to_first_order():
+    s = structure(VEHICLE)
+    theta = theta_vector(TRUTH)
+    idx = np.array([ITHETA[n] for n in SWAY_YAW])
+    model = _Model(s, theta, idx)
+    dt, th0 = 0.05, theta[idx].copy()
+    var = (0.1 * np.abs(th0)) ** 2
+    xi = np.concatenate([np.random.default_rng(13).normal(size=10), [0.01, -0.02, 0.0, 1.0]])
+    model.restart(dt, 0.2)
+    E0, D0 = model.linearised(th0, var, xi)
+    Ex, dE = model.exact(th0, dt)
+    np.testing.assert_array_equal(E0, Ex)
+    np.testing.assert_allclose(D0, np.einsum("ipq,q->ip", dE, xi), rtol=1e-12, atol=1e-12)
+    # Within refresh_tol σ: E(θₘ) + ∂E·Δθ (second-order error), D still θₘ's.
+    step = 0.15 * np.sqrt(var)
+    E1, D1 = model.linearised(th0 + step, var, xi)
+    np.testing.assert_allclose(E1, E0 + np.einsum("ipq,p->iq", dE, step), rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(D1, D0)
+    exact1 = model.exact(th0 + step, dt)[0]
+    assert np.abs(E1 - exact1).max() < 0.05 * np.abs(exact1 - E0).max()
+    # Beyond it, or after a restart: the exact model at the new θ.
+    E2, D2 = model.linearised(th0 + 2 * step, var, xi)
+    np.testing.assert_array_equal(E2, model.exact(th0 + 2 * step, dt)[0])
+    model.restart(dt, 0.2)
+    np.testing.assert_array_equal(model.linearised(th0 + step, var, xi)[0], exact1)
+    # refresh_tol = 0: exact at every call.
+    model.restart(dt, 0.0)
+    model.linearised(th0, var, xi)
+    np.testing.assert_array_equal(model.linearised(th0 + 1e-9 * step, var, xi)[0],
+                                  model.exact(th0 + 1e-9 * step, dt)[0])  # fmt: skip
 
 
 def test_noise_from_data_recovers_the_measurement_noise():
@@ -232,7 +295,10 @@ def test_bad_options_are_input_errors():
     for bad in ({"no_such_option": 1}, {"prior_frac": -1.0}, {"noise_std": {"u": 0.0}},
                 {"noise_std": {"nope": 1.0}}, {"start": "equation-error"}, {"max_iter": 0},
                 {"noise_std": {"u": "a"}}, {"noise_std": [0.01] * 10}, {"noise_std": 0.01},
-                {"prior_std": {"Y_v": None}}, {"prior_std": ["Y_v"]}, {"sqrt": "cholesky"}):  # fmt: skip
+                {"prior_std": {"Y_v": None}}, {"prior_std": ["Y_v"]}, {"sqrt": "cholesky"},
+                {"refresh_tol": True}, {"prior_frac": False}, {"nis_limit": True},
+                {"prior_floor": True}, {"prior_floor": "a"}, {"nis_window": True},
+                {"noise_std": {"u": True}}, {"prior_std": {"Y_v": True}}):  # fmt: skip
         with pytest.raises(InputError) as info:
             identify([e], config, "mekf", **bad)
         assert "\n" not in str(info.value)  # one line

@@ -27,12 +27,14 @@ number is the square root of P's. The measurement update is one QR of the pre-ar
 `[[R½, C J⁻], [0, J⁻]]` → `[[L, 0], [K̄, J⁺]]`: the innovation root `L` (the paper's `L_k`), the
 gain `K = K̄ L⁻¹` (only `L⁻¹ν` is needed: one solve) and the lower-triangular posterior root —
 algebraically the paper's `J_{k,k}` formula without forming `C P Cᵀ` (`sqrt_update`). The time
-update's root need not be triangular, so it is not triangularised on its own (`sqrt_predict`,
+update's root need not be triangular, so it is not triangularised on its own (not
 `J⁻ = tria([F J, Q½])`): the rectangular `J⁻ = [F J, Q½]` goes straight into the next
 pre-array, and one QR per sample and filter does both updates (same result to rounding, half
 the QR calls). The paper names the SVD as the numerically safer way to form `J_{k,k−1}`:
-option `sqrt="svd"` takes `J⁻ = U Σ` from the SVD of `[F J, Q½]` (orthogonal, like the QR, so
-no better conditioned here; about twice the cost), then the same update.
+option `sqrt="svd"` takes `J⁻ = U Σ` from the SVD of `[F J, Q½]` (`svd_root`; orthogonal, like
+the QR, so no better conditioned here; about twice the cost), then the same update. Both
+filters of the MEKF run every update through `sqrt_update`, the kernel the tests compare with
+filterpy.
 
 filterpy 2.0 is not used in the filter (the tests check the kernels against it):
 - `SquareRootKalmanFilter` is linear only: `predict` is `x = F x + B u` with a fixed F, while
@@ -100,6 +102,7 @@ import io
 import math
 import numbers
 import time
+from functools import lru_cache
 from dataclasses import dataclass, field, fields
 from typing import Callable, Mapping, Sequence
 
@@ -120,38 +123,38 @@ def tria(X: np.ndarray) -> np.ndarray:
     return L * np.where(np.diag(L) < 0, -1.0, 1.0)
 
 
-def sqrt_predict(F: np.ndarray, J: np.ndarray, Qh: np.ndarray) -> np.ndarray:
-    """Root of `F J Jᵀ Fᵀ + Qh Qhᵀ`."""
-    return tria(np.hstack([F @ J, Qh]))
+@lru_cache(maxsize=None)
+def _tri(n: int) -> np.ndarray:
+    """The (n, n) lower-triangular mask (cached: the filter takes triangles every sample)."""
+    return np.tri(n)
 
 
-def sqrt_update(J: np.ndarray, C: np.ndarray, Rh: np.ndarray):
-    """Array-form measurement update of the root `J` with `y = C x + v`, `Cov v = Rh Rhᵀ`.
+def sqrt_update(pre: np.ndarray, m: int, nu: np.ndarray):
+    """The array-form measurement update, the filter's own kernel (module docstring).
 
-    Returns `(K, L⁻¹, J⁺)`: the gain, the inverse innovation root (`L Lᵀ = C P Cᵀ + R`, so the
-    whitened innovation is `L⁻¹ν`) and the posterior root (`J⁺J⁺ᵀ = P − K C P`), from one QR of
-    `[[Rh, C J], [0, J]]` → `[[L, 0], [K̄, J⁺]]`, `K = K̄ L⁻¹`.
+    `pre` is the pre-array `[[Rh, C J⁻], [0, J⁻]]` ((m + n, m + k), zero-padded on the right
+    is fine): `Cov v = Rh Rhᵀ` for `y = C x + v`, `J⁻` (n, k ≥ n) any root of the prior (the
+    rectangular `[F J, Q½]` straight from the time update, or a triangular one). One QR gives
+    `[[L, 0], [K̄, J⁺]]`; `nu` is the innovation ν (m,), or (m, j) columns of them.
+
+    Returns `(K ν, L⁻¹ ν, L, J⁺)`: the state correction (`K = K̄ L⁻¹`; `nu = I` gives K), the
+    whitened innovation, the innovation root (`L Lᵀ = C P⁻ Cᵀ + R`) and the lower-triangular
+    posterior root (`J⁺J⁺ᵀ = P⁻ − K C P⁻`); the diagonals' signs are as the QR left them.
     """
-    m, n = C.shape
-    pre = np.zeros((m + n, m + n))
-    pre[:m, :m], pre[:m, m:], pre[m:, m:] = Rh, C @ J, J
-    post = tria(pre)
-    # L is at most 10 × 10: its inverse costs less than two triangular solves, and numpy's
-    # LAPACK alone keeps one BLAS thread pool (scipy's second pool stalled under load).
-    Linv = np.linalg.inv(post[:m, :m])
-    return post[m:, :m] @ Linv, Linv, post[m:, m:]
+    r = pre.shape[0]
+    h = np.linalg.qr(pre.T, mode="raw")[0]  # its lower triangle: [[L, 0], [K̄, J⁺]]
+    L = h[:m, :m] * _tri(m)
+    w = np.linalg.solve(L, nu)
+    return h[m:, :m] @ w, w, L, h[m:, m:r] * _tri(r - m)
+
+
+def svd_root(X: np.ndarray) -> np.ndarray:
+    """`U Σ` from the SVD of X (n, k ≥ n): an (n, n) root of `X Xᵀ` (option `sqrt="svd"`)."""
+    U, sv = np.linalg.svd(X, full_matrices=False)[:2]
+    return U * sv
 
 
 # ---------------------------------------------------------------- the model and its Jacobian
-
-
-def discrete_jacobian(A, B, S, dA, dB, dS, dt: float):
-    """Exact ZOH model and its derivatives: `(E, dE)` with `E = [Φ Γ s]` (10, 14) and
-    `dE[i] = ∂[Φ Γ s]/∂θ_i` (p, 10, 14). See `expm_pair`."""
-    M = np.hstack([A, B, S[:, None]])
-    dM = np.concatenate([dA, dB, dS[:, :, None]], axis=2).transpose(1, 0, 2)
-    E, dE = expm_pair(M, dM, dt)
-    return E, dE.transpose(1, 0, 2)
 
 
 def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float):
@@ -204,7 +207,11 @@ class _Model:
     When no free coefficient enters the mass matrix Mt (no free *dot term: Scenario II's default
     list), `M = Mt⁻¹[At Bt St]` is affine in θ and its derivatives are constant: both come from
     one solve at the start and `M(θ)` is one product. Otherwise `continuous`/`derivatives` are
-    evaluated at every refresh."""
+    evaluated at every refresh.
+
+    The filters take the model through `linearised` (module docstring, "Speed"): exact when a
+    coefficient moved more than `refresh_tol` of its σ since the last exact one (and at the
+    first sample of each experiment: `restart`), carried to first order in between."""
 
     def __init__(self, s, theta: np.ndarray, idx: np.ndarray):
         self.s, self.theta, self.idx = s, theta.copy(), idx
@@ -213,6 +220,7 @@ class _Model:
         if self.affine:
             self.M0, self.dM = self._continuous(self.theta)  # LinAlgError: singular Mt
             self.dMq = np.ascontiguousarray(self.dM.transpose(0, 2, 1))  # (n, q, p)
+        self.restart(0.0, 0.0)
 
     def _continuous(self, theta):
         A, B, S = continuous(self.s, theta)
@@ -221,29 +229,51 @@ class _Model:
         dM = np.concatenate([dA, dB, dS[:, :, None]], axis=2).transpose(1, 0, 2)
         return M, np.ascontiguousarray(dM)
 
-    def discrete(self, th: np.ndarray, dt: float) -> np.ndarray:
-        """`E` at `th`; also sets `dEx` ((n·p, q): `(dEx @ ξ).reshape(n, p)` is `∂(Eξ)/∂θ`) and
-        `dEt` ((n·q, p): `(dEt @ Δθ).reshape(n, q)` is E's first-order change)."""
+    def exact(self, th: np.ndarray, dt: float):
+        """`(E, dE)` at `th`: `E = [Φ Γ s]` (n, q) and `dE[:, i, :] = ∂E/∂θ_i` (n, p, q), exact
+        (`expm_pair`)."""
         if self.affine:
             M, dM = self.M0 + self.dMq @ (th - self.th0), self.dM
         else:
             theta = self.theta.copy()
             theta[self.idx] = th
             M, dM = self._continuous(theta)
-        E, dE = expm_pair(M, dM, dt)
-        n, p, q = dE.shape
-        self.dEx = dE.reshape(n * p, q)
-        self.dEt = np.ascontiguousarray(dE.transpose(0, 2, 1)).reshape(n * q, p)
-        return E
+        return expm_pair(M, dM, dt)
+
+    def restart(self, dt: float, refresh_tol: float) -> None:
+        """A new experiment (sample interval `dt`): its first `linearised` is exact."""
+        self.dt, self.tol2, self.th_model = dt, refresh_tol**2, None
+
+    def linearised(self, th: np.ndarray, var: np.ndarray, xi: np.ndarray):
+        """`(E, D)` for the time update at `th` (coefficient variances `var`): `E = [Φ Γ s]` and
+        `D = ∂(E ξ)/∂θ` (n, p) at `xi = [x; δ; 1]` (the linearisation centre). E is exact if a
+        coefficient moved more than `refresh_tol` σ since the last exact model θₘ, else
+        `E(θₘ) + ∂E·(th − θₘ)`; ∂E is always θₘ's."""
+        if self.th_model is None or ((th - self.th_model) ** 2 > self.tol2 * var).any():
+            self.th_model = th.copy()
+            self.E0, dE = self.exact(th, self.dt)
+            n, p, q = dE.shape
+            self.dEx = dE.reshape(n * p, q)  # (dEx @ ξ).reshape(n, p) is ∂(Eξ)/∂θ
+            self.dEt = np.ascontiguousarray(dE.transpose(0, 2, 1)).reshape(n * q, p)
+            E = self.E0
+        else:  # E to first order in the move since the last exact model
+            E = self.E0 + (self.dEt @ (th - self.th_model)).reshape(len(self.E0), -1)
+        return E, (self.dEx @ xi).reshape(len(E), -1)
+
+
+def _third_differences(experiments: Sequence[Experiment]) -> dict[str, list[np.ndarray]]:
+    """Per measured state, the third differences `Δ³y` of each experiment that measures it."""
+    out: dict[str, list[np.ndarray]] = {}
+    for e in experiments:
+        for j, name in enumerate(e.measured):
+            out.setdefault(name, []).append(np.diff(e.y[:, j], 3))
+    return out
 
 
 def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
     """Measurement noise σ per measured state, pooled over the experiments: robust third
     differences, `Var(Δ³e) = 20 σ²` (an upper bound where the signal is fast; module docstring)."""
-    pooled: dict[str, list[np.ndarray]] = {}
-    for e in experiments:
-        for j, name in enumerate(e.measured):
-            pooled.setdefault(name, []).append(np.diff(e.y[:, j], 3))
+    pooled = _third_differences(experiments)
     out = {}
     for name in (s for s in STATES if s in pooled):
         d = np.concatenate(pooled[name])
@@ -253,6 +283,11 @@ def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
 
 
 # ---------------------------------------------------------------- options and result
+
+
+def _is_number(v) -> bool:
+    """A finite real number; a bool is not one (`True` is no σ or tolerance)."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
 @dataclass(frozen=True)
@@ -284,11 +319,12 @@ class FilterOptions:
         for name in ("prior_frac", "param_noise", "state_noise", "unmeasured_std",
                      "unmeasured_noise", "refresh_tol", "nis_limit", "explode"):  # fmt: skip
             v = getattr(o, name)
-            if not (isinstance(v, numbers.Real) and math.isfinite(v) and v >= 0):
+            if not (_is_number(v) and v >= 0):
                 raise InputError(f"option {name}={v!r}; expected a finite number ≥ 0")
-        if o.prior_floor is not None and not o.prior_floor > 0:
+        if o.prior_floor is not None and not (_is_number(o.prior_floor) and o.prior_floor > 0):
             raise InputError(f"option prior_floor={o.prior_floor!r}; expected a number > 0")
-        if not (isinstance(o.nis_window, int) and o.nis_window >= 1):
+        if not (isinstance(o.nis_window, int) and not isinstance(o.nis_window, bool)
+                and o.nis_window >= 1):  # fmt: skip
             raise InputError(f"option nis_window={o.nis_window!r}; expected an integer ≥ 1")
         if o.sqrt not in ("qr", "svd"):
             raise InputError(f"option sqrt={o.sqrt!r}; expected 'qr' or 'svd'")
@@ -299,8 +335,7 @@ class FilterOptions:
                 raise InputError(f"option {name}={d!r}; expected a mapping of name to σ, "
                                  "e.g. {'u': 0.01}")  # fmt: skip
             for k, v in d.items():
-                if not (isinstance(v, numbers.Real) and not isinstance(v, bool)
-                        and math.isfinite(v) and v > 0):  # fmt: skip
+                if not (_is_number(v) and v > 0):
                     raise InputError(f"option {name}[{k!r}]={v!r}; expected a number > 0")
         return o
 
@@ -382,6 +417,46 @@ def _experiment(e: Experiment, sigma_r: Mapping[str, float], U: float, o: Filter
     return rows, y, sr, x, sx0, qx
 
 
+class _Books:
+    """What both filters do after each sample's measurement update: record it in `st`
+    (histories, cost, count), check for divergence (module docstring) and call the callback.
+    `signed`: the variances can turn negative (a formed P; a root's are sums of squares)."""
+
+    def __init__(self, st: _State, o: FilterOptions, m: int, callback: Callable | None,
+                 signed: bool = False):  # fmt: skip
+        self.st, self.o, self.m, self.callback, self.signed = st, o, m, callback, signed
+        self.ring, self.ring_sum = np.zeros(o.nis_window), 0.0  # NIS per channel, last window
+        self.lim = o.explode * st.sig0
+
+    def sample(self, k: int, x, th, var, nis: float, ldiag) -> None:
+        """Sample `k` of the experiment: states `x`, coefficients `th`, their variances `var`,
+        the innovations' NIS and |diagonal| of their root `ldiag` (for ln det Σν)."""
+        st, m, ring = self.st, self.m, self.ring
+        c = st.count
+        st.hist[c], st.hist_var[c], st.hist_t[c] = th, var, st.t_now
+        st.ldiag[c, :m] = ldiag
+        st.cost += 0.5 * nis
+        st.nis_sum += nis / m
+        if not math.isfinite(nis + x.sum() + th.sum() + var.sum()):
+            raise _Diverged("a state, coefficient or covariance is not finite")
+        if self.signed and (var < 0).any():
+            raise _Diverged("a coefficient variance became negative")
+        window = len(ring)
+        slot = k % window
+        self.ring_sum += nis / m - ring[slot]
+        ring[slot] = nis / m
+        if slot == window - 1:
+            self.ring_sum = float(ring.sum())  # no drift of the running sum
+        if k + 1 >= window and self.ring_sum > self.o.nis_limit * window:
+            raise _Diverged(f"innovations {math.sqrt(self.ring_sum / window):.3g}× their "
+                            f"predicted σ over {window} samples")  # fmt: skip
+        if (np.abs(th - st.th0) > self.lim).any():
+            raise _Diverged(_far(st, self.o))
+        st.count = c + 1
+        if self.callback is not None:
+            self.callback(c, th.copy(), np.sqrt(var))
+
+
 def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r, U: float,
                modified: bool, callback: Callable | None) -> None:  # fmt: skip
     """One experiment through the square-root filter(s) (module docstring, "Square root")."""
@@ -403,91 +478,55 @@ def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma
     ja[:n, :n] = jk[:, :n] = np.diag(sx0)
     ja[n:, n:N] = st.Jth
     sel = m + rows  # rows of C J⁻ within the arrays
-    tri_m, tri_n, tri_N = np.tri(m), np.tri(n), np.tri(N)
     Ftop = np.zeros((n, N))  # [Φ D], the top rows of F = [[Φ, D], [0, I]]
     inputs = np.hstack([e.inputs, np.ones((len(e.t), 1))])
     xk = x.copy()  # the Kalman filter's estimate: the MEKF's linearisation centre
-    th, th0, lim = st.th, st.th0, o.explode * st.sig0
-    tol2 = o.refresh_tol**2
-    window = o.nis_window
-    ring, ring_sum = np.zeros(window), 0.0
-    solve, qr, tri_last = np.linalg.solve, np.linalg.qr, len(e.t) - 1
-    t0, dt, th_model, Ja, c = e.t[0] - st.t_offset, e.dt, None, None, st.count
+    th = st.th
+    books = _Books(st, o, m, callback)
+    model.restart(e.dt, o.refresh_tol)
+    t0, last, Ja = e.t[0] - st.t_offset, len(e.t) - 1, None
     try:
         for k in range(len(e.t)):
-            if c >= st.total:
+            if st.count >= st.total:
                 break
             st.t_now = e.t[k] - t0
             # --- measurement update, augmented filter: one QR of the pre-array
             if svd:
-                Us, sv = np.linalg.svd(ja, full_matrices=False)[:2]
-                pre_a[m:, m:] = Us * sv
+                pre_a[m:, m:] = svd_root(ja)
             pre_a[:m, m:] = pre_a[sel, m:]
-            h = qr(pre_a.T, mode="raw")[0]  # its lower triangle: [[L, 0], [K̄, J⁺]]
-            L = h[:m, :m] * tri_m
-            w = solve(L, y[k] - x[rows])  # whitened innovation L⁻¹ν
-            dx = h[m:, :m] @ w  # K ν = K̄ L⁻¹ ν
+            dx, w, L, Ja = sqrt_update(pre_a, m, y[k] - x[rows])
             x += dx[:n]
             th += dx[n:]
-            Ja = h[m:, m:m + N] * tri_N
             if modified:  # --- the Kalman filter
                 if svd:
-                    Us, sv = np.linalg.svd(jk, full_matrices=False)[:2]
-                    pre_k[m:, m:] = Us * sv
+                    pre_k[m:, m:] = svd_root(jk)
                 pre_k[:m, m:] = pre_k[sel, m:]
-                h = qr(pre_k.T, mode="raw")[0]
-                xk += h[m:, :m] @ solve(h[:m, :m] * tri_m, y[k] - xk[rows])
-                Jx = h[m:, m:m + n] * tri_n
+                dxk, _, _, Jx = sqrt_update(pre_k, m, y[k] - xk[rows])
+                xk += dxk
             else:
                 xk = x
-            nis = float(w @ w)
             var = np.einsum("ij,ij->i", Ja[n:], Ja[n:])
-            st.hist[c], st.hist_var[c], st.hist_t[c] = th, var, st.t_now
-            st.ldiag[c, :m] = L.diagonal()
-            st.cost += 0.5 * nis
-            st.nis_sum += nis / m
-            # --- divergence (module docstring)
-            if not math.isfinite(nis + xk.sum() + th.sum() + var.sum()):
-                raise _Diverged("a state, coefficient or covariance is not finite")
-            slot = k % window
-            ring_sum += nis / m - ring[slot]
-            ring[slot] = nis / m
-            if slot == window - 1:
-                ring_sum = float(ring.sum())  # no drift of the running sum
-            if k + 1 >= window and ring_sum > o.nis_limit * window:
-                raise _Diverged(f"innovations {math.sqrt(ring_sum / window):.3g}× their "
-                                f"predicted σ over {window} samples")  # fmt: skip
-            if (np.abs(th - th0) > lim).any():
-                raise _Diverged(_far(st, o))
-            c += 1
-            if callback is not None:
-                callback(c - 1, th.copy(), np.sqrt(var))
-            if k == tri_last:
+            books.sample(k, xk, th, var, float(w @ w), L.diagonal())
+            if k == last:
                 break
             if k == 0:  # process noise from the first time update on
                 ja[:, N:] = np.diag(np.concatenate([qx, st.qth]))
                 jk[:, n + N:] = np.diag(qx)
-            # --- time update
-            if th_model is None or ((th - th_model) ** 2 > tol2 * var).any():
-                th_model = th.copy()
-                E = E0 = model.discrete(th, dt)
-                dEx, dEt = model.dEx, model.dEt
-            else:  # E to first order in the move since the last exact model
-                E = E0 + (dEt @ (th - th_model)).reshape(n, -1)
-            Phi = Ftop[:, :n] = E[:, :n]
+            # --- time update, linearised at the KF's estimate
             xi = np.concatenate((xk, inputs[k]))
-            Ftop[:, n:] = D = (dEx @ xi).reshape(n, p)  # ∂(Φx + Γδ + s)/∂θ at the KF's estimate
+            E, D = model.linearised(th, var, xi)
+            Ftop[:, :n], Ftop[:, n:] = E[:, :n], D
             if modified:
                 xk = E @ xi
                 x = E @ np.concatenate((x, inputs[k]))
-                jk[:, :n] = Phi @ Jx
+                jk[:, :n] = E[:, :n] @ Jx
                 jk[:, n:N + n] = D @ Ja[n:]  # the coefficients' uncertainty enters as noise
             else:
                 x = xk = E @ xi
             ja[:n, :N] = Ftop @ Ja
             ja[n:, :N] = Ja[n:]
     finally:
-        st.count, st.J = c, Ja
+        st.J = Ja
     if Ja is not None:
         st.Jth = tria(Ja[n:])
     st.t_offset = st.t_now + e.dt
@@ -505,11 +544,13 @@ def _conventional_pass(e: Experiment, st: _State, model: _Model, o: FilterOption
     P[n:, n:] = st.Jth @ st.Jth.T
     F = np.eye(n + p)
     inputs = np.hstack([e.inputs, np.ones((len(e.t), 1))])
-    ring = np.zeros(o.nis_window)
-    th, th_model, c, t0 = st.th, None, st.count, e.t[0] - st.t_offset
+    th = st.th
+    books = _Books(st, o, m, callback, signed=True)
+    model.restart(e.dt, o.refresh_tol)
+    t0, last = e.t[0] - st.t_offset, len(e.t) - 1
     try:
         for k in range(len(e.t)):
-            if c >= st.total:
+            if st.count >= st.total:
                 break
             st.t_now = e.t[k] - t0
             nu = y[k] - x[rows]
@@ -525,31 +566,17 @@ def _conventional_pass(e: Experiment, st: _State, model: _Model, o: FilterOption
             dx = K @ nu
             x, th[:] = x + dx[:n], th + dx[n:]
             w = Linv @ nu
-            nis = float(w @ w)
             var = np.diag(P)[n:].copy()
-            st.hist[c], st.hist_var[c], st.hist_t[c] = th, var, st.t_now
-            st.ldiag[c, :m] = 1.0 / np.diag(Linv)
-            st.cost += 0.5 * nis
-            st.nis_sum += nis / m
-            _check(x, th, var, nis, ring, k, m, st, o)
-            c += 1
-            if callback is not None:
-                callback(c - 1, th.copy(), np.sqrt(np.maximum(var, 0.0)))
-            if k == len(e.t) - 1:
+            books.sample(k, x, th, var, float(w @ w), 1.0 / np.diag(Linv))
+            if k == last:
                 break
-            if th_model is None or np.any((th - th_model) ** 2 > o.refresh_tol**2 * var):
-                th_model = th.copy()
-                E = E0 = model.discrete(th, e.dt)
-                dEx, dEt = model.dEx, model.dEt
-            else:
-                E = E0 + (dEt @ (th - th_model)).reshape(n, -1)
-            F[:n, :n] = E[:, :n]
             xi = np.concatenate((x, inputs[k]))
-            F[:n, n:] = (dEx @ xi).reshape(n, p)  # at the EKF's own estimate
+            E, D = model.linearised(th, var, xi)  # at the EKF's own estimate
+            F[:n, :n], F[:n, n:] = E[:, :n], D
             x = E @ xi
             P = F @ P @ F.T + Q
     finally:
-        st.count, st.J = c, P
+        st.J = P
     st.Jth = np.linalg.cholesky(P[n:, n:])
     st.t_offset = st.t_now + e.dt
 
@@ -651,16 +678,13 @@ def noise_free_channels(experiments: Sequence[Experiment]) -> list[str]:
     noisy channel are noise, whose neighbours have the same sign a quarter of the time
     (correlation −3/4: ½ + asin(−¾)/π = 0.23); a smooth channel's keep their sign (→ 1). Above
     0.45, or all zero, the channel is taken as noise-free."""
-    same: dict[str, list[int]] = {}
-    for e in experiments:
-        for j, name in enumerate(e.measured):
-            d = np.diff(e.y[:, j], 3)
-            acc = same.setdefault(name, [0, 0, 0])
-            acc[0] += int(np.sum(d[:-1] * d[1:] > 0))
-            acc[1] += max(len(d) - 1, 0)
-            acc[2] += int(np.any(d != 0))
-    return [n for n in STATES if n in same
-            and (same[n][2] == 0 or same[n][0] > 0.45 * max(same[n][1], 1))]  # fmt: skip
+    quiet = []
+    for name, ds in _third_differences(experiments).items():
+        kept = sum(int(np.sum(d[:-1] * d[1:] > 0)) for d in ds)  # neighbours keeping their sign
+        pairs = sum(max(len(d) - 1, 0) for d in ds)
+        if not any(np.any(d != 0) for d in ds) or kept > 0.45 * max(pairs, 1):
+            quiet.append(name)
+    return [n for n in STATES if n in quiet]
 
 
 def _hint(st: _State, reason: str, experiments: Sequence[Experiment]) -> str:
@@ -677,21 +701,6 @@ def _hint(st: _State, reason: str, experiments: Sequence[Experiment]) -> str:
                 "against measurement noise, and without noise any model error diverges it; "
                 "give noise_std or fit measured (noisy) data")  # fmt: skip
     return out
-
-
-def _check(x, th, var_th, nis, ring, k, m, st: _State, o: FilterOptions) -> None:
-    """Raise `_Diverged` if the conventional filter left its domain (module docstring)."""
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(th)) and np.all(np.isfinite(var_th))
-            and math.isfinite(nis)):  # fmt: skip
-        raise _Diverged("a state, coefficient or covariance is not finite")
-    if np.any(var_th < 0):
-        raise _Diverged("a coefficient variance became negative")
-    ring[k % len(ring)] = nis / m
-    if k + 1 >= len(ring) and ring.mean() > o.nis_limit:
-        raise _Diverged(f"innovations {math.sqrt(ring.mean()):.3g}× their predicted σ over "
-                        f"{len(ring)} samples")  # fmt: skip
-    if np.any(np.abs(th - st.th0) > o.explode * st.sig0):
-        raise _Diverged(_far(st, o))
 
 
 def _entry(method: str, modified: bool, square_root: bool):
