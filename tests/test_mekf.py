@@ -15,7 +15,7 @@ from testbed.estimators.mekf import (
     sqrt_update, svd_root, tria,
 )  # fmt: skip
 from testbed.model import (
-    COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, derivatives, discretize, structure,
+    COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, discretize, structure,
     theta_vector,
 )  # fmt: skip
 
