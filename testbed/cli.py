@@ -133,21 +133,20 @@ def _cmd_identify(args) -> int:
         doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
         print(comparison.table(), file=sys.stderr)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
-    history = None
+    files = {args.out: text} if args.out else {}
     if args.out and getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
         from testbed.estimators.mekf import history_csv_text
 
-        history = args.out.with_suffix(".history.csv")
+        files = {args.out.with_suffix(".history.csv"): history_csv_text(estimate), **files}
     with contextlib.ExitStack() as outputs:  # every output, or none of them
-        files = [(outputs.enter_context(atomic_file(path)), path, content) for path, content in
-                 ((history, lambda: history_csv_text(estimate)), (args.out, lambda: text)) if path]  # fmt: skip
+        temporary = {path: outputs.enter_context(atomic_file(path)) for path in files}
         if args.rrd:
             from testbed.report import log_fit
 
             log_fit(args.rrd, experiments, config, estimate, iterations, comparison)
-        for tmp, path, content in files:
-            tmp.write_text(content())
-    for _, path, _ in files:
+        for path, content in files.items():
+            temporary[path].write_text(content)
+    for path in files:
         print(path)
     if not args.out:
         sys.stdout.write(text)
@@ -178,8 +177,7 @@ def _truth_fit(paths, analytic, free):
     from testbed.estimators import identify
 
     runs = [p for p in map(Path, paths) if (p / "manifest.json").exists()]
-    files = [f for p in runs for f in run_csvs(p, ".csv")]
-    truth = [f.with_name(f.name.removesuffix(".csv") + ".truth.csv") for f in files]
+    truth = [f.with_suffix(".truth.csv") for p in runs for f in run_csvs(p)]
     if not truth or not all(f.exists() for f in truth):
         return None
     truth = [read_csv(f, f.name.removesuffix(".truth.csv")) for f in truth]

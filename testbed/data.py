@@ -188,8 +188,9 @@ def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:
     return atomic_write_text(path, config_text(config, comments))
 
 
-def run_csvs(run: Path, suffix: str = ".csv") -> list[Path]:
-    """The measurement CSVs (or, with `suffix=".truth.csv"`, the noise-free ones) of a run directory."""
+def run_csvs(run: Path) -> list[Path]:
+    """The measurement CSVs of a run directory: the experiments its `manifest.json` lists, or
+    without a manifest every `*.csv` but the `.truth.csv` and `.history.csv` files."""
     manifest = run / "manifest.json"
     if manifest.exists():
         try:
@@ -198,13 +199,12 @@ def run_csvs(run: Path, suffix: str = ".csv") -> list[Path]:
                 raise TypeError
         except (OSError, ValueError, KeyError, TypeError):
             raise InputError(f"{manifest}: expected JSON with an 'experiments' list of names") from None
-        files = [run / f"{n}{suffix}" for n in names]
+        files = [run / f"{n}.csv" for n in names]
         for f in files:
             if not f.exists():
-                raise InputError(f"{f}: missing; {manifest} lists experiment {f.name.removesuffix(suffix)!r}")
+                raise InputError(f"{f}: missing; {manifest} lists experiment {f.stem!r}")
     else:
-        files = sorted(f for f in run.glob(f"*{suffix}")
-                       if suffix != ".csv" or not f.name.endswith((".truth.csv", ".history.csv")))
+        files = sorted(f for f in run.glob("*.csv") if not f.name.endswith((".truth.csv", ".history.csv")))
     if not files:
         raise InputError(f"{run}: no measurement CSV in this directory")
     return files
