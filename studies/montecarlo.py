@@ -25,7 +25,7 @@ from testbed.estimators.outputerror import synthetic
 from testbed.model import COEFFICIENTS, Vehicle
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
-from studies.seeds import fit_seeds, scatter  # noqa: E402
+from studies.seeds import counted, fit_seeds, scatter  # noqa: E402
 
 VEHICLE = Vehicle(mass=30.51, Ix=0.177, Iy=3.45, Iz=3.45, weight=299.0, buoyancy=306.0,
                   xB=0.0, yB=0.0, zB=-0.0196, speed=1.54)  # fmt: skip
@@ -105,7 +105,7 @@ def study(seeds: int, duration: float, methods: list[str]) -> str:
         sc = spread[m]
         unbiased = int(np.sum(np.abs(sc.bias / crlb) < 0.5))
         efficient = int(np.sum((sc.std / crlb >= 0.8) & (sc.std / crlb <= 1.25)))
-        out.write(f"# {m}: {sc.used} of {seeds} seeds {'converged' if m.startswith('ml-') else 'not diverged'}; "
+        out.write(f"# {m}: {sc.used} of {seeds} seeds {counted(m)}; "
                   f"|mean error| < 0.5 sigma for {unbiased} of {len(FREE)} coefficients, "
                   f"std/crlb in 0.8-1.25 for {efficient} of {len(FREE)}\n")  # fmt: skip
     return out.getvalue()

@@ -29,7 +29,7 @@ from testbed.truth import model_config
 from testbed.vehicle import default_mjcf
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
-from studies.seeds import fit_seeds, scatter  # noqa: E402
+from studies.seeds import counted, fit_seeds, scatter  # noqa: E402
 
 METHODS = ("ml-gn", "mekf")
 
@@ -67,8 +67,7 @@ def study(seeds: int, duration: float) -> str:
                       f"{sc.reported[i] / crlb[i]:.3f}"]  # fmt: skip
         out.write(",".join(cells) + "\n")
     for m in METHODS:
-        out.write(f"# {m}: {spread[m].used} of {seeds} seeds "
-                  f"{'converged' if m.startswith('ml-') else 'not diverged'}\n")  # fmt: skip
+        out.write(f"# {m}: {spread[m].used} of {seeds} seeds {counted(m)}\n")
     return out.getvalue()
 
 

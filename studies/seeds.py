@@ -19,6 +19,11 @@ def usable(est: Estimate) -> bool:
     return est.converged if est.method.startswith("ml-") else est.status is not Status.DIVERGED
 
 
+def counted(method: str) -> str:
+    """What `usable` asks of the method, for the table footers."""
+    return "converged" if method.startswith("ml-") else "not diverged"
+
+
 def fit_seeds(seeds: int, data: Callable[[int], Sequence[Experiment]], config: ModelConfig,
               methods: Sequence[str]) -> dict[str, list[Estimate]]:  # fmt: skip
     """Every method on the experiments `data(seed)` of every seed, from `config`."""
