@@ -14,6 +14,7 @@ from studies.montecarlo import (FREE, NOISE, TRUTH, experiments, prior_config,  
 
 from testbed.errors import InputError  # noqa: E402
 from testbed.estimators import METHODS, Status, identify  # noqa: E402
+from testbed.estimators.outputerror import information  # noqa: E402
 
 WANT = np.array([TRUTH[n] for n in FREE])
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")
@@ -42,13 +43,18 @@ def _vertical(duration=20.0):
     return [replace(v, measured=keep, y=v.y[:, [v.measured.index(s) for s in keep]])]
 
 
-def test_ml_gn_recovers_the_truth_within_its_cramer_rao_bounds(from_truth):
+def test_ml_gn_recovers_the_truth_within_its_cramer_rao_bounds(data, from_truth):
     est = from_truth
     assert est.status is Status.CONVERGED and est.converged
     z = (est.values - WANT) / est.std
     assert np.all(np.abs(z) < 4), dict(zip(FREE, z.round(2)))
     for state, sd in est.noise_std.items():
         assert abs(sd / NOISE[state] - 1) < 0.05, state
+    # the bounds reuse the optimiser's last Fisher matrix: the same as a fresh analysis there
+    info = information(data, truth_config(), est.values)
+    np.testing.assert_allclose(est.std, info.crlb_std, rtol=1e-3)
+    np.testing.assert_allclose(list(est.extra["crlb_corrected_std"].values()),
+                               info.crlb_corrected_std, rtol=1e-3)  # fmt: skip
     doc = json.loads(est.to_json())
     assert doc["converged"] is True and set(doc["coefficients"]) == set(FREE)
     assert set(doc["crlb_corrected_std"]) == set(FREE)

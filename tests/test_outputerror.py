@@ -36,7 +36,7 @@ def test_first_order_sensitivities_match_complex_step():
     for j in range(prob.n_params):
         pc = p.astype(complex)
         pc[j] += 1j * h
-        for r, (_, S), yc in zip(prob.records, sens, oe.outputs(prob, pc)):
+        for r, S, yc in zip(prob.records, sens, oe.outputs(prob, pc)):
             ref, cols = yc.imag / h, list(prob.columns(r))
             if j not in cols:  # another experiment's initial state
                 assert not ref.any()
@@ -58,7 +58,7 @@ def test_second_order_sensitivities_match_complex_step():
         for j in range(prob.n_params):
             pc = p.astype(complex)
             pc[j] += 1j * h
-            for r, w, (_, S) in zip(prob.records, weights, oe.sensitivities(prob, pc)):
+            for r, w, S in zip(prob.records, weights, oe.sensitivities(prob, pc)):
                 ref[prob.columns(r), j] += np.einsum("nk,nkp->p", w, S.imag / h)
         np.testing.assert_allclose(H, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
         np.testing.assert_allclose(H, H.T, atol=1e-12 * np.abs(H).max())
@@ -100,21 +100,39 @@ def test_initial_states_are_recovered_exactly_from_noise_free_data():
 def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
     prob, p = _problem(duration=1.5)
     rng = np.random.default_rng(5)
-    sens = oe.sensitivities(prob, p)
     res = [rng.normal(size=r.y.shape) * 0.01 + 0.004 * np.sin(np.arange(len(r.y)))[:, None]
            for r in prob.records]  # colored  # fmt: skip
     R = oe.noise_variance(prob, res)
-    ref = np.zeros((prob.n_params, prob.n_params))
-    for r, (_, S), v in zip(prob.records, sens, res):
+    mid = np.zeros((prob.n_params, prob.n_params))
+    for r, S, v in zip(prob.records, oe.sensitivities(prob, p), res):
         n, cols = len(v), prob.columns(r)
         W = S / R[r.channels][None, :, None]
         for i in range(n):
             for j in range(n):
                 tau = j - i  # R_vv(τ) = 1/N Σ_m v(m) v(m+τ)ᵀ
                 Rvv = (v[:n - tau].T @ v[tau:] if tau >= 0 else v[-tau:].T @ v[:n + tau]) / n
-                ref[np.ix_(cols, cols)] += W[i].T @ Rvv @ W[j]
-    np.testing.assert_allclose(oe.colored_middle(prob, sens, res, R), ref,
-                               rtol=1e-9, atol=1e-12 * np.abs(ref).max())  # fmt: skip
+                mid[np.ix_(cols, cols)] += W[i].T @ Rvv @ W[j]
+    A = rng.normal(size=(prob.n_params, prob.n_params))
+    cov = A @ A.T  # any symmetric matrix in place of M⁻¹: the sandwich is linear in each side
+    ref = (cov @ mid @ cov)[:prob.n_free, :prob.n_free]
+    got = oe.colored_covariance(prob, p, oe.states(prob, p), res, R, cov)
+    np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+
+
+def test_sensitivities_made_in_pieces_equal_the_whole_recursion():
+    prob, p = _problem(duration=3.0)
+    models, xs = oe._models(prob, p[:prob.n_free], 1), oe.states(prob, p)
+    for r, x, S in zip(prob.records, xs, oe.sensitivities(prob, p, xs)):
+        scale = np.linspace(0.5, 2.0, len(r.measured))
+        for size in (7, 8, len(x) - 1):  # odd and even pieces carry the recursion on
+            got, parts = np.zeros_like(S), set()
+            for channels, params, pieces in oe._sensitivity_parts(prob, r, models[r.dt], x,
+                                                                  r.measured, scale, size):  # fmt: skip
+                for samples, piece in pieces:
+                    got[samples, channels[:, None], params[None, :]] = piece
+                parts.add(tuple(params))
+            assert len(parts) == 2  # lateral and longitudinal: propagated apart
+            np.testing.assert_allclose(got, S * scale[:, None], rtol=1e-13, atol=1e-15)
 
 
 def test_information_is_consistent():
@@ -168,12 +186,16 @@ def test_unmeasured_initial_states_stay_at_trim():
     assert np.all(prob.x0(r, p)[unmeasured] == 0)
 
 
-def test_fused_gauss_newton_terms_equal_the_stored_sensitivities():
+def test_gauss_newton_terms_are_the_weighted_sums_of_the_sensitivities():
     prob, p = _problem()  # two experiments measuring different subsets
     p = oe.initial_states(prob, prob.start * 1.1)
     xs, res = oe.states(prob, p), oe.residuals(prob, p)
     R = oe.noise_variance(prob, res)
-    g, M = oe.normal_equations(prob, oe.sensitivities(prob, p, xs), res, R)
+    g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
+    for r, S, e in zip(prob.records, oe.sensitivities(prob, p), res):
+        cols, rinv = prob.columns(r), 1 / R[r.channels]
+        g[cols] += np.einsum("nkp,k,nk->p", S, rinv, e)
+        M[np.ix_(cols, cols)] += np.einsum("nkp,k,nkq->pq", S, rinv, S)
     g2, M2 = oe.gauss_newton_terms(prob, p, xs, res, R)
     np.testing.assert_allclose(g2, g, rtol=1e-10, atol=1e-12 * np.abs(g).max())
     np.testing.assert_allclose(M2, M, rtol=1e-10, atol=1e-12 * np.abs(M).max())

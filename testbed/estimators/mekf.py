@@ -111,7 +111,8 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, register
-from testbed.model import IX, ITHETA, NX, STATES, continuous, derivatives, structure, theta_vector
+from testbed.model import (IX, ITHETA, NX, STATES, continuous, derivatives, expm_pair,
+                           structure, theta_vector)
 
 
 # ---------------------------------------------------------------- square-root kernels (pure)
@@ -155,50 +156,6 @@ def svd_root(X: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- the model and its Jacobian
-
-
-def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float):
-    """`(E, dE)`: the top n rows of `expm(M̄ Δ)` and of its derivatives, where `M̄ = [[M], [0]]`
-    is square (its last q − n rows zero) and `dM[:, i, :] = ∂M/∂θ_i` (n, p, q); `dE` is laid out
-    like `dM`, so `dE @ ξ` is the (n, p) Jacobian `∂(E ξ)/∂θ` in one product.
-
-    Van Loan: the upper-right block of `expm([[M̄, ∂M̄_i], [0, M̄]] Δ)` is `∂expm(M̄Δ)`. Computed
-    for all i at once by scaling and squaring of the block-triangular pair (E, ∂E): Taylor at
-    `h = Δ/2ˢ` with `‖A h‖₁ ≤ 1/2`, then `∂E ← E ∂E + ∂E E`, `E ← E²` s times, top rows only. Only
-    A (the first n columns) enters the powers, so the input columns (B, large for the fins) set
-    neither s nor the number of terms: the k-th term of E and of ∂E is bounded by
-    `‖Ah‖^(k−1)/(k−1)!` of the first, and the series stops where that bound is below 1e-17 (16
-    terms at ‖Ah‖ = 1/2). Equal to scipy's `expm` of the block matrix to rounding (tests: complex
-    step), at a fraction of its cost: at 50 Hz, ‖AΔ‖₁ ≈ 1 for the torpedo's roll mode, s = 1.
-    """
-    n, p, q = dM.shape
-    norm = float(np.abs(M[:, :n]).sum(0).max()) * dt
-    s = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0 else 0
-    h = dt / 2**s
-    theta, bound, terms = norm / 2**s, 1.0, 1
-    while bound > 2.0**-53 and terms < 40:  # bound of term k+1 relative to the first: θ^k/k!
-        bound *= theta / terms
-        terms += 1
-    X = M * h
-    dX = (dM * h).reshape(n, p * q)
-    T, dT = X, dX.reshape(n, p, q)
-    E, dE = X.copy(), dT.copy()
-    for k in range(2, terms + 1):  # T_k = T_{k−1} X / k, ∂T_k = (∂T_{k−1} X + T_{k−1} ∂X) / k
-        dT = ((dT[:, :, :n].reshape(n * p, n) @ X).reshape(n, p, q)
-              + (T[:, :n] @ dX).reshape(n, p, q)) * (1.0 / k)  # fmt: skip
-        T = (T[:, :n] @ X) * (1.0 / k)
-        E += T
-        dE += dT
-    E[:, :n] += np.eye(n)
-    for _ in range(s):  # (E, ∂E) ← (E², E ∂E + ∂E E), top rows only
-        Ex = E[:, :n]
-        dE_new = (Ex @ dE.reshape(n, p * q)).reshape(n, p, q)
-        dE_new += (dE[:, :, :n].reshape(n * p, n) @ E).reshape(n, p, q)
-        dE_new[:, :, n:] += dE[:, :, n:]
-        E_new = Ex @ E
-        E_new[:, n:] += E[:, n:]
-        E, dE = E_new, dE_new
-    return E, dE
 
 
 class _Model:

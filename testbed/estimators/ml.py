@@ -40,6 +40,7 @@ class Outcome:
     status: Status
     iterations: int
     history: np.ndarray  # (iterations + 1, n_free)
+    fisher: np.ndarray | None = None  # M at p, when the optimiser has it (saves `assess` a pass)
 
 
 def _decrement(g: np.ndarray, M: np.ndarray) -> float:
@@ -74,7 +75,7 @@ def gauss_newton(prob: oe.Problem, p: np.ndarray, max_iter: int = 50, callback=N
         R = oe.noise_variance(prob, res)
         g, M = oe.gauss_newton_terms(prob, p, xs, res, R)
         if _decrement(g, M) < tol:
-            return Outcome(p, Status.CONVERGED, it, np.array(history))
+            return Outcome(p, Status.CONVERGED, it, np.array(history), M)
         if it == max_iter:
             break
         J0, D = oe.weighted_cost(prob, res, R), np.diag(np.maximum(np.diag(M), 1e-300))
@@ -86,10 +87,10 @@ def gauss_newton(prob: oe.Problem, p: np.ndarray, max_iter: int = 50, callback=N
                 break
             lam *= 10
             if lam > 1e12:
-                return Outcome(p, Status.STALLED, it, np.array(history))
+                return Outcome(p, Status.STALLED, it, np.array(history), M)
         history.append(p[:prob.n_free].copy())
         _report(callback, prob, it + 1, p, res)
-    return Outcome(p, Status.MAX_ITERATIONS, max_iter, np.array(history))
+    return Outcome(p, Status.MAX_ITERATIONS, max_iter, np.array(history), M)
 
 
 def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callback=None,
@@ -107,7 +108,7 @@ def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callbac
         R = oe.noise_variance(prob, res)
         g, M = oe.gauss_newton_terms(prob, p, xs, res, R)
         if _decrement(g, M) < tol:
-            return Outcome(p, Status.CONVERGED, it, np.array(history))
+            return Outcome(p, Status.CONVERGED, it, np.array(history), M)
         if it == max_iter:
             break
         grad = -2.0 / N * g  # ∂J_M/∂p
@@ -121,7 +122,7 @@ def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callbac
             return Outcome(p, Status.DIVERGED, it, np.array(history))
         last, p = p, p + step
         history.append(p[:prob.n_free].copy())
-    return Outcome(p, Status.MAX_ITERATIONS, max_iter, np.array(history))
+    return Outcome(p, Status.MAX_ITERATIONS, max_iter, np.array(history), M)
 
 
 def nelder_mead(prob: oe.Problem, p: np.ndarray, max_iter: int | None = None, callback=None,
@@ -233,7 +234,7 @@ def _start(prob: oe.Problem, experiments, config: ModelConfig, start: str) -> np
 
 def _estimate(name: str, prob: oe.Problem, out: Outcome, start: str, t0: float,
               extra: dict | None = None) -> Estimate:  # fmt: skip
-    info = oe.assess(prob, out.p)
+    info = oe.assess(prob, out.p, out.fisher)
     return Estimate(
         method=name, status=out.status, free=prob.free, values=info.values, std=info.crlb_std,
         cost=info.cost, iterations=out.iterations, wall_time_s=time.perf_counter() - t0,

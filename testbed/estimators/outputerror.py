@@ -24,17 +24,18 @@ sensitivities are propagated by the recursions obtained by differentiating `x[k+
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Iterator, Mapping, Sequence
 
 import numba
 import numpy as np
+import scipy.fft
 from scipy.linalg import expm
 from scipy.signal import savgol_filter
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.model import (ITHETA, IX, NU, NX, STATES, Structure, continuous,
-                           derivatives, discretize, structure, theta_vector, tilde)
+from testbed.model import (ITHETA, IX, NU, NX, STATES, Structure, continuous, derivatives,
+                           discretize, expm_pair, structure, theta_vector, tilde)
 
 NW = NX + NU + 1  # length of w = [x; δ; 1]
 EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
@@ -172,30 +173,26 @@ def discrete(prob: Problem, values: np.ndarray, dt: float, order: int = 0) -> Di
     """The ZOH model at the free `values` and its first (`order` ≥ 1) and second derivatives.
 
     With `F(θ)` the augmented matrix, `E = exp(F Δ)`; then (Van Loan / Najfeld-Havel)
-      exp([[F, F_i], [0, F]] Δ)                  has ∂E/∂θ_i in its top-right block,
+      exp([[F, F_i], [0, F]] Δ)                  has ∂E/∂θ_i in its top-right block
+                                                 (`expm_pair`, all i at once),
       exp([[F, F_i, F_j, F_ij], [0, F, 0, F_j], [0, 0, F, F_i], [0, 0, 0, F]] Δ)
                                                  has ∂²E/∂θ_i∂θ_j in its top-right block,
     where `∂²A/∂θ_i∂θ_j = −Mt⁻¹(∂Mt_i ∂A_j + ∂Mt_j ∂A_i)` (Mt, At affine in θ), likewise B, S.
     """
     s, theta = prob.structure, prob.coefficients(values)
     A, B, S = continuous(s, theta)
-    Phi, Gamma, sv = discretize(A, B, S, dt)
-    E = np.column_stack([Phi, Gamma, sv])
     if order == 0 or prob.n_free == 0:
-        return Discrete(E)
+        return Discrete(np.column_stack(discretize(A, B, S, dt)))
     n, nf = NW, prob.n_free
-    F = _augmented(A, B, S)
     dA, dB, dS = derivatives(s, theta, A, B, S, prob.index)
-    dF = _augmented(dA, dB, dS)
-    big = np.zeros((nf, 2 * n, 2 * n), dtype=F.dtype)
-    big[:, :n, :n] = big[:, n:, n:] = F
-    big[:, :n, n:] = dF
-    dE = expm(big * dt)[:, :NX, n:]
+    dABS = np.concatenate([dA, dB, dS[:, :, None]], axis=2)  # (nf, 10, 14)
+    E, dE = expm_pair(np.column_stack([A, B, S]), dABS.transpose(1, 0, 2), dt)
+    dE = dE.transpose(1, 0, 2)
     if order == 1:
         return Discrete(E, dE)
+    F, dF = _augmented(A, B, S), _augmented(dA, dB, dS)
     Mt = tilde(s, theta)[0]
     dMt = s.dMt[prob.index]
-    dABS = dF[:, :NX, :]  # (nf, 10, 14)
     G = np.einsum("iab,jbc->ijac", dMt, dABS)
     d2F = np.zeros((nf, nf, n, n), dtype=F.dtype)
     d2F[:, :, :NX, :] = -np.linalg.solve(Mt[None, None], G + G.transpose(1, 0, 2, 3))
@@ -220,34 +217,31 @@ def _models(prob: Problem, values: np.ndarray, order: int) -> dict[float, Discre
 # --- simulation and sensitivities -------------------------------------------------------------
 
 
-def _propagate(Phi: np.ndarray, X0: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """`X[k+1] = Φ X[k] + F[k]` from `X[0] = X0`; returns (len(F) + 1,) + X0.shape."""
-    dtype = np.result_type(Phi, X0, F)  # complex under the complex-step tests
-    X = np.empty((len(F) + 1,) + X0.shape, dtype=dtype)
-    X[0] = X0
-    _recurse(np.ascontiguousarray(Phi, dtype), X.reshape(len(X), len(Phi), -1),
-             np.ascontiguousarray(F, dtype).reshape(len(F), len(Phi), -1))
-    return X
+def _propagate(Phi: np.ndarray, x0: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """`x[k+1] = Φ x[k] + F[k]` from `x[0] = x0` (n,); returns (len(F) + 1, n)."""
+    dtype = np.result_type(Phi, x0, F)  # complex under the complex-step tests
+    x = np.empty((len(F) + 1, len(x0)), dtype=dtype)
+    x[0] = x0
+    _recurse(np.ascontiguousarray(Phi, dtype), x, np.ascontiguousarray(F, dtype))
+    return x
 
 
-# Compiled: every simulation, sensitivity and simplex corner runs this recursion over all samples,
-# and numpy's per-call overhead on a 10×10 product is ~50× the arithmetic.
+# Compiled: every simulation and simplex corner runs this recursion over all samples, and
+# numpy's per-call overhead on a 10×10 product is ~50× the arithmetic.
 @numba.njit(cache=True)
-def _recurse(Phi, X, F):
-    n, m = X.shape[1], X.shape[2]
+def _recurse(Phi, x, F):
+    n = x.shape[1]
     for k in range(F.shape[0]):
         for i in range(n):
-            X[k + 1, i, :] = F[k, i, :]
-            for l in range(n):  # the innermost loop runs along contiguous columns
-                a = Phi[i, l]
-                for j in range(m):
-                    X[k + 1, i, j] += a * X[k, l, j]
+            acc = F[k, i]
+            for l in range(n):
+                acc += Phi[i, l] * x[k, l]
+            x[k + 1, i] = acc
 
 
 def _states(record: Record, d: Discrete, x0: np.ndarray) -> np.ndarray:
     """State trajectory (N, 10) of one record from the full initial state `x0`."""
-    forcing = record.inputs[:-1] @ d.E[:, NX:NX + NU].T + d.E[:, -1]
-    return _propagate(d.E[:, :NX], x0[:, None], forcing[:, :, None])[:, :, 0]
+    return _propagate(d.E[:, :NX], x0, record.inputs[:-1] @ d.E[:, NX:NX + NU].T + d.E[:, -1])
 
 
 def _w(x: np.ndarray, inputs: np.ndarray) -> np.ndarray:
@@ -271,33 +265,128 @@ def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     return [r.y - yhat for r, yhat in zip(prob.records, outputs(prob, p))]
 
 
-def _first_order(prob: Problem, record: Record, d: Discrete, p: np.ndarray, x=None):
-    """States (N, 10), w (N, 14) and state sensitivities (N, 10, n_free + k) of one record."""
-    x = _states(record, d, prob.x0(record, p)) if x is None else x
-    w = _w(x, record.inputs)
-    nf, k = prob.n_free, len(record.measured)
-    X0 = np.zeros((NX, nf + k), dtype=x.dtype)
-    X0[record.measured, nf + np.arange(k)] = 1.0
-    F = np.zeros((len(x) - 1, NX, nf + k), dtype=np.result_type(x, d.E))
-    if nf:  # ∂E/∂θ_i w[k] for all i and k in one product
-        F[:, :, :nf] = (w[:-1] @ d.dE.reshape(nf * NX, NW).T).reshape(-1, nf, NX).transpose(0, 2, 1)
-    return x, w, _propagate(d.E[:, :NX], X0, F)
+def _sensitivity_parts(prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows,
+                       scale: np.ndarray, size: int):  # fmt: skip
+    """`scale[c] ∂x_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
+    states `x` (N, 10), for each `_uncoupled` part of the model: (channels, params, pieces), the
+    pieces as in `_pieces` with (T, len(channels), len(params)) arrays; `channels` index `rows`,
+    `params` p. Sensitivities across the parts are zero and not given.
+
+    ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ.
+    """
+    nf, rows = prob.n_free, np.asarray(rows)
+    dtype = np.result_type(x, d.E)  # complex under the complex-step tests
+    w, Phi = _w(x, record.inputs), d.E[:, :NX]
+    dE = d.dE if nf else np.zeros((0, NX, NW), dtype=dtype)
+    acts = np.column_stack([dE.any(axis=2).T, np.eye(NX, dtype=bool)[:, record.measured]])
+    for states, params, channels in _uncoupled(Phi != 0, acts, rows):
+        at = np.full(NX, -1)
+        at[states] = np.arange(len(states))
+        theta, x0 = params[params < nf], params[params >= nf]
+        X = np.zeros((len(states), len(params)), dtype=dtype)  # the θ columns first
+        X[at[record.measured[x0 - nf]], len(theta) + np.arange(len(x0))] = 1.0
+        D = dE[theta][:, states, :].reshape(-1, NW)
+        yield channels, params, _pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]],
+                                        scale[channels], size)  # fmt: skip
+
+
+def _uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
+    """The parts of the model that evolve independently: (states, params, channels) for each.
+
+    `coupled[a, l]`: state l feeds state a (Φ's pattern); `acts[:, j]`: the states parameter j
+    acts on; `rows`: the states asked for. A torpedo's lateral and longitudinal motions are
+    uncoupled in the linear model, so each part propagates only its own states and parameters
+    (a quarter of the arithmetic); a fully coupled model is one part.
+    """
+    reach = coupled | coupled.T | (acts.astype(int) @ acts.T.astype(int) > 0) | np.eye(len(coupled), dtype=bool)
+    while True:  # transitive closure by squaring: ⌈log₂ n⌉ products at most
+        wider = reach.astype(int) @ reach.astype(int) > 0
+        if (wider == reach).all():
+            break
+        reach = wider
+    label = reach.argmax(axis=1)  # a part's label: its first state
+    out = []
+    for part in np.unique(label):
+        params = np.flatnonzero(acts[label == part].any(axis=0))
+        channels = np.flatnonzero(label[rows] == part)
+        if len(params) and len(channels):
+            out.append((np.flatnonzero(label == part), params, channels))
+    return out
+
+
+def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
+            scale: np.ndarray, size: int) -> Iterator[tuple[slice, np.ndarray]]:  # fmt: skip
+    """Rows `rows` of X[t], times `scale`, for `X[t+1] = Φ X[t] + F[t]` from `X[0] = X` (n, m),
+    where F[t]'s first j columns are `(D w[t])` (D: (j·n, len(w[t]))) and the others zero: in
+    consecutive pieces (samples, (≤ size, len(rows), m) array), the array reused from piece to
+    piece. Made and used a piece at a time (F too), nothing of length N is allocated: fresh
+    memory pages cost more here than the arithmetic, as their first writes fault."""
+    N, dtype, n = len(w), X.dtype, len(Phi)
+    Phi, rows = np.ascontiguousarray(Phi, dtype), np.asarray(rows, np.int64)
+    scale, DT = np.asarray(scale, float), np.ascontiguousarray(D.T, dtype)
+    S = np.empty((min(size, N), len(rows), X.shape[1]), dtype=dtype)
+    F = np.empty((min(size, N - 1), len(D)), dtype=dtype)
+    for t0 in range(0, N, size):
+        t1 = min(t0 + size, N)
+        f = np.matmul(w[t0:min(t1, N - 1)], DT, out=F[:min(t1, N - 1) - t0])
+        _recursion(Phi, f.reshape(len(f), len(D) // n, n), X, rows, scale, S[:t1 - t0])
+        yield slice(t0, t1), S[:t1 - t0]
+
+
+# Compiled for the same reason as `_recurse`. It stores only the rows asked for and, from one
+# piece to the next, carries the recursion on in X.
+@numba.njit(cache=True)
+def _recursion(Phi, forcing, X, rows, scale, S):
+    n, m = X.shape
+    nf = forcing.shape[1]
+    x, xn = X, np.empty_like(X)
+    for t in range(S.shape[0]):
+        for c in range(len(rows)):
+            for j in range(m):
+                S[t, c, j] = scale[c] * x[rows[c], j]
+        if t == forcing.shape[0]:  # the record's last sample: nothing to carry on
+            break
+        for a in range(n):
+            for j in range(m):
+                xn[a, j] = 0.0
+            for l in range(n):  # the innermost loop runs along contiguous columns
+                phi = Phi[a, l]
+                if phi == 0:  # Φ is sparse: the lateral and longitudinal motions are uncoupled
+                    continue
+                for j in range(m):
+                    xn[a, j] += phi * x[l, j]
+            for i in range(nf):
+                xn[a, i] += forcing[t, i, a]
+        x, xn = xn, x
+    if x is not X:
+        X[:, :] = x
+
+
+def _sensitivities(prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows,
+                   scale: np.ndarray) -> np.ndarray:  # fmt: skip
+    """All of `_sensitivity_parts` at once: (N, len(rows), q)."""
+    S = np.zeros((len(x), len(rows), prob.n_free + len(record.measured)), dtype=np.result_type(x, d.E))
+    for channels, params, pieces in _sensitivity_parts(prob, record, d, x, rows, scale, len(x)):
+        for samples, piece in pieces:
+            S[samples, channels[:, None], params[None, :]] = piece
+    return S
 
 
 def sensitivities(prob: Problem, p: np.ndarray,
-                  xs: Sequence[np.ndarray] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
-    """Per experiment: model outputs (N, k) and output sensitivities (N, k, q) to the experiment's
-    own parameters `p[prob.columns(record)]` (q = n_free + k; the others have no effect).
-
-    ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ.
-    `xs`: the simulated states at `p` (`states(prob, p)`) if already known.
+                  xs: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:  # fmt: skip
+    """Per experiment: output sensitivities (N, k, q) to the experiment's own parameters
+    `p[prob.columns(record)]` (q = n_free + k; the others have no effect). `xs`: the states at
+    `p` (`states(prob, p)`) if already known. (The estimators take them in pieces instead.)
     """
     models = _models(prob, p[:prob.n_free], 1)
-    out = []
-    for i, r in enumerate(prob.records):
-        x, _, X = _first_order(prob, r, models[r.dt], p, None if xs is None else xs[i])
-        out.append((x[:, r.measured], X[:, r.measured]))
-    return out
+    xs = states(prob, p) if xs is None else xs
+    return [_sensitivities(prob, r, models[r.dt], x, r.measured, np.ones(len(r.measured)))
+            for r, x in zip(prob.records, xs)]  # fmt: skip
+
+
+def _scale(record: Record, R: np.ndarray) -> np.ndarray:
+    """Per measured channel: 1/√R, which weights the sensitivities."""
+    return R[record.channels] ** -0.5
 
 
 def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np.ndarray:
@@ -314,7 +403,8 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
     nf, H = prob.n_free, np.zeros((prob.n_params, prob.n_params), dtype=p.dtype)
     for r, wr in zip(prob.records, weights):
         d = models[r.dt]
-        _, w, X = _first_order(prob, r, d, p)
+        x = _states(r, d, prob.x0(r, p))
+        w, X = _w(x, r.inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX))
         a = np.zeros((len(w), NX), dtype=np.result_type(wr, p))
         a[:, r.measured] = wr
         Phi = d.E[:, :NX]
@@ -334,15 +424,20 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
 
 
 def noise_variance(prob: Problem, res: Sequence[np.ndarray]) -> np.ndarray:
-    """R: residual variance per channel (len(prob.channels),), pooled over the experiments.
+    """R: residual variance per channel (len(prob.channels),), pooled over the experiments."""
+    return _pooled_variance(prob, [np.sum(e**2, axis=0) for e in res])
+
+
+def _pooled_variance(prob: Problem, sums: Sequence[np.ndarray]) -> np.ndarray:
+    """R from each experiment's residual sums of squares per measured channel (`noise_variance`).
 
     Floored far below any real sensor noise so that a noise-free fit stays finite.
     """
     ss, n, scale = np.zeros(len(prob.channels)), np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
-    for r, e in zip(prob.records, res):
-        np.add.at(ss, r.channels, np.sum(e**2, axis=0))
-        np.add.at(n, r.channels, len(e))
-        np.add.at(scale, r.channels, np.sum(r.y**2, axis=0))
+    for r, e2 in zip(prob.records, sums):  # a record's channels are distinct
+        ss[r.channels] += e2
+        n[r.channels] += len(r.y)
+        scale[r.channels] += np.sum(r.y**2, axis=0)
     return np.maximum(ss / n, 1e-14 * scale / n + 1e-30)
 
 
@@ -356,7 +451,7 @@ def negative_log_likelihood(prob: Problem, res: Sequence[np.ndarray]) -> float:
     R = noise_variance(prob, res)
     n = np.zeros(len(prob.channels))
     for r in prob.records:
-        np.add.at(n, r.channels, len(r.y))
+        n[r.channels] += len(r.y)
     return float(0.5 * np.sum(n * (np.log(2 * np.pi * R) + 1)))
 
 
@@ -372,81 +467,28 @@ def exploded(prob: Problem, outs: Sequence[np.ndarray]) -> str | None:
     return None
 
 
-def normal_equations(prob: Problem, sens, res, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """`g = Σ Sᵀ R⁻¹ e` (minus the gradient of the weighted cost) and `M = Σ Sᵀ R⁻¹ S` (Fisher)."""
-    g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
-    for r, (_, S), e in zip(prob.records, sens, res):
-        W = (S / R[r.channels][None, :, None]).reshape(len(e) * len(r.measured), -1)
-        S = S.reshape(len(W), -1)
-        cols = prob.columns(r)
-        g[cols] += W.T @ e.ravel()
-        M[np.ix_(cols, cols)] += W.T @ S
-    return g, M
-
-
 def gauss_newton_terms(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
                        res: Sequence[np.ndarray], R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """`normal_equations(prob, sensitivities(prob, p, xs), res, R)`, without storing the (N, 10, q)
-    sensitivities: they are propagated and accumulated sample by sample in one compiled pass, as
-    one Gauss-Newton step needs only g and M (`xs`: the states at `p`)."""
+    """`g = Σ Sᵀ R⁻¹ e` (minus the gradient of the weighted cost) and `M = Σ Sᵀ R⁻¹ S` (Fisher) at
+    `p` (`xs`: the states there, `res`: the residuals), S the output sensitivities, made and summed
+    a piece at a time (`_pieces`)."""
     models = _models(prob, p[:prob.n_free], 1)
     g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
-    nf = prob.n_free
     for r, x, e in zip(prob.records, xs, res):
-        d, k = models[r.dt], len(r.measured)
-        X0 = np.zeros((NX, nf + k))
-        X0[r.measured, nf + np.arange(k)] = 1.0
-        gr, Mr = np.zeros(nf + k), np.zeros((nf + k, nf + k))
-        forcing = _w(x, r.inputs)[:-1] @ d.dE.reshape(nf * NX, NW).T  # (N-1, nf·10): ∂E/∂θ_i w[k]
-        _accumulate(np.ascontiguousarray(d.E[:, :NX]), forcing.reshape(-1, nf, NX), X0,
-                    np.asarray(r.measured, np.int64), np.ascontiguousarray(e), 1.0 / R[r.channels], gr, Mr)  # fmt: skip
-        cols = prob.columns(r)
+        e, cols = e / np.sqrt(R[r.channels]), prob.columns(r)
+        gr, Mr = np.zeros(len(cols)), np.zeros((len(cols), len(cols)))
+        for channels, params, pieces in _sensitivity_parts(prob, r, models[r.dt], x, r.measured,
+                                                           _scale(r, R), 512):  # fmt: skip
+            ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
+            for samples, S in pieces:
+                S = S.reshape(-1, len(params))  # weighted: R^-½ S
+                gp += S.T @ ep[samples].ravel()
+                Mp += S.T @ S  # numpy's matmul takes Sᵀ S as one symmetric update
+            gr[params] += gp
+            Mr[np.ix_(params, params)] += Mp
         g[cols] += gr
         M[np.ix_(cols, cols)] += Mr
     return g, M
-
-
-@numba.njit(cache=True)
-def _accumulate(Phi, forcing, X, measured, e, rinv, g, M):
-    """g += Σ Sᵀ R⁻¹ e, M += Σ Sᵀ R⁻¹ S with S[k] = X[k][measured], X[k+1] = Φ X[k] + (F[k], 0),
-    F[k, i] = ∂E/∂θ_i w[k] given as `forcing` (N-1, nf, 10).
-
-    Output sensitivities are gathered in blocks so that M grows by matrix products, not by
-    per-sample rank-one updates."""
-    n, m = X.shape
-    nf, k, N = forcing.shape[1], len(measured), len(e)
-    block = 64
-    S = np.zeros((block * k, m))  # C-contiguous, as numba hands only those to BLAS
-    SwT = np.zeros((m, block * k))
-    eb = np.zeros(block * k)
-    Xn = np.empty_like(X)
-    filled = 0
-    for t in range(N):
-        for c in range(k):
-            row = filled * k + c
-            for j in range(m):
-                S[row, j] = X[measured[c], j]
-                SwT[j, row] = X[measured[c], j] * rinv[c]
-            eb[row] = e[t, c]
-        filled += 1
-        if filled == block or t == N - 1:
-            S[filled * k:] = 0.0  # a last, partial block: its stale rows must not count
-            eb[filled * k:] = 0.0
-            M += np.dot(SwT, S)
-            g += np.dot(SwT, eb)
-            filled = 0
-        if t == N - 1:
-            break
-        for a in range(n):
-            for j in range(m):
-                Xn[a, j] = 0.0
-            for l in range(n):
-                phi = Phi[a, l]
-                for j in range(m):
-                    Xn[a, j] += phi * X[l, j]
-            for i in range(nf):
-                Xn[a, i] += forcing[t, i, a]
-        X, Xn = Xn, X
 
 
 def fit_initial_states(prob: Problem, values: np.ndarray,
@@ -454,42 +496,49 @@ def fit_initial_states(prob: Problem, values: np.ndarray,
     """The parameter vector at the free `values` with the best-fitting initial states, and the
     model outputs there.
 
-    The outputs are linear in x0 (`y = y_forced + CΦᵏ x0`), so x0 is a weighted linear least-squares
-    solution: R from the data's spread and then from the residuals when not given. A model whose
-    responses are not finite gets the first measured samples.
+    The outputs are linear in x0 (`y = y_forced + G x0`, G = CΦᵏ), so x0 is a weighted linear
+    least-squares solution: R from the data's spread and then from the residuals when not given.
+    For any diagonal weighting the normal equations are sums of per-channel Gram matrices of
+    `[G, y − y_forced]`, gathered in one pass. A model whose responses are not finite gets the
+    first measured samples.
     """
     models = _models(prob, values, 0)
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
-    responses = []  # per record: forced (N, k) and free (N, k, k) output responses
+    grams = []  # per record and channel c: Σ GᵀG (k, k, k), Σ Gᵀv (k, k), Σ v² (k,); v = y − y_forced
     for r in prob.records:
         d, k = models[r.dt], len(r.measured)
-        X0 = np.zeros((NX, 1 + k))
-        X0[r.measured, 1 + np.arange(k)] = 1.0
-        F = np.zeros((len(r.y) - 1, NX, 1 + k))
-        F[:, :, 0] = r.inputs[:-1] @ d.E[:, NX:NX + NU].T + d.E[:, -1]
-        Y = _propagate(d.E[:, :NX], X0, F)[:, r.measured]
-        responses.append((Y[:, :, 0], Y[:, :, 1:]))
+        X = np.zeros((NX, 1 + k))  # column 0: the forced response; then one per x0 component
+        X[r.measured, 1 + np.arange(k)] = 1.0
+        Q, b, ss = np.zeros((k, k, k)), np.zeros((k, k)), np.zeros(k)
+        for samples, Y in _pieces(d.E[:, :NX], d.E[:, NX:], np.column_stack([r.inputs, np.ones(len(r.y))]),
+                                  X, r.measured, np.ones(k), 256):  # fmt: skip
+            G, v = Y[:, :, 1:].transpose(1, 0, 2), (r.y[samples] - Y[:, :, 0]).T  # channel first
+            Q += G.transpose(0, 2, 1) @ G
+            b += (G.transpose(0, 2, 1) @ v[:, :, None])[:, :, 0]
+            ss += np.sum(v**2, axis=1)
+        grams.append((Q, b, ss))
 
-    def solve(R):
-        outs = []
-        for r, (yf, G) in zip(prob.records, responses):
+    def solve(variance) -> list[np.ndarray]:
+        """x0 per record for channel variances `variance(record)`, and the residual sums of squares."""
+        sums = []
+        for r, (Q, b, ss) in zip(prob.records, grams):
             k = len(r.measured)
-            if np.all(np.isfinite(yf)) and np.all(np.isfinite(G)):
-                sd = np.sqrt(R[r.channels]) if R is not None else np.std(r.y, axis=0) + 1e-12
-                A = (G / sd[None, :, None]).reshape(-1, k)
+            if np.all(np.isfinite(Q)) and np.all(np.isfinite(b)) and np.all(np.isfinite(ss)):
+                wt = 1.0 / variance(r)
                 # normal equations: k ≤ 10 unknowns pinned by the first samples, so squaring the
-                # condition number is harmless, and it is 10× cheaper than an SVD of A
-                x0 = np.linalg.lstsq(A.T @ A, A.T @ ((r.y - yf) / sd).ravel(), rcond=None)[0]
+                # condition number is harmless
+                x0 = np.linalg.lstsq(np.tensordot(wt, Q, 1), wt @ b, rcond=None)[0]
+                sums.append(np.maximum(ss - 2 * b @ x0 + np.einsum("j,cjl,l->c", x0, Q, x0), 0.0))
             else:
                 x0 = r.y[0]
+                sums.append(np.full(k, np.inf))
             p[r.offset:r.offset + k] = x0
-            outs.append(yf + G @ x0)
-        return outs
+        return sums
 
     if R is None:
-        outs = solve(None)
-        R = noise_variance(prob, [r.y - y for r, y in zip(prob.records, outs)])
-    return p, solve(R)
+        R = _pooled_variance(prob, solve(lambda r: (np.std(r.y, axis=0) + 1e-12) ** 2))
+    solve(lambda r: R[r.channels])
+    return p, [_states(r, models[r.dt], prob.x0(r, p))[:, r.measured] for r in prob.records]
 
 
 def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = None) -> np.ndarray:
@@ -513,23 +562,37 @@ def covariance(M: np.ndarray) -> np.ndarray:
     return (V / lam) @ V.T / np.outer(D, D)
 
 
-def colored_middle(prob: Problem, sens, res, R: np.ndarray) -> np.ndarray:
-    """Morelli & Klein's `Σ_i Σ_j S(i)ᵀR⁻¹ R_vv(i−j) R⁻¹S(j)`, R_vv the residual autocorrelation.
+def colored_covariance(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
+                       res: Sequence[np.ndarray], R: np.ndarray, cov: np.ndarray) -> np.ndarray:  # fmt: skip
+    """Morelli & Klein's covariance of the free coefficients for colored residuals,
+    `C (Σ_i Σ_j S(i)ᵀR⁻¹ R_vv(i−j) R⁻¹S(j)) Cᵀ` with C = `cov[:n_free]` (cov = M⁻¹, the bound for
+    white residuals), S the output sensitivities, R_vv the residual autocorrelation (`xs`: the
+    states at `p`, `res`: the residuals).
 
     With `R_vv(τ) = 1/N Σ_m v(m) v(m+τ)ᵀ` over all lags, the double sum equals
-    `1/N Σ_τ P(τ) P(τ)ᵀ` with `P(τ) = Σ_m Σ_c v_c(m) (R⁻¹S)_c(m+τ)`: one FFT cross-correlation.
+    `1/N Σ_τ P(τ) P(τ)ᵀ` with `P(τ) = Σ_m Σ_c v_c(m) (R⁻¹S)_c(m+τ)`: FFT cross-correlations, one
+    per channel, of the sensitivities already projected by C (n_free columns, not n_params).
     """
-    mid = np.zeros((prob.n_params, prob.n_params))
-    for r, (_, S), e in zip(prob.records, sens, res):
-        n = len(e)
-        L = 2 * n
-        W = S / R[r.channels][None, :, None]
-        Pf = np.matmul(np.conj(np.fft.rfft(e, L, axis=0))[:, None, :], np.fft.rfft(W, L, axis=0))[:, 0]
-        weight = np.full(len(Pf), 2.0)
+    models, nf = _models(prob, p[:prob.n_free], 1), prob.n_free
+    out = np.zeros((nf, nf))
+    # R^-½ S Cᵀ, channel by channel, time last; one buffer for all records (fresh pages are dear)
+    Z = np.empty((max(len(r.measured) for r in prob.records), nf, max(len(r.y) for r in prob.records)))
+    for r, x, e in zip(prob.records, xs, res):
+        n, L, C = len(e), 2 * len(e), cov[:nf, prob.columns(r)].T
+        Zr = Z[:len(r.measured), :, :n]
+        Zr[...] = 0.0
+        for channels, params, pieces in _sensitivity_parts(prob, r, models[r.dt], x, r.measured,
+                                                           _scale(r, R), 512):  # fmt: skip
+            for samples, S in pieces:
+                Zr[channels, :, samples] = (S @ C[params]).transpose(1, 2, 0)
+        V = scipy.fft.rfft(e / np.sqrt(R[r.channels]), L, axis=0)  # R^-½ v
+        P = np.zeros((nf, L // 2 + 1), dtype=complex)
+        for c in range(len(Zr)):
+            P += np.conj(V[:, c]) * scipy.fft.rfft(Zr[c], L)
+        weight = np.full(P.shape[1], 2.0)
         weight[0] = weight[-1] = 1.0  # DC and Nyquist appear once in the full spectrum
-        cols = prob.columns(r)
-        mid[np.ix_(cols, cols)] += np.real((np.conj(Pf) * weight[:, None]).T @ Pf) / (L * n)
-    return mid
+        out += np.real((P * weight) @ np.conj(P).T) / (L * n)
+    return out
 
 
 @dataclass(frozen=True)
@@ -552,14 +615,19 @@ class Information:
         return self.crlb_std / np.maximum(np.abs(self.values), 1e-300)
 
 
-def assess(prob: Problem, p: np.ndarray) -> Information:
-    """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`."""
-    res = residuals(prob, p)
+def assess(prob: Problem, p: np.ndarray, M: np.ndarray | None = None) -> Information:
+    """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`.
+
+    `M`: `gauss_newton_terms(prob, p, …, R)[1]` with R the residual variance at `p`, if an
+    optimiser already has it.
+    """
+    xs = states(prob, p)
+    res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
     R = noise_variance(prob, res)
-    sens = sensitivities(prob, p)
-    _, M = normal_equations(prob, sens, res, R)
+    if M is None:
+        M = gauss_newton_terms(prob, p, xs, res, R)[1]
     cov = covariance(M)
-    corrected = cov @ colored_middle(prob, sens, res, R) @ cov
+    corrected = colored_covariance(prob, p, xs, res, R, cov)
     nf = prob.n_free
     std = np.sqrt(np.diag(cov))
     fisher = M[:nf, :nf] - M[:nf, nf:] @ np.linalg.solve(M[nf:, nf:], M[nf:, :nf])
@@ -570,7 +638,7 @@ def assess(prob: Problem, p: np.ndarray) -> Information:
         x0[r.name] = {STATES[i]: float(xr[i]) for i in r.measured}
     return Information(prob.free, p[:nf].copy(), fisher, std[:nf],
                        cov[:nf, :nf] / np.outer(std[:nf], std[:nf]),
-                       np.sqrt(np.maximum(np.diag(corrected)[:nf], 0.0)),
+                       np.sqrt(np.maximum(np.diag(corrected), 0.0)),
                        dict(zip(prob.channels, map(float, np.sqrt(R)))), x0,
                        negative_log_likelihood(prob, res), p.copy())  # fmt: skip
 
