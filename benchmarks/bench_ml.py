@@ -5,7 +5,7 @@ same start (a-priori values 30 % off, best-fitting initial states), same free se
 coefficients) and the same estimated initial states (20 more parameters). The reference uses
 scipy's defaults (trf, 2-point finite-difference Jacobian) on the same simulator, with the noise covariance relaxed
 the same way (R from the residuals, refit, until R settles). Goal: ml-gn ≥ 10× faster at equal
-or better accuracy; each timed as the best of three runs. Both run with single-threaded BLAS (set before numpy loads): the matrices
+or better accuracy; each timed as the best of five runs, the two alternating. Both run with single-threaded BLAS (set before numpy loads): the matrices
 are small, and on a shared 2-core machine BLAS threads only add synchronisation noise.
 
     python3 benchmarks/bench_ml.py
@@ -50,23 +50,25 @@ def scipy_fit(data, config) -> tuple[np.ndarray, int, int]:
     return p[:prob.n_free], nfev, rounds
 
 
-def _best(run, rounds: int = 3):
-    """The shortest wall time of `rounds` calls, and the result."""
-    times = []
+def _best(runs, rounds: int = 5):
+    """Per run: the shortest wall time of `rounds` calls, and its result. The runs alternate, so
+    a slow spell of a shared machine hits both alike."""
+    times, out = [[] for _ in runs], [None] * len(runs)
     for _ in range(rounds):
-        t0 = time.perf_counter()
-        out = run()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
+        for i, run in enumerate(runs):
+            t0 = time.perf_counter()
+            out[i] = run()
+            times[i].append(time.perf_counter() - t0)
+    return [(min(t), o) for t, o in zip(times, out)]
 
 
 def main() -> int:
     data = experiments(seed=0)
     prior = prior_config(error=0.3)
     truth = np.array([TRUTH[n] for n in FREE])
-    # best of three each: the first call in a process also loads compiled code from numba's cache
-    t_gn, est = _best(lambda: identify(data, prior, method="ml-gn", start="config"))
-    t_ls, (values, nfev, rounds) = _best(lambda: scipy_fit(data, prior))
+    # best of five each: the first call in a process also loads compiled code from numba's cache
+    (t_gn, est), (t_ls, (values, nfev, rounds)) = _best(
+        [lambda: identify(data, prior, method="ml-gn", start="config"), lambda: scipy_fit(data, prior)])
     z_gn = (est.values - truth) / est.std
     z_ls = (values - truth) / est.std
     print(f"BLAS threads: {os.environ['OPENBLAS_NUM_THREADS']}; "
@@ -75,9 +77,9 @@ def main() -> int:
     print(f"{'coefficient':12s} {'truth':>10s} {'ml-gn':>10s} {'scipy':>10s} {'gn err/σ':>9s} {'ls err/σ':>9s}")
     for n, t, a, b, za, zb in zip(FREE, truth, est.values, values, z_gn, z_ls):
         print(f"{n:12s} {t:10.4g} {a:10.4g} {b:10.4g} {za:9.2f} {zb:9.2f}")
-    print(f"ml-gn : {t_gn:7.2f} s, {est.iterations} iterations, {est.status.name}, "
+    print(f"ml-gn : {t_gn:7.3f} s, {est.iterations} iterations, {est.status.name}, "
           f"rms error {np.sqrt(np.mean(z_gn**2)):.3f} σ")
-    print(f"scipy : {t_ls:7.2f} s, {nfev} model evaluations in {rounds} R-relaxation rounds, "
+    print(f"scipy : {t_ls:7.3f} s, {nfev} model evaluations in {rounds} R-relaxation rounds, "
           f"rms error {np.sqrt(np.mean(z_ls**2)):.3f} σ")
     print(f"speed ratio scipy/ml-gn: {t_ls / t_gn:.1f}x (goal >= 10x); "
           f"max |ml-gn − scipy| = {np.max(np.abs(z_gn - z_ls)):.3f} σ")

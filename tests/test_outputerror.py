@@ -135,6 +135,19 @@ def test_sensitivities_made_in_pieces_equal_the_whole_recursion():
             np.testing.assert_allclose(got, S * scale[:, None], rtol=1e-13, atol=1e-15)
 
 
+def test_uncoupled_parts_are_the_connected_states_and_parameters():
+    coupled = np.zeros((4, 4), bool)
+    coupled[1, 0] = True  # state 0 feeds 1, 2 and 3 are alone
+    acts = np.zeros((4, 3), bool)
+    acts[0, 0] = acts[2, 1] = acts[3, 2] = True  # parameter 2 acts on state 3 only
+    parts = oe._uncoupled(coupled, acts, np.array([1, 2, 3]))
+    assert [[list(a) for a in part] for part in parts] == [[[0, 1], [0], [0]], [[2], [1], [1]],
+                                                           [[3], [2], [2]]]  # fmt: skip
+    acts[3, 1] = True  # parameter 1 now acts on 2 and 3 together: one part
+    parts = oe._uncoupled(coupled, acts, np.array([1, 2]))  # state 3 not asked for
+    assert [[list(a) for a in part] for part in parts] == [[[0, 1], [0], [0]], [[2, 3], [1, 2], [1]]]
+
+
 def test_information_is_consistent():
     data = _data(duration=30.0)
     info = oe.information(data, truth_config())

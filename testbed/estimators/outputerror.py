@@ -19,6 +19,12 @@ to the residual variance per channel, then held fixed while θ steps (Maine & Il
 Output sensitivities are exact: `∂E/∂θ_i` and `∂²E/∂θ_i∂θ_j` come from the exponential of
 block-triangular augmented matrices (the discrete counterpart of the paper's Eq. 3), and the
 sensitivities are propagated by the recursions obtained by differentiating `x[k+1] = E w[k]`.
+
+Speed: the estimators never hold the N·k·q sensitivities of an experiment whole. They are made a
+few hundred samples at a time and summed into the normal equations as they come (fresh memory
+pages, whose first writes fault, cost more than the arithmetic), and separately for each part of
+the model that evolves on its own (a torpedo's lateral and longitudinal motions are uncoupled in
+the linear model: a quarter of the arithmetic).
 """
 
 from __future__ import annotations
@@ -266,7 +272,7 @@ def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
 
 
 def _sensitivity_parts(prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows,
-                       scale: np.ndarray, size: int):  # fmt: skip
+                       scale: np.ndarray, size: int) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:  # fmt: skip
     """`scale[c] ∂x_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
     states `x` (N, 10), for each `_uncoupled` part of the model: (channels, params, pieces), the
     pieces as in `_pieces` with (T, len(channels), len(params)) arrays; `channels` index `rows`,
@@ -298,7 +304,8 @@ def _uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
     uncoupled in the linear model, so each part propagates only its own states and parameters
     (a quarter of the arithmetic); a fully coupled model is one part.
     """
-    reach = coupled | coupled.T | (acts.astype(int) @ acts.T.astype(int) > 0) | np.eye(len(coupled), dtype=bool)
+    shared = acts.astype(int) @ acts.T.astype(int) > 0  # states one parameter acts on together
+    reach = coupled | coupled.T | shared | np.eye(len(coupled), dtype=bool)
     while True:  # transitive closure by squaring: ⌈log₂ n⌉ products at most
         wider = reach.astype(int) @ reach.astype(int) > 0
         if (wider == reach).all():
@@ -351,7 +358,7 @@ def _recursion(Phi, forcing, X, rows, scale, S):
                 xn[a, j] = 0.0
             for l in range(n):  # the innermost loop runs along contiguous columns
                 phi = Phi[a, l]
-                if phi == 0:  # Φ is sparse: the lateral and longitudinal motions are uncoupled
+                if phi == 0:  # Φ is sparse even within a part (roll drives yaw, not back)
                     continue
                 for j in range(m):
                     xn[a, j] += phi * x[l, j]
