@@ -45,6 +45,7 @@ from testbed.model import (ITHETA, IX, NU, NX, STATES, Structure, continuous, de
 
 NW = NX + NU + 1  # length of w = [x; δ; 1]
 EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
+PIECE = 512  # samples per piece of sensitivities (`_pieces`): a piece stays in the CPU's cache
 
 
 @dataclass(frozen=True)
@@ -485,7 +486,7 @@ def gauss_newton_terms(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
         e, cols = e / np.sqrt(R[r.channels]), prob.columns(r)
         gr, Mr = np.zeros(len(cols)), np.zeros((len(cols), len(cols)))
         for channels, params, pieces in _sensitivity_parts(prob, r, models[r.dt], x, r.measured,
-                                                           _scale(r, R), 512):  # fmt: skip
+                                                           _scale(r, R), PIECE):  # fmt: skip
             ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
             for samples, S in pieces:
                 S = S.reshape(-1, len(params))  # weighted: R^-½ S
@@ -518,7 +519,7 @@ def fit_initial_states(prob: Problem, values: np.ndarray,
         X[r.measured, 1 + np.arange(k)] = 1.0
         Q, b, ss = np.zeros((k, k, k)), np.zeros((k, k)), np.zeros(k)
         for samples, Y in _pieces(d.E[:, :NX], d.E[:, NX:], np.column_stack([r.inputs, np.ones(len(r.y))]),
-                                  X, r.measured, np.ones(k), 256):  # fmt: skip
+                                  X, r.measured, np.ones(k), PIECE):  # fmt: skip
             G, v = Y[:, :, 1:].transpose(1, 0, 2), (r.y[samples] - Y[:, :, 0]).T  # channel first
             Q += G.transpose(0, 2, 1) @ G
             b += (G.transpose(0, 2, 1) @ v[:, :, None])[:, :, 0]
@@ -589,7 +590,7 @@ def colored_covariance(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
         Zr = Z[:len(r.measured), :, :n]
         Zr[...] = 0.0
         for channels, params, pieces in _sensitivity_parts(prob, r, models[r.dt], x, r.measured,
-                                                           _scale(r, R), 512):  # fmt: skip
+                                                           _scale(r, R), PIECE):  # fmt: skip
             for samples, S in pieces:
                 Zr[channels, :, samples] = (S @ C[params]).transpose(1, 2, 0)
         V = scipy.fft.rfft(e / np.sqrt(R[r.channels]), L, axis=0)  # R^-½ v
