@@ -43,9 +43,12 @@ class Outcome:
     fisher: np.ndarray | None = None  # M at p, when the optimiser has it (saves `assess` a pass)
 
 
-def _decrement(g: np.ndarray, M: np.ndarray) -> float:
-    """Length of the Gauss-Newton step `M⁻¹g` in Cramér-Rao units."""
-    return float(np.sqrt(max(g @ oe.covariance(M) @ g, 0.0)))
+def _terms(prob: oe.Problem, p: np.ndarray, xs, res, tol: float):
+    """R, g and M at `p` (`oe.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is
+    shorter than `tol` in Cramér-Rao units: converged."""
+    R = oe.noise_variance(prob, res)
+    g, M = oe.gauss_newton_terms(prob, p, xs, res, R)
+    return R, g, M, np.sqrt(max(g @ oe.covariance(M) @ g, 0.0)) < tol
 
 
 def _simulate(prob: oe.Problem, p: np.ndarray):
@@ -72,11 +75,8 @@ def gauss_newton(prob: oe.Problem, p: np.ndarray, max_iter: int = 50, callback=N
     history, lam = [p[:prob.n_free].copy()], 0.01
     xs, res = _simulate(prob, p)
     for it in range(max_iter + 1):
-        R = oe.noise_variance(prob, res)
-        g, M = oe.gauss_newton_terms(prob, p, xs, res, R)
-        if _decrement(g, M) < tol:
-            return Outcome(p, Status.CONVERGED, it, np.array(history), M)
-        if it == max_iter:
+        R, g, M, converged = _terms(prob, p, xs, res, tol)
+        if converged or it == max_iter:
             break
         J0, D = oe.weighted_cost(prob, res, R), np.diag(np.maximum(np.diag(M), 1e-300))
         while True:
@@ -90,7 +90,8 @@ def gauss_newton(prob: oe.Problem, p: np.ndarray, max_iter: int = 50, callback=N
                 return Outcome(p, Status.STALLED, it, np.array(history), M)
         history.append(p[:prob.n_free].copy())
         _report(callback, prob, it + 1, p, res)
-    return Outcome(p, Status.MAX_ITERATIONS, max_iter, np.array(history), M)
+    status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
+    return Outcome(p, status, it, np.array(history), M)
 
 
 def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callback=None,
@@ -105,11 +106,8 @@ def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callbac
         xs, res = sim
         if it:
             _report(callback, prob, it, p, res)
-        R = oe.noise_variance(prob, res)
-        g, M = oe.gauss_newton_terms(prob, p, xs, res, R)
-        if _decrement(g, M) < tol:
-            return Outcome(p, Status.CONVERGED, it, np.array(history), M)
-        if it == max_iter:
+        R, g, M, converged = _terms(prob, p, xs, res, tol)
+        if converged or it == max_iter:
             break
         grad = -2.0 / N * g  # ∂J_M/∂p
         weights = [e / R[r.channels] for r, e in zip(prob.records, res)]
@@ -122,7 +120,8 @@ def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callbac
             return Outcome(p, Status.DIVERGED, it, np.array(history))
         last, p = p, p + step
         history.append(p[:prob.n_free].copy())
-    return Outcome(p, Status.MAX_ITERATIONS, max_iter, np.array(history), M)
+    status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
+    return Outcome(p, status, it, np.array(history), M)
 
 
 def nelder_mead(prob: oe.Problem, p: np.ndarray, max_iter: int | None = None, callback=None,
