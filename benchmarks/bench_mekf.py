@@ -29,9 +29,9 @@ import tempfile
 import time
 from pathlib import Path
 
-# As the command line does (testbed/cli.py): one BLAS thread for the small dense matrices.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from testbed.threads import one_blas_thread
+
+one_blas_thread()  # as the command line does, before numpy loads
 
 import numpy as np  # noqa: E402
 from filterpy.kalman import KalmanFilter  # noqa: E402

@@ -18,8 +18,9 @@ import sys
 import time
 from pathlib import Path
 
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from testbed.threads import one_blas_thread
+
+one_blas_thread()  # as the command line does, before numpy loads
 
 import numpy as np
 from scipy.optimize import least_squares

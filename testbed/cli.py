@@ -8,17 +8,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import signal
 import sys
 from pathlib import Path
 
-# The numerical core works on small dense matrices: one BLAS thread is fastest, and numpy's and
-# scipy's OpenBLAS pools contend on small machines. Set before numpy loads; the user's choice wins.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from testbed.threads import one_blas_thread
 
-from testbed.errors import InputError, atomic_file
+one_blas_thread()  # before numpy loads
+
+from testbed.errors import InputError, atomic_file  # noqa: E402
 
 
 def _positive(text: str) -> float:
