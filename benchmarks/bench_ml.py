@@ -52,8 +52,8 @@ def scipy_fit(data, config) -> tuple[np.ndarray, int, int]:
 
 
 def _best(runs, rounds: int = 5):
-    """Per run: the shortest wall time of `rounds` calls, and its result. The runs alternate, so
-    a slow spell of a shared machine hits both alike."""
+    """Per run: the shortest wall time of `rounds` calls, and the last call's result. The runs
+    alternate, so a slow spell of a shared machine hits both alike."""
     times, out = [[] for _ in runs], [None] * len(runs)
     for _ in range(rounds):
         for i, run in enumerate(runs):

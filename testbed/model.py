@@ -163,7 +163,7 @@ def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float):
     `h = Δ/2ˢ` with `‖A h‖₁ ≤ 1/2`, then `∂E ← E ∂E + ∂E E`, `E ← E²` s times, top rows only. Only
     A (the first n columns) enters the powers, so the input columns (B, large for the fins) set
     neither s nor the number of terms: the k-th term of E and of ∂E is bounded by
-    `‖Ah‖^(k−1)/(k−1)!` of the first, and the series stops where that bound is below 1e-17 (16
+    `‖Ah‖^(k−1)/(k−1)!` of the first, and the series stops where that bound is below 2⁻⁵³ (16
     terms at ‖Ah‖ = 1/2). Equal to scipy's `expm` of the block matrix to rounding (tests: complex
     step), at a fraction of its cost: at 50 Hz, ‖AΔ‖₁ ≈ 1 for the torpedo's roll mode, s = 1.
     """

@@ -114,6 +114,11 @@ def test_iteration_limit_is_not_convergence(data):
     est = identify(data, prior_config(error=0.4), method="ml-gn", max_iter=1)
     assert est.status is Status.MAX_ITERATIONS and est.iterations == 1
     assert json.loads(est.to_json())["converged"] is False
+    for method in ("ml-gn", "ml-nr", "ml-nm"):
+        est = identify(data, prior_config(error=0.4), method=method, max_iter=0, start="config")
+        assert est.status is Status.MAX_ITERATIONS and est.iterations == 0, method
+        with pytest.raises(InputError, match="max-iter -1"):
+            identify(data, prior_config(error=0.4), method=method, max_iter=-1)
 
 
 def test_unknown_coefficient_in_free_is_input_error(data):

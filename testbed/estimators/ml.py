@@ -137,7 +137,7 @@ def nelder_mead(prob: oe.Problem, p: np.ndarray, max_iter: int | None = None, ca
     takes more than `max_relaxations` runs.
     """
     m = nf = prob.n_free
-    max_iter = max_iter or 500 * m
+    max_iter = 500 * m if max_iter is None else max_iter
     tol = eps / prob.n_samples
     R = oe.noise_variance(prob, oe.residuals(prob, p))
     history, it = [p[:nf].copy()], 0
@@ -246,6 +246,8 @@ def _estimate(name: str, prob: oe.Problem, out: Outcome, start: str, t0: float,
 def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelConfig,
          max_iter: int | None, start: str, callback: Callback | None, opts: dict) -> Estimate:  # fmt: skip
     t0 = time.perf_counter()
+    if max_iter is not None and max_iter < 0:
+        raise InputError(f"--max-iter {max_iter}; expected ≥ 0 (iterations)")
     prob = oe.problem(experiments, config)
     opts = opts | ({"max_iter": max_iter} if max_iter is not None else {})
 

@@ -327,8 +327,8 @@ def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
     """Rows `rows` of X[t], times `scale`, for `X[t+1] = Φ X[t] + F[t]` from `X[0] = X` (n, m),
     where F[t]'s first j columns are `(D w[t])` (D: (j·n, len(w[t]))) and the others zero: in
     consecutive pieces (samples, (≤ size, len(rows), m) array), the array reused from piece to
-    piece. Made and used a piece at a time (F too), nothing of length N is allocated: fresh
-    memory pages cost more here than the arithmetic, as their first writes fault."""
+    piece. Made and used a piece at a time (F too), neither is ever allocated for all N samples:
+    fresh memory pages cost more here than the arithmetic, as their first writes fault."""
     N, dtype, n = len(w), X.dtype, len(Phi)
     Phi, rows = np.ascontiguousarray(Phi, dtype), np.asarray(rows, np.int64)
     scale, DT = np.asarray(scale, float), np.ascontiguousarray(D.T, dtype)
@@ -508,7 +508,7 @@ def fit_initial_states(prob: Problem, values: np.ndarray,
     least-squares solution: R from the data's spread and then from the residuals when not given.
     For any diagonal weighting the normal equations are sums of per-channel Gram matrices of
     `[G, y − y_forced]`, gathered in one pass. A model whose responses are not finite gets the
-    first measured samples.
+    first measured samples. Real values only: this solve is not complex-step safe.
     """
     models = _models(prob, values, 0)
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
@@ -627,7 +627,7 @@ def assess(prob: Problem, p: np.ndarray, M: np.ndarray | None = None) -> Informa
     """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`.
 
     `M`: `gauss_newton_terms(prob, p, …, R)[1]` with R the residual variance at `p`, if an
-    optimiser already has it.
+    optimiser already has it (not checked: the caller vouches that it belongs to `p`).
     """
     xs = states(prob, p)
     res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
