@@ -518,8 +518,8 @@ def fit_initial_states(prob: Problem, values: np.ndarray,
         X = np.zeros((NX, 1 + k))  # column 0: the forced response; then one per x0 component
         X[r.measured, 1 + np.arange(k)] = 1.0
         Q, b, ss = np.zeros((k, k, k)), np.zeros((k, k)), np.zeros(k)
-        for samples, Y in _pieces(d.E[:, :NX], d.E[:, NX:], np.column_stack([r.inputs, np.ones(len(r.y))]),
-                                  X, r.measured, np.ones(k), PIECE):  # fmt: skip
+        u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
+        for samples, Y in _pieces(d.E[:, :NX], d.E[:, NX:], u1, X, r.measured, np.ones(k), PIECE):
             G, v = Y[:, :, 1:].transpose(1, 0, 2), (r.y[samples] - Y[:, :, 0]).T  # channel first
             Q += G.transpose(0, 2, 1) @ G
             b += (G.transpose(0, 2, 1) @ v[:, :, None])[:, :, 0]
