@@ -150,14 +150,17 @@ class Autopilot:
         self.integrators[:] = 0.0
 
     def step(self, x: np.ndarray, *, depth=None, yaw_rate=None, roll=None, rudder=None,
-             elevators=None, hold_depth=None) -> tuple[tuple[float, float, float], float | None]:  # fmt: skip
+             elevators=None, differential=None, hold_depth=None) -> tuple[tuple[float, float, float], float | None]:  # fmt: skip
         """Fin commands (δr, δer, δel) for state `x` (SPEC order), and the pitch command
         (rad; None when depth is not controlled).
 
-        Give `depth` (m) to hold or change depth, `yaw_rate` (rad/s), `roll` (rad); or `rudder`
-        / `elevators` (rad) to drive those fins directly (open loop, e.g. a PRBS). With
-        `elevators`, `hold_depth` (m) adds the slow hold's correction to both elevators.
+        Give `depth` (m) to hold or change depth, `yaw_rate` (rad/s), `roll` (rad); or `rudder`,
+        `elevators` (together, δe) or `differential` (δa: δer = δe + δa, δel = δe − δa) in rad
+        to drive those fins directly (open loop, e.g. a PRBS). With `elevators`, `hold_depth`
+        (m) adds the slow hold's correction to both elevators.
         """
+        if differential is not None and roll is not None:
+            raise ValueError("differential and roll both drive the elevators' difference; give one")
         d = self.design
         kx = (self._K @ x).tolist()
         if rudder is not None:
@@ -169,12 +172,13 @@ class Autopilot:
         else:
             dr = 0.0
         theta_cmd = None
+        da = 0.0 if differential is None else differential
         if elevators is not None:
-            de, da = elevators, 0.0
+            de = elevators
             if hold_depth is not None:
                 de -= d.hold[0] * x[IX["theta"]] + d.hold[1] * (x[IX["z"]] - hold_depth)
         else:
-            de = da = 0.0
+            de = 0.0
             if depth is not None:
                 theta_cmd = _clip(-d.k_depth * (depth - x[IX["z"]]) / d.speed, d.max_pitch)
                 de = self._output(PITCH, theta_cmd, kx)

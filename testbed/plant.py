@@ -13,13 +13,36 @@ added mass of the whole vehicle is M9(δ) = M_hull + Σ X_kᵀ M_k X_k. The miss
 
 with ν̇ the rate of the hull-axis components (Kirchhoff's equations). X_k is affine in
 (cos δ_k, sin δ_k), so both matrices are fixed combinations of nine precomputed 9×9 products
-per fin. After `mj_step1` the plant maps M9 to MuJoCo's coordinates (free-joint linear velocity
-is in world axes: v = Rᵀ q̇_lin, v̇ = Rᵀ q̈_lin − ω × v), adds it to MuJoCo's mass matrix (CSR
-`d.M`, within the tree's sparsity), refactors it, puts the bias and the buoyancy of every fluid
-geom (−ρ V g at its volume's centre) in `qfrc_applied`, and lets `mj_step2` finish. The
-integrator (Euler or implicitfast) sees the complete mass matrix, so the step is as stable as
-MuJoCo's own rigid-body step; with MuJoCo's velocity terms the fluid part is Kirchhoff's
-equations for a body in potential flow.
+per fin. After MuJoCo's position and velocity stages the plant maps M9 to MuJoCo's coordinates
+(free-joint linear velocity is in world axes: v = Rᵀ q̇_lin, v̇ = Rᵀ q̈_lin − ω × v), adds it to
+MuJoCo's mass matrix (CSR `d.M`, within the tree's sparsity) and puts the bias and the
+buoyancy of every fluid geom (−ρ V g at its volume's centre) in `qfrc_applied`; the hull's
+acceleration is then solved from the hull block of the complete mass matrix (the fins'
+accelerations are prescribed), so the step is as stable as a rigid body's; with MuJoCo's
+velocity terms the fluid part is Kirchhoff's equations for a body in potential flow.
+
+The fins are prescribed, quasi-steady control surfaces, as SPEC §2's model takes them (the
+fin angle is an input). Each is a digital servo: at every physics step its angle moves toward
+the command by at most the fin rate limit times the step and is held until the next, so it
+settles within one 4 ms step for any change below 8 mrad, and RK4 integrates exactly the
+staircase that is recorded (a continuous servo faster than the step would not be resolved by
+the stages; one slower than the 50 Hz sample interval spreads each command change over the
+next interval, which a zero-order hold of the interval's mean angle does not represent: with
+MuJoCo's 30 Hz position servo the noise-free fit's N row was 1–3 % off). The fluid and the hull
+see each fin at its angle, at rest relative to the hull: a fin turning in the flow would add a
+force linear in its rate (the non-circulatory lift of its added mass, −δ̇ X_kᵀ M_k ∂X_k/∂δ ν,
+and MuJoCo's −ω × m_A v for the fin body), measured on the torpedo with dynamic fins at 1.9 ms ×
+the fin's force per radian (B₁ ≈ 0.0019 s · B): an input lead that SPEC §2's model has no place
+for (with it, the analytic model tracked an open-loop PRBS response with only 96–98 % fit).
+
+The hull is integrated by classical RK4 (`_rk4_step`, one compiled loop over the steps), each
+of the four stages a completed forward evaluation with the fins at their held angles. MuJoCo's
+own step would not do: its RK4 stages cannot be completed, and its first-order
+steps are far from the continuous plant that the analytic model linearises (at 4 ms, implicit
+Euler moves the 23.7 rad/s sway-yaw and heave-pitch poles by 4 %, and `implicitfast` keeps only
+the lower triangle of the strongly asymmetric fluid-force derivative): with `implicitfast` the
+analytic model tracked the same response with 92–94 % fit (tests/test_plant.py measures the
+agreement that RK4 and quasi-steady fins give).
 """
 
 from __future__ import annotations
@@ -43,15 +66,15 @@ from testbed.vehicle import (FINS, FLIP, check_model, constants, cruise_speed, f
 class Plant:
     """A stateful simulator of the completed plant (state lives in MuJoCo's `MjData`).
 
-    `complete=False` runs plain MuJoCo (no added-mass inertia, no buoyancy), for comparison.
-    `rk4=True` integrates the same dynamics with fourth-order Runge-Kutta (four evaluations a
-    step, for accuracy studies) instead of the MJCF's integrator. A `model` passed in is used
-    as it is (later changes to it reach the plant), except with `timestep`: then the plant
-    works on a copy, and the caller's model keeps its own timestep.
+    The completed plant integrates with RK4 at the MJCF's timestep. `complete=False` runs plain
+    MuJoCo instead (`mj_step` with the MJCF's integrator, fins driven by MuJoCo's own servos,
+    no added-mass inertia, no buoyancy), for comparison. A `model` passed in is used as it is
+    (later changes to it reach the plant), except with `timestep`: then the plant works on a
+    copy, and the caller's model keeps its own timestep.
     """
 
     def __init__(self, mjcf=None, timestep: float | None = None, complete: bool = True,
-                 model: mujoco.MjModel | None = None, rk4: bool = False):  # fmt: skip
+                 model: mujoco.MjModel | None = None):  # fmt: skip
         if model is None:
             model = load_model(mjcf)
         else:
@@ -65,7 +88,6 @@ class Plant:
         self.model = model
         self.data = mujoco.MjData(self.model)
         self.complete = complete
-        self.rk4 = rk4
         m, d = self.model, self.data
         self.hull = m.body("hull").id
         self._qadr = m.jnt_qposadr[m.joint("hull").id]
@@ -84,10 +106,11 @@ class Plant:
         P, M_hull, B, c = _added_mass_basis(m)
         self.thrust = 0.0
         self._addresses = (m._address, d._address)  # the C structs, for the compiled loop
-        self._k = _Kernel(d.xmat, d.qvel, d.qpos, d.M, d.qfrc_applied, d.ctrl, d.warning.number,
-                          self.hull, self._fin_qadr, self._fin_act, self._fin_limit, dofs, where[rows],
-                          where[m.M_colind].astype(np.intp), P, M_hull,
-                          -m.opt.density * B * m.opt.gravity, c, np.zeros(6), np.zeros(len(FINS)))  # fmt: skip
+        self._k = _Kernel(d.xmat, d.qvel, d.qpos, d.qacc, d.M, d.qfrc_applied, d.qfrc_smooth, d.ctrl,
+                          d.warning.number, self.hull, self._fin_qadr, self._fin_act, self._fin_limit, dofs,
+                          where[rows], where[m.M_colind].astype(np.intp), P, M_hull,
+                          -m.opt.density * B * m.opt.gravity, c, np.zeros(6), np.zeros(len(FINS)),
+                          np.zeros(len(FINS)))  # fmt: skip
         self.reset()
 
     @property
@@ -101,8 +124,13 @@ class Plant:
 
     @property
     def reference(self) -> np.ndarray:
-        """The fin servos' rate-limited reference (rad)."""
+        """The fin servos' rate-limited reference (rad): the completed plant's fin angles."""
         return self._k.reference
+
+    def fin_integral(self) -> np.ndarray:
+        """∫ δ dt of each fin since the last reset (rad s), exact: its difference over a sample
+        interval, divided by the interval, is the fin's mean angle over it."""
+        return self._k.integral.copy()
 
     # -- state -------------------------------------------------------------------------------
 
@@ -131,6 +159,7 @@ class Plant:
         mujoco.mju_quat2Mat(R, q)
         d.qvel[self._vadr:self._vadr + 3] = R.reshape(3, 3) @ np.array([speed, 0.0, 0.0])
         self.reference[:] = 0.0
+        self._k.integral[:] = 0.0
         d.ctrl[:] = 0.0
         mujoco.mj_forward(m, d)
         # The propulsor balances the drag of straight flight at this speed.
@@ -139,9 +168,11 @@ class Plant:
         d.ctrl[self._thruster] = self.thrust
 
     def set_state(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
-        """Set MuJoCo's generalized state (for tests and linearization)."""
+        """Set MuJoCo's generalized state (for tests and linearization); the fin servos start
+        from the fin angles in it."""
         self.data.qpos[:] = qpos
         self.data.qvel[:] = qvel
+        self.reference[:] = qpos[self._fin_qadr]
         mujoco.mj_forward(self.model, self.data)
 
     def state(self) -> np.ndarray:
@@ -173,68 +204,34 @@ class Plant:
     def step(self, fin_commands=(0.0, 0.0, 0.0), n: int = 1) -> None:
         """Advance `n` steps with the fin servos commanded to `fin_commands` (rad).
 
-        Commands are clipped to the servo range and approached at the fin rate limit. Raises
-        `InputError` at the first step that MuJoCo flags (it would reset the state and go on) or
-        that leaves the velocities non-finite or beyond `_MAX_VELOCITY` (m/s, rad/s).
+        Commands are clipped to the servo range and approached at the fin rate limit, the fins
+        held over each step (plain MuJoCo: its servos follow). Raises `InputError` at the first
+        step that MuJoCo flags (it would reset the state and go on) or that leaves the
+        velocities non-finite or beyond `_MAX_VELOCITY` (m/s, rad/s).
         """
         m, d, k = self.model, self.data, self._k
         cmd = np.asarray(fin_commands, float).reshape(len(FINS))  # _servo clips it to the range
         slew = self._rate * m.opt.timestep
         d.ctrl[self._thruster] = self.thrust
         t0 = d.time
-        if self.rk4:
-            done, cause, warned = 0, -1, k.warnings.copy()
-            while done < n and cause < 0:
-                _servo(k, cmd, slew)
-                self._rk4_step()
-                done, cause = done + 1, _unstable(k, warned)
-        else:
-            # The whole loop is compiled, calling MuJoCo's C API: with Python calling mj_step1,
-            # the completion and mj_step2 each step, the plant ran at 0.5 of mj_step's rate, now
-            # 0.8 (benchmarks/bench_plant.py).
-            done, cause = _advance(*self._addresses, k, n, self.complete, cmd, slew)
+        # The whole loop is compiled, calling MuJoCo's C API (Python around each step would
+        # cost more than the step itself: benchmarks/bench_plant.py).
+        done, cause = _advance(*self._addresses, k, n, self.complete, m.opt.timestep, cmd, slew)
+        if self.complete:
+            d.time = t0 + done * m.opt.timestep
         if cause >= 0:
             why = (f"velocities non-finite or beyond {_MAX_VELOCITY:g}" if cause == len(k.warnings) else "MuJoCo: " +
                    mujoco.mju_warningText(cause, int(d.warning.lastinfo[cause])).split(". ")[0])  # fmt: skip
             raise InputError(f"simulation unstable at t={t0 + done * m.opt.timestep:.4g} s ({why}); "
                              "expected a bounded state: lower the speed or the timestep, or fix the MJCF")  # fmt: skip
 
-    def _acceleration(self) -> np.ndarray:
-        """q̈ at the current (qpos, qvel): MuJoCo's forward dynamics, completed."""
-        m, d = self.model, self.data
-        mujoco.mj_fwdPosition(m, d)
-        mujoco.mj_fwdVelocity(m, d)
-        self._complete() if self.complete else self._plain()
-        mujoco.mj_fwdActuation(m, d)
-        mujoco.mj_fwdAcceleration(m, d)
-        mujoco.mj_fwdConstraint(m, d)
-        return d.qacc.copy()
-
-    def _rk4_step(self) -> None:
-        """Classical RK4 on (qpos, qvel), positions integrated on the quaternion manifold."""
-        m, d = self.model, self.data
-        h = m.opt.timestep
-        q0, v0 = d.qpos.copy(), d.qvel.copy()
-        vels, accs = [v0], [self._acceleration()]
-        for c in (0.5, 0.5, 1.0):
-            d.qpos[:] = q0
-            mujoco.mj_integratePos(m, d.qpos, vels[-1], c * h)
-            d.qvel[:] = v0 + c * h * accs[-1]
-            vels.append(d.qvel.copy())
-            accs.append(self._acceleration())
-        w = np.array([1.0, 2.0, 2.0, 1.0]) / 6.0
-        d.qpos[:] = q0
-        mujoco.mj_integratePos(m, d.qpos, w @ np.array(vels), h)
-        d.qvel[:] = v0 + h * (w @ np.array(accs))
-        d.time += h
-
     def _plain(self) -> None:
         """Plain MuJoCo: only the external wrench is applied."""
         _apply_wrench(self._k)
 
     def _complete(self) -> None:
-        """Add the added-mass inertia to d.M (refactored); the bias and buoyancy to qfrc_applied."""
-        _complete(*self._addresses, self._k)
+        """Add the added-mass inertia to d.M; the bias and buoyancy to qfrc_applied."""
+        _complete(self._k)
 
     def body_accelerations(self) -> np.ndarray:
         """(u̇ v̇ ẇ ṗ q̇ ṙ) in SPEC body axes at the current state, the fins held where they are.
@@ -285,8 +282,10 @@ class _Kernel(NamedTuple):
     xmat: np.ndarray
     qvel: np.ndarray
     qpos: np.ndarray
+    qacc: np.ndarray
     M: np.ndarray  # d.M, the CSR mass matrix
     qfrc: np.ndarray  # d.qfrc_applied
+    qfrc_smooth: np.ndarray
     ctrl: np.ndarray
     warnings: np.ndarray  # d.warning.number, MuJoCo's warning counters
     hull: int  # body id
@@ -302,6 +301,7 @@ class _Kernel(NamedTuple):
     centre: np.ndarray  # of buoyancy, hull axes, m
     wrench: np.ndarray  # Plant.wrench, SPEC body axes
     reference: np.ndarray  # Plant.reference
+    integral: np.ndarray  # Plant.fin_integral
 
 
 # MuJoCo's C API for the compiled loop, from the library the Python bindings use. The mjModel*
@@ -311,22 +311,26 @@ llvmlite.binding.load_library_permanently(
              for f in sorted(Path(mujoco.__file__).parent.glob(pattern)))))  # fmt: skip
 _SIGNATURE = numba.types.void(numba.types.uintp, numba.types.uintp)
 _mj_step = numba.types.ExternalFunction("mj_step", _SIGNATURE)
-_mj_step1 = numba.types.ExternalFunction("mj_step1", _SIGNATURE)
-_mj_step2 = numba.types.ExternalFunction("mj_step2", _SIGNATURE)
-_mj_factorM = numba.types.ExternalFunction("mj_factorM", _SIGNATURE)
+_mj_fwdPosition = numba.types.ExternalFunction("mj_fwdPosition", _SIGNATURE)
+_mj_fwdVelocity = numba.types.ExternalFunction("mj_fwdVelocity", _SIGNATURE)
+_mj_fwdActuation = numba.types.ExternalFunction("mj_fwdActuation", _SIGNATURE)
+_mj_fwdAcceleration = numba.types.ExternalFunction("mj_fwdAcceleration", _SIGNATURE)
+_mj_checkAcc = numba.types.ExternalFunction("mj_checkAcc", _SIGNATURE)
+# void mj_integratePos(const mjModel* m, mjtNum* qpos, const mjtNum* qvel, mjtNum scale)
+_mj_integratePos = numba.types.ExternalFunction(
+    "mj_integratePos", numba.types.void(numba.types.uintp, numba.types.uintp, numba.types.uintp, numba.types.float64))
 _MAX_VELOCITY = 1e4  # m/s or rad/s: no vehicle gets near; MuJoCo's own limit (1e10) is late
 
 
 @numba.njit(cache=True)
-def _advance(model, data, k, n, complete, cmd, slew):
-    """`n` steps; returns (steps taken, `_unstable`'s cause for the last one, -1 if none)."""
+def _advance(model, data, k, n, complete, h, cmd, slew):
+    """`n` steps of `h` s; returns (steps taken, `_unstable`'s cause for the last one, -1 if
+    none). The completed plant's RK4 leaves `data.time` to the caller."""
     warned = k.warnings.copy()
     for i in range(n):
         _servo(k, cmd, slew)
         if complete:
-            _mj_step1(model, data)
-            _complete(model, data, k)
-            _mj_step2(model, data)
+            _step(model, data, k, h)
         else:
             _apply_wrench(k)
             _mj_step(model, data)
@@ -334,6 +338,84 @@ def _advance(model, data, k, n, complete, cmd, slew):
         if cause >= 0:
             return i + 1, cause
     return n, -1
+
+
+@numba.njit(cache=True)
+def _forward(model, data, k):
+    """q̈ into `k.qacc`, the fins at rest relative to the hull: MuJoCo's forward stages,
+    completed, and the hull's acceleration from the hull block of the complete mass matrix (the
+    fins' accelerations are prescribed, zero in MuJoCo's coordinates)."""
+    _mj_fwdPosition(model, data)
+    _mj_fwdVelocity(model, data)
+    _complete(k)
+    _mj_fwdActuation(model, data)
+    _mj_fwdAcceleration(model, data)  # qfrc_smooth; its qacc is replaced below
+    H = np.zeros((6, 6))
+    for e in range(k.rows.shape[0]):  # d.M holds the lower triangle
+        r, c = k.rows[e], k.cols[e]
+        if r < 6 and c < 6:
+            H[r, c] = H[c, r] = k.M[e]
+    rhs = np.empty(6)
+    for i in range(6):
+        rhs[i] = k.qfrc_smooth[k.dofs[i]]
+    a = np.linalg.solve(H, rhs)  # H q̈_hull = f_hull
+    k.qacc[:] = 0.0
+    for i in range(6):
+        k.qacc[k.dofs[i]] = a[i]
+    _mj_checkAcc(model, data)  # a bad qacc is flagged in the warning counters
+
+
+@numba.njit(cache=True)
+def _step(model, data, k, h):
+    """One step of `h` s: RK4, or 2ʲ RK4 steps of h/2ʲ where the step's stiffness estimate puts
+    h λ outside RK4's stability region (roll damping grows with the turn rate: −49 rad/s at trim,
+    near −1000 rad/s turning at 1.4 rad/s with the fins at 0.15 rad)."""
+    for f in range(k.reference.shape[0]):  # the fins, held over the step
+        k.qpos[k.fin_qadr[f]] = k.reference[f]
+        k.qvel[k.dofs[6 + f]] = 0.0
+        k.integral[f] += h * k.reference[f]
+    q0, v0 = k.qpos.copy(), k.qvel.copy()
+    lam = _rk4_step(model, data, k, h)
+    if h * lam <= _RK4_MAX_H_LAMBDA:
+        return
+    level = min(_LEVELS, int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))))
+    k.qpos[:], k.qvel[:] = q0, v0
+    for _ in range(2**level):
+        _rk4_step(model, data, k, h / 2**level)
+
+
+@numba.njit(cache=True)
+def _rk4_step(model, data, k, h):
+    """Classical RK4 on the hull's (qpos, qvel), positions on the quaternion manifold, fins held:
+    x₁ = x₀ + h (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a completed forward evaluation.
+
+    Returns the stiffness estimate λ ≈ ‖a₃ − a₂‖ / ‖(h/2)(a₂ − a₁)‖ (the accelerations' change
+    between the second and third stages over their velocities' change, as in Hairer & Wanner's
+    stiffness detection)."""
+    q0, v0 = k.qpos.copy(), k.qvel.copy()
+    vel_sum, acc_sum = np.zeros_like(v0), np.zeros_like(v0)
+    accs = np.empty((3, v0.shape[0]))
+    for stage, (weight, c) in enumerate(((1.0, 0.5), (2.0, 0.5), (2.0, 1.0), (1.0, 0.0))):
+        _forward(model, data, k)
+        vel_sum += weight * k.qvel
+        acc_sum += weight * k.qacc
+        if stage < 3:  # the next stage's point: x₀ + c h kᵢ
+            accs[stage] = k.qacc
+            vel = k.qvel.copy()
+            k.qpos[:] = q0
+            _mj_integratePos(model, k.qpos.ctypes.data, vel.ctypes.data, c * h)
+            k.qvel[:] = v0 + c * h * accs[stage]
+    vel_sum /= 6.0
+    k.qpos[:] = q0
+    _mj_integratePos(model, k.qpos.ctypes.data, vel_sum.ctypes.data, h)
+    k.qvel[:] = v0 + h / 6.0 * acc_sum
+    dv = 0.5 * h * np.linalg.norm(accs[1] - accs[0])
+    return np.linalg.norm(accs[2] - accs[1]) / dv if dv > 0 else 0.0
+
+
+# RK4's stability region reaches −2.79 on the real axis: past 2.0 a step is split into 2ʲ steps
+# with h λ ≤ 1, up to 2^_LEVELS of them.
+_RK4_MAX_H_LAMBDA, _RK4_SUB_H_LAMBDA, _LEVELS = 2.0, 1.0, 8
 
 
 @numba.njit(cache=True)
@@ -378,37 +460,34 @@ def _apply_wrench(k):
         k.qfrc[k.dofs[3 + i]] = w[3 + i] if i == 0 else -w[3 + i]
 
 
-# Compiled: run every physics step, where numpy's per-call overhead on 9×9 arrays would cost
-# three times MuJoCo's own step (the loop around it is compiled too: see `_advance`).
+# Compiled: run at every RK4 stage, where numpy's per-call overhead on 9×9 arrays would cost
+# three times MuJoCo's own forward pass.
 @numba.njit(cache=True)
-def _complete(model, data, k):
-    """Add Tᵀ M9 T to the CSR mass matrix and refactor it; write the generalized force.
+def _complete(k):
+    """Add Tᵀ M9 T to the CSR mass matrix; write the generalized force.
 
     M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij (X_k affine in b = (1, cos δ_k, sin δ_k)),
-    F = −M9 γ − (Σ_k Σ_ij b_i ḃ_j P_kij) ν + buoyancy + wrench, in MuJoCo's coordinates.
+    F = −M9 γ + buoyancy + wrench, in MuJoCo's coordinates (fin rates are zero).
     """
     R, q, dofs, P = k.xmat[k.hull].reshape(3, 3), k.qvel, k.dofs, k.P
     nu = np.empty(9)  # ν = (v, ω, δ̇), v = Rᵀ q̇_lin in hull axes
     for i in range(9):
         nu[i] = q[dofs[i]]
     nu[0], nu[1], nu[2] = _turn(R.T, nu[0], nu[1], nu[2])
-    M9, C9 = k.M_hull.copy(), np.zeros((9, 9))
+    M9 = k.M_hull.copy()
     for f in range(P.shape[0]):
-        c, s, rate = np.cos(k.qpos[k.fin_qadr[f]]), np.sin(k.qpos[k.fin_qadr[f]]), nu[6 + f]
-        b, bdot = (1.0, c, s), (0.0, -s * rate, c * rate)
+        c, s = np.cos(k.qpos[k.fin_qadr[f]]), np.sin(k.qpos[k.fin_qadr[f]])
+        b = (1.0, c, s)
         for i in range(3):
             for j in range(3):
-                wm, wc = b[i] * b[j], b[i] * bdot[j]
+                wm = b[i] * b[j]
                 for r in range(9):
                     for col in range(9):
                         M9[r, col] += wm * P[f, i, j, r, col]
-                        C9[r, col] += wc * P[f, i, j, r, col]
     cw = np.cross(nu[3:6], nu[:3])
     F = np.empty(9)
-    for r in range(9):  # −M9 γ with γ = (−ω × v, 0, 0), and −C9 ν
+    for r in range(9):  # −M9 γ with γ = (−ω × v, 0, 0)
         F[r] = M9[r, 0] * cw[0] + M9[r, 1] * cw[1] + M9[r, 2] * cw[2]
-        for col in range(9):
-            F[r] -= C9[r, col] * nu[col]
     B, w = k.buoyancy, k.wrench
     torque = np.cross(k.centre, np.array(_turn(R.T, B[0], B[1], B[2])))
     F[3], F[4], F[5] = F[3] + torque[0] + w[3], F[4] + torque[1] - w[4], F[5] + torque[2] - w[5]
@@ -420,7 +499,6 @@ def _complete(model, data, k):
         M9[0, col], M9[1, col], M9[2, col] = _turn(R, M9[0, col], M9[1, col], M9[2, col])
     for e in range(k.rows.shape[0]):
         k.M[e] += M9[k.rows[e], k.cols[e]]
-    _mj_factorM(model, data)
     for i in range(9):
         k.qfrc[dofs[i]] = F[i] + (B[i] if i < 3 else 0.0)
 

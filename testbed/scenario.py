@@ -283,6 +283,7 @@ def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Sett
     n_samples = int(math.floor(s.duration * s.sensors.rate + 1e-9)) + 1
     truth, fins, pos = np.empty((n_samples, NX)), np.empty((n_samples, 3)), np.empty((n_samples, 3))
     fin_cmds, pitch, keywords = np.empty((n_samples, 3)), np.empty(n_samples), []
+    fin_integral = np.empty((n_samples, 3))
     autopilot.reset()
     control_dt = 1.0 / s.control_rate
     # The per-step work is Python around a ~0.15 ms plant step: keep it to what is needed.
@@ -293,6 +294,7 @@ def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Sett
         i, rest = divmod(k, controls_per_sample)
         if not rest:
             truth[i], fins[i], pos[i], fin_cmds[i] = x, plant.fin_angles(), plant.position(), command
+            fin_integral[i] = plant.fin_integral()
             pitch[i] = np.nan if theta_cmd is None else theta_cmd
             keywords.append(kw)
             if progress and i % 50 == 0:
@@ -302,8 +304,9 @@ def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Sett
         plant.step(command, n=steps)
     truth[:, IX["psi"]] = np.unwrap(truth[:, IX["psi"]])
     # The input of sample k is held over [t_k, t_k+1) by the model (zero-order hold): record the
-    # fin angle averaged over that interval (trapezoid), as an encoder with an anti-alias filter.
-    fins[:-1] = 0.5 * (fins[:-1] + fins[1:])
+    # fin angle's mean over that interval (exact, from the servo's ∫δ dt), as an integrating
+    # encoder would; the last sample has no interval after it and keeps the angle itself.
+    fins[:-1] = np.diff(fin_integral, axis=0) * s.sensors.rate
     measured, fins_measured = measure(truth, fins, s.sensors, rng)
     commands = {key: np.array([kw.get(key, np.nan) for kw in keywords], float)
                 for key in sorted({key for kw in keywords for key in kw})}  # fmt: skip
