@@ -24,7 +24,7 @@ from testbed.errors import atomic_write_text
 from testbed.estimators import identify
 from testbed.measurements import measure, rng_for
 from testbed.model import STATES
-from testbed.scenario import Settings, fly_scenario
+from testbed.scenario import fly_scenario, scenario
 from testbed.truth import model_config
 from testbed.vehicle import default_mjcf
 
@@ -36,8 +36,8 @@ METHODS = ("ml-gn", "mekf")
 
 def study(seeds: int, duration: float) -> str:
     """Run the study; return the table as CSV text."""
-    settings = Settings(duration=duration)
-    flights, lin = fly_scenario("II", seed=0, settings=settings)
+    settings = scenario("II").with_overrides(duration=duration)
+    flights, lin = fly_scenario(settings, seed=0)
     config = model_config(lin, default_mjcf())[0]
     truth = [Experiment(f.name, f.t, STATES, f.truth, f.fins) for f in flights]
     reference = identify(truth, config, method="ml-gn", start="config")
@@ -74,7 +74,7 @@ def study(seeds: int, duration: float) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--duration", type=float, default=Settings().duration, help="seconds per experiment")
+    ap.add_argument("--duration", type=float, default=scenario("II").duration, help="seconds per experiment")
     ap.add_argument("--out", default="runs/scenario-ii-study.csv")
     args = ap.parse_args(argv)
     table = study(args.seeds, args.duration)

@@ -161,6 +161,7 @@ def identifiability(experiments, config) -> Identifiability:
     from testbed.estimators.outputerror import information
     from testbed.model import structure, theta_vector
 
+    experiments = config.fitted(experiments)
     info = information(experiments, config)
     free = tuple(config.free)
     theta = theta_vector(config.coefficients)
@@ -185,6 +186,34 @@ def identifiability(experiments, config) -> Identifiability:
                       if np.isfinite(s) and np.isfinite(r) and r > UNCERTAIN)  # fmt: skip
     summary = _summary(free, struct, practical, uncertain, corr, rel, std)
     return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary)
+
+
+def screen(experiments, config):
+    """`(config, fixed)`: the config with only the coefficients these data identify left free,
+    and `fixed` (name → reason) for the others, which stay at their a-priori values.
+
+    The rule, at the a-priori coefficients (`identifiability`): a coefficient is fixed when it
+    is in an exactly unidentifiable drift group, or when its Cramér-Rao bound is above
+    `UNCERTAIN` (50 %) of its a-priori value (or it is analysed at 0): then the data hardly
+    excite it, and freeing it only lets it absorb the noise and the linear model's own bias
+    (`identify` with every coefficient free is `--free-all` on the command line).
+    """
+    from dataclasses import replace
+
+    result = identifiability(experiments, config)
+    fixed = {}
+    drifting = {n for g in result.structural.drift_groups for n in g}
+    for n, value, std in zip(result.free, result.values, result.crlb_std):
+        if n in drifting:
+            fixed[n] = "not identifiable from these data: in an exactly unidentifiable drift group"
+        elif value == 0:
+            fixed[n] = (f"not identifiable from these data: analysed at 0, Cramér-Rao bound {std:.3g} "
+                        "(no relative bound)")  # fmt: skip
+        elif std > UNCERTAIN * abs(value):
+            fixed[n] = (f"not identifiable from these data: Cramér-Rao bound {100 * std / abs(value):.0f} % "
+                        f"of its a-priori value (above {100 * UNCERTAIN:.0f} %)")  # fmt: skip
+    free = tuple(n for n in config.free if n not in fixed)
+    return replace(config, free=free), fixed
 
 
 def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, ...]:

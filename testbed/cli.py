@@ -95,6 +95,15 @@ def _cmd_identify(args) -> int:
     experiments, config, run_config = _inputs(args)
     if args.perturb:
         config = _perturbed(config, args.perturb, args.seed)
+    fixed = {}
+    if not args.free_all and config.free:
+        from testbed.analysis import screen
+
+        config, fixed = screen(experiments, config)
+        if not config.free:
+            raise InputError(f"no coefficient of [identify] free is identifiable from "
+                             f"{', '.join(map(str, args.data))} ({next(iter(fixed.values()))}); "
+                             "expected data that excite them, or --free-all")  # fmt: skip
     offline = args.method.startswith("ml-")
     live = sys.stderr.isatty()  # a progress line on long fits (ml-nm runs for minutes)
     if args.start is not None and not offline:
@@ -125,11 +134,15 @@ def _cmd_identify(args) -> int:
         print(f"testbed identify: started from the {estimate.start} estimate: "
               f"{estimate.extra['start_reason']}", file=sys.stderr)  # fmt: skip
     doc = json.loads(estimate.to_json())
+    if fixed:
+        doc["fixed"] = {n: {"value": float(config.coefficients[n]), "reason": why} for n, why in fixed.items()}
     comparison = None
     if run_config is not None:
         comparison = compare(estimate, run_config, _truth_fit(args.data, run_config, estimate.free))
         doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
         print(comparison.table(), file=sys.stderr)
+    for n, why in fixed.items():
+        print(f"{n:<12}fixed at {config.coefficients[n]:.4g}: {why}", file=sys.stderr)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     files = {args.out: text} if args.out else {}
     if args.out and getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
@@ -215,9 +228,10 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def parser() -> argparse.ArgumentParser:
-    from testbed.scenario import EXPERIMENTS
+BUILTIN_SCENARIOS = ("I", "II", "turn", "zigzag", "zigzag-vertical")  # testbed/scenarios/*.toml
 
+
+def parser() -> argparse.ArgumentParser:
     p = _Parser(prog="testbed", description="Simulate a submerged body and identify its "
                 "manoeuvring coefficients (Kim & Rhee).")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
@@ -229,7 +243,8 @@ def parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_truth)
 
     s = sub.add_parser("simulate", help="generate a scenario run directory")
-    s.add_argument("--scenario", required=True, help=", ".join(EXPERIMENTS))
+    s.add_argument("--scenario", required=True,
+                   help=f"a built-in scenario ({', '.join(BUILTIN_SCENARIOS)}) or a scenario file (.toml)")
     s.add_argument("--seed", type=int, default=0, help="noise and PRBS seed (default 0)")
     s.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<N>)")
     s.add_argument("--force", action="store_true", help="replace an existing run directory")
@@ -254,6 +269,9 @@ def parser() -> argparse.ArgumentParser:
                         "convergence from a poor a-priori model")
     s.add_argument("--seed", type=int, default=0, help="signs of --perturb (default 0)")
     s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
+    s.add_argument("--free-all", action="store_true",
+                   help="estimate every coefficient of [identify] free (default: those the data "
+                        "identify; the others stay at their a-priori values, see `analyze`)")  # fmt: skip
     s.set_defaults(func=_cmd_identify)
 
     s = sub.add_parser("analyze", help="identifiability: Fisher information, CRLB, drift groups")

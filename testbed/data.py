@@ -38,6 +38,15 @@ class Experiment:
     def dt(self) -> float:
         return float(self.t[1] - self.t[0])
 
+    def only(self, states: Sequence[str]) -> "Experiment":
+        """The experiment with only the measured states among `states` (InputError if none)."""
+        keep = [s for s in self.measured if s in states]
+        if not keep:
+            raise InputError(f"{self.source or self.name}: none of the fitted outputs "
+                             f"({', '.join(states)}) is measured; it has {', '.join(self.measured)}")  # fmt: skip
+        cols = [self.measured.index(s) for s in keep]
+        return replace(self, measured=tuple(keep), y=self.y[:, cols])
+
     def column(self, state: str) -> np.ndarray:
         return self.y[:, self.measured.index(state)]
 
@@ -50,6 +59,11 @@ class ModelConfig:
     coefficients: Mapping[str, float]  # every name in COEFFICIENTS
     free: tuple[str, ...] = ()
     source: str = ""
+    outputs: tuple[str, ...] | None = None  # [identify] outputs: the states fitted (None: all measured)
+
+    def fitted(self, experiments: Sequence[Experiment]) -> list[Experiment]:
+        """The experiments reduced to the config's outputs (all of them without `outputs`)."""
+        return list(experiments) if self.outputs is None else [e.only(self.outputs) for e in experiments]
 
     def with_coefficients(self, values: Mapping[str, float]) -> "ModelConfig":
         return replace(self, coefficients={**self.coefficients, **values})
@@ -161,7 +175,13 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
             raise InputError(f"{source}: [identify] free names {n!r}, not a coefficient (SPEC §2)")
     if len(set(free)) != len(free):
         raise InputError(f"{source}: [identify] free names a coefficient twice")
-    return ModelConfig(Vehicle(**values), coefficients, tuple(free), source)
+    outputs = ident.get("outputs") if isinstance(ident, dict) else None
+    if outputs is not None:
+        if not isinstance(outputs, list) or not outputs or any(s not in STATES for s in outputs):
+            raise InputError(f"{source}: [identify] outputs = {outputs!r}; expected a non-empty list of "
+                             f"states ({', '.join(STATES)})")  # fmt: skip
+        outputs = tuple(s for s in STATES if s in outputs)
+    return ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs)
 
 
 def _number(v, where: str) -> float:
@@ -180,8 +200,11 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
 
     lines = ["[vehicle]"] + [line(k, getattr(config.vehicle, k)) for k in Vehicle.names()]
     lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
-    lines += ["", "[identify]", "free = [" + ", ".join(f'"{n}"' for n in config.free) + "]", ""]
-    return "\n".join(lines)
+    lines += ["", "[identify]", "free = [" + ", ".join(f'"{n}"' for n in config.free) + "]"]
+    if config.outputs is not None:
+        note = f"  # {comments['outputs']}" if "outputs" in comments else ""
+        lines.append("outputs = [" + ", ".join(f'"{s}"' for s in config.outputs) + "]" + note)
+    return "\n".join(lines + [""])
 
 
 def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:

@@ -11,7 +11,11 @@ lightweight torpedo or a survey AUV carries:
 | phi, theta | AHRS attitude | 0.003 rad (0.17 deg) |
 | psi | AHRS heading | 0.01 rad (0.57 deg) |
 | z | pressure depth sensor | 0.05 m |
-| fin angles | servo encoders (12-bit over the ±0.4 rad range) | 0.0005 rad |
+| fin angles | absolute servo encoders (16-bit over the ±0.4 rad range: 12 µrad steps) | 2e-5 rad |
+
+The fin encoders must resolve the linear regime's deflections (Scenario II's elevator PRBS is
+0.3 mrad): a 12-bit encoder's 0.2 mrad steps would make the recorded input mostly noise, and
+output error would then attribute part of the outputs to noise on the inputs.
 
 Noise is drawn from a numpy Generator seeded by (seed, experiment), so a run is bit-for-bit
 reproducible for its seed.
@@ -31,7 +35,7 @@ from testbed.model import STATES
 
 NOISE_STD = {"u": 0.05, "v": 0.02, "w": 0.02, "p": 0.002, "q": 0.002, "r": 0.002,
              "phi": 0.003, "theta": 0.003, "psi": 0.01, "z": 0.05}  # fmt: skip
-FIN_NOISE_STD = 0.0005
+FIN_NOISE_STD = 2e-5
 
 
 @dataclass(frozen=True)

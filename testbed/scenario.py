@@ -1,32 +1,43 @@
-"""The paper's scenarios and validation manoeuvres, flown by the truth plant, written as runs.
+"""Scenarios: experiments defined in scenario files, flown by the truth plant, written as runs.
 
-- `I` (the paper's sea-trial scenario): the depth command changes by 20 m every 5 s, the
-  course-rate command switches between +20 and −20 deg/s every 1.5 s, the roll command is zero;
-  all three autopilots fly it. One experiment, `scenario-I`.
-- `II`: `horizontal` — depth and roll held by the elevator autopilots while the rudder follows a
-  PRBS (±`prbs_rudder`); `vertical` — both elevators follow the same PRBS (±`prbs_elevators`)
-  while the rudder is fixed at zero. The torpedo is nearly neutral in pitch (its only restoring
-  moment is zB B), so an open-loop PRBS would let pitch and depth random-walk; the vertical
-  mode adds the autopilot's slow hold (`testbed.autopilot`, poles at 0.2 rad/s = 0.03 Hz, on θ
-  and depth only) to both elevators. Measured over seeds 0–19 at the defaults (60 s): the
-  actual (equal) elevator deflection correlates with the PRBS at 0.93–0.94 (the commanded one
-  at 0.986–0.996; the rest is the fin servo's lag), the correction carries 0.2–0.4 % of the
-  PRBS's power above 0.1 Hz, |θ| stays under 0.19 rad and the depth within 12 m (tested with
-  margins: ≥ 0.9, < 1 %, 0.3 rad, 20 m).
-- `turn` (turning circle, rudder 0.2 rad, depth and roll held), `zigzag` (20/20: rudder ±20 deg,
-  switched when the heading passes ∓20 deg from the initial one; depth and roll held) and
-  `zigzag-vertical` (its counterpart in pitch: elevators together ±20 deg, switched at ∓20 deg
-  of pitch, rudder at zero).
+A scenario file (TOML; `testbed/scenarios/*.toml` are the built-in ones, in the same format)
+sets the trim speed, initial depth, control and sample rates, the sensors and, per experiment,
+its duration, the signal on each fin channel and which autopilot loops hold what:
 
-`EXPERIMENTS` is the one table of scenarios and their experiments.
+```toml
+name = "II"
+description = "..."
+duration = 60.0      # s, each experiment unless it sets its own
+depth = 100.0        # m, initial depth
+# speed = 20.0       # m/s, trim speed (default: the vehicle's cruise speed)
+control_rate = 50.0  # Hz, autopilots and fin commands
 
-The PRBS comes from a maximal-length linear feedback shift register (`prbs`). Its default clock
-period (0.1 s) puts the −3 dB point of its spectrum at 4.4 Hz, above the vehicle's fastest
-sway-yaw and heave-pitch poles (23.7 rad/s = 3.8 Hz), and its period (order 10: 1023 bits,
-102 s) exceeds an experiment, so its lines (every 0.01 Hz) cover the whole band the data must
-excite within 3 dB (`prbs_spectrum`; tested).
+[sensors]
+rate = 50.0          # Hz; divides the control rate
+fin_std = 2e-5       # rad, fin encoders
+noise_std = {u = 0.05, v = 0.02, ...}   # per state, SI
+measured = ["u", "v", ...]               # the state columns of the measurement CSVs
 
-`simulate` writes a run directory (SPEC §3) whole or not at all.
+[[experiment]]
+name = "horizontal"
+rudder = {signal = "prbs", amplitude = 0.001, order = 10, clock = 0.1}
+autopilot = {depth = 0.0, roll = 0.0}
+```
+
+Fin channels: `rudder`, `elevators` (together, δe) and `differential` (δa: δer = δe + δa,
+δel = δe − δa), each a signal (`testbed.signals`; a number is a hold). Autopilot loops
+(`testbed.autopilot`): `depth` (m below the initial depth; 0 holds it), `yaw_rate` (rad/s),
+`roll` (rad), each a number or a signal; a loop drives its fin channel, so a channel cannot be
+both. `hold = {depth = ...}` is the slow pitch-depth hold that keeps an open-loop `elevators`
+signal from letting the nearly neutral pitch random-walk (poles at 0.2 rad/s, far below a PRBS
+band; `depth` again relative to the initial depth). A channel neither driven nor held is at 0.
+
+The built-in scenarios: `I` (the paper's sea-trial scenario: depth steps of 20 m every 5 s,
+course rate ±20 °/s every 1.5 s, roll held at zero), `II` (PRBS experiments in the linear
+regime, see its file), `turn`, `zigzag` and `zigzag-vertical` (validation manoeuvres).
+
+`simulate` writes a run directory (SPEC §3) whole or not at all, with the resolved scenario
+as `scenario.toml`, which `testbed simulate --scenario` runs again.
 """
 
 from __future__ import annotations
@@ -39,89 +50,302 @@ import numbers
 import shlex
 import sys
 import time
+import tomllib
 from dataclasses import asdict, dataclass, field, replace
 from importlib import metadata
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design
 from testbed.data import config_text, csv_text
 from testbed.errors import InputError, atomic_directory
-from testbed.measurements import Sensors, check_seed, measure, rng_for
+from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
 from testbed.plant import Plant
+from testbed.signals import Hold, Signal, parse_signal, prbs, prbs_spectrum, signal_table  # noqa: F401 (re-exported)
 from testbed.vehicle import MIN_SPEED, cruise_speed, default_mjcf
 
-# Maximal-length feedback taps (1-indexed register stages) for orders 2..20.
-TAPS = {2: (2, 1), 3: (3, 2), 4: (4, 3), 5: (5, 3), 6: (6, 5), 7: (7, 6), 8: (8, 6, 5, 4),
-        9: (9, 5), 10: (10, 7), 11: (11, 9), 12: (12, 11, 10, 4), 13: (13, 12, 11, 8),
-        14: (14, 13, 12, 2), 15: (15, 14), 16: (16, 15, 13, 4), 17: (17, 14), 18: (18, 11),
-        19: (19, 18, 17, 14), 20: (20, 17)}  # fmt: skip
-
-
-def _finite(v) -> bool:
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+# Why a run's model.toml fits every measured state but the depth (measured, and validated).
+UNFITTED_DEPTH = ("depth is measured but not fitted: it integrates U θ, and the second-order drag "
+                  "moments of the real body (its drag grows with incidence, 2 cm above the CG: "
+                  "-119 N m per (m/s)^2 of heave or sway) rectify into a pitch drift that SPEC's "
+                  "linear model cannot follow")  # fmt: skip
+CHANNELS = ("rudder", "elevators", "differential")  # fin channels a signal can drive
+LOOPS = {"yaw_rate": "rudder", "depth": "elevators", "roll": "differential"}  # loop -> its channel
+SCENARIO_DIR = Path(__file__).parent / "scenarios"
+BUILTIN = tuple(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
 
 
 def _positive(v) -> bool:
-    return _finite(v) and v > 0
-
-
-def _fin_angle(v) -> bool:
-    return _finite(v) and 0 < abs(v) <= FIN_LIMIT
-
-
-# Settings a user can get wrong: what each must be. The CLI exposes duration and speed.
-_CHECKS = {
-    "duration": (_positive, "a finite number > 0 (s)"),
-    "speed": (lambda v: v is None or (_positive(v) and v >= MIN_SPEED), f"a finite number >= {MIN_SPEED} (m/s)"),
-    "depth": (_finite, "a finite number (m)"),
-    "control_rate": (_positive, "a finite number > 0 (Hz)"),
-    "depth_step": (_finite, "a finite number (m)"),
-    "depth_period": (_positive, "a finite number > 0 (s)"),
-    "yaw_rate": (_finite, "a finite number (rad/s)"),
-    "yaw_period": (_positive, "a finite number > 0 (s)"),
-    "prbs_order": (lambda v: isinstance(v, numbers.Integral) and v in TAPS, f"an integer in {min(TAPS)}..{max(TAPS)}"),
-    "prbs_clock": (_positive, "a finite number > 0 (s)"),
-    "prbs_rudder": (_fin_angle, f"0 < |angle| <= {FIN_LIMIT} rad"),
-    "prbs_elevators": (_fin_angle, f"0 < |angle| <= {FIN_LIMIT} rad"),
-    "turn_rudder": (_fin_angle, f"0 < |angle| <= {FIN_LIMIT} rad"),
-    "zigzag_angle": (lambda v: _fin_angle(v) and v > 0, f"0 < angle <= {FIN_LIMIT} rad"),
-}
-CLI_SETTINGS = ("duration", "speed")  # the settings `testbed simulate` exposes (--duration, --speed)
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > 0
 
 
 @dataclass(frozen=True)
-class Settings:
-    """Everything that defines a run besides the scenario and the seed (defaults: the paper's)."""
+class ExperimentSpec:
+    """One experiment of a scenario: its fin signals and autopilot references."""
 
-    duration: float = 60.0  # s per experiment
-    speed: float | None = None  # trim speed, m/s (None: the vehicle's cruise speed)
-    depth: float = 100.0  # initial depth, m
-    control_rate: float = 50.0  # Hz, autopilot
-    sensors: Sensors = field(default_factory=Sensors)
-    depth_step: float = 20.0  # Scenario I: m every depth_period
-    depth_period: float = 5.0  # s
-    yaw_rate: float = math.radians(20.0)  # Scenario I: ± rad/s every yaw_period
-    yaw_period: float = 1.5  # s
-    prbs_order: int = 10
-    prbs_clock: float = 0.1  # s
-    prbs_rudder: float = 0.02  # rad, horizontal mode
-    # rad, vertical mode: the elevators together turn the pitch fast (θ̇ ≈ 24.5 δe at 20 m/s)
-    # and pitch is held only below 0.03 Hz; 0.005 rad keeps |θ| under 0.2 rad over 60 s (0.02
-    # tilts the torpedo by up to 0.75 rad, far outside the linear model)
-    prbs_elevators: float = 0.005
-    turn_rudder: float = 0.2  # rad
-    zigzag_angle: float = math.radians(20.0)  # rad: fin angle and switching angle
+    name: str
+    fins: Mapping[str, Signal] = field(default_factory=dict)  # channel -> signal
+    autopilot: Mapping[str, Signal] = field(default_factory=dict)  # loop -> reference
+    hold_depth: Signal | None = None  # the slow hold's depth reference, m below the initial depth
+    duration: float | None = None  # s; None: the scenario's
 
     def __post_init__(self):
-        for name, (ok, expected) in _CHECKS.items():
-            value = getattr(self, name)
-            if not ok(value):
-                where = f"--{name}" if name in CLI_SETTINGS else f"setting {name}"
-                raise InputError(f"{where} {value!r}; expected {expected}")
+        where = f"experiment {self.name!r}"
+        for loop, channel in LOOPS.items():
+            if loop in self.autopilot and channel in self.fins:
+                raise InputError(f"{where}: {channel} is both a signal and driven by the {loop} "
+                                 "autopilot; expected one of them")  # fmt: skip
+        if self.hold_depth is not None and ("elevators" not in self.fins or "depth" in self.autopilot):
+            raise InputError(f"{where}: hold needs an elevators signal and no depth autopilot; "
+                             "expected the hold to keep an open-loop elevator signal in bounds")  # fmt: skip
+        for channel, s in self.fins.items():
+            if s.peak() > FIN_LIMIT:
+                raise InputError(f"{where}: {channel} reaches {s.peak():g} rad; expected at most the "
+                                 f"fin range {FIN_LIMIT} rad")  # fmt: skip
+        if self.duration is not None and not _positive(self.duration):
+            raise InputError(f"{where}: duration {self.duration!r}; expected a finite number > 0 (s)")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A scenario: the vehicle's trim, the sensors and the experiments (a scenario file)."""
+
+    name: str
+    experiments: tuple[ExperimentSpec, ...]
+    description: str = ""
+    duration: float = 60.0  # s per experiment, unless it sets its own
+    speed: float | None = None  # trim speed, m/s (None: the vehicle's cruise speed)
+    depth: float = 100.0  # initial depth, m
+    control_rate: float = 50.0  # Hz
+    sensors: Sensors = field(default_factory=Sensors)
+    measured: tuple[str, ...] = STATES  # the state columns of the measurement CSVs
+    source: str = ""  # the file it was read from, or "built-in"
+
+    def __post_init__(self):
+        checks = {
+            "duration": (_positive, "a finite number > 0 (s)"),
+            "speed": (lambda v: v is None or (_positive(v) and v >= MIN_SPEED), f"a finite number >= {MIN_SPEED} (m/s)"),
+            "depth": (lambda v: isinstance(v, numbers.Real) and math.isfinite(v), "a finite number (m)"),
+            "control_rate": (_positive, "a finite number > 0 (Hz)"),
+        }  # fmt: skip
+        for name, (ok, expected) in checks.items():
+            if not ok(getattr(self, name)):
+                raise InputError(f"{self.source or 'scenario'}: {name} = {getattr(self, name)!r}; expected {expected}")
+        if not self.experiments:
+            raise InputError(f"{self.source or 'scenario'}: no [[experiment]]; expected at least one")
+        names = [e.name for e in self.experiments]
+        if len(set(names)) != len(names) or any(not n or "/" in n or n.startswith(".") for n in names):
+            raise InputError(f"{self.source or 'scenario'}: experiment names {names}; expected distinct "
+                             "names usable as file names")  # fmt: skip
+        unknown = [s for s in self.measured if s not in STATES]
+        if unknown or not self.measured:
+            raise InputError(f"{self.source or 'scenario'}: measured {list(self.measured)}; expected a "
+                             f"non-empty list of {', '.join(STATES)}")  # fmt: skip
+        ratio = self.control_rate / self.sensors.rate
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise InputError(f"{self.source or 'scenario'}: control rate {self.control_rate} Hz and sample "
+                             f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate")  # fmt: skip
+
+    def with_overrides(self, duration=None, speed=None) -> "Scenario":
+        """The scenario with every experiment lasting `duration` and trimmed at `speed` (None:
+        unchanged), as `testbed simulate --duration --speed` give them."""
+        s = self
+        if duration is not None:
+            s = replace(s, duration=duration, experiments=tuple(replace(e, duration=None) for e in s.experiments))
+        if speed is not None:
+            s = replace(s, speed=speed)
+        return s
+
+    def duration_of(self, e: ExperimentSpec) -> float:
+        return e.duration if e.duration is not None else self.duration
+
+
+# -- scenario files ------------------------------------------------------------------------------
+
+
+def scenario(name_or_path: str | Path | Scenario) -> Scenario:
+    """A built-in scenario by name, or the scenario file at a path."""
+    if isinstance(name_or_path, Scenario):
+        return name_or_path
+    if str(name_or_path) in BUILTIN:
+        s = read_scenario(SCENARIO_DIR / f"{name_or_path}.toml")
+        return replace(s, source="built-in")
+    path = Path(name_or_path)
+    if path.suffix != ".toml" and not path.exists():
+        raise InputError(f"--scenario {str(name_or_path)!r} is unknown; expected one of "
+                         f"{', '.join(BUILTIN)} or a scenario file (.toml)")  # fmt: skip
+    return read_scenario(path)
+
+
+def read_scenario(path: str | Path) -> Scenario:
+    """Read and check a scenario file; InputError naming the file and field otherwise."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such scenario file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder; expected a scenario file (.toml)") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid TOML ({exc}); expected a scenario file") from None
+    return parse_scenario(doc, str(path))
+
+
+_TOP = ("name", "description", "duration", "speed", "depth", "control_rate", "sensors", "experiment")
+_EXPERIMENT = ("name", "duration", "autopilot", "hold", *CHANNELS)
+
+
+def parse_scenario(doc: Mapping, source: str = "<scenario>") -> Scenario:
+    """A `Scenario` from a parsed scenario file."""
+    unknown = sorted(set(doc) - set(_TOP))
+    if unknown:
+        raise InputError(f"{source}: unknown key {unknown[0]!r}; expected {', '.join(_TOP)}")
+    number = lambda key, default: _number(doc.get(key, default), f"{source}: {key}")  # noqa: E731
+    experiments = doc.get("experiment", [])
+    if not isinstance(experiments, list) or not all(isinstance(e, Mapping) for e in experiments):
+        raise InputError(f"{source}: experiment must be an array of tables ([[experiment]])")
+    return Scenario(
+        name=str(doc.get("name", Path(source).stem)),
+        description=str(doc.get("description", "")),
+        duration=number("duration", 60.0),
+        speed=None if doc.get("speed") is None else number("speed", None),
+        depth=number("depth", 100.0),
+        control_rate=number("control_rate", 50.0),
+        sensors=_sensors(doc.get("sensors", {}), f"{source}: sensors"),
+        measured=_measured(doc.get("sensors", {}), f"{source}: sensors"),
+        experiments=tuple(_experiment(e, f"{source}: experiment {k + 1}") for k, e in enumerate(experiments)),
+        source=source,
+    )
+
+
+def _number(v, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        raise InputError(f"{where} = {v!r}; expected a number")
+    return float(v)
+
+
+def _sensors(doc, where: str) -> Sensors:
+    if not isinstance(doc, Mapping):
+        raise InputError(f"{where}: expected a table")
+    unknown = sorted(set(doc) - {"rate", "fin_std", "noise_std", "measured"})
+    if unknown:
+        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected rate, fin_std, noise_std, measured")
+    noise = doc.get("noise_std", NOISE_STD)
+    if not isinstance(noise, Mapping):
+        raise InputError(f"{where}: noise_std must be a table of state = std")
+    noise = {k: _number(v, f"{where}: noise_std.{k}") for k, v in noise.items()}
+    try:
+        return Sensors(rate=_number(doc.get("rate", 50.0), f"{where}: rate"),
+                       noise_std={**NOISE_STD, **noise},
+                       fin_std=_number(doc.get("fin_std", Sensors().fin_std), f"{where}: fin_std"))  # fmt: skip
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+
+
+def _measured(doc, where: str) -> tuple[str, ...]:
+    measured = doc.get("measured", list(STATES)) if isinstance(doc, Mapping) else list(STATES)
+    if not isinstance(measured, list) or not all(isinstance(s, str) for s in measured):
+        raise InputError(f"{where}: measured must be a list of state names")
+    return tuple(s for s in STATES if s in measured) + tuple(s for s in measured if s not in STATES)
+
+
+def _experiment(doc: Mapping, where: str) -> ExperimentSpec:
+    name = doc.get("name")
+    if not isinstance(name, str):
+        raise InputError(f"{where}: name {name!r}; expected a string")
+    where = f"{where.rsplit(': ', 1)[0]}: experiment {name!r}"
+    unknown = sorted(set(doc) - set(_EXPERIMENT))
+    if unknown:
+        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected {', '.join(_EXPERIMENT)}")
+    autopilot, hold = doc.get("autopilot", {}), doc.get("hold", {})
+    for key, table, allowed in (("autopilot", autopilot, tuple(LOOPS)), ("hold", hold, ("depth",))):
+        if not isinstance(table, Mapping):
+            raise InputError(f"{where}: {key} must be a table")
+        bad = sorted(set(table) - set(allowed))
+        if bad:
+            raise InputError(f"{where}: unknown {key} loop {bad[0]!r}; expected {', '.join(allowed)}")
+    duration = doc.get("duration")
+    return ExperimentSpec(
+        name=name,
+        fins={c: parse_signal(doc[c], f"{where} {c}") for c in CHANNELS if c in doc},
+        autopilot={k: parse_signal(v, f"{where} autopilot.{k}") for k, v in autopilot.items()},
+        hold_depth=parse_signal(hold["depth"], f"{where} hold.depth") if "depth" in hold else None,
+        duration=None if duration is None else _number(duration, f"{where}: duration"),
+    )
+
+
+def scenario_text(s: Scenario) -> str:
+    """The scenario file of `s` (`parse_scenario` reads it back to an equal scenario)."""
+    lines = [f"name = {_toml(s.name)}"]
+    if s.description:
+        lines.append(f"description = {_toml(s.description)}")
+    lines += [f"duration = {_toml(s.duration)}", f"depth = {_toml(s.depth)}"]
+    if s.speed is not None:
+        lines.append(f"speed = {_toml(s.speed)}")
+    lines += [f"control_rate = {_toml(s.control_rate)}", "", "[sensors]",
+              f"rate = {_toml(s.sensors.rate)}", f"fin_std = {_toml(s.sensors.fin_std)}",
+              f"noise_std = {_toml(dict(s.sensors.noise_std))}", f"measured = {_toml(list(s.measured))}"]  # fmt: skip
+    for e in s.experiments:
+        lines += ["", "[[experiment]]", f"name = {_toml(e.name)}"]
+        if e.duration is not None:
+            lines.append(f"duration = {_toml(e.duration)}")
+        lines += [f"{c} = {_toml(signal_table(sig))}" for c, sig in e.fins.items()]
+        if e.autopilot:
+            lines.append(f"autopilot = {_toml({k: signal_table(v) for k, v in e.autopilot.items()})}")
+        if e.hold_depth is not None:
+            lines.append(f"hold = {_toml({'depth': signal_table(e.hold_depth)})}")
+    return "\n".join(lines) + "\n"
+
+
+def _toml(v) -> str:
+    """A TOML value: strings, exact floats (repr round-trips), ints, lists and inline tables."""
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml(x) for x in v) + "]"
+    if isinstance(v, Mapping):
+        return "{" + ", ".join(f"{k} = {_toml(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"no TOML form for {v!r}")
+
+
+# -- the experiments: command programs -----------------------------------------------------------
+
+Program = Callable[[float, np.ndarray], dict]  # (t, x) -> Autopilot.step keywords
+
+
+def program(s: Scenario, e: ExperimentSpec, seed: int, index: int) -> Program:
+    """The command program of experiment `e` (the `index`-th of `s`) for `seed`: at each control
+    instant, the Autopilot keywords. Each signal has its own random stream (the PRBS phase)."""
+    check_seed(seed)
+    streams = {name: k + 1 for k, name in enumerate((*CHANNELS, *LOOPS, "hold"))}
+    fins = {c: sig.program(rng_for(seed, index, streams[c])) for c, sig in e.fins.items()}
+    loops = {k: sig.program(rng_for(seed, index, streams[k])) for k, sig in e.autopilot.items()}
+    hold = e.hold_depth.program(rng_for(seed, index, streams["hold"])) if e.hold_depth else None
+    depth0 = s.depth
+
+    def commands(t, x):
+        kw = {c: f(t, x) for c, f in fins.items()}
+        for loop, f in loops.items():
+            kw[loop] = f(t, x) + (depth0 if loop == "depth" else 0.0)
+        if hold is not None:
+            kw["hold_depth"] = depth0 + hold(t, x)
+        return kw
+
+    return commands
+
+
+# -- flying ------------------------------------------------------------------------------------
+
+FIN_COMMANDS = ("fin_r", "fin_er", "fin_el")
 
 
 @dataclass(frozen=True)
@@ -132,7 +356,7 @@ class Flight:
     t: np.ndarray  # (N,)
     truth: np.ndarray  # (N, 10) SPEC states, absolute u, psi unwrapped
     measured: np.ndarray  # (N, 10)
-    fins: np.ndarray  # (N, 3) actual fin angles
+    fins: np.ndarray  # (N, 3) actual fin angles: each sample interval's mean (the last: the angle)
     fins_measured: np.ndarray  # (N, 3)
     position: np.ndarray  # (N, 3) NED, m
     # name -> (N,): the program's autopilot keywords (e.g. depth, yaw_rate, rudder, elevators;
@@ -140,147 +364,18 @@ class Flight:
     commands: dict
 
 
-# -- input signals ---------------------------------------------------------------------------
-
-
-def prbs(order: int, rng: np.random.Generator | None = None) -> np.ndarray:
-    """One period (2^order − 1 bits, ±1) of the maximal-length LFSR sequence; `rng` picks the
-    (non-zero) initial register, i.e. the phase."""
-    if order not in TAPS:
-        raise InputError(f"PRBS order {order}; expected one of {min(TAPS)}..{max(TAPS)}")
-    state = [1] * order
-    if rng is not None:
-        while not any(state := list(rng.integers(0, 2, order))):
-            pass
-    out = np.empty(2**order - 1)
-    for k in range(len(out)):
-        out[k] = 1.0 if state[-1] else -1.0
-        feedback = 0
-        for tap in TAPS[order]:
-            feedback ^= state[tap - 1]
-        state = [feedback] + state[:-1]
-    return out
-
-
-def prbs_spectrum(order: int, clock: float, n: int = 4096) -> tuple[np.ndarray, np.ndarray]:
-    """Power spectrum (frequency Hz, power per line) of the periodic PRBS with bit time `clock`.
-
-    Lines at multiples of 1/((2^order − 1) clock) with envelope sinc²(f clock): the -3 dB point
-    is at 0.44/clock, the first null at 1/clock.
-    """
-    bits = 2**order - 1
-    f = np.arange(1, n + 1) / (bits * clock)
-    return f, (bits + 1) / bits**2 * np.sinc(f * clock) ** 2
-
-
-# -- the experiments: command programs -----------------------------------------------------------
-
-Program = Callable[[float, np.ndarray], dict]  # (t, x) -> Autopilot.step keywords
-
-
-def _held(s: Settings, **drive) -> dict:
-    """Depth and roll held by the elevator autopilots while `drive` commands the rest."""
-    return {"depth": s.depth, "roll": 0.0, **drive}
-
-
-def _periods(t: float, period: float) -> int:
-    """Whole periods elapsed at `t`; t = k Δt lands on a boundary as on it, not a rounding before."""
-    return math.floor(t / period + 1e-9)
-
-
-def _prbs_signal(s: Settings, seed: int, index: int, amplitude: float) -> Callable[[float], float]:
-    bits = amplitude * prbs(s.prbs_order, rng_for(seed, index, 1))
-    return lambda t: bits[_periods(t, s.prbs_clock) % len(bits)]
-
-
-def _scenario_i(s: Settings, seed: int, index: int) -> Program:
-    def program(t, x):
-        depth = s.depth + s.depth_step * (_periods(t, s.depth_period) % 2)
-        r = s.yaw_rate * (1 if _periods(t, s.yaw_period) % 2 == 0 else -1)
-        return {"depth": depth, "yaw_rate": r, "roll": 0.0}
-
-    return program
-
-
-def _horizontal(s: Settings, seed: int, index: int) -> Program:
-    value = _prbs_signal(s, seed, index, s.prbs_rudder)
-    return lambda t, x: _held(s, rudder=value(t))
-
-
-def _vertical(s: Settings, seed: int, index: int) -> Program:
-    value = _prbs_signal(s, seed, index, s.prbs_elevators)
-    return lambda t, x: {"elevators": value(t), "hold_depth": s.depth}
-
-
-def _turn(s: Settings, seed: int, index: int) -> Program:
-    return lambda t, x: _held(s, rudder=s.turn_rudder)
-
-
-def _zigzag(state: str, drive: Callable[[float], dict]):
-    """The zigzag on `state` (psi or theta): fins at ±zigzag_angle (keywords `drive(settings,
-    angle)`), switched when `state` passes ∓zigzag_angle from its initial value."""
-
-    def build(s: Settings, seed: int, index: int) -> Program:
-        k, sign, start = IX[state], [1.0], []
-
-        def program(t, x):
-            if not start:
-                start.append(x[k])
-            # wrapped, so a heading near ±π does not jump by 2π
-            angle = (x[k] - start[0] + math.pi) % (2 * math.pi) - math.pi
-            # A positive fin turns the nose negative (rudder: to port; elevators: down).
-            if sign[0] > 0 and angle <= -s.zigzag_angle:
-                sign[0] = -1.0
-            elif sign[0] < 0 and angle >= s.zigzag_angle:
-                sign[0] = 1.0
-            return drive(s, sign[0] * s.zigzag_angle)
-
-        return program
-
-    return build
-
-
-# The single table of scenarios: scenario -> experiment name -> its program's builder
-# (settings, seed, index of the experiment in the scenario).
-EXPERIMENTS: dict[str, dict[str, Callable[[Settings, int, int], Program]]] = {
-    "I": {"scenario-I": _scenario_i},
-    "II": {"horizontal": _horizontal, "vertical": _vertical},
-    "turn": {"turn": _turn},
-    "zigzag": {"zigzag": _zigzag("psi", lambda s, d: _held(s, rudder=d))},
-    "zigzag-vertical": {"zigzag-vertical": _zigzag("theta", lambda s, d: {"rudder": 0.0, "elevators": d})},
-}
-
-
-def experiments(scenario: str) -> dict[str, Callable[[Settings, int, int], Program]]:
-    """The experiments of `scenario`; InputError if it is not one."""
-    if scenario not in EXPERIMENTS:
-        raise InputError(f"--scenario {scenario!r} is unknown; expected one of {', '.join(EXPERIMENTS)}")
-    return EXPERIMENTS[scenario]
-
-
-def programs(scenario: str, s: Settings, seed: int) -> dict[str, Program]:
-    """The command programs of a scenario's experiments."""
-    check_seed(seed)
-    return {name: build(s, seed, k) for k, (name, build) in enumerate(experiments(scenario).items())}
-
-
-# -- flying ------------------------------------------------------------------------------------
-
-FIN_COMMANDS = ("fin_r", "fin_er", "fin_el")
-
-
-def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Settings,
+def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Scenario, duration: float,
         rng: np.random.Generator, progress: Callable[[float], None] | None = None) -> Flight:  # fmt: skip
-    """Fly one experiment from straight and level trim; sample, and add sensor noise."""
+    """Fly one experiment of `duration` s from straight and level trim; sample, add sensor noise."""
     speed = s.speed if s.speed is not None else cruise_speed(plant.model)
     plant.reset(speed=speed, depth=s.depth)
     per_control = plant.timestep * s.control_rate
     steps = round(1.0 / per_control)
     controls_per_sample = round(s.control_rate / s.sensors.rate)
-    if abs(1.0 / per_control - steps) > 1e-9 or abs(s.control_rate / s.sensors.rate - controls_per_sample) > 1e-9:
-        raise InputError(f"control rate {s.control_rate} Hz and sample rate {s.sensors.rate} Hz must "
-                         f"divide the physics rate {1 / plant.timestep:g} Hz and each other")  # fmt: skip
-    n_samples = int(math.floor(s.duration * s.sensors.rate + 1e-9)) + 1
+    if abs(1.0 / per_control - steps) > 1e-9:
+        raise InputError(f"control rate {s.control_rate} Hz; expected it to divide the physics rate "
+                         f"{1 / plant.timestep:g} Hz")  # fmt: skip
+    n_samples = int(math.floor(duration * s.sensors.rate + 1e-9)) + 1
     truth, fins, pos = np.empty((n_samples, NX)), np.empty((n_samples, 3)), np.empty((n_samples, 3))
     fin_cmds, pitch, keywords = np.empty((n_samples, 3)), np.empty(n_samples), []
     fin_integral = np.empty((n_samples, 3))
@@ -304,8 +399,9 @@ def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Sett
         plant.step(command, n=steps)
     truth[:, IX["psi"]] = np.unwrap(truth[:, IX["psi"]])
     # The input of sample k is held over [t_k, t_k+1) by the model (zero-order hold): record the
-    # fin angle's mean over that interval (exact, from the servo's ∫δ dt), as an integrating
-    # encoder would; the last sample has no interval after it and keeps the angle itself.
+    # fin angle's mean over that interval (exact: the plant holds the fins over each physics
+    # step), as an integrating encoder would; the last sample has no interval after it and
+    # keeps the angle itself.
     fins[:-1] = np.diff(fin_integral, axis=0) * s.sensors.rate
     measured, fins_measured = measure(truth, fins, s.sensors, rng)
     commands = {key: np.array([kw.get(key, np.nan) for kw in keywords], float)
@@ -317,63 +413,75 @@ def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Sett
     return Flight(name, t, truth, measured, fins, fins_measured, pos, commands)
 
 
-def fly_scenario(scenario: str, seed: int = 0, settings: Settings = Settings(), mjcf=None,
+def fly_scenario(s: Scenario | str, seed: int = 0, mjcf=None,
                  progress: Callable[[str, float], None] | None = None) -> tuple[list[Flight], object]:  # fmt: skip
-    """Fly every experiment of `scenario`; returns the flights and the analytic linear model."""
+    """Fly every experiment of a scenario (or built-in name, or file); returns the flights and
+    the analytic linear model."""
     from testbed.truth import analytic_model
 
+    s = scenario(s)
     check_seed(seed)
-    experiments(scenario)
     plant = Plant(mjcf)
-    speed = settings.speed if settings.speed is not None else cruise_speed(plant.model)
-    settings = replace(settings, speed=speed)
+    speed = s.speed if s.speed is not None else cruise_speed(plant.model)
+    s = replace(s, speed=speed)
     lin = analytic_model(plant.model, speed)
-    autopilot = Autopilot(design(lin.A_full, lin.B_full, speed), 1.0 / settings.control_rate)
+    autopilot = Autopilot(design(lin.A_full, lin.B_full, speed), 1.0 / s.control_rate)
     flights = []
-    for k, (name, program) in enumerate(programs(scenario, settings, seed).items()):
-        report = (lambda f, name=name: progress(name, f)) if progress else None
-        flights.append(fly(plant, autopilot, name, program, settings, rng_for(seed, k, 0), report))
+    for k, e in enumerate(s.experiments):
+        report = (lambda f, name=e.name: progress(name, f)) if progress else None
+        flights.append(fly(plant, autopilot, e.name, program(s, e, seed, k), s, s.duration_of(e),
+                           rng_for(seed, k, 0), report))  # fmt: skip
     return flights, lin
+
+
+def check_flyable(s: Scenario) -> None:
+    """Refuse up front what the tool could not use: an experiment shorter than 3 samples."""
+    for e in s.experiments:
+        n = int(math.floor(s.duration_of(e) * s.sensors.rate + 1e-9)) + 1
+        if n < 3:
+            raise InputError(f"--duration {s.duration_of(e)!r} s gives experiment {e.name!r} {n} samples at "
+                             f"{s.sensors.rate:g} Hz; expected at least 3")  # fmt: skip
 
 
 # -- run directories ---------------------------------------------------------------------------
 
 
-def simulate(scenario: str, *, seed: int = 0, out=None, force: bool = False, duration=None,
-             speed=None, mjcf=None, progress: bool = True, settings: Settings | None = None) -> Path:  # fmt: skip
-    """Fly `scenario` and write its run directory (SPEC §3); returns its path."""
+def simulate(s: Scenario | str, *, seed: int = 0, out=None, force: bool = False, duration=None,
+             speed=None, mjcf=None, progress: bool = True) -> Path:  # fmt: skip
+    """Fly a scenario (object, built-in name or file) and write its run directory (SPEC §3)."""
     from testbed.report import log_run
     from testbed.truth import model_config
 
-    n_experiments = len(experiments(scenario))
+    s = scenario(s).with_overrides(duration=duration, speed=speed)
     check_seed(seed)
-    settings = settings or Settings()
-    if duration is not None:
-        settings = replace(settings, duration=float(duration))
-    if speed is not None:
-        settings = replace(settings, speed=float(speed))
-    out = Path(out) if out is not None else Path("runs") / f"{scenario}-seed{seed}"
+    check_flyable(s)
+    out = Path(out) if out is not None else Path("runs") / f"{s.name}-seed{seed}"
     mjcf_path = Path(mjcf) if mjcf is not None else default_mjcf()
     started = datetime.datetime.now(datetime.timezone.utc)
-    bar = _ProgressBar(n_experiments) if progress else None
+    bar = _ProgressBar(len(s.experiments)) if progress else None
     with atomic_directory(out, force) as tmp:
-        flights, lin = fly_scenario(scenario, seed, settings, mjcf_path, bar)
+        flights, lin = fly_scenario(s, seed, mjcf_path, bar)
+        measured = [STATES.index(c) for c in s.measured]
         for f in flights:
-            (tmp / f"{f.name}.csv").write_text(csv_text(f.t, f.measured, f.fins_measured, STATES))
+            (tmp / f"{f.name}.csv").write_text(csv_text(f.t, f.measured[:, measured], f.fins_measured, s.measured))
             (tmp / f"{f.name}.truth.csv").write_text(csv_text(f.t, f.truth, f.fins, STATES))
         config, comments = model_config(lin, mjcf_path)
+        config = replace(config, outputs=tuple(c for c in s.measured if c != "z"))
+        comments["outputs"] = UNFITTED_DEPTH
         (tmp / "model.toml").write_text(config_text(config, comments))
-        log_run(tmp / "recording.rrd", flights, mjcf_path, title=f"testbed {scenario} seed {seed}")
-        settings = replace(settings, speed=lin.vehicle.speed)
+        flown = replace(s, speed=lin.vehicle.speed, source="")
+        (tmp / "scenario.toml").write_text(scenario_text(flown))
+        log_run(tmp / "recording.rrd", flights, mjcf_path, title=f"testbed {s.name} seed {seed}")
         manifest = {
-            "scenario": scenario,
+            "scenario": s.name,
+            "scenario_source": s.source,
             "seed": seed,
             "experiments": [f.name for f in flights],
-            "settings": asdict(settings),
+            "settings": _settings(flown),
             "mjcf": str(mjcf_path.resolve()),
             "mjcf_sha256": hashlib.sha256(mjcf_path.read_bytes()).hexdigest(),
             "versions": _versions(),
-            **_command(scenario, seed, settings, mjcf),
+            "command": _command(s, seed, flown, mjcf, out),
             "started": started.isoformat(),
             "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(),
         }
@@ -381,6 +489,11 @@ def simulate(scenario: str, *, seed: int = 0, out=None, force: bool = False, dur
         if bar:
             bar.done()
     return out
+
+
+def _settings(s: Scenario) -> dict:
+    """The flown scenario as JSON: the same content as its scenario.toml."""
+    return tomllib.loads(scenario_text(s))
 
 
 def _versions() -> dict[str, str]:
@@ -397,18 +510,20 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def _command(scenario, seed, settings: Settings, mjcf) -> dict:
-    """The manifest's `command` that regenerates the run (floats exact: repr round-trips), and
-    which settings the command line cannot set: it reproduces the run only if those have their
-    defaults (`command_reproduces_run`); otherwise `settings` has them."""
-    parts = ["testbed", "simulate", "--scenario", scenario, "--seed", str(seed),
-             "--duration", repr(float(settings.duration)), "--speed", repr(float(settings.speed))]  # fmt: skip
+def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path) -> str:
+    """The command that regenerates the run: the built-in scenario by name where the run flew it
+    as built but for the command line's --duration and --speed, else the run's scenario.toml."""
+    parts = ["testbed", "simulate", "--seed", str(seed)]
+    as_built = None
+    if s.source == "built-in":
+        as_built = replace(scenario(s.name).with_overrides(flown.duration, flown.speed), source="")
+    if as_built is not None and scenario_text(as_built) == scenario_text(flown):
+        parts += ["--scenario", s.name, "--duration", repr(float(flown.duration)), "--speed", repr(float(flown.speed))]
+    else:
+        parts += ["--scenario", str(out.resolve() / "scenario.toml")]
     if mjcf is not None:
         parts += ["--mjcf", str(Path(mjcf).resolve())]
-    default, given = asdict(Settings()), asdict(settings)
-    hidden = [name for name in given if name not in CLI_SETTINGS]
-    return {"command": shlex.join(parts), "settings_not_on_command_line": hidden,
-            "command_reproduces_run": all(given[n] == default[n] for n in hidden)}  # fmt: skip
+    return shlex.join(parts)
 
 
 class _ProgressBar:

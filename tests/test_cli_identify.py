@@ -36,11 +36,15 @@ def test_every_method_on_a_scenario_ii_run(run, tmp_path, capsys, method, limit)
     argv = ["identify", run, "--method", method, "--out", out, "--rrd", rrd]
     code, printed = _ok(capsys, argv + (["--max-iter", limit] if limit else []))
     doc = json.loads(out.read_text())
-    free = read_config(run / "model.toml").free
+    config = read_config(run / "model.toml")
+    free = list(doc["coefficients"])
     assert doc["method"] == method and doc["converged"] is (code == 0)
-    assert set(doc["coefficients"]) == set(free)
+    # what the data identify is estimated; the rest stays at the a-priori value, with the reason
+    assert set(free) | set(doc["fixed"]) == set(config.free) and not set(free) & set(doc["fixed"])
+    assert all("not identifiable" in f["reason"] for f in doc["fixed"].values())
+    assert all(f"{n}" in printed.err for n in doc["fixed"])
     assert all(np.isfinite(c["value"]) and c["std"] > 0 for c in doc["coefficients"].values())
-    assert set(doc["noise_std"]) == {"u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z"}
+    assert set(doc["noise_std"]) == set(config.outputs) == {"u", "v", "w", "p", "q", "r", "phi", "theta", "psi"}
     for key in ("iterations", "cost", "wall_time_s"):
         assert key in doc
     rows = doc["comparison"]["rows"]
@@ -158,7 +162,7 @@ def test_a_run_directory_reads_only_its_experiments(run, tmp_path, capsys):
     shutil.copytree(run, copy)
     (copy / "notes.csv").write_text("whatever,else\n1,2\n")  # e.g. a filter history written beside
     _ok(capsys, ["identify", copy, "--method", "ml-gn", "--max-iter", "1", "--out", tmp_path / "e.json"])
-    assert set(json.loads((tmp_path / "e.json").read_text())["initial_states"]) == {"horizontal", "vertical"}
+    assert set(json.loads((tmp_path / "e.json").read_text())["initial_states"]) == {"horizontal", "vertical", "roll"}
     assert all(n in COEFFICIENTS for n in read_config(copy / "model.toml").free)
 
 

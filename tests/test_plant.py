@@ -149,7 +149,9 @@ def test_stable_for_600_s_with_fins_working():
         plant.step(cmd, n=25)
         t += 25 * plant.timestep
     x = plant.state()
-    assert np.all(np.isfinite(x)) and 5.0 < x[0] < 25.0
+    # bounded: the propulsor, set to the trim drag, cannot drive it faster than trim; the fins
+    # banging at ±0.15 rad throw it about (it ends slow, at a large incidence), but never away
+    assert np.all(np.isfinite(x)) and 0.0 < x[0] < 20.0 * (1 + 1e-3) and np.abs(x[1:6]).max() < 20.0
 
 
 def test_stable_for_600_s_when_added_mass_exceeds_body_mass():
@@ -262,3 +264,67 @@ def test_bad_mjcf_is_one_line_input_error(tmp_path):
             Plant(model=model)
         with pytest.raises(InputError, match=message):
             truth.analytic_model(model, 20.0)
+
+
+def _open_loop_fit(plant, amplitude, seconds=4.0):
+    """Fit % (100 (1 − ‖y − ŷ‖/‖y − ȳ‖)) per state of the analytic model (SPEC projection, exact
+    zero-order hold at the physics step, fins as recorded) against the plant, both from trim,
+    with independent 0.1 s PRBS on rudder, elevators together and elevators differentially."""
+    from testbed.model import continuous, discretize, structure, theta_vector
+    from testbed.scenario import prbs
+
+    lin = truth.analytic_model(plant.model, 20.0)
+    plant.reset(20.0, depth=100.0)
+    h, n = plant.timestep, round(seconds / plant.timestep)
+    bits = [prbs(10, np.random.default_rng(k)) for k in range(3)]
+    X, D = np.empty((n + 1, 10)), np.empty((n, 3))
+    X[0] = plant.state()
+    for k in range(n):
+        r, e, a = (amplitude * b[int(k * h / 0.1 + 1e-9)] for b in bits)
+        plant.step((r, e + a, e - a))
+        X[k + 1], D[k] = plant.state(), plant.fin_angles()  # held over the step just taken
+    X[:, 0] -= 20.0
+    A, B, _ = continuous(structure(lin.vehicle), theta_vector(lin.coefficients))
+    Phi, Gamma, _ = discretize(A, B, np.zeros(10), h)
+    Y = [X[0]]
+    for d in D:
+        Y.append(Phi @ Y[-1] + Gamma @ d)
+    Y = np.array(Y)
+    return {s: 100 * (1 - np.linalg.norm(X[:, i] - Y[:, i]) / np.linalg.norm(X[:, i] - X[:, i].mean()))
+            for i, s in enumerate(("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z")) if i}
+
+
+def test_analytic_model_tracks_the_plant_open_loop():
+    """The continuous plant that RK4 integrates is the one the analytic model linearises: small
+    PRBS on every fin, 4 s open loop, fit ≥ 99.9 % on every excited state (p and φ: 99.5 %, the
+    roll row's second-order terms being the largest relative to its small linear coupling)."""
+    fits = _open_loop_fit(Plant(), 2e-5)
+    assert min(fits[s] for s in ("v", "w", "q", "r", "theta", "psi", "z")) >= 99.9, fits
+    assert min(fits["p"], fits["phi"]) >= 99.5, fits
+
+
+def test_implicit_step_is_far_from_the_continuous_plant():
+    """MuJoCo's own implicitfast step at the same 4 ms (plain step, completed mass matrix): the
+    reason the plant integrates with RK4. Measured 92–94 % on v, w, q, r."""
+    model = load_model()
+    fits = _open_loop_fit(_ImplicitPlant(model=model), 2e-5)
+    assert max(fits[s] for s in ("v", "w", "q", "r")) < 97.0, fits
+
+
+class _ImplicitPlant(Plant):
+    """The completed plant stepped by `mj_step1`, the completion and `mj_step2` (MuJoCo's
+    `implicitfast`, which factorises M − h D with the completed M), fins held like the plant's."""
+
+    def step(self, fin_commands=(0.0, 0.0, 0.0), n: int = 1):
+        m, d, k = self.model, self.data, self._k
+        for _ in range(n):
+            slew = self._rate * m.opt.timestep
+            for i, c in enumerate(fin_commands):
+                k.reference[i] += float(np.clip(c - k.reference[i], -slew, slew))
+            d.qpos[self._fin_qadr] = k.reference
+            d.qvel[k.dofs[6:]] = 0.0
+            d.ctrl[self._thruster] = self.thrust
+            mujoco.mj_step1(m, d)
+            self._complete()
+            mujoco.mj_factorM(m, d)
+            mujoco.mj_step2(m, d)

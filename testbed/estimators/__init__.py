@@ -96,7 +96,7 @@ def identify(experiments: Sequence[Experiment], config: ModelConfig, method: str
         raise InputError(f"--method {method!r} is unknown; expected one of {', '.join(sorted(METHODS))}")
     if not config.free:
         raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to estimate")
-    return METHODS[method](list(experiments), config, **options)
+    return METHODS[method](config.fitted(experiments), config, **options)
 
 
 def _load_methods() -> None:

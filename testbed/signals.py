@@ -1,0 +1,317 @@
+"""Input signals of the scenario files: what a fin or an autopilot reference does over time.
+
+Each signal is a frozen dataclass built by keyword from its TOML table (`parse_signal`) and
+written back by `signal_table`; `Signal.program(rng)` gives the function `(t, x) → value` that
+the experiment calls at every control step (`x` the true state, SPEC order; only `zigzag`
+reads it). The signals:
+
+| signal | parameters | value |
+|---|---|---|
+| `hold` | `value` | constant |
+| `step` | `amplitude`, `start`, `initial` | `initial` before `start`, then `amplitude` |
+| `square` | `amplitude`, `half_period`, `offset`, `first` | `offset ± amplitude`, switched every `half_period`, `first` (±1) the first sign |
+| `prbs` | `amplitude`, `order`, `clock` | ±`amplitude`, a maximal-length LFSR sequence, one bit per `clock` s, phase from the run's seed |
+| `doublet` | `amplitude`, `width`, `start` | +a for `width`, −a for `width`, then 0 |
+| `3211` | `amplitude`, `unit`, `start` | +a, −a, +a, −a for 3, 2, 1, 1 `unit`s, then 0 |
+| `multisine` | `amplitude`, `frequencies`, `start` | Σ cos(2π f_k t + φ_k), Schroeder phases φ_k = −π k(k−1)/K (low crest factor), scaled to peak `amplitude` |
+| `zigzag` | `angle`, `on` | ±`angle`, switched when `on` (`psi` or `theta`) passes ∓`angle` from its initial value |
+
+A positive fin turns the nose negative (rudder: to port; elevators: down), so the zigzag
+starts at +angle and switches when the angle has gone to −angle.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass, fields
+from typing import Callable, ClassVar, Mapping
+
+import numpy as np
+
+from testbed.errors import InputError
+from testbed.model import IX
+
+Program = Callable[[float, np.ndarray], float]
+
+# Maximal-length feedback taps (1-indexed register stages) for orders 2..20.
+TAPS = {2: (2, 1), 3: (3, 2), 4: (4, 3), 5: (5, 3), 6: (6, 5), 7: (7, 6), 8: (8, 6, 5, 4),
+        9: (9, 5), 10: (10, 7), 11: (11, 9), 12: (12, 11, 10, 4), 13: (13, 12, 11, 8),
+        14: (14, 13, 12, 2), 15: (15, 14), 16: (16, 15, 13, 4), 17: (17, 14), 18: (18, 11),
+        19: (19, 18, 17, 14), 20: (20, 17)}  # fmt: skip
+
+
+def prbs(order: int, rng: np.random.Generator | None = None) -> np.ndarray:
+    """One period (2^order − 1 bits, ±1) of the maximal-length LFSR sequence; `rng` picks the
+    (non-zero) initial register, i.e. the phase."""
+    if order not in TAPS:
+        raise InputError(f"PRBS order {order}; expected one of {min(TAPS)}..{max(TAPS)}")
+    state = [1] * order
+    if rng is not None:
+        while not any(state := list(rng.integers(0, 2, order))):
+            pass
+    out = np.empty(2**order - 1)
+    for k in range(len(out)):
+        out[k] = 1.0 if state[-1] else -1.0
+        feedback = 0
+        for tap in TAPS[order]:
+            feedback ^= state[tap - 1]
+        state = [feedback] + state[:-1]
+    return out
+
+
+def prbs_spectrum(order: int, clock: float, n: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+    """Power spectrum (frequency Hz, power per line) of the periodic PRBS with bit time `clock`.
+
+    Lines at multiples of 1/((2^order − 1) clock) with envelope sinc²(f clock): the -3 dB point
+    is at 0.44/clock, the first null at 1/clock.
+    """
+    bits = 2**order - 1
+    f = np.arange(1, n + 1) / (bits * clock)
+    return f, (bits + 1) / bits**2 * np.sinc(f * clock) ** 2
+
+
+def periods(t: float, period: float) -> int:
+    """Whole periods elapsed at `t`; t = k Δt lands on a boundary as on it, not a rounding before."""
+    return math.floor(t / period + 1e-9)
+
+
+def schroeder_phases(k: int) -> np.ndarray:
+    """Schroeder's phases φ_i = −π i(i−1)/K, i = 1..K, for a flat-spectrum multisine of low
+    crest factor."""
+    i = np.arange(1, k + 1)
+    return -np.pi * i * (i - 1) / k
+
+
+# -- the signals ---------------------------------------------------------------------------------
+
+
+def _real(v) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
+@dataclass(frozen=True)
+class Signal:
+    """Base of the signals; `kind` is the TOML `signal` name."""
+
+    kind: ClassVar[str] = ""
+    # field -> (check, what it must be), for the one-line error on a bad value
+    checks: ClassVar[dict] = {}
+
+    def __post_init__(self):
+        for name, (ok, expected) in self.checks.items():
+            if not ok(getattr(self, name)):
+                raise InputError(f"{self.kind} {name} = {getattr(self, name)!r}; expected {expected}")
+
+    def program(self, rng: np.random.Generator) -> Program:
+        raise NotImplementedError
+
+    def peak(self) -> float:
+        """The largest |value| the signal takes (for the fin-range check)."""
+        raise NotImplementedError
+
+
+_FINITE = (_real, "a finite number")
+_POSITIVE = (lambda v: _real(v) and v > 0, "a finite number > 0")
+_TIME = (lambda v: _real(v) and v >= 0, "a finite time >= 0 s")
+
+
+@dataclass(frozen=True)
+class Hold(Signal):
+    kind: ClassVar[str] = "hold"
+    checks: ClassVar[dict] = {"value": _FINITE}
+    value: float = 0.0
+
+    def program(self, rng):
+        value = self.value
+        return lambda t, x: value
+
+    def peak(self):
+        return abs(self.value)
+
+
+@dataclass(frozen=True)
+class Step(Signal):
+    kind: ClassVar[str] = "step"
+    checks: ClassVar[dict] = {"amplitude": _FINITE, "start": _TIME, "initial": _FINITE}
+    amplitude: float = 0.0
+    start: float = 1.0
+    initial: float = 0.0
+
+    def program(self, rng):
+        a, start, initial = self.amplitude, self.start, self.initial
+        return lambda t, x: a if t >= start - 1e-9 else initial
+
+    def peak(self):
+        return max(abs(self.amplitude), abs(self.initial))
+
+
+@dataclass(frozen=True)
+class Square(Signal):
+    kind: ClassVar[str] = "square"
+    checks: ClassVar[dict] = {"amplitude": _FINITE, "half_period": _POSITIVE, "offset": _FINITE,
+                              "first": (lambda v: v in (1, -1) and not isinstance(v, bool), "1 or -1")}  # fmt: skip
+    amplitude: float = 0.0
+    half_period: float = 1.0
+    offset: float = 0.0
+    first: int = 1
+
+    def program(self, rng):
+        a, h, offset, first = self.amplitude, self.half_period, self.offset, self.first
+        return lambda t, x: offset + first * a * (1 if periods(t, h) % 2 == 0 else -1)
+
+    def peak(self):
+        return abs(self.offset) + abs(self.amplitude)
+
+
+@dataclass(frozen=True)
+class Prbs(Signal):
+    kind: ClassVar[str] = "prbs"
+    checks: ClassVar[dict] = {"amplitude": _FINITE, "clock": _POSITIVE,
+                              "order": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v in TAPS,
+                                        f"an integer in {min(TAPS)}..{max(TAPS)}")}  # fmt: skip
+    amplitude: float = 0.0
+    order: int = 10
+    clock: float = 0.1
+
+    def program(self, rng):
+        bits, clock = self.amplitude * prbs(self.order, rng), self.clock
+        return lambda t, x: bits[periods(t, clock) % len(bits)]
+
+    def peak(self):
+        return abs(self.amplitude)
+
+
+@dataclass(frozen=True)
+class Doublet(Signal):
+    kind: ClassVar[str] = "doublet"
+    checks: ClassVar[dict] = {"amplitude": _FINITE, "width": _POSITIVE, "start": _TIME}
+    amplitude: float = 0.0
+    width: float = 1.0
+    start: float = 1.0
+
+    def program(self, rng):
+        return _pulses(self.amplitude, self.start, self.width, (1, -1))
+
+    def peak(self):
+        return abs(self.amplitude)
+
+
+@dataclass(frozen=True)
+class Input3211(Signal):
+    kind: ClassVar[str] = "3211"
+    checks: ClassVar[dict] = {"amplitude": _FINITE, "unit": _POSITIVE, "start": _TIME}
+    amplitude: float = 0.0
+    unit: float = 0.5
+    start: float = 1.0
+
+    def program(self, rng):
+        return _pulses(self.amplitude, self.start, self.unit, (1, 1, 1, -1, -1, 1, -1))
+
+    def peak(self):
+        return abs(self.amplitude)
+
+
+def _pulses(amplitude: float, start: float, width: float, signs: tuple) -> Program:
+    """±amplitude over consecutive slots of `width` s from `start`, then 0."""
+
+    def program(t, x):
+        k = periods(t - start, width) if t >= start - 1e-9 else -1
+        return amplitude * signs[k] if 0 <= k < len(signs) else 0.0
+
+    return program
+
+
+@dataclass(frozen=True)
+class Multisine(Signal):
+    kind: ClassVar[str] = "multisine"
+    checks: ClassVar[dict] = {"amplitude": _FINITE, "start": _TIME,
+                              "frequencies": (lambda v: isinstance(v, tuple) and len(v) > 0
+                                              and all(_real(f) and f > 0 for f in v),
+                                              "a non-empty list of frequencies > 0 Hz")}  # fmt: skip
+    amplitude: float = 0.0
+    frequencies: tuple = (0.1, 0.2, 0.3)
+    start: float = 0.0
+
+    def program(self, rng):
+        f, phi = np.asarray(self.frequencies), schroeder_phases(len(self.frequencies))
+        # the peak over 20 periods of the lowest frequency (at most 200 s), on a fine grid
+        grid = np.linspace(0.0, min(20.0 / f.min(), 200.0), 40001)
+        peak = np.abs(np.cos(2 * np.pi * np.outer(grid, f) + phi).sum(1)).max()
+        scale, start = self.amplitude / peak, self.start
+
+        def program(t, x):
+            if t < start - 1e-9:
+                return 0.0
+            return scale * float(np.cos(2 * np.pi * f * (t - start) + phi).sum())
+
+        return program
+
+    def peak(self):
+        return abs(self.amplitude)
+
+
+@dataclass(frozen=True)
+class Zigzag(Signal):
+    kind: ClassVar[str] = "zigzag"
+    checks: ClassVar[dict] = {"angle": (lambda v: _real(v) and v > 0, "a finite angle > 0 rad"),
+                              "on": (lambda v: v in ("psi", "theta"), "'psi' or 'theta'")}  # fmt: skip
+    angle: float = math.radians(20.0)
+    on: str = "psi"
+
+    def program(self, rng):
+        k, angle, sign, start = IX[self.on], self.angle, [1.0], []
+
+        def program(t, x):
+            if not start:
+                start.append(x[k])
+            # wrapped, so a heading near ±π does not jump by 2π
+            turned = (x[k] - start[0] + math.pi) % (2 * math.pi) - math.pi
+            if sign[0] > 0 and turned <= -angle:
+                sign[0] = -1.0
+            elif sign[0] < 0 and turned >= angle:
+                sign[0] = 1.0
+            return sign[0] * angle
+
+        return program
+
+    def peak(self):
+        return abs(self.angle)
+
+
+SIGNALS: dict[str, type[Signal]] = {s.kind: s for s in (Hold, Step, Square, Prbs, Doublet, Input3211, Multisine, Zigzag)}
+
+
+def parse_signal(value, where: str) -> Signal:
+    """A signal from its TOML form: a number (a `hold`) or a table with `signal` and its
+    parameters. InputError naming `where` (e.g. `file: experiment 'x' rudder`) otherwise."""
+    if _real(value):
+        return Hold(value=float(value))
+    if not isinstance(value, Mapping):
+        raise InputError(f"{where}: {value!r}; expected a number or a table with 'signal'")
+    kind = value.get("signal")
+    if kind not in SIGNALS:
+        raise InputError(f"{where}: signal {kind!r}; expected one of {', '.join(SIGNALS)}")
+    cls = SIGNALS[kind]
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(value) - names - {"signal"})
+    if unknown:
+        raise InputError(f"{where}: unknown {kind} parameter {unknown[0]!r}; expected {', '.join(sorted(names))}")
+    kwargs = {}
+    for name, v in value.items():
+        if name == "signal":
+            continue
+        if name == "frequencies":
+            v = tuple(v) if isinstance(v, list) else v
+        elif isinstance(v, int) and not isinstance(v, bool) and name not in ("order", "first"):
+            v = float(v)
+        kwargs[name] = v
+    try:
+        return cls(**kwargs)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+
+
+def signal_table(s: Signal) -> dict:
+    """The TOML table of a signal (`parse_signal` reads it back to an equal signal)."""
+    return {"signal": s.kind, **{f.name: getattr(s, f.name) for f in fields(s)}}
