@@ -268,13 +268,14 @@ def _experiment(doc: Mapping, where: str) -> ExperimentSpec:
         if bad:
             raise InputError(f"{where}: unknown {key} loop {bad[0]!r}; expected {', '.join(allowed)}")
     duration = doc.get("duration")
-    return ExperimentSpec(
-        name=name,
-        fins={c: parse_signal(doc[c], f"{where} {c}") for c in CHANNELS if c in doc},
-        autopilot={k: parse_signal(v, f"{where} autopilot.{k}") for k, v in autopilot.items()},
-        hold_depth=parse_signal(hold["depth"], f"{where} hold.depth") if "depth" in hold else None,
-        duration=None if duration is None else _number(duration, f"{where}: duration"),
-    )
+    fins = {c: parse_signal(doc[c], f"{where} {c}") for c in CHANNELS if c in doc}
+    loops = {k: parse_signal(v, f"{where} autopilot.{k}") for k, v in autopilot.items()}
+    held = parse_signal(hold["depth"], f"{where} hold.depth") if "depth" in hold else None
+    duration = None if duration is None else _number(duration, f"{where}: duration")
+    try:
+        return ExperimentSpec(name=name, fins=fins, autopilot=loops, hold_depth=held, duration=duration)
+    except InputError as exc:  # it names the experiment; add the file
+        raise InputError(f"{where.rsplit(': ', 1)[0]}: {exc}") from None
 
 
 def scenario_text(s: Scenario) -> str:

@@ -14,7 +14,7 @@ reads it). The signals:
 | `doublet` | `amplitude`, `width`, `start` | +a for `width`, −a for `width`, then 0 |
 | `3211` | `amplitude`, `unit`, `start` | +a, −a, +a, −a for 3, 2, 1, 1 `unit`s, then 0 |
 | `multisine` | `amplitude`, `frequencies`, `start` | Σ cos(2π f_k t + φ_k), Schroeder phases φ_k = −π k(k−1)/K (low crest factor), scaled to peak `amplitude` |
-| `zigzag` | `angle`, `on` | ±`angle`, switched when `on` (`psi` or `theta`) passes ∓`angle` from its initial value |
+| `zigzag` | `angle`, `on`, `switch` | ±`angle`, switched when `on` (`psi` or `theta`) passes ∓`switch` (default `angle`) from its initial value |
 
 A positive fin turns the nose negative (rudder: to port; elevators: down), so the zigzag
 starts at +angle and switches when the angle has gone to −angle.
@@ -255,21 +255,24 @@ class Multisine(Signal):
 class Zigzag(Signal):
     kind: ClassVar[str] = "zigzag"
     checks: ClassVar[dict] = {"angle": (lambda v: _real(v) and v > 0, "a finite angle > 0 rad"),
+                              "switch": (lambda v: v is None or (_real(v) and v > 0), "a finite angle > 0 rad"),
                               "on": (lambda v: v in ("psi", "theta"), "'psi' or 'theta'")}  # fmt: skip
     angle: float = math.radians(20.0)
     on: str = "psi"
+    switch: float | None = None  # the switching angle of `on`, rad (default: `angle`)
 
     def program(self, rng):
-        k, angle, sign, start = IX[self.on], self.angle, [1.0], []
+        k, sign, start = IX[self.on], [1.0], []
+        angle, switch = self.angle, self.angle if self.switch is None else self.switch
 
         def program(t, x):
             if not start:
                 start.append(x[k])
             # wrapped, so a heading near ±π does not jump by 2π
             turned = (x[k] - start[0] + math.pi) % (2 * math.pi) - math.pi
-            if sign[0] > 0 and turned <= -angle:
+            if sign[0] > 0 and turned <= -switch:
                 sign[0] = -1.0
-            elif sign[0] < 0 and turned >= angle:
+            elif sign[0] < 0 and turned >= switch:
                 sign[0] = 1.0
             return sign[0] * angle
 
