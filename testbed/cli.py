@@ -143,6 +143,11 @@ def _cmd_identify(args) -> int:
         print(comparison.table(), file=sys.stderr)
     for n, why in fixed.items():
         print(f"{n:<12}fixed at {config.coefficients[n]:.4g}: {why}", file=sys.stderr)
+    from testbed.validation import validate
+
+    validation = validate(experiments, config.with_coefficients(estimate.coefficients), run_config)
+    doc["validation"] = validation.to_dict()
+    print(validation.table(), file=sys.stderr)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     files = {args.out: text} if args.out else {}
     if args.out and getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
@@ -215,6 +220,49 @@ def _cmd_analyze(args) -> int:
     return 0
 
 
+def _cmd_validate(args) -> int:
+    import json
+
+    from testbed.errors import atomic_write_text
+    from testbed.validation import validate
+
+    _writable(args.out, "--out")
+    experiments, config, run_config = _inputs(args)
+    coefficients = _estimated(args.estimates, config)
+    validation = validate(experiments, config.with_coefficients(coefficients), run_config)
+    text = json.dumps({"estimates": str(args.estimates), "coefficients": coefficients,
+                       "validation": validation.to_dict()}, indent=2, allow_nan=False) + "\n"  # fmt: skip
+    if args.out:
+        atomic_write_text(args.out, text)
+        print(args.out)
+    else:
+        sys.stdout.write(text)
+    print(validation.table(), file=sys.stderr)
+    return 0
+
+
+def _estimated(path: Path, config) -> dict[str, float]:
+    """The coefficients of an estimates JSON (SPEC §3), checked against the config's names."""
+    import json
+    import math
+
+    from testbed.model import COEFFICIENTS
+
+    try:
+        doc = json.loads(path.read_text())
+        values = {n: c["value"] for n, c in doc["coefficients"].items()}
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise InputError(f"{path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}") from None
+    for n, v in values.items():
+        if n not in COEFFICIENTS:
+            raise InputError(f"{path}: coefficient {n!r} is not a coefficient name (SPEC §2)")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"{path}: coefficient {n} = {v!r}; expected a finite number")
+    return {n: float(v) for n, v in values.items()}
+
+
 def _cmd_replay(args) -> int:
     from testbed.report import replay
 
@@ -279,6 +327,13 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument("--out", type=Path, help="identifiability JSON (default: stdout)")
     s.set_defaults(func=_cmd_analyze)
+
+    s = sub.add_parser("validate", help="fit %% and residual whiteness of identified coefficients on (held-out) data")
+    s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
+    s.add_argument("--estimates", type=Path, required=True, help="estimates JSON from `testbed identify`")
+    s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
+    s.add_argument("--out", type=Path, help="validation JSON (default: stdout)")
+    s.set_defaults(func=_cmd_validate)
 
     s = sub.add_parser("replay", help="open a run's recording.rrd in the Rerun viewer")
     s.add_argument("run", type=Path, help="run directory or .rrd file")
