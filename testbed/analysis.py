@@ -155,14 +155,15 @@ class Identifiability:
         return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
 
-def identifiability(experiments, config) -> Identifiability:
+def identifiability(experiments, config, noise_std=None) -> Identifiability:
     """Fisher information, Cramér-Rao bounds, correlations, structural and practical drift groups
-    of `config.free` at the config's coefficients, for the given experiments."""
+    of `config.free` at the config's coefficients, for the given experiments. `noise_std`: the
+    measurement noise per channel (default: the residual at the config's coefficients)."""
     from testbed.estimators.outputerror import information
     from testbed.model import structure, theta_vector
 
     experiments = config.fitted(experiments)
-    info = information(experiments, config)
+    info = information(experiments, config, noise_std=noise_std)
     free = tuple(config.free)
     theta = theta_vector(config.coefficients)
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
@@ -192,15 +193,19 @@ def screen(experiments, config):
     """`(config, fixed)`: the config with only the coefficients these data identify left free,
     and `fixed` (name → reason) for the others, which stay at their a-priori values.
 
-    The rule, at the a-priori coefficients (`identifiability`): a coefficient is fixed when it
-    is in an exactly unidentifiable drift group, or when its Cramér-Rao bound is above
-    `UNCERTAIN` (50 %) of its a-priori value (or it is analysed at 0): then the data hardly
-    excite it, and freeing it only lets it absorb the noise and the linear model's own bias
-    (`identify` with every coefficient free is `--free-all` on the command line).
+    The rule, at the a-priori coefficients (`identifiability`) with the measurement noise read
+    off the data (third differences, `noise_from_data`: not inflated by the a-priori model's
+    own error): a coefficient is fixed when it is in an exactly unidentifiable drift group, or
+    when its Cramér-Rao bound is above `UNCERTAIN` (50 %) of its a-priori value (or it is
+    analysed at 0): then the data hardly excite it, and freeing it only lets it absorb the
+    noise and the linear model's own bias (`identify` with every coefficient free is
+    `--free-all` on the command line).
     """
     from dataclasses import replace
 
-    result = identifiability(experiments, config)
+    from testbed.estimators.mekf import noise_from_data
+
+    result = identifiability(experiments, config, noise_from_data(config.fitted(experiments)))
     fixed = {}
     drifting = {n for g in result.structural.drift_groups for n in g}
     for n, value, std in zip(result.free, result.values, result.crlb_std):

@@ -623,15 +623,16 @@ class Information:
         return self.crlb_std / np.maximum(np.abs(self.values), 1e-300)
 
 
-def assess(prob: Problem, p: np.ndarray, M: np.ndarray | None = None) -> Information:
+def assess(prob: Problem, p: np.ndarray, M: np.ndarray | None = None, R: np.ndarray | None = None) -> Information:
     """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`.
 
     `M`: `gauss_newton_terms(prob, p, …, R)[1]` with R the residual variance at `p`, if an
-    optimiser already has it (not checked: the caller vouches that it belongs to `p`).
+    optimiser already has it (not checked: the caller vouches that it belongs to `p`). `R`: the
+    noise variance per channel to use instead of the residual variance at `p`.
     """
     xs = states(prob, p)
     res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
-    R = noise_variance(prob, res)
+    R = noise_variance(prob, res) if R is None else R
     if M is None:
         M = gauss_newton_terms(prob, p, xs, res, R)[1]
     cov = covariance(M)
@@ -679,10 +680,12 @@ def divergence(prob: Problem, p: np.ndarray) -> str | None:
 
 
 def information(experiments: Sequence[Experiment], config: ModelConfig,
-                values: Mapping[str, float] | np.ndarray | None = None) -> Information:
+                values: Mapping[str, float] | np.ndarray | None = None,
+                noise_std: Mapping[str, float] | None = None) -> Information:  # fmt: skip
     """Cramér-Rao analysis of `config.free` at `values` (default: the config's coefficients).
 
-    The initial states are fitted (linear least squares) and R is the residual variance there.
+    The initial states are fitted (linear least squares); R is `noise_std`² where given (per
+    channel), else the residual variance there, which also holds the model's error at `values`.
     A model that diverges on the data has no meaningful bound: InputError.
     """
     prob = problem(experiments, config)
@@ -692,7 +695,8 @@ def information(experiments: Sequence[Experiment], config: ModelConfig,
     if why is not None:
         raise InputError(f"{prob.source}: the model diverges at these coefficients ({why}); "
                          "expected coefficients giving a bounded response")  # fmt: skip
-    return assess(prob, p)
+    R = None if noise_std is None else np.array([noise_std[c] ** 2 for c in prob.channels])
+    return assess(prob, p, R=R)
 
 
 def predict(experiments: Sequence[Experiment], config: ModelConfig,
