@@ -24,7 +24,7 @@ velocity terms the fluid part is Kirchhoff's equations for a body in potential f
 The fins are prescribed, quasi-steady control surfaces, as SPEC §2's model takes them (the
 fin angle is an input). Each is a digital servo: at every physics step its angle moves toward
 the command by at most the fin rate limit times the step and is held until the next, so it
-settles within one 4 ms step for any change below 8 mrad, and RK4 integrates exactly the
+settles within one 10 ms step for any change below 20 mrad, and RK4 integrates exactly the
 staircase that is recorded (a continuous servo faster than the step would not be resolved by
 the stages; one slower than the 50 Hz sample interval spreads each command change over the
 next interval, which a zero-order hold of the interval's mean angle does not represent: with
@@ -38,7 +38,7 @@ for (with it, the analytic model tracked an open-loop PRBS response with only 96
 The hull is integrated by classical RK4 (`_rk4_step`, one compiled loop over the steps), each
 of the four stages a completed forward evaluation with the fins at their held angles. MuJoCo's
 own step would not do: its RK4 stages cannot be completed, and its first-order
-steps are far from the continuous plant that the analytic model linearises (at 4 ms, implicit
+steps are far from the continuous plant that the analytic model linearises (even at 4 ms, implicit
 Euler moves the 23.7 rad/s sway-yaw and heave-pitch poles by 4 %, and `implicitfast` keeps only
 the lower triangle of the strongly asymmetric fluid-force derivative): with `implicitfast` the
 analytic model tracked the same response with 92–94 % fit (tests/test_plant.py measures the
@@ -106,7 +106,8 @@ class Plant:
         P, M_hull, B, c = _added_mass_basis(m)
         self.thrust = 0.0
         self._addresses = (m._address, d._address)  # the C structs, for the compiled loop
-        self._k = _Kernel(d.xmat, d.qvel, d.qpos, d.qacc, d.M, d.qfrc_applied, d.qfrc_smooth, d.ctrl,
+        self._k = _Kernel(d.xmat, d.qvel, d.qpos, d.qacc, d.M, d.qfrc_applied, d.qfrc_passive,
+                          d.qfrc_actuator, d.qfrc_bias, d.ctrl,
                           d.warning.number, self.hull, self._fin_qadr, self._fin_act, self._fin_limit, dofs,
                           where[rows], where[m.M_colind].astype(np.intp), P, M_hull,
                           -m.opt.density * B * m.opt.gravity, c, np.zeros(6), np.zeros(len(FINS)),
@@ -231,7 +232,7 @@ class Plant:
 
     def _complete(self) -> None:
         """Add the added-mass inertia to d.M; the bias and buoyancy to qfrc_applied."""
-        _complete(self._k)
+        _complete(self._k, _added_mass(self._k))
 
     def body_accelerations(self) -> np.ndarray:
         """(u̇ v̇ ẇ ṗ q̇ ṙ) in SPEC body axes at the current state, the fins held where they are.
@@ -285,7 +286,9 @@ class _Kernel(NamedTuple):
     qacc: np.ndarray
     M: np.ndarray  # d.M, the CSR mass matrix
     qfrc: np.ndarray  # d.qfrc_applied
-    qfrc_smooth: np.ndarray
+    qfrc_passive: np.ndarray
+    qfrc_actuator: np.ndarray
+    qfrc_bias: np.ndarray
     ctrl: np.ndarray
     warnings: np.ndarray  # d.warning.number, MuJoCo's warning counters
     hull: int  # body id
@@ -311,10 +314,11 @@ llvmlite.binding.load_library_permanently(
              for f in sorted(Path(mujoco.__file__).parent.glob(pattern)))))  # fmt: skip
 _SIGNATURE = numba.types.void(numba.types.uintp, numba.types.uintp)
 _mj_step = numba.types.ExternalFunction("mj_step", _SIGNATURE)
-_mj_fwdPosition = numba.types.ExternalFunction("mj_fwdPosition", _SIGNATURE)
+_mj_fwdKinematics = numba.types.ExternalFunction("mj_fwdKinematics", _SIGNATURE)
+_mj_makeM = numba.types.ExternalFunction("mj_makeM", _SIGNATURE)
+_mj_transmission = numba.types.ExternalFunction("mj_transmission", _SIGNATURE)
 _mj_fwdVelocity = numba.types.ExternalFunction("mj_fwdVelocity", _SIGNATURE)
 _mj_fwdActuation = numba.types.ExternalFunction("mj_fwdActuation", _SIGNATURE)
-_mj_fwdAcceleration = numba.types.ExternalFunction("mj_fwdAcceleration", _SIGNATURE)
 _mj_checkAcc = numba.types.ExternalFunction("mj_checkAcc", _SIGNATURE)
 # void mj_integratePos(const mjModel* m, mjtNum* qpos, const mjtNum* qvel, mjtNum scale)
 _mj_integratePos = numba.types.ExternalFunction(
@@ -341,24 +345,30 @@ def _advance(model, data, k, n, complete, h, cmd, slew):
 
 
 @numba.njit(cache=True)
-def _forward(model, data, k):
+def _forward(model, data, k, M9):
     """q̈ into `k.qacc`, the fins at rest relative to the hull: MuJoCo's forward stages,
     completed, and the hull's acceleration from the hull block of the complete mass matrix (the
-    fins' accelerations are prescribed, zero in MuJoCo's coordinates)."""
-    _mj_fwdPosition(model, data)
+    fins' accelerations are prescribed, zero in MuJoCo's coordinates).
+
+    Only the stages this body needs: kinematics, mass matrix, transmission, velocity (fluid
+    forces, bias), actuation; no factorisation (the hull block is solved here), collision or
+    constraints (`check_model`: none)."""
+    _mj_fwdKinematics(model, data)
+    _mj_makeM(model, data)
+    _mj_transmission(model, data)
     _mj_fwdVelocity(model, data)
-    _complete(k)
+    _complete(k, M9)
     _mj_fwdActuation(model, data)
-    _mj_fwdAcceleration(model, data)  # qfrc_smooth; its qacc is replaced below
     H = np.zeros((6, 6))
     for e in range(k.rows.shape[0]):  # d.M holds the lower triangle
         r, c = k.rows[e], k.cols[e]
         if r < 6 and c < 6:
             H[r, c] = H[c, r] = k.M[e]
     rhs = np.empty(6)
-    for i in range(6):
-        rhs[i] = k.qfrc_smooth[k.dofs[i]]
-    a = np.linalg.solve(H, rhs)  # H q̈_hull = f_hull
+    for i in range(6):  # f = passive + actuator + applied − bias
+        j = k.dofs[i]
+        rhs[i] = k.qfrc_passive[j] + k.qfrc_actuator[j] + k.qfrc[j] - k.qfrc_bias[j]
+    a = _solve_spd(H, rhs)  # H q̈_hull = f_hull
     k.qacc[:] = 0.0
     for i in range(6):
         k.qacc[k.dofs[i]] = a[i]
@@ -375,19 +385,21 @@ def _step(model, data, k, h):
         k.qvel[k.dofs[6 + f]] = 0.0
         k.integral[f] += h * k.reference[f]
     q0, v0 = k.qpos.copy(), k.qvel.copy()
-    lam = _rk4_step(model, data, k, h)
+    M9 = _added_mass(k)
+    lam = _rk4_step(model, data, k, h, M9)
     if h * lam <= _RK4_MAX_H_LAMBDA:
         return
     level = min(_LEVELS, int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))))
     k.qpos[:], k.qvel[:] = q0, v0
     for _ in range(2**level):
-        _rk4_step(model, data, k, h / 2**level)
+        _rk4_step(model, data, k, h / 2**level, M9)
 
 
 @numba.njit(cache=True)
-def _rk4_step(model, data, k, h):
+def _rk4_step(model, data, k, h, M9):
     """Classical RK4 on the hull's (qpos, qvel), positions on the quaternion manifold, fins held:
-    x₁ = x₀ + h (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a completed forward evaluation.
+    x₁ = x₀ + h (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a completed forward evaluation (M9: the fins'
+    added mass at their held angles, `_added_mass`).
 
     Returns the stiffness estimate λ ≈ ‖a₃ − a₂‖ / ‖(h/2)(a₂ − a₁)‖ (the accelerations' change
     between the second and third stages over their velocities' change, as in Hairer & Wanner's
@@ -396,7 +408,7 @@ def _rk4_step(model, data, k, h):
     vel_sum, acc_sum = np.zeros_like(v0), np.zeros_like(v0)
     accs = np.empty((3, v0.shape[0]))
     for stage, (weight, c) in enumerate(((1.0, 0.5), (2.0, 0.5), (2.0, 1.0), (1.0, 0.0))):
-        _forward(model, data, k)
+        _forward(model, data, k, M9)
         vel_sum += weight * k.qvel
         acc_sum += weight * k.qacc
         if stage < 3:  # the next stage's point: x₀ + c h kᵢ
@@ -463,17 +475,10 @@ def _apply_wrench(k):
 # Compiled: run at every RK4 stage, where numpy's per-call overhead on 9×9 arrays would cost
 # three times MuJoCo's own forward pass.
 @numba.njit(cache=True)
-def _complete(k):
-    """Add Tᵀ M9 T to the CSR mass matrix; write the generalized force.
-
-    M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij (X_k affine in b = (1, cos δ_k, sin δ_k)),
-    F = −M9 γ + buoyancy + wrench, in MuJoCo's coordinates (fin rates are zero).
-    """
-    R, q, dofs, P = k.xmat[k.hull].reshape(3, 3), k.qvel, k.dofs, k.P
-    nu = np.empty(9)  # ν = (v, ω, δ̇), v = Rᵀ q̇_lin in hull axes
-    for i in range(9):
-        nu[i] = q[dofs[i]]
-    nu[0], nu[1], nu[2] = _turn(R.T, nu[0], nu[1], nu[2])
+def _added_mass(k):
+    """M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij in hull axes (X_k affine in b = (1, cos δ_k, sin δ_k)):
+    a function of the fin angles only, so once per step (the fins are held over it)."""
+    P = k.P
     M9 = k.M_hull.copy()
     for f in range(P.shape[0]):
         c, s = np.cos(k.qpos[k.fin_qadr[f]]), np.sin(k.qpos[k.fin_qadr[f]])
@@ -484,6 +489,19 @@ def _complete(k):
                 for r in range(9):
                     for col in range(9):
                         M9[r, col] += wm * P[f, i, j, r, col]
+    return M9
+
+
+@numba.njit(cache=True)
+def _complete(k, M9):
+    """Add Tᵀ M9 T to the CSR mass matrix; write the generalized force
+    F = −M9 γ + buoyancy + wrench, in MuJoCo's coordinates (fin rates are zero)."""
+    R, q, dofs = k.xmat[k.hull].reshape(3, 3), k.qvel, k.dofs
+    M9 = M9.copy()
+    nu = np.empty(9)  # ν = (v, ω, δ̇), v = Rᵀ q̇_lin in hull axes
+    for i in range(9):
+        nu[i] = q[dofs[i]]
+    nu[0], nu[1], nu[2] = _turn(R.T, nu[0], nu[1], nu[2])
     cw = np.cross(nu[3:6], nu[:3])
     F = np.empty(9)
     for r in range(9):  # −M9 γ with γ = (−ω × v, 0, 0)
@@ -501,6 +519,33 @@ def _complete(k):
         k.M[e] += M9[k.rows[e], k.cols[e]]
     for i in range(9):
         k.qfrc[dofs[i]] = F[i] + (B[i] if i < 3 else 0.0)
+
+
+@numba.njit(cache=True)
+def _solve_spd(H, b):
+    """x = H⁻¹ b for a small symmetric positive definite H, by Cholesky H = L Lᵀ (in place)."""
+    n = b.shape[0]
+    for j in range(n):
+        s = H[j, j]
+        for m in range(j):
+            s -= H[j, m] * H[j, m]
+        H[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            s = H[i, j]
+            for m in range(j):
+                s -= H[i, m] * H[j, m]
+            H[i, j] = s / H[j, j]
+    for i in range(n):  # L y = b
+        s = b[i]
+        for m in range(i):
+            s -= H[i, m] * b[m]
+        b[i] = s / H[i, i]
+    for i in range(n - 1, -1, -1):  # Lᵀ x = y
+        s = b[i]
+        for m in range(i + 1, n):
+            s -= H[m, i] * b[m]
+        b[i] = s / H[i, i]
+    return b
 
 
 def _added_mass_basis(model: mujoco.MjModel):
