@@ -231,8 +231,8 @@ def tabs(blueprint: dict) -> tuple[str, dict[str, str]]:
     if container.get("container_kind") != "Tabs":
         return root, {}
     names = {}
-    for k, path in enumerate(container["contents"]):
-        entry = blueprint.get(path, {})
+    for k, path in enumerate(container["contents"]):  # entity paths, with or without the leading /
+        entry = blueprint.get(path) or blueprint.get("/" + path.lstrip("/"), {})
         kind = entry.get("ContainerBlueprint") or entry.get("ViewBlueprint") or {}
         names[kind.get("display_name") or f"tab{k}"] = path
     return root, names
@@ -253,7 +253,7 @@ def _cursor(value: str, kind: int) -> int:
 
 
 def _slug(text: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "-" for c in text).strip("-")
+    return "-".join("".join(c if c.isalnum() or c in "_." else " " for c in text).split())
 
 
 def shoot(recording: Path, out: Path, tab_names: list[str], at: list[str], timeline: str | None,
