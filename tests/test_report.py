@@ -291,7 +291,7 @@ def test_commands_share_axes_only_with_what_they_command_with_units_and_no_legen
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_axis_range_holds_the_data_and_at_least_three_labels(seed):
+def test_axis_range_holds_the_data_and_ends_on_multiples_of_a_power_of_ten(seed):
     rng = np.random.default_rng(seed)
     scale = 10.0 ** rng.uniform(-4, 5)
     values = rng.normal(rng.uniform(-5, 5) * scale, scale, rng.integers(1, 300))
