@@ -60,8 +60,9 @@ QUANTITIES = {
     "delta_el": ("left elevator δel", "rad"),
 }  # fmt: skip
 # A flight's panels: beside the 3D views the fins and the depth (what its commands drive), and
-# in a tab of their own the other states, three to a row. Each needs about 150 px of height for
-# the plot to label its axis more than once.
+# in a tab of their own the other states, three to a row. The plots label an axis step only
+# where it is some 20 px tall: at 1600 x 900 those beside the 3D views have room for about six
+# steps, those of the states tab for eight (`axis_range`).
 REPLAY_PANELS = ("delta_r", "delta_er", "delta_el", "z")
 STATE_PANELS = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
 # Each command is drawn on the axes of the quantity it commands (same unit); others get a panel.
@@ -69,16 +70,26 @@ COMMAND_PANELS = {"depth": ("z",), "hold_depth": ("z",), "roll": ("phi",), "pitc
                   "yaw_rate": ("r",), "rudder": ("delta_r",), "elevators": ("delta_er", "delta_el"),
                   "fin_r": ("delta_r",), "fin_er": ("delta_er",), "fin_el": ("delta_el",)}  # fmt: skip
 FIN_COMMANDS = ("fin_r", "fin_er", "fin_el")  # the autopilot's commands to the fin servos
+# The key lines under the plots, which say what the styles mean.
 RUN_KEY = ("thin grey: measured · bold blue: true · orange: the experiment's commands · "
            "purple: fin commands (autopilot)")  # fmt: skip
+OUTPUTS_KEY = "thin grey: measured · bold red: the identified model's response to the measured fin angles"
+PARAMETERS_KEY = {
+    "iteration": ("bold blue: the estimate at each iteration · light blue: ± σ (Cramér-Rao) about the final "
+                  "estimate · orange: the analytic value · green: the fit to the noise-free truth (the linear "
+                  "model's best). The outputs are on the `time` timeline: choose it at the bottom left."),
+    "time": ("bold blue: the filter's estimate after each sample · light blue: its ± σ · orange: the analytic "
+             "value · green: the fit to the noise-free truth (the linear model's best) · the experiments one "
+             "after the other"),
+}  # fmt: skip
 
 
 def axis_range(values, intervals: int = 8) -> tuple[float, float]:
     """A y range for the finite `values`: the narrowest [a, b] around them whose ends are multiples
     of one power of ten s at most `intervals` steps of s apart, widened by 4 % on each side. The
     plots label the multiples of a power of ten only, and only where they are far enough apart:
-    data spanning, say, 0.7 would get a single label (0) in a short panel, and get three
-    (-1, 0, 1) from this."""
+    data from -0.35 to 0.35 in a panel with room for four labelled steps would show a single
+    label (0), and three (-1, 0, 1) with `axis_range(values, 4)`."""
     v = np.asarray(values, float)
     v = v[np.isfinite(v)]
     lo, hi = (float(v.min()), float(v.max())) if v.size else (0.0, 0.0)
@@ -199,19 +210,9 @@ def _ellipsoids(geoms, color) -> rr.Ellipsoids3D:
 # x-y plane: its box is nearly the same at any heading, the eye stays ≈ 2.1 RING (5.3 m) away,
 # and the ring tilts with pitch and roll (roll of the round hull shows only through it and the fins).
 RING = 2.5  # m
-# body axes: behind, to port and above, at that distance (where the eye starts before it tracks)
+# The eye's starting offset, in body axes: behind, to port and above, at that same distance, so the
+# view is the same whether the viewer keeps this offset or takes the ring's box.
 EYE = np.array([-3.0, -2.0, -1.5]) / np.linalg.norm([-3.0, -2.0, -1.5]) * 1.5 * np.sqrt(2.0) * RING
-
-
-OUTPUTS_KEY = "thin grey: measured · bold red: the identified model's response to the measured fin angles"
-PARAMETERS_KEY = {
-    "iteration": ("bold blue: the estimate at each iteration · light blue: ± σ (Cramér-Rao) about the final "
-                  "estimate · orange: the analytic value · green: the fit to the noise-free truth (the linear "
-                  "model's best). The outputs are on the `time` timeline: choose it at the bottom left."),
-    "time": ("bold blue: the filter's estimate after each sample · light blue: its ± σ · orange: the analytic "
-             "value · green: the fit to the noise-free truth (the linear model's best) · the experiments one "
-             "after the other"),
-}  # fmt: skip
 
 
 def _key() -> rrb.TextDocumentView:
@@ -315,7 +316,8 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
                        **{s: (flight.fins_measured[:, j], flight.fins[:, j])
                           for j, s in enumerate(INPUTS)}}  # fmt: skip
             ranges = {key: axis_range(np.concatenate([*values, *[flight.commands[c] for c in commands
-                                                                  if key in COMMAND_PANELS.get(c, ())]]))
+                                                                  if key in COMMAND_PANELS.get(c, ())]]),
+                                      6 if key in REPLAY_PANELS else 8)
                       for key, values in plotted.items()}  # fmt: skip
             tabs += _run_views(root, flight.name, flight.position[0], float(x[0, IX["psi"]]), commands, ranges)
         rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*tabs, active_tab=0),
