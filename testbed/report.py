@@ -1,9 +1,14 @@
-"""Rerun recordings: runs (3D replay, trails, time series) and fits (outputs, iterations, comparison).
+"""Rerun recordings: runs (3D replay, trails, time series) and fits (parameters, comparison, outputs).
 
-Everything is logged in bulk with `send_columns` on a `time` timeline (s). Each flight's tab has
-a world view (north-east-down, with the trail) whose eye follows the vehicle, and a close-up in
-body axes where the vehicle stands still and the fins turn, each with a pointer along its chord
-beside a grey neutral one, so a 1 deg deflection moves the pointer's tip 1 cm.
+Everything is logged in bulk with `send_columns`, on a `time` timeline (s), or `iteration` for
+the off-line fits' parameters. A run has two tabs per flight: the replay — a world view
+(north-east-down, with the trail) whose eye follows the vehicle, a close-up in body axes where
+the vehicle stands still and the fins turn, each with a pointer along its chord beside a grey
+neutral one (a 1 deg deflection moves the pointer's tip 1 cm), and the fin angles and depth with
+their commands — and the other states. A fit opens on its parameters tab, one plot per
+coefficient, on the timeline they are logged on. Every series has a fixed style per role
+(`STYLE`), the same in every tab; each plot shows one quantity, with its unit in the title and
+its commands on the same axes; a key line replaces the legends, which would cover the data.
 
 Files are written to a unique temporary name and renamed, so a recording is whole or absent. The
 recording id is derived from the title and the data (same run, same id); the file is not
@@ -29,13 +34,80 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from testbed.errors import InputError, atomic_file
-from testbed.model import IX, STATES
+from testbed.model import INPUTS, IX, STATES
 from testbed.vehicle import FINS, FLIP, load_model
 
-UNITS = {"u": "m/s", "v": "m/s", "w": "m/s", "p": "rad/s", "q": "rad/s", "r": "rad/s",
-         "phi": "rad", "theta": "rad", "psi": "rad", "z": "m"}  # fmt: skip
-PANELS = {"velocity": ("u", "v", "w"), "rates": ("p", "q", "r"), "attitude": ("phi", "theta", "psi"),
-          "depth": ("z",)}  # fmt: skip
+# Every series keeps one style per role, in every tab of every recording: measured values thin
+# and light, the truth (or the fitted model) bold, commands as steps. Role -> (RGB, width in UI points).
+STYLE = {
+    "measured": ((150, 160, 175), 1.0),
+    "truth": ((25, 90, 200), 1.75),
+    "model": ((205, 45, 45), 1.75),
+    "command": ((240, 140, 20), 1.5),
+    "fin command": ((140, 70, 190), 1.5),
+    "estimate": ((25, 90, 200), 2.5),
+    "σ band": ((140, 175, 225), 1.0),
+    "analytic": ((240, 140, 20), 1.5),
+    "truth fit": ((40, 160, 80), 1.5),
+    "cost": ((25, 90, 200), 2.5),
+}
+# The plotted quantities (SPEC states and fin angles): title and unit.
+QUANTITIES = {
+    "u": ("surge speed u", "m/s"), "v": ("sway speed v", "m/s"), "w": ("heave speed w", "m/s"),
+    "p": ("roll rate p", "rad/s"), "q": ("pitch rate q", "rad/s"), "r": ("yaw rate r", "rad/s"),
+    "phi": ("roll φ", "rad"), "theta": ("pitch θ", "rad"), "psi": ("heading ψ", "rad"), "z": ("depth z", "m"),
+    "delta_r": ("rudder δr", "rad"), "delta_er": ("right elevator δer", "rad"),
+    "delta_el": ("left elevator δel", "rad"),
+}  # fmt: skip
+# A flight's panels: beside the 3D views the fins and the depth (what its commands drive), and
+# in a tab of their own the other states, three to a row. The plots label an axis step only
+# where it is some 20 px tall: at 1600 x 900 those beside the 3D views have room for about six
+# steps, those of the states tab for eight (`axis_range`).
+REPLAY_PANELS = ("delta_r", "delta_er", "delta_el", "z")
+STATE_PANELS = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
+# Each command is drawn on the axes of the quantity it commands (same unit); others get a panel.
+COMMAND_PANELS = {"depth": ("z",), "hold_depth": ("z",), "roll": ("phi",), "pitch": ("theta",),
+                  "yaw_rate": ("r",), "rudder": ("delta_r",), "elevators": ("delta_er", "delta_el"),
+                  "fin_r": ("delta_r",), "fin_er": ("delta_er",), "fin_el": ("delta_el",)}  # fmt: skip
+FIN_COMMANDS = ("fin_r", "fin_er", "fin_el")  # the autopilot's commands to the fin servos
+# The key lines under the plots, which say what the styles mean.
+RUN_KEY = ("thin grey: measured · bold blue: true · orange: the experiment's commands · "
+           "purple: fin commands (autopilot)")  # fmt: skip
+OUTPUTS_KEY = "thin grey: measured · bold red: the identified model's response to the measured fin angles"
+PARAMETERS_KEY = {
+    "iteration": ("bold blue: the estimate at each iteration · light blue: ± σ (Cramér-Rao) about the final "
+                  "estimate · orange: the analytic value · green: the fit to the noise-free truth (the linear "
+                  "model's best). The outputs are on the `time` timeline: choose it at the bottom left."),
+    "time": ("bold blue: the filter's estimate after each sample · light blue: its ± σ · orange: the analytic "
+             "value · green: the fit to the noise-free truth (the linear model's best) · the experiments one "
+             "after the other"),
+}  # fmt: skip
+
+
+def axis_range(values, intervals: int = 8) -> tuple[float, float]:
+    """A y range for the finite `values`: the narrowest [a, b] around them whose ends are multiples
+    of one power of ten s at most `intervals` steps of s apart, widened by 4 % on each side. The
+    plots label the multiples of a power of ten only, and only where they are far enough apart:
+    data from -0.35 to 0.35 in a panel with room for four labelled steps would show a single
+    label (0), and three (-1, 0, 1) with `axis_range(values, 4)`."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    lo, hi = (float(v.min()), float(v.max())) if v.size else (0.0, 0.0)
+    span = hi - lo if hi > lo else max(abs(hi), 1.0)
+    s = 10.0 ** (np.floor(np.log10(span)) - 1)
+    while True:
+        a, b = np.floor(lo / s + 1e-9) * s, np.ceil(hi / s - 1e-9) * s
+        if b - a < s / 2:  # a constant on a multiple of s
+            a, b = a - s, b + s
+        if (b - a) / s <= intervals + 1e-9:
+            pad = 0.04 * (b - a)  # labels at the very ends would be clipped
+            return float(f"{a - pad:.12g}"), float(f"{b + pad:.12g}")
+        s *= 10.0
+
+
+def _title(key: str) -> str:
+    title, unit = QUANTITIES[key]
+    return f"{title} ({unit})"
 
 
 def _recording_id(title: str, *parts) -> str:
@@ -72,9 +144,15 @@ def _recording(path: str | os.PathLike, title: str, recording_id: str):
             rec.disconnect()
 
 
-def _scalars(rec, entity: str, index, values: np.ndarray) -> None:
-    """One scalar series; `index` a `TimeColumn` (shared by every series of a flight)."""
-    rec.send_columns(entity, indexes=[index], columns=rr.Scalars.columns(scalars=np.asarray(values, float)))
+def _series(rec, entity: str, index, values, roles, names=None, step: bool = False) -> None:
+    """Scalar series on one entity, one column of `values` (N, k) per role, with their style
+    (static: it holds at every time, on every timeline); `index` a `TimeColumn`."""
+    values = np.asarray(values, float).reshape(len(values), -1)
+    # where several samples share a pixel, their minimum and maximum are drawn: the noise's true envelope
+    rec.log(entity, rr.SeriesLines(colors=[STYLE[r][0] for r in roles], widths=[STYLE[r][1] for r in roles],
+                                   names=list(names or roles), aggregation_policy="MinMax",
+                                   interpolation_mode="StepAfter" if step else None), static=True)  # fmt: skip
+    rec.send_columns(entity, indexes=[index], columns=rr.Scalars.columns(scalars=values))
 
 
 def _time(t: np.ndarray) -> rr.TimeColumn:
@@ -127,24 +205,55 @@ def _ellipsoids(geoms, color) -> rr.Ellipsoids3D:
                            quaternions=[q for _, _, q in geoms], colors=[color], fill_mode="solid")  # fmt: skip
 
 
-def _run_views(root: str, name: str, start: np.ndarray, heading: float) -> rrb.Horizontal:
-    """A flight's tab: the world view (trail; the eye follows the vehicle), the close-up in body
-    axes (the vehicle at rest, the fins and their pointers turning), and the time series."""
+# The world view's eye orbits the tracked entity at 1.5 times the radius of the sphere around its
+# bounding box (the Rerun viewer's rule), so the eye follows a ring of radius RING in the body's
+# x-y plane: its box is nearly the same at any heading, the eye stays ≈ 2.1 RING (5.3 m) away,
+# and the ring tilts with pitch and roll (roll of the round hull shows only through it and the fins).
+RING = 2.5  # m
+# The eye's starting offset, in body axes: behind, to port and above, at that same distance, so the
+# view is the same whether the viewer keeps this offset or takes the ring's box.
+EYE = np.array([-3.0, -2.0, -1.5]) / np.linalg.norm([-3.0, -2.0, -1.5]) * 1.5 * np.sqrt(2.0) * RING
+
+
+def _key() -> rrb.TextDocumentView:
+    """The line saying what the styles mean (a view has one parent: one per container)."""
+    return rrb.TextDocumentView(origin="/key", name="key", titlebar=False)
+
+
+def _run_views(root: str, name: str, start: np.ndarray, heading: float, commands, ranges) -> list:
+    """A flight's two tabs. `name`: the world view (its eye follows the vehicle's ring; the trail), the
+    close-up in body axes (the vehicle at rest, the fins and their pointers turning), the fin
+    angles and the depth with their commands; `name: states`: the other states. `ranges`: each
+    panel's y range."""
     c, s = np.cos(heading), np.sin(heading)
-    behind = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array([-9.0, -5.0, -3.5])
+    behind = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ EYE
     world = rrb.Spatial3DView(
         origin="/", contents=[f"{root}/vehicle/**", f"{root}/trail"], name=f"{name}: world (NED)",
         eye_controls=rrb.EyeControls3D(position=start + behind, look_target=start, eye_up=(0.0, 0.0, -1.0),
-                                       tracking_entity=f"{root}/vehicle"))  # fmt: skip
+                                       tracking_entity=f"{root}/vehicle/ring"))  # fmt: skip
     body = rrb.Spatial3DView(
-        origin=f"{root}/vehicle", contents=[f"{root}/vehicle/**"], name=f"{name}: fins (body axes)",
+        origin=f"{root}/vehicle", contents=[f"{root}/vehicle/**", f"- {root}/vehicle/ring"],
+        name=f"{name}: fins (body axes)",
         eye_controls=rrb.EyeControls3D(position=(-3.4, 1.6, -1.1), look_target=(-1.0, 0.0, 0.0),
                                        eye_up=(0.0, 0.0, -1.0)))  # fmt: skip
-    series = [rrb.TimeSeriesView(origin=f"{root}/states", contents=[f"{root}/states/{s}/**" for s in group],
-                                 name=f"{name}: {panel}") for panel, group in PANELS.items()]  # fmt: skip
-    series.append(rrb.TimeSeriesView(origin=root, contents=[f"{root}/fins/**", f"{root}/commands/**"],
-                                     name=f"{name}: fins and commands"))  # fmt: skip
-    return rrb.Horizontal(rrb.Vertical(world, body), rrb.Vertical(*series), column_shares=[3, 2], name=name)
+
+    def panel(key):
+        group = "fins" if key in INPUTS else "states"
+        given = [f"{root}/commands/{c}" for c in commands if key in COMMAND_PANELS.get(c, ())]
+        return rrb.TimeSeriesView(origin=root, contents=[f"{root}/{group}/{key}", *given], name=_title(key),
+                                  axis_y=rrb.ScalarAxis(range=ranges[key]),
+                                  plot_legend=rrb.PlotLegend(visible=False))  # fmt: skip
+
+    plots = [panel(k) for k in REPLAY_PANELS]
+    if others := [c for c in commands if c not in COMMAND_PANELS]:
+        plots.append(rrb.TimeSeriesView(origin=root, contents=[f"{root}/commands/{c}" for c in others],
+                                        name="other commands", plot_legend=rrb.PlotLegend(visible=False)))  # fmt: skip
+    replay = rrb.Horizontal(rrb.Vertical(world, body, row_shares=[3, 2]),
+                            rrb.Vertical(*plots, _key(), row_shares=[6] * len(plots) + [1]),
+                            column_shares=[5, 4], name=name)  # fmt: skip
+    states = rrb.Vertical(rrb.Grid(*[panel(k) for k in STATE_PANELS], grid_columns=3), _key(), row_shares=[24, 1],
+                          name=f"{name}: states")  # fmt: skip
+    return [replay, states]
 
 
 def _flight_parts(f) -> list:
@@ -166,6 +275,7 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
     tabs = []
     with _recording(path, title, recording_id) as rec:
         rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_DOWN, static=True)  # north, east, down
+        rec.log("/key", rr.TextDocument(RUN_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
         for flight in flights:
             root = f"/{flight.name}"
             t = _time(flight.t)
@@ -174,6 +284,9 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
             rec.send_columns(f"{root}/vehicle", indexes=[t],
                              columns=rr.Transform3D.columns(translation=flight.position, quaternion=quats))  # fmt: skip
             rec.log(f"{root}/vehicle/hull", _ellipsoids(hull, (160, 165, 170)), static=True)
+            a = np.linspace(0.0, 2 * np.pi, 73)
+            ring = np.column_stack([RING * np.cos(a), RING * np.sin(a), np.zeros_like(a)])
+            rec.log(f"{root}/vehicle/ring", rr.LineStrips3D([ring], colors=[(120, 150, 190)], radii=0.01), static=True)
             for k, (name, (origin, axis, blades)) in enumerate(fins.items()):
                 angle = flight.fins[:, k]
                 q = np.column_stack([np.outer(np.sin(angle / 2), axis), np.cos(angle / 2)])
@@ -190,22 +303,144 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
                     radii=0.004), static=True)  # fmt: skip
             rec.log(f"{root}/trail", rr.LineStrips3D([flight.position], colors=[(60, 160, 230)]), static=True)
             for j, s in enumerate(STATES):
-                _scalars(rec, f"{root}/states/{s}/truth", t, flight.truth[:, j])
-                _scalars(rec, f"{root}/states/{s}/measured", t, flight.measured[:, j])
-            for j, s in enumerate(("delta_r", "delta_er", "delta_el")):
-                _scalars(rec, f"{root}/fins/{s}/actual", t, flight.fins[:, j])
-                _scalars(rec, f"{root}/fins/{s}/measured", t, flight.fins_measured[:, j])
-            for name, values in flight.commands.items():
-                _scalars(rec, f"{root}/commands/{name}", t, values)
-            tabs.append(_run_views(root, flight.name, flight.position[0], float(x[0, IX["psi"]])))
-        rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=True))
+                _series(rec, f"{root}/states/{s}", t, np.column_stack([flight.measured[:, j], flight.truth[:, j]]),
+                        ("measured", "truth"))  # fmt: skip
+            for j, s in enumerate(INPUTS):
+                _series(rec, f"{root}/fins/{s}", t, np.column_stack([flight.fins_measured[:, j], flight.fins[:, j]]),
+                        ("measured", "truth"), ("measured", "actual"))  # fmt: skip
+            commands = [k for k in sorted(flight.commands) if not np.isnan(flight.commands[k]).all()]
+            for k in commands:  # a command never given (NaN throughout) draws nothing: not logged
+                _series(rec, f"{root}/commands/{k}", t, flight.commands[k],
+                        ("fin command" if k in FIN_COMMANDS else "command",), (f"{k} command",), step=True)  # fmt: skip
+            plotted = {**{s: (flight.measured[:, j], x[:, j]) for j, s in enumerate(STATES)},
+                       **{s: (flight.fins_measured[:, j], flight.fins[:, j])
+                          for j, s in enumerate(INPUTS)}}  # fmt: skip
+            ranges = {key: axis_range(np.concatenate([*values, *[flight.commands[c] for c in commands
+                                                                  if key in COMMAND_PANELS.get(c, ())]]),
+                                      6 if key in REPLAY_PANELS else 8)
+                      for key, values in plotted.items()}  # fmt: skip
+            tabs += _run_views(root, flight.name, flight.position[0], float(x[0, IX["psi"]]), commands, ranges)
+        rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*tabs, active_tab=0),
+                                         rrb.TimePanel(state="collapsed", timeline="time"), collapse_panels=True))
     return Path(path)
+
+
+def _x_range(index: str, first, last) -> rrb.TimeAxis:
+    """The x axis of a plot from `first` to `last` on timeline `index` (seconds, or iterations),
+    not the whole timeline: other data on it (another experiment's) run longer."""
+    at = rrb.TimeRangeBoundary.absolute
+    if index == "iteration":
+        start, end = at(seq=int(first)), at(seq=int(last))
+    else:
+        start, end = at(seconds=float(first)), at(seconds=float(last))
+    return rrb.TimeAxis(view_range=rr.TimeRange(start=start, end=end))
+
+
+def _parameters(rec, estimate, iterations, comparison):
+    """Log each free coefficient's history on one entity: the estimate, its ±σ band, and the
+    analytic value and truth fit as constant lines. Returns the parameters tab (or None, with
+    nothing to show) and the timeline it is on: `iteration` for the off-line methods (±σ: the
+    Cramér-Rao bound about the final estimate), `time` for the filters (their σ at each sample)."""
+    free = tuple(estimate.free)
+    history_t = getattr(estimate, "history_t", None)
+    cost = None
+    if history_t is not None:
+        timeline, x = "time", np.asarray(history_t, float)
+        index = _time(x)
+        values, std = np.asarray(estimate.history, float), np.asarray(estimate.history_std, float)
+        centre = values
+        settled = len(x) // 20  # the prior's wide σ and first steps are left out of the y range
+    else:
+        if iterations:
+            x = np.array([k for k, _, _ in iterations])
+            values = np.array([v for _, v, _ in iterations], float)
+            cost = np.array([c for _, _, c in iterations], float)
+        elif getattr(estimate, "history", None) is not None:
+            values = np.asarray(estimate.history, float)
+            x = np.arange(len(values))
+        else:
+            return None, "time"
+        timeline = "iteration"
+        index = rr.TimeColumn("iteration", sequence=x)
+        centre = np.broadcast_to(np.asarray(estimate.values, float), values.shape)
+        std = np.broadcast_to(np.asarray(estimate.std, float), values.shape)
+        settled = 0
+    std = np.where(np.isfinite(std), std, np.nan)  # an unidentifiable coefficient has no band
+    refs = []
+    if comparison is not None:
+        refs.append(("analytic", np.asarray(comparison.analytic, float)))
+        if comparison.truth_fit is not None:
+            refs.append(("truth fit", np.asarray(comparison.truth_fit, float)))
+    axis_x = _x_range(timeline, x[0], x[-1])
+    views = {}
+    for j, n in enumerate(free):
+        columns = [values[:, j], centre[:, j] - std[:, j], centre[:, j] + std[:, j]]
+        columns += [np.full(len(x), r[j]) for _, r in refs]
+        _series(rec, f"/parameters/{n}", index, np.column_stack(columns),
+                ("estimate", "σ band", "σ band", *[role for role, _ in refs]),
+                ("estimate", "-σ", "+σ", *[role for role, _ in refs]))  # fmt: skip
+        late = slice(max(settled, len(x) // 2), None)
+        shown = np.concatenate([values[settled:, j], columns[1][late], columns[2][late],
+                                *[r[j:j + 1] for _, r in refs]])  # fmt: skip
+        views[n] = rrb.TimeSeriesView(origin=f"/parameters/{n}", name=n, axis_x=axis_x,
+                                      axis_y=rrb.ScalarAxis(range=axis_range(shown, 4)),
+                                      plot_legend=rrb.PlotLegend(visible=False))  # fmt: skip
+    rows = {}  # one row per equation (X, Y, Z, K, M, N), in the order of `free`
+    for n in free:
+        rows.setdefault(n.split("_")[0], []).append(views[n])
+    side = [rrb.TextDocumentView(origin="/key/parameters", name="key", titlebar=False)]
+    rec.log("/key/parameters", rr.TextDocument(PARAMETERS_KEY[timeline], media_type=rr.MediaType.MARKDOWN), static=True)
+    if cost is not None:
+        # J is a negative log-likelihood (any sign): its distance to the final value, which
+        # shrinks geometrically as the fit converges, on a log scale; the last point is 0: not drawn
+        above = np.log10(np.where(cost - cost[-1] > 0, cost - cost[-1], np.nan))
+        _series(rec, "/cost", index, above, ("cost",), ("log10(J - J_final)",))
+        side.insert(0, rrb.TimeSeriesView(origin="/cost", name="cost: log₁₀(J − J_final)", axis_x=axis_x,
+                                          axis_y=rrb.ScalarAxis(range=axis_range(above, 4)),
+                                          plot_legend=rrb.PlotLegend(visible=False)))  # fmt: skip
+    tab = rrb.Horizontal(rrb.Vertical(*[rrb.Horizontal(*row) for row in rows.values()]), rrb.Vertical(*side),
+                         column_shares=[4, 1], name="parameters")  # fmt: skip
+    return tab, timeline
+
+
+def _comparison_markdown(comparison) -> str:
+    """The comparison as a Markdown table, with what its columns mean."""
+    truth = comparison.truth_fit is not None
+
+    def num(v, fmt=".4g"):
+        return "–" if v is None else format(v, fmt)
+
+    head = ["coefficient", "analytic", "identified", "± σ", "error (σ)", "error (%)"]
+    if truth:
+        head += ["truth fit", "model bias (%)", "noise (σ)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in comparison.rows():
+        sigmas = num(r["error_sigmas"], "+.1f")
+        if r["error_sigmas"] is not None and abs(r["error_sigmas"]) > 3:
+            sigmas = f"**{sigmas}**"
+        cells = [f"`{r['name']}`", num(r["analytic"]), num(r["identified"]), num(r["std"], ".2g"), sigmas,
+                 num(None if r["relative_error"] is None else 100 * r["relative_error"], "+.1f")]  # fmt: skip
+        if truth:
+            bias = r["model_bias_relative"]
+            cells += [num(r["truth_fit"]), num(None if bias is None else 100 * bias, "+.1f"),
+                      num(r["noise_sigmas"], "+.1f")]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    text = ["## Identified versus analytic coefficients", "",
+            "error = identified − analytic, in Cramér-Rao σ (bold beyond 3 σ) and in % of |analytic|."]
+    if truth:
+        text.append("truth fit: `ml-gn` on the noise-free truth, the best the linear model can do; model bias = "
+                    "truth fit − analytic (% of |analytic|), noise = identified − truth fit (σ).")  # fmt: skip
+    if comparison.note:
+        text.append(comparison.note)
+    return "\n".join([*text, "", *lines])
 
 
 def log_fit(path, experiments, config, estimate, iterations, comparison=None,
             recording_id: str | None = None) -> Path:  # fmt: skip
-    """A recording of a fit: measured vs model outputs, parameters per iteration (or over time for
-    the filters), cost, and the comparison with the analytic model.
+    """A recording of a fit: the parameters tab (each coefficient's estimate per iteration, or
+    over time for the filters, with ±σ, the analytic value and the truth fit; the cost), the
+    comparison table, and measured versus model outputs per experiment. It opens on the
+    parameters tab and the timeline they are logged on.
 
     The model outputs start from the estimate's `extra["initial_states"]` when it has them (the
     output-error methods), else from best-fitting initial states. `recording_id` defaults to one
@@ -223,42 +458,32 @@ def log_fit(path, experiments, config, estimate, iterations, comparison=None,
         outputs = predict(experiments, fitted, estimate.extra.get("initial_states"))
     except (InputError, np.linalg.LinAlgError, ValueError):
         outputs = [None] * len(experiments)  # a model that cannot be simulated: log the rest
-    views = []
+    tabs = []
     with _recording(path, title, recording_id) as rec:
+        parameters, timeline = _parameters(rec, estimate, iterations, comparison)
+        if parameters is not None:
+            tabs.append(parameters)
+        if comparison is not None:
+            table = rr.TextDocument(_comparison_markdown(comparison), media_type=rr.MediaType.MARKDOWN)
+            rec.log("/comparison/table", table, static=True)
+            tabs.append(rrb.TextDocumentView(origin="/comparison/table", name="comparison"))
+        rec.log("/key/outputs", rr.TextDocument(OUTPUTS_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
         for e, y in zip(experiments, outputs):
             t = _time(e.t)
+            panels = []
             for j, s in enumerate(e.measured):
-                _scalars(rec, f"/outputs/{e.name}/{s}/measured", t, e.y[:, j])
-                if y is not None:
-                    _scalars(rec, f"/outputs/{e.name}/{s}/model", t, y[:, j])
-            views.append(rrb.Vertical(*[rrb.TimeSeriesView(origin=f"/outputs/{e.name}/{s}", name=f"{e.name}: {s}")
-                                        for s in e.measured], name=e.name))  # fmt: skip
-        if history_t is not None:
-            t = _time(history_t)
-            for j, n in enumerate(estimate.free):
-                mean, std = estimate.history[:, j], estimate.history_std[:, j]
-                _scalars(rec, f"/parameters/{n}/estimate", t, mean)
-                _scalars(rec, f"/parameters/{n}/plus_sigma", t, mean + std)
-                _scalars(rec, f"/parameters/{n}/minus_sigma", t, mean - std)
-        elif iterations:
-            k = rr.TimeColumn("iteration", sequence=np.array([i for i, _, _ in iterations]))
-            values = np.array([v for _, v, _ in iterations])
-            for j, n in enumerate(estimate.free):
-                _scalars(rec, f"/parameters/{n}", k, values[:, j])
-            _scalars(rec, "/cost", k, [c for _, _, c in iterations])
-        views.append(rrb.TimeSeriesView(origin="/parameters", name="parameters"))
-        if comparison is not None:
-            rows = comparison.rows()
-            rel = [r["relative_error"] if r["relative_error"] is not None else 0.0 for r in rows]
-            sig = [r["error_sigmas"] if r["error_sigmas"] is not None else 0.0 for r in rows]
-            rec.log("/comparison/relative_error", rr.BarChart(np.array(rel, float)), static=True)
-            rec.log("/comparison/error_sigmas", rr.BarChart(np.array(sig, float)), static=True)
-            rec.log("/comparison/table", rr.TextDocument("```\n" + comparison.table() + "\n```",
-                                                         media_type=rr.MediaType.MARKDOWN), static=True)  # fmt: skip
-            views.append(rrb.Vertical(rrb.BarChartView(origin="/comparison/relative_error"),
-                                      rrb.BarChartView(origin="/comparison/error_sigmas"),
-                                      rrb.TextDocumentView(origin="/comparison/table"), name="comparison"))  # fmt: skip
-        rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*views), collapse_panels=True))
+                model = () if y is None else (y[:, j],)
+                _series(rec, f"/outputs/{e.name}/{s}", t, np.column_stack([e.y[:, j], *model]),
+                        ("measured", "model")[:1 + len(model)])  # fmt: skip
+                panels.append(rrb.TimeSeriesView(
+                    origin=f"/outputs/{e.name}/{s}", name=_title(s), axis_x=_x_range("time", e.t[0], e.t[-1]),
+                    axis_y=rrb.ScalarAxis(range=axis_range(np.concatenate([e.y[:, j], *model]))),
+                    plot_legend=rrb.PlotLegend(visible=False)))  # fmt: skip
+            key = rrb.TextDocumentView(origin="/key/outputs", name="key", titlebar=False)
+            tabs.append(rrb.Vertical(rrb.Grid(*panels, grid_columns=3), key, row_shares=[24, 1],
+                                     name=f"{e.name}: outputs (time)"))  # fmt: skip
+        rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*tabs, active_tab=0),
+                                         rrb.TimePanel(state="collapsed", timeline=timeline), collapse_panels=True))
     return Path(path)
 
 

@@ -1,7 +1,9 @@
-"""Rerun recordings read back with rerun.chunk.RrdReader: entities, row counts, values, blueprint."""
+"""Rerun recordings read back with rerun.chunk.RrdReader: entities, row counts, values, styles,
+and the blueprint (views, what they show, on which timeline, the tracked entity)."""
 
 import dataclasses
 import os
+import re
 from collections import Counter, defaultdict
 
 import numpy as np
@@ -17,6 +19,7 @@ from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.estimators import outputerror as oe
 from testbed.estimators.outputerror import synthetic
+from testbed.model import INPUTS, STATES
 from testbed.scenario import Flight
 from testbed.truth import analytic_config
 
@@ -24,14 +27,17 @@ FIN_NAMES = ("rudder", "elevator_right", "elevator_left")
 
 
 def _flight(name="horizontal", n=201, seed=0) -> Flight:
-    """A flight with the shapes of `fly_scenario`'s (straight ahead at 20 m/s, wiggling fins)."""
+    """A flight with the shapes of `fly_scenario`'s (straight ahead at 20 m/s, wiggling fins), its
+    commands: a depth, a rudder program and the fin command, a roll never given, an unknown one."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) * 0.02
     truth = 0.05 * rng.standard_normal((n, 10))
     truth[:, 0] += 20.0
+    truth[:, 9] += 100.0
     fins = 0.1 * np.sin(np.outer(t, [1.0, 2.0, 3.0]))
     position = np.column_stack([20.0 * t, np.zeros(n), np.full(n, 100.0)])
-    commands = {"depth": np.full(n, 100.0), "delta_r": fins[:, 0], "roll": np.full(n, np.nan)}
+    commands = {"depth": np.full(n, 101.0), "rudder": np.sign(fins[:, 0]) * 0.1, "fin_r": fins[:, 0] + 0.01,
+                "roll": np.full(n, np.nan), "mystery": np.linspace(0.0, 1.0, n)}  # fmt: skip
     return Flight(name, t, truth, truth + 0.01, fins, fins + 0.001, position, commands)
 
 
@@ -72,7 +78,76 @@ def _same(x: pa.Array, y: pa.Array) -> bool:
 
 
 def _scalars(path, entity) -> np.ndarray:
-    return np.array([v for row in _contents(path)[entity, "Scalars:scalars"].to_pylist() for v in row])
+    """(N, k): the entity's k series."""
+    return np.array(_contents(path)[entity, "Scalars:scalars"].to_pylist(), float)
+
+
+def _logged(path) -> dict:
+    """entity -> {"timelines": the timelines of its temporal data, "components": all it has}."""
+    out = defaultdict(lambda: {"timelines": set(), "components": set()})
+    for chunk in rerun.chunk.RrdReader(path).stream():
+        rb = chunk.to_record_batch()
+        for f in rb.schema:
+            kind = (f.metadata or {}).get(b"rerun:kind")
+            key = "timelines" if kind == b"index" else "components" if kind == b"data" else None
+            if key:
+                out[str(chunk.entity_path)][key].add(f.name)
+    return dict(out)
+
+
+def _blueprint(path) -> dict:
+    """Blueprint entity -> its properties (last value of each component), from the recording."""
+    out = defaultdict(dict)
+    for (entity, column), values in _contents(path, blueprint=True).items():
+        if ":" not in column:  # an index (the blueprint's own timeline), not a component
+            continue
+        value = values.to_pylist()[-1]
+        out[entity][column.split(":")[-1]] = value[0] if isinstance(value, list) and len(value) == 1 else value
+    return dict(out)
+
+
+def _views(bp) -> dict:
+    """view entity -> kind, name, origin, query (list), and its properties (eye, axes, legend)."""
+    views = {}
+    for entity, props in bp.items():
+        if "class_identifier" in props:
+            query = bp.get(f"{entity}/ViewContents", {}).get("query")
+            extra = {sub.removeprefix(entity + "/"): p for sub, p in bp.items() if sub.startswith(entity + "/")}
+            views[entity] = {"kind": props["class_identifier"], "name": props.get("display_name"),
+                             "origin": props["space_origin"],
+                             "query": [query] if isinstance(query, str) else list(query), **extra}  # fmt: skip
+    return views
+
+
+def _matches(view, logged) -> set:
+    """The logged entities a view's query selects ("$origin", "/**" subtrees, "- " exclusions)."""
+    chosen, dropped = set(), set()
+    for expr in view["query"]:
+        expr = expr.replace("$origin", view["origin"]).strip()
+        target = dropped if expr.startswith("- ") else chosen
+        expr = expr.removeprefix("- ").removeprefix("+ ").strip()
+        if expr.endswith("/**"):
+            base = expr[:-3]
+            target.update(e for e in logged if e == base or e.startswith(base + "/"))
+        else:
+            target.update(e for e in logged if e == expr)
+    return chosen - dropped
+
+
+def _tabs(bp) -> dict:
+    """The root Tabs container's tabs: display name -> blueprint entity, and the active one's."""
+    root = bp["/viewport"]["root_container"]
+    root = next(e for e in bp if e.startswith("/container/") and e.endswith(str(_uuid(root))))
+    container = bp[root]
+    assert container["container_kind"] == 1  # Tabs (ContainerKind)
+    names = {bp["/" + c.lstrip("/")]["display_name"]: "/" + c.lstrip("/") for c in container["contents"]}
+    return names, "/" + container["active_tab"].lstrip("/")
+
+
+def _uuid(raw) -> str:
+    import uuid
+
+    return str(uuid.UUID(bytes=bytes(raw)))
 
 
 def test_run_recording_has_the_replay_and_every_series(tmp_path):
@@ -87,14 +162,17 @@ def test_run_recording_has_the_replay_and_every_series(tmp_path):
             assert rows[f"/{f.name}/vehicle/{fin}"] == n  # deflection over time
             assert rows[f"/{f.name}/vehicle/{fin}/blades"] == 1  # static shape
             assert rows[f"/{f.name}/vehicle/{fin}/pointer"] == 1 == rows[f"/{f.name}/vehicle/{fin}_neutral"]
-        assert rows[f"/{f.name}/vehicle/hull"] == 1 and rows[f"/{f.name}/trail"] == 1
-        for s in ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z"):
-            assert rows[f"/{f.name}/states/{s}/truth"] == n == rows[f"/{f.name}/states/{s}/measured"]
-        for fin in ("delta_r", "delta_er", "delta_el"):
-            assert rows[f"/{f.name}/fins/{fin}/actual"] == n
-        for name in f.commands:
-            assert rows[f"/{f.name}/commands/{name}"] == n
-    assert np.array_equal(_scalars(path, "/vertical/states/q/measured"), FLIGHTS[1].measured[:, 4])
+        assert rows[f"/{f.name}/vehicle/hull"] == 1 == rows[f"/{f.name}/vehicle/ring"] == rows[f"/{f.name}/trail"]
+        for j, s in enumerate(STATES):  # one entity per state: measured and true, one row per sample
+            assert rows[f"/{f.name}/states/{s}"] == n + 1  # + the static style
+            both = np.column_stack([f.measured[:, j], f.truth[:, j]])
+            assert np.array_equal(_scalars(path, f"/{f.name}/states/{s}"), both)
+        for j, s in enumerate(INPUTS):
+            both = np.column_stack([f.fins_measured[:, j], f.fins[:, j]])
+            assert np.array_equal(_scalars(path, f"/{f.name}/fins/{s}"), both)
+        for name in ("depth", "rudder", "fin_r", "mystery"):
+            assert np.array_equal(_scalars(path, f"/{f.name}/commands/{name}")[:, 0], f.commands[name])
+        assert f"/{f.name}/commands/roll" not in rows  # never given (NaN throughout): nothing to draw
 
 
 def _umask() -> int:
@@ -111,30 +189,129 @@ def test_attitude_quaternions_are_z_y_x_euler_angles():
     assert np.allclose(np.abs(np.sum(q * expected, axis=1)), 1.0, atol=1e-12)
 
 
-def test_blueprint_tracks_the_vehicle_and_has_a_body_axes_close_up(tmp_path):
-    path = report.log_run(tmp_path / "recording.rrd", FLIGHTS)
-    bp = _contents(path, blueprint=True)
-    views = {entity: (bp[entity, "ViewBlueprint:class_identifier"].to_pylist()[0][0],
-                      bp[entity, "ViewBlueprint:space_origin"].to_pylist()[0][0])
-             for entity, name in bp if name == "ViewBlueprint:space_origin"}  # fmt: skip
-    eyes = {entity.removesuffix("/EyeControls3D"): entity for entity, name in bp
-            if name == "EyeControls3D:look_target"}  # fmt: skip
+@pytest.fixture(scope="module")
+def run_rrd(tmp_path_factory):
+    return report.log_run(tmp_path_factory.mktemp("run") / "recording.rrd", FLIGHTS)
+
+
+def test_world_view_tracks_an_entity_with_geometry_at_a_steady_distance(run_rrd):
+    bp, contents = _blueprint(run_rrd), _contents(run_rrd)
+    views = _views(bp)
     for f in FLIGHTS:
-        world = [v for v, (kind, origin) in views.items() if kind == "3D" and origin == "/"
-                 and bp.get((eyes.get(v), "EyeControls3D:tracking_entity")) is not None
-                 and bp[eyes[v], "EyeControls3D:tracking_entity"].to_pylist() == [[f"/{f.name}/vehicle"]]]  # fmt: skip
-        assert len(world) == 1  # the world view's eye follows this flight's vehicle...
-        look = bp[eyes[world[0]], "EyeControls3D:look_target"].to_pylist()[0][0]
-        eye = bp[eyes[world[0]], "EyeControls3D:position"].to_pylist()[0][0]
-        assert np.allclose(look, f.position[0])  # ...starting at it, from ~10 m, not the trail's size
-        assert 5.0 < np.linalg.norm(np.subtract(eye, look)) < 20.0
-        close = [v for v, (kind, origin) in views.items() if kind == "3D" and origin == f"/{f.name}/vehicle"]
-        assert len(close) == 1 and close[0] in eyes  # the body-axes close-up, eye set on the fins
-        look = bp[eyes[close[0]], "EyeControls3D:look_target"].to_pylist()[0][0]
-        eye = bp[eyes[close[0]], "EyeControls3D:position"].to_pylist()[0][0]
-        assert np.linalg.norm(np.subtract(eye, look)) < 4.0 and look[0] < 0  # the stern, close
-        assert {(f"/{f.name}/states", "TimeSeries"), (f"/{f.name}", "TimeSeries")} <= {
-            (origin, kind) for kind, origin in views.values()}
+        (world,) = [v for v in views.values() if v["kind"] == "3D" and v["origin"] == "/"
+                    and f"/{f.name}/vehicle/**" in v["query"]]  # fmt: skip
+        eye = world["EyeControls3D"]
+        tracked = eye["tracking_entity"]
+        assert tracked.startswith(f"/{f.name}/vehicle/")  # moves with the vehicle's transform
+        # it has geometry, so the viewer has a bounding box to follow: it orbits at 1.5 times the
+        # radius of the sphere around that box, and starts where that puts it
+        (strip,) = contents[tracked, "LineStrips3D:strips"].to_pylist()[0]
+        ring = np.array(strip)
+        distance = np.linalg.norm(np.subtract(eye["position"], eye["look_target"]))
+        assert np.allclose(eye["look_target"], f.position[0])
+        half_diagonal = np.linalg.norm(ring.max(0) - ring.min(0)) / 2
+        assert 1.5 * half_diagonal == pytest.approx(distance, rel=0.01) and 4.0 < distance < 8.0
+        for heading in np.linspace(0, np.pi, 7):  # its box, so the distance, is the same at any heading
+            turned = ring @ Rotation.from_euler("z", heading).as_matrix().T
+            assert np.linalg.norm(turned.max(0) - turned.min(0)) / 2 == pytest.approx(half_diagonal, rel=0.03)
+        # the body-axes close-up: eye on the fins, ring left out
+        (close,) = [v for v in views.values() if v["kind"] == "3D" and v["origin"] == f"/{f.name}/vehicle"]
+        assert f"- /{f.name}/vehicle/ring" in close["query"] and "tracking_entity" not in close["EyeControls3D"]
+        look, pos = close["EyeControls3D"]["look_target"], close["EyeControls3D"]["position"]
+        assert np.linalg.norm(np.subtract(pos, look)) < 4.0 and look[0] < 0  # the stern, close
+
+
+def test_every_view_shows_logged_entities_on_the_timeline_the_recording_opens_on(run_rrd):
+    bp, logged = _blueprint(run_rrd), _logged(run_rrd)
+    assert bp["/time_panel"]["timeline"] == "time"
+    tabs, active = _tabs(bp)
+    assert list(tabs) == ["horizontal", "horizontal: states", "vertical", "vertical: states"]
+    assert active == tabs["horizontal"]
+    views = _views(bp)
+    for v in views.values():
+        shown = _matches(v, logged)
+        assert shown, f"{v['name']} shows nothing"
+        if v["kind"] == "TimeSeries":
+            assert all("Scalars:scalars" in logged[e]["components"] and "time" in logged[e]["timelines"]
+                       for e in shown), v["name"]  # fmt: skip
+    # every view and container has exactly one parent (the viewer drops the layout otherwise)
+    children = [c for e, p in bp.items() if e.startswith("/container/") for c in p["contents"]]
+    assert len(children) == len(set(children)) == len(views) + sum(e.startswith("/container/") for e in bp) - 1
+
+
+def test_series_have_one_fixed_style_per_role(tmp_path, run_rrd, yaw_fit):
+    config, data, start = yaw_fit
+    est = identify(data, start, method="ml-gn")
+    fit = report.log_fit(tmp_path / "fit.rrd", data, start, est, [], compare(est, config))
+    for path, roles in ((run_rrd, {"states": ("measured", "truth"), "fins": ("measured", "truth")}),
+                        (fit, {"outputs": ("measured", "model")})):  # fmt: skip
+        contents = _contents(path)
+        styled = {e for e, c in contents if c == "SeriesLines:colors"}
+        for (entity, column), values in contents.items():
+            if column != "Scalars:scalars":
+                continue
+            assert entity in styled, entity  # every series is styled, statically
+            k = len(values.to_pylist()[0])
+            colors = contents[entity, "SeriesLines:colors"].to_pylist()
+            widths = contents[entity, "SeriesLines:widths"].to_pylist()
+            assert len(colors) == 1 and len(colors[0]) == k == len(widths[0])  # one row: static
+            assert len(contents[entity, "SeriesLines:names"].to_pylist()[0]) == k
+            group = entity.split("/")[2] if entity.count("/") >= 3 else None
+            if group in roles:
+                expected = [report.STYLE[r] for r in roles[group]]
+                rgb = [((c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255) for c in colors[0]]
+                assert rgb == [c for c, _ in expected] and widths[0] == pytest.approx([w for _, w in expected])
+    assert report.STYLE["measured"][1] < report.STYLE["truth"][1] == report.STYLE["model"][1]  # thin vs bold
+
+
+def test_commands_share_axes_only_with_what_they_command_with_units_and_no_legends(run_rrd):
+    bp, logged = _blueprint(run_rrd), _logged(run_rrd)
+    contents = _contents(run_rrd)
+    where = defaultdict(set)  # command -> titles of the plots showing it
+    for v in _views(bp).values():
+        if v["kind"] != "TimeSeries":
+            continue
+        shown = _matches(v, logged)
+        quantities = {e.split("/")[-1] for e in shown if "/commands/" not in e}
+        assert len(quantities) <= 1, v["name"]  # one quantity per plot
+        for e in shown:
+            if "/commands/" in e:
+                where[e.split("/")[-1]].add(v["name"])
+        if quantities:
+            (q,) = quantities
+            assert v["name"] == report._title(q) and re.search(r"\((m|m/s|rad|rad/s)\)$", v["name"])
+        assert v["PlotLegend"]["visible"] is False  # the key line says what the styles mean
+        lo, hi = v["ScalarAxis"]["range"] if "ScalarAxis" in v else (-np.inf, np.inf)
+        for e in shown:
+            values = np.array(contents[e, "Scalars:scalars"].to_pylist(), float)
+            assert lo <= np.nanmin(values) and np.nanmax(values) <= hi, (v["name"], e)
+    assert where["depth"] == {"depth z (m)"}
+    assert where["rudder"] == where["fin_r"] == {"rudder δr (rad)"}
+    assert where["mystery"] == {"other commands"}
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_axis_range_holds_the_data_and_ends_on_multiples_of_a_power_of_ten(seed):
+    rng = np.random.default_rng(seed)
+    scale = 10.0 ** rng.uniform(-4, 5)
+    values = rng.normal(rng.uniform(-5, 5) * scale, scale, rng.integers(1, 300))
+    for intervals in (4, 8):
+        a, b = report.axis_range(values, intervals)
+        assert a <= values.min() and values.max() <= b
+        inner_a, inner_b = a + (b - a) / 1.08 * 0.04, b - (b - a) / 1.08 * 0.04  # before the 4 % margins
+        s = 10.0 ** np.floor(np.log10((inner_b - inner_a) / intervals) + 1e-9)
+        s = s if (inner_b - inner_a) / s <= intervals + 1e-6 else 10 * s
+        steps = (inner_b - inner_a) / s
+        assert 1 - 1e-6 <= steps <= intervals + 1e-6 and abs(steps - round(steps)) < 1e-6  # ends on multiples of s
+        assert values.max() - values.min() > (b - a) / 10 / 1.08 or len(set(values)) == 1  # not needlessly wide
+
+
+def test_axis_range_examples():
+    assert report.axis_range([-0.365, 0.365]) == pytest.approx((-0.432, 0.432))  # 8 steps of 0.1
+    assert report.axis_range([-0.092, 0.087]) == pytest.approx((-0.108, 0.108))  # 2 steps of 0.1, not 19 of 0.01
+    assert report.axis_range([93.7, 104.8]) == pytest.approx((89.2, 110.8))
+    assert report.axis_range([np.nan, 5.0, 5.0]) == pytest.approx((4.892, 5.108))
+    assert report.axis_range([]) == pytest.approx((-0.108, 0.108))
 
 
 def test_same_run_same_recording(tmp_path):
@@ -166,7 +343,7 @@ def test_an_exception_leaves_the_old_recording_and_no_temporary_file(tmp_path, m
         if len(calls) == 5:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(report, "_scalars", interrupted)
+    monkeypatch.setattr(report, "_series", interrupted)
     with pytest.raises(KeyboardInterrupt):
         report.log_run(path, FLIGHTS)
     assert os.listdir(tmp_path) == ["recording.rrd"] and path.read_bytes() == b"old"
@@ -196,19 +373,61 @@ def yaw_fit():
     return config, data, start
 
 
-def test_fit_recording_has_outputs_iterations_and_comparison(tmp_path, yaw_fit):
+def test_ml_fit_opens_on_the_parameters_tab_on_the_iteration_timeline(tmp_path, yaw_fit):
     config, data, start = yaw_fit
     iterations = []
     est = identify(data, start, method="ml-gn",
                    callback=lambda k, values, cost: iterations.append((k, list(values), cost)))  # fmt: skip
-    path = report.log_fit(tmp_path / "fit.rrd", data, start, est, iterations, compare(est, config))
-    rows = _rows(path)
-    name = data[0].name
-    for s in ("v", "r", "psi"):
-        assert rows[f"/outputs/{name}/{s}/measured"] == len(data[0].t) == rows[f"/outputs/{name}/{s}/model"]
-    assert rows["/parameters/N_r"] == len(iterations) == rows["/cost"]
-    assert rows["/comparison/table"] == 1 and rows["/comparison/error_sigmas"] == 1
+    comparison = compare(est, config, est)  # a truth fit (here the same fit) adds its line
+    path = report.log_fit(tmp_path / "fit.rrd", data, start, est, iterations, comparison)
     assert os.listdir(tmp_path) == ["fit.rrd"]
+    bp, logged, contents = _blueprint(path), _logged(path), _contents(path)
+    values = np.array([v for _, v, _ in iterations])
+    ks = [k for k, _, _ in iterations]
+    for j, n in enumerate(est.free):  # estimate, ∓σ about the final one, analytic, truth fit
+        got = _scalars(path, f"/parameters/{n}")
+        constant = [est.values[j] - est.std[j], est.values[j] + est.std[j], config.coefficients[n], est.values[j]]
+        expected = np.column_stack([values[:, j], *[np.full(len(ks), c) for c in constant]])
+        assert np.allclose(got, expected) and logged[f"/parameters/{n}"]["timelines"] == {"iteration"}
+        assert contents[f"/parameters/{n}", "iteration"].to_pylist() == ks
+    cost = np.array([c for _, _, c in iterations])
+    above = _scalars(path, "/cost")[:, 0]
+    assert np.allclose(above[:-1], np.log10(cost[:-1] - cost[-1])) and np.isnan(above[-1])
+    assert bp["/time_panel"]["timeline"] == "iteration"
+    tabs, active = _tabs(bp)
+    assert list(tabs) == ["parameters", "comparison", f"{data[0].name}: outputs (time)"]
+    assert active == tabs["parameters"]
+    views = _views(bp)
+    plots = {v["origin"]: v for v in views.values() if v["kind"] == "TimeSeries"}
+    for j, n in enumerate(est.free):  # one plot per coefficient, its data in range, x from first to last iteration
+        v = plots[f"/parameters/{n}"]
+        assert v["name"] == n and _matches(v, logged) == {f"/parameters/{n}"}
+        lo, hi = v["ScalarAxis"]["range"]
+        analytic = config.coefficients[n]
+        assert lo <= min(values[:, j].min(), analytic) and hi >= max(values[:, j].max(), analytic)
+        assert v["TimeAxis"]["view_range"] == {"start": ks[0], "end": ks[-1]}
+    assert _matches(plots["/cost"], logged) == {"/cost"} and "log" in plots["/cost"]["name"]
+    assert all(_matches(v, logged) for v in views.values())
+
+
+def test_comparison_is_a_table_by_coefficient_name(tmp_path, yaw_fit):
+    config, data, start = yaw_fit
+    est = identify(data, start, method="ml-gn")
+    comparison = compare(est, config, est)
+    path = report.log_fit(tmp_path / "fit.rrd", data, start, est, [], comparison)
+    ((text,),) = _contents(path)["/comparison/table", "TextDocument:text"].to_pylist()
+    lines = [line for line in text.splitlines() if line.startswith("| ")]
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert header == ["coefficient", "analytic", "identified", "± σ", "error (σ)", "error (%)", "truth fit",
+                      "model bias (%)", "noise (σ)"]  # fmt: skip
+    for row, r in zip(lines[1:], comparison.rows()):
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[0] == f"`{r['name']}`" and float(cells[1]) == pytest.approx(r["analytic"], rel=1e-3)
+        assert float(cells[2]) == pytest.approx(r["identified"], rel=1e-3)
+        assert float(cells[4].strip("*")) == pytest.approx(r["error_sigmas"], abs=0.05)
+        assert cells[4].startswith("**") == (abs(r["error_sigmas"]) > 3)
+    assert len(lines) == 1 + len(est.free)
+    assert _contents(path)["/comparison/table", "TextDocument:media_type"].to_pylist() == [["text/markdown"]]
 
 
 def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, monkeypatch):
@@ -223,35 +442,40 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
 
     monkeypatch.setattr(oe, "fit_initial_states", no_fit)
     path = report.log_fit(tmp_path / "fit.rrd", data, start, moved, [])
-    psi = _scalars(path, f"/outputs/{name}/psi/model")
+    psi = _scalars(path, f"/outputs/{name}/psi")[:, 1]  # (measured, model)
     assert psi[0] == pytest.approx(x0["psi"] + 1.0)
-    assert _scalars(path, f"/outputs/{name}/r/model")[0] == pytest.approx(x0["r"])
+    assert _scalars(path, f"/outputs/{name}/r")[0, 1] == pytest.approx(x0["r"])
     monkeypatch.undo()
     # without them (or with some missing) the model outputs come from best-fitting ones
     partial = dataclasses.replace(est, extra={**est.extra, "initial_states": {name: {"psi": x0["psi"] + 1.0}}})
     for e in (dataclasses.replace(est, extra={}), partial):
         path = report.log_fit(tmp_path / "fit2.rrd", data, start, e, [])
         expected = oe.predict(data, start.with_coefficients(est.coefficients), e.extra.get("initial_states"))[0]
-        assert np.allclose(_scalars(path, f"/outputs/{name}/psi/model"), expected[:, 2])
+        assert np.allclose(_scalars(path, f"/outputs/{name}/psi")[:, 1], expected[:, 2])
 
 
-def test_filter_recording_has_parameter_histories_with_sigma_bounds(tmp_path, yaw_fit):
+def test_filter_recording_has_parameter_histories_with_sigma_bands_on_time(tmp_path, yaw_fit):
     _, data, start = yaw_fit
     est = identify(data, start, method="mekf")
     assert est.history_t is not None and "initial_states" not in est.extra
     path = report.log_fit(tmp_path / "fit.rrd", data, start, est, [])
-    rows = _rows(path)
+    rows, bp, logged = _rows(path), _blueprint(path), _logged(path)
     n = len(est.history_t)
     assert n == len(data[0].t)
     for j, p in enumerate(est.free):
-        assert rows[f"/parameters/{p}/estimate"] == n == rows[f"/parameters/{p}/plus_sigma"]
-        assert rows[f"/parameters/{p}/minus_sigma"] == n and rows[f"/parameters/{p}"] == 0
         mean, std = est.history[:, j], est.history_std[:, j]
-        assert np.array_equal(_scalars(path, f"/parameters/{p}/estimate"), mean)
-        assert np.allclose(_scalars(path, f"/parameters/{p}/plus_sigma"), mean + std)
-        assert np.allclose(_scalars(path, f"/parameters/{p}/minus_sigma"), mean - std)
+        got = _scalars(path, f"/parameters/{p}")
+        assert np.array_equal(got[:, 0], mean) and np.allclose(got[:, 1:], np.column_stack([mean - std, mean + std]))
+        assert logged[f"/parameters/{p}"]["timelines"] == {"time"}
     assert rows["/cost"] == 0
-    assert rows[f"/outputs/{data[0].name}/r/model"] == len(data[0].t)  # fitted initial states
+    assert rows[f"/outputs/{data[0].name}/r"] == len(data[0].t) + 1  # fitted initial states; + the style
+    assert bp["/time_panel"]["timeline"] == "time"
+    tabs, active = _tabs(bp)
+    assert active == tabs["parameters"]
+    for v in _views(bp).values():  # the x axis ends where the data do
+        if v["kind"] == "TimeSeries":
+            t = est.history_t if v["origin"].startswith("/parameters/") else data[0].t
+            assert v["TimeAxis"]["view_range"] == {"start": round(t[0] * 1e9), "end": round(t[-1] * 1e9)}
 
 
 def test_replay(tmp_path, monkeypatch, capsys):
