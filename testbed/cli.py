@@ -159,7 +159,7 @@ def _cmd_identify(args) -> int:
         if args.rrd:
             from testbed.report import log_fit
 
-            log_fit(args.rrd, experiments, config, estimate, iterations, comparison)
+            log_fit(args.rrd, experiments, config, estimate, iterations, comparison, validation=validation)
         for path, content in files.items():
             temporary[path].write_text(content)
     for path in files:

@@ -435,12 +435,31 @@ def _comparison_markdown(comparison) -> str:
     return "\n".join([*text, "", *lines])
 
 
+def _validation_markdown(validation) -> str:
+    """Fit % and residual whiteness per experiment and channel, as a Markdown table."""
+    rows = ["Fit % of the model simulated open loop from its best initial state "
+            "(100 (1 − ‖y − ŷ‖/‖y − ȳ‖)); the residual's largest autocorrelation over lags 1–25 "
+            "against its 99 % bound, and the Ljung-Box p-value (white: p ≥ 0.01).", "",
+            "| experiment | channel | fit % | analytic fit % | max \\|r_k\\| | bound | Ljung-Box p | residual |",
+            "|---|---|---:|---:|---:|---:|---:|---|"]  # fmt: skip
+    for name, channels in validation.to_dict().items():
+        for c, m in channels.items():
+            w = m["whiteness"]
+            fit = "–" if m["fit_percent"] is None else f"{m['fit_percent']:.2f}"
+            base = m.get("fit_percent_analytic")
+            base = "–" if base is None else f"{base:.2f}"
+            rows.append(f"| {name} | {c} | {fit} | {base} | {w['max_autocorrelation']:.3f} | {w['bound']:.3f} | "
+                        f"{w['ljung_box_p']:.2g} | {'white' if w['white'] else '**coloured**'} |")  # fmt: skip
+    return "\n".join(rows)
+
+
 def log_fit(path, experiments, config, estimate, iterations, comparison=None,
-            recording_id: str | None = None) -> Path:  # fmt: skip
+            recording_id: str | None = None, validation=None) -> Path:  # fmt: skip
     """A recording of a fit: the parameters tab (each coefficient's estimate per iteration, or
     over time for the filters, with ±σ, the analytic value and the truth fit; the cost), the
-    comparison table, and measured versus model outputs per experiment. It opens on the
-    parameters tab and the timeline they are logged on.
+    comparison table, the validation metrics (`testbed.validation.Validation`: fit % and
+    residual whiteness per experiment and channel), and measured versus model outputs per
+    experiment. It opens on the parameters tab and the timeline they are logged on.
 
     The model outputs start from the estimate's `extra["initial_states"]` when it has them (the
     output-error methods), else from best-fitting initial states. `recording_id` defaults to one
@@ -467,6 +486,10 @@ def log_fit(path, experiments, config, estimate, iterations, comparison=None,
             table = rr.TextDocument(_comparison_markdown(comparison), media_type=rr.MediaType.MARKDOWN)
             rec.log("/comparison/table", table, static=True)
             tabs.append(rrb.TextDocumentView(origin="/comparison/table", name="comparison"))
+        if validation is not None:
+            table = rr.TextDocument(_validation_markdown(validation), media_type=rr.MediaType.MARKDOWN)
+            rec.log("/validation/table", table, static=True)
+            tabs.append(rrb.TextDocumentView(origin="/validation/table", name="validation"))
         rec.log("/key/outputs", rr.TextDocument(OUTPUTS_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
         for e, y in zip(experiments, outputs):
             t = _time(e.t)

@@ -430,6 +430,25 @@ def test_comparison_is_a_table_by_coefficient_name(tmp_path, yaw_fit):
     assert _contents(path)["/comparison/table", "TextDocument:media_type"].to_pylist() == [["text/markdown"]]
 
 
+def test_validation_metrics_are_a_table_and_a_tab(tmp_path, yaw_fit):
+    from testbed.validation import validate
+
+    config, data, start = yaw_fit
+    est = identify(data, start, method="ml-gn")
+    validation = validate(data, start.with_coefficients(est.coefficients), config)
+    path = report.log_fit(tmp_path / "fit.rrd", data, start, est, [], validation=validation)
+    ((text,),) = _contents(path)["/validation/table", "TextDocument:text"].to_pylist()
+    rows = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    expected = validation.to_dict()
+    assert len(rows) == sum(len(ch) for ch in expected.values())
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        m = expected[cells[0]][cells[1]]
+        assert float(cells[2]) == pytest.approx(m["fit_percent"], abs=0.01)
+        assert float(cells[3]) == pytest.approx(m["fit_percent_analytic"], abs=0.01)
+        assert (cells[-1] == "white") == m["whiteness"]["white"]
+
+
 def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, monkeypatch):
     _, data, start = yaw_fit
     est = identify(data, start, method="ml-gn")
