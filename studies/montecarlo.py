@@ -1,4 +1,4 @@
-"""Monte Carlo study of the ML output-error estimator (issue 4 acceptance).
+"""Monte Carlo study of the ML output-error estimator.
 
 Data simulated from the linear model itself (a small AUV: the SPEC example vehicle with
 REMUS-like coefficients), two Scenario-II-like experiments (rudder PRBS; elevator PRBS with a

@@ -1,4 +1,4 @@
-"""Identifiability of the paper's linear model (issue 4, items 5 and 8).
+"""Identifiability of the paper's linear model.
 
 Structural part: the paper's simultaneous drift. Left-multiplying the rows of
 `Mt ẋ = At x + Bt δ + St` by T = I + E, and changing state coordinates x → (I + F) x with

@@ -183,33 +183,48 @@ class Prbs(Signal):
 
 
 @dataclass(frozen=True)
-class Doublet(Signal):
-    kind: ClassVar[str] = "doublet"
-    checks: ClassVar[dict] = {"amplitude": _FINITE, "width": _POSITIVE, "start": _TIME}
-    amplitude: float = 0.0
-    width: float = 1.0
-    start: float = 1.0
+class _Pulses(Signal):
+    """±amplitude over consecutive slots of `slot` s from `start` (signs per slot), then 0."""
+
+    signs: ClassVar[tuple] = ()
+
+    @property
+    def slot(self) -> float:
+        raise NotImplementedError
 
     def program(self, rng):
-        return _pulses(self.amplitude, self.start, self.width, (1, -1))
+        return _pulses(self.amplitude, self.start, self.slot, self.signs)
 
     def peak(self):
         return abs(self.amplitude)
 
 
 @dataclass(frozen=True)
-class Input3211(Signal):
+class Doublet(_Pulses):
+    kind: ClassVar[str] = "doublet"
+    checks: ClassVar[dict] = {"amplitude": _FINITE, "width": _POSITIVE, "start": _TIME}
+    signs: ClassVar[tuple] = (1, -1)
+    amplitude: float = 0.0
+    width: float = 1.0
+    start: float = 1.0
+
+    @property
+    def slot(self) -> float:
+        return self.width
+
+
+@dataclass(frozen=True)
+class Input3211(_Pulses):
     kind: ClassVar[str] = "3211"
     checks: ClassVar[dict] = {"amplitude": _FINITE, "unit": _POSITIVE, "start": _TIME}
+    signs: ClassVar[tuple] = (1, 1, 1, -1, -1, 1, -1)  # 3 units +, 2 −, 1 +, 1 −
     amplitude: float = 0.0
     unit: float = 0.5
     start: float = 1.0
 
-    def program(self, rng):
-        return _pulses(self.amplitude, self.start, self.unit, (1, 1, 1, -1, -1, 1, -1))
-
-    def peak(self):
-        return abs(self.amplitude)
+    @property
+    def slot(self) -> float:
+        return self.unit
 
 
 def _pulses(amplitude: float, start: float, width: float, signs: tuple) -> Program:

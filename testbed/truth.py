@@ -1,4 +1,4 @@
-"""The analytic linear model of the completed plant, and its numerical check (issue 2, items 4, 5).
+"""The analytic linear model of the completed plant, and its numerical check.
 
 Both linearize about straight, level trim at speed U, fins at zero, with the fin angles as inputs
 (fin dynamics excluded), in the continuous form `Mt ẋ = At x + Bt δ + St` over the SPEC states

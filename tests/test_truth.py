@@ -1,4 +1,4 @@
-"""The analytic linear model (issue 2, item 4) against its independent checks.
+"""The analytic linear model against its independent checks.
 
 References: central differences of the completed plant's own dynamics (item 5), of MuJoCo's
 own fluid forces on a single ellipsoid, and Tuckerman's closed-form added mass.

@@ -18,8 +18,8 @@ instead of at the EKF's own, which the parameter error contaminates. The KF is o
 states given θ̂; while θ̂ is uncertain its process noise includes the prediction error that
 uncertainty causes, `D P_θθ Dᵀ` (otherwise it trusts a wrong model over the measurements), so it
 becomes the optimal KF at θ̂ as the coefficients converge. (Updating the states with the KF's
-gain instead was tried: the augmented covariance then no longer describes the state error, and
-at high signal-to-noise the innovations outgrow it.)
+gain instead would leave the augmented covariance no longer describing the state error, and at
+high signal-to-noise the innovations would outgrow it.)
 
 Square root (the paper's algorithm, in array form): every covariance is held as a root `J` with
 `P = J Jᵀ`, so it is symmetric and positive semi-definite by construction and its condition

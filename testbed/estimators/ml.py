@@ -1,4 +1,4 @@
-"""Maximum-likelihood output-error methods (issue 4): `ml-gn`, `ml-nr`, `ml-nm`.
+"""Maximum-likelihood output-error methods: `ml-gn`, `ml-nr`, `ml-nm`.
 
 All three minimise the paper's likelihood with the noise covariance estimated by relaxation
 (R from the residuals, then held while θ steps), from the same start, with the same model and

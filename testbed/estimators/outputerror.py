@@ -1,4 +1,4 @@
-"""Output-error maximum likelihood for the SPEC §2 model: the numerical core of issue 4.
+"""Output-error maximum likelihood for the SPEC §2 model: its numerical core.
 
 The model is the exact zero-order-hold discretisation `x[k+1] = Φ x[k] + Γ δ[k] + s`, written
 `x[k+1] = E w[k]` with `E = [Φ Γ s]` and `w[k] = [x[k]; δ[k]; 1]`, simulated from each
