@@ -184,3 +184,11 @@ def test_a_run_without_truth_files_is_compared_without_the_bias_column(run, tmp_
     _ok(capsys, ["identify", copy, "--method", "ml-gn", "--max-iter", "1", "--out", tmp_path / "e.json"])
     rows = json.loads((tmp_path / "e.json").read_text())["comparison"]["rows"]
     assert rows and all("analytic" in r and "truth_fit" not in r for r in rows)
+
+
+def test_free_all_estimates_every_listed_coefficient(run, tmp_path, capsys):
+    """By default what the data do not identify stays fixed; --free-all frees the whole list."""
+    out = tmp_path / "all.json"
+    _ok(capsys, ["identify", run, "--free-all", "--max-iter", "3", "--out", out])
+    doc = json.loads(out.read_text())
+    assert set(doc["coefficients"]) == set(read_config(run / "model.toml").free) and "fixed" not in doc
