@@ -110,7 +110,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import Estimate, Status, register
+from testbed.estimators import Estimate, Status, check_inputs, register
 from testbed.model import (IX, ITHETA, NX, STATES, continuous, derivatives, expm_pair,
                            structure, theta_vector)
 
@@ -572,21 +572,25 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
                 hist_t=np.full(total, np.nan), ldiag=np.ones((total, NX)), total=total)  # fmt: skip
     diverged = None
     try:
-        model = _Model(s, theta, idx)
-        for e in experiments:
-            if st.count >= total:
-                break
-            if square_root:
-                _sqrt_pass(e, st, model, options, sigma_r, U, modified, callback)
-            else:
-                _conventional_pass(e, st, model, options, sigma_r, U, callback)
+        # an overflow or 0/0 makes a state, coefficient or variance non-finite, which `_Books`
+        # reports as the divergence it is (numpy's warnings would only repeat it)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            model = _Model(s, theta, idx)
+            for e in experiments:
+                if st.count >= total:
+                    break
+                if square_root:
+                    _sqrt_pass(e, st, model, options, sigma_r, U, modified, callback)
+                else:
+                    _conventional_pass(e, st, model, options, sigma_r, U, callback)
     except _Diverged as exc:
         diverged = str(exc)
     except np.linalg.LinAlgError as exc:
         diverged = f"linear algebra failed ({exc}): a singular Mt or a covariance not positive definite"
     if diverged is not None:
-        diverged = {"reason": diverged + _hint(st, diverged, experiments), "sample": st.count,
-                    "t": float(st.t_now)}  # fmt: skip
+        with np.errstate(over="ignore", invalid="ignore"):
+            hint = _hint(st, diverged, experiments)
+        diverged = {"reason": diverged + hint, "sample": st.count, "t": float(st.t_now)}
 
     count = st.count
     values = st.th.copy()
@@ -670,6 +674,7 @@ def _entry(method: str, modified: bool, square_root: bool):
             raise InputError(f"--max-iter {max_iter}; expected ≥ 1 (samples to process)")
         if not config.free:
             raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to estimate")
+        check_inputs(experiments, config)
         return _run(experiments, config, method=method, modified=modified,
                     square_root=square_root, options=FilterOptions.from_options(opts),
                     max_samples=max_iter, callback=callback)  # fmt: skip
