@@ -47,7 +47,7 @@ from typing import Callable
 import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design
-from testbed.data import config_text, csv_text
+from testbed.data import MIN_ROWS, config_text, csv_text
 from testbed.errors import InputError, atomic_directory
 from testbed.measurements import Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
@@ -90,6 +90,7 @@ _CHECKS = {
     "turn_rudder": (_fin_angle, f"0 < |angle| <= {FIN_LIMIT} rad"),
     "zigzag_angle": (lambda v: _fin_angle(v) and v > 0, f"0 < angle <= {FIN_LIMIT} rad"),
 }
+SAMPLES = (MIN_ROWS, 10**6)  # the samples an experiment may have (MIN_ROWS: the fewest a fit takes)
 CLI_SETTINGS = ("duration", "speed")  # the settings `testbed simulate` exposes (--duration, --speed)
 
 
@@ -122,6 +123,11 @@ class Settings:
             if not ok(value):
                 where = f"--{name}" if name in CLI_SETTINGS else f"setting {name}"
                 raise InputError(f"{where} {value!r}; expected {expected}")
+        # what a record can be: enough samples to fit, few enough to hold (~1 kB each in flight)
+        rate, (low, high) = self.sensors.rate, SAMPLES
+        if not low <= math.floor(self.duration * rate + 1e-9) + 1 <= high:
+            raise InputError(f"--duration {self.duration!r}; expected {(low - 1) / rate:g} to "
+                             f"{(high - 1) / rate:g} s ({low} to {high} samples at {rate:g} Hz)")
 
 
 @dataclass(frozen=True)
