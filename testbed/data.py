@@ -6,10 +6,12 @@ naming the file and the field; writers go through `atomic_write_text`.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
 import json
 import math
+import numbers
 import os
 import stat
 import tomllib
@@ -20,7 +22,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from testbed.errors import InputError, atomic_write_text
-from testbed.model import COEFFICIENTS, INPUTS, MIN_SPEED, STATES, Vehicle
+from testbed.model import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
 
 CSV_COLUMNS = ("t",) + STATES + INPUTS
 MIN_ROWS = 3  # the fewest samples a record can have: the estimators difference and fit x0 on them
@@ -66,9 +68,10 @@ class ModelConfig:
 
 
 def read_text(path: str | Path, expected: str) -> str:
-    """The text of a regular file or a pipe (UTF-8, a byte-order mark dropped, undecodable bytes
-    replaced: they can only be in names or cells that are then reported or ignored). Anything
-    else (a folder, a device that never ends such as /dev/zero) is an `InputError`."""
+    """The text of a regular file or a pipe: UTF-8 (or UTF-16 after its byte-order mark, as
+    spreadsheets export "Unicode text"), a byte-order mark dropped, undecodable bytes replaced
+    (they can only be in names or cells that are then reported or ignored). Anything else (a
+    folder, a device that never ends such as /dev/zero) is an `InputError`."""
     path = Path(path)
     try:
         mode = os.stat(path).st_mode
@@ -76,9 +79,11 @@ def read_text(path: str | Path, expected: str) -> str:
             raise InputError(f"{path}: is a folder; expected {expected}")
         if not (stat.S_ISREG(mode) or stat.S_ISFIFO(mode)):
             raise InputError(f"{path}: is not a regular file; expected {expected}")
-        return path.read_bytes().decode("utf-8-sig", errors="replace")
+        data = path.read_bytes()
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    utf16 = data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE))
+    return data.decode("utf-16" if utf16 else "utf-8-sig", errors="replace")
 
 
 def uniform_step(t: np.ndarray) -> tuple[float, int | None]:
@@ -104,7 +109,8 @@ _TOO_LARGE = f"beyond ±{MAX_DATA:g}; expected a plausible SI value (m, m/s, rad
 def read_csv(path: str | Path, name: str | None = None) -> Experiment:
     """Read and validate one measurement CSV."""
     path = Path(path)
-    reader = csv.reader(io.StringIO(read_text(path, "a measurement CSV file")))
+    # newline="": lines end at \n, \r\n or a lone \r (old spreadsheet exports), as csv expects
+    reader = csv.reader(io.StringIO(read_text(path, "a measurement CSV file"), newline=""))
     rows = []
     try:
         rows.extend(reader)
@@ -220,7 +226,7 @@ _VEHICLE_RANGES = {
     "Iz": (0.0, "> 0 (kg m²)"),
     "weight": (0.0, "> 0 (N)"),
     "buoyancy": (0.0, "> 0 (N)"),
-    "speed": (MIN_SPEED, f">= {MIN_SPEED:g} (m/s, the trim speed)"),
+    "speed": (MIN_SPEED, f"{MIN_SPEED:g} to {MAX_SPEED:g} (m/s, the trim speed)"),
 }
 
 
@@ -259,7 +265,8 @@ def check_config(config: ModelConfig) -> None:
     for key in Vehicle.names():
         v = _number(getattr(config.vehicle, key), f"{source}: [vehicle] {key}")
         low, expected = _VEHICLE_RANGES.get(key, (None, ""))
-        if low is not None and not (v > low if low == 0.0 else v >= low):
+        high = MAX_SPEED if key == "speed" else math.inf
+        if low is not None and not ((v > low if low == 0.0 else v >= low) and v <= high):
             raise InputError(f"{source}: [vehicle] {key} = {v:g}; expected {expected}")
     for key, v in config.coefficients.items():
         if key not in COEFFICIENTS:
@@ -274,11 +281,19 @@ def check_config(config: ModelConfig) -> None:
 
 def _number(v, where: str) -> float:
     """`v` as a float; `InputError` unless it is a finite number within ±`MAX_CONSTANT`."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise InputError(f"{where} = {str(v)[:40]!r}; expected a finite number")
-    if abs(v) > MAX_CONSTANT:
-        raise InputError(f"{where} = {v:g}; expected a magnitude of at most {MAX_CONSTANT:g} (SI)")
-    return float(v)
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        shown = str(v).lower() if isinstance(v, bool) else repr(v)[:40]  # as TOML writes it
+        raise InputError(f"{where} = {shown}; expected a finite number")
+    if isinstance(v, numbers.Integral):  # an integer of any size: compared before it becomes a float
+        value = float(v) if abs(v) <= MAX_CONSTANT else math.inf
+        shown = str(v) if len(str(v)) <= 20 else f"an integer of {len(str(abs(v)))} digits"
+    else:
+        value, shown = float(v), str(v)
+        if not math.isfinite(value):
+            raise InputError(f"{where} = {v!r}; expected a finite number")
+    if abs(value) > MAX_CONSTANT:
+        raise InputError(f"{where} = {shown}; expected a magnitude of at most {MAX_CONSTANT:g} (SI)")
+    return value
 
 
 def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) -> str:

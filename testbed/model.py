@@ -28,6 +28,9 @@ COEFFICIENTS = (
 )  # fmt: skip
 NX, NU, NTHETA = len(STATES), len(INPUTS), len(COEFFICIENTS)
 MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
+# m/s: Mach 0.3 in water (sound: ~1500 m/s); beyond it no incompressible fluid model (MuJoCo's,
+# the paper's) holds, and near 1e150 the fluid terms overflow
+MAX_SPEED = 450.0
 IX = {name: i for i, name in enumerate(STATES)}
 ITHETA = {name: i for i, name in enumerate(COEFFICIENTS)}
 

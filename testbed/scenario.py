@@ -52,7 +52,7 @@ from testbed.errors import InputError, atomic_directory
 from testbed.measurements import Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
 from testbed.plant import Plant
-from testbed.vehicle import MIN_SPEED, cruise_speed, default_mjcf
+from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed, default_mjcf
 
 # Maximal-length feedback taps (1-indexed register stages) for orders 2..20.
 TAPS = {2: (2, 1), 3: (3, 2), 4: (4, 3), 5: (5, 3), 6: (6, 5), 7: (7, 6), 8: (8, 6, 5, 4),
@@ -76,7 +76,7 @@ def _fin_angle(v) -> bool:
 # Settings a user can get wrong: what each must be. The CLI exposes duration and speed.
 _CHECKS = {
     "duration": (_positive, "a finite number > 0 (s)"),
-    "speed": (lambda v: v is None or (_positive(v) and v >= MIN_SPEED), f"a finite number >= {MIN_SPEED} (m/s)"),
+    "speed": (lambda v: v is None or (_finite(v) and MIN_SPEED <= v <= MAX_SPEED), f"{MIN_SPEED} to {MAX_SPEED} (m/s)"),
     "depth": (_finite, "a finite number (m)"),
     "control_rate": (_positive, "a finite number > 0 (Hz)"),
     "depth_step": (_finite, "a finite number (m)"),

@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from testbed.errors import InputError
-from testbed.model import MIN_SPEED, Vehicle
+from testbed.model import MAX_SPEED, MIN_SPEED, Vehicle
 
 FINS = ("rudder", "elevator_right", "elevator_left")
 FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> SPEC body axes (FRD); also ENU-ish world <-> NED
@@ -125,13 +125,13 @@ _NEEDS = ("a body 'hull' with free joint 'hull', hinge joints and position actua
 
 
 def trim_speed(speed) -> float:
-    """`speed` as a trim speed (m/s): finite and at least `MIN_SPEED`, else `InputError`."""
+    """`speed` as a trim speed (m/s): from `MIN_SPEED` to `MAX_SPEED`, else `InputError`."""
     try:
         value = float(speed)
     except (TypeError, ValueError):
         raise InputError(f"speed={speed!r}; expected a number (m/s)") from None
-    if not MIN_SPEED <= value < np.inf:
-        raise InputError(f"speed={speed}; expected a finite trim speed >= {MIN_SPEED} m/s")
+    if not MIN_SPEED <= value <= MAX_SPEED:
+        raise InputError(f"speed={speed}; expected a trim speed of {MIN_SPEED:g} to {MAX_SPEED:g} m/s")
     return value
 
 

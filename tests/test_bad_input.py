@@ -157,7 +157,8 @@ def test_a_device_or_folder_as_data_is_refused_without_reading_it(tmp_path, caps
 
 
 @pytest.mark.parametrize("line, new, words", [
-    ("speed = 20.0", "speed = 1e-6", "speed = 1e-06; expected >= 0.001"),
+    ("speed = 20.0", "speed = 1e-6", "speed = 1e-06; expected 0.001 to 450"),
+    ("speed = 20.0", "speed = 1e6", "speed = 1e+06; expected 0.001 to 450"),
     ("weight = ", "weight = -", "weight = -1675.09; expected > 0"),
 ])  # fmt: skip
 def test_an_impossible_vehicle_is_refused(run, tmp_path, capsys, line, new, words):
