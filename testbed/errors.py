@@ -179,12 +179,14 @@ def atomic_directory(path: str | os.PathLike, force: bool = False, marker: str =
 
     An existing `path` is an error unless `force`, in which case it is replaced at the end if it
     is a folder that is empty or holds `marker` (a run directory: anything else is refused, so a
-    mistyped `--out` never deletes a user's folder). On any exception (Ctrl-C included) the
-    temporary folder is removed and `path` is untouched.
+    mistyped `--out` never deletes a user's folder). Missing parent folders are made. On any
+    exception (Ctrl-C included) the temporary folder and the parents made are removed and `path`
+    is untouched.
     """
     path = Path(path)
     check_output_directory(path, force, marker)
     parent = path.parent
+    made = [p for p in (parent, *parent.parents) if not os.path.lexists(p)]  # removed on failure
     try:
         parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=parent))
@@ -203,4 +205,7 @@ def atomic_directory(path: str | os.PathLike, force: bool = False, marker: str =
             os.replace(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        for folder in made:  # innermost first; only if still empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
         raise
