@@ -45,6 +45,8 @@ def _outputs(inputs, outputs: dict) -> None:
     """Fail before the work, not after it, when an output cannot be written: `outputs` maps a
     label (the flag) to its path or None; `inputs` are the files read. No output may be an input
     (it would be clobbered) or another output, save devices and FIFOs (written into)."""
+    import os
+
     from testbed.errors import check_output_file, is_stream
 
     seen = {}
@@ -54,20 +56,13 @@ def _outputs(inputs, outputs: dict) -> None:
         check_output_file(path, f"{label} {path}")
         if is_stream(path):
             continue
-        key = _identity(path)
+        key = os.path.realpath(path)  # links resolved: two names of one file are one file
         for source in inputs:
-            if _identity(source) == key:
+            if os.path.realpath(source) == key:
                 raise InputError(f"{label} {path}: is the input {source}; expected a new file name")
         if key in seen:
             raise InputError(f"{label} {path}: is also the {seen[key]} output; expected another name")
         seen[key] = label
-
-
-def _identity(path: Path) -> str:
-    """The real path of `path` (links resolved), to tell whether two names are one file."""
-    import os
-
-    return os.path.realpath(path)
 
 
 def _to_stdout(path: Path | None) -> Path | None:
@@ -132,7 +127,7 @@ def _inputs(args):
 def _cmd_identify(args) -> int:
     import json
 
-    from testbed.analysis import compare
+    from testbed.errors import is_stream
     from testbed.estimators import Status, estimator, identify
 
     args.out = _to_stdout(args.out)
@@ -148,7 +143,7 @@ def _cmd_identify(args) -> int:
     read += [Path(e.source) for e in truth or ()]
     # the filters' estimate and ±σ histories go beside a file --out, not into a device or FIFO
     history = None
-    if args.out and args.method in ("mekf", "ekf") and not _stream(args.out):
+    if args.out and args.method in ("mekf", "ekf") and not is_stream(args.out):
         history = args.out.with_suffix(".history.csv")
     _outputs(read, {"--out": args.out, "the history beside --out": history, "--rrd": args.rrd})
     if args.perturb:
@@ -181,7 +176,7 @@ def _cmd_identify(args) -> int:
     doc = json.loads(estimate.to_json())
     comparison = None
     if run_config is not None:
-        comparison = _compare(compare, estimate, run_config, truth)
+        comparison = _compare(estimate, run_config, truth)
         doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
         print(comparison.table(), file=sys.stderr)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
@@ -210,16 +205,11 @@ def _cmd_identify(args) -> int:
     return 0
 
 
-def _stream(path: Path) -> bool:
-    from testbed.errors import is_stream
-
-    return is_stream(path)
-
-
 def _perturbed(config, fraction: float, seed: int):
     """The config with every free coefficient's start moved by ±fraction (signs from `seed`)."""
-    import numpy as np
     from dataclasses import replace
+
+    import numpy as np
 
     signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(config.free))
     moved = config.with_coefficients({n: config.coefficients[n] * (1 + s * fraction)
@@ -240,13 +230,14 @@ def _truth_data(paths):
     return [read_csv(f, f.name.removesuffix(".truth.csv")) for f in truth]
 
 
-def _compare(compare, estimate, analytic, truth):
+def _compare(estimate, analytic, truth):
     """The comparison with the analytic model, its bias split off by `ml-gn` on the noise-free
     `truth` from the analytic model, whatever method made the estimate (the bias belongs to the
     model, and a filter needs noise to work). A truth fit that cannot run is a note, not a
     failure: the estimate stands without it."""
     from dataclasses import replace
 
+    from testbed.analysis import compare
     from testbed.estimators import identify
 
     if truth is None:

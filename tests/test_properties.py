@@ -52,22 +52,23 @@ def one_line(exc: InputError, name: str):
 # -- measurement CSV -----------------------------------------------------------------------------
 
 FINITE = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
+LARGE = st.one_of(FINITE, st.floats(-MAX_DATA, MAX_DATA), st.sampled_from([MAX_DATA, -MAX_DATA, 5e-324, 0.0]))
 CELL = st.text(st.characters(codec="utf-8", exclude_characters=',"\r\n', exclude_categories=("Cc", "Cs")),
                max_size=8)  # fmt: skip
 EXTRA = CELL.filter(lambda c: c.strip() not in CSV_COLUMNS)
 
 
 @st.composite
-def measurement(draw):
+def measurement(draw, values=FINITE):
     """(CSV bytes, t, measured, y, inputs): a valid measurement CSV and what it holds."""
     chosen = draw(st.sets(st.sampled_from(STATES), min_size=1))
     measured = tuple(s for s in STATES if s in chosen)
     n = draw(st.integers(3, 25))
     dt = draw(st.sampled_from([0.01, 0.02, 0.05, 0.1, 1.0]))
     t = draw(st.floats(0, 1e3)) + dt * np.arange(n)
-    y = np.array(draw(st.lists(st.lists(FINITE, min_size=len(measured), max_size=len(measured)),
+    y = np.array(draw(st.lists(st.lists(values, min_size=len(measured), max_size=len(measured)),
                                min_size=n, max_size=n)))  # fmt: skip
-    u = np.array(draw(st.lists(st.lists(FINITE, min_size=3, max_size=3), min_size=n, max_size=n)))
+    u = np.array(draw(st.lists(st.lists(values, min_size=3, max_size=3), min_size=n, max_size=n)))
     extras = draw(st.lists(EXTRA, max_size=2))
     header = draw(st.permutations(["t", *measured, *INPUTS, *(f"\x00{k}" for k in range(len(extras)))]))
     cells = {"t": t, **dict(zip(measured, y.T)), **dict(zip(INPUTS, u.T))}
@@ -311,13 +312,15 @@ OUTS = st.sampled_from(["out/e.json", "out/e.json", "-", "out", "out/no/e.json",
 @st.composite
 def command_line(draw) -> Case:
     """One `testbed` command over the workspace (`studies.fuzz.workspace`), valid or not, with
-    the broken files it may name: bad.csv (a workspace CSV mutated), bad.toml, run's manifest."""
+    the files it may name: bad.csv (a workspace CSV mutated), random.csv (a valid CSV of random
+    values), bad.toml, run's manifest."""
     command = draw(st.sampled_from(["identify", "identify", "identify", "analyze", "truth", "simulate"]))
     maybe = lambda flag, values: [flag, draw(values)] if draw(st.booleans()) else []  # noqa: E731
     files = []
     if command in ("identify", "analyze"):
-        data = draw(st.lists(st.sampled_from(["run", "data/h.csv", "data/v.csv", "bad.csv", "missing.csv", "data",
-                                              "/dev/null", "cfg.toml"]), min_size=1, max_size=2))  # fmt: skip
+        data = draw(st.lists(st.sampled_from(["run", "data/h.csv", "data/v.csv", "bad.csv", "random.csv",
+                                              "missing.csv", "data", "/dev/null", "cfg.toml"]),
+                             min_size=1, max_size=2))  # fmt: skip
         argv = [command, *data]
         argv += maybe("--config", st.sampled_from(["cfg.toml", "cfg.toml", "bad.toml", "missing.toml", "data"]))
         argv += maybe("--out", OUTS)
@@ -330,6 +333,8 @@ def command_line(draw) -> Case:
             argv += maybe("--perturb", st.one_of(NUMBERS, st.sampled_from(["0.1", "0.3"])))
             argv += maybe("--seed", st.one_of(NUMBERS, st.integers(-3, 2**70).map(str)))
             argv += maybe("--rrd", st.sampled_from(["out/f.rrd", "out", "-", "out/e.json", "data/h.csv"]))
+        if "random.csv" in data:  # valid, with values anywhere in the plausible range
+            files.append(("random.csv", draw(measurement(LARGE))[0]))
         if "bad.csv" in data:
             files.append(("bad.csv", (draw(st.sampled_from(["data/h.csv", "data/v.csv"])), draw(csv_mutations()))))
         if "run" in data and draw(st.booleans()):
@@ -361,6 +366,31 @@ def test_the_command_line_exits_0_1_or_2_in_one_line_and_writes_nothing_on_failu
 
     def make():
         @given(command_line())
+        def check(case):
+            o = run_case(ws, case)
+            assert o.kind != "crash", (case.argv, o.code, o.err[-2000:])
+            assert not o.partial, (case.argv, o.code, o.partial, o.err[-500:])
+
+        return check
+
+    run_property(make, profile)
+
+
+@st.composite
+def fit_on_random_data(draw) -> Case:
+    """identify or analyze on a valid CSV of random values (anywhere in the plausible range, at
+    any sampling step), alone or beside a workspace experiment, with the workspace config."""
+    method = draw(st.sampled_from(["ml-gn", "ml-nr", "ml-nm", "mekf", "ekf", None]))
+    data = ["random.csv"] + draw(st.sampled_from([[], ["data/h.csv"]]))
+    argv = ["analyze", *data] if method is None else ["identify", *data, "--method", method, "--max-iter", "3"]
+    argv += ["--config", "cfg.toml", "--out", "out/e.json"]
+    return Case(" ".join(argv), tuple(argv), (("random.csv", draw(measurement(LARGE))[0]),))
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+def test_fits_on_random_valid_data_end_in_0_1_or_2(ws, profile):
+    def make():
+        @given(fit_on_random_data())
         def check(case):
             o = run_case(ws, case)
             assert o.kind != "crash", (case.argv, o.code, o.err[-2000:])

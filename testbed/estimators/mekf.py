@@ -229,11 +229,16 @@ def _third_differences(experiments: Sequence[Experiment]) -> dict[str, list[np.n
 
 def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
     """Measurement noise σ per measured state, pooled over the experiments: robust third
-    differences, `Var(Δ³e) = 20 σ²` (an upper bound where the signal is fast; module docstring)."""
+    differences, `Var(Δ³e) = 20 σ²` (an upper bound where the signal is fast; module docstring).
+    A state measured only in records of fewer than 4 samples has none: `InputError`."""
     pooled = _third_differences(experiments)
     out = {}
     for name in (s for s in STATES if s in pooled):
         d = np.concatenate(pooled[name])
+        if not d.size:
+            where = ", ".join(e.source or e.name for e in experiments if name in e.measured)
+            raise InputError(f"{where}: {name} has fewer than 4 samples; the filter's noise estimate "
+                             "(third differences) expected at least 4")  # fmt: skip
         mad = 1.4826 * np.median(np.abs(d - np.median(d)))
         out[name] = max(mad / math.sqrt(20.0), 1e-9)  # floor: R must stay positive definite
     return out
