@@ -36,8 +36,8 @@ def load_model(path: str | Path | None = None) -> mujoco.MjModel:
     if path.is_dir():
         raise InputError(f"{path}: is a folder; expected an MJCF file")
     if not path.is_file():
-        raise InputError(f"{path}: {'is not a regular file' if path.exists() else 'no such file'}; "
-                         "expected an MJCF file")  # fmt: skip
+        raise InputError(f"{path}: is not a regular file; expected an MJCF file" if path.exists()
+                         else f"{path}: no such MJCF file")  # fmt: skip
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
