@@ -72,7 +72,8 @@ def workspace(root: Path) -> Path:
     prior = truth.with_coefficients({n: TRUTH[n] * (1.3 if k % 2 else 0.7) for k, n in enumerate(FREE)})
     (root / "cfg.toml").write_text(config_text(prior))
     (root / "run" / "model.toml").write_text(config_text(truth))
-    (root / "run" / "manifest.json").write_text(json.dumps({"scenario": "fuzz", "experiments": ["horizontal", "vertical"]}))
+    manifest = {"scenario": "fuzz", "experiments": ["horizontal", "vertical"]}
+    (root / "run" / "manifest.json").write_text(json.dumps(manifest))
     (root / "keep.txt").write_text("a user's file\n")
     return root
 
@@ -99,7 +100,7 @@ def snapshot(root: Path) -> dict[str, str]:
 # -- mutations -----------------------------------------------------------------------------------
 
 CELLS = ["", "nan", "inf", "-inf", "1e300", "-1e7", "abc", "1,5", '"', "  ", "1e-400", "0x1p3", "１", "1_0",
-         "\x00", "9" * 400, "1e308", "--1", "True", "1.0.0"]  # fmt: skip
+         "\x00", "9" * 400, "1e308", "--1", "True", "1.0.0", "-1.7e308", "1.7e308"]  # fmt: skip
 
 
 def _rows(data: bytes) -> list[list[str]]:
@@ -330,24 +331,25 @@ def corpus(root: Path) -> list[Case]:
     for label, free in (("unknown", ["Y_v", "Nope"]), ("twice", ["Y_v", "Y_v"]), ("not a list", "Y_v"),
                         ("numbers", [1, 2]), ("empty", []), ("all", list(doc["coefficients"]))):
         broken = json.loads(json.dumps(doc)) | {"identify": {"free": free}}
-        cases.append(Case(f"config free {label}", ("identify", "data", "--config", "bad.toml", "--out",
-                                                   "out/e.json", *fit), (("bad.toml", toml_text(broken).encode()),)))  # fmt: skip
+        argv = ("identify", "data", "--config", "bad.toml", "--out", "out/e.json", *fit)
+        cases.append(Case(f"config free {label}", argv, (("bad.toml", toml_text(broken).encode()),)))
     text = (root / "cfg.toml").read_bytes()
     for label, blob in (("empty", b""), ("cut", text[:len(text) // 2]), ("binary", b"\xff\xfe\x00\x01"),
                         ("no vehicle", text.replace(b"[vehicle]", b"[vehicles]")), ("deep", b"a = " + b"[" * 5000),
                         ("twice", text + text), ("json", b'{"vehicle": {}}')):  # fmt: skip
         cases.append(Case(f"config text {label}", ("analyze", "data", "--config", "bad.toml"), (("bad.toml", blob),)))
-    for label, value in (("not json", b"{"), ("list", b"[]"), ("no experiments", b"{}"), ("string", b'{"experiments": "h"}'),
-                         ("numbers", b'{"experiments": [1]}'), ("outside", b'{"experiments": ["../data/h"]}'),
-                         ("absolute", b'{"experiments": ["/etc/passwd"]}'), ("twice", b'{"experiments": ["horizontal", "horizontal"]}'),
-                         ("missing", b'{"experiments": ["gone"]}'), ("empty list", b'{"experiments": []}'),
-                         ("nul", b'{"experiments": ["a\\u0000b"]}'), ("deep", b"[" * 100_000),
-                         ("binary", b"\xff\xfe"), ("truth", b'{"experiments": ["horizontal.truth"]}')):  # fmt: skip
-        cases.append(Case(f"manifest {label}", ("identify", "run", "--out", "out/e.json", *fit),
-                          (("run/manifest.json", value),)))  # fmt: skip
+    manifests = {"not json": b"{", "list": b"[]", "no experiments": b"{}", "deep": b"[" * 100_000,
+                 "binary": b"\xff\xfe", "string": "h", "numbers": [1], "outside": ["../data/h"],
+                 "absolute": ["/etc/passwd"], "twice": ["horizontal", "horizontal"], "missing": ["gone"],
+                 "empty list": [], "nul": ["a\x00b"], "truth": ["horizontal.truth"]}  # fmt: skip
+    for label, value in manifests.items():
+        text = value if isinstance(value, bytes) else json.dumps({"experiments": value}).encode()
+        argv = ("identify", "run", "--out", "out/e.json", *fit)
+        cases.append(Case(f"manifest {label}", argv, (("run/manifest.json", text),)))
     for label, name, blob in (("broken truth file", "run/horizontal.truth.csv", b"t,u\n"),
                               ("broken model.toml", "run/model.toml", b"[vehicle\n"),
-                              ("truth file of 1e300", "run/vertical.truth.csv", ("run/vertical.truth.csv", (("scaled 1e300", 2),)))):  # fmt: skip
+                              ("truth file of 1e300", "run/vertical.truth.csv",
+                               ("run/vertical.truth.csv", (("scaled 1e300", 2),)))):  # fmt: skip
         cases.append(Case(f"run {label}", ("identify", "run", "--out", "out/e.json", *fit), ((name, blob),)))
     flags = {
         "identify": {"--method": ["nope", ""], "--max-iter": ["-1", "x", "1e3", ""], "--start": ["nope", ""],
@@ -359,8 +361,9 @@ def corpus(root: Path) -> list[Case]:
                      "--speed": ["0", "1e-6", "nan", "x"], "--scenario": ["nope", ""],
                      "--mjcf": ["data", "missing.xml", "cfg.toml"]},
     }  # fmt: skip
-    base = {"identify": ("identify", "run", "--out", "out/e.json", *fit), "truth": ("truth", "--out", "out/m.toml"),
-            "simulate": ("simulate", "--quiet", "--scenario", "I", "--duration", "0.06", "--out", "out/run")}  # fmt: skip
+    base = {"identify": ("identify", "run", "--out", "out/e.json", *fit),
+            "truth": ("truth", "--out", "out/m.toml"),
+            "simulate": ("simulate", "--quiet", "--scenario", "I", "--duration", "0.06", "--out", "out/run")}
     for command, options in flags.items():
         for flag, values in options.items():
             for value in values:
@@ -370,7 +373,8 @@ def corpus(root: Path) -> list[Case]:
                 else:
                     argv += [flag, value]
                 cases.append(Case(f"{command} {flag} {value[:12]!r}", tuple(argv)))
-    cases.append(Case("identify --start config --method mekf", base["identify"] + ("--method", "mekf", "--start", "config")))
+    argv = base["identify"] + ("--method", "mekf", "--start", "config")
+    cases.append(Case("identify --start config --method mekf", argv))
     targets = ["out", "out/no/e.json", "keep.txt/e.json", "data/h.csv", "cfg.toml", "run/model.toml", "-", "keep.txt",
                "null", "out/e.json"]  # fmt: skip
     for target in targets:
@@ -384,7 +388,8 @@ def corpus(root: Path) -> list[Case]:
     issue = [
         ("1e300 cell, mekf", ("identify", "bad.csv", "--config", "cfg.toml", "--method", "mekf"),
          (("bad.csv", ("data/h.csv", (("cell", 4 * len(CELLS) + 4),))),)),
-        ("every state x1e300", ("identify", "bad.csv", "--config", "cfg.toml"), (("bad.csv", ("data/h.csv", (("states scaled 1e300", 0),))),)),
+        ("every state x1e300", ("identify", "bad.csv", "--config", "cfg.toml"),
+         (("bad.csv", ("data/h.csv", (("states scaled 1e300", 0),))),)),
         ("perturb with seed -1", ("identify", "run", "--perturb", "0.2", "--seed", "-1"), ()),
         ("only u, lateral free", ("identify", "u.csv", "--config", "cfg.toml", "--out", "out/e.json"), "u.csv"),
         ("only u, lateral free (analyze)", ("analyze", "u.csv", "--config", "cfg.toml"), "u.csv"),

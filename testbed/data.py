@@ -89,11 +89,12 @@ def read_text(path: str | Path, expected: str) -> str:
 def uniform_step(t: np.ndarray) -> tuple[float, int | None]:
     """The sampling interval of the times `t` (their median step) and the index of the first
     step off it, or None if every step is within 1e-6 of it (plus the rounding of t's values as
-    printed with 10 digits). A step ≤ 0 is always off."""
-    steps = np.diff(t)
-    dt = float(np.median(steps))
-    tol = 1e-6 * abs(dt) + 1e-9 * float(np.max(np.abs(t)))
-    off = (steps <= 0) | (np.abs(steps - dt) > tol)
+    printed with 10 digits). A step ≤ 0, or one beyond the floating-point range, is always off."""
+    with np.errstate(over="ignore", invalid="ignore"):  # t near ±1.8e308: its steps overflow
+        steps = np.diff(t)
+        dt = float(np.median(steps))
+        tol = 1e-6 * abs(dt) + 1e-9 * float(np.max(np.abs(t)))
+        off = ~np.isfinite(steps) | (steps <= 0) | ~(np.abs(steps - dt) <= tol)
     return dt, (int(np.argmax(off)) if off.any() else None)
 
 

@@ -220,8 +220,8 @@ def test_a_malformed_config_is_read_or_refused_in_one_line(tmp_path, profile):
             text = toml_text(doc).encode()
             if data.draw(st.booleans()):  # and sometimes the text itself broken
                 cut = data.draw(st.integers(0, len(text)))
-                text = text[:cut] + data.draw(st.sampled_from([b"", b"\xff\xfe", b"[", b"= =", b"\x00",
-                                                                b"a = [" * 3000, b"\n[vehicle]\n"])) + text[cut:]  # fmt: skip
+                junk = [b"", b"\xff\xfe", b"[", b"= =", b"\x00", b"a = [" * 3000, b"\n[vehicle]\n"]
+                text = text[:cut] + data.draw(st.sampled_from(junk)) + text[cut:]
             path = _file(tmp_path, "bad.toml", text)
             try:
                 cfg = read_config(path)
