@@ -14,16 +14,19 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import null_space
 
-from testbed.model import ITHETA, IX, NX, Structure, tilde
+from testbed.model import ITHETA, IX, NX, Structure, tilde, unobserved
 
 
 @dataclass(frozen=True)
 class Structural:
-    """Exactly unidentifiable directions: `basis` (k × len(free)), orthonormal rows."""
+    """Exactly unidentifiable directions: `basis` (k × len(free)) in reduced row echelon form;
+    `unobserved`: the free coefficients no measured state depends on (`model.unobserved`), each
+    an unidentifiable direction of its own."""
 
     free: tuple[str, ...]
     basis: np.ndarray
     drift_groups: tuple[tuple[str, ...], ...]
+    unobserved: tuple[str, ...] = ()
 
     @property
     def null_directions(self) -> int:
@@ -56,12 +59,17 @@ def structural(s: Structure, theta: np.ndarray, free, measured, tol: float = 1e-
     G /= np.maximum(np.linalg.norm(G, axis=1, keepdims=True), 1e-300)
     N = null_space(G, rcond=tol)
     D = N[2 * NX * NX:]  # dθ components of the null vectors
-    if D.size == 0:
+    blind = unobserved(s, theta, free, measured)
+    V = np.eye(k)[[free.index(n) for n in blind]]  # (scaled) directions of the unobserved ones
+    if D.size:
+        _, sv, vt = np.linalg.svd(D.T, full_matrices=False)
+        V = np.vstack([vt[sv > 1e-6], V])
+    if not len(V):
         return Structural(free, np.zeros((0, len(free))), ())
-    _, sv, vt = np.linalg.svd(D.T, full_matrices=False)
+    _, sv, vt = np.linalg.svd(V, full_matrices=False)  # an orthonormal basis of their span
     # Back to coefficient units; the reduced basis is unique and sparse, so groups do not merge.
     basis = _rref(vt[sv > 1e-6] * scale)
-    return Structural(free, basis, _groups(free, basis))
+    return Structural(free, basis, _groups(free, basis), blind)
 
 
 def _rref(V: np.ndarray, tol: float = 1e-9) -> np.ndarray:
@@ -146,6 +154,7 @@ class Identifiability:
             "structural_drift_groups": [list(g) for g in self.structural.drift_groups],
             "practical_drift_groups": [list(g) for g in self.practical_groups],
             "null_basis": [[float(v) for v in row] for row in self.structural.basis],
+            "unobserved": list(self.structural.unobserved),
             "relative_crlb": {n: num(s / abs(v)) if v else None
                               for n, s, v in zip(self.free, self.crlb_std, self.values)},
             "practically_unidentifiable": list(self.uncertain),
@@ -224,7 +233,12 @@ def screen(experiments, config):
 def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, ...]:
     """Plain sentences: what cannot be identified, and what to fix or measure."""
     lines = []
+    if struct.unobserved:
+        lines.append(f"Not identifiable: {', '.join(struct.unobserved)}; the measured states do not "
+                     "depend on them in the model; measure the states they drive or fix them.")  # fmt: skip
     for g in struct.drift_groups:
+        if set(g) <= set(struct.unobserved):
+            continue
         lines.append(f"Exactly unidentifiable: {', '.join(g)} can drift together without changing "
                      "the outputs (rows of Mt ẋ = At x + Bt δ scale together); fix one of them "
                      "(e.g. an added-mass term from theory) or free fewer coefficients.")  # fmt: skip

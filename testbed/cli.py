@@ -18,6 +18,8 @@ one_blas_thread()  # before numpy loads
 
 from testbed.errors import InputError, atomic_file  # noqa: E402
 
+STDOUT = Path("-")  # `--out -`: standard output
+
 
 def _positive(text: str) -> float:
     try:
@@ -29,14 +31,43 @@ def _positive(text: str) -> float:
     return v
 
 
-def _writable(path: Path | None, flag: str) -> None:
-    """Fail before the work, not after it, when an output cannot be written."""
-    if path is None:
-        return
-    if not path.parent.is_dir():
-        raise InputError(f"{flag} {path}: folder {path.parent} does not exist")
-    if path.is_dir():
-        raise InputError(f"{flag} {path}: is a folder; expected a file name")
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text} must be an integer >= 0")
+    return v
+
+
+def _outputs(inputs, outputs: dict) -> None:
+    """Fail before the work, not after it, when an output cannot be written: `outputs` maps a
+    label (the flag) to its path or None; `inputs` are the files read. No output may be an input
+    (it would be clobbered) or another output, save devices and FIFOs (written into)."""
+    import os
+
+    from testbed.errors import check_output_file, is_stream
+
+    seen = {}
+    for label, path in outputs.items():
+        if path is None:
+            continue
+        check_output_file(path, f"{label} {path}")
+        if is_stream(path):
+            continue
+        key = os.path.realpath(path)  # links resolved: two names of one file are one file
+        for source in inputs:
+            if os.path.realpath(source) == key:
+                raise InputError(f"{label} {path}: is the input {source}; expected a new file name")
+        if key in seen:
+            raise InputError(f"{label} {path}: is also the {seen[key]} output; expected another name")
+        seen[key] = label
+
+
+def _to_stdout(path: Path | None) -> Path | None:
+    """None (standard output) for `--out -`, else the path."""
+    return None if path == STDOUT else path
 
 
 def _cmd_truth(args) -> int:
@@ -44,6 +75,8 @@ def _cmd_truth(args) -> int:
     from testbed.errors import atomic_write_text
     from testbed.truth import analytic_config
 
+    args.out = _to_stdout(args.out)
+    _outputs([args.mjcf] if args.mjcf else [], {"--out": args.out})
     config, comments = analytic_config(args.mjcf, args.speed)
     text = config_text(config, comments)
     if args.out:
@@ -62,10 +95,14 @@ def _quiet_mujoco() -> None:
 
 
 def _cmd_simulate(args) -> int:
+    from testbed.errors import check_output_directory
     from testbed.scenario import simulate
 
     _quiet_mujoco()
-
+    if args.out == STDOUT:
+        raise InputError("--out -: a run directory is a folder, not standard output; expected a folder name")
+    if args.out is not None:
+        check_output_directory(args.out, args.force, label=f"--out {args.out}")
     run = simulate(args.scenario, seed=args.seed, out=args.out, force=args.force,
                    duration=args.duration, speed=args.speed, mjcf=args.mjcf,
                    progress=not args.quiet)  # fmt: skip
@@ -74,29 +111,46 @@ def _cmd_simulate(args) -> int:
 
 
 def _inputs(args):
-    """The experiments, the model config to use, and the run's analytic model (or None)."""
+    """The experiments, the model config to use, the run's analytic model (or None), and every
+    file read (outputs must not clobber them)."""
     from testbed.data import load_data, read_config
 
     experiments, run_config = load_data(args.data)
     config = read_config(args.config) if args.config else run_config
     if config is None:
         raise InputError("no model config: give --config TOML (or a run directory with model.toml)")
-    return experiments, config, run_config
+    read = [Path(e.source) for e in experiments] + [Path(config.source)]
+    read += [p / "manifest.json" for p in args.data if (p / "manifest.json").is_file()]
+    return experiments, config, run_config, read
 
 
 def _cmd_identify(args) -> int:
     import json
 
-    from testbed.analysis import compare
-    from testbed.estimators import Status, identify
+    from testbed.errors import is_stream
+    from testbed.estimators import Status, check_fit, estimator, identify
 
-    _writable(args.out, "--out")
-    _writable(args.rrd, "--rrd")
-    experiments, config, run_config = _inputs(args)
+    args.out = _to_stdout(args.out)
+    if args.rrd == STDOUT:
+        raise InputError("--rrd -: a recording is a file; expected a file name (.rrd)")
+    estimator(args.method)
+    offline = args.method.startswith("ml-")
+    if args.start is not None and not offline:
+        raise InputError(f"--start {args.start}: only the ml-* methods take a start; "
+                         f"{args.method} starts from the config")  # fmt: skip
+    experiments, config, run_config, read = _inputs(args)
+    truth = _truth_data(args.data) if run_config is not None else None
+    read += [Path(e.source) for e in truth or ()]
+    # the filters' estimate and ±σ histories go beside a file --out, not into a device or FIFO
+    history = None
+    if args.out and args.method in ("mekf", "ekf") and not is_stream(args.out):
+        history = args.out.with_suffix(".history.csv")
+    _outputs(read, {"--out": args.out, "the history beside --out": history, "--rrd": args.rrd})
     if args.perturb:
         config = _perturbed(config, args.perturb, args.seed)
     fixed = {}
-    if not args.free_all and config.free:
+    check_fit(experiments, config)  # what no analysis can mend, named, before the screening
+    if not args.free_all:
         from testbed.analysis import screen
 
         config, fixed = screen(experiments, config)
@@ -104,11 +158,7 @@ def _cmd_identify(args) -> int:
             raise InputError(f"no coefficient of [identify] free is identifiable from "
                              f"{', '.join(map(str, args.data))} ({next(iter(fixed.values()))}); "
                              "expected data that excite them, or --free-all")  # fmt: skip
-    offline = args.method.startswith("ml-")
     live = sys.stderr.isatty()  # a progress line on long fits (ml-nm runs for minutes)
-    if args.start is not None and not offline:
-        raise InputError(f"--start {args.start}: only the ml-* methods take a start; "
-                         f"{args.method} starts from the config")  # fmt: skip
     options = {"start": args.start or "auto"} if offline else {}
     if args.max_iter is not None:
         options["max_iter"] = args.max_iter
@@ -138,7 +188,7 @@ def _cmd_identify(args) -> int:
         doc["fixed"] = {n: {"value": float(config.coefficients[n]), "reason": why} for n, why in fixed.items()}
     comparison = None
     if run_config is not None:
-        comparison = compare(estimate, run_config, _truth_fit(args.data, run_config, estimate.free))
+        comparison = _compare(estimate, run_config, truth)
         doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
         print(comparison.table(), file=sys.stderr)
     for n, why in fixed.items():
@@ -150,10 +200,10 @@ def _cmd_identify(args) -> int:
     print(validation.table(), file=sys.stderr)
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     files = {args.out: text} if args.out else {}
-    if args.out and getattr(estimate, "history_t", None) is not None:  # filters: estimate and ±σ over time
+    if history is not None:
         from testbed.estimators.mekf import history_csv_text
 
-        files = {args.out.with_suffix(".history.csv"): history_csv_text(estimate), **files}
+        files = {history: history_csv_text(estimate), **files}
     with contextlib.ExitStack() as outputs:  # every output, or none of them
         temporary = {path: outputs.enter_context(atomic_file(path)) for path in files}
         if args.rrd:
@@ -176,36 +226,55 @@ def _cmd_identify(args) -> int:
 
 def _perturbed(config, fraction: float, seed: int):
     """The config with every free coefficient's start moved by ±fraction (signs from `seed`)."""
+    from dataclasses import replace
+
     import numpy as np
 
     signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(config.free))
-    return config.with_coefficients({n: config.coefficients[n] * (1 + s * fraction)
-                                     for n, s in zip(config.free, signs)})  # fmt: skip
+    moved = config.with_coefficients({n: config.coefficients[n] * (1 + s * fraction)
+                                      for n, s in zip(config.free, signs)})  # fmt: skip
+    return replace(moved, source=f"{config.source or 'config'} moved by --perturb {fraction:g}")
 
 
-def _truth_fit(paths, analytic, free):
-    """The linear model's own bias: `ml-gn` on the noise-free `<experiment>.truth.csv` of the run
-    directories among `paths`, from the analytic model, whatever method made the estimate (the
-    bias belongs to the model, and a filter needs noise to work). None without truth files."""
-    from dataclasses import replace
-
+def _truth_data(paths):
+    """The noise-free `<experiment>.truth.csv` of the run directories among `paths` (read and
+    checked now, before any fit), or None when any is missing: the comparison then has no bias
+    column."""
     from testbed.data import read_csv, run_csvs
-    from testbed.estimators import identify
 
     runs = [p for p in map(Path, paths) if (p / "manifest.json").exists()]
     truth = [f.with_suffix(".truth.csv") for p in runs for f in run_csvs(p)]
     if not truth or not all(f.exists() for f in truth):
         return None
-    truth = [read_csv(f, f.name.removesuffix(".truth.csv")) for f in truth]
-    return identify(truth, replace(analytic, free=tuple(free)), method="ml-gn", start="config")
+    return [read_csv(f, f.name.removesuffix(".truth.csv")) for f in truth]
+
+
+def _compare(estimate, analytic, truth):
+    """The comparison with the analytic model, its bias split off by `ml-gn` on the noise-free
+    `truth` from the analytic model, whatever method made the estimate (the bias belongs to the
+    model, and a filter needs noise to work). A truth fit that cannot run is a note, not a
+    failure: the estimate stands without it."""
+    from dataclasses import replace
+
+    from testbed.analysis import compare
+    from testbed.estimators import identify
+
+    if truth is None:
+        return compare(estimate, analytic)
+    try:
+        fit = identify(truth, replace(analytic, free=tuple(estimate.free)), method="ml-gn", start="config")
+    except InputError as exc:
+        return replace(compare(estimate, analytic), note=f"no linear-model bias column: {exc}")
+    return compare(estimate, analytic, fit)
 
 
 def _cmd_analyze(args) -> int:
     from testbed.analysis import identifiability
     from testbed.errors import atomic_write_text
 
-    _writable(args.out, "--out")
-    experiments, config, _ = _inputs(args)
+    args.out = _to_stdout(args.out)
+    experiments, config, _, read = _inputs(args)
+    _outputs(read, {"--out": args.out})
     if not config.free:
         raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to analyse")
     result = identifiability(experiments, config)
@@ -226,8 +295,9 @@ def _cmd_validate(args) -> int:
     from testbed.errors import atomic_write_text
     from testbed.validation import validate
 
-    _writable(args.out, "--out")
-    experiments, config, run_config = _inputs(args)
+    args.out = _to_stdout(args.out)
+    experiments, config, run_config, read = _inputs(args)
+    _outputs(read + [args.estimates], {"--out": args.out})
     coefficients = _estimated(args.estimates, config)
     validation = validate(experiments, config.with_coefficients(coefficients), run_config)
     text = json.dumps({"estimates": str(args.estimates), "coefficients": coefficients,
@@ -287,13 +357,13 @@ def parser() -> argparse.ArgumentParser:
     s = sub.add_parser("truth", help="write the analytic linear model of an MJCF body (TOML)")
     s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
     s.add_argument("--speed", type=_positive, default=None, help="trim speed U, m/s (default: cruise)")
-    s.add_argument("--out", type=Path, help="output TOML (default: stdout)")
+    s.add_argument("--out", type=Path, help="output TOML (default or -: stdout)")
     s.set_defaults(func=_cmd_truth)
 
     s = sub.add_parser("simulate", help="generate a scenario run directory")
     s.add_argument("--scenario", required=True,
                    help=f"a built-in scenario ({', '.join(BUILTIN_SCENARIOS)}) or a scenario file (.toml)")
-    s.add_argument("--seed", type=int, default=0, help="noise and PRBS seed (default 0)")
+    s.add_argument("--seed", type=_seed, default=0, help="noise and PRBS seed (default 0)")
     s.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<N>)")
     s.add_argument("--force", action="store_true", help="replace an existing run directory")
     s.add_argument("--duration", type=_positive, help="seconds per experiment (default: the scenario's)")
@@ -306,8 +376,9 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-nr, ml-nm, mekf, ekf")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
-    s.add_argument("--out", type=Path, help="estimates JSON (default: stdout); mekf and ekf also "
-                   "write the estimate and ±σ histories to OUT with suffix .history.csv")
+    s.add_argument("--out", type=Path, help="estimates JSON (default or -: stdout); mekf and ekf "
+                   "also write the estimate and ±σ histories to OUT with suffix .history.csv when "
+                   "OUT is a file")
     s.add_argument("--start", default=None,
                    help="ml-* only: auto (default: the a-priori values, or the equation-error "
                         "estimate if output error fails from them), config, equation-error or mekf")  # fmt: skip
@@ -315,7 +386,7 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--perturb", type=_positive, default=None,
                    help="move every free coefficient's start by this fraction (e.g. 0.4), to test "
                         "convergence from a poor a-priori model")
-    s.add_argument("--seed", type=int, default=0, help="signs of --perturb (default 0)")
+    s.add_argument("--seed", type=_seed, default=0, help="signs of --perturb (default 0)")
     s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
     s.add_argument("--free-all", action="store_true",
                    help="estimate every coefficient of [identify] free (default: those the data "
@@ -325,7 +396,7 @@ def parser() -> argparse.ArgumentParser:
     s = sub.add_parser("analyze", help="identifiability: Fisher information, CRLB, drift groups")
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
-    s.add_argument("--out", type=Path, help="identifiability JSON (default: stdout)")
+    s.add_argument("--out", type=Path, help="identifiability JSON (default or -: stdout)")
     s.set_defaults(func=_cmd_analyze)
 
     s = sub.add_parser("validate", help="fit %% and residual whiteness of identified coefficients on (held-out) data")
@@ -345,6 +416,9 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt  # `kill` cleans up like Ctrl-C: temporary outputs are removed
 
 
+INTERNAL_ERROR = 70  # a bug (sysexits' EX_SOFTWARE): not 1, which means "did not converge"
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate)
@@ -353,8 +427,24 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"testbed {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except MemoryError:
+        print(f"testbed {args.command}: error: out of memory; expected less data or a shorter "
+              "--duration", file=sys.stderr)  # fmt: skip
+        return 2
     except KeyboardInterrupt:
         print(f"testbed {args.command}: interrupted; nothing was written", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of standard output went away (`testbed truth | head`)
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 128 + signal.SIGPIPE
+    except Exception:
+        import traceback
+
+        traceback.print_exc()
+        print(f"testbed {args.command}: internal error (a bug in testbed, not in the input): "
+              "please report it with the traceback above", file=sys.stderr)  # fmt: skip
+        return INTERNAL_ERROR
     finally:
         signal.signal(signal.SIGTERM, previous)

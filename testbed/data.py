@@ -6,10 +6,14 @@ naming the file and the field; writers go through `atomic_write_text`.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
 import json
 import math
+import numbers
+import os
+import stat
 import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -18,9 +22,17 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from testbed.errors import InputError, atomic_write_text
-from testbed.model import COEFFICIENTS, INPUTS, STATES, Vehicle
+from testbed.model import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
 
 CSV_COLUMNS = ("t",) + STATES + INPUTS
+MIN_ROWS = 3  # the fewest samples a record can have: the estimators difference and fit x0 on them
+# The largest magnitude a measured state or input may have, in SI units (m, m/s, rad, rad/s):
+# 1000 km of depth, 1000 km/s, 10⁶ rad. Beyond it a value is a unit or export error, and its
+# square, summed over a record, would leave the range of double precision long before 1e300.
+MAX_DATA = 1e6
+# The largest magnitude of a vehicle constant or coefficient (SI): a supertanker's yaw inertia is
+# ~1e13 kg m², its dimensional coefficients ~1e12. Products of a few such numbers stay finite.
+MAX_CONSTANT = 1e15
 
 
 @dataclass(frozen=True)
@@ -69,14 +81,56 @@ class ModelConfig:
         return replace(self, coefficients={**self.coefficients, **values})
 
 
+def read_text(path: str | Path, expected: str) -> str:
+    """The text of a regular file or a pipe: UTF-8 (or UTF-16 after its byte-order mark, as
+    spreadsheets export "Unicode text"), a byte-order mark dropped, undecodable bytes replaced
+    (they can only be in names or cells that are then reported or ignored). Anything else (a
+    folder, a device that never ends such as /dev/zero) is an `InputError`."""
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+        if stat.S_ISDIR(mode):
+            raise InputError(f"{path}: is a folder; expected {expected}")
+        if not (stat.S_ISREG(mode) or stat.S_ISFIFO(mode)):
+            raise InputError(f"{path}: is not a regular file; expected {expected}")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    utf16 = data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE))
+    return data.decode("utf-16" if utf16 else "utf-8-sig", errors="replace")
+
+
+def uniform_step(t: np.ndarray) -> tuple[float, int | None]:
+    """The sampling interval of the times `t` (their median step) and the index of the first
+    step off it, or None if every step is within 1e-6 of it (plus the rounding of t's values as
+    printed with 10 digits). A step ≤ 0, or one beyond the floating-point range, is always off."""
+    with np.errstate(over="ignore", invalid="ignore"):  # t near ±1.8e308: its steps overflow
+        steps = np.diff(t)
+        dt = float(np.median(steps))
+        tol = 1e-6 * abs(dt) + 1e-9 * float(np.max(np.abs(t)))
+        off = ~np.isfinite(steps) | (steps <= 0) | ~(np.abs(steps - dt) <= tol)
+    return dt, (int(np.argmax(off)) if off.any() else None)
+
+
+def _too_large(values: np.ndarray) -> tuple[int, int] | None:
+    """(row, column) of the first value beyond ±`MAX_DATA`, or None."""
+    bad = np.abs(values) > MAX_DATA
+    return tuple(map(int, np.argwhere(bad)[0])) if bad.any() else None
+
+
+_TOO_LARGE = f"beyond ±{MAX_DATA:g}; expected a plausible SI value (m, m/s, rad, rad/s)"
+
+
 def read_csv(path: str | Path, name: str | None = None) -> Experiment:
     """Read and validate one measurement CSV."""
     path = Path(path)
+    # newline="": lines end at \n, \r\n or a lone \r (old spreadsheet exports), as csv expects
+    reader = csv.reader(io.StringIO(read_text(path, "a measurement CSV file"), newline=""))
+    rows = []
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read ({getattr(exc, 'strerror', None) or exc})") from None
-    rows = list(csv.reader(io.StringIO(text)))
+        rows.extend(reader)
+    except csv.Error as exc:
+        raise InputError(f"{path}: line {reader.line_num}: {exc}; expected comma-separated numbers") from None
     if not rows or not any(c.strip() for c in rows[0]):
         raise InputError(f"{path}: empty file; expected a header row with {','.join(CSV_COLUMNS)}")
     header = [c.strip() for c in rows[0]]
@@ -89,12 +143,12 @@ def read_csv(path: str | Path, name: str | None = None) -> Experiment:
     measured = tuple(s for s in STATES if s in header)
     if not measured:
         raise InputError(f"{path}: no state column; expected at least one of {','.join(STATES)}")
-    body = [r for r in rows[1:] if any(c.strip() for c in r)]
-    if len(body) < 3:
-        raise InputError(f"{path}: {len(body)} data rows; expected at least 3")
+    body = [(k, r) for k, r in enumerate(rows[1:], start=2) if any(c.strip() for c in r)]
+    if len(body) < MIN_ROWS:
+        raise InputError(f"{path}: {len(body)} data rows; expected at least {MIN_ROWS}")
     wanted = [header.index(c) for c in ("t",) + measured + INPUTS]
     values = np.empty((len(body), len(wanted)))
-    for k, row in enumerate(body, start=2):
+    for i, (k, row) in enumerate(body):
         if len(row) != len(header):
             raise InputError(f"{path}: line {k} has {len(row)} fields; the header has {len(header)}")
         for j, col in enumerate(wanted):
@@ -102,21 +156,56 @@ def read_csv(path: str | Path, name: str | None = None) -> Experiment:
                 v = float(row[col])
             except ValueError:
                 raise InputError(f"{path}: line {k}, column '{header[col]}': "
-                                 f"{row[col]!r} is not a number") from None  # fmt: skip
+                                 f"{row[col][:40]!r} is not a number") from None  # fmt: skip
             if not math.isfinite(v):
                 raise InputError(f"{path}: line {k}, column '{header[col]}': "
                                  f"{row[col].strip()} (expected a finite number)")  # fmt: skip
-            values[k - 2, j] = v
+            values[i, j] = v
+    large = _too_large(values[:, 1:])
+    if large:
+        (i, j), col = large, wanted[large[1] + 1]
+        raise InputError(f"{path}: line {body[i][0]}, column '{header[col]}': "
+                         f"{body[i][1][col].strip()} is {_TOO_LARGE}")  # fmt: skip
     t = values[:, 0]
-    steps = np.diff(t)
-    dt = float(np.median(steps))
-    if dt <= 0 or np.any(np.abs(steps - dt) > 1e-6 * max(dt, 1e-12) + 1e-9):
-        bad = int(np.argmax(np.abs(steps - dt))) + 3
-        raise InputError(f"{path}: column 't' is not uniformly sampled (line {bad}); "
-                         f"expected a constant step of {dt:g} s")  # fmt: skip
+    dt, off = uniform_step(t)
+    if off is not None:
+        line = body[off + 1][0]
+        raise InputError(f"{path}: column 't' is not uniformly sampled (line {line}); expected "
+                         + (f"a constant step of {dt:g} s" if dt > 0 else "increasing times (s)"))
     n = len(measured)
     return Experiment(name or path.name.removesuffix(".csv"), t, measured, values[:, 1:1 + n],
                       values[:, 1 + n:], str(path))  # fmt: skip
+
+
+def check_experiment(e: Experiment) -> None:
+    """`InputError` unless `e` is a record the estimators can use (what `read_csv` ensures of a
+    file, for records made in Python): at least `MIN_ROWS` samples of its distinct measured
+    states and the three inputs, finite values within ±`MAX_DATA`, uniformly increasing times."""
+    name = e.source or e.name
+    unknown = [s for s in e.measured if s not in STATES]
+    if unknown or not e.measured or len(set(e.measured)) != len(e.measured):
+        raise InputError(f"{name}: measured states {list(e.measured)}; expected distinct names from "
+                         f"{', '.join(STATES)}")  # fmt: skip
+    try:
+        y, inputs, t = (np.asarray(a, dtype=float) for a in (e.y, e.inputs, e.t))
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: t, states and inputs must be arrays of numbers") from None
+    n = len(t) if t.ndim == 1 else -1
+    if n < MIN_ROWS or y.shape != (n, len(e.measured)) or inputs.shape != (n, len(INPUTS)):
+        raise InputError(f"{name}: t {t.shape}, states {y.shape}, inputs {inputs.shape}; expected "
+                         f"N ≥ {MIN_ROWS} samples: (N,), (N, {len(e.measured)}), (N, {len(INPUTS)})")  # fmt: skip
+    for label, a in (("t", t), ("states", y), ("inputs", inputs)):
+        if not np.all(np.isfinite(a)):
+            raise InputError(f"{name}: {label} contain NaN or infinity; expected finite numbers")
+    for label, a, columns in (("states", y, e.measured), ("inputs", inputs, INPUTS)):
+        large = _too_large(a)
+        if large:
+            k, j = large
+            raise InputError(f"{name}: {columns[j]} = {a[k, j]:g} at t = {t[k]:g} s is {_TOO_LARGE}")
+    dt, off = uniform_step(t)
+    if off is not None:
+        raise InputError(f"{name}: t is not uniformly sampled (at t = {t[off + 1]:g} s); "
+                         "expected a constant step")  # fmt: skip
 
 
 def csv_text(t: np.ndarray, states: np.ndarray, inputs: np.ndarray,
@@ -136,12 +225,24 @@ def read_config(path: str | Path) -> ModelConfig:
     """Read and validate a model config TOML (SPEC §3)."""
     path = Path(path)
     try:
-        doc = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        doc = tomllib.loads(read_text(path, "a model config TOML file"))
+    except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise InputError(f"{path}: not valid TOML (nested too deeply)") from None
     return parse_config(doc, str(path))
+
+
+# what each vehicle constant must be, beyond a finite number within ±MAX_CONSTANT
+_VEHICLE_RANGES = {
+    "mass": (0.0, "> 0 (kg)"),
+    "Ix": (0.0, "> 0 (kg m²)"),
+    "Iy": (0.0, "> 0 (kg m²)"),
+    "Iz": (0.0, "> 0 (kg m²)"),
+    "weight": (0.0, "> 0 (N)"),
+    "buoyancy": (0.0, "> 0 (N)"),
+    "speed": (MIN_SPEED, f"{MIN_SPEED:g} to {MAX_SPEED:g} (m/s, the trim speed)"),
+}
 
 
 def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
@@ -158,9 +259,6 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     for key in set(veh) - set(Vehicle.names()):
         raise InputError(f"{source}: [vehicle] {key} is not a vehicle constant; "
                          f"expected one of {', '.join(Vehicle.names())}")  # fmt: skip
-    for key in ("mass", "Ix", "Iy", "Iz", "speed"):
-        if values[key] <= 0:
-            raise InputError(f"{source}: [vehicle] {key} = {values[key]:g}; expected > 0")
     coefficients = dict.fromkeys(COEFFICIENTS, 0.0)
     for key, v in doc["coefficients"].items():
         if key not in coefficients:
@@ -170,24 +268,55 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     free = ident.get("free", []) if isinstance(ident, dict) else None
     if not isinstance(free, list) or not all(isinstance(n, str) for n in free):
         raise InputError(f"{source}: [identify] free must be a list of coefficient names")
-    for n in free:
-        if n not in coefficients:
-            raise InputError(f"{source}: [identify] free names {n!r}, not a coefficient (SPEC §2)")
-    if len(set(free)) != len(free):
-        raise InputError(f"{source}: [identify] free names a coefficient twice")
     outputs = ident.get("outputs") if isinstance(ident, dict) else None
     if outputs is not None:
-        if not isinstance(outputs, list) or not outputs or any(s not in STATES for s in outputs):
-            raise InputError(f"{source}: [identify] outputs = {outputs!r}; expected a non-empty list of "
-                             f"states ({', '.join(STATES)})")  # fmt: skip
-        outputs = tuple(s for s in STATES if s in outputs)
-    return ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs)
+        if not isinstance(outputs, list) or not all(isinstance(s, str) for s in outputs):
+            raise InputError(f"{source}: [identify] outputs must be a list of state names")
+        outputs = tuple(s for s in STATES if s in outputs) + tuple(s for s in outputs if s not in STATES)
+    config = ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs)
+    check_config(config)
+    return config
+
+
+def check_config(config: ModelConfig) -> None:
+    """`InputError` unless `config` holds a physical vehicle (`_VEHICLE_RANGES`), the 35 SPEC
+    coefficients as finite numbers within ±`MAX_CONSTANT`, and distinct free coefficient names."""
+    source = config.source or "config"
+    for key in Vehicle.names():
+        v = _number(getattr(config.vehicle, key), f"{source}: [vehicle] {key}")
+        low, expected = _VEHICLE_RANGES.get(key, (None, ""))
+        high = MAX_SPEED if key == "speed" else math.inf
+        if low is not None and not ((v > low if low == 0.0 else v >= low) and v <= high):
+            raise InputError(f"{source}: [vehicle] {key} = {v:g}; expected {expected}")
+    for key, v in config.coefficients.items():
+        if key not in COEFFICIENTS:
+            raise InputError(f"{source}: [coefficients] {key} is not a coefficient name (SPEC §2)")
+        _number(v, f"{source}: [coefficients] {key}")
+    for n in config.free:
+        if n not in COEFFICIENTS:
+            raise InputError(f"{source}: [identify] free names {n!r}, not a coefficient (SPEC §2)")
+    if len(set(config.free)) != len(config.free):
+        raise InputError(f"{source}: [identify] free names a coefficient twice")
+    if config.outputs is not None and (not config.outputs or any(s not in STATES for s in config.outputs)):
+        raise InputError(f"{source}: [identify] outputs = {list(config.outputs)!r}; expected a non-empty "
+                         f"list of states ({', '.join(STATES)})")  # fmt: skip
 
 
 def _number(v, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise InputError(f"{where} = {v!r}; expected a finite number")
-    return float(v)
+    """`v` as a float; `InputError` unless it is a finite number within ±`MAX_CONSTANT`."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        shown = str(v).lower() if isinstance(v, bool) else repr(v)[:40]  # as TOML writes it
+        raise InputError(f"{where} = {shown}; expected a finite number")
+    if isinstance(v, numbers.Integral):  # an integer of any size: compared before it becomes a float
+        value = float(v) if abs(v) <= MAX_CONSTANT else math.inf
+        shown = str(v) if len(str(v)) <= 20 else f"an integer of {len(str(abs(v)))} digits"
+    else:
+        value, shown = float(v), str(v)
+        if not math.isfinite(value):
+            raise InputError(f"{where} = {v!r}; expected a finite number")
+    if abs(value) > MAX_CONSTANT:
+        raise InputError(f"{where} = {shown}; expected a magnitude of at most {MAX_CONSTANT:g} (SI)")
+    return value
 
 
 def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) -> str:
@@ -215,17 +344,12 @@ def run_csvs(run: Path) -> list[Path]:
     """The measurement CSVs of a run directory: the experiments its `manifest.json` lists, or
     without a manifest every `*.csv` but the `.truth.csv` and `.history.csv` files."""
     manifest = run / "manifest.json"
-    if manifest.exists():
-        try:
-            names = json.loads(manifest.read_text())["experiments"]
-            if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
-                raise TypeError
-        except (OSError, ValueError, KeyError, TypeError):
-            raise InputError(f"{manifest}: expected JSON with an 'experiments' list of names") from None
+    if os.path.lexists(manifest):
+        names = _manifest_experiments(manifest)
         files = [run / f"{n}.csv" for n in names]
         for f in files:
-            if not f.exists():
-                raise InputError(f"{f}: missing; {manifest} lists experiment {f.stem!r}")
+            if not f.is_file():
+                raise InputError(f"{f}: missing; {manifest} lists experiment {f.name.removesuffix('.csv')!r}")
     else:
         files = sorted(f for f in run.glob("*.csv") if not f.name.endswith((".truth.csv", ".history.csv")))
     if not files:
@@ -233,24 +357,49 @@ def run_csvs(run: Path) -> list[Path]:
     return files
 
 
+def _manifest_experiments(manifest: Path) -> list[str]:
+    """The experiment names a run's manifest lists: distinct file names (no folder part)."""
+    expected = f"{manifest}: expected JSON with an 'experiments' list of names"
+    try:
+        names = json.loads(read_text(manifest, "a run manifest (JSON)"))["experiments"]
+    except (ValueError, KeyError, TypeError, IndexError, RecursionError):
+        raise InputError(expected) from None
+    if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
+        raise InputError(expected)
+    for n in names:
+        if n in ("", ".", "..") or any(c in n for c in "/\\\0"):
+            raise InputError(f"{manifest}: experiment {n[:40]!r}; expected a file name without a folder")
+    if len(set(names)) != len(names):
+        raise InputError(f"{manifest}: experiment {sorted(n for n in names if names.count(n) > 1)[0]!r} "
+                         "is listed twice")  # fmt: skip
+    return names
+
+
 def load_data(paths: Iterable[str | Path]) -> tuple[list[Experiment], ModelConfig | None]:
     """Experiments from run directories and/or CSVs, and the run's `model.toml` if there is one.
 
     A run directory contributes the experiments its `manifest.json` lists, or without a manifest
     every `<experiment>.csv` but the `.truth.csv` files (so outputs written beside them, such as
-    filter histories, are not mistaken for experiments).
+    filter histories, are not mistaken for experiments). A file given twice is an error; two
+    experiments of one name (say `horizontal` of two runs) are told apart by their folders.
     """
     experiments: list[Experiment] = []
     config = None
     for p in map(Path, paths):
         if p.is_dir():
             experiments += [read_csv(f) for f in run_csvs(p)]
-            if config is None and (p / "model.toml").exists():
+            if config is None and os.path.lexists(p / "model.toml"):
                 config = read_config(p / "model.toml")
-        elif p.exists():
+        elif os.path.lexists(p):
             experiments.append(read_csv(p))
         else:
             raise InputError(f"{p}: no such file or run directory")
     if not experiments:
         raise InputError("no data given; expected run directories or measurement CSVs")
-    return experiments, config
+    files = [os.path.realpath(e.source) for e in experiments]
+    for e, f in zip(experiments, files):
+        if files.count(f) > 1:
+            raise InputError(f"{e.source}: given twice; expected each experiment once")
+    names = [e.name for e in experiments]
+    return [replace(e, name=str(Path(e.source).with_suffix(""))) if names.count(e.name) > 1 else e
+            for e in experiments], config  # fmt: skip

@@ -1,8 +1,12 @@
 """Bad input and all-or-nothing writes.
 
-Every user-facing failure is an `InputError` whose message is one line naming the file, field or
-value and what was expected; the command line turns it into exit status 2. Files and run
-directories are written to a temporary sibling and renamed, so nothing is ever half-written.
+Every user-facing failure is an `InputError` (a `ValueError`) whose message is one line naming the
+file, field or value and what was expected; the command line turns it into exit status 2.
+
+Regular files and run directories are written to a temporary sibling and renamed, so nothing is
+ever half-written. A character device (the null device, a terminal) or a FIFO named as an output
+is written into, never replaced: its content is built in a private temporary file first and
+copied into it once complete. Block devices and sockets are refused.
 """
 
 from __future__ import annotations
@@ -10,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 
@@ -20,8 +25,81 @@ def _umask() -> int:
     return umask
 
 
-class InputError(Exception):
+class InputError(ValueError):
     """Bad input from a user: the message is one line, fit to print as it is."""
+
+
+def _nearest(folder: Path) -> Path:
+    """`folder` or the nearest of its ancestors that exists."""
+    for ancestor in (folder, *folder.parents):
+        if os.path.lexists(ancestor):
+            return ancestor
+    return Path(folder.anchor or ".")
+
+
+def _not_a_folder(folder: Path) -> str | None:
+    """Why no folder can be at `folder` or made there: it, or its nearest existing ancestor, is
+    not a folder (None if it is one, or could be made)."""
+    nearest = _nearest(folder)
+    return None if nearest.is_dir() else f"{nearest} is a file, not a folder"
+
+
+def _node(path: Path) -> os.stat_result | None:
+    """`os.stat(path)` (symbolic links followed), or None if there is nothing there."""
+    try:
+        return os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot reach ({exc.strerror or exc})") from None
+
+
+def is_stream(path: str | os.PathLike) -> bool:
+    """Whether `path` names a character device or a FIFO (written into, never replaced)."""
+    st = _node(Path(path))
+    return st is not None and (stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode))
+
+
+def check_output_file(path: str | os.PathLike, label: str | None = None) -> None:
+    """`InputError` unless an output file can be written at `path`: a regular file (new or
+    replaced), a character device or a FIFO. `label` starts the message (default: the path)."""
+    path = Path(path)
+    label = label or str(path)
+    st = _node(path)
+    if st is None:
+        why = _not_a_folder(path.parent)
+        if why or not path.parent.is_dir():
+            raise InputError(f"{label}: {why or f'folder {path.parent} does not exist'}")
+    elif stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{label}: is a folder; expected a file name")
+    elif stat.S_ISBLK(st.st_mode) or stat.S_ISSOCK(st.st_mode):
+        kind = "a block device" if stat.S_ISBLK(st.st_mode) else "a socket"
+        raise InputError(f"{label}: is {kind}; expected a regular file, a character device or a FIFO")
+
+
+def check_output_directory(path: str | os.PathLike, force: bool = False, marker: str = "manifest.json",
+                           label: str | None = None) -> None:  # fmt: skip
+    """`InputError` unless a folder can be created at `path`, or (with `force`) replace the one
+    there: only a folder that is empty or holds `marker` (a run directory) is ever replaced."""
+    path = Path(path)
+    label = label or str(path)
+    st = _node(path)
+    if st is None:
+        why = _not_a_folder(path.parent)  # missing folders are made
+        if why:
+            raise InputError(f"{label}: {why}")
+        return
+    if not stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{label}: is a file, not a folder; expected a new run directory")
+    if not force:
+        raise InputError(f"{label}: already exists (use --force to overwrite)")
+    try:
+        replaceable = (path / marker).is_file() or not any(path.iterdir())
+    except OSError as exc:
+        raise InputError(f"{label}: cannot read ({exc.strerror or exc})") from None
+    if not replaceable:
+        raise InputError(f"{label}: is a folder without {marker}, not a run directory; --force "
+                         "replaces only a run directory or an empty folder")  # fmt: skip
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
@@ -38,13 +116,22 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 
 @contextlib.contextmanager
 def atomic_file(path: str | os.PathLike):
-    """Yield a unique temporary sibling of `path` that becomes `path` only if the block finishes;
-    on any exception (Ctrl-C included) it is removed and `path` is untouched."""
+    """Yield a unique temporary file whose content becomes `path` only if the block finishes;
+    on any exception (Ctrl-C included) it is removed and `path` is untouched.
+
+    A regular file (or a new one) is replaced by renaming a temporary sibling over it (through a
+    symbolic link: its target); a character device or a FIFO is written into at the end.
+    """
     path = Path(path)
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: folder {path.parent} does not exist")
+    check_output_file(path)
+    if is_stream(path):
+        with _private_temporary(path) as tmp:
+            yield tmp
+            _copy_into(tmp, path)
+        return
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     except OSError as exc:
         raise InputError(f"{path}: cannot write ({exc.strerror})") from None
     try:
@@ -52,7 +139,7 @@ def atomic_file(path: str | os.PathLike):
         os.close(fd)
         yield Path(tmp)
         try:
-            os.replace(tmp, path)
+            os.replace(tmp, target)
         except OSError as exc:
             raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
     except BaseException:
@@ -62,16 +149,44 @@ def atomic_file(path: str | os.PathLike):
 
 
 @contextlib.contextmanager
-def atomic_directory(path: str | os.PathLike, force: bool = False):
+def _private_temporary(path: Path):
+    """A temporary file in the system's temporary folder, removed afterwards."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix="testbed-", suffix=".tmp")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot stage the output ({exc.strerror})") from None
+    os.close(fd)
+    try:
+        yield Path(tmp)
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+
+
+def _copy_into(tmp: Path, path: Path) -> None:
+    """Write the content of `tmp` into the device or FIFO `path` (opening a FIFO waits for its
+    reader)."""
+    try:
+        with open(tmp, "rb") as src, open(path, "wb") as dst:
+            shutil.copyfileobj(src, dst)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | os.PathLike, force: bool = False, marker: str = "manifest.json"):
     """Yield a temporary folder that becomes `path` only if the block finishes.
 
-    An existing `path` is an error unless `force`, in which case it is replaced at the end.
-    On any exception (Ctrl-C included) the temporary folder is removed and `path` is untouched.
+    An existing `path` is an error unless `force`, in which case it is replaced at the end if it
+    is a folder that is empty or holds `marker` (a run directory: anything else is refused, so a
+    mistyped `--out` never deletes a user's folder). Missing parent folders are made. On any
+    exception (Ctrl-C included) the temporary folder and the parents made are removed and `path`
+    is untouched.
     """
     path = Path(path)
-    if path.exists() and not force:
-        raise InputError(f"{path}: already exists (use --force to overwrite)")
+    check_output_directory(path, force, marker)
     parent = path.parent
+    made = [p for p in (parent, *parent.parents) if not os.path.lexists(p)]  # removed on failure
     try:
         parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=parent))
@@ -81,7 +196,8 @@ def atomic_directory(path: str | os.PathLike, force: bool = False):
     try:
         yield tmp
         if path.exists():
-            old = parent / f".{path.name}.old"
+            # a fresh empty name to move the old folder to (a rename over an empty folder)
+            old = tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=parent)
             os.replace(path, old)
             os.replace(tmp, path)
             shutil.rmtree(old, ignore_errors=True)
@@ -89,4 +205,7 @@ def atomic_directory(path: str | os.PathLike, force: bool = False):
             os.replace(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        for folder in made:  # innermost first; only if still empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
         raise

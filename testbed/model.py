@@ -27,6 +27,10 @@ COEFFICIENTS = (
     "N_vdot", "N_pdot", "N_rdot", "N_v", "N_p", "N_r", "N_dr",
 )  # fmt: skip
 NX, NU, NTHETA = len(STATES), len(INPUTS), len(COEFFICIENTS)
+MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
+# m/s: Mach 0.3 in water (sound: ~1500 m/s); beyond it no incompressible fluid model (MuJoCo's,
+# the paper's) holds, and near 1e150 the fluid terms overflow
+MAX_SPEED = 450.0
 IX = {name: i for i, name in enumerate(STATES)}
 ITHETA = {name: i for i, name in enumerate(COEFFICIENTS)}
 
@@ -210,3 +214,65 @@ def derivatives(s: Structure, theta: np.ndarray, A: np.ndarray, B: np.ndarray, S
                           (s.dSt[index] - dMt @ S)[:, :, None]], axis=2)  # fmt: skip
     sol = np.linalg.solve(Mt[None], rhs)
     return sol[:, :, :NX], sol[:, :, NX:NX + NU], sol[:, :, -1]
+
+
+# -- what a model config must satisfy before a fit -----------------------------------------------
+
+BODY = ("u", "v", "w", "p", "q", "r")
+# the diagonal of Mt's body block, as SPEC §2 writes it
+INERTIA_TERMS = {"u": "m − X_udot", "v": "m − Y_vdot", "w": "m − Z_wdot", "p": "Ix − K_pdot",
+                 "q": "Iy − M_qdot", "r": "Iz − N_rdot"}  # fmt: skip
+
+
+def inertia_defect(s: Structure, theta: np.ndarray) -> str | None:
+    """Why `Mt` at `theta` is not the inertia of a body, or None.
+
+    The body block of Mt (rigid body plus added mass) gives the kinetic energy ½ νᵀ Mt ν, which is
+    positive for every motion ν: the block's symmetric part must be positive definite (which also
+    makes Mt invertible). Names a diagonal term ≤ 0, else the least eigenvalue."""
+    body = [IX[n] for n in BODY]
+    M = tilde(s, theta)[0][np.ix_(body, body)]
+    for n, d in zip(BODY, np.diag(M)):
+        if not d > 0:
+            return f"{INERTIA_TERMS[n]} = {d:.4g}; expected > 0"
+    lam = np.linalg.eigvalsh((M + M.T) / 2)
+    if lam[0] <= 1e-12 * lam[-1]:
+        return (f"the symmetric part of its body block has the eigenvalue {lam[0]:.4g} "
+                f"(largest {lam[-1]:.4g}); expected all > 0, a positive kinetic energy")  # fmt: skip
+    return None
+
+
+def fastest_rate(s: Structure, theta: np.ndarray) -> float:
+    """The largest |eigenvalue| of `A = Mt⁻¹At` (1/s): the rate of the model's fastest mode."""
+    return float(np.max(np.abs(np.linalg.eigvals(continuous(s, theta)[0]))))
+
+
+def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ...]:
+    """The coefficients among `free` on which no `measured` state depends, whatever the free
+    values: they cannot be identified from these measurements at all.
+
+    A coefficient enters some rows of `Mt ẋ = At x + Bt δ`; Mt⁻¹ spreads a row to the rows
+    coupled with it through Mt (either way: an over-estimate), and At carries a state into the
+    rows that depend on it. The coefficient is observed if this reaches a measured state. Fixed
+    coefficients count where they are nonzero, free ones wherever they sit."""
+    idx = np.array([ITHETA[n] for n in free], dtype=int)
+    fixed = np.asarray(theta, dtype=float).copy()
+    fixed[idx] = 0.0
+    Mt, At = tilde(s, fixed)[:2]
+    coupled = (Mt != 0) | s.dMt[idx].any(0)
+    coupled = coupled | coupled.T | np.eye(NX, dtype=bool)
+    for _ in range(NX):  # transitive closure: rows mixed by Mt⁻¹
+        coupled = (coupled.astype(int) @ coupled.astype(int)) > 0
+    drives = (At != 0) | s.dAt[idx].any(0)  # drives[r, k]: row r depends on x_k
+    spread = (coupled.astype(int) @ drives.astype(int)) > 0  # spread[l, k]: ẋ_l depends on x_k
+    seen = np.zeros(NX, dtype=bool)
+    seen[[IX[n] for n in measured]] = True
+    out = []
+    for n, i in zip(free, idx):
+        rows = s.dMt[i].any(1) | s.dAt[i].any(1) | s.dBt[i].any(1)
+        reached = coupled[:, rows].any(1)
+        for _ in range(NX):
+            reached = reached | spread[:, reached].any(1)
+        if not (reached & seen).any():
+            out.append(n)
+    return tuple(out)

@@ -59,13 +59,13 @@ from typing import Callable, Mapping
 import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design
-from testbed.data import config_text, csv_text
+from testbed.data import MIN_ROWS, config_text, csv_text
 from testbed.errors import InputError, atomic_directory
 from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
 from testbed.plant import Plant
 from testbed.signals import Hold, Signal, parse_signal, prbs, prbs_spectrum, signal_table  # noqa: F401 (re-exported)
-from testbed.vehicle import MIN_SPEED, cruise_speed, default_mjcf
+from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed, default_mjcf
 
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).
 UNFITTED_DEPTH = ("depth is measured but not fitted: it integrates U θ, and the second-order drag "
@@ -73,6 +73,7 @@ UNFITTED_DEPTH = ("depth is measured but not fitted: it integrates U θ, and the
                   "-119 N m per (m/s)^2 of heave or sway) rectify into a pitch drift that SPEC's "
                   "linear model cannot follow")  # fmt: skip
 CHANNELS = ("rudder", "elevators", "differential")  # fin channels a signal can drive
+SAMPLES = (MIN_ROWS, 10**6)  # the samples an experiment may have (MIN_ROWS: the fewest a fit takes)
 LOOPS = {"yaw_rate": "rudder", "depth": "elevators", "roll": "differential"}  # loop -> its channel
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 BUILTIN = tuple(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
@@ -127,7 +128,7 @@ class Scenario:
     def __post_init__(self):
         checks = {
             "duration": (_positive, "a finite number > 0 (s)"),
-            "speed": (lambda v: v is None or (_positive(v) and v >= MIN_SPEED), f"a finite number >= {MIN_SPEED} (m/s)"),
+            "speed": (lambda v: v is None or (_positive(v) and MIN_SPEED <= v <= MAX_SPEED), f"{MIN_SPEED} to {MAX_SPEED} (m/s)"),
             "depth": (lambda v: isinstance(v, numbers.Real) and math.isfinite(v), "a finite number (m)"),
             "control_rate": (_positive, "a finite number > 0 (Hz)"),
         }  # fmt: skip
@@ -436,12 +437,14 @@ def fly_scenario(s: Scenario | str, seed: int = 0, mjcf=None,
 
 
 def check_flyable(s: Scenario) -> None:
-    """Refuse up front what the tool could not use: an experiment shorter than 3 samples."""
+    """Refuse up front what the tool could not use: a record with too few samples to fit, or
+    too many to hold (~1 kB each in flight)."""
+    rate, (low, high) = s.sensors.rate, SAMPLES
     for e in s.experiments:
-        n = int(math.floor(s.duration_of(e) * s.sensors.rate + 1e-9)) + 1
-        if n < 3:
-            raise InputError(f"--duration {s.duration_of(e)!r} s gives experiment {e.name!r} {n} samples at "
-                             f"{s.sensors.rate:g} Hz; expected at least 3")  # fmt: skip
+        duration = s.duration_of(e)
+        if not low <= math.floor(duration * rate + 1e-9) + 1 <= high:
+            raise InputError(f"--duration {duration!r} (experiment {e.name!r}); expected {(low - 1) / rate:g} to "
+                             f"{(high - 1) / rate:g} s ({low} to {high} samples at {rate:g} Hz)")  # fmt: skip
 
 
 # -- run directories ---------------------------------------------------------------------------

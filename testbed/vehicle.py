@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from testbed.errors import InputError
-from testbed.model import Vehicle
+from testbed.model import MAX_SPEED, MIN_SPEED, Vehicle
 
 FINS = ("rudder", "elevator_right", "elevator_left")
 FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> SPEC body axes (FRD); also ENU-ish world <-> NED
@@ -33,8 +33,11 @@ def default_mjcf() -> Path:
 def load_model(path: str | Path | None = None) -> mujoco.MjModel:
     """Compile `path` (default: the bundled torpedo) and check it has what the plant needs."""
     path = Path(path) if path is not None else default_mjcf()
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; expected an MJCF file")
     if not path.is_file():
-        raise InputError(f"{path}: no such MJCF file")
+        raise InputError(f"{path}: is not a regular file; expected an MJCF file" if path.exists()
+                         else f"{path}: no such MJCF file")  # fmt: skip
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
@@ -119,17 +122,16 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
 
 _NEEDS = ("a body 'hull' with free joint 'hull', hinge joints and position actuators 'rudder', "
           "'elevator_right', 'elevator_left', a motor 'thruster', ellipsoid fluid geoms")  # fmt: skip
-MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
 
 
 def trim_speed(speed) -> float:
-    """`speed` as a trim speed (m/s): finite and at least `MIN_SPEED`, else `InputError`."""
+    """`speed` as a trim speed (m/s): from `MIN_SPEED` to `MAX_SPEED`, else `InputError`."""
     try:
         value = float(speed)
     except (TypeError, ValueError):
         raise InputError(f"speed={speed!r}; expected a number (m/s)") from None
-    if not MIN_SPEED <= value < np.inf:
-        raise InputError(f"speed={speed}; expected a finite trim speed >= {MIN_SPEED} m/s")
+    if not MIN_SPEED <= value <= MAX_SPEED:
+        raise InputError(f"speed={speed}; expected a trim speed of {MIN_SPEED:g} to {MAX_SPEED:g} m/s")
     return value
 
 

@@ -78,7 +78,11 @@ def _doc(**changes):
 @pytest.mark.parametrize("changes, words", [
     ({"vehicle__zB": None}, r"\[vehicle\] zB missing"),
     ({"vehicle__mass": "heavy"}, r"\[vehicle\] mass = 'heavy'; expected a finite number"),
-    ({"vehicle__speed": 0.0}, r"\[vehicle\] speed = 0; expected > 0"),
+    ({"vehicle__speed": 0.0}, r"\[vehicle\] speed = 0; expected 0.001 to 450"),
+    ({"vehicle__speed": 1e-6}, r"\[vehicle\] speed = 1e-06; expected 0.001 to 450"),
+    ({"vehicle__weight": -299.0}, r"\[vehicle\] weight = -299; expected > 0"),
+    ({"vehicle__buoyancy": 0}, r"\[vehicle\] buoyancy = 0; expected > 0"),
+    ({"coefficients__Y_v": 1e300}, r"\[coefficients\] Y_v = 1e\+300; expected a magnitude of at most 1e\+15"),
     ({"vehicle__colour": 1.0}, r"\[vehicle\] colour is not a vehicle constant"),
     ({"coefficients__Y_vv": 1.0}, r"\[coefficients\] Y_vv is not a coefficient"),
     ({"identify__free": ["X_u", "Y_foo"]}, r"free names 'Y_foo'"),

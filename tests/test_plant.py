@@ -198,7 +198,9 @@ def test_unstable_simulation_is_one_line_input_error(tmp_path, monkeypatch, caps
     plant.wrench[:] = [1e9, 0.0, 0.0, 0.0, 0.0, 0.0]
     with pytest.raises(InputError, match=r"unstable at t=0\.01 s \((velocities non-finite or beyond|MuJoCo: Nan, Inf or huge)"):
         plant.step(n=10)
-    assert main(["simulate", "--scenario", "I", "--speed", "1e6", "--out", "run", "--quiet"]) == 2
+    # a hull whose "drag" pushes it forward accelerates without bound
+    pushing = _variant(tmp_path, "pushing", 'fluidcoef="0.02 0.002 0.33 0.0 0.0"', 'fluidcoef="-50 0.002 0.33 0.0 0.0"')
+    assert main(["simulate", "--scenario", "I", "--mjcf", str(pushing), "--out", "run", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "simulation unstable at t=" in err, err
     assert not (tmp_path / "run").exists()

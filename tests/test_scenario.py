@@ -302,7 +302,8 @@ def test_bad_input_leaves_nothing(tmp_path, capsys, monkeypatch):
     assert "already exists" in one_line_exit_2(["simulate", "--scenario", "I", "--out", str(tmp_path / "exists")])
     blocker = tmp_path / "file"
     blocker.write_text("")
-    assert "cannot create" in one_line_exit_2(["simulate", "--scenario", "I", "--out", str(blocker / "run")])
+    blocked = ["simulate", "--scenario", "I", "--out", str(blocker / "run")]
+    assert "file is a file, not a folder" in one_line_exit_2(blocked)
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

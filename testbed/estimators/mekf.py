@@ -110,7 +110,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import Estimate, Status, register
+from testbed.estimators import Estimate, Status, check_inputs, register
 from testbed.model import (IX, ITHETA, NX, STATES, continuous, derivatives, expm_pair,
                            structure, theta_vector)
 
@@ -229,11 +229,16 @@ def _third_differences(experiments: Sequence[Experiment]) -> dict[str, list[np.n
 
 def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
     """Measurement noise σ per measured state, pooled over the experiments: robust third
-    differences, `Var(Δ³e) = 20 σ²` (an upper bound where the signal is fast; module docstring)."""
+    differences, `Var(Δ³e) = 20 σ²` (an upper bound where the signal is fast; module docstring).
+    A state measured only in records of fewer than 4 samples has none: `InputError`."""
     pooled = _third_differences(experiments)
     out = {}
     for name in (s for s in STATES if s in pooled):
         d = np.concatenate(pooled[name])
+        if not d.size:
+            where = ", ".join(e.source or e.name for e in experiments if name in e.measured)
+            raise InputError(f"{where}: {name} has fewer than 4 samples; the filter's noise estimate "
+                             "(third differences) expected at least 4")  # fmt: skip
         mad = 1.4826 * np.median(np.abs(d - np.median(d)))
         out[name] = max(mad / math.sqrt(20.0), 1e-9)  # floor: R must stay positive definite
     return out
@@ -572,21 +577,25 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
                 hist_t=np.full(total, np.nan), ldiag=np.ones((total, NX)), total=total)  # fmt: skip
     diverged = None
     try:
-        model = _Model(s, theta, idx)
-        for e in experiments:
-            if st.count >= total:
-                break
-            if square_root:
-                _sqrt_pass(e, st, model, options, sigma_r, U, modified, callback)
-            else:
-                _conventional_pass(e, st, model, options, sigma_r, U, callback)
+        # an overflow or 0/0 makes a state, coefficient or variance non-finite, which `_Books`
+        # reports as the divergence it is (numpy's warnings would only repeat it)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            model = _Model(s, theta, idx)
+            for e in experiments:
+                if st.count >= total:
+                    break
+                if square_root:
+                    _sqrt_pass(e, st, model, options, sigma_r, U, modified, callback)
+                else:
+                    _conventional_pass(e, st, model, options, sigma_r, U, callback)
     except _Diverged as exc:
         diverged = str(exc)
     except np.linalg.LinAlgError as exc:
         diverged = f"linear algebra failed ({exc}): a singular Mt or a covariance not positive definite"
     if diverged is not None:
-        diverged = {"reason": diverged + _hint(st, diverged, experiments), "sample": st.count,
-                    "t": float(st.t_now)}  # fmt: skip
+        with np.errstate(over="ignore", invalid="ignore"):
+            hint = _hint(st, diverged, experiments)
+        diverged = {"reason": diverged + hint, "sample": st.count, "t": float(st.t_now)}
 
     count = st.count
     values = st.th.copy()
@@ -670,6 +679,7 @@ def _entry(method: str, modified: bool, square_root: bool):
             raise InputError(f"--max-iter {max_iter}; expected ≥ 1 (samples to process)")
         if not config.free:
             raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to estimate")
+        check_inputs(experiments, config)
         return _run(experiments, config, method=method, modified=modified,
                     square_root=square_root, options=FilterOptions.from_options(opts),
                     max_samples=max_iter, callback=callback)  # fmt: skip

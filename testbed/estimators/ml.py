@@ -233,7 +233,23 @@ def _start(prob: oe.Problem, experiments, config: ModelConfig, start: str) -> np
 
 def _estimate(name: str, prob: oe.Problem, out: Outcome, start: str, t0: float,
               extra: dict | None = None) -> Estimate:  # fmt: skip
-    info = oe.assess(prob, out.p, out.fisher)
+    """The `Estimate` where the optimiser stopped, with its Cramér-Rao analysis; a DIVERGED one
+    (the reason in `extra["diverged"]`) where that analysis breaks down or is not finite."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            info = oe.assess(prob, out.p, out.fisher)
+        why = None if all(np.all(np.isfinite(a)) for a in (info.values, info.crlb_std, info.cost)) \
+            else "the estimate or its Cramér-Rao bound is not finite"  # fmt: skip
+    except np.linalg.LinAlgError as exc:
+        why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
+    if why is not None:
+        nf = prob.n_free
+        return Estimate(
+            method=name, status=Status.DIVERGED, free=prob.free, values=out.p[:nf].copy(),
+            std=np.full(nf, np.nan), cost=np.nan, iterations=out.iterations,
+            wall_time_s=time.perf_counter() - t0, noise_std={}, start=start, history=out.history,
+            extra={"diverged": {"reason": why}, **(extra or {})},
+        )  # fmt: skip
     return Estimate(
         method=name, status=out.status, free=prob.free, values=info.values, std=info.crlb_std,
         cost=info.cost, iterations=out.iterations, wall_time_s=time.perf_counter() - t0,

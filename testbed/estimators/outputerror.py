@@ -108,53 +108,27 @@ class Problem:
 
 
 def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
-    """Check the experiments and the config and set up the output-error problem."""
+    """Check the experiments and the config (`check_inputs`) and set up the output-error problem."""
+    from testbed.estimators import check_inputs
+
+    check_inputs(experiments, config)
     where = config.source or "config"
-    if not experiments:
-        raise InputError("no experiments given; expected at least one measurement record")
-    for n in config.free:
-        if n not in ITHETA:
-            raise InputError(f"{where}: [identify] free names {n!r}, not a coefficient (SPEC §2)")
-    if len(set(config.free)) != len(config.free):
-        raise InputError(f"{where}: [identify] free names a coefficient twice")
-    try:
-        theta = theta_vector(config.coefficients)
-    except KeyError as exc:
-        raise InputError(f"{where}: [coefficients] {exc.args[0]} (SPEC §2)") from None
+    theta = theta_vector(config.coefficients)
     channels = tuple(s for s in STATES if any(s in e.measured for e in experiments))
     records, offset = [], len(config.free)
     for e in experiments:
-        name = e.source or e.name
         y, inputs, t = (np.asarray(a, dtype=float) for a in (e.y, e.inputs, e.t))
-        if len(t) < 3 or y.shape != (len(t), len(e.measured)) or inputs.shape != (len(t), NU):
-            raise InputError(f"{name}: {len(t)} samples of {len(e.measured)} states and "
-                             f"{inputs.shape[-1] if inputs.ndim == 2 else '?'} inputs; expected "
-                             f"at least 3 samples, the states and {NU} inputs")  # fmt: skip
-        for label, a in (("t", t), ("states", y), ("inputs", inputs)):
-            if not np.all(np.isfinite(a)):
-                raise InputError(f"{name}: {label} contain NaN or infinity; expected finite numbers")
-        steps = np.diff(t)
-        if steps[0] <= 0 or np.any(np.abs(steps - steps[0]) > 1e-6 * steps[0] + 1e-9):
-            raise InputError(f"{name}: t is not uniformly increasing; expected a constant step")
-        unknown = [s for s in e.measured if s not in IX]
-        if unknown or not e.measured:
-            raise InputError(f"{name}: measured states {list(e.measured)}; expected names from "
-                             f"{', '.join(STATES)}")  # fmt: skip
         measured = np.array([IX[s] for s in e.measured])
         y = y.copy()
         if "u" in e.measured:
             y[:, e.measured.index("u")] -= config.vehicle.speed
         records.append(Record(e.name, y, inputs, measured,
                               np.array([channels.index(s) for s in e.measured]),
-                              float(steps[0]), offset))  # fmt: skip
+                              float(t[1] - t[0]), offset))  # fmt: skip
         offset += len(measured)
     index = np.array([ITHETA[n] for n in config.free], dtype=int)
-    prob = Problem(structure(config.vehicle), theta, tuple(config.free), index, tuple(records),
+    return Problem(structure(config.vehicle), theta, tuple(config.free), index, tuple(records),
                    channels, config.vehicle.speed, where)  # fmt: skip
-    if abs(np.linalg.det(tilde(prob.structure, theta)[0])) < 1e-300:
-        raise InputError(f"{where}: the inertia matrix Mt is singular at the given coefficients; "
-                         "expected m − X_udot, Ix − K_pdot, ... to be nonzero")
-    return prob
 
 
 # --- the discrete model and its exact derivatives ---------------------------------------------
@@ -531,11 +505,15 @@ def fit_initial_states(prob: Problem, values: np.ndarray,
         sums = []
         for r, (Q, b, ss) in zip(prob.records, grams):
             k = len(r.measured)
-            if np.all(np.isfinite(Q)) and np.all(np.isfinite(b)) and np.all(np.isfinite(ss)):
-                wt = 1.0 / variance(r)
-                # normal equations: k ≤ 10 unknowns pinned by the first samples, so squaring the
-                # condition number is harmless
-                x0 = np.linalg.lstsq(np.tensordot(wt, Q, 1), wt @ b, rcond=None)[0]
+            wt = 1.0 / variance(r)
+            # normal equations: k ≤ 10 unknowns pinned by the first samples, so squaring the
+            # condition number is harmless; scaled to a largest entry of 1, as LAPACK's norms
+            # overflow beyond ~1e154
+            with np.errstate(over="ignore", invalid="ignore"):
+                N, rhs = np.tensordot(wt, Q, 1), wt @ b
+                big = float(np.max(np.abs(N)))
+            if all(np.all(np.isfinite(a)) for a in (N, rhs, ss)) and big > 0:
+                x0 = np.linalg.lstsq(N / big, rhs / big, rcond=None)[0]
                 sums.append(np.maximum(ss - 2 * b @ x0 + np.einsum("j,cjl,l->c", x0, Q, x0), 0.0))
             else:
                 x0 = r.y[0]

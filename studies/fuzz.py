@@ -1,0 +1,564 @@
+"""Bad input tried against the command line as a user's files and arguments would be, tallied.
+
+A corpus of about three hundred cases over a workspace of valid inputs (two small measurement
+CSVs simulated from the linear model, a model config, a run directory with truth files): the
+CSVs broken in every way `CSV_MUTATIONS` knows, the config's every vehicle constant and some
+coefficients given impossible values, the manifest's every broken form, every flag given bad
+values, every kind of output target (a folder, a file in the way, an input, standard output, a
+missing folder), and the cases of the bad-input issue one by one. Each case runs `testbed` on a
+fresh copy of the workspace; the tally counts:
+
+- errors: exit status 2 with exactly one stderr line naming a file, flag or value;
+- crashes: any other failure: a traceback, a status other than 0, 1 or 2, a second stderr line
+  (a numpy warning is made an error here, so it counts), or an unnamed one-line error;
+- partial outputs: anything written on failure, or an input changed, whatever the status.
+
+    python studies/fuzz.py              # in this process (fd-level output captured)
+    python studies/fuzz.py --subprocess # each case a real `python -m testbed` (slower)
+
+The property-based tests (tests/test_properties.py) use the same workspace, snapshots and
+mutations with generated values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import shutil
+import stat
+import subprocess
+import sys
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
+from studies.montecarlo import NOISE, TRUTH, VEHICLE, inputs  # noqa: E402
+
+from testbed.data import ModelConfig, config_text, csv_text  # noqa: E402
+from testbed.estimators.outputerror import synthetic  # noqa: E402
+from testbed.model import INPUTS, STATES, Vehicle  # noqa: E402
+
+FREE = ("Y_v", "Y_r", "N_v", "N_r", "Z_w", "M_q")  # observed from both experiments of the workspace
+
+# -- the workspace -------------------------------------------------------------------------------
+
+
+def workspace(root: Path) -> Path:
+    """Valid inputs in `root`: data/h.csv and data/v.csv (2 s at 20 Hz, noisy), cfg.toml (FREE,
+    30 % off the truth), run/ (a run directory: the two CSVs, their noise-free .truth.csv,
+    model.toml at the truth and manifest.json), keep.txt (a user's file) and an empty out/."""
+    rng = np.random.default_rng(7)
+    truth = ModelConfig(VEHICLE, dict(TRUTH), FREE, "truth")
+    for folder in ("data", "run", "out"):
+        (root / folder).mkdir(parents=True, exist_ok=True)
+    for name, (t, u) in inputs(duration=2.0, dt=0.05).items():
+        clean = synthetic(truth, t, u, name=name)
+        noisy = synthetic(truth, t, u, NOISE, rng=rng, name=name)
+        text = csv_text(t, noisy.y, u)
+        (root / "data" / f"{name[0]}.csv").write_text(text)
+        (root / "run" / f"{name}.csv").write_text(text)
+        (root / "run" / f"{name}.truth.csv").write_text(csv_text(t, clean.y, u))
+    prior = truth.with_coefficients({n: TRUTH[n] * (1.3 if k % 2 else 0.7) for k, n in enumerate(FREE)})
+    (root / "cfg.toml").write_text(config_text(prior))
+    (root / "run" / "model.toml").write_text(config_text(truth))
+    manifest = {"scenario": "fuzz", "experiments": ["horizontal", "vertical"]}
+    (root / "run" / "manifest.json").write_text(json.dumps(manifest))
+    (root / "keep.txt").write_text("a user's file\n")
+    return root
+
+
+def snapshot(root: Path) -> dict[str, str]:
+    """Every path below `root` (hidden ones too) → its kind and, for a file, its SHA-256."""
+    out = {}
+    for folder, dirs, files in os.walk(root):
+        for name in dirs + files:
+            path = Path(folder) / name
+            rel = str(path.relative_to(root))
+            st = os.lstat(path)
+            if stat.S_ISLNK(st.st_mode):
+                out[rel] = f"link:{os.readlink(path)}"
+            elif stat.S_ISDIR(st.st_mode):
+                out[rel] = "dir"
+            elif stat.S_ISREG(st.st_mode):
+                out[rel] = hashlib.sha256(path.read_bytes()).hexdigest()
+            else:
+                out[rel] = f"node:{st.st_mode:o}"
+    return out
+
+
+# -- mutations -----------------------------------------------------------------------------------
+
+CELLS = ["", "nan", "inf", "-inf", "1e300", "-1e7", "abc", "1,5", '"', "  ", "1e-400", "0x1p3", "１", "1_0",
+         "\x00", "9" * 400, "1e308", "--1", "True", "1.0.0", "-1.7e308", "1.7e308"]  # fmt: skip
+
+
+def _rows(data: bytes) -> list[list[str]]:
+    return list(csv.reader(io.StringIO(data.decode("utf-8-sig"))))
+
+
+def _text(rows: list[list[str]]) -> bytes:
+    return ("\n".join(",".join(r) for r in rows) + "\n").encode()
+
+
+def _at(rows, where: int) -> tuple[int, int]:
+    """A data row and a column of `rows` picked by `where`."""
+    return 1 + where % max(len(rows) - 1, 1), (where // 7) % len(rows[0])
+
+
+def _set_cell(rows, where):
+    r, c = _at(rows, where)
+    rows[r][c] = CELLS[where % len(CELLS)]
+    return rows
+
+
+def _drop_column(rows, where):
+    c = where % len(rows[0])
+    return [row[:c] + row[c + 1:] for row in rows]
+
+
+def _drop_states(rows, where):
+    keep = [c for c, name in enumerate(rows[0]) if name not in STATES]
+    return [[row[c] for c in keep] for row in rows]
+
+
+def _duplicate_column(rows, where):
+    c = where % len(rows[0])
+    rows[0][(c + 1) % len(rows[0])] = rows[0][c]
+    return rows
+
+
+def _cut_row(rows, where):
+    r = _at(rows, where)[0]
+    rows[r] = rows[r][:-1]
+    return rows
+
+
+def _extend_row(rows, where):
+    rows[_at(rows, where)[0]].append("0")
+    return rows
+
+
+def _few_rows(rows, where):
+    return rows[:1 + where % 3]
+
+
+def _time_jump(rows, where):
+    r = _at(rows, where)[0]
+    rows[r][0] = repr(float(rows[r][0]) + 0.5 * (float(rows[2][0]) - float(rows[1][0])))
+    return rows
+
+
+def _scale(factor, every_state=False):
+    def mutate(rows, where):
+        columns = [c for c, n in enumerate(rows[0]) if n in STATES] if every_state else [1 + where % (len(rows[0]) - 1)]
+        for row in rows[1:]:
+            for c in columns:
+                row[c] = repr(float(row[c]) * factor)
+        return rows
+
+    return mutate
+
+
+def _time_scale(factor):
+    def mutate(rows, where):
+        c = rows[0].index("t")
+        for row in rows[1:]:
+            row[c] = repr(float(row[c]) * factor)
+        return rows
+
+    return mutate
+
+
+def _long_cell(rows, where):
+    r, c = _at(rows, where)
+    rows[r][c] = "1" * 200_000
+    return rows
+
+
+def _insert_line(line):
+    def mutate(rows, where):
+        rows.insert(1 + where % len(rows), line)
+        return rows
+
+    return mutate
+
+
+def _bytes_at(blob: bytes):
+    def mutate(data: bytes, where: int) -> bytes:
+        k = where % (len(data) + 1)
+        return data[:k] + blob + data[k:]
+
+    return mutate
+
+
+# name → (rows, where) → rows, or (bytes, where) → bytes (names ending in "bytes")
+CSV_MUTATIONS: dict[str, Callable] = {
+    "cell": _set_cell,
+    "drop column": _drop_column,
+    "drop states": _drop_states,
+    "duplicate column": _duplicate_column,
+    "short row": _cut_row,
+    "long row": _extend_row,
+    "few rows": _few_rows,
+    "time jump": _time_jump,
+    "time reversed": lambda rows, where: rows[:1] + rows[1:][::-1],
+    "time constant": lambda rows, where: [rows[0]] + [["1"] + r[1:] for r in rows[1:]],
+    "time in ms": _time_scale(1000),
+    "time x4000": _time_scale(4000),
+    "header only": lambda rows, where: rows[:1],
+    "no header": lambda rows, where: rows[1:],
+    "scaled 1e300": _scale(1e300),
+    "states scaled 1e300": _scale(1e300, every_state=True),
+    "scaled 1e8": _scale(1e8),
+    "scaled 1e-300": _scale(1e-300),
+    "long cell": _long_cell,
+    "units row": lambda rows, where: [rows[0], ["s"] * len(rows[0])] + rows[1:],
+    "comment line": _insert_line(["# a comment"]),
+    "blank lines": _insert_line([]),
+    "index column": lambda rows, where: [[""] + rows[0]] + [[str(k)] + r for k, r in enumerate(rows[1:])],
+    "padded cells": lambda rows, where: [[f"  {c} " for c in r] for r in rows],
+    "quoted cells": lambda rows, where: [[f'"{c}"' for c in r] for r in rows],
+    "empty bytes": lambda data, where: b"",
+    "semicolons bytes": lambda data, where: data.replace(b",", b";"),
+    "utf-16 bytes": lambda data, where: data.decode().encode("utf-16"),
+    "bom bytes": lambda data, where: b"\xef\xbb\xbf" + data,
+    "crlf bytes": lambda data, where: data.replace(b"\n", b"\r\n"),
+    "latin-1 bytes": _bytes_at(b"\xe9t\xe9"),
+    "nul bytes": _bytes_at(b"\x00\x00"),
+    "junk bytes": _bytes_at(b"\xff\xfe\x80,\n\r"),
+    "truncated bytes": lambda data, where: data[:where % (len(data) + 1)],
+}
+
+
+def apply_csv_mutation(data: bytes, name: str, where: int) -> bytes:
+    """`data` (a valid measurement CSV) broken by the mutation `name` at position `where`."""
+    mutate = CSV_MUTATIONS[name]
+    try:
+        return mutate(data, where) if name.endswith("bytes") else _text(mutate(_rows(data), where))
+    except (IndexError, ValueError, ZeroDivisionError, UnicodeDecodeError, csv.Error):  # too broken for it
+        return data
+
+
+TOML_BAD_VALUES = ["x", True, [], {}, float("nan"), float("inf"), -float("inf"), 1e300, -1.0, 0, 10**30,
+                   10**400, [1, 2], {"a": 1}, -0.0, 1e-300, "1.5"]  # fmt: skip
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string
+    if isinstance(v, list):
+        return "[" + ", ".join(map(_toml_value, v)) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{json.dumps(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(type(v))
+
+
+def toml_text(doc: dict) -> str:
+    """TOML text of `doc`: top-level tables as [sections], everything else as key = value."""
+    lines = [f"{json.dumps(k)} = {_toml_value(v)}" for k, v in doc.items() if not isinstance(v, dict)]
+    for table, body in doc.items():
+        if isinstance(body, dict):
+            lines += [f"[{json.dumps(table)}]"] + [f"{json.dumps(k)} = {_toml_value(v)}" for k, v in body.items()]
+    return "\n".join(lines) + "\n"
+
+
+# -- the corpus ----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Case:
+    """One command line over a fresh workspace: `files` are written into it first, as pairs of a
+    relative path and its bytes, or a workspace CSV and the mutations that break it: (source,
+    ((mutation, where), ...))."""
+
+    label: str
+    argv: tuple[str, ...]
+    files: tuple = ()
+
+
+def _config_doc(root: Path) -> dict:
+    import tomllib
+
+    return tomllib.loads((root / "cfg.toml").read_text())
+
+
+def corpus(root: Path) -> list[Case]:
+    """The cases, over the workspace at `root` (read for the config to break)."""
+    fit = ("--max-iter", "2")
+    cases = []
+    for name in CSV_MUTATIONS:
+        for where in (0, 1, 7, 23):
+            files = (("bad.csv", ("data/h.csv", ((name, where),))),)
+            cases.append(Case(f"csv {name} @{where}", ("identify", "bad.csv", "--config", "cfg.toml",
+                                                       "--out", "out/e.json", *fit), files))  # fmt: skip
+        files = (("bad.csv", ("data/v.csv", ((name, 3),))),)
+        cases.append(Case(f"csv {name} (analyze)", ("analyze", "bad.csv", "--config", "cfg.toml",
+                                                    "--out", "out/a.json"), files))  # fmt: skip
+        cases.append(Case(f"csv {name} (mekf)", ("identify", "bad.csv", "data/h.csv", "--config", "cfg.toml",
+                                                 "--method", "mekf", "--out", "out/e.json"), files))  # fmt: skip
+    doc = _config_doc(root)
+    bad = [float("nan"), -1.0, 0, "x", 1e300, True, 10**400]
+    for key in Vehicle.names():
+        for value in bad:
+            broken = json.loads(json.dumps(doc))
+            broken["vehicle"][key] = value
+            cases.append(Case(f"config vehicle {key}={value!r:.12}", ("identify", "data", "--config", "bad.toml",
+                                                                      "--out", "out/e.json", *fit),
+                              (("bad.toml", toml_text(broken).encode()),)))  # fmt: skip
+    for key in ("X_udot", "N_rdot", "Y_v", "Nope"):
+        for value in bad + [doc["vehicle"]["Iz"]]:
+            broken = json.loads(json.dumps(doc))
+            broken["coefficients"][key] = value
+            cases.append(Case(f"config {key}={value!r:.12}", ("analyze", "data", "--config", "bad.toml"),
+                              (("bad.toml", toml_text(broken).encode()),)))  # fmt: skip
+    for label, free in (("unknown", ["Y_v", "Nope"]), ("twice", ["Y_v", "Y_v"]), ("not a list", "Y_v"),
+                        ("numbers", [1, 2]), ("empty", []), ("all", list(doc["coefficients"]))):
+        broken = json.loads(json.dumps(doc)) | {"identify": {"free": free}}
+        argv = ("identify", "data", "--config", "bad.toml", "--out", "out/e.json", *fit)
+        cases.append(Case(f"config free {label}", argv, (("bad.toml", toml_text(broken).encode()),)))
+    text = (root / "cfg.toml").read_bytes()
+    for label, blob in (("empty", b""), ("cut", text[:len(text) // 2]), ("binary", b"\xff\xfe\x00\x01"),
+                        ("no vehicle", text.replace(b"[vehicle]", b"[vehicles]")), ("deep", b"a = " + b"[" * 5000),
+                        ("twice", text + text), ("json", b'{"vehicle": {}}')):  # fmt: skip
+        cases.append(Case(f"config text {label}", ("analyze", "data", "--config", "bad.toml"), (("bad.toml", blob),)))
+    manifests = {"not json": b"{", "list": b"[]", "no experiments": b"{}", "deep": b"[" * 100_000,
+                 "binary": b"\xff\xfe", "string": "h", "numbers": [1], "outside": ["../data/h"],
+                 "absolute": ["/etc/passwd"], "twice": ["horizontal", "horizontal"], "missing": ["gone"],
+                 "empty list": [], "nul": ["a\x00b"], "truth": ["horizontal.truth"]}  # fmt: skip
+    for label, value in manifests.items():
+        text = value if isinstance(value, bytes) else json.dumps({"experiments": value}).encode()
+        argv = ("identify", "run", "--out", "out/e.json", *fit)
+        cases.append(Case(f"manifest {label}", argv, (("run/manifest.json", text),)))
+    for label, name, blob in (("broken truth file", "run/horizontal.truth.csv", b"t,u\n"),
+                              ("broken model.toml", "run/model.toml", b"[vehicle\n"),
+                              ("truth file of 1e300", "run/vertical.truth.csv",
+                               ("run/vertical.truth.csv", (("scaled 1e300", 2),)))):  # fmt: skip
+        cases.append(Case(f"run {label}", ("identify", "run", "--out", "out/e.json", *fit), ((name, blob),)))
+    flags = {
+        "identify": {"--method": ["nope", ""], "--max-iter": ["-1", "x", "1e3", ""], "--start": ["nope", ""],
+                     "--perturb": ["0", "-1", "nan", "inf", "1e400", "x"], "--seed": ["-1", "x", "1.5", str(2**70)],
+                     "--rrd": ["out", "-", "out/no/f.rrd", "keep.txt/f.rrd", "data/h.csv"]},
+        "truth": {"--speed": ["0", "-1", "nan", "inf", "1e-6", "x", "1e300"],
+                  "--mjcf": ["data", "missing.xml", "cfg.toml", "/dev/null"]},
+        "simulate": {"--duration": ["0.001", "0.02", "0", "-1", "nan", "1e300", "x"], "--seed": ["-1", "x"],
+                     "--speed": ["0", "1e-6", "nan", "x"], "--scenario": ["nope", ""],
+                     "--mjcf": ["data", "missing.xml", "cfg.toml"]},
+    }  # fmt: skip
+    base = {"identify": ("identify", "run", "--out", "out/e.json", *fit),
+            "truth": ("truth", "--out", "out/m.toml"),
+            "simulate": ("simulate", "--quiet", "--scenario", "I", "--duration", "0.06", "--out", "out/run")}
+    for command, options in flags.items():
+        for flag, values in options.items():
+            for value in values:
+                argv = [a for a in base[command]]
+                if flag in argv:
+                    argv[argv.index(flag) + 1] = value
+                else:
+                    argv += [flag, value]
+                cases.append(Case(f"{command} {flag} {value[:12]!r}", tuple(argv)))
+    argv = base["identify"] + ("--method", "mekf", "--start", "config")
+    cases.append(Case("identify --start config --method mekf", argv))
+    targets = ["out", "out/no/e.json", "keep.txt/e.json", "data/h.csv", "cfg.toml", "run/model.toml", "-", "keep.txt",
+               "null", "out/e.json"]  # fmt: skip
+    for target in targets:
+        for argv in (("identify", "run", *fit), ("identify", "run", "--method", "mekf"), ("analyze", "run"),
+                     ("truth",)):  # fmt: skip
+            cases.append(Case(f"{argv[0]} {' '.join(argv[2:4])} --out {target}", (*argv, "--out", target)))
+    for target in ("out", "keep.txt", "keep.txt/run", "-", "data", "run", "out/new/run"):
+        for force in ((), ("--force",)):
+            cases.append(Case(f"simulate --out {target} {' '.join(force)}",
+                              (*base["simulate"][:-1], target, *force)))  # fmt: skip
+    issue = [
+        ("1e300 cell, mekf", ("identify", "bad.csv", "--config", "cfg.toml", "--method", "mekf"),
+         (("bad.csv", ("data/h.csv", (("cell", 4 * len(CELLS) + 4),))),)),
+        ("every state x1e300", ("identify", "bad.csv", "--config", "cfg.toml"),
+         (("bad.csv", ("data/h.csv", (("states scaled 1e300", 0),))),)),
+        ("perturb with seed -1", ("identify", "run", "--perturb", "0.2", "--seed", "-1"), ()),
+        ("only u, lateral free", ("identify", "u.csv", "--config", "cfg.toml", "--out", "out/e.json"), "u.csv"),
+        ("only u, lateral free (analyze)", ("analyze", "u.csv", "--config", "cfg.toml"), "u.csv"),
+        ("1e300 cell, analyze", ("analyze", "bad.csv", "--config", "cfg.toml"),
+         (("bad.csv", ("data/h.csv", (("cell", 4 * len(CELLS) + 4),))),)),
+        ("N_rdot = Iz, mekf", ("identify", "data", "--config", "iz.toml", "--method", "mekf"), "iz.toml"),
+        ("dt 200 s", ("identify", "bad.csv", "--config", "cfg.toml", "--start", "config"),
+         (("bad.csv", ("data/h.csv", (("time x4000", 0),))),)),
+    ]  # fmt: skip
+    for label, argv, files in issue:
+        if files == "iz.toml":
+            broken = json.loads(json.dumps(doc))
+            broken["coefficients"]["N_rdot"] = broken["vehicle"]["Iz"]
+            files = (("iz.toml", toml_text(broken).encode()),)
+        if files == "u.csv":
+            rows = _rows((root / "data" / "h.csv").read_bytes())
+            keep = [0, 1] + [rows[0].index(n) for n in INPUTS]
+            files = (("u.csv", _text([[r[c] for c in keep] for r in rows])),)
+        cases.append(Case(f"issue: {label}", argv, files))
+    return cases
+
+
+# -- running and tallying ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Outcome:
+    label: str
+    code: int
+    out: str
+    err: str
+    kind: str  # ok, error, crash
+    partial: str  # what was written on failure or changed among the inputs ("" if nothing)
+
+
+def prepare(ws: Path, case: Case) -> Path:
+    """A fresh copy of the workspace with the case's files written in, and `null`: a character
+    device like /dev/null where the system lets us make one (never the real one: an output that
+    replaced it would break the machine)."""
+    root = Path(tempfile.mkdtemp(prefix="fuzz-"))
+    shutil.copytree(ws, root, dirs_exist_ok=True, symlinks=True)
+    with contextlib.suppress(OSError):
+        os.mknod(root / "null", stat.S_IFCHR | 0o666, os.makedev(1, 3))
+    for name, content in case.files:
+        if isinstance(content, tuple):
+            source, mutations = content
+            content = (ws / source).read_bytes()
+            for mutation, where in mutations:
+                content = apply_csv_mutation(content, mutation, where)
+        (root / name).write_bytes(content)
+    return root
+
+
+@contextlib.contextmanager
+def _captured():
+    """Standard output and error at the file-descriptor level (C libraries' prints included):
+    yields a dict filled with their text when the block ends."""
+    got = {}
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    files = [tempfile.TemporaryFile(), tempfile.TemporaryFile()]
+    py = sys.stdout, sys.stderr
+    try:
+        for fd, f in zip((1, 2), files):
+            os.dup2(f.fileno(), fd)
+        sys.stdout = io.TextIOWrapper(os.fdopen(os.dup(1), "wb"), write_through=True)
+        sys.stderr = io.TextIOWrapper(os.fdopen(os.dup(2), "wb"), write_through=True)
+        yield got
+    finally:
+        for s in (sys.stdout, sys.stderr):
+            s.flush()
+            s.close()
+        sys.stdout, sys.stderr = py
+        for fd, old in zip((1, 2), saved):
+            os.dup2(old, fd)
+            os.close(old)
+        for key, f in zip(("out", "err"), files):
+            f.seek(0)
+            got[key] = f.read().decode(errors="replace")
+            f.close()
+
+
+def run_in_process(argv, cwd: Path) -> tuple[int, str, str]:
+    from testbed.cli import main
+
+    here = os.getcwd()
+    os.chdir(cwd)
+    try:
+        with _captured() as got, warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)  # a numpy warning would be an extra line
+            try:
+                code = main(list(argv))
+            except SystemExit as exc:
+                code = exc.code
+    finally:
+        os.chdir(here)
+    return code, got["out"], got["err"]
+
+
+def run_subprocess(argv, cwd: Path) -> tuple[int, str, str]:
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    done = subprocess.run([sys.executable, "-m", "testbed", *argv], cwd=cwd, capture_output=True, text=True,
+                          env=env, stdin=subprocess.DEVNULL, timeout=600)  # fmt: skip
+    return done.returncode, done.stdout, done.stderr
+
+
+def _is_output(path: str, argv) -> bool:
+    """Whether `path` is one of the outputs `argv` names (--out, --rrd, the history), inside one
+    (a run directory) or a folder made for one."""
+    targets = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a in ("--out", "--rrd")]
+    targets += [str(Path(t).with_suffix(".history.csv")) for t in targets]
+    return any(path == t or path.startswith(t.rstrip("/") + "/") or t.startswith(path + "/") for t in targets)
+
+
+def judge(argv, code, out, err, before: dict, after: dict) -> tuple[str, str]:
+    """(kind, partial) of one run: see the module docstring."""
+    changed = sorted(p for p in set(before) | set(after) if before.get(p) != after.get(p))
+    failed = code not in (0, 1)
+    partial = [p for p in changed if failed or not _is_output(p, argv)]
+    named = [a for a in argv if a] + [Path(a).name for a in argv if a]
+    if code in (0, 1) and "Traceback" not in err + out:
+        kind = "ok"
+    elif code == 2 and err.count("\n") == 1 and "Traceback" not in err and any(a in err for a in named):
+        kind = "error"
+    else:
+        kind = "crash"
+    return kind, ", ".join(partial)
+
+
+def run_case(ws: Path, case: Case, runner=run_in_process) -> Outcome:
+    root = prepare(ws, case)
+    try:
+        before = snapshot(root)
+        code, out, err = runner(case.argv, root)
+        kind, partial = judge(case.argv, code, out, err, before, snapshot(root))
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    return Outcome(case.label, code, out, err, kind, partial)
+
+
+def tally(outcomes: list[Outcome]) -> dict[str, int]:
+    return {"cases": len(outcomes), "ok": sum(o.kind == "ok" for o in outcomes),
+            "errors": sum(o.kind == "error" for o in outcomes), "crashes": sum(o.kind == "crash" for o in outcomes),
+            "partial_outputs": sum(bool(o.partial) for o in outcomes)}  # fmt: skip
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--subprocess", action="store_true", help="run each case as `python -m testbed`")
+    ap.add_argument("--every", type=int, default=1, help="run every N-th case only")
+    ap.add_argument("--verbose", action="store_true", help="print every case's status and stderr")
+    args = ap.parse_args(argv)
+    runner = run_subprocess if args.subprocess else run_in_process
+    with tempfile.TemporaryDirectory() as tmp:
+        ws = workspace(Path(tmp))
+        cases = corpus(ws)[::args.every]
+        outcomes = []
+        for case in cases:
+            o = run_case(ws, case, runner)
+            outcomes.append(o)
+            if args.verbose or o.kind == "crash" or o.partial:
+                last = o.err.strip().splitlines()[-1:] or [""]
+                print(f"{o.kind:5} {o.code:3} {o.label}: {last[0][:160]}"
+                      + (f" [written/changed: {o.partial}]" if o.partial else ""))  # fmt: skip
+    counts = tally(outcomes)
+    print(" ".join(f"{k}={v}" for k, v in counts.items()))
+    return 0 if counts["crashes"] == 0 and counts["partial_outputs"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,369 @@
+"""Bad input never crashes, never clobbers, never wastes the user's time.
+
+Each case is a file or an argument a user can give: the command line must answer with exit
+status 0, 1 or 2, and on 2 with exactly one stderr line naming the file, field or value, having
+written nothing, before any long work. Numpy's warnings are errors here, so one that would reach
+the user as an extra stderr line fails the test (as an internal error, exit status 70).
+"""
+
+import csv
+import json
+import os
+import stat
+import threading
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import testbed.estimators
+from testbed.cli import main
+from testbed.data import ModelConfig, config_text, read_config, read_csv
+from testbed.errors import InputError, atomic_file
+from testbed.estimators import Estimate, Status, identify
+from testbed.scenario import simulate
+
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # numpy's floating-point warnings
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    return simulate("II", seed=4, duration=6.0, out=tmp_path_factory.mktemp("r") / "II", progress=False)
+
+
+def cli(capsys, *argv):
+    """(exit status, stdout, stderr) of `testbed argv` run in this process."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse's own errors
+        code = exc.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def refused(capsys, *argv, words=()):
+    """Run `testbed argv`, which must fail with one line naming each of `words`; returns it."""
+    code, _, err = cli(capsys, *argv)
+    assert code == 2 and err.count("\n") == 1, err
+    for w in words:
+        assert str(w) in err, err
+    return err
+
+
+def _rows(run, name="horizontal.csv"):
+    with (run / name).open() as f:
+        return list(csv.reader(f))
+
+
+def _write(path, rows, encoding="utf-8"):
+    path.write_bytes(("\n".join(",".join(r) for r in rows) + "\n").encode(encoding))
+    return path
+
+
+def _listing(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def _config(run, tmp_path, name="c.toml", free=None, **changes):
+    cfg = read_config(run / "model.toml")
+    text = config_text(replace(cfg, free=tuple(free)) if free is not None else cfg)
+    for old, new in changes.items():
+        text = text.replace(old, new)
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+# -- the measurement CSV -------------------------------------------------------------------------
+
+
+def test_a_cell_beyond_the_csv_field_limit_is_one_line(run, tmp_path, capsys):
+    rows = _rows(run)
+    rows[5][1] = "1" * 140_000
+    data = _write(tmp_path / "long.csv", rows)
+    with pytest.raises(InputError, match=r"long.csv: line 6: field larger than field limit"):
+        read_csv(data)
+    refused(capsys, "identify", data, "--config", run / "model.toml", "--out", tmp_path / "e.json",
+            words=["long.csv", "line 6"])  # fmt: skip
+    assert _listing(tmp_path) == ["long.csv"]
+
+
+@pytest.mark.parametrize("command", [["identify", "--method", "ml-gn"], ["identify", "--method", "mekf"],
+                                     ["analyze"]])  # fmt: skip
+def test_a_cell_of_1e300_is_blamed_on_its_line_and_column(run, tmp_path, capsys, command):
+    rows = _rows(run)
+    rows[7][rows[0].index("q")] = "1e300"
+    data = _write(tmp_path / "big.csv", rows)
+    refused(capsys, command[0], data, *command[1:], "--config", run / "model.toml", "--out",
+            tmp_path / "e.json", words=["big.csv", "line 8", "column 'q'", "1e300"])  # fmt: skip
+    assert _listing(tmp_path) == ["big.csv"]
+
+
+def test_every_state_times_1e300_is_blamed_on_the_data(run, tmp_path, capsys):
+    rows = _rows(run)
+    for row in rows[1:]:
+        for j in range(1, 11):
+            row[j] = repr(float(row[j]) * 1e300)
+    data = _write(tmp_path / "huge.csv", rows)
+    refused(capsys, "identify", data, "--config", run / "model.toml", "--out", tmp_path / "e.json",
+            words=["huge.csv", "line 2", "column 'u'"])  # fmt: skip
+    # the same records made in Python: the library refuses them too, before any fit
+    e = read_csv(run / "horizontal.csv")
+    with pytest.raises(InputError, match="beyond"):
+        identify([replace(e, y=e.y * 1e300)], read_config(run / "model.toml"))
+
+
+def test_inputs_of_1e300_and_a_200_s_step_blame_the_data_not_the_config(run, tmp_path, capsys):
+    rows = _rows(run)
+    rows[4][rows[0].index("delta_r")] = "1e300"
+    data = _write(tmp_path / "fins.csv", rows)
+    err = refused(capsys, "identify", data, "--config", run / "model.toml", "--start", "config",
+                  words=["fins.csv", "line 5", "column 'delta_r'"])  # fmt: skip
+    assert "model.toml" not in err
+    rows = _rows(run)
+    for k, row in enumerate(rows[1:]):
+        row[0] = str(200 * k)
+    data = _write(tmp_path / "slow.csv", rows)
+    for argv in (["identify", "--start", "config"], ["identify", "--method", "mekf"], ["analyze"]):
+        err = refused(capsys, argv[0], data, *argv[1:], "--config", run / "model.toml",
+                      words=["slow.csv", "t steps 200 s", "(t in seconds)"])  # fmt: skip
+        assert "diverge" not in err
+
+
+def test_a_utf8_byte_order_mark_is_read(run, tmp_path):
+    rows = _rows(run)
+    rows[0][0] = "\ufeff" + rows[0][0]
+    e = read_csv(_write(tmp_path / "bom.csv", rows))
+    ref = read_csv(run / "horizontal.csv")
+    np.testing.assert_array_equal(e.t, ref.t)
+    np.testing.assert_array_equal(e.y, ref.y)
+
+
+def test_a_latin1_name_of_an_extra_column_is_ignored(run, tmp_path):
+    rows = [r + ["1"] for r in _rows(run)]
+    rows[0][-1] = "température"
+    e = read_csv(_write(tmp_path / "latin1.csv", rows, encoding="latin-1"))
+    np.testing.assert_array_equal(e.y, read_csv(run / "horizontal.csv").y)
+
+
+def test_a_device_or_folder_as_data_is_refused_without_reading_it(tmp_path, capsys):
+    refused(capsys, "identify", "/dev/zero", "--config", tmp_path / "c.toml",
+            words=["/dev/zero", "not a regular file"])  # fmt: skip
+    with pytest.raises(InputError, match="is a folder; expected a model config"):
+        read_config(tmp_path)
+
+
+# -- the model config ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("line, new, words", [
+    ("speed = 20.0", "speed = 1e-6", "speed = 1e-06; expected 0.001 to 450"),
+    ("speed = 20.0", "speed = 1e6", "speed = 1e+06; expected 0.001 to 450"),
+    ("weight = ", "weight = -", "weight = -1675.09; expected > 0"),
+])  # fmt: skip
+def test_an_impossible_vehicle_is_refused(run, tmp_path, capsys, line, new, words):
+    config = _config(run, tmp_path, **{line: new})
+    for argv in (["identify", run], ["analyze", run]):
+        refused(capsys, *argv, "--config", config, words=["c.toml", "[vehicle]", words])
+
+
+@pytest.mark.parametrize("method", ["mekf", "ml-gn"])
+def test_an_inertia_that_is_not_a_bodys_is_refused_before_the_fit(run, tmp_path, capsys, method):
+    iz = read_config(run / "model.toml").vehicle.Iz
+    config = _config(run, tmp_path, free=("N_r", "N_rdot"))
+    text = config.read_text().splitlines()
+    config.write_text("\n".join(f"N_rdot = {iz!r}" if ln.startswith("N_rdot =") else ln for ln in text))
+    refused(capsys, "identify", run, "--config", config, "--method", method, "--out", tmp_path / "e.json",
+            words=["c.toml", "Iz − N_rdot = 0"])  # fmt: skip
+    assert not (tmp_path / "e.json").exists()
+
+
+def test_only_u_measured_with_lateral_coefficients_free_is_not_identifiable(run, tmp_path, capsys):
+    rows = [[r[0], r[1]] + r[11:] for r in _rows(run)]
+    data = _write(tmp_path / "u.csv", rows)
+    config = _config(run, tmp_path, free=("Y_v", "N_r", "Y_dr"))
+    for method in ("ml-gn", "mekf"):
+        refused(capsys, "identify", data, "--config", config, "--method", method, "--out", tmp_path / "e.json",
+                words=["Y_v, N_r, Y_dr", "not identifiable", "(u)"])  # fmt: skip
+    assert not (tmp_path / "e.json").exists()
+    code, out, err = cli(capsys, "analyze", data, "--config", config)
+    doc = json.loads(out)
+    assert code == 0 and "Not identifiable: Y_v, N_r, Y_dr" in err
+    assert doc["crlb_std"] == {"Y_v": None, "N_r": None, "Y_dr": None}
+    assert doc["null_directions"] == 3 and doc["unobserved"] == ["Y_v", "N_r", "Y_dr"]
+    assert "All free coefficients are identifiable" not in err
+
+
+# -- arguments -----------------------------------------------------------------------------------
+
+
+def test_identify_refuses_a_negative_seed(run, capsys):
+    refused(capsys, "identify", run, "--perturb", "0.2", "--seed", "-1", words=["--seed", "-1"])
+
+
+@pytest.mark.parametrize("duration", ["0.001", "0.02", "1e300"])
+def test_simulate_refuses_a_duration_it_could_not_use_up_front(tmp_path, capsys, monkeypatch, duration):
+    import testbed.scenario
+
+    monkeypatch.setattr(testbed.scenario, "fly_scenario", lambda *a, **k: pytest.fail("flew"))
+    refused(capsys, "simulate", "--scenario", "I", "--duration", duration, "--out", tmp_path / "r",
+            words=[f"--duration {float(duration)!r}", "samples"])  # fmt: skip
+    assert _listing(tmp_path) == []
+
+
+def test_misleading_path_messages_name_the_file_in_the_way(run, tmp_path, capsys):
+    file = tmp_path / "x.csv"
+    file.write_text("not a folder\n")
+    refused(capsys, "identify", run, "--out", file / "est.json", words=[f"{file} is a file, not a folder"])
+    refused(capsys, "analyze", run, "--out", file / "a.json", words=[f"{file} is a file, not a folder"])
+    refused(capsys, "simulate", "--scenario", "I", "--out", file / "run", words=[f"{file} is a file, not a folder"])
+    refused(capsys, "truth", "--mjcf", tmp_path, words=[f"{tmp_path}: is a folder; expected an MJCF file"])
+    assert _listing(tmp_path) == ["x.csv"] and file.read_text() == "not a folder\n"
+
+
+# -- outputs -------------------------------------------------------------------------------------
+
+
+def test_simulate_force_never_replaces_a_file_or_a_users_folder(tmp_path, capsys):
+    file = tmp_path / "FILE"
+    file.write_text("keep me\n")
+    refused(capsys, "simulate", "--scenario", "I", "--force", "--out", file, words=["FILE", "is a file"])
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "thesis.tex").write_text("keep me too\n")
+    refused(capsys, "simulate", "--scenario", "I", "--force", "--out", folder, words=["mine", "not a run directory"])
+    assert _listing(tmp_path) == ["FILE", "mine"] and file.read_text() == "keep me\n"
+    assert _listing(folder) == ["thesis.tex"]
+
+
+def test_an_output_may_not_be_an_input(run, tmp_path, capsys):
+    before = (run / "horizontal.csv").read_bytes()
+    refused(capsys, "identify", run / "horizontal.csv", "--config", run / "model.toml", "--out",
+            run / "horizontal.csv", words=["is the input"])  # fmt: skip
+    refused(capsys, "analyze", run, "--out", run / "model.toml", words=["is the input"])
+    refused(capsys, "identify", run, "--out", tmp_path / "a.rrd", "--rrd", tmp_path / "a.rrd", words=["also"])
+    assert (run / "horizontal.csv").read_bytes() == before
+
+
+def _null_device(tmp_path):
+    """A character device like /dev/null (the real one must never be risked in a test)."""
+    node = tmp_path / "null"
+    try:
+        os.mknod(node, stat.S_IFCHR | 0o666, os.makedev(1, 3))
+    except (PermissionError, OSError):
+        pytest.skip("cannot make a device node here")
+    return node
+
+
+@pytest.mark.parametrize("command", [["truth"], ["identify", "--method", "ml-gn", "--max-iter", "1"],
+                                     ["identify", "--method", "mekf"], ["analyze"]])  # fmt: skip
+def test_a_character_device_as_out_is_written_into_not_replaced(run, tmp_path, capsys, command):
+    node = _null_device(tmp_path)
+    rdev = os.stat(node).st_rdev
+    data = [] if command[0] == "truth" else [run]
+    code, _, err = cli(capsys, command[0], *data, *command[1:], "--out", node)
+    assert code in (0, 1), err
+    st = os.stat(node)
+    assert stat.S_ISCHR(st.st_mode) and st.st_rdev == rdev
+    assert _listing(tmp_path) == ["null"]  # no history file beside a device, no temporary
+
+
+def test_a_fifo_as_out_receives_the_whole_output(run, tmp_path, capsys):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    code, _, err = cli(capsys, "analyze", run, "--out", fifo)
+    reader.join(timeout=30)
+    if reader.is_alive():  # nothing opened the FIFO: unblock the reader, then fail
+        with open(fifo, "wb"):
+            pass
+        pytest.fail("the FIFO was not written")
+    assert code == 0, err
+    assert json.loads(got[0])["free"] == list(read_config(run / "model.toml").free)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and _listing(tmp_path) == ["pipe"]
+
+
+def test_dash_is_standard_output(run, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = cli(capsys, "analyze", run, "--out", "-")
+    assert code == 0 and json.loads(out)["free"]
+    code, out, err = cli(capsys, "truth", "--out", "-")
+    assert code == 0 and out.startswith("[vehicle]")
+    refused(capsys, "simulate", "--scenario", "I", "--out", "-", words=["--out -"])
+    refused(capsys, "identify", run, "--rrd", "-", words=["--rrd -"])
+    assert _listing(tmp_path) == []
+
+
+def test_atomic_file_writes_into_a_device_through_a_private_temporary(tmp_path):
+    node = _null_device(tmp_path)
+    with atomic_file(node) as tmp:
+        assert tmp.parent != tmp_path
+        tmp.write_text("x")
+    assert stat.S_ISCHR(os.stat(node).st_mode) and not tmp.exists()
+
+
+# -- run directories -----------------------------------------------------------------------------
+
+
+def test_a_broken_truth_file_is_found_before_the_fit(run, tmp_path, capsys, monkeypatch):
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    (copy / "horizontal.truth.csv").write_text("t,u\n")
+    monkeypatch.setattr(testbed.estimators, "identify", lambda *a, **k: pytest.fail("the fit ran"))
+    refused(capsys, "identify", copy, "--out", tmp_path / "e.json",
+            words=["horizontal.truth.csv", "column 'delta_r' missing"])  # fmt: skip
+    assert not (tmp_path / "e.json").exists()
+
+
+@pytest.mark.parametrize("experiments, words", [
+    (["../outside"], "expected a file name without a folder"),
+    (["horizontal", "horizontal"], "listed twice"),
+    ("horizontal", "'experiments' list of names"),
+])  # fmt: skip
+def test_a_manifest_names_only_its_own_distinct_files(run, tmp_path, capsys, experiments, words):
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    (tmp_path / "outside.csv").write_bytes((run / "horizontal.csv").read_bytes())
+    doc = json.loads((copy / "manifest.json").read_text())
+    (copy / "manifest.json").write_text(json.dumps({**doc, "experiments": experiments}))
+    refused(capsys, "analyze", copy, words=["manifest.json", words])
+
+
+def test_the_same_file_twice_is_refused_and_namesakes_are_told_apart(run, tmp_path, capsys):
+    import shutil
+
+    refused(capsys, "analyze", run / "horizontal.csv", run / "horizontal.csv", "--config",
+            run / "model.toml", words=["given twice"])  # fmt: skip
+    other = tmp_path / "II"
+    shutil.copytree(run, other)
+    code, out, err = cli(capsys, "identify", run, other, "--max-iter", "1", "--out", tmp_path / "e.json")
+    assert code in (0, 1), err
+    assert len(json.loads((tmp_path / "e.json").read_text())["initial_states"]) == 6  # 2 runs × 3 experiments
+
+
+# -- the library ---------------------------------------------------------------------------------
+
+
+def test_input_error_is_a_value_error():
+    assert issubclass(InputError, ValueError)
+
+
+def test_an_estimate_that_is_not_finite_still_writes_json():
+    est = Estimate("ml-gn", Status.DIVERGED, ("Y_v",), np.array([np.inf]), np.array([np.nan]),
+                   np.nan, 0, 0.0, {"v": np.inf})  # fmt: skip
+    doc = json.loads(est.to_json())
+    assert doc["coefficients"]["Y_v"] == {"value": None, "std": None} and doc["noise_std"] == {"v": None}
+
+
+def test_a_config_made_in_python_is_checked_like_a_file(run):
+    e = read_csv(run / "horizontal.csv")
+    cfg = read_config(run / "model.toml")
+    bad = ModelConfig(replace(cfg.vehicle, speed=1e-9), cfg.coefficients, cfg.free, "mine")
+    with pytest.raises(InputError, match=r"mine: \[vehicle\] speed = 1e-09"):
+        identify([e], bad)

@@ -1,0 +1,41 @@
+"""The bad-input corpus of `studies/fuzz.py`: no crash, no partial output, in this process and in
+real `python -m testbed` processes (where a traceback or a C library's message would show)."""
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from studies.fuzz import corpus, run_case, run_subprocess, tally, workspace  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory):
+    return workspace(tmp_path_factory.mktemp("ws"))
+
+
+def _check(ws, cases, runner=None):
+    outcomes = [run_case(ws, c, *([runner] if runner else [])) for c in cases]
+    bad = [(o.label, o.code, o.partial, o.err[-400:]) for o in outcomes if o.kind == "crash" or o.partial]
+    assert not bad, bad
+    return tally(outcomes)
+
+
+def test_every_fourth_case_of_the_corpus(ws):
+    counts = _check(ws, corpus(ws)[::4])
+    assert counts["errors"] > counts["ok"] > 0  # the corpus is mostly bad input, and some runs succeed
+
+
+@pytest.mark.slow
+def test_the_whole_corpus(ws):
+    counts = _check(ws, corpus(ws))
+    assert counts["cases"] > 400
+
+
+def test_real_processes_print_one_line_and_no_traceback(ws):
+    cases = [c for c in corpus(ws) if c.label.startswith("issue:")]
+    cases += [c for c in corpus(ws) if c.label in ("csv long cell @0", "config N_rdot=3.45", "manifest deep",
+                                                   "identify --method mekf --out null")]  # fmt: skip
+    counts = _check(ws, cases, run_subprocess)
+    assert counts["errors"] >= 8
