@@ -55,6 +55,10 @@ CRITERIA = ("D", "A", "E")
 FIN_RATE = 2.0  # rad/s, the servos' slew rate (the plant's and fly_linear's)
 STEP = 10.0  # s, the grid of the time split
 MIN_EXPERIMENT = 20.0  # s, the shortest experiment of a split
+# s, the longest record: the depth integrates the second-order pitch drift (it grows as the cube
+# of the time), and Scenario II's regime was measured on 60 s records; more time for a type is
+# flown as several records (each its own initial state and PRBS phase)
+MAX_EXPERIMENT = 60.0
 SEED = 1  # the PRBS phases and noise streams the design is evaluated and flown with
 FITTED = tuple(s for s in STATES if s != "z")  # a run's model.toml fits every state but depth
 RESIDUAL_LIMIT = 0.2  # second-order residual / sensor noise on fitted channels (Scenario II's rule)
@@ -63,12 +67,13 @@ SHRINK = 0.8  # amplitude factor per failed linearity check
 MAX_SHRINKS = 6
 
 # Experiment types: the channels a designed signal drives, the loops that hold the others, and
-# the channels each excites (the ones the linearity check holds to the fit rule).
+# the channels each excites (the ones the linearity check holds to the fit rule). The rudder and
+# the differential elevator are not driven together: the roll-yaw coupling of the real body is
+# second order, and with both at half of their single-channel amplitudes the truth's roll rate
+# already departs from the linear model by 0.23 of the gyro noise (fit of p 98.2 %).
 TEMPLATES = {
     "horizontal": dict(channels=("rudder",), autopilot={"depth": 0.0, "roll": 0.0}, hold=False,
                        excited=("v", "r", "psi")),
-    "lateral": dict(channels=("rudder", "differential"), autopilot={"depth": 0.0}, hold=False,
-                    excited=("v", "p", "r", "phi", "psi")),
     "vertical": dict(channels=("elevators",), autopilot={}, hold=True, excited=("w", "q", "theta", "z")),
     "roll": dict(channels=("differential",), autopilot={"depth": 0.0}, hold=False, excited=("p", "phi")),
 }  # fmt: skip
@@ -238,15 +243,12 @@ def candidates(duration: float) -> list[Signal]:
     return out
 
 
-def band(duration: float, lo: float, hi: float, lines: int = MULTISINE_LINES, odd: bool | None = None) -> tuple:
+def band(duration: float, lo: float, hi: float, lines: int = MULTISINE_LINES) -> tuple:
     """Harmonics of the record's fundamental 1/duration in [lo, hi] Hz, at most `lines` of them
-    log-spaced (a flat-amplitude multisine then puts its power where the vehicle responds);
-    `odd`: only odd (True) or even (False) harmonics, so two channels stay orthogonal."""
+    log-spaced (a flat-amplitude multisine then puts its power where the vehicle responds)."""
     f0 = 1.0 / duration
     k_lo, k_hi = max(1, math.ceil(lo / f0 - 1e-9)), max(2, math.floor(hi / f0 + 1e-9))
     ks = np.unique(np.round(np.geomspace(k_lo, k_hi, 4 * lines)).astype(int))
-    if odd is not None:
-        ks = ks[ks % 2 == (1 if odd else 0)]
     if len(ks) > lines:
         ks = ks[np.unique(np.round(np.linspace(0, len(ks) - 1, lines)).astype(int))]
     return tuple(round(float(k * f0), 9) for k in ks)
@@ -321,20 +323,7 @@ def best_signals(m: Model, limits: Limits, kind_: str, duration: float = 60.0) -
         (channel,) = TEMPLATES[kind]["channels"]
         tried = [evaluate(m, kind, {channel: sig}, limits, duration) for sig in candidates(duration)]
         out[kind] = max(tried, key=lambda c: criterion(base + c.fisher, s, kind_))
-    # lateral: the rudder's and the differential's best shapes at once, on disjoint lines
-    rud, dif = out["horizontal"].fins["rudder"], out["roll"].fins["differential"]
-    fins = {"rudder": _interleaved(rud, duration, True), "differential": _interleaved(dif, duration, False)}
-    out["lateral"] = evaluate(m, "lateral", fins, limits, duration)
     return out
-
-
-def _interleaved(sig: Signal, duration: float, odd: bool) -> Signal:
-    """A multisine on the odd or even harmonics only (a PRBS is left as it is: the two
-    channels' sequences have independent phases)."""
-    if isinstance(sig, Multisine):
-        f = np.asarray(sig.frequencies)
-        return replace(sig, frequencies=band(duration, 0.0, float(f.max()), odd=odd))
-    return sig
 
 
 # -- the time split ---------------------------------------------------------------------------------------
@@ -521,14 +510,20 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
     s = scales(m.config)
     cands = best_signals(m, limits, criterion_)
     durations = split(cands, duration, s, criterion_)
-    chosen = {k: evaluate(m, k, cands[k].fins, limits, d) for k, d in durations.items()}
-    experiments = tuple(c.spec(durations[k]) for k, c in chosen.items())
-    scn = Scenario(name="designed", experiments=experiments, duration=max(durations.values()),
+    records = {}  # experiment name -> (type, duration)
+    for k, d in durations.items():
+        n = math.ceil(d / MAX_EXPERIMENT - 1e-9)
+        for i in range(n):
+            records[k if i == 0 else f"{k}-{i + 1}"] = (k, d / n)
+    kinds = {name: k for name, (k, _) in records.items()}
+    experiments = tuple(spec(k, evaluate(m, k, cands[k].fins, limits, d).fins, d, name)
+                        for name, (k, d) in records.items())  # fmt: skip
+    scn = Scenario(name="designed", experiments=experiments, duration=max(d for _, d in records.values()),
                    description=f"{criterion_}-optimal experiments for {len(m.config.free)} coefficients "
                                f"within Scenario II's linear regime, {duration:g} s")  # fmt: skip
     check_result, shrinks = None, {e.name: 0 for e in experiments}
     if check:
-        excited = {k: TEMPLATES[k]["excited"] for k in durations}
+        excited = {name: TEMPLATES[k]["excited"] for name, k in kinds.items()}
         for _ in range(MAX_SHRINKS + 1):
             check_result = linearity(scn, excited, mjcf)
             failed = [e for e in scn.experiments if not check_result.passed(e.name)]
@@ -538,7 +533,7 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
                 shrinks[e.name] += 1
             scn = replace(scn, experiments=tuple(
                 replace(e, fins={c: scaled(sig, float(f"{sig.amplitude * SHRINK:.3g}"))
-                                 if e in failed and c in TEMPLATES[e.name]["channels"] else sig
+                                 if e in failed and c in TEMPLATES[kinds[e.name]]["channels"] else sig
                                  for c, sig in e.fins.items()}) for e in scn.experiments))  # fmt: skip
         if any(not check_result.passed(e.name) for e in scn.experiments):
             raise InputError(f"no design inside the linear regime: {check_result.table()}")
