@@ -333,6 +333,21 @@ def _estimated(path: Path, config) -> dict[str, float]:
     return {n: float(v) for n, v in values.items()}
 
 
+def _cmd_design(args) -> int:
+    from testbed.design import design, read_estimates
+    from testbed.errors import atomic_write_text
+
+    _writable(args.out, "--out")
+    _quiet_mujoco()
+    estimates, noise = read_estimates(args.start_from) if args.start_from else (None, None)
+    free = [n.strip() for n in args.free.split(",") if n.strip()] if args.free else None
+    result = design(args.duration, args.criterion, free, args.mjcf, args.speed, estimates, noise)
+    atomic_write_text(args.out, result.text())
+    print(result.table(), file=sys.stderr)
+    print(args.out)
+    return 0
+
+
 def _cmd_replay(args) -> int:
     from testbed.report import replay
 
@@ -405,6 +420,19 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument("--out", type=Path, help="validation JSON (default: stdout)")
     s.set_defaults(func=_cmd_validate)
+
+    s = sub.add_parser("design", help="design experiments from Fisher information (a scenario file)")
+    s.add_argument("--duration", type=_positive, default=180.0, help="total flight time, s (default 180)")
+    s.add_argument("--criterion", choices=("D", "A", "E"), default="A",
+                   help="D: log det, A: sum of relative variances (default), E: worst direction")
+    s.add_argument("--free", help="comma-separated coefficients to design for (default: the "
+                   "analytic model's free list, or the estimate's)")
+    s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
+    s.add_argument("--speed", type=_positive, default=None, help="trim speed U, m/s (default: cruise)")
+    s.add_argument("--from", dest="start_from", type=Path, default=None,
+                   help="estimates JSON of the last fit: design at its coefficients and noise")
+    s.add_argument("--out", type=Path, required=True, help="the scenario file to write (.toml)")
+    s.set_defaults(func=_cmd_design)
 
     s = sub.add_parser("replay", help="open a run's recording.rrd in the Rerun viewer")
     s.add_argument("run", type=Path, help="run directory or .rrd file")

@@ -1,0 +1,569 @@
+"""Experiment design: the scenario whose data bound the free coefficients best, before flying it.
+
+The Fisher information of the free coefficients θ of an experiment is computed at a model
+(the analytic model, or the estimate of the last fit) from the experiment as that model would
+fly it: the linear model with the autopilots closing the loops they hold (`fly_linear`), every
+state measured but the depth (which a run does not fit), white sensor noise of
+`testbed.measurements.NOISE_STD`, each experiment's initial state estimated:
+
+    F = Σ_experiments Σ_k (∂ŷ_k/∂θ)ᵀ R⁻¹ (∂ŷ_k/∂θ)      (initial states eliminated)
+
+and the Cramér-Rao bound of θ_i is √(F⁻¹)_ii. Information adds over experiments, so the design
+has two levels:
+
+1. per experiment type (`TEMPLATES`: which fin channels a signal drives, which autopilot loops
+   hold the others), the signal of each channel — a PRBS (its clock) or a multisine of
+   Schroeder phases (its band) — scaled to the largest amplitude that keeps the motion inside
+   the linear regime (`Limits`: peak yaw, pitch and roll rate, sideslip, heave velocity, pitch
+   and roll angle, the fin angle and rate), chosen for the criterion on its own;
+2. the split of the flight time between the types (10 s steps, each flown type ≥ 20 s), chosen
+   for the criterion of the summed information.
+
+Criteria, on the information of the relative coefficients θ_i/s_i (s_i = |θ_i|; a coefficient
+at 0 is measured against the largest |value| of its row): `D` maximises log det F, `A` minimises
+trace F⁻¹ (the sum of the relative variances), `E` maximises the smallest eigenvalue of F (the
+worst-determined direction).
+
+The linear regime is Scenario II's: its peaks at scale 1, on the same model (`regime_limits`),
+bound every designed experiment. The peaks are a proxy: what limits the real plant is its
+second-order response (the angular drag, the drag's growth with incidence, which the depth
+integrates), so a design is then flown noise-free on the truth plant and held to the rule that
+sized Scenario II (`linearity`): the analytic model simulated open loop tracks the truth with
+fit ≥ 99 % on every channel the experiment excites, depth included, and the second-order
+residual on every fitted channel stays below a fifth of the sensor noise. An experiment that
+breaks it has its amplitudes scaled down until it holds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError
+from testbed.measurements import NOISE_STD
+from testbed.model import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
+from testbed.scenario import ExperimentSpec, Scenario, program, scenario, scenario_text
+from testbed.signals import TAPS, Hold, Multisine, Prbs, Signal, Square
+
+CRITERIA = ("D", "A", "E")
+FIN_RATE = 2.0  # rad/s, the servos' slew rate (the plant's and fly_linear's)
+STEP = 10.0  # s, the grid of the time split
+MIN_EXPERIMENT = 20.0  # s, the shortest experiment of a split
+# s, the longest record: the depth integrates the second-order pitch drift (it grows as the cube
+# of the time), and Scenario II's regime was measured on 60 s records; more time for a type is
+# flown as several records (each its own initial state and PRBS phase)
+MAX_EXPERIMENT = 60.0
+SEED = 1  # the PRBS phases and noise streams the design is evaluated and flown with
+FITTED = tuple(s for s in STATES if s != "z")  # a run's model.toml fits every state but depth
+RESIDUAL_LIMIT = 0.2  # second-order residual / sensor noise on fitted channels (Scenario II's rule)
+FIT_LIMIT = 99.0  # % fit of the analytic model on every excited channel, depth included
+SHRINK = 0.8  # amplitude factor per failed linearity check
+MAX_SHRINKS = 6
+
+# Experiment types: the channels a designed signal drives, the loops that hold the others, and
+# the channels each excites (the ones the linearity check holds to the fit rule). The rudder and
+# the differential elevator are not driven together: the roll-yaw coupling of the real body is
+# second order, and with both at half of their single-channel amplitudes the truth's roll rate
+# already departs from the linear model by 0.23 of the gyro noise (fit of p 98.2 %).
+TEMPLATES = {
+    "horizontal": dict(channels=("rudder",), autopilot={"depth": 0.0, "roll": 0.0}, hold=False,
+                       excited=("v", "r", "psi")),
+    "vertical": dict(channels=("elevators",), autopilot={}, hold=True, excited=("w", "q", "theta", "z")),
+    "roll": dict(channels=("differential",), autopilot={"depth": 0.0}, hold=False, excited=("p", "phi")),
+}  # fmt: skip
+# Scenario II's vertical experiment: its depth reference moves the slow heave-pitch motion.
+HOLD_DEPTH = Square(amplitude=1.5, half_period=15.0, offset=1.5, first=-1)
+PRBS_CLOCKS = (0.1, 0.2, 0.5, 1.0, 2.0)  # s
+MULTISINE_BANDS = ((0.0, 0.3), (0.0, 1.0), (0.0, 3.0))  # Hz; 0: from the record's fundamental
+MULTISINE_LINES = 24  # at most, log-spaced harmonics of the record's fundamental
+REFERENCE = 1e-3  # rad, the amplitude a shape is simulated at before it is scaled to the bounds
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Peak bounds of the linear regime: rates rad/s, angles rad, velocities m/s."""
+
+    yaw_rate: float
+    pitch_rate: float
+    roll_rate: float
+    sideslip: float  # |v|/U, rad
+    heave: float  # |w|, m/s
+    pitch: float
+    roll: float
+    fin: float = FIN_LIMIT
+    fin_rate: float = FIN_RATE
+
+    def ratios(self, peaks: Mapping[str, float]) -> dict[str, float]:
+        """Each peak over its bound (≤ 1 inside the regime)."""
+        return {k: peaks[k] / getattr(self, k) for k in peaks}
+
+    def table(self) -> str:
+        deg = math.degrees
+        return (f"yaw rate {deg(self.yaw_rate):.2f} deg/s, pitch rate {deg(self.pitch_rate):.2f} deg/s, "
+                f"roll rate {deg(self.roll_rate):.2f} deg/s, sideslip {deg(self.sideslip):.3f} deg, "
+                f"heave {self.heave:.4f} m/s, pitch {deg(self.pitch):.2f} deg, roll {deg(self.roll):.2f} deg, "
+                f"fin {self.fin:g} rad, fin rate {self.fin_rate:g} rad/s")  # fmt: skip
+
+
+def peaks(xs: np.ndarray, fins: np.ndarray, speed: float, dt: float) -> dict[str, float]:
+    """The limited quantities' peaks over a flight (states (N, 10), fin angles (N, 3))."""
+    i = IX
+    return {"yaw_rate": float(np.abs(xs[:, i["r"]]).max()), "pitch_rate": float(np.abs(xs[:, i["q"]]).max()),
+            "roll_rate": float(np.abs(xs[:, i["p"]]).max()), "sideslip": float(np.abs(xs[:, i["v"]]).max() / speed),
+            "heave": float(np.abs(xs[:, i["w"]]).max()), "pitch": float(np.abs(xs[:, i["theta"]]).max()),
+            "roll": float(np.abs(xs[:, i["phi"]]).max()), "fin": float(np.abs(fins).max()),
+            "fin_rate": float(np.abs(np.diff(fins, axis=0)).max() / dt)}  # fmt: skip
+
+
+# -- the model the design is made at ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Model:
+    """The linear model and its autopilots: what the design simulates and differentiates."""
+
+    config: ModelConfig  # coefficients; `free` the ones designed for; outputs: every state but z
+    A: np.ndarray
+    B: np.ndarray
+    autopilot: Autopilot
+    noise_std: Mapping[str, float]
+    control_rate: float = 50.0
+    depth: float = 100.0
+
+    @property
+    def speed(self) -> float:
+        return self.config.vehicle.speed
+
+
+def model(config: ModelConfig, noise_std: Mapping[str, float] | None = None, control_rate: float = 50.0) -> Model:
+    """The design model of `config` (its coefficients, its free list), autopilots designed on it."""
+    A, B, _ = continuous(structure(config.vehicle), theta_vector(config.coefficients))
+    if not np.all(np.isfinite(A)) or np.linalg.eigvals(A).real.max() > 1e-6:
+        raise InputError(f"{config.source or 'model'}: the linear model is unstable or not finite; "
+                         "expected coefficients of a stable vehicle to design at")  # fmt: skip
+    speed = config.vehicle.speed
+    ap = Autopilot(design_autopilot(A, B, speed), 1.0 / control_rate)
+    config = replace(config, outputs=FITTED)
+    return Model(config, A, B, ap, dict(noise_std or NOISE_STD), control_rate)
+
+
+def fly_model(m: Model, e: ExperimentSpec, duration: float, seed: int = SEED, index: int = 0):
+    """Experiment `e` flown by the linear model with its autopilots: (t, states, fin angles)."""
+    s = Scenario(name="design", experiments=(e,), speed=m.speed, depth=m.depth, control_rate=m.control_rate)
+    x0 = np.zeros(NX)
+    x0[IX["z"]] = m.depth
+    m.autopilot.reset()
+    return fly_linear(m.A, m.B, m.autopilot, program(s, e, seed, index), duration, x0, FIN_RATE)
+
+
+def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design") -> np.ndarray:
+    """Fisher information of `m.config.free` from one noise-free experiment (initial states
+    eliminated), with the sensor noise `m.noise_std`."""
+    from testbed.estimators.outputerror import information
+
+    y = xs.copy()
+    y[:, IX["u"]] += m.speed
+    e = Experiment(name, t, STATES, y, fins)
+    return information(m.config.fitted([e]), m.config, noise_std=m.noise_std).fisher
+
+
+# -- criteria ----------------------------------------------------------------------------------------
+
+
+def scales(config: ModelConfig) -> np.ndarray:
+    """s_i of the relative coefficients: |θ_i|, or for a coefficient at 0 the largest |value| of
+    its row's coefficients."""
+    out = []
+    for n in config.free:
+        v = abs(config.coefficients.get(n, 0.0))
+        if v == 0:
+            row = [abs(config.coefficients.get(c, 0.0)) for c in COEFFICIENTS if c[0] == n[0]]
+            v = max(row) if max(row) > 0 else 1.0
+        out.append(v)
+    return np.array(out)
+
+
+def criterion(F: np.ndarray, s: np.ndarray, kind: str) -> float:
+    """The design criterion of information `F` (free coefficients) at scales `s`; larger is better."""
+    Fr = F * np.outer(s, s)
+    w = np.linalg.eigvalsh((Fr + Fr.T) / 2)
+    if w.min() <= 1e-12 * max(w.max(), 1e-300):
+        return -math.inf
+    if kind == "D":
+        return float(np.sum(np.log(w)))
+    if kind == "A":
+        return -float(np.sum(1.0 / w))
+    if kind == "E":
+        return float(w.min())
+    raise InputError(f"--criterion {kind!r}; expected one of {', '.join(CRITERIA)}")
+
+
+def crlb(F: np.ndarray) -> np.ndarray:
+    """Cramér-Rao standard deviations √(F⁻¹)_ii (inf where F is singular in that direction)."""
+    w, V = np.linalg.eigh((F + F.T) / 2)
+    good = w > 1e-12 * max(w.max(), 1e-300)
+    var = (V[:, good] ** 2 / w[good]).sum(1)
+    var[np.abs(V[:, ~good]).max(1, initial=0.0) > 1e-6] = np.inf
+    return np.sqrt(var)
+
+
+# -- the linear regime ---------------------------------------------------------------------------------
+
+
+def regime_limits(m: Model, base: Scenario | str = "II") -> Limits:
+    """The peaks Scenario II's experiments reach on the design model (at 60 s each): the
+    largest of each quantity over its experiments, each its own experiment type's bound."""
+    base = scenario(base)
+    worst: dict[str, float] = {}
+    for k, e in enumerate(base.experiments):
+        t, xs, fins = fly_model(m, e, base.duration_of(e), SEED, k)
+        for key, v in peaks(xs, fins, m.speed, 1.0 / m.control_rate).items():
+            worst[key] = max(worst.get(key, 0.0), v)
+    return Limits(**{k: worst[k] for k in ("yaw_rate", "pitch_rate", "roll_rate", "sideslip", "heave", "pitch", "roll")})
+
+
+# -- signals ---------------------------------------------------------------------------------------------
+
+
+def candidates(duration: float) -> list[Signal]:
+    """The signal shapes (amplitude REFERENCE) tried on each channel: PRBS at each clock (its order
+    the shortest whose period covers the record), multisines over each band."""
+    out: list[Signal] = []
+    for clock in PRBS_CLOCKS:
+        order = next((n for n in sorted(TAPS) if (2**n - 1) * clock >= duration), max(TAPS))
+        out.append(Prbs(amplitude=REFERENCE, order=max(order, 5), clock=clock))
+    for lo, hi in MULTISINE_BANDS:
+        out.append(Multisine(amplitude=REFERENCE, frequencies=band(duration, lo, hi)))
+    return out
+
+
+def band(duration: float, lo: float, hi: float, lines: int = MULTISINE_LINES) -> tuple:
+    """Harmonics of the record's fundamental 1/duration in [lo, hi] Hz, at most `lines` of them
+    log-spaced (a flat-amplitude multisine then puts its power where the vehicle responds)."""
+    f0 = 1.0 / duration
+    k_lo, k_hi = max(1, math.ceil(lo / f0 - 1e-9)), max(2, math.floor(hi / f0 + 1e-9))
+    ks = np.unique(np.round(np.geomspace(k_lo, k_hi, 4 * lines)).astype(int))
+    if len(ks) > lines:
+        ks = ks[np.unique(np.round(np.linspace(0, len(ks) - 1, lines)).astype(int))]
+    return tuple(round(float(k * f0), 9) for k in ks)
+
+
+def scaled(sig: Signal, amplitude: float) -> Signal:
+    return replace(sig, amplitude=float(amplitude))
+
+
+def spec(kind: str, fins: Mapping[str, Signal], duration: float | None = None, name: str | None = None) -> ExperimentSpec:
+    """The experiment of type `kind` with these fin signals."""
+    tpl = TEMPLATES[kind]
+    fixed = {"rudder": Hold(0.0)} if kind in ("vertical", "roll") else {}  # the rudder held at 0
+    return ExperimentSpec(name=name or kind, fins={**fins, **fixed},
+                          autopilot={k: Hold(float(v)) for k, v in tpl["autopilot"].items()},
+                          hold_depth=HOLD_DEPTH if tpl["hold"] else None, duration=duration)  # fmt: skip
+
+
+def largest(m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, duration: float) -> float:
+    """The largest factor c such that the experiment with the fin amplitudes times c stays
+    within `limits` (the model and autopilots are linear: the response is the part with the
+    signals at zero plus c times the signals' part)."""
+    dt = 1.0 / m.control_rate
+    zero = {c: scaled(s, 0.0) for c, s in fins.items()}
+    _, x0s, f0s = fly_model(m, spec(kind, zero), duration)
+    _, x1s, f1s = fly_model(m, spec(kind, fins), duration)
+    dx, df = x1s - x0s, f1s - f0s
+
+    def ok(c):
+        return max(limits.ratios(peaks(x0s + c * dx, f0s + c * df, m.speed, dt)).values()) <= 1.0
+
+    if not ok(0.0):
+        raise InputError(f"the {kind} experiment leaves the linear regime with its signals at zero")
+    hi = 1.0
+    while ok(hi) and hi < 1e6:
+        hi *= 2.0
+    lo = 0.0 if not ok(hi / 2) else hi / 2
+    for _ in range(30):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One experiment type with its signals at their largest amplitudes, and its information."""
+
+    kind: str
+    fins: Mapping[str, Signal]
+    duration: float
+    fisher: np.ndarray
+
+    def spec(self, duration: float | None = None, name: str | None = None) -> ExperimentSpec:
+        return spec(self.kind, self.fins, duration, name)
+
+
+def evaluate(m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, duration: float) -> Candidate:
+    """The experiment scaled to the regime's bounds and its Fisher information."""
+    c = largest(m, kind, fins, limits, duration)
+    fins = {ch: scaled(s, float(f"{s.amplitude * c:.3g}")) for ch, s in fins.items()}
+    t, xs, f = fly_model(m, spec(kind, fins), duration)
+    return Candidate(kind, fins, duration, fisher(m, t, xs, f, kind))
+
+
+def best_signals(m: Model, limits: Limits, kind_: str, duration: float = 60.0) -> dict[str, Candidate]:
+    """Per single-channel experiment type, the best signal shape for criterion `kind_` (each
+    experiment completed by Scenario II's information, so a type is judged by what it adds)."""
+    base = scenario_information(m, 3 * duration)
+    s = scales(m.config)
+    out = {}
+    for kind in ("horizontal", "vertical", "roll"):
+        (channel,) = TEMPLATES[kind]["channels"]
+        tried = [evaluate(m, kind, {channel: sig}, limits, duration) for sig in candidates(duration)]
+        out[kind] = max(tried, key=lambda c: criterion(base + c.fisher, s, kind_))
+    return out
+
+
+# -- the time split ---------------------------------------------------------------------------------------
+
+
+def split(cands: Mapping[str, Candidate], total: float, s: np.ndarray, kind: str) -> dict[str, float]:
+    """Durations per experiment type (STEP grid, 0 or ≥ MIN_EXPERIMENT, summing to `total`)
+    maximising the criterion of Σ (T_k / T_ref) F_k."""
+    names = list(cands)
+    rate = [cands[n].fisher / cands[n].duration for n in names]
+    steps = int(round(total / STEP))
+    best, best_value = None, -math.inf
+
+    def walk(i, left, chosen):
+        nonlocal best, best_value
+        if i == len(names) - 1:
+            durations = chosen + [left * STEP]
+            if any(0 < d < MIN_EXPERIMENT for d in durations):
+                return
+            F = sum(d * r for d, r in zip(durations, rate))
+            v = criterion(F, s, kind)
+            if v > best_value:
+                best, best_value = durations, v
+            return
+        for k in range(left + 1):
+            walk(i + 1, left - k, chosen + [k * STEP])
+
+    walk(0, steps, [])
+    if best is None:
+        raise InputError(f"--duration {total:g} s: no split of it identifies every free coefficient; "
+                         "expected a longer flight or fewer --free coefficients")  # fmt: skip
+    return {n: d for n, d in zip(names, best) if d > 0}
+
+
+def scenario_information(m: Model, total: float, base: Scenario | str = "II") -> np.ndarray:
+    """Fisher information of Scenario II flown for `total` s (split evenly, as it is)."""
+    base = scenario(base)
+    each = total / len(base.experiments)
+    F = 0.0
+    for k, e in enumerate(base.experiments):
+        t, xs, f = fly_model(m, e, each, SEED, k)
+        F = F + fisher(m, t, xs, f, e.name)
+    return F
+
+
+# -- the check on the truth plant --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Linearity:
+    """Per experiment: the lowest fit of the analytic model on its excited channels, and the
+    largest second-order residual over the sensor noise on the fitted channels."""
+
+    fit: Mapping[str, tuple[str, float]]  # experiment -> (channel, fit %)
+    residual: Mapping[str, tuple[str, float]]  # experiment -> (channel, rms residual / noise)
+    speed_loss: Mapping[str, float]  # experiment -> peak speed loss, fraction of U
+
+    def passed(self, name: str) -> bool:
+        return self.fit[name][1] >= FIT_LIMIT and self.residual[name][1] < RESIDUAL_LIMIT
+
+    def table(self) -> str:
+        return "\n".join(f"{n}: lowest fit {c} {f:.2f} %, largest second-order residual "
+                         f"{self.residual[n][0]} {self.residual[n][1]:.3f} of the noise, speed loss "
+                         f"{100 * self.speed_loss[n]:.3f} %" for n, (c, f) in self.fit.items())  # fmt: skip
+
+
+def linearity(s: Scenario, excited: Mapping[str, Sequence[str]], mjcf=None, seed: int = SEED) -> Linearity:
+    """Fly `s` noise-free on the truth plant; compare with the analytic model simulated open
+    loop with the flown inputs from the first sample (`excited`: experiment -> its channels)."""
+    from testbed.estimators.outputerror import predict
+    from testbed.scenario import fly_scenario
+    from testbed.truth import model_config
+    from testbed.validation import fit_percent
+
+    flights, lin = fly_scenario(s, seed=seed, mjcf=mjcf)
+    config = model_config(lin)[0]
+    truth = [Experiment(f.name, f.t, STATES, f.truth, f.fins) for f in flights]
+    start = {e.name: dict(zip(STATES, e.y[0])) for e in truth}
+    U = lin.vehicle.speed
+    fit, residual, loss = {}, {}, {}
+    for e, yhat in zip(truth, predict(truth, config, start)):
+        fits = {c: fit_percent(e.column(c), yhat[:, IX[c]]) for c in excited[e.name]}
+        res = {c: float(np.std(e.column(c) - yhat[:, IX[c]])) / s.sensors.noise_std[c] for c in FITTED}
+        c1, c2 = min(fits, key=fits.get), max(res, key=res.get)
+        fit[e.name], residual[e.name] = (c1, fits[c1]), (c2, res[c2])
+        loss[e.name] = float((U - e.column("u").min()) / U)
+    return Linearity(fit, residual, loss)
+
+
+# -- the design ------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Design:
+    """A designed scenario with its predicted bounds, and Scenario II's at the same flight time."""
+
+    scenario: Scenario
+    criterion: str
+    free: tuple[str, ...]
+    values: np.ndarray  # the coefficients designed at
+    crlb: np.ndarray  # predicted Cramér-Rao std of the design
+    crlb_base: np.ndarray  # of Scenario II at the same flight time
+    limits: Limits
+    linearity: Linearity | None
+    shrinks: Mapping[str, int] = field(default_factory=dict)  # experiment -> amplitude reductions
+    source: str = "analytic model"
+
+    @property
+    def duration(self) -> float:
+        return sum(self.scenario.duration_of(e) for e in self.scenario.experiments)
+
+    def relative(self, std: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.values != 0, std / np.abs(self.values), np.nan)
+
+    def worst(self) -> tuple[tuple[str, float], tuple[str, float]]:
+        """The largest relative bound of the design and of Scenario II (name, value)."""
+        out = []
+        for std in (self.crlb, self.crlb_base):
+            r = self.relative(std)
+            k = int(np.nanargmax(r))
+            out.append((self.free[k], float(r[k])))
+        return tuple(out)
+
+    def table(self) -> str:
+        """Per coefficient: value, predicted bound and relative bound of the design and of
+        Scenario II at the same flight time, and their ratio."""
+        lines = [f"{'coefficient':<12}{'value':>12}{'design σ':>11}{'design %':>10}{'II σ':>11}{'II %':>10}{'II/design':>10}"]
+        for n, v, a, b in zip(self.free, self.values, self.crlb, self.crlb_base):
+            ra = f"{100 * a / abs(v):.3g}" if v else "-"
+            rb = f"{100 * b / abs(v):.3g}" if v else "-"
+            lines.append(f"{n:<12}{v:>12.4g}{a:>11.3g}{ra:>10}{b:>11.3g}{rb:>10}{b / a:>10.2f}")
+        (n1, w1), (n2, w2) = self.worst()
+        lines.append(f"worst relative bound: design {100 * w1:.3g} % ({n1}), Scenario II {100 * w2:.3g} % ({n2}), "
+                     f"{self.duration:g} s each")  # fmt: skip
+        return "\n".join(lines)
+
+    def text(self) -> str:
+        """The scenario file, its header comments giving how it was designed and the bounds."""
+        head = [f"Designed experiment ({self.criterion}-optimal Fisher information of {len(self.free)} free "
+                f"coefficients at the {self.source}), {self.duration:g} s of flight.",
+                "Each signal is at the largest amplitude inside the linear regime: peaks bounded by "
+                "Scenario II's on the same model:", "  " + self.limits.table()]  # fmt: skip
+        if self.linearity is not None:
+            head += ["Flown noise-free on the truth plant (fit >= 99 % on excited channels, "
+                     "second-order residual < 0.2 of the noise on fitted channels):"]  # fmt: skip
+            head += ["  " + line for line in self.linearity.table().splitlines()]
+        head += ["Predicted Cramér-Rao bounds (sensor noise of the scenario's sensors), against the "
+                 "paper's Scenario II at the same flight time:"]  # fmt: skip
+        head += ["  " + line for line in self.table().splitlines()]
+        return "".join(f"# {line}\n" for line in head) + "\n" + scenario_text(self.scenario)
+
+
+def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] | None = None, mjcf=None,
+           speed: float | None = None, estimates: Mapping[str, float] | None = None,
+           noise_std: Mapping[str, float] | None = None, check: bool = True) -> Design:  # fmt: skip
+    """Design a scenario of `duration` s in total for the criterion (`D`, `A`, `E`) of the
+    Fisher information of `free` (default: the analytic model's free list) at the analytic
+    model of `mjcf` at `speed`, or at `estimates` (coefficient -> value, e.g. the last fit's:
+    the sequential design). `check`: fly it on the truth plant and scale down any experiment
+    that leaves the linear regime."""
+    from testbed.truth import analytic_config
+
+    if criterion_ not in CRITERIA:
+        raise InputError(f"--criterion {criterion_!r}; expected one of {', '.join(CRITERIA)}")
+    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 2 * MIN_EXPERIMENT):
+        raise InputError(f"--duration {duration!r}; expected at least {2 * MIN_EXPERIMENT:g} s")
+    config = analytic_config(mjcf, speed)[0]
+    source = "analytic model"
+    if estimates:
+        unknown = sorted(set(estimates) - set(COEFFICIENTS))
+        if unknown:
+            raise InputError(f"estimates: {unknown[0]!r} is not a coefficient name; expected SPEC §2's names")
+        config = config.with_coefficients(dict(estimates))
+        source = "estimate"
+        free = free if free is not None else tuple(n for n in COEFFICIENTS if n in estimates)
+    if free is not None:
+        bad = [n for n in free if n not in COEFFICIENTS]
+        if bad or not free:
+            raise InputError(f"--free {','.join(free)}: expected coefficient names (SPEC §2), e.g. Y_v,N_r")
+        config = replace(config, free=tuple(n for n in COEFFICIENTS if n in free))
+    m = model(config, noise_std)
+    limits = regime_limits(m)
+    s = scales(m.config)
+    cands = best_signals(m, limits, criterion_)
+    durations = split(cands, duration, s, criterion_)
+    records = {}  # experiment name -> (type, duration)
+    for k, d in durations.items():
+        n = math.ceil(d / MAX_EXPERIMENT - 1e-9)
+        for i in range(n):
+            records[k if i == 0 else f"{k}-{i + 1}"] = (k, d / n)
+    kinds = {name: k for name, (k, _) in records.items()}
+    experiments = tuple(spec(k, evaluate(m, k, cands[k].fins, limits, d).fins, d, name)
+                        for name, (k, d) in records.items())  # fmt: skip
+    scn = Scenario(name="designed", experiments=experiments, duration=max(d for _, d in records.values()),
+                   description=f"{criterion_}-optimal experiments for {len(m.config.free)} coefficients "
+                               f"within Scenario II's linear regime, {duration:g} s")  # fmt: skip
+    check_result, shrinks = None, {e.name: 0 for e in experiments}
+    if check:
+        excited = {name: TEMPLATES[k]["excited"] for name, k in kinds.items()}
+        for _ in range(MAX_SHRINKS + 1):
+            check_result = linearity(scn, excited, mjcf)
+            failed = [e for e in scn.experiments if not check_result.passed(e.name)]
+            if not failed or max(shrinks.values()) >= MAX_SHRINKS:
+                break
+            for e in failed:
+                shrinks[e.name] += 1
+            scn = replace(scn, experiments=tuple(
+                replace(e, fins={c: scaled(sig, float(f"{sig.amplitude * SHRINK:.3g}"))
+                                 if e in failed and c in TEMPLATES[kinds[e.name]]["channels"] else sig
+                                 for c, sig in e.fins.items()}) for e in scn.experiments))  # fmt: skip
+        if any(not check_result.passed(e.name) for e in scn.experiments):
+            raise InputError(f"no design inside the linear regime: {check_result.table()}")
+    F = 0.0
+    for k, e in enumerate(scn.experiments):
+        t, xs, f = fly_model(m, e, scn.duration_of(e), SEED, k)
+        F = F + fisher(m, t, xs, f, e.name)
+    base = scenario_information(m, duration)
+    values = np.array([m.config.coefficients[n] for n in m.config.free])
+    return Design(scn, criterion_, m.config.free, values, crlb(F), crlb(base), limits, check_result, shrinks, source)
+
+
+def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
+    """The coefficients (name -> value) and noise_std of an estimates JSON (SPEC §3)."""
+    import json
+
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+        values = {n: float(c["value"]) for n, c in doc["coefficients"].items()}
+    except OSError as exc:
+        raise InputError(f"--from {path}: cannot read ({exc.strerror})") from None
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise InputError(f"--from {path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}") from None
+    bad = [n for n, v in values.items() if n not in COEFFICIENTS or not math.isfinite(v)]
+    if bad:
+        raise InputError(f"--from {path}: coefficient {bad[0]!r}; expected SPEC §2's names with finite values")
+    noise = doc.get("noise_std")
+    if isinstance(noise, Mapping) and all(isinstance(v, (int, float)) and v > 0 for v in noise.values()):
+        noise = {**NOISE_STD, **{k: float(v) for k, v in noise.items() if k in STATES}}
+    else:
+        noise = None
+    return values, noise

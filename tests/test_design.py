@@ -1,0 +1,157 @@
+"""Experiment design: criteria, bounds, amplitude scaling, time split, the command line."""
+
+import json
+import math
+import tomllib
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from testbed import design as D
+from testbed.errors import InputError
+from testbed.scenario import parse_scenario
+from testbed.signals import Multisine, Prbs
+
+
+@pytest.fixture(scope="module")
+def model():
+    from testbed.truth import analytic_config
+
+    config = analytic_config()[0]
+    return D.model(replace(config, free=("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")))
+
+
+def test_crlb_is_the_inverse_diagonal_and_inf_where_singular():
+    rng = np.random.default_rng(0)
+    J = rng.standard_normal((40, 4))
+    F = J.T @ J
+    assert np.allclose(D.crlb(F), np.sqrt(np.diag(np.linalg.inv(F))))
+    F0 = np.zeros((3, 3))
+    F0[:2, :2] = [[4.0, 0.0], [0.0, 1.0]]
+    std = D.crlb(F0)
+    assert np.allclose(std[:2], [0.5, 1.0]) and math.isinf(std[2])
+
+
+def test_criteria_on_relative_coefficients():
+    F = np.diag([4.0, 100.0])
+    s = np.array([1.0, 0.1])  # relative information: diag(4, 1)
+    assert D.criterion(F, s, "D") == pytest.approx(math.log(4.0))
+    assert D.criterion(F, s, "A") == pytest.approx(-(0.25 + 1.0))
+    assert D.criterion(F, s, "E") == pytest.approx(1.0)
+    assert D.criterion(np.diag([1.0, 0.0]), np.ones(2), "A") == -math.inf
+    with pytest.raises(InputError, match="criterion"):
+        D.criterion(F, s, "X")
+
+
+def test_band_is_harmonics_of_the_record():
+    f = np.array(D.band(60.0, 0.0, 1.0))
+    assert f.min() == pytest.approx(1 / 60) and f.max() <= 1.0 + 1e-9 and len(f) <= D.MULTISINE_LINES
+    assert np.allclose(f * 60, np.round(f * 60))
+    assert len(D.band(60.0, 0.0, 100.0)) == D.MULTISINE_LINES
+
+
+def test_split_puts_time_where_the_criterion_needs_it():
+    # two experiment types, each informing one coefficient at 1 per second; the second
+    # coefficient is 4x larger so it needs 4x the information for the same relative bound
+    cands = {"a": D.Candidate("a", {}, 60.0, np.diag([60.0, 0.0])),
+             "b": D.Candidate("b", {}, 60.0, np.diag([0.0, 60.0]))}
+    s = np.array([1.0, 0.5])
+    d = D.split(cands, 100.0, s, "E")
+    assert d == {"a": 20.0, "b": 80.0} or d == {"a": 30.0, "b": 70.0}  # λ = max min(Ta, Tb/4)
+    assert D.split(cands, 100.0, s, "D") == {"a": 50.0, "b": 50.0}
+    with pytest.raises(InputError, match="duration"):
+        D.split({"a": cands["a"]}, 100.0, s, "A")  # b's coefficient never informed
+
+
+def test_largest_amplitude_meets_a_bound_exactly(model):
+    limits = D.regime_limits(model)
+    # Scenario II's own experiments define the bounds: its rudder PRBS sits on the yaw-rate bound
+    sig = Prbs(amplitude=1e-3, order=10, clock=0.1)
+    c = D.largest(model, "horizontal", {"rudder": sig}, limits, 60.0)
+    t, xs, fins = D.fly_model(model, D.spec("horizontal", {"rudder": D.scaled(sig, 1e-3 * c)}), 60.0)
+    ratios = limits.ratios(D.peaks(xs, fins, model.speed, 0.02))
+    assert max(ratios.values()) == pytest.approx(1.0, abs=1e-6)
+    assert max(ratios, key=ratios.get) in ("yaw_rate", "sideslip")
+    # a multisine gets the amplitude that reaches its own binding peak
+    ms = Multisine(amplitude=1e-3, frequencies=D.band(60.0, 0.0, 1.0))
+    c2 = D.largest(model, "roll", {"differential": ms}, limits, 60.0)
+    t, xs, fins = D.fly_model(model, D.spec("roll", {"differential": D.scaled(ms, 1e-3 * c2)}), 60.0)
+    assert max(limits.ratios(D.peaks(xs, fins, model.speed, 0.02)).values()) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_fisher_matches_finite_differences_of_the_outputs(model):
+    """Independent reference: F = Σ Sᵀ R⁻¹ S with S the central differences of the simulated
+    outputs (initial states at trim are known here and the experiment starts at trim)."""
+    from testbed.estimators.outputerror import synthetic
+
+    e = D.spec("horizontal", {"rudder": Prbs(amplitude=1e-3, order=8, clock=0.2)})
+    t, xs, fins = D.fly_model(model, e, 20.0)
+    F = D.fisher(model, t, xs, fins)
+    cfg = model.config
+    chans = [c for c in D.FITTED]
+    w = np.array([1.0 / model.noise_std[c] ** 2 for c in chans])
+
+    def out(cfg_):
+        y = synthetic(cfg_, t, fins)
+        return np.column_stack([y.column(c) for c in chans])
+
+    S = []
+    for n in cfg.free:
+        h = 1e-4 * abs(cfg.coefficients[n])
+        up = out(cfg.with_coefficients({n: cfg.coefficients[n] + h}))
+        dn = out(cfg.with_coefficients({n: cfg.coefficients[n] - h}))
+        S.append(((up - dn) / (2 * h)).ravel())
+    S = np.array(S).T
+    F_fd = S.T @ (S * np.tile(w, len(t))[:, None])
+    # The estimated initial state removes a little information; the lateral coefficients the
+    # rudder excites agree closely
+    i = [cfg.free.index(n) for n in ("Y_v", "N_r", "N_dr")]
+    assert np.allclose(np.diag(F)[i], np.diag(F_fd)[i], rtol=0.05)
+    assert np.all(np.diag(F)[i] <= np.diag(F_fd)[i] * (1 + 1e-6))
+
+
+def test_read_estimates(tmp_path):
+    p = tmp_path / "est.json"
+    p.write_text(json.dumps({"coefficients": {"Y_v": {"value": -2000.0, "std": 10.0}},
+                             "noise_std": {"v": 0.03}}))
+    values, noise = D.read_estimates(p)
+    assert values == {"Y_v": -2000.0} and noise["v"] == 0.03 and noise["r"] == 0.002
+    p.write_text(json.dumps({"coefficients": {"Y_q": {"value": 1.0}}}))
+    with pytest.raises(InputError, match="Y_q"):
+        D.read_estimates(p)
+    p.write_text("{")
+    with pytest.raises(InputError, match="estimates JSON"):
+        D.read_estimates(p)
+
+
+def test_design_refuses_bad_arguments():
+    with pytest.raises(InputError, match="criterion"):
+        D.design(180.0, "B")
+    with pytest.raises(InputError, match="duration"):
+        D.design(10.0, "A")
+    with pytest.raises(InputError, match="free"):
+        D.design(180.0, "A", free=["Y_x"])
+
+
+def test_cli_design_errors(tmp_path, capsys):
+    from testbed.cli import main
+
+    assert main(["design", "--criterion", "A", "--free", "Y_x", "--out", str(tmp_path / "d.toml")]) == 2
+    assert "Y_x" in capsys.readouterr().err and not (tmp_path / "d.toml").exists()
+    assert main(["design", "--out", str(tmp_path / "no" / "d.toml")]) == 2
+
+
+@pytest.mark.slow
+def test_design_writes_a_flyable_scenario_better_than_scenario_ii(tmp_path):
+    """A short design for a few coefficients, checked on the truth plant, read back and flown."""
+    free = ("Y_v", "Y_r", "N_v", "N_r", "N_dr", "K_p", "K_der", "K_del", "M_q", "M_de")
+    d = D.design(120.0, "A", free=free)
+    text = d.text()
+    s = parse_scenario(tomllib.loads(text), "designed.toml")
+    assert sum(s.duration_of(e) for e in s.experiments) == pytest.approx(120.0)
+    assert "Predicted Cramér-Rao bounds" in text and all(f"# {'':2}{n}" in text for n in free)
+    assert all(d.linearity.passed(e.name) for e in s.experiments)
+    assert D.criterion(np.diag(1 / d.crlb**2), D.scales(replace(D.model(
+        __import__("testbed.truth", fromlist=["x"]).analytic_config()[0]).config, free=free)), "A") > -math.inf
+    assert d.worst()[0][1] < d.worst()[1][1]
