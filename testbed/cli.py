@@ -337,7 +337,9 @@ def _cmd_design(args) -> int:
     from testbed.design import design, read_estimates
     from testbed.errors import atomic_write_text
 
-    _writable(args.out, "--out")
+    if args.out == STDOUT:
+        raise InputError("--out -: the design is a scenario file; expected a file name (.toml)")
+    _outputs([args.start_from] if args.start_from else [], {"--out": args.out})
     _quiet_mujoco()
     estimates, noise = read_estimates(args.start_from) if args.start_from else (None, None)
     free = [n.strip() for n in args.free.split(",") if n.strip()] if args.free else None
