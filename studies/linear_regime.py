@@ -25,16 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.estimators.outputerror import predict
-from testbed.data import Experiment
-from testbed.model import STATES
+from testbed.design import linearity
 from testbed.scenario import fly_scenario, scenario
 from testbed.signals import Prbs
-from testbed.truth import model_config
-from testbed.validation import fit_percent
 
 EXCITED = {"horizontal": ("v", "r", "psi"), "vertical": ("w", "q", "theta", "z"), "roll": ("p", "phi")}
-FITTED = tuple(s for s in STATES if s != "z")
 
 
 def scaled(s, k: float):
@@ -55,22 +50,16 @@ def study(scales, seed: int) -> str:
               "max_residual_over_noise,worst_residual_channel\n")  # fmt: skip
     for k in scales:
         s = scaled(base, k)
+        check = linearity(s, EXCITED, seed=seed)
         flights, lin = fly_scenario(s, seed=seed)
-        config = model_config(lin)[0]
-        truth = [Experiment(f.name, f.t, STATES, f.truth, f.fins) for f in flights]
-        start = {e.name: dict(zip(STATES, e.y[0])) for e in truth}
         U = lin.vehicle.speed
-        for f, e, yhat in zip(flights, truth, predict(truth, config, start)):
+        for f in flights:
             x = f.truth
-            fits = {c: fit_percent(e.y[:, STATES.index(c)], yhat[:, STATES.index(c)]) for c in EXCITED[f.name]}
-            noise = s.sensors.noise_std
-            resid = {c: float(np.std(e.y[:, STATES.index(c)] - yhat[:, STATES.index(c)])) / noise[c] for c in FITTED}
-            worst_fit, worst_res = min(fits, key=fits.get), max(resid, key=resid.get)
+            (worst_fit, fit), (worst_res, res) = check.fit[f.name], check.residual[f.name]
             peaks = np.degrees(np.abs(x[:, [5, 4, 3]]).max(0))
             row = [k, f.name, *np.round(peaks, 3), round(float(np.degrees(np.abs(x[:, 1] / U).max())), 3),
                    round(float(np.degrees(np.abs(x[:, 7]).max())), 3), round(float(np.degrees(np.abs(x[:, 6]).max())), 3),
-                   round(100 * float((U - x[:, 0].min()) / U), 4), round(fits[worst_fit], 3), worst_fit,
-                   round(resid[worst_res], 4), worst_res]  # fmt: skip
+                   round(100 * check.speed_loss[f.name], 4), round(fit, 3), worst_fit, round(res, 4), worst_res]  # fmt: skip
             out.write(",".join(map(str, row)) + "\n")
     return out.getvalue()
 
