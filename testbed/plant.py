@@ -111,7 +111,7 @@ class Plant:
                           d.warning.number, self.hull, self._fin_qadr, self._fin_act, self._fin_limit, dofs,
                           where[rows], where[m.M_colind].astype(np.intp), P, M_hull,
                           -m.opt.density * B * m.opt.gravity, c, np.zeros(6), np.zeros(len(FINS)),
-                          np.zeros(len(FINS)))  # fmt: skip
+                          np.zeros(len(FINS)), np.zeros(6))  # fmt: skip
         self.reset()
 
     @property
@@ -231,7 +231,9 @@ class Plant:
         _apply_wrench(self._k)
 
     def _complete(self) -> None:
-        """Add the added-mass inertia to d.M; the bias and buoyancy to qfrc_applied."""
+        """Add the added-mass inertia to d.M; the bias and buoyancy to qfrc_applied (the
+        actuators' force is MuJoCo's own here: `mj_fwdActuation` follows)."""
+        self._k.actuation[:] = 0.0
         _complete(self._k, _added_mass(self._k))
 
     def body_accelerations(self) -> np.ndarray:
@@ -305,6 +307,7 @@ class _Kernel(NamedTuple):
     wrench: np.ndarray  # Plant.wrench, SPEC body axes
     reference: np.ndarray  # Plant.reference
     integral: np.ndarray  # Plant.fin_integral
+    actuation: np.ndarray  # the actuators' force on the hull over the step, hull axes (MuJoCo's)
 
 
 # MuJoCo's C API for the compiled loop, from the library the Python bindings use. The mjModel*
@@ -314,7 +317,8 @@ llvmlite.binding.load_library_permanently(
              for f in sorted(Path(mujoco.__file__).parent.glob(pattern)))))  # fmt: skip
 _SIGNATURE = numba.types.void(numba.types.uintp, numba.types.uintp)
 _mj_step = numba.types.ExternalFunction("mj_step", _SIGNATURE)
-_mj_fwdKinematics = numba.types.ExternalFunction("mj_fwdKinematics", _SIGNATURE)
+_mj_kinematics = numba.types.ExternalFunction("mj_kinematics", _SIGNATURE)
+_mj_comPos = numba.types.ExternalFunction("mj_comPos", _SIGNATURE)
 _mj_makeM = numba.types.ExternalFunction("mj_makeM", _SIGNATURE)
 _mj_transmission = numba.types.ExternalFunction("mj_transmission", _SIGNATURE)
 _mj_fwdVelocity = numba.types.ExternalFunction("mj_fwdVelocity", _SIGNATURE)
@@ -350,24 +354,23 @@ def _forward(model, data, k, M9):
     completed, and the hull's acceleration from the hull block of the complete mass matrix (the
     fins' accelerations are prescribed, zero in MuJoCo's coordinates).
 
-    Only the stages this body needs: kinematics, mass matrix, transmission, velocity (fluid
-    forces, bias), actuation; no factorisation (the hull block is solved here), collision or
-    constraints (`check_model`: none)."""
-    _mj_fwdKinematics(model, data)
+    Only the stages this body needs: kinematics, mass matrix, velocity (fluid forces, bias); no
+    factorisation (the hull block is solved here), collision or constraints (`check_model`:
+    none), and the actuators' force on the hull (`_actuation`) held over the step."""
+    _mj_kinematics(model, data)
+    _mj_comPos(model, data)
     _mj_makeM(model, data)
-    _mj_transmission(model, data)
     _mj_fwdVelocity(model, data)
     _complete(k, M9)
-    _mj_fwdActuation(model, data)
     H = np.zeros((6, 6))
     for e in range(k.rows.shape[0]):  # d.M holds the lower triangle
         r, c = k.rows[e], k.cols[e]
         if r < 6 and c < 6:
             H[r, c] = H[c, r] = k.M[e]
     rhs = np.empty(6)
-    for i in range(6):  # f = passive + actuator + applied − bias
+    for i in range(6):  # f = passive + applied (actuators included) − bias
         j = k.dofs[i]
-        rhs[i] = k.qfrc_passive[j] + k.qfrc_actuator[j] + k.qfrc[j] - k.qfrc_bias[j]
+        rhs[i] = k.qfrc_passive[j] + k.qfrc[j] - k.qfrc_bias[j]
     a = _solve_spd(H, rhs)  # H q̈_hull = f_hull
     k.qacc[:] = 0.0
     for i in range(6):
@@ -384,6 +387,7 @@ def _step(model, data, k, h):
         k.qpos[k.fin_qadr[f]] = k.reference[f]
         k.qvel[k.dofs[6 + f]] = 0.0
         k.integral[f] += h * k.reference[f]
+    _actuation(model, data, k)
     q0, v0 = k.qpos.copy(), k.qvel.copy()
     M9 = _added_mass(k)
     lam = _rk4_step(model, data, k, h, M9)
@@ -393,6 +397,22 @@ def _step(model, data, k, h):
     k.qpos[:], k.qvel[:] = q0, v0
     for _ in range(2**level):
         _rk4_step(model, data, k, h / 2**level, M9)
+
+
+@numba.njit(cache=True)
+def _actuation(model, data, k):
+    """The actuators' generalized force on the hull, in hull axes, into `k.actuation`: the
+    propulsor is fixed to the hull and its thrust held over the step, so it turns with the hull
+    (`_complete` applies it at each stage); the fin servos act on the prescribed fins only."""
+    _mj_kinematics(model, data)
+    _mj_comPos(model, data)
+    _mj_transmission(model, data)
+    _mj_fwdActuation(model, data)
+    R, f = k.xmat[k.hull].reshape(3, 3), k.qfrc_actuator
+    d = k.dofs
+    k.actuation[0], k.actuation[1], k.actuation[2] = _turn(R.T, f[d[0]], f[d[1]], f[d[2]])
+    for i in range(3, 6):  # the free joint's angular dofs are in hull axes already
+        k.actuation[i] = f[d[i]]
 
 
 @numba.njit(cache=True)
@@ -495,7 +515,8 @@ def _added_mass(k):
 @numba.njit(cache=True)
 def _complete(k, M9):
     """Add Tᵀ M9 T to the CSR mass matrix; write the generalized force
-    F = −M9 γ + buoyancy + wrench, in MuJoCo's coordinates (fin rates are zero)."""
+    F = −M9 γ + buoyancy + wrench + the actuators' force on the hull (`k.actuation`, hull axes),
+    in MuJoCo's coordinates (fin rates are zero)."""
     R, q, dofs = k.xmat[k.hull].reshape(3, 3), k.qvel, k.dofs
     M9 = M9.copy()
     nu = np.empty(9)  # ν = (v, ω, δ̇), v = Rᵀ q̇_lin in hull axes
@@ -506,10 +527,12 @@ def _complete(k, M9):
     F = np.empty(9)
     for r in range(9):  # −M9 γ with γ = (−ω × v, 0, 0)
         F[r] = M9[r, 0] * cw[0] + M9[r, 1] * cw[1] + M9[r, 2] * cw[2]
-    B, w = k.buoyancy, k.wrench
+    B, w, a = k.buoyancy, k.wrench, k.actuation
     torque = np.cross(k.centre, np.array(_turn(R.T, B[0], B[1], B[2])))
-    F[3], F[4], F[5] = F[3] + torque[0] + w[3], F[4] + torque[1] - w[4], F[5] + torque[2] - w[5]
-    F[0], F[1], F[2] = _turn(R, F[0] + w[0], F[1] - w[1], F[2] - w[2])
+    F[3] += torque[0] + w[3] + a[3]
+    F[4] += torque[1] - w[4] + a[4]
+    F[5] += torque[2] - w[5] + a[5]
+    F[0], F[1], F[2] = _turn(R, F[0] + w[0] + a[0], F[1] - w[1] + a[1], F[2] - w[2] + a[2])
     # MuJoCo's free-joint linear velocity is in world axes: ν = T q̇, T = diag(Rᵀ, I).
     for r in range(9):
         M9[r, 0], M9[r, 1], M9[r, 2] = _turn(R, M9[r, 0], M9[r, 1], M9[r, 2])  # M9 Rᵀ rows
