@@ -148,16 +148,14 @@ def write_report(out: Path, docs: list[dict], rows: list[dict], verdicts: dict, 
     methods = [m for m in METHODS if any(d["cell"]["method"] == m for d in docs)]
     scenarios = [s for s in SCENARIOS if any(d["cell"]["scenario"] == s for d in docs)]
     figures, missing = [], []
-    for s in scenarios:
+    for s in scenarios:  # the paper's order: each scenario's inputs, then its coefficients
         number = {"I": 3, "II": 5}[s]
         if inputs.get(s):
             figures.append((f"Fig. {number}: input histories, Scenario {s}", input_figure(out, s, inputs[s], number)))
         else:
             missing.append(f"Fig. {number} (inputs of Scenario {s}): its run could not be loaded")
-    for s in scenarios:
-        number = {"I": 4, "II": 6}[s]
-        figures.append((f"Fig. {number}: identified against analytic, Scenario {s}",
-                        coefficient_figure(out, s, rows, number, methods)))  # fmt: skip
+        figures.append((f"Fig. {number + 1}: identified against analytic, Scenario {s}",
+                        coefficient_figure(out, s, rows, number + 1, methods)))  # fmt: skip
     for s in scenarios:
         name = history_figure(out, s, docs)
         if name:
