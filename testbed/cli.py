@@ -350,6 +350,20 @@ def _cmd_design(args) -> int:
     return 0
 
 
+def _cmd_reproduce(args) -> int:
+    from testbed.campaign import reproduce
+
+    _quiet_mujoco()
+    done = reproduce(args.out, seeds=args.seeds, scheduler=args.scheduler, quick=args.quick,
+                     duration=args.duration)  # fmt: skip
+    print(f"testbed reproduce: {done.computed} cells computed, {done.reused} reused, {done.failed} failed, "
+          f"in {done.wall_time_s:.0f} s", file=sys.stderr)  # fmt: skip
+    for k, v in done.conclusions.items():
+        print(f"conclusion {k}: {'holds' if v['holds'] else 'refuted'}: {v['evidence']}", file=sys.stderr)
+    print(done.out / "report.html")
+    return 0
+
+
 def _cmd_replay(args) -> int:
     from testbed.report import replay
 
@@ -435,6 +449,18 @@ def parser() -> argparse.ArgumentParser:
                    help="estimates JSON of the last fit: design at its coefficients and noise")
     s.add_argument("--out", type=Path, required=True, help="the scenario file to write (.toml)")
     s.set_defaults(func=_cmd_design)
+
+    s = sub.add_parser("reproduce", help="the paper's study: Scenario I and II x 4 methods x seeds, on Dask")
+    s.add_argument("--seeds", type=int, default=None, help="noise seeds 1..N (default 20; 1 with --quick)")
+    s.add_argument("--out", type=Path, default=Path("runs/reproduce"),
+                   help="output folder; finished cells in it are reused (default runs/reproduce)")
+    s.add_argument("--scheduler", default=None, help="address of a running Dask scheduler, e.g. "
+                   "tcp://host:8786, whose workers see --out (default: 2 local worker processes)")
+    s.add_argument("--quick", action="store_true", help="30 s experiments, one seed unless --seeds: "
+                   "a demonstration in under 3 minutes")
+    s.add_argument("--duration", type=_positive, default=None, help="seconds per experiment "
+                   "(default: the scenarios' own, 30 with --quick)")
+    s.set_defaults(func=_cmd_reproduce)
 
     s = sub.add_parser("replay", help="open a run's recording.rrd in the Rerun viewer")
     s.add_argument("run", type=Path, help="run directory or .rrd file")

@@ -1,0 +1,145 @@
+"""The campaign (`testbed reproduce`): cells on a real two-worker Dask LocalCluster, resumed after
+a crash and surviving a worker killed mid-run; the conclusions' rules on results built by hand."""
+
+import json
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from testbed import campaign
+from testbed.campaign import Cell, conclusions, plan, read_results, results_csv, results_rows, run_cell
+from testbed.errors import InputError
+
+TINY = dict(scenarios=("II",), methods=("ml-gn", "mekf"), duration=4.0, progress=False)
+
+
+def test_plan_covers_scenarios_methods_and_seeds_with_distinct_keys():
+    cells = plan(2)
+    assert len(cells) == 2 * 4 * 2
+    assert {(c.scenario, c.method, c.seed) for c in cells} == {
+        (s, m, k) for s in ("I", "II") for m in ("ml-nr", "ml-nm", "mekf", "ml-gn") for k in (1, 2)}
+    assert len({c.key for c in cells}) == len(cells)
+    assert Cell("I", "ml-nm", 1).key != Cell("I", "ml-nm", 1, duration=30.0).key  # the data differ
+    assert all(c.duration == campaign.QUICK_DURATION for c in plan(1, quick=True))
+    with pytest.raises(InputError, match="--seeds 0"):
+        plan(0)
+
+
+def test_a_failing_cell_is_a_result_with_its_reason():
+    doc = run_cell(Cell("II", "ml-gn", 1), data=None)
+    assert doc["status"] == "failed" and doc["converged"] is False
+    assert "TypeError" in doc["reason"] and doc["rows"] == []
+    rows = results_rows([doc])
+    assert len(rows) == 1 and rows[0]["coefficient"] == "" and rows[0]["status"] == "failed"
+
+
+def _doc(scenario, method, seed, ratios, converged=True, std=1e-6):
+    rows = [{"coefficient": f"C{i}", "analytic": -10.0, "estimate": -10.0 * x, "std": std}
+            for i, x in enumerate(ratios)]
+    return {"cell": {"scenario": scenario, "method": method, "seed": seed, "duration": None},
+            "status": "converged" if converged else "max iterations", "reason": "", "converged": converged,
+            "iterations": 5, "wall_time_s": 1.0, "rows": rows}
+
+
+DRIFT = {"null_directions": 2, "drift_groups": [["X_udot", "X_u"]], "null_directions_inertia_known": 0}
+
+
+def test_conclusion_rules_decide_from_results_csv(tmp_path):
+    good, bad = [1.0, 1.05, 0.95, 1.02, 0.98], [1.0, 1.5, 0.5, 2.0, 1.0]
+    docs = [_doc("I", "ml-nm", k, [1.0, 1.3, 0.7, 1.2, 0.98]) for k in (1, 2)]  # 40 % within 10 %
+    docs += [_doc("II", "ml-nm", k, good) for k in (1, 2)]
+    docs += [_doc(s, "ml-nr", k, bad, converged=k == 1) for s in ("I", "II") for k in (1, 2)]
+    (tmp_path / "results.csv").write_text(results_csv(results_rows(docs)))
+    rows = read_results(tmp_path / "results.csv")
+    v = conclusions(rows, {"I": DRIFT, "II": DRIFT})
+    assert v["1"]["holds"] and "2 exactly unidentifiable" in v["1"]["evidence"]
+    # ml-nm acceptable in 2/4 cells (< 80 %): conclusion 2 refuted although ml-nr fails everywhere
+    assert not v["2"]["holds"] and "2/4" in v["2"]["evidence"] and "0/4" in v["2"]["evidence"]
+    # on Scenario II ml-nm is acceptable in 2/2 and better than on I
+    assert v["3"]["holds"] and "2/2" in v["3"]["evidence"]
+    # a scenario with drift that the known inertia matrix does not remove refutes conclusion 1
+    v = conclusions(rows, {"I": DRIFT, "II": {**DRIFT, "null_directions_inertia_known": 1}})
+    assert not v["1"]["holds"]
+    # within 3 σ counts as acceptable too
+    docs = [_doc(s, "ml-nm", 1, bad, std=5.0) for s in ("I", "II")] + [_doc(s, "ml-nr", 1, bad) for s in ("I", "II")]
+    v = conclusions(read_back(tmp_path, docs), {"I": DRIFT})
+    assert v["2"]["holds"]
+
+
+def read_back(tmp_path, docs):
+    (tmp_path / "r.csv").write_text(results_csv(results_rows(docs)))
+    return read_results(tmp_path / "r.csv")
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    import logging
+
+    from dask.distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as c, Client(c) as client:
+        yield c, client
+
+
+def _check_outputs(out, cells):
+    files = sorted(p.name for p in (out / "cells").glob("*.json"))
+    assert files == sorted(f"{c.key}.json" for c in cells)  # every cell once, nothing else
+    rows = read_results(out / "results.csv")
+    keys = [(r["scenario"], r["method"], r["seed"], r["coefficient"]) for r in rows]
+    assert len(keys) == len(set(keys))  # no duplicates
+    assert {(r["scenario"], r["method"], r["seed"]) for r in rows} == {(c.scenario, c.method, c.seed) for c in cells}
+    verdicts = json.loads((out / "conclusions.json").read_text())
+    assert list(verdicts) == ["1", "2", "3"] and all(isinstance(v["holds"], bool) for v in verdicts.values())
+    html = (out / "report.html").read_text()
+    for name in ("fig5-inputs-II.png", "fig6-coefficients-II.png", "iterations-II.png"):
+        assert f"src='{name}'" in html and (out / name).read_bytes()[:4] == b"\x89PNG"
+    assert (out / "report.rrd").stat().st_size > 0
+    return rows
+
+
+def test_campaign_on_two_workers_survives_a_killed_worker_and_resumes(tmp_path, cluster):
+    c, client = cluster
+    out = tmp_path / "study"
+    cells = plan(2, methods=TINY["methods"], scenarios=TINY["scenarios"], duration=TINY["duration"])
+    killed = []
+
+    def kill_a_worker():  # as soon as the first cell is written, SIGKILL a worker process mid-campaign
+        deadline = time.time() + 120
+        while time.time() < deadline and not list((out / "cells").glob("*.json")):
+            time.sleep(0.05)
+        pids = client.run(os.getpid)
+        pid = next(iter(pids.values()))
+        os.kill(pid, signal.SIGKILL)
+        killed.append(pid)
+
+    killer = threading.Thread(target=kill_a_worker)
+    killer.start()
+    done = campaign.reproduce(out, seeds=2, scheduler=c.scheduler_address, **TINY)
+    killer.join()
+    assert killed
+    assert done.computed == len(cells) and done.reused == 0
+    rows = _check_outputs(out, cells)
+    assert all(r["status"] != "failed" for r in rows), [r["reason"] for r in rows if r["status"] == "failed"]
+
+    # a crash after some cells: they are kept, only the missing one is computed again
+    lost = cells[1]
+    (out / "cells" / f"{lost.key}.json").unlink()
+    kept = {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json")}
+    again = campaign.reproduce(out, seeds=2, scheduler=c.scheduler_address, **TINY)
+    assert again.computed == 1 and again.reused == len(cells) - 1
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json") if p.name in kept} == kept
+    rows_again = _check_outputs(out, cells)
+    before = {(r["method"], r["seed"], r["coefficient"]): r["estimate"] for r in rows}
+    after = {(r["method"], r["seed"], r["coefficient"]): r["estimate"] for r in rows_again}
+    assert before.keys() == after.keys()
+    np.testing.assert_allclose([after[k] for k in before], [before[k] for k in before], rtol=1e-9)
+
+
+def test_unreachable_scheduler_is_a_one_line_error(tmp_path):
+    with pytest.raises(InputError, match="--scheduler tcp://127.0.0.1:1"):
+        campaign.reproduce(tmp_path, seeds=1, scheduler="tcp://127.0.0.1:1", **TINY)
