@@ -357,21 +357,15 @@ def command_line(draw) -> Case:
     return Case(" ".join(argv), tuple(argv), tuple(files))
 
 
-@pytest.mark.parametrize("profile", PROFILES)
-def test_the_command_line_exits_0_1_or_2_in_one_line_and_writes_nothing_on_failure(ws, profile):
-    """`studies.fuzz.run_case` runs the command on a fresh copy of the workspace, with fd-level
-    capture and numpy warnings as errors, and judges it: a crash is a traceback, a status other
-    than 0, 1 or 2, or a status 2 without exactly one stderr line naming a file, flag or value;
-    `partial` lists what was written on failure or changed among the inputs."""
-
-    _never_crashes_nor_half_writes(ws, profile, command_line)
-
-
-def _never_crashes_nor_half_writes(ws, profile, cases) -> None:
-    """Run the generated cases: no traceback, no partial output, whatever the exit status."""
+def commands_behave(ws, cases, profile):
+    """Run each command line drawn from `cases` on a fresh copy of the workspace
+    (`studies.fuzz.run_case`: fd-level capture, numpy warnings as errors) and require no crash
+    (a traceback, a status other than 0, 1 or 2, or a status 2 without exactly one stderr line
+    naming a file, flag or value) and no partial output (anything written on failure, or an
+    input changed)."""
 
     def make():
-        @given(cases())
+        @given(cases)
         def check(case):
             o = run_case(ws, case)
             assert o.kind != "crash", (case.argv, o.code, o.err[-2000:])
@@ -380,6 +374,11 @@ def _never_crashes_nor_half_writes(ws, profile, cases) -> None:
         return check
 
     run_property(make, profile)
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+def test_the_command_line_exits_0_1_or_2_in_one_line_and_writes_nothing_on_failure(ws, profile):
+    commands_behave(ws, command_line(), profile)
 
 
 @st.composite
@@ -395,4 +394,4 @@ def fit_on_random_data(draw) -> Case:
 
 @pytest.mark.parametrize("profile", PROFILES)
 def test_fits_on_random_valid_data_end_in_0_1_or_2(ws, profile):
-    _never_crashes_nor_half_writes(ws, profile, fit_on_random_data)
+    commands_behave(ws, fit_on_random_data(), profile)

@@ -166,8 +166,10 @@ def nelder_mead(prob: oe.Problem, p: np.ndarray, max_iter: int | None = None, ca
             # 2. the centroid of all corners but the highest
             b = (simplex.sum(0) - simplex[hi]) / m
             Jb = J_M(b)
-            # 3. stopping rule
-            if np.sqrt(np.mean((J - Jb) ** 2)) <= tol:
+            # 3. stopping rule (a diverged corner, J = ∞, makes the spread ∞ or NaN: not stopped)
+            with np.errstate(over="ignore", invalid="ignore"):
+                spread = np.sqrt(np.mean((J - Jb) ** 2))
+            if spread <= tol:
                 stopped = True
                 break
             it += 1
