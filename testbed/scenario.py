@@ -51,7 +51,7 @@ import shlex
 import sys
 import time
 import tomllib
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from importlib import metadata
 from pathlib import Path
 from typing import Callable, Mapping
@@ -64,7 +64,7 @@ from testbed.errors import InputError, atomic_directory
 from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
 from testbed.plant import Plant
-from testbed.signals import Hold, Signal, parse_signal, prbs, prbs_spectrum, signal_table  # noqa: F401 (re-exported)
+from testbed.signals import Signal, parse_signal, signal_table
 from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed, default_mjcf
 
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).

@@ -9,7 +9,7 @@ from testbed import truth
 from testbed.cli import main
 from testbed.errors import InputError
 from testbed.plant import Plant
-from testbed.vehicle import FINS, added_mass, constants, default_mjcf, load_model, rigid_body_mass
+from testbed.vehicle import added_mass, constants, default_mjcf, load_model, rigid_body_mass
 
 WRENCH = np.array([300.0, -120.0, 80.0, 6.0, -25.0, 40.0])  # N, N m; SPEC body axes at the CG
 
@@ -273,7 +273,7 @@ def _open_loop_fit(plant, amplitude, seconds=4.0):
     zero-order hold at the physics step, fins as recorded) against the plant, both from trim,
     with independent 0.1 s PRBS on rudder, elevators together and elevators differentially."""
     from testbed.model import continuous, discretize, structure, theta_vector
-    from testbed.scenario import prbs
+    from testbed.signals import prbs
 
     lin = truth.analytic_model(plant.model, 20.0)
     plant.reset(20.0, depth=100.0)

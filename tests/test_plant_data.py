@@ -2,8 +2,6 @@
 with the analytic linear model of the MJCF, noise-free and through the whole identify path."""
 
 import json
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
@@ -13,7 +11,7 @@ from testbed.data import Experiment, load_data, read_config
 from testbed.estimators import identify
 from testbed.estimators.outputerror import predict
 from testbed.model import STATES
-from testbed.scenario import fly_scenario, simulate
+from testbed.scenario import simulate
 from testbed.validation import fit_percent
 
 # The channels each experiment is designed to excite.

@@ -15,7 +15,7 @@ import pytest
 from testbed import scenario as sc
 from testbed import signals as sig
 from testbed.cli import BUILTIN_SCENARIOS, main
-from testbed.data import load_data, read_config
+from testbed.data import load_data
 from testbed.errors import InputError
 from testbed.measurements import rng_for
 from testbed.model import IX
