@@ -70,6 +70,8 @@ COMMAND_PANELS = {"depth": ("z",), "hold_depth": ("z",), "roll": ("phi",), "pitc
                   "yaw_rate": ("r",), "rudder": ("delta_r",), "elevators": ("delta_er", "delta_el"),
                   "fin_r": ("delta_r",), "fin_er": ("delta_er",), "fin_el": ("delta_el",)}  # fmt: skip
 FIN_COMMANDS = ("fin_r", "fin_er", "fin_el")  # the autopilot's commands to the fin servos
+# Commands with no quantity of their own to share axes with: their panel's title.
+OTHER_COMMANDS = {"differential": "differential elevator command δa = (δer − δel)/2 (rad)"}
 # The key lines under the plots, which say what the styles mean.
 RUN_KEY = ("thin grey: measured · bold blue: true · orange: the experiment's commands · "
            "purple: fin commands (autopilot)")  # fmt: skip
@@ -247,7 +249,8 @@ def _run_views(root: str, name: str, start: np.ndarray, heading: float, commands
     plots = [panel(k) for k in REPLAY_PANELS]
     if others := [c for c in commands if c not in COMMAND_PANELS]:
         plots.append(rrb.TimeSeriesView(origin=root, contents=[f"{root}/commands/{c}" for c in others],
-                                        name="other commands", plot_legend=rrb.PlotLegend(visible=False)))  # fmt: skip
+                                        name=" · ".join(OTHER_COMMANDS.get(c, c) for c in others),
+                                        plot_legend=rrb.PlotLegend(visible=False)))  # fmt: skip
     replay = rrb.Horizontal(rrb.Vertical(world, body, row_shares=[3, 2]),
                             rrb.Vertical(*plots, _key(), row_shares=[6] * len(plots) + [1]),
                             column_shares=[5, 4], name=name)  # fmt: skip
