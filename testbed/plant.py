@@ -7,13 +7,13 @@ is comparable to the body's, so here it goes where it belongs, into the generali
 
 In hull axes the vehicle's velocity is ν = (v, ω, δ̇) (hull linear and angular velocity, fin
 rates). Fin k's velocity in its own axes is X_k(δ_k) ν, and with M_k its 6×6 added mass the
-added mass of the whole vehicle is M9(δ) = M_hull + Σ X_kᵀ M_k X_k. The missing force is
+added mass of the whole vehicle is M9(δ) = M_hull + Σ X_kᵀ M_k X_k. The missing force, with
+the fins at rest relative to the hull (below), is
 
-    −Σ X_kᵀ M_k d/dt(X_k ν) = −M9 ν̇ − Σ δ̇_k X_kᵀ M_k ∂X_k/∂δ_k ν,
+    −Σ X_kᵀ M_k d/dt(X_k ν) = −M9 ν̇,
 
 with ν̇ the rate of the hull-axis components (Kirchhoff's equations). X_k is affine in
-(cos δ_k, sin δ_k), so both matrices are fixed combinations of nine precomputed 9×9 products
-per fin. After MuJoCo's position and velocity stages the plant maps M9 to MuJoCo's coordinates
+(cos δ_k, sin δ_k), so M9 is a fixed combination of nine precomputed 9×9 products per fin. After MuJoCo's position and velocity stages the plant maps M9 to MuJoCo's coordinates
 (free-joint linear velocity is in world axes: v = Rᵀ q̇_lin, v̇ = Rᵀ q̈_lin − ω × v), adds it to
 MuJoCo's mass matrix (CSR `d.M`, within the tree's sparsity) and puts the bias and the
 buoyancy of every fluid geom (−ρ V g at its volume's centre) in `qfrc_applied`; the hull's
@@ -349,16 +349,19 @@ def _advance(model, data, k, n, complete, h, cmd, slew):
 
 
 @numba.njit(cache=True)
-def _forward(model, data, k, M9):
+def _forward(model, data, k, M9, actuate):
     """q̈ into `k.qacc`, the fins at rest relative to the hull: MuJoCo's forward stages,
     completed, and the hull's acceleration from the hull block of the complete mass matrix (the
     fins' accelerations are prescribed, zero in MuJoCo's coordinates).
 
     Only the stages this body needs: kinematics, mass matrix, velocity (fluid forces, bias); no
     factorisation (the hull block is solved here), collision or constraints (`check_model`:
-    none), and the actuators' force on the hull (`_actuation`) held over the step."""
+    none), and the actuators' force on the hull (`_actuation`) held over the step: read at the
+    step's first stage (`actuate`), from that stage's kinematics."""
     _mj_kinematics(model, data)
     _mj_comPos(model, data)
+    if actuate:
+        _actuation(model, data, k)
     _mj_makeM(model, data)
     _mj_fwdVelocity(model, data)
     _complete(k, M9)
@@ -387,25 +390,23 @@ def _step(model, data, k, h):
         k.qpos[k.fin_qadr[f]] = k.reference[f]
         k.qvel[k.dofs[6 + f]] = 0.0
         k.integral[f] += h * k.reference[f]
-    _actuation(model, data, k)
     q0, v0 = k.qpos.copy(), k.qvel.copy()
     M9 = _added_mass(k)
-    lam = _rk4_step(model, data, k, h, M9)
+    lam = _rk4_step(model, data, k, h, M9, True)
     if h * lam <= _RK4_MAX_H_LAMBDA:
         return
     level = min(_LEVELS, int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))))
     k.qpos[:], k.qvel[:] = q0, v0
-    for _ in range(2**level):
-        _rk4_step(model, data, k, h / 2**level, M9)
+    for _ in range(2**level):  # the actuation of the step's start, held
+        _rk4_step(model, data, k, h / 2**level, M9, False)
 
 
 @numba.njit(cache=True)
 def _actuation(model, data, k):
-    """The actuators' generalized force on the hull, in hull axes, into `k.actuation`: the
-    propulsor is fixed to the hull and its thrust held over the step, so it turns with the hull
-    (`_complete` applies it at each stage); the fin servos act on the prescribed fins only."""
-    _mj_kinematics(model, data)
-    _mj_comPos(model, data)
+    """The actuators' generalized force on the hull, in hull axes, into `k.actuation` (the
+    kinematics current): the propulsor is fixed to the hull and its thrust held over the step,
+    so it turns with the hull (`_complete` applies it at each stage); the fin servos act on the
+    prescribed fins only."""
     _mj_transmission(model, data)
     _mj_fwdActuation(model, data)
     R, f = k.xmat[k.hull].reshape(3, 3), k.qfrc_actuator
@@ -416,10 +417,11 @@ def _actuation(model, data, k):
 
 
 @numba.njit(cache=True)
-def _rk4_step(model, data, k, h, M9):
+def _rk4_step(model, data, k, h, M9, actuate):
     """Classical RK4 on the hull's (qpos, qvel), positions on the quaternion manifold, fins held:
     x₁ = x₀ + h (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a completed forward evaluation (M9: the fins'
-    added mass at their held angles, `_added_mass`).
+    added mass at their held angles, `_added_mass`; `actuate`: read the actuators' force at the
+    first stage).
 
     Returns the stiffness estimate λ ≈ ‖a₃ − a₂‖ / ‖(h/2)(a₂ − a₁)‖ (the accelerations' change
     between the second and third stages over their velocities' change, as in Hairer & Wanner's
@@ -428,7 +430,7 @@ def _rk4_step(model, data, k, h, M9):
     vel_sum, acc_sum = np.zeros_like(v0), np.zeros_like(v0)
     accs = np.empty((3, v0.shape[0]))
     for stage, (weight, c) in enumerate(((1.0, 0.5), (2.0, 0.5), (2.0, 1.0), (1.0, 0.0))):
-        _forward(model, data, k, M9)
+        _forward(model, data, k, M9, actuate and stage == 0)
         vel_sum += weight * k.qvel
         acc_sum += weight * k.qacc
         if stage < 3:  # the next stage's point: x₀ + c h kᵢ
