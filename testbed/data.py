@@ -255,7 +255,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     for key in Vehicle.names():
         if key not in veh:
             raise InputError(f"{source}: [vehicle] {key} missing; expected a number (SI)")
-        values[key] = _number(veh[key], f"{source}: [vehicle] {key}")
+        values[key] = number(veh[key], f"{source}: [vehicle] {key}")
     for key in set(veh) - set(Vehicle.names()):
         raise InputError(f"{source}: [vehicle] {key} is not a vehicle constant; "
                          f"expected one of {', '.join(Vehicle.names())}")  # fmt: skip
@@ -263,7 +263,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     for key, v in doc["coefficients"].items():
         if key not in coefficients:
             raise InputError(f"{source}: [coefficients] {key} is not a coefficient name (SPEC §2)")
-        coefficients[key] = _number(v, f"{source}: [coefficients] {key}")
+        coefficients[key] = number(v, f"{source}: [coefficients] {key}")
     ident = doc.get("identify", {})
     free = ident.get("free", []) if isinstance(ident, dict) else None
     if not isinstance(free, list) or not all(isinstance(n, str) for n in free):
@@ -283,7 +283,7 @@ def check_config(config: ModelConfig) -> None:
     coefficients as finite numbers within ±`MAX_CONSTANT`, and distinct free coefficient names."""
     source = config.source or "config"
     for key in Vehicle.names():
-        v = _number(getattr(config.vehicle, key), f"{source}: [vehicle] {key}")
+        v = number(getattr(config.vehicle, key), f"{source}: [vehicle] {key}")
         low, expected = _VEHICLE_RANGES.get(key, (None, ""))
         high = MAX_SPEED if key == "speed" else math.inf
         if low is not None and not ((v > low if low == 0.0 else v >= low) and v <= high):
@@ -291,7 +291,7 @@ def check_config(config: ModelConfig) -> None:
     for key, v in config.coefficients.items():
         if key not in COEFFICIENTS:
             raise InputError(f"{source}: [coefficients] {key} is not a coefficient name (SPEC §2)")
-        _number(v, f"{source}: [coefficients] {key}")
+        number(v, f"{source}: [coefficients] {key}")
     for n in config.free:
         if n not in COEFFICIENTS:
             raise InputError(f"{source}: [identify] free names {n!r}, not a coefficient (SPEC §2)")
@@ -302,7 +302,7 @@ def check_config(config: ModelConfig) -> None:
                          f"list of states ({', '.join(STATES)})")  # fmt: skip
 
 
-def _number(v, where: str) -> float:
+def number(v, where: str) -> float:
     """`v` as a float; `InputError` unless it is a finite number within ±`MAX_CONSTANT`."""
     if isinstance(v, bool) or not isinstance(v, numbers.Real):
         shown = str(v).lower() if isinstance(v, bool) else repr(v)[:40]  # as TOML writes it

@@ -59,7 +59,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design
-from testbed.data import MIN_ROWS, config_text, csv_text
+from testbed.data import MIN_ROWS, config_text, csv_text, number
 from testbed.errors import InputError, atomic_directory
 from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
@@ -204,28 +204,22 @@ def parse_scenario(doc: Mapping, source: str = "<scenario>") -> Scenario:
     unknown = sorted(set(doc) - set(_TOP))
     if unknown:
         raise InputError(f"{source}: unknown key {unknown[0]!r}; expected {', '.join(_TOP)}")
-    number = lambda key, default: _number(doc.get(key, default), f"{source}: {key}")  # noqa: E731
+    top = lambda key, default: number(doc.get(key, default), f"{source}: {key}")  # noqa: E731
     experiments = doc.get("experiment", [])
     if not isinstance(experiments, list) or not all(isinstance(e, Mapping) for e in experiments):
         raise InputError(f"{source}: experiment must be an array of tables ([[experiment]])")
     return Scenario(
         name=str(doc.get("name", Path(source).stem)),
         description=str(doc.get("description", "")),
-        duration=number("duration", 60.0),
-        speed=None if doc.get("speed") is None else number("speed", None),
-        depth=number("depth", 100.0),
-        control_rate=number("control_rate", 50.0),
+        duration=top("duration", 60.0),
+        speed=None if doc.get("speed") is None else top("speed", None),
+        depth=top("depth", 100.0),
+        control_rate=top("control_rate", 50.0),
         sensors=_sensors(doc.get("sensors", {}), f"{source}: sensors"),
         measured=_measured(doc.get("sensors", {}), f"{source}: sensors"),
         experiments=tuple(_experiment(e, f"{source}: experiment {k + 1}") for k, e in enumerate(experiments)),
         source=source,
     )
-
-
-def _number(v, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, numbers.Real):
-        raise InputError(f"{where} = {v!r}; expected a number")
-    return float(v)
 
 
 def _sensors(doc, where: str) -> Sensors:
@@ -237,11 +231,11 @@ def _sensors(doc, where: str) -> Sensors:
     noise = doc.get("noise_std", NOISE_STD)
     if not isinstance(noise, Mapping):
         raise InputError(f"{where}: noise_std must be a table of state = std")
-    noise = {k: _number(v, f"{where}: noise_std.{k}") for k, v in noise.items()}
+    noise = {k: number(v, f"{where}: noise_std.{k}") for k, v in noise.items()}
     try:
-        return Sensors(rate=_number(doc.get("rate", 50.0), f"{where}: rate"),
+        return Sensors(rate=number(doc.get("rate", 50.0), f"{where}: rate"),
                        noise_std={**NOISE_STD, **noise},
-                       fin_std=_number(doc.get("fin_std", Sensors().fin_std), f"{where}: fin_std"))  # fmt: skip
+                       fin_std=number(doc.get("fin_std", Sensors().fin_std), f"{where}: fin_std"))  # fmt: skip
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
 
@@ -272,7 +266,7 @@ def _experiment(doc: Mapping, where: str) -> ExperimentSpec:
     fins = {c: parse_signal(doc[c], f"{where} {c}") for c in CHANNELS if c in doc}
     loops = {k: parse_signal(v, f"{where} autopilot.{k}") for k, v in autopilot.items()}
     held = parse_signal(hold["depth"], f"{where} hold.depth") if "depth" in hold else None
-    duration = None if duration is None else _number(duration, f"{where}: duration")
+    duration = None if duration is None else number(duration, f"{where}: duration")
     try:
         return ExperimentSpec(name=name, fins=fins, autopilot=loops, hold_depth=held, duration=duration)
     except InputError as exc:  # it names the experiment; add the file
