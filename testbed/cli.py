@@ -292,13 +292,14 @@ def _cmd_analyze(args) -> int:
 def _cmd_validate(args) -> int:
     import json
 
+    from testbed.data import read_estimates
     from testbed.errors import atomic_write_text
     from testbed.validation import validate
 
     args.out = _to_stdout(args.out)
     experiments, config, run_config, read = _inputs(args)
     _outputs(read + [args.estimates], {"--out": args.out})
-    coefficients = _estimated(args.estimates, config)
+    coefficients = read_estimates(args.estimates)[0]
     validation = validate(experiments, config.with_coefficients(coefficients), run_config)
     text = json.dumps({"estimates": str(args.estimates), "coefficients": coefficients,
                        "validation": validation.to_dict()}, indent=2, allow_nan=False) + "\n"  # fmt: skip
@@ -309,28 +310,6 @@ def _cmd_validate(args) -> int:
         sys.stdout.write(text)
     print(validation.table(), file=sys.stderr)
     return 0
-
-
-def _estimated(path: Path, config) -> dict[str, float]:
-    """The coefficients of an estimates JSON (SPEC §3), checked against the config's names."""
-    import json
-    import math
-
-    from testbed.model import COEFFICIENTS
-
-    try:
-        doc = json.loads(path.read_text())
-        values = {n: c["value"] for n, c in doc["coefficients"].items()}
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    except (ValueError, KeyError, TypeError, AttributeError):
-        raise InputError(f"{path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}") from None
-    for n, v in values.items():
-        if n not in COEFFICIENTS:
-            raise InputError(f"{path}: coefficient {n!r} is not a coefficient name (SPEC §2)")
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise InputError(f"{path}: coefficient {n} = {v!r}; expected a finite number")
-    return {n: float(v) for n, v in values.items()}
 
 
 def _cmd_design(args) -> int:

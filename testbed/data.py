@@ -340,6 +340,31 @@ def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:
     return atomic_write_text(path, config_text(config, comments))
 
 
+def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
+    """The coefficients (name → value) of an estimates JSON (SPEC §3), and its `noise_std`
+    (state → σ) when it has one of positive numbers, else None; InputError naming the file."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+        values = {n: c["value"] for n, c in doc["coefficients"].items()}
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise InputError(f"{path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}") from None
+    for n, v in values.items():
+        if n not in COEFFICIENTS:
+            raise InputError(f"{path}: coefficient {n!r} is not a coefficient name (SPEC §2)")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"{path}: coefficient {n} = {v!r}; expected a finite number")
+    noise = doc.get("noise_std")
+    if not (isinstance(noise, Mapping) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                               and 0 < v < math.inf for v in noise.values())):  # fmt: skip
+        noise = None
+    else:
+        noise = {k: float(v) for k, v in noise.items() if k in STATES}
+    return {n: float(v) for n, v in values.items()}, noise
+
+
 def run_csvs(run: Path) -> list[Path]:
     """The measurement CSVs of a run directory: the experiments its `manifest.json` lists, or
     without a manifest every `*.csv` but the `.truth.csv` and `.history.csv` files."""

@@ -44,7 +44,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, read_estimates as data_read_estimates
 from testbed.errors import InputError
 from testbed.measurements import NOISE_STD
 from testbed.model import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
@@ -547,23 +547,7 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
 
 
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
-    """The coefficients (name -> value) and noise_std of an estimates JSON (SPEC §3)."""
-    import json
-
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-        values = {n: float(c["value"]) for n, c in doc["coefficients"].items()}
-    except OSError as exc:
-        raise InputError(f"--from {path}: cannot read ({exc.strerror})") from None
-    except (ValueError, KeyError, TypeError, AttributeError):
-        raise InputError(f"--from {path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}") from None
-    bad = [n for n, v in values.items() if n not in COEFFICIENTS or not math.isfinite(v)]
-    if bad:
-        raise InputError(f"--from {path}: coefficient {bad[0]!r}; expected SPEC §2's names with finite values")
-    noise = doc.get("noise_std")
-    if isinstance(noise, Mapping) and all(isinstance(v, (int, float)) and v > 0 for v in noise.values()):
-        noise = {**NOISE_STD, **{k: float(v) for k, v in noise.items() if k in STATES}}
-    else:
-        noise = None
-    return values, noise
+    """The coefficients and the noise of an estimates JSON (`data.read_estimates`), the noise
+    completed with the sensors' defaults (`measurements.NOISE_STD`) for the states it lacks."""
+    values, noise = data_read_estimates(path)
+    return values, None if noise is None else {**NOISE_STD, **noise}
