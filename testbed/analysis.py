@@ -223,7 +223,7 @@ def screen(experiments, config):
         elif value == 0:
             fixed[n] = (f"not identifiable from these data: analysed at 0, Cramér-Rao bound {std:.3g} "
                         "(no relative bound)")  # fmt: skip
-        elif std > UNCERTAIN * abs(value):
+        elif n in result.uncertain:  # relative bound above UNCERTAIN
             fixed[n] = (f"not identifiable from these data: Cramér-Rao bound {100 * std / abs(value):.0f} % "
                         f"of its a-priori value (above {100 * UNCERTAIN:.0f} %)")  # fmt: skip
     free = tuple(n for n in config.free if n not in fixed)
