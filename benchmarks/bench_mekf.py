@@ -38,7 +38,7 @@ from filterpy.kalman import KalmanFilter  # noqa: E402
 
 from testbed.data import Experiment, ModelConfig, load_data  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
-from testbed.estimators.mekf import noise_from_data  # noqa: E402
+from testbed.measurements import noise_from_data  # noqa: E402
 from testbed.model import (  # noqa: E402
     COEFFICIENTS, STATES, Vehicle, continuous, discretize, structure, theta_vector,
 )  # fmt: skip

@@ -29,23 +29,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from studies.montecarlo import FREE, TRUTH, experiments, prior_config  # noqa: E402
 
 from testbed.estimators import identify  # noqa: E402
-from testbed.estimators import outputerror as oe  # noqa: E402
+from testbed import linear  # noqa: E402
 
 
 def scipy_fit(data, config) -> tuple[np.ndarray, int, int]:
     """Output error by least_squares (2-point Jacobian), R relaxed between fits."""
-    prob = oe.problem(data, config)
-    p = oe.initial_states(prob, prob.start)
-    R = oe.noise_variance(prob, oe.residuals(prob, p))
+    prob = linear.problem(data, config)
+    p = linear.initial_states(prob, prob.start)
+    R = linear.noise_variance(prob, linear.residuals(prob, p))
     nfev = rounds = 0
     for rounds in range(1, 11):
         def weighted(q):
-            res = oe.residuals(prob, q)
+            res = linear.residuals(prob, q)
             out = np.concatenate([(e / np.sqrt(R[r.channels])).ravel() for r, e in zip(prob.records, res)])
             return np.where(np.isfinite(out), out, 1e10)
         sol = least_squares(weighted, p, jac="2-point", method="trf")  # scipy's defaults
         p, nfev = sol.x, nfev + sol.nfev + sol.njev * len(p)
-        R, R_old = oe.noise_variance(prob, oe.residuals(prob, p)), R
+        R, R_old = linear.noise_variance(prob, linear.residuals(prob, p)), R
         if np.max(np.abs(R / R_old - 1)) < 1e-3:
             break
     return p[:prob.n_free], nfev, rounds

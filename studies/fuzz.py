@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script,
 from studies.montecarlo import NOISE, TRUTH, VEHICLE, inputs  # noqa: E402
 
 from testbed.data import ModelConfig, config_text, csv_text  # noqa: E402
-from testbed.estimators.outputerror import synthetic  # noqa: E402
+from testbed.linear import synthetic  # noqa: E402
 from testbed.model import INPUTS, STATES, Vehicle  # noqa: E402
 
 FREE = ("Y_v", "Y_r", "N_v", "N_r", "Z_w", "M_q")  # observed from both experiments of the workspace

@@ -21,7 +21,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import atomic_write_text
-from testbed.estimators.outputerror import synthetic
+from testbed.linear import synthetic
 from testbed.model import COEFFICIENTS, Vehicle
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too

@@ -168,7 +168,7 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     """Fisher information, Cramér-Rao bounds, correlations, structural and practical drift groups
     of `config.free` at the config's coefficients, for the given experiments. `noise_std`: the
     measurement noise per channel (default: the residual at the config's coefficients)."""
-    from testbed.estimators.outputerror import information
+    from testbed.linear import information
     from testbed.model import structure, theta_vector
 
     experiments = config.fitted(experiments)
@@ -212,7 +212,7 @@ def screen(experiments, config):
     """
     from dataclasses import replace
 
-    from testbed.estimators.mekf import noise_from_data
+    from testbed.measurements import noise_from_data
 
     result = identifiability(experiments, config, noise_from_data(config.fitted(experiments)))
     fixed = {}

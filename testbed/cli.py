@@ -128,7 +128,8 @@ def _cmd_identify(args) -> int:
     import json
 
     from testbed.errors import is_stream
-    from testbed.estimators import Status, check_fit, estimator, identify
+    from testbed.estimators import Status, estimator, identify
+    from testbed.linear import check_fit
 
     args.out = _to_stdout(args.out)
     if args.rrd == STDOUT:

@@ -165,7 +165,7 @@ def fly_model(m: Model, e: ExperimentSpec, duration: float, seed: int = SEED, in
 def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design") -> np.ndarray:
     """Fisher information of `m.config.free` from one noise-free experiment (initial states
     eliminated), with the sensor noise `m.noise_std`."""
-    from testbed.estimators.outputerror import information
+    from testbed.linear import information
 
     y = xs.copy()
     y[:, IX["u"]] += m.speed
@@ -393,7 +393,7 @@ class Linearity:
 def linearity(s: Scenario, excited: Mapping[str, Sequence[str]], mjcf=None, seed: int = SEED) -> Linearity:
     """Fly `s` noise-free on the truth plant; compare with the analytic model simulated open
     loop with the flown inputs from the first sample (`excited`: experiment -> its channels)."""
-    from testbed.estimators.outputerror import predict
+    from testbed.linear import predict
     from testbed.scenario import fly_scenario
     from testbed.truth import model_config
     from testbed.validation import fit_percent

@@ -26,12 +26,15 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 import numpy as np
 
 from testbed.errors import InputError
 from testbed.model import STATES
+
+if TYPE_CHECKING:
+    from testbed.data import Experiment
 
 NOISE_STD = {"u": 0.05, "v": 0.02, "w": 0.02, "p": 0.002, "q": 0.002, "r": 0.002,
              "phi": 0.003, "theta": 0.003, "psi": 0.01, "z": 0.05}  # fmt: skip
@@ -78,3 +81,44 @@ def measure(truth: np.ndarray, fins: np.ndarray, sensors: Sensors,
     states = truth + rng.standard_normal(truth.shape) * std
     angles = fins + rng.standard_normal(fins.shape) * sensors.fin_std
     return states, angles
+
+
+def _third_differences(experiments: Sequence[Experiment]) -> dict[str, list[np.ndarray]]:
+    """Per measured state, the third differences `Δ³y` of each experiment that measures it."""
+    out: dict[str, list[np.ndarray]] = {}
+    for e in experiments:
+        for j, name in enumerate(e.measured):
+            out.setdefault(name, []).append(np.diff(e.y[:, j], 3))
+    return out
+
+
+def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
+    """Measurement noise σ per measured state, pooled over the experiments: robust third
+    differences: for white noise `Var(Δ³e) = 20 σ²`, and a signal smooth over four samples adds
+    little to `Δ³y` (where it is fast, the σ is an upper bound).
+    A state measured only in records of fewer than 4 samples has none: `InputError`."""
+    pooled = _third_differences(experiments)
+    out = {}
+    for name in (s for s in STATES if s in pooled):
+        d = np.concatenate(pooled[name])
+        if not d.size:
+            where = ", ".join(e.source or e.name for e in experiments if name in e.measured)
+            raise InputError(f"{where}: {name} has fewer than 4 samples; the noise estimate "
+                             "(third differences) expected at least 4")  # fmt: skip
+        mad = 1.4826 * np.median(np.abs(d - np.median(d)))
+        out[name] = max(mad / math.sqrt(20.0), 1e-9)  # floor: R must stay positive definite
+    return out
+
+
+def noise_free_channels(experiments: Sequence[Experiment]) -> list[str]:
+    """Measured states whose data carry no measurement noise: the third differences of a
+    noisy channel are noise, whose neighbours have the same sign a quarter of the time
+    (correlation −3/4: ½ + asin(−¾)/π = 0.23); a smooth channel's keep their sign (→ 1). Above
+    0.45, or all zero, the channel is taken as noise-free."""
+    quiet = []
+    for name, ds in _third_differences(experiments).items():
+        kept = sum(int(np.sum(d[:-1] * d[1:] > 0)) for d in ds)  # neighbours keeping their sign
+        pairs = sum(max(len(d) - 1, 0) for d in ds)
+        if not any(np.any(d != 0) for d in ds) or kept > 0.45 * max(pairs, 1):
+            quiet.append(name)
+    return [n for n in STATES if n in quiet]

@@ -473,7 +473,7 @@ def log_fit(path, experiments, config, estimate, iterations, comparison=None,
     if recording_id is None:
         recording_id = _recording_id(title, *[part for e in experiments for part in (e.name, e.t, e.y, e.inputs)],
                                      tuple(estimate.free), np.asarray(estimate.values, float), history_t)  # fmt: skip
-    from testbed.estimators.outputerror import predict
+    from testbed.linear import predict
 
     fitted = config.with_coefficients(estimate.coefficients)
     try:

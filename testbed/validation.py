@@ -24,7 +24,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from testbed.data import Experiment, ModelConfig
-from testbed.estimators.outputerror import predict
+from testbed.linear import predict
 
 LAGS = 25  # autocorrelation lags tested (0.5 s at 50 Hz: beyond the torpedo's fast modes)
 CONFIDENCE = 2.576  # 99 % two-sided normal quantile

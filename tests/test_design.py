@@ -83,7 +83,7 @@ def test_largest_amplitude_meets_a_bound_exactly(model):
 def test_fisher_matches_finite_differences_of_the_outputs(model):
     """Independent reference: F = Σ Sᵀ R⁻¹ S with S the central differences of the simulated
     outputs (initial states at trim are known here and the experiment starts at trim)."""
-    from testbed.estimators.outputerror import synthetic
+    from testbed.linear import synthetic
 
     e = D.spec("horizontal", {"rudder": Prbs(amplitude=1e-3, order=8, clock=0.2)})
     t, xs, fins = D.fly_model(model, e, 20.0)

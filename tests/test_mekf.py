@@ -11,9 +11,10 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
 from testbed.estimators.mekf import (
-    FilterOptions, _Model, _run, history_csv_text, noise_free_channels, noise_from_data,
+    FilterOptions, _Model, _run, history_csv_text,
     sqrt_update, svd_root, tria,
 )  # fmt: skip
+from testbed.measurements import noise_free_channels, noise_from_data
 from testbed.model import (
     COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, discretize, structure,
     theta_vector,

@@ -14,7 +14,7 @@ from studies.montecarlo import (FREE, NOISE, TRUTH, experiments, prior_config,  
 
 from testbed.errors import InputError  # noqa: E402
 from testbed.estimators import METHODS, Status, identify  # noqa: E402
-from testbed.estimators.outputerror import information  # noqa: E402
+from testbed.linear import information  # noqa: E402
 
 WANT = np.array([TRUTH[n] for n in FREE])
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")

@@ -9,7 +9,7 @@ from testbed.analysis import screen
 from testbed.cli import main
 from testbed.data import Experiment, load_data, read_config
 from testbed.estimators import identify
-from testbed.estimators.outputerror import predict
+from testbed.linear import predict
 from testbed.model import STATES
 from testbed.scenario import simulate
 from testbed.validation import fit_percent

@@ -17,8 +17,8 @@ from testbed.analysis import compare
 from testbed.data import ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed.estimators import outputerror as oe
-from testbed.estimators.outputerror import synthetic
+from testbed import linear
+from testbed.linear import synthetic
 from testbed.model import INPUTS, STATES
 from testbed.scenario import Flight
 from testbed.truth import analytic_config
@@ -459,7 +459,7 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
     def no_fit(*args, **kwargs):
         raise AssertionError("the initial states were fitted again")
 
-    monkeypatch.setattr(oe, "fit_initial_states", no_fit)
+    monkeypatch.setattr(linear, "fit_initial_states", no_fit)
     path = report.log_fit(tmp_path / "fit.rrd", data, start, moved, [])
     psi = _scalars(path, f"/outputs/{name}/psi")[:, 1]  # (measured, model)
     assert psi[0] == pytest.approx(x0["psi"] + 1.0)
@@ -469,7 +469,7 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
     partial = dataclasses.replace(est, extra={**est.extra, "initial_states": {name: {"psi": x0["psi"] + 1.0}}})
     for e in (dataclasses.replace(est, extra={}), partial):
         path = report.log_fit(tmp_path / "fit2.rrd", data, start, e, [])
-        expected = oe.predict(data, start.with_coefficients(est.coefficients), e.extra.get("initial_states"))[0]
+        expected = linear.predict(data, start.with_coefficients(est.coefficients), e.extra.get("initial_states"))[0]
         assert np.allclose(_scalars(path, f"/outputs/{name}/psi")[:, 1], expected[:, 2])
 
 

@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.model import STATES
+from testbed.linear import check_fit
 
 
 class Status(enum.Enum):
@@ -94,9 +94,6 @@ def register(name: str):
     return deco
 
 
-COARSEST = math.log(2.0**53)  # ρΔ beyond which the fastest mode decays below rounding in one step
-
-
 def estimator(name: str) -> Method:
     """The estimator registered as `name`; `InputError` if there is none."""
     _load_methods()
@@ -116,58 +113,6 @@ def identify(experiments: Sequence[Experiment], config: ModelConfig, method: str
     experiments = config.fitted(experiments)
     check_fit(experiments, config)
     return fn(experiments, config, **options)
-
-
-def check_fit(experiments: Sequence[Experiment], config: ModelConfig) -> None:
-    """`InputError` unless `config.free` can be fitted to the experiments' fitted outputs: the
-    inputs check out (`check_inputs`) and every free coefficient is seen in the measured states
-    (`model.unobserved`)."""
-    from testbed.errors import InputError
-    from testbed.model import structure, theta_vector, unobserved
-
-    if not config.free:
-        raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to estimate")
-    experiments = config.fitted(experiments)
-    check_inputs(experiments, config)
-    measured = {s for e in experiments for s in e.measured}
-    blind = unobserved(structure(config.vehicle), theta_vector(config.coefficients), config.free, measured)
-    if blind:
-        raise InputError(f"{config.source or 'config'}: [identify] free {', '.join(blind)}: not "
-                         f"identifiable, the measured states ({', '.join(s for s in STATES if s in measured)}) "
-                         "do not depend on them in the model; measure the states they drive or fix them")  # fmt: skip
-
-
-def check_inputs(experiments: Sequence[Experiment], config: ModelConfig) -> None:
-    """`InputError` unless the experiments and the config can be fitted together, before any work:
-
-    - each record is usable (`data.check_experiment`) and the config valid (`data.check_config`);
-    - the config's Mt is the inertia of a body (`model.inertia_defect`): a singular or indefinite
-      one makes every model built on it blow up, the fault of the config, not of the data;
-    - each record's sampling interval Δ resolves the model: over one step the fastest mode
-      (rate ρ) decays by e^(−ρΔ), and beyond ρΔ = ln 2⁵³ that is below double-precision
-      rounding, so the record shows none of it. Such a step is the data's fault (t in ms, say).
-    """
-    from testbed.data import check_config, check_experiment
-    from testbed.errors import InputError
-    from testbed.model import fastest_rate, inertia_defect, structure, theta_vector
-
-    if not experiments:
-        raise InputError("no experiments given; expected at least one measurement record")
-    for e in experiments:
-        check_experiment(e)
-    check_config(config)
-    source = config.source or "config"
-    s, theta = structure(config.vehicle), theta_vector(config.coefficients)
-    defect = inertia_defect(s, theta)
-    if defect:
-        raise InputError(f"{source}: the inertia matrix Mt is not a body's: {defect}")
-    rate = fastest_rate(s, theta)
-    for e in experiments:
-        dt = float(e.t[1] - e.t[0])
-        if rate * dt > COARSEST:
-            raise InputError(f"{e.source or e.name}: t steps {dt:g} s; the model of {source} has a "
-                             f"mode at {rate:.3g} 1/s, which such a step cannot show: expected a step "
-                             f"below {COARSEST / rate:.3g} s (t in seconds)")  # fmt: skip
 
 
 def _load_methods() -> None:

@@ -110,8 +110,10 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import Estimate, Status, check_inputs, register
-from testbed.model import (IX, ITHETA, NX, STATES, continuous, derivatives, expm_pair,
+from testbed.estimators import Estimate, Status, register
+from testbed.linear import check_inputs
+from testbed.measurements import noise_free_channels, noise_from_data
+from testbed.model import (IX, ITHETA, NX, continuous, derivatives, expm_pair,
                            structure, theta_vector)
 
 
@@ -216,32 +218,6 @@ class _Model:
         else:  # E to first order in the move since the last exact model
             E = self.E0 + (self.dEt @ (th - self.th_model)).reshape(len(self.E0), -1)
         return E, (self.dEx @ xi).reshape(len(E), -1)
-
-
-def _third_differences(experiments: Sequence[Experiment]) -> dict[str, list[np.ndarray]]:
-    """Per measured state, the third differences `Δ³y` of each experiment that measures it."""
-    out: dict[str, list[np.ndarray]] = {}
-    for e in experiments:
-        for j, name in enumerate(e.measured):
-            out.setdefault(name, []).append(np.diff(e.y[:, j], 3))
-    return out
-
-
-def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
-    """Measurement noise σ per measured state, pooled over the experiments: robust third
-    differences, `Var(Δ³e) = 20 σ²` (an upper bound where the signal is fast; module docstring).
-    A state measured only in records of fewer than 4 samples has none: `InputError`."""
-    pooled = _third_differences(experiments)
-    out = {}
-    for name in (s for s in STATES if s in pooled):
-        d = np.concatenate(pooled[name])
-        if not d.size:
-            where = ", ".join(e.source or e.name for e in experiments if name in e.measured)
-            raise InputError(f"{where}: {name} has fewer than 4 samples; the filter's noise estimate "
-                             "(third differences) expected at least 4")  # fmt: skip
-        mad = 1.4826 * np.median(np.abs(d - np.median(d)))
-        out[name] = max(mad / math.sqrt(20.0), 1e-9)  # floor: R must stay positive definite
-    return out
 
 
 # ---------------------------------------------------------------- options and result
@@ -637,20 +613,6 @@ def _far(st: _State, o: FilterOptions) -> str:
     moved = np.abs(st.th - st.th0) / st.sig0
     j = int(np.argmax(moved))
     return f"coefficient {st.names[j]} moved {moved[j]:.3g} prior σ (limit {o.explode:g})"
-
-
-def noise_free_channels(experiments: Sequence[Experiment]) -> list[str]:
-    """Measured states whose data carry no measurement noise: the third differences of a
-    noisy channel are noise, whose neighbours have the same sign a quarter of the time
-    (correlation −3/4: ½ + asin(−¾)/π = 0.23); a smooth channel's keep their sign (→ 1). Above
-    0.45, or all zero, the channel is taken as noise-free."""
-    quiet = []
-    for name, ds in _third_differences(experiments).items():
-        kept = sum(int(np.sum(d[:-1] * d[1:] > 0)) for d in ds)  # neighbours keeping their sign
-        pairs = sum(max(len(d) - 1, 0) for d in ds)
-        if not any(np.any(d != 0) for d in ds) or kept > 0.45 * max(pairs, 1):
-            quiet.append(name)
-    return [n for n in STATES if n in quiet]
 
 
 def _hint(st: _State, reason: str, experiments: Sequence[Experiment]) -> str:

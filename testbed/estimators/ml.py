@@ -27,7 +27,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, register
-from testbed.estimators import outputerror as oe
+from testbed import linear
 
 Callback = Callable[[int, np.ndarray, float], None]
 
@@ -43,33 +43,33 @@ class Outcome:
     fisher: np.ndarray | None = None  # M at p, when the optimiser has it (saves `assess` a pass)
 
 
-def _terms(prob: oe.Problem, p: np.ndarray, xs, res, tol: float):
-    """R, g and M at `p` (`oe.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is
+def _terms(prob: linear.Problem, p: np.ndarray, xs, res, tol: float):
+    """R, g and M at `p` (`linear.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is
     shorter than `tol` in Cramér-Rao units: converged."""
-    R = oe.noise_variance(prob, res)
-    g, M = oe.gauss_newton_terms(prob, p, xs, res, R)
-    return R, g, M, np.sqrt(max(g @ oe.covariance(M) @ g, 0.0)) < tol
+    R = linear.noise_variance(prob, res)
+    g, M = linear.gauss_newton_terms(prob, p, xs, res, R)
+    return R, g, M, np.sqrt(max(g @ linear.covariance(M) @ g, 0.0)) < tol
 
 
-def _simulate(prob: oe.Problem, p: np.ndarray):
+def _simulate(prob: linear.Problem, p: np.ndarray):
     """States and residuals at `p`, or None where the model is invalid (singular Mt, diverging)."""
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-            xs = oe.states(prob, p)
+            xs = linear.states(prob, p)
     except np.linalg.LinAlgError:
         return None
     out = [x[:, r.measured] for r, x in zip(prob.records, xs)]
-    if not np.all(np.isfinite(p)) or oe.exploded(prob, out) is not None:
+    if not np.all(np.isfinite(p)) or linear.exploded(prob, out) is not None:
         return None
     return xs, [r.y - y for r, y in zip(prob.records, out)]
 
 
-def _report(callback: Callback | None, prob: oe.Problem, it: int, p: np.ndarray, res) -> None:
+def _report(callback: Callback | None, prob: linear.Problem, it: int, p: np.ndarray, res) -> None:
     if callback is not None:
-        callback(it, p[:prob.n_free].copy(), oe.negative_log_likelihood(prob, res))
+        callback(it, p[:prob.n_free].copy(), linear.negative_log_likelihood(prob, res))
 
 
-def gauss_newton(prob: oe.Problem, p: np.ndarray, max_iter: int = 50, callback=None,
+def gauss_newton(prob: linear.Problem, p: np.ndarray, max_iter: int = 50, callback=None,
                  tol: float = 1e-3) -> Outcome:  # fmt: skip
     """Levenberg-Marquardt on `½ Σ eᵀR⁻¹e`, R re-estimated before every step."""
     history, lam = [p[:prob.n_free].copy()], 0.01
@@ -78,11 +78,11 @@ def gauss_newton(prob: oe.Problem, p: np.ndarray, max_iter: int = 50, callback=N
         R, g, M, converged = _terms(prob, p, xs, res, tol)
         if converged or it == max_iter:
             break
-        J0, D = oe.weighted_cost(prob, res, R), np.diag(np.maximum(np.diag(M), 1e-300))
+        J0, D = linear.weighted_cost(prob, res, R), np.diag(np.maximum(np.diag(M), 1e-300))
         while True:
             trial = p + np.linalg.solve(M + lam * D, g)
             sim = _simulate(prob, trial)
-            if sim is not None and oe.weighted_cost(prob, sim[1], R) < J0:
+            if sim is not None and linear.weighted_cost(prob, sim[1], R) < J0:
                 p, (xs, res), lam = trial, sim, max(lam / 10, 1e-12)
                 break
             lam *= 10
@@ -94,7 +94,7 @@ def gauss_newton(prob: oe.Problem, p: np.ndarray, max_iter: int = 50, callback=N
     return Outcome(p, status, it, np.array(history), M)
 
 
-def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callback=None,
+def newton_raphson(prob: linear.Problem, p: np.ndarray, max_iter: int = 100, callback=None,
                    tol: float = 1e-3) -> Outcome:  # fmt: skip
     """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step."""
     history, N = [p[:prob.n_free].copy()], prob.n_samples
@@ -111,7 +111,7 @@ def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callbac
             break
         grad = -2.0 / N * g  # ∂J_M/∂p
         weights = [e / R[r.channels] for r, e in zip(prob.records, res)]
-        hess = 2.0 / N * (M - oe.curvature(prob, p, weights))  # ∂²J_M/∂p² (Eq. 3 sensitivities)
+        hess = 2.0 / N * (M - linear.curvature(prob, p, weights))  # ∂²J_M/∂p² (Eq. 3 sensitivities)
         lam = float(np.max(np.abs(grad)))
         mu = 0.5 if lam > 1 else 1.0 / (lam + 1.0)
         try:
@@ -124,7 +124,7 @@ def newton_raphson(prob: oe.Problem, p: np.ndarray, max_iter: int = 100, callbac
     return Outcome(p, status, it, np.array(history), M)
 
 
-def nelder_mead(prob: oe.Problem, p: np.ndarray, max_iter: int | None = None, callback=None,
+def nelder_mead(prob: linear.Problem, p: np.ndarray, max_iter: int | None = None, callback=None,
                 eps: float = 1e-3, step: float = 0.1, restart_step: float = 0.02,
                 r_tol: float = 1e-3, max_relaxations: int = 20) -> Outcome:  # fmt: skip
     """The paper's eight-step simplex on J_M(θ) with R fixed; R relaxed between simplex runs.
@@ -139,19 +139,19 @@ def nelder_mead(prob: oe.Problem, p: np.ndarray, max_iter: int | None = None, ca
     m = nf = prob.n_free
     max_iter = 500 * m if max_iter is None else max_iter
     tol = eps / prob.n_samples
-    R = oe.noise_variance(prob, oe.residuals(prob, p))
+    R = linear.noise_variance(prob, linear.residuals(prob, p))
     history, it = [p[:nf].copy()], 0
 
     def J_M(theta: np.ndarray) -> float:
         try:
             with np.errstate(over="ignore", invalid="ignore"):
-                out = oe.fit_initial_states(prob, theta, R)[1]
+                out = linear.fit_initial_states(prob, theta, R)[1]
         except np.linalg.LinAlgError:
             return np.inf
-        if oe.exploded(prob, out) is not None:
+        if linear.exploded(prob, out) is not None:
             return np.inf
         res = [r.y - y for r, y in zip(prob.records, out)]
-        return 2.0 * oe.weighted_cost(prob, res, R) / prob.n_samples
+        return 2.0 * linear.weighted_cost(prob, res, R) / prob.n_samples
 
     best = p[:nf].copy()
     for relaxation in range(max_relaxations):
@@ -199,21 +199,21 @@ def nelder_mead(prob: oe.Problem, p: np.ndarray, max_iter: int | None = None, ca
             if callback is not None:
                 callback(it, history[-1].copy(), float(np.min(J)))
         best = simplex[np.argmin(J)].copy()
-        q = oe.initial_states(prob, best, R)
+        q = linear.initial_states(prob, best, R)
         if not stopped:
             return Outcome(q, Status.MAX_ITERATIONS, it, np.array(history))
-        R, R_old = oe.noise_variance(prob, oe.residuals(prob, q)), R
+        R, R_old = linear.noise_variance(prob, linear.residuals(prob, q)), R
         if np.max(np.abs(R / R_old - 1)) < r_tol:
-            return Outcome(oe.initial_states(prob, best, R), Status.CONVERGED, it, np.array(history))
-    return Outcome(oe.initial_states(prob, best, R), Status.STALLED, it, np.array(history))
+            return Outcome(linear.initial_states(prob, best, R), Status.CONVERGED, it, np.array(history))
+    return Outcome(linear.initial_states(prob, best, R), Status.STALLED, it, np.array(history))
 
 
-def _start(prob: oe.Problem, experiments, config: ModelConfig, start: str) -> np.ndarray:
+def _start(prob: linear.Problem, experiments, config: ModelConfig, start: str) -> np.ndarray:
     """Free coefficient values to start from."""
     if start == "config":
         return prob.start
     if start == "equation-error":
-        ee = oe.equation_error(experiments, config)
+        ee = linear.equation_error(experiments, config)
         return np.array([ee.coefficients[n] for n in prob.free])
     if start == "mekf":
         from testbed.estimators import METHODS, identify
@@ -233,13 +233,13 @@ def _start(prob: oe.Problem, experiments, config: ModelConfig, start: str) -> np
     raise InputError(f"start {start!r}: expected config, equation-error, mekf or auto")
 
 
-def _estimate(name: str, prob: oe.Problem, out: Outcome, start: str, t0: float,
+def _estimate(name: str, prob: linear.Problem, out: Outcome, start: str, t0: float,
               extra: dict | None = None) -> Estimate:  # fmt: skip
     """The `Estimate` where the optimiser stopped, with its Cramér-Rao analysis; a DIVERGED one
     (the reason in `extra["diverged"]`) where that analysis breaks down or is not finite."""
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            info = oe.assess(prob, out.p, out.fisher)
+            info = linear.assess(prob, out.p, out.fisher)
         why = None if all(np.all(np.isfinite(a)) for a in (info.values, info.crlb_std, info.cost)) \
             else "the estimate or its Cramér-Rao bound is not finite"  # fmt: skip
     except np.linalg.LinAlgError as exc:
@@ -266,7 +266,7 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
     t0 = time.perf_counter()
     if max_iter is not None and max_iter < 0:
         raise InputError(f"--max-iter {max_iter}; expected ≥ 0 (iterations)")
-    prob = oe.problem(experiments, config)
+    prob = linear.problem(experiments, config)
     opts = opts | ({"max_iter": max_iter} if max_iter is not None else {})
 
     def run(p: np.ndarray) -> Outcome:
@@ -274,8 +274,8 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
 
     if start != "auto":
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is reported below
-            p0 = oe.initial_states(prob, _start(prob, experiments, config, start))
-        why = oe.divergence(prob, p0)
+            p0 = linear.initial_states(prob, _start(prob, experiments, config, start))
+        why = linear.divergence(prob, p0)
         if why is not None and start == "config":
             raise InputError(f"{prob.source}: the a-priori model diverges ({why}); expected "
                              "coefficients giving a bounded response, or start auto")  # fmt: skip
@@ -286,14 +286,14 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
     # than the equation-error model has before any iteration; then the equation-error start, and
     # the better of the two if neither converges.
     def cost(p):
-        return oe.negative_log_likelihood(prob, oe.residuals(prob, p))
+        return linear.negative_log_likelihood(prob, linear.residuals(prob, p))
 
     with np.errstate(over="ignore", invalid="ignore"):  # diverging starts are handled below
-        p0 = oe.initial_states(prob, prob.start)
-        p_ee = oe.initial_states(prob, _start(prob, experiments, config, "equation-error"))
-    cost_ee = np.inf if oe.divergence(prob, p_ee) else cost(p_ee)
+        p0 = linear.initial_states(prob, prob.start)
+        p_ee = linear.initial_states(prob, _start(prob, experiments, config, "equation-error"))
+    cost_ee = np.inf if linear.divergence(prob, p_ee) else cost(p_ee)
     first, reason = None, "the a-priori model diverges"
-    if oe.divergence(prob, p0) is None:
+    if linear.divergence(prob, p0) is None:
         first = run(p0)
         if first.status is Status.CONVERGED and cost(first.p) <= cost_ee:
             return _estimate(name, prob, first, "config", t0)
@@ -303,7 +303,7 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
     if not np.isfinite(cost_ee):
         if first is None:
             raise InputError(f"{prob.source}: the a-priori model diverges "
-                             f"({oe.divergence(prob, p0)}) and so does the equation-error one")  # fmt: skip
+                             f"({linear.divergence(prob, p0)}) and so does the equation-error one")  # fmt: skip
         return _estimate(name, prob, first, "config", t0)
     second = run(p_ee)
     if first is not None and second.status is not Status.CONVERGED and cost(first.p) < cost(second.p):

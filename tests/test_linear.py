@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from studies.montecarlo import FREE, NOISE, TRUTH, experiments, truth_config  # noqa: E402
 
 from testbed.errors import InputError  # noqa: E402
-from testbed.estimators import outputerror as oe  # noqa: E402
+from testbed import linear  # noqa: E402
 from testbed.model import IX, NX, continuous  # noqa: E402
 
 VERTICAL_SUBSET = ("u", "w", "q", "theta", "z", "p", "phi")
@@ -25,18 +25,18 @@ def _data(duration=3.0, noise=NOISE):
 
 
 def _problem(duration=3.0, free=FREE):
-    prob = oe.problem(_data(duration), truth_config(free))
-    return prob, oe.initial_states(prob, prob.start)
+    prob = linear.problem(_data(duration), truth_config(free))
+    return prob, linear.initial_states(prob, prob.start)
 
 
 def test_first_order_sensitivities_match_complex_step():
     prob, p = _problem()
-    sens = oe.sensitivities(prob, p)
+    sens = linear.sensitivities(prob, p)
     h = 1e-30
     for j in range(prob.n_params):
         pc = p.astype(complex)
         pc[j] += 1j * h
-        for r, S, yc in zip(prob.records, sens, oe.outputs(prob, pc)):
+        for r, S, yc in zip(prob.records, sens, linear.outputs(prob, pc)):
             ref, cols = yc.imag / h, list(prob.columns(r))
             if j not in cols:  # another experiment's initial state
                 assert not ref.any()
@@ -53,12 +53,12 @@ def test_second_order_sensitivities_match_complex_step():
     one_hot[1][25, VERTICAL_SUBSET.index("q")] = 1.0  # ∂²q[25]/∂p∂p of the second experiment
     h = 1e-30
     for weights in (random, one_hot):
-        H = oe.curvature(prob, p, weights)
+        H = linear.curvature(prob, p, weights)
         ref = np.zeros_like(H)
         for j in range(prob.n_params):
             pc = p.astype(complex)
             pc[j] += 1j * h
-            for r, w, S in zip(prob.records, weights, oe.sensitivities(prob, pc)):
+            for r, w, S in zip(prob.records, weights, linear.sensitivities(prob, pc)):
                 ref[prob.columns(r), j] += np.einsum("nk,nkp->p", w, S.imag / h)
         np.testing.assert_allclose(H, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
         np.testing.assert_allclose(H, H.T, atol=1e-12 * np.abs(H).max())
@@ -68,7 +68,7 @@ def test_zero_order_hold_model_matches_fine_rk4_with_singular_A():
     prob, p = _problem(duration=4.0)
     A, B, S = continuous(prob.structure, prob.theta)
     assert np.linalg.matrix_rank(A) < NX  # ψ and z are pure integrators
-    for r, yhat in zip(prob.records, oe.outputs(prob, p)):
+    for r, yhat in zip(prob.records, linear.outputs(prob, p)):
         x, h, sub = prob.x0(r, p).copy(), r.dt / 200, 200
         f = lambda x, u: A @ x + B @ u + S  # noqa: E731
         ref = [x[r.measured]]
@@ -88,13 +88,13 @@ def test_initial_states_are_recovered_exactly_from_noise_free_data():
     x0[[IX["v"], IX["w"], IX["q"], IX["phi"], IX["z"]]] = 0.05, -0.03, 0.02, 0.04, 1.5
     cfg = truth_config()
     t, u = np.arange(0, 5, 0.05), np.zeros((100, 3))
-    exp = oe.synthetic(cfg, t, u, x0=x0, name="release")
-    prob = oe.problem([exp], cfg)
-    p, outs = oe.fit_initial_states(prob, prob.start)
+    exp = linear.synthetic(cfg, t, u, x0=x0, name="release")
+    prob = linear.problem([exp], cfg)
+    p, outs = linear.fit_initial_states(prob, prob.start)
     np.testing.assert_allclose(p[prob.n_free:], x0, atol=1e-9)
     np.testing.assert_allclose(outs[0], prob.records[0].y, atol=1e-9)
     # predict returns absolute u, as in the data
-    np.testing.assert_allclose(oe.predict([exp], cfg)[0], exp.y, atol=1e-9)
+    np.testing.assert_allclose(linear.predict([exp], cfg)[0], exp.y, atol=1e-9)
 
 
 def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
@@ -102,9 +102,9 @@ def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
     rng = np.random.default_rng(5)
     res = [rng.normal(size=r.y.shape) * 0.01 + 0.004 * np.sin(np.arange(len(r.y)))[:, None]
            for r in prob.records]  # colored  # fmt: skip
-    R = oe.noise_variance(prob, res)
+    R = linear.noise_variance(prob, res)
     mid = np.zeros((prob.n_params, prob.n_params))
-    for r, S, v in zip(prob.records, oe.sensitivities(prob, p), res):
+    for r, S, v in zip(prob.records, linear.sensitivities(prob, p), res):
         n, cols = len(v), prob.columns(r)
         W = S / R[r.channels][None, :, None]
         for i in range(n):
@@ -115,18 +115,18 @@ def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
     A = rng.normal(size=(prob.n_params, prob.n_params))
     cov = A @ A.T  # any symmetric matrix in place of M⁻¹: the sandwich is linear in each side
     ref = (cov @ mid @ cov)[:prob.n_free, :prob.n_free]
-    got = oe.colored_covariance(prob, p, oe.states(prob, p), res, R, cov)
+    got = linear.colored_covariance(prob, p, linear.states(prob, p), res, R, cov)
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
 
 
 def test_sensitivities_made_in_pieces_equal_the_whole_recursion():
     prob, p = _problem(duration=3.0)
-    models, xs = oe._models(prob, p[:prob.n_free], 1), oe.states(prob, p)
-    for r, x, S in zip(prob.records, xs, oe.sensitivities(prob, p, xs)):
+    models, xs = linear._models(prob, p[:prob.n_free], 1), linear.states(prob, p)
+    for r, x, S in zip(prob.records, xs, linear.sensitivities(prob, p, xs)):
         scale = np.linspace(0.5, 2.0, len(r.measured))
         for size in (7, 8, len(x) - 1):  # odd and even pieces carry the recursion on
             got, parts = np.zeros_like(S), set()
-            for channels, params, pieces in oe._sensitivity_parts(prob, r, models[r.dt], x,
+            for channels, params, pieces in linear._sensitivity_parts(prob, r, models[r.dt], x,
                                                                   r.measured, scale, size):  # fmt: skip
                 for samples, piece in pieces:
                     got[samples, channels[:, None], params[None, :]] = piece
@@ -140,17 +140,17 @@ def test_uncoupled_parts_are_the_connected_states_and_parameters():
     coupled[1, 0] = True  # state 0 feeds 1, 2 and 3 are alone
     acts = np.zeros((4, 3), bool)
     acts[0, 0] = acts[2, 1] = acts[3, 2] = True  # parameter 2 acts on state 3 only
-    parts = oe._uncoupled(coupled, acts, np.array([1, 2, 3]))
+    parts = linear._uncoupled(coupled, acts, np.array([1, 2, 3]))
     assert [[list(a) for a in part] for part in parts] == [[[0, 1], [0], [0]], [[2], [1], [1]],
                                                            [[3], [2], [2]]]  # fmt: skip
     acts[3, 1] = True  # parameter 1 now acts on 2 and 3 together: one part
-    parts = oe._uncoupled(coupled, acts, np.array([1, 2]))  # state 3 not asked for
+    parts = linear._uncoupled(coupled, acts, np.array([1, 2]))  # state 3 not asked for
     assert [[list(a) for a in part] for part in parts] == [[[0, 1], [0], [0]], [[2, 3], [1, 2], [1]]]
 
 
 def test_information_is_consistent():
     data = _data(duration=30.0)
-    info = oe.information(data, truth_config())
+    info = linear.information(data, truth_config())
     F = info.fisher
     np.testing.assert_allclose(F, F.T, rtol=1e-12)
     # crlb of the coefficients with the initial states as nuisance = the Schur complement's inverse
@@ -162,14 +162,14 @@ def test_information_is_consistent():
     ratio = info.crlb_corrected_std / info.crlb_std
     assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
     # values override the config: a 10 % change of one free coefficient raises the cost
-    worse = oe.information(data, truth_config(), {"N_r": 0.9 * TRUTH["N_r"]})
+    worse = linear.information(data, truth_config(), {"N_r": 0.9 * TRUTH["N_r"]})
     assert worse.cost > info.cost
 
 
 def test_equation_error_recovers_noise_free_truth():
     data = experiments(seed=0, duration=30.0, noise=None)
     prior = truth_config().with_coefficients({n: 0.6 * TRUTH[n] for n in FREE})
-    ee = oe.equation_error(data, prior)
+    ee = linear.equation_error(data, prior)
     got = np.array([ee.coefficients[n] for n in FREE])
     want = np.array([TRUTH[n] for n in FREE])
     np.testing.assert_allclose(got, want, rtol=0.01)
@@ -178,17 +178,17 @@ def test_equation_error_recovers_noise_free_truth():
 def test_bad_input():
     data = _data()
     with pytest.raises(InputError, match="Y_bogus"):
-        oe.problem(data, replace(truth_config(), free=("Y_v", "Y_bogus")))
+        linear.problem(data, replace(truth_config(), free=("Y_v", "Y_bogus")))
     y = data[0].y.copy()
     y[3, 1] = np.nan
     with pytest.raises(InputError, match="NaN"):
-        oe.problem([replace(data[0], y=y)], truth_config())
+        linear.problem([replace(data[0], y=y)], truth_config())
     t = data[0].t.copy()
     t[5] += 0.01
     with pytest.raises(InputError, match="uniform"):
-        oe.problem([replace(data[0], t=t)], truth_config())
+        linear.problem([replace(data[0], t=t)], truth_config())
     with pytest.raises(InputError, match="expected 15"):
-        oe.information(data, truth_config(), np.zeros(3))
+        linear.information(data, truth_config(), np.zeros(3))
 
 
 def test_unmeasured_initial_states_stay_at_trim():
@@ -201,14 +201,14 @@ def test_unmeasured_initial_states_stay_at_trim():
 
 def test_gauss_newton_terms_are_the_weighted_sums_of_the_sensitivities():
     prob, p = _problem()  # two experiments measuring different subsets
-    p = oe.initial_states(prob, prob.start * 1.1)
-    xs, res = oe.states(prob, p), oe.residuals(prob, p)
-    R = oe.noise_variance(prob, res)
+    p = linear.initial_states(prob, prob.start * 1.1)
+    xs, res = linear.states(prob, p), linear.residuals(prob, p)
+    R = linear.noise_variance(prob, res)
     g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
-    for r, S, e in zip(prob.records, oe.sensitivities(prob, p), res):
+    for r, S, e in zip(prob.records, linear.sensitivities(prob, p), res):
         cols, rinv = prob.columns(r), 1 / R[r.channels]
         g[cols] += np.einsum("nkp,k,nk->p", S, rinv, e)
         M[np.ix_(cols, cols)] += np.einsum("nkp,k,nkq->pq", S, rinv, S)
-    g2, M2 = oe.gauss_newton_terms(prob, p, xs, res, R)
+    g2, M2 = linear.gauss_newton_terms(prob, p, xs, res, R)
     np.testing.assert_allclose(g2, g, rtol=1e-10, atol=1e-12 * np.abs(g).max())
     np.testing.assert_allclose(M2, M, rtol=1e-10, atol=1e-12 * np.abs(M).max())
