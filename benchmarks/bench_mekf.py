@@ -149,7 +149,7 @@ def main(argv=None) -> None:
     ap.add_argument("--no-synthetic", action="store_true", help="the real Scenario II run only")
     args = ap.parse_args(argv)
 
-    from testbed.scenario import simulate
+    from testbed.runs import simulate
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()

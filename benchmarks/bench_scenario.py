@@ -34,7 +34,8 @@ def main(argv=None):
     t0 = time.perf_counter()
     import testbed.report  # noqa: F401  (the recording's imports, as simulate pays them)
     from testbed.plant import Plant
-    from testbed.scenario import fly_scenario, scenario, simulate
+    from testbed.runs import simulate
+    from testbed.scenario import fly_scenario, scenario
 
     Plant().step((0.0, 0.0, 0.0))  # loads the compiled completion
     startup = time.perf_counter() - t0

@@ -53,6 +53,7 @@ class Scatter:
 def scatter(fits: Sequence[Estimate], reference: np.ndarray) -> Scatter:
     good = [e for e in fits if usable(e)]
     values = np.array([e.values for e in good])
-    corrected = [[e.extra.get("crlb_corrected_std", {}).get(n, np.nan) for n in e.free] for e in good]
+    corrected = [e.crlb_corrected_std if e.crlb_corrected_std is not None else np.full(len(e.free), np.nan)
+                 for e in good]
     return Scatter(len(good), values.mean(0) - reference, values.std(0, ddof=1),
                    np.mean([e.std for e in good], axis=0), np.mean(corrected, axis=0))

@@ -28,11 +28,20 @@ import sys
 import time
 import traceback
 from dataclasses import asdict, dataclass, replace
+from importlib import metadata
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
+from testbed.analysis import compare, screen, structural
+from testbed.data import load_data
 from testbed.errors import InputError, atomic_write_text
+from testbed.estimators import FilterEstimate, identify, lookup
+from testbed.figures import write_report
+from testbed.model import COEFFICIENTS, structure, theta_vector
+from testbed.runs import simulate
+from testbed.scenario import scenario, scenario_text
 
 SCENARIOS = ("I", "II")
 METHODS = ("ml-nr", "ml-nm", "mekf", "ml-gn")  # the paper's three, then the modern reference
@@ -67,10 +76,6 @@ class Cell:
     @property
     def key(self) -> str:
         """`<scenario>-<method>-seed<N>-<hash>`: the hash of every input the result depends on."""
-        from importlib import metadata
-
-        from testbed.scenario import scenario, scenario_text
-
         flown = scenario(self.scenario).with_overrides(duration=self.duration)
         doc = {"format": FORMAT, "scenario": scenario_text(replace(flown, source="")), "method": self.method,
                "seed": self.seed, "version": metadata.version("testbed")}  # fmt: skip
@@ -83,7 +88,7 @@ def plan(seeds: int, quick: bool = False, methods=METHODS, scenarios=SCENARIOS,
     """The campaign's cells, scenario by scenario, seed by seed, method by method; seeds 1..N.
     `quick`: experiments of `QUICK_DURATION` s (unless `duration` says otherwise)."""
     if not (isinstance(seeds, int) and seeds >= 1):
-        raise InputError(f"--seeds {seeds!r}; expected an integer ≥ 1")
+        raise InputError(f"seeds={seeds!r}; expected an integer ≥ 1")
     for m in methods:
         if m not in METHODS:
             raise InputError(f"method {m!r} is not in the study; expected one of {', '.join(METHODS)}")
@@ -97,11 +102,6 @@ def plan(seeds: int, quick: bool = False, methods=METHODS, scenarios=SCENARIOS,
 def load_run(out: str, scenario: str, seed: int, duration: float | None):
     """The experiments and analytic model config of a run, flying it into `out/runs/` first
     unless it is there (several workers may fly the same run at once: the first rename wins)."""
-    import mujoco
-
-    from testbed.data import load_data
-    from testbed.scenario import simulate
-
     mujoco.set_mju_user_warning(lambda message: None)  # the plant raises its warnings as errors
     run = Path(out) / "runs" / Cell(scenario, "", seed, duration).run_name
     if not (run / "manifest.json").exists():
@@ -118,8 +118,6 @@ def drift_directions(config, experiments) -> dict:
     """Exact (structural) unidentifiability of the Mt-form model on these outputs: with all 35
     coefficients free, and with the inertia terms (the `*_dot`, i.e. Mt) known — the general
     state equation ẋ = A x + B δ in its At, Bt entries."""
-    from testbed.analysis import structural
-    from testbed.model import COEFFICIENTS, structure, theta_vector
 
     measured = sorted({m for e in config.fitted(experiments) for m in e.measured})
     theta = theta_vector(config.coefficients)
@@ -137,8 +135,6 @@ def run_cell(cell: Cell, data) -> dict:
     t0 = time.perf_counter()
     doc = {"key": cell.key, "cell": asdict(cell)}
     try:
-        from testbed.analysis import compare, screen
-        from testbed.estimators import identify
 
         experiments, analytic = data
         config, fixed = screen(experiments, analytic)
@@ -147,10 +143,10 @@ def run_cell(cell: Cell, data) -> dict:
         if not config.free:
             raise InputError(f"no coefficient is identifiable from these data ({next(iter(fixed.values()))})")
         costs = []
-        options = {}
-        if cell.method.startswith("ml-"):
-            options = {"start": "config", "callback": lambda k, values, cost: costs.append(float(cost))}
-        est = identify(experiments, config, method=cell.method, **options)
+        method = lookup(cell.method)
+        options = {"start": "config"} if method.starts else {}
+        callback = (lambda step: costs.append(float(step.cost))) if method.iterative else None
+        est = identify(experiments, config, method=cell.method, options=options, callback=callback)
         comparison = compare(est, analytic)
         doc.update(status=est.status.name.lower().replace("_", " "), reason=_reason(est),
                    converged=bool(est.converged), iterations=int(est.iterations),
@@ -167,8 +163,7 @@ def run_cell(cell: Cell, data) -> dict:
 def _reason(est) -> str:
     if est.converged:
         return ""
-    why = est.extra.get("diverged", {}).get("reason") if isinstance(est.extra.get("diverged"), dict) else None
-    return est.status.message + (f" ({why})" if why else "")
+    return est.status.message + (f" ({est.message})" if est.message else "")
 
 
 def _one_line(exc: BaseException) -> str:
@@ -184,8 +179,8 @@ def _history(est, analytic: np.ndarray, costs: list[float]) -> dict:
     h = np.asarray(h, float)
     scale = np.where(analytic != 0, analytic, 1.0)
     out = {}
-    t = getattr(est, "history_t", None)
-    if t is not None:
+    if isinstance(est, FilterEstimate):
+        t = est.history_t
         pick = np.unique(np.linspace(0, len(h) - 1, min(len(h), HISTORY_POINTS)).round().astype(int))
         h, out["x"], out["x_name"] = h[pick], np.asarray(t, float)[pick].tolist(), "time (s)"
     else:
@@ -225,7 +220,7 @@ def reproduce(out, seeds: int | None = None, scheduler: str | None = None, quick
     try:
         cells_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise InputError(f"--out {out}: cannot create ({exc.strerror})") from None
+        raise InputError(f"out={out}: cannot create ({exc.strerror})") from None
     todo = [c for c in cells if not (cells_dir / f"{c.key}.json").exists()]
     # the first seed of each scenario is always loaded: its inputs are the report's Figs. 3 and 5
     runs = sorted({(c.scenario, c.seed, c.duration) for c in todo}
@@ -280,7 +275,7 @@ class _client:
             try:
                 self.client = Client(self.address, timeout="10s")
             except (OSError, TimeoutError, ValueError) as exc:
-                raise InputError(f"--scheduler {self.address}: cannot connect ({_one_line(exc)}); "
+                raise InputError(f"scheduler={self.address}: cannot connect ({_one_line(exc)}); "
                                  "expected the address of a running Dask scheduler, e.g. tcp://host:8786") from None  # fmt: skip
             return self.client
         self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
@@ -436,9 +431,25 @@ def _pct(v: float) -> str:
     return f"{100 * v:.1f} %" if np.isfinite(v) else "n/a (no converged estimate)"
 
 
+def summary_table(rows: list[dict]) -> list[dict]:
+    """Per scenario and method: cells, converged, acceptable, median relative error, wall time."""
+    table = cell_table(rows)
+    times = {}
+    for r in rows:
+        times.setdefault((r["scenario"], r["method"]), {})[r["seed"]] = r["wall_time_s"]
+    out = []
+    for s, m in dict.fromkeys((s, m) for s, m, _ in table):
+        v = [x for (a, b, _), x in table.items() if (a, b) == (s, m)]
+        rel = [x["median_relative_error"] for x in v if np.isfinite(x["median_relative_error"])]
+        out.append({"scenario": s, "method": m, "cells": len(v), "converged": sum(x["converged"] for x in v),
+                    "acceptable": sum(x["acceptable"] for x in v), "failed": sum(x["status"] == "failed" for x in v),
+                    "median_relative_error": float(np.median(rel)) if rel else math.nan,
+                    "median_wall_time_s": float(np.median(list(times[(s, m)].values())))})  # fmt: skip
+    return out
+
+
 def write_outputs(out: Path, docs: list[dict], inputs: dict) -> None:
     """results.csv, conclusions.json, the figures, report.html and report.rrd from the cells."""
-    from testbed.figures import write_report
 
     rows = results_rows(docs)
     atomic_write_text(out / "results.csv", results_csv(rows))
@@ -446,4 +457,4 @@ def write_outputs(out: Path, docs: list[dict], inputs: dict) -> None:
     drift = {d["cell"]["scenario"]: d["drift"] for d in docs if "drift" in d}
     verdicts = conclusions(rows, drift)
     atomic_write_text(out / "conclusions.json", json.dumps(verdicts, indent=2) + "\n")
-    write_report(out, docs, rows, verdicts, inputs)
+    write_report(out, docs, rows, verdicts, inputs, summary_table(rows), METHODS, SCENARIOS)

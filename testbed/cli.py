@@ -7,7 +7,7 @@ went. Bad input is an `InputError`: one line on stderr, exit status 2.
 from __future__ import annotations
 
 import argparse
-import contextlib
+import re
 import signal
 import sys
 from pathlib import Path
@@ -16,7 +16,7 @@ from testbed.threads import one_blas_thread
 
 one_blas_thread()  # before numpy loads
 
-from testbed.errors import InputError, atomic_file  # noqa: E402
+from testbed.errors import InputError  # noqa: E402
 
 STDOUT = Path("-")  # `--out -`: standard output
 
@@ -41,50 +41,17 @@ def _seed(text: str) -> int:
     return v
 
 
-def _outputs(inputs, outputs: dict) -> None:
-    """Fail before the work, not after it, when an output cannot be written: `outputs` maps a
-    label (the flag) to its path or None; `inputs` are the files read. No output may be an input
-    (it would be clobbered) or another output, save devices and FIFOs (written into)."""
-    import os
-
-    from testbed.errors import check_output_file, is_stream
-
-    seen = {}
-    for label, path in outputs.items():
-        if path is None:
-            continue
-        check_output_file(path, f"{label} {path}")
-        if is_stream(path):
-            continue
-        key = os.path.realpath(path)  # links resolved: two names of one file are one file
-        for source in inputs:
-            if os.path.realpath(source) == key:
-                raise InputError(f"{label} {path}: is the input {source}; expected a new file name")
-        if key in seen:
-            raise InputError(f"{label} {path}: is also the {seen[key]} output; expected another name")
-        seen[key] = label
-
-
 def _to_stdout(path: Path | None) -> Path | None:
     """None (standard output) for `--out -`, else the path."""
     return None if path == STDOUT else path
 
 
-def _cmd_truth(args) -> int:
-    from testbed.data import config_text
-    from testbed.errors import atomic_write_text
-    from testbed.truth import analytic_config
-
-    args.out = _to_stdout(args.out)
-    _outputs([args.mjcf] if args.mjcf else [], {"--out": args.out})
-    config, comments = analytic_config(args.mjcf, args.speed)
-    text = config_text(config, comments)
-    if args.out:
-        atomic_write_text(args.out, text)
-        print(args.out)
-    else:
+def _emit(out: Path | None, text: str) -> None:
+    """Say where the output went, or print it when it went nowhere else."""
+    if out is None:
         sys.stdout.write(text)
-    return 0
+    else:
+        print(out)
 
 
 def _quiet_mujoco() -> None:
@@ -94,237 +61,93 @@ def _quiet_mujoco() -> None:
     mujoco.set_mju_user_warning(lambda message: None)
 
 
-def _cmd_simulate(args) -> int:
-    from testbed.errors import check_output_directory
-    from testbed.scenario import simulate
+def _cmd_truth(args) -> int:
+    from testbed.truth import analytic_config_text
 
     _quiet_mujoco()
-    if args.out == STDOUT:
-        raise InputError("--out -: a run directory is a folder, not standard output; expected a folder name")
-    if args.out is not None:
-        check_output_directory(args.out, args.force, label=f"--out {args.out}")
-    run = simulate(args.scenario, seed=args.seed, out=args.out, force=args.force,
-                   duration=args.duration, speed=args.speed, mjcf=args.mjcf,
-                   progress=not args.quiet)  # fmt: skip
-    print(run)
+    out = _to_stdout(args.out)
+    _emit(out, analytic_config_text(args.mjcf, args.speed, out))
     return 0
 
 
-def _inputs(args):
-    """The experiments, the model config to use, the run's analytic model (or None), and every
-    file read (outputs must not clobber them)."""
-    from testbed.data import load_data, read_config
+def _cmd_simulate(args) -> int:
+    from testbed.runs import simulate
 
-    experiments, run_config = load_data(args.data)
-    config = read_config(args.config) if args.config else run_config
-    if config is None:
-        raise InputError("no model config: give --config TOML (or a run directory with model.toml)")
-    read = [Path(e.source) for e in experiments] + [Path(config.source)]
-    read += [p / "manifest.json" for p in args.data if (p / "manifest.json").is_file()]
-    return experiments, config, run_config, read
+    if args.out == STDOUT:
+        raise InputError("--out -: a run directory is a folder, not standard output; expected a folder name")
+    _quiet_mujoco()
+    print(simulate(args.scenario, seed=args.seed, out=args.out, force=args.force, duration=args.duration,
+                   speed=args.speed, mjcf=args.mjcf, progress=not args.quiet))  # fmt: skip
+    return 0
 
 
 def _cmd_identify(args) -> int:
-    import json
+    from testbed.estimators import lookup
+    from testbed.jobs import identify_data
 
-    from testbed.errors import is_stream
-    from testbed.estimators import Status, estimator, identify
-    from testbed.linear import check_fit
-
-    args.out = _to_stdout(args.out)
+    out = _to_stdout(args.out)
     if args.rrd == STDOUT:
         raise InputError("--rrd -: a recording is a file; expected a file name (.rrd)")
-    estimator(args.method)
-    offline = args.method.startswith("ml-")
-    if args.start is not None and not offline:
-        raise InputError(f"--start {args.start}: only the ml-* methods take a start; "
-                         f"{args.method} starts from the config")  # fmt: skip
-    experiments, config, run_config, read = _inputs(args)
-    truth = _truth_data(args.data) if run_config is not None else None
-    read += [Path(e.source) for e in truth or ()]
-    # the filters' estimate and ±σ histories go beside a file --out, not into a device or FIFO
-    history = None
-    if args.out and args.method in ("mekf", "ekf") and not is_stream(args.out):
-        history = args.out.with_suffix(".history.csv")
-    _outputs(read, {"--out": args.out, "the history beside --out": history, "--rrd": args.rrd})
-    if args.perturb:
-        config = _perturbed(config, args.perturb, args.seed)
-    fixed = {}
-    check_fit(experiments, config)  # what no analysis can mend, named, before the screening
-    if not args.free_all:
-        from testbed.analysis import screen
+    given = {"start": args.start, "max_iter": args.max_iter, "max_samples": args.max_samples}
+    options = {k: v for k, v in given.items() if v is not None}
+    live = sys.stderr.isatty() and lookup(args.method).iterative  # a progress line (ml-nm runs for minutes)
 
-        config, fixed = screen(experiments, config)
-        if not config.free:
-            raise InputError(f"no coefficient of [identify] free is identifiable from "
-                             f"{', '.join(map(str, args.data))} ({next(iter(fixed.values()))}); "
-                             "expected data that excite them, or --free-all")  # fmt: skip
-    live = sys.stderr.isatty()  # a progress line on long fits (ml-nm runs for minutes)
-    options = {"start": args.start or "auto"} if offline else {}
-    if args.max_iter is not None:
-        options["max_iter"] = args.max_iter
-    iterations = []  # (iteration, values, cost) of the off-line methods, for the Rerun log
-    if offline:
+    def progress(step):
+        print(f"\r{args.method}: iteration {step.iteration}, cost {step.cost:.6g}", end="", file=sys.stderr, flush=True)
 
-        def callback(k, values, cost):
-            iterations.append((k, list(values), cost))
-            if live:
-                print(f"\r{args.method}: iteration {k}, cost {cost:.6g}", end="", file=sys.stderr, flush=True)
-
-        options["callback"] = callback
-    estimate = identify(experiments, config, method=args.method, **options)
-    if offline and live and iterations:
+    done = identify_data(args.data, method=args.method, config=args.config, out=out, rrd=args.rrd,
+                         options=options, perturb=args.perturb, seed=args.seed, free_all=args.free_all,
+                         progress=progress if live else None)  # fmt: skip
+    estimate = done.estimate
+    if live and estimate.iterations:
         print(file=sys.stderr)  # end the progress line
-    if estimate.status is Status.DIVERGED:
-        why = estimate.extra.get("diverged", {}).get("reason")
-        raise InputError(f"--method {args.method}: {estimate.status.message}"
-                         f"{f' ({why})' if why else ''} on {', '.join(map(str, args.data))}; "
-                         f"no estimate written (try {'another --start or ' if offline else ''}"
-                         "a better a-priori config)")  # fmt: skip
-    if estimate.start != "config" and "start_reason" in estimate.extra:
-        print(f"testbed identify: started from the {estimate.start} estimate: "
-              f"{estimate.extra['start_reason']}", file=sys.stderr)  # fmt: skip
-    doc = json.loads(estimate.to_json())
-    if fixed:
-        doc["fixed"] = {n: {"value": float(config.coefficients[n]), "reason": why} for n, why in fixed.items()}
-    comparison = None
-    if run_config is not None:
-        comparison = _compare(estimate, run_config, truth)
-        doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
-        print(comparison.table(), file=sys.stderr)
-    for n, why in fixed.items():
-        print(f"{n:<12}fixed at {config.coefficients[n]:.4g}: {why}", file=sys.stderr)
-    from testbed.validation import validate
-
-    validation = validate(experiments, config.with_coefficients(estimate.coefficients), run_config)
-    doc["validation"] = validation.to_dict()
-    print(validation.table(), file=sys.stderr)
-    text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
-    files = {args.out: text} if args.out else {}
-    if history is not None:
-        from testbed.estimators.mekf import history_csv_text
-
-        files = {history: history_csv_text(estimate), **files}
-    with contextlib.ExitStack() as outputs:  # every output, or none of them
-        temporary = {path: outputs.enter_context(atomic_file(path)) for path in files}
-        if args.rrd:
-            from testbed.report import log_fit
-
-            log_fit(args.rrd, experiments, config, estimate, iterations, comparison, validation=validation)
-        for path, content in files.items():
-            temporary[path].write_text(content)
-    for path in files:
-        print(path)
-    if not args.out:
-        sys.stdout.write(text)
-    if args.rrd:
-        print(args.rrd, file=sys.stderr)
+    if estimate.start_reason:
+        print(f"testbed identify: started from the {estimate.start} estimate: {estimate.start_reason}",
+              file=sys.stderr)  # fmt: skip
+    if done.comparison is not None:
+        print(done.comparison.table(), file=sys.stderr)
+    for n, why in done.fixed.items():
+        print(f"{n:<12}fixed at {done.config.coefficients[n]:.4g}: {why}", file=sys.stderr)
+    print(done.validation.table(), file=sys.stderr)
+    for path in done.written:
+        print(path, file=sys.stderr if path == args.rrd else sys.stdout)
+    if out is None:
+        sys.stdout.write(done.text)
     if not estimate.converged:
         print(f"testbed identify: not converged: {estimate.status.message}", file=sys.stderr)
         return 1
     return 0
 
 
-def _perturbed(config, fraction: float, seed: int):
-    """The config with every free coefficient's start moved by ±fraction (signs from `seed`)."""
-    from dataclasses import replace
-
-    import numpy as np
-
-    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(config.free))
-    moved = config.with_coefficients({n: config.coefficients[n] * (1 + s * fraction)
-                                      for n, s in zip(config.free, signs)})  # fmt: skip
-    return replace(moved, source=f"{config.source or 'config'} moved by --perturb {fraction:g}")
-
-
-def _truth_data(paths):
-    """The noise-free `<experiment>.truth.csv` of the run directories among `paths` (read and
-    checked now, before any fit), or None when any is missing: the comparison then has no bias
-    column."""
-    from testbed.data import read_csv, run_csvs
-
-    runs = [p for p in map(Path, paths) if (p / "manifest.json").exists()]
-    truth = [f.with_suffix(".truth.csv") for p in runs for f in run_csvs(p)]
-    if not truth or not all(f.exists() for f in truth):
-        return None
-    return [read_csv(f, f.name.removesuffix(".truth.csv")) for f in truth]
-
-
-def _compare(estimate, analytic, truth):
-    """The comparison with the analytic model, its bias split off by `ml-gn` on the noise-free
-    `truth` from the analytic model, whatever method made the estimate (the bias belongs to the
-    model, and a filter needs noise to work). A truth fit that cannot run is a note, not a
-    failure: the estimate stands without it."""
-    from dataclasses import replace
-
-    from testbed.analysis import compare
-    from testbed.estimators import identify
-
-    if truth is None:
-        return compare(estimate, analytic)
-    try:
-        fit = identify(truth, replace(analytic, free=tuple(estimate.free)), method="ml-gn", start="config")
-    except InputError as exc:
-        return replace(compare(estimate, analytic), note=f"no linear-model bias column: {exc}")
-    return compare(estimate, analytic, fit)
-
-
 def _cmd_analyze(args) -> int:
-    from testbed.analysis import identifiability
-    from testbed.errors import atomic_write_text
+    from testbed.jobs import analyze_data
 
-    args.out = _to_stdout(args.out)
-    experiments, config, _, read = _inputs(args)
-    _outputs(read, {"--out": args.out})
-    if not config.free:
-        raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to analyse")
-    result = identifiability(experiments, config)
-    text = result.to_json()
-    if args.out:
-        atomic_write_text(args.out, text)
-        print(args.out)
-    else:
-        sys.stdout.write(text)
+    out = _to_stdout(args.out)
+    result = analyze_data(args.data, config=args.config, out=out)
+    _emit(out, result.to_json())
     for line in result.summary:
         print(line, file=sys.stderr)
     return 0
 
 
 def _cmd_validate(args) -> int:
-    import json
+    from testbed.jobs import validate_data
 
-    from testbed.data import read_estimates
-    from testbed.errors import atomic_write_text
-    from testbed.validation import validate
-
-    args.out = _to_stdout(args.out)
-    experiments, config, run_config, read = _inputs(args)
-    _outputs(read + [args.estimates], {"--out": args.out})
-    coefficients = read_estimates(args.estimates)[0]
-    validation = validate(experiments, config.with_coefficients(coefficients), run_config)
-    text = json.dumps({"estimates": str(args.estimates), "coefficients": coefficients,
-                       "validation": validation.to_dict()}, indent=2, allow_nan=False) + "\n"  # fmt: skip
-    if args.out:
-        atomic_write_text(args.out, text)
-        print(args.out)
-    else:
-        sys.stdout.write(text)
+    out = _to_stdout(args.out)
+    validation, text = validate_data(args.data, args.estimates, config=args.config, out=out)
+    _emit(out, text)
     print(validation.table(), file=sys.stderr)
     return 0
 
 
 def _cmd_design(args) -> int:
-    from testbed.design import design, read_estimates
-    from testbed.errors import atomic_write_text
+    from testbed.design import write_design
 
     if args.out == STDOUT:
         raise InputError("--out -: the design is a scenario file; expected a file name (.toml)")
-    _outputs([args.start_from] if args.start_from else [], {"--out": args.out})
     _quiet_mujoco()
-    estimates, noise = read_estimates(args.start_from) if args.start_from else (None, None)
     free = [n.strip() for n in args.free.split(",") if n.strip()] if args.free else None
-    result = design(args.duration, args.criterion, free, args.mjcf, args.speed, estimates, noise)
-    atomic_write_text(args.out, result.text())
+    result = write_design(args.out, args.duration, args.criterion, free, args.mjcf, args.speed, args.start_from)
     print(result.table(), file=sys.stderr)
     print(args.out)
     return 0
@@ -347,7 +170,24 @@ def _cmd_reproduce(args) -> int:
 def _cmd_replay(args) -> int:
     from testbed.report import replay
 
-    return replay(args.run)
+    print(replay(args.run))
+    return 0
+
+
+def _flags(parser: argparse.ArgumentParser) -> dict[str, tuple[str, bool]]:
+    """Parameter name → (the flag that sets it, whether it is a switch)."""
+    return {a.dest: (max(a.option_strings, key=len), a.const is True) for a in parser._actions
+            if a.option_strings and a.dest != "help"}
+
+
+def in_flags(message: str, flags: dict[str, tuple[str, bool]]) -> str:
+    """A library message names parameters as Python does (`max_iter=-1`, `force=True`); the user
+    typed flags (`--max-iter -1`, `--force`)."""
+    for dest, (flag, switch) in flags.items():
+        if switch:
+            message = message.replace(f"{dest}=True", flag)
+        message = re.sub(rf"(?<![\w.-]){dest}=", f"{flag} ", message)
+    return message
 
 
 class _Parser(argparse.ArgumentParser):
@@ -393,7 +233,8 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--start", default=None,
                    help="ml-* only: auto (default: the a-priori values, or the equation-error "
                         "estimate if output error fails from them), config, equation-error or mekf")  # fmt: skip
-    s.add_argument("--max-iter", type=int, default=None, help="iteration limit")
+    s.add_argument("--max-iter", type=int, default=None, help="iteration limit (ml-* methods)")
+    s.add_argument("--max-samples", type=int, default=None, help="stop after this many samples (mekf, ekf)")
     s.add_argument("--perturb", type=_positive, default=None,
                    help="move every free coefficient's start by this fraction (e.g. 0.4), to test "
                         "convergence from a poor a-priori model")
@@ -445,6 +286,8 @@ def parser() -> argparse.ArgumentParser:
     s = sub.add_parser("replay", help="open a run's recording.rrd in the Rerun viewer")
     s.add_argument("run", type=Path, help="run directory or .rrd file")
     s.set_defaults(func=_cmd_replay)
+    for name, command in sub.choices.items():
+        command.set_defaults(flags=_flags(command))
     return p
 
 
@@ -461,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except InputError as exc:
-        print(f"testbed {args.command}: error: {exc}", file=sys.stderr)
+        print(f"testbed {args.command}: error: {in_flags(str(exc), args.flags)}", file=sys.stderr)
         return 2
     except MemoryError:
         print(f"testbed {args.command}: error: out of memory; expected less data or a shorter "

@@ -45,7 +45,7 @@ import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
 from testbed.data import Experiment, ModelConfig, read_estimates as data_read_estimates
-from testbed.errors import InputError
+from testbed.errors import InputError, atomic_write_text, check_outputs
 from testbed.measurements import NOISE_STD
 from testbed.model import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
 from testbed.scenario import ExperimentSpec, Scenario, program, scenario, scenario_text
@@ -201,7 +201,7 @@ def criterion(F: np.ndarray, s: np.ndarray, kind: str) -> float:
         return -float(np.sum(1.0 / w))
     if kind == "E":
         return float(w.min())
-    raise InputError(f"--criterion {kind!r}; expected one of {', '.join(CRITERIA)}")
+    raise InputError(f"criterion={kind!r}; expected one of {', '.join(CRITERIA)}")
 
 
 def crlb(F: np.ndarray) -> np.ndarray:
@@ -353,8 +353,8 @@ def split(cands: Mapping[str, Candidate], total: float, s: np.ndarray, kind: str
 
     walk(0, steps, [])
     if best is None:
-        raise InputError(f"--duration {total:g} s: no split of it identifies every free coefficient; "
-                         "expected a longer flight or fewer --free coefficients")  # fmt: skip
+        raise InputError(f"duration={total:g} s: no split of it identifies every free coefficient; "
+                         "expected a longer flight or fewer free coefficients")  # fmt: skip
     return {n: d for n, d in zip(names, best) if d > 0}
 
 
@@ -488,9 +488,9 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
     from testbed.truth import analytic_config
 
     if criterion_ not in CRITERIA:
-        raise InputError(f"--criterion {criterion_!r}; expected one of {', '.join(CRITERIA)}")
+        raise InputError(f"criterion={criterion_!r}; expected one of {', '.join(CRITERIA)}")
     if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 2 * MIN_EXPERIMENT):
-        raise InputError(f"--duration {duration!r}; expected at least {2 * MIN_EXPERIMENT:g} s")
+        raise InputError(f"duration={duration!r}; expected at least {2 * MIN_EXPERIMENT:g} s")
     config = analytic_config(mjcf, speed)[0]
     source = "analytic model"
     if estimates:
@@ -503,7 +503,7 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
     if free is not None:
         bad = [n for n in free if n not in COEFFICIENTS]
         if bad or not free:
-            raise InputError(f"--free {','.join(free)}: expected coefficient names (SPEC §2), e.g. Y_v,N_r")
+            raise InputError(f"free={','.join(free)}: expected coefficient names, e.g. Y_v,N_r")
         config = replace(config, free=tuple(n for n in COEFFICIENTS if n in free))
     m = model(config, noise_std)
     limits = regime_limits(m)
@@ -551,3 +551,15 @@ def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float]
     completed with the sensors' defaults (`measurements.NOISE_STD`) for the states it lacks."""
     values, noise = data_read_estimates(path)
     return values, None if noise is None else {**NOISE_STD, **noise}
+
+
+def write_design(out: str | Path, duration: float = 180.0, criterion_: str = "A",
+                 free: Sequence[str] | None = None, mjcf=None, speed: float | None = None,
+                 start_from: str | Path | None = None) -> Design:  # fmt: skip
+    """`design` at the analytic model of `mjcf`, or at the estimates JSON `start_from` (its
+    coefficients and noise: the sequential design), written as a scenario file to `out`."""
+    check_outputs([start_from] if start_from else [], {"out": out})
+    estimates, noise = read_estimates(start_from) if start_from else (None, None)
+    result = design(duration, criterion_, free, mjcf, speed, estimates, noise)
+    atomic_write_text(out, result.text())
+    return result

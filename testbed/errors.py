@@ -17,6 +17,7 @@ import shutil
 import stat
 import tempfile
 from pathlib import Path
+from typing import Mapping, Sequence
 
 
 def _umask() -> int:
@@ -92,13 +93,13 @@ def check_output_directory(path: str | os.PathLike, force: bool = False, marker:
     if not stat.S_ISDIR(st.st_mode):
         raise InputError(f"{label}: is a file, not a folder; expected a new run directory")
     if not force:
-        raise InputError(f"{label}: already exists (use --force to overwrite)")
+        raise InputError(f"{label}: already exists; expected a new folder, or force=True to replace it")
     try:
         replaceable = (path / marker).is_file() or not any(path.iterdir())
     except OSError as exc:
         raise InputError(f"{label}: cannot read ({exc.strerror or exc})") from None
     if not replaceable:
-        raise InputError(f"{label}: is a folder without {marker}, not a run directory; --force "
+        raise InputError(f"{label}: is a folder without {marker}, not a run directory; force=True "
                          "replaces only a run directory or an empty folder")  # fmt: skip
 
 
@@ -209,3 +210,23 @@ def atomic_directory(path: str | os.PathLike, force: bool = False, marker: str =
             with contextlib.suppress(OSError):
                 folder.rmdir()
         raise
+
+
+def check_outputs(read: Sequence[str | os.PathLike], outputs: Mapping[str, str | os.PathLike | None]) -> None:
+    """Fail before the work, not after it, when an output cannot be written: `outputs` maps a
+    label (the parameter) to its path or None; `read` are the files read. No output may be an
+    input (it would be clobbered) or another output, save devices and FIFOs (written into)."""
+    seen = {}
+    for label, path in outputs.items():
+        if path is None:
+            continue
+        check_output_file(path, f"{label}={str(path)!r}")
+        if is_stream(path):
+            continue
+        key = os.path.realpath(path)  # links resolved: two names of one file are one file
+        for source in read:
+            if os.path.realpath(source) == key:
+                raise InputError(f"{label}={str(path)!r}: is the input {source}; expected a new file name")
+        if key in seen:
+            raise InputError(f"{label}={str(path)!r}: is also the {seen[key]} output; expected another name")
+        seen[key] = label

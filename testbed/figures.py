@@ -122,31 +122,12 @@ def history_figure(out: Path, scenario: str, docs: list[dict]) -> str | None:
     return _save(fig, out / f"iterations-{scenario}.png")
 
 
-def summary_table(rows: list[dict]) -> list[dict]:
-    """Per scenario and method: cells, converged, acceptable, median relative error, wall time."""
-    from testbed.campaign import cell_table
-
-    table = cell_table(rows)
-    times = {}
-    for r in rows:
-        times.setdefault((r["scenario"], r["method"]), {})[r["seed"]] = r["wall_time_s"]
-    out = []
-    for s, m in dict.fromkeys((s, m) for s, m, _ in table):
-        v = [x for (a, b, _), x in table.items() if (a, b) == (s, m)]
-        rel = [x["median_relative_error"] for x in v if np.isfinite(x["median_relative_error"])]
-        out.append({"scenario": s, "method": m, "cells": len(v), "converged": sum(x["converged"] for x in v),
-                    "acceptable": sum(x["acceptable"] for x in v), "failed": sum(x["status"] == "failed" for x in v),
-                    "median_relative_error": float(np.median(rel)) if rel else math.nan,
-                    "median_wall_time_s": float(np.median(list(times[(s, m)].values())))})  # fmt: skip
-    return out
-
-
-def write_report(out: Path, docs: list[dict], rows: list[dict], verdicts: dict, inputs: dict) -> Path:
-    """The figures, report.html and report.rrd in `out`."""
-    from testbed.campaign import METHODS, SCENARIOS
-
-    methods = [m for m in METHODS if any(d["cell"]["method"] == m for d in docs)]
-    scenarios = [s for s in SCENARIOS if any(d["cell"]["scenario"] == s for d in docs)]
+def write_report(out: Path, docs: list[dict], rows: list[dict], verdicts: dict, inputs: dict,
+                 summary: list[dict], methods, scenarios) -> Path:
+    """The figures, report.html and report.rrd in `out`: `summary` per scenario and method,
+    `methods` and `scenarios` in the order the figures show them."""
+    methods = [m for m in methods if any(d["cell"]["method"] == m for d in docs)]
+    scenarios = [s for s in scenarios if any(d["cell"]["scenario"] == s for d in docs)]
     figures, missing = [], []
     for s in scenarios:  # the paper's order: each scenario's inputs, then its coefficients
         number = {"I": 3, "II": 5}[s]
@@ -162,7 +143,7 @@ def write_report(out: Path, docs: list[dict], rows: list[dict], verdicts: dict, 
             figures.append((f"Iteration histories, Scenario {s}", name))
         else:
             missing.append(f"iteration histories of Scenario {s}: no cell has a history")
-    atomic_write_text(out / "report.html", report_html(verdicts, summary_table(rows), figures, missing, docs))
+    atomic_write_text(out / "report.html", report_html(verdicts, summary, figures, missing, docs))
     write_rrd(out / "report.rrd", docs)
     return out / "report.html"
 
@@ -228,11 +209,11 @@ def write_rrd(path: Path, docs: list[dict]) -> Path:
     (timeline `seed`), and the first seed's histories (timelines `iteration` and `time`)."""
     import rerun as rr
 
-    from testbed.report import _recording, _recording_id
+    from testbed.recording import data_id, recording
 
     title = "testbed reproduce"
     keys = sorted(d["key"] for d in docs)
-    with _recording(path, title, _recording_id(title, *keys)) as rec:
+    with recording(path, title, data_id(title, *keys)) as rec:
         series: dict[str, list] = {}
         for d in docs:
             c = d["cell"]

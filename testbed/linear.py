@@ -730,7 +730,7 @@ def predict(experiments: Sequence[Experiment], config: ModelConfig,
             initial: Mapping[str, Mapping[str, float]] | None = None) -> list[np.ndarray]:
     """Model outputs (N, k) per experiment in its measured columns, absolute u, for plots.
 
-    `initial`: experiment → state → x0 (absolute u, as in `Estimate.extra["initial_states"]`);
+    `initial`: experiment → state → x0 (absolute u, as in `Estimate.initial_states`);
     the ones it does not give are the best-fitting initial states (no fit when it gives all).
     """
     prob = problem(experiments, config)

@@ -42,30 +42,25 @@ as `scenario.toml`, which `testbed simulate --scenario` runs again.
 
 from __future__ import annotations
 
-import datetime
-import hashlib
 import json
 import math
 import numbers
-import shlex
-import sys
-import time
 import tomllib
 from dataclasses import dataclass, field, replace
-from importlib import metadata
 from pathlib import Path
 from typing import Callable, Mapping
 
 import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design
-from testbed.data import MIN_ROWS, config_text, csv_text, number
-from testbed.errors import InputError, atomic_directory
+from testbed.data import MIN_ROWS, number
+from testbed.errors import InputError
 from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
 from testbed.plant import Plant
 from testbed.signals import Signal, parse_signal, signal_table
-from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed, default_mjcf
+from testbed.truth import analytic_model
+from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
 
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).
 UNFITTED_DEPTH = ("depth is measured but not fitted: it integrates U θ, and the second-order drag "
@@ -176,7 +171,7 @@ def scenario(name_or_path: str | Path | Scenario) -> Scenario:
         return replace(s, source="built-in")
     path = Path(name_or_path)
     if path.suffix != ".toml" and not path.exists():
-        raise InputError(f"--scenario {str(name_or_path)!r} is unknown; expected one of "
+        raise InputError(f"scenario={str(name_or_path)!r} is unknown; expected one of "
                          f"{', '.join(BUILTIN)} or a scenario file (.toml)")  # fmt: skip
     return read_scenario(path)
 
@@ -413,8 +408,6 @@ def fly_scenario(s: Scenario | str, seed: int = 0, mjcf=None,
                  progress: Callable[[str, float], None] | None = None) -> tuple[list[Flight], object]:  # fmt: skip
     """Fly every experiment of a scenario (or built-in name, or file); returns the flights and
     the analytic linear model."""
-    from testbed.truth import analytic_model
-
     s = scenario(s)
     check_seed(seed)
     plant = Plant(mjcf)
@@ -437,110 +430,5 @@ def check_flyable(s: Scenario) -> None:
     for e in s.experiments:
         duration = s.duration_of(e)
         if not low <= math.floor(duration * rate + 1e-9) + 1 <= high:
-            raise InputError(f"--duration {duration!r} (experiment {e.name!r}); expected {(low - 1) / rate:g} to "
+            raise InputError(f"duration={duration!r} (experiment {e.name!r}); expected {(low - 1) / rate:g} to "
                              f"{(high - 1) / rate:g} s ({low} to {high} samples at {rate:g} Hz)")  # fmt: skip
-
-
-# -- run directories ---------------------------------------------------------------------------
-
-
-def simulate(s: Scenario | str, *, seed: int = 0, out=None, force: bool = False, duration=None,
-             speed=None, mjcf=None, progress: bool = True) -> Path:  # fmt: skip
-    """Fly a scenario (object, built-in name or file) and write its run directory (SPEC §3)."""
-    from testbed.report import log_run
-    from testbed.truth import model_config
-
-    s = scenario(s).with_overrides(duration=duration, speed=speed)
-    check_seed(seed)
-    check_flyable(s)
-    out = Path(out) if out is not None else Path("runs") / f"{s.name}-seed{seed}"
-    mjcf_path = Path(mjcf) if mjcf is not None else default_mjcf()
-    started = datetime.datetime.now(datetime.timezone.utc)
-    bar = _ProgressBar(len(s.experiments)) if progress else None
-    with atomic_directory(out, force) as tmp:
-        flights, lin = fly_scenario(s, seed, mjcf_path, bar)
-        measured = [STATES.index(c) for c in s.measured]
-        for f in flights:
-            (tmp / f"{f.name}.csv").write_text(csv_text(f.t, f.measured[:, measured], f.fins_measured, s.measured))
-            (tmp / f"{f.name}.truth.csv").write_text(csv_text(f.t, f.truth, f.fins, STATES))
-        config, comments = model_config(lin, mjcf_path)
-        config = replace(config, outputs=tuple(c for c in s.measured if c != "z"))
-        comments["outputs"] = UNFITTED_DEPTH
-        (tmp / "model.toml").write_text(config_text(config, comments))
-        flown = replace(s, speed=lin.vehicle.speed, source="")
-        (tmp / "scenario.toml").write_text(scenario_text(flown))
-        log_run(tmp / "recording.rrd", flights, mjcf_path, title=f"testbed {s.name} seed {seed}")
-        manifest = {
-            "scenario": s.name,
-            "scenario_source": s.source,
-            "seed": seed,
-            "experiments": [f.name for f in flights],
-            "settings": _settings(flown),
-            "mjcf": str(mjcf_path.resolve()),
-            "mjcf_sha256": hashlib.sha256(mjcf_path.read_bytes()).hexdigest(),
-            "versions": _versions(),
-            "command": _command(s, seed, flown, mjcf, out),
-            "started": started.isoformat(),
-            "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(),
-        }
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
-        if bar:
-            bar.done()
-    return out
-
-
-def _settings(s: Scenario) -> dict:
-    """The flown scenario as JSON: the same content as its scenario.toml."""
-    return tomllib.loads(scenario_text(s))
-
-
-def _versions() -> dict[str, str]:
-    """Versions of Python and the packages in play; a loaded module's own `__version__` (what
-    ran, and ~10 ms faster each than reading the installed metadata)."""
-    out = {"python": sys.version.split()[0]}
-    for pkg, module in (("testbed", None), ("mujoco", "mujoco"), ("numpy", "numpy"), ("scipy", "scipy"),
-                        ("numba", "numba"), ("rerun-sdk", "rerun"), ("filterpy", None)):  # fmt: skip
-        version = getattr(sys.modules.get(module), "__version__", None)
-        try:
-            out[pkg] = version or metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            out[pkg] = "not installed"
-    return out
-
-
-def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path) -> str:
-    """The command that regenerates the run: the built-in scenario by name where the run flew it
-    as built but for the command line's --duration and --speed, else the run's scenario.toml."""
-    parts = ["testbed", "simulate", "--seed", str(seed)]
-    as_built = None
-    if s.source == "built-in":
-        as_built = replace(scenario(s.name).with_overrides(flown.duration, flown.speed), source="")
-    if as_built is not None and scenario_text(as_built) == scenario_text(flown):
-        parts += ["--scenario", s.name, "--duration", repr(float(flown.duration)), "--speed", repr(float(flown.speed))]
-    else:
-        parts += ["--scenario", str(out.resolve() / "scenario.toml")]
-    if mjcf is not None:
-        parts += ["--mjcf", str(Path(mjcf).resolve())]
-    return shlex.join(parts)
-
-
-class _ProgressBar:
-    """A one-line text progress bar on stderr (only when stderr is a terminal)."""
-
-    def __init__(self, experiments: int):
-        self.experiments, self.index, self.name = experiments, -1, None
-        self.live = sys.stderr.isatty()
-        self.t0 = time.perf_counter()
-
-    def __call__(self, name: str, fraction: float):
-        if name != self.name:
-            self.name, self.index = name, self.index + 1
-        total = (self.index + fraction) / self.experiments
-        if self.live:
-            bar = "#" * int(30 * total)
-            sys.stderr.write(f"\r[{bar:<30}] {100 * total:3.0f}% {name:<16}")
-            sys.stderr.flush()
-
-    def done(self):
-        if self.live:
-            sys.stderr.write(f"\r[{'#' * 30}] 100% done in {time.perf_counter() - self.t0:.1f} s\n")

@@ -30,7 +30,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from testbed.data import ModelConfig
+from testbed.data import ModelConfig, config_text
+from testbed.errors import atomic_write_text, check_outputs
 from testbed.model import COEFFICIENTS, INPUTS, IX, NU, NX, STATES, Vehicle, structure, tilde
 from testbed.vehicle import (FINS, FLIP, added_mass, buoyancy_centre, check_model, constants,
                              cruise_speed, fluid_geoms, load_model, rigid_body_mass, semi_axes, skew,
@@ -370,6 +371,16 @@ def analytic_config(mjcf: str | Path | None = None, speed: float | None = None):
     model = load_model(mjcf)
     speed = cruise_speed(model) if speed is None else trim_speed(speed)
     return model_config(analytic_model(model, speed), mjcf)
+
+
+def analytic_config_text(mjcf: str | Path | None = None, speed: float | None = None, out=None) -> str:
+    """The analytic model of `mjcf` at `speed` as a model config (TOML text, with each
+    coefficient's make-up in comments), also written to `out` when given."""
+    check_outputs([mjcf] if mjcf else [], {"out": out})
+    text = config_text(*analytic_config(mjcf, speed))
+    if out is not None:
+        atomic_write_text(out, text)
+    return text
 
 
 def model_config(lin: LinearModel, mjcf=None):

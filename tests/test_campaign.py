@@ -25,7 +25,7 @@ def test_plan_covers_scenarios_methods_and_seeds_with_distinct_keys():
     assert len({c.key for c in cells}) == len(cells)
     assert Cell("I", "ml-nm", 1).key != Cell("I", "ml-nm", 1, duration=30.0).key  # the data differ
     assert all(c.duration == campaign.QUICK_DURATION for c in plan(1, quick=True))
-    with pytest.raises(InputError, match="--seeds 0"):
+    with pytest.raises(InputError, match="seeds=0"):
         plan(0)
 
 
@@ -141,5 +141,5 @@ def test_campaign_on_two_workers_survives_a_killed_worker_and_resumes(tmp_path, 
 
 
 def test_unreachable_scheduler_is_a_one_line_error(tmp_path):
-    with pytest.raises(InputError, match="--scheduler tcp://127.0.0.1:1"):
+    with pytest.raises(InputError, match="scheduler=tcp://127.0.0.1:1"):
         campaign.reproduce(tmp_path, seeds=1, scheduler="tcp://127.0.0.1:1", **TINY)

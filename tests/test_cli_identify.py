@@ -11,7 +11,7 @@ from rerun.chunk import RrdReader
 from testbed.cli import main
 from testbed.data import config_text, read_config
 from testbed.model import COEFFICIENTS
-from testbed.scenario import simulate
+from testbed.runs import simulate
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +133,7 @@ BAD = {
                                           "--start", "config"], "diverges"),
     "rrd folder missing": (lambda run, tmp: ["--rrd", tmp / "nowhere" / "fit.rrd"], "does not exist"),
     "rrd is a folder": (lambda run, tmp: ["--rrd", _folder(tmp / "fit.rrd")], "is a folder"),
-    "start for a filter": (lambda run, tmp: ["--method", "mekf", "--start", "config"], "only the ml-*"),
+    "start for a filter": (lambda run, tmp: ["--method", "mekf", "--start", "config"], "mekf: option --start 'config'"),
 }
 
 

@@ -11,7 +11,7 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
 from testbed.estimators.mekf import (
-    FilterOptions, _Model, _run, history_csv_text,
+    FilterOptions, _Model, _run,
     sqrt_update, svd_root, tria,
 )  # fmt: skip
 from testbed.measurements import noise_free_channels, noise_from_data
@@ -205,8 +205,8 @@ def test_mekf_estimates_lie_within_a_few_sigma_of_the_truth():
     truth = np.array([TRUTH[n] for n in SWAY_YAW])
     seen = []
     for method in ("mekf", "ekf"):
-        est = identify([e], config, method, callback=lambda i, v, s: seen.append(i))
-        assert est.status is Status.CONVERGED, est.extra
+        est = identify([e], config, method, callback=lambda step: seen.append(step.iteration))
+        assert est.status is Status.CONVERGED, est.message
         assert np.all(np.abs(est.values - truth) < 4 * est.std), (est.values - truth) / est.std
         assert np.all(est.std < 0.05 * np.abs(truth))  # far tighter than the 50 % prior
         assert est.iterations == len(e.t) and est.history.shape == (len(e.t), len(SWAY_YAW))
@@ -216,7 +216,7 @@ def test_mekf_estimates_lie_within_a_few_sigma_of_the_truth():
     assert seen == list(range(len(e.t))) * 2
     doc = json.loads(est.to_json())  # histories stay out of the JSON
     assert set(doc["coefficients"]) == set(SWAY_YAW) and len(json.dumps(doc)) < 2000
-    csv = np.loadtxt(history_csv_text(est).splitlines()[1:], delimiter=",")
+    csv = np.loadtxt(est.history_csv().splitlines()[1:], delimiter=",")
     np.testing.assert_allclose(csv[:, 1], est.history[:, 0], rtol=1e-9)
 
 
@@ -248,16 +248,16 @@ def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     opts = dict(noise_std={s: 1e-6 for s in STATES}, refresh_tol=0.0)
     ekf = identify([e], config, "ekf", **opts)
     assert ekf.status is Status.DIVERGED and ekf.iterations < 20
-    assert "positive definite" in ekf.extra["diverged"]["reason"]
+    assert "positive definite" in ekf.message
     eps = np.finfo(float).eps
     P = ekf.covariance
     # Asymmetry: one symmetric update rounds at ~eps; this is ~10⁸ eps, accumulated in 4 steps.
     assert np.abs(P - P.T).max() / np.abs(P).max() > 1e5 * eps
-    assert ekf.extra["max_covariance_asymmetry"] > 1e5 * eps
+    assert ekf.max_covariance_asymmetry > 1e5 * eps
 
     # The same EKF (same centre, same model) in square-root form, stopped at the same sample.
     sq = _run([e], config, method="ekf-sqrt", modified=False, square_root=True,
-              options=FilterOptions.from_options(opts), max_samples=ekf.iterations + 1,
+              options=FilterOptions.build("ekf-sqrt", opts, max_samples=ekf.iterations + 1),
               callback=None)  # fmt: skip
     J = sq.covariance_root
     assert np.allclose(J, np.tril(J)) and np.all(np.diag(J) > 0)  # P = J Jᵀ definite
@@ -268,7 +268,7 @@ def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     assert np.abs(J @ J.T - P).max() < 1e-6 * np.abs(P).max()
 
     mekf = identify([e], config, "mekf", **opts)
-    assert mekf.status is Status.CONVERGED, mekf.extra
+    assert mekf.status is Status.CONVERGED, mekf.message
     J = mekf.covariance_root
     assert np.all(np.isfinite(J)) and np.allclose(J, np.tril(J)) and np.all(np.diag(J) > 0)
     Pm = mekf.covariance
@@ -287,7 +287,8 @@ def test_a_wildly_wrong_model_is_reported_as_diverged():
         est = identify([e], config, method)
         assert est.status is Status.DIVERGED and not est.converged
         assert est.iterations < len(e.t)
-        assert "diverged" in est.extra
+        assert est.message and est.diverged_sample is not None
+        assert "diverged" in est.json_fields()
 
 
 def test_bad_options_are_input_errors():
@@ -319,7 +320,7 @@ def test_refresh_policy_and_svd_option_match_the_exact_filter():
     assert np.max(np.abs(default.history - exact.history) / exact.history_std) < 0.2
     np.testing.assert_allclose(svd.values, default.values, rtol=1e-8)
     np.testing.assert_allclose(svd.std, default.std, rtol=1e-8)
-    assert svd.extra["sqrt"] == "svd" and default.extra["sqrt"] == "qr"
+    assert svd.sqrt == "svd" and default.sqrt == "qr"
     # The likelihood: ½ Σ (νᵀ Σν⁻¹ ν + ln det Σν), finite and the same for both roots.
     assert np.isfinite(default.cost) and abs(svd.cost - default.cost) < 1e-6 * abs(default.cost)
 
@@ -335,10 +336,10 @@ def test_noise_free_data_diverge_with_the_reason():
     assert noise_free_channels([_horizontal(seed=12, T=20.0)]) == []
     config = ModelConfig(VEHICLE, dict(TRUTH), ("Y_v", "N_v", "Y_dr"))
     est = identify([e], config, "mekf")
-    assert est.status is Status.DIVERGED, est.extra
-    reason = est.extra["diverged"]["reason"]
+    assert est.status is Status.DIVERGED
+    reason = est.message
     assert "predicted σ" in reason and "noise-free" in reason and "noise_std" in reason
     assert "\n" not in reason
     # Given the sensor noise, the same data fit: the model error is then small against it.
     noisy = identify([e], config, "mekf", noise_std=dict(zip(STATES, NOISE)))
-    assert noisy.status is not Status.DIVERGED, noisy.extra
+    assert noisy.status is not Status.DIVERGED, noisy.message

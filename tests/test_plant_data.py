@@ -11,7 +11,7 @@ from testbed.data import Experiment, load_data, read_config
 from testbed.estimators import identify
 from testbed.linear import predict
 from testbed.model import STATES
-from testbed.scenario import simulate
+from testbed.runs import simulate
 from testbed.validation import fit_percent
 
 # The channels each experiment is designed to excite.

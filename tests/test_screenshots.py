@@ -73,9 +73,9 @@ def _png_size(path) -> tuple[int, int]:
 def test_screenshots_of_a_run_recording(tmp_path):
     from test_report import FLIGHTS
 
-    from testbed import report
+    from testbed import recording
 
-    rrd = report.log_run(tmp_path / "recording.rrd", FLIGHTS)
+    rrd = recording.log_run(tmp_path / "recording.rrd", FLIGHTS)
     assert shots.main([str(rrd), str(tmp_path / "png"), "--tab", "vertical", "--at", "1", "--size", "800x450"]) == 0
     (png,) = (tmp_path / "png").iterdir()
     assert png.name == "vertical-1.png" and _png_size(png) == (800, 450)

@@ -183,8 +183,8 @@ def _one_line_error(argv, capsys):
 def test_cli_truth_bad_input(capsys, tmp_path):
     assert "--speed" in _one_line_error(["truth", "--speed", "0"], capsys)
     assert "speed" in _one_line_error(["truth", "--speed", "inf"], capsys)
-    assert "speed=1e-300" in _one_line_error(["truth", "--speed", "1e-300"], capsys)  # was NaN, exit 0
-    assert "speed=1e+300" in _one_line_error(["truth", "--speed", "1e300"], capsys)  # was NaN, exit 0
+    assert "--speed 1e-300" in _one_line_error(["truth", "--speed", "1e-300"], capsys)
+    assert "--speed 1e+300" in _one_line_error(["truth", "--speed", "1e300"], capsys)  # was NaN, exit 0
     for speed in (0.0, -1.0, float("inf"), float("nan"), 1e-300, 451.0, 1e300):
         with pytest.raises(InputError, match=r"speed=.*; expected a trim speed of 0\.001 to 450 m/s"):
             truth.analytic_config(None, speed)

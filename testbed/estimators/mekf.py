@@ -100,18 +100,16 @@ from __future__ import annotations
 
 import io
 import math
-import numbers
 import time
 from functools import lru_cache
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import Estimate, Status, register
-from testbed.linear import check_inputs
+from testbed.estimators.base import Estimate, Method, Options, Progress, Status, is_count, is_real, option
 from testbed.measurements import noise_free_channels, noise_from_data
 from testbed.model import (IX, ITHETA, NX, continuous, derivatives, expm_pair,
                            structure, theta_vector)
@@ -223,86 +221,93 @@ class _Model:
 # ---------------------------------------------------------------- options and result
 
 
-def _is_number(v) -> bool:
-    """A finite real number; a bool is not one (`True` is no σ or tolerance)."""
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+def _sigmas(v) -> bool:
+    """None, or a mapping of names to σ > 0."""
+    return v is None or (isinstance(v, Mapping) and all(isinstance(k, str) and is_real(x) and x > 0
+                                                        for k, x in v.items()))
+
+
+def _at_least(low: float, doc: str, default: float):
+    return option(default, lambda v: is_real(v) and v >= low, f"a finite number ≥ {low:g}", doc)
+
+
+_SIGMAS = "a mapping of name to σ > 0, e.g. {'u': 0.01}"
 
 
 @dataclass(frozen=True)
-class FilterOptions:
-    """Tuning of `mekf` and `ekf` (module docstring: what each choice means)."""
+class FilterOptions(Options):
+    """Options of `mekf` and `ekf` (the module docstring says what each choice means)."""
 
-    noise_std: Mapping[str, float] | None = None  # measurement σ per measured state; None: data
-    prior_std: Mapping[str, float] | None = None  # a-priori σ per free coefficient
-    prior_frac: float = 0.5
-    prior_floor: float | None = None  # None: 1e-3 × the largest |coefficient| of the config
-    param_noise: float = 1e-6  # random-walk σ per sample, fraction of the prior σ
-    state_noise: float = 0.1  # model-error σ per sample, fraction of the measurement σ
-    unmeasured_std: float = 1.0  # initial σ of an unmeasured state (SI)
-    unmeasured_noise: float = 1e-3  # process σ per sample of an unmeasured state (SI)
-    refresh_tol: float = 0.2
-    sqrt: str = "qr"  # time-update root: "qr" (one QR with the update) or "svd" (U Σ, the paper's)
-    nis_window: int = 200
-    nis_limit: float = 25.0
-    explode: float = 100.0
-
-    @classmethod
-    def from_options(cls, opts: Mapping) -> "FilterOptions":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(opts) - names)
-        if unknown:
-            raise InputError(f"option {unknown[0]!r} is unknown to the filter; expected one of "
-                             f"{', '.join(sorted(names))}")  # fmt: skip
-        o = cls(**opts)
-        for name in ("prior_frac", "param_noise", "state_noise", "unmeasured_std",
-                     "unmeasured_noise", "refresh_tol", "nis_limit", "explode"):  # fmt: skip
-            v = getattr(o, name)
-            if not (_is_number(v) and v >= 0):
-                raise InputError(f"option {name}={v!r}; expected a finite number ≥ 0")
-        if o.prior_floor is not None and not (_is_number(o.prior_floor) and o.prior_floor > 0):
-            raise InputError(f"option prior_floor={o.prior_floor!r}; expected a number > 0")
-        if not (isinstance(o.nis_window, int) and not isinstance(o.nis_window, bool)
-                and o.nis_window >= 1):  # fmt: skip
-            raise InputError(f"option nis_window={o.nis_window!r}; expected an integer ≥ 1")
-        if o.sqrt not in ("qr", "svd"):
-            raise InputError(f"option sqrt={o.sqrt!r}; expected 'qr' or 'svd'")
-        for name, d in (("noise_std", o.noise_std), ("prior_std", o.prior_std)):
-            if d is None:
-                continue
-            if not isinstance(d, Mapping):
-                raise InputError(f"option {name}={d!r}; expected a mapping of name to σ, "
-                                 "e.g. {'u': 0.01}")  # fmt: skip
-            for k, v in d.items():
-                if not (_is_number(v) and v > 0):
-                    raise InputError(f"option {name}[{k!r}]={v!r}; expected a number > 0")
-        return o
+    max_samples: int | None = option(None, lambda v: v is None or (is_count(v) and v >= 1),
+                                     "an integer ≥ 1 (samples)", "stop after this many samples; None: all")
+    noise_std: Mapping[str, float] | None = option(None, _sigmas, _SIGMAS,
+                                                   "measurement σ per measured state; None: from the data")
+    prior_std: Mapping[str, float] | None = option(None, _sigmas, _SIGMAS, "a-priori σ per free coefficient")
+    prior_frac: float = _at_least(0.0, "a-priori σ as a fraction of |value|", 0.5)
+    prior_floor: float | None = option(None, lambda v: v is None or (is_real(v) and v > 0), "a number > 0",
+                                       "least a-priori σ; None: 1e-3 × the largest |coefficient|")
+    param_noise: float = _at_least(0.0, "coefficients' random-walk σ per sample, fraction of the prior σ", 1e-6)
+    state_noise: float = _at_least(0.0, "model-error σ per sample, fraction of the measurement σ", 0.1)
+    unmeasured_std: float = _at_least(0.0, "initial σ of an unmeasured state (SI)", 1.0)
+    unmeasured_noise: float = _at_least(0.0, "process σ per sample of an unmeasured state (SI)", 1e-3)
+    refresh_tol: float = _at_least(0.0, "recompute the exact model when a coefficient moved this many σ", 0.2)
+    sqrt: str = option("qr", lambda v: v in ("qr", "svd"), "'qr' or 'svd'",
+                       "time-update root: qr (one QR with the update) or svd (U Σ, the paper's)")
+    nis_window: int = option(200, lambda v: is_count(v) and v >= 1, "an integer ≥ 1",
+                             "samples over which the innovations are tested for divergence")
+    nis_limit: float = _at_least(0.0, "mean normalised innovation squared per channel that means divergence", 25.0)
+    explode: float = _at_least(0.0, "prior σ a coefficient may move before the filter counts as diverged", 100.0)
 
 
 @dataclass(frozen=True)
 class FilterEstimate(Estimate):
-    """An `Estimate` with the filter's time histories, kept out of the JSON (`to_json`).
+    """An `Estimate` with the filter's time histories (kept out of the JSON) and its diagnostics.
 
-    `history` (N, p) is θ̂ after each sample's update, `history_std` its σ, `history_t` the times,
-    each experiment following the previous one; `covariance` is the final augmented covariance
-    (states then free coefficients) and `covariance_root` its lower-triangular root J (P = J Jᵀ;
-    square-root filters only).
+    Attributes (beyond `Estimate`'s):
+        history: (N, p) θ̂ after each sample's update; `history_std` its σ; `history_t` the
+            times, each experiment following the previous one.
+        covariance: the final augmented covariance (states, then the free coefficients);
+            `covariance_root` its lower-triangular root J, P = J Jᵀ (square-root filters only).
+        filter: which filter ran ("square-root MEKF", "conventional EKF").
+        nis_mean: mean normalised innovation squared per sample (about the number of measured
+            channels for a consistent filter).
+        sqrt: the time-update root ("qr" or "svd"; square-root filters only).
+        max_covariance_asymmetry: the largest relative asymmetry the conventional covariance
+            reached (conventional filter only).
+        diverged_sample, diverged_t: where a diverged filter stopped.
     """
 
-    history_t: np.ndarray = field(default=None, repr=False)
-    history_std: np.ndarray = field(default=None, repr=False)
-    covariance: np.ndarray = field(default=None, repr=False)
-    covariance_root: np.ndarray = field(default=None, repr=False)
+    history_t: np.ndarray | None = field(default=None, repr=False)
+    history_std: np.ndarray | None = field(default=None, repr=False)
+    covariance: np.ndarray | None = field(default=None, repr=False)
+    covariance_root: np.ndarray | None = field(default=None, repr=False)
+    filter: str = ""
+    nis_mean: float = math.nan
+    sqrt: str | None = None
+    max_covariance_asymmetry: float | None = None
+    diverged_sample: int | None = None
+    diverged_t: float | None = None
 
+    def json_fields(self) -> dict:
+        doc = super().json_fields()
+        doc |= {"filter": self.filter, "samples": int(self.iterations), "nis_mean": float(self.nis_mean)}
+        if self.sqrt is not None:
+            doc["sqrt"] = self.sqrt
+        if self.max_covariance_asymmetry is not None:
+            doc["max_covariance_asymmetry"] = float(self.max_covariance_asymmetry)
+        if self.status is Status.DIVERGED:
+            doc["diverged"] |= {"sample": self.diverged_sample, "t": self.diverged_t}
+        return doc
 
-def history_csv_text(est: FilterEstimate) -> str:
-    """CSV `t,<name>,<name>_std,...` of the estimate and ±σ histories."""
-    cols = [est.history_t[:, None]]
-    for j in range(len(est.free)):
-        cols += [est.history[:, j:j + 1], est.history_std[:, j:j + 1]]
-    buf = io.StringIO()
-    buf.write(",".join(["t"] + [f"{n}{s}" for n in est.free for s in ("", "_std")]) + "\n")
-    np.savetxt(buf, np.hstack(cols), delimiter=",", fmt="%.10g")
-    return buf.getvalue()
+    def history_csv(self) -> str:
+        """CSV `t,<name>,<name>_std,...` of the estimate and ±σ histories."""
+        cols = [self.history_t[:, None]]
+        for j in range(len(self.free)):
+            cols += [self.history[:, j:j + 1], self.history_std[:, j:j + 1]]
+        buf = io.StringIO()
+        buf.write(",".join(["t"] + [f"{n}{s}" for n in self.free for s in ("", "_std")]) + "\n")
+        np.savetxt(buf, np.hstack(cols), delimiter=",", fmt="%.10g")
+        return buf.getvalue()
 
 
 # ---------------------------------------------------------------- the filters
@@ -392,7 +397,7 @@ class _Books:
             raise _Diverged(_far(st, self.o))
         st.count = c + 1
         if self.callback is not None:
-            self.callback(c, th.copy(), np.sqrt(var))
+            self.callback(Progress(c, th.copy(), math.nan, np.sqrt(var)))
 
 
 def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r, U: float,
@@ -520,7 +525,7 @@ def _conventional_pass(e: Experiment, st: _State, model: _Model, o: FilterOption
 
 
 def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
-         modified: bool, square_root: bool, options: FilterOptions, max_samples: int | None,
+         modified: bool, square_root: bool, options: FilterOptions,
          callback: Callable | None) -> FilterEstimate:  # fmt: skip
     """One pass over the experiments in sequence; see the module docstring. `modified`: centre
     the Jacobian on a parallel KF (square-root only); otherwise on the filter's own estimate."""
@@ -546,8 +551,8 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
         sigma_r[name] = float(v)
 
     total = sum(len(e.t) for e in experiments)
-    if max_samples is not None:
-        total = min(total, max_samples)
+    if options.max_samples is not None:
+        total = min(total, options.max_samples)
     st = _State(th=th0.copy(), Jth=np.diag(sig0), qth=options.param_noise * sig0, th0=th0,
                 sig0=sig0, names=tuple(config.free), hist=np.full((total, p), np.nan), hist_var=np.full((total, p), np.nan),
                 hist_t=np.full(total, np.nan), ldiag=np.ones((total, NX)), total=total)  # fmt: skip
@@ -592,20 +597,16 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
         tail = hist[int(0.9 * count):]
         settled = np.all(np.abs(tail - values) <= 3.0 * std)
         status = Status.CONVERGED if settled else Status.MAX_ITERATIONS
-    extra = {"filter": f"{'square-root' if square_root else 'conventional'} "
-                       f"{'MEKF' if modified else 'EKF'}",
-             "samples": count, "nis_mean": st.nis_sum / max(count, 1)}  # fmt: skip
-    if square_root:
-        extra["sqrt"] = options.sqrt
-    else:
-        extra["max_covariance_asymmetry"] = float(st.asym)
-    if diverged:
-        extra["diverged"] = diverged
     return FilterEstimate(
         method=method, status=status, free=tuple(config.free), values=values, std=std,
         cost=cost, iterations=count, wall_time_s=time.perf_counter() - t_start,
-        noise_std=sigma_r, start="config", history=hist, extra=extra,
+        noise_std=sigma_r, start="config", history=hist, message=diverged["reason"] if diverged else "",
         history_t=st.hist_t[:count], history_std=hist_std, covariance=P, covariance_root=Ja,
+        filter=f"{'square-root' if square_root else 'conventional'} {'MEKF' if modified else 'EKF'}",
+        nis_mean=st.nis_sum / max(count, 1), sqrt=options.sqrt if square_root else None,
+        max_covariance_asymmetry=None if square_root else float(st.asym),
+        diverged_sample=diverged["sample"] if diverged else None,
+        diverged_t=diverged["t"] if diverged else None,
     )  # fmt: skip
 
 
@@ -631,27 +632,16 @@ def _hint(st: _State, reason: str, experiments: Sequence[Experiment]) -> str:
     return out
 
 
-def _entry(method: str, modified: bool, square_root: bool):
-    def fn(experiments: Sequence[Experiment], config: ModelConfig, *, max_iter: int | None = None,
-           start: str = "config", callback: Callable | None = None, **opts) -> FilterEstimate:  # fmt: skip
-        if start not in ("config", "auto"):
-            raise InputError(f"--start {start!r}: the {method} filter starts from the config's "
-                             "a-priori values; expected config")  # fmt: skip
-        if max_iter is not None and max_iter < 1:
-            raise InputError(f"--max-iter {max_iter}; expected ≥ 1 (samples to process)")
-        if not config.free:
-            raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to estimate")
-        check_inputs(experiments, config)
-        return _run(experiments, config, method=method, modified=modified,
-                    square_root=square_root, options=FilterOptions.from_options(opts),
-                    max_samples=max_iter, callback=callback)  # fmt: skip
+def _method(name: str, modified: bool, square_root: bool, summary: str) -> Method:
+    def fit(experiments, config, options, callback):
+        return _run(experiments, config, method=name, modified=modified, square_root=square_root,
+                    options=options, callback=callback)
 
-    fn.__name__ = method
-    fn.__doc__ = (f"`{method}`: fit `config.free` on-line, one pass over `experiments` in sequence "
-                  "(`max_iter` caps the samples; options: `FilterOptions`). Returns a "
-                  "`FilterEstimate` (final values, filter σ, histories).")  # fmt: skip
-    return fn
+    return Method(name=name, fit=fit, options=FilterOptions, summary=summary, iterative=False,
+                  starts=False, online=True)
 
 
-mekf = register("mekf")(_entry("mekf", modified=True, square_root=True))
-ekf = register("ekf")(_entry("ekf", modified=False, square_root=False))
+MEKF = _method("mekf", modified=True, square_root=True,
+               summary="the modified extended Kalman filter with a square-root covariance (on-line)")
+EKF = _method("ekf", modified=False, square_root=False,
+              summary="the conventional augmented extended Kalman filter (on-line baseline)")

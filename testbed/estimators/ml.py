@@ -19,17 +19,17 @@ Convergence (ml-gn, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-from typing import Callable, Sequence
+from dataclasses import dataclass, fields
+from typing import Sequence
 
 import numpy as np
 
+from testbed import linear
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import Estimate, Status, register
-from testbed import linear
-
-Callback = Callable[[int, np.ndarray, float], None]
+from testbed.estimators import mekf
+from testbed.estimators.base import (Callback, Estimate, Method, Options, Progress, Status, is_count,
+                                     is_real, option)
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ def _simulate(prob: linear.Problem, p: np.ndarray):
 
 def _report(callback: Callback | None, prob: linear.Problem, it: int, p: np.ndarray, res) -> None:
     if callback is not None:
-        callback(it, p[:prob.n_free].copy(), linear.negative_log_likelihood(prob, res))
+        callback(Progress(it, p[:prob.n_free].copy(), linear.negative_log_likelihood(prob, res)))
 
 
 def gauss_newton(prob: linear.Problem, p: np.ndarray, max_iter: int = 50, callback=None,
@@ -197,7 +197,7 @@ def nelder_mead(prob: linear.Problem, p: np.ndarray, max_iter: int | None = None
                     J = np.array([J[lo] if i == lo else J_M(v) for i, v in enumerate(simplex)])
             history.append(simplex[np.argmin(J)].copy())
             if callback is not None:
-                callback(it, history[-1].copy(), float(np.min(J)))
+                callback(Progress(it, history[-1].copy(), float(np.min(J))))
         best = simplex[np.argmin(J)].copy()
         q = linear.initial_states(prob, best, R)
         if not stopped:
@@ -215,28 +215,17 @@ def _start(prob: linear.Problem, experiments, config: ModelConfig, start: str) -
     if start == "equation-error":
         ee = linear.equation_error(experiments, config)
         return np.array([ee.coefficients[n] for n in prob.free])
-    if start == "mekf":
-        from testbed.estimators import METHODS, identify
-
-        try:
-            est = identify(experiments, config, method="mekf")
-        except InputError:
-            if "mekf" in METHODS:
-                raise
-            raise InputError("start 'mekf': the MEKF estimator is not available; expected "
-                             "start config, equation-error or auto") from None
-        if est.status is Status.DIVERGED:
-            why = est.extra.get("diverged", {}).get("reason", est.status.message)
-            raise InputError(f"{prob.source}: start 'mekf': the MEKF diverged ({why}); expected "
-                             "a filter that converges, or start auto or equation-error")  # fmt: skip
-        return np.array([est.coefficients[n] for n in prob.free])
-    raise InputError(f"start {start!r}: expected config, equation-error, mekf or auto")
+    est = mekf.MEKF.fit(experiments, config, mekf.FilterOptions(), None)
+    if est.status is Status.DIVERGED:
+        raise InputError(f"{prob.source}: start='mekf': the MEKF diverged ({est.message}); expected "
+                         "a filter that converges, or start auto or equation-error")  # fmt: skip
+    return np.array([est.coefficients[n] for n in prob.free])
 
 
 def _estimate(name: str, prob: linear.Problem, out: Outcome, start: str, t0: float,
-              extra: dict | None = None) -> Estimate:  # fmt: skip
+              start_reason: str = "") -> Estimate:  # fmt: skip
     """The `Estimate` where the optimiser stopped, with its Cramér-Rao analysis; a DIVERGED one
-    (the reason in `extra["diverged"]`) where that analysis breaks down or is not finite."""
+    (the reason in its `message`) where that analysis breaks down or is not finite."""
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             info = linear.assess(prob, out.p, out.fisher)
@@ -250,27 +239,25 @@ def _estimate(name: str, prob: linear.Problem, out: Outcome, start: str, t0: flo
             method=name, status=Status.DIVERGED, free=prob.free, values=out.p[:nf].copy(),
             std=np.full(nf, np.nan), cost=np.nan, iterations=out.iterations,
             wall_time_s=time.perf_counter() - t0, noise_std={}, start=start, history=out.history,
-            extra={"diverged": {"reason": why}, **(extra or {})},
+            message=why, start_reason=start_reason,
         )  # fmt: skip
     return Estimate(
         method=name, status=out.status, free=prob.free, values=info.values, std=info.crlb_std,
         cost=info.cost, iterations=out.iterations, wall_time_s=time.perf_counter() - t0,
-        noise_std=info.noise_std, start=start, history=out.history,
-        extra={"crlb_corrected_std": dict(zip(prob.free, map(float, info.crlb_corrected_std))),
-               "initial_states": info.initial_states, **(extra or {})},
+        noise_std=info.noise_std, start=start, history=out.history, start_reason=start_reason,
+        crlb_corrected_std=np.asarray(info.crlb_corrected_std, float), initial_states=info.initial_states,
     )  # fmt: skip
 
 
 def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelConfig,
-         max_iter: int | None, start: str, callback: Callback | None, opts: dict) -> Estimate:  # fmt: skip
+         options: Options, callback: Callback | None) -> Estimate:
     t0 = time.perf_counter()
-    if max_iter is not None and max_iter < 0:
-        raise InputError(f"--max-iter {max_iter}; expected ≥ 0 (iterations)")
     prob = linear.problem(experiments, config)
-    opts = opts | ({"max_iter": max_iter} if max_iter is not None else {})
+    start = options.start
+    tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name != "start"}
 
     def run(p: np.ndarray) -> Outcome:
-        return optimiser(prob, p, callback=callback, **opts)
+        return optimiser(prob, p, callback=callback, **tuning)
 
     if start != "auto":
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is reported below
@@ -308,32 +295,73 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
     second = run(p_ee)
     if first is not None and second.status is not Status.CONVERGED and cost(first.p) < cost(second.p):
         return _estimate(name, prob, first, "config", t0)
-    return _estimate(name, prob, second, "equation-error", t0, {"start_reason": reason})
+    return _estimate(name, prob, second, "equation-error", t0, reason)
 
 
-def _method(name: str, optimiser, doc: str):
-    def fn(experiments: Sequence[Experiment], config: ModelConfig, *, max_iter: int | None = None,
-           start: str = "auto", callback: Callback | None = None, **opts) -> Estimate:  # fmt: skip
-        return _fit(name, optimiser, experiments, config, max_iter, start, callback, opts)
-
-    fn.__name__, fn.__doc__ = name.replace("-", "_"), doc
-    return register(name)(fn)
 
 
-_DOC = """Fit `config.free` to `experiments` by {what}.
+STARTS = ("auto", "config", "equation-error", "mekf")
+_START = option("auto", lambda v: v in STARTS, f"one of {', '.join(STARTS)}",
+                "where the iterations begin: auto (the a-priori values, restarting from the "
+                "equation-error estimate if the a-priori model diverges or the fit from it fails), "
+                "config (the a-priori values only), equation-error or mekf")
+_TOL = option(1e-3, lambda v: is_real(v) and v > 0, "a number > 0",
+              "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ")
 
-`start`: "auto" (default: the a-priori values, restarting from the equation-error estimate if the
-a-priori model diverges or the fit from it fails; `Estimate.start` and `extra["start_reason"]` say
-which), "config" (a-priori values only; a diverging a-priori model is an InputError),
-"equation-error" or "mekf"; `callback(iteration, values, cost)` after every iteration
-(cost: {cost}); `opts`: the optimiser's tolerances ({opts}).
-"""
-ml_gn = _method("ml-gn", gauss_newton, _DOC.format(
-    what="Gauss-Newton / Levenberg-Marquardt output error", opts="tol",
-    cost="negative log-likelihood"))
-ml_nr = _method("ml-nr", newton_raphson, _DOC.format(
-    what="the paper's modified Newton-Raphson (Eq. 10)", opts="tol",
-    cost="negative log-likelihood"))
-ml_nm = _method("ml-nm", nelder_mead, _DOC.format(
-    what="the paper's Nelder-Mead simplex", opts="eps, step, restart_step, r_tol, max_relaxations",
-    cost="the lowest corner's J_M"))
+
+def _max_iter(default: int | None):
+    return option(default, lambda v: (v is None and default is None) or (is_count(v) and v >= 0),
+                  "an integer ≥ 0 (iterations)",
+                  "iteration limit" + ("; None: 500 per free coefficient" if default is None else ""))
+
+
+@dataclass(frozen=True)
+class GaussNewtonOptions(Options):
+    """Options of `ml-gn`."""
+
+    max_iter: int = _max_iter(50)
+    start: str = _START
+    tol: float = _TOL
+
+
+@dataclass(frozen=True)
+class NewtonRaphsonOptions(Options):
+    """Options of `ml-nr`."""
+
+    max_iter: int = _max_iter(100)
+    start: str = _START
+    tol: float = _TOL
+
+
+def _positive(doc: str, default: float):
+    return option(default, lambda v: is_real(v) and v > 0, "a number > 0", doc)
+
+
+@dataclass(frozen=True)
+class SimplexOptions(Options):
+    """Options of `ml-nm` (`nelder_mead`: what each one means)."""
+
+    max_iter: int | None = _max_iter(None)
+    start: str = _START
+    eps: float = _positive("stopping rule: the spread of J_M over the corners, in units of the χ² "
+                           "statistic N·J_M", 1e-3)
+    step: float = _positive("first simplex: the fraction of each |θ_i| it spans", 0.1)
+    restart_step: float = _positive("restarts after each noise update: the fraction of |θ_i|", 0.02)
+    r_tol: float = _positive("converged when a noise update changes no variance by more than this", 1e-3)
+    max_relaxations: int = option(20, lambda v: is_count(v) and v >= 1, "an integer ≥ 1",
+                                  "simplex runs (each after a noise update) before STALLED")
+
+
+def _method(name: str, optimiser, options: type[Options], summary: str) -> Method:
+    def fit(experiments, config, opts, callback):
+        return _fit(name, optimiser, experiments, config, opts, callback)
+
+    return Method(name=name, fit=fit, options=options, summary=summary)
+
+
+ML_GN = _method("ml-gn", gauss_newton, GaussNewtonOptions,
+                "maximum likelihood output error by Gauss-Newton with Levenberg-Marquardt damping")
+ML_NR = _method("ml-nr", newton_raphson, NewtonRaphsonOptions,
+                "maximum likelihood output error by the paper's modified Newton-Raphson (Eq. 10)")
+ML_NM = _method("ml-nm", nelder_mead, SimplexOptions,
+                "maximum likelihood output error by the paper's Nelder-Mead simplex")

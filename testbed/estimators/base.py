@@ -1,0 +1,221 @@
+"""The contract every estimator keeps: its options, its result, its progress reports, its status.
+
+`testbed.estimators` registers the methods and is the front door (`identify`).
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError
+
+
+class Status(enum.Enum):
+    """How a fit ended; only CONVERGED is a success. The value is the message."""
+
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "iteration limit reached before convergence"
+    STALLED = "no step decreased the cost"
+    DIVERGED = "the model or the filter diverged"
+
+    @property
+    def message(self) -> str:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A fit: the free coefficients with their Cramér-Rao standard errors, and how it went.
+
+    Attributes:
+        method: the registered name of the method that made it.
+        status: how the fit ended (`Status`); `converged` is `status is Status.CONVERGED`.
+        free: the names of the estimated coefficients, in the order of `values` and `std`.
+        values: (n_free,) the estimates.
+        std: (n_free,) their Cramér-Rao standard errors at the estimate, with the estimated
+            noise (NaN where the fit diverged).
+        cost: the method's cost at the estimate (the negative log-likelihood for the
+            output-error methods and the filters' innovations).
+        iterations: iterations taken (`iterative` methods) or samples processed (`online`).
+        wall_time_s: wall-clock time of the fit.
+        noise_std: measurement noise σ per measured state, as estimated or used.
+        start: where the fit started: "config" (the a-priori values), "equation-error", "mekf".
+        history: (iterations + 1, n_free) values after each iteration (filters: each sample).
+        message: what went wrong, where the status alone does not say (a divergence's reason).
+        start_reason: why the fit started from `start` rather than the a-priori values.
+        crlb_corrected_std: (n_free,) the bounds corrected for coloured residuals
+            (output-error methods; None otherwise).
+        initial_states: experiment → state → fitted initial value (absolute u), for the
+            output-error methods, which estimate them (None otherwise).
+    """
+
+    method: str
+    status: Status
+    free: tuple[str, ...]
+    values: np.ndarray
+    std: np.ndarray
+    cost: float
+    iterations: int
+    wall_time_s: float
+    noise_std: dict[str, float]
+    start: str = "config"
+    history: np.ndarray | None = field(default=None, repr=False)
+    message: str = ""
+    start_reason: str = ""
+    crlb_corrected_std: np.ndarray | None = field(default=None, repr=False)
+    initial_states: dict[str, dict[str, float]] | None = field(default=None, repr=False)
+
+    @property
+    def converged(self) -> bool:
+        return self.status is Status.CONVERGED
+
+    @property
+    def coefficients(self) -> dict[str, float]:
+        return dict(zip(self.free, map(float, self.values)))
+
+    def json_fields(self) -> dict[str, Any]:
+        """The estimate as the estimates JSON's fields (a mapping of JSON values)."""
+        doc = {
+            "method": self.method,
+            "converged": self.converged,
+            "status": self.status.message,
+            "iterations": int(self.iterations),
+            "cost": _finite(self.cost),
+            "wall_time_s": float(self.wall_time_s),
+            "start": self.start,
+            "coefficients": {n: {"value": _finite(v), "std": _finite(s)}
+                             for n, v, s in zip(self.free, self.values, self.std)},
+            "noise_std": {k: _finite(v) for k, v in self.noise_std.items()},
+        }  # fmt: skip
+        if self.crlb_corrected_std is not None:
+            doc["crlb_corrected_std"] = {n: _finite(s) for n, s in zip(self.free, self.crlb_corrected_std)}
+        if self.initial_states is not None:
+            doc["initial_states"] = self.initial_states
+        if self.start_reason:
+            doc["start_reason"] = self.start_reason
+        if self.status is Status.DIVERGED:
+            doc["diverged"] = {"reason": self.message or self.status.message}
+        return doc
+
+    def to_json(self) -> str:
+        return json.dumps(self.json_fields(), indent=2, allow_nan=False) + "\n"
+
+
+def _finite(x) -> float | None:
+    """`x` as a JSON number, or null where it is not finite (an unbounded standard error)."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What a method reports to `callback` after each iteration (filters: each sample).
+
+    Attributes:
+        iteration: iterations done (filters: samples processed).
+        values: (n_free,) the free coefficients now.
+        cost: the method's cost now (NaN for the filters, whose cost is a sum over the samples).
+        std: (n_free,) their σ now, for the filters; None otherwise.
+    """
+
+    iteration: int
+    values: np.ndarray
+    cost: float
+    std: np.ndarray | None = None
+
+
+Callback = Callable[[Progress], None]
+
+
+class OptionError(InputError):
+    """An option a method does not have, or a value it cannot take. `option` names it."""
+
+    def __init__(self, method: str, option: str, value, expected: str):
+        self.method, self.option, self.value, self.expected = method, option, value, expected
+        super().__init__(f"{method}: option {option}={value!r}; expected {expected}")
+
+
+def option(default, check: Callable[[Any], bool], expected: str, doc: str):
+    """A typed option: its default, the test a value must pass, what that test expects (for
+    the error), and what the option does."""
+    return field(default=default, metadata={"check": check, "expected": expected, "doc": doc})
+
+
+def is_real(v) -> bool:
+    """A finite real number; a bool is not one (`True` is no σ or tolerance)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def is_count(v) -> bool:
+    """An integer (not a bool)."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+@dataclass(frozen=True)
+class Options:
+    """A method's options: frozen, built by keyword, every field an `option` with its check."""
+
+    @classmethod
+    def build(cls, method: str, given: Options | Mapping | None = None, **more) -> Options:
+        """The options of `method` from an instance, a mapping and keywords (later ones win);
+        `OptionError` for an unknown name or a value its check rejects."""
+        values = {}
+        if isinstance(given, Options):
+            if not isinstance(given, cls):
+                raise OptionError(method, "options", type(given).__name__, f"{cls.__name__}")
+            values = {f.name: getattr(given, f.name) for f in fields(given)}
+        elif given is not None:
+            values = dict(given)
+        values.update(more)
+        names = [f.name for f in fields(cls)]
+        for name in values:
+            if name not in names:
+                raise OptionError(method, name, values[name], f"one of the options of {method}: {', '.join(names)}")
+        built = cls(**values)
+        for f in fields(cls):
+            v = getattr(built, f.name)
+            if not f.metadata["check"](v):
+                raise OptionError(method, f.name, v, f.metadata["expected"])
+        return built
+
+    @classmethod
+    def describe(cls) -> dict[str, str]:
+        """Option name → what it does and its default."""
+        return {f.name: f"{f.metadata['doc']} (default {f.default!r})" for f in fields(cls)}
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered method: what `identify` calls, with its options and capabilities.
+
+    Attributes:
+        name: the name users select it by.
+        fit: `fit(experiments, config, options, callback) -> Estimate`, given checked inputs.
+        options: its `Options` class.
+        summary: one line saying what it is.
+        iterative: iterates to an optimum; options have `max_iter`.
+        starts: options have `start`.
+        online: a one-pass recursive filter; options have `max_samples`; returns a
+            `FilterEstimate`.
+    """
+
+    name: str
+    fit: Callable[[Sequence[Experiment], ModelConfig, Options, Callback | None], Estimate]
+    options: type[Options]
+    summary: str
+    iterative: bool = True
+    starts: bool = True
+    online: bool = False
+
+    def __post_init__(self):
+        names = {f.name for f in fields(self.options)}
+        for flag, needs in ((self.iterative, "max_iter"), (self.starts, "start"), (self.online, "max_samples")):
+            if flag and needs not in names:
+                raise TypeError(f"method {self.name}: its capabilities need the option {needs}")

@@ -1,0 +1,204 @@
+"""Headless jobs: each command of the command line as one library function.
+
+A job reads its inputs (run directories, measurement CSVs, model configs, estimates), checks
+every output it will write before doing any work (none may be an input or another output),
+does the work, and writes its outputs atomically: all of them or none. It returns what it
+computed; it prints nothing. Parameters are named as in Python (`max_iter`); `testbed.cli`
+maps them to its flags.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from testbed.analysis import Comparison, Identifiability, compare, identifiability, screen
+from testbed.data import (Experiment, ModelConfig, load_data, read_config, read_csv,
+                          read_estimates, run_csvs)
+from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
+from testbed.estimators import Estimate, Progress, Status, identify, lookup
+from testbed.linear import check_fit
+from testbed.report import log_fit
+from testbed.validation import Validation, validate
+
+__all__ = ["Identified", "analyze_data", "identify_data", "inputs", "perturbed", "truth_data",
+           "validate_data", "write_text"]
+
+
+def write_text(out: str | os.PathLike | None, text: str) -> None:
+    """Write `text` to `out` atomically (nothing when `out` is None)."""
+    if out is not None:
+        atomic_write_text(out, text)
+
+
+def inputs(data: Sequence[str | os.PathLike], config: str | os.PathLike | None = None):
+    """`(experiments, config, run_config, read)`: the experiments of `data` (run directories or
+    measurement CSVs), the model config to use (`config`, else the run's model.toml), the run's
+    analytic model (None for CSVs) and every file read (outputs must not clobber them)."""
+    experiments, run_config = load_data(data)
+    used = read_config(config) if config else run_config
+    if used is None:
+        raise InputError("no model config: expected config=TOML, or a run directory with model.toml")
+    read = [Path(e.source) for e in experiments] + [Path(used.source)]
+    read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]
+    return experiments, used, run_config, read
+
+
+def perturbed(config: ModelConfig, fraction: float, seed: int) -> ModelConfig:
+    """The config with every free coefficient's start moved by ±fraction (signs from `seed`)."""
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(config.free))
+    moved = config.with_coefficients({n: config.coefficients[n] * (1 + s * fraction)
+                                      for n, s in zip(config.free, signs)})  # fmt: skip
+    return replace(moved, source=f"{config.source or 'config'} with its start moved by perturb={fraction:g}")
+
+
+def truth_data(paths: Sequence[str | os.PathLike]) -> list[Experiment] | None:
+    """The noise-free `<experiment>.truth.csv` of the run directories among `paths` (read and
+    checked now, before any fit), or None when any is missing: the comparison then has no bias
+    column."""
+    runs = [p for p in map(Path, paths) if (p / "manifest.json").exists()]
+    truth = [f.with_suffix(".truth.csv") for p in runs for f in run_csvs(p)]
+    if not truth or not all(f.exists() for f in truth):
+        return None
+    return [read_csv(f, f.name.removesuffix(".truth.csv")) for f in truth]
+
+
+def truth_comparison(estimate: Estimate, analytic: ModelConfig, truth: list[Experiment] | None) -> Comparison:
+    """The comparison with the analytic model, its bias split off by `ml-gn` on the noise-free
+    `truth` from the analytic model, whatever method made the estimate (the bias belongs to the
+    model, and a filter needs noise to work). A truth fit that cannot run is a note, not a
+    failure: the estimate stands without it."""
+    if truth is None:
+        return compare(estimate, analytic)
+    try:
+        fit = identify(truth, replace(analytic, free=tuple(estimate.free)), method="ml-gn", start="config")
+    except InputError as exc:
+        return replace(compare(estimate, analytic), note=f"no linear-model bias column: {exc}")
+    return compare(estimate, analytic, fit)
+
+
+@dataclass(frozen=True)
+class Identified:
+    """What `identify_data` did.
+
+    Attributes:
+        estimate: the fit.
+        config: the model config fitted (after screening: the free set the data identify).
+        fixed: coefficient → why it was fixed at its a-priori value by the screening.
+        comparison: against the run's analytic model (None for data without one).
+        validation: fit % and residual whiteness of the fitted model on the data.
+        document: the estimates JSON as a mapping; `text` as written.
+        written: the files written (the estimates, a filter's history CSV, the recording).
+    """
+
+    estimate: Estimate
+    config: ModelConfig
+    fixed: dict[str, str]
+    comparison: Comparison | None
+    validation: Validation
+    document: dict
+    text: str
+    written: tuple[Path, ...]
+
+
+def identify_data(data: Sequence[str | os.PathLike], *, method: str = "ml-gn",
+                  config: str | os.PathLike | None = None, out: str | os.PathLike | None = None,
+                  rrd: str | os.PathLike | None = None, options: Mapping | None = None,
+                  perturb: float | None = None, seed: int = 0, free_all: bool = False,
+                  progress: Callable[[Progress], None] | None = None) -> Identified:  # fmt: skip
+    """Identify the coefficients of `data` (run directories or CSVs) and write the estimates JSON
+    to `out`, a filter's estimate and ±σ histories beside it (`.history.csv`), and a Rerun
+    recording of the fit to `rrd`.
+
+    `config`: the model config (default: the run's model.toml); `options`: the method's
+    options; `perturb`: move every free start by this fraction (signs from `seed`);
+    `free_all`: fit every coefficient of the config's free list, not only those the data
+    identify (`analysis.screen`). A diverged fit is an `InputError` and writes nothing; a fit
+    that ran but did not converge is written (`Identified.estimate.converged` says so).
+    """
+    m = lookup(method)
+    opts = m.options.build(m.name, options or {})
+    experiments, cfg, run_config, read = inputs(data, config)
+    truth = truth_data(data) if run_config is not None else None
+    read += [Path(e.source) for e in truth or ()]
+    history = Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
+    check_outputs(read, {"out": out, "history": history, "rrd": rrd})
+    if perturb is not None:
+        cfg = perturbed(cfg, perturb, seed)
+    check_fit(experiments, cfg)  # what no screening can mend, named first
+    fixed = {}
+    if not free_all:
+        cfg, fixed = screen(experiments, cfg)
+        if not cfg.free:
+            raise InputError(f"no coefficient of [identify] free is identifiable from "
+                             f"{', '.join(map(str, data))} ({next(iter(fixed.values()))}); "
+                             "expected data that excite them, or free_all=True")  # fmt: skip
+    iterations = []  # (iteration, values, cost) of the iterative methods, for the recording
+
+    def callback(step: Progress) -> None:
+        if m.iterative:
+            iterations.append((step.iteration, list(step.values), step.cost))
+        if progress is not None:
+            progress(step)
+
+    estimate = identify(experiments, cfg, method=m.name, options=opts, callback=callback)
+    if estimate.status is Status.DIVERGED:
+        raise InputError(f"method={m.name!r}: {estimate.status.message}"
+                         f"{f' ({estimate.message})' if estimate.message else ''} on "
+                         f"{', '.join(map(str, data))}; no estimate written (expected "
+                         f"{'another start or ' if m.starts else ''}a better a-priori config)")  # fmt: skip
+    doc = estimate.json_fields()
+    if fixed:
+        doc["fixed"] = {n: {"value": float(cfg.coefficients[n]), "reason": why} for n, why in fixed.items()}
+    comparison = None
+    if run_config is not None:
+        comparison = truth_comparison(estimate, run_config, truth)
+        doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
+    validation = validate(experiments, cfg.with_coefficients(estimate.coefficients), run_config)
+    doc["validation"] = validation.to_dict()
+    text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
+    files = {Path(out): text} if out is not None else {}
+    if history is not None:
+        files = {history: estimate.history_csv(), **files}
+    with contextlib.ExitStack() as stack:  # every output, or none of them
+        temporary = {path: stack.enter_context(atomic_file(path)) for path in files}
+        if rrd is not None:
+            log_fit(rrd, experiments, cfg, estimate, iterations, comparison, validation=validation)
+        for path, content in files.items():
+            temporary[path].write_text(content)
+    written = tuple(files) + ((Path(rrd),) if rrd is not None else ())
+    return Identified(estimate, cfg, fixed, comparison, validation, doc, text, written)
+
+
+def analyze_data(data: Sequence[str | os.PathLike], *, config: str | os.PathLike | None = None,
+                 out: str | os.PathLike | None = None) -> Identifiability:
+    """Identifiability of the config's free coefficients from `data` (Fisher information,
+    Cramér-Rao bounds, correlations, drift groups), written as JSON to `out`."""
+    experiments, cfg, _, read = inputs(data, config)
+    check_outputs(read, {"out": out})
+    if not cfg.free:
+        raise InputError(f"{cfg.source or 'config'}: [identify] free is empty; nothing to analyse")
+    result = identifiability(experiments, cfg)
+    write_text(out, result.to_json())
+    return result
+
+
+def validate_data(data: Sequence[str | os.PathLike], estimates: str | os.PathLike, *,
+                  config: str | os.PathLike | None = None,
+                  out: str | os.PathLike | None = None) -> tuple[Validation, str]:  # fmt: skip
+    """Fit % and residual whiteness on `data` of the coefficients in the `estimates` JSON;
+    the validation JSON (also written to `out`) with them."""
+    experiments, cfg, run_config, read = inputs(data, config)
+    check_outputs(read + [estimates], {"out": out})
+    coefficients = read_estimates(estimates)[0]
+    validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
+    text = json.dumps({"estimates": str(estimates), "coefficients": coefficients,
+                       "validation": validation.to_dict()}, indent=2, allow_nan=False) + "\n"  # fmt: skip
+    write_text(out, text)
+    return validation, text
