@@ -150,13 +150,12 @@ def test_cli_every_command_option_and_choice():
 
 
 def test_cli_builtin_scenarios_and_methods():
-    from testbed.estimators import METHODS, estimator
+    from testbed.estimators import METHODS
     from testbed.scenario import BUILTIN
 
     text = page("cli.md")
     simulate = section(text, "testbed simulate")
     assert missing_code(simulate, BUILTIN) == []
-    estimator("ml-gn")  # loads every method
     documented = {r[0].strip("`") for r in table_rows(section(text, "Methods"))[1:]}
     assert documented == set(METHODS)
 
@@ -258,16 +257,21 @@ def _function_tree(fn):
 
 
 def test_files_estimates_json_keys():
-    from testbed.estimators import Estimate, Status
+    from testbed.estimators import Estimate, FilterEstimate, Status
+    from testbed.jobs import identify_data
 
     text = section(page("files.md"), "Estimates JSON")
-    estimate = Estimate("ml-gn", Status.CONVERGED, ("X_u",), np.array([1.0]), np.array([0.1]), 1.0, 1, 0.1, {"u": 0.1})
-    keys = set(json.loads(estimate.to_json()))
-    extras = set().union(*(_written_keys(t, "extra") for t in _package_trees()))
-    assert {"crlb_corrected_std", "initial_states"} <= extras  # the scan sees the estimators
-    identify = _written_keys(_function_tree(subcommands()["identify"].get_default("func")), "doc")
+    one = dict(free=("X_u",), values=np.array([1.0]), std=np.array([0.1]), cost=1.0, iterations=1,
+               wall_time_s=0.1, noise_std={"u": 0.1})
+    fitted = Estimate("ml-gn", Status.CONVERGED, **one, start_reason="why", crlb_corrected_std=np.array([0.2]),
+                      initial_states={"e": {"u": 1.0}})
+    diverged = FilterEstimate("mekf", Status.DIVERGED, **one, message="why", sqrt="qr",
+                              max_covariance_asymmetry=0.0, diverged_sample=1, diverged_t=0.1)
+    keys = set(fitted.json_fields()) | set(diverged.json_fields())
+    assert {"crlb_corrected_std", "initial_states", "start_reason", "diverged", "sqrt"} <= keys
+    identify = _written_keys(_function_tree(identify_data), "doc")
     assert {"fixed", "comparison", "validation"} <= identify
-    assert missing_code(text, sorted(keys | extras | identify | {"start_reason"})) == []
+    assert missing_code(text, sorted(keys | identify)) == []
     assert [s.message for s in Status if s is not Status.DIVERGED and s.message not in text] == []
 
 
@@ -280,7 +284,9 @@ def test_files_comparison_and_validation_keys():
     keys = set(comparison) | set(comparison["rows"][0])
     metrics = ChannelMetrics(50.0, whiteness(np.random.default_rng(0).standard_normal(100)), 60.0).to_dict()
     keys |= set(metrics) | set(metrics["whiteness"])
-    validate = _written_keys_dumps(subcommands()["validate"].get_default("func"))
+    from testbed.jobs import validate_data
+
+    validate = _written_keys_dumps(validate_data)
     assert {"estimates", "coefficients", "validation"} <= validate
     assert missing_code(page("files.md"), sorted(keys | validate)) == []
 
