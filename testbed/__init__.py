@@ -1,6 +1,52 @@
 """testbed: simulate a submerged body in MuJoCo and identify its manoeuvring coefficients.
 
-Data flows vehicle -> plant -> scenario -> measurements -> model -> estimators -> analysis -> report.
+The public API (each name is loaded on first use, so `import testbed` stays light):
+
+- data: `load_data`, `read_csv`, `read_config`, `Experiment`, `ModelConfig`;
+- truth: `analytic_config` (the analytic linear model of an MJCF body);
+- runs: `simulate` (fly a scenario, write its run directory), `scenario` (a built-in or a file);
+- identification: `identify` (one front door for every method), `Estimate`, `Status`, `METHODS`;
+- analysis: `analyze` (identifiability: Fisher information, Cramér-Rao bounds, drift groups),
+  `screen` (the free set the data identify), `compare` (against the analytic model),
+  `validate` (fit % and residual whiteness);
+- studies: `design` (experiments from Fisher information), `reproduce` (the paper's study);
+- errors: `InputError` (a `ValueError`: bad input, named), `OptionError`.
+
+Layers, each importing only those before it: errors → model → data → measurements → vehicle →
+plant → truth → autopilot, signals → scenario → recording → runs → linear → estimators →
+validation, analysis → design, report → jobs → figures → campaign → cli.
 """
 
+from __future__ import annotations
+
+import importlib
+
 __version__ = "0.1.0"
+
+_API = {
+    "load_data": "testbed.data", "read_csv": "testbed.data", "read_config": "testbed.data",
+    "Experiment": "testbed.data", "ModelConfig": "testbed.data",
+    "analytic_config": "testbed.truth",
+    "simulate": "testbed.runs", "scenario": "testbed.scenario",
+    "identify": "testbed.estimators", "Estimate": "testbed.estimators", "Status": "testbed.estimators",
+    "METHODS": "testbed.estimators", "OptionError": "testbed.estimators",
+    "analyze": ("testbed.analysis", "identifiability"), "screen": "testbed.analysis",
+    "compare": "testbed.analysis", "validate": "testbed.validation",
+    "design": "testbed.design", "reproduce": "testbed.campaign",
+    "InputError": "testbed.errors",
+}  # fmt: skip
+
+__all__ = sorted(_API)
+
+
+def __getattr__(name: str):
+    if name not in _API:
+        raise AttributeError(f"module 'testbed' has no attribute {name!r}")
+    module, attribute = _API[name] if isinstance(_API[name], tuple) else (_API[name], name)
+    value = getattr(importlib.import_module(module), attribute)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_API))

@@ -397,7 +397,7 @@ class _Books:
             raise _Diverged(_far(st, self.o))
         st.count = c + 1
         if self.callback is not None:
-            self.callback(Progress(c, th.copy(), math.nan, np.sqrt(var)))
+            self.callback(Progress(c + 1, th.copy(), math.nan, np.sqrt(var)))
 
 
 def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r, U: float,

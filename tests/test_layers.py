@@ -1,0 +1,87 @@
+"""The package reads top-down: each module imports only modules of the layers below it.
+
+The layers, in the order data flows (a module may import from any earlier layer, never from its
+own or a later one): the errors and file safety; the linear model's equations; data files and
+sensor noise; the MJCF vehicle, its plant and its analytic model; autopilots and input signals;
+scenarios; recordings and run directories; the linear model's services; the estimators (their
+contract, then the methods, then the front door); validation and identifiability analysis;
+experiment design and fit reports; the headless jobs; the campaign's figures and the campaign;
+the command line; the public API.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import testbed
+
+LAYERS = [
+    ("testbed.errors", "testbed.threads"),
+    ("testbed.model",),
+    ("testbed.data",),
+    ("testbed.measurements",),
+    ("testbed.vehicle",),
+    ("testbed.plant",),
+    ("testbed.truth",),
+    ("testbed.autopilot", "testbed.signals"),
+    ("testbed.scenario",),
+    ("testbed.recording",),
+    ("testbed.runs",),
+    ("testbed.linear",),
+    ("testbed.estimators.base",),
+    ("testbed.estimators.mekf",),
+    ("testbed.estimators.ml",),
+    ("testbed.estimators",),
+    ("testbed.validation", "testbed.analysis"),
+    ("testbed.design", "testbed.report"),
+    ("testbed.jobs",),
+    ("testbed.figures",),
+    ("testbed.campaign",),
+    ("testbed.cli",),
+    ("testbed.__main__",),
+    ("testbed",),
+]
+RANK = {name: k for k, names in enumerate(LAYERS) for name in names}
+ROOT = Path(testbed.__file__).parent
+
+
+def _module(path: Path) -> str:
+    parts = ["testbed", *path.relative_to(ROOT).with_suffix("").parts]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """The testbed modules `path` imports, anywhere in it (function bodies included)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            submodules = {f"{node.module}.{a.name}" for a in node.names} & set(RANK)
+            names = [a for a in node.names if f"{node.module}.{a.name}" not in RANK]
+            found |= submodules | ({node.module} if names else set())
+    return {m for m in found if m == "testbed" or m.startswith("testbed.")}
+
+
+def test_every_module_has_a_layer():
+    modules = {_module(p) for p in ROOT.rglob("*.py")}
+    assert sorted(modules - set(RANK)) == []
+    assert sorted(set(RANK) - modules) == []
+
+
+def test_no_import_points_up_or_sideways():
+    upward = []
+    for path in sorted(ROOT.rglob("*.py")):
+        me = _module(path)
+        for target in _imports(path):
+            owner = target if target in RANK else target.rsplit(".", 1)[0]
+            if owner in RANK and RANK[owner] >= RANK[me] and owner != me:
+                upward.append(f"{me} imports {target}")
+    assert upward == []
+
+
+def test_the_check_sees_an_upward_import(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text("def f():\n    from testbed.cli import main\n")
+    assert "testbed.cli" in _imports(bad)

@@ -1,0 +1,93 @@
+"""One contract, every method: the same tests run against each registered estimator (as scipy's
+`least_squares` tests run one mixin against every solver)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from testbed.errors import InputError
+from testbed.estimators import (METHODS, Estimate, FilterEstimate, OptionError, Options, Progress,
+                                Status, identify, lookup)
+from testbed.linear import synthetic
+from testbed.measurements import NOISE_STD
+from testbed.model import INPUTS
+from testbed.truth import analytic_config
+
+FREE = ("N_r", "N_dr")  # the yaw row's damping and rudder power: well excited by a rudder PRBS
+
+
+@pytest.fixture(scope="module")
+def problem():
+    """Noisy sway-yaw data from the bundled torpedo's own linear model, and a start 20 % off."""
+    config, _ = analytic_config()
+    config = dataclasses.replace(config, free=FREE)
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 40.0, 0.05)
+    inputs = np.zeros((len(t), len(INPUTS)))
+    inputs[:, 0] = 0.02 * np.repeat(rng.choice([-1.0, 1.0], size=len(t) // 20 + 1), 20)[:len(t)]
+    data = [synthetic(config, t, inputs, NOISE_STD, measured=("v", "r", "psi"), rng=rng, name="rudder")]
+    start = config.with_coefficients({n: 0.8 * config.coefficients[n] for n in FREE})
+    return data, config, start
+
+
+@pytest.mark.parametrize("name", sorted(METHODS))
+class TestEveryMethod:
+    def test_capabilities_match_the_options(self, name):
+        m = lookup(name)
+        fields = {f.name for f in dataclasses.fields(m.options)}
+        assert issubclass(m.options, Options) and m.options.__dataclass_params__.frozen
+        assert m.iterative == ("max_iter" in fields) and m.starts == ("start" in fields)
+        assert m.online == ("max_samples" in fields) and m.summary
+        assert set(m.options.describe()) == fields
+
+    def test_defaults_pass_their_checks_and_unknown_options_are_refused(self, name):
+        m = lookup(name)
+        m.options.build(name)
+        with pytest.raises(OptionError, match=r"option no_such=1; expected one of the options") as info:
+            m.options.build(name, {"no_such": 1})
+        assert info.value.option == "no_such" and isinstance(info.value, (InputError, ValueError))
+
+    def test_every_option_refuses_a_value_of_the_wrong_type(self, name):
+        for f in dataclasses.fields(lookup(name).options):
+            with pytest.raises(OptionError) as info:
+                lookup(name).options.build(name, {f.name: object()})
+            assert info.value.option == f.name and "\n" not in str(info.value)
+
+    def test_fits_and_reports_through_one_contract(self, name, problem):
+        data, config, start = problem
+        m = lookup(name)
+        seen = []
+        est = identify(data, start, method=name, callback=seen.append)
+        assert isinstance(est, Estimate) and est.method == name and est.free == FREE
+        assert est.status in (Status.CONVERGED, Status.MAX_ITERATIONS), est.message
+        assert isinstance(est, FilterEstimate) == m.online
+        assert est.values.shape == est.std.shape == (len(FREE),) and np.all(est.std > 0)
+        truth = np.array([config.coefficients[n] for n in FREE])
+        if est.converged:  # the paper's Newton-Raphson creeps (steps of μ/λ): it may not get there
+            assert np.all(np.abs(est.values - truth) <= np.maximum(5 * est.std, 0.03 * np.abs(truth))), \
+                (est.values, truth, est.std)  # fmt: skip
+        assert seen and all(isinstance(s, Progress) and s.values.shape == (len(FREE),) for s in seen)
+        assert seen[-1].iteration == est.iterations
+        doc = json.loads(est.to_json())
+        assert set(doc["coefficients"]) == set(FREE) and doc["converged"] is True
+
+    def test_an_iteration_or_sample_limit_stops_it_unconverged(self, name, problem):
+        data, _, start = problem
+        m = lookup(name)
+        limit = {"max_iter": 0} if m.iterative else {"max_samples": 5}
+        est = identify(data, start, method=name, options=limit)
+        assert est.status is Status.MAX_ITERATIONS and not est.converged
+        assert est.iterations == (0 if m.iterative else 5)
+
+    def test_options_may_be_an_instance_a_mapping_or_keywords(self, name, problem):
+        m = lookup(name)
+        key = "max_iter" if m.iterative else "max_samples"
+        value = 3
+        built = m.options.build(name, {key: value})
+        assert m.options.build(name, built) == built == m.options.build(name, **{key: value})
+        with pytest.raises(OptionError, match=f"{key}=-1"):
+            identify(*problem[::2], method=name, **{key: -1})
