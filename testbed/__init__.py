@@ -4,12 +4,12 @@ The public API (each name is loaded on first use, so `import testbed` stays ligh
 
 - data: `load_data`, `read_csv`, `read_config`, `Experiment`, `ModelConfig`;
 - truth: `analytic_config` (the analytic linear model of an MJCF body);
-- runs: `simulate` (fly a scenario, write its run directory), `scenario` (a built-in or a file);
+- runs: `simulate` (fly a scenario, built-in or a file, and write its run directory);
 - identification: `identify` (one front door for every method), `Estimate`, `Status`, `METHODS`;
 - analysis: `analyze` (identifiability: Fisher information, Cramér-Rao bounds, drift groups),
   `screen` (the free set the data identify), `compare` (against the analytic model),
   `validate` (fit % and residual whiteness);
-- studies: `design` (experiments from Fisher information), `reproduce` (the paper's study);
+- the study: `reproduce` (the paper's study as a campaign, with its report);
 - errors: `InputError` (a `ValueError`: bad input, named), `OptionError`.
 
 Layers, each importing only those before it: errors → model → data → measurements → vehicle →
@@ -27,16 +27,16 @@ _API = {
     "load_data": "testbed.data", "read_csv": "testbed.data", "read_config": "testbed.data",
     "Experiment": "testbed.data", "ModelConfig": "testbed.data",
     "analytic_config": "testbed.truth",
-    "simulate": "testbed.runs", "scenario": "testbed.scenario",
+    "simulate": "testbed.runs",
     "identify": "testbed.estimators", "Estimate": "testbed.estimators", "Status": "testbed.estimators",
     "METHODS": "testbed.estimators", "OptionError": "testbed.estimators",
     "analyze": ("testbed.analysis", "identifiability"), "screen": "testbed.analysis",
     "compare": "testbed.analysis", "validate": "testbed.validation",
-    "design": "testbed.design", "reproduce": "testbed.campaign",
+    "reproduce": "testbed.campaign",
     "InputError": "testbed.errors",
 }  # fmt: skip
 
-__all__ = sorted(_API)
+__all__ = sorted(_API)  # no name of a submodule: `from testbed import design` is the module
 
 
 def __getattr__(name: str):

@@ -9,12 +9,24 @@ the model stays put; to first order that is the null space of a linear map, comp
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.linalg import null_space
 
-from testbed.model import ITHETA, IX, NX, Structure, tilde, unobserved
+from testbed.linear import information
+from testbed.measurements import noise_from_data
+from testbed.model import (
+    ITHETA,
+    IX,
+    NX,
+    Structure,
+    structure,
+    theta_vector,
+    tilde,
+    unobserved,
+)
 
 
 @dataclass(frozen=True)
@@ -22,7 +34,6 @@ class Structural:
     """Exactly unidentifiable directions: `basis` (k × len(free)) in reduced row echelon form;
     `unobserved`: the free coefficients no measured state depends on (`model.unobserved`), each
     an unidentifiable direction of its own."""
-
     free: tuple[str, ...]
     basis: np.ndarray
     drift_groups: tuple[tuple[str, ...], ...]
@@ -121,7 +132,6 @@ UNCERTAIN = 0.5  # relative Cramér-Rao bound above which a coefficient is pract
 @dataclass(frozen=True)
 class Identifiability:
     """What the data can tell about the free coefficients of a config (SPEC §3's analyze JSON)."""
-
     free: tuple[str, ...]
     values: np.ndarray  # the coefficients analysed (the config's)
     fisher: np.ndarray
@@ -140,7 +150,6 @@ class Identifiability:
         return self.structural.drift_groups + extra
 
     def to_json(self) -> str:
-        import json
 
         def num(x):
             return float(x) if np.isfinite(x) else None
@@ -168,9 +177,6 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     """Fisher information, Cramér-Rao bounds, correlations, structural and practical drift groups
     of `config.free` at the config's coefficients, for the given experiments. `noise_std`: the
     measurement noise per channel (default: the residual at the config's coefficients)."""
-    from testbed.linear import information
-    from testbed.model import structure, theta_vector
-
     experiments = config.fitted(experiments)
     info = information(experiments, config, noise_std=noise_std)
     free = tuple(config.free)
@@ -210,9 +216,7 @@ def screen(experiments, config):
     noise and the linear model's own bias (`identify` with every coefficient free is
     `--free-all` on the command line).
     """
-    from dataclasses import replace
 
-    from testbed.measurements import noise_from_data
 
     result = identifiability(experiments, config, noise_from_data(config.fitted(experiments)))
     fixed = {}
@@ -268,7 +272,6 @@ def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, .
 class Comparison:
     """Identified versus analytic coefficients; `truth_fit` (fit to noise-free data) splits the
     error into the linear model's bias (truth_fit − analytic) and noise (identified − truth_fit)."""
-
     names: tuple[str, ...]
     analytic: np.ndarray
     identified: np.ndarray

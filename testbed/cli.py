@@ -7,9 +7,11 @@ went. Bad input is an `InputError`: one line on stderr, exit status 2.
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import signal
 import sys
+import traceback
 from pathlib import Path
 
 from testbed.threads import one_blas_thread
@@ -314,13 +316,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"testbed {args.command}: interrupted; nothing was written", file=sys.stderr)
         return 130
     except BrokenPipeError:  # the reader of standard output went away (`testbed truth | head`)
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
         return 128 + signal.SIGPIPE
     except Exception:
-        import traceback
-
         traceback.print_exc()
         print(f"testbed {args.command}: internal error (a bug in testbed, not in the input): "
               "please report it with the traceback above", file=sys.stderr)  # fmt: skip

@@ -43,13 +43,33 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
-from testbed.data import Experiment, ModelConfig, read_estimates as data_read_estimates
+from testbed.autopilot import FIN_LIMIT, Autopilot, fly_linear
+from testbed.autopilot import design as design_autopilot
+from testbed.data import Experiment, ModelConfig
+from testbed.data import read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
+from testbed.linear import information, predict
 from testbed.measurements import NOISE_STD
-from testbed.model import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
-from testbed.scenario import ExperimentSpec, Scenario, program, scenario, scenario_text
+from testbed.model import (
+    COEFFICIENTS,
+    IX,
+    NX,
+    STATES,
+    continuous,
+    structure,
+    theta_vector,
+)
+from testbed.scenario import (
+    ExperimentSpec,
+    Scenario,
+    fly_scenario,
+    program,
+    scenario,
+    scenario_text,
+)
 from testbed.signals import TAPS, Hold, Multisine, Prbs, Signal, Square
+from testbed.truth import analytic_config, model_config
+from testbed.validation import fit_percent
 
 CRITERIA = ("D", "A", "E")
 FIN_RATE = 2.0  # rad/s, the servos' slew rate (the plant's and fly_linear's)
@@ -88,7 +108,6 @@ REFERENCE = 1e-3  # rad, the amplitude a shape is simulated at before it is scal
 @dataclass(frozen=True)
 class Limits:
     """Peak bounds of the linear regime: rates rad/s, angles rad, velocities m/s."""
-
     yaw_rate: float
     pitch_rate: float
     roll_rate: float
@@ -127,7 +146,6 @@ def peaks(xs: np.ndarray, fins: np.ndarray, speed: float, dt: float) -> dict[str
 @dataclass(frozen=True)
 class Model:
     """The linear model and its autopilots: what the design simulates and differentiates."""
-
     config: ModelConfig  # coefficients; `free` the ones designed for; outputs: every state but z
     A: np.ndarray
     B: np.ndarray
@@ -165,8 +183,6 @@ def fly_model(m: Model, e: ExperimentSpec, duration: float, seed: int = SEED, in
 def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design") -> np.ndarray:
     """Fisher information of `m.config.free` from one noise-free experiment (initial states
     eliminated), with the sensor noise `m.noise_std`."""
-    from testbed.linear import information
-
     y = xs.copy()
     y[:, IX["u"]] += m.speed
     e = Experiment(name, t, STATES, y, fins)
@@ -295,7 +311,6 @@ def largest(m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, dur
 @dataclass(frozen=True)
 class Candidate:
     """One experiment type with its signals at their largest amplitudes, and its information."""
-
     kind: str
     fins: Mapping[str, Signal]
     duration: float
@@ -376,7 +391,6 @@ def scenario_information(m: Model, total: float, base: Scenario | str = "II") ->
 class Linearity:
     """Per experiment: the lowest fit of the analytic model on its excited channels, and the
     largest second-order residual over the sensor noise on the fitted channels."""
-
     fit: Mapping[str, tuple[str, float]]  # experiment -> (channel, fit %)
     residual: Mapping[str, tuple[str, float]]  # experiment -> (channel, rms residual / noise)
     speed_loss: Mapping[str, float]  # experiment -> peak speed loss, fraction of U
@@ -393,11 +407,6 @@ class Linearity:
 def linearity(s: Scenario, excited: Mapping[str, Sequence[str]], mjcf=None, seed: int = SEED) -> Linearity:
     """Fly `s` noise-free on the truth plant; compare with the analytic model simulated open
     loop with the flown inputs from the first sample (`excited`: experiment -> its channels)."""
-    from testbed.linear import predict
-    from testbed.scenario import fly_scenario
-    from testbed.truth import model_config
-    from testbed.validation import fit_percent
-
     flights, lin = fly_scenario(s, seed=seed, mjcf=mjcf)
     config = model_config(lin)[0]
     truth = [Experiment(f.name, f.t, STATES, f.truth, f.fins) for f in flights]
@@ -419,7 +428,6 @@ def linearity(s: Scenario, excited: Mapping[str, Sequence[str]], mjcf=None, seed
 @dataclass(frozen=True)
 class Design:
     """A designed scenario with its predicted bounds, and Scenario II's at the same flight time."""
-
     scenario: Scenario
     criterion: str
     free: tuple[str, ...]
@@ -485,8 +493,6 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
     model of `mjcf` at `speed`, or at `estimates` (coefficient -> value, e.g. the last fit's:
     the sequential design). `check`: fly it on the truth plant and scale down any experiment
     that leaves the linear regime."""
-    from testbed.truth import analytic_config
-
     if criterion_ not in CRITERIA:
         raise InputError(f"criterion={criterion_!r}; expected one of {', '.join(CRITERIA)}")
     if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 2 * MIN_EXPERIMENT):

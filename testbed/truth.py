@@ -33,6 +33,7 @@ import numpy as np
 from testbed.data import ModelConfig, config_text
 from testbed.errors import atomic_write_text, check_outputs
 from testbed.model import COEFFICIENTS, INPUTS, IX, NU, NX, STATES, Vehicle, structure, tilde
+from testbed.plant import Plant
 from testbed.vehicle import (FINS, FLIP, added_mass, buoyancy_centre, check_model, constants,
                              cruise_speed, fluid_geoms, load_model, rigid_body_mass, semi_axes, skew,
                              trim_speed)
@@ -303,8 +304,6 @@ def numerical_model(plant_or_model, speed: float) -> tuple[np.ndarray, np.ndarra
     u..r rows; the nonlinear Euler-angle kinematics the φ θ ψ z rows. All ten states and the
     three fin angles are perturbed (ψ and z should have no effect). Resets the plant.
     """
-    from testbed.plant import Plant
-
     speed = trim_speed(speed)
     plant = plant_or_model if isinstance(plant_or_model, Plant) else Plant(model=plant_or_model)
     plant.reset(speed)

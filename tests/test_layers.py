@@ -85,3 +85,13 @@ def test_the_check_sees_an_upward_import(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("def f():\n    from testbed.cli import main\n")
     assert "testbed.cli" in _imports(bad)
+
+
+def test_the_public_api_loads_on_demand_and_shadows_no_module():
+    import subprocess
+    import sys
+
+    assert not {n for n in testbed.__all__ if f"testbed.{n}" in RANK}
+    code = ("import sys, testbed; assert 'numpy' not in sys.modules; "
+            "[getattr(testbed, n) for n in testbed.__all__]; print('mujoco' in sys.modules)")  # fmt: skip
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "True"
