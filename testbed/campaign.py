@@ -23,6 +23,7 @@ import csv
 import hashlib
 import io
 import json
+import logging
 import math
 import sys
 import time
@@ -33,6 +34,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from dask.distributed import Client, LocalCluster, as_completed
 
 from testbed.analysis import compare, screen, structural
 from testbed.data import load_data
@@ -233,8 +235,6 @@ def reproduce(out, seeds: int | None = None, scheduler: str | None = None, quick
         futures = {client.submit(run_cell, c, data[(c.scenario, c.seed, c.duration)], key=f"cell-{c.key}"): c
                    for c in todo}  # fmt: skip
         bar = _Progress(len(cells), len(cells) - len(todo), progress)
-        from dask.distributed import as_completed
-
         for future in as_completed(futures):
             cell = futures[future]
             try:
@@ -267,10 +267,6 @@ class _client:
         self.address, self.workers, self.cluster = address, workers, None
 
     def __enter__(self):
-        import logging
-
-        from dask.distributed import Client, LocalCluster
-
         if self.address:
             try:
                 self.client = Client(self.address, timeout="10s")

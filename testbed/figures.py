@@ -14,36 +14,31 @@ import html
 import math
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+import rerun as rr
+
+matplotlib.use("Agg")  # headless: figures are files
+import matplotlib.pyplot as plt  # noqa: E402
 
 from testbed.errors import atomic_file, atomic_write_text
+from testbed.model import INPUTS
+from testbed.recording import data_id, recording
 
 COLORS = {"ml-nr": "#d62728", "ml-nm": "#1f77b4", "mekf": "#2ca02c", "ml-gn": "#7f7f7f"}
 RATIO_LIMITS = (0.0, 2.0)  # estimate / analytic shown; values beyond are drawn at the edge
 HISTORY_METHODS = ("ml-nr", "ml-nm", "mekf")
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(fig, path: Path) -> str:
     with atomic_file(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
-    _pyplot().close(fig)
+    plt.close(fig)
     return path.name
 
 
 def input_figure(out: Path, scenario: str, experiments, number: int) -> str:
     """The fin angles (deg) of each experiment: the paper's Fig. 3 (Scenario I) or 5 (II)."""
-    from testbed.model import INPUTS
-
-    plt = _pyplot()
     labels = {"delta_r": "rudder δr", "delta_er": "right elevator δer", "delta_el": "left elevator δel"}
     fig, axes = plt.subplots(3, len(experiments), figsize=(4.2 * len(experiments) + 1, 6.5), squeeze=False,
                              sharex="col", constrained_layout=True)  # fmt: skip
@@ -62,7 +57,6 @@ def input_figure(out: Path, scenario: str, experiments, number: int) -> str:
 def coefficient_figure(out: Path, scenario: str, rows: list[dict], number: int, methods) -> str:
     """Estimate / analytic per free coefficient and method: median over the seeds (marker;
     hollow where some seed's fit did not converge) and the range (bar)."""
-    plt = _pyplot()
     rows = [r for r in rows if r["scenario"] == scenario and r["coefficient"]]
     names = list(dict.fromkeys(r["coefficient"] for r in rows))
     fig, ax = plt.subplots(figsize=(8, 0.36 * max(len(names), 4) + 1.6), constrained_layout=True)
@@ -98,7 +92,6 @@ def coefficient_figure(out: Path, scenario: str, rows: list[dict], number: int, 
 
 def history_figure(out: Path, scenario: str, docs: list[dict]) -> str | None:
     """The first seed's estimates / analytic through the fit of ml-nr, ml-nm and the MEKF."""
-    plt = _pyplot()
     picked = {d["cell"]["method"]: d for d in docs if d["cell"]["scenario"] == scenario
               and d["cell"]["seed"] == min(x["cell"]["seed"] for x in docs) and d.get("history")}  # fmt: skip
     methods = [m for m in HISTORY_METHODS if m in picked]
@@ -207,10 +200,6 @@ def report_html(verdicts: dict, summary: list[dict], figures, missing, docs) -> 
 def write_rrd(path: Path, docs: list[dict]) -> Path:
     """report.rrd: per scenario, method and coefficient the estimate / analytic over the seeds
     (timeline `seed`), and the first seed's histories (timelines `iteration` and `time`)."""
-    import rerun as rr
-
-    from testbed.recording import data_id, recording
-
     title = "testbed reproduce"
     keys = sorted(d["key"] for d in docs)
     with recording(path, title, data_id(title, *keys)) as rec:
