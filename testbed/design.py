@@ -204,15 +204,6 @@ def criterion(F: np.ndarray, s: np.ndarray, kind: str) -> float:
     raise InputError(f"criterion={kind!r}; expected one of {', '.join(CRITERIA)}")
 
 
-def crlb(F: np.ndarray) -> np.ndarray:
-    """Cramér-Rao standard deviations √(F⁻¹)_ii (inf where F is singular in that direction)."""
-    w, V = np.linalg.eigh((F + F.T) / 2)
-    good = w > 1e-12 * max(w.max(), 1e-300)
-    var = (V[:, good] ** 2 / w[good]).sum(1)
-    var[np.abs(V[:, ~good]).max(1, initial=0.0) > 1e-6] = np.inf
-    return np.sqrt(var)
-
-
 # -- the linear regime ---------------------------------------------------------------------------------
 
 
@@ -485,6 +476,7 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
     model of `mjcf` at `speed`, or at `estimates` (coefficient -> value, e.g. the last fit's:
     the sequential design). `check`: fly it on the truth plant and scale down any experiment
     that leaves the linear regime."""
+    from testbed.linear import crlb
     from testbed.truth import analytic_config
 
     if criterion_ not in CRITERIA:
@@ -543,7 +535,7 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
         F = F + fisher(m, t, xs, f, e.name)
     base = scenario_information(m, duration)
     values = np.array([m.config.coefficients[n] for n in m.config.free])
-    return Design(scn, criterion_, m.config.free, values, crlb(F), crlb(base), limits, check_result, shrinks, source)
+    return Design(scn, criterion_, m.config.free, values, crlb(F).std, crlb(base).std, limits, check_result, shrinks, source)
 
 
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:

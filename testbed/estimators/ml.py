@@ -48,7 +48,7 @@ def _terms(prob: linear.Problem, p: np.ndarray, xs, res, tol: float):
     shorter than `tol` in Cramér-Rao units: converged."""
     R = linear.noise_variance(prob, res)
     g, M = linear.gauss_newton_terms(prob, p, xs, res, R)
-    return R, g, M, np.sqrt(max(g @ linear.covariance(M) @ g, 0.0)) < tol
+    return R, g, M, np.sqrt(max(g @ linear.crlb(M).covariance @ g, 0.0)) < tol
 
 
 def _simulate(prob: linear.Problem, p: np.ndarray):
@@ -229,8 +229,9 @@ def _estimate(name: str, prob: linear.Problem, out: Outcome, start: str, t0: flo
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             info = linear.assess(prob, out.p, out.fisher)
-        why = None if all(np.all(np.isfinite(a)) for a in (info.values, info.crlb_std, info.cost)) \
-            else "the estimate or its Cramér-Rao bound is not finite"  # fmt: skip
+        # an infinite bound is an unidentifiable coefficient's (linear.crlb); NaN is a failure
+        why = None if all(np.all(np.isfinite(a)) for a in (info.values, info.cost)) \
+            and not np.any(np.isnan(info.crlb_std)) else "the estimate or its Cramér-Rao bound is not finite"  # fmt: skip
     except np.linalg.LinAlgError as exc:
         why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
     if why is not None:
