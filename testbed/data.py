@@ -21,7 +21,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.errors import InputError, atomic_write_text
+from testbed.errors import InputError, atomic_write_text, is_number
 from testbed.model import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
 
 CSV_COLUMNS = ("t",) + STATES + INPUTS
@@ -354,7 +354,7 @@ def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float]
     for n, v in values.items():
         if n not in COEFFICIENTS:
             raise InputError(f"{path}: coefficient {n!r} is not a coefficient name (SPEC §2)")
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        if not is_number(v):
             raise InputError(f"{path}: coefficient {n} = {v!r}; expected a finite number")
     noise = doc.get("noise_std")
     if not (isinstance(noise, Mapping) and all(isinstance(v, (int, float)) and not isinstance(v, bool)

@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import json
 import math
-import numbers
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -54,7 +53,7 @@ import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design
 from testbed.data import MIN_ROWS, number
-from testbed.errors import InputError
+from testbed.errors import InputError, is_number
 from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
 from testbed.plant import Plant
@@ -75,7 +74,7 @@ BUILTIN = tuple(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
 
 
 def _positive(v) -> bool:
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+    return is_number(v) and v > 0
 
 
 @dataclass(frozen=True)
@@ -124,7 +123,7 @@ class Scenario:
         checks = {
             "duration": (_positive, "a finite number > 0 (s)"),
             "speed": (lambda v: v is None or (_positive(v) and MIN_SPEED <= v <= MAX_SPEED), f"{MIN_SPEED} to {MAX_SPEED} (m/s)"),
-            "depth": (lambda v: isinstance(v, numbers.Real) and math.isfinite(v), "a finite number (m)"),
+            "depth": (is_number, "a finite number (m)"),
             "control_rate": (_positive, "a finite number > 0 (Hz)"),
         }  # fmt: skip
         for name, (ok, expected) in checks.items():

@@ -108,8 +108,8 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.errors import InputError
-from testbed.estimators.base import Estimate, Method, Options, Progress, Status, is_count, is_real, option
+from testbed.errors import InputError, is_number
+from testbed.estimators.base import Estimate, Method, Options, Progress, Status, is_count, option
 from testbed.measurements import noise_free_channels, noise_from_data
 from testbed.model import (IX, ITHETA, NX, continuous, derivatives, expm_pair,
                            structure, theta_vector)
@@ -223,12 +223,12 @@ class _Model:
 
 def _sigmas(v) -> bool:
     """None, or a mapping of names to σ > 0."""
-    return v is None or (isinstance(v, Mapping) and all(isinstance(k, str) and is_real(x) and x > 0
+    return v is None or (isinstance(v, Mapping) and all(isinstance(k, str) and is_number(x) and x > 0
                                                         for k, x in v.items()))
 
 
 def _at_least(low: float, doc: str, default: float):
-    return option(default, lambda v: is_real(v) and v >= low, f"a finite number ≥ {low:g}", doc)
+    return option(default, lambda v: is_number(v) and v >= low, f"a finite number ≥ {low:g}", doc)
 
 
 _SIGMAS = "a mapping of name to σ > 0, e.g. {'u': 0.01}"
@@ -244,7 +244,7 @@ class FilterOptions(Options):
                                                    "measurement σ per measured state; None: from the data")
     prior_std: Mapping[str, float] | None = option(None, _sigmas, _SIGMAS, "a-priori σ per free coefficient")
     prior_frac: float = _at_least(0.0, "a-priori σ as a fraction of |value|", 0.5)
-    prior_floor: float | None = option(None, lambda v: v is None or (is_real(v) and v > 0), "a number > 0",
+    prior_floor: float | None = option(None, lambda v: v is None or (is_number(v) and v > 0), "a number > 0",
                                        "least a-priori σ; None: 1e-3 × the largest |coefficient|")
     param_noise: float = _at_least(0.0, "coefficients' random-walk σ per sample, fraction of the prior σ", 1e-6)
     state_noise: float = _at_least(0.0, "model-error σ per sample, fraction of the measurement σ", 0.1)

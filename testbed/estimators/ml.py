@@ -26,10 +26,10 @@ import numpy as np
 
 from testbed import linear
 from testbed.data import Experiment, ModelConfig
-from testbed.errors import InputError
+from testbed.errors import InputError, is_number
 from testbed.estimators import mekf
 from testbed.estimators.base import (Callback, Estimate, Method, Options, Progress, Status, is_count,
-                                     is_real, option)
+                                     option)
 
 
 @dataclass(frozen=True)
@@ -306,7 +306,7 @@ _START = option("auto", lambda v: v in STARTS, f"one of {', '.join(STARTS)}",
                 "where the iterations begin: auto (the a-priori values, restarting from the "
                 "equation-error estimate if the a-priori model diverges or the fit from it fails), "
                 "config (the a-priori values only), equation-error or mekf")
-_TOL = option(1e-3, lambda v: is_real(v) and v > 0, "a number > 0",
+_TOL = option(1e-3, lambda v: is_number(v) and v > 0, "a number > 0",
               "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ")
 
 
@@ -335,7 +335,7 @@ class NewtonRaphsonOptions(Options):
 
 
 def _positive(doc: str, default: float):
-    return option(default, lambda v: is_real(v) and v > 0, "a number > 0", doc)
+    return option(default, lambda v: is_number(v) and v > 0, "a number > 0", doc)
 
 
 @dataclass(frozen=True)
