@@ -60,7 +60,7 @@ import numpy as np
 from testbed.errors import InputError
 from testbed.model import Vehicle
 from testbed.vehicle import (FINS, FLIP, check_model, constants, cruise_speed, fin_rate_limit,
-                             hydrostatics, load_model, skew)
+                             hydrostatics, load_model, motion_transform, rotation, skew)
 
 
 class Plant:
@@ -156,15 +156,14 @@ class Plant:
         q = np.array([math.cos(heading / 2), 0.0, 0.0, -math.sin(heading / 2)])  # NED yaw = -z turn
         d.qpos[self._qadr:self._qadr + 3] = (0.0, 0.0, -depth)
         d.qpos[self._qadr + 3:self._qadr + 7] = q
-        R = np.empty(9)
-        mujoco.mju_quat2Mat(R, q)
-        d.qvel[self._vadr:self._vadr + 3] = R.reshape(3, 3) @ np.array([speed, 0.0, 0.0])
+        R = rotation(q)
+        d.qvel[self._vadr:self._vadr + 3] = R @ np.array([speed, 0.0, 0.0])
         self.reference[:] = 0.0
         self._k.integral[:] = 0.0
         d.ctrl[:] = 0.0
         mujoco.mj_forward(m, d)
         # The propulsor balances the drag of straight flight at this speed.
-        drag = R.reshape(3, 3).T @ d.qfrc_passive[self._vadr:self._vadr + 3]
+        drag = R.T @ d.qfrc_passive[self._vadr:self._vadr + 3]
         self.thrust = max(0.0, -float(drag[0]))
         d.ctrl[self._thruster] = self.thrust
 
@@ -179,10 +178,7 @@ class Plant:
     def state(self) -> np.ndarray:
         """SPEC state `u v w p q r phi theta psi z` (absolute u; body FRD, earth NED, at the CG)."""
         d = self.data
-        quat = d.qpos[self._qadr + 3:self._qadr + 7]
-        R = np.empty(9)
-        mujoco.mju_quat2Mat(R, quat)
-        R = R.reshape(3, 3)
+        R = rotation(d.qpos[self._qadr + 3:self._qadr + 7])
         v = R.T @ d.qvel[self._vadr:self._vadr + 3]
         w = d.qvel[self._vadr + 3:self._vadr + 6]
         # NED-from-FRD is FLIP R FLIP: entries (2,1), (2,2), (2,0), (1,0), (0,0) of it below.
@@ -594,19 +590,15 @@ def _added_mass_basis(model: mujoco.MjModel):
         fin = next(f for f in FINS if model.joint(f).bodyid[0] == b)  # check_model: one exists
         k, j = FINS.index(fin), model.joint(fin).id
         a = model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j])
-        Q0 = np.empty(9)
-        mujoco.mju_quat2Mat(Q0, model.body_quat[b])
-        Q0 = Q0.reshape(3, 3)  # hull from fin at δ = 0
+        Q0 = rotation(model.body_quat[b])  # hull from fin at δ = 0
         p = model.body_pos[b]
         A = skew(a)
-        # Rot(a, δ) = I + sin δ [a]× + (1 − cos δ)[a]×², so Eᵀ = Rot(δ)ᵀ Q0ᵀ is affine in (1, c, s).
+        # Rot(a, δ) = I + sin δ [a]× + (1 − cos δ)[a]×², so the fin's axes Q0 Rot(δ) and with them
+        # its motion transform are affine in (1, c, s): one transform per term.
         Xs = []
-        for i, rot in enumerate([(np.eye(3) + A @ A).T, (-A @ A).T, A.T]):
-            Et = rot @ Q0.T
+        for i, rot in enumerate([np.eye(3) + A @ A, -A @ A, A]):
             X = np.zeros((6, 9))
-            X[:3, :3] = Et
-            X[:3, 3:6] = -Et @ skew(p)
-            X[3:, 3:6] = Et
+            X[:, :6] = motion_transform(Q0 @ rot, p)
             X[3:, 6 + k] = a if i == 0 else 0.0
             Xs.append(X)
         P[k] = [[Xi.T @ Mb @ Xj for Xj in Xs] for Xi in Xs]

@@ -30,7 +30,7 @@ import rerun.blueprint as rrb
 
 from testbed.errors import atomic_file
 from testbed.model import INPUTS, IX, STATES
-from testbed.vehicle import FINS, FLIP, load_model
+from testbed.vehicle import FINS, FLIP, load_model, rotation
 
 # Every series keeps one style per role, in every tab of every recording: measured values thin
 # and light, the truth (or the fitted model) bold, commands as steps. Role -> (RGB, width in UI points).
@@ -167,10 +167,8 @@ def _geometry(mjcf):
     def geoms_of(body):
         out = []
         for g in np.flatnonzero(model.geom_bodyid == body):
-            R = np.empty(9)
-            mujoco.mju_quat2Mat(R, model.geom_quat[g])
             q = np.empty(4)
-            mujoco.mju_mat2Quat(q, (FLIP @ R.reshape(3, 3) @ FLIP).ravel())
+            mujoco.mju_mat2Quat(q, (FLIP @ rotation(model.geom_quat[g]) @ FLIP).ravel())
             out.append((FLIP @ model.geom_pos[g], model.geom_size[g].copy(), _quat_wxyz_to_xyzw(q)))
         return out
 

@@ -34,8 +34,8 @@ from testbed.data import ModelConfig, config_text
 from testbed.errors import atomic_write_text, check_outputs
 from testbed.model import COEFFICIENTS, INPUTS, IX, NU, NX, STATES, Vehicle, structure, tilde
 from testbed.vehicle import (FINS, FLIP, added_mass, buoyancy_centre, check_model, constants,
-                             cruise_speed, fluid_geoms, load_model, rigid_body_mass, semi_axes, skew,
-                             trim_speed)
+                             cruise_speed, fluid_geoms, load_model, motion_transform, rigid_body_mass,
+                             rotation, semi_axes, skew, trim_speed)
 
 TERMS = ("drag", "lift", "magnus", "added_mass", "viscous")  # MuJoCo's ellipsoid-model forces
 ROWS = "XYZKMN"  # force/moment letter of the rows u v w p q r
@@ -144,25 +144,11 @@ def geom_terms(r, coef, virtual, rho, beta, v) -> dict[str, tuple[np.ndarray, np
     return out
 
 
-def _motion(Q, p) -> np.ndarray:
-    """X = [[Qᵀ, −Qᵀ[p]×], [0, Qᵀ]]: hull (v, ω) → geom (v, ω) in the geom's axes."""
-    X = np.zeros((6, 6))
-    X[:3, :3] = X[3:, 3:] = Q.T
-    X[:3, 3:] = -Q.T @ skew(p)
-    return X
-
-
 def _motion_rate(Q, p, dQ, dp) -> np.ndarray:
     """dX/dδ for a geom whose pose (Q, p) turns with δ at rate (dQ, dp)."""
-    X = _motion(dQ, p)
+    X = motion_transform(dQ, p)
     X[:3, 3:] -= Q.T @ skew(dp)
     return X
-
-
-def _quat2mat(q) -> np.ndarray:
-    R = np.empty(9)
-    mujoco.mju_quat2Mat(R, np.asarray(q, float))
-    return R.reshape(3, 3)
 
 
 def _geom_frames(model: mujoco.MjModel):
@@ -176,13 +162,13 @@ def _geom_frames(model: mujoco.MjModel):
     frames = []
     for g in fluid_geoms(model):
         b = int(model.geom_bodyid[g])
-        Ql, pl = _quat2mat(model.geom_quat[g]), model.geom_pos[g]
+        Ql, pl = rotation(model.geom_quat[g]), model.geom_pos[g]
         if b == hull:
             frames.append((g, None, Ql, pl, np.zeros((3, 3)), np.zeros(3)))
             continue
         j = model.joint(FINS[fin_of[b]]).id
         a = model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j])
-        Q0, A = _quat2mat(model.body_quat[b]), skew(a)
+        Q0, A = rotation(model.body_quat[b]), skew(a)
         anchor = model.jnt_pos[j]  # the hinge turns the fin body about its anchor
         frames.append((g, fin_of[b], Q0 @ Ql, model.body_pos[b] + Q0 @ pl, Q0 @ A @ Ql,
                        Q0 @ A @ (pl - anchor)))  # fmt: skip
@@ -203,7 +189,7 @@ def analytic_model(model: mujoco.MjModel, speed: float) -> LinearModel:
     wrench0 = np.zeros(6)
     parts = {t: (np.zeros((6, 6)), np.zeros((6, NU))) for t in TERMS}
     for g, fin, Q, p, dQ, dp in _geom_frames(model):
-        X = _motion(Q, p)
+        X = motion_transform(Q, p)
         terms = geom_terms(semi_axes(model, g), model.geom_fluid[g, 1:6], model.geom_fluid[g, 6:12],
                            rho, beta, (X @ nu0)[:3])  # fmt: skip
         for t, (phi, J) in terms.items():

@@ -178,7 +178,7 @@ def hydrostatics(model: mujoco.MjModel) -> Hydrostatics:
     """Group the fluid geoms by body: added mass (from `geom_fluid`, times density) and volume.
 
     Geom g's added mass is diagonal in its own frame at its centre; seen from its body's origin
-    it is `Xᵀ diag(m_A, I_A) X` with X the rigid transform from body to geom velocities.
+    it is `Xᵀ diag(m_A, I_A) X` with X the motion transform from body to geom velocities.
     """
     rho = model.opt.density
     geoms = fluid_geoms(model)
@@ -188,14 +188,8 @@ def hydrostatics(model: mujoco.MjModel) -> Hydrostatics:
     C = np.zeros((len(bodies), 3))
     for g in geoms:
         k = int(np.searchsorted(bodies, model.geom_bodyid[g]))
-        Q = np.empty(9)
-        mujoco.mju_quat2Mat(Q, model.geom_quat[g])
-        Qt = Q.reshape(3, 3).T
         p = model.geom_pos[g]
-        X = np.zeros((6, 6))
-        X[:3, :3] = Qt
-        X[:3, 3:] = -Qt @ skew(p)
-        X[3:, 3:] = Qt
+        X = motion_transform(rotation(model.geom_quat[g]), p)
         M[k] += X.T @ np.diag(rho * model.geom_fluid[g, 6:12]) @ X
         v = volume(model, g)
         C[k] += v * p
@@ -206,6 +200,26 @@ def hydrostatics(model: mujoco.MjModel) -> Hydrostatics:
 def skew(a: np.ndarray) -> np.ndarray:
     """[a]× so that skew(a) @ b = a × b."""
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def rotation(quat) -> np.ndarray:
+    """The 3×3 rotation matrix of a unit quaternion (w, x, y, z), MuJoCo's convention."""
+    R = np.empty(9)
+    mujoco.mju_quat2Mat(R, np.asarray(quat, float))
+    return R.reshape(3, 3)
+
+
+def motion_transform(Q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """X = [[Qᵀ, −Qᵀ[p]×], [0, Qᵀ]]: a frame's velocity (v, ω) from its parent's, in its own axes.
+
+    The frame sits at `p` with axes `Q` (parent-from-frame), both in the parent's axes: a rigid
+    point at p moves with v + ω × p. A 6×6 mass matrix M of the frame seen from the parent is
+    `Xᵀ M X` (the same kinetic energy ½ νᵀ Xᵀ M X ν).
+    """
+    X = np.zeros((6, 6))
+    X[:3, :3] = X[3:, 3:] = Q.T
+    X[:3, 3:] = -Q.T @ skew(p)
+    return X
 
 
 def cruise_speed(model: mujoco.MjModel) -> float:
@@ -236,19 +250,12 @@ def added_mass(model: mujoco.MjModel) -> np.ndarray:
 
 
 def _body_rigid(model, data, b):
-    """Body b's rigid-body 6×6 about its own origin, its own axes."""
-    m, c = model.body_mass[b], model.body_ipos[b]
-    R = np.empty(9)
-    mujoco.mju_quat2Mat(R, model.body_iquat[b])
-    R = R.reshape(3, 3)
+    """Body b's rigid-body 6×6 about its own origin, its own axes: diag(m, I_c) at its CoM c,
+    moved to the origin (`[[m, −m[c]×], [m[c]×, I_c − m[c]×²]]`)."""
+    R = rotation(model.body_iquat[b])
     I = R @ np.diag(model.body_inertia[b]) @ R.T  # about the body's CoM, body axes
-    S = skew(c)
-    out = np.zeros((6, 6))
-    out[:3, :3] = m * np.eye(3)
-    out[:3, 3:] = -m * S
-    out[3:, :3] = m * S
-    out[3:, 3:] = I - m * S @ S
-    return out
+    X = motion_transform(np.eye(3), model.body_ipos[b])
+    return X.T @ np.block([[model.body_mass[b] * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), I]]) @ X
 
 
 def _spatial_sum(model, per_body):
@@ -268,11 +275,7 @@ def _spatial_sum(model, per_body):
         if Mb is None:
             continue
         R = Rh.T @ data.xmat[b].reshape(3, 3)  # hull from body
-        p = Rh.T @ (data.xpos[b] - ph)
-        X = np.zeros((6, 6))  # body velocity from hull velocity
-        X[:3, :3] = R.T
-        X[:3, 3:] = -R.T @ skew(p)
-        X[3:, 3:] = R.T
+        X = motion_transform(R, Rh.T @ (data.xpos[b] - ph))  # body velocity from hull velocity
         total += X.T @ Mb @ X
     F = np.kron(np.eye(2), FLIP)
     return F @ total @ F
