@@ -292,14 +292,23 @@ def check_config(config: ModelConfig) -> None:
         if key not in COEFFICIENTS:
             raise InputError(f"{source}: [coefficients] {key} is not a coefficient name (SPEC §2)")
         number(v, f"{source}: [coefficients] {key}")
-    for n in config.free:
-        if n not in COEFFICIENTS:
-            raise InputError(f"{source}: [identify] free names {n!r}, not a coefficient (SPEC §2)")
-    if len(set(config.free)) != len(config.free):
-        raise InputError(f"{source}: [identify] free names a coefficient twice")
+    check_free(config.free, f"{source}: [identify] free")
     if config.outputs is not None and (not config.outputs or any(s not in STATES for s in config.outputs)):
         raise InputError(f"{source}: [identify] outputs = {list(config.outputs)!r}; expected a non-empty "
                          f"list of states ({', '.join(STATES)})")  # fmt: skip
+
+
+def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
+    """`free` as a tuple once every entry is a coefficient name (`COEFFICIENTS`) listed once;
+    InputError naming `where` and the first entry that is not."""
+    seen = set()
+    for n in free:
+        if n not in COEFFICIENTS:
+            raise InputError(f"{where} names {n!r}, not a coefficient (one of {', '.join(COEFFICIENTS)})")
+        if n in seen:
+            raise InputError(f"{where} names a coefficient twice ({n})")
+        seen.add(n)
+    return tuple(free)
 
 
 def number(v, where: str) -> float:

@@ -44,7 +44,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
-from testbed.data import Experiment, ModelConfig, read_estimates as data_read_estimates
+from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
 from testbed.measurements import NOISE_STD
 from testbed.model import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
@@ -493,9 +493,9 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
         source = "estimate"
         free = free if free is not None else tuple(n for n in COEFFICIENTS if n in estimates)
     if free is not None:
-        bad = [n for n in free if n not in COEFFICIENTS]
-        if bad or not free:
-            raise InputError(f"free={','.join(free)}: expected coefficient names, e.g. Y_v,N_r")
+        if not free:
+            raise InputError("free is empty; expected coefficient names, e.g. Y_v,N_r")
+        free = check_free(free, "free")
         config = replace(config, free=tuple(n for n in COEFFICIENTS if n in free))
     m = model(config, noise_std)
     limits = regime_limits(m)
