@@ -1,6 +1,6 @@
 """Monte Carlo study of the ML output-error estimator.
 
-Data simulated from the linear model itself (a small AUV: the SPEC example vehicle with
+Data simulated from the linear model itself (a small AUV: the REMUS-class example vehicle with
 REMUS-like coefficients), two Scenario-II-like experiments (rudder PRBS; elevator PRBS with a
 differential part for roll), all ten states measured with white noise. For every noise seed the
 free coefficients are fitted by `ml-gn` and by `mekf`; per coefficient the

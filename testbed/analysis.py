@@ -120,7 +120,7 @@ UNCERTAIN = 0.5  # relative Cramér-Rao bound above which a coefficient is pract
 
 @dataclass(frozen=True)
 class Identifiability:
-    """What the data can tell about the free coefficients of a config (SPEC §3's analyze JSON)."""
+    """What the data can tell about the free coefficients of a config (the analyze JSON)."""
 
     free: tuple[str, ...]
     values: np.ndarray  # the coefficients analysed (the config's)
@@ -276,7 +276,7 @@ class Comparison:
     identified: np.ndarray
     std: np.ndarray
     truth_fit: np.ndarray | None = None
-    note: str = ""  # why there is no truth fit, when one was tried
+    note: str = ""  # why the truth fit is missing, when it failed
 
     def rows(self) -> list[dict]:
         out = []

@@ -488,7 +488,7 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
     if estimates:
         unknown = sorted(set(estimates) - set(COEFFICIENTS))
         if unknown:
-            raise InputError(f"estimates: {unknown[0]!r} is not a coefficient name; expected SPEC §2's names")
+            raise InputError(f"estimates: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
         config = config.with_coefficients(dict(estimates))
         source = "estimate"
         free = free if free is not None else tuple(n for n in COEFFICIENTS if n in estimates)

@@ -1,4 +1,4 @@
-"""Output-error maximum likelihood for the SPEC §2 model: its numerical core.
+"""Output-error maximum likelihood for the linear model (docs/model.md): its numerical core.
 
 The model is the exact zero-order-hold discretisation `x[k+1] = Φ x[k] + Γ δ[k] + s`, written
 `x[k+1] = E w[k]` with `E = [Φ Γ s]` and `w[k] = [x[k]; δ[k]; 1]`, simulated from each
@@ -804,7 +804,7 @@ def synthetic(config: ModelConfig, t: np.ndarray, inputs: np.ndarray,
 
 def equation_error(experiments: Sequence[Experiment], config: ModelConfig,
                    window_s: float = 0.5) -> ModelConfig:
-    """`config` with the free coefficients from a least-squares fit of the SPEC §2 rows.
+    """`config` with the free coefficients from a least-squares fit of the linear model's rows.
 
     Each dynamics row `Mt ẋ = At x + Bt δ + St` is linear in its coefficients. The measured states
     are smoothed (Savitzky-Golay, cubic, `window_s` wide) and the row is averaged over each

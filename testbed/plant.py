@@ -21,19 +21,19 @@ acceleration is then solved from the hull block of the complete mass matrix (the
 accelerations are prescribed), so the step is as stable as a rigid body's; with MuJoCo's
 velocity terms the fluid part is Kirchhoff's equations for a body in potential flow.
 
-The fins are prescribed, quasi-steady control surfaces, as SPEC §2's model takes them (the
+The fins are prescribed, quasi-steady control surfaces, as the linear model takes them (the
 fin angle is an input). Each is a digital servo: at every physics step its angle moves toward
 the command by at most the fin rate limit times the step and is held until the next, so it
 settles within one 10 ms step for any change below 20 mrad, and RK4 integrates exactly the
 staircase that is recorded (a continuous servo faster than the step would not be resolved by
 the stages; one slower than the 50 Hz sample interval spreads each command change over the
 next interval, which a zero-order hold of the interval's mean angle does not represent: with
-MuJoCo's 30 Hz position servo the noise-free fit's N row was 1–3 % off). The fluid and the hull
+MuJoCo's 30 Hz position servo the noise-free fit's N row is 1–3 % off). The fluid and the hull
 see each fin at its angle, at rest relative to the hull: a fin turning in the flow would add a
 force linear in its rate (the non-circulatory lift of its added mass, −δ̇ X_kᵀ M_k ∂X_k/∂δ ν,
 and MuJoCo's −ω × m_A v for the fin body), measured on the torpedo with dynamic fins at 1.9 ms ×
-the fin's force per radian (B₁ ≈ 0.0019 s · B): an input lead that SPEC §2's model has no place
-for (with it, the analytic model tracked an open-loop PRBS response with only 96–98 % fit).
+the fin's force per radian (B₁ ≈ 0.0019 s · B): an input lead that the linear model has no place
+for (with it, the analytic model tracks an open-loop PRBS response to only 96–98 % fit).
 
 The hull is integrated by classical RK4 (`_rk4_step`, one compiled loop over the steps), each
 of the four stages a completed forward evaluation with the fins at their held angles. MuJoCo's
@@ -116,7 +116,7 @@ class Plant:
 
     @property
     def wrench(self) -> np.ndarray:
-        """External force and moment at the CG, SPEC body axes (N, N m); set it in place or whole."""
+        """External force and moment at the CG, body axes (FRD) (N, N m); set it in place or whole."""
         return self._k.wrench
 
     @wrench.setter
@@ -176,7 +176,7 @@ class Plant:
         mujoco.mj_forward(self.model, self.data)
 
     def state(self) -> np.ndarray:
-        """SPEC state `u v w p q r phi theta psi z` (absolute u; body FRD, earth NED, at the CG)."""
+        """The state `u v w p q r phi theta psi z` (absolute u; body FRD, earth NED, at the CG)."""
         d = self.data
         R = rotation(d.qpos[self._qadr + 3:self._qadr + 7])
         v = R.T @ d.qvel[self._vadr:self._vadr + 3]
@@ -233,7 +233,7 @@ class Plant:
         _complete(self._k, _added_mass(self._k))
 
     def body_accelerations(self) -> np.ndarray:
-        """(u̇ v̇ ẇ ṗ q̇ ṙ) in SPEC body axes at the current state, the fins held where they are.
+        """(u̇ v̇ ẇ ṗ q̇ ṙ) in body axes (FRD) at the current state, the fins held where they are.
 
         The fins are prescribed (fin dynamics excluded): the hull rows of `M q̈ = f` are solved
         with the fin accelerations set to zero. The state is not advanced.
@@ -300,7 +300,7 @@ class _Kernel(NamedTuple):
     M_hull: np.ndarray  # 9×9
     buoyancy: np.ndarray  # world force, N
     centre: np.ndarray  # of buoyancy, hull axes, m
-    wrench: np.ndarray  # Plant.wrench, SPEC body axes
+    wrench: np.ndarray  # Plant.wrench, body axes (FRD)
     reference: np.ndarray  # Plant.reference
     integral: np.ndarray  # Plant.fin_integral
     actuation: np.ndarray  # the actuators' force on the hull over the step, hull axes (MuJoCo's)
@@ -481,7 +481,7 @@ def _turn(R, x, y, z):
 
 @numba.njit(cache=True)
 def _apply_wrench(k):
-    """Plain MuJoCo's applied force: the external wrench alone (SPEC axes turned to MuJoCo's)."""
+    """Plain MuJoCo's applied force: the external wrench alone (body axes turned to MuJoCo's)."""
     R, w = k.xmat[k.hull].reshape(3, 3), k.wrench
     f = _turn(R, w[0], -w[1], -w[2])
     k.qfrc[:] = 0.0

@@ -46,7 +46,7 @@ STYLE = {
     "truth fit": ((40, 160, 80), 1.5),
     "cost": ((25, 90, 200), 2.5),
 }
-# The plotted quantities (SPEC states and fin angles): title and unit.
+# The plotted quantities (the model states and fin angles): title and unit.
 QUANTITIES = {
     "u": ("surge speed u", "m/s"), "v": ("sway speed v", "m/s"), "w": ("heave speed w", "m/s"),
     "p": ("roll rate p", "rad/s"), "q": ("pitch rate q", "rad/s"), "r": ("yaw rate r", "rad/s"),
@@ -159,7 +159,7 @@ def _euler_quat(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarr
 
 
 def _geometry(mjcf):
-    """Hull and fin blades in SPEC body axes: the hull's [(centre, half sizes, quaternion)], and
+    """Hull and fin blades in body axes (FRD): the hull's [(centre, half sizes, quaternion)], and
     per fin its origin, hinge axis and blades [(centre, half sizes, quaternion)] in its frame."""
     model = load_model(mjcf)
     hull_body = model.body("hull").id

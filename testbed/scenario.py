@@ -36,7 +36,7 @@ The built-in scenarios: `I` (the paper's sea-trial scenario: depth steps of 20 m
 course rate ±20 °/s every 1.5 s, roll held at zero), `II` (PRBS experiments in the linear
 regime, see its file), `turn`, `zigzag` and `zigzag-vertical` (validation manoeuvres).
 
-`simulate` writes a run directory (SPEC §3) whole or not at all, with the resolved scenario
+`simulate` writes a run directory whole or not at all, with the resolved scenario
 as `scenario.toml`, which `testbed simulate --scenario` runs again.
 """
 
@@ -64,7 +64,7 @@ from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).
 UNFITTED_DEPTH = ("depth is measured but not fitted: it integrates U θ, and the second-order drag "
                   "moments of the real body (its drag grows with incidence, 2 cm above the CG: "
-                  "-119 N m per (m/s)^2 of heave or sway) rectify into a pitch drift that SPEC's "
+                  "-119 N m per (m/s)^2 of heave or sway) rectify into a pitch drift that the "
                   "linear model cannot follow")  # fmt: skip
 CHANNELS = ("rudder", "elevators", "differential")  # fin channels a signal can drive
 SAMPLES = (MIN_ROWS, 10**6)  # the samples an experiment may have (MIN_ROWS: the fewest a fit takes)
@@ -344,7 +344,7 @@ class Flight:
 
     name: str
     t: np.ndarray  # (N,)
-    truth: np.ndarray  # (N, 10) SPEC states, absolute u, psi unwrapped
+    truth: np.ndarray  # (N, 10) the model states, absolute u, psi unwrapped
     measured: np.ndarray  # (N, 10)
     fins: np.ndarray  # (N, 3) actual fin angles: each sample interval's mean (the last: the angle)
     fins_measured: np.ndarray  # (N, 3)

@@ -2,7 +2,7 @@
 
 Each signal is a frozen dataclass built by keyword from its TOML table (`parse_signal`) and
 written back by `signal_table`; `Signal.program(rng)` gives the function `(t, x) → value` that
-the experiment calls at every control step (`x` the true state, SPEC order; only `zigzag`
+the experiment calls at every control step (`x` the true state in `STATES` order; only `zigzag`
 reads it). The signals:
 
 | signal | parameters | value |

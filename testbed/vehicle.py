@@ -6,7 +6,7 @@ origin is the CG of the whole vehicle (x forward, y port, z up: MuJoCo is z-up),
 child body of `hull`, driven by position servos of the same names, a motor `thruster`, and
 `fluidshape="ellipsoid"` geoms on the hull and the fins (which carry its hydrodynamics and,
 here, its displaced volume; a fin's on its hinge axis). `check_model` names what is missing.
-SPEC §1's body axes (x forward, y starboard, z down) are the MuJoCo hull axes turned half a turn
+The body axes (FRD: x forward, y starboard, z down) are the MuJoCo hull axes turned half a turn
 about x: `FLIP = diag(1, -1, -1)`.
 """
 
@@ -22,7 +22,7 @@ from testbed.errors import InputError
 from testbed.model import MAX_SPEED, MIN_SPEED, Vehicle
 
 FINS = ("rudder", "elevator_right", "elevator_left")
-FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> SPEC body axes (FRD); also ENU-ish world <-> NED
+FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> body axes (FRD); also ENU-ish world <-> NED
 
 
 def default_mjcf() -> Path:
@@ -117,7 +117,7 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
     M = rigid_body_mass(model)
     if np.abs(M[:3, 3:]).max() > 1e-6 * M[0, 0]:
         raise InputError(f"{source}: body 'hull': its frame origin is not the vehicle's CG; "
-                         "expected the CG of the whole vehicle, fins included (SPEC §1)")  # fmt: skip
+                         "expected the CG of the whole vehicle, fins included")  # fmt: skip
 
 
 _NEEDS = ("a body 'hull' with free joint 'hull', hinge joints and position actuators 'rudder', "
@@ -237,13 +237,13 @@ def fin_rate_limit(model: mujoco.MjModel) -> float:
 
 
 def rigid_body_mass(model: mujoco.MjModel) -> np.ndarray:
-    """6×6 rigid-body mass matrix of the whole vehicle about its CG, SPEC body axes, fins at 0."""
+    """6×6 rigid-body mass matrix of the whole vehicle about its CG, body axes (FRD), fins at 0."""
     M = _spatial_sum(model, lambda d, b: _body_rigid(model, d, b))
     return M
 
 
 def added_mass(model: mujoco.MjModel) -> np.ndarray:
-    """6×6 added-mass matrix (M_A, positive) of all fluid geoms about the CG, SPEC body axes."""
+    """6×6 added-mass matrix (M_A, positive) of all fluid geoms about the CG, body axes (FRD)."""
     h = hydrostatics(model)
     lookup = {int(b): h.added_mass[k] for k, b in enumerate(h.bodies)}
     return _spatial_sum(model, lambda d, b: lookup.get(b))
@@ -282,7 +282,7 @@ def _spatial_sum(model, per_body):
 
 
 def constants(model: mujoco.MjModel, speed: float) -> Vehicle:
-    """SPEC §2's known constants: mass, inertias about the CG, W, B, centre of buoyancy, U."""
+    """The linear model's known constants: mass, inertias about the CG, W, B, centre of buoyancy, U."""
     speed = trim_speed(speed)
     M = rigid_body_mass(model)
     g = float(np.linalg.norm(model.opt.gravity))
@@ -294,7 +294,7 @@ def constants(model: mujoco.MjModel, speed: float) -> Vehicle:
 
 
 def buoyancy_centre(model: mujoco.MjModel) -> np.ndarray:
-    """Centre of the displaced volume relative to the CG, SPEC body axes, fins at 0."""
+    """Centre of the displaced volume relative to the CG, body axes (FRD), fins at 0."""
     h = hydrostatics(model)
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)

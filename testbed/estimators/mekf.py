@@ -1,7 +1,7 @@
 """On-line identification (the paper's §5 and Fig. 2): the modified extended Kalman filter (MEKF)
 with a square-root covariance, and the conventional augmented EKF as its baseline.
 
-The augmented state is the 10 SPEC states (`u` as the perturbation u_abs − U) followed by the free
+The augmented state is the 10 model states (`u` as the perturbation u_abs − U) followed by the free
 coefficients θ, which are constant up to a small random walk. The states follow the exact
 zero-order-hold model `x[k+1] = Φ(θ) x[k] + Γ(θ) δ[k] + s(θ)` of `testbed.model`; its Jacobian
 wrt θ, `D = ∂Φ/∂θ x + ∂Γ/∂θ δ + ∂s/∂θ`, is exact as well: with `M = [[A, B, S], [0, 0, 0]]`,
@@ -81,12 +81,11 @@ Choices (all options of `mekf`/`ekf`, see `FilterOptions`):
   normalised innovation squared per measured channel over `nis_window` samples above `nis_limit`,
   or a coefficient more than `explode` prior σ from its start.
 - `refresh_tol` (default 0.2; 0: the exact model every sample): see Speed. On the Scenario II
-  run the default's final estimates are within 0.04 σ of the every-sample filter's (the earlier
-  policy without the first-order step, at 0.1, was within 0.12 σ) at about a fifth of the
-  exponentials.
+  run the default's final estimates are within 0.04 σ of the every-sample filter's at about a
+  fifth of the exponentials.
 - Noise-free data (the runs' `*.truth.csv`): the filter weighs the model against measurement
   noise; with none (σ from the data down to the 1e-9 floor that keeps R definite) any model error
-  (MuJoCo's plant against the linear SPEC model) is a many-σ innovation, and the filter diverges
+  (MuJoCo's plant against the linear model) is a many-σ innovation, and the filter diverges
   within a few samples. No floor on R makes such a fit meaningful: on Scenario II even 1 % of
   each signal's spread leaves innovations ~20× their σ. It is reported as DIVERGED with the
   reason, the innovations' size and that the data look noise-free.
