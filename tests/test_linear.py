@@ -1,18 +1,14 @@
 """Output-error core: exact sensitivities, exact discretisation, initial states, bounds, bad input."""
 
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from studies.montecarlo import FREE, NOISE, TRUTH, experiments, truth_config  # noqa: E402
-
-from testbed.errors import InputError  # noqa: E402
-from testbed import linear  # noqa: E402
-from testbed.model import IX, NX, continuous  # noqa: E402
+from testbed.errors import InputError
+from testbed.examples import FREE, NOISE, TRUTH, experiments, truth_config
+from testbed import linear
+from testbed.model import IX, NX, continuous
 
 VERTICAL_SUBSET = ("u", "w", "q", "theta", "z", "p", "phi")
 
