@@ -13,7 +13,7 @@ config's model known and fixed) over the same samples — and the largest change
 estimate against the filter that recomputes the exact model every sample (refresh_tol=0), in
 units of its σ (the price of the default's model refresh policy).
 
-Secondary, synthetic: the SPEC linear model of a torpedo like the bundled one simulated exactly
+Secondary, synthetic: the linear model of a torpedo like the bundled one simulated exactly
 (ZOH), 20 and 50 Hz, 21 free coefficients started 20 % off; here the truth is known, so the
 largest |error|/σ against it is printed as well.
 
@@ -171,7 +171,7 @@ def main(argv=None) -> None:
     start = {n: TRUTH[n] * (1 + 0.2 * rng.choice([-1, 1])) for n in FREE}
     config = ModelConfig(VEHICLE, dict(TRUTH), FREE).with_coefficients(start)
     truth = np.array([TRUTH[n] for n in FREE])
-    print(f"Synthetic (SPEC model, exact ZOH): 2 × {DURATION:g} s, 10 states measured, "
+    print(f"Synthetic (linear model, exact ZOH): 2 × {DURATION:g} s, 10 states measured, "
           f"{len(FREE)} free coefficients started 20 % off")  # fmt: skip
     for rate in (20.0, 50.0):
         measure(synthetic(1.0 / rate), config, args.repeat, truth)

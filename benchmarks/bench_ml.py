@@ -16,7 +16,6 @@ from __future__ import annotations
 import os
 import sys
 import time
-from pathlib import Path
 
 from testbed.threads import one_blas_thread
 
@@ -25,11 +24,9 @@ one_blas_thread()  # as the command line does, before numpy loads
 import numpy as np
 from scipy.optimize import least_squares
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from studies.montecarlo import FREE, TRUTH, experiments, prior_config  # noqa: E402
-
-from testbed.estimators import identify  # noqa: E402
-from testbed import linear  # noqa: E402
+from testbed.estimators import identify
+from testbed.examples import FREE, TRUTH, experiments, prior_config
+from testbed import linear
 
 
 def scipy_fit(data, config) -> tuple[np.ndarray, int, int]:

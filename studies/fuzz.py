@@ -42,12 +42,10 @@ from typing import Callable
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
-from studies.montecarlo import NOISE, TRUTH, VEHICLE, inputs  # noqa: E402
-
-from testbed.data import ModelConfig, config_text, csv_text  # noqa: E402
-from testbed.linear import synthetic  # noqa: E402
-from testbed.model import INPUTS, STATES, Vehicle  # noqa: E402
+from testbed.data import ModelConfig, config_text, csv_text
+from testbed.examples import NOISE, TRUTH, VEHICLE, inputs
+from testbed.linear import synthetic
+from testbed.model import INPUTS, STATES, Vehicle
 
 FREE = ("Y_v", "Y_r", "N_v", "N_r", "Z_w", "M_q")  # observed from both experiments of the workspace
 

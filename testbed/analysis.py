@@ -131,12 +131,13 @@ UNCERTAIN = 0.5  # relative Cramér-Rao bound above which a coefficient is pract
 
 @dataclass(frozen=True)
 class Identifiability:
-    """What the data can tell about the free coefficients of a config (SPEC §3's analyze JSON)."""
+    """What the data can tell about the free coefficients of a config (the analyze JSON)."""
+
     free: tuple[str, ...]
     values: np.ndarray  # the coefficients analysed (the config's)
     fisher: np.ndarray
-    crlb_std: np.ndarray  # inf where structurally unidentifiable
-    correlation: np.ndarray  # from the pseudo-inverse of the Fisher information
+    crlb_std: np.ndarray  # inf where unidentifiable (`linear.crlb`, and every structural drift group)
+    correlation: np.ndarray  # NaN in an unidentifiable coefficient's row and column
     structural: Structural
     practical_groups: tuple[tuple[str, ...], ...]
     uncertain: tuple[str, ...]  # relative bound > UNCERTAIN
@@ -157,7 +158,7 @@ class Identifiability:
         doc = {
             "free": list(self.free),
             "crlb_std": {n: num(s) for n, s in zip(self.free, self.crlb_std)},
-            "correlation": [[round(float(c), 6) for c in row] for row in self.correlation],
+            "correlation": [[num(round(float(c), 6)) for c in row] for row in self.correlation],
             "null_directions": self.structural.null_directions,
             "drift_groups": [list(g) for g in self.drift_groups],
             "structural_drift_groups": [list(g) for g in self.structural.drift_groups],
@@ -183,15 +184,11 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     theta = theta_vector(config.coefficients)
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
     struct = structural(structure(config.vehicle), theta, free, measured)
-    F = np.asarray(info.fisher)
-    cov = np.linalg.pinv(F, rcond=1e-12, hermitian=True)
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    drifting = {n for g in struct.drift_groups for n in g}  # no information: an infinite bound
-    std[[n in drifting for n in free]] = np.inf
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.sqrt(np.diag(cov))
-        corr = np.nan_to_num(cov / np.outer(d, d))
-    np.fill_diagonal(corr, 1.0)
+    F, std, corr = np.asarray(info.fisher), info.crlb_std.copy(), info.correlation.copy()
+    # a structural drift group has no information at all: infinite bounds, undefined correlations
+    drifting = np.array([n in {m for g in struct.drift_groups for m in g} for n in free])
+    std[drifting] = np.inf
+    corr[drifting, :] = corr[:, drifting] = np.nan
     values = theta[[ITHETA[n] for n in free]]
     pairs = np.argwhere(np.triu(np.abs(corr) > CORRELATED, 1))
     practical = _groups(free, np.array([np.eye(len(free))[i] + np.eye(len(free))[j] for i, j in pairs])) \
@@ -247,6 +244,12 @@ def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, .
                      "the outputs (rows of Mt ẋ = At x + Bt δ scale together); fix one of them "
                      "(e.g. an added-mass term from theory) or free fewer coefficients.")  # fmt: skip
     index = {n: i for i, n in enumerate(free)}
+    structural_ = set(struct.unobserved) | {n for g in struct.drift_groups for n in g}
+    singular = [n for n in free if np.isinf(std[index[n]]) and n not in structural_]
+    if singular:
+        lines.append(f"Unidentifiable in these data: {', '.join(singular)} (the Fisher information is "
+                     "singular along them: infinite Cramér-Rao bounds); add a manoeuvre that excites "
+                     "them or fix them.")  # fmt: skip
     for g in practical:
         worst = max(abs(corr[index[a], index[b]]) for a in g for b in g if a != b)
         lines.append(f"Practically inseparable in these data: {', '.join(g)} (|correlation| up to "
@@ -277,7 +280,7 @@ class Comparison:
     identified: np.ndarray
     std: np.ndarray
     truth_fit: np.ndarray | None = None
-    note: str = ""  # why there is no truth fit, when one was tried
+    note: str = ""  # why the truth fit is missing, when it failed
 
     def rows(self) -> list[dict]:
         out = []

@@ -120,7 +120,7 @@ HOLD_BANDWIDTH = 0.2  # rad/s: the vertical-mode hold, far below the PRBS band (
 
 
 def design(A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = HOLD_BANDWIDTH) -> Design:
-    """Design the autopilots on the continuous linear model (A, B) at trim `speed` (SPEC order)."""
+    """Design the autopilots on the continuous linear model (A, B) at trim `speed` (`STATES` order)."""
     rudder = B[:, 0]
     together = B[:, 1] + B[:, 2]  # δer = δel = δe
     differential = B[:, 1] - B[:, 2]  # δer = −δel = δa
@@ -151,7 +151,7 @@ class Autopilot:
 
     def step(self, x: np.ndarray, *, depth=None, yaw_rate=None, roll=None, rudder=None,
              elevators=None, differential=None, hold_depth=None) -> tuple[tuple[float, float, float], float | None]:  # fmt: skip
-        """Fin commands (δr, δer, δel) for state `x` (SPEC order), and the pitch command
+        """Fin commands (δr, δer, δel) for state `x` (`STATES` order), and the pitch command
         (rad; None when depth is not controlled).
 
         Give `depth` (m) to hold or change depth, `yaw_rate` (rad/s), `roll` (rad); or `rudder`,

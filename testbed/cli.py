@@ -1,4 +1,4 @@
-"""The command line (SPEC §4): a thin layer over the library.
+"""The command line: a thin layer over the library.
 
 Each sub-command parses its arguments, calls one library function and prints where its output
 went. Bad input is an `InputError`: one line on stderr, exit status 2.

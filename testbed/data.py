@@ -1,4 +1,4 @@
-"""The files of SPEC §3: measurement CSVs, model-config TOML, run directories as data.
+"""The files: measurement CSVs, model-config TOML, run directories as data.
 
 Readers validate everything a user can get wrong and raise `InputError` with a one-line message
 naming the file and the field; writers go through `atomic_write_text`.
@@ -21,7 +21,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.errors import InputError, atomic_write_text
+from testbed.errors import InputError, atomic_write_text, is_number
 from testbed.model import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
 
 CSV_COLUMNS = ("t",) + STATES + INPUTS
@@ -65,7 +65,7 @@ class Experiment:
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """A model config (SPEC §3): the vehicle, all 35 coefficients, and the free ones."""
+    """A model config: the vehicle, all 35 coefficients, and the free ones."""
 
     vehicle: Vehicle
     coefficients: Mapping[str, float]  # every name in COEFFICIENTS
@@ -222,7 +222,7 @@ def write_csv(path: str | Path, t, states, inputs, measured: Sequence[str] = STA
 
 
 def read_config(path: str | Path) -> ModelConfig:
-    """Read and validate a model config TOML (SPEC §3)."""
+    """Read and validate a model config TOML."""
     path = Path(path)
     try:
         doc = tomllib.loads(read_text(path, "a model config TOML file"))
@@ -262,7 +262,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     coefficients = dict.fromkeys(COEFFICIENTS, 0.0)
     for key, v in doc["coefficients"].items():
         if key not in coefficients:
-            raise InputError(f"{source}: [coefficients] {key} is not a coefficient name (SPEC §2)")
+            raise InputError(f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
         coefficients[key] = number(v, f"{source}: [coefficients] {key}")
     ident = doc.get("identify", {})
     free = ident.get("free", []) if isinstance(ident, dict) else None
@@ -279,7 +279,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
 
 
 def check_config(config: ModelConfig) -> None:
-    """`InputError` unless `config` holds a physical vehicle (`_VEHICLE_RANGES`), the 35 SPEC
+    """`InputError` unless `config` holds a physical vehicle (`_VEHICLE_RANGES`), the 35 model
     coefficients as finite numbers within ±`MAX_CONSTANT`, and distinct free coefficient names."""
     source = config.source or "config"
     for key in Vehicle.names():
@@ -290,16 +290,25 @@ def check_config(config: ModelConfig) -> None:
             raise InputError(f"{source}: [vehicle] {key} = {v:g}; expected {expected}")
     for key, v in config.coefficients.items():
         if key not in COEFFICIENTS:
-            raise InputError(f"{source}: [coefficients] {key} is not a coefficient name (SPEC §2)")
+            raise InputError(f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
         number(v, f"{source}: [coefficients] {key}")
-    for n in config.free:
-        if n not in COEFFICIENTS:
-            raise InputError(f"{source}: [identify] free names {n!r}, not a coefficient (SPEC §2)")
-    if len(set(config.free)) != len(config.free):
-        raise InputError(f"{source}: [identify] free names a coefficient twice")
+    check_free(config.free, f"{source}: [identify] free")
     if config.outputs is not None and (not config.outputs or any(s not in STATES for s in config.outputs)):
         raise InputError(f"{source}: [identify] outputs = {list(config.outputs)!r}; expected a non-empty "
                          f"list of states ({', '.join(STATES)})")  # fmt: skip
+
+
+def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
+    """`free` as a tuple once every entry is a coefficient name (`COEFFICIENTS`) listed once;
+    InputError naming `where` and the first entry that is not."""
+    seen = set()
+    for n in free:
+        if n not in COEFFICIENTS:
+            raise InputError(f"{where} names {n!r}, not a coefficient (one of {', '.join(COEFFICIENTS)})")
+        if n in seen:
+            raise InputError(f"{where} names a coefficient twice ({n})")
+        seen.add(n)
+    return tuple(free)
 
 
 def number(v, where: str) -> float:
@@ -341,7 +350,7 @@ def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:
 
 
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
-    """The coefficients (name → value) of an estimates JSON (SPEC §3), and its `noise_std`
+    """The coefficients (name → value) of an estimates JSON, and its `noise_std`
     (state → σ) when it has one of positive numbers, else None; InputError naming the file."""
     path = Path(path)
     try:
@@ -353,8 +362,8 @@ def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float]
         raise InputError(f"{path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}") from None
     for n, v in values.items():
         if n not in COEFFICIENTS:
-            raise InputError(f"{path}: coefficient {n!r} is not a coefficient name (SPEC §2)")
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"{path}: coefficient {n!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
+        if not is_number(v):
             raise InputError(f"{path}: coefficient {n} = {v!r}; expected a finite number")
     noise = doc.get("noise_std")
     if not (isinstance(noise, Mapping) and all(isinstance(v, (int, float)) and not isinstance(v, bool)

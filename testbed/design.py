@@ -43,30 +43,13 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.autopilot import FIN_LIMIT, Autopilot, fly_linear
-from testbed.autopilot import design as design_autopilot
-from testbed.data import Experiment, ModelConfig
-from testbed.data import read_estimates as data_read_estimates
+from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
+from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
-from testbed.linear import information, predict
+from testbed.linear import crlb, information, predict
 from testbed.measurements import NOISE_STD
-from testbed.model import (
-    COEFFICIENTS,
-    IX,
-    NX,
-    STATES,
-    continuous,
-    structure,
-    theta_vector,
-)
-from testbed.scenario import (
-    ExperimentSpec,
-    Scenario,
-    fly_scenario,
-    program,
-    scenario,
-    scenario_text,
-)
+from testbed.model import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
+from testbed.scenario import ExperimentSpec, Scenario, fly_scenario, program, scenario, scenario_text
 from testbed.signals import TAPS, Hold, Multisine, Prbs, Signal, Square
 from testbed.truth import analytic_config, model_config
 from testbed.validation import fit_percent
@@ -218,15 +201,6 @@ def criterion(F: np.ndarray, s: np.ndarray, kind: str) -> float:
     if kind == "E":
         return float(w.min())
     raise InputError(f"criterion={kind!r}; expected one of {', '.join(CRITERIA)}")
-
-
-def crlb(F: np.ndarray) -> np.ndarray:
-    """Cramér-Rao standard deviations √(F⁻¹)_ii (inf where F is singular in that direction)."""
-    w, V = np.linalg.eigh((F + F.T) / 2)
-    good = w > 1e-12 * max(w.max(), 1e-300)
-    var = (V[:, good] ** 2 / w[good]).sum(1)
-    var[np.abs(V[:, ~good]).max(1, initial=0.0) > 1e-6] = np.inf
-    return np.sqrt(var)
 
 
 # -- the linear regime ---------------------------------------------------------------------------------
@@ -502,14 +476,14 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
     if estimates:
         unknown = sorted(set(estimates) - set(COEFFICIENTS))
         if unknown:
-            raise InputError(f"estimates: {unknown[0]!r} is not a coefficient name; expected SPEC §2's names")
+            raise InputError(f"estimates: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
         config = config.with_coefficients(dict(estimates))
         source = "estimate"
         free = free if free is not None else tuple(n for n in COEFFICIENTS if n in estimates)
     if free is not None:
-        bad = [n for n in free if n not in COEFFICIENTS]
-        if bad or not free:
-            raise InputError(f"free={','.join(free)}: expected coefficient names, e.g. Y_v,N_r")
+        if not free:
+            raise InputError("free is empty; expected coefficient names, e.g. Y_v,N_r")
+        free = check_free(free, "free")
         config = replace(config, free=tuple(n for n in COEFFICIENTS if n in free))
     m = model(config, noise_std)
     limits = regime_limits(m)
@@ -549,7 +523,7 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
         F = F + fisher(m, t, xs, f, e.name)
     base = scenario_information(m, duration)
     values = np.array([m.config.coefficients[n] for n in m.config.free])
-    return Design(scn, criterion_, m.config.free, values, crlb(F), crlb(base), limits, check_result, shrinks, source)
+    return Design(scn, criterion_, m.config.free, values, crlb(F).std, crlb(base).std, limits, check_result, shrinks, source)
 
 
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:

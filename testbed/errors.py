@@ -12,6 +12,8 @@ copied into it once complete. Block devices and sockets are refused.
 from __future__ import annotations
 
 import contextlib
+import math
+import numbers
 import os
 import shutil
 import stat
@@ -28,6 +30,13 @@ def _umask() -> int:
 
 class InputError(ValueError):
     """Bad input from a user: the message is one line, fit to print as it is."""
+
+
+def is_number(v) -> bool:
+    """A finite real number (Python's or NumPy's); a bool is not one (`true` is no quantity)."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        return False
+    return isinstance(v, numbers.Integral) or math.isfinite(v)  # an integer of any size is finite
 
 
 def _nearest(folder: Path) -> Path:

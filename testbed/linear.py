@@ -1,4 +1,4 @@
-"""Output-error maximum likelihood for the SPEC §2 model: its numerical core.
+"""Output-error maximum likelihood for the linear model (docs/model.md): its numerical core.
 
 The model is the exact zero-order-hold discretisation `x[k+1] = Φ x[k] + Γ δ[k] + s`, written
 `x[k+1] = E w[k]` with `E = [Φ Γ s]` and `w[k] = [x[k]; δ[k]; 1]`, simulated from each
@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterator, Mapping, Sequence
+from typing import Iterator, Mapping, NamedTuple, Sequence
 
 import numba
 import numpy as np
@@ -584,17 +584,44 @@ def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = Non
 # --- uncertainty --------------------------------------------------------------------------------
 
 
-def covariance(M: np.ndarray) -> np.ndarray:
-    """`M⁻¹` through the eigenvalues of the diagonally scaled M.
+class Bounds(NamedTuple):
+    """The Cramér-Rao bounds of a Fisher information matrix (see `crlb`)."""
 
-    Eigenvalues below 1e-14 of the largest are numerically zero (a null direction): they are
-    floored there, so the parameters along them get huge but finite standard errors.
+    covariance: np.ndarray  # (n, n) a generalised inverse of M: M⁻¹ where M is regular
+    std: np.ndarray  # (n,) √(M⁻¹)_ii; inf for an unidentifiable parameter
+    correlation: np.ndarray  # (n, n) cov_ij / (σ_i σ_j); NaN in an unidentifiable one's row and column
+
+
+NULL = 1e-12  # eigenvalue of the scaled Fisher matrix, relative to its largest, that counts as 0
+
+
+def crlb(M: np.ndarray) -> Bounds:
+    """Cramér-Rao bounds of the Fisher information `M`: covariance, standard deviations and
+    correlations, with one rule for a singular or nearly singular M.
+
+    M is scaled to unit diagonal (`Mₛ = D⁻¹ M D⁻¹`, D = √diag M, so the rule does not depend on
+    the parameters' units) and Mₛ = V Λ Vᵀ; eigenvalues at or below `NULL` × the largest are null
+    directions. `covariance = D⁻¹ V₊ Λ₊⁻¹ V₊ᵀ D⁻¹` over the other eigenvalues, a generalised
+    inverse of M. A parameter whose unit vector lies in the range of M has the bound
+    `σ_i² = (M⁻)_ii`, the same for every generalised inverse; one with a component above √NULL
+    along the null directions (or no information at all, M_ii = 0) is unidentifiable: no unbiased
+    estimator has a finite variance, so σ_i = inf (a truncated pseudo-inverse would report a
+    small, wrong bound) and its correlations are NaN.
     """
-    D = np.sqrt(np.diag(M))
-    D = np.where(D > 0, D, 1.0)
+    M = (M + M.T) / 2
+    D = np.sqrt(np.maximum(np.diag(M), 0.0))
+    informed = D > 0
+    D = np.where(informed, D, 1.0)
     lam, V = np.linalg.eigh(M / np.outer(D, D))
-    lam = np.maximum(lam, 1e-14 * max(lam.max(initial=0.0), 1e-300))
-    return (V / lam) @ V.T / np.outer(D, D)
+    null = lam <= NULL * max(lam.max(initial=0.0), 1e-300)
+    cov = (V[:, ~null] / lam[~null]) @ V[:, ~null].T / np.outer(D, D)
+    unidentifiable = ~informed | (np.linalg.norm(V[:, null], axis=1) > np.sqrt(NULL))
+    std = np.where(unidentifiable, np.inf, np.sqrt(np.maximum(np.diag(cov), 0.0)))
+    s = np.where(unidentifiable, np.nan, std)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(s, s)
+    corr[np.diag_indices_from(corr)] = np.where(unidentifiable, np.nan, 1.0)
+    return Bounds(cov, std, corr)
 
 
 def colored_covariance(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
@@ -662,19 +689,17 @@ def assess(prob: Problem, p: np.ndarray, M: np.ndarray | None = None, R: np.ndar
     R = noise_variance(prob, res) if R is None else R
     if M is None:
         M = gauss_newton_terms(prob, p, xs, res, R)[1]
-    cov = covariance(M)
+    cov, std, corr = crlb(M)
     corrected = colored_covariance(prob, p, xs, res, R, cov)
     nf = prob.n_free
-    std = np.sqrt(np.diag(cov))
     fisher = M[:nf, :nf] - M[:nf, nf:] @ np.linalg.solve(M[nf:, nf:], M[nf:, :nf])
     fisher = (fisher + fisher.T) / 2
     x0 = {}
     for r in prob.records:
         xr = prob.x0(r, p) + np.eye(NX)[IX["u"]] * prob.speed
         x0[r.name] = {STATES[i]: float(xr[i]) for i in r.measured}
-    return Information(prob.free, p[:nf].copy(), fisher, std[:nf],
-                       cov[:nf, :nf] / np.outer(std[:nf], std[:nf]),
-                       np.sqrt(np.maximum(np.diag(corrected), 0.0)),
+    return Information(prob.free, p[:nf].copy(), fisher, std[:nf], corr[:nf, :nf],
+                       np.where(np.isinf(std[:nf]), np.inf, np.sqrt(np.maximum(np.diag(corrected), 0.0))),
                        dict(zip(prob.channels, map(float, np.sqrt(R)))), x0,
                        negative_log_likelihood(prob, res), p.copy())  # fmt: skip
 
@@ -779,7 +804,7 @@ def synthetic(config: ModelConfig, t: np.ndarray, inputs: np.ndarray,
 
 def equation_error(experiments: Sequence[Experiment], config: ModelConfig,
                    window_s: float = 0.5) -> ModelConfig:
-    """`config` with the free coefficients from a least-squares fit of the SPEC §2 rows.
+    """`config` with the free coefficients from a least-squares fit of the linear model's rows.
 
     Each dynamics row `Mt ẋ = At x + Bt δ + St` is linear in its coefficients. The measured states
     are smoothed (Savitzky-Golay, cubic, `window_s` wide) and the row is averaged over each

@@ -1,4 +1,4 @@
-"""The paper's linear model, SPEC §2: `Mt ẋ = At x + Bt δ + St`.
+"""The paper's linear model (docs/model.md): `Mt ẋ = At x + Bt δ + St`.
 
 Every matrix is affine in the 35 coefficients, so the model is held as a constant part plus one
 derivative matrix per coefficient (`Structure`); `tilde` evaluates it, `continuous` gives
@@ -58,7 +58,7 @@ _PLACES = {
 
 @dataclass(frozen=True)
 class Vehicle:
-    """The known constants of SPEC §2 (SI; CB relative to the CG in body axes)."""
+    """The linear model's known constants (SI; CB relative to the CG in body axes)."""
 
     mass: float
     Ix: float
@@ -91,7 +91,7 @@ class Structure:
 
 
 def structure(vehicle: Vehicle) -> Structure:
-    """The affine structure of SPEC §2's table for `vehicle`."""
+    """The affine structure of the linear model's table (docs/model.md) for `vehicle`."""
     m, U, W, B = vehicle.mass, vehicle.speed, vehicle.weight, vehicle.buoyancy
     xB, yB, zB = vehicle.xB, vehicle.yB, vehicle.zB
     i = IX
@@ -219,7 +219,7 @@ def derivatives(s: Structure, theta: np.ndarray, A: np.ndarray, B: np.ndarray, S
 # -- what a model config must satisfy before a fit -----------------------------------------------
 
 BODY = ("u", "v", "w", "p", "q", "r")
-# the diagonal of Mt's body block, as SPEC §2 writes it
+# the diagonal of Mt's body block, as the linear model's table writes it
 INERTIA_TERMS = {"u": "m − X_udot", "v": "m − Y_vdot", "w": "m − Z_wdot", "p": "Ix − K_pdot",
                  "q": "Iy − M_qdot", "r": "Iz − N_rdot"}  # fmt: skip
 

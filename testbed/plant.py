@@ -21,19 +21,19 @@ acceleration is then solved from the hull block of the complete mass matrix (the
 accelerations are prescribed), so the step is as stable as a rigid body's; with MuJoCo's
 velocity terms the fluid part is Kirchhoff's equations for a body in potential flow.
 
-The fins are prescribed, quasi-steady control surfaces, as SPEC §2's model takes them (the
+The fins are prescribed, quasi-steady control surfaces, as the linear model takes them (the
 fin angle is an input). Each is a digital servo: at every physics step its angle moves toward
 the command by at most the fin rate limit times the step and is held until the next, so it
 settles within one 10 ms step for any change below 20 mrad, and RK4 integrates exactly the
 staircase that is recorded (a continuous servo faster than the step would not be resolved by
 the stages; one slower than the 50 Hz sample interval spreads each command change over the
 next interval, which a zero-order hold of the interval's mean angle does not represent: with
-MuJoCo's 30 Hz position servo the noise-free fit's N row was 1–3 % off). The fluid and the hull
+MuJoCo's 30 Hz position servo the noise-free fit's N row is 1–3 % off). The fluid and the hull
 see each fin at its angle, at rest relative to the hull: a fin turning in the flow would add a
 force linear in its rate (the non-circulatory lift of its added mass, −δ̇ X_kᵀ M_k ∂X_k/∂δ ν,
 and MuJoCo's −ω × m_A v for the fin body), measured on the torpedo with dynamic fins at 1.9 ms ×
-the fin's force per radian (B₁ ≈ 0.0019 s · B): an input lead that SPEC §2's model has no place
-for (with it, the analytic model tracked an open-loop PRBS response with only 96–98 % fit).
+the fin's force per radian (B₁ ≈ 0.0019 s · B): an input lead that the linear model has no place
+for (with it, the analytic model tracks an open-loop PRBS response to only 96–98 % fit).
 
 The hull is integrated by classical RK4 (`_rk4_step`, one compiled loop over the steps), each
 of the four stages a completed forward evaluation with the fins at their held angles. MuJoCo's
@@ -60,7 +60,7 @@ import numpy as np
 from testbed.errors import InputError
 from testbed.model import Vehicle
 from testbed.vehicle import (FINS, FLIP, check_model, constants, cruise_speed, fin_rate_limit,
-                             hydrostatics, load_model, skew)
+                             hydrostatics, load_model, motion_transform, rotation, skew)
 
 
 class Plant:
@@ -116,7 +116,7 @@ class Plant:
 
     @property
     def wrench(self) -> np.ndarray:
-        """External force and moment at the CG, SPEC body axes (N, N m); set it in place or whole."""
+        """External force and moment at the CG, body axes (FRD) (N, N m); set it in place or whole."""
         return self._k.wrench
 
     @wrench.setter
@@ -156,15 +156,14 @@ class Plant:
         q = np.array([math.cos(heading / 2), 0.0, 0.0, -math.sin(heading / 2)])  # NED yaw = -z turn
         d.qpos[self._qadr:self._qadr + 3] = (0.0, 0.0, -depth)
         d.qpos[self._qadr + 3:self._qadr + 7] = q
-        R = np.empty(9)
-        mujoco.mju_quat2Mat(R, q)
-        d.qvel[self._vadr:self._vadr + 3] = R.reshape(3, 3) @ np.array([speed, 0.0, 0.0])
+        R = rotation(q)
+        d.qvel[self._vadr:self._vadr + 3] = R @ np.array([speed, 0.0, 0.0])
         self.reference[:] = 0.0
         self._k.integral[:] = 0.0
         d.ctrl[:] = 0.0
         mujoco.mj_forward(m, d)
         # The propulsor balances the drag of straight flight at this speed.
-        drag = R.reshape(3, 3).T @ d.qfrc_passive[self._vadr:self._vadr + 3]
+        drag = R.T @ d.qfrc_passive[self._vadr:self._vadr + 3]
         self.thrust = max(0.0, -float(drag[0]))
         d.ctrl[self._thruster] = self.thrust
 
@@ -177,12 +176,9 @@ class Plant:
         mujoco.mj_forward(self.model, self.data)
 
     def state(self) -> np.ndarray:
-        """SPEC state `u v w p q r phi theta psi z` (absolute u; body FRD, earth NED, at the CG)."""
+        """The state `u v w p q r phi theta psi z` (absolute u; body FRD, earth NED, at the CG)."""
         d = self.data
-        quat = d.qpos[self._qadr + 3:self._qadr + 7]
-        R = np.empty(9)
-        mujoco.mju_quat2Mat(R, quat)
-        R = R.reshape(3, 3)
+        R = rotation(d.qpos[self._qadr + 3:self._qadr + 7])
         v = R.T @ d.qvel[self._vadr:self._vadr + 3]
         w = d.qvel[self._vadr + 3:self._vadr + 6]
         # NED-from-FRD is FLIP R FLIP: entries (2,1), (2,2), (2,0), (1,0), (0,0) of it below.
@@ -237,7 +233,7 @@ class Plant:
         _complete(self._k, _added_mass(self._k))
 
     def body_accelerations(self) -> np.ndarray:
-        """(u̇ v̇ ẇ ṗ q̇ ṙ) in SPEC body axes at the current state, the fins held where they are.
+        """(u̇ v̇ ẇ ṗ q̇ ṙ) in body axes (FRD) at the current state, the fins held where they are.
 
         The fins are prescribed (fin dynamics excluded): the hull rows of `M q̈ = f` are solved
         with the fin accelerations set to zero. The state is not advanced.
@@ -304,7 +300,7 @@ class _Kernel(NamedTuple):
     M_hull: np.ndarray  # 9×9
     buoyancy: np.ndarray  # world force, N
     centre: np.ndarray  # of buoyancy, hull axes, m
-    wrench: np.ndarray  # Plant.wrench, SPEC body axes
+    wrench: np.ndarray  # Plant.wrench, body axes (FRD)
     reference: np.ndarray  # Plant.reference
     integral: np.ndarray  # Plant.fin_integral
     actuation: np.ndarray  # the actuators' force on the hull over the step, hull axes (MuJoCo's)
@@ -485,7 +481,7 @@ def _turn(R, x, y, z):
 
 @numba.njit(cache=True)
 def _apply_wrench(k):
-    """Plain MuJoCo's applied force: the external wrench alone (SPEC axes turned to MuJoCo's)."""
+    """Plain MuJoCo's applied force: the external wrench alone (body axes turned to MuJoCo's)."""
     R, w = k.xmat[k.hull].reshape(3, 3), k.wrench
     f = _turn(R, w[0], -w[1], -w[2])
     k.qfrc[:] = 0.0
@@ -594,19 +590,15 @@ def _added_mass_basis(model: mujoco.MjModel):
         fin = next(f for f in FINS if model.joint(f).bodyid[0] == b)  # check_model: one exists
         k, j = FINS.index(fin), model.joint(fin).id
         a = model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j])
-        Q0 = np.empty(9)
-        mujoco.mju_quat2Mat(Q0, model.body_quat[b])
-        Q0 = Q0.reshape(3, 3)  # hull from fin at δ = 0
+        Q0 = rotation(model.body_quat[b])  # hull from fin at δ = 0
         p = model.body_pos[b]
         A = skew(a)
-        # Rot(a, δ) = I + sin δ [a]× + (1 − cos δ)[a]×², so Eᵀ = Rot(δ)ᵀ Q0ᵀ is affine in (1, c, s).
+        # Rot(a, δ) = I + sin δ [a]× + (1 − cos δ)[a]×², so the fin's axes Q0 Rot(δ) and with them
+        # its motion transform are affine in (1, c, s): one transform per term.
         Xs = []
-        for i, rot in enumerate([(np.eye(3) + A @ A).T, (-A @ A).T, A.T]):
-            Et = rot @ Q0.T
+        for i, rot in enumerate([np.eye(3) + A @ A, -A @ A, A]):
             X = np.zeros((6, 9))
-            X[:3, :3] = Et
-            X[:3, 3:6] = -Et @ skew(p)
-            X[3:, 3:6] = Et
+            X[:, :6] = motion_transform(Q0 @ rot, p)
             X[3:, 6 + k] = a if i == 0 else 0.0
             Xs.append(X)
         P[k] = [[Xi.T @ Mb @ Xj for Xj in Xs] for Xi in Xs]

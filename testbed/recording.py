@@ -30,7 +30,7 @@ import rerun.blueprint as rrb
 
 from testbed.errors import atomic_file
 from testbed.model import INPUTS, IX, STATES
-from testbed.vehicle import FINS, FLIP, load_model
+from testbed.vehicle import FINS, FLIP, load_model, rotation
 
 # Every series keeps one style per role, in every tab of every recording: measured values thin
 # and light, the truth (or the fitted model) bold, commands as steps. Role -> (RGB, width in UI points).
@@ -46,7 +46,7 @@ STYLE = {
     "truth fit": ((40, 160, 80), 1.5),
     "cost": ((25, 90, 200), 2.5),
 }
-# The plotted quantities (SPEC states and fin angles): title and unit.
+# The plotted quantities (the model states and fin angles): title and unit.
 QUANTITIES = {
     "u": ("surge speed u", "m/s"), "v": ("sway speed v", "m/s"), "w": ("heave speed w", "m/s"),
     "p": ("roll rate p", "rad/s"), "q": ("pitch rate q", "rad/s"), "r": ("yaw rate r", "rad/s"),
@@ -159,7 +159,7 @@ def _euler_quat(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarr
 
 
 def _geometry(mjcf):
-    """Hull and fin blades in SPEC body axes: the hull's [(centre, half sizes, quaternion)], and
+    """Hull and fin blades in body axes (FRD): the hull's [(centre, half sizes, quaternion)], and
     per fin its origin, hinge axis and blades [(centre, half sizes, quaternion)] in its frame."""
     model = load_model(mjcf)
     hull_body = model.body("hull").id
@@ -167,10 +167,8 @@ def _geometry(mjcf):
     def geoms_of(body):
         out = []
         for g in np.flatnonzero(model.geom_bodyid == body):
-            R = np.empty(9)
-            mujoco.mju_quat2Mat(R, model.geom_quat[g])
             q = np.empty(4)
-            mujoco.mju_mat2Quat(q, (FLIP @ R.reshape(3, 3) @ FLIP).ravel())
+            mujoco.mju_mat2Quat(q, (FLIP @ rotation(model.geom_quat[g]) @ FLIP).ravel())
             out.append((FLIP @ model.geom_pos[g], model.geom_size[g].copy(), _quat_wxyz_to_xyzw(q)))
         return out
 

@@ -34,7 +34,7 @@ from testbed.vehicle import default_mjcf
 
 def simulate(s: Scenario | str, *, seed: int = 0, out=None, force: bool = False, duration=None,
              speed=None, mjcf=None, progress: bool = True) -> Path:  # fmt: skip
-    """Fly a scenario (object, built-in name or file) and write its run directory (SPEC §3)."""
+    """Fly a scenario (object, built-in name or file) and write its run directory."""
     s = scenario(s).with_overrides(duration=duration, speed=speed)
     check_seed(seed)
     check_flyable(s)

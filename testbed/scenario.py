@@ -36,7 +36,7 @@ The built-in scenarios: `I` (the paper's sea-trial scenario: depth steps of 20 m
 course rate ±20 °/s every 1.5 s, roll held at zero), `II` (PRBS experiments in the linear
 regime, see its file), `turn`, `zigzag` and `zigzag-vertical` (validation manoeuvres).
 
-`simulate` writes a run directory (SPEC §3) whole or not at all, with the resolved scenario
+`simulate` writes a run directory whole or not at all, with the resolved scenario
 as `scenario.toml`, which `testbed simulate --scenario` runs again.
 """
 
@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import json
 import math
-import numbers
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -54,7 +53,7 @@ import numpy as np
 
 from testbed.autopilot import FIN_LIMIT, Autopilot, design
 from testbed.data import MIN_ROWS, number
-from testbed.errors import InputError
+from testbed.errors import InputError, is_number
 from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.model import IX, NX, STATES
 from testbed.plant import Plant
@@ -65,7 +64,7 @@ from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).
 UNFITTED_DEPTH = ("depth is measured but not fitted: it integrates U θ, and the second-order drag "
                   "moments of the real body (its drag grows with incidence, 2 cm above the CG: "
-                  "-119 N m per (m/s)^2 of heave or sway) rectify into a pitch drift that SPEC's "
+                  "-119 N m per (m/s)^2 of heave or sway) rectify into a pitch drift that the "
                   "linear model cannot follow")  # fmt: skip
 CHANNELS = ("rudder", "elevators", "differential")  # fin channels a signal can drive
 SAMPLES = (MIN_ROWS, 10**6)  # the samples an experiment may have (MIN_ROWS: the fewest a fit takes)
@@ -75,7 +74,7 @@ BUILTIN = tuple(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
 
 
 def _positive(v) -> bool:
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+    return is_number(v) and v > 0
 
 
 @dataclass(frozen=True)
@@ -124,7 +123,7 @@ class Scenario:
         checks = {
             "duration": (_positive, "a finite number > 0 (s)"),
             "speed": (lambda v: v is None or (_positive(v) and MIN_SPEED <= v <= MAX_SPEED), f"{MIN_SPEED} to {MAX_SPEED} (m/s)"),
-            "depth": (lambda v: isinstance(v, numbers.Real) and math.isfinite(v), "a finite number (m)"),
+            "depth": (is_number, "a finite number (m)"),
             "control_rate": (_positive, "a finite number > 0 (Hz)"),
         }  # fmt: skip
         for name, (ok, expected) in checks.items():
@@ -345,7 +344,7 @@ class Flight:
 
     name: str
     t: np.ndarray  # (N,)
-    truth: np.ndarray  # (N, 10) SPEC states, absolute u, psi unwrapped
+    truth: np.ndarray  # (N, 10) the model states, absolute u, psi unwrapped
     measured: np.ndarray  # (N, 10)
     fins: np.ndarray  # (N, 3) actual fin angles: each sample interval's mean (the last: the angle)
     fins_measured: np.ndarray  # (N, 3)

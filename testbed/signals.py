@@ -2,7 +2,7 @@
 
 Each signal is a frozen dataclass built by keyword from its TOML table (`parse_signal`) and
 written back by `signal_table`; `Signal.program(rng)` gives the function `(t, x) → value` that
-the experiment calls at every control step (`x` the true state, SPEC order; only `zigzag`
+the experiment calls at every control step (`x` the true state in `STATES` order; only `zigzag`
 reads it). The signals:
 
 | signal | parameters | value |
@@ -23,13 +23,12 @@ starts at +angle and switches when the angle has gone to −angle.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, fields
 from typing import Callable, ClassVar, Mapping
 
 import numpy as np
 
-from testbed.errors import InputError
+from testbed.errors import InputError, is_number
 from testbed.model import IX
 
 Program = Callable[[float, np.ndarray], float]
@@ -86,10 +85,6 @@ def schroeder_phases(k: int) -> np.ndarray:
 # -- the signals ---------------------------------------------------------------------------------
 
 
-def _real(v) -> bool:
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
-
-
 @dataclass(frozen=True)
 class Signal:
     """Base of the signals; `kind` is the TOML `signal` name."""
@@ -111,9 +106,9 @@ class Signal:
         raise NotImplementedError
 
 
-_FINITE = (_real, "a finite number")
-_POSITIVE = (lambda v: _real(v) and v > 0, "a finite number > 0")
-_TIME = (lambda v: _real(v) and v >= 0, "a finite time >= 0 s")
+_FINITE = (is_number, "a finite number")
+_POSITIVE = (lambda v: is_number(v) and v > 0, "a finite number > 0")
+_TIME = (lambda v: is_number(v) and v >= 0, "a finite time >= 0 s")
 
 
 @dataclass(frozen=True)
@@ -242,7 +237,7 @@ class Multisine(Signal):
     kind: ClassVar[str] = "multisine"
     checks: ClassVar[dict] = {"amplitude": _FINITE, "start": _TIME,
                               "frequencies": (lambda v: isinstance(v, tuple) and len(v) > 0
-                                              and all(_real(f) and f > 0 for f in v),
+                                              and all(is_number(f) and f > 0 for f in v),
                                               "a non-empty list of frequencies > 0 Hz")}  # fmt: skip
     amplitude: float = 0.0
     frequencies: tuple = (0.1, 0.2, 0.3)
@@ -269,8 +264,8 @@ class Multisine(Signal):
 @dataclass(frozen=True)
 class Zigzag(Signal):
     kind: ClassVar[str] = "zigzag"
-    checks: ClassVar[dict] = {"angle": (lambda v: _real(v) and v > 0, "a finite angle > 0 rad"),
-                              "switch": (lambda v: v is None or (_real(v) and v > 0), "a finite angle > 0 rad"),
+    checks: ClassVar[dict] = {"angle": (lambda v: is_number(v) and v > 0, "a finite angle > 0 rad"),
+                              "switch": (lambda v: v is None or (is_number(v) and v > 0), "a finite angle > 0 rad"),
                               "on": (lambda v: v in ("psi", "theta"), "'psi' or 'theta'")}  # fmt: skip
     angle: float = math.radians(20.0)
     on: str = "psi"
@@ -303,7 +298,7 @@ SIGNALS: dict[str, type[Signal]] = {s.kind: s for s in (Hold, Step, Square, Prbs
 def parse_signal(value, where: str) -> Signal:
     """A signal from its TOML form: a number (a `hold`) or a table with `signal` and its
     parameters. InputError naming `where` (e.g. `file: experiment 'x' rudder`) otherwise."""
-    if _real(value):
+    if is_number(value):
         return Hold(value=float(value))
     if not isinstance(value, Mapping):
         raise InputError(f"{where}: {value!r}; expected a number or a table with 'signal'")

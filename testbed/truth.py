@@ -1,7 +1,7 @@
 """The analytic linear model of the completed plant, and its numerical check.
 
 Both linearize about straight, level trim at speed U, fins at zero, with the fin angles as inputs
-(fin dynamics excluded), in the continuous form `Mt ẋ = At x + Bt δ + St` over the SPEC states
+(fin dynamics excluded), in the continuous form `Mt ẋ = At x + Bt δ + St` over the model states
 `u v w p q r phi theta psi z` (u the perturbation).
 
 Analytic (`analytic_model`), from the compiled MJCF alone. Each fluid geom g feels MuJoCo's
@@ -35,27 +35,26 @@ from testbed.errors import atomic_write_text, check_outputs
 from testbed.model import COEFFICIENTS, INPUTS, IX, NU, NX, STATES, Vehicle, structure, tilde
 from testbed.plant import Plant
 from testbed.vehicle import (FINS, FLIP, added_mass, buoyancy_centre, check_model, constants,
-                             cruise_speed, fluid_geoms, load_model, rigid_body_mass, semi_axes, skew,
-                             trim_speed)
+                             cruise_speed, fluid_geoms, load_model, motion_transform, rigid_body_mass,
+                             rotation, semi_axes, skew, trim_speed)
 
 TERMS = ("drag", "lift", "magnus", "added_mass", "viscous")  # MuJoCo's ellipsoid-model forces
 ROWS = "XYZKMN"  # force/moment letter of the rows u v w p q r
-_T6 = np.kron(np.eye(2), FLIP)  # MuJoCo hull axes (FLU) <-> SPEC body axes (FRD), for (lin, ang)
-# Default [identify] free: every damping and control coefficient; the added-mass (*dot) terms stay
-# fixed at their potential-flow values (with all 35 free, SPEC's model has exactly unidentifiable
-# directions: testbed.analysis.structural).
-# The default [identify] free list: the damping and control derivatives. The *dot terms stay
-# fixed (with them free the rows of Mt can be rescaled: the simultaneous drift), and so does X_u:
-# at constant thrust no scenario excites surge, and the speed lost in turns is second order.
+_T6 = np.kron(np.eye(2), FLIP)  # MuJoCo hull axes (FLU) <-> body axes (FRD), for (lin, ang)
+# The default [identify] free list: the damping and control derivatives but X_u. The added-mass
+# (*dot) terms stay at their potential-flow values: with them free the rows of Mt can be rescaled
+# without changing the outputs (exactly unidentifiable directions, testbed.analysis.structural).
+# X_u stays too: at constant thrust no scenario excites surge, and the speed lost in turns is
+# second order.
 FREE = tuple(n for n in COEFFICIENTS if not n.endswith("dot") and n != "X_u")
 
 
 @dataclass(frozen=True)
 class OutsideTerm:
-    """An entry of the full linear model that SPEC §2's structure lacks (or gets differently).
+    """An entry of the full linear model that the linear model's structure lacks (or gets differently).
 
     `value` is in coefficient convention (the Mt entry with a minus sign, like X_udot), and is
-    the full model's entry minus what the SPEC projection puts there. `relative` compares it to
+    the full model's entry minus what the projection onto the linear model puts there. `relative` compares it to
     the largest entry of the same row of the same matrix (St: to the trim drag, times the hull
     length for moment rows).
     """
@@ -68,11 +67,11 @@ class OutsideTerm:
 
 @dataclass(frozen=True)
 class LinearModel:
-    """The linearized completed plant at one trim: full, and projected onto SPEC §2."""
+    """The linearized completed plant at one trim: full, and projected onto the linear model."""
 
     vehicle: Vehicle
-    coefficients: dict[str, float]  # the 35 SPEC coefficients
-    Mt: np.ndarray  # SPEC projection: tilde(structure(vehicle), coefficients)
+    coefficients: dict[str, float]  # the linear model's 35 coefficients
+    Mt: np.ndarray  # the projection: tilde(structure(vehicle), coefficients)
     At: np.ndarray
     Bt: np.ndarray
     St: np.ndarray
@@ -84,7 +83,7 @@ class LinearModel:
     B_full: np.ndarray  # Mt_full⁻¹ Bt_full
     outside: tuple[OutsideTerm, ...]  # largest |relative| first
     parts: dict[str, tuple[np.ndarray, np.ndarray]]  # per fluid term: its (At, Bt) rows u..r
-    added_mass: np.ndarray  # M_A, 6×6 about the CG, SPEC axes, fins at 0
+    added_mass: np.ndarray  # M_A, 6×6 about the CG, body axes (FRD), fins at 0
     thrust: float  # N, the trim drag
 
 
@@ -145,25 +144,11 @@ def geom_terms(r, coef, virtual, rho, beta, v) -> dict[str, tuple[np.ndarray, np
     return out
 
 
-def _motion(Q, p) -> np.ndarray:
-    """X = [[Qᵀ, −Qᵀ[p]×], [0, Qᵀ]]: hull (v, ω) → geom (v, ω) in the geom's axes."""
-    X = np.zeros((6, 6))
-    X[:3, :3] = X[3:, 3:] = Q.T
-    X[:3, 3:] = -Q.T @ skew(p)
-    return X
-
-
 def _motion_rate(Q, p, dQ, dp) -> np.ndarray:
     """dX/dδ for a geom whose pose (Q, p) turns with δ at rate (dQ, dp)."""
-    X = _motion(dQ, p)
+    X = motion_transform(dQ, p)
     X[:3, 3:] -= Q.T @ skew(dp)
     return X
-
-
-def _quat2mat(q) -> np.ndarray:
-    R = np.empty(9)
-    mujoco.mju_quat2Mat(R, np.asarray(q, float))
-    return R.reshape(3, 3)
 
 
 def _geom_frames(model: mujoco.MjModel):
@@ -177,13 +162,13 @@ def _geom_frames(model: mujoco.MjModel):
     frames = []
     for g in fluid_geoms(model):
         b = int(model.geom_bodyid[g])
-        Ql, pl = _quat2mat(model.geom_quat[g]), model.geom_pos[g]
+        Ql, pl = rotation(model.geom_quat[g]), model.geom_pos[g]
         if b == hull:
             frames.append((g, None, Ql, pl, np.zeros((3, 3)), np.zeros(3)))
             continue
         j = model.joint(FINS[fin_of[b]]).id
         a = model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j])
-        Q0, A = _quat2mat(model.body_quat[b]), skew(a)
+        Q0, A = rotation(model.body_quat[b]), skew(a)
         anchor = model.jnt_pos[j]  # the hinge turns the fin body about its anchor
         frames.append((g, fin_of[b], Q0 @ Ql, model.body_pos[b] + Q0 @ pl, Q0 @ A @ Ql,
                        Q0 @ A @ (pl - anchor)))  # fmt: skip
@@ -204,7 +189,7 @@ def analytic_model(model: mujoco.MjModel, speed: float) -> LinearModel:
     wrench0 = np.zeros(6)
     parts = {t: (np.zeros((6, 6)), np.zeros((6, NU))) for t in TERMS}
     for g, fin, Q, p, dQ, dp in _geom_frames(model):
-        X = _motion(Q, p)
+        X = motion_transform(Q, p)
         terms = geom_terms(semi_axes(model, g), model.geom_fluid[g, 1:6], model.geom_fluid[g, 6:12],
                            rho, beta, (X @ nu0)[:3])  # fmt: skip
         for t, (phi, J) in terms.items():
@@ -257,10 +242,10 @@ def _hull_geom(model) -> int:
 
 
 def _project(Mt, At, Bt, vehicle: Vehicle) -> dict[str, float]:
-    """SPEC §2's 35 coefficients read off the full model at the table's places.
+    """The linear model's 35 coefficients read off the full model at the table's places.
 
     *dot terms: minus the off-rigid-body part of the mass matrix, i.e. −M_A, plus (K_rdot,
-    N_pdot) the rigid body's product of inertia, which SPEC's known constants lack. The others
+    N_pdot) the rigid body's product of inertia, which the linear model's known constants lack. The others
     are the total derivatives, less the m U the table writes out.
     """
     s = structure(vehicle)
@@ -275,7 +260,7 @@ def _project(Mt, At, Bt, vehicle: Vehicle) -> dict[str, float]:
 
 
 def _outside(dMt, dAt, dBt, dSt, Mt, At, Bt, thrust, length) -> tuple[OutsideTerm, ...]:
-    """The full model's entries beyond the SPEC projection, above rounding (relative 1e-10)."""
+    """The full model's entries beyond the projection onto the linear model, above rounding (relative 1e-10)."""
     short = {"delta_r": "dr", "delta_er": "der", "delta_el": "del"}
     terms = []
     for row in range(6):
@@ -365,7 +350,7 @@ def analytic_config(mjcf: str | Path | None = None, speed: float | None = None):
     at `speed` (default: its cruise speed), for `testbed.data.config_text`.
 
     The comments give each coefficient's make-up and, on each row's damping coefficient, the
-    full model's terms outside SPEC §2's structure.
+    full model's terms outside the linear model's structure.
     """
     model = load_model(mjcf)
     speed = cruise_speed(model) if speed is None else trim_speed(speed)
@@ -410,6 +395,6 @@ def _comments(lin: LinearModel, mjcf) -> dict[str, str]:
     for row, diag in enumerate(("X_u", "Y_v", "Z_w", "K_p", "M_q", "N_r")):
         extra = [t for t in lin.outside if t.name[0] == ROWS[row]][:4]
         if extra:
-            notes[diag] += "; outside SPEC: " + ", ".join(
+            notes[diag] += "; outside the linear model: " + ", ".join(
                 f"{t.name} = {t.value:.3g} ({100 * t.relative:.2g} % of row)" for t in extra)
     return notes

@@ -6,7 +6,7 @@ origin is the CG of the whole vehicle (x forward, y port, z up: MuJoCo is z-up),
 child body of `hull`, driven by position servos of the same names, a motor `thruster`, and
 `fluidshape="ellipsoid"` geoms on the hull and the fins (which carry its hydrodynamics and,
 here, its displaced volume; a fin's on its hinge axis). `check_model` names what is missing.
-SPEC §1's body axes (x forward, y starboard, z down) are the MuJoCo hull axes turned half a turn
+The body axes (FRD: x forward, y starboard, z down) are the MuJoCo hull axes turned half a turn
 about x: `FLIP = diag(1, -1, -1)`.
 """
 
@@ -22,7 +22,7 @@ from testbed.errors import InputError
 from testbed.model import MAX_SPEED, MIN_SPEED, Vehicle
 
 FINS = ("rudder", "elevator_right", "elevator_left")
-FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> SPEC body axes (FRD); also ENU-ish world <-> NED
+FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> body axes (FRD); also ENU-ish world <-> NED
 
 
 def default_mjcf() -> Path:
@@ -117,7 +117,7 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
     M = rigid_body_mass(model)
     if np.abs(M[:3, 3:]).max() > 1e-6 * M[0, 0]:
         raise InputError(f"{source}: body 'hull': its frame origin is not the vehicle's CG; "
-                         "expected the CG of the whole vehicle, fins included (SPEC §1)")  # fmt: skip
+                         "expected the CG of the whole vehicle, fins included")  # fmt: skip
 
 
 _NEEDS = ("a body 'hull' with free joint 'hull', hinge joints and position actuators 'rudder', "
@@ -178,7 +178,7 @@ def hydrostatics(model: mujoco.MjModel) -> Hydrostatics:
     """Group the fluid geoms by body: added mass (from `geom_fluid`, times density) and volume.
 
     Geom g's added mass is diagonal in its own frame at its centre; seen from its body's origin
-    it is `Xᵀ diag(m_A, I_A) X` with X the rigid transform from body to geom velocities.
+    it is `Xᵀ diag(m_A, I_A) X` with X the motion transform from body to geom velocities.
     """
     rho = model.opt.density
     geoms = fluid_geoms(model)
@@ -188,14 +188,8 @@ def hydrostatics(model: mujoco.MjModel) -> Hydrostatics:
     C = np.zeros((len(bodies), 3))
     for g in geoms:
         k = int(np.searchsorted(bodies, model.geom_bodyid[g]))
-        Q = np.empty(9)
-        mujoco.mju_quat2Mat(Q, model.geom_quat[g])
-        Qt = Q.reshape(3, 3).T
         p = model.geom_pos[g]
-        X = np.zeros((6, 6))
-        X[:3, :3] = Qt
-        X[:3, 3:] = -Qt @ skew(p)
-        X[3:, 3:] = Qt
+        X = motion_transform(rotation(model.geom_quat[g]), p)
         M[k] += X.T @ np.diag(rho * model.geom_fluid[g, 6:12]) @ X
         v = volume(model, g)
         C[k] += v * p
@@ -206,6 +200,26 @@ def hydrostatics(model: mujoco.MjModel) -> Hydrostatics:
 def skew(a: np.ndarray) -> np.ndarray:
     """[a]× so that skew(a) @ b = a × b."""
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def rotation(quat) -> np.ndarray:
+    """The 3×3 rotation matrix of a unit quaternion (w, x, y, z), MuJoCo's convention."""
+    R = np.empty(9)
+    mujoco.mju_quat2Mat(R, np.asarray(quat, float))
+    return R.reshape(3, 3)
+
+
+def motion_transform(Q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """X = [[Qᵀ, −Qᵀ[p]×], [0, Qᵀ]]: a frame's velocity (v, ω) from its parent's, in its own axes.
+
+    The frame sits at `p` with axes `Q` (parent-from-frame), both in the parent's axes: a rigid
+    point at p moves with v + ω × p. A 6×6 mass matrix M of the frame seen from the parent is
+    `Xᵀ M X` (the same kinetic energy ½ νᵀ Xᵀ M X ν).
+    """
+    X = np.zeros((6, 6))
+    X[:3, :3] = X[3:, 3:] = Q.T
+    X[:3, 3:] = -Q.T @ skew(p)
+    return X
 
 
 def cruise_speed(model: mujoco.MjModel) -> float:
@@ -223,32 +237,25 @@ def fin_rate_limit(model: mujoco.MjModel) -> float:
 
 
 def rigid_body_mass(model: mujoco.MjModel) -> np.ndarray:
-    """6×6 rigid-body mass matrix of the whole vehicle about its CG, SPEC body axes, fins at 0."""
+    """6×6 rigid-body mass matrix of the whole vehicle about its CG, body axes (FRD), fins at 0."""
     M = _spatial_sum(model, lambda d, b: _body_rigid(model, d, b))
     return M
 
 
 def added_mass(model: mujoco.MjModel) -> np.ndarray:
-    """6×6 added-mass matrix (M_A, positive) of all fluid geoms about the CG, SPEC body axes."""
+    """6×6 added-mass matrix (M_A, positive) of all fluid geoms about the CG, body axes (FRD)."""
     h = hydrostatics(model)
     lookup = {int(b): h.added_mass[k] for k, b in enumerate(h.bodies)}
     return _spatial_sum(model, lambda d, b: lookup.get(b))
 
 
 def _body_rigid(model, data, b):
-    """Body b's rigid-body 6×6 about its own origin, its own axes."""
-    m, c = model.body_mass[b], model.body_ipos[b]
-    R = np.empty(9)
-    mujoco.mju_quat2Mat(R, model.body_iquat[b])
-    R = R.reshape(3, 3)
+    """Body b's rigid-body 6×6 about its own origin, its own axes: diag(m, I_c) at its CoM c,
+    moved to the origin (`[[m, −m[c]×], [m[c]×, I_c − m[c]×²]]`)."""
+    R = rotation(model.body_iquat[b])
     I = R @ np.diag(model.body_inertia[b]) @ R.T  # about the body's CoM, body axes
-    S = skew(c)
-    out = np.zeros((6, 6))
-    out[:3, :3] = m * np.eye(3)
-    out[:3, 3:] = -m * S
-    out[3:, :3] = m * S
-    out[3:, 3:] = I - m * S @ S
-    return out
+    X = motion_transform(np.eye(3), model.body_ipos[b])
+    return X.T @ np.block([[model.body_mass[b] * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), I]]) @ X
 
 
 def _spatial_sum(model, per_body):
@@ -268,18 +275,14 @@ def _spatial_sum(model, per_body):
         if Mb is None:
             continue
         R = Rh.T @ data.xmat[b].reshape(3, 3)  # hull from body
-        p = Rh.T @ (data.xpos[b] - ph)
-        X = np.zeros((6, 6))  # body velocity from hull velocity
-        X[:3, :3] = R.T
-        X[:3, 3:] = -R.T @ skew(p)
-        X[3:, 3:] = R.T
+        X = motion_transform(R, Rh.T @ (data.xpos[b] - ph))  # body velocity from hull velocity
         total += X.T @ Mb @ X
     F = np.kron(np.eye(2), FLIP)
     return F @ total @ F
 
 
 def constants(model: mujoco.MjModel, speed: float) -> Vehicle:
-    """SPEC §2's known constants: mass, inertias about the CG, W, B, centre of buoyancy, U."""
+    """The linear model's known constants: mass, inertias about the CG, W, B, centre of buoyancy, U."""
     speed = trim_speed(speed)
     M = rigid_body_mass(model)
     g = float(np.linalg.norm(model.opt.gravity))
@@ -291,7 +294,7 @@ def constants(model: mujoco.MjModel, speed: float) -> Vehicle:
 
 
 def buoyancy_centre(model: mujoco.MjModel) -> np.ndarray:
-    """Centre of the displaced volume relative to the CG, SPEC body axes, fins at 0."""
+    """Centre of the displaced volume relative to the CG, body axes (FRD), fins at 0."""
     h = hydrostatics(model)
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)

@@ -1,4 +1,4 @@
-"""`testbed identify` and `testbed analyze` end to end on a short Scenario II run (SPEC §3, §4)."""
+"""`testbed identify` and `testbed analyze` end to end on a short Scenario II run."""
 
 import csv
 import json

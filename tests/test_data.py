@@ -1,4 +1,4 @@
-"""SPEC §3 readers and writers: round trips and one-line errors on bad input."""
+"""The file readers and writers: round trips and one-line errors on bad input."""
 
 import numpy as np
 import pytest

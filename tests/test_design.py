@@ -22,17 +22,6 @@ def model():
     return D.model(replace(config, free=("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")))
 
 
-def test_crlb_is_the_inverse_diagonal_and_inf_where_singular():
-    rng = np.random.default_rng(0)
-    J = rng.standard_normal((40, 4))
-    F = J.T @ J
-    assert np.allclose(D.crlb(F), np.sqrt(np.diag(np.linalg.inv(F))))
-    F0 = np.zeros((3, 3))
-    F0[:2, :2] = [[4.0, 0.0], [0.0, 1.0]]
-    std = D.crlb(F0)
-    assert np.allclose(std[:2], [0.5, 1.0]) and math.isinf(std[2])
-
-
 def test_criteria_on_relative_coefficients():
     F = np.diag([4.0, 100.0])
     s = np.array([1.0, 0.1])  # relative information: diag(4, 1)

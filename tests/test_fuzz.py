@@ -1,13 +1,10 @@
 """The bad-input corpus of `studies/fuzz.py`: no crash, no partial output, in this process and in
 real `python -m testbed` processes (where a traceback or a C library's message would show)."""
 
-import sys
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from studies.fuzz import corpus, run_case, run_subprocess, tally, workspace  # noqa: E402
+from studies.fuzz import corpus, run_case, run_subprocess, tally, workspace
 
 
 @pytest.fixture(scope="module")

@@ -29,6 +29,7 @@ LAYERS = [
     ("testbed.recording",),
     ("testbed.runs",),
     ("testbed.linear",),
+    ("testbed.examples",),
     ("testbed.estimators.base",),
     ("testbed.estimators.mekf",),
     ("testbed.estimators.ml",),

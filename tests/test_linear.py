@@ -1,18 +1,14 @@
 """Output-error core: exact sensitivities, exact discretisation, initial states, bounds, bad input."""
 
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from studies.montecarlo import FREE, NOISE, TRUTH, experiments, truth_config  # noqa: E402
-
-from testbed.errors import InputError  # noqa: E402
-from testbed import linear  # noqa: E402
-from testbed.model import IX, NX, continuous  # noqa: E402
+from testbed.errors import InputError
+from testbed.examples import FREE, NOISE, TRUTH, experiments, truth_config
+from testbed import linear
+from testbed.model import IX, NX, continuous
 
 VERTICAL_SUBSET = ("u", "w", "q", "theta", "z", "p", "phi")
 
@@ -164,6 +160,34 @@ def test_information_is_consistent():
     # values override the config: a 10 % change of one free coefficient raises the cost
     worse = linear.information(data, truth_config(), {"N_r": 0.9 * TRUTH["N_r"]})
     assert worse.cost > info.cost
+
+
+def test_crlb_is_the_closed_form_inverse_and_infinite_along_null_directions():
+    # regular: σ_i = √(F⁻¹)_ii and the correlations of F⁻¹
+    J = np.random.default_rng(0).standard_normal((40, 4))
+    F = J.T @ J
+    inv = np.linalg.inv(F)
+    cov, std, corr = linear.crlb(F)
+    np.testing.assert_allclose(cov, inv, rtol=1e-10)
+    np.testing.assert_allclose(std, np.sqrt(np.diag(inv)), rtol=1e-10)
+    np.testing.assert_allclose(corr, inv / np.outer(std, std), rtol=1e-10, atol=1e-14)
+    # nearly singular 2×2, F = [[a, b], [b, c]]: σ₁ = √(c/(ac − b²)), ρ = −b/√(ac), exactly
+    a, b, c = 1.0e6, 1.0e3 * (1.0 - 1e-7), 1.0  # ac − b² = 2e-7 ab: eigenvalue ratio 1e-7
+    cov, std, corr = linear.crlb(np.array([[a, b], [b, c]]))
+    np.testing.assert_allclose(std, [np.sqrt(c / (a * c - b * b)), np.sqrt(a / (a * c - b * b))], rtol=1e-6)
+    np.testing.assert_allclose(corr[0, 1], -b / np.sqrt(a * c), rtol=1e-12)
+    # two coefficients that only act as their sum (null direction (1, −1)/√2, up to rounding)
+    # and an unrelated one: the pair's bound is infinite, not the pseudo-inverse's finite value,
+    # the third keeps its exact bound; scaling the parameters' units changes no decision
+    F = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 4.0]]) + 1e-17
+    assert np.all(np.isfinite(np.sqrt(np.diag(np.linalg.pinv(F, rcond=1e-12, hermitian=True)))))
+    for d in (np.ones(3), np.array([1e-4, 1e5, 1e3])):
+        cov, std, corr = linear.crlb(F / np.outer(d, d))
+        np.testing.assert_allclose(std, [np.inf, np.inf, 0.5 * d[2]], rtol=1e-9)
+        assert np.all(np.isnan(corr[:2])) and np.all(np.isnan(corr[:, :2])) and corr[2, 2] == 1.0
+    # a coefficient with no information at all (zero row)
+    F = np.diag([4.0, 1.0, 0.0])
+    np.testing.assert_allclose(linear.crlb(F).std, [0.5, 1.0, np.inf])
 
 
 def test_equation_error_recovers_noise_free_truth():

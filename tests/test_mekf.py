@@ -20,7 +20,7 @@ from testbed.model import (
     theta_vector,
 )  # fmt: skip
 
-# A torpedo like the bundled one at 20 m/s (SPEC units); CB slightly off the CG so S ≠ 0.
+# A torpedo like the bundled one at 20 m/s (SI units); CB slightly off the CG so S ≠ 0.
 VEHICLE = Vehicle(170.75, 2.16, 67.25, 67.24, 1675.1, 1675.1, 0.0, 0.0, -0.0179, 20.0)
 TRUTH = {
     "X_udot": -8.11, "X_u": -265.6, "Y_vdot": -158.6, "Y_pdot": -2.99, "Y_rdot": -2.35,
@@ -41,7 +41,7 @@ def _prbs(rng, n, dt, amp, hold):
 
 
 def _simulate(coefficients, inputs, dt, noise, seed, name="run"):
-    """Exact ZOH simulation of the SPEC model from trim; all ten states measured."""
+    """Exact ZOH simulation of the linear model from trim; all ten states measured."""
     A, B, S = continuous(structure(VEHICLE), theta_vector(coefficients))
     Phi, Gamma, s = discretize(A, B, S, dt)
     x, X = np.zeros(10), np.zeros((len(inputs), 10))

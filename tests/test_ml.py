@@ -1,20 +1,18 @@
 """ML output-error methods on data simulated from the linear model itself (known answers)."""
 
 import json
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from studies.montecarlo import (FREE, NOISE, TRUTH, experiments, prior_config,  # noqa: E402
-                                truth_config)  # fmt: skip
+from testbed.examples import (FREE, NOISE, TRUTH, experiments, prior_config,
+                              truth_config)  # fmt: skip
 
-from testbed.errors import InputError  # noqa: E402
-from testbed.estimators import METHODS, Status, identify  # noqa: E402
-from testbed.linear import information  # noqa: E402
+from testbed.errors import InputError
+from testbed.estimators import METHODS, Status, identify
+from testbed.linear import information
 
 WANT = np.array([TRUTH[n] for n in FREE])
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")

@@ -1,4 +1,4 @@
-"""SPEC §2: the affine structure against the table written out by hand."""
+"""The linear model (docs/model.md): the affine structure against the table written out by hand."""
 
 import numpy as np
 

@@ -1,14 +1,11 @@
 """Slow: reduced noise studies — ml-gn against its Cramér-Rao bound, the MEKF reported beside it."""
 
 import csv
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from studies import montecarlo, scenario_ii  # noqa: E402
+from studies import montecarlo, scenario_ii
 
 SEEDS = 20
 

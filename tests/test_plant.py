@@ -11,7 +11,7 @@ from testbed.errors import InputError
 from testbed.plant import Plant
 from testbed.vehicle import added_mass, constants, default_mjcf, load_model, rigid_body_mass
 
-WRENCH = np.array([300.0, -120.0, 80.0, 6.0, -25.0, 40.0])  # N, N m; SPEC body axes at the CG
+WRENCH = np.array([300.0, -120.0, 80.0, 6.0, -25.0, 40.0])  # N, N m; body axes (FRD) at the CG
 
 
 def _plant(complete=True, **opt):
@@ -55,7 +55,7 @@ def test_force_step_through_the_step():
     plant.wrench[:] = WRENCH
     plant.step(n=1)
     x = plant.state()
-    acc = x[:6] / plant.timestep  # from rest: Δν / h, SPEC body axes
+    acc = x[:6] / plant.timestep  # from rest: Δν / h, body axes (FRD)
     expected = np.linalg.solve(rigid_body_mass(plant.model) + added_mass(plant.model), WRENCH)
     np.testing.assert_allclose(acc, expected, rtol=1e-6)
 
@@ -165,7 +165,7 @@ def test_stable_for_600_s_when_added_mass_exceeds_body_mass():
     model.body_mass[hull] *= 0.3
     model.body_inertia[hull] *= 0.3
     model.body_ipos[hull] /= 0.3
-    model.opt.gravity[:] = 0.0  # no longer neutral; keep it from surfacing
+    model.opt.gravity[:] = 0.0  # the lighter hull is not neutral: keep it from surfacing
     M_RB, M_A = rigid_body_mass(model), added_mass(model)
     ratio = np.diag(M_A)[1:3] / np.diag(M_RB)[1:3]
     assert np.allclose(ratio, 2.79, atol=0.01), ratio
@@ -269,7 +269,7 @@ def test_bad_mjcf_is_one_line_input_error(tmp_path):
 
 
 def _open_loop_fit(plant, amplitude, seconds=4.0):
-    """Fit % (100 (1 − ‖y − ŷ‖/‖y − ȳ‖)) per state of the analytic model (SPEC projection, exact
+    """Fit % (100 (1 − ‖y − ŷ‖/‖y − ȳ‖)) per state of the analytic model (projected onto the linear model, exact
     zero-order hold at the physics step, fins as recorded) against the plant, both from trim,
     with independent 0.1 s PRBS on rudder, elevators together and elevators differentially."""
     from testbed.model import continuous, discretize, structure, theta_vector

@@ -15,7 +15,6 @@ with many more, as does `HYPOTHESIS_PROFILE=slow` for the whole run.
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +22,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from studies.fuzz import (CSV_MUTATIONS, TOML_BAD_VALUES, Case, apply_csv_mutation, run_case,  # noqa: E402
+from studies.fuzz import (CSV_MUTATIONS, TOML_BAD_VALUES, Case, apply_csv_mutation, run_case,
                           toml_text, workspace)  # fmt: skip
 
-from testbed.data import (CSV_COLUMNS, MAX_DATA, ModelConfig, check_experiment, csv_text,  # noqa: E402
+from testbed.data import (CSV_COLUMNS, MAX_DATA, ModelConfig, check_experiment, csv_text,
                           parse_config, read_config, read_csv, run_csvs, write_config)  # fmt: skip
-from testbed.errors import InputError  # noqa: E402
-from testbed.model import COEFFICIENTS, INPUTS, STATES, Vehicle  # noqa: E402
+from testbed.errors import InputError
+from testbed.model import COEFFICIENTS, INPUTS, STATES, Vehicle
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # a numpy warning is a failure
 PROFILES = ["suite", pytest.param("slow", marks=pytest.mark.slow)]

@@ -20,28 +20,9 @@ from testbed.estimators import identify
 from testbed import linear
 from testbed.linear import synthetic
 from testbed.model import INPUTS, STATES
-from testbed.scenario import Flight
 from testbed.truth import analytic_config
 
 FIN_NAMES = ("rudder", "elevator_right", "elevator_left")
-
-
-def _flight(name="horizontal", n=201, seed=0) -> Flight:
-    """A flight with the shapes of `fly_scenario`'s (straight ahead at 20 m/s, wiggling fins), its
-    commands: a depth, a rudder program and the fin command, a roll never given, an unknown one."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * 0.02
-    truth = 0.05 * rng.standard_normal((n, 10))
-    truth[:, 0] += 20.0
-    truth[:, 9] += 100.0
-    fins = 0.1 * np.sin(np.outer(t, [1.0, 2.0, 3.0]))
-    position = np.column_stack([20.0 * t, np.zeros(n), np.full(n, 100.0)])
-    commands = {"depth": np.full(n, 101.0), "rudder": np.sign(fins[:, 0]) * 0.1, "fin_r": fins[:, 0] + 0.01,
-                "roll": np.full(n, np.nan), "mystery": np.linspace(0.0, 1.0, n)}  # fmt: skip
-    return Flight(name, t, truth, truth + 0.01, fins, fins + 0.001, position, commands)
-
-
-FLIGHTS = [_flight("horizontal", seed=1), _flight("vertical", n=151, seed=2)]
 
 
 def _rows(path) -> Counter:
@@ -150,12 +131,12 @@ def _uuid(raw) -> str:
     return str(uuid.UUID(bytes=bytes(raw)))
 
 
-def test_run_recording_has_the_replay_and_every_series(tmp_path):
-    path = recording.log_run(tmp_path / "recording.rrd", FLIGHTS)
+def test_run_recording_has_the_replay_and_every_series(tmp_path, flights):
+    path = recording.log_run(tmp_path / "recording.rrd", flights)
     assert path.exists() and os.listdir(tmp_path) == ["recording.rrd"]
     assert (path.stat().st_mode & 0o777) == 0o666 & ~_umask()
     rows = _rows(path)
-    for f in FLIGHTS:
+    for f in flights:
         n = len(f.t)
         assert rows[f"/{f.name}/vehicle"] == n  # pose over time
         for fin in FIN_NAMES:
@@ -190,14 +171,14 @@ def test_attitude_quaternions_are_z_y_x_euler_angles():
 
 
 @pytest.fixture(scope="module")
-def run_rrd(tmp_path_factory):
-    return recording.log_run(tmp_path_factory.mktemp("run") / "recording.rrd", FLIGHTS)
+def run_rrd(tmp_path_factory, flights):
+    return recording.log_run(tmp_path_factory.mktemp("run") / "recording.rrd", flights)
 
 
-def test_world_view_tracks_an_entity_with_geometry_at_a_steady_distance(run_rrd):
+def test_world_view_tracks_an_entity_with_geometry_at_a_steady_distance(run_rrd, flights):
     bp, contents = _blueprint(run_rrd), _contents(run_rrd)
     views = _views(bp)
-    for f in FLIGHTS:
+    for f in flights:
         (world,) = [v for v in views.values() if v["kind"] == "3D" and v["origin"] == "/"
                     and f"/{f.name}/vehicle/**" in v["query"]]  # fmt: skip
         eye = world["EyeControls3D"]
@@ -314,12 +295,12 @@ def test_axis_range_examples():
     assert recording.axis_range([]) == pytest.approx((-0.108, 0.108))
 
 
-def test_same_run_same_recording(tmp_path):
-    a = recording.log_run(tmp_path / "a.rrd", FLIGHTS, title="testbed II seed 1")
-    b = recording.log_run(tmp_path / "b.rrd", FLIGHTS, title="testbed II seed 1")
-    c = recording.log_run(tmp_path / "c.rrd", FLIGHTS, title="testbed II seed 2")
-    d = recording.log_run(tmp_path / "d.rrd", [_flight("horizontal", seed=9), FLIGHTS[1]], title="testbed II seed 1")
-    e = recording.log_run(tmp_path / "e.rrd", FLIGHTS, title="testbed II seed 1", recording_id="mine")
+def test_same_run_same_recording(tmp_path, flights, make_flight):
+    a = recording.log_run(tmp_path / "a.rrd", flights, title="testbed II seed 1")
+    b = recording.log_run(tmp_path / "b.rrd", flights, title="testbed II seed 1")
+    c = recording.log_run(tmp_path / "c.rrd", flights, title="testbed II seed 2")
+    d = recording.log_run(tmp_path / "d.rrd", [make_flight("horizontal", seed=9), flights[1]], title="testbed II seed 1")
+    e = recording.log_run(tmp_path / "e.rrd", flights, title="testbed II seed 1", recording_id="mine")
 
     def rid(p):
         (store,) = rerun.chunk.RrdReader(p).recordings()
@@ -333,7 +314,7 @@ def test_same_run_same_recording(tmp_path):
     assert ca["/__properties", "RecordingInfo:name"].to_pylist() == [["testbed II seed 1"]]
 
 
-def test_an_exception_leaves_the_old_recording_and_no_temporary_file(tmp_path, monkeypatch):
+def test_an_exception_leaves_the_old_recording_and_no_temporary_file(tmp_path, monkeypatch, flights):
     path = tmp_path / "recording.rrd"
     path.write_bytes(b"old")
     calls = []
@@ -345,7 +326,7 @@ def test_an_exception_leaves_the_old_recording_and_no_temporary_file(tmp_path, m
 
     monkeypatch.setattr(recording, "series", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        recording.log_run(path, FLIGHTS)
+        recording.log_run(path, flights)
     assert os.listdir(tmp_path) == ["recording.rrd"] and path.read_bytes() == b"old"
     monkeypatch.undo()
 
@@ -354,11 +335,11 @@ def test_an_exception_leaves_the_old_recording_and_no_temporary_file(tmp_path, m
 
     monkeypatch.setattr(recording.os, "replace", failing_replace)
     with pytest.raises(InputError, match="recording.rrd: cannot write .disk full"):  # one line, exit 2
-        recording.log_run(path, FLIGHTS)
+        recording.log_run(path, flights)
     assert os.listdir(tmp_path) == ["recording.rrd"] and path.read_bytes() == b"old"
     monkeypatch.undo()
     with pytest.raises(InputError, match="does not exist"):
-        recording.log_run(tmp_path / "no" / "recording.rrd", FLIGHTS)
+        recording.log_run(tmp_path / "no" / "recording.rrd", flights)
 
 
 @pytest.fixture(scope="module")

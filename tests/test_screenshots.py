@@ -70,12 +70,10 @@ def _png_size(path) -> tuple[int, int]:
 
 @pytest.mark.slow
 @pytest.mark.skipif(shots.missing() is not None, reason="no Chromium or playwright here")
-def test_screenshots_of_a_run_recording(tmp_path):
-    from test_report import FLIGHTS
-
+def test_screenshots_of_a_run_recording(tmp_path, flights):
     from testbed import recording
 
-    rrd = recording.log_run(tmp_path / "recording.rrd", FLIGHTS)
+    rrd = recording.log_run(tmp_path / "recording.rrd", flights)
     assert shots.main([str(rrd), str(tmp_path / "png"), "--tab", "vertical", "--at", "1", "--size", "800x450"]) == 0
     (png,) = (tmp_path / "png").iterdir()
     assert png.name == "vertical-1.png" and _png_size(png) == (800, 450)

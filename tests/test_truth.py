@@ -1,6 +1,6 @@
 """The analytic linear model against its independent checks.
 
-References: central differences of the completed plant's own dynamics (item 5), of MuJoCo's
+References: central differences of the completed plant's own dynamics, of MuJoCo's
 own fluid forces on a single ellipsoid, and Tuckerman's closed-form added mass.
 """
 
@@ -53,7 +53,7 @@ def test_spec_projection_reproduces_full_model(speed):
     lin, _ = models(speed)
     s = structure(lin.vehicle)
     theta = theta_vector(lin.coefficients)
-    places = {  # where SPEC §2's table has an entry (a coefficient or a known constant)
+    places = {  # where the linear model's table has an entry (a coefficient or a known constant)
         "Mt": (s.dMt != 0).any(0) | (s.Mt0 != 0), "At": (s.dAt != 0).any(0) | (s.At0 != 0),
         "Bt": (s.dBt != 0).any(0), "St": s.St0 != 0,
     }  # fmt: skip
@@ -65,13 +65,13 @@ def test_spec_projection_reproduces_full_model(speed):
         outside = {t.name for t in lin.outside if t.matrix == name}
         big = np.abs(full - spec) > 1e-9 * scale
         assert len(outside) >= big.sum(), name  # every visible difference is reported
-    # On the SPEC model's own entries of A and B, what it misses is small (≤ 2 %, or 0.1 % of
+    # On the linear model's own entries of A and B, what it misses is small (≤ 2 %, or 0.1 % of
     # the row's largest entry where the entry itself is small).
     A, B, _ = continuous(s, theta)
     for spec, full in ((A, lin.A_full), (B, lin.B_full)):
         tol = np.maximum(0.02 * np.abs(full), 1e-3 * np.abs(full).max(1, keepdims=True))
         assert (np.abs(spec - full) <= tol)[spec != 0].all()
-    # The fins' axial added mass below the CG is the largest term SPEC lacks; it is small.
+    # The fins' axial added mass below the CG is the largest term the linear model lacks; it is small.
     worst = lin.outside[0]
     assert worst.name in ("X_qdot", "M_udot") and worst.relative < 1e-3
 
@@ -136,7 +136,7 @@ def test_ellipsoid_added_mass_is_tuckermans():
         a, b = r[j] ** 2 - r[k] ** 2, r[j] ** 2 + r[k] ** 2
         IA[i] = rho * V / 5 * a**2 * (kap[k] - kap[j]) / (2 * a + b * (kap[j] - kap[k]))
     assert np.allclose(rho * m.geom_fluid[0, 6:12], np.concatenate([mA, IA]), rtol=1e-6)
-    # and the vehicle's 6×6 (SPEC axes: y, z flip sign, a diagonal keeps its values)
+    # and the vehicle's 6×6 (body axes: y, z flip sign, a diagonal keeps its values)
     assert np.allclose(added_mass(m), np.diag(np.concatenate([mA, IA])), rtol=1e-6, atol=1e-9)
 
 
@@ -164,7 +164,7 @@ def test_cli_truth_round_trip(capsys, tmp_path):
     config = parse_config(tomllib.loads(text))
     assert config.coefficients == lin.coefficients and config.vehicle == lin.vehicle
     assert set(config.coefficients) == set(COEFFICIENTS) and config.free == truth.FREE
-    assert "outside SPEC: " in text and "X_qdot" in text  # out-of-SPEC terms are in the comments
+    assert "outside the linear model: " in text and "X_qdot" in text  # terms outside it are in the comments
     out = tmp_path / "model.toml"
     assert main(["truth", "--speed", "20", "--mjcf", str(default_mjcf()), "--out", str(out)]) == 0
     assert read_config(out).coefficients == lin.coefficients
@@ -184,7 +184,7 @@ def test_cli_truth_bad_input(capsys, tmp_path):
     assert "--speed" in _one_line_error(["truth", "--speed", "0"], capsys)
     assert "speed" in _one_line_error(["truth", "--speed", "inf"], capsys)
     assert "--speed 1e-300" in _one_line_error(["truth", "--speed", "1e-300"], capsys)
-    assert "--speed 1e+300" in _one_line_error(["truth", "--speed", "1e300"], capsys)  # was NaN, exit 0
+    assert "--speed 1e+300" in _one_line_error(["truth", "--speed", "1e300"], capsys)  # named as given, not as NaN
     for speed in (0.0, -1.0, float("inf"), float("nan"), 1e-300, 451.0, 1e300):
         with pytest.raises(InputError, match=r"speed=.*; expected a trim speed of 0\.001 to 450 m/s"):
             truth.analytic_config(None, speed)

@@ -148,11 +148,6 @@ def option(default, check: Callable[[Any], bool], expected: str, doc: str):
     return field(default=default, metadata={"check": check, "expected": expected, "doc": doc})
 
 
-def is_real(v) -> bool:
-    """A finite real number; a bool is not one (`True` is no σ or tolerance)."""
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def is_count(v) -> bool:
     """An integer (not a bool)."""
     return isinstance(v, (int, np.integer)) and not isinstance(v, bool)

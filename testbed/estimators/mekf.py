@@ -1,7 +1,7 @@
 """On-line identification (the paper's §5 and Fig. 2): the modified extended Kalman filter (MEKF)
 with a square-root covariance, and the conventional augmented EKF as its baseline.
 
-The augmented state is the 10 SPEC states (`u` as the perturbation u_abs − U) followed by the free
+The augmented state is the 10 model states (`u` as the perturbation u_abs − U) followed by the free
 coefficients θ, which are constant up to a small random walk. The states follow the exact
 zero-order-hold model `x[k+1] = Φ(θ) x[k] + Γ(θ) δ[k] + s(θ)` of `testbed.model`; its Jacobian
 wrt θ, `D = ∂Φ/∂θ x + ∂Γ/∂θ δ + ∂s/∂θ`, is exact as well: with `M = [[A, B, S], [0, 0, 0]]`,
@@ -81,12 +81,11 @@ Choices (all options of `mekf`/`ekf`, see `FilterOptions`):
   normalised innovation squared per measured channel over `nis_window` samples above `nis_limit`,
   or a coefficient more than `explode` prior σ from its start.
 - `refresh_tol` (default 0.2; 0: the exact model every sample): see Speed. On the Scenario II
-  run the default's final estimates are within 0.04 σ of the every-sample filter's (the earlier
-  policy without the first-order step, at 0.1, was within 0.12 σ) at about a fifth of the
-  exponentials.
+  run the default's final estimates are within 0.04 σ of the every-sample filter's at about a
+  fifth of the exponentials.
 - Noise-free data (the runs' `*.truth.csv`): the filter weighs the model against measurement
   noise; with none (σ from the data down to the 1e-9 floor that keeps R definite) any model error
-  (MuJoCo's plant against the linear SPEC model) is a many-σ innovation, and the filter diverges
+  (MuJoCo's plant against the linear model) is a many-σ innovation, and the filter diverges
   within a few samples. No floor on R makes such a fit meaningful: on Scenario II even 1 % of
   each signal's spread leaves innovations ~20× their σ. It is reported as DIVERGED with the
   reason, the innovations' size and that the data look noise-free.
@@ -108,8 +107,8 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.errors import InputError
-from testbed.estimators.base import Estimate, Method, Options, Progress, Status, is_count, is_real, option
+from testbed.errors import InputError, is_number
+from testbed.estimators.base import Estimate, Method, Options, Progress, Status, is_count, option
 from testbed.measurements import noise_free_channels, noise_from_data
 from testbed.model import (IX, ITHETA, NX, continuous, derivatives, expm_pair,
                            structure, theta_vector)
@@ -223,12 +222,12 @@ class _Model:
 
 def _sigmas(v) -> bool:
     """None, or a mapping of names to σ > 0."""
-    return v is None or (isinstance(v, Mapping) and all(isinstance(k, str) and is_real(x) and x > 0
+    return v is None or (isinstance(v, Mapping) and all(isinstance(k, str) and is_number(x) and x > 0
                                                         for k, x in v.items()))
 
 
 def _at_least(low: float, doc: str, default: float):
-    return option(default, lambda v: is_real(v) and v >= low, f"a finite number ≥ {low:g}", doc)
+    return option(default, lambda v: is_number(v) and v >= low, f"a finite number ≥ {low:g}", doc)
 
 
 _SIGMAS = "a mapping of name to σ > 0, e.g. {'u': 0.01}"
@@ -244,7 +243,7 @@ class FilterOptions(Options):
                                                    "measurement σ per measured state; None: from the data")
     prior_std: Mapping[str, float] | None = option(None, _sigmas, _SIGMAS, "a-priori σ per free coefficient")
     prior_frac: float = _at_least(0.0, "a-priori σ as a fraction of |value|", 0.5)
-    prior_floor: float | None = option(None, lambda v: v is None or (is_real(v) and v > 0), "a number > 0",
+    prior_floor: float | None = option(None, lambda v: v is None or (is_number(v) and v > 0), "a number > 0",
                                        "least a-priori σ; None: 1e-3 × the largest |coefficient|")
     param_noise: float = _at_least(0.0, "coefficients' random-walk σ per sample, fraction of the prior σ", 1e-6)
     state_noise: float = _at_least(0.0, "model-error σ per sample, fraction of the measurement σ", 0.1)

@@ -26,10 +26,10 @@ import numpy as np
 
 from testbed import linear
 from testbed.data import Experiment, ModelConfig
-from testbed.errors import InputError
+from testbed.errors import InputError, is_number
 from testbed.estimators import mekf
 from testbed.estimators.base import (Callback, Estimate, Method, Options, Progress, Status, is_count,
-                                     is_real, option)
+                                     option)
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ def _terms(prob: linear.Problem, p: np.ndarray, xs, res, tol: float):
     shorter than `tol` in Cramér-Rao units: converged."""
     R = linear.noise_variance(prob, res)
     g, M = linear.gauss_newton_terms(prob, p, xs, res, R)
-    return R, g, M, np.sqrt(max(g @ linear.covariance(M) @ g, 0.0)) < tol
+    return R, g, M, np.sqrt(max(g @ linear.crlb(M).covariance @ g, 0.0)) < tol
 
 
 def _simulate(prob: linear.Problem, p: np.ndarray):
@@ -229,8 +229,9 @@ def _estimate(name: str, prob: linear.Problem, out: Outcome, start: str, t0: flo
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             info = linear.assess(prob, out.p, out.fisher)
-        why = None if all(np.all(np.isfinite(a)) for a in (info.values, info.crlb_std, info.cost)) \
-            else "the estimate or its Cramér-Rao bound is not finite"  # fmt: skip
+        # an infinite bound is an unidentifiable coefficient's (linear.crlb); NaN is a failure
+        why = None if all(np.all(np.isfinite(a)) for a in (info.values, info.cost)) \
+            and not np.any(np.isnan(info.crlb_std)) else "the estimate or its Cramér-Rao bound is not finite"  # fmt: skip
     except np.linalg.LinAlgError as exc:
         why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
     if why is not None:
@@ -305,7 +306,7 @@ _START = option("auto", lambda v: v in STARTS, f"one of {', '.join(STARTS)}",
                 "where the iterations begin: auto (the a-priori values, restarting from the "
                 "equation-error estimate if the a-priori model diverges or the fit from it fails), "
                 "config (the a-priori values only), equation-error or mekf")
-_TOL = option(1e-3, lambda v: is_real(v) and v > 0, "a number > 0",
+_TOL = option(1e-3, lambda v: is_number(v) and v > 0, "a number > 0",
               "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ")
 
 
@@ -334,7 +335,7 @@ class NewtonRaphsonOptions(Options):
 
 
 def _positive(doc: str, default: float):
-    return option(default, lambda v: is_real(v) and v > 0, "a number > 0", doc)
+    return option(default, lambda v: is_number(v) and v > 0, "a number > 0", doc)
 
 
 @dataclass(frozen=True)
