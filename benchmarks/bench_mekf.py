@@ -153,7 +153,7 @@ def main(argv=None) -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        run = simulate("II", seed=1, out=Path(tmp) / "II-seed1", progress=False)
+        run = simulate("II", seed=1, out=Path(tmp) / "II-seed1")
         made = time.perf_counter() - t0
         experiments, config = load_data([run])  # as `testbed identify RUN --method mekf`
     samples = sum(len(e.t) for e in experiments)

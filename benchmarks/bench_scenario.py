@@ -55,7 +55,7 @@ def main(argv=None):
 
     def whole():
         with tempfile.TemporaryDirectory() as tmp:
-            simulate("II", seed=0, out=Path(tmp) / "run", progress=False)
+            simulate("II", seed=0, out=Path(tmp) / "run")
 
     def best(job):
         times = []

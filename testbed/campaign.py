@@ -25,12 +25,12 @@ import io
 import json
 import logging
 import math
-import sys
 import time
 import traceback
 from dataclasses import asdict, dataclass, replace
 from importlib import metadata
 from pathlib import Path
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -109,7 +109,7 @@ def load_run(out: str, scenario: str, seed: int, duration: float | None):
     if not (run / "manifest.json").exists():
         run.parent.mkdir(parents=True, exist_ok=True)
         try:
-            simulate(scenario, seed=seed, out=run, duration=duration, progress=False)
+            simulate(scenario, seed=seed, out=run, duration=duration)
         except (InputError, OSError):
             if not (run / "manifest.json").exists():  # not a lost race with another worker
                 raise
@@ -208,7 +208,7 @@ class Outcome:
 
 
 def reproduce(out, seeds: int | None = None, scheduler: str | None = None, quick: bool = False,
-              progress: bool = True, workers: int = 2, methods=METHODS, scenarios=SCENARIOS,
+              progress: Callable[[float, str], None] | None = None, workers: int = 2, methods=METHODS, scenarios=SCENARIOS,
               duration: float | None = None) -> Outcome:  # fmt: skip
     """Run (or resume) the campaign into `out` and write results.csv, conclusions.json,
     report.html with its figures and report.rrd. `scheduler`: the address of a running Dask
@@ -234,7 +234,7 @@ def reproduce(out, seeds: int | None = None, scheduler: str | None = None, quick
                 for r in runs}  # fmt: skip
         futures = {client.submit(run_cell, c, data[(c.scenario, c.seed, c.duration)], key=f"cell-{c.key}"): c
                    for c in todo}  # fmt: skip
-        bar = _Progress(len(cells), len(cells) - len(todo), progress)
+        done = len(cells) - len(todo)
         for future in as_completed(futures):
             cell = futures[future]
             try:
@@ -244,7 +244,9 @@ def reproduce(out, seeds: int | None = None, scheduler: str | None = None, quick
                        "converged": False, "iterations": 0, "wall_time_s": 0.0, "rows": []}  # fmt: skip
             failed += doc["status"] == "failed"
             atomic_write_text(cells_dir / f"{cell.key}.json", json.dumps(doc, indent=1) + "\n")
-            bar.update(cell, doc)
+            done += 1
+            if progress is not None:
+                progress(done / len(cells), f"{cell.scenario} {cell.method} seed {cell.seed}: {doc['status']}")
         inputs = {}
         for (s, seed, d), future in data.items():
             if seed == 1 and d == cells[0].duration:
@@ -252,7 +254,6 @@ def reproduce(out, seeds: int | None = None, scheduler: str | None = None, quick
                     inputs[s] = future.result()[0]
                 except Exception:  # the report says which figure is missing
                     inputs[s] = None
-        bar.done()
     docs = [json.loads((cells_dir / f"{c.key}.json").read_text()) for c in cells]
     write_outputs(out, docs, inputs)
     conclusions = json.loads((out / "conclusions.json").read_text())
@@ -283,30 +284,6 @@ class _client:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
-
-
-class _Progress:
-    """A one-line progress bar on stderr when it is a terminal."""
-
-    def __init__(self, total: int, done: int, enabled: bool):
-        self.total, self.count, self.t0 = total, done, time.perf_counter()
-        self.live = enabled and sys.stderr.isatty()
-        self._draw("")
-
-    def update(self, cell: Cell, doc: dict):
-        self.count += 1
-        self._draw(f"{cell.scenario} {cell.method} seed {cell.seed}: {doc['status']}")
-
-    def _draw(self, last: str):
-        if self.live:
-            bar = "#" * int(30 * self.count / self.total)
-            sys.stderr.write(f"\r[{bar:<30}] {self.count}/{self.total} cells  {last:<40}")
-            sys.stderr.flush()
-
-    def done(self):
-        if self.live:
-            sys.stderr.write(f"\r[{'#' * 30}] {self.count}/{self.total} cells in "
-                             f"{time.perf_counter() - self.t0:.0f} s{' ' * 40}\n")  # fmt: skip
 
 
 # -- results, conclusions, report ------------------------------------------------------------------

@@ -11,6 +11,7 @@ import os
 import re
 import signal
 import sys
+import time
 import traceback
 from pathlib import Path
 
@@ -56,6 +57,23 @@ def _emit(out: Path | None, text: str) -> None:
         print(out)
 
 
+class ProgressBar:
+    """`bar(fraction, label)`: a one-line progress bar on stderr, drawn only on a terminal."""
+
+    def __init__(self, enabled: bool = True):
+        self.live = enabled and sys.stderr.isatty()
+        self.t0 = time.perf_counter()
+
+    def __call__(self, fraction: float, label: str) -> None:
+        if self.live:
+            sys.stderr.write(f"\r[{'#' * int(30 * fraction):<30}] {100 * fraction:3.0f}% {label:<40}")
+            sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.live:
+            sys.stderr.write(f"\r[{'#' * 30}] 100% done in {time.perf_counter() - self.t0:.1f} s{' ' * 40}\n")
+
+
 def _quiet_mujoco() -> None:
     """The plant turns MuJoCo's warnings into one-line errors; don't print or log them twice."""
     import mujoco
@@ -78,8 +96,11 @@ def _cmd_simulate(args) -> int:
     if args.out == STDOUT:
         raise InputError("--out -: a run directory is a folder, not standard output; expected a folder name")
     _quiet_mujoco()
-    print(simulate(args.scenario, seed=args.seed, out=args.out, force=args.force, duration=args.duration,
-                   speed=args.speed, mjcf=args.mjcf, progress=not args.quiet))  # fmt: skip
+    bar = ProgressBar(not args.quiet)
+    run = simulate(args.scenario, seed=args.seed, out=args.out, force=args.force, duration=args.duration,
+                   speed=args.speed, mjcf=args.mjcf, progress=bar)  # fmt: skip
+    bar.close()
+    print(run)
     return 0
 
 
@@ -159,8 +180,10 @@ def _cmd_reproduce(args) -> int:
     from testbed.campaign import reproduce
 
     _quiet_mujoco()
+    bar = ProgressBar()
     done = reproduce(args.out, seeds=args.seeds, scheduler=args.scheduler, quick=args.quick,
-                     duration=args.duration)  # fmt: skip
+                     duration=args.duration, progress=bar)  # fmt: skip
+    bar.close()
     print(f"testbed reproduce: {done.computed} cells computed, {done.reused} reused, {done.failed} failed, "
           f"in {done.wall_time_s:.0f} s", file=sys.stderr)  # fmt: skip
     for k, v in done.conclusions.items():

@@ -15,11 +15,11 @@ import hashlib
 import json
 import shlex
 import sys
-import time
 import tomllib
 from dataclasses import replace
 from importlib import metadata
 from pathlib import Path
+from typing import Callable
 
 from testbed.data import config_text, csv_text
 from testbed.errors import atomic_directory
@@ -33,7 +33,7 @@ from testbed.vehicle import default_mjcf
 
 
 def simulate(s: Scenario | str, *, seed: int = 0, out=None, force: bool = False, duration=None,
-             speed=None, mjcf=None, progress: bool = True) -> Path:  # fmt: skip
+             speed=None, mjcf=None, progress: Callable[[float, str], None] | None = None) -> Path:  # fmt: skip
     """Fly a scenario (object, built-in name or file) and write its run directory."""
     s = scenario(s).with_overrides(duration=duration, speed=speed)
     check_seed(seed)
@@ -41,9 +41,10 @@ def simulate(s: Scenario | str, *, seed: int = 0, out=None, force: bool = False,
     out = Path(out) if out is not None else Path("runs") / f"{s.name}-seed{seed}"
     mjcf_path = Path(mjcf) if mjcf is not None else default_mjcf()
     started = datetime.datetime.now(datetime.timezone.utc)
-    bar = _ProgressBar(len(s.experiments)) if progress else None
+    names = [e.name for e in s.experiments]
+    report = (lambda name, f: progress((names.index(name) + f) / len(names), name)) if progress else None
     with atomic_directory(out, force) as tmp:
-        flights, lin = fly_scenario(s, seed, mjcf_path, bar)
+        flights, lin = fly_scenario(s, seed, mjcf_path, report)
         measured = [STATES.index(c) for c in s.measured]
         for f in flights:
             (tmp / f"{f.name}.csv").write_text(csv_text(f.t, f.measured[:, measured], f.fins_measured, s.measured))
@@ -69,8 +70,6 @@ def simulate(s: Scenario | str, *, seed: int = 0, out=None, force: bool = False,
             "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(),
         }
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
-        if bar:
-            bar.done()
     return out
 
 
@@ -107,25 +106,3 @@ def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path) -> str:
     if mjcf is not None:
         parts += ["--mjcf", str(Path(mjcf).resolve())]
     return shlex.join(parts)
-
-
-class _ProgressBar:
-    """A one-line text progress bar on stderr (only when stderr is a terminal)."""
-
-    def __init__(self, experiments: int):
-        self.experiments, self.index, self.name = experiments, -1, None
-        self.live = sys.stderr.isatty()
-        self.t0 = time.perf_counter()
-
-    def __call__(self, name: str, fraction: float):
-        if name != self.name:
-            self.name, self.index = name, self.index + 1
-        total = (self.index + fraction) / self.experiments
-        if self.live:
-            bar = "#" * int(30 * total)
-            sys.stderr.write(f"\r[{bar:<30}] {100 * total:3.0f}% {name:<16}")
-            sys.stderr.flush()
-
-    def done(self):
-        if self.live:
-            sys.stderr.write(f"\r[{'#' * 30}] 100% done in {time.perf_counter() - self.t0:.1f} s\n")

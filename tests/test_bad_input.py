@@ -28,7 +28,7 @@ pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # numpy's floa
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    return simulate("II", seed=4, duration=6.0, out=tmp_path_factory.mktemp("r") / "II", progress=False)
+    return simulate("II", seed=4, duration=6.0, out=tmp_path_factory.mktemp("r") / "II")
 
 
 def cli(capsys, *argv):

@@ -14,7 +14,7 @@ from testbed import campaign
 from testbed.campaign import Cell, conclusions, plan, read_results, results_csv, results_rows, run_cell
 from testbed.errors import InputError
 
-TINY = dict(scenarios=("II",), methods=("ml-gn", "mekf"), duration=4.0, progress=False)
+TINY = dict(scenarios=("II",), methods=("ml-gn", "mekf"), duration=4.0)
 
 
 def test_plan_covers_scenarios_methods_and_seeds_with_distinct_keys():

@@ -16,7 +16,7 @@ from testbed.runs import simulate
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    return simulate("II", seed=4, duration=12.0, out=tmp_path_factory.mktemp("r") / "II", progress=False)
+    return simulate("II", seed=4, duration=12.0, out=tmp_path_factory.mktemp("r") / "II")
 
 
 def _entities(path):

@@ -21,7 +21,7 @@ ROLL_ROW = ("K_v", "K_p", "K_r", "K_dr", "K_der", "K_del")
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    return simulate("II", seed=1, out=tmp_path_factory.mktemp("plant") / "II", progress=False)
+    return simulate("II", seed=1, out=tmp_path_factory.mktemp("plant") / "II")
 
 
 def _truth(run):
@@ -84,7 +84,7 @@ def test_noisy_fit_is_within_its_bounds(run, tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [2, 3, 4, 5])
 def test_noisy_fit_is_within_its_bounds_for_more_seeds(seed, tmp_path):
-    run = simulate("II", seed=seed, out=tmp_path / "II", progress=False)
+    run = simulate("II", seed=seed, out=tmp_path / "II")
     doc = _noisy_fit(run, tmp_path)
     assert _within(doc, read_config(run / "model.toml").coefficients) == {}
     assert {"K_p", "K_der", "K_del"} <= set(doc["coefficients"])

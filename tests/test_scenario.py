@@ -177,8 +177,8 @@ def _files(run):
 
 
 def test_run_directory_is_complete_and_its_command_regenerates_it(tmp_path, capsys):
-    a = runs.simulate("II", seed=5, out=tmp_path / "a", duration=6.0, progress=False)
-    c = runs.simulate("II", seed=6, out=tmp_path / "c", duration=6.0, progress=False)
+    a = runs.simulate("II", seed=5, out=tmp_path / "a", duration=6.0)
+    c = runs.simulate("II", seed=6, out=tmp_path / "c", duration=6.0)
     names = {f"{e}{s}" for e in ("horizontal", "vertical", "roll") for s in (".csv", ".truth.csv")}
     assert {p.name for p in a.iterdir()} == names | {"model.toml", "scenario.toml", "recording.rrd", "manifest.json"}
     manifest = json.loads((a / "manifest.json").read_text())
@@ -230,7 +230,7 @@ elevators = {signal = "multisine", amplitude = 0.003, frequencies = [0.2, 0.5, 1
 hold = {depth = 0.0}
 autopilot = {yaw_rate = {signal = "square", amplitude = 0.05, half_period = 1.0}, roll = 0.0}
 ''')
-    run = runs.simulate(path, seed=1, out=tmp_path / "run", progress=False)
+    run = runs.simulate(path, seed=1, out=tmp_path / "run")
     experiments, config = load_data([run])
     first, second = experiments
     assert first.measured == ("v", "r", "psi", "z") and len(first.t) == 101 and len(second.t) == 76
@@ -242,7 +242,7 @@ autopilot = {yaw_rate = {signal = "square", amplitude = 0.05, half_period = 1.0}
     manifest = json.loads((run / "manifest.json").read_text())
     argv = shlex.split(manifest["command"])
     assert argv[argv.index("--scenario") + 1] == str((run / "scenario.toml").resolve())
-    again = runs.simulate(run / "scenario.toml", seed=1, out=tmp_path / "again", progress=False)
+    again = runs.simulate(run / "scenario.toml", seed=1, out=tmp_path / "again")
     assert _files(run) == _files(again) | {"scenario.toml": _files(run)["scenario.toml"]}
 
 
@@ -331,7 +331,7 @@ def test_bad_numbers_are_one_line_errors(option, value, tmp_path, capsys):
 def test_library_checks_its_inputs(tmp_path):
     for kwargs in ({"duration": math.inf}, {"speed": math.nan}, {"seed": -1}):
         with pytest.raises(InputError, match=f"{next(iter(kwargs))} .*; expected"):
-            runs.simulate("II", out=tmp_path / "run", progress=False, **kwargs)
+            runs.simulate("II", out=tmp_path / "run", **kwargs)
     assert list(tmp_path.iterdir()) == []
     for bad in (math.inf, math.nan, 0.0, -1.0, "60"):
         with pytest.raises(InputError, match="duration"):
