@@ -96,3 +96,11 @@ def test_the_public_api_loads_on_demand_and_shadows_no_module():
     code = ("import sys, testbed; assert 'numpy' not in sys.modules; "
             "[getattr(testbed, n) for n in testbed.__all__]; print('mujoco' in sys.modules)")  # fmt: skip
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "True"
+
+
+def test_the_architecture_page_names_every_module_in_layer_order():
+    text = (ROOT.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
+    names = [m.removeprefix("testbed.") for names in LAYERS[:-2] for m in names]
+    positions = [text.find(f"`{n}`") for n in names]
+    assert [n for n, p in zip(names, positions) if p < 0] == []
+    assert positions == sorted(positions)
