@@ -303,10 +303,35 @@ def test_bad_options_are_input_errors():
                 {"refresh_tol": True}, {"prior_frac": False}, {"nis_limit": True},
                 {"prior_floor": True}, {"prior_floor": "a"}, {"nis_window": True},
                 {"noise_std": {"u": True}}, {"prior_std": {"Y_v": True}}, {"noise_window": -1},
-                {"noise_window": 2.5}, {"noise_margin": -1.0}, {"state_noise": "a"}):  # fmt: skip
+                {"noise_window": 2.5}, {"noise_margin": -1.0}, {"state_noise": "a"},
+                {"passes": 0}, {"passes": 2.0}, {"pass_tol": -0.1}):  # fmt: skip
         with pytest.raises(InputError) as info:
             identify([e], config, "mekf", **bad)
         assert "\n" not in str(info.value)  # one line
+
+
+def test_fixed_interval_iterations_reach_the_maximum_likelihood_estimate():
+    # Every pass after the first is the filter of the model linearised about the previous pass's
+    # estimate, its prior re-centred there: a Levenberg-Marquardt step of the likelihood. Their
+    # fixed point is the ML estimate with its Cramér-Rao bound: that of ml-gn (Gauss-Newton on
+    # the output error, with the same noise), which one pass misses by up to a σ.
+    e = _horizontal(seed=2)
+    config = _start(SWAY_YAW)
+    ml = identify([e], config, "ml-gn")
+    assert ml.converged
+    one = identify([e], config, "mekf", noise_std=ml.noise_std)
+    assert np.max(np.abs(one.values - ml.values) / ml.std) > 0.5
+    for method, tol in (("mekf", 0.02), ("ekf", 0.05)):  # the EKF's model-error floor: 0.01 σ
+        it = identify([e], config, method, noise_std=ml.noise_std, passes=8, pass_tol=0.01)
+        assert it.status is Status.CONVERGED and 2 <= it.extra["passes"] < 8, it.extra
+        assert it.extra["last_step_std"] <= 0.01
+        assert np.max(np.abs(it.values - ml.values) / ml.std) < tol, (it.values - ml.values) / ml.std
+        np.testing.assert_allclose(it.std, ml.std, rtol=0.01)
+        assert it.history.shape == (len(e.t), len(SWAY_YAW))  # the last pass's
+        np.testing.assert_array_equal(it.history[-1], it.values)
+    # Out of passes before the step is small: not converged.
+    short = identify([e], config, "mekf", noise_std=ml.noise_std, passes=2, pass_tol=1e-6)
+    assert short.status is Status.MAX_ITERATIONS and short.extra["passes"] == 2
 
 
 def test_refresh_policy_and_svd_option_match_the_exact_filter():
