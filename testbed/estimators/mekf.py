@@ -78,8 +78,8 @@ Choices (all options of `mekf`/`ekf`, see `FilterOptions`):
   (Scenario I: ±20 m depth steps, ±20°/s turns, 30° of pitch) its one-sample prediction error on
   the noise-free truth is 9–40 measurement σ in p, q and r, about 1 σ in u and φ (surge loses
   up to 18 % of its speed in the turns, which the linear surge row cannot follow; φ̇ = p misses
-  the tan θ · r of a turn at 30° of pitch, 0.6 σ of it), coloured (lag-one autocorrelation 0.94–1.0) and changing
-  with the manoeuvre; on Scenario II it is below 0.02 σ. No fixed Q fits both: one sized for the
+  the tan θ · r of a turn at 30° of pitch, 0.6 σ of it), coloured (lag-one autocorrelation
+  0.94–1.0) and changing with the manoeuvre; on Scenario II it is below 0.02 σ. No fixed Q fits both: one sized for the
   linear regime leaves Scenario I's innovations 5–20× their predicted σ (u from the first turn,
   p, r and φ at the first depth step), and one sized for Scenario I discards most of Scenario
   II's information. So the model-error σ q_i of each measured state is estimated on-line by
