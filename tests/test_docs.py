@@ -266,7 +266,8 @@ def test_files_estimates_json_keys():
     fitted = Estimate("ml-gn", Status.CONVERGED, **one, start_reason="why", crlb_corrected_std=np.array([0.2]),
                       initial_states={"e": {"u": 1.0}})
     diverged = FilterEstimate("mekf", Status.DIVERGED, **one, message="why", sqrt="qr",
-                              max_covariance_asymmetry=0.0, diverged_sample=1, diverged_t=0.1)
+                              max_covariance_asymmetry=0.0, diverged_sample=1, diverged_t=0.1,
+                              model_error_std={"u": 0.1}, passes=2, last_step_std=0.1)
     keys = set(fitted.json_fields()) | set(diverged.json_fields())
     assert {"crlb_corrected_std", "initial_states", "start_reason", "diverged", "sqrt"} <= keys
     identify = _written_keys(_function_tree(identify_data), "doc")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter, SquareRootKalmanFilter
 
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, load_data
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
 from testbed.estimators.mekf import (
@@ -16,9 +16,10 @@ from testbed.estimators.mekf import (
 )  # fmt: skip
 from testbed.measurements import noise_free_channels, noise_from_data
 from testbed.model import (
-    COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, discretize, structure,
+    COEFFICIENTS, ITHETA, IX, STATES, Vehicle, continuous, discretize, structure,
     theta_vector,
 )  # fmt: skip
+from testbed.runs import simulate
 
 # A torpedo like the bundled one at 20 m/s (SI units); CB slightly off the CG so S ≠ 0.
 VEHICLE = Vehicle(170.75, 2.16, 67.25, 67.24, 1675.1, 1675.1, 0.0, 0.0, -0.0179, 20.0)
@@ -40,13 +41,15 @@ def _prbs(rng, n, dt, amp, hold):
     return np.repeat(rng.choice([-amp, amp], size=n // k + 1), k)[:n]
 
 
-def _simulate(coefficients, inputs, dt, noise, seed, name="run"):
-    """Exact ZOH simulation of the linear model from trim; all ten states measured."""
+def _simulate(coefficients, inputs, dt, noise, seed, name="run", process=0.0):
+    """Exact ZOH simulation of the linear model from trim; all ten states measured. `process`:
+    σ per sample of a white process noise on the states."""
     A, B, S = continuous(structure(VEHICLE), theta_vector(coefficients))
     Phi, Gamma, s = discretize(A, B, S, dt)
+    w = np.random.default_rng(seed + 1).normal(size=(len(inputs), 10)) * process
     x, X = np.zeros(10), np.zeros((len(inputs), 10))
     for k, d in enumerate(inputs):
-        X[k], x = x, Phi @ x + Gamma @ d + s
+        X[k], x = x, Phi @ x + Gamma @ d + s + w[k]
     Y = X + np.random.default_rng(seed).normal(size=X.shape) * noise
     Y[:, 0] += VEHICLE.speed
     return Experiment(name, np.arange(len(inputs)) * dt, STATES, Y, inputs)
@@ -300,10 +303,36 @@ def test_bad_options_are_input_errors():
                 {"prior_std": {"Y_v": None}}, {"prior_std": ["Y_v"]}, {"sqrt": "cholesky"},
                 {"refresh_tol": True}, {"prior_frac": False}, {"nis_limit": True},
                 {"prior_floor": True}, {"prior_floor": "a"}, {"nis_window": True},
-                {"noise_std": {"u": True}}, {"prior_std": {"Y_v": True}}):  # fmt: skip
+                {"noise_std": {"u": True}}, {"prior_std": {"Y_v": True}}, {"noise_window": -1},
+                {"noise_window": 2.5}, {"noise_margin": -1.0}, {"state_noise": "a"},
+                {"passes": 0}, {"passes": 2.0}, {"pass_tol": -0.1}):  # fmt: skip
         with pytest.raises(InputError) as info:
             identify([e], config, "mekf", **bad)
         assert "\n" not in str(info.value)  # one line
+
+
+def test_fixed_interval_iterations_reach_the_maximum_likelihood_estimate():
+    # Every pass after the first is the filter of the model linearised about the previous pass's
+    # estimate, its prior re-centred there: a Levenberg-Marquardt step of the likelihood. Their
+    # fixed point is the ML estimate with its Cramér-Rao bound: that of ml-gn (Gauss-Newton on
+    # the output error, with the same noise), which one pass misses by up to a σ.
+    e = _horizontal(seed=2)
+    config = _start(SWAY_YAW)
+    ml = identify([e], config, "ml-gn")
+    assert ml.converged
+    one = identify([e], config, "mekf", noise_std=ml.noise_std)
+    assert np.max(np.abs(one.values - ml.values) / ml.std) > 0.5
+    for method, tol in (("mekf", 0.02), ("ekf", 0.05)):  # the EKF's model-error floor: 0.01 σ
+        it = identify([e], config, method, noise_std=ml.noise_std, passes=8, pass_tol=0.01)
+        assert it.status is Status.CONVERGED and 2 <= it.passes < 8, it.message
+        assert it.last_step_std <= 0.01
+        assert np.max(np.abs(it.values - ml.values) / ml.std) < tol, (it.values - ml.values) / ml.std
+        np.testing.assert_allclose(it.std, ml.std, rtol=0.01)
+        assert it.history.shape == (len(e.t), len(SWAY_YAW))  # the last pass's
+        np.testing.assert_array_equal(it.history[-1], it.values)
+    # Out of passes before the step is small: not converged.
+    short = identify([e], config, "mekf", noise_std=ml.noise_std, passes=2, pass_tol=1e-6)
+    assert short.status is Status.MAX_ITERATIONS and short.passes == 2
 
 
 def test_refresh_policy_and_svd_option_match_the_exact_filter():
@@ -343,3 +372,61 @@ def test_noise_free_data_diverge_with_the_reason():
     # Given the sensor noise, the same data fit: the model error is then small against it.
     noisy = identify([e], config, "mekf", noise_std=dict(zip(STATES, NOISE)))
     assert noisy.status is not Status.DIVERGED, noisy.message
+
+
+@pytest.fixture(scope="module")
+def scenario_i(tmp_path_factory):
+    """The first 12 s of Scenario I: a turn each way and the first 20 m depth step (at 5 s)."""
+    return simulate("I", seed=1, duration=12.0, out=tmp_path_factory.mktemp("r") / "I")
+
+
+def test_filters_started_at_the_analytic_model_follow_scenario_i(scenario_i):
+    # Scenario I flies beyond the linear regime: the analytic model's one-sample error is many
+    # measurement σ in the rates. With the model error fixed at a linear-regime size (none, or
+    # 0.1 σ per sample) the innovations are 5-8x their σ by the end of the first depth step and
+    # the filter is declared diverged; with it matched to the innovations both filters run
+    # through, their innovations near their σ.
+    experiments, config = load_data([scenario_i])
+    n = len(experiments[0].t)
+    for method in ("mekf", "ekf"):
+        for fixed in ({"noise_window": 0}, {"noise_window": 0, "state_noise": 0.1}):
+            est = identify(experiments, config, method, **fixed)
+            assert est.status is Status.DIVERGED, (method, fixed)
+            assert "predicted σ" in est.message
+            assert est.diverged_t < 8.0
+        est = identify(experiments, config, method)
+        assert est.status is not Status.DIVERGED, est.message
+        assert est.iterations == n and np.all(np.isfinite(est.values)) and np.all(est.std > 0)
+        assert est.nis_mean < 2.0, est.nis_mean  # per channel: 1 where consistent
+
+
+def test_model_error_matches_a_known_process_noise():
+    # Data from the model itself driven by a white process noise of 3 measurement σ per sample
+    # on v, p and r: covariance matching finds it (its RMS over the run, the first
+    # `noise_window` samples ramping up from 0, within 10 %) and nothing on the other states;
+    # the innovations are then as large as predicted. The default margin keeps the unforced
+    # states at 0 and takes little off the forced ones.
+    n = 2400
+    inputs = np.zeros((n, 3))
+    inputs[:, 0] = _prbs(np.random.default_rng(14), n, 0.05, np.deg2rad(2.0), 0.5)
+    forced = [IX["v"], IX["p"], IX["r"]]
+    process = np.zeros(10)
+    process[forced] = 3.0 * NOISE[forced]
+    e = _simulate(TRUTH, inputs, 0.05, NOISE, seed=15, process=process)
+    config = ModelConfig(VEHICLE, dict(TRUTH), ("Y_dr",))
+    noise = dict(zip(STATES, NOISE))
+    found = {}
+    for margin in (0.0, 2.0):
+        est = identify([e], config, "mekf", noise_std=noise, prior_frac=1e-6, noise_window=100,
+                       noise_margin=margin)  # fmt: skip
+        assert est.status is Status.CONVERGED, est.message
+        found[margin] = np.array([est.model_error_std[name] for name in STATES]) / NOISE
+        assert abs(est.nis_mean - 1.0) < 0.05, est.nis_mean
+    rest = np.setdiff1d(np.arange(10), forced)
+    assert np.all(np.abs(found[0.0][forced] - 3.0) < 0.3), found
+    assert np.all(found[0.0][rest] < 0.3), found
+    assert np.all((found[2.0][forced] > 2.7) & (found[2.0][forced] <= found[0.0][forced])), found
+    assert np.all(found[2.0][rest] < 0.1), found
+    # Without it the same filter's innovations outgrow their σ.
+    fixed = identify([e], config, "mekf", noise_std=noise, prior_frac=1e-6, noise_window=0)
+    assert fixed.nis_mean > 3.0, fixed.nis_mean
