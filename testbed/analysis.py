@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import null_space
 
 from testbed.model import ITHETA, IX, NX, Structure, tilde, unobserved
 
@@ -57,7 +56,9 @@ def structural(s: Structure, theta: np.ndarray, free, measured, tol: float = 1e-
     G = np.hstack([np.vstack([b[j] for b in blocks]) for j in range(3)])
     G[:, 2 * NX * NX:] *= scale
     G /= np.maximum(np.linalg.norm(G, axis=1, keepdims=True), 1e-300)
-    N = null_space(G, rcond=tol)
+    _, sv, vt = np.linalg.svd(G, full_matrices=len(G) < G.shape[1])  # the null space: right
+    # singular vectors beyond the rank
+    N = vt[np.sum(sv > tol * sv.max(initial=0.0)):].T
     D = N[2 * NX * NX:]  # dθ components of the null vectors
     blind = unobserved(s, theta, free, measured)
     V = np.eye(k)[[free.index(n) for n in blind]]  # (scaled) directions of the unobserved ones
@@ -168,16 +169,15 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     """Fisher information, Cramér-Rao bounds, correlations, structural and practical drift groups
     of `config.free` at the config's coefficients, for the given experiments. `noise_std`: the
     measurement noise per channel (default: the residual at the config's coefficients)."""
-    from testbed.linear import information
+    from testbed.linear import fisher
     from testbed.model import structure, theta_vector
 
     experiments = config.fitted(experiments)
-    info = information(experiments, config, noise_std=noise_std)
+    F = fisher(experiments, config, noise_std=noise_std)
     free = tuple(config.free)
     theta = theta_vector(config.coefficients)
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
     struct = structural(structure(config.vehicle), theta, free, measured)
-    F = np.asarray(info.fisher)
     cov = np.linalg.pinv(F, rcond=1e-12, hermitian=True)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     drifting = {n for g in struct.drift_groups for n in g}  # no information: an infinite bound

@@ -165,12 +165,12 @@ def fly_model(m: Model, e: ExperimentSpec, duration: float, seed: int = SEED, in
 def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design") -> np.ndarray:
     """Fisher information of `m.config.free` from one noise-free experiment (initial states
     eliminated), with the sensor noise `m.noise_std`."""
-    from testbed.linear import information
+    from testbed import linear
 
     y = xs.copy()
     y[:, IX["u"]] += m.speed
     e = Experiment(name, t, STATES, y, fins)
-    return information(m.config.fitted([e]), m.config, noise_std=m.noise_std).fisher
+    return linear.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
 
 
 # -- criteria ----------------------------------------------------------------------------------------
