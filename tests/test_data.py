@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from testbed.data import (CSV_COLUMNS, ModelConfig, config_text, load_data, parse_config,
+from testbed.data import (CSV_COLUMNS, ModelConfig, config_text, load_data, median, parse_config,
                           read_config, read_csv, write_config, write_csv)
 from testbed.errors import InputError, atomic_directory
 from testbed.model import COEFFICIENTS, STATES, Vehicle
@@ -47,6 +47,14 @@ def test_csv_read_in_one_pass_equals_row_by_row(tmp_path):
         e = read_csv(_csv(tmp_path, variant, name))
         for a, b in ((e.t, plain.t), (e.y, plain.y), (e.inputs, plain.inputs)):
             np.testing.assert_array_equal(a, b)
+
+
+def test_median_is_numpys():
+    rng = np.random.default_rng(4)
+    for a in (rng.normal(size=7), rng.normal(size=8), np.array([1.0, np.inf, -np.inf, 2.0]),
+              np.array([3.0, np.nan, 1.0]), np.array([-np.inf, np.inf]), rng.integers(0, 3, size=10)):
+        with np.errstate(invalid="ignore"):  # -inf + inf
+            np.testing.assert_array_equal(median(a), np.median(a))
 
 
 def test_csv_subset_and_extra_columns(tmp_path):
