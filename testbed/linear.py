@@ -400,7 +400,8 @@ def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
     N, dtype, n = len(w), X.dtype, len(Phi)
     rows, scale = np.asarray(rows, np.int64), np.asarray(scale, float)[:, None, None]
     DT, j = np.asarray(D.T, dtype), len(D) // n
-    scan = _Scan(np.asarray(Phi, dtype), j, X.shape[1], rows, min(size, N))
+    size = -(-N // -(-N // size))  # pieces of equal length, none longer than `size`
+    scan = _Scan(np.asarray(Phi, dtype), j, X.shape[1], rows, size)
     for t0 in range(0, N, size):
         t1 = min(t0 + size, N)
         f = w[t0:min(t1, N - 1)] @ DT  # the last piece has no forcing after the record's end
