@@ -24,13 +24,16 @@ Speed: the estimators never hold the N·k·q sensitivities of an experiment whol
 thousand samples at a time and summed into the normal equations as they come (fresh memory
 pages, whose first writes fault, cost more than the arithmetic), and separately for each part of
 the model that evolves on its own (a torpedo's lateral and longitudinal motions are uncoupled in
-the linear model: a quarter of the arithmetic). Every recursion over the samples is numpy only,
+the linear model: a quarter of the arithmetic). Every recursion over the samples runs in numpy,
 in blocks of samples (`_Scan`), and this module imports nothing but numpy: a command that fits a
-CSV starts without loading a compiler or scipy.
+CSV starts without loading a compiler or scipy. Optimisers that simulate thousands of times run
+them compiled instead (`compiled`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
 from dataclasses import dataclass
 from typing import Iterator, Mapping, Sequence
@@ -227,13 +230,35 @@ def _models(prob: Problem, values: np.ndarray, order: int) -> dict[float, Discre
 # --- simulation and sensitivities -------------------------------------------------------------
 
 
+_KERNELS = contextvars.ContextVar("kernels", default=None)  # testbed.kernels within `compiled()`
+
+
+@contextlib.contextmanager
+def compiled():
+    """Within this context the recursions over the samples run compiled (`testbed.kernels`), for
+    optimisers that simulate thousands of times; outside it, in numpy blocks (`_Scan`), which
+    need no compiler loaded: a process that fits one file is done before numba would be."""
+    from testbed import kernels
+
+    token = _KERNELS.set(kernels)
+    try:
+        yield
+    finally:
+        _KERNELS.reset(token)
+
+
 def _propagate(Phi: np.ndarray, x0: np.ndarray, F: np.ndarray) -> np.ndarray:
     """`x[k+1] = Φ x[k] + F[k]` from `x[0] = x0` (n,); returns (len(F) + 1, n)."""
     dtype = np.result_type(Phi, x0, F)  # complex under the complex-step tests
     n, N = len(x0), len(F) + 1
+    x = np.empty((N, n), dtype=dtype)
+    kernels = _KERNELS.get()
+    if kernels is not None:
+        x[0] = x0
+        kernels.propagate(np.ascontiguousarray(Phi, dtype), x, np.ascontiguousarray(F, dtype))
+        return x
     order, Y, _ = _Scan(np.asarray(Phi, dtype), 1, 1, np.arange(n), N)(
         np.asarray(x0, dtype)[:, None], np.asarray(F, dtype)[:, :, None], N)
-    x = np.empty((N, n), dtype=dtype)
     x[order] = Y[:, :, 0].T
     return x
 
@@ -393,7 +418,8 @@ def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
     where F[t]'s first j columns are `(D w[t])` reshaped (n, j) (D: (n·j, len(w[t]))) and the
     others zero: in consecutive pieces of at most `size` samples, `(samples, S)` with
     `S[c, k] = scale[c] X[samples[k]][rows[c]]` (len(rows), len(samples), m; valid until the
-    next piece), made by `_Scan` from the last state of the piece before. Made and used a piece
+    next piece), made by `_Scan` (`kernels.recursion` within `compiled()`) from the last state of
+    the piece before. Made and used a piece
     at a time (F too), in arrays reused from piece to piece, neither is ever allocated for all N
     samples: fresh memory pages cost more here than the arithmetic, as their first writes
     fault."""
@@ -401,11 +427,21 @@ def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
     rows, scale = np.asarray(rows, np.int64), np.asarray(scale, float)[:, None, None]
     DT, j = np.asarray(D.T, dtype), len(D) // n
     size = -(-N // -(-N // size))  # pieces of equal length, none longer than `size`
-    scan = _Scan(np.asarray(Phi, dtype), j, X.shape[1], rows, size)
+    kernels = _KERNELS.get()
+    if kernels is None:
+        scan = _Scan(np.asarray(Phi, dtype), j, X.shape[1], rows, size)
+    else:
+        Phi, X = np.ascontiguousarray(Phi, dtype), X.astype(dtype)  # X carried on in place
+        work = np.empty(len(rows) * size * X.shape[1], dtype=dtype)
     for t0 in range(0, N, size):
         t1 = min(t0 + size, N)
         f = w[t0:min(t1, N - 1)] @ DT  # the last piece has no forcing after the record's end
-        order, S, X = scan(X, f.reshape(len(f), n, j), t1 - t0)
+        f = f.reshape(len(f), n, j)
+        if kernels is None:
+            order, S, X = scan(X, f, t1 - t0)
+        else:
+            order, S = np.arange(t1 - t0), work[:len(rows) * (t1 - t0) * X.shape[1]].reshape(len(rows), t1 - t0, -1)
+            kernels.recursion(Phi, f, X, rows, S)
         S *= scale
         yield t0 + order, S
 

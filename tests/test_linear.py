@@ -135,6 +135,25 @@ def test_sensitivities_made_in_pieces_equal_the_whole_recursion():
             np.testing.assert_allclose(got, S * scale[:, None], rtol=1e-12, atol=1e-13 * np.abs(S).max())
 
 
+def test_compiled_recursions_equal_the_numpy_blocks():
+    prob, p = _problem(duration=3.0)
+    pc = p.astype(complex)
+    pc[0] += 1e-30j  # complex steps run through both too
+
+    def everything():
+        xs, res = linear.states(prob, p), linear.residuals(prob, p)
+        R = linear.noise_variance(prob, res)
+        return (*xs, *linear.sensitivities(prob, p, xs), *linear.gauss_newton_terms(prob, p, xs, res, R),
+                linear.fit_initial_states(prob, prob.start)[0], *linear.outputs(prob, pc))  # fmt: skip
+
+    blocks = everything()
+    with linear.compiled():
+        compiled = everything()
+    for a, b in zip(blocks, compiled):  # g sums noise-sized residuals: to rounding of its largest entry
+        np.testing.assert_allclose(a.real, b.real, rtol=1e-11, atol=1e-11 * np.abs(a.real).max())
+        np.testing.assert_allclose(a.imag, b.imag, rtol=1e-11, atol=1e-11 * np.abs(a.imag).max() + 1e-300)
+
+
 def test_uncoupled_parts_are_the_connected_states_and_parameters():
     coupled = np.zeros((4, 4), bool)
     coupled[1, 0] = True  # state 0 feeds 1, 2 and 3 are alone
