@@ -273,12 +273,13 @@ class _Scan:
 
     In chunks of L ≈ √size samples, t = bL + i. All chunks advance together from a zero state,
     one product per step for all of them: `Z_i = Φ Z_{i−1} + F` (Z_i[b]: the response at bL + i
-    to chunk b's own forcing), as `[Φ I] [Z_{i−1}; F]`. The chunks' first states then follow one
-    from the other, `X[(b+1)L] = Φᴸ X[bL] + Z_L[b]`, and `X[bL + i] = Φⁱ X[bL] + Z_i[b]` is one
-    product for all samples, ordered by i, then b. That is about twice the arithmetic of
-    stepping sample by sample, in 2√P products of n × B·m blocks instead of P products of
-    n × m blocks, whose per-call overhead in numpy would be ~50× the arithmetic. The powers of Φ
-    and the work arrays are made once, for every call.
+    to chunk b's own forcing, zero in the unforced columns, which are left out), as
+    `[Φ I] [Z_{i−1}; F]`. The chunks' first states then follow one from the other,
+    `X[(b+1)L] = Φᴸ X[bL] + Z_L[b]`, and `X[bL + i] = Φⁱ X[bL] + Z_i[b]` is one product for all
+    samples, ordered by i, then b. That is about twice the arithmetic of stepping sample by
+    sample, in 2√P products of n × B·m blocks instead of P products of n × m blocks, whose
+    per-call overhead in numpy would be ~50× the arithmetic. The powers of Φ and the work arrays
+    are made once, for every call.
     """
 
     def __init__(self, Phi: np.ndarray, j: int, m: int, rows: np.ndarray, size: int):
@@ -292,9 +293,7 @@ class _Scan:
             self.power[i] = Phi @ self.power[i - 1]
         self.step = np.hstack([Phi, np.eye(n, dtype=dtype)])  # [Φ I]
         self.rows_power = self.power[:L][:, rows].transpose(1, 0, 2).reshape(c * L, n)  # Φⁱ[rows[c]]
-        # W[i] = [Z_i; F at bL + i] (2n, B·m): the step's operand in one block; F's unforced
-        # columns stay zero
-        self.W = np.zeros((L + 1, 2 * n, B * m), dtype=dtype)
+        self.W = np.empty((L + 1, 2 * n, B * j), dtype=dtype)  # W[i] = [Z_i; F at bL + i]: one operand
         self.start = np.empty((B + 1, n, m), dtype=dtype)  # X[bL]
         self.Y = np.empty((c * L, B * m), dtype=dtype)
         self.order = (np.arange(L)[:, None] + L * np.arange(B)).ravel()
@@ -302,8 +301,8 @@ class _Scan:
     def __call__(self, X0: np.ndarray, f: np.ndarray, P: int):
         L, j, m, n, c = self.L, self.j, self.m, len(self.Phi), len(self.rows)
         B, T = -(-P // L), len(f)
-        W = self.W[:, :, :B * m]
-        forcing = W[:L, n:].reshape(L, n, B, m)[..., :j]  # [i, a, b] = F[bL + i][a]
+        W = self.W[:, :, :B * j]
+        forcing = W[:L, n:].reshape(L, n, B, j)  # [i, a, b] = F[bL + i][a]
         full, rest = divmod(T, L)
         forcing[:, :, :full] = f[:full * L].reshape(full, L, n, j).transpose(1, 2, 0, 3)
         if full < B:
@@ -313,17 +312,18 @@ class _Scan:
         W[0, :n] = 0.0
         for i in range(1, L + 1):
             np.matmul(self.step, W[i - 1], out=W[i, :n])
-        Z = W[:, :n].reshape(L + 1, n, B, m)
+        Z = W[:, :n].reshape(L + 1, n, B, j)
         start = self.start[:B + 1]
         start[0] = X0
         for b in range(B):
             np.matmul(self.power[L], start[b], out=start[b + 1])
-            start[b + 1] += Z[L, :, b]
+            start[b + 1, :, :j] += Z[L, :, b]
         # Y[c, i, b] = Φⁱ[rows[c]] X[bL] + Z_i[b][rows[c]]
-        Y = np.matmul(self.rows_power, start[:B].transpose(1, 0, 2).reshape(n, B * m), out=self.Y[:, :B * m])
-        for k, r in enumerate(self.rows):
-            Y[k * L:(k + 1) * L] += W[:L, r]
-        Y, order = Y.reshape(c, L, B, m), self.order.reshape(L, -1)[:, :B]
+        Y = np.matmul(self.rows_power, start[:B].transpose(1, 0, 2).reshape(n, B * m),
+                      out=self.Y[:, :B * m])  # fmt: skip
+        Y = Y.reshape(c, L, B, m)
+        Y[..., :j] += Z[:L, self.rows].transpose(1, 0, 2, 3)
+        order = self.order.reshape(L, -1)[:, :B]
         if B * L == P:
             Y, order = Y.reshape(c, L * B, m), order.ravel()
         else:  # the piece's own samples only
@@ -332,7 +332,9 @@ class _Scan:
         carry = None
         if T >= P:
             b, i = divmod(P, L)
-            carry = self.power[i] @ start[b] + (Z[i, :, b] if i else 0.0)
+            carry = self.power[i] @ start[b]
+            if i:
+                carry[:, :j] += Z[i, :, b]
         return order, Y, carry
 
 
@@ -439,8 +441,9 @@ def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
         f = f.reshape(len(f), n, j)
         if kernels is None:
             order, S, X = scan(X, f, t1 - t0)
-        else:
-            order, S = np.arange(t1 - t0), work[:len(rows) * (t1 - t0) * X.shape[1]].reshape(len(rows), t1 - t0, -1)
+        else:  # the first len(rows)·P·m entries of `work`: contiguous for any P
+            order = np.arange(t1 - t0)
+            S = work[:len(rows) * len(order) * X.shape[1]].reshape(len(rows), len(order), -1)
             kernels.recursion(Phi, f, X, rows, S)
         S *= scale
         yield t0 + order, S
