@@ -2,11 +2,13 @@
 
 Same data (the Monte Carlo study's two experiments, 60 s each at 20 Hz, all states measured),
 same start (a-priori values 30 % off, best-fitting initial states), same free set (15
-coefficients) and the same estimated initial states (20 more parameters). The reference uses
-scipy's defaults (trf, 2-point finite-difference Jacobian) on the same simulator, with the noise covariance relaxed
-the same way (R from the residuals, refit, until R settles). Goal: ml-gn ≥ 10× faster at equal
-or better accuracy; each timed as the best of five runs, the two alternating. Both run with single-threaded BLAS (set before numpy loads): the matrices
-are small, and on a shared 2-core machine BLAS threads only add synchronisation noise.
+coefficients) and the same estimated initial states (20 more parameters). The reference is
+`benchmarks/scipy_reference.py`: scipy's defaults (trf, 2-point finite-difference Jacobian) on
+the same simulator, with the noise covariance relaxed the same way (R from the residuals, refit,
+until R settles). Goal: ml-gn ≥ 10× faster at equal or better accuracy; each timed as the best
+of five runs, the two alternating. Both run with single-threaded BLAS (set before numpy loads):
+the matrices are small, and on a shared 2-core machine BLAS threads only add synchronisation
+noise. (`benchmarks/bench_command.py` measures the same two as whole commands.)
 
     python3 benchmarks/bench_ml.py
 """
@@ -16,36 +18,18 @@ from __future__ import annotations
 import os
 import sys
 import time
+from pathlib import Path
 
 from testbed.threads import one_blas_thread
 
 one_blas_thread()  # as the command line does, before numpy loads
 
 import numpy as np
-from scipy.optimize import least_squares
 
-from testbed.estimators import identify
-from testbed.examples import FREE, TRUTH, experiments, prior_config
-from testbed import linear
-
-
-def scipy_fit(data, config) -> tuple[np.ndarray, int, int]:
-    """Output error by least_squares (2-point Jacobian), R relaxed between fits."""
-    prob = linear.problem(data, config)
-    p = linear.initial_states(prob, prob.start)
-    R = linear.noise_variance(prob, linear.residuals(prob, p))
-    nfev = rounds = 0
-    for rounds in range(1, 11):
-        def weighted(q):
-            res = linear.residuals(prob, q)
-            out = np.concatenate([(e / np.sqrt(R[r.channels])).ravel() for r, e in zip(prob.records, res)])
-            return np.where(np.isfinite(out), out, 1e10)
-        sol = least_squares(weighted, p, jac="2-point", method="trf")  # scipy's defaults
-        p, nfev = sol.x, nfev + sol.nfev + sol.njev * len(p)
-        R, R_old = linear.noise_variance(prob, linear.residuals(prob, p)), R
-        if np.max(np.abs(R / R_old - 1)) < 1e-3:
-            break
-    return p[:prob.n_free], nfev, rounds
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.scipy_reference import scipy_fit  # noqa: E402
+from testbed.estimators import identify  # noqa: E402
+from testbed.examples import FREE, TRUTH, experiments, prior_config  # noqa: E402
 
 
 def _best(runs, rounds: int = 5):

@@ -13,9 +13,8 @@ import json
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.linalg import null_space
 
-from testbed.linear import information
+from testbed.linear import crlb, fisher
 from testbed.measurements import noise_from_data
 from testbed.model import (
     ITHETA,
@@ -68,7 +67,9 @@ def structural(s: Structure, theta: np.ndarray, free, measured, tol: float = 1e-
     G = np.hstack([np.vstack([b[j] for b in blocks]) for j in range(3)])
     G[:, 2 * NX * NX:] *= scale
     G /= np.maximum(np.linalg.norm(G, axis=1, keepdims=True), 1e-300)
-    N = null_space(G, rcond=tol)
+    _, sv, vt = np.linalg.svd(G, full_matrices=len(G) < G.shape[1])  # the null space: right
+    # singular vectors beyond the rank
+    N = vt[np.sum(sv > tol * sv.max(initial=0.0)):].T
     D = N[2 * NX * NX:]  # dθ components of the null vectors
     blind = unobserved(s, theta, free, measured)
     V = np.eye(k)[[free.index(n) for n in blind]]  # (scaled) directions of the unobserved ones
@@ -179,12 +180,13 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     of `config.free` at the config's coefficients, for the given experiments. `noise_std`: the
     measurement noise per channel (default: the residual at the config's coefficients)."""
     experiments = config.fitted(experiments)
-    info = information(experiments, config, noise_std=noise_std)
+    F = fisher(experiments, config, noise_std=noise_std)
     free = tuple(config.free)
     theta = theta_vector(config.coefficients)
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
     struct = structural(structure(config.vehicle), theta, free, measured)
-    F, std, corr = np.asarray(info.fisher), info.crlb_std.copy(), info.correlation.copy()
+    bounds = crlb(F)
+    std, corr = bounds.std.copy(), bounds.correlation.copy()
     # a structural drift group has no information at all: infinite bounds, undefined correlations
     drifting = np.array([n in {m for g in struct.drift_groups for m in g} for n in free])
     std[drifting] = np.inf

@@ -46,7 +46,8 @@ import numpy as np
 from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
 from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
-from testbed.linear import crlb, information, predict
+from testbed import linear
+from testbed.linear import crlb, predict
 from testbed.measurements import NOISE_STD
 from testbed.model import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
 from testbed.scenario import ExperimentSpec, Scenario, fly_scenario, program, scenario, scenario_text
@@ -169,7 +170,7 @@ def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str 
     y = xs.copy()
     y[:, IX["u"]] += m.speed
     e = Experiment(name, t, STATES, y, fins)
-    return information(m.config.fitted([e]), m.config, noise_std=m.noise_std).fisher
+    return linear.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
 
 
 # -- criteria ----------------------------------------------------------------------------------------

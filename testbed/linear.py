@@ -21,23 +21,24 @@ block-triangular augmented matrices (the discrete counterpart of the paper's Eq.
 sensitivities are propagated by the recursions obtained by differentiating `x[k+1] = E w[k]`.
 
 Speed: the estimators never hold the N·k·q sensitivities of an experiment whole. They are made a
-few hundred samples at a time and summed into the normal equations as they come (fresh memory
+thousand samples at a time and summed into the normal equations as they come (fresh memory
 pages, whose first writes fault, cost more than the arithmetic), and separately for each part of
 the model that evolves on its own (a torpedo's lateral and longitudinal motions are uncoupled in
-the linear model: a quarter of the arithmetic).
+the linear model: a quarter of the arithmetic). Every recursion over the samples runs in numpy,
+in blocks of samples (`_Scan`), and this module imports nothing but numpy: a command that fits a
+CSV starts without loading a compiler or scipy. Optimisers that simulate thousands of times run
+them compiled instead (`compiled`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
 from dataclasses import dataclass
 from typing import Iterator, Mapping, NamedTuple, Sequence
 
-import numba
 import numpy as np
-import scipy.fft
-from scipy.linalg import expm
-from scipy.signal import savgol_filter
 
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
@@ -47,7 +48,7 @@ from testbed.model import (ITHETA, IX, NU, NX, STATES, Structure, continuous, de
 
 NW = NX + NU + 1  # length of w = [x; δ; 1]
 EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
-PIECE = 512  # samples per piece of sensitivities (`_pieces`): a piece stays in the CPU's cache
+PIECE = 1024  # samples per piece of sensitivities (`_pieces`): a piece's work arrays stay in the CPU's cache
 
 
 @dataclass(frozen=True)
@@ -192,52 +193,34 @@ class Discrete:
     d2E: np.ndarray | None = None  # (n_free, n_free, 10, 14)
 
 
-def _augmented(A, B, S) -> np.ndarray:
-    """`[[A, B, S], [0, 0, 0]]` (…, 14, 14): `w` obeys ẇ = F w under zero-order hold."""
-    F = np.zeros(A.shape[:-2] + (NW, NW), dtype=np.result_type(A, B, S))
-    F[..., :NX, :NX], F[..., :NX, NX:NX + NU], F[..., :NX, -1] = A, B, S
-    return F
-
-
 def discrete(prob: Problem, values: np.ndarray, dt: float, order: int = 0) -> Discrete:
     """The ZOH model at the free `values` and its first (`order` ≥ 1) and second derivatives.
 
-    With `F(θ)` the augmented matrix, `E = exp(F Δ)`; then (Van Loan / Najfeld-Havel)
-      exp([[F, F_i], [0, F]] Δ)                  has ∂E/∂θ_i in its top-right block
-                                                 (`expm_pair`, all i at once),
-      exp([[F, F_i, F_j, F_ij], [0, F, 0, F_j], [0, 0, F, F_i], [0, 0, 0, F]] Δ)
-                                                 has ∂²E/∂θ_i∂θ_j in its top-right block,
-    where `∂²A/∂θ_i∂θ_j = −Mt⁻¹(∂Mt_i ∂A_j + ∂Mt_j ∂A_i)` (Mt, At affine in θ), likewise B, S.
+    With `F(θ)` the augmented matrix [[A, B, S], [0, 0, 0]], `E = exp(F Δ)`; its derivatives are
+    the top-right blocks of the exponentials of block-triangular matrices (Van Loan /
+    Najfeld-Havel, `expm_pair`), all at once, with
+    `∂²[A B S]/∂θ_i∂θ_j = −Mt⁻¹(∂Mt_i ∂[A B S]_j + ∂Mt_j ∂[A B S]_i)` (Mt, At affine in θ).
     """
     s, theta = prob.structure, prob.coefficients(values)
     A, B, S = continuous(s, theta)
     if order == 0 or prob.n_free == 0:
         return Discrete(np.column_stack(discretize(A, B, S, dt)))
-    n, nf = NW, prob.n_free
+    nf = prob.n_free
     dA, dB, dS = derivatives(s, theta, A, B, S, prob.index)
     dABS = np.concatenate([dA, dB, dS[:, :, None]], axis=2)  # (nf, 10, 14)
-    E, dE = expm_pair(np.column_stack([A, B, S]), dABS.transpose(1, 0, 2), dt)
-    dE = dE.transpose(1, 0, 2)
+    ABS = np.column_stack([A, B, S])
     if order == 1:
-        return Discrete(E, dE)
-    F, dF = _augmented(A, B, S), _augmented(dA, dB, dS)
+        E, dE = expm_pair(ABS, dABS.transpose(1, 0, 2), dt)
+        return Discrete(E, dE.transpose(1, 0, 2))
     Mt = tilde(s, theta)[0]
-    dMt = s.dMt[prob.index]
-    G = np.einsum("iab,jbc->ijac", dMt, dABS)
-    d2F = np.zeros((nf, nf, n, n), dtype=F.dtype)
-    d2F[:, :, :NX, :] = -np.linalg.solve(Mt[None, None], G + G.transpose(1, 0, 2, 3))
+    G = np.einsum("iab,jbc->ijac", s.dMt[prob.index], dABS)
     iu, ju = np.triu_indices(nf)
-    big = np.zeros((len(iu), 4 * n, 4 * n), dtype=F.dtype)
-    for b in range(4):
-        big[:, b * n:(b + 1) * n, b * n:(b + 1) * n] = F
-    big[:, :n, n:2 * n], big[:, :n, 2 * n:3 * n] = dF[iu], dF[ju]
-    big[:, :n, 3 * n:] = d2F[iu, ju]
-    big[:, n:2 * n, 3 * n:], big[:, 2 * n:3 * n, 3 * n:] = dF[ju], dF[iu]
-    block = expm(big * dt)[:, :NX, 3 * n:]
-    d2E = np.zeros((nf, nf, NX, n), dtype=F.dtype)
+    d2ABS = -np.linalg.solve(Mt[None], (G + G.transpose(1, 0, 2, 3))[iu, ju])  # (pairs, 10, 14)
+    E, dE, block = expm_pair(ABS, dABS.transpose(1, 0, 2), dt, (d2ABS, iu, ju))
+    d2E = np.zeros((nf, nf, NX, NW), dtype=E.dtype)
     d2E[iu, ju] = block
     d2E[ju, iu] = block
-    return Discrete(E, dE, d2E)
+    return Discrete(E, dE.transpose(1, 0, 2), d2E)
 
 
 def _models(prob: Problem, values: np.ndarray, order: int) -> dict[float, Discrete]:
@@ -247,26 +230,112 @@ def _models(prob: Problem, values: np.ndarray, order: int) -> dict[float, Discre
 # --- simulation and sensitivities -------------------------------------------------------------
 
 
+_KERNELS = contextvars.ContextVar("kernels", default=None)  # testbed.kernels within `compiled()`
+
+
+@contextlib.contextmanager
+def compiled():
+    """Within this context the recursions over the samples run compiled (`testbed.kernels`), for
+    optimisers that simulate thousands of times; outside it, in numpy blocks (`_Scan`), which
+    need no compiler loaded: a process that fits one file is done before numba would be."""
+    from testbed import kernels
+
+    token = _KERNELS.set(kernels)
+    try:
+        yield
+    finally:
+        _KERNELS.reset(token)
+
+
 def _propagate(Phi: np.ndarray, x0: np.ndarray, F: np.ndarray) -> np.ndarray:
     """`x[k+1] = Φ x[k] + F[k]` from `x[0] = x0` (n,); returns (len(F) + 1, n)."""
     dtype = np.result_type(Phi, x0, F)  # complex under the complex-step tests
-    x = np.empty((len(F) + 1, len(x0)), dtype=dtype)
-    x[0] = x0
-    _recurse(np.ascontiguousarray(Phi, dtype), x, np.ascontiguousarray(F, dtype))
+    n, N = len(x0), len(F) + 1
+    x = np.empty((N, n), dtype=dtype)
+    kernels = _KERNELS.get()
+    if kernels is not None:
+        x[0] = x0
+        kernels.propagate(np.ascontiguousarray(Phi, dtype), x, np.ascontiguousarray(F, dtype))
+        return x
+    order, Y, _ = _Scan(np.asarray(Phi, dtype), 1, 1, np.arange(n), N)(
+        np.asarray(x0, dtype)[:, None], np.asarray(F, dtype)[:, :, None], N)
+    x[order] = Y[:, :, 0].T
     return x
 
 
-# Compiled: every simulation and simplex corner runs this recursion over all samples, and
-# numpy's per-call overhead on a 10×10 product is ~50× the arithmetic.
-@numba.njit(cache=True)
-def _recurse(Phi, x, F):
-    n = x.shape[1]
-    for k in range(F.shape[0]):
-        for i in range(n):
-            acc = F[k, i]
-            for l in range(n):
-                acc += Phi[i, l] * x[k, l]
-            x[k + 1, i] = acc
+class _Scan:
+    """`X[t+1] = Φ X[t] + F[t]` over pieces of at most `size` samples, X[t] (n, m) with only the
+    first j columns of F[t] nonzero. A call `(X0, f, P)` takes the piece's first state `X0`
+    (n, m) and its forcings `f[t]` (the first j columns of F[t]; P − 1 or P of them, (·, n, j))
+    and gives `(order, Y, carry)`: `Y[c, k] = X[order[k]][rows[c]]` for the P samples of the
+    piece in the order `order` (len(rows), P, m; valid until the next call), and X[P] if f has P
+    forcings (else None).
+
+    In chunks of L ≈ √size samples, t = bL + i. All chunks advance together from a zero state,
+    one product per step for all of them: `Z_i = Φ Z_{i−1} + F` (Z_i[b]: the response at bL + i
+    to chunk b's own forcing, zero in the unforced columns, which are left out), as
+    `[Φ I] [Z_{i−1}; F]`. The chunks' first states then follow one from the other,
+    `X[(b+1)L] = Φᴸ X[bL] + Z_L[b]`, and `X[bL + i] = Φⁱ X[bL] + Z_i[b]` is one product for all
+    samples, ordered by i, then b. That is about twice the arithmetic of stepping sample by
+    sample, in 2√P products of n × B·m blocks instead of P products of n × m blocks, whose
+    per-call overhead in numpy would be ~50× the arithmetic. The powers of Φ and the work arrays
+    are made once, for every call.
+    """
+
+    def __init__(self, Phi: np.ndarray, j: int, m: int, rows: np.ndarray, size: int):
+        n, c, dtype = len(Phi), len(rows), Phi.dtype
+        self.Phi, self.j, self.m, self.rows = Phi, j, m, rows
+        self.L = L = max(1, math.isqrt(size))
+        B = -(-size // L)
+        self.power = np.empty((L + 1, n, n), dtype=dtype)  # Φⁱ
+        self.power[0] = np.eye(n)
+        for i in range(1, L + 1):
+            self.power[i] = Phi @ self.power[i - 1]
+        self.step = np.hstack([Phi, np.eye(n, dtype=dtype)])  # [Φ I]
+        self.rows_power = self.power[:L][:, rows].transpose(1, 0, 2).reshape(c * L, n)  # Φⁱ[rows[c]]
+        self.W = np.empty((L + 1, 2 * n, B * j), dtype=dtype)  # W[i] = [Z_i; F at bL + i]: one operand
+        self.start = np.empty((B + 1, n, m), dtype=dtype)  # X[bL]
+        self.Y = np.empty((c * L, B * m), dtype=dtype)
+        self.order = (np.arange(L)[:, None] + L * np.arange(B)).ravel()
+
+    def __call__(self, X0: np.ndarray, f: np.ndarray, P: int):
+        L, j, m, n, c = self.L, self.j, self.m, len(self.Phi), len(self.rows)
+        B, T = -(-P // L), len(f)
+        W = self.W[:, :, :B * j]
+        forcing = W[:L, n:].reshape(L, n, B, j)  # [i, a, b] = F[bL + i][a]
+        full, rest = divmod(T, L)
+        forcing[:, :, :full] = f[:full * L].reshape(full, L, n, j).transpose(1, 2, 0, 3)
+        if full < B:
+            forcing[:rest, :, full] = f[full * L:]
+            forcing[rest:, :, full] = 0.0
+            forcing[:, :, full + 1:] = 0.0
+        W[0, :n] = 0.0
+        for i in range(1, L + 1):
+            np.matmul(self.step, W[i - 1], out=W[i, :n])
+        Z = W[:, :n].reshape(L + 1, n, B, j)
+        start = self.start[:B + 1]
+        start[0] = X0
+        for b in range(B):
+            np.matmul(self.power[L], start[b], out=start[b + 1])
+            start[b + 1, :, :j] += Z[L, :, b]
+        # Y[c, i, b] = Φⁱ[rows[c]] X[bL] + Z_i[b][rows[c]]
+        Y = np.matmul(self.rows_power, start[:B].transpose(1, 0, 2).reshape(n, B * m),
+                      out=self.Y[:, :B * m])  # fmt: skip
+        Y = Y.reshape(c, L, B, m)
+        Y[..., :j] += Z[:L, self.rows].transpose(1, 0, 2, 3)
+        order = self.order.reshape(L, -1)[:, :B]
+        if B * L == P:
+            Y, order = Y.reshape(c, L * B, m), order.ravel()
+        else:  # the piece's own samples only
+            keep = order < P
+            Y, order = Y[:, keep], order[keep]
+        carry = None
+        if T >= P:
+            b, i = divmod(P, L)
+            carry = self.power[i] @ start[b]
+            if i:
+                carry[:, :j] += Z[i, :, b]
+        return order, Y, carry
 
 
 def _states(record: Record, d: Discrete, x0: np.ndarray) -> np.ndarray:
@@ -315,7 +384,7 @@ def _sensitivity_parts(prob: Problem, record: Record, d: Discrete, x: np.ndarray
         theta, x0 = params[params < nf], params[params >= nf]
         X = np.zeros((len(states), len(params)), dtype=dtype)  # the θ columns first
         X[at[record.measured[x0 - nf]], len(theta) + np.arange(len(x0))] = 1.0
-        D = dE[theta][:, states, :].reshape(-1, NW)
+        D = dE[theta][:, states, :].transpose(1, 0, 2).reshape(-1, NW)  # rows: (state, θ)
         yield channels, params, _pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]],
                                         scale[channels], size)  # fmt: skip
 
@@ -337,7 +406,7 @@ def _uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
         reach = wider
     label = reach.argmax(axis=1)  # a part's label: its first state
     out = []
-    for part in np.unique(label):
+    for part in sorted(set(label.tolist())):  # (np.unique would import numpy.ma: 50 ms)
         params = np.flatnonzero(acts[label == part].any(axis=0))
         channels = np.flatnonzero(label[rows] == part)
         if len(params) and len(channels):
@@ -346,51 +415,38 @@ def _uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
 
 
 def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
-            scale: np.ndarray, size: int) -> Iterator[tuple[slice, np.ndarray]]:  # fmt: skip
+            scale: np.ndarray, size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
     """Rows `rows` of X[t], times `scale`, for `X[t+1] = Φ X[t] + F[t]` from `X[0] = X` (n, m),
-    where F[t]'s first j columns are `(D w[t])` (D: (j·n, len(w[t]))) and the others zero: in
-    consecutive pieces (samples, (≤ size, len(rows), m) array), the array reused from piece to
-    piece. Made and used a piece at a time (F too), neither is ever allocated for all N samples:
-    fresh memory pages cost more here than the arithmetic, as their first writes fault."""
+    where F[t]'s first j columns are `(D w[t])` reshaped (n, j) (D: (n·j, len(w[t]))) and the
+    others zero: in consecutive pieces of at most `size` samples, `(samples, S)` with
+    `S[c, k] = scale[c] X[samples[k]][rows[c]]` (len(rows), len(samples), m; valid until the
+    next piece), made by `_Scan` (`kernels.recursion` within `compiled()`) from the last state of
+    the piece before. Made and used a piece
+    at a time (F too), in arrays reused from piece to piece, neither is ever allocated for all N
+    samples: fresh memory pages cost more here than the arithmetic, as their first writes
+    fault."""
     N, dtype, n = len(w), X.dtype, len(Phi)
-    Phi, rows = np.ascontiguousarray(Phi, dtype), np.asarray(rows, np.int64)
-    scale, DT = np.asarray(scale, float), np.ascontiguousarray(D.T, dtype)
-    S = np.empty((min(size, N), len(rows), X.shape[1]), dtype=dtype)
-    F = np.empty((min(size, N - 1), len(D)), dtype=dtype)
+    rows, scale = np.asarray(rows, np.int64), np.asarray(scale, float)[:, None, None]
+    DT, j = np.asarray(D.T, dtype), len(D) // n
+    size = -(-N // -(-N // size))  # pieces of equal length, none longer than `size`
+    kernels = _KERNELS.get()
+    if kernels is None:
+        scan = _Scan(np.asarray(Phi, dtype), j, X.shape[1], rows, size)
+    else:
+        Phi, X = np.ascontiguousarray(Phi, dtype), X.astype(dtype)  # X carried on in place
+        work = np.empty(len(rows) * size * X.shape[1], dtype=dtype)
     for t0 in range(0, N, size):
         t1 = min(t0 + size, N)
-        f = np.matmul(w[t0:min(t1, N - 1)], DT, out=F[:min(t1, N - 1) - t0])
-        _recursion(Phi, f.reshape(len(f), len(D) // n, n), X, rows, scale, S[:t1 - t0])
-        yield slice(t0, t1), S[:t1 - t0]
-
-
-# Compiled for the same reason as `_recurse`. It stores only the rows asked for and, from one
-# piece to the next, carries the recursion on in X.
-@numba.njit(cache=True)
-def _recursion(Phi, forcing, X, rows, scale, S):
-    n, m = X.shape
-    nf = forcing.shape[1]
-    x, xn = X, np.empty_like(X)
-    for t in range(S.shape[0]):
-        for c in range(len(rows)):
-            for j in range(m):
-                S[t, c, j] = scale[c] * x[rows[c], j]
-        if t == forcing.shape[0]:  # the record's last sample: nothing to carry on
-            break
-        for a in range(n):
-            for j in range(m):
-                xn[a, j] = 0.0
-            for l in range(n):  # the innermost loop runs along contiguous columns
-                phi = Phi[a, l]
-                if phi == 0:  # Φ is sparse even within a part (roll drives yaw, not back)
-                    continue
-                for j in range(m):
-                    xn[a, j] += phi * x[l, j]
-            for i in range(nf):
-                xn[a, i] += forcing[t, i, a]
-        x, xn = xn, x
-    if x is not X:
-        X[:, :] = x
+        f = w[t0:min(t1, N - 1)] @ DT  # the last piece has no forcing after the record's end
+        f = f.reshape(len(f), n, j)
+        if kernels is None:
+            order, S, X = scan(X, f, t1 - t0)
+        else:  # the first len(rows)·P·m entries of `work`: contiguous for any P
+            order = np.arange(t1 - t0)
+            S = work[:len(rows) * len(order) * X.shape[1]].reshape(len(rows), len(order), -1)
+            kernels.recursion(Phi, f, X, rows, S)
+        S *= scale
+        yield t0 + order, S
 
 
 def _sensitivities(prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows,
@@ -399,7 +455,7 @@ def _sensitivities(prob: Problem, record: Record, d: Discrete, x: np.ndarray, ro
     S = np.zeros((len(x), len(rows), prob.n_free + len(record.measured)), dtype=np.result_type(x, d.E))
     for channels, params, pieces in _sensitivity_parts(prob, record, d, x, rows, scale, len(x)):
         for samples, piece in pieces:
-            S[samples, channels[:, None], params[None, :]] = piece
+            S[np.ix_(samples, channels, params)] = piece.transpose(1, 0, 2)
     return S
 
 
@@ -512,8 +568,8 @@ def gauss_newton_terms(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
                                                            _scale(r, R), PIECE):  # fmt: skip
             ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
             for samples, S in pieces:
-                S = S.reshape(-1, len(params))  # weighted: R^-½ S
-                gp += S.T @ ep[samples].ravel()
+                S = S.reshape(-1, len(params))  # weighted: R^-½ S, channel by channel
+                gp += S.T @ ep[samples].T.ravel()
                 Mp += S.T @ S  # numpy's matmul takes Sᵀ S as one symmetric update
             gr[params] += gp
             Mr[np.ix_(params, params)] += Mp
@@ -543,7 +599,7 @@ def fit_initial_states(prob: Problem, values: np.ndarray,
         Q, b, ss = np.zeros((k, k, k)), np.zeros((k, k)), np.zeros(k)
         u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
         for samples, Y in _pieces(d.E[:, :NX], d.E[:, NX:], u1, X, r.measured, np.ones(k), PIECE):
-            G, v = Y[:, :, 1:].transpose(1, 0, 2), (r.y[samples] - Y[:, :, 0]).T  # channel first
+            G, v = Y[:, :, 1:], r.y[samples].T - Y[:, :, 0]  # channel first
             Q += G.transpose(0, 2, 1) @ G
             b += (G.transpose(0, 2, 1) @ v[:, :, None])[:, :, 0]
             ss += np.sum(v**2, axis=1)
@@ -646,11 +702,11 @@ def colored_covariance(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
         for channels, params, pieces in _sensitivity_parts(prob, r, models[r.dt], x, r.measured,
                                                            _scale(r, R), PIECE):  # fmt: skip
             for samples, S in pieces:
-                Zr[channels, :, samples] = (S @ C[params]).transpose(1, 2, 0)
-        V = scipy.fft.rfft(e / np.sqrt(R[r.channels]), L, axis=0)  # R^-½ v
+                Zr[np.ix_(channels, np.arange(nf), samples)] = (S @ C[params]).transpose(0, 2, 1)
+        V = np.fft.rfft(e / np.sqrt(R[r.channels]), L, axis=0)  # R^-½ v
         P = np.zeros((nf, L // 2 + 1), dtype=complex)
         for c in range(len(Zr)):
-            P += np.conj(V[:, c]) * scipy.fft.rfft(Zr[c], L)
+            P += np.conj(V[:, c]) * np.fft.rfft(Zr[c], L)
         weight = np.full(P.shape[1], 2.0)
         weight[0] = weight[-1] = 1.0  # DC and Nyquist appear once in the full spectrum
         out += np.real((P * weight) @ np.conj(P).T) / (L * n)
@@ -692,16 +748,21 @@ def assess(prob: Problem, p: np.ndarray, M: np.ndarray | None = None, R: np.ndar
     cov, std, corr = crlb(M)
     corrected = colored_covariance(prob, p, xs, res, R, cov)
     nf = prob.n_free
-    fisher = M[:nf, :nf] - M[:nf, nf:] @ np.linalg.solve(M[nf:, nf:], M[nf:, :nf])
-    fisher = (fisher + fisher.T) / 2
     x0 = {}
     for r in prob.records:
         xr = prob.x0(r, p) + np.eye(NX)[IX["u"]] * prob.speed
         x0[r.name] = {STATES[i]: float(xr[i]) for i in r.measured}
-    return Information(prob.free, p[:nf].copy(), fisher, std[:nf], corr[:nf, :nf],
+    return Information(prob.free, p[:nf].copy(), _eliminated(M, nf), std[:nf], corr[:nf, :nf],
                        np.where(np.isinf(std[:nf]), np.inf, np.sqrt(np.maximum(np.diag(corrected), 0.0))),
                        dict(zip(prob.channels, map(float, np.sqrt(R)))), x0,
                        negative_log_likelihood(prob, res), p.copy())  # fmt: skip
+
+
+def _eliminated(M: np.ndarray, nf: int) -> np.ndarray:
+    """The information about the first `nf` parameters with the others (the initial states)
+    estimated too: the Schur complement `M_θθ − M_θx M_xx⁻¹ M_xθ`."""
+    F = M[:nf, :nf] - M[:nf, nf:] @ np.linalg.solve(M[nf:, nf:], M[nf:, :nf])
+    return (F + F.T) / 2
 
 
 def _values(prob: Problem, values) -> np.ndarray:
@@ -740,6 +801,26 @@ def information(experiments: Sequence[Experiment], config: ModelConfig,
     channel), else the residual variance there, which also holds the model's error at `values`.
     A model that diverges on the data has no meaningful bound: InputError.
     """
+    prob, p, R = _analysed(experiments, config, values, noise_std)
+    return assess(prob, p, R=R)
+
+
+def fisher(experiments: Sequence[Experiment], config: ModelConfig,
+           values: Mapping[str, float] | np.ndarray | None = None,
+           noise_std: Mapping[str, float] | None = None) -> np.ndarray:  # fmt: skip
+    """`information(...).fisher` alone: the Fisher information of `config.free` (n_free, n_free),
+    the initial states eliminated, without the bounds (no colored-residual analysis)."""
+    prob, p, R = _analysed(experiments, config, values, noise_std)
+    xs = states(prob, p)
+    res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
+    M = gauss_newton_terms(prob, p, xs, res, noise_variance(prob, res) if R is None else R)[1]
+    return _eliminated(M, prob.n_free)
+
+
+def _analysed(experiments, config, values, noise_std) -> tuple[Problem, np.ndarray, np.ndarray | None]:
+    """The problem, the parameter vector at `values` with the best-fitting initial states and R
+    from `noise_std` (None without) for `information` and `fisher`; InputError where the model
+    diverges on the data: it has no meaningful bound."""
     prob = problem(experiments, config)
     with np.errstate(over="ignore", invalid="ignore"):
         p = initial_states(prob, _values(prob, values))
@@ -747,8 +828,7 @@ def information(experiments: Sequence[Experiment], config: ModelConfig,
     if why is not None:
         raise InputError(f"{prob.source}: the model diverges at these coefficients ({why}); "
                          "expected coefficients giving a bounded response")  # fmt: skip
-    R = None if noise_std is None else np.array([noise_std[c] ** 2 for c in prob.channels])
-    return assess(prob, p, R=R)
+    return prob, p, None if noise_std is None else np.array([noise_std[c] ** 2 for c in prob.channels])
 
 
 def predict(experiments: Sequence[Experiment], config: ModelConfig,
@@ -819,6 +899,22 @@ def equation_error(experiments: Sequence[Experiment], config: ModelConfig,
     fixed[prob.index] = 0.0
     Mf, Af, Bf, Sf = tilde(s, fixed)  # known part: constants and fixed coefficients
     values = prob.start
+    intervals = []  # per record: (ẋ, x, δ) over its sample intervals, or None if too short to smooth
+    for r in prob.records:
+        n = len(r.y)
+        win = min(max(5, int(round(window_s / r.dt)) | 1), n - (1 - n % 2))
+        if win <= 3:
+            intervals.append(None)
+            continue
+        # only intervals whose smoothing window lies within the record: the ends would be
+        # extrapolated
+        xs = np.zeros((n - win + 1, NX))
+        xs[:, r.measured] = _smoothed(r.y, win)
+        us = _smoothed(r.inputs, win)
+        # over each sample interval the input is held: the row equation averaged over it
+        # has ẋ = Δx/Δt, x at the midpoint and δ exactly, with no derivative across a step;
+        # the same (linear) smoothing of states and inputs keeps that equation consistent
+        intervals.append((np.diff(xs, axis=0) / r.dt, (xs[1:] + xs[:-1]) / 2, us[:-1]))
     for row in range(6):  # u v w p q r
         cols = [j for j, i in enumerate(prob.index)
                 if s.dMt[i, row].any() or s.dAt[i, row].any() or s.dBt[i, row].any()]  # fmt: skip
@@ -829,23 +925,10 @@ def equation_error(experiments: Sequence[Experiment], config: ModelConfig,
             (s.dAt[idx, row] != 0).any(0)  # fmt: skip
         involved[row] = True
         X, Y = [], []
-        for r in prob.records:
-            if not set(np.flatnonzero(involved)) <= set(r.measured):
+        for r, record in zip(prob.records, intervals):
+            if record is None or not set(np.flatnonzero(involved)) <= set(r.measured):
                 continue
-            n = len(r.y)
-            win = min(max(5, int(round(window_s / r.dt)) | 1), n - (1 - n % 2))
-            if win <= 3:
-                continue
-            xs = np.zeros((n, NX))
-            xs[:, r.measured] = savgol_filter(r.y, win, 3, axis=0)
-            us = savgol_filter(r.inputs, win, 3, axis=0)
-            # over each sample interval the input is held: the row equation averaged over it
-            # has ẋ = Δx/Δt, x at the midpoint and δ exactly, with no derivative across a step;
-            # the same (linear) smoothing of states and inputs keeps that equation consistent
-            keep = slice(win // 2, n - 1 - win // 2)  # the smoothed ends are extrapolated
-            xdot = (np.diff(xs, axis=0) / r.dt)[keep]
-            x = ((xs[1:] + xs[:-1]) / 2)[keep]
-            u = us[:-1][keep]
+            xdot, x, u = record
             # Σ_free θ_i (∂Mt_i ẋ − ∂At_i x − ∂Bt_i δ)_row = (At_f x + Bt_f δ + St_f − Mt_f ẋ)_row
             X.append(xdot @ s.dMt[idx, row].T - x @ s.dAt[idx, row].T - u @ s.dBt[idx, row].T)
             Y.append(x @ Af[row] + u @ Bf[row] + Sf[row] - xdot @ Mf[row])
@@ -858,3 +941,14 @@ def equation_error(experiments: Sequence[Experiment], config: ModelConfig,
         step = np.linalg.lstsq(X / scale, Y - X @ prior, rcond=1e-8)[0] / scale
         values[cols] = prior + step
     return config.with_coefficients(dict(zip(prob.free, map(float, values))))
+
+
+def _smoothed(y: np.ndarray, win: int) -> np.ndarray:
+    """Savitzky-Golay smoothing of `y` (N, k), cubic, over `win` (odd) samples: at each sample
+    whose window lies within the record (N − win + 1 of them), the value there of the cubic
+    fitted to the window by least squares, a fixed weighted sum of the window."""
+    h = win // 2
+    # the fitted cubic's value at the window's centre: the first row of the Vandermonde pseudo-inverse
+    c = np.linalg.pinv(np.vander(np.arange(-h, h + 1.0), 4, increasing=True))[0]
+    n = len(y) - 2 * h
+    return sum(c[o] * y[o:o + n] for o in range(win))

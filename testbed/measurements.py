@@ -26,15 +26,13 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
+from testbed.data import Experiment, median
 from testbed.errors import InputError
 from testbed.model import STATES
-
-if TYPE_CHECKING:
-    from testbed.data import Experiment
 
 NOISE_STD = {"u": 0.05, "v": 0.02, "w": 0.02, "p": 0.002, "q": 0.002, "r": 0.002,
              "phi": 0.003, "theta": 0.003, "psi": 0.01, "z": 0.05}  # fmt: skip
@@ -105,7 +103,7 @@ def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
             where = ", ".join(e.source or e.name for e in experiments if name in e.measured)
             raise InputError(f"{where}: {name} has fewer than 4 samples; the noise estimate "
                              "(third differences) expected at least 4")  # fmt: skip
-        mad = 1.4826 * np.median(np.abs(d - np.median(d)))
+        mad = 1.4826 * median(np.abs(d - median(d)))
         out[name] = max(mad / math.sqrt(20.0), 1e-9)  # floor: R must stay positive definite
     return out
 

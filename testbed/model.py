@@ -4,7 +4,7 @@ Every matrix is affine in the 35 coefficients, so the model is held as a constan
 derivative matrix per coefficient (`Structure`); `tilde` evaluates it, `continuous` gives
 `A = Mt⁻¹At, B = Mt⁻¹Bt, S = Mt⁻¹St`, and `discretize` gives the exact zero-order-hold model
 through the block-matrix exponential (valid for singular A: ψ and z are pure integrators);
-`expm_pair` gives it with its exact derivatives.
+`expm_pair` gives it with its exact first and second derivatives.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from dataclasses import dataclass, field, fields
 from typing import Mapping
 
 import numpy as np
-from scipy.linalg import expm
 
 STATES = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z")
 INPUTS = ("delta_r", "delta_er", "delta_el")
@@ -148,28 +147,36 @@ def continuous(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray,
 def discretize(A: np.ndarray, B: np.ndarray, S: np.ndarray, dt: float):
     """Exact zero-order-hold model `x[k+1] = Φ x[k] + Γ δ[k] + s`.
 
-    One exponential of the block matrix [[A, B, S], [0, 0, 0]] Δ, so singular A is fine.
+    One exponential of the block matrix [[A, B, S], [0, 0, 0]] Δ (`expm_pair`), so singular A
+    is fine.
     """
     n, m = B.shape
-    big = np.zeros((n + m + 1, n + m + 1), dtype=np.result_type(A, B, S))  # complex-step safe
-    big[:n, :n], big[:n, n:n + m], big[:n, -1] = A, B, S
-    E = expm(big * dt)
-    return E[:n, :n], E[:n, n:n + m], E[:n, -1]
+    M = np.column_stack([A, B, S])
+    E = expm_pair(M, np.zeros((n, 0, n + m + 1), dtype=M.dtype), dt)[0]
+    return E[:, :n], E[:, n:n + m], E[:, -1]
 
 
-def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float):
+def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float, second=None):
     """`(E, dE)`: the top n rows of `expm(M̄ Δ)` and of its derivatives, where `M̄ = [[M], [0]]`
     is square (its last q − n rows zero) and `dM[:, i, :] = ∂M/∂θ_i` (n, p, q); `dE` is laid out
     like `dM`, so `dE @ ξ` is the (n, p) Jacobian `∂(E ξ)/∂θ` in one product.
 
-    Van Loan: the upper-right block of `expm([[M̄, ∂M̄_i], [0, M̄]] Δ)` is `∂expm(M̄Δ)`. Computed
-    for all i at once by scaling and squaring of the block-triangular pair (E, ∂E): Taylor at
-    `h = Δ/2ˢ` with `‖A h‖₁ ≤ 1/2`, then `∂E ← E ∂E + ∂E E`, `E ← E²` s times, top rows only. Only
-    A (the first n columns) enters the powers, so the input columns (B, large for the fins) set
-    neither s nor the number of terms: the k-th term of E and of ∂E is bounded by
-    `‖Ah‖^(k−1)/(k−1)!` of the first, and the series stops where that bound is below 2⁻⁵³ (16
-    terms at ‖Ah‖ = 1/2). Equal to scipy's `expm` of the block matrix to rounding (tests: complex
-    step), at a fraction of its cost: at 50 Hz, ‖AΔ‖₁ ≈ 1 for the torpedo's roll mode, s = 1.
+    `second = (d2M, i, j)`: also the second derivatives `∂²E/∂θ_i∂θ_j` (P, n, q) for the pairs
+    `(i[k], j[k])`, `d2M[k] = ∂²M/∂θ_i∂θ_j` (P, n, q); then `(E, dE, d2E)`.
+
+    Van Loan: the upper-right block of `expm([[M̄, ∂M̄_i], [0, M̄]] Δ)` is `∂expm(M̄Δ)`, and that
+    of the 4×4 block matrix with `∂M̄_i, ∂M̄_j, ∂²M̄_ij` above the diagonal is `∂²expm(M̄Δ)`.
+    Computed for all i (and pairs) at once by scaling and squaring of the block-triangular
+    matrices: Taylor at `h = Δ/2ˢ` with `‖A h‖₁ ≤ 1/2`, with `T_k = T_{k−1} X / k`,
+      ∂T_k = (∂T_{k−1} X + T_{k−1} ∂X) / k,
+      ∂²T_k = (∂²T_{k−1} X + ∂_iT_{k−1} ∂_jX + ∂_jT_{k−1} ∂_iX + T_{k−1} ∂²X) / k,
+    then `E ← E²`, `∂E ← E ∂E + ∂E E`, `∂²E ← E ∂²E + ∂_iE ∂_jE + ∂_jE ∂_iE + ∂²E E` s times, top
+    rows only. Only A (the first n columns) enters the powers, so the input columns (B, large
+    for the fins) set neither s nor the number of terms: the k-th term of E and of ∂E is bounded
+    by `‖Ah‖^(k−1)/(k−1)!` of the first (of ∂²E by `‖Ah‖^(k−2)/(k−2)!`: one term more), and the
+    series stops where that bound is below 2⁻⁵³ (16 terms at ‖Ah‖ = 1/2). Equal to scipy's
+    `expm` of the block matrices to rounding (tests: complex step), at a fraction of its cost:
+    at 50 Hz, ‖AΔ‖₁ ≈ 1 for the torpedo's roll mode, s = 1.
     """
     n, p, q = dM.shape
     norm = float(np.abs(M[:, :n]).sum(0).max()) * dt
@@ -183,22 +190,37 @@ def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float):
     dX = (dM * h).reshape(n, p * q)
     T, dT = X, dX.reshape(n, p, q)
     E, dE = X.copy(), dT.copy()
-    for k in range(2, terms + 1):  # T_k = T_{k−1} X / k, ∂T_k = (∂T_{k−1} X + T_{k−1} ∂X) / k
+    if second is not None:
+        d2M, i, j = second
+        dXi, dXj = dX.reshape(n, p, q)[:, i].transpose(1, 0, 2), dX.reshape(n, p, q)[:, j].transpose(1, 0, 2)
+        d2X = d2M * h
+        d2T, d2E = d2X, d2X.copy()
+        terms += 1
+    for k in range(2, terms + 1):  # T_k from T_{k−1}: the recursions above
+        if second is not None:
+            dTi, dTj = dT[:, i, :n].transpose(1, 0, 2), dT[:, j, :n].transpose(1, 0, 2)
+            d2T = (d2T[:, :, :n] @ X + dTi @ dXj + dTj @ dXi + T[:, :n] @ d2X) * (1.0 / k)
+            d2E += d2T
         dT = ((dT[:, :, :n].reshape(n * p, n) @ X).reshape(n, p, q)
               + (T[:, :n] @ dX).reshape(n, p, q)) * (1.0 / k)  # fmt: skip
         T = (T[:, :n] @ X) * (1.0 / k)
         E += T
         dE += dT
     E[:, :n] += np.eye(n)
-    for _ in range(s):  # (E, ∂E) ← (E², E ∂E + ∂E E), top rows only
+    for _ in range(s):  # (E, ∂E, ∂²E) ← (E², E ∂E + ∂E E, …), top rows only
         Ex = E[:, :n]
+        if second is not None:
+            dEi, dEj = dE[:, i].transpose(1, 0, 2), dE[:, j].transpose(1, 0, 2)
+            d2E_new = Ex @ d2E + d2E[:, :, :n] @ E + dEi[:, :, :n] @ dEj + dEj[:, :, :n] @ dEi
+            d2E_new[:, :, n:] += d2E[:, :, n:]
+            d2E = d2E_new
         dE_new = (Ex @ dE.reshape(n, p * q)).reshape(n, p, q)
         dE_new += (dE[:, :, :n].reshape(n * p, n) @ E).reshape(n, p, q)
         dE_new[:, :, n:] += dE[:, :, n:]
         E_new = Ex @ E
         E_new[:, n:] += E[:, n:]
         E, dE = E_new, dE_new
-    return E, dE
+    return (E, dE) if second is None else (E, dE, d2E)
 
 
 def derivatives(s: Structure, theta: np.ndarray, A: np.ndarray, B: np.ndarray, S: np.ndarray,

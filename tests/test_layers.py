@@ -28,6 +28,7 @@ LAYERS = [
     ("testbed.scenario",),
     ("testbed.recording",),
     ("testbed.runs",),
+    ("testbed.kernels",),
     ("testbed.linear",),
     ("testbed.examples",),
     ("testbed.estimators.base",),

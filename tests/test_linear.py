@@ -125,10 +125,29 @@ def test_sensitivities_made_in_pieces_equal_the_whole_recursion():
             for channels, params, pieces in linear._sensitivity_parts(prob, r, models[r.dt], x,
                                                                   r.measured, scale, size):  # fmt: skip
                 for samples, piece in pieces:
-                    got[samples, channels[:, None], params[None, :]] = piece
+                    got[np.ix_(samples, channels, params)] = piece.transpose(1, 0, 2)
                 parts.add(tuple(params))
             assert len(parts) == 2  # lateral and longitudinal: propagated apart
-            np.testing.assert_allclose(got, S * scale[:, None], rtol=1e-13, atol=1e-15)
+            np.testing.assert_allclose(got, S * scale[:, None], rtol=1e-12, atol=1e-13 * np.abs(S).max())
+
+
+def test_compiled_recursions_equal_the_numpy_blocks():
+    prob, p = _problem(duration=3.0)
+    pc = p.astype(complex)
+    pc[0] += 1e-30j  # complex steps run through both too
+
+    def everything():
+        xs, res = linear.states(prob, p), linear.residuals(prob, p)
+        R = linear.noise_variance(prob, res)
+        return (*xs, *linear.sensitivities(prob, p, xs), *linear.gauss_newton_terms(prob, p, xs, res, R),
+                linear.fit_initial_states(prob, prob.start)[0], *linear.outputs(prob, pc))  # fmt: skip
+
+    blocks = everything()
+    with linear.compiled():
+        compiled = everything()
+    for a, b in zip(blocks, compiled):  # g sums noise-sized residuals: to rounding of its largest entry
+        np.testing.assert_allclose(a.real, b.real, rtol=1e-11, atol=1e-11 * np.abs(a.real).max())
+        np.testing.assert_allclose(a.imag, b.imag, rtol=1e-11, atol=1e-11 * np.abs(a.imag).max() + 1e-300)
 
 
 def test_uncoupled_parts_are_the_connected_states_and_parameters():
@@ -149,6 +168,7 @@ def test_information_is_consistent():
     info = linear.information(data, truth_config())
     F = info.fisher
     np.testing.assert_allclose(F, F.T, rtol=1e-12)
+    np.testing.assert_allclose(linear.fisher(data, truth_config()), F, rtol=1e-12)
     # crlb of the coefficients with the initial states as nuisance = the Schur complement's inverse
     np.testing.assert_allclose(info.crlb_std, np.sqrt(np.diag(np.linalg.inv(F))), rtol=1e-6)
     np.testing.assert_allclose(np.diag(info.correlation), 1.0, rtol=1e-9)
@@ -197,6 +217,16 @@ def test_equation_error_recovers_noise_free_truth():
     got = np.array([ee.coefficients[n] for n in FREE])
     want = np.array([TRUTH[n] for n in FREE])
     np.testing.assert_allclose(got, want, rtol=0.01)
+
+
+def test_smoothing_is_savitzky_golay_within_the_record():
+    from scipy.signal import savgol_filter
+
+    y = np.random.default_rng(2).normal(size=(40, 3)).cumsum(axis=0)
+    for win in (5, 11, 39):
+        h = win // 2
+        np.testing.assert_allclose(linear._smoothed(y, win), savgol_filter(y, win, 3, axis=0)[h:len(y) - h],
+                                   rtol=1e-12, atol=1e-12 * np.abs(y).max())  # fmt: skip
 
 
 def test_bad_input():

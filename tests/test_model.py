@@ -1,9 +1,12 @@
 """The linear model (docs/model.md): the affine structure against the table written out by hand."""
 
+
 import numpy as np
 
 from testbed.model import (COEFFICIENTS, Vehicle, continuous, derivatives, discretize, structure,
-                           tilde)
+                           theta_vector, tilde)
+
+from testbed.examples import TRUTH, VEHICLE  # noqa: E402
 
 
 def test_matrices_match_the_spec_table():
@@ -61,3 +64,17 @@ def test_discretize_handles_pure_integrators():
     np.testing.assert_allclose(Phi, [[1, dt], [0, 1]])
     np.testing.assert_allclose(Gamma[:, 0], [dt**2 / 2, dt])
     np.testing.assert_allclose(s, [0.5 * dt**2 / 2, 0.5 * dt])
+
+
+def test_discretize_equals_scipy_expm_from_fine_to_coarse_steps():
+    """The series with scaling and squaring against scipy's Padé `expm` of the block matrix,
+    from steps far below the fastest mode to steps that square many times."""
+    from scipy.linalg import expm
+
+    A, B, S = continuous(structure(VEHICLE), theta_vector(TRUTH))
+    big = np.zeros((14, 14))
+    big[:10] = np.column_stack([A, B, S])
+    for dt in (1e-4, 0.02, 0.5, 5.0, 60.0):
+        ref = expm(big * dt)[:10]
+        got = np.column_stack(discretize(A, B, S, dt))
+        assert np.abs(got - ref).max() < 1e-12 * np.abs(ref).max()

@@ -13,6 +13,7 @@ The `fast` profile (tests/conftest.py) bounds the examples; `-m slow` runs each 
 with many more, as does `HYPOTHESIS_PROFILE=slow` for the whole run.
 """
 
+import copy
 import json
 import math
 from pathlib import Path
@@ -172,7 +173,7 @@ def bad_config_doc(draw):
         table = draw(st.sampled_from(["vehicle", "coefficients", "identify", None]))
         if table is None:
             doc[draw(st.sampled_from(["vehicle", "coefficients", "identify", "extra"]))] = \
-                draw(st.sampled_from(TOML_BAD_VALUES))  # fmt: skip
+                copy.deepcopy(draw(st.sampled_from(TOML_BAD_VALUES)))  # a fresh {} each time: mutated below  # fmt: skip
             continue
         if not isinstance(doc.get(table), dict):
             continue
@@ -181,7 +182,7 @@ def bad_config_doc(draw):
         if draw(st.booleans()) and key in doc[table]:
             del doc[table][key]
         else:
-            doc[table][key] = draw(st.sampled_from(TOML_BAD_VALUES + [["X_u", "X_u"], ["Y_nope"], [1]]))
+            doc[table][key] = copy.deepcopy(draw(st.sampled_from(TOML_BAD_VALUES + [["X_u", "X_u"], ["Y_nope"], [1]])))
     return doc
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from testbed.cli import main
-from testbed.validation import CONFIDENCE, fit_percent, whiteness
+from testbed.validation import CONFIDENCE, chi2_sf, fit_percent, whiteness
 
 
 def test_fit_percent_is_one_minus_the_relative_error_norm():
@@ -29,6 +29,14 @@ def test_white_noise_is_white_and_a_coloured_residual_is_not():
         ar[k] = 0.5 * ar[k - 1] + e[k]
     c = whiteness(ar)
     assert not c.white and c.max_autocorrelation == pytest.approx(0.5, abs=0.05) and c.ljung_box_p < 1e-10
+
+
+def test_chi2_survival_matches_scipy():
+    from scipy.stats import chi2
+
+    for k in (1, 2, 3, 10, 25, 26, 101):
+        for q in (0.0, 1e-6, 0.5, k, 3.0 * k + 7, 200.0, 1200.0):
+            assert chi2_sf(q, k) == pytest.approx(chi2.sf(q, k), rel=1e-12, abs=1e-300)
 
 
 def test_ljung_box_rejects_white_noise_at_its_level():

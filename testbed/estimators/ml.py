@@ -94,6 +94,7 @@ def gauss_newton(prob: linear.Problem, p: np.ndarray, max_iter: int = 50, callba
     return Outcome(p, status, it, np.array(history), M)
 
 
+@linear.compiled()  # second-order sensitivities at every iteration: the compiler pays off
 def newton_raphson(prob: linear.Problem, p: np.ndarray, max_iter: int = 100, callback=None,
                    tol: float = 1e-3) -> Outcome:  # fmt: skip
     """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step."""
@@ -124,6 +125,7 @@ def newton_raphson(prob: linear.Problem, p: np.ndarray, max_iter: int = 100, cal
     return Outcome(p, status, it, np.array(history), M)
 
 
+@linear.compiled()  # thousands of simulations: the compiler pays off
 def nelder_mead(prob: linear.Problem, p: np.ndarray, max_iter: int | None = None, callback=None,
                 eps: float = 1e-3, step: float = 0.1, restart_step: float = 0.02,
                 r_tol: float = 1e-3, max_relaxations: int = 20) -> Outcome:  # fmt: skip

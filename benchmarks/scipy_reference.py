@@ -1,0 +1,68 @@
+"""The reference the ML benchmarks measure `ml-gn` against: a plain scipy output-error fit.
+
+`scipy.optimize.least_squares` with its defaults (trf, 2-point finite-difference Jacobian) on
+testbed's own compiled simulator (`linear.residuals`), the free coefficients and each
+experiment's measured initial states as parameters, from the a-priori values with the
+best-fitting initial states; the noise covariance relaxed as `ml-gn` relaxes it (R from the
+residuals, refit, until R settles). As a whole command it reads the measurement CSVs and the
+model config with testbed's readers and writes the estimate as JSON:
+
+    python benchmarks/scipy_reference.py A.csv B.csv --config cfg.toml --out ref.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from testbed.threads import one_blas_thread
+
+one_blas_thread()  # as the command line does, before numpy loads
+
+import numpy as np  # noqa: E402
+from scipy.optimize import least_squares  # noqa: E402
+
+from testbed import linear  # noqa: E402
+from testbed.data import read_config, read_csv  # noqa: E402
+
+
+def scipy_fit(data, config) -> tuple[np.ndarray, int, int]:
+    """Output error by least_squares (2-point Jacobian), R relaxed between fits: the free values,
+    the model evaluations and the relaxation rounds."""
+    prob = linear.problem(data, config)
+    p = linear.initial_states(prob, prob.start)
+    R = linear.noise_variance(prob, linear.residuals(prob, p))
+    nfev = rounds = 0
+    for rounds in range(1, 11):
+        def weighted(q):
+            res = linear.residuals(prob, q)
+            out = np.concatenate([(e / np.sqrt(R[r.channels])).ravel() for r, e in zip(prob.records, res)])
+            return np.where(np.isfinite(out), out, 1e10)
+        sol = least_squares(weighted, p, jac="2-point", method="trf")  # scipy's defaults
+        p, nfev = sol.x, nfev + sol.nfev + sol.njev * len(p)
+        R, R_old = linear.noise_variance(prob, linear.residuals(prob, p)), R
+        if np.max(np.abs(R / R_old - 1)) < 1e-3:
+            break
+    return p[:prob.n_free], nfev, rounds
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", nargs="+", help="measurement CSVs")
+    ap.add_argument("--config", required=True, help="model config TOML")
+    ap.add_argument("--out", required=True, help="estimate JSON")
+    args = ap.parse_args(argv)
+    data, config = [read_csv(f) for f in args.data], read_config(args.config)
+    t0 = time.perf_counter()
+    values, nfev, rounds = scipy_fit(config.fitted(data), config)
+    doc = {"coefficients": dict(zip(config.free, map(float, values))), "model_evaluations": nfev,
+           "rounds": rounds, "fit_time_s": time.perf_counter() - t0}  # fmt: skip
+    with open(args.out, "w") as f:
+        json.dump(doc, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
