@@ -1,13 +1,16 @@
-"""The reference the ML benchmarks measure `ml-gn` against: a plain scipy output-error fit.
+"""The references the ML benchmarks measure `ml-gn` against: scipy output-error fits.
 
 `scipy.optimize.least_squares` with its defaults (trf, 2-point finite-difference Jacobian) on
-testbed's own compiled simulator (`linear.residuals`), the free coefficients and each
+testbed's own simulator (`linear.residuals`: the strong reference), or, with `--plain`, on a
+simulator written with scipy alone as a user without testbed would write it (the exact
+zero-order hold by `scipy.linalg.expm` of the block matrix, the outputs by `scipy.signal.dlsim`);
+the free coefficients and each
 experiment's measured initial states as parameters, from the a-priori values with the
 best-fitting initial states; the noise covariance relaxed as `ml-gn` relaxes it (R from the
 residuals, refit, until R settles). As a whole command it reads the measurement CSVs and the
 model config with testbed's readers and writes the estimate as JSON:
 
-    python benchmarks/scipy_reference.py A.csv B.csv --config cfg.toml --out ref.json
+    python benchmarks/scipy_reference.py A.csv B.csv --config cfg.toml --out ref.json [--plain]
 """
 
 from __future__ import annotations
@@ -22,27 +25,47 @@ from testbed.threads import one_blas_thread
 one_blas_thread()  # as the command line does, before numpy loads
 
 import numpy as np  # noqa: E402
+from scipy.linalg import expm  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
+from scipy.signal import dlsim  # noqa: E402
 
 from testbed import linear  # noqa: E402
 from testbed.data import read_config, read_csv  # noqa: E402
+from testbed.model import NU, NX, continuous, structure  # noqa: E402
 
 
-def scipy_fit(data, config) -> tuple[np.ndarray, int, int]:
+def plain_residuals(prob: linear.Problem, q: np.ndarray) -> list[np.ndarray]:
+    """The residuals at `q` simulated with scipy alone: `expm([[A, B, S], [0, 0, 0]] Δ)` gives
+    Φ and Γ = [B S]'s zero-order hold, `dlsim` the outputs from each experiment's x0."""
+    A, B, S = continuous(prob.structure, prob.coefficients(q[:prob.n_free]))
+    block = np.zeros((NX + NU + 1, NX + NU + 1))
+    block[:NX, :NX], block[:NX, NX:NX + NU], block[:NX, -1] = A, B, S
+    out = []
+    for r in prob.records:
+        E = expm(block * r.dt)
+        C = np.eye(NX)[r.measured]
+        u = np.column_stack([r.inputs, np.ones(len(r.inputs))])
+        _, y, _ = dlsim((E[:NX, :NX], E[:NX, NX:], C, np.zeros((len(C), NU + 1)), r.dt), u, x0=prob.x0(r, q))
+        out.append(r.y - y)
+    return out
+
+
+def scipy_fit(data, config, plain: bool = False) -> tuple[np.ndarray, int, int]:
     """Output error by least_squares (2-point Jacobian), R relaxed between fits: the free values,
-    the model evaluations and the relaxation rounds."""
+    the model evaluations and the relaxation rounds. `plain`: on `plain_residuals`."""
     prob = linear.problem(data, config)
+    residuals = (lambda q: plain_residuals(prob, q)) if plain else (lambda q: linear.residuals(prob, q))
     p = linear.initial_states(prob, prob.start)
-    R = linear.noise_variance(prob, linear.residuals(prob, p))
+    R = linear.noise_variance(prob, residuals(p))
     nfev = rounds = 0
     for rounds in range(1, 11):
         def weighted(q):
-            res = linear.residuals(prob, q)
+            res = residuals(q)
             out = np.concatenate([(e / np.sqrt(R[r.channels])).ravel() for r, e in zip(prob.records, res)])
             return np.where(np.isfinite(out), out, 1e10)
         sol = least_squares(weighted, p, jac="2-point", method="trf")  # scipy's defaults
         p, nfev = sol.x, nfev + sol.nfev + sol.njev * len(p)
-        R, R_old = linear.noise_variance(prob, linear.residuals(prob, p)), R
+        R, R_old = linear.noise_variance(prob, residuals(p)), R
         if np.max(np.abs(R / R_old - 1)) < 1e-3:
             break
     return p[:prob.n_free], nfev, rounds
@@ -53,10 +76,11 @@ def main(argv=None) -> int:
     ap.add_argument("data", nargs="+", help="measurement CSVs")
     ap.add_argument("--config", required=True, help="model config TOML")
     ap.add_argument("--out", required=True, help="estimate JSON")
+    ap.add_argument("--plain", action="store_true", help="simulate with scipy alone (expm, dlsim)")
     args = ap.parse_args(argv)
     data, config = [read_csv(f) for f in args.data], read_config(args.config)
     t0 = time.perf_counter()
-    values, nfev, rounds = scipy_fit(config.fitted(data), config)
+    values, nfev, rounds = scipy_fit(config.fitted(data), config, args.plain)
     doc = {"coefficients": dict(zip(config.free, map(float, values))), "model_evaluations": nfev,
            "rounds": rounds, "fit_time_s": time.perf_counter() - t0}  # fmt: skip
     with open(args.out, "w") as f:

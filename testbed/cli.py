@@ -256,8 +256,8 @@ def parser() -> argparse.ArgumentParser:
                    "also write the estimate and ±σ histories to OUT with suffix .history.csv when "
                    "OUT is a file")
     s.add_argument("--start", default=None,
-                   help="ml-* only: auto (default: the a-priori values, or the equation-error "
-                        "estimate if output error fails from them), config, equation-error or mekf")  # fmt: skip
+                   help="ml-* only: auto (default: the better-fitting of the a-priori values and the "
+                        "equation-error estimate, then the other), config, equation-error or mekf")  # fmt: skip
     s.add_argument("--max-iter", type=int, default=None, help="iteration limit (ml-* methods)")
     s.add_argument("--max-samples", type=int, default=None, help="stop after this many samples (mekf, ekf)")
     s.add_argument("--perturb", type=_positive, default=None,

@@ -62,13 +62,21 @@ def test_ml_gn_recovers_the_truth_within_its_cramer_rao_bounds(data, from_truth)
 
 def test_ml_gn_converges_from_40_percent_off(data, from_truth):
     seen = []
-    est = identify(data, prior_config(error=0.4), method="ml-gn",
+    est = identify(data, prior_config(error=0.4), method="ml-gn", start="config",
                    callback=lambda step: seen.append((step.iteration, step.values, step.cost)))  # fmt: skip
     assert est.converged and est.start == "config"
     _same_optimum(est, from_truth, 0.01)
     assert [s[0] for s in seen] == list(range(1, est.iterations + 1))
     assert len(est.history) == est.iterations + 1
     np.testing.assert_allclose(seen[-1][1], est.values)
+
+
+def test_auto_starts_from_the_better_fitting_of_the_a_priori_and_equation_error_values(data, from_truth):
+    est = identify(data, prior_config(error=0.4), method="ml-gn")  # start="auto" is the default
+    assert est.converged and est.start == "equation-error" and "fits the data better" in est.start_reason
+    _same_optimum(est, from_truth, 0.01)
+    near = identify(data, truth_config(), method="ml-gn")
+    assert near.converged and near.start == "config" and near.start_reason == ""
 
 
 def test_auto_restarts_from_equation_error_when_the_a_priori_start_fails(data, from_truth):

@@ -272,42 +272,40 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
         out = run(p0) if why is None else Outcome(p0, Status.DIVERGED, 0, p0[None, :prob.n_free])
         return _estimate(name, prob, out, start, t0)
 
-    # auto: the a-priori values, unless they diverge, do not converge or converge to a worse fit
-    # than the equation-error model has before any iteration; then the equation-error start, and
-    # the better of the two if neither converges.
+    # auto: from whichever of the a-priori values and the equation-error estimate fits the data
+    # better before any iteration (output error's basin is local: the better start is more often
+    # inside it, and nearer); if that fit fails, from the other; the better of the two if
+    # neither converges.
     def cost(p):
         return linear.negative_log_likelihood(prob, linear.residuals(prob, p))
 
     with np.errstate(over="ignore", invalid="ignore"):  # diverging starts are handled below
-        p0 = linear.initial_states(prob, prob.start)
-        p_ee = linear.initial_states(prob, _start(prob, experiments, config, "equation-error"))
-    cost_ee = np.inf if linear.divergence(prob, p_ee) else cost(p_ee)
-    first, reason = None, "the a-priori model diverges"
-    if linear.divergence(prob, p0) is None:
-        first = run(p0)
-        if first.status is Status.CONVERGED and cost(first.p) <= cost_ee:
-            return _estimate(name, prob, first, "config", t0)
-        reason = (f"from the a-priori values: {first.status.message}"
-                  if first.status is not Status.CONVERGED else "from the a-priori values it "
-                  "converged to a worse fit than the equation-error model's start")  # fmt: skip
-    if not np.isfinite(cost_ee):
-        if first is None:
-            raise InputError(f"{prob.source}: the a-priori model diverges "
-                             f"({linear.divergence(prob, p0)}) and so does the equation-error one")  # fmt: skip
-        return _estimate(name, prob, first, "config", t0)
-    second = run(p_ee)
-    if first is not None and second.status is not Status.CONVERGED and cost(first.p) < cost(second.p):
-        return _estimate(name, prob, first, "config", t0)
-    return _estimate(name, prob, second, "equation-error", t0, reason)
-
-
+        starts = {"config": linear.initial_states(prob, prob.start),
+                  "equation-error": linear.initial_states(prob, _start(prob, experiments, config, "equation-error"))}  # fmt: skip
+    why = {k: linear.divergence(prob, p) for k, p in starts.items()}
+    costs = {k: np.inf if why[k] else cost(p) for k, p in starts.items()}
+    if not np.isfinite(min(costs.values())):
+        raise InputError(f"{prob.source}: the a-priori model diverges ({why['config']}) and so does "
+                         "the equation-error one")  # fmt: skip
+    order = sorted(starts, key=lambda k: (costs[k], k != "config"))
+    first = run(starts[order[0]])
+    reason = ("" if order[0] == "config" else
+              f"it fits the data better than the a-priori values (cost {costs['equation-error']:.6g} "
+              f"against {costs['config']:.6g})")  # fmt: skip
+    if first.status is Status.CONVERGED or not np.isfinite(costs[order[1]]):
+        return _estimate(name, prob, first, order[0], t0, reason)
+    second = run(starts[order[1]])
+    if second.status is not Status.CONVERGED and cost(first.p) <= cost(second.p):
+        return _estimate(name, prob, first, order[0], t0, reason)
+    reason = f"from the {'a-priori values' if order[0] == 'config' else 'equation-error estimate'}: {first.status.message}"
+    return _estimate(name, prob, second, order[1], t0, reason)
 
 
 STARTS = ("auto", "config", "equation-error", "mekf")
 _START = option("auto", lambda v: v in STARTS, f"one of {', '.join(STARTS)}",
-                "where the iterations begin: auto (the a-priori values, restarting from the "
-                "equation-error estimate if the a-priori model diverges or the fit from it fails), "
-                "config (the a-priori values only), equation-error or mekf")
+                "where the iterations begin: auto (whichever of the a-priori values and the "
+                "equation-error estimate fits the data better, then the other if the fit from it "
+                "fails), config (the a-priori values only), equation-error or mekf")
 _TOL = option(1e-3, lambda v: is_number(v) and v > 0, "a number > 0",
               "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ")
 
