@@ -31,7 +31,7 @@ from scipy.signal import dlsim  # noqa: E402
 
 from testbed import linear  # noqa: E402
 from testbed.data import read_config, read_csv  # noqa: E402
-from testbed.model import NU, NX, continuous, structure  # noqa: E402
+from testbed.model import NU, NX, continuous  # noqa: E402
 
 
 def plain_residuals(prob: linear.Problem, q: np.ndarray) -> list[np.ndarray]:
