@@ -36,6 +36,7 @@ import contextlib
 import contextvars
 import math
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import Iterator, Mapping, NamedTuple, Sequence
 
 import numpy as np
@@ -680,36 +681,113 @@ def crlb(M: np.ndarray) -> Bounds:
     return Bounds(cov, std, corr)
 
 
+MIN_LAGS = 10  # the lag window's floor (`_lag_window`), samples
+INTEGRATED_TIMES = 6  # the lag window's length in integrated autocorrelation times (`_lag_window`)
+
+
+def _fft_length(n: int) -> int:
+    """The least 2^a 3^b 5^c ≥ n: an FFT length numpy's pocketfft transforms fast."""
+    best = 1 << max(n - 1, 0).bit_length()
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            m = p35 * (1 << max((n - 1) // p35, 0).bit_length()) if p35 < n else p35
+            best = min(best, m)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def _lag_window(rho: np.ndarray, n: int) -> int:
+    """K, the lags the residual autocorrelation is kept to in `colored_covariance`.
+
+    `rho`: (lags 1 … n/4, k) each channel's residual autocorrelation coefficient ρ(τ) =
+    r_cc(τ)/r_cc(0), `n` the record's samples. K covers, in every channel, both
+    - twice the last lag at which ρ is significant, so that the Bartlett taper still weighs it by
+      ½ or more: outside ±z·√((1 + 2 Σ_j<τ ρ(j)²)/n), Bartlett's band for a correlation that has
+      ended before τ, z for 99 % over all those lags and channels at once (Bonferroni) — an
+      oscillating or late correlation;
+    - c = `INTEGRATED_TIMES` integrated autocorrelation times, the first M ≥ c (1 + 2 Σ_τ≤M ρ(τ))
+      (Sokal's automatic window) — a slowly decaying correlation, whose tail stays inside the
+      band but adds up (AR(1): τ_int = (1+ρ)/(1−ρ));
+    at least `MIN_LAGS`, at most n/2. White residuals keep the floor: K/N small, so the window
+    adds little sampling noise to the bound.
+    """
+    # Bartlett's variance of ρ(τ) beyond the correlation: (1 + 2 Σ_j<τ ρ(j)²)/n
+    var = (1.0 + 2.0 * (np.cumsum(rho**2, axis=0) - rho**2)) / n
+    z = NormalDist().inv_cdf(1.0 - 0.005 / rho.size)
+    outside = np.flatnonzero(np.any(rho**2 > z**2 * var, axis=1))
+    last = outside[-1] + 1 if len(outside) else 0
+    # M ≥ c τ_int(M), τ_int(M) = 1 + 2 Σ_τ≤M ρ(τ): the first such M in the slowest channel (none: n)
+    reached = np.arange(1, len(rho) + 1)[:, None] >= INTEGRATED_TIMES * (1.0 + 2.0 * np.cumsum(rho, axis=0))
+    sokal = np.max(np.argmax(reached, axis=0)) + 1 if np.all(np.any(reached, axis=0)) else n
+    return int(min(max(2 * last, sokal, MIN_LAGS), n // 2))
+
+
 def colored_covariance(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
                        res: Sequence[np.ndarray], R: np.ndarray, cov: np.ndarray) -> np.ndarray:  # fmt: skip
     """Morelli & Klein's covariance of the free coefficients for colored residuals,
-    `C (Σ_i Σ_j S(i)ᵀR⁻¹ R_vv(i−j) R⁻¹S(j)) Cᵀ` with C = `cov[:n_free]` (cov = M⁻¹, the bound for
-    white residuals), S the output sensitivities, R_vv the residual autocorrelation (`xs`: the
-    states at `p`, `res`: the residuals).
 
-    With `R_vv(τ) = 1/N Σ_m v(m) v(m+τ)ᵀ` over all lags, the double sum equals
-    `1/N Σ_τ P(τ) P(τ)ᵀ` with `P(τ) = Σ_m Σ_c v_c(m) (R⁻¹S)_c(m+τ)`: FFT cross-correlations, one
-    per channel, of the sensitivities already projected by C (n_free columns, not n_params).
+        C (Σ_i Σ_j S(i)ᵀR⁻¹ R_vv(i−j) R⁻¹S(j)) Cᵀ,   R_vv(τ) = w(τ) 1/N Σ_m v(m) v(m+τ)ᵀ,
+
+    per experiment, with C = `cov[:n_free]` (cov = M⁻¹, the bound for white residuals), S the
+    output sensitivities, v the residuals (`xs`: the states at `p`, `res`: the residuals) and
+    w(τ) = 1 − |τ|/(K+1) for |τ| ≤ K, 0 beyond: the Bartlett lag window, K from `_lag_window`.
+
+    The window is what makes the bound agree with M⁻¹ for white residuals. Over all lags the
+    sample autocorrelation's spectrum is the periodogram |V(f)|²/N, and the fit's normal equations
+    `Σ_m S(m)ᵀR⁻¹v(m) = Σ_f S(f)ᴴR⁻¹V(f) = 0` leave it with holes exactly where the sensitivities'
+    spectra lie, so the all-lag sum reads low (down to 0.8 of M⁻¹'s σ on 60 s records); the long-lag
+    estimates carry only that bias and sampling noise. The Bartlett window smooths the periodogram
+    over a band ~1/K wide (a convolution with the Fejér kernel), filling the holes from the
+    neighbouring frequencies, and keeps the estimate positive semidefinite. Its lag-0 term alone
+    is M; white residuals add lag terms of relative size √(K/N).
+
+    Computed per frequency of an L-point DFT grid, L ≥ N + K (no wrap-around): with
+    Φ(f) = Σ_|τ|≤K R_vv(τ) e^{+iωτ} (K lags summed directly) and Z = R^-½ S Cᵀ (the sensitivities
+    already projected by C: n_free columns, not n_params) the double sum is
+    `1/L Σ_f Z(f)ᴴ Φ(f) Z(f)`.
     """
     models, nf = _models(prob, p[:prob.n_free], 1), prob.n_free
     out = np.zeros((nf, nf))
-    # R^-½ S Cᵀ, channel by channel, time last; one buffer for all records (fresh pages are dear)
-    Z = np.empty((max(len(r.measured) for r in prob.records), nf, max(len(r.y) for r in prob.records)))
+    # R^-½ S Cᵀ, time first; one buffer for all records (fresh pages are dear)
+    Z = np.empty((max(len(r.y) for r in prob.records), max(len(r.measured) for r in prob.records), nf))
     for r, x, e in zip(prob.records, xs, res):
-        n, L, C = len(e), 2 * len(e), cov[:nf, prob.columns(r)].T
-        Zr = Z[:len(r.measured), :, :n]
+        n, k, C = len(e), len(r.measured), cov[:nf, prob.columns(r)].T
+        Zr = Z[:n, :k]
         Zr[...] = 0.0
         for channels, params, pieces in _sensitivity_parts(prob, r, models[r.dt], x, r.measured,
                                                            _scale(r, R), PIECE):  # fmt: skip
             for samples, S in pieces:
-                Zr[np.ix_(channels, np.arange(nf), samples)] = (S @ C[params]).transpose(0, 2, 1)
-        V = np.fft.rfft(e / np.sqrt(R[r.channels]), L, axis=0)  # R^-½ v
-        P = np.zeros((nf, L // 2 + 1), dtype=complex)
-        for c in range(len(Zr)):
-            P += np.conj(V[:, c]) * np.fft.rfft(Zr[c], L)
-        weight = np.full(P.shape[1], 2.0)
-        weight[0] = weight[-1] = 1.0  # DC and Nyquist appear once in the full spectrum
-        out += np.real((P * weight) @ np.conj(P).T) / (L * n)
+                Zr[np.ix_(np.arange(n)[samples], channels)] = (S @ C[params]).transpose(1, 0, 2)
+        v = e / np.sqrt(R[r.channels])  # R^-½ v
+        # per channel Σ_m v(m) v(m+τ), τ = 0 … n/4 (an FFT grid with no wrap-around at those lags)
+        V = np.fft.rfft(v, _fft_length(n + n // 4 + 2), axis=0)
+        auto = np.fft.irfft(V.real**2 + V.imag**2, axis=0)[:n // 4 + 2]
+        K = _lag_window(auto[1:n // 4 + 1] / np.maximum(auto[0], 1e-300), n)
+        L = _fft_length(n + K + 1)  # lags up to K without wrap-around
+        # G(τ) = w(τ) R_vv(τ), 0 < τ ≤ K
+        G = np.empty((K, k * k))
+        for tau in range(1, K + 1):
+            G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[:n - tau].T @ v[tau:])).ravel()
+        # Φ(f) = R_vv(0) + Σ_τ>0 (G(τ) e^{+iωτ} + G(τ)ᵀ e^{−iωτ}) (as R_vv(−τ) = R_vv(τ)ᵀ)
+        #      = R_vv(0) + Gc + Gcᵀ + i (Gs − Gsᵀ), Gc = Σ_τ G(τ) cos ωτ, Gs = Σ_τ G(τ) sin ωτ
+        omega_tau = 2 * np.pi / L * np.outer(np.arange(L // 2 + 1), np.arange(1, K + 1))
+        Gc, Gs = (np.cos(omega_tau) @ G).reshape(-1, k, k), (np.sin(omega_tau) @ G).reshape(-1, k, k)
+        Phi = np.empty(Gc.shape, complex)
+        np.add(Gc, Gc.transpose(0, 2, 1), out=Phi.real)
+        Phi.real += v.T @ v / n
+        np.subtract(Gs, Gs.transpose(0, 2, 1), out=Phi.imag)
+        Zf = np.fft.rfft(Zr, L, axis=0)  # (frequencies, k, n_free)
+        PhiZ = Phi @ Zf
+        Zf[0] *= 0.5  # DC and Nyquist appear once in the full spectrum, the others twice
+        if L % 2 == 0:
+            Zf[-1] *= 0.5
+        # 1/L Σ_f Z(f)ᴴ Φ(f) Z(f), real part: Re(aᴴb) = aᵣᵀbᵣ + aᵢᵀbᵢ, one real product of the
+        # arrays viewed as (re, im) pairs
+        RI = np.ascontiguousarray(Zf).reshape(-1, nf).view(float).T @ PhiZ.reshape(-1, nf).view(float)
+        out += (RI[0::2, 0::2] + RI[1::2, 1::2]) * (2.0 / L)
     return out
 
 
