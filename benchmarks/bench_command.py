@@ -69,8 +69,9 @@ ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 def wall(argv: list[str], cwd: Path) -> tuple[float, float]:
     """Wall time and CPU time (user + system) of one run of `argv` to its exit; it must succeed."""
     cpu0, t0 = _children_cpu(), time.perf_counter()
-    done = subprocess.run(argv, cwd=cwd, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                          check=False)  # fmt: skip
+    done = subprocess.run(
+        argv, cwd=cwd, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, check=False
+    )
     elapsed, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
     if done.returncode != 0:
         sys.exit(f"{' '.join(argv)} failed ({done.returncode}):\n{done.stderr}")
@@ -98,11 +99,20 @@ def main() -> int:
         files = [str(f) for f in csvs] + ["--config", str(config), "--out"]
         commands = {
             "testbed identify": [str(script), "identify", *files, str(folder / "est.json")],
-            "scipy reference": [python, str(ROOT / "benchmarks" / "scipy_reference.py"), *files,
-                                str(folder / "ref.json")],
-            "plain scipy": [python, str(ROOT / "benchmarks" / "scipy_reference.py"), *files,
-                            str(folder / "plain.json"), "--plain"],
-        }  # fmt: skip
+            "scipy reference": [
+                python,
+                str(ROOT / "benchmarks" / "scipy_reference.py"),
+                *files,
+                str(folder / "ref.json"),
+            ],
+            "plain scipy": [
+                python,
+                str(ROOT / "benchmarks" / "scipy_reference.py"),
+                *files,
+                str(folder / "plain.json"),
+                "--plain",
+            ],
+        }
         wall(commands["testbed identify"], folder)  # byte code and files cached, as for a user
         times = {name: [] for name in commands}
         for _ in range(args.rounds):
@@ -120,32 +130,46 @@ def main() -> int:
     z_cmd, z_ref = (values - truth) / std, (reference - truth) / std
     best = {name: min(w for w, _ in t) for name, t in times.items()}
     cpu = {name: min(c for _, c in t) for name, t in times.items()}
-    print(f"interpreter: {python}; data: {len(csvs)} experiments, {n} samples, {len(names)} free "
-          f"coefficients ({len(est.get('fixed', {}))} fixed by the screening), start "
-          f"{100 * START_ERROR:.0f} % off")  # fmt: skip
-    print(f"{'coefficient':12s} {'truth':>10s} {'identify':>10s} {'scipy':>10s} {'cmd err/σ':>9s} {'ref err/σ':>9s}")
+    print(
+        f"interpreter: {python}; data: {len(csvs)} experiments, {n} samples, {len(names)} free "
+        f"coefficients ({len(est.get('fixed', {}))} fixed by the screening), start "
+        f"{100 * START_ERROR:.0f} % off"
+    )
+    print(
+        f"{'coefficient':12s} {'truth':>10s} {'identify':>10s} {'scipy':>10s} {'cmd err/σ':>9s} {'ref err/σ':>9s}"
+    )
     for name, t, a, b, za, zb in zip(names, truth, values, reference, z_cmd, z_ref):
         print(f"{name:12s} {t:10.4g} {a:10.4g} {b:10.4g} {za:9.2f} {zb:9.2f}")
-    print(f"testbed identify: {best['testbed identify']:7.3f} s whole command (best of {args.rounds}; "
-          f"CPU {cpu['testbed identify']:.3f} s), "
-          f"fit {est['wall_time_s']:.3f} s, {est['iterations']} iterations, {est['status']}, "
-          f"rms error {np.sqrt(np.mean(z_cmd**2)):.3f} σ")  # fmt: skip
-    print(f"scipy reference : {best['scipy reference']:7.3f} s whole command (best of {args.rounds}; "
-          f"CPU {cpu['scipy reference']:.3f} s), "
-          f"fit {ref['fit_time_s']:.3f} s, {ref['model_evaluations']} model evaluations in "
-          f"{ref['rounds']} R-relaxation rounds, rms error {np.sqrt(np.mean(z_ref**2)):.3f} σ")  # fmt: skip
+    print(
+        f"testbed identify: {best['testbed identify']:7.3f} s whole command (best of {args.rounds}; "
+        f"CPU {cpu['testbed identify']:.3f} s), "
+        f"fit {est['wall_time_s']:.3f} s, {est['iterations']} iterations, {est['status']}, "
+        f"rms error {np.sqrt(np.mean(z_cmd**2)):.3f} σ"
+    )
+    print(
+        f"scipy reference : {best['scipy reference']:7.3f} s whole command (best of {args.rounds}; "
+        f"CPU {cpu['scipy reference']:.3f} s), "
+        f"fit {ref['fit_time_s']:.3f} s, {ref['model_evaluations']} model evaluations in "
+        f"{ref['rounds']} R-relaxation rounds, rms error {np.sqrt(np.mean(z_ref**2)):.3f} σ"
+    )
     z_plain = (np.array([plain["coefficients"][n] for n in names]) - truth) / std
-    print(f"plain scipy     : {best['plain scipy']:7.3f} s whole command (best of {args.rounds}; "
-          f"CPU {cpu['plain scipy']:.3f} s), fit {plain['fit_time_s']:.3f} s, {plain['model_evaluations']} "
-          f"model evaluations, rms error {np.sqrt(np.mean(z_plain**2)):.3f} σ")  # fmt: skip
-    print(f"speed ratio whole command against plain scipy: {best['plain scipy'] / best['testbed identify']:.1f}x "
-          f"(CPU {cpu['plain scipy'] / cpu['testbed identify']:.1f}x) (goal >= {GOAL:g}x); "
-          f"fit alone: {plain['fit_time_s'] / est['wall_time_s']:.1f}x")  # fmt: skip
-    print(f"speed ratio whole command against the strong reference: "
-          f"{best['scipy reference'] / best['testbed identify']:.1f}x "
-          f"(CPU {cpu['scipy reference'] / cpu['testbed identify']:.1f}x); fit alone: "
-          f"{ref['fit_time_s'] / est['wall_time_s']:.1f}x; max |identify − scipy| = "
-          f"{max(np.max(np.abs(z_cmd - z_ref)), np.max(np.abs(z_cmd - z_plain))):.3f} σ")  # fmt: skip
+    print(
+        f"plain scipy     : {best['plain scipy']:7.3f} s whole command (best of {args.rounds}; "
+        f"CPU {cpu['plain scipy']:.3f} s), fit {plain['fit_time_s']:.3f} s, {plain['model_evaluations']} "
+        f"model evaluations, rms error {np.sqrt(np.mean(z_plain**2)):.3f} σ"
+    )
+    print(
+        f"speed ratio whole command against plain scipy: {best['plain scipy'] / best['testbed identify']:.1f}x "
+        f"(CPU {cpu['plain scipy'] / cpu['testbed identify']:.1f}x) (goal >= {GOAL:g}x); "
+        f"fit alone: {plain['fit_time_s'] / est['wall_time_s']:.1f}x"
+    )
+    print(
+        f"speed ratio whole command against the strong reference: "
+        f"{best['scipy reference'] / best['testbed identify']:.1f}x "
+        f"(CPU {cpu['scipy reference'] / cpu['testbed identify']:.1f}x); fit alone: "
+        f"{ref['fit_time_s'] / est['wall_time_s']:.1f}x; max |identify − scipy| = "
+        f"{max(np.max(np.abs(z_cmd - z_ref)), np.max(np.abs(z_cmd - z_plain))):.3f} σ"
+    )
     return 0
 
 

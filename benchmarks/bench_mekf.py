@@ -40,8 +40,14 @@ from testbed.data import Experiment, ModelConfig, load_data  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
 from testbed.measurements import noise_from_data  # noqa: E402
 from testbed.model import (  # noqa: E402
-    COEFFICIENTS, STATES, Vehicle, continuous, discretize, structure, theta_vector,
-)  # fmt: skip
+    COEFFICIENTS,
+    STATES,
+    Vehicle,
+    continuous,
+    discretize,
+    structure,
+    theta_vector,
+)
 
 GOAL = 20.0  # × real time
 VARIANTS = (
@@ -54,8 +60,9 @@ VARIANTS = (
 
 def filterpy_rate(experiments, config: ModelConfig, noise: dict[str, float]) -> float:
     """Samples per second of filterpy's linear KalmanFilter (10 states, the config's model)."""
-    Phi, Gamma, s = discretize(*continuous(structure(config.vehicle),
-                                           theta_vector(config.coefficients)), experiments[0].dt)  # fmt: skip
+    Phi, Gamma, s = discretize(
+        *continuous(structure(config.vehicle), theta_vector(config.coefficients)), experiments[0].dt
+    )
     start = time.perf_counter()
     count = 0
     for e in experiments:
@@ -78,8 +85,7 @@ def measure(experiments, config, repeat: int, truth=None, indent="  ") -> float:
     """Print one line per variant; returns the default's × real time."""
     samples = sum(len(e.t) for e in experiments)
     rate = 1.0 / experiments[0].dt
-    reference = max(filterpy_rate(experiments, config, noise_from_data(experiments))
-                    for _ in range(repeat))  # fmt: skip
+    reference = max(filterpy_rate(experiments, config, noise_from_data(experiments)) for _ in range(repeat))
     exact, default_ratio = None, None
     for label, method, opts in VARIANTS:
         runs = [identify(experiments, config, method, **opts) for _ in range(repeat)]
@@ -87,8 +93,10 @@ def measure(experiments, config, repeat: int, truth=None, indent="  ") -> float:
         sps = samples / est.wall_time_s
         if method == "mekf" and opts.get("refresh_tol") == 0.0:
             exact = est
-        line = (f"{indent}{rate:4.0f} Hz  {label:34s} {sps:7.0f} samples/s = {sps / rate:6.1f}× real "
-                f"time = {sps / reference:5.3f}× filterpy KF  [{est.status.name}")  # fmt: skip
+        line = (
+            f"{indent}{rate:4.0f} Hz  {label:34s} {sps:7.0f} samples/s = {sps / rate:6.1f}× real "
+            f"time = {sps / reference:5.3f}× filterpy KF  [{est.status.name}"
+        )
         if truth is not None:
             line += f", max |error|/σ {np.max(np.abs(est.values - truth) / est.std):.2f}"
         print(line + "]", flush=True)
@@ -97,19 +105,58 @@ def measure(experiments, config, repeat: int, truth=None, indent="  ") -> float:
     if exact is not None and exact.status.name != "DIVERGED":
         dev = np.max(np.abs(default.values - exact.values) / exact.std)
         print(f"{indent}      default vs exact model every sample: max |Δ estimate| = {dev:.3f} σ")
-    print(f"{indent}{rate:4.0f} Hz  {'filterpy KalmanFilter (linear, known)':34s} {reference:7.0f} "
-          f"samples/s = {reference / rate:6.1f}× real time")  # fmt: skip
+    print(
+        f"{indent}{rate:4.0f} Hz  {'filterpy KalmanFilter (linear, known)':34s} {reference:7.0f} "
+        f"samples/s = {reference / rate:6.1f}× real time"
+    )
     return default_ratio
 
 
 # ---------------------------------------------------------------- the synthetic case
 
 VEHICLE = Vehicle(170.75, 2.16, 67.25, 67.24, 1675.1, 1675.1, 0.0, 0.0, -0.0179, 20.0)
-TRUTH = dict(zip(COEFFICIENTS, (
-    -8.11, -265.6, -158.6, -2.99, -2.35, -2135.1, -4.30, 2217.8, 42505.7, -158.6, 2.35, -2135.1,
-    -2217.8, -42505.7, -2.99, -0.395, -0.426, -4.30, -124.8, 2.48, 0.0, -3613.0, -3613.0, 2.35,
-    -55.76, 630.6, -2791.2, -47273.4, -2.35, -0.426, -55.76, -630.6, -55.41, -2791.1, -47273.4,
-)))  # fmt: skip
+TRUTH = dict(
+    zip(
+        COEFFICIENTS,
+        (
+            -8.11,
+            -265.6,
+            -158.6,
+            -2.99,
+            -2.35,
+            -2135.1,
+            -4.30,
+            2217.8,
+            42505.7,
+            -158.6,
+            2.35,
+            -2135.1,
+            -2217.8,
+            -42505.7,
+            -2.99,
+            -0.395,
+            -0.426,
+            -4.30,
+            -124.8,
+            2.48,
+            0.0,
+            -3613.0,
+            -3613.0,
+            2.35,
+            -55.76,
+            630.6,
+            -2791.2,
+            -47273.4,
+            -2.35,
+            -0.426,
+            -55.76,
+            -630.6,
+            -55.41,
+            -2791.1,
+            -47273.4,
+        ),
+    )
+)
 FREE = tuple(n for n in COEFFICIENTS if not n.endswith("dot"))
 NOISE = np.array([0.01, 0.01, 0.01, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.01])
 DURATION = 60.0
@@ -125,12 +172,17 @@ def synthetic(dt, seed=0):
     a small differential so the roll controls stay apart), exact ZOH, all ten states measured."""
     rng = np.random.default_rng(seed)
     n, a = round(DURATION / dt), np.deg2rad(2.0)
-    horizontal = np.column_stack([prbs(rng, n, dt, a, 0.5), prbs(rng, n, dt, 0.3 * a, 1.0),
-                                  prbs(rng, n, dt, 0.3 * a, 1.0)])  # fmt: skip
+    horizontal = np.column_stack(
+        [prbs(rng, n, dt, a, 0.5), prbs(rng, n, dt, 0.3 * a, 1.0), prbs(rng, n, dt, 0.3 * a, 1.0)]
+    )
     elevator = prbs(rng, n, dt, a, 0.5)
-    vertical = np.column_stack([prbs(rng, n, dt, 0.3 * a, 1.0),
-                                elevator + prbs(rng, n, dt, 0.2 * a, 0.7),
-                                elevator - prbs(rng, n, dt, 0.2 * a, 0.7)])  # fmt: skip
+    vertical = np.column_stack(
+        [
+            prbs(rng, n, dt, 0.3 * a, 1.0),
+            elevator + prbs(rng, n, dt, 0.2 * a, 0.7),
+            elevator - prbs(rng, n, dt, 0.2 * a, 0.7),
+        ]
+    )
     Phi, Gamma, s = discretize(*continuous(structure(VEHICLE), theta_vector(TRUTH)), dt)
     experiments = []
     for name, inputs in (("horizontal", horizontal), ("vertical", vertical)):
@@ -157,13 +209,17 @@ def main(argv=None) -> None:
         made = time.perf_counter() - t0
         experiments, config = load_data([run])  # as `testbed identify RUN --method mekf`
     samples = sum(len(e.t) for e in experiments)
-    print(f"Scenario II run (testbed simulate --scenario II --seed 1, made in {made:.1f} s): "
-          f"{len(experiments)} experiments, {samples} samples at {1 / experiments[0].dt:g} Hz, "
-          f"{len(config.free)} free coefficients (model.toml), BLAS threads "
-          f"{os.environ['OPENBLAS_NUM_THREADS']}, best of {args.repeat}")  # fmt: skip
+    print(
+        f"Scenario II run (testbed simulate --scenario II --seed 1, made in {made:.1f} s): "
+        f"{len(experiments)} experiments, {samples} samples at {1 / experiments[0].dt:g} Hz, "
+        f"{len(config.free)} free coefficients (model.toml), BLAS threads "
+        f"{os.environ['OPENBLAS_NUM_THREADS']}, best of {args.repeat}"
+    )
     ratio = measure(experiments, config, args.repeat)
-    print(f"  goal ≥ {GOAL:g}× real time: {'met' if ratio >= GOAL else 'NOT MET'} "
-          f"({ratio:.1f}×, margin {ratio / GOAL:.1f}×)")  # fmt: skip
+    print(
+        f"  goal ≥ {GOAL:g}× real time: {'met' if ratio >= GOAL else 'NOT MET'} "
+        f"({ratio:.1f}×, margin {ratio / GOAL:.1f}×)"
+    )
 
     if args.no_synthetic:
         return
@@ -171,8 +227,10 @@ def main(argv=None) -> None:
     start = {n: TRUTH[n] * (1 + 0.2 * rng.choice([-1, 1])) for n in FREE}
     config = ModelConfig(VEHICLE, dict(TRUTH), FREE).with_coefficients(start)
     truth = np.array([TRUTH[n] for n in FREE])
-    print(f"Synthetic (linear model, exact ZOH): 2 × {DURATION:g} s, 10 states measured, "
-          f"{len(FREE)} free coefficients started 20 % off")  # fmt: skip
+    print(
+        f"Synthetic (linear model, exact ZOH): 2 × {DURATION:g} s, 10 states measured, "
+        f"{len(FREE)} free coefficients started 20 % off"
+    )
     for rate in (20.0, 50.0):
         measure(synthetic(1.0 / rate), config, args.repeat, truth)
 

@@ -24,7 +24,7 @@ from testbed.threads import one_blas_thread
 
 one_blas_thread()  # as the command line does, before numpy loads
 
-import numpy as np
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.scipy_reference import scipy_fit  # noqa: E402
@@ -50,21 +50,32 @@ def main() -> int:
     truth = np.array([TRUTH[n] for n in FREE])
     # best of five each: the first call in a process also loads compiled code from numba's cache
     (t_gn, est), (t_ls, (values, nfev, rounds)) = _best(
-        [lambda: identify(data, prior, method="ml-gn", start="config"), lambda: scipy_fit(data, prior)])
+        [lambda: identify(data, prior, method="ml-gn", start="config"), lambda: scipy_fit(data, prior)]
+    )
     z_gn = (est.values - truth) / est.std
     z_ls = (values - truth) / est.std
-    print(f"BLAS threads: {os.environ['OPENBLAS_NUM_THREADS']}; "
-          f"data: 2 experiments x {len(data[0].t)} samples, {len(FREE)} coefficients + "
-          f"{sum(len(e.measured) for e in data)} initial states, start 30 % off")
-    print(f"{'coefficient':12s} {'truth':>10s} {'ml-gn':>10s} {'scipy':>10s} {'gn err/σ':>9s} {'ls err/σ':>9s}")
+    print(
+        f"BLAS threads: {os.environ['OPENBLAS_NUM_THREADS']}; "
+        f"data: 2 experiments x {len(data[0].t)} samples, {len(FREE)} coefficients + "
+        f"{sum(len(e.measured) for e in data)} initial states, start 30 % off"
+    )
+    print(
+        f"{'coefficient':12s} {'truth':>10s} {'ml-gn':>10s} {'scipy':>10s} {'gn err/σ':>9s} {'ls err/σ':>9s}"
+    )
     for n, t, a, b, za, zb in zip(FREE, truth, est.values, values, z_gn, z_ls):
         print(f"{n:12s} {t:10.4g} {a:10.4g} {b:10.4g} {za:9.2f} {zb:9.2f}")
-    print(f"ml-gn : {t_gn:7.3f} s, {est.iterations} iterations, {est.status.name}, "
-          f"rms error {np.sqrt(np.mean(z_gn**2)):.3f} σ")
-    print(f"scipy : {t_ls:7.3f} s, {nfev} model evaluations in {rounds} R-relaxation rounds, "
-          f"rms error {np.sqrt(np.mean(z_ls**2)):.3f} σ")
-    print(f"speed ratio scipy/ml-gn: {t_ls / t_gn:.1f}x (goal >= 10x); "
-          f"max |ml-gn − scipy| = {np.max(np.abs(z_gn - z_ls)):.3f} σ")
+    print(
+        f"ml-gn : {t_gn:7.3f} s, {est.iterations} iterations, {est.status.name}, "
+        f"rms error {np.sqrt(np.mean(z_gn**2)):.3f} σ"
+    )
+    print(
+        f"scipy : {t_ls:7.3f} s, {nfev} model evaluations in {rounds} R-relaxation rounds, "
+        f"rms error {np.sqrt(np.mean(z_ls**2)):.3f} σ"
+    )
+    print(
+        f"speed ratio scipy/ml-gn: {t_ls / t_gn:.1f}x (goal >= 10x); "
+        f"max |ml-gn − scipy| = {np.max(np.abs(z_gn - z_ls)):.3f} σ"
+    )
     return 0
 
 

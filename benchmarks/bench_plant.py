@@ -54,10 +54,14 @@ def main():
     raw_rate, plant_rate = rows.max(axis=0)
     ratios = rows[:, 1] / rows[:, 0]
     print(f"raw mj_step        : {raw_rate:10.0f} steps/s  (best of {args.rounds} rounds)")
-    print(f"completed plant    : {plant_rate:10.0f} steps/s  "
-          f"({plant_rate * plant.timestep:.0f}x real time at dt={plant.timestep} s)")
-    print(f"ratio plant / raw  : {plant_rate / raw_rate:10.2f}   (goal >= 0.5; round by round "
-          f"{np.percentile(ratios, 25):.2f}-{np.percentile(ratios, 75):.2f}, middle half)")
+    print(
+        f"completed plant    : {plant_rate:10.0f} steps/s  "
+        f"({plant_rate * plant.timestep:.0f}x real time at dt={plant.timestep} s)"
+    )
+    print(
+        f"ratio plant / raw  : {plant_rate / raw_rate:10.2f}   (goal >= 0.5; round by round "
+        f"{np.percentile(ratios, 25):.2f}-{np.percentile(ratios, 75):.2f}, middle half)"
+    )
 
 
 if __name__ == "__main__":

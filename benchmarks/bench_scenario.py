@@ -69,12 +69,16 @@ def main(argv=None):
     print(f"simulated time        : {simulated:.0f} s (Scenario II, every experiment, best of {args.repeat})")
     print(f"start-up (once)       : {startup:6.2f} s  imports and compiled-code load")
     print(f"bare plant            : {simulated / t_bare:6.0f}x real time  ({t_bare:.2f} s)")
-    print(f"flying, autopilots    : {simulated / t_fly:6.0f}x real time  ({t_fly:.2f} s, "
-          f"{t_fly / t_bare:.2f}x the bare plant's time)")
+    print(
+        f"flying, autopilots    : {simulated / t_fly:6.0f}x real time  ({t_fly:.2f} s, "
+        f"{t_fly / t_bare:.2f}x the bare plant's time)"
+    )
     print(f"files (CSV, TOML, rrd): {t_whole - t_fly:6.2f} s")
     ratio = simulated / t_whole
     verdict = "meets" if ratio >= GOAL else "MISSES"
-    print(f"whole run directory   : {ratio:6.0f}x real time  ({t_whole:.2f} s)  {verdict} the goal >= {GOAL:.0f}x")
+    print(
+        f"whole run directory   : {ratio:6.0f}x real time  ({t_whole:.2f} s)  {verdict} the goal >= {GOAL:.0f}x"
+    )
     fresh = simulated / (t_whole + startup)
     print(f"  with the start-up   : {fresh:6.0f}x real time  (a fresh `testbed simulate --scenario II`)")
 

@@ -42,8 +42,10 @@ def main() -> int:
     python = sys.executable
     script = Path(python).parent / "testbed"
     if not script.exists():
-        print(f"no console script {script}: install the package into this interpreter "
-              "(pip install -e .)", file=sys.stderr)  # fmt: skip
+        print(
+            f"no console script {script}: install the package into this interpreter (pip install -e .)",
+            file=sys.stderr,
+        )
         return 2
     commands = {
         'python -c "import numpy"': [python, "-c", "import numpy"],
@@ -53,8 +55,14 @@ def main() -> int:
         "python -m testbed identify --help": [python, "-m", "testbed", "identify", "--help"],
     }
     with tempfile.TemporaryDirectory() as cwd:
-        package = subprocess.run([python, "-c", "import testbed; print(testbed.__file__)"], cwd=cwd, env=ENV,
-                                 check=True, capture_output=True, text=True).stdout.strip()  # fmt: skip
+        package = subprocess.run(
+            [python, "-c", "import testbed; print(testbed.__file__)"],
+            cwd=cwd,
+            env=ENV,
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout.strip()
         for argv in commands.values():  # warm the file cache and the byte-code caches
             wall(argv, cwd)
         times = {name: [] for name in commands}

@@ -37,9 +37,9 @@ from testbed.model import NU, NX, continuous  # noqa: E402
 def plain_residuals(prob: linear.Problem, q: np.ndarray) -> list[np.ndarray]:
     """The residuals at `q` simulated with scipy alone: `expm([[A, B, S], [0, 0, 0]] Δ)` gives
     Φ and Γ = [B S]'s zero-order hold, `dlsim` the outputs from each experiment's x0."""
-    A, B, S = continuous(prob.structure, prob.coefficients(q[:prob.n_free]))
+    A, B, S = continuous(prob.structure, prob.coefficients(q[: prob.n_free]))
     block = np.zeros((NX + NU + 1, NX + NU + 1))
-    block[:NX, :NX], block[:NX, NX:NX + NU], block[:NX, -1] = A, B, S
+    block[:NX, :NX], block[:NX, NX : NX + NU], block[:NX, -1] = A, B, S
     out = []
     for r in prob.records:
         E = expm(block * r.dt)
@@ -59,16 +59,18 @@ def scipy_fit(data, config, plain: bool = False) -> tuple[np.ndarray, int, int]:
     R = linear.noise_variance(prob, residuals(p))
     nfev = rounds = 0
     for rounds in range(1, 11):
+
         def weighted(q):
             res = residuals(q)
             out = np.concatenate([(e / np.sqrt(R[r.channels])).ravel() for r, e in zip(prob.records, res)])
             return np.where(np.isfinite(out), out, 1e10)
+
         sol = least_squares(weighted, p, jac="2-point", method="trf")  # scipy's defaults
         p, nfev = sol.x, nfev + sol.nfev + sol.njev * len(p)
         R, R_old = linear.noise_variance(prob, residuals(p)), R
         if np.max(np.abs(R / R_old - 1)) < 1e-3:
             break
-    return p[:prob.n_free], nfev, rounds
+    return p[: prob.n_free], nfev, rounds
 
 
 def main(argv=None) -> int:
@@ -81,8 +83,12 @@ def main(argv=None) -> int:
     data, config = [read_csv(f) for f in args.data], read_config(args.config)
     t0 = time.perf_counter()
     values, nfev, rounds = scipy_fit(config.fitted(data), config, args.plain)
-    doc = {"coefficients": dict(zip(config.free, map(float, values))), "model_evaluations": nfev,
-           "rounds": rounds, "fit_time_s": time.perf_counter() - t0}  # fmt: skip
+    doc = {
+        "coefficients": dict(zip(config.free, map(float, values))),
+        "model_evaluations": nfev,
+        "rounds": rounds,
+        "fit_time_s": time.perf_counter() - t0,
+    }
     with open(args.out, "w") as f:
         json.dump(doc, f, indent=2)
     return 0

@@ -97,8 +97,30 @@ def snapshot(root: Path) -> dict[str, str]:
 
 # -- mutations -----------------------------------------------------------------------------------
 
-CELLS = ["", "nan", "inf", "-inf", "1e300", "-1e7", "abc", "1,5", '"', "  ", "1e-400", "0x1p3", "１", "1_0",
-         "\x00", "9" * 400, "1e308", "--1", "True", "1.0.0", "-1.7e308", "1.7e308"]  # fmt: skip
+CELLS = [
+    "",
+    "nan",
+    "inf",
+    "-inf",
+    "1e300",
+    "-1e7",
+    "abc",
+    "1,5",
+    '"',
+    "  ",
+    "1e-400",
+    "0x1p3",
+    "１",
+    "1_0",
+    "\x00",
+    "9" * 400,
+    "1e308",
+    "--1",
+    "True",
+    "1.0.0",
+    "-1.7e308",
+    "1.7e308",
+]
 
 
 def _rows(data: bytes) -> list[list[str]]:
@@ -122,7 +144,7 @@ def _set_cell(rows, where):
 
 def _drop_column(rows, where):
     c = where % len(rows[0])
-    return [row[:c] + row[c + 1:] for row in rows]
+    return [row[:c] + row[c + 1 :] for row in rows]
 
 
 def _drop_states(rows, where):
@@ -148,7 +170,7 @@ def _extend_row(rows, where):
 
 
 def _few_rows(rows, where):
-    return rows[:1 + where % 3]
+    return rows[: 1 + where % 3]
 
 
 def _time_jump(rows, where):
@@ -159,7 +181,11 @@ def _time_jump(rows, where):
 
 def _scale(factor, every_state=False):
     def mutate(rows, where):
-        columns = [c for c, n in enumerate(rows[0]) if n in STATES] if every_state else [1 + where % (len(rows[0]) - 1)]
+        columns = (
+            [c for c, n in enumerate(rows[0]) if n in STATES]
+            if every_state
+            else [1 + where % (len(rows[0]) - 1)]
+        )
         for row in rows[1:]:
             for c in columns:
                 row[c] = repr(float(row[c]) * factor)
@@ -235,7 +261,7 @@ CSV_MUTATIONS: dict[str, Callable] = {
     "latin-1 bytes": _bytes_at(b"\xe9t\xe9"),
     "nul bytes": _bytes_at(b"\x00\x00"),
     "junk bytes": _bytes_at(b"\xff\xfe\x80,\n\r"),
-    "truncated bytes": lambda data, where: data[:where % (len(data) + 1)],
+    "truncated bytes": lambda data, where: data[: where % (len(data) + 1)],
 }
 
 
@@ -248,8 +274,25 @@ def apply_csv_mutation(data: bytes, name: str, where: int) -> bytes:
         return data
 
 
-TOML_BAD_VALUES = ["x", True, [], {}, float("nan"), float("inf"), -float("inf"), 1e300, -1.0, 0, 10**30,
-                   10**400, [1, 2], {"a": 1}, -0.0, 1e-300, "1.5"]  # fmt: skip
+TOML_BAD_VALUES = [
+    "x",
+    True,
+    [],
+    {},
+    float("nan"),
+    float("inf"),
+    -float("inf"),
+    1e300,
+    -1.0,
+    0,
+    10**30,
+    10**400,
+    [1, 2],
+    {"a": 1},
+    -0.0,
+    1e-300,
+    "1.5",
+]
 
 
 def _toml_value(v) -> str:
@@ -273,7 +316,9 @@ def toml_text(doc: dict) -> str:
     lines = [f"{json.dumps(k)} = {_toml_value(v)}" for k, v in doc.items() if not isinstance(v, dict)]
     for table, body in doc.items():
         if isinstance(body, dict):
-            lines += [f"[{json.dumps(table)}]"] + [f"{json.dumps(k)} = {_toml_value(v)}" for k, v in body.items()]
+            lines += [f"[{json.dumps(table)}]"] + [
+                f"{json.dumps(k)} = {_toml_value(v)}" for k, v in body.items()
+            ]
     return "\n".join(lines) + "\n"
 
 
@@ -304,64 +349,138 @@ def corpus(root: Path) -> list[Case]:
     for name in CSV_MUTATIONS:
         for where in (0, 1, 7, 23):
             files = (("bad.csv", ("data/h.csv", ((name, where),))),)
-            cases.append(Case(f"csv {name} @{where}", ("identify", "bad.csv", "--config", "cfg.toml",
-                                                       "--out", "out/e.json", *fit), files))  # fmt: skip
+            cases.append(
+                Case(
+                    f"csv {name} @{where}",
+                    ("identify", "bad.csv", "--config", "cfg.toml", "--out", "out/e.json", *fit),
+                    files,
+                )
+            )
         files = (("bad.csv", ("data/v.csv", ((name, 3),))),)
-        cases.append(Case(f"csv {name} (analyze)", ("analyze", "bad.csv", "--config", "cfg.toml",
-                                                    "--out", "out/a.json"), files))  # fmt: skip
-        cases.append(Case(f"csv {name} (mekf)", ("identify", "bad.csv", "data/h.csv", "--config", "cfg.toml",
-                                                 "--method", "mekf", "--out", "out/e.json"), files))  # fmt: skip
+        cases.append(
+            Case(
+                f"csv {name} (analyze)",
+                ("analyze", "bad.csv", "--config", "cfg.toml", "--out", "out/a.json"),
+                files,
+            )
+        )
+        cases.append(
+            Case(
+                f"csv {name} (mekf)",
+                (
+                    "identify",
+                    "bad.csv",
+                    "data/h.csv",
+                    "--config",
+                    "cfg.toml",
+                    "--method",
+                    "mekf",
+                    "--out",
+                    "out/e.json",
+                ),
+                files,
+            )
+        )
     doc = _config_doc(root)
     bad = [float("nan"), -1.0, 0, "x", 1e300, True, 10**400]
     for key in Vehicle.names():
         for value in bad:
             broken = json.loads(json.dumps(doc))
             broken["vehicle"][key] = value
-            cases.append(Case(f"config vehicle {key}={value!r:.12}", ("identify", "data", "--config", "bad.toml",
-                                                                      "--out", "out/e.json", *fit),
-                              (("bad.toml", toml_text(broken).encode()),)))  # fmt: skip
+            cases.append(
+                Case(
+                    f"config vehicle {key}={value!r:.12}",
+                    ("identify", "data", "--config", "bad.toml", "--out", "out/e.json", *fit),
+                    (("bad.toml", toml_text(broken).encode()),),
+                )
+            )
     for key in ("X_udot", "N_rdot", "Y_v", "Nope"):
         for value in bad + [doc["vehicle"]["Iz"]]:
             broken = json.loads(json.dumps(doc))
             broken["coefficients"][key] = value
-            cases.append(Case(f"config {key}={value!r:.12}", ("analyze", "data", "--config", "bad.toml"),
-                              (("bad.toml", toml_text(broken).encode()),)))  # fmt: skip
-    for label, free in (("unknown", ["Y_v", "Nope"]), ("twice", ["Y_v", "Y_v"]), ("not a list", "Y_v"),
-                        ("numbers", [1, 2]), ("empty", []), ("all", list(doc["coefficients"]))):
+            cases.append(
+                Case(
+                    f"config {key}={value!r:.12}",
+                    ("analyze", "data", "--config", "bad.toml"),
+                    (("bad.toml", toml_text(broken).encode()),),
+                )
+            )
+    for label, free in (
+        ("unknown", ["Y_v", "Nope"]),
+        ("twice", ["Y_v", "Y_v"]),
+        ("not a list", "Y_v"),
+        ("numbers", [1, 2]),
+        ("empty", []),
+        ("all", list(doc["coefficients"])),
+    ):
         broken = json.loads(json.dumps(doc)) | {"identify": {"free": free}}
         argv = ("identify", "data", "--config", "bad.toml", "--out", "out/e.json", *fit)
         cases.append(Case(f"config free {label}", argv, (("bad.toml", toml_text(broken).encode()),)))
     text = (root / "cfg.toml").read_bytes()
-    for label, blob in (("empty", b""), ("cut", text[:len(text) // 2]), ("binary", b"\xff\xfe\x00\x01"),
-                        ("no vehicle", text.replace(b"[vehicle]", b"[vehicles]")), ("deep", b"a = " + b"[" * 5000),
-                        ("twice", text + text), ("json", b'{"vehicle": {}}')):  # fmt: skip
-        cases.append(Case(f"config text {label}", ("analyze", "data", "--config", "bad.toml"), (("bad.toml", blob),)))
-    manifests = {"not json": b"{", "list": b"[]", "no experiments": b"{}", "deep": b"[" * 100_000,
-                 "binary": b"\xff\xfe", "string": "h", "numbers": [1], "outside": ["../data/h"],
-                 "absolute": ["/etc/passwd"], "twice": ["horizontal", "horizontal"], "missing": ["gone"],
-                 "empty list": [], "nul": ["a\x00b"], "truth": ["horizontal.truth"]}  # fmt: skip
+    for label, blob in (
+        ("empty", b""),
+        ("cut", text[: len(text) // 2]),
+        ("binary", b"\xff\xfe\x00\x01"),
+        ("no vehicle", text.replace(b"[vehicle]", b"[vehicles]")),
+        ("deep", b"a = " + b"[" * 5000),
+        ("twice", text + text),
+        ("json", b'{"vehicle": {}}'),
+    ):
+        cases.append(
+            Case(f"config text {label}", ("analyze", "data", "--config", "bad.toml"), (("bad.toml", blob),))
+        )
+    manifests = {
+        "not json": b"{",
+        "list": b"[]",
+        "no experiments": b"{}",
+        "deep": b"[" * 100_000,
+        "binary": b"\xff\xfe",
+        "string": "h",
+        "numbers": [1],
+        "outside": ["../data/h"],
+        "absolute": ["/etc/passwd"],
+        "twice": ["horizontal", "horizontal"],
+        "missing": ["gone"],
+        "empty list": [],
+        "nul": ["a\x00b"],
+        "truth": ["horizontal.truth"],
+    }
     for label, value in manifests.items():
         text = value if isinstance(value, bytes) else json.dumps({"experiments": value}).encode()
         argv = ("identify", "run", "--out", "out/e.json", *fit)
         cases.append(Case(f"manifest {label}", argv, (("run/manifest.json", text),)))
-    for label, name, blob in (("broken truth file", "run/horizontal.truth.csv", b"t,u\n"),
-                              ("broken model.toml", "run/model.toml", b"[vehicle\n"),
-                              ("truth file of 1e300", "run/vertical.truth.csv",
-                               ("run/vertical.truth.csv", (("scaled 1e300", 2),)))):  # fmt: skip
+    for label, name, blob in (
+        ("broken truth file", "run/horizontal.truth.csv", b"t,u\n"),
+        ("broken model.toml", "run/model.toml", b"[vehicle\n"),
+        ("truth file of 1e300", "run/vertical.truth.csv", ("run/vertical.truth.csv", (("scaled 1e300", 2),))),
+    ):
         cases.append(Case(f"run {label}", ("identify", "run", "--out", "out/e.json", *fit), ((name, blob),)))
     flags = {
-        "identify": {"--method": ["nope", ""], "--max-iter": ["-1", "x", "1e3", ""], "--start": ["nope", ""],
-                     "--perturb": ["0", "-1", "nan", "inf", "1e400", "x"], "--seed": ["-1", "x", "1.5", str(2**70)],
-                     "--rrd": ["out", "-", "out/no/f.rrd", "keep.txt/f.rrd", "data/h.csv"]},
-        "truth": {"--speed": ["0", "-1", "nan", "inf", "1e-6", "x", "1e300"],
-                  "--mjcf": ["data", "missing.xml", "cfg.toml", "/dev/null"]},
-        "simulate": {"--duration": ["0.001", "0.02", "0", "-1", "nan", "1e300", "x"], "--seed": ["-1", "x"],
-                     "--speed": ["0", "1e-6", "nan", "x"], "--scenario": ["nope", ""],
-                     "--mjcf": ["data", "missing.xml", "cfg.toml"]},
-    }  # fmt: skip
-    base = {"identify": ("identify", "run", "--out", "out/e.json", *fit),
-            "truth": ("truth", "--out", "out/m.toml"),
-            "simulate": ("simulate", "--quiet", "--scenario", "I", "--duration", "0.06", "--out", "out/run")}
+        "identify": {
+            "--method": ["nope", ""],
+            "--max-iter": ["-1", "x", "1e3", ""],
+            "--start": ["nope", ""],
+            "--perturb": ["0", "-1", "nan", "inf", "1e400", "x"],
+            "--seed": ["-1", "x", "1.5", str(2**70)],
+            "--rrd": ["out", "-", "out/no/f.rrd", "keep.txt/f.rrd", "data/h.csv"],
+        },
+        "truth": {
+            "--speed": ["0", "-1", "nan", "inf", "1e-6", "x", "1e300"],
+            "--mjcf": ["data", "missing.xml", "cfg.toml", "/dev/null"],
+        },
+        "simulate": {
+            "--duration": ["0.001", "0.02", "0", "-1", "nan", "1e300", "x"],
+            "--seed": ["-1", "x"],
+            "--speed": ["0", "1e-6", "nan", "x"],
+            "--scenario": ["nope", ""],
+            "--mjcf": ["data", "missing.xml", "cfg.toml"],
+        },
+    }
+    base = {
+        "identify": ("identify", "run", "--out", "out/e.json", *fit),
+        "truth": ("truth", "--out", "out/m.toml"),
+        "simulate": ("simulate", "--quiet", "--scenario", "I", "--duration", "0.06", "--out", "out/run"),
+    }
     for command, options in flags.items():
         for flag, values in options.items():
             for value in values:
@@ -373,30 +492,61 @@ def corpus(root: Path) -> list[Case]:
                 cases.append(Case(f"{command} {flag} {value[:12]!r}", tuple(argv)))
     argv = base["identify"] + ("--method", "mekf", "--start", "config")
     cases.append(Case("identify --start config --method mekf", argv))
-    targets = ["out", "out/no/e.json", "keep.txt/e.json", "data/h.csv", "cfg.toml", "run/model.toml", "-", "keep.txt",
-               "null", "out/e.json"]  # fmt: skip
+    targets = [
+        "out",
+        "out/no/e.json",
+        "keep.txt/e.json",
+        "data/h.csv",
+        "cfg.toml",
+        "run/model.toml",
+        "-",
+        "keep.txt",
+        "null",
+        "out/e.json",
+    ]
     for target in targets:
-        for argv in (("identify", "run", *fit), ("identify", "run", "--method", "mekf"), ("analyze", "run"),
-                     ("truth",)):  # fmt: skip
+        for argv in (
+            ("identify", "run", *fit),
+            ("identify", "run", "--method", "mekf"),
+            ("analyze", "run"),
+            ("truth",),
+        ):
             cases.append(Case(f"{argv[0]} {' '.join(argv[2:4])} --out {target}", (*argv, "--out", target)))
     for target in ("out", "keep.txt", "keep.txt/run", "-", "data", "run", "out/new/run"):
         for force in ((), ("--force",)):
-            cases.append(Case(f"simulate --out {target} {' '.join(force)}",
-                              (*base["simulate"][:-1], target, *force)))  # fmt: skip
+            cases.append(
+                Case(f"simulate --out {target} {' '.join(force)}", (*base["simulate"][:-1], target, *force))
+            )
     issue = [
-        ("1e300 cell, mekf", ("identify", "bad.csv", "--config", "cfg.toml", "--method", "mekf"),
-         (("bad.csv", ("data/h.csv", (("cell", 4 * len(CELLS) + 4),))),)),
-        ("every state x1e300", ("identify", "bad.csv", "--config", "cfg.toml"),
-         (("bad.csv", ("data/h.csv", (("states scaled 1e300", 0),))),)),
+        (
+            "1e300 cell, mekf",
+            ("identify", "bad.csv", "--config", "cfg.toml", "--method", "mekf"),
+            (("bad.csv", ("data/h.csv", (("cell", 4 * len(CELLS) + 4),))),),
+        ),
+        (
+            "every state x1e300",
+            ("identify", "bad.csv", "--config", "cfg.toml"),
+            (("bad.csv", ("data/h.csv", (("states scaled 1e300", 0),))),),
+        ),
         ("perturb with seed -1", ("identify", "run", "--perturb", "0.2", "--seed", "-1"), ()),
-        ("only u, lateral free", ("identify", "u.csv", "--config", "cfg.toml", "--out", "out/e.json"), "u.csv"),
+        (
+            "only u, lateral free",
+            ("identify", "u.csv", "--config", "cfg.toml", "--out", "out/e.json"),
+            "u.csv",
+        ),
         ("only u, lateral free (analyze)", ("analyze", "u.csv", "--config", "cfg.toml"), "u.csv"),
-        ("1e300 cell, analyze", ("analyze", "bad.csv", "--config", "cfg.toml"),
-         (("bad.csv", ("data/h.csv", (("cell", 4 * len(CELLS) + 4),))),)),
+        (
+            "1e300 cell, analyze",
+            ("analyze", "bad.csv", "--config", "cfg.toml"),
+            (("bad.csv", ("data/h.csv", (("cell", 4 * len(CELLS) + 4),))),),
+        ),
         ("N_rdot = Iz, mekf", ("identify", "data", "--config", "iz.toml", "--method", "mekf"), "iz.toml"),
-        ("dt 200 s", ("identify", "bad.csv", "--config", "cfg.toml", "--start", "config"),
-         (("bad.csv", ("data/h.csv", (("time x4000", 0),))),)),
-    ]  # fmt: skip
+        (
+            "dt 200 s",
+            ("identify", "bad.csv", "--config", "cfg.toml", "--start", "config"),
+            (("bad.csv", ("data/h.csv", (("time x4000", 0),))),),
+        ),
+    ]
     for label, argv, files in issue:
         if files == "iz.toml":
             broken = json.loads(json.dumps(doc))
@@ -490,8 +640,15 @@ def run_in_process(argv, cwd: Path) -> tuple[int, str, str]:
 
 def run_subprocess(argv, cwd: Path) -> tuple[int, str, str]:
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    done = subprocess.run([sys.executable, "-m", "testbed", *argv], cwd=cwd, capture_output=True, text=True,
-                          env=env, stdin=subprocess.DEVNULL, timeout=600)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "testbed", *argv],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
     return done.returncode, done.stdout, done.stderr
 
 
@@ -530,9 +687,13 @@ def run_case(ws: Path, case: Case, runner=run_in_process) -> Outcome:
 
 
 def tally(outcomes: list[Outcome]) -> dict[str, int]:
-    return {"cases": len(outcomes), "ok": sum(o.kind == "ok" for o in outcomes),
-            "errors": sum(o.kind == "error" for o in outcomes), "crashes": sum(o.kind == "crash" for o in outcomes),
-            "partial_outputs": sum(bool(o.partial) for o in outcomes)}  # fmt: skip
+    return {
+        "cases": len(outcomes),
+        "ok": sum(o.kind == "ok" for o in outcomes),
+        "errors": sum(o.kind == "error" for o in outcomes),
+        "crashes": sum(o.kind == "crash" for o in outcomes),
+        "partial_outputs": sum(bool(o.partial) for o in outcomes),
+    }
 
 
 def main(argv=None) -> int:
@@ -544,15 +705,17 @@ def main(argv=None) -> int:
     runner = run_subprocess if args.subprocess else run_in_process
     with tempfile.TemporaryDirectory() as tmp:
         ws = workspace(Path(tmp))
-        cases = corpus(ws)[::args.every]
+        cases = corpus(ws)[:: args.every]
         outcomes = []
         for case in cases:
             o = run_case(ws, case, runner)
             outcomes.append(o)
             if args.verbose or o.kind == "crash" or o.partial:
                 last = o.err.strip().splitlines()[-1:] or [""]
-                print(f"{o.kind:5} {o.code:3} {o.label}: {last[0][:160]}"
-                      + (f" [written/changed: {o.partial}]" if o.partial else ""))  # fmt: skip
+                print(
+                    f"{o.kind:5} {o.code:3} {o.label}: {last[0][:160]}"
+                    + (f" [written/changed: {o.partial}]" if o.partial else "")
+                )
     counts = tally(outcomes)
     print(" ".join(f"{k}={v}" for k, v in counts.items()))
     return 0 if counts["crashes"] == 0 and counts["partial_outputs"] == 0 else 1

@@ -34,9 +34,12 @@ EXCITED = {"horizontal": ("v", "r", "psi"), "vertical": ("w", "q", "theta", "z")
 
 def scaled(s, k: float):
     """Scenario `s` with every PRBS amplitude times `k`."""
+
     def one(e):
-        fins = {c: replace(sig, amplitude=sig.amplitude * k) if isinstance(sig, Prbs) else sig
-                for c, sig in e.fins.items()}  # fmt: skip
+        fins = {
+            c: replace(sig, amplitude=sig.amplitude * k) if isinstance(sig, Prbs) else sig
+            for c, sig in e.fins.items()
+        }
         return replace(e, fins=fins)
 
     return replace(s, experiments=tuple(one(e) for e in s.experiments))
@@ -45,9 +48,11 @@ def scaled(s, k: float):
 def study(scales, seed: int) -> str:
     base = scenario("II")
     out = io.StringIO()
-    out.write("scale,experiment,peak_yaw_rate_deg_s,peak_pitch_rate_deg_s,peak_roll_rate_deg_s,peak_sideslip_deg,"
-              "peak_pitch_deg,peak_roll_deg,speed_loss_percent,min_fit_excited,worst_fit_channel,"
-              "max_residual_over_noise,worst_residual_channel\n")  # fmt: skip
+    out.write(
+        "scale,experiment,peak_yaw_rate_deg_s,peak_pitch_rate_deg_s,peak_roll_rate_deg_s,peak_sideslip_deg,"
+        "peak_pitch_deg,peak_roll_deg,speed_loss_percent,min_fit_excited,worst_fit_channel,"
+        "max_residual_over_noise,worst_residual_channel\n"
+    )
     for k in scales:
         s = scaled(base, k)
         check = linearity(s, EXCITED, seed=seed)
@@ -57,9 +62,19 @@ def study(scales, seed: int) -> str:
             x = f.truth
             (worst_fit, fit), (worst_res, res) = check.fit[f.name], check.residual[f.name]
             peaks = np.degrees(np.abs(x[:, [5, 4, 3]]).max(0))
-            row = [k, f.name, *np.round(peaks, 3), round(float(np.degrees(np.abs(x[:, 1] / U).max())), 3),
-                   round(float(np.degrees(np.abs(x[:, 7]).max())), 3), round(float(np.degrees(np.abs(x[:, 6]).max())), 3),
-                   round(100 * check.speed_loss[f.name], 4), round(fit, 3), worst_fit, round(res, 4), worst_res]  # fmt: skip
+            row = [
+                k,
+                f.name,
+                *np.round(peaks, 3),
+                round(float(np.degrees(np.abs(x[:, 1] / U).max())), 3),
+                round(float(np.degrees(np.abs(x[:, 7]).max())), 3),
+                round(float(np.degrees(np.abs(x[:, 6]).max())), 3),
+                round(100 * check.speed_loss[f.name], 4),
+                round(fit, 3),
+                worst_fit,
+                round(res, 4),
+                worst_res,
+            ]
             out.write(",".join(map(str, row)) + "\n")
     return out.getvalue()
 

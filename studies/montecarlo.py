@@ -37,16 +37,27 @@ def study(seeds: int, duration: float, methods: list[str]) -> str:
     out = io.StringIO()
     head = ["coefficient", "truth", "crlb_mean", "crlb_corrected_over_crlb"]
     for m in methods:
-        head += [f"{m}_mean_err_sigma", f"{m}_std_over_crlb", f"{m}_bias", f"{m}_std",
-                 f"{m}_bias_over_own_sigma", f"{m}_own_sigma_over_std"]  # fmt: skip
+        head += [
+            f"{m}_mean_err_sigma",
+            f"{m}_std_over_crlb",
+            f"{m}_bias",
+            f"{m}_std",
+            f"{m}_bias_over_own_sigma",
+            f"{m}_own_sigma_over_std",
+        ]
     out.write(",".join(head) + "\n")
     for i, name in enumerate(FREE):
         cells = [name, f"{truth[i]:.6g}", f"{crlb[i]:.4g}", f"{corrected[i] / crlb[i]:.3f}"]
         for m in methods:
             sc = spread[m]
-            cells += [f"{sc.bias[i] / crlb[i]:.3f}", f"{sc.std[i] / crlb[i]:.3f}", f"{sc.bias[i]:.4g}",
-                      f"{sc.std[i]:.4g}", f"{sc.bias[i] / sc.reported[i]:.3f}",
-                      f"{sc.reported[i] / sc.std[i]:.3f}"]  # fmt: skip
+            cells += [
+                f"{sc.bias[i] / crlb[i]:.3f}",
+                f"{sc.std[i] / crlb[i]:.3f}",
+                f"{sc.bias[i]:.4g}",
+                f"{sc.std[i]:.4g}",
+                f"{sc.bias[i] / sc.reported[i]:.3f}",
+                f"{sc.reported[i] / sc.std[i]:.3f}",
+            ]
         out.write(",".join(cells) + "\n")
     for m in methods:
         sc = spread[m]
@@ -55,11 +66,13 @@ def study(seeds: int, duration: float, methods: list[str]) -> str:
         own = sc.reported / sc.std
         within = int(np.sum(np.abs(sc.bias / sc.reported) < 2.0))
         consistent = int(np.sum((own >= 0.7) & (own <= 1.5)))
-        out.write(f"# {m}: {sc.used} of {seeds} seeds {counted(m)}; "
-                  f"|mean error| < 0.5 sigma for {unbiased} of {len(FREE)} coefficients, "
-                  f"std/crlb in 0.8-1.25 for {efficient} of {len(FREE)}; "
-                  f"|mean error| < 2 own sigma for {within}, own sigma/std in 0.7-1.5 for "
-                  f"{consistent} of {len(FREE)}\n")  # fmt: skip
+        out.write(
+            f"# {m}: {sc.used} of {seeds} seeds {counted(m)}; "
+            f"|mean error| < 0.5 sigma for {unbiased} of {len(FREE)} coefficients, "
+            f"std/crlb in 0.8-1.25 for {efficient} of {len(FREE)}; "
+            f"|mean error| < 2 own sigma for {within}, own sigma/std in 0.7-1.5 for "
+            f"{consistent} of {len(FREE)}\n"
+        )
     return out.getvalue()
 
 

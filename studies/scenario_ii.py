@@ -44,8 +44,12 @@ def study(seeds: int, duration: float) -> str:
     config = replace(model_config(lin, default_mjcf())[0], outputs=tuple(s for s in STATES if s != "z"))
 
     def noisy(seed):  # new sensor noise on the same flight
-        return [Experiment(f.name, f.t, STATES, *measure(f.truth, f.fins, settings.sensors, rng_for(seed + 1, k, 0)))
-                for k, f in enumerate(flights)]  # fmt: skip
+        return [
+            Experiment(
+                f.name, f.t, STATES, *measure(f.truth, f.fins, settings.sensors, rng_for(seed + 1, k, 0))
+            )
+            for k, f in enumerate(flights)
+        ]
 
     config = screen(noisy(0), config)[0]
     truth = [Experiment(f.name, f.t, STATES, f.truth, f.fins) for f in flights]
@@ -57,19 +61,34 @@ def study(seeds: int, duration: float) -> str:
     spread = {m: scatter(fits[m], reference.values) for m in METHODS}
     crlb, corrected = spread["ml-gn"].reported, spread["ml-gn"].corrected
     out = io.StringIO()
-    head = ["coefficient", "analytic", "truth_fit", "linear_model_bias", "crlb_mean",
-            "crlb_corrected_over_crlb"]  # fmt: skip
+    head = [
+        "coefficient",
+        "analytic",
+        "truth_fit",
+        "linear_model_bias",
+        "crlb_mean",
+        "crlb_corrected_over_crlb",
+    ]
     for m in METHODS:
         head += [f"{m}_mean_err_sigma", f"{m}_std_over_crlb", f"{m}_mean_reported_std_over_crlb"]
     out.write(",".join(head) + "\n")
     for i, name in enumerate(config.free):
         a, ref = config.coefficients[name], reference.values[i]
-        cells = [name, f"{a:.6g}", f"{ref:.6g}", f"{(ref - a) / abs(a):.3f}" if a else "",
-                 f"{crlb[i]:.4g}", f"{corrected[i] / crlb[i]:.3f}"]  # fmt: skip
+        cells = [
+            name,
+            f"{a:.6g}",
+            f"{ref:.6g}",
+            f"{(ref - a) / abs(a):.3f}" if a else "",
+            f"{crlb[i]:.4g}",
+            f"{corrected[i] / crlb[i]:.3f}",
+        ]
         for m in METHODS:
             sc = spread[m]
-            cells += [f"{sc.bias[i] / crlb[i]:.3f}", f"{sc.std[i] / crlb[i]:.3f}",
-                      f"{sc.reported[i] / crlb[i]:.3f}"]  # fmt: skip
+            cells += [
+                f"{sc.bias[i] / crlb[i]:.3f}",
+                f"{sc.std[i] / crlb[i]:.3f}",
+                f"{sc.reported[i] / crlb[i]:.3f}",
+            ]
         out.write(",".join(cells) + "\n")
     for m in METHODS:
         out.write(f"# {m}: {spread[m].used} of {seeds} seeds {counted(m)}\n")

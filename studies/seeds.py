@@ -24,8 +24,9 @@ def counted(method: str) -> str:
     return "converged" if method.startswith("ml-") else "not diverged"
 
 
-def fit_seeds(seeds: int, data: Callable[[int], Sequence[Experiment]], config: ModelConfig,
-              methods: Sequence[str]) -> dict[str, list[Estimate]]:  # fmt: skip
+def fit_seeds(
+    seeds: int, data: Callable[[int], Sequence[Experiment]], config: ModelConfig, methods: Sequence[str]
+) -> dict[str, list[Estimate]]:
     """Every method on the experiments `data(seed)` of every seed, from `config`."""
     fits = {m: [] for m in methods}
     for seed in range(seeds):
@@ -34,8 +35,11 @@ def fit_seeds(seeds: int, data: Callable[[int], Sequence[Experiment]], config: M
             t0 = time.perf_counter()
             est = identify(experiments, config, method=m)
             fits[m].append(est)
-            print(f"seed {seed:3d} {m:6s} {est.status.name:14s} {est.iterations:5d} it "
-                  f"{time.perf_counter() - t0:6.2f} s", file=sys.stderr)  # fmt: skip
+            print(
+                f"seed {seed:3d} {m:6s} {est.status.name:14s} {est.iterations:5d} it "
+                f"{time.perf_counter() - t0:6.2f} s",
+                file=sys.stderr,
+            )
     return fits
 
 
@@ -53,7 +57,14 @@ class Scatter:
 def scatter(fits: Sequence[Estimate], reference: np.ndarray) -> Scatter:
     good = [e for e in fits if usable(e)]
     values = np.array([e.values for e in good])
-    corrected = [e.crlb_corrected_std if e.crlb_corrected_std is not None else np.full(len(e.free), np.nan)
-                 for e in good]
-    return Scatter(len(good), values.mean(0) - reference, values.std(0, ddof=1),
-                   np.mean([e.std for e in good], axis=0), np.mean(corrected, axis=0))
+    corrected = [
+        e.crlb_corrected_std if e.crlb_corrected_std is not None else np.full(len(e.free), np.nan)
+        for e in good
+    ]
+    return Scatter(
+        len(good),
+        values.mean(0) - reference,
+        values.std(0, ddof=1),
+        np.mean([e.std for e in good], axis=0),
+        np.mean(corrected, axis=0),
+    )

@@ -24,17 +24,25 @@ import importlib
 __version__ = "0.1.0"
 
 _API = {
-    "load_data": "testbed.data", "read_csv": "testbed.data", "read_config": "testbed.data",
-    "Experiment": "testbed.data", "ModelConfig": "testbed.data",
+    "load_data": "testbed.data",
+    "read_csv": "testbed.data",
+    "read_config": "testbed.data",
+    "Experiment": "testbed.data",
+    "ModelConfig": "testbed.data",
     "analytic_config": "testbed.truth",
     "simulate": "testbed.runs",
-    "identify": "testbed.estimators", "Estimate": "testbed.estimators", "Status": "testbed.estimators",
-    "METHODS": "testbed.estimators", "OptionError": "testbed.estimators",
-    "analyze": ("testbed.analysis", "identifiability"), "screen": "testbed.analysis",
-    "compare": "testbed.analysis", "validate": "testbed.validation",
+    "identify": "testbed.estimators",
+    "Estimate": "testbed.estimators",
+    "Status": "testbed.estimators",
+    "METHODS": "testbed.estimators",
+    "OptionError": "testbed.estimators",
+    "analyze": ("testbed.analysis", "identifiability"),
+    "screen": "testbed.analysis",
+    "compare": "testbed.analysis",
+    "validate": "testbed.validation",
     "reproduce": "testbed.campaign",
     "InputError": "testbed.errors",
-}  # fmt: skip
+}
 
 __all__ = sorted(_API)  # no name of a submodule: `from testbed import design` is the module
 

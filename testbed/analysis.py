@@ -33,6 +33,7 @@ class Structural:
     """Exactly unidentifiable directions: `basis` (k × len(free)) in reduced row echelon form;
     `unobserved`: the free coefficients no measured state depends on (`model.unobserved`), each
     an unidentifiable direction of its own."""
+
     free: tuple[str, ...]
     basis: np.ndarray
     drift_groups: tuple[tuple[str, ...], ...]
@@ -65,12 +66,12 @@ def structural(s: Structure, theta: np.ndarray, free, measured, tol: float = 1e-
         (np.zeros((len(C) * NX, NX * NX)), np.kron(C, I), np.zeros((len(C) * NX, k))),
     ]
     G = np.hstack([np.vstack([b[j] for b in blocks]) for j in range(3)])
-    G[:, 2 * NX * NX:] *= scale
+    G[:, 2 * NX * NX :] *= scale
     G /= np.maximum(np.linalg.norm(G, axis=1, keepdims=True), 1e-300)
     _, sv, vt = np.linalg.svd(G, full_matrices=len(G) < G.shape[1])  # the null space: right
     # singular vectors beyond the rank
-    N = vt[np.sum(sv > tol * sv.max(initial=0.0)):].T
-    D = N[2 * NX * NX:]  # dθ components of the null vectors
+    N = vt[np.sum(sv > tol * sv.max(initial=0.0)) :].T
+    D = N[2 * NX * NX :]  # dθ components of the null vectors
     blind = unobserved(s, theta, free, measured)
     V = np.eye(k)[[free.index(n) for n in blind]]  # (scaled) directions of the unobserved ones
     if D.size:
@@ -166,12 +167,13 @@ class Identifiability:
             "practical_drift_groups": [list(g) for g in self.practical_groups],
             "null_basis": [[float(v) for v in row] for row in self.structural.basis],
             "unobserved": list(self.structural.unobserved),
-            "relative_crlb": {n: num(s / abs(v)) if v else None
-                              for n, s, v in zip(self.free, self.crlb_std, self.values)},
+            "relative_crlb": {
+                n: num(s / abs(v)) if v else None for n, s, v in zip(self.free, self.crlb_std, self.values)
+            },
             "practically_unidentifiable": list(self.uncertain),
             "fisher_condition": num(np.linalg.cond(self.fisher)),
             "summary": list(self.summary),
-        }  # fmt: skip
+        }
         return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
 
@@ -193,12 +195,16 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     corr[drifting, :] = corr[:, drifting] = np.nan
     values = theta[[ITHETA[n] for n in free]]
     pairs = np.argwhere(np.triu(np.abs(corr) > CORRELATED, 1))
-    practical = _groups(free, np.array([np.eye(len(free))[i] + np.eye(len(free))[j] for i, j in pairs])) \
-        if len(pairs) else ()  # fmt: skip
+    practical = (
+        _groups(free, np.array([np.eye(len(free))[i] + np.eye(len(free))[j] for i, j in pairs]))
+        if len(pairs)
+        else ()
+    )
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(values != 0, std / np.abs(values), np.inf)
-    uncertain = tuple(n for n, r, s in zip(free, rel, std)
-                      if np.isfinite(s) and np.isfinite(r) and r > UNCERTAIN)  # fmt: skip
+    uncertain = tuple(
+        n for n, r, s in zip(free, rel, std) if np.isfinite(s) and np.isfinite(r) and r > UNCERTAIN
+    )
     summary = _summary(free, struct, practical, uncertain, corr, rel, std)
     return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary)
 
@@ -216,7 +222,6 @@ def screen(experiments, config):
     `--free-all` on the command line).
     """
 
-
     result = identifiability(experiments, config, noise_from_data(config.fitted(experiments)))
     fixed = {}
     drifting = {n for g in result.structural.drift_groups for n in g}
@@ -224,11 +229,15 @@ def screen(experiments, config):
         if n in drifting:
             fixed[n] = "not identifiable from these data: in an exactly unidentifiable drift group"
         elif value == 0:
-            fixed[n] = (f"not identifiable from these data: analysed at 0, Cramér-Rao bound {std:.3g} "
-                        "(no relative bound)")  # fmt: skip
+            fixed[n] = (
+                f"not identifiable from these data: analysed at 0, Cramér-Rao bound {std:.3g} "
+                "(no relative bound)"
+            )
         elif n in result.uncertain:  # relative bound above UNCERTAIN
-            fixed[n] = (f"not identifiable from these data: Cramér-Rao bound {100 * std / abs(value):.0f} % "
-                        f"of its a-priori value (above {100 * UNCERTAIN:.0f} %)")  # fmt: skip
+            fixed[n] = (
+                f"not identifiable from these data: Cramér-Rao bound {100 * std / abs(value):.0f} % "
+                f"of its a-priori value (above {100 * UNCERTAIN:.0f} %)"
+            )
     free = tuple(n for n in config.free if n not in fixed)
     return replace(config, free=free), fixed
 
@@ -237,36 +246,50 @@ def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, .
     """Plain sentences: what cannot be identified, and what to fix or measure."""
     lines = []
     if struct.unobserved:
-        lines.append(f"Not identifiable: {', '.join(struct.unobserved)}; the measured states do not "
-                     "depend on them in the model; measure the states they drive or fix them.")  # fmt: skip
+        lines.append(
+            f"Not identifiable: {', '.join(struct.unobserved)}; the measured states do not "
+            "depend on them in the model; measure the states they drive or fix them."
+        )
     for g in struct.drift_groups:
         if set(g) <= set(struct.unobserved):
             continue
-        lines.append(f"Exactly unidentifiable: {', '.join(g)} can drift together without changing "
-                     "the outputs (rows of Mt ẋ = At x + Bt δ scale together); fix one of them "
-                     "(e.g. an added-mass term from theory) or free fewer coefficients.")  # fmt: skip
+        lines.append(
+            f"Exactly unidentifiable: {', '.join(g)} can drift together without changing "
+            "the outputs (rows of Mt ẋ = At x + Bt δ scale together); fix one of them "
+            "(e.g. an added-mass term from theory) or free fewer coefficients."
+        )
     index = {n: i for i, n in enumerate(free)}
     structural_ = set(struct.unobserved) | {n for g in struct.drift_groups for n in g}
     singular = [n for n in free if np.isinf(std[index[n]]) and n not in structural_]
     if singular:
-        lines.append(f"Unidentifiable in these data: {', '.join(singular)} (the Fisher information is "
-                     "singular along them: infinite Cramér-Rao bounds); add a manoeuvre that excites "
-                     "them or fix them.")  # fmt: skip
+        lines.append(
+            f"Unidentifiable in these data: {', '.join(singular)} (the Fisher information is "
+            "singular along them: infinite Cramér-Rao bounds); add a manoeuvre that excites "
+            "them or fix them."
+        )
     for g in practical:
         worst = max(abs(corr[index[a], index[b]]) for a in g for b in g if a != b)
-        lines.append(f"Practically inseparable in these data: {', '.join(g)} (|correlation| up to "
-                     f"{worst:.3f}); add a manoeuvre that excites them differently (PRBS input, "
-                     "other mode) or fix one.")  # fmt: skip
+        lines.append(
+            f"Practically inseparable in these data: {', '.join(g)} (|correlation| up to "
+            f"{worst:.3f}); add a manoeuvre that excites them differently (PRBS input, "
+            "other mode) or fix one."
+        )
     for n in uncertain:
-        lines.append(f"Poorly determined: {n} (Cramér-Rao bound {100 * rel[index[n]]:.0f} % of its "
-                     "value); the data hardly excite it.")  # fmt: skip
+        lines.append(
+            f"Poorly determined: {n} (Cramér-Rao bound {100 * rel[index[n]]:.0f} % of its "
+            "value); the data hardly excite it."
+        )
     for n in free:
         if not np.isfinite(rel[index[n]]) and np.isfinite(std[index[n]]):
-            lines.append(f"{n} is analysed at 0, so it has no relative bound: its Cramér-Rao bound "
-                         f"is {std[index[n]]:.3g}; compare that with the values you expect.")  # fmt: skip
+            lines.append(
+                f"{n} is analysed at 0, so it has no relative bound: its Cramér-Rao bound "
+                f"is {std[index[n]]:.3g}; compare that with the values you expect."
+            )
     if not lines:
-        lines.append("All free coefficients are identifiable from these data; the largest relative "
-                     f"bound is {100 * np.nanmax(rel):.2g} %.")  # fmt: skip
+        lines.append(
+            "All free coefficients are identifiable from these data; the largest relative "
+            f"bound is {100 * np.nanmax(rel):.2g} %."
+        )
     return tuple(lines)
 
 
@@ -277,6 +300,7 @@ def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, .
 class Comparison:
     """Identified versus analytic coefficients; `truth_fit` (fit to noise-free data) splits the
     error into the linear model's bias (truth_fit − analytic) and noise (identified − truth_fit)."""
+
     names: tuple[str, ...]
     analytic: np.ndarray
     identified: np.ndarray
@@ -288,9 +312,14 @@ class Comparison:
         out = []
         for k, n in enumerate(self.names):
             a, x, s = self.analytic[k], self.identified[k], self.std[k]
-            row = {"name": n, "analytic": float(a), "identified": float(x), "std": float(s),
-                   "relative_error": float((x - a) / abs(a)) if a else None,
-                   "error_sigmas": float((x - a) / s) if s > 0 else None}  # fmt: skip
+            row = {
+                "name": n,
+                "analytic": float(a),
+                "identified": float(x),
+                "std": float(s),
+                "relative_error": float((x - a) / abs(a)) if a else None,
+                "error_sigmas": float((x - a) / s) if s > 0 else None,
+            }
             if self.truth_fit is not None:
                 t = self.truth_fit[k]
                 row["truth_fit"] = float(t)
@@ -312,11 +341,15 @@ class Comparison:
             return format(v, fmt) if v is not None else "-".rjust(width)
 
         for r in self.rows():
-            line = (f"{r['name']:<12}{r['analytic']:>12.4g}{r['identified']:>12.4g}{r['std']:>10.2g}"
-                    f"{f(r['relative_error'], '>9.1%', 9)}{f(r['error_sigmas'], '>8.1f', 8)}")  # fmt: skip
+            line = (
+                f"{r['name']:<12}{r['analytic']:>12.4g}{r['identified']:>12.4g}{r['std']:>10.2g}"
+                f"{f(r['relative_error'], '>9.1%', 9)}{f(r['error_sigmas'], '>8.1f', 8)}"
+            )
             if self.truth_fit is not None:
-                line += (f"{r['truth_fit']:>12.4g}{f(r['model_bias_relative'], '>9.1%', 9)}"
-                         f"{f(r['noise_sigmas'], '>8.1f', 8)}")  # fmt: skip
+                line += (
+                    f"{r['truth_fit']:>12.4g}{f(r['model_bias_relative'], '>9.1%', 9)}"
+                    f"{f(r['noise_sigmas'], '>8.1f', 8)}"
+                )
             lines.append(line)
         if self.note:
             lines.append(self.note)
@@ -333,7 +366,8 @@ def compare(estimate, analytic_config, truth_estimate=None) -> Comparison:
         t = truth_estimate.coefficients
         truth = np.array([t[n] for n in names])
     elif truth_estimate is not None:
-        note = (f"no linear-model bias column: the {truth_estimate.method} fit to the noise-free "
-                f"truth did not converge ({truth_estimate.status.message})")  # fmt: skip
-    return Comparison(names, analytic, np.asarray(estimate.values), np.asarray(estimate.std),
-                      truth, note)  # fmt: skip
+        note = (
+            f"no linear-model bias column: the {truth_estimate.method} fit to the noise-free "
+            f"truth did not converge ({truth_estimate.status.message})"
+        )
+    return Comparison(names, analytic, np.asarray(estimate.values), np.asarray(estimate.std), truth, note)

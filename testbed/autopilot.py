@@ -149,8 +149,18 @@ class Autopilot:
     def reset(self) -> None:
         self.integrators[:] = 0.0
 
-    def step(self, x: np.ndarray, *, depth=None, yaw_rate=None, roll=None, rudder=None,
-             elevators=None, differential=None, hold_depth=None) -> tuple[tuple[float, float, float], float | None]:  # fmt: skip
+    def step(
+        self,
+        x: np.ndarray,
+        *,
+        depth=None,
+        yaw_rate=None,
+        roll=None,
+        rudder=None,
+        elevators=None,
+        differential=None,
+        hold_depth=None,
+    ) -> tuple[tuple[float, float, float], float | None]:
         """Fin commands (δr, δer, δel) for state `x` (`STATES` order), and the pitch command
         (rad; None when depth is not controlled).
 
@@ -213,8 +223,15 @@ def _clip(value: float, limit: float = FIN_LIMIT) -> float:
 # -- the design on the analytic model: closed-loop responses -------------------------------------
 
 
-def fly_linear(A: np.ndarray, B: np.ndarray, autopilot: Autopilot, commands: Callable[[float, np.ndarray], dict],
-               duration: float, x0: np.ndarray | None = None, rate_limit: float = 2.0):  # fmt: skip
+def fly_linear(
+    A: np.ndarray,
+    B: np.ndarray,
+    autopilot: Autopilot,
+    commands: Callable[[float, np.ndarray], dict],
+    duration: float,
+    x0: np.ndarray | None = None,
+    rate_limit: float = 2.0,
+):
     """Fly `autopilot` on the linear model ẋ = A x + B δ (exact zero-order hold at its period).
 
     `commands(t, x)` gives `Autopilot.step`'s keywords. The fins slew at `rate_limit` (rad/s)
@@ -261,12 +278,22 @@ def step_metrics(t: np.ndarray, y: np.ndarray, start: float, target: float) -> S
 
 
 # The documented steps: Scenario I's sizes (course rate and depth), a 5 deg roll step.
-STEPS = {"course rate": ("r", "yaw_rate", 0.0, np.radians(20.0)), "depth": ("z", "depth", 100.0, 120.0),
-         "roll": ("phi", "roll", 0.0, np.radians(5.0))}  # fmt: skip
+STEPS = {
+    "course rate": ("r", "yaw_rate", 0.0, np.radians(20.0)),
+    "depth": ("z", "depth", 100.0, 120.0),
+    "roll": ("phi", "roll", 0.0, np.radians(5.0)),
+}
 
 
-def step_response(A: np.ndarray, B: np.ndarray, design_: Design, loop: str, duration: float = 10.0,
-                  rate: float = 50.0, target: float | None = None):  # fmt: skip
+def step_response(
+    A: np.ndarray,
+    B: np.ndarray,
+    design_: Design,
+    loop: str,
+    duration: float = 10.0,
+    rate: float = 50.0,
+    target: float | None = None,
+):
     """The closed-loop response of `loop` (a key of STEPS) to its step, the other loops holding
     (course-rate steps hold depth and roll; depth and roll steps hold each other and zero course
     rate). Returns (t, y, fins, StepMetrics); `target` overrides the step's end value."""

@@ -47,8 +47,20 @@ from testbed.scenario import scenario, scenario_text
 
 SCENARIOS = ("I", "II")
 METHODS = ("ml-nr", "ml-nm", "mekf", "ml-gn")  # the paper's three, then the modern reference
-COLUMNS = ("scenario", "method", "seed", "coefficient", "analytic", "estimate", "std", "converged",
-           "iterations", "wall_time_s", "status", "reason")  # fmt: skip
+COLUMNS = (
+    "scenario",
+    "method",
+    "seed",
+    "coefficient",
+    "analytic",
+    "estimate",
+    "std",
+    "converged",
+    "iterations",
+    "wall_time_s",
+    "status",
+    "reason",
+)
 FORMAT = 1  # version of the cell file: part of every key, so a new format recomputes
 QUICK_DURATION = 30.0  # s per experiment in --quick
 HISTORY_POINTS = 400  # the MEKF's per-sample history, thinned to this many points per cell
@@ -79,14 +91,20 @@ class Cell:
     def key(self) -> str:
         """`<scenario>-<method>-seed<N>-<hash>`: the hash of every input the result depends on."""
         flown = scenario(self.scenario).with_overrides(duration=self.duration)
-        doc = {"format": FORMAT, "scenario": scenario_text(replace(flown, source="")), "method": self.method,
-               "seed": self.seed, "version": metadata.version("testbed")}  # fmt: skip
+        doc = {
+            "format": FORMAT,
+            "scenario": scenario_text(replace(flown, source="")),
+            "method": self.method,
+            "seed": self.seed,
+            "version": metadata.version("testbed"),
+        }
         h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
         return f"{self.scenario}-{self.method}-seed{self.seed}-{h}"
 
 
-def plan(seeds: int, quick: bool = False, methods=METHODS, scenarios=SCENARIOS,
-         duration: float | None = None) -> list[Cell]:  # fmt: skip
+def plan(
+    seeds: int, quick: bool = False, methods=METHODS, scenarios=SCENARIOS, duration: float | None = None
+) -> list[Cell]:
     """The campaign's cells, scenario by scenario, seed by seed, method by method; seeds 1..N.
     `quick`: experiments of `QUICK_DURATION` s (unless `duration` says otherwise)."""
     if not (isinstance(seeds, int) and seeds >= 1):
@@ -126,9 +144,11 @@ def drift_directions(config, experiments) -> dict:
     s = structure(config.vehicle)
     all_free = structural(s, theta, COEFFICIENTS, measured)
     no_inertia = structural(s, theta, tuple(n for n in COEFFICIENTS if not n.endswith("dot")), measured)
-    return {"null_directions": all_free.null_directions,
-            "drift_groups": [list(g) for g in all_free.drift_groups],
-            "null_directions_inertia_known": no_inertia.null_directions}  # fmt: skip
+    return {
+        "null_directions": all_free.null_directions,
+        "drift_groups": [list(g) for g in all_free.drift_groups],
+        "null_directions_inertia_known": no_inertia.null_directions,
+    }
 
 
 def run_cell(cell: Cell, data) -> dict:
@@ -137,11 +157,12 @@ def run_cell(cell: Cell, data) -> dict:
     t0 = time.perf_counter()
     doc = {"key": cell.key, "cell": asdict(cell)}
     try:
-
         experiments, analytic = data
         config, fixed = screen(experiments, analytic)
         doc["drift"] = drift_directions(analytic, experiments)
-        doc["fixed"] = {n: {"value": float(analytic.coefficients[n]), "reason": why} for n, why in fixed.items()}
+        doc["fixed"] = {
+            n: {"value": float(analytic.coefficients[n]), "reason": why} for n, why in fixed.items()
+        }
         if not config.free:
             raise InputError(f"no coefficient is identifiable from these data ({next(iter(fixed.values()))})")
         costs = []
@@ -150,15 +171,34 @@ def run_cell(cell: Cell, data) -> dict:
         callback = (lambda step: costs.append(float(step.cost))) if method.iterative else None
         est = identify(experiments, config, method=cell.method, options=options, callback=callback)
         comparison = compare(est, analytic)
-        doc.update(status=est.status.name.lower().replace("_", " "), reason=_reason(est),
-                   converged=bool(est.converged), iterations=int(est.iterations),
-                   wall_time_s=float(est.wall_time_s), free=list(est.free),
-                   rows=[{"coefficient": r["name"], "analytic": r["analytic"], "estimate": r["identified"],
-                          "std": r["std"]} for r in comparison.rows()],
-                   history=_history(est, comparison.analytic, costs))  # fmt: skip
+        doc.update(
+            status=est.status.name.lower().replace("_", " "),
+            reason=_reason(est),
+            converged=bool(est.converged),
+            iterations=int(est.iterations),
+            wall_time_s=float(est.wall_time_s),
+            free=list(est.free),
+            rows=[
+                {
+                    "coefficient": r["name"],
+                    "analytic": r["analytic"],
+                    "estimate": r["identified"],
+                    "std": r["std"],
+                }
+                for r in comparison.rows()
+            ],
+            history=_history(est, comparison.analytic, costs),
+        )
     except Exception as exc:  # a failed cell is a result too
-        doc.update(status="failed", reason=_one_line(exc), converged=False, iterations=0,
-                   wall_time_s=time.perf_counter() - t0, rows=[], traceback=traceback.format_exc())  # fmt: skip
+        doc.update(
+            status="failed",
+            reason=_one_line(exc),
+            converged=False,
+            iterations=0,
+            wall_time_s=time.perf_counter() - t0,
+            rows=[],
+            traceback=traceback.format_exc(),
+        )
     return doc
 
 
@@ -207,9 +247,17 @@ class Outcome:
     wall_time_s: float
 
 
-def reproduce(out, seeds: int | None = None, scheduler: str | None = None, quick: bool = False,
-              progress: Callable[[float, str], None] | None = None, workers: int = 2, methods=METHODS, scenarios=SCENARIOS,
-              duration: float | None = None) -> Outcome:  # fmt: skip
+def reproduce(
+    out,
+    seeds: int | None = None,
+    scheduler: str | None = None,
+    quick: bool = False,
+    progress: Callable[[float, str], None] | None = None,
+    workers: int = 2,
+    methods=METHODS,
+    scenarios=SCENARIOS,
+    duration: float | None = None,
+) -> Outcome:
     """Run (or resume) the campaign into `out` and write results.csv, conclusions.json,
     report.html with its figures and report.rrd. `scheduler`: the address of a running Dask
     scheduler (its workers must see `out`); default a LocalCluster of `workers` processes.
@@ -225,28 +273,47 @@ def reproduce(out, seeds: int | None = None, scheduler: str | None = None, quick
         raise InputError(f"out={out}: cannot create ({exc.strerror})") from None
     todo = [c for c in cells if not (cells_dir / f"{c.key}.json").exists()]
     # the first seed of each scenario is always loaded: its inputs are the report's Figs. 3 and 5
-    runs = sorted({(c.scenario, c.seed, c.duration) for c in todo}
-                  | {(s, 1, cells[0].duration) for s in scenarios})  # fmt: skip
+    runs = sorted(
+        {(c.scenario, c.seed, c.duration) for c in todo} | {(s, 1, cells[0].duration) for s in scenarios}
+    )
     failed = 0
     with _client(scheduler, workers) as client:
-        where = hashlib.sha256(str(out.resolve()).encode()).hexdigest()[:8]  # unique per DIR on a shared scheduler
-        data = {r: client.submit(load_run, str(out.resolve()), *r, key=f"run-{Cell(r[0], '', r[1], r[2]).run_name}-{where}")
-                for r in runs}  # fmt: skip
-        futures = {client.submit(run_cell, c, data[(c.scenario, c.seed, c.duration)], key=f"cell-{c.key}"): c
-                   for c in todo}  # fmt: skip
+        where = hashlib.sha256(str(out.resolve()).encode()).hexdigest()[
+            :8
+        ]  # unique per DIR on a shared scheduler
+        data = {
+            r: client.submit(
+                load_run, str(out.resolve()), *r, key=f"run-{Cell(r[0], '', r[1], r[2]).run_name}-{where}"
+            )
+            for r in runs
+        }
+        futures = {
+            client.submit(run_cell, c, data[(c.scenario, c.seed, c.duration)], key=f"cell-{c.key}"): c
+            for c in todo
+        }
         done = len(cells) - len(todo)
         for future in as_completed(futures):
             cell = futures[future]
             try:
                 doc = future.result()
             except Exception as exc:  # the task itself failed: a lost worker, a lost run
-                doc = {"key": cell.key, "cell": asdict(cell), "status": "failed", "reason": _one_line(exc),
-                       "converged": False, "iterations": 0, "wall_time_s": 0.0, "rows": []}  # fmt: skip
+                doc = {
+                    "key": cell.key,
+                    "cell": asdict(cell),
+                    "status": "failed",
+                    "reason": _one_line(exc),
+                    "converged": False,
+                    "iterations": 0,
+                    "wall_time_s": 0.0,
+                    "rows": [],
+                }
             failed += doc["status"] == "failed"
             atomic_write_text(cells_dir / f"{cell.key}.json", json.dumps(doc, indent=1) + "\n")
             done += 1
             if progress is not None:
-                progress(done / len(cells), f"{cell.scenario} {cell.method} seed {cell.seed}: {doc['status']}")
+                progress(
+                    done / len(cells), f"{cell.scenario} {cell.method} seed {cell.seed}: {doc['status']}"
+                )
         inputs = {}
         for (s, seed, d), future in data.items():
             if seed == 1 and d == cells[0].duration:
@@ -272,11 +339,18 @@ class _client:
             try:
                 self.client = Client(self.address, timeout="10s")
             except (OSError, TimeoutError, ValueError) as exc:
-                raise InputError(f"scheduler={self.address}: cannot connect ({_one_line(exc)}); "
-                                 "expected the address of a running Dask scheduler, e.g. tcp://host:8786") from None  # fmt: skip
+                raise InputError(
+                    f"scheduler={self.address}: cannot connect ({_one_line(exc)}); "
+                    "expected the address of a running Dask scheduler, e.g. tcp://host:8786"
+                ) from None
             return self.client
-        self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                    dashboard_address=None, silence_logs=logging.ERROR)  # fmt: skip
+        self.cluster = LocalCluster(
+            n_workers=self.workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
         self.client = Client(self.cluster)
         return self.client
 
@@ -295,10 +369,19 @@ def results_rows(docs: list[dict]) -> list[dict]:
     rows = []
     for d in docs:
         c = d["cell"]
-        base = {"scenario": c["scenario"], "method": c["method"], "seed": c["seed"],
-                "converged": d["converged"], "iterations": d["iterations"],
-                "wall_time_s": round(d["wall_time_s"], 3), "status": d["status"], "reason": d.get("reason", "")}  # fmt: skip
-        for r in d["rows"] or [{"coefficient": "", "analytic": math.nan, "estimate": math.nan, "std": math.nan}]:
+        base = {
+            "scenario": c["scenario"],
+            "method": c["method"],
+            "seed": c["seed"],
+            "converged": d["converged"],
+            "iterations": d["iterations"],
+            "wall_time_s": round(d["wall_time_s"], 3),
+            "status": d["status"],
+            "reason": d.get("reason", ""),
+        }
+        for r in d["rows"] or [
+            {"coefficient": "", "analytic": math.nan, "estimate": math.nan, "std": math.nan}
+        ]:
             rows.append({**base, **r})
     return rows
 
@@ -308,7 +391,9 @@ def results_csv(rows: list[dict]) -> str:
     w = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: (format(v, ".10g") if isinstance(v, float) else v) for k, v in r.items() if k in COLUMNS})
+        w.writerow(
+            {k: (format(v, ".10g") if isinstance(v, float) else v) for k, v in r.items() if k in COLUMNS}
+        )
     return buf.getvalue()
 
 
@@ -317,17 +402,28 @@ def read_results(path) -> list[dict]:
     rows = []
     with open(path, newline="") as f:
         for r in csv.DictReader(f):
-            rows.append({**r, "seed": int(r["seed"]), "analytic": float(r["analytic"]), "estimate": float(r["estimate"]),
-                         "std": float(r["std"]), "converged": r["converged"] == "True",
-                         "iterations": int(r["iterations"]), "wall_time_s": float(r["wall_time_s"])})  # fmt: skip
+            rows.append(
+                {
+                    **r,
+                    "seed": int(r["seed"]),
+                    "analytic": float(r["analytic"]),
+                    "estimate": float(r["estimate"]),
+                    "std": float(r["std"]),
+                    "converged": r["converged"] == "True",
+                    "iterations": int(r["iterations"]),
+                    "wall_time_s": float(r["wall_time_s"]),
+                }
+            )
     return rows
 
 
 def coefficient_ok(r: dict) -> bool:
     """Within `COEFFICIENT_TOLERANCE` of the analytic value or `COEFFICIENT_SIGMAS` of its σ."""
     err = abs(r["estimate"] - r["analytic"])
-    return bool(np.isfinite(err) and (err <= COEFFICIENT_TOLERANCE * abs(r["analytic"])
-                                      or err <= COEFFICIENT_SIGMAS * r["std"]))  # fmt: skip
+    return bool(
+        np.isfinite(err)
+        and (err <= COEFFICIENT_TOLERANCE * abs(r["analytic"]) or err <= COEFFICIENT_SIGMAS * r["std"])
+    )
 
 
 def cell_table(rows: list[dict]) -> dict[tuple, dict]:
@@ -343,8 +439,13 @@ def cell_table(rows: list[dict]) -> dict[tuple, dict]:
         rel = [abs(r["estimate"] - r["analytic"]) / abs(r["analytic"]) for r in coef if r["analytic"]]
         rel = float(np.median(rel)) if rel and np.all(np.isfinite(rel)) else math.inf
         converged = rs[0]["converged"]
-        out[k] = {"converged": converged, "fraction_ok": float(ok), "median_relative_error": rel,
-                  "acceptable": bool(converged and ok >= CELL_FRACTION), "status": rs[0]["status"]}  # fmt: skip
+        out[k] = {
+            "converged": converged,
+            "fraction_ok": float(ok),
+            "median_relative_error": rel,
+            "acceptable": bool(converged and ok >= CELL_FRACTION),
+            "status": rs[0]["status"],
+        }
     return out
 
 
@@ -363,30 +464,40 @@ def conclusions(rows: list[dict], drift: dict[str, dict]) -> dict:
     for s, d in sorted(drift.items()):
         inertia = all(any(n.endswith("dot") for n in g) for g in d["drift_groups"])
         holds &= d["null_directions"] > 0 and inertia and d["null_directions_inertia_known"] == 0
-        parts.append(f"Scenario {s}: with all 35 coefficients free, {d['null_directions']} exactly "
-                     f"unidentifiable direction(s) in {len(d['drift_groups'])} drift group(s) of "
-                     f"{sum(map(len, d['drift_groups']))} coefficients"
-                     f"{', each with inertia (…dot) terms' if inertia else ', not all with inertia terms'}; "
-                     f"with the inertia matrix known (a general state equation in At, Bt): "
-                     f"{d['null_directions_inertia_known']}")  # fmt: skip
+        parts.append(
+            f"Scenario {s}: with all 35 coefficients free, {d['null_directions']} exactly "
+            f"unidentifiable direction(s) in {len(d['drift_groups'])} drift group(s) of "
+            f"{sum(map(len, d['drift_groups']))} coefficients"
+            f"{', each with inertia (…dot) terms' if inertia else ', not all with inertia terms'}; "
+            f"with the inertia matrix known (a general state equation in At, Bt): "
+            f"{d['null_directions_inertia_known']}"
+        )
     out["1"] = {"holds": holds, "evidence": "; ".join(parts) or "no cell recorded the structural analysis"}
     # 2. ML with Nelder-Mead acceptable; ML with Newton-Raphson and steepest descent unsatisfactory
     nm_ok, nm_n = _share(table, "ml-nm")
     nr_ok, nr_n = _share(table, "ml-nr")
     nr_conv = sum(v["converged"] for (s, m, _), v in table.items() if m == "ml-nr")
     holds = nm_n > 0 and nr_n > 0 and nm_ok >= ACCEPTABLE * nm_n and nr_ok < UNSATISFACTORY * nr_n
-    out["2"] = {"holds": bool(holds), "evidence": (
-        f"ml-nm acceptable in {nm_ok}/{nm_n} cells (rule: ≥ {ACCEPTABLE:.0%}); ml-nr acceptable in "
-        f"{nr_ok}/{nr_n} cells (rule: < {UNSATISFACTORY:.0%}), converged in {nr_conv}/{nr_n}; "
-        + _medians(table, ("ml-nm", "ml-nr")))}  # fmt: skip
+    out["2"] = {
+        "holds": bool(holds),
+        "evidence": (
+            f"ml-nm acceptable in {nm_ok}/{nm_n} cells (rule: ≥ {ACCEPTABLE:.0%}); ml-nr acceptable in "
+            f"{nr_ok}/{nr_n} cells (rule: < {UNSATISFACTORY:.0%}), converged in {nr_conv}/{nr_n}; "
+            + _medians(table, ("ml-nm", "ml-nr"))
+        ),
+    }
     # 3. Nelder-Mead satisfactory when the inputs are PRBS (Scenario II) — better than Scenario I
     ok2, n2 = _share(table, "ml-nm", ("II",))
     med = {s: _median(table, "ml-nm", s) for s in SCENARIOS}
     holds = n2 > 0 and ok2 >= ACCEPTABLE * n2 and med["II"] < med["I"]
-    out["3"] = {"holds": bool(holds), "evidence": (
-        f"ml-nm on Scenario II (PRBS inputs) acceptable in {ok2}/{n2} cells (rule: ≥ {ACCEPTABLE:.0%}); "
-        f"median relative error {_pct(med['II'])} on Scenario II against {_pct(med['I'])} on "
-        "Scenario I (rule: smaller on II)")}  # fmt: skip
+    out["3"] = {
+        "holds": bool(holds),
+        "evidence": (
+            f"ml-nm on Scenario II (PRBS inputs) acceptable in {ok2}/{n2} cells (rule: ≥ {ACCEPTABLE:.0%}); "
+            f"median relative error {_pct(med['II'])} on Scenario II against {_pct(med['I'])} on "
+            "Scenario I (rule: smaller on II)"
+        ),
+    }
     return out
 
 
@@ -396,8 +507,11 @@ def _median(table, method, scenario) -> float:
 
 
 def _medians(table, methods) -> str:
-    return "; ".join(f"median relative error of {m}: " + ", ".join(
-        f"Scenario {s} {_pct(_median(table, m, s))}" for s in SCENARIOS) for m in methods)  # fmt: skip
+    return "; ".join(
+        f"median relative error of {m}: "
+        + ", ".join(f"Scenario {s} {_pct(_median(table, m, s))}" for s in SCENARIOS)
+        for m in methods
+    )
 
 
 def _pct(v: float) -> str:
@@ -414,10 +528,18 @@ def summary_table(rows: list[dict]) -> list[dict]:
     for s, m in dict.fromkeys((s, m) for s, m, _ in table):
         v = [x for (a, b, _), x in table.items() if (a, b) == (s, m)]
         rel = [x["median_relative_error"] for x in v if np.isfinite(x["median_relative_error"])]
-        out.append({"scenario": s, "method": m, "cells": len(v), "converged": sum(x["converged"] for x in v),
-                    "acceptable": sum(x["acceptable"] for x in v), "failed": sum(x["status"] == "failed" for x in v),
-                    "median_relative_error": float(np.median(rel)) if rel else math.nan,
-                    "median_wall_time_s": float(np.median(list(times[(s, m)].values())))})  # fmt: skip
+        out.append(
+            {
+                "scenario": s,
+                "method": m,
+                "cells": len(v),
+                "converged": sum(x["converged"] for x in v),
+                "acceptable": sum(x["acceptable"] for x in v),
+                "failed": sum(x["status"] == "failed" for x in v),
+                "median_relative_error": float(np.median(rel)) if rel else math.nan,
+                "median_wall_time_s": float(np.median(list(times[(s, m)].values()))),
+            }
+        )
     return out
 
 

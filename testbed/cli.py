@@ -97,8 +97,16 @@ def _cmd_simulate(args) -> int:
         raise InputError("--out -: a run directory is a folder, not standard output; expected a folder name")
     _quiet_mujoco()
     bar = ProgressBar(not args.quiet)
-    run = simulate(args.scenario, seed=args.seed, out=args.out, force=args.force, duration=args.duration,
-                   speed=args.speed, mjcf=args.mjcf, progress=bar)  # fmt: skip
+    run = simulate(
+        args.scenario,
+        seed=args.seed,
+        out=args.out,
+        force=args.force,
+        duration=args.duration,
+        speed=args.speed,
+        mjcf=args.mjcf,
+        progress=bar,
+    )
     bar.close()
     print(run)
     return 0
@@ -116,17 +124,33 @@ def _cmd_identify(args) -> int:
     live = sys.stderr.isatty() and lookup(args.method).iterative  # a progress line (ml-nm runs for minutes)
 
     def progress(step):
-        print(f"\r{args.method}: iteration {step.iteration}, cost {step.cost:.6g}", end="", file=sys.stderr, flush=True)
+        print(
+            f"\r{args.method}: iteration {step.iteration}, cost {step.cost:.6g}",
+            end="",
+            file=sys.stderr,
+            flush=True,
+        )
 
-    done = identify_data(args.data, method=args.method, config=args.config, out=out, rrd=args.rrd,
-                         options=options, perturb=args.perturb, seed=args.seed, free_all=args.free_all,
-                         progress=progress if live else None)  # fmt: skip
+    done = identify_data(
+        args.data,
+        method=args.method,
+        config=args.config,
+        out=out,
+        rrd=args.rrd,
+        options=options,
+        perturb=args.perturb,
+        seed=args.seed,
+        free_all=args.free_all,
+        progress=progress if live else None,
+    )
     estimate = done.estimate
     if live and estimate.iterations:
         print(file=sys.stderr)  # end the progress line
     if estimate.start_reason:
-        print(f"testbed identify: started from the {estimate.start} estimate: {estimate.start_reason}",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"testbed identify: started from the {estimate.start} estimate: {estimate.start_reason}",
+            file=sys.stderr,
+        )
     if done.comparison is not None:
         print(done.comparison.table(), file=sys.stderr)
     for n, why in done.fixed.items():
@@ -170,7 +194,9 @@ def _cmd_design(args) -> int:
         raise InputError("--out -: the design is a scenario file; expected a file name (.toml)")
     _quiet_mujoco()
     free = [n.strip() for n in args.free.split(",") if n.strip()] if args.free else None
-    result = write_design(args.out, args.duration, args.criterion, free, args.mjcf, args.speed, args.start_from)
+    result = write_design(
+        args.out, args.duration, args.criterion, free, args.mjcf, args.speed, args.start_from
+    )
     print(result.table(), file=sys.stderr)
     print(args.out)
     return 0
@@ -181,11 +207,20 @@ def _cmd_reproduce(args) -> int:
 
     _quiet_mujoco()
     bar = ProgressBar()
-    done = reproduce(args.out, seeds=args.seeds, scheduler=args.scheduler, quick=args.quick,
-                     duration=args.duration, progress=bar)  # fmt: skip
+    done = reproduce(
+        args.out,
+        seeds=args.seeds,
+        scheduler=args.scheduler,
+        quick=args.quick,
+        duration=args.duration,
+        progress=bar,
+    )
     bar.close()
-    print(f"testbed reproduce: {done.computed} cells computed, {done.reused} reused, {done.failed} failed, "
-          f"in {done.wall_time_s:.0f} s", file=sys.stderr)  # fmt: skip
+    print(
+        f"testbed reproduce: {done.computed} cells computed, {done.reused} reused, {done.failed} failed, "
+        f"in {done.wall_time_s:.0f} s",
+        file=sys.stderr,
+    )
     for k, v in done.conclusions.items():
         print(f"conclusion {k}: {'holds' if v['holds'] else 'refuted'}: {v['evidence']}", file=sys.stderr)
     print(done.out / "report.html")
@@ -201,8 +236,11 @@ def _cmd_replay(args) -> int:
 
 def _flags(parser: argparse.ArgumentParser) -> dict[str, tuple[str, bool]]:
     """Parameter name → (the flag that sets it, whether it is a switch)."""
-    return {a.dest: (max(a.option_strings, key=len), a.const is True) for a in parser._actions
-            if a.option_strings and a.dest != "help"}
+    return {
+        a.dest: (max(a.option_strings, key=len), a.const is True)
+        for a in parser._actions
+        if a.option_strings and a.dest != "help"
+    }
 
 
 def in_flags(message: str, flags: dict[str, tuple[str, bool]]) -> str:
@@ -226,8 +264,10 @@ BUILTIN_SCENARIOS = ("I", "II", "turn", "zigzag", "zigzag-vertical")  # testbed/
 
 
 def parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="testbed", description="Simulate a submerged body and identify its "
-                "manoeuvring coefficients (Kim & Rhee).")
+    p = _Parser(
+        prog="testbed",
+        description="Simulate a submerged body and identify its manoeuvring coefficients (Kim & Rhee).",
+    )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
 
     s = sub.add_parser("truth", help="write the analytic linear model of an MJCF body (TOML)")
@@ -237,8 +277,11 @@ def parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_truth)
 
     s = sub.add_parser("simulate", help="generate a scenario run directory")
-    s.add_argument("--scenario", required=True,
-                   help=f"a built-in scenario ({', '.join(BUILTIN_SCENARIOS)}) or a scenario file (.toml)")
+    s.add_argument(
+        "--scenario",
+        required=True,
+        help=f"a built-in scenario ({', '.join(BUILTIN_SCENARIOS)}) or a scenario file (.toml)",
+    )
     s.add_argument("--seed", type=_seed, default=0, help="noise and PRBS seed (default 0)")
     s.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<N>)")
     s.add_argument("--force", action="store_true", help="replace an existing run directory")
@@ -252,22 +295,36 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-nr, ml-nm, mekf, ekf")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
-    s.add_argument("--out", type=Path, help="estimates JSON (default or -: stdout); mekf and ekf "
-                   "also write the estimate and ±σ histories to OUT with suffix .history.csv when "
-                   "OUT is a file")
-    s.add_argument("--start", default=None,
-                   help="ml-* only: auto (default: the better-fitting of the a-priori values and the "
-                        "equation-error estimate, then the other), config, equation-error or mekf")  # fmt: skip
+    s.add_argument(
+        "--out",
+        type=Path,
+        help="estimates JSON (default or -: stdout); mekf and ekf "
+        "also write the estimate and ±σ histories to OUT with suffix .history.csv when "
+        "OUT is a file",
+    )
+    s.add_argument(
+        "--start",
+        default=None,
+        help="ml-* only: auto (default: the better-fitting of the a-priori values and the "
+        "equation-error estimate, then the other), config, equation-error or mekf",
+    )
     s.add_argument("--max-iter", type=int, default=None, help="iteration limit (ml-* methods)")
     s.add_argument("--max-samples", type=int, default=None, help="stop after this many samples (mekf, ekf)")
-    s.add_argument("--perturb", type=_positive, default=None,
-                   help="move every free coefficient's start by this fraction (e.g. 0.4), to test "
-                        "convergence from a poor a-priori model")
+    s.add_argument(
+        "--perturb",
+        type=_positive,
+        default=None,
+        help="move every free coefficient's start by this fraction (e.g. 0.4), to test "
+        "convergence from a poor a-priori model",
+    )
     s.add_argument("--seed", type=_seed, default=0, help="signs of --perturb (default 0)")
     s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
-    s.add_argument("--free-all", action="store_true",
-                   help="estimate every coefficient of [identify] free (default: those the data "
-                        "identify; the others stay at their a-priori values, see `analyze`)")  # fmt: skip
+    s.add_argument(
+        "--free-all",
+        action="store_true",
+        help="estimate every coefficient of [identify] free (default: those the data "
+        "identify; the others stay at their a-priori values, see `analyze`)",
+    )
     s.set_defaults(func=_cmd_identify)
 
     s = sub.add_parser("analyze", help="identifiability: Fisher information, CRLB, drift groups")
@@ -276,7 +333,9 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, help="identifiability JSON (default or -: stdout)")
     s.set_defaults(func=_cmd_analyze)
 
-    s = sub.add_parser("validate", help="fit %% and residual whiteness of identified coefficients on (held-out) data")
+    s = sub.add_parser(
+        "validate", help="fit %% and residual whiteness of identified coefficients on (held-out) data"
+    )
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--estimates", type=Path, required=True, help="estimates JSON from `testbed identify`")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
@@ -285,27 +344,54 @@ def parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("design", help="design experiments from Fisher information (a scenario file)")
     s.add_argument("--duration", type=_positive, default=180.0, help="total flight time, s (default 180)")
-    s.add_argument("--criterion", choices=("D", "A", "E"), default="A",
-                   help="D: log det, A: sum of relative variances (default), E: worst direction")
-    s.add_argument("--free", help="comma-separated coefficients to design for (default: the "
-                   "analytic model's free list, or the estimate's)")
+    s.add_argument(
+        "--criterion",
+        choices=("D", "A", "E"),
+        default="A",
+        help="D: log det, A: sum of relative variances (default), E: worst direction",
+    )
+    s.add_argument(
+        "--free",
+        help="comma-separated coefficients to design for (default: the "
+        "analytic model's free list, or the estimate's)",
+    )
     s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
     s.add_argument("--speed", type=_positive, default=None, help="trim speed U, m/s (default: cruise)")
-    s.add_argument("--from", dest="start_from", type=Path, default=None,
-                   help="estimates JSON of the last fit: design at its coefficients and noise")
+    s.add_argument(
+        "--from",
+        dest="start_from",
+        type=Path,
+        default=None,
+        help="estimates JSON of the last fit: design at its coefficients and noise",
+    )
     s.add_argument("--out", type=Path, required=True, help="the scenario file to write (.toml)")
     s.set_defaults(func=_cmd_design)
 
     s = sub.add_parser("reproduce", help="the paper's study: Scenario I and II x 4 methods x seeds, on Dask")
     s.add_argument("--seeds", type=int, default=None, help="noise seeds 1..N (default 20; 1 with --quick)")
-    s.add_argument("--out", type=Path, default=Path("runs/reproduce"),
-                   help="output folder; finished cells in it are reused (default runs/reproduce)")
-    s.add_argument("--scheduler", default=None, help="address of a running Dask scheduler, e.g. "
-                   "tcp://host:8786, whose workers see --out (default: 2 local worker processes)")
-    s.add_argument("--quick", action="store_true", help="30 s experiments, one seed unless --seeds: "
-                   "a demonstration in under 3 minutes")
-    s.add_argument("--duration", type=_positive, default=None, help="seconds per experiment "
-                   "(default: the scenarios' own, 30 with --quick)")
+    s.add_argument(
+        "--out",
+        type=Path,
+        default=Path("runs/reproduce"),
+        help="output folder; finished cells in it are reused (default runs/reproduce)",
+    )
+    s.add_argument(
+        "--scheduler",
+        default=None,
+        help="address of a running Dask scheduler, e.g. "
+        "tcp://host:8786, whose workers see --out (default: 2 local worker processes)",
+    )
+    s.add_argument(
+        "--quick",
+        action="store_true",
+        help="30 s experiments, one seed unless --seeds: a demonstration in under 3 minutes",
+    )
+    s.add_argument(
+        "--duration",
+        type=_positive,
+        default=None,
+        help="seconds per experiment (default: the scenarios' own, 30 with --quick)",
+    )
     s.set_defaults(func=_cmd_reproduce)
 
     s = sub.add_parser("replay", help="open a run's recording.rrd in the Rerun viewer")
@@ -332,8 +418,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"testbed {args.command}: error: {in_flags(str(exc), args.flags)}", file=sys.stderr)
         return 2
     except MemoryError:
-        print(f"testbed {args.command}: error: out of memory; expected less data or a shorter "
-              "--duration", file=sys.stderr)  # fmt: skip
+        print(
+            f"testbed {args.command}: error: out of memory; expected less data or a shorter --duration",
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt:
         print(f"testbed {args.command}: interrupted; nothing was written", file=sys.stderr)
@@ -343,8 +431,11 @@ def main(argv: list[str] | None = None) -> int:
         return 128 + signal.SIGPIPE
     except Exception:
         traceback.print_exc()
-        print(f"testbed {args.command}: internal error (a bug in testbed, not in the input): "
-              "please report it with the traceback above", file=sys.stderr)  # fmt: skip
+        print(
+            f"testbed {args.command}: internal error (a bug in testbed, not in the input): "
+            "please report it with the traceback above",
+            file=sys.stderr,
+        )
         return INTERNAL_ERROR
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -54,8 +54,10 @@ class Experiment:
         """The experiment with only the measured states among `states` (InputError if none)."""
         keep = [s for s in self.measured if s in states]
         if not keep:
-            raise InputError(f"{self.source or self.name}: none of the fitted outputs "
-                             f"({', '.join(states)}) is measured; it has {', '.join(self.measured)}")  # fmt: skip
+            raise InputError(
+                f"{self.source or self.name}: none of the fitted outputs "
+                f"({', '.join(states)}) is measured; it has {', '.join(self.measured)}"
+            )
         cols = [self.measured.index(s) for s in keep]
         return replace(self, measured=tuple(keep), y=self.y[:, cols])
 
@@ -163,15 +165,25 @@ def read_csv(path: str | Path, name: str | None = None) -> Experiment:
     if not measured:
         raise InputError(f"{path}: no state column; expected at least one of {','.join(STATES)}")
     wanted = [header.index(c) for c in ("t",) + measured + INPUTS]
-    values = _plain_table(text[lines.tell():], len(header))
+    values = _plain_table(text[lines.tell() :], len(header))
     if values is not None:
         values = values[:, wanted]
-    if (values is None or len(values) < MIN_ROWS or _too_large(values[:, 1:])
-            or uniform_step(values[:, 0])[1] is not None):  # fmt: skip
+    if (
+        values is None
+        or len(values) < MIN_ROWS
+        or _too_large(values[:, 1:])
+        or uniform_step(values[:, 0])[1] is not None
+    ):
         values = _rows(path, header, wanted, reader)
     n = len(measured)
-    return Experiment(name or path.name.removesuffix(".csv"), values[:, 0], measured, values[:, 1:1 + n],
-                      values[:, 1 + n:], str(path))  # fmt: skip
+    return Experiment(
+        name or path.name.removesuffix(".csv"),
+        values[:, 0],
+        measured,
+        values[:, 1 : 1 + n],
+        values[:, 1 + n :],
+        str(path),
+    )
 
 
 def _plain_table(body: str, columns: int) -> np.ndarray | None:
@@ -206,22 +218,27 @@ def _rows(path: Path, header: list[str], wanted: list[int], reader) -> np.ndarra
             try:
                 v = float(row[col])
             except ValueError:
-                raise InputError(f"{path}: line {k}, column '{header[col]}': "
-                                 f"{row[col][:40]!r} is not a number") from None  # fmt: skip
+                raise InputError(
+                    f"{path}: line {k}, column '{header[col]}': {row[col][:40]!r} is not a number"
+                ) from None
             if not math.isfinite(v):
-                raise InputError(f"{path}: line {k}, column '{header[col]}': "
-                                 f"{row[col].strip()} (expected a finite number)")  # fmt: skip
+                raise InputError(
+                    f"{path}: line {k}, column '{header[col]}': {row[col].strip()} (expected a finite number)"
+                )
             values[i, j] = v
     large = _too_large(values[:, 1:])
     if large:
         (i, j), col = large, wanted[large[1] + 1]
-        raise InputError(f"{path}: line {body[i][0]}, column '{header[col]}': "
-                         f"{body[i][1][col].strip()} is {_TOO_LARGE}")  # fmt: skip
+        raise InputError(
+            f"{path}: line {body[i][0]}, column '{header[col]}': {body[i][1][col].strip()} is {_TOO_LARGE}"
+        )
     dt, off = uniform_step(values[:, 0])
     if off is not None:
         line = body[off + 1][0]
-        raise InputError(f"{path}: column 't' is not uniformly sampled (line {line}); expected "
-                         + (f"a constant step of {dt:g} s" if dt > 0 else "increasing times (s)"))
+        raise InputError(
+            f"{path}: column 't' is not uniformly sampled (line {line}); expected "
+            + (f"a constant step of {dt:g} s" if dt > 0 else "increasing times (s)")
+        )
     return values
 
 
@@ -232,16 +249,19 @@ def check_experiment(e: Experiment) -> None:
     name = e.source or e.name
     unknown = [s for s in e.measured if s not in STATES]
     if unknown or not e.measured or len(set(e.measured)) != len(e.measured):
-        raise InputError(f"{name}: measured states {list(e.measured)}; expected distinct names from "
-                         f"{', '.join(STATES)}")  # fmt: skip
+        raise InputError(
+            f"{name}: measured states {list(e.measured)}; expected distinct names from {', '.join(STATES)}"
+        )
     try:
         y, inputs, t = (np.asarray(a, dtype=float) for a in (e.y, e.inputs, e.t))
     except (TypeError, ValueError):
         raise InputError(f"{name}: t, states and inputs must be arrays of numbers") from None
     n = len(t) if t.ndim == 1 else -1
     if n < MIN_ROWS or y.shape != (n, len(e.measured)) or inputs.shape != (n, len(INPUTS)):
-        raise InputError(f"{name}: t {t.shape}, states {y.shape}, inputs {inputs.shape}; expected "
-                         f"N ≥ {MIN_ROWS} samples: (N,), (N, {len(e.measured)}), (N, {len(INPUTS)})")  # fmt: skip
+        raise InputError(
+            f"{name}: t {t.shape}, states {y.shape}, inputs {inputs.shape}; expected "
+            f"N ≥ {MIN_ROWS} samples: (N,), (N, {len(e.measured)}), (N, {len(INPUTS)})"
+        )
     for label, a in (("t", t), ("states", y), ("inputs", inputs)):
         if not np.all(np.isfinite(a)):
             raise InputError(f"{name}: {label} contain NaN or infinity; expected finite numbers")
@@ -252,12 +272,12 @@ def check_experiment(e: Experiment) -> None:
             raise InputError(f"{name}: {columns[j]} = {a[k, j]:g} at t = {t[k]:g} s is {_TOO_LARGE}")
     dt, off = uniform_step(t)
     if off is not None:
-        raise InputError(f"{name}: t is not uniformly sampled (at t = {t[off + 1]:g} s); "
-                         "expected a constant step")  # fmt: skip
+        raise InputError(
+            f"{name}: t is not uniformly sampled (at t = {t[off + 1]:g} s); expected a constant step"
+        )
 
 
-def csv_text(t: np.ndarray, states: np.ndarray, inputs: np.ndarray,
-             measured: Sequence[str] = STATES) -> str:  # fmt: skip
+def csv_text(t: np.ndarray, states: np.ndarray, inputs: np.ndarray, measured: Sequence[str] = STATES) -> str:
     """Measurement-CSV text: `states` (N, len(measured)) absolute, `inputs` (N, 3)."""
     out = io.StringIO()
     out.write(",".join(("t",) + tuple(measured) + INPUTS) + "\n")
@@ -305,12 +325,16 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
             raise InputError(f"{source}: [vehicle] {key} missing; expected a number (SI)")
         values[key] = number(veh[key], f"{source}: [vehicle] {key}")
     for key in set(veh) - set(Vehicle.names()):
-        raise InputError(f"{source}: [vehicle] {key} is not a vehicle constant; "
-                         f"expected one of {', '.join(Vehicle.names())}")  # fmt: skip
+        raise InputError(
+            f"{source}: [vehicle] {key} is not a vehicle constant; "
+            f"expected one of {', '.join(Vehicle.names())}"
+        )
     coefficients = dict.fromkeys(COEFFICIENTS, 0.0)
     for key, v in doc["coefficients"].items():
         if key not in coefficients:
-            raise InputError(f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
+            raise InputError(
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+            )
         coefficients[key] = number(v, f"{source}: [coefficients] {key}")
     ident = doc.get("identify", {})
     free = ident.get("free", []) if isinstance(ident, dict) else None
@@ -338,12 +362,16 @@ def check_config(config: ModelConfig) -> None:
             raise InputError(f"{source}: [vehicle] {key} = {v:g}; expected {expected}")
     for key, v in config.coefficients.items():
         if key not in COEFFICIENTS:
-            raise InputError(f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
+            raise InputError(
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+            )
         number(v, f"{source}: [coefficients] {key}")
     check_free(config.free, f"{source}: [identify] free")
     if config.outputs is not None and (not config.outputs or any(s not in STATES for s in config.outputs)):
-        raise InputError(f"{source}: [identify] outputs = {list(config.outputs)!r}; expected a non-empty "
-                         f"list of states ({', '.join(STATES)})")  # fmt: skip
+        raise InputError(
+            f"{source}: [identify] outputs = {list(config.outputs)!r}; expected a non-empty "
+            f"list of states ({', '.join(STATES)})"
+        )
 
 
 def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
@@ -407,15 +435,24 @@ def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float]
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     except (ValueError, KeyError, TypeError, AttributeError):
-        raise InputError(f"{path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}") from None
+        raise InputError(
+            f"{path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}"
+        ) from None
     for n, v in values.items():
         if n not in COEFFICIENTS:
-            raise InputError(f"{path}: coefficient {n!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
+            raise InputError(
+                f"{path}: coefficient {n!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+            )
         if not is_number(v):
             raise InputError(f"{path}: coefficient {n} = {v!r}; expected a finite number")
     noise = doc.get("noise_std")
-    if not (isinstance(noise, Mapping) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                               and 0 < v < math.inf for v in noise.values())):  # fmt: skip
+    if not (
+        isinstance(noise, Mapping)
+        and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf
+            for v in noise.values()
+        )
+    ):
         noise = None
     else:
         noise = {k: float(v) for k, v in noise.items() if k in STATES}
@@ -452,8 +489,9 @@ def _manifest_experiments(manifest: Path) -> list[str]:
         if n in ("", ".", "..") or any(c in n for c in "/\\\0"):
             raise InputError(f"{manifest}: experiment {n[:40]!r}; expected a file name without a folder")
     if len(set(names)) != len(names):
-        raise InputError(f"{manifest}: experiment {sorted(n for n in names if names.count(n) > 1)[0]!r} "
-                         "is listed twice")  # fmt: skip
+        raise InputError(
+            f"{manifest}: experiment {sorted(n for n in names if names.count(n) > 1)[0]!r} is listed twice"
+        )
     return names
 
 
@@ -483,5 +521,7 @@ def load_data(paths: Iterable[str | Path]) -> tuple[list[Experiment], ModelConfi
         if files.count(f) > 1:
             raise InputError(f"{e.source}: given twice; expected each experiment once")
     names = [e.name for e in experiments]
-    return [replace(e, name=str(Path(e.source).with_suffix(""))) if names.count(e.name) > 1 else e
-            for e in experiments], config  # fmt: skip
+    return [
+        replace(e, name=str(Path(e.source).with_suffix(""))) if names.count(e.name) > 1 else e
+        for e in experiments
+    ], config

@@ -76,11 +76,12 @@ MAX_SHRINKS = 6
 # second order, and with both at half of their single-channel amplitudes the truth's roll rate
 # already departs from the linear model by 0.23 of the gyro noise (fit of p 98.2 %).
 TEMPLATES = {
-    "horizontal": dict(channels=("rudder",), autopilot={"depth": 0.0, "roll": 0.0}, hold=False,
-                       excited=("v", "r", "psi")),
+    "horizontal": dict(
+        channels=("rudder",), autopilot={"depth": 0.0, "roll": 0.0}, hold=False, excited=("v", "r", "psi")
+    ),
     "vertical": dict(channels=("elevators",), autopilot={}, hold=True, excited=("w", "q", "theta", "z")),
     "roll": dict(channels=("differential",), autopilot={"depth": 0.0}, hold=False, excited=("p", "phi")),
-}  # fmt: skip
+}
 # Scenario II's vertical experiment: its depth reference moves the slow heave-pitch motion.
 HOLD_DEPTH = Square(amplitude=1.5, half_period=15.0, offset=1.5, first=-1)
 PRBS_CLOCKS = (0.1, 0.2, 0.5, 1.0, 2.0)  # s
@@ -92,6 +93,7 @@ REFERENCE = 1e-3  # rad, the amplitude a shape is simulated at before it is scal
 @dataclass(frozen=True)
 class Limits:
     """Peak bounds of the linear regime: rates rad/s, angles rad, velocities m/s."""
+
     yaw_rate: float
     pitch_rate: float
     roll_rate: float
@@ -108,20 +110,28 @@ class Limits:
 
     def table(self) -> str:
         deg = math.degrees
-        return (f"yaw rate {deg(self.yaw_rate):.2f} deg/s, pitch rate {deg(self.pitch_rate):.2f} deg/s, "
-                f"roll rate {deg(self.roll_rate):.2f} deg/s, sideslip {deg(self.sideslip):.3f} deg, "
-                f"heave {self.heave:.4f} m/s, pitch {deg(self.pitch):.2f} deg, roll {deg(self.roll):.2f} deg, "
-                f"fin {self.fin:g} rad, fin rate {self.fin_rate:g} rad/s")  # fmt: skip
+        return (
+            f"yaw rate {deg(self.yaw_rate):.2f} deg/s, pitch rate {deg(self.pitch_rate):.2f} deg/s, "
+            f"roll rate {deg(self.roll_rate):.2f} deg/s, sideslip {deg(self.sideslip):.3f} deg, "
+            f"heave {self.heave:.4f} m/s, pitch {deg(self.pitch):.2f} deg, roll {deg(self.roll):.2f} deg, "
+            f"fin {self.fin:g} rad, fin rate {self.fin_rate:g} rad/s"
+        )
 
 
 def peaks(xs: np.ndarray, fins: np.ndarray, speed: float, dt: float) -> dict[str, float]:
     """The limited quantities' peaks over a flight (states (N, 10), fin angles (N, 3))."""
     i = IX
-    return {"yaw_rate": float(np.abs(xs[:, i["r"]]).max()), "pitch_rate": float(np.abs(xs[:, i["q"]]).max()),
-            "roll_rate": float(np.abs(xs[:, i["p"]]).max()), "sideslip": float(np.abs(xs[:, i["v"]]).max() / speed),
-            "heave": float(np.abs(xs[:, i["w"]]).max()), "pitch": float(np.abs(xs[:, i["theta"]]).max()),
-            "roll": float(np.abs(xs[:, i["phi"]]).max()), "fin": float(np.abs(fins).max()),
-            "fin_rate": float(np.abs(np.diff(fins, axis=0)).max() / dt)}  # fmt: skip
+    return {
+        "yaw_rate": float(np.abs(xs[:, i["r"]]).max()),
+        "pitch_rate": float(np.abs(xs[:, i["q"]]).max()),
+        "roll_rate": float(np.abs(xs[:, i["p"]]).max()),
+        "sideslip": float(np.abs(xs[:, i["v"]]).max() / speed),
+        "heave": float(np.abs(xs[:, i["w"]]).max()),
+        "pitch": float(np.abs(xs[:, i["theta"]]).max()),
+        "roll": float(np.abs(xs[:, i["phi"]]).max()),
+        "fin": float(np.abs(fins).max()),
+        "fin_rate": float(np.abs(np.diff(fins, axis=0)).max() / dt),
+    }
 
 
 # -- the model the design is made at ---------------------------------------------------------------
@@ -130,6 +140,7 @@ def peaks(xs: np.ndarray, fins: np.ndarray, speed: float, dt: float) -> dict[str
 @dataclass(frozen=True)
 class Model:
     """The linear model and its autopilots: what the design simulates and differentiates."""
+
     config: ModelConfig  # coefficients; `free` the ones designed for; outputs: every state but z
     A: np.ndarray
     B: np.ndarray
@@ -143,12 +154,16 @@ class Model:
         return self.config.vehicle.speed
 
 
-def model(config: ModelConfig, noise_std: Mapping[str, float] | None = None, control_rate: float = 50.0) -> Model:
+def model(
+    config: ModelConfig, noise_std: Mapping[str, float] | None = None, control_rate: float = 50.0
+) -> Model:
     """The design model of `config` (its coefficients, its free list), autopilots designed on it."""
     A, B, _ = continuous(structure(config.vehicle), theta_vector(config.coefficients))
     if not np.all(np.isfinite(A)) or np.linalg.eigvals(A).real.max() > 1e-6:
-        raise InputError(f"{config.source or 'model'}: the linear model is unstable or not finite; "
-                         "expected coefficients of a stable vehicle to design at")  # fmt: skip
+        raise InputError(
+            f"{config.source or 'model'}: the linear model is unstable or not finite; "
+            "expected coefficients of a stable vehicle to design at"
+        )
     speed = config.vehicle.speed
     ap = Autopilot(design_autopilot(A, B, speed), 1.0 / control_rate)
     config = replace(config, outputs=FITTED)
@@ -216,7 +231,9 @@ def regime_limits(m: Model, base: Scenario | str = "II") -> Limits:
         t, xs, fins = fly_model(m, e, base.duration_of(e), SEED, k)
         for key, v in peaks(xs, fins, m.speed, 1.0 / m.control_rate).items():
             worst[key] = max(worst.get(key, 0.0), v)
-    return Limits(**{k: worst[k] for k in ("yaw_rate", "pitch_rate", "roll_rate", "sideslip", "heave", "pitch", "roll")})
+    return Limits(
+        **{k: worst[k] for k in ("yaw_rate", "pitch_rate", "roll_rate", "sideslip", "heave", "pitch", "roll")}
+    )
 
 
 # -- signals ---------------------------------------------------------------------------------------------
@@ -249,13 +266,19 @@ def scaled(sig: Signal, amplitude: float) -> Signal:
     return replace(sig, amplitude=float(amplitude))
 
 
-def spec(kind: str, fins: Mapping[str, Signal], duration: float | None = None, name: str | None = None) -> ExperimentSpec:
+def spec(
+    kind: str, fins: Mapping[str, Signal], duration: float | None = None, name: str | None = None
+) -> ExperimentSpec:
     """The experiment of type `kind` with these fin signals."""
     tpl = TEMPLATES[kind]
     fixed = {"rudder": Hold(0.0)} if kind in ("vertical", "roll") else {}  # the rudder held at 0
-    return ExperimentSpec(name=name or kind, fins={**fins, **fixed},
-                          autopilot={k: Hold(float(v)) for k, v in tpl["autopilot"].items()},
-                          hold_depth=HOLD_DEPTH if tpl["hold"] else None, duration=duration)  # fmt: skip
+    return ExperimentSpec(
+        name=name or kind,
+        fins={**fins, **fixed},
+        autopilot={k: Hold(float(v)) for k, v in tpl["autopilot"].items()},
+        hold_depth=HOLD_DEPTH if tpl["hold"] else None,
+        duration=duration,
+    )
 
 
 def largest(m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, duration: float) -> float:
@@ -286,6 +309,7 @@ def largest(m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, dur
 @dataclass(frozen=True)
 class Candidate:
     """One experiment type with its signals at their largest amplitudes, and its information."""
+
     kind: str
     fins: Mapping[str, Signal]
     duration: float
@@ -343,8 +367,10 @@ def split(cands: Mapping[str, Candidate], total: float, s: np.ndarray, kind: str
 
     walk(0, steps, [])
     if best is None:
-        raise InputError(f"duration={total:g} s: no split of it identifies every free coefficient; "
-                         "expected a longer flight or fewer free coefficients")  # fmt: skip
+        raise InputError(
+            f"duration={total:g} s: no split of it identifies every free coefficient; "
+            "expected a longer flight or fewer free coefficients"
+        )
     return {n: d for n, d in zip(names, best) if d > 0}
 
 
@@ -366,6 +392,7 @@ def scenario_information(m: Model, total: float, base: Scenario | str = "II") ->
 class Linearity:
     """Per experiment: the lowest fit of the analytic model on its excited channels, and the
     largest second-order residual over the sensor noise on the fitted channels."""
+
     fit: Mapping[str, tuple[str, float]]  # experiment -> (channel, fit %)
     residual: Mapping[str, tuple[str, float]]  # experiment -> (channel, rms residual / noise)
     speed_loss: Mapping[str, float]  # experiment -> peak speed loss, fraction of U
@@ -374,9 +401,12 @@ class Linearity:
         return self.fit[name][1] >= FIT_LIMIT and self.residual[name][1] < RESIDUAL_LIMIT
 
     def table(self) -> str:
-        return "\n".join(f"{n}: lowest fit {c} {f:.2f} %, largest second-order residual "
-                         f"{self.residual[n][0]} {self.residual[n][1]:.3f} of the noise, speed loss "
-                         f"{100 * self.speed_loss[n]:.3f} %" for n, (c, f) in self.fit.items())  # fmt: skip
+        return "\n".join(
+            f"{n}: lowest fit {c} {f:.2f} %, largest second-order residual "
+            f"{self.residual[n][0]} {self.residual[n][1]:.3f} of the noise, speed loss "
+            f"{100 * self.speed_loss[n]:.3f} %"
+            for n, (c, f) in self.fit.items()
+        )
 
 
 def linearity(s: Scenario, excited: Mapping[str, Sequence[str]], mjcf=None, seed: int = SEED) -> Linearity:
@@ -403,6 +433,7 @@ def linearity(s: Scenario, excited: Mapping[str, Sequence[str]], mjcf=None, seed
 @dataclass(frozen=True)
 class Design:
     """A designed scenario with its predicted bounds, and Scenario II's at the same flight time."""
+
     scenario: Scenario
     criterion: str
     free: tuple[str, ...]
@@ -434,35 +465,53 @@ class Design:
     def table(self) -> str:
         """Per coefficient: value, predicted bound and relative bound of the design and of
         Scenario II at the same flight time, and their ratio."""
-        lines = [f"{'coefficient':<12}{'value':>12}{'design σ':>11}{'design %':>10}{'II σ':>11}{'II %':>10}{'II/design':>10}"]
+        lines = [
+            f"{'coefficient':<12}{'value':>12}{'design σ':>11}{'design %':>10}{'II σ':>11}{'II %':>10}{'II/design':>10}"
+        ]
         for n, v, a, b in zip(self.free, self.values, self.crlb, self.crlb_base):
             ra = f"{100 * a / abs(v):.3g}" if v else "-"
             rb = f"{100 * b / abs(v):.3g}" if v else "-"
             lines.append(f"{n:<12}{v:>12.4g}{a:>11.3g}{ra:>10}{b:>11.3g}{rb:>10}{b / a:>10.2f}")
         (n1, w1), (n2, w2) = self.worst()
-        lines.append(f"worst relative bound: design {100 * w1:.3g} % ({n1}), Scenario II {100 * w2:.3g} % ({n2}), "
-                     f"{self.duration:g} s each")  # fmt: skip
+        lines.append(
+            f"worst relative bound: design {100 * w1:.3g} % ({n1}), Scenario II {100 * w2:.3g} % ({n2}), "
+            f"{self.duration:g} s each"
+        )
         return "\n".join(lines)
 
     def text(self) -> str:
         """The scenario file, its header comments giving how it was designed and the bounds."""
-        head = [f"Designed experiment ({self.criterion}-optimal Fisher information of {len(self.free)} free "
-                f"coefficients at the {self.source}), {self.duration:g} s of flight.",
-                "Each signal is at the largest amplitude inside the linear regime: peaks bounded by "
-                "Scenario II's on the same model:", "  " + self.limits.table()]  # fmt: skip
+        head = [
+            f"Designed experiment ({self.criterion}-optimal Fisher information of {len(self.free)} free "
+            f"coefficients at the {self.source}), {self.duration:g} s of flight.",
+            "Each signal is at the largest amplitude inside the linear regime: peaks bounded by "
+            "Scenario II's on the same model:",
+            "  " + self.limits.table(),
+        ]
         if self.linearity is not None:
-            head += ["Flown noise-free on the truth plant (fit >= 99 % on excited channels, "
-                     "second-order residual < 0.2 of the noise on fitted channels):"]  # fmt: skip
+            head += [
+                "Flown noise-free on the truth plant (fit >= 99 % on excited channels, "
+                "second-order residual < 0.2 of the noise on fitted channels):"
+            ]
             head += ["  " + line for line in self.linearity.table().splitlines()]
-        head += ["Predicted Cramér-Rao bounds (sensor noise of the scenario's sensors), against the "
-                 "paper's Scenario II at the same flight time:"]  # fmt: skip
+        head += [
+            "Predicted Cramér-Rao bounds (sensor noise of the scenario's sensors), against the "
+            "paper's Scenario II at the same flight time:"
+        ]
         head += ["  " + line for line in self.table().splitlines()]
         return "".join(f"# {line}\n" for line in head) + "\n" + scenario_text(self.scenario)
 
 
-def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] | None = None, mjcf=None,
-           speed: float | None = None, estimates: Mapping[str, float] | None = None,
-           noise_std: Mapping[str, float] | None = None, check: bool = True) -> Design:  # fmt: skip
+def design(
+    duration: float = 180.0,
+    criterion_: str = "A",
+    free: Sequence[str] | None = None,
+    mjcf=None,
+    speed: float | None = None,
+    estimates: Mapping[str, float] | None = None,
+    noise_std: Mapping[str, float] | None = None,
+    check: bool = True,
+) -> Design:
     """Design a scenario of `duration` s in total for the criterion (`D`, `A`, `E`) of the
     Fisher information of `free` (default: the analytic model's free list) at the analytic
     model of `mjcf` at `speed`, or at `estimates` (coefficient -> value, e.g. the last fit's:
@@ -470,14 +519,18 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
     that leaves the linear regime."""
     if criterion_ not in CRITERIA:
         raise InputError(f"criterion={criterion_!r}; expected one of {', '.join(CRITERIA)}")
-    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 2 * MIN_EXPERIMENT):
+    if not (
+        isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 2 * MIN_EXPERIMENT
+    ):
         raise InputError(f"duration={duration!r}; expected at least {2 * MIN_EXPERIMENT:g} s")
     config = analytic_config(mjcf, speed)[0]
     source = "analytic model"
     if estimates:
         unknown = sorted(set(estimates) - set(COEFFICIENTS))
         if unknown:
-            raise InputError(f"estimates: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)")
+            raise InputError(
+                f"estimates: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+            )
         config = config.with_coefficients(dict(estimates))
         source = "estimate"
         free = free if free is not None else tuple(n for n in COEFFICIENTS if n in estimates)
@@ -497,11 +550,16 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
         for i in range(n):
             records[k if i == 0 else f"{k}-{i + 1}"] = (k, d / n)
     kinds = {name: k for name, (k, _) in records.items()}
-    experiments = tuple(spec(k, evaluate(m, k, cands[k].fins, limits, d).fins, d, name)
-                        for name, (k, d) in records.items())  # fmt: skip
-    scn = Scenario(name="designed", experiments=experiments, duration=max(d for _, d in records.values()),
-                   description=f"{criterion_}-optimal experiments for {len(m.config.free)} coefficients "
-                               f"within Scenario II's linear regime, {duration:g} s")  # fmt: skip
+    experiments = tuple(
+        spec(k, evaluate(m, k, cands[k].fins, limits, d).fins, d, name) for name, (k, d) in records.items()
+    )
+    scn = Scenario(
+        name="designed",
+        experiments=experiments,
+        duration=max(d for _, d in records.values()),
+        description=f"{criterion_}-optimal experiments for {len(m.config.free)} coefficients "
+        f"within Scenario II's linear regime, {duration:g} s",
+    )
     check_result, shrinks = None, {e.name: 0 for e in experiments}
     if check:
         excited = {name: TEMPLATES[k]["excited"] for name, k in kinds.items()}
@@ -512,10 +570,21 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
                 break
             for e in failed:
                 shrinks[e.name] += 1
-            scn = replace(scn, experiments=tuple(
-                replace(e, fins={c: scaled(sig, float(f"{sig.amplitude * SHRINK:.3g}"))
-                                 if e in failed and c in TEMPLATES[kinds[e.name]]["channels"] else sig
-                                 for c, sig in e.fins.items()}) for e in scn.experiments))  # fmt: skip
+            scn = replace(
+                scn,
+                experiments=tuple(
+                    replace(
+                        e,
+                        fins={
+                            c: scaled(sig, float(f"{sig.amplitude * SHRINK:.3g}"))
+                            if e in failed and c in TEMPLATES[kinds[e.name]]["channels"]
+                            else sig
+                            for c, sig in e.fins.items()
+                        },
+                    )
+                    for e in scn.experiments
+                ),
+            )
         if any(not check_result.passed(e.name) for e in scn.experiments):
             raise InputError(f"no design inside the linear regime: {check_result.table()}")
     F = 0.0
@@ -524,7 +593,18 @@ def design(duration: float = 180.0, criterion_: str = "A", free: Sequence[str] |
         F = F + fisher(m, t, xs, f, e.name)
     base = scenario_information(m, duration)
     values = np.array([m.config.coefficients[n] for n in m.config.free])
-    return Design(scn, criterion_, m.config.free, values, crlb(F).std, crlb(base).std, limits, check_result, shrinks, source)
+    return Design(
+        scn,
+        criterion_,
+        m.config.free,
+        values,
+        crlb(F).std,
+        crlb(base).std,
+        limits,
+        check_result,
+        shrinks,
+        source,
+    )
 
 
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
@@ -534,9 +614,15 @@ def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float]
     return values, None if noise is None else {**NOISE_STD, **noise}
 
 
-def write_design(out: str | Path, duration: float = 180.0, criterion_: str = "A",
-                 free: Sequence[str] | None = None, mjcf=None, speed: float | None = None,
-                 start_from: str | Path | None = None) -> Design:  # fmt: skip
+def write_design(
+    out: str | Path,
+    duration: float = 180.0,
+    criterion_: str = "A",
+    free: Sequence[str] | None = None,
+    mjcf=None,
+    speed: float | None = None,
+    start_from: str | Path | None = None,
+) -> Design:
     """`design` at the analytic model of `mjcf`, or at the estimates JSON `start_from` (its
     coefficients and noise: the sequential design), written as a scenario file to `out`."""
     check_outputs([start_from] if start_from else [], {"out": out})

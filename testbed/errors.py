@@ -87,8 +87,9 @@ def check_output_file(path: str | os.PathLike, label: str | None = None) -> None
         raise InputError(f"{label}: is {kind}; expected a regular file, a character device or a FIFO")
 
 
-def check_output_directory(path: str | os.PathLike, force: bool = False, marker: str = "manifest.json",
-                           label: str | None = None) -> None:  # fmt: skip
+def check_output_directory(
+    path: str | os.PathLike, force: bool = False, marker: str = "manifest.json", label: str | None = None
+) -> None:
     """`InputError` unless a folder can be created at `path`, or (with `force`) replace the one
     there: only a folder that is empty or holds `marker` (a run directory) is ever replaced."""
     path = Path(path)
@@ -108,8 +109,10 @@ def check_output_directory(path: str | os.PathLike, force: bool = False, marker:
     except OSError as exc:
         raise InputError(f"{label}: cannot read ({exc.strerror or exc})") from None
     if not replaceable:
-        raise InputError(f"{label}: is a folder without {marker}, not a run directory; force=True "
-                         "replaces only a run directory or an empty folder")  # fmt: skip
+        raise InputError(
+            f"{label}: is a folder without {marker}, not a run directory; force=True "
+            "replaces only a run directory or an empty folder"
+        )
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:

@@ -15,24 +15,68 @@ from testbed.data import Experiment, ModelConfig
 from testbed.linear import synthetic
 from testbed.model import COEFFICIENTS, Vehicle
 
-VEHICLE = Vehicle(mass=30.51, Ix=0.177, Iy=3.45, Iz=3.45, weight=299.0, buoyancy=306.0,
-                  xB=0.0, yB=0.0, zB=-0.0196, speed=1.54)  # fmt: skip
+VEHICLE = Vehicle(
+    mass=30.51,
+    Ix=0.177,
+    Iy=3.45,
+    Iz=3.45,
+    weight=299.0,
+    buoyancy=306.0,
+    xB=0.0,
+    yB=0.0,
+    zB=-0.0196,
+    speed=1.54,
+)
 _U = VEHICLE.speed
 # REMUS-like linear coefficients (Prestero 2001, linearised at U), with the Munk moments and the
 # rate damping adjusted so that the linear model is stable in both planes.
 TRUTH = dict.fromkeys(COEFFICIENTS, 0.0) | dict(
-    X_udot=-0.93, X_u=-2 * 1.62 * _U,
-    Y_vdot=-35.5, Y_rdot=1.93, Y_v=-28.6 * _U, Y_r=5.22 * _U, Y_dr=9.64 * _U**2,
-    Z_wdot=-35.5, Z_qdot=-1.93, Z_w=-28.6 * _U, Z_q=-5.22 * _U, Z_de=-9.64 * _U**2,
-    K_pdot=-0.0141, K_p=-0.3, K_der=0.5, K_del=0.5,
-    M_wdot=-1.93, M_qdot=-4.88, M_w=6.0, M_q=-8.0, M_de=-6.15 * _U**2,
-    N_vdot=1.93, N_rdot=-4.88, N_v=-6.0, N_r=-8.0, N_dr=-6.15 * _U**2,
-)  # fmt: skip
+    X_udot=-0.93,
+    X_u=-2 * 1.62 * _U,
+    Y_vdot=-35.5,
+    Y_rdot=1.93,
+    Y_v=-28.6 * _U,
+    Y_r=5.22 * _U,
+    Y_dr=9.64 * _U**2,
+    Z_wdot=-35.5,
+    Z_qdot=-1.93,
+    Z_w=-28.6 * _U,
+    Z_q=-5.22 * _U,
+    Z_de=-9.64 * _U**2,
+    K_pdot=-0.0141,
+    K_p=-0.3,
+    K_der=0.5,
+    K_del=0.5,
+    M_wdot=-1.93,
+    M_qdot=-4.88,
+    M_w=6.0,
+    M_q=-8.0,
+    M_de=-6.15 * _U**2,
+    N_vdot=1.93,
+    N_rdot=-4.88,
+    N_v=-6.0,
+    N_r=-8.0,
+    N_dr=-6.15 * _U**2,
+)
 # Well posed (no structural null direction): damping and control terms, added-mass terms fixed.
-FREE = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr", "Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de",
-        "K_p", "K_der", "K_del")  # fmt: skip
-NOISE = dict(u=0.01, v=0.01, w=0.01, p=0.003, q=0.003, r=0.003, phi=0.002, theta=0.002,
-             psi=0.002, z=0.02)  # fmt: skip
+FREE = (
+    "Y_v",
+    "Y_r",
+    "Y_dr",
+    "N_v",
+    "N_r",
+    "N_dr",
+    "Z_w",
+    "Z_q",
+    "Z_de",
+    "M_w",
+    "M_q",
+    "M_de",
+    "K_p",
+    "K_der",
+    "K_del",
+)
+NOISE = dict(u=0.01, v=0.01, w=0.01, p=0.003, q=0.003, r=0.003, phi=0.002, theta=0.002, psi=0.002, z=0.02)
 
 
 def truth_config(free=FREE) -> ModelConfig:
@@ -63,9 +107,12 @@ def inputs(duration: float = 60.0, dt: float = 0.05, seed: int = 0) -> dict[str,
     return {"horizontal": (t, horizontal), "vertical": (t, vertical)}
 
 
-def experiments(seed: int, duration: float = 60.0, dt: float = 0.05,
-                noise: dict | None = NOISE) -> list[Experiment]:  # fmt: skip
+def experiments(
+    seed: int, duration: float = 60.0, dt: float = 0.05, noise: dict | None = NOISE
+) -> list[Experiment]:
     """The two experiments with noise realisation `seed` (the input design is fixed)."""
     rng = np.random.default_rng(10_000 + seed)
-    return [synthetic(truth_config(), t, u, noise, rng=rng, name=name)
-            for name, (t, u) in inputs(duration, dt).items()]  # fmt: skip
+    return [
+        synthetic(truth_config(), t, u, noise, rng=rng, name=name)
+        for name, (t, u) in inputs(duration, dt).items()
+    ]

@@ -19,16 +19,23 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from testbed.analysis import Comparison, Identifiability, compare, identifiability, screen
-from testbed.data import (Experiment, ModelConfig, load_data, read_config, read_csv,
-                          read_estimates, run_csvs)
+from testbed.data import Experiment, ModelConfig, load_data, read_config, read_csv, read_estimates, run_csvs
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, identify, lookup
 from testbed.linear import check_fit
 from testbed.report import log_fit
 from testbed.validation import Validation, validate
 
-__all__ = ["Identified", "analyze_data", "identify_data", "inputs", "perturbed", "truth_data",
-           "validate_data", "write_text"]
+__all__ = [
+    "Identified",
+    "analyze_data",
+    "identify_data",
+    "inputs",
+    "perturbed",
+    "truth_data",
+    "validate_data",
+    "write_text",
+]
 
 
 def write_text(out: str | os.PathLike | None, text: str) -> None:
@@ -53,8 +60,9 @@ def inputs(data: Sequence[str | os.PathLike], config: str | os.PathLike | None =
 def perturbed(config: ModelConfig, fraction: float, seed: int) -> ModelConfig:
     """The config with every free coefficient's start moved by ±fraction (signs from `seed`)."""
     signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(config.free))
-    moved = config.with_coefficients({n: config.coefficients[n] * (1 + s * fraction)
-                                      for n, s in zip(config.free, signs)})  # fmt: skip
+    moved = config.with_coefficients(
+        {n: config.coefficients[n] * (1 + s * fraction) for n, s in zip(config.free, signs)}
+    )
     return replace(moved, source=f"{config.source or 'config'} with its start moved by perturb={fraction:g}")
 
 
@@ -107,11 +115,19 @@ class Identified:
     written: tuple[Path, ...]
 
 
-def identify_data(data: Sequence[str | os.PathLike], *, method: str = "ml-gn",
-                  config: str | os.PathLike | None = None, out: str | os.PathLike | None = None,
-                  rrd: str | os.PathLike | None = None, options: Mapping | None = None,
-                  perturb: float | None = None, seed: int = 0, free_all: bool = False,
-                  progress: Callable[[Progress], None] | None = None) -> Identified:  # fmt: skip
+def identify_data(
+    data: Sequence[str | os.PathLike],
+    *,
+    method: str = "ml-gn",
+    config: str | os.PathLike | None = None,
+    out: str | os.PathLike | None = None,
+    rrd: str | os.PathLike | None = None,
+    options: Mapping | None = None,
+    perturb: float | None = None,
+    seed: int = 0,
+    free_all: bool = False,
+    progress: Callable[[Progress], None] | None = None,
+) -> Identified:
     """Identify the coefficients of `data` (run directories or CSVs) and write the estimates JSON
     to `out`, a filter's estimate and ±σ histories beside it (`.history.csv`), and a Rerun
     recording of the fit to `rrd`.
@@ -127,7 +143,9 @@ def identify_data(data: Sequence[str | os.PathLike], *, method: str = "ml-gn",
     experiments, cfg, run_config, read = inputs(data, config)
     truth = truth_data(data) if run_config is not None else None
     read += [Path(e.source) for e in truth or ()]
-    history = Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
+    history = (
+        Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
+    )
     check_outputs(read, {"out": out, "history": history, "rrd": rrd})
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
@@ -136,9 +154,11 @@ def identify_data(data: Sequence[str | os.PathLike], *, method: str = "ml-gn",
     if not free_all:
         cfg, fixed = screen(experiments, cfg)
         if not cfg.free:
-            raise InputError(f"no coefficient of [identify] free is identifiable from "
-                             f"{', '.join(map(str, data))} ({next(iter(fixed.values()))}); "
-                             "expected data that excite them, or free_all=True")  # fmt: skip
+            raise InputError(
+                f"no coefficient of [identify] free is identifiable from "
+                f"{', '.join(map(str, data))} ({next(iter(fixed.values()))}); "
+                "expected data that excite them, or free_all=True"
+            )
     iterations = []  # (iteration, values, cost) of the iterative methods, for the recording
 
     def callback(step: Progress) -> None:
@@ -149,10 +169,12 @@ def identify_data(data: Sequence[str | os.PathLike], *, method: str = "ml-gn",
 
     estimate = identify(experiments, cfg, method=m.name, options=opts, callback=callback)
     if estimate.status is Status.DIVERGED:
-        raise InputError(f"method={m.name!r}: {estimate.status.message}"
-                         f"{f' ({estimate.message})' if estimate.message else ''} on "
-                         f"{', '.join(map(str, data))}; no estimate written (expected "
-                         f"{'another start or ' if m.starts else ''}a better a-priori config)")  # fmt: skip
+        raise InputError(
+            f"method={m.name!r}: {estimate.status.message}"
+            f"{f' ({estimate.message})' if estimate.message else ''} on "
+            f"{', '.join(map(str, data))}; no estimate written (expected "
+            f"{'another start or ' if m.starts else ''}a better a-priori config)"
+        )
     doc = estimate.json_fields()
     if fixed:
         doc["fixed"] = {n: {"value": float(cfg.coefficients[n]), "reason": why} for n, why in fixed.items()}
@@ -176,8 +198,12 @@ def identify_data(data: Sequence[str | os.PathLike], *, method: str = "ml-gn",
     return Identified(estimate, cfg, fixed, comparison, validation, doc, text, written)
 
 
-def analyze_data(data: Sequence[str | os.PathLike], *, config: str | os.PathLike | None = None,
-                 out: str | os.PathLike | None = None) -> Identifiability:
+def analyze_data(
+    data: Sequence[str | os.PathLike],
+    *,
+    config: str | os.PathLike | None = None,
+    out: str | os.PathLike | None = None,
+) -> Identifiability:
     """Identifiability of the config's free coefficients from `data` (Fisher information,
     Cramér-Rao bounds, correlations, drift groups), written as JSON to `out`."""
     experiments, cfg, _, read = inputs(data, config)
@@ -189,16 +215,26 @@ def analyze_data(data: Sequence[str | os.PathLike], *, config: str | os.PathLike
     return result
 
 
-def validate_data(data: Sequence[str | os.PathLike], estimates: str | os.PathLike, *,
-                  config: str | os.PathLike | None = None,
-                  out: str | os.PathLike | None = None) -> tuple[Validation, str]:  # fmt: skip
+def validate_data(
+    data: Sequence[str | os.PathLike],
+    estimates: str | os.PathLike,
+    *,
+    config: str | os.PathLike | None = None,
+    out: str | os.PathLike | None = None,
+) -> tuple[Validation, str]:
     """Fit % and residual whiteness on `data` of the coefficients in the `estimates` JSON;
     the validation JSON (also written to `out`) with them."""
     experiments, cfg, run_config, read = inputs(data, config)
     check_outputs(read + [estimates], {"out": out})
     coefficients = read_estimates(estimates)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
-    text = json.dumps({"estimates": str(estimates), "coefficients": coefficients,
-                       "validation": validation.to_dict()}, indent=2, allow_nan=False) + "\n"  # fmt: skip
+    text = (
+        json.dumps(
+            {"estimates": str(estimates), "coefficients": coefficients, "validation": validation.to_dict()},
+            indent=2,
+            allow_nan=False,
+        )
+        + "\n"
+    )
     write_text(out, text)
     return validation, text

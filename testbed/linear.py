@@ -43,9 +43,24 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
-from testbed.model import (ITHETA, IX, NU, NX, STATES, Structure, continuous, derivatives,
-                           discretize, expm_pair, fastest_rate, inertia_defect, structure,
-                           theta_vector, tilde, unobserved)
+from testbed.model import (
+    ITHETA,
+    IX,
+    NU,
+    NX,
+    STATES,
+    Structure,
+    continuous,
+    derivatives,
+    discretize,
+    expm_pair,
+    fastest_rate,
+    inertia_defect,
+    structure,
+    theta_vector,
+    tilde,
+    unobserved,
+)
 
 NW = NX + NU + 1  # length of w = [x; δ; 1]
 EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
@@ -102,17 +117,16 @@ class Problem:
 
     def columns(self, record: Record) -> np.ndarray:
         """Where the record's own parameters (the free coefficients, its x0) sit in p."""
-        return np.r_[:self.n_free, record.offset:record.offset + len(record.measured)]
+        return np.r_[: self.n_free, record.offset : record.offset + len(record.measured)]
 
     def x0(self, record: Record, p: np.ndarray) -> np.ndarray:
         """The record's full initial state (10,) from the parameter vector."""
         x0 = np.zeros(NX, dtype=p.dtype)
-        x0[record.measured] = p[record.offset:record.offset + len(record.measured)]
+        x0[record.measured] = p[record.offset : record.offset + len(record.measured)]
         return x0
 
 
 COARSEST = math.log(2.0**53)  # ρΔ beyond which the fastest mode decays below rounding in one step
-
 
 
 def check_fit(experiments: Sequence[Experiment], config: ModelConfig) -> None:
@@ -126,9 +140,11 @@ def check_fit(experiments: Sequence[Experiment], config: ModelConfig) -> None:
     measured = {s for e in experiments for s in e.measured}
     blind = unobserved(structure(config.vehicle), theta_vector(config.coefficients), config.free, measured)
     if blind:
-        raise InputError(f"{config.source or 'config'}: [identify] free {', '.join(blind)}: not "
-                         f"identifiable, the measured states ({', '.join(s for s in STATES if s in measured)}) "
-                         "do not depend on them in the model; measure the states they drive or fix them")  # fmt: skip
+        raise InputError(
+            f"{config.source or 'config'}: [identify] free {', '.join(blind)}: not "
+            f"identifiable, the measured states ({', '.join(s for s in STATES if s in measured)}) "
+            "do not depend on them in the model; measure the states they drive or fix them"
+        )
 
 
 def check_inputs(experiments: Sequence[Experiment], config: ModelConfig) -> None:
@@ -155,9 +171,11 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig) -> None
     for e in experiments:
         dt = float(e.t[1] - e.t[0])
         if rate * dt > COARSEST:
-            raise InputError(f"{e.source or e.name}: t steps {dt:g} s; the model of {source} has a "
-                             f"mode at {rate:.3g} 1/s, which such a step cannot show: expected a step "
-                             f"below {COARSEST / rate:.3g} s (t in seconds)")  # fmt: skip
+            raise InputError(
+                f"{e.source or e.name}: t steps {dt:g} s; the model of {source} has a "
+                f"mode at {rate:.3g} 1/s, which such a step cannot show: expected a step "
+                f"below {COARSEST / rate:.3g} s (t in seconds)"
+            )
 
 
 def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
@@ -173,13 +191,29 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
         y = y.copy()
         if "u" in e.measured:
             y[:, e.measured.index("u")] -= config.vehicle.speed
-        records.append(Record(e.name, y, inputs, measured,
-                              np.array([channels.index(s) for s in e.measured]),
-                              float(t[1] - t[0]), offset))  # fmt: skip
+        records.append(
+            Record(
+                e.name,
+                y,
+                inputs,
+                measured,
+                np.array([channels.index(s) for s in e.measured]),
+                float(t[1] - t[0]),
+                offset,
+            )
+        )
         offset += len(measured)
     index = np.array([ITHETA[n] for n in config.free], dtype=int)
-    return Problem(structure(config.vehicle), theta, tuple(config.free), index, tuple(records),
-                   channels, config.vehicle.speed, where)  # fmt: skip
+    return Problem(
+        structure(config.vehicle),
+        theta,
+        tuple(config.free),
+        index,
+        tuple(records),
+        channels,
+        config.vehicle.speed,
+        where,
+    )
 
 
 # --- the discrete model and its exact derivatives ---------------------------------------------
@@ -259,7 +293,8 @@ def _propagate(Phi: np.ndarray, x0: np.ndarray, F: np.ndarray) -> np.ndarray:
         kernels.propagate(np.ascontiguousarray(Phi, dtype), x, np.ascontiguousarray(F, dtype))
         return x
     order, Y, _ = _Scan(np.asarray(Phi, dtype), 1, 1, np.arange(n), N)(
-        np.asarray(x0, dtype)[:, None], np.asarray(F, dtype)[:, :, None], N)
+        np.asarray(x0, dtype)[:, None], np.asarray(F, dtype)[:, :, None], N
+    )
     x[order] = Y[:, :, 0].T
     return x
 
@@ -302,26 +337,25 @@ class _Scan:
     def __call__(self, X0: np.ndarray, f: np.ndarray, P: int):
         L, j, m, n, c = self.L, self.j, self.m, len(self.Phi), len(self.rows)
         B, T = -(-P // L), len(f)
-        W = self.W[:, :, :B * j]
+        W = self.W[:, :, : B * j]
         forcing = W[:L, n:].reshape(L, n, B, j)  # [i, a, b] = F[bL + i][a]
         full, rest = divmod(T, L)
-        forcing[:, :, :full] = f[:full * L].reshape(full, L, n, j).transpose(1, 2, 0, 3)
+        forcing[:, :, :full] = f[: full * L].reshape(full, L, n, j).transpose(1, 2, 0, 3)
         if full < B:
-            forcing[:rest, :, full] = f[full * L:]
+            forcing[:rest, :, full] = f[full * L :]
             forcing[rest:, :, full] = 0.0
-            forcing[:, :, full + 1:] = 0.0
+            forcing[:, :, full + 1 :] = 0.0
         W[0, :n] = 0.0
         for i in range(1, L + 1):
             np.matmul(self.step, W[i - 1], out=W[i, :n])
         Z = W[:, :n].reshape(L + 1, n, B, j)
-        start = self.start[:B + 1]
+        start = self.start[: B + 1]
         start[0] = X0
         for b in range(B):
             np.matmul(self.power[L], start[b], out=start[b + 1])
             start[b + 1, :, :j] += Z[L, :, b]
         # Y[c, i, b] = Φⁱ[rows[c]] X[bL] + Z_i[b][rows[c]]
-        Y = np.matmul(self.rows_power, start[:B].transpose(1, 0, 2).reshape(n, B * m),
-                      out=self.Y[:, :B * m])  # fmt: skip
+        Y = np.matmul(self.rows_power, start[:B].transpose(1, 0, 2).reshape(n, B * m), out=self.Y[:, : B * m])
         Y = Y.reshape(c, L, B, m)
         Y[..., :j] += Z[:L, self.rows].transpose(1, 0, 2, 3)
         order = self.order.reshape(L, -1)[:, :B]
@@ -341,7 +375,7 @@ class _Scan:
 
 def _states(record: Record, d: Discrete, x0: np.ndarray) -> np.ndarray:
     """State trajectory (N, 10) of one record from the full initial state `x0`."""
-    return _propagate(d.E[:, :NX], x0, record.inputs[:-1] @ d.E[:, NX:NX + NU].T + d.E[:, -1])
+    return _propagate(d.E[:, :NX], x0, record.inputs[:-1] @ d.E[:, NX : NX + NU].T + d.E[:, -1])
 
 
 def _w(x: np.ndarray, inputs: np.ndarray) -> np.ndarray:
@@ -351,7 +385,7 @@ def _w(x: np.ndarray, inputs: np.ndarray) -> np.ndarray:
 
 def states(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Simulated states (N, 10) per experiment at the parameter vector `p` (u as a perturbation)."""
-    models = _models(prob, p[:prob.n_free], 0)
+    models = _models(prob, p[: prob.n_free], 0)
     return [_states(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
 
 
@@ -365,8 +399,9 @@ def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     return [r.y - yhat for r, yhat in zip(prob.records, outputs(prob, p))]
 
 
-def _sensitivity_parts(prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows,
-                       scale: np.ndarray, size: int) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:  # fmt: skip
+def _sensitivity_parts(
+    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray, size: int
+) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:
     """`scale[c] ∂x_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
     states `x` (N, 10), for each `_uncoupled` part of the model: (channels, params, pieces), the
     pieces as in `_pieces` with (T, len(channels), len(params)) arrays; `channels` index `rows`,
@@ -386,8 +421,11 @@ def _sensitivity_parts(prob: Problem, record: Record, d: Discrete, x: np.ndarray
         X = np.zeros((len(states), len(params)), dtype=dtype)  # the θ columns first
         X[at[record.measured[x0 - nf]], len(theta) + np.arange(len(x0))] = 1.0
         D = dE[theta][:, states, :].transpose(1, 0, 2).reshape(-1, NW)  # rows: (state, θ)
-        yield channels, params, _pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]],
-                                        scale[channels], size)  # fmt: skip
+        yield (
+            channels,
+            params,
+            _pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]], scale[channels], size),
+        )
 
 
 def _uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
@@ -415,8 +453,9 @@ def _uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
     return out
 
 
-def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
-            scale: np.ndarray, size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+def _pieces(
+    Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows, scale: np.ndarray, size: int
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Rows `rows` of X[t], times `scale`, for `X[t+1] = Φ X[t] + F[t]` from `X[0] = X` (n, m),
     where F[t]'s first j columns are `(D w[t])` reshaped (n, j) (D: (n·j, len(w[t]))) and the
     others zero: in consecutive pieces of at most `size` samples, `(samples, S)` with
@@ -438,20 +477,21 @@ def _pieces(Phi: np.ndarray, D: np.ndarray, w: np.ndarray, X: np.ndarray, rows,
         work = np.empty(len(rows) * size * X.shape[1], dtype=dtype)
     for t0 in range(0, N, size):
         t1 = min(t0 + size, N)
-        f = w[t0:min(t1, N - 1)] @ DT  # the last piece has no forcing after the record's end
+        f = w[t0 : min(t1, N - 1)] @ DT  # the last piece has no forcing after the record's end
         f = f.reshape(len(f), n, j)
         if kernels is None:
             order, S, X = scan(X, f, t1 - t0)
         else:  # the first len(rows)·P·m entries of `work`: contiguous for any P
             order = np.arange(t1 - t0)
-            S = work[:len(rows) * len(order) * X.shape[1]].reshape(len(rows), len(order), -1)
+            S = work[: len(rows) * len(order) * X.shape[1]].reshape(len(rows), len(order), -1)
             kernels.recursion(Phi, f, X, rows, S)
         S *= scale
         yield t0 + order, S
 
 
-def _sensitivities(prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows,
-                   scale: np.ndarray) -> np.ndarray:  # fmt: skip
+def _sensitivities(
+    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray
+) -> np.ndarray:
     """All of `_sensitivity_parts` at once: (N, len(rows), q)."""
     S = np.zeros((len(x), len(rows), prob.n_free + len(record.measured)), dtype=np.result_type(x, d.E))
     for channels, params, pieces in _sensitivity_parts(prob, record, d, x, rows, scale, len(x)):
@@ -460,16 +500,17 @@ def _sensitivities(prob: Problem, record: Record, d: Discrete, x: np.ndarray, ro
     return S
 
 
-def sensitivities(prob: Problem, p: np.ndarray,
-                  xs: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:  # fmt: skip
+def sensitivities(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:
     """Per experiment: output sensitivities (N, k, q) to the experiment's own parameters
     `p[prob.columns(record)]` (q = n_free + k; the others have no effect). `xs`: the states at
     `p` (`states(prob, p)`) if already known. (The estimators take them in pieces instead.)
     """
-    models = _models(prob, p[:prob.n_free], 1)
+    models = _models(prob, p[: prob.n_free], 1)
     xs = states(prob, p) if xs is None else xs
-    return [_sensitivities(prob, r, models[r.dt], x, r.measured, np.ones(len(r.measured)))
-            for r, x in zip(prob.records, xs)]  # fmt: skip
+    return [
+        _sensitivities(prob, r, models[r.dt], x, r.measured, np.ones(len(r.measured)))
+        for r, x in zip(prob.records, xs)
+    ]
 
 
 def _scale(record: Record, R: np.ndarray) -> np.ndarray:
@@ -487,7 +528,7 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
     `Σ_k aₖᵀ ∂²x[k] = Σ_k μ[k+1]ᵀ (forcing at k)`, exact, with no N·n_params² array. A one-hot
     weight gives the second-order sensitivity of one output sample.
     """
-    models = _models(prob, p[:prob.n_free], 2)
+    models = _models(prob, p[: prob.n_free], 2)
     nf, H = prob.n_free, np.zeros((prob.n_params, prob.n_params), dtype=p.dtype)
     for r, wr in zip(prob.records, weights):
         d = models[r.dt]
@@ -550,23 +591,27 @@ def exploded(prob: Problem, outs: Sequence[np.ndarray]) -> str | None:
         bad = ~np.isfinite(yhat) | (np.abs(yhat) > bound)
         if bad.any():
             k, c = np.argwhere(bad)[0]
-            return (f"experiment '{r.name}': simulated {STATES[r.measured[c]]} reaches "
-                    f"{yhat[k, c]:.3g} at t = {k * r.dt:.3g} s")  # fmt: skip
+            return (
+                f"experiment '{r.name}': simulated {STATES[r.measured[c]]} reaches "
+                f"{yhat[k, c]:.3g} at t = {k * r.dt:.3g} s"
+            )
     return None
 
 
-def gauss_newton_terms(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
-                       res: Sequence[np.ndarray], R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def gauss_newton_terms(
+    prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray], res: Sequence[np.ndarray], R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """`g = Σ Sᵀ R⁻¹ e` (minus the gradient of the weighted cost) and `M = Σ Sᵀ R⁻¹ S` (Fisher) at
     `p` (`xs`: the states there, `res`: the residuals), S the output sensitivities, made and summed
     a piece at a time (`_pieces`)."""
-    models = _models(prob, p[:prob.n_free], 1)
+    models = _models(prob, p[: prob.n_free], 1)
     g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
     for r, x, e in zip(prob.records, xs, res):
         e, cols = e / np.sqrt(R[r.channels]), prob.columns(r)
         gr, Mr = np.zeros(len(cols)), np.zeros((len(cols), len(cols)))
-        for channels, params, pieces in _sensitivity_parts(prob, r, models[r.dt], x, r.measured,
-                                                           _scale(r, R), PIECE):  # fmt: skip
+        for channels, params, pieces in _sensitivity_parts(
+            prob, r, models[r.dt], x, r.measured, _scale(r, R), PIECE
+        ):
             ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
             for samples, S in pieces:
                 S = S.reshape(-1, len(params))  # weighted: R^-½ S, channel by channel
@@ -579,8 +624,9 @@ def gauss_newton_terms(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
     return g, M
 
 
-def fit_initial_states(prob: Problem, values: np.ndarray,
-                       R: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:  # fmt: skip
+def fit_initial_states(
+    prob: Problem, values: np.ndarray, R: np.ndarray | None = None
+) -> tuple[np.ndarray, list[np.ndarray]]:
     """The parameter vector at the free `values` with the best-fitting initial states, and the
     model outputs there.
 
@@ -624,7 +670,7 @@ def fit_initial_states(prob: Problem, values: np.ndarray,
             else:
                 x0 = r.y[0]
                 sums.append(np.full(k, np.inf))
-            p[r.offset:r.offset + k] = x0
+            p[r.offset : r.offset + k] = x0
         return sums
 
     if R is None:
@@ -714,6 +760,8 @@ def _lag_window(rho: np.ndarray, n: int) -> int:
     at least `MIN_LAGS`, at most n/2. White residuals keep the floor: K/N small, so the window
     adds little sampling noise to the bound.
     """
+    if not rho.size:  # a record of under 4 samples: no lag to test
+        return min(MIN_LAGS, n // 2)
     # Bartlett's variance of ρ(τ) beyond the correlation: (1 + 2 Σ_j<τ ρ(j)²)/n
     var = (1.0 + 2.0 * (np.cumsum(rho**2, axis=0) - rho**2)) / n
     z = NormalDist().inv_cdf(1.0 - 0.005 / rho.size)
@@ -725,8 +773,14 @@ def _lag_window(rho: np.ndarray, n: int) -> int:
     return int(min(max(2 * last, sokal, MIN_LAGS), n // 2))
 
 
-def colored_covariance(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
-                       res: Sequence[np.ndarray], R: np.ndarray, cov: np.ndarray) -> np.ndarray:  # fmt: skip
+def colored_covariance(
+    prob: Problem,
+    p: np.ndarray,
+    xs: Sequence[np.ndarray],
+    res: Sequence[np.ndarray],
+    R: np.ndarray,
+    cov: np.ndarray,
+) -> np.ndarray:
     """Morelli & Klein's covariance of the free coefficients for colored residuals,
 
         C (Σ_i Σ_j S(i)ᵀR⁻¹ R_vv(i−j) R⁻¹S(j)) Cᵀ,   R_vv(τ) = w(τ) 1/N Σ_m v(m) v(m+τ)ᵀ,
@@ -749,7 +803,7 @@ def colored_covariance(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
     already projected by C: n_free columns, not n_params) the double sum is
     `1/L Σ_f Z(f)ᴴ Φ(f) Z(f)`.
     """
-    models, nf = _models(prob, p[:prob.n_free], 1), prob.n_free
+    models, nf = _models(prob, p[: prob.n_free], 1), prob.n_free
     out = np.zeros((nf, nf))
     # R^-½ S Cᵀ, time first; one buffer for all records (fresh pages are dear)
     Z = np.empty((max(len(r.y) for r in prob.records), max(len(r.measured) for r in prob.records), nf))
@@ -757,20 +811,21 @@ def colored_covariance(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray],
         n, k, C = len(e), len(r.measured), cov[:nf, prob.columns(r)].T
         Zr = Z[:n, :k]
         Zr[...] = 0.0
-        for channels, params, pieces in _sensitivity_parts(prob, r, models[r.dt], x, r.measured,
-                                                           _scale(r, R), PIECE):  # fmt: skip
+        for channels, params, pieces in _sensitivity_parts(
+            prob, r, models[r.dt], x, r.measured, _scale(r, R), PIECE
+        ):
             for samples, S in pieces:
                 Zr[np.ix_(np.arange(n)[samples], channels)] = (S @ C[params]).transpose(1, 0, 2)
         v = e / np.sqrt(R[r.channels])  # R^-½ v
         # per channel Σ_m v(m) v(m+τ), τ = 0 … n/4 (an FFT grid with no wrap-around at those lags)
         V = np.fft.rfft(v, _fft_length(n + n // 4 + 2), axis=0)
-        auto = np.fft.irfft(V.real**2 + V.imag**2, axis=0)[:n // 4 + 2]
-        K = _lag_window(auto[1:n // 4 + 1] / np.maximum(auto[0], 1e-300), n)
+        auto = np.fft.irfft(V.real**2 + V.imag**2, axis=0)[: n // 4 + 2]
+        K = _lag_window(auto[1 : n // 4 + 1] / np.maximum(auto[0], 1e-300), n)
         L = _fft_length(n + K + 1)  # lags up to K without wrap-around
         # G(τ) = w(τ) R_vv(τ), 0 < τ ≤ K
         G = np.empty((K, k * k))
         for tau in range(1, K + 1):
-            G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[:n - tau].T @ v[tau:])).ravel()
+            G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[: n - tau].T @ v[tau:])).ravel()
         # Φ(f) = R_vv(0) + Σ_τ>0 (G(τ) e^{+iωτ} + G(τ)ᵀ e^{−iωτ}) (as R_vv(−τ) = R_vv(τ)ᵀ)
         #      = R_vv(0) + Gc + Gcᵀ + i (Gs − Gsᵀ), Gc = Σ_τ G(τ) cos ωτ, Gs = Σ_τ G(τ) sin ωτ
         omega_tau = 2 * np.pi / L * np.outer(np.arange(L // 2 + 1), np.arange(1, K + 1))
@@ -811,7 +866,9 @@ class Information:
         return self.crlb_std / np.maximum(np.abs(self.values), 1e-300)
 
 
-def assess(prob: Problem, p: np.ndarray, M: np.ndarray | None = None, R: np.ndarray | None = None) -> Information:
+def assess(
+    prob: Problem, p: np.ndarray, M: np.ndarray | None = None, R: np.ndarray | None = None
+) -> Information:
     """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`.
 
     `M`: `gauss_newton_terms(prob, p, …, R)[1]` with R the residual variance at `p`, if an
@@ -830,10 +887,18 @@ def assess(prob: Problem, p: np.ndarray, M: np.ndarray | None = None, R: np.ndar
     for r in prob.records:
         xr = prob.x0(r, p) + np.eye(NX)[IX["u"]] * prob.speed
         x0[r.name] = {STATES[i]: float(xr[i]) for i in r.measured}
-    return Information(prob.free, p[:nf].copy(), _eliminated(M, nf), std[:nf], corr[:nf, :nf],
-                       np.where(np.isinf(std[:nf]), np.inf, np.sqrt(np.maximum(np.diag(corrected), 0.0))),
-                       dict(zip(prob.channels, map(float, np.sqrt(R)))), x0,
-                       negative_log_likelihood(prob, res), p.copy())  # fmt: skip
+    return Information(
+        prob.free,
+        p[:nf].copy(),
+        _eliminated(M, nf),
+        std[:nf],
+        corr[:nf, :nf],
+        np.where(np.isinf(std[:nf]), np.inf, np.sqrt(np.maximum(np.diag(corrected), 0.0))),
+        dict(zip(prob.channels, map(float, np.sqrt(R)))),
+        x0,
+        negative_log_likelihood(prob, res),
+        p.copy(),
+    )
 
 
 def _eliminated(M: np.ndarray, nf: int) -> np.ndarray:
@@ -849,8 +914,10 @@ def _values(prob: Problem, values) -> np.ndarray:
     if isinstance(values, Mapping):
         unknown = set(values) - set(prob.free)
         if unknown:
-            raise InputError(f"values: {sorted(unknown)[0]!r} is not a free coefficient; "
-                             f"expected one of {', '.join(prob.free)}")  # fmt: skip
+            raise InputError(
+                f"values: {sorted(unknown)[0]!r} is not a free coefficient; "
+                f"expected one of {', '.join(prob.free)}"
+            )
         return np.array([float(values.get(n, v)) for n, v in zip(prob.free, prob.start)])
     values = np.asarray(values, dtype=float)
     if values.shape != (prob.n_free,):
@@ -864,15 +931,18 @@ def divergence(prob: Problem, p: np.ndarray) -> str | None:
         why = exploded(prob, outputs(prob, p))
     if why is None:
         return None
-    A = continuous(prob.structure, prob.coefficients(p[:prob.n_free]))[0]
+    A = continuous(prob.structure, prob.coefficients(p[: prob.n_free]))[0]
     ev = np.linalg.eigvals(A)
     worst = ev[np.argmax(ev.real)]
     return f"{why}; A's largest eigenvalue real part is {worst.real:.3g} 1/s"
 
 
-def information(experiments: Sequence[Experiment], config: ModelConfig,
-                values: Mapping[str, float] | np.ndarray | None = None,
-                noise_std: Mapping[str, float] | None = None) -> Information:  # fmt: skip
+def information(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    values: Mapping[str, float] | np.ndarray | None = None,
+    noise_std: Mapping[str, float] | None = None,
+) -> Information:
     """Cramér-Rao analysis of `config.free` at `values` (default: the config's coefficients).
 
     The initial states are fitted (linear least squares); R is `noise_std`² where given (per
@@ -883,9 +953,12 @@ def information(experiments: Sequence[Experiment], config: ModelConfig,
     return assess(prob, p, R=R)
 
 
-def fisher(experiments: Sequence[Experiment], config: ModelConfig,
-           values: Mapping[str, float] | np.ndarray | None = None,
-           noise_std: Mapping[str, float] | None = None) -> np.ndarray:  # fmt: skip
+def fisher(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    values: Mapping[str, float] | np.ndarray | None = None,
+    noise_std: Mapping[str, float] | None = None,
+) -> np.ndarray:
     """`information(...).fisher` alone: the Fisher information of `config.free` (n_free, n_free),
     the initial states eliminated, without the bounds (no colored-residual analysis)."""
     prob, p, R = _analysed(experiments, config, values, noise_std)
@@ -904,13 +977,18 @@ def _analysed(experiments, config, values, noise_std) -> tuple[Problem, np.ndarr
         p = initial_states(prob, _values(prob, values))
     why = divergence(prob, p)
     if why is not None:
-        raise InputError(f"{prob.source}: the model diverges at these coefficients ({why}); "
-                         "expected coefficients giving a bounded response")  # fmt: skip
+        raise InputError(
+            f"{prob.source}: the model diverges at these coefficients ({why}); "
+            "expected coefficients giving a bounded response"
+        )
     return prob, p, None if noise_std is None else np.array([noise_std[c] ** 2 for c in prob.channels])
 
 
-def predict(experiments: Sequence[Experiment], config: ModelConfig,
-            initial: Mapping[str, Mapping[str, float]] | None = None) -> list[np.ndarray]:
+def predict(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
+) -> list[np.ndarray]:
     """Model outputs (N, k) per experiment in its measured columns, absolute u, for plots.
 
     `initial`: experiment → state → x0 (absolute u, as in `Estimate.initial_states`);
@@ -934,10 +1012,16 @@ def predict(experiments: Sequence[Experiment], config: ModelConfig,
     return out
 
 
-def synthetic(config: ModelConfig, t: np.ndarray, inputs: np.ndarray,
-              noise_std: Mapping[str, float] | None = None, measured: Sequence[str] = STATES,
-              rng: np.random.Generator | None = None, x0: np.ndarray | None = None,
-              name: str = "synthetic") -> Experiment:  # fmt: skip
+def synthetic(
+    config: ModelConfig,
+    t: np.ndarray,
+    inputs: np.ndarray,
+    noise_std: Mapping[str, float] | None = None,
+    measured: Sequence[str] = STATES,
+    rng: np.random.Generator | None = None,
+    x0: np.ndarray | None = None,
+    name: str = "synthetic",
+) -> Experiment:
     """An experiment simulated from the linear model of `config` itself (ZOH inputs, absolute u).
 
     `x0`: initial perturbation state (10,), default trim; `noise_std`: white Gaussian noise per
@@ -960,8 +1044,9 @@ def synthetic(config: ModelConfig, t: np.ndarray, inputs: np.ndarray,
 # --- equation error: a robust start -------------------------------------------------------------
 
 
-def equation_error(experiments: Sequence[Experiment], config: ModelConfig,
-                   window_s: float = 0.5) -> ModelConfig:
+def equation_error(
+    experiments: Sequence[Experiment], config: ModelConfig, window_s: float = 0.5
+) -> ModelConfig:
     """`config` with the free coefficients from a least-squares fit of the linear model's rows.
 
     Each dynamics row `Mt ẋ = At x + Bt δ + St` is linear in its coefficients. The measured states
@@ -994,13 +1079,17 @@ def equation_error(experiments: Sequence[Experiment], config: ModelConfig,
         # the same (linear) smoothing of states and inputs keeps that equation consistent
         intervals.append((np.diff(xs, axis=0) / r.dt, (xs[1:] + xs[:-1]) / 2, us[:-1]))
     for row in range(6):  # u v w p q r
-        cols = [j for j, i in enumerate(prob.index)
-                if s.dMt[i, row].any() or s.dAt[i, row].any() or s.dBt[i, row].any()]  # fmt: skip
+        cols = [
+            j
+            for j, i in enumerate(prob.index)
+            if s.dMt[i, row].any() or s.dAt[i, row].any() or s.dBt[i, row].any()
+        ]
         if not cols:
             continue
         idx = prob.index[cols]
-        involved = (Mf[row] != 0) | (Af[row] != 0) | (s.dMt[idx, row] != 0).any(0) | \
-            (s.dAt[idx, row] != 0).any(0)  # fmt: skip
+        involved = (
+            (Mf[row] != 0) | (Af[row] != 0) | (s.dMt[idx, row] != 0).any(0) | (s.dAt[idx, row] != 0).any(0)
+        )
         involved[row] = True
         X, Y = [], []
         for r, record in zip(prob.records, intervals):
@@ -1029,4 +1118,4 @@ def _smoothed(y: np.ndarray, win: int) -> np.ndarray:
     # the fitted cubic's value at the window's centre: the first row of the Vandermonde pseudo-inverse
     c = np.linalg.pinv(np.vander(np.arange(-h, h + 1.0), 4, increasing=True))[0]
     n = len(y) - 2 * h
-    return sum(c[o] * y[o:o + n] for o in range(win))
+    return sum(c[o] * y[o : o + n] for o in range(win))

@@ -34,8 +34,18 @@ from testbed.data import Experiment, median
 from testbed.errors import InputError
 from testbed.model import STATES
 
-NOISE_STD = {"u": 0.05, "v": 0.02, "w": 0.02, "p": 0.002, "q": 0.002, "r": 0.002,
-             "phi": 0.003, "theta": 0.003, "psi": 0.01, "z": 0.05}  # fmt: skip
+NOISE_STD = {
+    "u": 0.05,
+    "v": 0.02,
+    "w": 0.02,
+    "p": 0.002,
+    "q": 0.002,
+    "r": 0.002,
+    "phi": 0.003,
+    "theta": 0.003,
+    "psi": 0.01,
+    "z": 0.05,
+}
 FIN_NOISE_STD = 2e-5
 
 
@@ -72,8 +82,9 @@ def rng_for(seed: int, experiment: int, stream: int = 0) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(experiment, stream)))
 
 
-def measure(truth: np.ndarray, fins: np.ndarray, sensors: Sensors,
-            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def measure(
+    truth: np.ndarray, fins: np.ndarray, sensors: Sensors, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """Noisy copies of the true states (N, 10) and fin angles (N, 3)."""
     std = np.array([sensors.noise_std.get(s, 0.0) for s in STATES])
     states = truth + rng.standard_normal(truth.shape) * std
@@ -101,8 +112,10 @@ def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
         d = np.concatenate(pooled[name])
         if not d.size:
             where = ", ".join(e.source or e.name for e in experiments if name in e.measured)
-            raise InputError(f"{where}: {name} has fewer than 4 samples; the noise estimate "
-                             "(third differences) expected at least 4")  # fmt: skip
+            raise InputError(
+                f"{where}: {name} has fewer than 4 samples; the noise estimate "
+                "(third differences) expected at least 4"
+            )
         mad = 1.4826 * median(np.abs(d - median(d)))
         out[name] = max(mad / math.sqrt(20.0), 1e-9)  # floor: R must stay positive definite
     return out

@@ -18,13 +18,42 @@ import numpy as np
 STATES = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z")
 INPUTS = ("delta_r", "delta_er", "delta_el")
 COEFFICIENTS = (
-    "X_udot", "X_u",
-    "Y_vdot", "Y_pdot", "Y_rdot", "Y_v", "Y_p", "Y_r", "Y_dr",
-    "Z_wdot", "Z_qdot", "Z_w", "Z_q", "Z_de",
-    "K_vdot", "K_pdot", "K_rdot", "K_v", "K_p", "K_r", "K_dr", "K_der", "K_del",
-    "M_wdot", "M_qdot", "M_w", "M_q", "M_de",
-    "N_vdot", "N_pdot", "N_rdot", "N_v", "N_p", "N_r", "N_dr",
-)  # fmt: skip
+    "X_udot",
+    "X_u",
+    "Y_vdot",
+    "Y_pdot",
+    "Y_rdot",
+    "Y_v",
+    "Y_p",
+    "Y_r",
+    "Y_dr",
+    "Z_wdot",
+    "Z_qdot",
+    "Z_w",
+    "Z_q",
+    "Z_de",
+    "K_vdot",
+    "K_pdot",
+    "K_rdot",
+    "K_v",
+    "K_p",
+    "K_r",
+    "K_dr",
+    "K_der",
+    "K_del",
+    "M_wdot",
+    "M_qdot",
+    "M_w",
+    "M_q",
+    "M_de",
+    "N_vdot",
+    "N_pdot",
+    "N_rdot",
+    "N_v",
+    "N_p",
+    "N_r",
+    "N_dr",
+)
 NX, NU, NTHETA = len(STATES), len(INPUTS), len(COEFFICIENTS)
 MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
 # m/s: Mach 0.3 in water (sound: ~1500 m/s); beyond it no incompressible fluid model (MuJoCo's,
@@ -35,24 +64,42 @@ ITHETA = {name: i for i, name in enumerate(COEFFICIENTS)}
 
 # Where each coefficient sits: (matrix, row, column, factor); Mt entries carry a minus sign.
 _PLACES = {
-    "X_udot": [("Mt", "u", "u", -1)], "X_u": [("At", "u", "u", 1)],
-    "Y_vdot": [("Mt", "v", "v", -1)], "Y_pdot": [("Mt", "v", "p", -1)],
-    "Y_rdot": [("Mt", "v", "r", -1)], "Y_v": [("At", "v", "v", 1)],
-    "Y_p": [("At", "v", "p", 1)], "Y_r": [("At", "v", "r", 1)], "Y_dr": [("Bt", "v", 0, 1)],
-    "Z_wdot": [("Mt", "w", "w", -1)], "Z_qdot": [("Mt", "w", "q", -1)],
-    "Z_w": [("At", "w", "w", 1)], "Z_q": [("At", "w", "q", 1)],
+    "X_udot": [("Mt", "u", "u", -1)],
+    "X_u": [("At", "u", "u", 1)],
+    "Y_vdot": [("Mt", "v", "v", -1)],
+    "Y_pdot": [("Mt", "v", "p", -1)],
+    "Y_rdot": [("Mt", "v", "r", -1)],
+    "Y_v": [("At", "v", "v", 1)],
+    "Y_p": [("At", "v", "p", 1)],
+    "Y_r": [("At", "v", "r", 1)],
+    "Y_dr": [("Bt", "v", 0, 1)],
+    "Z_wdot": [("Mt", "w", "w", -1)],
+    "Z_qdot": [("Mt", "w", "q", -1)],
+    "Z_w": [("At", "w", "w", 1)],
+    "Z_q": [("At", "w", "q", 1)],
     "Z_de": [("Bt", "w", 1, 0.5), ("Bt", "w", 2, 0.5)],
-    "K_vdot": [("Mt", "p", "v", -1)], "K_pdot": [("Mt", "p", "p", -1)],
-    "K_rdot": [("Mt", "p", "r", -1)], "K_v": [("At", "p", "v", 1)],
-    "K_p": [("At", "p", "p", 1)], "K_r": [("At", "p", "r", 1)], "K_dr": [("Bt", "p", 0, 1)],
-    "K_der": [("Bt", "p", 1, 1)], "K_del": [("Bt", "p", 2, -1)],
-    "M_wdot": [("Mt", "q", "w", -1)], "M_qdot": [("Mt", "q", "q", -1)],
-    "M_w": [("At", "q", "w", 1)], "M_q": [("At", "q", "q", 1)],
+    "K_vdot": [("Mt", "p", "v", -1)],
+    "K_pdot": [("Mt", "p", "p", -1)],
+    "K_rdot": [("Mt", "p", "r", -1)],
+    "K_v": [("At", "p", "v", 1)],
+    "K_p": [("At", "p", "p", 1)],
+    "K_r": [("At", "p", "r", 1)],
+    "K_dr": [("Bt", "p", 0, 1)],
+    "K_der": [("Bt", "p", 1, 1)],
+    "K_del": [("Bt", "p", 2, -1)],
+    "M_wdot": [("Mt", "q", "w", -1)],
+    "M_qdot": [("Mt", "q", "q", -1)],
+    "M_w": [("At", "q", "w", 1)],
+    "M_q": [("At", "q", "q", 1)],
     "M_de": [("Bt", "q", 1, 0.5), ("Bt", "q", 2, 0.5)],
-    "N_vdot": [("Mt", "r", "v", -1)], "N_pdot": [("Mt", "r", "p", -1)],
-    "N_rdot": [("Mt", "r", "r", -1)], "N_v": [("At", "r", "v", 1)],
-    "N_p": [("At", "r", "p", 1)], "N_r": [("At", "r", "r", 1)], "N_dr": [("Bt", "r", 0, 1)],
-}  # fmt: skip
+    "N_vdot": [("Mt", "r", "v", -1)],
+    "N_pdot": [("Mt", "r", "p", -1)],
+    "N_rdot": [("Mt", "r", "r", -1)],
+    "N_v": [("At", "r", "v", 1)],
+    "N_p": [("At", "r", "p", 1)],
+    "N_r": [("At", "r", "r", 1)],
+    "N_dr": [("Bt", "r", 0, 1)],
+}
 
 
 @dataclass(frozen=True)
@@ -114,13 +161,11 @@ def structure(vehicle: Vehicle) -> Structure:
         At0[i[angle], i[rate]] = 1.0
     At0[i["z"], i["w"]] = 1.0
     At0[i["z"], i["theta"]] = -U
-    d = {"Mt": np.zeros((NTHETA, NX, NX)), "At": np.zeros((NTHETA, NX, NX)),
-         "Bt": np.zeros((NTHETA, NX, NU))}  # fmt: skip
+    d = {"Mt": np.zeros((NTHETA, NX, NX)), "At": np.zeros((NTHETA, NX, NX)), "Bt": np.zeros((NTHETA, NX, NU))}
     for k, name in enumerate(COEFFICIENTS):
         for matrix, row, col, factor in _PLACES[name]:
             d[matrix][k, i[row], col if isinstance(col, int) else i[col]] = factor
-    return Structure(Mt0, At0, np.zeros((NX, NU)), St0, d["Mt"], d["At"], d["Bt"],
-                     np.zeros((NTHETA, NX)))  # fmt: skip
+    return Structure(Mt0, At0, np.zeros((NX, NU)), St0, d["Mt"], d["At"], d["Bt"], np.zeros((NTHETA, NX)))
 
 
 def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
@@ -133,15 +178,19 @@ def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
 
 def tilde(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`Mt, At, Bt, St` at the full coefficient vector `theta` (35,)."""
-    return (s.Mt0 + np.tensordot(theta, s.dMt, 1), s.At0 + np.tensordot(theta, s.dAt, 1),
-            s.Bt0 + np.tensordot(theta, s.dBt, 1), s.St0 + theta @ s.dSt)  # fmt: skip
+    return (
+        s.Mt0 + np.tensordot(theta, s.dMt, 1),
+        s.At0 + np.tensordot(theta, s.dAt, 1),
+        s.Bt0 + np.tensordot(theta, s.dBt, 1),
+        s.St0 + theta @ s.dSt,
+    )
 
 
 def continuous(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`A, B, S` of `ẋ = A x + B δ + S`; raises `np.linalg.LinAlgError` if Mt is singular."""
     Mt, At, Bt, St = tilde(s, theta)
     sol = np.linalg.solve(Mt, np.column_stack([At, Bt, St]))
-    return sol[:, :NX], sol[:, NX:NX + NU], sol[:, -1]
+    return sol[:, :NX], sol[:, NX : NX + NU], sol[:, -1]
 
 
 def discretize(A: np.ndarray, B: np.ndarray, S: np.ndarray, dt: float):
@@ -153,7 +202,7 @@ def discretize(A: np.ndarray, B: np.ndarray, S: np.ndarray, dt: float):
     n, m = B.shape
     M = np.column_stack([A, B, S])
     E = expm_pair(M, np.zeros((n, 0, n + m + 1), dtype=M.dtype), dt)[0]
-    return E[:, :n], E[:, n:n + m], E[:, -1]
+    return E[:, :n], E[:, n : n + m], E[:, -1]
 
 
 def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float, second=None):
@@ -201,8 +250,9 @@ def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float, second=None):
             dTi, dTj = dT[:, i, :n].transpose(1, 0, 2), dT[:, j, :n].transpose(1, 0, 2)
             d2T = (d2T[:, :, :n] @ X + dTi @ dXj + dTj @ dXi + T[:, :n] @ d2X) * (1.0 / k)
             d2E += d2T
-        dT = ((dT[:, :, :n].reshape(n * p, n) @ X).reshape(n, p, q)
-              + (T[:, :n] @ dX).reshape(n, p, q)) * (1.0 / k)  # fmt: skip
+        dT = ((dT[:, :, :n].reshape(n * p, n) @ X).reshape(n, p, q) + (T[:, :n] @ dX).reshape(n, p, q)) * (
+            1.0 / k
+        )
         T = (T[:, :n] @ X) * (1.0 / k)
         E += T
         dE += dT
@@ -223,8 +273,14 @@ def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float, second=None):
     return (E, dE) if second is None else (E, dE, d2E)
 
 
-def derivatives(s: Structure, theta: np.ndarray, A: np.ndarray, B: np.ndarray, S: np.ndarray,
-                index: np.ndarray | None = None):  # fmt: skip
+def derivatives(
+    s: Structure,
+    theta: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    S: np.ndarray,
+    index: np.ndarray | None = None,
+):
     """∂A/∂θ_i, ∂B/∂θ_i, ∂S/∂θ_i for the coefficients `index` (default all), stacked first.
 
     From `Mt A = At`: ∂A = Mt⁻¹(∂At − ∂Mt A); likewise for B and S.
@@ -232,18 +288,25 @@ def derivatives(s: Structure, theta: np.ndarray, A: np.ndarray, B: np.ndarray, S
     index = np.arange(NTHETA) if index is None else np.asarray(index)
     Mt = s.Mt0 + np.tensordot(theta, s.dMt, 1)
     dMt = s.dMt[index]
-    rhs = np.concatenate([s.dAt[index] - dMt @ A, s.dBt[index] - dMt @ B,
-                          (s.dSt[index] - dMt @ S)[:, :, None]], axis=2)  # fmt: skip
+    rhs = np.concatenate(
+        [s.dAt[index] - dMt @ A, s.dBt[index] - dMt @ B, (s.dSt[index] - dMt @ S)[:, :, None]], axis=2
+    )
     sol = np.linalg.solve(Mt[None], rhs)
-    return sol[:, :, :NX], sol[:, :, NX:NX + NU], sol[:, :, -1]
+    return sol[:, :, :NX], sol[:, :, NX : NX + NU], sol[:, :, -1]
 
 
 # -- what a model config must satisfy before a fit -----------------------------------------------
 
 BODY = ("u", "v", "w", "p", "q", "r")
 # the diagonal of Mt's body block, as the linear model's table writes it
-INERTIA_TERMS = {"u": "m − X_udot", "v": "m − Y_vdot", "w": "m − Z_wdot", "p": "Ix − K_pdot",
-                 "q": "Iy − M_qdot", "r": "Iz − N_rdot"}  # fmt: skip
+INERTIA_TERMS = {
+    "u": "m − X_udot",
+    "v": "m − Y_vdot",
+    "w": "m − Z_wdot",
+    "p": "Ix − K_pdot",
+    "q": "Iy − M_qdot",
+    "r": "Iz − N_rdot",
+}
 
 
 def inertia_defect(s: Structure, theta: np.ndarray) -> str | None:
@@ -259,8 +322,10 @@ def inertia_defect(s: Structure, theta: np.ndarray) -> str | None:
             return f"{INERTIA_TERMS[n]} = {d:.4g}; expected > 0"
     lam = np.linalg.eigvalsh((M + M.T) / 2)
     if lam[0] <= 1e-12 * lam[-1]:
-        return (f"the symmetric part of its body block has the eigenvalue {lam[0]:.4g} "
-                f"(largest {lam[-1]:.4g}); expected all > 0, a positive kinetic energy")  # fmt: skip
+        return (
+            f"the symmetric part of its body block has the eigenvalue {lam[0]:.4g} "
+            f"(largest {lam[-1]:.4g}); expected all > 0, a positive kinetic energy"
+        )
     return None
 
 

@@ -59,8 +59,19 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.model import Vehicle
-from testbed.vehicle import (FINS, FLIP, check_model, constants, cruise_speed, fin_rate_limit,
-                             hydrostatics, load_model, motion_transform, rotation, skew)
+from testbed.vehicle import (
+    FINS,
+    FLIP,
+    check_model,
+    constants,
+    cruise_speed,
+    fin_rate_limit,
+    hydrostatics,
+    load_model,
+    motion_transform,
+    rotation,
+    skew,
+)
 
 
 class Plant:
@@ -73,8 +84,13 @@ class Plant:
     copy, and the caller's model keeps its own timestep.
     """
 
-    def __init__(self, mjcf=None, timestep: float | None = None, complete: bool = True,
-                 model: mujoco.MjModel | None = None):  # fmt: skip
+    def __init__(
+        self,
+        mjcf=None,
+        timestep: float | None = None,
+        complete: bool = True,
+        model: mujoco.MjModel | None = None,
+    ):
         if model is None:
             model = load_model(mjcf)
         else:
@@ -97,8 +113,9 @@ class Plant:
         self._thruster = m.actuator("thruster").id
         self._fin_limit = m.actuator_ctrlrange[self._fin_act].copy()
         self._rate = fin_rate_limit(m)
-        dofs = np.concatenate([np.arange(self._vadr, self._vadr + 6),
-                               [m.jnt_dofadr[m.joint(f).id] for f in FINS]]).astype(np.intp)  # fmt: skip
+        dofs = np.concatenate(
+            [np.arange(self._vadr, self._vadr + 6), [m.jnt_dofadr[m.joint(f).id] for f in FINS]]
+        ).astype(np.intp)
         # d.M's CSR entries as (row, col) of the 9×9 matrix over `dofs` (check_model: nv = 9).
         where = np.empty(m.nv, np.intp)
         where[dofs] = np.arange(len(dofs))
@@ -106,12 +123,34 @@ class Plant:
         P, M_hull, B, c = _added_mass_basis(m)
         self.thrust = 0.0
         self._addresses = (m._address, d._address)  # the C structs, for the compiled loop
-        self._k = _Kernel(d.xmat, d.qvel, d.qpos, d.qacc, d.M, d.qfrc_applied, d.qfrc_passive,
-                          d.qfrc_actuator, d.qfrc_bias, d.ctrl,
-                          d.warning.number, self.hull, self._fin_qadr, self._fin_act, self._fin_limit, dofs,
-                          where[rows], where[m.M_colind].astype(np.intp), P, M_hull,
-                          -m.opt.density * B * m.opt.gravity, c, np.zeros(6), np.zeros(len(FINS)),
-                          np.zeros(len(FINS)), np.zeros(6))  # fmt: skip
+        self._k = _Kernel(
+            d.xmat,
+            d.qvel,
+            d.qpos,
+            d.qacc,
+            d.M,
+            d.qfrc_applied,
+            d.qfrc_passive,
+            d.qfrc_actuator,
+            d.qfrc_bias,
+            d.ctrl,
+            d.warning.number,
+            self.hull,
+            self._fin_qadr,
+            self._fin_act,
+            self._fin_limit,
+            dofs,
+            where[rows],
+            where[m.M_colind].astype(np.intp),
+            P,
+            M_hull,
+            -m.opt.density * B * m.opt.gravity,
+            c,
+            np.zeros(6),
+            np.zeros(len(FINS)),
+            np.zeros(len(FINS)),
+            np.zeros(6),
+        )
         self.reset()
 
     @property
@@ -154,16 +193,16 @@ class Plant:
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
         q = np.array([math.cos(heading / 2), 0.0, 0.0, -math.sin(heading / 2)])  # NED yaw = -z turn
-        d.qpos[self._qadr:self._qadr + 3] = (0.0, 0.0, -depth)
-        d.qpos[self._qadr + 3:self._qadr + 7] = q
+        d.qpos[self._qadr : self._qadr + 3] = (0.0, 0.0, -depth)
+        d.qpos[self._qadr + 3 : self._qadr + 7] = q
         R = rotation(q)
-        d.qvel[self._vadr:self._vadr + 3] = R @ np.array([speed, 0.0, 0.0])
+        d.qvel[self._vadr : self._vadr + 3] = R @ np.array([speed, 0.0, 0.0])
         self.reference[:] = 0.0
         self._k.integral[:] = 0.0
         d.ctrl[:] = 0.0
         mujoco.mj_forward(m, d)
         # The propulsor balances the drag of straight flight at this speed.
-        drag = R.T @ d.qfrc_passive[self._vadr:self._vadr + 3]
+        drag = R.T @ d.qfrc_passive[self._vadr : self._vadr + 3]
         self.thrust = max(0.0, -float(drag[0]))
         d.ctrl[self._thruster] = self.thrust
 
@@ -178,19 +217,18 @@ class Plant:
     def state(self) -> np.ndarray:
         """The state `u v w p q r phi theta psi z` (absolute u; body FRD, earth NED, at the CG)."""
         d = self.data
-        R = rotation(d.qpos[self._qadr + 3:self._qadr + 7])
-        v = R.T @ d.qvel[self._vadr:self._vadr + 3]
-        w = d.qvel[self._vadr + 3:self._vadr + 6]
+        R = rotation(d.qpos[self._qadr + 3 : self._qadr + 7])
+        v = R.T @ d.qvel[self._vadr : self._vadr + 3]
+        w = d.qvel[self._vadr + 3 : self._vadr + 6]
         # NED-from-FRD is FLIP R FLIP: entries (2,1), (2,2), (2,0), (1,0), (0,0) of it below.
         phi = math.atan2(R[2, 1], R[2, 2])
         theta = -math.asin(max(-1.0, min(1.0, -R[2, 0])))
         psi = math.atan2(-R[1, 0], R[0, 0])
-        return np.array([v[0], -v[1], -v[2], w[0], -w[1], -w[2], phi, theta, psi,
-                         -d.qpos[self._qadr + 2]])  # fmt: skip
+        return np.array([v[0], -v[1], -v[2], w[0], -w[1], -w[2], phi, theta, psi, -d.qpos[self._qadr + 2]])
 
     def position(self) -> np.ndarray:
         """CG position, NED (m)."""
-        return FLIP @ self.data.qpos[self._qadr:self._qadr + 3]
+        return FLIP @ self.data.qpos[self._qadr : self._qadr + 3]
 
     def fin_angles(self) -> np.ndarray:
         """Actual `delta_r, delta_er, delta_el` (rad)."""
@@ -217,10 +255,15 @@ class Plant:
         if self.complete:
             d.time = t0 + done * m.opt.timestep
         if cause >= 0:
-            why = (f"velocities non-finite or beyond {_MAX_VELOCITY:g}" if cause == len(k.warnings) else "MuJoCo: " +
-                   mujoco.mju_warningText(cause, int(d.warning.lastinfo[cause])).split(". ")[0])  # fmt: skip
-            raise InputError(f"simulation unstable at t={t0 + done * m.opt.timestep:.4g} s ({why}); "
-                             "expected a bounded state: lower the speed or the timestep, or fix the MJCF")  # fmt: skip
+            why = (
+                f"velocities non-finite or beyond {_MAX_VELOCITY:g}"
+                if cause == len(k.warnings)
+                else "MuJoCo: " + mujoco.mju_warningText(cause, int(d.warning.lastinfo[cause])).split(". ")[0]
+            )
+            raise InputError(
+                f"simulation unstable at t={t0 + done * m.opt.timestep:.4g} s ({why}); "
+                "expected a bounded state: lower the speed or the timestep, or fix the MJCF"
+            )
 
     def _plain(self) -> None:
         """Plain MuJoCo: only the external wrench is applied."""
@@ -250,8 +293,8 @@ class Plant:
         h = slice(self._vadr, self._vadr + 6)
         qacc = np.linalg.solve(M[h, h], d.qfrc_smooth[h])
         R = d.xmat[self.hull].reshape(3, 3)
-        v_b = R.T @ d.qvel[self._vadr:self._vadr + 3]
-        w_b = d.qvel[self._vadr + 3:self._vadr + 6]
+        v_b = R.T @ d.qvel[self._vadr : self._vadr + 3]
+        w_b = d.qvel[self._vadr + 3 : self._vadr + 6]
         vdot = R.T @ qacc[:3] - np.cross(w_b, v_b)
         return np.concatenate([FLIP @ vdot, FLIP @ qacc[3:]])
 
@@ -309,8 +352,14 @@ class _Kernel(NamedTuple):
 # MuJoCo's C API for the compiled loop, from the library the Python bindings use. The mjModel*
 # and mjData* go in as integer addresses (`_address`): the same calling convention as pointers.
 llvmlite.binding.load_library_permanently(
-    str(next(f for pattern in ("libmujoco.so*", "libmujoco*.dylib", "mujoco*.dll")
-             for f in sorted(Path(mujoco.__file__).parent.glob(pattern)))))  # fmt: skip
+    str(
+        next(
+            f
+            for pattern in ("libmujoco.so*", "libmujoco*.dylib", "mujoco*.dll")
+            for f in sorted(Path(mujoco.__file__).parent.glob(pattern))
+        )
+    )
+)
 _SIGNATURE = numba.types.void(numba.types.uintp, numba.types.uintp)
 _mj_step = numba.types.ExternalFunction("mj_step", _SIGNATURE)
 _mj_kinematics = numba.types.ExternalFunction("mj_kinematics", _SIGNATURE)
@@ -322,7 +371,9 @@ _mj_fwdActuation = numba.types.ExternalFunction("mj_fwdActuation", _SIGNATURE)
 _mj_checkAcc = numba.types.ExternalFunction("mj_checkAcc", _SIGNATURE)
 # void mj_integratePos(const mjModel* m, mjtNum* qpos, const mjtNum* qvel, mjtNum scale)
 _mj_integratePos = numba.types.ExternalFunction(
-    "mj_integratePos", numba.types.void(numba.types.uintp, numba.types.uintp, numba.types.uintp, numba.types.float64))
+    "mj_integratePos",
+    numba.types.void(numba.types.uintp, numba.types.uintp, numba.types.uintp, numba.types.float64),
+)
 _MAX_VELOCITY = 1e4  # m/s or rad/s: no vehicle gets near; MuJoCo's own limit (1e10) is late
 
 
@@ -475,8 +526,11 @@ def _servo(k, cmd, slew):
 @numba.njit(cache=True)
 def _turn(R, x, y, z):
     """R (x, y, z), as a tuple: a 3-vector product without numpy's small-array overhead."""
-    return (R[0, 0] * x + R[0, 1] * y + R[0, 2] * z, R[1, 0] * x + R[1, 1] * y + R[1, 2] * z,
-            R[2, 0] * x + R[2, 1] * y + R[2, 2] * z)  # fmt: skip
+    return (
+        R[0, 0] * x + R[0, 1] * y + R[0, 2] * z,
+        R[1, 0] * x + R[1, 1] * y + R[1, 2] * z,
+        R[2, 0] * x + R[2, 1] * y + R[2, 2] * z,
+    )
 
 
 @numba.njit(cache=True)

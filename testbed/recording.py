@@ -48,12 +48,20 @@ STYLE = {
 }
 # The plotted quantities (the model states and fin angles): title and unit.
 QUANTITIES = {
-    "u": ("surge speed u", "m/s"), "v": ("sway speed v", "m/s"), "w": ("heave speed w", "m/s"),
-    "p": ("roll rate p", "rad/s"), "q": ("pitch rate q", "rad/s"), "r": ("yaw rate r", "rad/s"),
-    "phi": ("roll φ", "rad"), "theta": ("pitch θ", "rad"), "psi": ("heading ψ", "rad"), "z": ("depth z", "m"),
-    "delta_r": ("rudder δr", "rad"), "delta_er": ("right elevator δer", "rad"),
+    "u": ("surge speed u", "m/s"),
+    "v": ("sway speed v", "m/s"),
+    "w": ("heave speed w", "m/s"),
+    "p": ("roll rate p", "rad/s"),
+    "q": ("pitch rate q", "rad/s"),
+    "r": ("yaw rate r", "rad/s"),
+    "phi": ("roll φ", "rad"),
+    "theta": ("pitch θ", "rad"),
+    "psi": ("heading ψ", "rad"),
+    "z": ("depth z", "m"),
+    "delta_r": ("rudder δr", "rad"),
+    "delta_er": ("right elevator δer", "rad"),
     "delta_el": ("left elevator δel", "rad"),
-}  # fmt: skip
+}
 # A flight's panels: beside the 3D views the fins and the depth (what its commands drive), and
 # in a tab of their own the other states, three to a row. The plots label an axis step only
 # where it is some 20 px tall: at 1600 x 900 those beside the 3D views have room for about six
@@ -61,15 +69,28 @@ QUANTITIES = {
 REPLAY_PANELS = ("delta_r", "delta_er", "delta_el", "z")
 STATE_PANELS = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
 # Each command is drawn on the axes of the quantity it commands (same unit); others get a panel.
-COMMAND_PANELS = {"depth": ("z",), "hold_depth": ("z",), "roll": ("phi",), "pitch": ("theta",),
-                  "yaw_rate": ("r",), "rudder": ("delta_r",), "elevators": ("delta_er", "delta_el"),
-                  "fin_r": ("delta_r",), "fin_er": ("delta_er",), "fin_el": ("delta_el",)}  # fmt: skip
+COMMAND_PANELS = {
+    "depth": ("z",),
+    "hold_depth": ("z",),
+    "roll": ("phi",),
+    "pitch": ("theta",),
+    "yaw_rate": ("r",),
+    "rudder": ("delta_r",),
+    "elevators": ("delta_er", "delta_el"),
+    "fin_r": ("delta_r",),
+    "fin_er": ("delta_er",),
+    "fin_el": ("delta_el",),
+}
 FIN_COMMANDS = ("fin_r", "fin_er", "fin_el")  # the autopilot's commands to the fin servos
 # Commands with no quantity of their own to share axes with: their panel's title.
 OTHER_COMMANDS = {"differential": "differential elevator command δa = (δer − δel)/2 (rad)"}
 # The key lines under the plots, which say what the styles mean.
-RUN_KEY = ("thin grey: measured · bold blue: true · orange: the experiment's commands · "
-           "purple: fin commands (autopilot)")  # fmt: skip
+RUN_KEY = (
+    "thin grey: measured · bold blue: true · orange: the experiment's commands · "
+    "purple: fin commands (autopilot)"
+)
+
+
 def axis_range(values, intervals: int = 8) -> tuple[float, float]:
     """A y range for the finite `values`: the narrowest [a, b] around them whose ends are multiples
     of one power of ten s at most `intervals` steps of s apart, widened by 4 % on each side. The
@@ -135,9 +156,17 @@ def series(rec, entity: str, index, values, roles, names=None, step: bool = Fals
     (static: it holds at every time, on every timeline); `index` a `TimeColumn`."""
     values = np.asarray(values, float).reshape(len(values), -1)
     # where several samples share a pixel, their minimum and maximum are drawn: the noise's true envelope
-    rec.log(entity, rr.SeriesLines(colors=[STYLE[r][0] for r in roles], widths=[STYLE[r][1] for r in roles],
-                                   names=list(names or roles), aggregation_policy="MinMax",
-                                   interpolation_mode="StepAfter" if step else None), static=True)  # fmt: skip
+    rec.log(
+        entity,
+        rr.SeriesLines(
+            colors=[STYLE[r][0] for r in roles],
+            widths=[STYLE[r][1] for r in roles],
+            names=list(names or roles),
+            aggregation_policy="MinMax",
+            interpolation_mode="StepAfter" if step else None,
+        ),
+        static=True,
+    )
     rec.send_columns(entity, indexes=[index], columns=rr.Scalars.columns(scalars=values))
 
 
@@ -154,8 +183,14 @@ def _euler_quat(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarr
     cr, sr = np.cos(phi / 2), np.sin(phi / 2)
     cp, sp = np.cos(theta / 2), np.sin(theta / 2)
     cy, sy = np.cos(psi / 2), np.sin(psi / 2)
-    return np.column_stack([sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-                            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy])  # fmt: skip
+    return np.column_stack(
+        [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ]
+    )
 
 
 def _geometry(mjcf):
@@ -185,8 +220,13 @@ POINTER = 0.6  # m: the fin pointers, long enough that 1 deg moves their tip 1 c
 
 
 def _ellipsoids(geoms, color) -> rr.Ellipsoids3D:
-    return rr.Ellipsoids3D(centers=[c for c, _, _ in geoms], half_sizes=[s for _, s, _ in geoms],
-                           quaternions=[q for _, _, q in geoms], colors=[color], fill_mode="solid")  # fmt: skip
+    return rr.Ellipsoids3D(
+        centers=[c for c, _, _ in geoms],
+        half_sizes=[s for _, s, _ in geoms],
+        quaternions=[q for _, _, q in geoms],
+        colors=[color],
+        fill_mode="solid",
+    )
 
 
 # The world view's eye orbits the tracked entity at 1.5 times the radius of the sphere around its
@@ -212,32 +252,58 @@ def _run_views(root: str, name: str, start: np.ndarray, heading: float, commands
     c, s = np.cos(heading), np.sin(heading)
     behind = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ EYE
     world = rrb.Spatial3DView(
-        origin="/", contents=[f"{root}/vehicle/**", f"{root}/trail"], name=f"{name}: world (NED)",
-        eye_controls=rrb.EyeControls3D(position=start + behind, look_target=start, eye_up=(0.0, 0.0, -1.0),
-                                       tracking_entity=f"{root}/vehicle/ring"))  # fmt: skip
+        origin="/",
+        contents=[f"{root}/vehicle/**", f"{root}/trail"],
+        name=f"{name}: world (NED)",
+        eye_controls=rrb.EyeControls3D(
+            position=start + behind,
+            look_target=start,
+            eye_up=(0.0, 0.0, -1.0),
+            tracking_entity=f"{root}/vehicle/ring",
+        ),
+    )
     body = rrb.Spatial3DView(
-        origin=f"{root}/vehicle", contents=[f"{root}/vehicle/**", f"- {root}/vehicle/ring"],
+        origin=f"{root}/vehicle",
+        contents=[f"{root}/vehicle/**", f"- {root}/vehicle/ring"],
         name=f"{name}: fins (body axes)",
-        eye_controls=rrb.EyeControls3D(position=(-3.4, 1.6, -1.1), look_target=(-1.0, 0.0, 0.0),
-                                       eye_up=(0.0, 0.0, -1.0)))  # fmt: skip
+        eye_controls=rrb.EyeControls3D(
+            position=(-3.4, 1.6, -1.1), look_target=(-1.0, 0.0, 0.0), eye_up=(0.0, 0.0, -1.0)
+        ),
+    )
 
     def panel(key):
         group = "fins" if key in INPUTS else "states"
         given = [f"{root}/commands/{c}" for c in commands if key in COMMAND_PANELS.get(c, ())]
-        return rrb.TimeSeriesView(origin=root, contents=[f"{root}/{group}/{key}", *given], name=panel_title(key),
-                                  axis_y=rrb.ScalarAxis(range=ranges[key]),
-                                  plot_legend=rrb.PlotLegend(visible=False))  # fmt: skip
+        return rrb.TimeSeriesView(
+            origin=root,
+            contents=[f"{root}/{group}/{key}", *given],
+            name=panel_title(key),
+            axis_y=rrb.ScalarAxis(range=ranges[key]),
+            plot_legend=rrb.PlotLegend(visible=False),
+        )
 
     plots = [panel(k) for k in REPLAY_PANELS]
     if others := [c for c in commands if c not in COMMAND_PANELS]:
-        plots.append(rrb.TimeSeriesView(origin=root, contents=[f"{root}/commands/{c}" for c in others],
-                                        name=" · ".join(OTHER_COMMANDS.get(c, c) for c in others),
-                                        plot_legend=rrb.PlotLegend(visible=False)))  # fmt: skip
-    replay = rrb.Horizontal(rrb.Vertical(world, body, row_shares=[3, 2]),
-                            rrb.Vertical(*plots, _key(), row_shares=[6] * len(plots) + [1]),
-                            column_shares=[5, 4], name=name)  # fmt: skip
-    states = rrb.Vertical(rrb.Grid(*[panel(k) for k in STATE_PANELS], grid_columns=3), _key(), row_shares=[24, 1],
-                          name=f"{name}: states")  # fmt: skip
+        plots.append(
+            rrb.TimeSeriesView(
+                origin=root,
+                contents=[f"{root}/commands/{c}" for c in others],
+                name=" · ".join(OTHER_COMMANDS.get(c, c) for c in others),
+                plot_legend=rrb.PlotLegend(visible=False),
+            )
+        )
+    replay = rrb.Horizontal(
+        rrb.Vertical(world, body, row_shares=[3, 2]),
+        rrb.Vertical(*plots, _key(), row_shares=[6] * len(plots) + [1]),
+        column_shares=[5, 4],
+        name=name,
+    )
+    states = rrb.Vertical(
+        rrb.Grid(*[panel(k) for k in STATE_PANELS], grid_columns=3),
+        _key(),
+        row_shares=[24, 1],
+        name=f"{name}: states",
+    )
     return [replay, states]
 
 
@@ -266,47 +332,101 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
             t = time_column(flight.t)
             x = flight.truth
             quats = _euler_quat(x[:, IX["phi"]], x[:, IX["theta"]], x[:, IX["psi"]])
-            rec.send_columns(f"{root}/vehicle", indexes=[t],
-                             columns=rr.Transform3D.columns(translation=flight.position, quaternion=quats))  # fmt: skip
+            rec.send_columns(
+                f"{root}/vehicle",
+                indexes=[t],
+                columns=rr.Transform3D.columns(translation=flight.position, quaternion=quats),
+            )
             rec.log(f"{root}/vehicle/hull", _ellipsoids(hull, (160, 165, 170)), static=True)
             a = np.linspace(0.0, 2 * np.pi, 73)
             ring = np.column_stack([RING * np.cos(a), RING * np.sin(a), np.zeros_like(a)])
-            rec.log(f"{root}/vehicle/ring", rr.LineStrips3D([ring], colors=[(120, 150, 190)], radii=0.01), static=True)
+            rec.log(
+                f"{root}/vehicle/ring",
+                rr.LineStrips3D([ring], colors=[(120, 150, 190)], radii=0.01),
+                static=True,
+            )
             for k, (name, (origin, axis, blades)) in enumerate(fins.items()):
                 angle = flight.fins[:, k]
                 q = np.column_stack([np.outer(np.sin(angle / 2), axis), np.cos(angle / 2)])
-                rec.send_columns(f"{root}/vehicle/{name}", indexes=[t], columns=rr.Transform3D.columns(
-                    translation=np.tile(origin, (len(angle), 1)), quaternion=q))  # fmt: skip
+                rec.send_columns(
+                    f"{root}/vehicle/{name}",
+                    indexes=[t],
+                    columns=rr.Transform3D.columns(
+                        translation=np.tile(origin, (len(angle), 1)), quaternion=q
+                    ),
+                )
                 rec.log(f"{root}/vehicle/{name}/blades", _ellipsoids(blades, (220, 90, 25)), static=True)
                 # a pointer along each blade's chord, aft: it turns with the fin; its neutral
                 # position is drawn in the body frame, so the deflection is the angle between them
                 aft = np.array([-POINTER, 0.0, 0.0])
-                rec.log(f"{root}/vehicle/{name}/pointer", rr.LineStrips3D(
-                    [[c, c + aft] for c, _, _ in blades], colors=[(220, 90, 25)], radii=0.008), static=True)  # fmt: skip
-                rec.log(f"{root}/vehicle/{name}_neutral", rr.LineStrips3D(
-                    [[origin + c, origin + c + aft] for c, _, _ in blades], colors=[(120, 120, 120)],
-                    radii=0.004), static=True)  # fmt: skip
+                rec.log(
+                    f"{root}/vehicle/{name}/pointer",
+                    rr.LineStrips3D(
+                        [[c, c + aft] for c, _, _ in blades], colors=[(220, 90, 25)], radii=0.008
+                    ),
+                    static=True,
+                )
+                rec.log(
+                    f"{root}/vehicle/{name}_neutral",
+                    rr.LineStrips3D(
+                        [[origin + c, origin + c + aft] for c, _, _ in blades],
+                        colors=[(120, 120, 120)],
+                        radii=0.004,
+                    ),
+                    static=True,
+                )
             rec.log(f"{root}/trail", rr.LineStrips3D([flight.position], colors=[(60, 160, 230)]), static=True)
             for j, s in enumerate(STATES):
-                series(rec, f"{root}/states/{s}", t, np.column_stack([flight.measured[:, j], flight.truth[:, j]]),
-                        ("measured", "truth"))  # fmt: skip
+                series(
+                    rec,
+                    f"{root}/states/{s}",
+                    t,
+                    np.column_stack([flight.measured[:, j], flight.truth[:, j]]),
+                    ("measured", "truth"),
+                )
             for j, s in enumerate(INPUTS):
-                series(rec, f"{root}/fins/{s}", t, np.column_stack([flight.fins_measured[:, j], flight.fins[:, j]]),
-                        ("measured", "truth"), ("measured", "actual"))  # fmt: skip
+                series(
+                    rec,
+                    f"{root}/fins/{s}",
+                    t,
+                    np.column_stack([flight.fins_measured[:, j], flight.fins[:, j]]),
+                    ("measured", "truth"),
+                    ("measured", "actual"),
+                )
             commands = [k for k in sorted(flight.commands) if not np.isnan(flight.commands[k]).all()]
             for k in commands:  # a command never given (NaN throughout) draws nothing: not logged
-                series(rec, f"{root}/commands/{k}", t, flight.commands[k],
-                        ("fin command" if k in FIN_COMMANDS else "command",), (f"{k} command",), step=True)  # fmt: skip
-            plotted = {**{s: (flight.measured[:, j], x[:, j]) for j, s in enumerate(STATES)},
-                       **{s: (flight.fins_measured[:, j], flight.fins[:, j])
-                          for j, s in enumerate(INPUTS)}}  # fmt: skip
-            ranges = {key: axis_range(np.concatenate([*values, *[flight.commands[c] for c in commands
-                                                                  if key in COMMAND_PANELS.get(c, ())]]),
-                                      6 if key in REPLAY_PANELS else 8)
-                      for key, values in plotted.items()}  # fmt: skip
-            tabs += _run_views(root, flight.name, flight.position[0], float(x[0, IX["psi"]]), commands, ranges)
-        rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*tabs, active_tab=0),
-                                         rrb.TimePanel(state="collapsed", timeline="time"), collapse_panels=True))
+                series(
+                    rec,
+                    f"{root}/commands/{k}",
+                    t,
+                    flight.commands[k],
+                    ("fin command" if k in FIN_COMMANDS else "command",),
+                    (f"{k} command",),
+                    step=True,
+                )
+            plotted = {
+                **{s: (flight.measured[:, j], x[:, j]) for j, s in enumerate(STATES)},
+                **{s: (flight.fins_measured[:, j], flight.fins[:, j]) for j, s in enumerate(INPUTS)},
+            }
+            ranges = {
+                key: axis_range(
+                    np.concatenate(
+                        [*values, *[flight.commands[c] for c in commands if key in COMMAND_PANELS.get(c, ())]]
+                    ),
+                    6 if key in REPLAY_PANELS else 8,
+                )
+                for key, values in plotted.items()
+            }
+            tabs += _run_views(
+                root, flight.name, flight.position[0], float(x[0, IX["psi"]]), commands, ranges
+            )
+        rec.send_blueprint(
+            rrb.Blueprint(
+                rrb.Tabs(*tabs, active_tab=0),
+                rrb.TimePanel(state="collapsed", timeline="time"),
+                collapse_panels=True,
+            )
+        )
     return Path(path)
 
 

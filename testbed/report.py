@@ -20,18 +20,21 @@ import rerun.blueprint as rrb
 from testbed.errors import InputError
 from testbed.estimators import FilterEstimate
 from testbed.linear import predict
-from testbed.recording import (axis_range, data_id, panel_title, recording, series, time_column,
-                               x_range)
+from testbed.recording import axis_range, data_id, panel_title, recording, series, time_column, x_range
 
 OUTPUTS_KEY = "thin grey: measured · bold red: the identified model's response to the measured fin angles"
 PARAMETERS_KEY = {
-    "iteration": ("bold blue: the estimate at each iteration · light blue: ± σ (Cramér-Rao) about the final "
-                  "estimate · orange: the analytic value · green: the fit to the noise-free truth (the linear "
-                  "model's best). The outputs are on the `time` timeline: choose it at the bottom left."),
-    "time": ("bold blue: the filter's estimate after each sample · light blue: its ± σ · orange: the analytic "
-             "value · green: the fit to the noise-free truth (the linear model's best) · the experiments one "
-             "after the other"),
-}  # fmt: skip
+    "iteration": (
+        "bold blue: the estimate at each iteration · light blue: ± σ (Cramér-Rao) about the final "
+        "estimate · orange: the analytic value · green: the fit to the noise-free truth (the linear "
+        "model's best). The outputs are on the `time` timeline: choose it at the bottom left."
+    ),
+    "time": (
+        "bold blue: the filter's estimate after each sample · light blue: its ± σ · orange: the analytic "
+        "value · green: the fit to the noise-free truth (the linear model's best) · the experiments one "
+        "after the other"
+    ),
+}
 
 
 def _parameters(rec, estimate, iterations, comparison):
@@ -74,30 +77,55 @@ def _parameters(rec, estimate, iterations, comparison):
     for j, n in enumerate(free):
         columns = [values[:, j], centre[:, j] - std[:, j], centre[:, j] + std[:, j]]
         columns += [np.full(len(x), r[j]) for _, r in refs]
-        series(rec, f"/parameters/{n}", index, np.column_stack(columns),
-                ("estimate", "σ band", "σ band", *[role for role, _ in refs]),
-                ("estimate", "-σ", "+σ", *[role for role, _ in refs]))  # fmt: skip
+        series(
+            rec,
+            f"/parameters/{n}",
+            index,
+            np.column_stack(columns),
+            ("estimate", "σ band", "σ band", *[role for role, _ in refs]),
+            ("estimate", "-σ", "+σ", *[role for role, _ in refs]),
+        )
         late = slice(max(settled, len(x) // 2), None)
-        shown = np.concatenate([values[settled:, j], columns[1][late], columns[2][late],
-                                *[r[j:j + 1] for _, r in refs]])  # fmt: skip
-        views[n] = rrb.TimeSeriesView(origin=f"/parameters/{n}", name=n, axis_x=axis_x,
-                                      axis_y=rrb.ScalarAxis(range=axis_range(shown, 4)),
-                                      plot_legend=rrb.PlotLegend(visible=False))  # fmt: skip
+        shown = np.concatenate(
+            [values[settled:, j], columns[1][late], columns[2][late], *[r[j : j + 1] for _, r in refs]]
+        )
+        views[n] = rrb.TimeSeriesView(
+            origin=f"/parameters/{n}",
+            name=n,
+            axis_x=axis_x,
+            axis_y=rrb.ScalarAxis(range=axis_range(shown, 4)),
+            plot_legend=rrb.PlotLegend(visible=False),
+        )
     rows = {}  # one row per equation (X, Y, Z, K, M, N), in the order of `free`
     for n in free:
         rows.setdefault(n.split("_")[0], []).append(views[n])
     side = [rrb.TextDocumentView(origin="/key/parameters", name="key", titlebar=False)]
-    rec.log("/key/parameters", rr.TextDocument(PARAMETERS_KEY[timeline], media_type=rr.MediaType.MARKDOWN), static=True)
+    rec.log(
+        "/key/parameters",
+        rr.TextDocument(PARAMETERS_KEY[timeline], media_type=rr.MediaType.MARKDOWN),
+        static=True,
+    )
     if cost is not None:
         # J is a negative log-likelihood (any sign): its distance to the final value, which
         # shrinks geometrically as the fit converges, on a log scale; the last point is 0: not drawn
         above = np.log10(np.where(cost - cost[-1] > 0, cost - cost[-1], np.nan))
         series(rec, "/cost", index, above, ("cost",), ("log10(J - J_final)",))
-        side.insert(0, rrb.TimeSeriesView(origin="/cost", name="cost: log₁₀(J − J_final)", axis_x=axis_x,
-                                          axis_y=rrb.ScalarAxis(range=axis_range(above, 4)),
-                                          plot_legend=rrb.PlotLegend(visible=False)))  # fmt: skip
-    tab = rrb.Horizontal(rrb.Vertical(*[rrb.Horizontal(*row) for row in rows.values()]), rrb.Vertical(*side),
-                         column_shares=[4, 1], name="parameters")  # fmt: skip
+        side.insert(
+            0,
+            rrb.TimeSeriesView(
+                origin="/cost",
+                name="cost: log₁₀(J − J_final)",
+                axis_x=axis_x,
+                axis_y=rrb.ScalarAxis(range=axis_range(above, 4)),
+                plot_legend=rrb.PlotLegend(visible=False),
+            ),
+        )
+    tab = rrb.Horizontal(
+        rrb.Vertical(*[rrb.Horizontal(*row) for row in rows.values()]),
+        rrb.Vertical(*side),
+        column_shares=[4, 1],
+        name="parameters",
+    )
     return tab, timeline
 
 
@@ -116,18 +144,32 @@ def _comparison_markdown(comparison) -> str:
         sigmas = num(r["error_sigmas"], "+.1f")
         if r["error_sigmas"] is not None and abs(r["error_sigmas"]) > 3:
             sigmas = f"**{sigmas}**"
-        cells = [f"`{r['name']}`", num(r["analytic"]), num(r["identified"]), num(r["std"], ".2g"), sigmas,
-                 num(None if r["relative_error"] is None else 100 * r["relative_error"], "+.1f")]  # fmt: skip
+        cells = [
+            f"`{r['name']}`",
+            num(r["analytic"]),
+            num(r["identified"]),
+            num(r["std"], ".2g"),
+            sigmas,
+            num(None if r["relative_error"] is None else 100 * r["relative_error"], "+.1f"),
+        ]
         if truth:
             bias = r["model_bias_relative"]
-            cells += [num(r["truth_fit"]), num(None if bias is None else 100 * bias, "+.1f"),
-                      num(r["noise_sigmas"], "+.1f")]  # fmt: skip
+            cells += [
+                num(r["truth_fit"]),
+                num(None if bias is None else 100 * bias, "+.1f"),
+                num(r["noise_sigmas"], "+.1f"),
+            ]
         lines.append("| " + " | ".join(cells) + " |")
-    text = ["## Identified versus analytic coefficients", "",
-            "error = identified − analytic, in Cramér-Rao σ (bold beyond 3 σ) and in % of |analytic|."]
+    text = [
+        "## Identified versus analytic coefficients",
+        "",
+        "error = identified − analytic, in Cramér-Rao σ (bold beyond 3 σ) and in % of |analytic|.",
+    ]
     if truth:
-        text.append("truth fit: `ml-gn` on the noise-free truth, the best the linear model can do; model bias = "
-                    "truth fit − analytic (% of |analytic|), noise = identified − truth fit (σ).")  # fmt: skip
+        text.append(
+            "truth fit: `ml-gn` on the noise-free truth, the best the linear model can do; model bias = "
+            "truth fit − analytic (% of |analytic|), noise = identified − truth fit (σ)."
+        )
     if comparison.note:
         text.append(comparison.note)
     return "\n".join([*text, "", *lines])
@@ -135,24 +177,37 @@ def _comparison_markdown(comparison) -> str:
 
 def _validation_markdown(validation) -> str:
     """Fit % and residual whiteness per experiment and channel, as a Markdown table."""
-    rows = ["Fit % of the model simulated open loop from its best initial state "
-            "(100 (1 − ‖y − ŷ‖/‖y − ȳ‖)); the residual's largest autocorrelation over lags 1–25 "
-            "against its 99 % bound, and the Ljung-Box p-value (white: p ≥ 0.01).", "",
-            "| experiment | channel | fit % | analytic fit % | max \\|r_k\\| | bound | Ljung-Box p | residual |",
-            "|---|---|---:|---:|---:|---:|---:|---|"]  # fmt: skip
+    rows = [
+        "Fit % of the model simulated open loop from its best initial state "
+        "(100 (1 − ‖y − ŷ‖/‖y − ȳ‖)); the residual's largest autocorrelation over lags 1–25 "
+        "against its 99 % bound, and the Ljung-Box p-value (white: p ≥ 0.01).",
+        "",
+        "| experiment | channel | fit % | analytic fit % | max \\|r_k\\| | bound | Ljung-Box p | residual |",
+        "|---|---|---:|---:|---:|---:|---:|---|",
+    ]
     for name, channels in validation.to_dict().items():
         for c, m in channels.items():
             w = m["whiteness"]
             fit = "–" if m["fit_percent"] is None else f"{m['fit_percent']:.2f}"
             base = m.get("fit_percent_analytic")
             base = "–" if base is None else f"{base:.2f}"
-            rows.append(f"| {name} | {c} | {fit} | {base} | {w['max_autocorrelation']:.3f} | {w['bound']:.3f} | "
-                        f"{w['ljung_box_p']:.2g} | {'white' if w['white'] else '**coloured**'} |")  # fmt: skip
+            rows.append(
+                f"| {name} | {c} | {fit} | {base} | {w['max_autocorrelation']:.3f} | {w['bound']:.3f} | "
+                f"{w['ljung_box_p']:.2g} | {'white' if w['white'] else '**coloured**'} |"
+            )
     return "\n".join(rows)
 
 
-def log_fit(path, experiments, config, estimate, iterations, comparison=None,
-            recording_id: str | None = None, validation=None) -> Path:  # fmt: skip
+def log_fit(
+    path,
+    experiments,
+    config,
+    estimate,
+    iterations,
+    comparison=None,
+    recording_id: str | None = None,
+    validation=None,
+) -> Path:
     """A recording of a fit: the parameters tab (each coefficient's estimate per iteration, or
     over time for the filters, with ±σ, the analytic value and the truth fit; the cost), the
     comparison table, the validation metrics (`testbed.validation.Validation`: fit % and
@@ -166,8 +221,13 @@ def log_fit(path, experiments, config, estimate, iterations, comparison=None,
     title = f"testbed fit ({estimate.method})"
     history_t = estimate.history_t if isinstance(estimate, FilterEstimate) else None
     if recording_id is None:
-        recording_id = data_id(title, *[part for e in experiments for part in (e.name, e.t, e.y, e.inputs)],
-                                     tuple(estimate.free), np.asarray(estimate.values, float), history_t)  # fmt: skip
+        recording_id = data_id(
+            title,
+            *[part for e in experiments for part in (e.name, e.t, e.y, e.inputs)],
+            tuple(estimate.free),
+            np.asarray(estimate.values, float),
+            history_t,
+        )
     fitted = config.with_coefficients(estimate.coefficients)
     try:
         outputs = predict(experiments, fitted, estimate.initial_states)
@@ -192,17 +252,38 @@ def log_fit(path, experiments, config, estimate, iterations, comparison=None,
             panels = []
             for j, s in enumerate(e.measured):
                 model = () if y is None else (y[:, j],)
-                series(rec, f"/outputs/{e.name}/{s}", t, np.column_stack([e.y[:, j], *model]),
-                        ("measured", "model")[:1 + len(model)])  # fmt: skip
-                panels.append(rrb.TimeSeriesView(
-                    origin=f"/outputs/{e.name}/{s}", name=panel_title(s), axis_x=x_range("time", e.t[0], e.t[-1]),
-                    axis_y=rrb.ScalarAxis(range=axis_range(np.concatenate([e.y[:, j], *model]))),
-                    plot_legend=rrb.PlotLegend(visible=False)))  # fmt: skip
+                series(
+                    rec,
+                    f"/outputs/{e.name}/{s}",
+                    t,
+                    np.column_stack([e.y[:, j], *model]),
+                    ("measured", "model")[: 1 + len(model)],
+                )
+                panels.append(
+                    rrb.TimeSeriesView(
+                        origin=f"/outputs/{e.name}/{s}",
+                        name=panel_title(s),
+                        axis_x=x_range("time", e.t[0], e.t[-1]),
+                        axis_y=rrb.ScalarAxis(range=axis_range(np.concatenate([e.y[:, j], *model]))),
+                        plot_legend=rrb.PlotLegend(visible=False),
+                    )
+                )
             key = rrb.TextDocumentView(origin="/key/outputs", name="key", titlebar=False)
-            tabs.append(rrb.Vertical(rrb.Grid(*panels, grid_columns=3), key, row_shares=[24, 1],
-                                     name=f"{e.name}: outputs (time)"))  # fmt: skip
-        rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*tabs, active_tab=0),
-                                         rrb.TimePanel(state="collapsed", timeline=timeline), collapse_panels=True))
+            tabs.append(
+                rrb.Vertical(
+                    rrb.Grid(*panels, grid_columns=3),
+                    key,
+                    row_shares=[24, 1],
+                    name=f"{e.name}: outputs (time)",
+                )
+            )
+        rec.send_blueprint(
+            rrb.Blueprint(
+                rrb.Tabs(*tabs, active_tab=0),
+                rrb.TimePanel(state="collapsed", timeline=timeline),
+                collapse_panels=True,
+            )
+        )
     return Path(path)
 
 
@@ -214,9 +295,13 @@ def replay(run) -> str:
     if not path.is_file():
         raise InputError(f"{path}: no such recording; expected a run directory or an .rrd file")
     viewer = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    headless = sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    headless = sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    )
     if headless or not Path(viewer).exists():
-        return (f"no display here: on a machine with one, run `rerun {path}`; or serve it to a "
-                f"browser with `rerun --serve-web {path}`")
+        return (
+            f"no display here: on a machine with one, run `rerun {path}`; or serve it to a "
+            f"browser with `rerun --serve-web {path}`"
+        )
     subprocess.Popen([viewer, str(path)], start_new_session=True)
     return f"opened {path} in the Rerun viewer"

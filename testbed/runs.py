@@ -31,9 +31,17 @@ from testbed.truth import model_config
 from testbed.vehicle import default_mjcf
 
 
-
-def simulate(s: Scenario | str, *, seed: int = 0, out=None, force: bool = False, duration=None,
-             speed=None, mjcf=None, progress: Callable[[float, str], None] | None = None) -> Path:  # fmt: skip
+def simulate(
+    s: Scenario | str,
+    *,
+    seed: int = 0,
+    out=None,
+    force: bool = False,
+    duration=None,
+    speed=None,
+    mjcf=None,
+    progress: Callable[[float, str], None] | None = None,
+) -> Path:
     """Fly a scenario (object, built-in name or file) and write its run directory."""
     s = scenario(s).with_overrides(duration=duration, speed=speed)
     check_seed(seed)
@@ -47,7 +55,9 @@ def simulate(s: Scenario | str, *, seed: int = 0, out=None, force: bool = False,
         flights, lin = fly_scenario(s, seed, mjcf_path, report)
         measured = [STATES.index(c) for c in s.measured]
         for f in flights:
-            (tmp / f"{f.name}.csv").write_text(csv_text(f.t, f.measured[:, measured], f.fins_measured, s.measured))
+            (tmp / f"{f.name}.csv").write_text(
+                csv_text(f.t, f.measured[:, measured], f.fins_measured, s.measured)
+            )
             (tmp / f"{f.name}.truth.csv").write_text(csv_text(f.t, f.truth, f.fins, STATES))
         config, comments = model_config(lin, mjcf_path)
         config = replace(config, outputs=tuple(c for c in s.measured if c != "z"))
@@ -82,8 +92,15 @@ def _versions() -> dict[str, str]:
     """Versions of Python and the packages in play; a loaded module's own `__version__` (what
     ran, and ~10 ms faster each than reading the installed metadata)."""
     out = {"python": sys.version.split()[0]}
-    for pkg, module in (("testbed", None), ("mujoco", "mujoco"), ("numpy", "numpy"), ("scipy", "scipy"),
-                        ("numba", "numba"), ("rerun-sdk", "rerun"), ("filterpy", None)):  # fmt: skip
+    for pkg, module in (
+        ("testbed", None),
+        ("mujoco", "mujoco"),
+        ("numpy", "numpy"),
+        ("scipy", "scipy"),
+        ("numba", "numba"),
+        ("rerun-sdk", "rerun"),
+        ("filterpy", None),
+    ):
         version = getattr(sys.modules.get(module), "__version__", None)
         try:
             out[pkg] = version or metadata.version(pkg)
@@ -100,7 +117,14 @@ def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path) -> str:
     if s.source == "built-in":
         as_built = replace(scenario(s.name).with_overrides(flown.duration, flown.speed), source="")
     if as_built is not None and scenario_text(as_built) == scenario_text(flown):
-        parts += ["--scenario", s.name, "--duration", repr(float(flown.duration)), "--speed", repr(float(flown.speed))]
+        parts += [
+            "--scenario",
+            s.name,
+            "--duration",
+            repr(float(flown.duration)),
+            "--speed",
+            repr(float(flown.speed)),
+        ]
     else:
         parts += ["--scenario", str(out.resolve() / "scenario.toml")]
     if mjcf is not None:

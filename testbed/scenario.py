@@ -62,10 +62,12 @@ from testbed.truth import analytic_model
 from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
 
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).
-UNFITTED_DEPTH = ("depth is measured but not fitted: it integrates U θ, and the second-order drag "
-                  "moments of the real body (its drag grows with incidence, 2 cm above the CG: "
-                  "-119 N m per (m/s)^2 of heave or sway) rectify into a pitch drift that the "
-                  "linear model cannot follow")  # fmt: skip
+UNFITTED_DEPTH = (
+    "depth is measured but not fitted: it integrates U θ, and the second-order drag "
+    "moments of the real body (its drag grows with incidence, 2 cm above the CG: "
+    "-119 N m per (m/s)^2 of heave or sway) rectify into a pitch drift that the "
+    "linear model cannot follow"
+)
 CHANNELS = ("rudder", "elevators", "differential")  # fin channels a signal can drive
 SAMPLES = (MIN_ROWS, 10**6)  # the samples an experiment may have (MIN_ROWS: the fewest a fit takes)
 LOOPS = {"yaw_rate": "rudder", "depth": "elevators", "roll": "differential"}  # loop -> its channel
@@ -91,15 +93,21 @@ class ExperimentSpec:
         where = f"experiment {self.name!r}"
         for loop, channel in LOOPS.items():
             if loop in self.autopilot and channel in self.fins:
-                raise InputError(f"{where}: {channel} is both a signal and driven by the {loop} "
-                                 "autopilot; expected one of them")  # fmt: skip
+                raise InputError(
+                    f"{where}: {channel} is both a signal and driven by the {loop} "
+                    "autopilot; expected one of them"
+                )
         if self.hold_depth is not None and ("elevators" not in self.fins or "depth" in self.autopilot):
-            raise InputError(f"{where}: hold needs an elevators signal and no depth autopilot; "
-                             "expected the hold to keep an open-loop elevator signal in bounds")  # fmt: skip
+            raise InputError(
+                f"{where}: hold needs an elevators signal and no depth autopilot; "
+                "expected the hold to keep an open-loop elevator signal in bounds"
+            )
         for channel, s in self.fins.items():
             if s.peak() > FIN_LIMIT:
-                raise InputError(f"{where}: {channel} reaches {s.peak():g} rad; expected at most the "
-                                 f"fin range {FIN_LIMIT} rad")  # fmt: skip
+                raise InputError(
+                    f"{where}: {channel} reaches {s.peak():g} rad; expected at most the "
+                    f"fin range {FIN_LIMIT} rad"
+                )
         if self.duration is not None and not _positive(self.duration):
             raise InputError(f"{where}: duration {self.duration!r}; expected a finite number > 0 (s)")
 
@@ -122,34 +130,47 @@ class Scenario:
     def __post_init__(self):
         checks = {
             "duration": (_positive, "a finite number > 0 (s)"),
-            "speed": (lambda v: v is None or (_positive(v) and MIN_SPEED <= v <= MAX_SPEED), f"{MIN_SPEED} to {MAX_SPEED} (m/s)"),
+            "speed": (
+                lambda v: v is None or (_positive(v) and MIN_SPEED <= v <= MAX_SPEED),
+                f"{MIN_SPEED} to {MAX_SPEED} (m/s)",
+            ),
             "depth": (is_number, "a finite number (m)"),
             "control_rate": (_positive, "a finite number > 0 (Hz)"),
-        }  # fmt: skip
+        }
         for name, (ok, expected) in checks.items():
             if not ok(getattr(self, name)):
-                raise InputError(f"{self.source or 'scenario'}: {name} = {getattr(self, name)!r}; expected {expected}")
+                raise InputError(
+                    f"{self.source or 'scenario'}: {name} = {getattr(self, name)!r}; expected {expected}"
+                )
         if not self.experiments:
             raise InputError(f"{self.source or 'scenario'}: no [[experiment]]; expected at least one")
         names = [e.name for e in self.experiments]
         if len(set(names)) != len(names) or any(not n or "/" in n or n.startswith(".") for n in names):
-            raise InputError(f"{self.source or 'scenario'}: experiment names {names}; expected distinct "
-                             "names usable as file names")  # fmt: skip
+            raise InputError(
+                f"{self.source or 'scenario'}: experiment names {names}; expected distinct "
+                "names usable as file names"
+            )
         unknown = [s for s in self.measured if s not in STATES]
         if unknown or not self.measured:
-            raise InputError(f"{self.source or 'scenario'}: measured {list(self.measured)}; expected a "
-                             f"non-empty list of {', '.join(STATES)}")  # fmt: skip
+            raise InputError(
+                f"{self.source or 'scenario'}: measured {list(self.measured)}; expected a "
+                f"non-empty list of {', '.join(STATES)}"
+            )
         ratio = self.control_rate / self.sensors.rate
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise InputError(f"{self.source or 'scenario'}: control rate {self.control_rate} Hz and sample "
-                             f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate")  # fmt: skip
+            raise InputError(
+                f"{self.source or 'scenario'}: control rate {self.control_rate} Hz and sample "
+                f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate"
+            )
 
     def with_overrides(self, duration=None, speed=None) -> "Scenario":
         """The scenario with every experiment lasting `duration` and trimmed at `speed` (None:
         unchanged), as `testbed simulate --duration --speed` give them."""
         s = self
         if duration is not None:
-            s = replace(s, duration=duration, experiments=tuple(replace(e, duration=None) for e in s.experiments))
+            s = replace(
+                s, duration=duration, experiments=tuple(replace(e, duration=None) for e in s.experiments)
+            )
         if speed is not None:
             s = replace(s, speed=speed)
         return s
@@ -170,8 +191,10 @@ def scenario(name_or_path: str | Path | Scenario) -> Scenario:
         return replace(s, source="built-in")
     path = Path(name_or_path)
     if path.suffix != ".toml" and not path.exists():
-        raise InputError(f"scenario={str(name_or_path)!r} is unknown; expected one of "
-                         f"{', '.join(BUILTIN)} or a scenario file (.toml)")  # fmt: skip
+        raise InputError(
+            f"scenario={str(name_or_path)!r} is unknown; expected one of "
+            f"{', '.join(BUILTIN)} or a scenario file (.toml)"
+        )
     return read_scenario(path)
 
 
@@ -227,9 +250,11 @@ def _sensors(doc, where: str) -> Sensors:
         raise InputError(f"{where}: noise_std must be a table of state = std")
     noise = {k: number(v, f"{where}: noise_std.{k}") for k, v in noise.items()}
     try:
-        return Sensors(rate=number(doc.get("rate", 50.0), f"{where}: rate"),
-                       noise_std={**NOISE_STD, **noise},
-                       fin_std=number(doc.get("fin_std", Sensors().fin_std), f"{where}: fin_std"))  # fmt: skip
+        return Sensors(
+            rate=number(doc.get("rate", 50.0), f"{where}: rate"),
+            noise_std={**NOISE_STD, **noise},
+            fin_std=number(doc.get("fin_std", Sensors().fin_std), f"{where}: fin_std"),
+        )
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
 
@@ -275,9 +300,15 @@ def scenario_text(s: Scenario) -> str:
     lines += [f"duration = {_toml(s.duration)}", f"depth = {_toml(s.depth)}"]
     if s.speed is not None:
         lines.append(f"speed = {_toml(s.speed)}")
-    lines += [f"control_rate = {_toml(s.control_rate)}", "", "[sensors]",
-              f"rate = {_toml(s.sensors.rate)}", f"fin_std = {_toml(s.sensors.fin_std)}",
-              f"noise_std = {_toml(dict(s.sensors.noise_std))}", f"measured = {_toml(list(s.measured))}"]  # fmt: skip
+    lines += [
+        f"control_rate = {_toml(s.control_rate)}",
+        "",
+        "[sensors]",
+        f"rate = {_toml(s.sensors.rate)}",
+        f"fin_std = {_toml(s.sensors.fin_std)}",
+        f"noise_std = {_toml(dict(s.sensors.noise_std))}",
+        f"measured = {_toml(list(s.measured))}",
+    ]
     for e in s.experiments:
         lines += ["", "[[experiment]]", f"name = {_toml(e.name)}"]
         if e.duration is not None:
@@ -354,8 +385,16 @@ class Flight:
     commands: dict
 
 
-def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Scenario, duration: float,
-        rng: np.random.Generator, progress: Callable[[float], None] | None = None) -> Flight:  # fmt: skip
+def fly(
+    plant: Plant,
+    autopilot: Autopilot,
+    name: str,
+    program: Program,
+    s: Scenario,
+    duration: float,
+    rng: np.random.Generator,
+    progress: Callable[[float], None] | None = None,
+) -> Flight:
     """Fly one experiment of `duration` s from straight and level trim; sample, add sensor noise."""
     speed = s.speed if s.speed is not None else cruise_speed(plant.model)
     plant.reset(speed=speed, depth=s.depth)
@@ -363,8 +402,10 @@ def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Scen
     steps = round(1.0 / per_control)
     controls_per_sample = round(s.control_rate / s.sensors.rate)
     if abs(1.0 / per_control - steps) > 1e-9:
-        raise InputError(f"control rate {s.control_rate} Hz; expected it to divide the physics rate "
-                         f"{1 / plant.timestep:g} Hz")  # fmt: skip
+        raise InputError(
+            f"control rate {s.control_rate} Hz; expected it to divide the physics rate "
+            f"{1 / plant.timestep:g} Hz"
+        )
     n_samples = int(math.floor(duration * s.sensors.rate + 1e-9)) + 1
     truth, fins, pos = np.empty((n_samples, NX)), np.empty((n_samples, 3)), np.empty((n_samples, 3))
     fin_cmds, pitch, keywords = np.empty((n_samples, 3)), np.empty(n_samples), []
@@ -394,8 +435,10 @@ def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Scen
     # keeps the angle itself.
     fins[:-1] = np.diff(fin_integral, axis=0) * s.sensors.rate
     measured, fins_measured = measure(truth, fins, s.sensors, rng)
-    commands = {key: np.array([kw.get(key, np.nan) for kw in keywords], float)
-                for key in sorted({key for kw in keywords for key in kw})}  # fmt: skip
+    commands = {
+        key: np.array([kw.get(key, np.nan) for kw in keywords], float)
+        for key in sorted({key for kw in keywords for key in kw})
+    }
     commands.update(zip(FIN_COMMANDS, fin_cmds.T))
     if not np.isnan(pitch).all():
         commands["pitch"] = pitch
@@ -403,8 +446,9 @@ def fly(plant: Plant, autopilot: Autopilot, name: str, program: Program, s: Scen
     return Flight(name, t, truth, measured, fins, fins_measured, pos, commands)
 
 
-def fly_scenario(s: Scenario | str, seed: int = 0, mjcf=None,
-                 progress: Callable[[str, float], None] | None = None) -> tuple[list[Flight], object]:  # fmt: skip
+def fly_scenario(
+    s: Scenario | str, seed: int = 0, mjcf=None, progress: Callable[[str, float], None] | None = None
+) -> tuple[list[Flight], object]:
     """Fly every experiment of a scenario (or built-in name, or file); returns the flights and
     the analytic linear model."""
     s = scenario(s)
@@ -417,8 +461,18 @@ def fly_scenario(s: Scenario | str, seed: int = 0, mjcf=None,
     flights = []
     for k, e in enumerate(s.experiments):
         report = (lambda f, name=e.name: progress(name, f)) if progress else None
-        flights.append(fly(plant, autopilot, e.name, program(s, e, seed, k), s, s.duration_of(e),
-                           rng_for(seed, k, 0), report))  # fmt: skip
+        flights.append(
+            fly(
+                plant,
+                autopilot,
+                e.name,
+                program(s, e, seed, k),
+                s,
+                s.duration_of(e),
+                rng_for(seed, k, 0),
+                report,
+            )
+        )
     return flights, lin
 
 
@@ -429,5 +483,7 @@ def check_flyable(s: Scenario) -> None:
     for e in s.experiments:
         duration = s.duration_of(e)
         if not low <= math.floor(duration * rate + 1e-9) + 1 <= high:
-            raise InputError(f"duration={duration!r} (experiment {e.name!r}); expected {(low - 1) / rate:g} to "
-                             f"{(high - 1) / rate:g} s ({low} to {high} samples at {rate:g} Hz)")  # fmt: skip
+            raise InputError(
+                f"duration={duration!r} (experiment {e.name!r}); expected {(low - 1) / rate:g} to "
+                f"{(high - 1) / rate:g} s ({low} to {high} samples at {rate:g} Hz)"
+            )

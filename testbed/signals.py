@@ -34,10 +34,27 @@ from testbed.model import IX
 Program = Callable[[float, np.ndarray], float]
 
 # Maximal-length feedback taps (1-indexed register stages) for orders 2..20.
-TAPS = {2: (2, 1), 3: (3, 2), 4: (4, 3), 5: (5, 3), 6: (6, 5), 7: (7, 6), 8: (8, 6, 5, 4),
-        9: (9, 5), 10: (10, 7), 11: (11, 9), 12: (12, 11, 10, 4), 13: (13, 12, 11, 8),
-        14: (14, 13, 12, 2), 15: (15, 14), 16: (16, 15, 13, 4), 17: (17, 14), 18: (18, 11),
-        19: (19, 18, 17, 14), 20: (20, 17)}  # fmt: skip
+TAPS = {
+    2: (2, 1),
+    3: (3, 2),
+    4: (4, 3),
+    5: (5, 3),
+    6: (6, 5),
+    7: (7, 6),
+    8: (8, 6, 5, 4),
+    9: (9, 5),
+    10: (10, 7),
+    11: (11, 9),
+    12: (12, 11, 10, 4),
+    13: (13, 12, 11, 8),
+    14: (14, 13, 12, 2),
+    15: (15, 14),
+    16: (16, 15, 13, 4),
+    17: (17, 14),
+    18: (18, 11),
+    19: (19, 18, 17, 14),
+    20: (20, 17),
+}
 
 
 def prbs(order: int, rng: np.random.Generator | None = None) -> np.ndarray:
@@ -144,8 +161,12 @@ class Step(Signal):
 @dataclass(frozen=True)
 class Square(Signal):
     kind: ClassVar[str] = "square"
-    checks: ClassVar[dict] = {"amplitude": _FINITE, "half_period": _POSITIVE, "offset": _FINITE,
-                              "first": (lambda v: v in (1, -1) and not isinstance(v, bool), "1 or -1")}  # fmt: skip
+    checks: ClassVar[dict] = {
+        "amplitude": _FINITE,
+        "half_period": _POSITIVE,
+        "offset": _FINITE,
+        "first": (lambda v: v in (1, -1) and not isinstance(v, bool), "1 or -1"),
+    }
     amplitude: float = 0.0
     half_period: float = 1.0
     offset: float = 0.0
@@ -162,9 +183,14 @@ class Square(Signal):
 @dataclass(frozen=True)
 class Prbs(Signal):
     kind: ClassVar[str] = "prbs"
-    checks: ClassVar[dict] = {"amplitude": _FINITE, "clock": _POSITIVE,
-                              "order": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v in TAPS,
-                                        f"an integer in {min(TAPS)}..{max(TAPS)}")}  # fmt: skip
+    checks: ClassVar[dict] = {
+        "amplitude": _FINITE,
+        "clock": _POSITIVE,
+        "order": (
+            lambda v: isinstance(v, int) and not isinstance(v, bool) and v in TAPS,
+            f"an integer in {min(TAPS)}..{max(TAPS)}",
+        ),
+    }
     amplitude: float = 0.0
     order: int = 10
     clock: float = 0.1
@@ -235,10 +261,14 @@ def _pulses(amplitude: float, start: float, width: float, signs: tuple) -> Progr
 @dataclass(frozen=True)
 class Multisine(Signal):
     kind: ClassVar[str] = "multisine"
-    checks: ClassVar[dict] = {"amplitude": _FINITE, "start": _TIME,
-                              "frequencies": (lambda v: isinstance(v, tuple) and len(v) > 0
-                                              and all(is_number(f) and f > 0 for f in v),
-                                              "a non-empty list of frequencies > 0 Hz")}  # fmt: skip
+    checks: ClassVar[dict] = {
+        "amplitude": _FINITE,
+        "start": _TIME,
+        "frequencies": (
+            lambda v: isinstance(v, tuple) and len(v) > 0 and all(is_number(f) and f > 0 for f in v),
+            "a non-empty list of frequencies > 0 Hz",
+        ),
+    }
     amplitude: float = 0.0
     frequencies: tuple = (0.1, 0.2, 0.3)
     start: float = 0.0
@@ -264,9 +294,11 @@ class Multisine(Signal):
 @dataclass(frozen=True)
 class Zigzag(Signal):
     kind: ClassVar[str] = "zigzag"
-    checks: ClassVar[dict] = {"angle": (lambda v: is_number(v) and v > 0, "a finite angle > 0 rad"),
-                              "switch": (lambda v: v is None or (is_number(v) and v > 0), "a finite angle > 0 rad"),
-                              "on": (lambda v: v in ("psi", "theta"), "'psi' or 'theta'")}  # fmt: skip
+    checks: ClassVar[dict] = {
+        "angle": (lambda v: is_number(v) and v > 0, "a finite angle > 0 rad"),
+        "switch": (lambda v: v is None or (is_number(v) and v > 0), "a finite angle > 0 rad"),
+        "on": (lambda v: v in ("psi", "theta"), "'psi' or 'theta'"),
+    }
     angle: float = math.radians(20.0)
     on: str = "psi"
     switch: float | None = None  # the switching angle of `on`, rad (default: `angle`)
@@ -292,7 +324,9 @@ class Zigzag(Signal):
         return abs(self.angle)
 
 
-SIGNALS: dict[str, type[Signal]] = {s.kind: s for s in (Hold, Step, Square, Prbs, Doublet, Input3211, Multisine, Zigzag)}
+SIGNALS: dict[str, type[Signal]] = {
+    s.kind: s for s in (Hold, Step, Square, Prbs, Doublet, Input3211, Multisine, Zigzag)
+}
 
 
 def parse_signal(value, where: str) -> Signal:
@@ -309,7 +343,9 @@ def parse_signal(value, where: str) -> Signal:
     names = {f.name for f in fields(cls)}
     unknown = sorted(set(value) - names - {"signal"})
     if unknown:
-        raise InputError(f"{where}: unknown {kind} parameter {unknown[0]!r}; expected {', '.join(sorted(names))}")
+        raise InputError(
+            f"{where}: unknown {kind} parameter {unknown[0]!r}; expected {', '.join(sorted(names))}"
+        )
     kwargs = {}
     for name, v in value.items():
         if name == "signal":

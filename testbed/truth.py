@@ -34,9 +34,23 @@ from testbed.data import ModelConfig, config_text
 from testbed.errors import atomic_write_text, check_outputs
 from testbed.model import COEFFICIENTS, INPUTS, IX, NU, NX, STATES, Vehicle, structure, tilde
 from testbed.plant import Plant
-from testbed.vehicle import (FINS, FLIP, added_mass, buoyancy_centre, check_model, constants,
-                             cruise_speed, fluid_geoms, load_model, motion_transform, rigid_body_mass,
-                             rotation, semi_axes, skew, trim_speed)
+from testbed.vehicle import (
+    FINS,
+    FLIP,
+    added_mass,
+    buoyancy_centre,
+    check_model,
+    constants,
+    cruise_speed,
+    fluid_geoms,
+    load_model,
+    motion_transform,
+    rigid_body_mass,
+    rotation,
+    semi_axes,
+    skew,
+    trim_speed,
+)
 
 TERMS = ("drag", "lift", "magnus", "added_mass", "viscous")  # MuJoCo's ellipsoid-model forces
 ROWS = "XYZKMN"  # force/moment letter of the rows u v w p q r
@@ -107,8 +121,14 @@ def geom_terms(r, coef, virtual, rho, beta, v) -> dict[str, tuple[np.ndarray, np
     N, D = b @ v**2, (b * b) @ v**2
     out = {}
 
-    def term(f=np.zeros(3), g=np.zeros(3), fv=np.zeros((3, 3)), fw=np.zeros((3, 3)),
-             gv=np.zeros((3, 3)), gw=np.zeros((3, 3))):  # fmt: skip
+    def term(
+        f=np.zeros(3),
+        g=np.zeros(3),
+        fv=np.zeros((3, 3)),
+        fw=np.zeros((3, 3)),
+        gv=np.zeros((3, 3)),
+        gw=np.zeros((3, 3)),
+    ):
         return np.concatenate([f, g]), np.block([[fv, fw], [gv, gw]])
 
     # Quadratic drag −ρ [C_b A_p + C_s (A_max − A_p)] |v| v, A_p = π √(D/N) the projected area;
@@ -117,9 +137,11 @@ def geom_terms(r, coef, virtual, rho, beta, v) -> dict[str, tuple[np.ndarray, np
     grad_A = np.pi**2 / A_p * v * (b * b * N - b * D) / N**2
     srt = np.sort(r)
     c = (blunt - slender) * A_p + slender * np.pi * srt[2] * srt[1]
-    out["drag"] = term(f=-rho * c * speed * v,
-                       fv=-rho * (c * (speed * I3 + np.outer(v, v) / speed)
-                                  + speed * np.outer(v, (blunt - slender) * grad_A)))  # fmt: skip
+    out["drag"] = term(
+        f=-rho * c * speed * v,
+        fv=-rho
+        * (c * (speed * I3 + np.outer(v, v) / speed) + speed * np.outer(v, (blunt - slender) * grad_A)),
+    )
 
     # Kutta lift s(v) ((b∘v) × v) × v with s = C_K ρ π √(N/D) / |v| (degree −1).
     n = b * v
@@ -139,8 +161,9 @@ def geom_terms(r, coef, virtual, rho, beta, v) -> dict[str, tuple[np.ndarray, np
 
     # Stokes drag on the equivalent sphere (diameter 2/3 Σ r).
     d = 2.0 / 3.0 * r.sum()
-    out["viscous"] = term(f=-3 * np.pi * d * beta * v, fv=-3 * np.pi * d * beta * I3,
-                          gw=-np.pi * d**3 * beta * I3)  # fmt: skip
+    out["viscous"] = term(
+        f=-3 * np.pi * d * beta * v, fv=-3 * np.pi * d * beta * I3, gw=-np.pi * d**3 * beta * I3
+    )
     return out
 
 
@@ -170,8 +193,9 @@ def _geom_frames(model: mujoco.MjModel):
         a = model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j])
         Q0, A = rotation(model.body_quat[b]), skew(a)
         anchor = model.jnt_pos[j]  # the hinge turns the fin body about its anchor
-        frames.append((g, fin_of[b], Q0 @ Ql, model.body_pos[b] + Q0 @ pl, Q0 @ A @ Ql,
-                       Q0 @ A @ (pl - anchor)))  # fmt: skip
+        frames.append(
+            (g, fin_of[b], Q0 @ Ql, model.body_pos[b] + Q0 @ pl, Q0 @ A @ Ql, Q0 @ A @ (pl - anchor))
+        )
     return frames
 
 
@@ -190,8 +214,9 @@ def analytic_model(model: mujoco.MjModel, speed: float) -> LinearModel:
     parts = {t: (np.zeros((6, 6)), np.zeros((6, NU))) for t in TERMS}
     for g, fin, Q, p, dQ, dp in _geom_frames(model):
         X = motion_transform(Q, p)
-        terms = geom_terms(semi_axes(model, g), model.geom_fluid[g, 1:6], model.geom_fluid[g, 6:12],
-                           rho, beta, (X @ nu0)[:3])  # fmt: skip
+        terms = geom_terms(
+            semi_axes(model, g), model.geom_fluid[g, 1:6], model.geom_fluid[g, 6:12], rho, beta, (X @ nu0)[:3]
+        )
         for t, (phi, J) in terms.items():
             wrench0 += X.T @ phi
             parts[t][0][:] += _T6 @ X.T @ J @ X @ _T6
@@ -230,10 +255,35 @@ def analytic_model(model: mujoco.MjModel, speed: float) -> LinearModel:
     s = structure(vehicle)
     Mt_s, At_s, Bt_s, St_s = tilde(s, np.array([coefficients[n] for n in COEFFICIENTS]))
     sol = np.linalg.solve(Mt, np.column_stack([At, Bt]))
-    outside = _outside(Mt - Mt_s, At - At_s, Bt - Bt_s, St - St_s, Mt, At, Bt,
-                       thrust, 2 * semi_axes(model, _hull_geom(model)).max())  # fmt: skip
-    return LinearModel(vehicle, coefficients, Mt_s, At_s, Bt_s, St_s, Mt, At, Bt, St,
-                       sol[:, :NX], sol[:, NX:], outside, parts, M_A, thrust)  # fmt: skip
+    outside = _outside(
+        Mt - Mt_s,
+        At - At_s,
+        Bt - Bt_s,
+        St - St_s,
+        Mt,
+        At,
+        Bt,
+        thrust,
+        2 * semi_axes(model, _hull_geom(model)).max(),
+    )
+    return LinearModel(
+        vehicle,
+        coefficients,
+        Mt_s,
+        At_s,
+        Bt_s,
+        St_s,
+        Mt,
+        At,
+        Bt,
+        St,
+        sol[:, :NX],
+        sol[:, NX:],
+        outside,
+        parts,
+        M_A,
+        thrust,
+    )
 
 
 def _hull_geom(model) -> int:
@@ -266,14 +316,32 @@ def _outside(dMt, dAt, dBt, dSt, Mt, At, Bt, thrust, length) -> tuple[OutsideTer
     for row in range(6):
         X = ROWS[row]
         for col in range(NX):
-            terms.append(OutsideTerm(f"{X}_{STATES[col]}", "At", float(dAt[row, col]),
-                                     abs(dAt[row, col]) / np.abs(At[row]).max()))  # fmt: skip
+            terms.append(
+                OutsideTerm(
+                    f"{X}_{STATES[col]}",
+                    "At",
+                    float(dAt[row, col]),
+                    abs(dAt[row, col]) / np.abs(At[row]).max(),
+                )
+            )
         for col in range(6):
-            terms.append(OutsideTerm(f"{X}_{STATES[col]}dot", "Mt", float(-dMt[row, col]),
-                                     abs(dMt[row, col]) / np.abs(Mt[row]).max()))  # fmt: skip
+            terms.append(
+                OutsideTerm(
+                    f"{X}_{STATES[col]}dot",
+                    "Mt",
+                    float(-dMt[row, col]),
+                    abs(dMt[row, col]) / np.abs(Mt[row]).max(),
+                )
+            )
         for col in range(NU):
-            terms.append(OutsideTerm(f"{X}_{short[INPUTS[col]]}", "Bt", float(dBt[row, col]),
-                                     abs(dBt[row, col]) / max(np.abs(Bt[row]).max(), 1e-300)))  # fmt: skip
+            terms.append(
+                OutsideTerm(
+                    f"{X}_{short[INPUTS[col]]}",
+                    "Bt",
+                    float(dBt[row, col]),
+                    abs(dBt[row, col]) / max(np.abs(Bt[row]).max(), 1e-300),
+                )
+            )
         scale = max(thrust, 1e-300) * (length if row >= 3 else 1.0)
         terms.append(OutsideTerm(f"{X}_0", "St", float(dSt[row]), abs(dSt[row]) / scale))
     return tuple(sorted((t for t in terms if t.relative > 1e-10), key=lambda t: -t.relative))
@@ -306,10 +374,10 @@ def numerical_model(plant_or_model, speed: float) -> tuple[np.ndarray, np.ndarra
         quat = np.empty(4)
         mujoco.mju_mat2Quat(quat, R.ravel())
         qpos[qadr + 2] = -(depth + x[9])
-        qpos[qadr + 3:qadr + 7] = quat
+        qpos[qadr + 3 : qadr + 7] = quat
         qpos[fins] = delta
-        qvel[vadr:vadr + 3] = R @ FLIP @ (x[:3] + [U, 0.0, 0.0])
-        qvel[vadr + 3:vadr + 6] = FLIP @ x[3:6]
+        qvel[vadr : vadr + 3] = R @ FLIP @ (x[:3] + [U, 0.0, 0.0])
+        qvel[vadr + 3 : vadr + 6] = FLIP @ x[3:6]
         qvel[fin_dofs] = 0.0
         plant.set_state(qpos, qvel)
         return np.concatenate([plant.body_accelerations(), _kinematics(x, U)])
@@ -338,8 +406,14 @@ def _kinematics(x, U) -> np.ndarray:
     """(φ̇, θ̇, ψ̇, ż) from the Euler-angle kinematics, absolute surge U + u."""
     u, v, w, p, q, r, phi, theta = x[:8]
     sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
-    return np.array([p + (q * sf + r * cf) * st / ct, q * cf - r * sf, (q * sf + r * cf) / ct,
-                     -(U + u) * st + v * ct * sf + w * ct * cf])  # fmt: skip
+    return np.array(
+        [
+            p + (q * sf + r * cf) * st / ct,
+            q * cf - r * sf,
+            (q * sf + r * cf) / ct,
+            -(U + u) * st + v * ct * sf + w * ct * cf,
+        ]
+    )
 
 
 # -- the model config --------------------------------------------------------------------------
@@ -388,7 +462,7 @@ def _comments(lin: LinearModel, mjcf) -> dict[str, str]:
         parts = []
         for t in TERMS:
             block = lin.parts[t][matrix]
-            value = float(np.sum(D[:6, :block.shape[1]] * block) / np.sum(D * D))
+            value = float(np.sum(D[:6, : block.shape[1]] * block) / np.sum(D * D))
             if abs(value) > 1e-9 * max(1.0, abs(lin.coefficients[name])):
                 parts.append(f"{t.replace('_', ' ')} {value:.4g}")
         notes[name] = ", ".join(parts) if parts else "no fluid term"
@@ -396,5 +470,6 @@ def _comments(lin: LinearModel, mjcf) -> dict[str, str]:
         extra = [t for t in lin.outside if t.name[0] == ROWS[row]][:4]
         if extra:
             notes[diag] += "; outside the linear model: " + ", ".join(
-                f"{t.name} = {t.value:.3g} ({100 * t.relative:.2g} % of row)" for t in extra)
+                f"{t.name} = {t.value:.3g} ({100 * t.relative:.2g} % of row)" for t in extra
+            )
     return notes

@@ -49,9 +49,14 @@ class Whiteness:
     white: bool  # p ≥ WHITE_P
 
     def to_dict(self) -> dict:
-        return {"max_autocorrelation": self.max_autocorrelation, "bound": self.bound,
-                "lags_outside": self.lags_outside, "ljung_box_q": self.ljung_box_q,
-                "ljung_box_p": self.ljung_box_p, "white": self.white}  # fmt: skip
+        return {
+            "max_autocorrelation": self.max_autocorrelation,
+            "bound": self.bound,
+            "lags_outside": self.lags_outside,
+            "ljung_box_q": self.ljung_box_q,
+            "ljung_box_p": self.ljung_box_p,
+            "white": self.white,
+        }
 
 
 def whiteness(e: np.ndarray, lags: int = LAGS) -> Whiteness:
@@ -63,7 +68,7 @@ def whiteness(e: np.ndarray, lags: int = LAGS) -> Whiteness:
     if energy == 0.0 or lags < 1:
         return Whiteness(0.0, CONFIDENCE / np.sqrt(n), 0, 0.0, 1.0, True)
     spectrum = np.fft.rfft(e, 2 * n)  # r_k for every lag at once, no circular wrap
-    r = np.fft.irfft(spectrum * np.conj(spectrum))[1:lags + 1] / energy
+    r = np.fft.irfft(spectrum * np.conj(spectrum))[1 : lags + 1] / energy
     bound = CONFIDENCE / np.sqrt(n)
     q = float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1))))
     p = chi2_sf(q, lags)
@@ -82,8 +87,11 @@ def chi2_sf(q: float, k: int) -> float:
         return 1.0
     if k % 2 == 0:
         return min(1.0, sum(math.exp(j * math.log(x) - x - math.lgamma(j + 1)) for j in range(k // 2)))
-    return min(1.0, math.erfc(math.sqrt(x)) + sum(math.exp((j - 0.5) * math.log(x) - x - math.lgamma(j + 0.5))
-                                                  for j in range(1, (k + 1) // 2)))  # fmt: skip
+    return min(
+        1.0,
+        math.erfc(math.sqrt(x))
+        + sum(math.exp((j - 0.5) * math.log(x) - x - math.lgamma(j + 0.5)) for j in range(1, (k + 1) // 2)),
+    )
 
 
 @dataclass(frozen=True)
@@ -114,7 +122,9 @@ class Validation:
 
     def table(self) -> str:
         """The metrics as a plain table, one row per experiment and channel."""
-        analytic = any(m.fit_percent_analytic is not None for ch in self.experiments.values() for m in ch.values())
+        analytic = any(
+            m.fit_percent_analytic is not None for ch in self.experiments.values() for m in ch.values()
+        )
         head = f"{'experiment':<16}{'channel':<8}{'fit %':>8}" + (f"{'analytic':>10}" if analytic else "")
         lines = [head + f"{'max |r_k|':>11}{'bound':>8}{'Ljung-Box p':>13}  residual"]
         for e, ch in self.experiments.items():
@@ -132,8 +142,12 @@ def _pct(v) -> str:
     return "-" if v is None or not np.isfinite(v) else f"{v:.2f}"
 
 
-def validate(experiments: Sequence[Experiment], config: ModelConfig, analytic: ModelConfig | None = None,
-             initial: Mapping[str, Mapping[str, float]] | None = None) -> Validation:  # fmt: skip
+def validate(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    analytic: ModelConfig | None = None,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
+) -> Validation:
     """Fit % and residual whiteness of `config`'s model on every measured channel of the
     experiments (its initial states fitted, or taken from `initial`: experiment → state → x0),
     and the fit % of `analytic`'s model on the same data (initial states fitted)."""
@@ -142,8 +156,11 @@ def validate(experiments: Sequence[Experiment], config: ModelConfig, analytic: M
     out = {}
     for e, y_model, y_base in zip(experiments, yhat, base):
         out[e.name] = {
-            c: ChannelMetrics(fit_percent(e.y[:, k], y_model[:, k]), whiteness(e.y[:, k] - y_model[:, k]),
-                              None if y_base is None else fit_percent(e.y[:, k], y_base[:, k]))  # fmt: skip
+            c: ChannelMetrics(
+                fit_percent(e.y[:, k], y_model[:, k]),
+                whiteness(e.y[:, k] - y_model[:, k]),
+                None if y_base is None else fit_percent(e.y[:, k], y_base[:, k]),
+            )
             for k, c in enumerate(e.measured)
         }
     return Validation(out)

@@ -36,8 +36,11 @@ def load_model(path: str | Path | None = None) -> mujoco.MjModel:
     if path.is_dir():
         raise InputError(f"{path}: is a folder; expected an MJCF file")
     if not path.is_file():
-        raise InputError(f"{path}: is not a regular file; expected an MJCF file" if path.exists()
-                         else f"{path}: no such MJCF file")  # fmt: skip
+        raise InputError(
+            f"{path}: is not a regular file; expected an MJCF file"
+            if path.exists()
+            else f"{path}: no such MJCF file"
+        )
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
@@ -71,33 +74,48 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
             raise InputError(f"{source}: joint {fin!r} must be a hinge")
         b = int(j.bodyid[0])
         if model.body_parentid[b] != body or b in fin_bodies:
-            raise InputError(f"{source}: joint {fin!r} is on body {model.body(b).name!r}; expected a "
-                             "body of its own, a child of 'hull'")  # fmt: skip
+            raise InputError(
+                f"{source}: joint {fin!r} is on body {model.body(b).name!r}; expected a "
+                "body of its own, a child of 'hull'"
+            )
         if np.abs(j.pos).max() > 1e-9:
-            raise InputError(f"{source}: joint {fin!r} pos=\"{' '.join(f'{x:g}' for x in j.pos)}\"; "
-                             "expected 0 0 0, the hinge through its body's origin")  # fmt: skip
+            raise InputError(
+                f'{source}: joint {fin!r} pos="{" ".join(f"{x:g}" for x in j.pos)}"; '
+                "expected 0 0 0, the hinge through its body's origin"
+            )
         fin_bodies.append(b)
         need(mujoco.mjtObj.mjOBJ_ACTUATOR, fin, "position actuator")
         a = model.actuator(fin)
         if a.trnid[0] != j.id or mujoco.mjtTrn(int(a.trntype[0])) != mujoco.mjtTrn.mjTRN_JOINT:
             raise InputError(f"{source}: actuator {fin!r} must drive joint {fin!r}")
         kp = float(a.gainprm[0])
-        if (mujoco.mjtGain(int(a.gaintype[0])) != mujoco.mjtGain.mjGAIN_FIXED
-                or mujoco.mjtBias(int(a.biastype[0])) != mujoco.mjtBias.mjBIAS_AFFINE
-                or mujoco.mjtDyn(int(a.dyntype[0])) == mujoco.mjtDyn.mjDYN_INTEGRATOR
-                or not kp > 0 or a.biasprm[0] != 0 or a.biasprm[1] != -kp):  # fmt: skip
-            raise InputError(f"{source}: actuator {fin!r} is not a position servo (gainprm[0]={kp:g}, "
-                             f"biasprm[:2]=({a.biasprm[0]:g}, {a.biasprm[1]:g})); expected a "
-                             "<position> actuator: gainprm[0] = kp > 0, biasprm[:2] = (0, -kp)")  # fmt: skip
+        if (
+            mujoco.mjtGain(int(a.gaintype[0])) != mujoco.mjtGain.mjGAIN_FIXED
+            or mujoco.mjtBias(int(a.biastype[0])) != mujoco.mjtBias.mjBIAS_AFFINE
+            or mujoco.mjtDyn(int(a.dyntype[0])) == mujoco.mjtDyn.mjDYN_INTEGRATOR
+            or not kp > 0
+            or a.biasprm[0] != 0
+            or a.biasprm[1] != -kp
+        ):
+            raise InputError(
+                f"{source}: actuator {fin!r} is not a position servo (gainprm[0]={kp:g}, "
+                f"biasprm[:2]=({a.biasprm[0]:g}, {a.biasprm[1]:g})); expected a "
+                "<position> actuator: gainprm[0] = kp > 0, biasprm[:2] = (0, -kp)"
+            )
     if model.njnt != 1 + len(FINS):
-        raise InputError(f"{source}: {model.njnt} joints; expected only the free joint 'hull' and "
-                         f"the hinges {', '.join(map(repr, FINS))}")  # fmt: skip
+        raise InputError(
+            f"{source}: {model.njnt} joints; expected only the free joint 'hull' and "
+            f"the hinges {', '.join(map(repr, FINS))}"
+        )
     need(mujoco.mjtObj.mjOBJ_ACTUATOR, "thruster", "motor actuator")
     thruster = model.actuator("thruster")
-    if (mujoco.mjtGain(int(thruster.gaintype[0])) != mujoco.mjtGain.mjGAIN_FIXED
-            or mujoco.mjtBias(int(thruster.biastype[0])) != mujoco.mjtBias.mjBIAS_NONE):  # fmt: skip
-        raise InputError(f"{source}: actuator 'thruster' has a gain or bias of its own; expected a "
-                         "<motor> (force = ctrl)")  # fmt: skip
+    if (
+        mujoco.mjtGain(int(thruster.gaintype[0])) != mujoco.mjtGain.mjGAIN_FIXED
+        or mujoco.mjtBias(int(thruster.biastype[0])) != mujoco.mjtBias.mjBIAS_NONE
+    ):
+        raise InputError(
+            f"{source}: actuator 'thruster' has a gain or bias of its own; expected a <motor> (force = ctrl)"
+        )
     if model.opt.density <= 0:
         raise InputError(f"{source}: option density={model.opt.density}; expected > 0 (a fluid)")
     if not np.intersect1d(fluid_geoms(model), _geom_on(model, "hull")).size:
@@ -105,23 +123,31 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
     h = hydrostatics(model)
     for b, centre in zip(h.bodies, h.centroid):
         if b != body and b not in fin_bodies:
-            raise InputError(f"{source}: body {model.body(b).name!r} has fluid geoms; expected "
-                             "fluid geoms on the hull and the fins only")  # fmt: skip
+            raise InputError(
+                f"{source}: body {model.body(b).name!r} has fluid geoms; expected "
+                "fluid geoms on the hull and the fins only"
+            )
         if b != body:
             fin = FINS[fin_bodies.index(b)]
             axis = model.joint(fin).axis / np.linalg.norm(model.joint(fin).axis)
             if np.linalg.norm(np.cross(axis, centre)) > 1e-9:
-                raise InputError(f"{source}: fin {fin!r}: its fluid geoms' volume centre "
-                                 f"({' '.join(f'{x:g}' for x in centre)}) is off its hinge axis; "
-                                 "expected on it")  # fmt: skip
+                raise InputError(
+                    f"{source}: fin {fin!r}: its fluid geoms' volume centre "
+                    f"({' '.join(f'{x:g}' for x in centre)}) is off its hinge axis; "
+                    "expected on it"
+                )
     M = rigid_body_mass(model)
     if np.abs(M[:3, 3:]).max() > 1e-6 * M[0, 0]:
-        raise InputError(f"{source}: body 'hull': its frame origin is not the vehicle's CG; "
-                         "expected the CG of the whole vehicle, fins included")  # fmt: skip
+        raise InputError(
+            f"{source}: body 'hull': its frame origin is not the vehicle's CG; "
+            "expected the CG of the whole vehicle, fins included"
+        )
 
 
-_NEEDS = ("a body 'hull' with free joint 'hull', hinge joints and position actuators 'rudder', "
-          "'elevator_right', 'elevator_left', a motor 'thruster', ellipsoid fluid geoms")  # fmt: skip
+_NEEDS = (
+    "a body 'hull' with free joint 'hull', hinge joints and position actuators 'rudder', "
+    "'elevator_right', 'elevator_left', a motor 'thruster', ellipsoid fluid geoms"
+)
 
 
 def trim_speed(speed) -> float:
@@ -155,8 +181,10 @@ def semi_axes(model: mujoco.MjModel, g: int) -> np.ndarray:
         return np.array([size[0], size[0], size[1]])
     if kind in (mujoco.mjtGeom.mjGEOM_ELLIPSOID, mujoco.mjtGeom.mjGEOM_BOX):
         return np.array(size[:3])
-    raise InputError(f"geom {model.geom(g).name!r}: fluid geom type {kind} is not supported; "
-                     "expected sphere, capsule, cylinder, ellipsoid or box")  # fmt: skip
+    raise InputError(
+        f"geom {model.geom(g).name!r}: fluid geom type {kind} is not supported; "
+        "expected sphere, capsule, cylinder, ellipsoid or box"
+    )
 
 
 def volume(model: mujoco.MjModel, g: int) -> float:
@@ -288,9 +316,18 @@ def constants(model: mujoco.MjModel, speed: float) -> Vehicle:
     g = float(np.linalg.norm(model.opt.gravity))
     xb = buoyancy_centre(model)
     V = hydrostatics(model).volume.sum()
-    return Vehicle(mass=float(M[0, 0]), Ix=float(M[3, 3]), Iy=float(M[4, 4]), Iz=float(M[5, 5]),
-                   weight=float(M[0, 0]) * g, buoyancy=float(model.opt.density * V * g),
-                   xB=float(xb[0]), yB=float(xb[1]), zB=float(xb[2]), speed=float(speed))  # fmt: skip
+    return Vehicle(
+        mass=float(M[0, 0]),
+        Ix=float(M[3, 3]),
+        Iy=float(M[4, 4]),
+        Iz=float(M[5, 5]),
+        weight=float(M[0, 0]) * g,
+        buoyancy=float(model.opt.density * V * g),
+        xB=float(xb[0]),
+        yB=float(xb[1]),
+        zB=float(xb[2]),
+        speed=float(speed),
+    )
 
 
 def buoyancy_centre(model: mujoco.MjModel) -> np.ndarray:

@@ -13,8 +13,14 @@ from hypothesis import HealthCheck, settings
 
 from testbed.scenario import Flight
 
-_COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                     HealthCheck.too_slow, HealthCheck.data_too_large])  # fmt: skip
+_COMMON = dict(
+    deadline=None,
+    suppress_health_check=[
+        HealthCheck.function_scoped_fixture,
+        HealthCheck.too_slow,
+        HealthCheck.data_too_large,
+    ],
+)
 settings.register_profile("fast", max_examples=20, **_COMMON)
 settings.register_profile("slow", max_examples=400, **_COMMON)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "fast"))
@@ -30,8 +36,13 @@ def _flight(name="horizontal", n=201, seed=0) -> Flight:
     truth[:, 9] += 100.0
     fins = 0.1 * np.sin(np.outer(t, [1.0, 2.0, 3.0]))
     position = np.column_stack([20.0 * t, np.zeros(n), np.full(n, 100.0)])
-    commands = {"depth": np.full(n, 101.0), "rudder": np.sign(fins[:, 0]) * 0.1, "fin_r": fins[:, 0] + 0.01,
-                "roll": np.full(n, np.nan), "mystery": np.linspace(0.0, 1.0, n)}  # fmt: skip
+    commands = {
+        "depth": np.full(n, 101.0),
+        "rudder": np.sign(fins[:, 0]) * 0.1,
+        "fin_r": fins[:, 0] + 0.01,
+        "roll": np.full(n, np.nan),
+        "mystery": np.linspace(0.0, 1.0, n),
+    }
     return Flight(name, t, truth, truth + 0.01, fins, fins + 0.001, position, commands)
 
 

@@ -6,8 +6,22 @@ from testbed.analysis import structural
 from testbed.model import COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, structure, tilde
 
 VEHICLE = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
-SWAY_YAW = ("Y_vdot", "Y_pdot", "Y_rdot", "Y_v", "Y_p", "Y_r", "Y_dr",
-            "N_vdot", "N_pdot", "N_rdot", "N_v", "N_p", "N_r", "N_dr")  # fmt: skip
+SWAY_YAW = (
+    "Y_vdot",
+    "Y_pdot",
+    "Y_rdot",
+    "Y_v",
+    "Y_p",
+    "Y_r",
+    "Y_dr",
+    "N_vdot",
+    "N_pdot",
+    "N_rdot",
+    "N_v",
+    "N_p",
+    "N_r",
+    "N_dr",
+)
 
 
 def _theta(seed=0):
@@ -34,8 +48,10 @@ def test_sway_plus_yaw_and_yaw_scale_are_the_null_directions():
     v, r = STATES.index("v"), STATES.index("r")
     free_idx = [ITHETA[n] for n in SWAY_YAW]
     directions = []
-    for T in (np.eye(10) + 0.3 * np.eye(10)[:, [v]] @ np.eye(10)[[r]],
-              np.eye(10) + 0.3 * np.eye(10)[:, [r]] @ np.eye(10)[[r]]):
+    for T in (
+        np.eye(10) + 0.3 * np.eye(10)[:, [v]] @ np.eye(10)[[r]],
+        np.eye(10) + 0.3 * np.eye(10)[:, [r]] @ np.eye(10)[[r]],
+    ):
         new = _row_operation(s, theta, T)
         changed = np.flatnonzero(~np.isclose(new, theta))
         assert set(changed) <= set(free_idx)
@@ -50,8 +66,7 @@ def test_sway_plus_yaw_and_yaw_scale_are_the_null_directions():
         residual = d - basis.T @ np.linalg.lstsq(basis.T, d, rcond=None)[0]
         assert np.linalg.norm(residual) < 1e-8 * np.linalg.norm(d)
     assert np.linalg.matrix_rank(np.array(directions)) == 2
-    assert {frozenset(g) for g in result.drift_groups} == {frozenset(SWAY_YAW[:7]),
-                                                           frozenset(SWAY_YAW[7:])}
+    assert {frozenset(g) for g in result.drift_groups} == {frozenset(SWAY_YAW[:7]), frozenset(SWAY_YAW[7:])}
 
 
 def test_offset_centre_of_buoyancy_pins_the_yaw_row():

@@ -57,8 +57,9 @@ def test_closed_loop_is_stable_and_is_what_step_computes(lin, design):
 
 
 def _documented_table():
-    rows = re.findall(r"^\| (course rate|depth|roll) \| .*? \| ([\d.]+) s \| ([\d.]+) % \| ([\d.]+) s \|$",
-                      ap.__doc__, re.M)  # fmt: skip
+    rows = re.findall(
+        r"^\| (course rate|depth|roll) \| .*? \| ([\d.]+) s \| ([\d.]+) % \| ([\d.]+) s \|$", ap.__doc__, re.M
+    )
     return {name: tuple(map(float, values)) for name, *values in rows}
 
 
@@ -69,7 +70,11 @@ def test_step_responses_reach_the_command_as_documented(lin, design, loop):
     assert m.final == pytest.approx(end, abs=0.02 * abs(end - start))  # reaches the command
     assert np.abs(fins).max() <= ap.FIN_LIMIT
     rise, overshoot, settling = _documented_table()[loop]
-    assert (round(m.rise, 2), round(100 * m.overshoot, 1), round(m.settling, 2)) == (rise, overshoot, settling)
+    assert (round(m.rise, 2), round(100 * m.overshoot, 1), round(m.settling, 2)) == (
+        rise,
+        overshoot,
+        settling,
+    )
 
 
 def test_step_metrics_of_a_second_order_system():
@@ -88,10 +93,13 @@ def test_step_metrics_of_a_second_order_system():
 
 def test_fins_stay_within_the_stops(lin, design):
     autopilot = ap.Autopilot(design, DT)
-    t, xs, fins = ap.fly_linear(lin.A_full, lin.B_full, autopilot,
-                                lambda t, x: {"yaw_rate": 10.0, "depth": 300.0, "roll": 1.0}, 10.0)  # fmt: skip
+    t, xs, fins = ap.fly_linear(
+        lin.A_full, lin.B_full, autopilot, lambda t, x: {"yaw_rate": 10.0, "depth": 300.0, "roll": 1.0}, 10.0
+    )
     rng = np.random.default_rng(1)
-    commands = [autopilot.step(x, yaw_rate=4.0, depth=300.0, roll=1.0)[0] for x in rng.normal(0, 3, (200, NX))]
+    commands = [
+        autopilot.step(x, yaw_rate=4.0, depth=300.0, roll=1.0)[0] for x in rng.normal(0, 3, (200, NX))
+    ]
     assert np.abs(fins).max() <= ap.FIN_LIMIT and np.abs(commands).max() <= ap.FIN_LIMIT
     assert np.abs(fins[:, 0]).max() == pytest.approx(ap.FIN_LIMIT)  # it did saturate
 
@@ -117,9 +125,13 @@ def _recovery(lin, design, kind):
     the step) and the settling time."""
     target = np.radians(20.0)
     autopilot = kind(design, DT)
-    t, xs, _ = ap.fly_linear(lin.A_full, lin.B_full, autopilot,
-                             lambda t, x: {"yaw_rate": 30.0 if t < 10.0 else target, "depth": 0.0, "roll": 0.0},
-                             20.0)  # fmt: skip
+    t, xs, _ = ap.fly_linear(
+        lin.A_full,
+        lin.B_full,
+        autopilot,
+        lambda t, x: {"yaw_rate": 30.0 if t < 10.0 else target, "depth": 0.0, "roll": 0.0},
+        20.0,
+    )
     after = t >= 10.0
     r = xs[after, IX["r"]]
     m = ap.step_metrics(t[after] - 10.0, r, r[0], target)

@@ -83,19 +83,37 @@ def test_a_cell_beyond_the_csv_field_limit_is_one_line(run, tmp_path, capsys):
     data = _write(tmp_path / "long.csv", rows)
     with pytest.raises(InputError, match=r"long.csv: line 6: field larger than field limit"):
         read_csv(data)
-    refused(capsys, "identify", data, "--config", run / "model.toml", "--out", tmp_path / "e.json",
-            words=["long.csv", "line 6"])  # fmt: skip
+    refused(
+        capsys,
+        "identify",
+        data,
+        "--config",
+        run / "model.toml",
+        "--out",
+        tmp_path / "e.json",
+        words=["long.csv", "line 6"],
+    )
     assert _listing(tmp_path) == ["long.csv"]
 
 
-@pytest.mark.parametrize("command", [["identify", "--method", "ml-gn"], ["identify", "--method", "mekf"],
-                                     ["analyze"]])  # fmt: skip
+@pytest.mark.parametrize(
+    "command", [["identify", "--method", "ml-gn"], ["identify", "--method", "mekf"], ["analyze"]]
+)
 def test_a_cell_of_1e300_is_blamed_on_its_line_and_column(run, tmp_path, capsys, command):
     rows = _rows(run)
     rows[7][rows[0].index("q")] = "1e300"
     data = _write(tmp_path / "big.csv", rows)
-    refused(capsys, command[0], data, *command[1:], "--config", run / "model.toml", "--out",
-            tmp_path / "e.json", words=["big.csv", "line 8", "column 'q'", "1e300"])  # fmt: skip
+    refused(
+        capsys,
+        command[0],
+        data,
+        *command[1:],
+        "--config",
+        run / "model.toml",
+        "--out",
+        tmp_path / "e.json",
+        words=["big.csv", "line 8", "column 'q'", "1e300"],
+    )
     assert _listing(tmp_path) == ["big.csv"]
 
 
@@ -105,8 +123,16 @@ def test_every_state_times_1e300_is_blamed_on_the_data(run, tmp_path, capsys):
         for j in range(1, 11):
             row[j] = repr(float(row[j]) * 1e300)
     data = _write(tmp_path / "huge.csv", rows)
-    refused(capsys, "identify", data, "--config", run / "model.toml", "--out", tmp_path / "e.json",
-            words=["huge.csv", "line 2", "column 'u'"])  # fmt: skip
+    refused(
+        capsys,
+        "identify",
+        data,
+        "--config",
+        run / "model.toml",
+        "--out",
+        tmp_path / "e.json",
+        words=["huge.csv", "line 2", "column 'u'"],
+    )
     # the same records made in Python: the library refuses them too, before any fit
     e = read_csv(run / "horizontal.csv")
     with pytest.raises(InputError, match="beyond"):
@@ -117,16 +143,31 @@ def test_inputs_of_1e300_and_a_200_s_step_blame_the_data_not_the_config(run, tmp
     rows = _rows(run)
     rows[4][rows[0].index("delta_r")] = "1e300"
     data = _write(tmp_path / "fins.csv", rows)
-    err = refused(capsys, "identify", data, "--config", run / "model.toml", "--start", "config",
-                  words=["fins.csv", "line 5", "column 'delta_r'"])  # fmt: skip
+    err = refused(
+        capsys,
+        "identify",
+        data,
+        "--config",
+        run / "model.toml",
+        "--start",
+        "config",
+        words=["fins.csv", "line 5", "column 'delta_r'"],
+    )
     assert "model.toml" not in err
     rows = _rows(run)
     for k, row in enumerate(rows[1:]):
         row[0] = str(200 * k)
     data = _write(tmp_path / "slow.csv", rows)
     for argv in (["identify", "--start", "config"], ["identify", "--method", "mekf"], ["analyze"]):
-        err = refused(capsys, argv[0], data, *argv[1:], "--config", run / "model.toml",
-                      words=["slow.csv", "t steps 200 s", "(t in seconds)"])  # fmt: skip
+        err = refused(
+            capsys,
+            argv[0],
+            data,
+            *argv[1:],
+            "--config",
+            run / "model.toml",
+            words=["slow.csv", "t steps 200 s", "(t in seconds)"],
+        )
         assert "diverge" not in err
 
 
@@ -147,8 +188,14 @@ def test_a_latin1_name_of_an_extra_column_is_ignored(run, tmp_path):
 
 
 def test_a_device_or_folder_as_data_is_refused_without_reading_it(tmp_path, capsys):
-    refused(capsys, "identify", "/dev/zero", "--config", tmp_path / "c.toml",
-            words=["/dev/zero", "not a regular file"])  # fmt: skip
+    refused(
+        capsys,
+        "identify",
+        "/dev/zero",
+        "--config",
+        tmp_path / "c.toml",
+        words=["/dev/zero", "not a regular file"],
+    )
     with pytest.raises(InputError, match="is a folder; expected a model config"):
         read_config(tmp_path)
 
@@ -156,11 +203,14 @@ def test_a_device_or_folder_as_data_is_refused_without_reading_it(tmp_path, caps
 # -- the model config ----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("line, new, words", [
-    ("speed = 20.0", "speed = 1e-6", "speed = 1e-06; expected 0.001 to 450"),
-    ("speed = 20.0", "speed = 1e6", "speed = 1e+06; expected 0.001 to 450"),
-    ("weight = ", "weight = -", "weight = -1675.09; expected > 0"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "line, new, words",
+    [
+        ("speed = 20.0", "speed = 1e-6", "speed = 1e-06; expected 0.001 to 450"),
+        ("speed = 20.0", "speed = 1e6", "speed = 1e+06; expected 0.001 to 450"),
+        ("weight = ", "weight = -", "weight = -1675.09; expected > 0"),
+    ],
+)
 def test_an_impossible_vehicle_is_refused(run, tmp_path, capsys, line, new, words):
     config = _config(run, tmp_path, **{line: new})
     for argv in (["identify", run], ["analyze", run]):
@@ -173,8 +223,18 @@ def test_an_inertia_that_is_not_a_bodys_is_refused_before_the_fit(run, tmp_path,
     config = _config(run, tmp_path, free=("N_r", "N_rdot"))
     text = config.read_text().splitlines()
     config.write_text("\n".join(f"N_rdot = {iz!r}" if ln.startswith("N_rdot =") else ln for ln in text))
-    refused(capsys, "identify", run, "--config", config, "--method", method, "--out", tmp_path / "e.json",
-            words=["c.toml", "Iz − N_rdot = 0"])  # fmt: skip
+    refused(
+        capsys,
+        "identify",
+        run,
+        "--config",
+        config,
+        "--method",
+        method,
+        "--out",
+        tmp_path / "e.json",
+        words=["c.toml", "Iz − N_rdot = 0"],
+    )
     assert not (tmp_path / "e.json").exists()
 
 
@@ -183,8 +243,18 @@ def test_only_u_measured_with_lateral_coefficients_free_is_not_identifiable(run,
     data = _write(tmp_path / "u.csv", rows)
     config = _config(run, tmp_path, free=("Y_v", "N_r", "Y_dr"))
     for method in ("ml-gn", "mekf"):
-        refused(capsys, "identify", data, "--config", config, "--method", method, "--out", tmp_path / "e.json",
-                words=["Y_v, N_r, Y_dr", "not identifiable", "(u)"])  # fmt: skip
+        refused(
+            capsys,
+            "identify",
+            data,
+            "--config",
+            config,
+            "--method",
+            method,
+            "--out",
+            tmp_path / "e.json",
+            words=["Y_v, N_r, Y_dr", "not identifiable", "(u)"],
+        )
     assert not (tmp_path / "e.json").exists()
     code, out, err = cli(capsys, "analyze", data, "--config", config)
     doc = json.loads(out)
@@ -206,8 +276,17 @@ def test_simulate_refuses_a_duration_it_could_not_use_up_front(tmp_path, capsys,
     import testbed.runs
 
     monkeypatch.setattr(testbed.runs, "fly_scenario", lambda *a, **k: pytest.fail("flew"))
-    refused(capsys, "simulate", "--scenario", "I", "--duration", duration, "--out", tmp_path / "r",
-            words=[f"--duration {float(duration)!r}", "samples"])  # fmt: skip
+    refused(
+        capsys,
+        "simulate",
+        "--scenario",
+        "I",
+        "--duration",
+        duration,
+        "--out",
+        tmp_path / "r",
+        words=[f"--duration {float(duration)!r}", "samples"],
+    )
     assert _listing(tmp_path) == []
 
 
@@ -216,7 +295,15 @@ def test_misleading_path_messages_name_the_file_in_the_way(run, tmp_path, capsys
     file.write_text("not a folder\n")
     refused(capsys, "identify", run, "--out", file / "est.json", words=[f"{file} is a file, not a folder"])
     refused(capsys, "analyze", run, "--out", file / "a.json", words=[f"{file} is a file, not a folder"])
-    refused(capsys, "simulate", "--scenario", "I", "--out", file / "run", words=[f"{file} is a file, not a folder"])
+    refused(
+        capsys,
+        "simulate",
+        "--scenario",
+        "I",
+        "--out",
+        file / "run",
+        words=[f"{file} is a file, not a folder"],
+    )
     refused(capsys, "truth", "--mjcf", tmp_path, words=[f"{tmp_path}: is a folder; expected an MJCF file"])
     assert _listing(tmp_path) == ["x.csv"] and file.read_text() == "not a folder\n"
 
@@ -231,15 +318,32 @@ def test_simulate_force_never_replaces_a_file_or_a_users_folder(tmp_path, capsys
     folder = tmp_path / "mine"
     folder.mkdir()
     (folder / "thesis.tex").write_text("keep me too\n")
-    refused(capsys, "simulate", "--scenario", "I", "--force", "--out", folder, words=["mine", "not a run directory"])
+    refused(
+        capsys,
+        "simulate",
+        "--scenario",
+        "I",
+        "--force",
+        "--out",
+        folder,
+        words=["mine", "not a run directory"],
+    )
     assert _listing(tmp_path) == ["FILE", "mine"] and file.read_text() == "keep me\n"
     assert _listing(folder) == ["thesis.tex"]
 
 
 def test_an_output_may_not_be_an_input(run, tmp_path, capsys):
     before = (run / "horizontal.csv").read_bytes()
-    refused(capsys, "identify", run / "horizontal.csv", "--config", run / "model.toml", "--out",
-            run / "horizontal.csv", words=["is the input"])  # fmt: skip
+    refused(
+        capsys,
+        "identify",
+        run / "horizontal.csv",
+        "--config",
+        run / "model.toml",
+        "--out",
+        run / "horizontal.csv",
+        words=["is the input"],
+    )
     refused(capsys, "analyze", run, "--out", run / "model.toml", words=["is the input"])
     refused(capsys, "identify", run, "--out", tmp_path / "a.rrd", "--rrd", tmp_path / "a.rrd", words=["also"])
     assert (run / "horizontal.csv").read_bytes() == before
@@ -255,8 +359,15 @@ def _null_device(tmp_path):
     return node
 
 
-@pytest.mark.parametrize("command", [["truth"], ["identify", "--method", "ml-gn", "--max-iter", "1"],
-                                     ["identify", "--method", "mekf"], ["analyze"]])  # fmt: skip
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["truth"],
+        ["identify", "--method", "ml-gn", "--max-iter", "1"],
+        ["identify", "--method", "mekf"],
+        ["analyze"],
+    ],
+)
 def test_a_character_device_as_out_is_written_into_not_replaced(run, tmp_path, capsys, command):
     node = _null_device(tmp_path)
     rdev = os.stat(node).st_rdev
@@ -314,16 +425,25 @@ def test_a_broken_truth_file_is_found_before_the_fit(run, tmp_path, capsys, monk
     shutil.copytree(run, copy)
     (copy / "horizontal.truth.csv").write_text("t,u\n")
     monkeypatch.setattr(testbed.estimators, "identify", lambda *a, **k: pytest.fail("the fit ran"))
-    refused(capsys, "identify", copy, "--out", tmp_path / "e.json",
-            words=["horizontal.truth.csv", "column 'delta_r' missing"])  # fmt: skip
+    refused(
+        capsys,
+        "identify",
+        copy,
+        "--out",
+        tmp_path / "e.json",
+        words=["horizontal.truth.csv", "column 'delta_r' missing"],
+    )
     assert not (tmp_path / "e.json").exists()
 
 
-@pytest.mark.parametrize("experiments, words", [
-    (["../outside"], "expected a file name without a folder"),
-    (["horizontal", "horizontal"], "listed twice"),
-    ("horizontal", "'experiments' list of names"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "experiments, words",
+    [
+        (["../outside"], "expected a file name without a folder"),
+        (["horizontal", "horizontal"], "listed twice"),
+        ("horizontal", "'experiments' list of names"),
+    ],
+)
 def test_a_manifest_names_only_its_own_distinct_files(run, tmp_path, capsys, experiments, words):
     import shutil
 
@@ -338,8 +458,15 @@ def test_a_manifest_names_only_its_own_distinct_files(run, tmp_path, capsys, exp
 def test_the_same_file_twice_is_refused_and_namesakes_are_told_apart(run, tmp_path, capsys):
     import shutil
 
-    refused(capsys, "analyze", run / "horizontal.csv", run / "horizontal.csv", "--config",
-            run / "model.toml", words=["given twice"])  # fmt: skip
+    refused(
+        capsys,
+        "analyze",
+        run / "horizontal.csv",
+        run / "horizontal.csv",
+        "--config",
+        run / "model.toml",
+        words=["given twice"],
+    )
     other = tmp_path / "II"
     shutil.copytree(run, other)
     code, out, err = cli(capsys, "identify", run, other, "--max-iter", "1", "--out", tmp_path / "e.json")
@@ -355,8 +482,17 @@ def test_input_error_is_a_value_error():
 
 
 def test_an_estimate_that_is_not_finite_still_writes_json():
-    est = Estimate("ml-gn", Status.DIVERGED, ("Y_v",), np.array([np.inf]), np.array([np.nan]),
-                   np.nan, 0, 0.0, {"v": np.inf})  # fmt: skip
+    est = Estimate(
+        "ml-gn",
+        Status.DIVERGED,
+        ("Y_v",),
+        np.array([np.inf]),
+        np.array([np.nan]),
+        np.nan,
+        0,
+        0.0,
+        {"v": np.inf},
+    )
     doc = json.loads(est.to_json())
     assert doc["coefficients"]["Y_v"] == {"value": None, "std": None} and doc["noise_std"] == {"v": None}
 

@@ -21,7 +21,8 @@ def test_plan_covers_scenarios_methods_and_seeds_with_distinct_keys():
     cells = plan(2)
     assert len(cells) == 2 * 4 * 2
     assert {(c.scenario, c.method, c.seed) for c in cells} == {
-        (s, m, k) for s in ("I", "II") for m in ("ml-nr", "ml-nm", "mekf", "ml-gn") for k in (1, 2)}
+        (s, m, k) for s in ("I", "II") for m in ("ml-nr", "ml-nm", "mekf", "ml-gn") for k in (1, 2)
+    }
     assert len({c.key for c in cells}) == len(cells)
     assert Cell("I", "ml-nm", 1).key != Cell("I", "ml-nm", 1, duration=30.0).key  # the data differ
     assert all(c.duration == campaign.QUICK_DURATION for c in plan(1, quick=True))
@@ -38,11 +39,19 @@ def test_a_failing_cell_is_a_result_with_its_reason():
 
 
 def _doc(scenario, method, seed, ratios, converged=True, std=1e-6):
-    rows = [{"coefficient": f"C{i}", "analytic": -10.0, "estimate": -10.0 * x, "std": std}
-            for i, x in enumerate(ratios)]
-    return {"cell": {"scenario": scenario, "method": method, "seed": seed, "duration": None},
-            "status": "converged" if converged else "max iterations", "reason": "", "converged": converged,
-            "iterations": 5, "wall_time_s": 1.0, "rows": rows}
+    rows = [
+        {"coefficient": f"C{i}", "analytic": -10.0, "estimate": -10.0 * x, "std": std}
+        for i, x in enumerate(ratios)
+    ]
+    return {
+        "cell": {"scenario": scenario, "method": method, "seed": seed, "duration": None},
+        "status": "converged" if converged else "max iterations",
+        "reason": "",
+        "converged": converged,
+        "iterations": 5,
+        "wall_time_s": 1.0,
+        "rows": rows,
+    }
 
 
 DRIFT = {"null_directions": 2, "drift_groups": [["X_udot", "X_u"]], "null_directions_inertia_known": 0}
@@ -65,7 +74,9 @@ def test_conclusion_rules_decide_from_results_csv(tmp_path):
     v = conclusions(rows, {"I": DRIFT, "II": {**DRIFT, "null_directions_inertia_known": 1}})
     assert not v["1"]["holds"]
     # within 3 σ counts as acceptable too
-    docs = [_doc(s, "ml-nm", 1, bad, std=5.0) for s in ("I", "II")] + [_doc(s, "ml-nr", 1, bad) for s in ("I", "II")]
+    docs = [_doc(s, "ml-nm", 1, bad, std=5.0) for s in ("I", "II")] + [
+        _doc(s, "ml-nr", 1, bad) for s in ("I", "II")
+    ]
     v = conclusions(read_back(tmp_path, docs), {"I": DRIFT})
     assert v["2"]["holds"]
 
@@ -81,8 +92,16 @@ def cluster():
 
     from dask.distributed import Client, LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=logging.ERROR) as c, Client(c) as client:
+    with (
+        LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        ) as c,
+        Client(c) as client,
+    ):
         yield c, client
 
 
@@ -92,7 +111,9 @@ def _check_outputs(out, cells):
     rows = read_results(out / "results.csv")
     keys = [(r["scenario"], r["method"], r["seed"], r["coefficient"]) for r in rows]
     assert len(keys) == len(set(keys))  # no duplicates
-    assert {(r["scenario"], r["method"], r["seed"]) for r in rows} == {(c.scenario, c.method, c.seed) for c in cells}
+    assert {(r["scenario"], r["method"], r["seed"]) for r in rows} == {
+        (c.scenario, c.method, c.seed) for c in cells
+    }
     verdicts = json.loads((out / "conclusions.json").read_text())
     assert list(verdicts) == ["1", "2", "3"] and all(isinstance(v["holds"], bool) for v in verdicts.values())
     html = (out / "report.html").read_text()

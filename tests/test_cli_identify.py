@@ -44,7 +44,9 @@ def test_every_method_on_a_scenario_ii_run(run, tmp_path, capsys, method, limit)
     assert all("not identifiable" in f["reason"] for f in doc["fixed"].values())
     assert all(f"{n}" in printed.err for n in doc["fixed"])
     assert all(np.isfinite(c["value"]) and c["std"] > 0 for c in doc["coefficients"].values())
-    assert set(doc["noise_std"]) == set(config.outputs) == {"u", "v", "w", "p", "q", "r", "phi", "theta", "psi"}
+    assert (
+        set(doc["noise_std"]) == set(config.outputs) == {"u", "v", "w", "p", "q", "r", "phi", "theta", "psi"}
+    )
     for key in ("iterations", "cost", "wall_time_s"):
         assert key in doc
     rows = doc["comparison"]["rows"]
@@ -100,7 +102,7 @@ def _csv(run, tmp_path, edit):
 def _drop(column):
     def edit(rows):
         k = rows[0].index(column)
-        return [r[:k] + r[k + 1:] for r in rows]
+        return [r[:k] + r[k + 1 :] for r in rows]
 
     return edit
 
@@ -119,21 +121,36 @@ def _set(line, column, value):
 
 
 BAD = {
-    "unknown coefficient": (lambda run, tmp: ["--config", _config(run, tmp, **{'free = ["': 'free = ["Y_nope", "'})],
-                            "Y_nope"),
-    "missing vehicle constant": (lambda run, tmp: ["--config", _config(run, tmp, **{"Iy = ": "# Iy = "})],
-                                 "Iy missing"),
-    "csv without an input": (lambda run, tmp: [_csv(run, tmp, _drop("delta_er")), "--config", run / "model.toml"],
-                             "'delta_er' missing"),
-    "non-uniform time": (lambda run, tmp: [_csv(run, tmp, _set(5, "t", "0.091")), "--config", run / "model.toml"],
-                         "not uniformly sampled"),
-    "nan": (lambda run, tmp: [_csv(run, tmp, _set(7, "q", "nan")), "--config", run / "model.toml"],
-            "column 'q'"),
-    "diverging model": (lambda run, tmp: ["--config", _config(run, tmp, **{"M_q = -": "M_q = "}),
-                                          "--start", "config"], "diverges"),
+    "unknown coefficient": (
+        lambda run, tmp: ["--config", _config(run, tmp, **{'free = ["': 'free = ["Y_nope", "'})],
+        "Y_nope",
+    ),
+    "missing vehicle constant": (
+        lambda run, tmp: ["--config", _config(run, tmp, **{"Iy = ": "# Iy = "})],
+        "Iy missing",
+    ),
+    "csv without an input": (
+        lambda run, tmp: [_csv(run, tmp, _drop("delta_er")), "--config", run / "model.toml"],
+        "'delta_er' missing",
+    ),
+    "non-uniform time": (
+        lambda run, tmp: [_csv(run, tmp, _set(5, "t", "0.091")), "--config", run / "model.toml"],
+        "not uniformly sampled",
+    ),
+    "nan": (
+        lambda run, tmp: [_csv(run, tmp, _set(7, "q", "nan")), "--config", run / "model.toml"],
+        "column 'q'",
+    ),
+    "diverging model": (
+        lambda run, tmp: ["--config", _config(run, tmp, **{"M_q = -": "M_q = "}), "--start", "config"],
+        "diverges",
+    ),
     "rrd folder missing": (lambda run, tmp: ["--rrd", tmp / "nowhere" / "fit.rrd"], "does not exist"),
     "rrd is a folder": (lambda run, tmp: ["--rrd", _folder(tmp / "fit.rrd")], "is a folder"),
-    "start for a filter": (lambda run, tmp: ["--method", "mekf", "--start", "config"], "mekf: option --start 'config'"),
+    "start for a filter": (
+        lambda run, tmp: ["--method", "mekf", "--start", "config"],
+        "mekf: option --start 'config'",
+    ),
 }
 
 
@@ -162,15 +179,29 @@ def test_a_run_directory_reads_only_its_experiments(run, tmp_path, capsys):
     shutil.copytree(run, copy)
     (copy / "notes.csv").write_text("whatever,else\n1,2\n")  # e.g. a filter history written beside
     _ok(capsys, ["identify", copy, "--method", "ml-gn", "--max-iter", "1", "--out", tmp_path / "e.json"])
-    assert set(json.loads((tmp_path / "e.json").read_text())["initial_states"]) == {"horizontal", "vertical", "roll"}
+    assert set(json.loads((tmp_path / "e.json").read_text())["initial_states"]) == {
+        "horizontal",
+        "vertical",
+        "roll",
+    }
     assert all(n in COEFFICIENTS for n in read_config(copy / "model.toml").free)
 
 
 def test_a_diverging_filter_is_reported_and_not_written(run, tmp_path, capsys):
     # the noise-free truth of the plant is far from any linear model within the filter's R floor
     out = tmp_path / "mekf.json"
-    code = main(["identify", str(run / "horizontal.truth.csv"), "--config", str(run / "model.toml"),
-                 "--method", "mekf", "--out", str(out)])  # fmt: skip
+    code = main(
+        [
+            "identify",
+            str(run / "horizontal.truth.csv"),
+            "--config",
+            str(run / "model.toml"),
+            "--method",
+            "mekf",
+            "--out",
+            str(out),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "diverged" in err, err
     assert list(tmp_path.iterdir()) == []  # neither the estimate nor its history

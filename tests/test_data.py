@@ -3,8 +3,18 @@
 import numpy as np
 import pytest
 
-from testbed.data import (CSV_COLUMNS, ModelConfig, config_text, load_data, median, parse_config,
-                          read_config, read_csv, write_config, write_csv)
+from testbed.data import (
+    CSV_COLUMNS,
+    ModelConfig,
+    config_text,
+    load_data,
+    median,
+    parse_config,
+    read_config,
+    read_csv,
+    write_config,
+    write_csv,
+)
 from testbed.errors import InputError, atomic_directory
 from testbed.model import COEFFICIENTS, STATES, Vehicle
 
@@ -40,9 +50,13 @@ def test_csv_read_in_one_pass_equals_row_by_row(tmp_path):
     head, first, rest = text.split("\n", 2)
     cells = first.split(",")
     cells[1] = f'"{cells[1]}"'
-    variants = {"quoted.csv": "\n".join([head, ",".join(cells), rest]), "cr.csv": text.replace("\n", "\r"),
-                "text.csv": "".join(line + (",note\n" if k else ",remark\n")
-                                    for k, line in enumerate(text.splitlines()))}  # fmt: skip
+    variants = {
+        "quoted.csv": "\n".join([head, ",".join(cells), rest]),
+        "cr.csv": text.replace("\n", "\r"),
+        "text.csv": "".join(
+            line + (",note\n" if k else ",remark\n") for k, line in enumerate(text.splitlines())
+        ),
+    }
     for name, variant in variants.items():
         e = read_csv(_csv(tmp_path, variant, name))
         for a, b in ((e.t, plain.t), (e.y, plain.y), (e.inputs, plain.inputs)):
@@ -51,30 +65,42 @@ def test_csv_read_in_one_pass_equals_row_by_row(tmp_path):
 
 def test_median_is_numpys():
     rng = np.random.default_rng(4)
-    for a in (rng.normal(size=7), rng.normal(size=8), np.array([1.0, np.inf, -np.inf, 2.0]),
-              np.array([3.0, np.nan, 1.0]), np.array([-np.inf, np.inf]), rng.integers(0, 3, size=10)):
+    for a in (
+        rng.normal(size=7),
+        rng.normal(size=8),
+        np.array([1.0, np.inf, -np.inf, 2.0]),
+        np.array([3.0, np.nan, 1.0]),
+        np.array([-np.inf, np.inf]),
+        rng.integers(0, 3, size=10),
+    ):
         with np.errstate(invalid="ignore"):  # -inf + inf
             np.testing.assert_array_equal(median(a), np.median(a))
 
 
 def test_csv_subset_and_extra_columns(tmp_path):
-    p = _csv(tmp_path, "t,extra,r,delta_r,delta_er,delta_el,v\n0,9,1,0,0,0,2\n0.1,9,1,0,0,0,2\n"
-                       "0.2,9,1,0,0,0,2\n")  # fmt: skip
+    p = _csv(
+        tmp_path, "t,extra,r,delta_r,delta_er,delta_el,v\n0,9,1,0,0,0,2\n0.1,9,1,0,0,0,2\n0.2,9,1,0,0,0,2\n"
+    )
     e = read_csv(p)
     assert e.measured == ("v", "r")
     np.testing.assert_array_equal(e.column("r"), [1, 1, 1])
 
 
-@pytest.mark.parametrize("text, words", [
-    ("", "empty file"),
-    ("t,u,delta_r,delta_er\n0,1,0,0\n", "'delta_el' missing"),
-    ("t,delta_r,delta_er,delta_el\n0,0,0,0\n1,0,0,0\n2,0,0,0\n", "no state column"),
-    ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,nan,0,0,0\n0.2,1,0,0,0\n", "line 3, column 'u'"),
-    ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,x,0,0,0\n0.2,1,0,0,0\n", "'x' is not a number"),
-    ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0,0\n0.3,1,0,0,0\n0.4,1,0,0,0\n",
-     "not uniformly sampled"),
-    ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0\n0.2,1,0,0,0\n", "line 3 has 4 fields"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("", "empty file"),
+        ("t,u,delta_r,delta_er\n0,1,0,0\n", "'delta_el' missing"),
+        ("t,delta_r,delta_er,delta_el\n0,0,0,0\n1,0,0,0\n2,0,0,0\n", "no state column"),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,nan,0,0,0\n0.2,1,0,0,0\n", "line 3, column 'u'"),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,x,0,0,0\n0.2,1,0,0,0\n", "'x' is not a number"),
+        (
+            "t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0,0\n0.3,1,0,0,0\n0.4,1,0,0,0\n",
+            "not uniformly sampled",
+        ),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0\n0.2,1,0,0,0\n", "line 3 has 4 fields"),
+    ],
+)
 def test_csv_bad_input(tmp_path, text, words):
     with pytest.raises(InputError, match=words) as exc:
         read_csv(_csv(tmp_path, text))
@@ -92,8 +118,11 @@ def test_config_round_trip(tmp_path):
 
 
 def _doc(**changes):
-    doc = {"vehicle": {k: getattr(VEHICLE, k) for k in Vehicle.names()},
-           "coefficients": {"X_u": -1.0}, "identify": {"free": ["X_u"]}}  # fmt: skip
+    doc = {
+        "vehicle": {k: getattr(VEHICLE, k) for k in Vehicle.names()},
+        "coefficients": {"X_u": -1.0},
+        "identify": {"free": ["X_u"]},
+    }
     for key, value in changes.items():
         table, _, field = key.partition("__")
         if value is None:
@@ -103,19 +132,25 @@ def _doc(**changes):
     return doc
 
 
-@pytest.mark.parametrize("changes, words", [
-    ({"vehicle__zB": None}, r"\[vehicle\] zB missing"),
-    ({"vehicle__mass": "heavy"}, r"\[vehicle\] mass = 'heavy'; expected a finite number"),
-    ({"vehicle__speed": 0.0}, r"\[vehicle\] speed = 0; expected 0.001 to 450"),
-    ({"vehicle__speed": 1e-6}, r"\[vehicle\] speed = 1e-06; expected 0.001 to 450"),
-    ({"vehicle__weight": -299.0}, r"\[vehicle\] weight = -299; expected > 0"),
-    ({"vehicle__buoyancy": 0}, r"\[vehicle\] buoyancy = 0; expected > 0"),
-    ({"coefficients__Y_v": 1e300}, r"\[coefficients\] Y_v = 1e\+300; expected a magnitude of at most 1e\+15"),
-    ({"vehicle__colour": 1.0}, r"\[vehicle\] colour is not a vehicle constant"),
-    ({"coefficients__Y_vv": 1.0}, r"\[coefficients\] Y_vv is not a coefficient"),
-    ({"identify__free": ["X_u", "Y_foo"]}, r"free names 'Y_foo'"),
-    ({"identify__free": ["X_u", "X_u"]}, r"names a coefficient twice"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "changes, words",
+    [
+        ({"vehicle__zB": None}, r"\[vehicle\] zB missing"),
+        ({"vehicle__mass": "heavy"}, r"\[vehicle\] mass = 'heavy'; expected a finite number"),
+        ({"vehicle__speed": 0.0}, r"\[vehicle\] speed = 0; expected 0.001 to 450"),
+        ({"vehicle__speed": 1e-6}, r"\[vehicle\] speed = 1e-06; expected 0.001 to 450"),
+        ({"vehicle__weight": -299.0}, r"\[vehicle\] weight = -299; expected > 0"),
+        ({"vehicle__buoyancy": 0}, r"\[vehicle\] buoyancy = 0; expected > 0"),
+        (
+            {"coefficients__Y_v": 1e300},
+            r"\[coefficients\] Y_v = 1e\+300; expected a magnitude of at most 1e\+15",
+        ),
+        ({"vehicle__colour": 1.0}, r"\[vehicle\] colour is not a vehicle constant"),
+        ({"coefficients__Y_vv": 1.0}, r"\[coefficients\] Y_vv is not a coefficient"),
+        ({"identify__free": ["X_u", "Y_foo"]}, r"free names 'Y_foo'"),
+        ({"identify__free": ["X_u", "X_u"]}, r"names a coefficient twice"),
+    ],
+)
 def test_config_bad_input(changes, words):
     with pytest.raises(InputError, match=words):
         parse_config(_doc(**changes), "m.toml")

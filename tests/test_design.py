@@ -43,8 +43,10 @@ def test_band_is_harmonics_of_the_record():
 def test_split_puts_time_where_the_criterion_needs_it():
     # two experiment types, each informing one coefficient at 1 per second; the second
     # coefficient is 4x larger so it needs 4x the information for the same relative bound
-    cands = {"a": D.Candidate("a", {}, 60.0, np.diag([60.0, 0.0])),
-             "b": D.Candidate("b", {}, 60.0, np.diag([0.0, 60.0]))}
+    cands = {
+        "a": D.Candidate("a", {}, 60.0, np.diag([60.0, 0.0])),
+        "b": D.Candidate("b", {}, 60.0, np.diag([0.0, 60.0])),
+    }
     s = np.array([1.0, 0.5])
     d = D.split(cands, 100.0, s, "E")
     assert d == {"a": 20.0, "b": 80.0} or d == {"a": 30.0, "b": 70.0}  # λ = max min(Ta, Tb/4)
@@ -102,8 +104,9 @@ def test_fisher_matches_finite_differences_of_the_outputs(model):
 
 def test_read_estimates(tmp_path):
     p = tmp_path / "est.json"
-    p.write_text(json.dumps({"coefficients": {"Y_v": {"value": -2000.0, "std": 10.0}},
-                             "noise_std": {"v": 0.03}}))
+    p.write_text(
+        json.dumps({"coefficients": {"Y_v": {"value": -2000.0, "std": 10.0}}, "noise_std": {"v": 0.03}})
+    )
     values, noise = D.read_estimates(p)
     assert values == {"Y_v": -2000.0} and noise["v"] == 0.03 and noise["r"] == 0.002
     p.write_text(json.dumps({"coefficients": {"Y_q": {"value": 1.0}}}))
@@ -141,6 +144,17 @@ def test_design_writes_a_flyable_scenario_better_than_scenario_ii(tmp_path):
     assert sum(s.duration_of(e) for e in s.experiments) == pytest.approx(120.0)
     assert "Predicted Cramér-Rao bounds" in text and all(f"# {'':2}{n}" in text for n in free)
     assert all(d.linearity.passed(e.name) for e in s.experiments)
-    assert D.criterion(np.diag(1 / d.crlb**2), D.scales(replace(D.model(
-        __import__("testbed.truth", fromlist=["x"]).analytic_config()[0]).config, free=free)), "A") > -math.inf
+    assert (
+        D.criterion(
+            np.diag(1 / d.crlb**2),
+            D.scales(
+                replace(
+                    D.model(__import__("testbed.truth", fromlist=["x"]).analytic_config()[0]).config,
+                    free=free,
+                )
+            ),
+            "A",
+        )
+        > -math.inf
+    )
     assert d.worst()[0][1] < d.worst()[1][1]

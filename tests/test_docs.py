@@ -62,8 +62,8 @@ def section(text: str, heading: str) -> str:
     lines, marks = text.splitlines(), list(headings(text))
     for k, (i, level, title) in enumerate(marks):
         if title == heading:
-            end = next((j for j, lv, _ in marks[k + 1:] if lv <= level), len(lines))
-            return "\n".join(lines[i + 1:end])
+            end = next((j for j, lv, _ in marks[k + 1 :] if lv <= level), len(lines))
+            return "\n".join(lines[i + 1 : end])
     raise AssertionError(f"heading {heading!r} not found")
 
 
@@ -179,7 +179,12 @@ def test_files_measurement_csv_and_config():
     assert ",".join(CSV_COLUMNS) in csv
     assert missing_code(csv, ("t", "u", "psi", "z") + CSV_COLUMNS[-3:]) == []
     config = section(text, "Model config TOML")
-    assert missing_code(config, Vehicle.names() + ("free", "outputs", "[vehicle]", "[coefficients]", "[identify]")) == []
+    assert (
+        missing_code(
+            config, Vehicle.names() + ("free", "outputs", "[vehicle]", "[coefficients]", "[identify]")
+        )
+        == []
+    )
 
 
 def _default(f) -> str | None:
@@ -239,8 +244,12 @@ def _written_keys(tree, name: str) -> set[str]:
             for target in n.targets:
                 if isinstance(target, ast.Name) and target.id == name and isinstance(n.value, ast.Dict):
                     keys |= _dict_keys(n.value)
-                if (isinstance(target, ast.Subscript) and isinstance(target.value, ast.Name)
-                        and target.value.id == name and isinstance(target.slice, ast.Constant)):  # fmt: skip
+                if (
+                    isinstance(target, ast.Subscript)
+                    and isinstance(target.value, ast.Name)
+                    and target.value.id == name
+                    and isinstance(target.slice, ast.Constant)
+                ):
                     keys |= {target.slice.value} | _dict_keys(n.value)
         elif isinstance(n, ast.keyword) and n.arg == name and isinstance(n.value, ast.Dict):
             keys |= _dict_keys(n.value)
@@ -261,13 +270,36 @@ def test_files_estimates_json_keys():
     from testbed.jobs import identify_data
 
     text = section(page("files.md"), "Estimates JSON")
-    one = dict(free=("X_u",), values=np.array([1.0]), std=np.array([0.1]), cost=1.0, iterations=1,
-               wall_time_s=0.1, noise_std={"u": 0.1})
-    fitted = Estimate("ml-gn", Status.CONVERGED, **one, start_reason="why", crlb_corrected_std=np.array([0.2]),
-                      initial_states={"e": {"u": 1.0}})
-    diverged = FilterEstimate("mekf", Status.DIVERGED, **one, message="why", sqrt="qr",
-                              max_covariance_asymmetry=0.0, diverged_sample=1, diverged_t=0.1,
-                              model_error_std={"u": 0.1}, passes=2, last_step_std=0.1)
+    one = dict(
+        free=("X_u",),
+        values=np.array([1.0]),
+        std=np.array([0.1]),
+        cost=1.0,
+        iterations=1,
+        wall_time_s=0.1,
+        noise_std={"u": 0.1},
+    )
+    fitted = Estimate(
+        "ml-gn",
+        Status.CONVERGED,
+        **one,
+        start_reason="why",
+        crlb_corrected_std=np.array([0.2]),
+        initial_states={"e": {"u": 1.0}},
+    )
+    diverged = FilterEstimate(
+        "mekf",
+        Status.DIVERGED,
+        **one,
+        message="why",
+        sqrt="qr",
+        max_covariance_asymmetry=0.0,
+        diverged_sample=1,
+        diverged_t=0.1,
+        model_error_std={"u": 0.1},
+        passes=2,
+        last_step_std=0.1,
+    )
     keys = set(fitted.json_fields()) | set(diverged.json_fields())
     assert {"crlb_corrected_std", "initial_states", "start_reason", "diverged", "sqrt"} <= keys
     identify = _written_keys(_function_tree(identify_data), "doc")
@@ -305,8 +337,17 @@ def test_files_identifiability_json_keys():
     from testbed.analysis import Identifiability, Structural
 
     free = ("X_u",)
-    result = Identifiability(free, np.array([1.0]), np.eye(1), np.array([0.1]), np.eye(1),
-                             Structural(free, np.zeros((0, 1)), ()), (), (), ("ok",))  # fmt: skip
+    result = Identifiability(
+        free,
+        np.array([1.0]),
+        np.eye(1),
+        np.array([0.1]),
+        np.eye(1),
+        Structural(free, np.zeros((0, 1)), ()),
+        (),
+        (),
+        ("ok",),
+    )
     table = table_rows(section(page("files.md"), "Identifiability JSON"))
     documented = {r[0].strip("`") for r in table[1:]}
     assert set(json.loads(result.to_json())) <= documented
@@ -317,8 +358,14 @@ def test_files_run_directory_manifest():
     assert {"scenario", "seed", "mjcf_sha256"} <= keys  # the scan finds the manifest
     body = section(page("files.md"), "Run directory")
     assert missing_code(body, sorted(keys)) == []
-    for name in ("manifest.json", "model.toml", "scenario.toml", "recording.rrd", "<experiment>.csv",
-                 "<experiment>.truth.csv"):  # fmt: skip
+    for name in (
+        "manifest.json",
+        "model.toml",
+        "scenario.toml",
+        "recording.rrd",
+        "<experiment>.csv",
+        "<experiment>.truth.csv",
+    ):
         assert f"`{name}`" in body
 
 

@@ -1,7 +1,6 @@
 """The bad-input corpus of `studies/fuzz.py`: no crash, no partial output, in this process and in
 real `python -m testbed` processes (where a traceback or a C library's message would show)."""
 
-
 import pytest
 
 from studies.fuzz import corpus, run_case, run_subprocess, tally, workspace
@@ -32,7 +31,11 @@ def test_the_whole_corpus(ws):
 
 def test_real_processes_print_one_line_and_no_traceback(ws):
     cases = [c for c in corpus(ws) if c.label.startswith("issue:")]
-    cases += [c for c in corpus(ws) if c.label in ("csv long cell @0", "config N_rdot=3.45", "manifest deep",
-                                                   "identify --method mekf --out null")]  # fmt: skip
+    cases += [
+        c
+        for c in corpus(ws)
+        if c.label
+        in ("csv long cell @0", "config N_rdot=3.45", "manifest deep", "identify --method mekf --out null")
+    ]
     counts = _check(ws, cases, run_subprocess)
     assert counts["errors"] >= 8

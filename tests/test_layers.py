@@ -94,9 +94,16 @@ def test_the_public_api_loads_on_demand_and_shadows_no_module():
     import sys
 
     assert not {n for n in testbed.__all__ if f"testbed.{n}" in RANK}
-    code = ("import sys, testbed; assert 'numpy' not in sys.modules; "
-            "[getattr(testbed, n) for n in testbed.__all__]; print('mujoco' in sys.modules)")  # fmt: skip
-    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "True"
+    code = (
+        "import sys, testbed; assert 'numpy' not in sys.modules; "
+        "[getattr(testbed, n) for n in testbed.__all__]; print('mujoco' in sys.modules)"
+    )
+    assert (
+        subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        == "True"
+    )
 
 
 def test_the_architecture_page_names_every_module_in_layer_order():

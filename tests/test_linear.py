@@ -38,8 +38,7 @@ def test_first_order_sensitivities_match_complex_step():
             if j not in cols:  # another experiment's initial state
                 assert not ref.any()
                 continue
-            np.testing.assert_allclose(S[:, :, cols.index(j)], ref, rtol=1e-9,
-                                       atol=1e-12 * np.abs(ref).max())  # fmt: skip
+            np.testing.assert_allclose(S[:, :, cols.index(j)], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
 
 
 def test_second_order_sensitivities_match_complex_step():
@@ -88,7 +87,7 @@ def test_initial_states_are_recovered_exactly_from_noise_free_data():
     exp = linear.synthetic(cfg, t, u, x0=x0, name="release")
     prob = linear.problem([exp], cfg)
     p, outs = linear.fit_initial_states(prob, prob.start)
-    np.testing.assert_allclose(p[prob.n_free:], x0, atol=1e-9)
+    np.testing.assert_allclose(p[prob.n_free :], x0, atol=1e-9)
     np.testing.assert_allclose(outs[0], prob.records[0].y, atol=1e-9)
     # predict returns absolute u, as in the data
     np.testing.assert_allclose(linear.predict([exp], cfg)[0], exp.y, atol=1e-9)
@@ -113,19 +112,20 @@ def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
     for r, S, v in zip(prob.records, linear.sensitivities(prob, p), res):
         n, cols = len(v), prob.columns(r)
         W = S / R[r.channels][None, :, None]
-        Rvv = np.array([v[:n - tau].T @ v[tau:] for tau in range(n)]) / n  # 1/N Σ_m v(m) v(m+τ)ᵀ
+        Rvv = np.array([v[: n - tau].T @ v[tau:] for tau in range(n)]) / n  # 1/N Σ_m v(m) v(m+τ)ᵀ
         rho = np.diagonal(Rvv, axis1=1, axis2=2)
-        K = linear._lag_window(rho[1:n // 4 + 1] / rho[0], n)
+        K = linear._lag_window(rho[1 : n // 4 + 1] / rho[0], n)
         lags.append(K)
         for i in range(n):
             for j in range(max(i - K, 0), min(i + K + 1, n)):
                 tau = j - i  # Bartlett window w(τ) = 1 − |τ|/(K+1)
-                mid[np.ix_(cols, cols)] += (1 - abs(tau) / (K + 1)) * W[i].T @ (
-                    Rvv[tau] if tau >= 0 else Rvv[-tau].T) @ W[j]  # fmt: skip
+                mid[np.ix_(cols, cols)] += (
+                    (1 - abs(tau) / (K + 1)) * W[i].T @ (Rvv[tau] if tau >= 0 else Rvv[-tau].T) @ W[j]
+                )
     assert all(linear.MIN_LAGS < K <= 60 for K in lags), lags
     A = rng.normal(size=(prob.n_params, prob.n_params))
     cov = A @ A.T  # any symmetric matrix in place of M⁻¹: the sandwich is linear in each side
-    ref = (cov @ mid @ cov)[:prob.n_free, :prob.n_free]
+    ref = (cov @ mid @ cov)[: prob.n_free, : prob.n_free]
     got = linear.colored_covariance(prob, p, linear.states(prob, p), res, R, cov)
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
 
@@ -135,7 +135,7 @@ def test_lag_window_is_the_floor_for_white_residuals_and_spans_a_colored_correla
     n = 4000
 
     def window(v):
-        r = np.array([np.sum(v[:n - tau] * v[tau:], axis=0) for tau in range(n // 4 + 1)])
+        r = np.array([np.sum(v[: n - tau] * v[tau:], axis=0) for tau in range(n // 4 + 1)])
         return linear._lag_window(r[1:] / r[0], n)
 
     assert window(rng.normal(size=(n, 10))) == linear.MIN_LAGS
@@ -153,8 +153,10 @@ def _fits(noise, seeds):
     fits = []
     for seed in range(seeds):
         rng = np.random.default_rng(700 + seed)
-        data = [replace(e, y=e.y + noise(rng, e.y.shape, np.array([NOISE[m] for m in e.measured])))
-                for e in experiments(seed, 60.0, noise=None)]  # fmt: skip
+        data = [
+            replace(e, y=e.y + noise(rng, e.y.shape, np.array([NOISE[m] for m in e.measured])))
+            for e in experiments(seed, 60.0, noise=None)
+        ]
         est = identify(data, prior_config(), method="ml-gn")
         assert est.converged
         fits.append(est)
@@ -189,7 +191,7 @@ def test_colored_residual_bound_grows_with_an_ar1_correlation_as_theory_says():
             M[np.ix_(cols, cols)] += W.T @ W
             mid[np.ix_(cols, cols)] += W.T @ T @ W
     C = np.linalg.inv(M)
-    theory = np.sqrt(np.diag(C @ mid @ C) / np.diag(C))[:prob.n_free]
+    theory = np.sqrt(np.diag(C @ mid @ C) / np.diag(C))[: prob.n_free]
     lateral = [FREE.index(n) for n in ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr")]
     np.testing.assert_allclose(theory[lateral], np.sqrt((1 + rho) / (1 - rho)), rtol=0.03)
     # the residuals are fitted, which takes some of the colored noise's low frequencies with it:
@@ -200,13 +202,14 @@ def test_colored_residual_bound_grows_with_an_ar1_correlation_as_theory_says():
 
 def test_sensitivities_made_in_pieces_equal_the_whole_recursion():
     prob, p = _problem(duration=3.0)
-    models, xs = linear._models(prob, p[:prob.n_free], 1), linear.states(prob, p)
+    models, xs = linear._models(prob, p[: prob.n_free], 1), linear.states(prob, p)
     for r, x, S in zip(prob.records, xs, linear.sensitivities(prob, p, xs)):
         scale = np.linspace(0.5, 2.0, len(r.measured))
         for size in (7, 8, len(x) - 1):  # odd and even pieces carry the recursion on
             got, parts = np.zeros_like(S), set()
-            for channels, params, pieces in linear._sensitivity_parts(prob, r, models[r.dt], x,
-                                                                  r.measured, scale, size):  # fmt: skip
+            for channels, params, pieces in linear._sensitivity_parts(
+                prob, r, models[r.dt], x, r.measured, scale, size
+            ):
                 for samples, piece in pieces:
                     got[np.ix_(samples, channels, params)] = piece.transpose(1, 0, 2)
                 parts.add(tuple(params))
@@ -222,8 +225,13 @@ def test_compiled_recursions_equal_the_numpy_blocks():
     def everything():
         xs, res = linear.states(prob, p), linear.residuals(prob, p)
         R = linear.noise_variance(prob, res)
-        return (*xs, *linear.sensitivities(prob, p, xs), *linear.gauss_newton_terms(prob, p, xs, res, R),
-                linear.fit_initial_states(prob, prob.start)[0], *linear.outputs(prob, pc))  # fmt: skip
+        return (
+            *xs,
+            *linear.sensitivities(prob, p, xs),
+            *linear.gauss_newton_terms(prob, p, xs, res, R),
+            linear.fit_initial_states(prob, prob.start)[0],
+            *linear.outputs(prob, pc),
+        )
 
     blocks = everything()
     with linear.compiled():
@@ -239,8 +247,11 @@ def test_uncoupled_parts_are_the_connected_states_and_parameters():
     acts = np.zeros((4, 3), bool)
     acts[0, 0] = acts[2, 1] = acts[3, 2] = True  # parameter 2 acts on state 3 only
     parts = linear._uncoupled(coupled, acts, np.array([1, 2, 3]))
-    assert [[list(a) for a in part] for part in parts] == [[[0, 1], [0], [0]], [[2], [1], [1]],
-                                                           [[3], [2], [2]]]  # fmt: skip
+    assert [[list(a) for a in part] for part in parts] == [
+        [[0, 1], [0], [0]],
+        [[2], [1], [1]],
+        [[3], [2], [2]],
+    ]
     acts[3, 1] = True  # parameter 1 now acts on 2 and 3 together: one part
     parts = linear._uncoupled(coupled, acts, np.array([1, 2]))  # state 3 not asked for
     assert [[list(a) for a in part] for part in parts] == [[[0, 1], [0], [0]], [[2, 3], [1, 2], [1]]]
@@ -308,8 +319,12 @@ def test_smoothing_is_savitzky_golay_within_the_record():
     y = np.random.default_rng(2).normal(size=(40, 3)).cumsum(axis=0)
     for win in (5, 11, 39):
         h = win // 2
-        np.testing.assert_allclose(linear._smoothed(y, win), savgol_filter(y, win, 3, axis=0)[h:len(y) - h],
-                                   rtol=1e-12, atol=1e-12 * np.abs(y).max())  # fmt: skip
+        np.testing.assert_allclose(
+            linear._smoothed(y, win),
+            savgol_filter(y, win, 3, axis=0)[h : len(y) - h],
+            rtol=1e-12,
+            atol=1e-12 * np.abs(y).max(),
+        )
 
 
 def test_bad_input():
@@ -363,3 +378,9 @@ def test_fft_length_is_the_least_5_smooth_number_not_below_n():
     for n in [*range(1, 400), 6001, 7502, 12345]:
         L = _fft_length(n)
         assert L >= n and smooth(L) and not any(smooth(m) for m in range(n, L)), (n, L)
+
+
+def test_lag_window_of_a_record_too_short_to_test_is_its_half():
+    from testbed.linear import _lag_window
+
+    assert _lag_window(np.empty((0, 3)), 3) == 1

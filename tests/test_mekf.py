@@ -11,27 +11,66 @@ from testbed.data import Experiment, ModelConfig, load_data
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
 from testbed.estimators.mekf import (
-    FilterOptions, _Model, _run,
-    sqrt_update, svd_root, tria,
-)  # fmt: skip
+    FilterOptions,
+    _Model,
+    _run,
+    sqrt_update,
+    svd_root,
+    tria,
+)
 from testbed.measurements import noise_free_channels, noise_from_data
 from testbed.model import (
-    COEFFICIENTS, ITHETA, IX, STATES, Vehicle, continuous, discretize, structure,
+    COEFFICIENTS,
+    ITHETA,
+    IX,
+    STATES,
+    Vehicle,
+    continuous,
+    discretize,
+    structure,
     theta_vector,
-)  # fmt: skip
+)
 from testbed.runs import simulate
 
 # A torpedo like the bundled one at 20 m/s (SI units); CB slightly off the CG so S ≠ 0.
 VEHICLE = Vehicle(170.75, 2.16, 67.25, 67.24, 1675.1, 1675.1, 0.0, 0.0, -0.0179, 20.0)
 TRUTH = {
-    "X_udot": -8.11, "X_u": -265.6, "Y_vdot": -158.6, "Y_pdot": -2.99, "Y_rdot": -2.35,
-    "Y_v": -2135.1, "Y_p": -4.30, "Y_r": 2217.8, "Y_dr": 42505.7, "Z_wdot": -158.6,
-    "Z_qdot": 2.35, "Z_w": -2135.1, "Z_q": -2217.8, "Z_de": -42505.7, "K_vdot": -2.99,
-    "K_pdot": -0.395, "K_rdot": -0.426, "K_v": -4.30, "K_p": -124.8, "K_r": 2.48, "K_dr": 0.0,
-    "K_der": -3613.0, "K_del": -3613.0, "M_wdot": 2.35, "M_qdot": -55.76, "M_w": 630.6,
-    "M_q": -2791.2, "M_de": -47273.4, "N_vdot": -2.35, "N_pdot": -0.426, "N_rdot": -55.76,
-    "N_v": -630.6, "N_p": -55.41, "N_r": -2791.1, "N_dr": -47273.4,
-}  # fmt: skip
+    "X_udot": -8.11,
+    "X_u": -265.6,
+    "Y_vdot": -158.6,
+    "Y_pdot": -2.99,
+    "Y_rdot": -2.35,
+    "Y_v": -2135.1,
+    "Y_p": -4.30,
+    "Y_r": 2217.8,
+    "Y_dr": 42505.7,
+    "Z_wdot": -158.6,
+    "Z_qdot": 2.35,
+    "Z_w": -2135.1,
+    "Z_q": -2217.8,
+    "Z_de": -42505.7,
+    "K_vdot": -2.99,
+    "K_pdot": -0.395,
+    "K_rdot": -0.426,
+    "K_v": -4.30,
+    "K_p": -124.8,
+    "K_r": 2.48,
+    "K_dr": 0.0,
+    "K_der": -3613.0,
+    "K_del": -3613.0,
+    "M_wdot": 2.35,
+    "M_qdot": -55.76,
+    "M_w": 630.6,
+    "M_q": -2791.2,
+    "M_de": -47273.4,
+    "N_vdot": -2.35,
+    "N_pdot": -0.426,
+    "N_rdot": -55.76,
+    "N_v": -630.6,
+    "N_p": -55.41,
+    "N_r": -2791.1,
+    "N_dr": -47273.4,
+}
 SWAY_YAW = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr")  # *dot terms fixed: well posed
 NOISE = np.array([0.01, 0.01, 0.01, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.01])
 
@@ -125,8 +164,9 @@ def test_square_root_kernels_match_joseph_form_and_filterpy():
     sr.update(z[:, None])
     np.testing.assert_allclose(sr.P, kf.P, rtol=1e-9)
     np.testing.assert_allclose(sr.x[:, 0], kf.x, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(tria(np.hstack([F, F])) @ tria(np.hstack([F, F])).T, 2 * F @ F.T,
-                               rtol=1e-12, atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(
+        tria(np.hstack([F, F])) @ tria(np.hstack([F, F])).T, 2 * F @ F.T, rtol=1e-12, atol=1e-12
+    )
 
 
 def _zoh(A, B, S, dt):
@@ -145,8 +185,10 @@ def test_model_matches_complex_step():
     vehicle = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.01, 0.002, -0.0196, 1.54)
     s = structure(vehicle)
     theta = theta_vector({n: v / 40 for n, v in TRUTH.items()}) + 0.1  # K_dr ≠ 0 too
-    for free in (("Y_vdot", "Y_r", "Z_de", "K_pdot", "K_del", "N_rdot"),
-                 ("Y_v", "Y_r", "Z_de", "K_p", "K_del", "N_r")):  # fmt: skip
+    for free in (
+        ("Y_vdot", "Y_r", "Z_de", "K_pdot", "K_del", "N_rdot"),
+        ("Y_v", "Y_r", "Z_de", "K_p", "K_del", "N_r"),
+    ):
         idx = np.array([ITHETA[n] for n in free])
         model = _Model(s, theta, idx)
         assert model.affine == (free[0] == "Y_v")
@@ -193,8 +235,9 @@ def test_model_refresh_policy_carries_E_to_first_order():
     # refresh_tol = 0: exact at every call.
     model.restart(dt, 0.0)
     model.linearised(th0, var, xi)
-    np.testing.assert_array_equal(model.linearised(th0 + 1e-9 * step, var, xi)[0],
-                                  model.exact(th0 + 1e-9 * step, dt)[0])  # fmt: skip
+    np.testing.assert_array_equal(
+        model.linearised(th0 + 1e-9 * step, var, xi)[0], model.exact(th0 + 1e-9 * step, dt)[0]
+    )
 
 
 def test_noise_from_data_recovers_the_measurement_noise():
@@ -252,8 +295,9 @@ def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     free = tuple(n for n in COEFFICIENTS if not n.endswith("dot") and n != "K_dr")
     rng = np.random.default_rng(6)
     n = 200
-    inputs = np.column_stack([_prbs(rng, n, 0.05, 0.03, 0.5), _prbs(rng, n, 0.05, 0.03, 0.4),
-                              _prbs(rng, n, 0.05, 0.03, 0.7)])  # fmt: skip
+    inputs = np.column_stack(
+        [_prbs(rng, n, 0.05, 0.03, 0.5), _prbs(rng, n, 0.05, 0.03, 0.4), _prbs(rng, n, 0.05, 0.03, 0.7)]
+    )
     e = _simulate(TRUTH, inputs, 0.05, 1e-6, seed=7)
     config = _start(free, spread=0.01)
     opts = dict(noise_std={s: 1e-6 for s in STATES}, refresh_tol=0.0)
@@ -267,9 +311,15 @@ def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     assert ekf.max_covariance_asymmetry > 1e5 * eps
 
     # The same EKF (same centre, same model) in square-root form, stopped at the same sample.
-    sq = _run([e], config, method="ekf-sqrt", modified=False, square_root=True,
-              options=FilterOptions.build("ekf-sqrt", opts, max_samples=ekf.iterations + 1),
-              callback=None)  # fmt: skip
+    sq = _run(
+        [e],
+        config,
+        method="ekf-sqrt",
+        modified=False,
+        square_root=True,
+        options=FilterOptions.build("ekf-sqrt", opts, max_samples=ekf.iterations + 1),
+        callback=None,
+    )
     J = sq.covariance_root
     assert np.allclose(J, np.tril(J)) and np.all(np.diag(J) > 0)  # P = J Jᵀ definite
     sv = np.linalg.svd(J, compute_uv=False)
@@ -305,15 +355,35 @@ def test_a_wildly_wrong_model_is_reported_as_diverged():
 def test_bad_options_are_input_errors():
     e = _horizontal(seed=9, T=2.0)
     config = _start(SWAY_YAW)
-    for bad in ({"no_such_option": 1}, {"prior_frac": -1.0}, {"noise_std": {"u": 0.0}},
-                {"noise_std": {"nope": 1.0}}, {"start": "equation-error"}, {"max_iter": 0},
-                {"noise_std": {"u": "a"}}, {"noise_std": [0.01] * 10}, {"noise_std": 0.01},
-                {"prior_std": {"Y_v": None}}, {"prior_std": ["Y_v"]}, {"sqrt": "cholesky"},
-                {"refresh_tol": True}, {"prior_frac": False}, {"nis_limit": True},
-                {"prior_floor": True}, {"prior_floor": "a"}, {"nis_window": True},
-                {"noise_std": {"u": True}}, {"prior_std": {"Y_v": True}}, {"noise_window": -1},
-                {"noise_window": 2.5}, {"noise_margin": -1.0}, {"state_noise": "a"},
-                {"passes": 0}, {"passes": 2.0}, {"pass_tol": -0.1}):  # fmt: skip
+    for bad in (
+        {"no_such_option": 1},
+        {"prior_frac": -1.0},
+        {"noise_std": {"u": 0.0}},
+        {"noise_std": {"nope": 1.0}},
+        {"start": "equation-error"},
+        {"max_iter": 0},
+        {"noise_std": {"u": "a"}},
+        {"noise_std": [0.01] * 10},
+        {"noise_std": 0.01},
+        {"prior_std": {"Y_v": None}},
+        {"prior_std": ["Y_v"]},
+        {"sqrt": "cholesky"},
+        {"refresh_tol": True},
+        {"prior_frac": False},
+        {"nis_limit": True},
+        {"prior_floor": True},
+        {"prior_floor": "a"},
+        {"nis_window": True},
+        {"noise_std": {"u": True}},
+        {"prior_std": {"Y_v": True}},
+        {"noise_window": -1},
+        {"noise_window": 2.5},
+        {"noise_margin": -1.0},
+        {"state_noise": "a"},
+        {"passes": 0},
+        {"passes": 2.0},
+        {"pass_tol": -0.1},
+    ):
         with pytest.raises(InputError) as info:
             identify([e], config, "mekf", **bad)
         assert "\n" not in str(info.value)  # one line
@@ -425,8 +495,9 @@ def test_model_error_matches_a_known_process_noise():
     noise = dict(zip(STATES, NOISE))
     found = {}
     for margin in (0.0, 2.0):
-        est = identify([e], config, "mekf", noise_std=noise, prior_frac=1e-6, noise_window=100,
-                       noise_margin=margin)  # fmt: skip
+        est = identify(
+            [e], config, "mekf", noise_std=noise, prior_frac=1e-6, noise_window=100, noise_margin=margin
+        )
         assert est.status is Status.CONVERGED, est.message
         found[margin] = np.array([est.model_error_std[name] for name in STATES]) / NOISE
         assert abs(est.nis_mean - 1.0) < 0.05, est.nis_mean

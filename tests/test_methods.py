@@ -10,8 +10,17 @@ import numpy as np
 import pytest
 
 from testbed.errors import InputError
-from testbed.estimators import (METHODS, Estimate, FilterEstimate, OptionError, Options, Progress,
-                                Status, identify, lookup)
+from testbed.estimators import (
+    METHODS,
+    Estimate,
+    FilterEstimate,
+    OptionError,
+    Options,
+    Progress,
+    Status,
+    identify,
+    lookup,
+)
 from testbed.linear import synthetic
 from testbed.measurements import NOISE_STD
 from testbed.model import INPUTS
@@ -28,7 +37,7 @@ def problem():
     rng = np.random.default_rng(7)
     t = np.arange(0.0, 40.0, 0.05)
     inputs = np.zeros((len(t), len(INPUTS)))
-    inputs[:, 0] = 0.02 * np.repeat(rng.choice([-1.0, 1.0], size=len(t) // 20 + 1), 20)[:len(t)]
+    inputs[:, 0] = 0.02 * np.repeat(rng.choice([-1.0, 1.0], size=len(t) // 20 + 1), 20)[: len(t)]
     data = [synthetic(config, t, inputs, NOISE_STD, measured=("v", "r", "psi"), rng=rng, name="rudder")]
     start = config.with_coefficients({n: 0.8 * config.coefficients[n] for n in FREE})
     return data, config, start
@@ -68,8 +77,11 @@ class TestEveryMethod:
         assert est.values.shape == est.std.shape == (len(FREE),) and np.all(est.std > 0)
         truth = np.array([config.coefficients[n] for n in FREE])
         if est.converged:  # the paper's Newton-Raphson creeps (steps of μ/λ): it may not get there
-            assert np.all(np.abs(est.values - truth) <= np.maximum(5 * est.std, 0.03 * np.abs(truth))), \
-                (est.values, truth, est.std)  # fmt: skip
+            assert np.all(np.abs(est.values - truth) <= np.maximum(5 * est.std, 0.03 * np.abs(truth))), (
+                est.values,
+                truth,
+                est.std,
+            )
         assert seen and all(isinstance(s, Progress) and s.values.shape == (len(FREE),) for s in seen)
         assert seen[-1].iteration == est.iterations
         doc = json.loads(est.to_json())

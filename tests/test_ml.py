@@ -7,8 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.examples import (FREE, NOISE, TRUTH, experiments, prior_config,
-                              truth_config)  # fmt: skip
+from testbed.examples import FREE, NOISE, TRUTH, experiments, prior_config, truth_config
 
 from testbed.errors import InputError
 from testbed.estimators import METHODS, Status, identify
@@ -51,8 +50,7 @@ def test_ml_gn_recovers_the_truth_within_its_cramer_rao_bounds(data, from_truth)
     # the bounds reuse the optimiser's last Fisher matrix: the same as a fresh analysis there
     info = information(data, truth_config(), est.values)
     np.testing.assert_allclose(est.std, info.crlb_std, rtol=1e-3)
-    np.testing.assert_allclose(est.crlb_corrected_std,
-                               info.crlb_corrected_std, rtol=1e-3)  # fmt: skip
+    np.testing.assert_allclose(est.crlb_corrected_std, info.crlb_corrected_std, rtol=1e-3)
     doc = json.loads(est.to_json())
     assert doc["converged"] is True and set(doc["coefficients"]) == set(FREE)
     assert set(doc["crlb_corrected_std"]) == set(FREE)
@@ -62,8 +60,13 @@ def test_ml_gn_recovers_the_truth_within_its_cramer_rao_bounds(data, from_truth)
 
 def test_ml_gn_converges_from_40_percent_off(data, from_truth):
     seen = []
-    est = identify(data, prior_config(error=0.4), method="ml-gn", start="config",
-                   callback=lambda step: seen.append((step.iteration, step.values, step.cost)))  # fmt: skip
+    est = identify(
+        data,
+        prior_config(error=0.4),
+        method="ml-gn",
+        start="config",
+        callback=lambda step: seen.append((step.iteration, step.values, step.cost)),
+    )
     assert est.converged and est.start == "config"
     _same_optimum(est, from_truth, 0.01)
     assert [s[0] for s in seen] == list(range(1, est.iterations + 1))
@@ -82,7 +85,8 @@ def test_auto_starts_from_the_better_fitting_of_the_a_priori_and_equation_error_
 def test_auto_restarts_from_equation_error_when_the_a_priori_start_fails(data, from_truth):
     # ±40 % alternating makes the a-priori yaw-sway model unstable: output error from it stalls
     prior = truth_config().with_coefficients(
-        {n: TRUTH[n] * (1.4 if i % 2 else 0.6) for i, n in enumerate(FREE)})
+        {n: TRUTH[n] * (1.4 if i % 2 else 0.6) for i, n in enumerate(FREE)}
+    )
     est = identify(data, prior, method="ml-gn")  # start="auto" is the default
     assert est.converged and est.start == "equation-error"
     assert "a-priori" in est.start_reason
@@ -92,7 +96,8 @@ def test_auto_restarts_from_equation_error_when_the_a_priori_start_fails(data, f
 def test_ml_nr_and_ml_nm_converge_on_an_easy_case():
     data = _vertical()
     prior = truth_config(VERTICAL).with_coefficients(
-        {n: TRUTH[n] * (1.1 if i % 2 else 0.9) for i, n in enumerate(VERTICAL)})
+        {n: TRUTH[n] * (1.1 if i % 2 else 0.9) for i, n in enumerate(VERTICAL)}
+    )
     gn = identify(data, prior, method="ml-gn")
     nr = identify(data, prior, method="ml-nr")
     nm = identify(data, prior, method="ml-nm")
@@ -140,9 +145,10 @@ def test_diverging_a_priori_model_is_input_error(data):
         identify(data, truth_config(), method="ml-gn", start="sideways")
 
 
-@pytest.mark.skipif("mekf" not in METHODS and not (Path(__file__).parents[1] / "testbed" /
-                                                   "estimators" / "mekf.py").exists(),
-                    reason="the MEKF is not in this tree yet")  # fmt: skip
+@pytest.mark.skipif(
+    "mekf" not in METHODS and not (Path(__file__).parents[1] / "testbed" / "estimators" / "mekf.py").exists(),
+    reason="the MEKF is not in this tree yet",
+)
 def test_start_from_the_mekf_estimate():
     data = _vertical(duration=30.0)
     prior = truth_config(VERTICAL).with_coefficients({n: 1.2 * TRUTH[n] for n in VERTICAL})

@@ -1,10 +1,17 @@
 """The linear model (docs/model.md): the affine structure against the table written out by hand."""
 
-
 import numpy as np
 
-from testbed.model import (COEFFICIENTS, Vehicle, continuous, derivatives, discretize, structure,
-                           theta_vector, tilde)
+from testbed.model import (
+    COEFFICIENTS,
+    Vehicle,
+    continuous,
+    derivatives,
+    discretize,
+    structure,
+    theta_vector,
+    tilde,
+)
 
 from testbed.examples import TRUTH, VEHICLE  # noqa: E402
 
@@ -16,11 +23,16 @@ def test_matrices_match_the_spec_table():
     Mt, At, Bt, St = tilde(structure(veh), np.array([c[n] for n in COEFFICIENTS]))
     M, A, Bm, S = np.eye(10), np.zeros((10, 10)), np.zeros((10, 3)), np.zeros(10)
     u, v, w, p, q, r, phi, th, psi, z = range(10)
-    M[u, u] = m - c["X_udot"]; A[u, u] = c["X_u"]; A[u, th] = -(W - B)
-    M[v, v] = m - c["Y_vdot"]; M[v, p] = -c["Y_pdot"]; M[v, r] = -c["Y_rdot"]
+    M[u, u] = m - c["X_udot"]
+    A[u, u] = c["X_u"]
+    A[u, th] = -(W - B)
+    M[v, v] = m - c["Y_vdot"]
+    M[v, p] = -c["Y_pdot"]
+    M[v, r] = -c["Y_rdot"]
     A[v, v], A[v, p], A[v, r], A[v, phi] = c["Y_v"], c["Y_p"], c["Y_r"] - m * U, W - B
     Bm[v, 0] = c["Y_dr"]
-    M[w, w] = m - c["Z_wdot"]; M[w, q] = -c["Z_qdot"]
+    M[w, w] = m - c["Z_wdot"]
+    M[w, q] = -c["Z_qdot"]
     A[w, w], A[w, q], S[w] = c["Z_w"], c["Z_q"] + m * U, W - B
     Bm[w, 1] = Bm[w, 2] = c["Z_de"] / 2
     M[p, v], M[p, p], M[p, r] = -c["K_vdot"], veh.Ix - c["K_pdot"], -c["K_rdot"]

@@ -22,8 +22,9 @@ def test_mekf_reports_the_scatter_of_its_estimates():
     # scatter of its estimates (measured: mean error within 0.5 σ, σ 0.88-1.33 times the
     # scatter). 50 seeds: the scatter's relative standard error is 1/√98 = 10 %.
     seeds = 50
-    fits = fit_seeds(seeds, lambda seed: montecarlo.experiments(seed, 30.0), montecarlo.prior_config(),
-                     ["mekf"])["mekf"]  # fmt: skip
+    fits = fit_seeds(
+        seeds, lambda seed: montecarlo.experiments(seed, 30.0), montecarlo.prior_config(), ["mekf"]
+    )["mekf"]
     sc = scatter(fits, np.array([montecarlo.TRUTH[n] for n in montecarlo.FREE]))
     assert sc.used == seeds
     bias, ratio = sc.bias / sc.reported, sc.reported / sc.std

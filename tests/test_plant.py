@@ -189,17 +189,24 @@ def test_unstable_simulation_is_one_line_input_error(tmp_path, monkeypatch, caps
     monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to MUJOCO_LOG.TXT in the working folder
     plant = Plant()
     plant.reset(speed=1e6)
-    with pytest.raises(InputError, match=r"unstable at t=0\.01 s \(MuJoCo: Nan, Inf or huge value in QACC") as e:
+    with pytest.raises(
+        InputError, match=r"unstable at t=0\.01 s \(MuJoCo: Nan, Inf or huge value in QACC"
+    ) as e:
         plant.step(n=10)
     assert "\n" not in str(e.value)
     # A force no vehicle meets drives the velocity past the plant's bound within a step.
     plant = Plant()
     plant.reset()
     plant.wrench[:] = [1e9, 0.0, 0.0, 0.0, 0.0, 0.0]
-    with pytest.raises(InputError, match=r"unstable at t=0\.01 s \((velocities non-finite or beyond|MuJoCo: Nan, Inf or huge)"):
+    with pytest.raises(
+        InputError,
+        match=r"unstable at t=0\.01 s \((velocities non-finite or beyond|MuJoCo: Nan, Inf or huge)",
+    ):
         plant.step(n=10)
     # a hull whose "drag" pushes it forward accelerates without bound
-    pushing = _variant(tmp_path, "pushing", 'fluidcoef="0.02 0.002 0.33 0.0 0.0"', 'fluidcoef="-50 0.002 0.33 0.0 0.0"')
+    pushing = _variant(
+        tmp_path, "pushing", 'fluidcoef="0.02 0.002 0.33 0.0 0.0"', 'fluidcoef="-50 0.002 0.33 0.0 0.0"'
+    )
     assert main(["simulate", "--scenario", "I", "--mjcf", str(pushing), "--out", "run", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "simulation unstable at t=" in err, err
@@ -242,20 +249,33 @@ def test_bad_mjcf_is_one_line_input_error(tmp_path):
     # Each is rejected by load_model, and alike by the plant and the analytic model on the
     # compiled model (one check for both).
     cases = {
-        "motor fin": ('<position name="rudder" joint="rudder"/>', '<motor name="rudder" joint="rudder"/>',
-                      "actuator 'rudder' is not a position servo .* expected a <position> actuator"),
-        "extra joint": ('<site name="imu" pos="0 0 0"/>',
-                        '<site name="imu" pos="0 0 0"/><body name="flap"><joint name="flap"/>'
-                        '<geom size="0.01" mass="0.001"/></body>', "5 joints; expected only"),
-        "hinge off origin": ('<joint name="rudder" class="fin" axis="0 0 -1"/>',
-                             '<joint name="rudder" class="fin" axis="0 0 -1" pos="0.02 0 0"/>',
-                             "joint 'rudder' pos=\"0.02 0 0\"; expected 0 0 0"),
-        "CG off origin": ('<inertial pos="0.0565274137 0 0.000859924"', '<inertial pos="0.1 0 0"',
-                          "not the vehicle's CG"),
-        "fluid geom off hinge": ('<geom name="elevator_left" class="blade"/>',
-                                 '<geom name="elevator_left" class="blade" pos="0.05 0 0"/>',
-                                 "fin 'elevator_left': its fluid geoms' volume centre .* off its hinge axis"),
-    }  # fmt: skip
+        "motor fin": (
+            '<position name="rudder" joint="rudder"/>',
+            '<motor name="rudder" joint="rudder"/>',
+            "actuator 'rudder' is not a position servo .* expected a <position> actuator",
+        ),
+        "extra joint": (
+            '<site name="imu" pos="0 0 0"/>',
+            '<site name="imu" pos="0 0 0"/><body name="flap"><joint name="flap"/>'
+            '<geom size="0.01" mass="0.001"/></body>',
+            "5 joints; expected only",
+        ),
+        "hinge off origin": (
+            '<joint name="rudder" class="fin" axis="0 0 -1"/>',
+            '<joint name="rudder" class="fin" axis="0 0 -1" pos="0.02 0 0"/>',
+            "joint 'rudder' pos=\"0.02 0 0\"; expected 0 0 0",
+        ),
+        "CG off origin": (
+            '<inertial pos="0.0565274137 0 0.000859924"',
+            '<inertial pos="0.1 0 0"',
+            "not the vehicle's CG",
+        ),
+        "fluid geom off hinge": (
+            '<geom name="elevator_left" class="blade"/>',
+            '<geom name="elevator_left" class="blade" pos="0.05 0 0"/>',
+            "fin 'elevator_left': its fluid geoms' volume centre .* off its hinge axis",
+        ),
+    }
     for name, (old, new, message) in cases.items():
         path = _variant(tmp_path, name.replace(" ", "_"), old, new)
         with pytest.raises(InputError, match=message) as e:
@@ -292,8 +312,11 @@ def _open_loop_fit(plant, amplitude, seconds=4.0):
     for d in D:
         Y.append(Phi @ Y[-1] + Gamma @ d)
     Y = np.array(Y)
-    return {s: 100 * (1 - np.linalg.norm(X[:, i] - Y[:, i]) / np.linalg.norm(X[:, i] - X[:, i].mean()))
-            for i, s in enumerate(("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z")) if i}
+    return {
+        s: 100 * (1 - np.linalg.norm(X[:, i] - Y[:, i]) / np.linalg.norm(X[:, i] - X[:, i].mean()))
+        for i, s in enumerate(("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z"))
+        if i
+    }
 
 
 def test_analytic_model_tracks_the_plant_open_loop():

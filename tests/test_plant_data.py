@@ -57,14 +57,21 @@ def test_noise_free_fit_is_the_analytic_model(run):
     assert fit.converged
     analytic = read_config(run / "model.toml").coefficients
     for n, v in fit.coefficients.items():
-        assert abs(v - analytic[n]) <= (0.03 if n in ROLL_ROW else 0.01) * abs(analytic[n]), (n, v, analytic[n])
+        assert abs(v - analytic[n]) <= (0.03 if n in ROLL_ROW else 0.01) * abs(analytic[n]), (
+            n,
+            v,
+            analytic[n],
+        )
 
 
 def _within(doc, analytic):
     """Coefficients of an estimates JSON off analytic by more than max(3 coloured σ, 3 %)."""
     col = doc["crlb_corrected_std"]
-    return {n: c["value"] for n, c in doc["coefficients"].items()
-            if abs(c["value"] - analytic[n]) > max(3 * col[n], 0.03 * abs(analytic[n]))}  # fmt: skip
+    return {
+        n: c["value"]
+        for n, c in doc["coefficients"].items()
+        if abs(c["value"] - analytic[n]) > max(3 * col[n], 0.03 * abs(analytic[n]))
+    }
 
 
 def _noisy_fit(run, tmp_path):

@@ -23,11 +23,28 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from studies.fuzz import (CSV_MUTATIONS, TOML_BAD_VALUES, Case, apply_csv_mutation, run_case,
-                          toml_text, workspace)  # fmt: skip
+from studies.fuzz import (
+    CSV_MUTATIONS,
+    TOML_BAD_VALUES,
+    Case,
+    apply_csv_mutation,
+    run_case,
+    toml_text,
+    workspace,
+)
 
-from testbed.data import (CSV_COLUMNS, MAX_DATA, ModelConfig, check_experiment, csv_text,
-                          parse_config, read_config, read_csv, run_csvs, write_config)  # fmt: skip
+from testbed.data import (
+    CSV_COLUMNS,
+    MAX_DATA,
+    ModelConfig,
+    check_experiment,
+    csv_text,
+    parse_config,
+    read_config,
+    read_csv,
+    run_csvs,
+    write_config,
+)
 from testbed.errors import InputError
 from testbed.model import COEFFICIENTS, INPUTS, STATES, Vehicle
 
@@ -52,8 +69,9 @@ def one_line(exc: InputError, name: str):
 
 FINITE = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 LARGE = st.one_of(FINITE, st.floats(-MAX_DATA, MAX_DATA), st.sampled_from([MAX_DATA, -MAX_DATA, 5e-324, 0.0]))
-CELL = st.text(st.characters(codec="utf-8", exclude_characters=',"\r\n', exclude_categories=("Cc", "Cs")),
-               max_size=8)  # fmt: skip
+CELL = st.text(
+    st.characters(codec="utf-8", exclude_characters=',"\r\n', exclude_categories=("Cc", "Cs")), max_size=8
+)
 EXTRA = CELL.filter(lambda c: c.strip() not in CSV_COLUMNS)
 
 
@@ -65,8 +83,11 @@ def measurement(draw, values=FINITE):
     n = draw(st.integers(3, 25))
     dt = draw(st.sampled_from([0.01, 0.02, 0.05, 0.1, 1.0]))
     t = draw(st.floats(0, 1e3)) + dt * np.arange(n)
-    y = np.array(draw(st.lists(st.lists(values, min_size=len(measured), max_size=len(measured)),
-                               min_size=n, max_size=n)))  # fmt: skip
+    y = np.array(
+        draw(
+            st.lists(st.lists(values, min_size=len(measured), max_size=len(measured)), min_size=n, max_size=n)
+        )
+    )
     u = np.array(draw(st.lists(st.lists(values, min_size=3, max_size=3), min_size=n, max_size=n)))
     extras = draw(st.lists(EXTRA, max_size=2))
     header = draw(st.permutations(["t", *measured, *INPUTS, *(f"\x00{k}" for k in range(len(extras)))]))
@@ -91,8 +112,10 @@ MUTATIONS = sorted(CSV_MUTATIONS)
 @st.composite
 def csv_mutations(draw):
     """One to three (mutation, position) pairs of `studies.fuzz.CSV_MUTATIONS`."""
-    return tuple(draw(st.tuples(st.sampled_from(MUTATIONS), st.integers(0, 2**20)))
-                 for _ in range(draw(st.integers(1, 3))))  # fmt: skip
+    return tuple(
+        draw(st.tuples(st.sampled_from(MUTATIONS), st.integers(0, 2**20)))
+        for _ in range(draw(st.integers(1, 3)))
+    )
 
 
 def mutate_csv(data: bytes, mutations, junk: bytes = b"", at: int = 0) -> bytes:
@@ -172,8 +195,9 @@ def bad_config_doc(draw):
     for _ in range(draw(st.integers(1, 3))):
         table = draw(st.sampled_from(["vehicle", "coefficients", "identify", None]))
         if table is None:
-            doc[draw(st.sampled_from(["vehicle", "coefficients", "identify", "extra"]))] = \
-                copy.deepcopy(draw(st.sampled_from(TOML_BAD_VALUES)))  # a fresh {} each time: mutated below  # fmt: skip
+            doc[draw(st.sampled_from(["vehicle", "coefficients", "identify", "extra"]))] = copy.deepcopy(
+                draw(st.sampled_from(TOML_BAD_VALUES))
+            )  # a fresh {} each time: mutated below
             continue
         if not isinstance(doc.get(table), dict):
             continue
@@ -182,14 +206,18 @@ def bad_config_doc(draw):
         if draw(st.booleans()) and key in doc[table]:
             del doc[table][key]
         else:
-            doc[table][key] = copy.deepcopy(draw(st.sampled_from(TOML_BAD_VALUES + [["X_u", "X_u"], ["Y_nope"], [1]])))
+            doc[table][key] = copy.deepcopy(
+                draw(st.sampled_from(TOML_BAD_VALUES + [["X_u", "X_u"], ["Y_nope"], [1]]))
+            )
     return doc
 
 
 def _expected(doc) -> ModelConfig:
-    return ModelConfig(Vehicle(**{k: float(v) for k, v in doc["vehicle"].items()}),
-                       {n: float(doc["coefficients"].get(n, 0.0)) for n in COEFFICIENTS},
-                       tuple(doc.get("identify", {}).get("free", ())))  # fmt: skip
+    return ModelConfig(
+        Vehicle(**{k: float(v) for k, v in doc["vehicle"].items()}),
+        {n: float(doc["coefficients"].get(n, 0.0)) for n in COEFFICIENTS},
+        tuple(doc.get("identify", {}).get("free", ())),
+    )
 
 
 @pytest.mark.parametrize("profile", PROFILES)
@@ -201,9 +229,17 @@ def test_a_valid_config_reads_back_exactly_and_round_trips(tmp_path, profile):
             path = _file(tmp_path, "m.toml", text)
             cfg = read_config(path)
             want = _expected(doc)
-            assert (cfg.vehicle, dict(cfg.coefficients), cfg.free) == (want.vehicle, want.coefficients, want.free)
+            assert (cfg.vehicle, dict(cfg.coefficients), cfg.free) == (
+                want.vehicle,
+                want.coefficients,
+                want.free,
+            )
             back = read_config(write_config(tmp_path / "w.toml", cfg))
-            assert (back.vehicle, dict(back.coefficients), back.free) == (cfg.vehicle, dict(cfg.coefficients), cfg.free)
+            assert (back.vehicle, dict(back.coefficients), back.free) == (
+                cfg.vehicle,
+                dict(cfg.coefficients),
+                cfg.free,
+            )
             assert path.read_bytes() == text
 
         return check
@@ -248,10 +284,28 @@ def test_parse_config_refuses_python_values_in_one_line():
 
 MANIFEST_VALUES = st.one_of(
     st.lists(st.sampled_from(["horizontal", "vertical"]), min_size=1, max_size=2, unique=True),
-    st.lists(st.sampled_from(["horizontal", "vertical", "", ".", "..", "../x", "a/b", "a\\b", "n\x00l",
-                              "missing", "horizontal.truth"]), max_size=3),  # fmt: skip
+    st.lists(
+        st.sampled_from(
+            [
+                "horizontal",
+                "vertical",
+                "",
+                ".",
+                "..",
+                "../x",
+                "a/b",
+                "a\\b",
+                "n\x00l",
+                "missing",
+                "horizontal.truth",
+            ]
+        ),
+        max_size=3,
+    ),
     st.sampled_from(TOML_BAD_VALUES),
-    st.integers(), st.text(max_size=5), st.none(),
+    st.integers(),
+    st.text(max_size=5),
+    st.none(),
 )
 
 
@@ -304,8 +358,22 @@ def ws(tmp_path_factory):
 
 
 NUMBERS = st.sampled_from(["0", "-1", "1e400", "nan", "inf", "-inf", "x", "", "1e-300", "0.5", "2", "1e300"])
-OUTS = st.sampled_from(["out/e.json", "out/e.json", "-", "out", "out/no/e.json", "data/h.csv", "cfg.toml",
-                        "keep.txt/e.json", "keep.txt", "run/model.toml", "run/e.json", "null"])  # fmt: skip
+OUTS = st.sampled_from(
+    [
+        "out/e.json",
+        "out/e.json",
+        "-",
+        "out",
+        "out/no/e.json",
+        "data/h.csv",
+        "cfg.toml",
+        "keep.txt/e.json",
+        "keep.txt",
+        "run/model.toml",
+        "run/e.json",
+        "null",
+    ]
+)
 
 
 @st.composite
@@ -317,17 +385,37 @@ def command_line(draw) -> Case:
     maybe = lambda flag, values: [flag, draw(values)] if draw(st.booleans()) else []  # noqa: E731
     files = []
     if command in ("identify", "analyze"):
-        data = draw(st.lists(st.sampled_from(["run", "data/h.csv", "data/v.csv", "bad.csv", "random.csv",
-                                              "missing.csv", "data", "/dev/null", "cfg.toml"]),
-                             min_size=1, max_size=2))  # fmt: skip
+        data = draw(
+            st.lists(
+                st.sampled_from(
+                    [
+                        "run",
+                        "data/h.csv",
+                        "data/v.csv",
+                        "bad.csv",
+                        "random.csv",
+                        "missing.csv",
+                        "data",
+                        "/dev/null",
+                        "cfg.toml",
+                    ]
+                ),
+                min_size=1,
+                max_size=2,
+            )
+        )
         argv = [command, *data]
-        argv += maybe("--config", st.sampled_from(["cfg.toml", "cfg.toml", "bad.toml", "missing.toml", "data"]))
+        argv += maybe(
+            "--config", st.sampled_from(["cfg.toml", "cfg.toml", "bad.toml", "missing.toml", "data"])
+        )
         argv += maybe("--out", OUTS)
         if command == "identify":
             method = draw(st.sampled_from(["ml-gn", "ml-gn", "mekf", "ml-nr", "ml-nm", "ekf", "nope"]))
             argv += ["--method", method]
             iters = st.one_of(st.integers(-2, 3).map(str), NUMBERS)
-            argv += ["--max-iter", draw(iters)] if method in ("ml-nr", "ml-nm") else maybe("--max-iter", iters)
+            argv += (
+                ["--max-iter", draw(iters)] if method in ("ml-nr", "ml-nm") else maybe("--max-iter", iters)
+            )
             argv += maybe("--start", st.sampled_from(["auto", "config", "equation-error", "mekf", "nope"]))
             argv += maybe("--perturb", st.one_of(NUMBERS, st.sampled_from(["0.1", "0.3"])))
             argv += maybe("--seed", st.one_of(NUMBERS, st.integers(-3, 2**70).map(str)))
@@ -335,7 +423,9 @@ def command_line(draw) -> Case:
         if "random.csv" in data:  # valid, with values anywhere in the plausible range
             files.append(("random.csv", draw(measurement(LARGE))[0]))
         if "bad.csv" in data:
-            files.append(("bad.csv", (draw(st.sampled_from(["data/h.csv", "data/v.csv"])), draw(csv_mutations()))))
+            files.append(
+                ("bad.csv", (draw(st.sampled_from(["data/h.csv", "data/v.csv"])), draw(csv_mutations())))
+            )
         if "run" in data and draw(st.booleans()):
             files.append(("run/manifest.json", draw(manifest_text())))
         if "bad.toml" in argv:
@@ -350,8 +440,12 @@ def command_line(draw) -> Case:
         argv += maybe("--seed", st.one_of(NUMBERS, st.integers(-3, 5).map(str)))
         argv += maybe("--speed", st.one_of(NUMBERS, st.sampled_from(["20", "0.0005", "451"])))
         argv += maybe("--mjcf", st.sampled_from(["data", "missing.xml", "cfg.toml"]))
-        argv += ["--out", draw(st.sampled_from(["out/run", "out/a/b", "out", "keep.txt", "keep.txt/run", "-",
-                                                 "data", "run"]))]  # fmt: skip
+        argv += [
+            "--out",
+            draw(
+                st.sampled_from(["out/run", "out/a/b", "out", "keep.txt", "keep.txt/run", "-", "data", "run"])
+            ),
+        ]
         argv += ["--force"] if draw(st.booleans()) else []
     return Case(" ".join(argv), tuple(argv), tuple(files))
 
@@ -386,7 +480,9 @@ def fit_on_random_data(draw) -> Case:
     any sampling step), alone or beside a workspace experiment, with the workspace config."""
     method = draw(st.sampled_from(["ml-gn", "ml-nr", "ml-nm", "mekf", "ekf", None]))
     data = ["random.csv"] + draw(st.sampled_from([[], ["data/h.csv"]]))
-    argv = ["analyze", *data] if method is None else ["identify", *data, "--method", method, "--max-iter", "3"]
+    argv = (
+        ["analyze", *data] if method is None else ["identify", *data, "--method", method, "--max-iter", "3"]
+    )
     argv += ["--config", "cfg.toml", "--out", "out/e.json"]
     return Case(" ".join(argv), tuple(argv), (("random.csv", draw(measurement(LARGE))[0]),))
 

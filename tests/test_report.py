@@ -35,8 +35,11 @@ def _rows(path) -> Counter:
 def _data_columns(chunk) -> dict:
     """The index and component columns of a chunk (not its row ids), by name."""
     rb = chunk.to_record_batch()
-    return {f.name: rb.column(i) for i, f in enumerate(rb.schema)
-            if (f.metadata or {}).get(b"rerun:kind") in (b"data", b"index")}  # fmt: skip
+    return {
+        f.name: rb.column(i)
+        for i, f in enumerate(rb.schema)
+        if (f.metadata or {}).get(b"rerun:kind") in (b"data", b"index")
+    }
 
 
 def _contents(path, blueprint=False) -> dict:
@@ -52,6 +55,7 @@ def _contents(path, blueprint=False) -> dict:
 
 def _same(x: pa.Array, y: pa.Array) -> bool:
     """Bitwise equal (NaN equals NaN, unlike `equals`)."""
+
     def raw(a):
         return [b.to_pybytes() if b is not None else None for b in a.buffers()]
 
@@ -83,7 +87,9 @@ def _blueprint(path) -> dict:
         if ":" not in column:  # an index (the blueprint's own timeline), not a component
             continue
         value = values.to_pylist()[-1]
-        out[entity][column.split(":")[-1]] = value[0] if isinstance(value, list) and len(value) == 1 else value
+        out[entity][column.split(":")[-1]] = (
+            value[0] if isinstance(value, list) and len(value) == 1 else value
+        )
     return dict(out)
 
 
@@ -93,10 +99,16 @@ def _views(bp) -> dict:
     for entity, props in bp.items():
         if "class_identifier" in props:
             query = bp.get(f"{entity}/ViewContents", {}).get("query")
-            extra = {sub.removeprefix(entity + "/"): p for sub, p in bp.items() if sub.startswith(entity + "/")}
-            views[entity] = {"kind": props["class_identifier"], "name": props.get("display_name"),
-                             "origin": props["space_origin"],
-                             "query": [query] if isinstance(query, str) else list(query), **extra}  # fmt: skip
+            extra = {
+                sub.removeprefix(entity + "/"): p for sub, p in bp.items() if sub.startswith(entity + "/")
+            }
+            views[entity] = {
+                "kind": props["class_identifier"],
+                "name": props.get("display_name"),
+                "origin": props["space_origin"],
+                "query": [query] if isinstance(query, str) else list(query),
+                **extra,
+            }
     return views
 
 
@@ -143,7 +155,12 @@ def test_run_recording_has_the_replay_and_every_series(tmp_path, flights):
             assert rows[f"/{f.name}/vehicle/{fin}"] == n  # deflection over time
             assert rows[f"/{f.name}/vehicle/{fin}/blades"] == 1  # static shape
             assert rows[f"/{f.name}/vehicle/{fin}/pointer"] == 1 == rows[f"/{f.name}/vehicle/{fin}_neutral"]
-        assert rows[f"/{f.name}/vehicle/hull"] == 1 == rows[f"/{f.name}/vehicle/ring"] == rows[f"/{f.name}/trail"]
+        assert (
+            rows[f"/{f.name}/vehicle/hull"]
+            == 1
+            == rows[f"/{f.name}/vehicle/ring"]
+            == rows[f"/{f.name}/trail"]
+        )
         for j, s in enumerate(STATES):  # one entity per state: measured and true, one row per sample
             assert rows[f"/{f.name}/states/{s}"] == n + 1  # + the static style
             both = np.column_stack([f.measured[:, j], f.truth[:, j]])
@@ -179,8 +196,11 @@ def test_world_view_tracks_an_entity_with_geometry_at_a_steady_distance(run_rrd,
     bp, contents = _blueprint(run_rrd), _contents(run_rrd)
     views = _views(bp)
     for f in flights:
-        (world,) = [v for v in views.values() if v["kind"] == "3D" and v["origin"] == "/"
-                    and f"/{f.name}/vehicle/**" in v["query"]]  # fmt: skip
+        (world,) = [
+            v
+            for v in views.values()
+            if v["kind"] == "3D" and v["origin"] == "/" and f"/{f.name}/vehicle/**" in v["query"]
+        ]
         eye = world["EyeControls3D"]
         tracked = eye["tracking_entity"]
         assert tracked.startswith(f"/{f.name}/vehicle/")  # moves with the vehicle's transform
@@ -197,7 +217,9 @@ def test_world_view_tracks_an_entity_with_geometry_at_a_steady_distance(run_rrd,
             assert np.linalg.norm(turned.max(0) - turned.min(0)) / 2 == pytest.approx(half_diagonal, rel=0.03)
         # the body-axes close-up: eye on the fins, ring left out
         (close,) = [v for v in views.values() if v["kind"] == "3D" and v["origin"] == f"/{f.name}/vehicle"]
-        assert f"- /{f.name}/vehicle/ring" in close["query"] and "tracking_entity" not in close["EyeControls3D"]
+        assert (
+            f"- /{f.name}/vehicle/ring" in close["query"] and "tracking_entity" not in close["EyeControls3D"]
+        )
         look, pos = close["EyeControls3D"]["look_target"], close["EyeControls3D"]["position"]
         assert np.linalg.norm(np.subtract(pos, look)) < 4.0 and look[0] < 0  # the stern, close
 
@@ -213,19 +235,25 @@ def test_every_view_shows_logged_entities_on_the_timeline_the_recording_opens_on
         shown = _matches(v, logged)
         assert shown, f"{v['name']} shows nothing"
         if v["kind"] == "TimeSeries":
-            assert all("Scalars:scalars" in logged[e]["components"] and "time" in logged[e]["timelines"]
-                       for e in shown), v["name"]  # fmt: skip
+            assert all(
+                "Scalars:scalars" in logged[e]["components"] and "time" in logged[e]["timelines"]
+                for e in shown
+            ), v["name"]
     # every view and container has exactly one parent (the viewer drops the layout otherwise)
     children = [c for e, p in bp.items() if e.startswith("/container/") for c in p["contents"]]
-    assert len(children) == len(set(children)) == len(views) + sum(e.startswith("/container/") for e in bp) - 1
+    assert (
+        len(children) == len(set(children)) == len(views) + sum(e.startswith("/container/") for e in bp) - 1
+    )
 
 
 def test_series_have_one_fixed_style_per_role(tmp_path, run_rrd, yaw_fit):
     config, data, start = yaw_fit
     est = identify(data, start, method="ml-gn")
     fit = report.log_fit(tmp_path / "fit.rrd", data, start, est, [], compare(est, config))
-    for path, roles in ((run_rrd, {"states": ("measured", "truth"), "fins": ("measured", "truth")}),
-                        (fit, {"outputs": ("measured", "model")})):  # fmt: skip
+    for path, roles in (
+        (run_rrd, {"states": ("measured", "truth"), "fins": ("measured", "truth")}),
+        (fit, {"outputs": ("measured", "model")}),
+    ):
         contents = _contents(path)
         styled = {e for e, c in contents if c == "SeriesLines:colors"}
         for (entity, column), values in contents.items():
@@ -241,8 +269,12 @@ def test_series_have_one_fixed_style_per_role(tmp_path, run_rrd, yaw_fit):
             if group in roles:
                 expected = [recording.STYLE[r] for r in roles[group]]
                 rgb = [((c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255) for c in colors[0]]
-                assert rgb == [c for c, _ in expected] and widths[0] == pytest.approx([w for _, w in expected])
-    assert recording.STYLE["measured"][1] < recording.STYLE["truth"][1] == recording.STYLE["model"][1]  # thin vs bold
+                assert rgb == [c for c, _ in expected] and widths[0] == pytest.approx(
+                    [w for _, w in expected]
+                )
+    assert (
+        recording.STYLE["measured"][1] < recording.STYLE["truth"][1] == recording.STYLE["model"][1]
+    )  # thin vs bold
 
 
 def test_commands_share_axes_only_with_what_they_command_with_units_and_no_legends(run_rrd):
@@ -283,13 +315,19 @@ def test_axis_range_holds_the_data_and_ends_on_multiples_of_a_power_of_ten(seed)
         s = 10.0 ** np.floor(np.log10((inner_b - inner_a) / intervals) + 1e-9)
         s = s if (inner_b - inner_a) / s <= intervals + 1e-6 else 10 * s
         steps = (inner_b - inner_a) / s
-        assert 1 - 1e-6 <= steps <= intervals + 1e-6 and abs(steps - round(steps)) < 1e-6  # ends on multiples of s
-        assert values.max() - values.min() > (b - a) / 10 / 1.08 or len(set(values)) == 1  # not needlessly wide
+        assert (
+            1 - 1e-6 <= steps <= intervals + 1e-6 and abs(steps - round(steps)) < 1e-6
+        )  # ends on multiples of s
+        assert (
+            values.max() - values.min() > (b - a) / 10 / 1.08 or len(set(values)) == 1
+        )  # not needlessly wide
 
 
 def test_axis_range_examples():
     assert recording.axis_range([-0.365, 0.365]) == pytest.approx((-0.432, 0.432))  # 8 steps of 0.1
-    assert recording.axis_range([-0.092, 0.087]) == pytest.approx((-0.108, 0.108))  # 2 steps of 0.1, not 19 of 0.01
+    assert recording.axis_range([-0.092, 0.087]) == pytest.approx(
+        (-0.108, 0.108)
+    )  # 2 steps of 0.1, not 19 of 0.01
     assert recording.axis_range([93.7, 104.8]) == pytest.approx((89.2, 110.8))
     assert recording.axis_range([np.nan, 5.0, 5.0]) == pytest.approx((4.892, 5.108))
     assert recording.axis_range([]) == pytest.approx((-0.108, 0.108))
@@ -299,7 +337,9 @@ def test_same_run_same_recording(tmp_path, flights, make_flight):
     a = recording.log_run(tmp_path / "a.rrd", flights, title="testbed II seed 1")
     b = recording.log_run(tmp_path / "b.rrd", flights, title="testbed II seed 1")
     c = recording.log_run(tmp_path / "c.rrd", flights, title="testbed II seed 2")
-    d = recording.log_run(tmp_path / "d.rrd", [make_flight("horizontal", seed=9), flights[1]], title="testbed II seed 1")
+    d = recording.log_run(
+        tmp_path / "d.rrd", [make_flight("horizontal", seed=9), flights[1]], title="testbed II seed 1"
+    )
     e = recording.log_run(tmp_path / "e.rrd", flights, title="testbed II seed 1", recording_id="mine")
 
     def rid(p):
@@ -348,8 +388,16 @@ def yaw_fit():
     config = ModelConfig(config.vehicle, config.coefficients, ("N_r", "N_dr"))
     t = np.arange(0, 10, 0.04)
     delta = np.column_stack([0.02 * np.sign(np.sin(1.3 * t)), np.zeros_like(t), np.zeros_like(t)])
-    data = [synthetic(config, t, delta, rng=np.random.default_rng(0), measured=("v", "r", "psi"),
-                      noise_std={"v": 0.01, "r": 0.002, "psi": 0.002})]  # fmt: skip
+    data = [
+        synthetic(
+            config,
+            t,
+            delta,
+            rng=np.random.default_rng(0),
+            measured=("v", "r", "psi"),
+            noise_std={"v": 0.01, "r": 0.002, "psi": 0.002},
+        )
+    ]
     start = config.with_coefficients({"N_r": 0.8 * config.coefficients["N_r"]})
     return config, data, start
 
@@ -357,8 +405,12 @@ def yaw_fit():
 def test_ml_fit_opens_on_the_parameters_tab_on_the_iteration_timeline(tmp_path, yaw_fit):
     config, data, start = yaw_fit
     iterations = []
-    est = identify(data, start, method="ml-gn",
-                   callback=lambda step: iterations.append((step.iteration, list(step.values), step.cost)))  # fmt: skip
+    est = identify(
+        data,
+        start,
+        method="ml-gn",
+        callback=lambda step: iterations.append((step.iteration, list(step.values), step.cost)),
+    )
     comparison = compare(est, config, est)  # a truth fit (here the same fit) adds its line
     path = report.log_fit(tmp_path / "fit.rrd", data, start, est, iterations, comparison)
     assert os.listdir(tmp_path) == ["fit.rrd"]
@@ -367,7 +419,12 @@ def test_ml_fit_opens_on_the_parameters_tab_on_the_iteration_timeline(tmp_path, 
     ks = [k for k, _, _ in iterations]
     for j, n in enumerate(est.free):  # estimate, ∓σ about the final one, analytic, truth fit
         got = _scalars(path, f"/parameters/{n}")
-        constant = [est.values[j] - est.std[j], est.values[j] + est.std[j], config.coefficients[n], est.values[j]]
+        constant = [
+            est.values[j] - est.std[j],
+            est.values[j] + est.std[j],
+            config.coefficients[n],
+            est.values[j],
+        ]
         expected = np.column_stack([values[:, j], *[np.full(len(ks), c) for c in constant]])
         assert np.allclose(got, expected) and logged[f"/parameters/{n}"]["timelines"] == {"iteration"}
         assert contents[f"/parameters/{n}", "iteration"].to_pylist() == ks
@@ -380,7 +437,9 @@ def test_ml_fit_opens_on_the_parameters_tab_on_the_iteration_timeline(tmp_path, 
     assert active == tabs["parameters"]
     views = _views(bp)
     plots = {v["origin"]: v for v in views.values() if v["kind"] == "TimeSeries"}
-    for j, n in enumerate(est.free):  # one plot per coefficient, its data in range, x from first to last iteration
+    for j, n in enumerate(
+        est.free
+    ):  # one plot per coefficient, its data in range, x from first to last iteration
         v = plots[f"/parameters/{n}"]
         assert v["name"] == n and _matches(v, logged) == {f"/parameters/{n}"}
         lo, hi = v["ScalarAxis"]["range"]
@@ -399,8 +458,17 @@ def test_comparison_is_a_table_by_coefficient_name(tmp_path, yaw_fit):
     ((text,),) = _contents(path)["/comparison/table", "TextDocument:text"].to_pylist()
     lines = [line for line in text.splitlines() if line.startswith("| ")]
     header = [c.strip() for c in lines[0].strip("|").split("|")]
-    assert header == ["coefficient", "analytic", "identified", "± σ", "error (σ)", "error (%)", "truth fit",
-                      "model bias (%)", "noise (σ)"]  # fmt: skip
+    assert header == [
+        "coefficient",
+        "analytic",
+        "identified",
+        "± σ",
+        "error (σ)",
+        "error (%)",
+        "truth fit",
+        "model bias (%)",
+        "noise (σ)",
+    ]
     for row, r in zip(lines[1:], comparison.rows()):
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert cells[0] == f"`{r['name']}`" and float(cells[1]) == pytest.approx(r["analytic"], rel=1e-3)
@@ -465,7 +533,9 @@ def test_filter_recording_has_parameter_histories_with_sigma_bands_on_time(tmp_p
     for j, p in enumerate(est.free):
         mean, std = est.history[:, j], est.history_std[:, j]
         got = _scalars(path, f"/parameters/{p}")
-        assert np.array_equal(got[:, 0], mean) and np.allclose(got[:, 1:], np.column_stack([mean - std, mean + std]))
+        assert np.array_equal(got[:, 0], mean) and np.allclose(
+            got[:, 1:], np.column_stack([mean - std, mean + std])
+        )
         assert logged[f"/parameters/{p}"]["timelines"] == {"time"}
     assert rows["/cost"] == 0
     assert rows[f"/outputs/{data[0].name}/r"] == len(data[0].t) + 1  # fitted initial states; + the style

@@ -53,7 +53,7 @@ def test_prbs_is_maximal_length_and_balanced(order):
     assert len(bits) == n and bits.sum() == 1  # one more +1 than −1
     twice = np.concatenate([bits, bits])
     # the periodic autocorrelation of an m-sequence is n at lag 0 and −1 elsewhere
-    corr = np.array([twice[k:k + n] @ bits for k in range(n)])
+    corr = np.array([twice[k : k + n] @ bits for k in range(n)])
     assert corr[0] == n and np.all(corr[1:] == -1)
 
 
@@ -151,8 +151,10 @@ def _zigzag_commands(angle, fin, switch):
     return np.array(out)
 
 
-@pytest.mark.parametrize("scenario, state, fin, keyword",
-                         [("zigzag", "psi", 0, "rudder"), ("zigzag-vertical", "theta", 1, "elevators")])  # fmt: skip
+@pytest.mark.parametrize(
+    "scenario, state, fin, keyword",
+    [("zigzag", "psi", 0, "rudder"), ("zigzag-vertical", "theta", 1, "elevators")],
+)
 def test_zigzag_switches_the_fins_when_the_angle_passes_the_switching_angle(scenario, state, fin, keyword):
     s = _short(scenario, 12.0)
     (f,), _ = sc.fly_scenario(s)
@@ -165,7 +167,7 @@ def test_zigzag_switches_the_fins_when_the_angle_passes_the_switching_angle(scen
     assert command[0] == limit  # first to negative heading / nose down
     # between switches the fin reaches the commanded angle
     for a, b in zip(switches[:-1], switches[1:]):
-        assert np.abs(f.fins[a + 1:b + 1, fin] - command[a + 1]).min() < 1e-12
+        assert np.abs(f.fins[a + 1 : b + 1, fin] - command[a + 1]).min() < 1e-12
     if scenario == "zigzag":
         assert np.abs(f.truth[:, IX["z"]] - s.depth).max() < 0.5  # depth held
     else:
@@ -180,10 +182,19 @@ def test_run_directory_is_complete_and_its_command_regenerates_it(tmp_path, caps
     a = runs.simulate("II", seed=5, out=tmp_path / "a", duration=6.0)
     c = runs.simulate("II", seed=6, out=tmp_path / "c", duration=6.0)
     names = {f"{e}{s}" for e in ("horizontal", "vertical", "roll") for s in (".csv", ".truth.csv")}
-    assert {p.name for p in a.iterdir()} == names | {"model.toml", "scenario.toml", "recording.rrd", "manifest.json"}
+    assert {p.name for p in a.iterdir()} == names | {
+        "model.toml",
+        "scenario.toml",
+        "recording.rrd",
+        "manifest.json",
+    }
     manifest = json.loads((a / "manifest.json").read_text())
     argv = shlex.split(manifest["command"])
-    assert argv[:2] == ["testbed", "simulate"] and "--scenario" in argv and argv[argv.index("--scenario") + 1] == "II"
+    assert (
+        argv[:2] == ["testbed", "simulate"]
+        and "--scenario" in argv
+        and argv[argv.index("--scenario") + 1] == "II"
+    )
     assert main(argv[1:] + ["--quiet", "--out", str(tmp_path / "b")]) == 0
     assert _files(a) == _files(tmp_path / "b")  # the recorded command: identical bytes
     assert _files(a)["horizontal.csv"] != _files(c)["horizontal.csv"]  # other seed: other noise
@@ -203,7 +214,7 @@ def test_a_scenario_file_written_by_hand_drives_a_run(tmp_path):
     """Every signal kind, autopilot loops and sensors from a hand-written file; the run's
     scenario.toml, given back to simulate, flies the same run."""
     path = tmp_path / "mine.toml"
-    path.write_text('''
+    path.write_text("""
 name = "mine"
 description = "a hand-written test"
 duration = 4.0
@@ -229,7 +240,7 @@ duration = 3.0
 elevators = {signal = "multisine", amplitude = 0.003, frequencies = [0.2, 0.5, 1.1]}
 hold = {depth = 0.0}
 autopilot = {yaw_rate = {signal = "square", amplitude = 0.05, half_period = 1.0}, roll = 0.0}
-''')
+""")
     run = runs.simulate(path, seed=1, out=tmp_path / "run")
     experiments, config = load_data([run])
     first, second = experiments
@@ -254,22 +265,31 @@ def test_built_in_scenarios_are_files_that_round_trip():
         assert (sc.SCENARIO_DIR / f"{name}.toml").exists()
 
 
-@pytest.mark.parametrize("text, message", [
-    ("duration = -1.0\n[[experiment]]\nname = 'x'", "duration = -1.0; expected a finite number > 0"),
-    ("[[experiment]]\nname = 'x'\nrudder = {signal = 'prbs', amplitude = 0.5}", "rudder reaches 0.5 rad"),
-    ("[[experiment]]\nname = 'x'\nrudder = {signal = 'chirp'}", "signal 'chirp'; expected one of"),
-    ("[[experiment]]\nname = 'x'\nrudder = {signal = 'prbs', order = 31}", "order = 31; expected an integer"),
-    ("[[experiment]]\nname = 'x'\nrudder = {signal = 'prbs', amp = 0.1}", "unknown prbs parameter 'amp'"),
-    ("[[experiment]]\nname = 'x'\nrudder = 0.1\nautopilot = {yaw_rate = 0.1}", "both a signal and driven"),
-    ("[[experiment]]\nname = 'x'\nautopilot = {pitch = 0.1}", "unknown autopilot loop 'pitch'"),
-    ("[[experiment]]\nname = 'x'\nhold = {depth = 0.0}", "hold needs an elevators signal"),
-    ("[[experiment]]\nname = 'x'\n[[experiment]]\nname = 'x'", "expected distinct names"),
-    ("wind = 3\n[[experiment]]\nname = 'x'", "unknown key 'wind'"),
-    ("[sensors]\nrate = 30.0\n[[experiment]]\nname = 'x'", "expected the sample rate to divide"),
-    ("[sensors]\nmeasured = ['depth']\n[[experiment]]\nname = 'x'", "measured ['depth']"),
-    ("name = ", "not valid TOML"),
-    ("name = 'none'", "no [[experiment]]"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("duration = -1.0\n[[experiment]]\nname = 'x'", "duration = -1.0; expected a finite number > 0"),
+        ("[[experiment]]\nname = 'x'\nrudder = {signal = 'prbs', amplitude = 0.5}", "rudder reaches 0.5 rad"),
+        ("[[experiment]]\nname = 'x'\nrudder = {signal = 'chirp'}", "signal 'chirp'; expected one of"),
+        (
+            "[[experiment]]\nname = 'x'\nrudder = {signal = 'prbs', order = 31}",
+            "order = 31; expected an integer",
+        ),
+        ("[[experiment]]\nname = 'x'\nrudder = {signal = 'prbs', amp = 0.1}", "unknown prbs parameter 'amp'"),
+        (
+            "[[experiment]]\nname = 'x'\nrudder = 0.1\nautopilot = {yaw_rate = 0.1}",
+            "both a signal and driven",
+        ),
+        ("[[experiment]]\nname = 'x'\nautopilot = {pitch = 0.1}", "unknown autopilot loop 'pitch'"),
+        ("[[experiment]]\nname = 'x'\nhold = {depth = 0.0}", "hold needs an elevators signal"),
+        ("[[experiment]]\nname = 'x'\n[[experiment]]\nname = 'x'", "expected distinct names"),
+        ("wind = 3\n[[experiment]]\nname = 'x'", "unknown key 'wind'"),
+        ("[sensors]\nrate = 30.0\n[[experiment]]\nname = 'x'", "expected the sample rate to divide"),
+        ("[sensors]\nmeasured = ['depth']\n[[experiment]]\nname = 'x'", "measured ['depth']"),
+        ("name = ", "not valid TOML"),
+        ("name = 'none'", "no [[experiment]]"),
+    ],
+)
 def test_bad_scenario_files_are_one_line_errors(tmp_path, capsys, text, message):
     path = tmp_path / "bad.toml"
     path.write_text(text)
@@ -300,7 +320,9 @@ def test_bad_input_leaves_nothing(tmp_path, capsys, monkeypatch):
         main(["simulate", "--scenario", "I", "--duration", "-3"])
     assert e.value.code == 2 and "--duration" in capsys.readouterr().err
     (tmp_path / "exists").mkdir()
-    assert "already exists" in one_line_exit_2(["simulate", "--scenario", "I", "--out", str(tmp_path / "exists")])
+    assert "already exists" in one_line_exit_2(
+        ["simulate", "--scenario", "I", "--out", str(tmp_path / "exists")]
+    )
     blocker = tmp_path / "file"
     blocker.write_text("")
     blocked = ["simulate", "--scenario", "I", "--out", str(blocker / "run")]
@@ -316,11 +338,14 @@ def test_bad_input_leaves_nothing(tmp_path, capsys, monkeypatch):
         sc.fly_scenario(replace(sc.scenario("I"), duration=-1.0))
 
 
-@pytest.mark.parametrize("option, value", [("--duration", "inf"), ("--duration", "nan"), ("--seed", "-1"),
-                                           ("--speed", "inf")])  # fmt: skip
+@pytest.mark.parametrize(
+    "option, value", [("--duration", "inf"), ("--duration", "nan"), ("--seed", "-1"), ("--speed", "inf")]
+)
 def test_bad_numbers_are_one_line_errors(option, value, tmp_path, capsys):
     try:
-        code = main(["simulate", "--scenario", "II", "--quiet", "--out", str(tmp_path / "run"), option, value])
+        code = main(
+            ["simulate", "--scenario", "II", "--quiet", "--out", str(tmp_path / "run"), option, value]
+        )
     except SystemExit as exc:  # the option parser may catch it before the library
         code = exc.code
     err = capsys.readouterr().err

@@ -8,7 +8,9 @@ from pathlib import Path
 
 import pytest
 
-_spec = importlib.util.spec_from_file_location("screenshots", Path(__file__).parents[1] / "tools" / "screenshots.py")
+_spec = importlib.util.spec_from_file_location(
+    "screenshots", Path(__file__).parents[1] / "tools" / "screenshots.py"
+)
 shots = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(shots)
 
@@ -31,11 +33,20 @@ def test_set_time_request_names_timeline_time_and_pause():
 
 
 def _blueprint():
-    return {"/viewport": {"ViewportBlueprint": {"root_container": "root"}},
-            "/container/root": {"ContainerBlueprint": {"container_kind": "Tabs", "active_tab": "/container/a",
-                                                       "contents": ["/container/a", "view/b"]}},
-            "/container/a": {"ContainerBlueprint": {"container_kind": "Horizontal", "display_name": "horizontal"}},
-            "/view/b": {"ViewBlueprint": {"class_identifier": "TimeSeries", "display_name": "parameters"}}}  # fmt: skip
+    return {
+        "/viewport": {"ViewportBlueprint": {"root_container": "root"}},
+        "/container/root": {
+            "ContainerBlueprint": {
+                "container_kind": "Tabs",
+                "active_tab": "/container/a",
+                "contents": ["/container/a", "view/b"],
+            }
+        },
+        "/container/a": {
+            "ContainerBlueprint": {"container_kind": "Horizontal", "display_name": "horizontal"}
+        },
+        "/view/b": {"ViewBlueprint": {"class_identifier": "TimeSeries", "display_name": "parameters"}},
+    }
 
 
 def test_tabs_are_switched_in_a_copy_of_the_blueprint():
@@ -74,6 +85,9 @@ def test_screenshots_of_a_run_recording(tmp_path, flights):
     from testbed import recording
 
     rrd = recording.log_run(tmp_path / "recording.rrd", flights)
-    assert shots.main([str(rrd), str(tmp_path / "png"), "--tab", "vertical", "--at", "1", "--size", "800x450"]) == 0
+    assert (
+        shots.main([str(rrd), str(tmp_path / "png"), "--tab", "vertical", "--at", "1", "--size", "800x450"])
+        == 0
+    )
     (png,) = (tmp_path / "png").iterdir()
     assert png.name == "vertical-1.png" and _png_size(png) == (800, 450)

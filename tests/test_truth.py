@@ -54,11 +54,17 @@ def test_spec_projection_reproduces_full_model(speed):
     s = structure(lin.vehicle)
     theta = theta_vector(lin.coefficients)
     places = {  # where the linear model's table has an entry (a coefficient or a known constant)
-        "Mt": (s.dMt != 0).any(0) | (s.Mt0 != 0), "At": (s.dAt != 0).any(0) | (s.At0 != 0),
-        "Bt": (s.dBt != 0).any(0), "St": s.St0 != 0,
-    }  # fmt: skip
-    for name, spec, full in (("Mt", lin.Mt, lin.Mt_full), ("At", lin.At, lin.At_full),
-                             ("Bt", lin.Bt, lin.Bt_full), ("St", lin.St, lin.St_full)):  # fmt: skip
+        "Mt": (s.dMt != 0).any(0) | (s.Mt0 != 0),
+        "At": (s.dAt != 0).any(0) | (s.At0 != 0),
+        "Bt": (s.dBt != 0).any(0),
+        "St": s.St0 != 0,
+    }
+    for name, spec, full in (
+        ("Mt", lin.Mt, lin.Mt_full),
+        ("At", lin.At, lin.At_full),
+        ("Bt", lin.Bt, lin.Bt_full),
+        ("St", lin.St, lin.St_full),
+    ):
         scale = lin.thrust if name == "St" else np.abs(full).max()  # St: trim forces, N
         where = places[name]
         assert np.allclose(spec[where], full[where], rtol=1e-12, atol=1e-10 * scale), name
@@ -82,8 +88,8 @@ def test_geom_jacobian_matches_mujoco():
     xml = f"""<mujoco><option density="{rho}" viscosity="{beta}" gravity="0 0 0"/>
       <worldbody><body><freejoint/><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/>
         <geom type="ellipsoid" size="{r[0]} {r[1]} {r[2]}" fluidshape="ellipsoid"
-              fluidcoef="{' '.join(map(str, coef))}"/>
-      </body></worldbody></mujoco>"""  # fmt: skip
+              fluidcoef="{" ".join(map(str, coef))}"/>
+      </body></worldbody></mujoco>"""
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
 
@@ -117,11 +123,12 @@ def test_ellipsoid_added_mass_is_tuckermans():
     r, rho = np.array([0.5, 0.2, 0.1]), 1025.0
     xml = f"""<mujoco><option density="{rho}"/><worldbody><body name="hull"><freejoint/>
       <geom type="ellipsoid" size="{r[0]} {r[1]} {r[2]}" fluidshape="ellipsoid"/>
-      </body></worldbody></mujoco>"""  # fmt: skip
+      </body></worldbody></mujoco>"""
     m = mujoco.MjModel.from_xml_string(xml)
 
     def kappa(i):
         j, k = (i + 1) % 3, (i + 2) % 3
+
         def f(lam):
             return np.prod(r) / np.sqrt((r[i] ** 2 + lam) ** 3 * (r[j] ** 2 + lam) * (r[k] ** 2 + lam))
 
@@ -184,7 +191,9 @@ def test_cli_truth_bad_input(capsys, tmp_path):
     assert "--speed" in _one_line_error(["truth", "--speed", "0"], capsys)
     assert "speed" in _one_line_error(["truth", "--speed", "inf"], capsys)
     assert "--speed 1e-300" in _one_line_error(["truth", "--speed", "1e-300"], capsys)
-    assert "--speed 1e+300" in _one_line_error(["truth", "--speed", "1e300"], capsys)  # named as given, not as NaN
+    assert "--speed 1e+300" in _one_line_error(
+        ["truth", "--speed", "1e300"], capsys
+    )  # named as given, not as NaN
     for speed in (0.0, -1.0, float("inf"), float("nan"), 1e-300, 451.0, 1e300):
         with pytest.raises(InputError, match=r"speed=.*; expected a trim speed of 0\.001 to 450 m/s"):
             truth.analytic_config(None, speed)

@@ -50,8 +50,23 @@ def test_validate_on_a_held_out_run(tmp_path, capsys):
     """Fit on a short Scenario II run, predict a held-out turn: the JSON gives every channel's
     fit % (identified and analytic) and whiteness; the turn's heading is predicted."""
     for scenario, out in (("II", "ii"), ("turn", "turn")):
-        assert main(["simulate", "--scenario", scenario, "--seed", "1", "--duration", "20",
-                     "--quiet", "--out", str(tmp_path / out)]) == 0  # fmt: skip
+        assert (
+            main(
+                [
+                    "simulate",
+                    "--scenario",
+                    scenario,
+                    "--seed",
+                    "1",
+                    "--duration",
+                    "20",
+                    "--quiet",
+                    "--out",
+                    str(tmp_path / out),
+                ]
+            )
+            == 0
+        )
     est = tmp_path / "est.json"
     assert main(["identify", str(tmp_path / "ii"), "--out", str(est)]) in (0, 1)
     doc = json.loads(est.read_text())
@@ -64,19 +79,32 @@ def test_validate_on_a_held_out_run(tmp_path, capsys):
     val = json.loads(out.read_text())["validation"]["turn"]
     assert set(val) == {"u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z"}
     assert val["psi"]["fit_percent"] > 95.0 and val["psi"]["fit_percent_analytic"] > 95.0
-    assert {"max_autocorrelation", "bound", "lags_outside", "ljung_box_p", "white"} <= set(val["r"]["whiteness"])
+    assert {"max_autocorrelation", "bound", "lags_outside", "ljung_box_p", "white"} <= set(
+        val["r"]["whiteness"]
+    )
     assert "Ljung-Box" in err and "turn" in err
 
 
-@pytest.mark.parametrize("text, message", [("{", "expected an estimates JSON"),
-                                           ('{"coefficients": {"N_x": {"value": 1}}}', "'N_x' is not a coefficient"),
-                                           ('{"coefficients": {"N_r": {"value": "a"}}}', "expected a finite number")])  # fmt: skip
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("{", "expected an estimates JSON"),
+        ('{"coefficients": {"N_x": {"value": 1}}}', "'N_x' is not a coefficient"),
+        ('{"coefficients": {"N_r": {"value": "a"}}}', "expected a finite number"),
+    ],
+)
 def test_validate_rejects_a_bad_estimates_file(tmp_path, capsys, text, message):
-    assert main(["simulate", "--scenario", "turn", "--duration", "2", "--quiet", "--out", str(tmp_path / "t")]) == 0
+    assert (
+        main(["simulate", "--scenario", "turn", "--duration", "2", "--quiet", "--out", str(tmp_path / "t")])
+        == 0
+    )
     bad = tmp_path / "bad.json"
     bad.write_text(text)
     capsys.readouterr()
-    assert main(["validate", str(tmp_path / "t"), "--estimates", str(bad), "--out", str(tmp_path / "v.json")]) == 2
+    assert (
+        main(["validate", str(tmp_path / "t"), "--estimates", str(bad), "--out", str(tmp_path / "v.json")])
+        == 2
+    )
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err and "bad.json" in err, err
     assert not (tmp_path / "v.json").exists()

@@ -32,12 +32,24 @@ import tempfile
 import time
 from pathlib import Path
 
-CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
+CHROMIUM_FLAGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 VIEWER_VERSION = "0.41."
 # Messages that say nothing about the recording: the page's web fonts and the viewer's examples
 # list are not reachable offline, and the web backend ignores some window commands.
-BENIGN = ("ERR_NAME_NOT_RESOLVED", "Failed to fetch", "Failed to load examples", "Unhandled egui viewport command")
+BENIGN = (
+    "ERR_NAME_NOT_RESOLVED",
+    "Failed to fetch",
+    "Failed to load examples",
+    "Unhandled egui viewport command",
+)
 
 # -- the protobuf wire format, for the few viewer-control messages used ---------------------------
 
@@ -83,11 +95,11 @@ def parse(data: bytes) -> list[tuple[int, int | bytes]]:
             out.append((number, varint()))
         elif wire == 2:
             n = varint()
-            out.append((number, data[i:i + n]))
+            out.append((number, data[i : i + n]))
             i += n
         elif wire in (1, 5):  # fixed 64 / 32 bits
             width = 8 if wire == 1 else 4
-            out.append((number, data[i:i + width]))
+            out.append((number, data[i : i + width]))
             i += width
         else:
             raise ValueError(f"protobuf wire type {wire} at byte {i}")
@@ -144,9 +156,22 @@ def serve(recording: Path):
     grpc, web = _free_port(), _free_port()
     log = tempfile.TemporaryFile()
     # its own process group: `rerun` is a launcher whose viewer binary must stop with it
-    process = subprocess.Popen([rerun, "--serve-web", "--bind", "127.0.0.1", "--port", str(grpc),
-                                "--web-viewer-port", str(web), str(recording)],
-                               stdout=log, stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
+    process = subprocess.Popen(
+        [
+            rerun,
+            "--serve-web",
+            "--bind",
+            "127.0.0.1",
+            "--port",
+            str(grpc),
+            "--web-viewer-port",
+            str(web),
+            str(recording),
+        ],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     try:
         _wait_for_port(web, process, 60)
         yield f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
@@ -169,7 +194,8 @@ class Viewer:
 
     def control(self, request: bytes) -> bytes:
         answer = self.page.evaluate(
-            "async (b) => Array.from(await window._handle.viewer_control(new Uint8Array(b)))", list(request))
+            "async (b) => Array.from(await window._handle.viewer_control(new Uint8Array(b)))", list(request)
+        )
         return bytes(answer)
 
     def state(self) -> bytes:
@@ -256,8 +282,15 @@ def _slug(text: str) -> str:
     return "-".join("".join(c if c.isalnum() or c in "_." else " " for c in text).split())
 
 
-def shoot(recording: Path, out: Path, tab_names: list[str], at: list[str], timeline: str | None,
-          size: tuple[int, int], settle: float) -> list[Path]:  # fmt: skip
+def shoot(
+    recording: Path,
+    out: Path,
+    tab_names: list[str],
+    at: list[str],
+    timeline: str | None,
+    size: tuple[int, int],
+    settle: float,
+) -> list[Path]:
     from playwright.sync_api import sync_playwright
 
     out.mkdir(parents=True, exist_ok=True)
@@ -286,7 +319,9 @@ def shoot(recording: Path, out: Path, tab_names: list[str], at: list[str], timel
                     if value is not None:
                         viewer.control(set_time_request(timeline, _cursor(value, kinds[timeline])))
                     time.sleep(settle)
-                    path = out / (_slug(name or "viewer") + (f"-{_slug(value)}" if value is not None else "") + ".png")
+                    path = out / (
+                        _slug(name or "viewer") + (f"-{_slug(value)}" if value is not None else "") + ".png"
+                    )
                     page.screenshot(path=str(path))
                     written.append(path)
                     print(path)
@@ -325,8 +360,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("recording", type=Path, help=".rrd file")
     p.add_argument("out", type=Path, help="folder for the PNG files")
     p.add_argument("--tab", action="append", default=[], help="tab to show (default: every tab)")
-    p.add_argument("--at", action="append", default=[], help="time cursor: seconds, or an index on a "
-                   "sequence timeline (default: where the recording opens)")
+    p.add_argument(
+        "--at",
+        action="append",
+        default=[],
+        help="time cursor: seconds, or an index on a sequence timeline (default: where the recording opens)",
+    )
     p.add_argument("--timeline", help="timeline of --at (default: the one the recording opens on)")
     p.add_argument("--size", default="1600x900", help="viewport WIDTHxHEIGHT (default 1600x900)")
     p.add_argument("--settle", type=float, default=4.0, help="seconds to let the viewer draw (default 4)")

@@ -23,13 +23,25 @@ from typing import Mapping, Sequence
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import mekf, ml
-from testbed.estimators.base import (Callback, Estimate, Method, OptionError, Options, Progress,
-                                     Status)
+from testbed.estimators.base import Callback, Estimate, Method, OptionError, Options, Progress, Status
 from testbed.estimators.mekf import FilterEstimate, FilterOptions
 from testbed.linear import check_fit
 
-__all__ = ["Callback", "Estimate", "FilterEstimate", "FilterOptions", "METHODS", "Method",
-           "OptionError", "Options", "Progress", "Status", "identify", "lookup", "register"]
+__all__ = [
+    "Callback",
+    "Estimate",
+    "FilterEstimate",
+    "FilterOptions",
+    "METHODS",
+    "Method",
+    "OptionError",
+    "Options",
+    "Progress",
+    "Status",
+    "identify",
+    "lookup",
+    "register",
+]
 
 METHODS: dict[str, Method] = {m.name: m for m in (ml.ML_GN, ml.ML_NR, ml.ML_NM, mekf.MEKF, mekf.EKF)}
 
@@ -47,9 +59,14 @@ def lookup(name: str) -> Method:
     return METHODS[name]
 
 
-def identify(experiments: Sequence[Experiment], config: ModelConfig, method: str = "ml-gn",
-             options: Options | Mapping | None = None, callback: Callback | None = None,
-             **more) -> Estimate:  # fmt: skip
+def identify(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    method: str = "ml-gn",
+    options: Options | Mapping | None = None,
+    callback: Callback | None = None,
+    **more,
+) -> Estimate:
     """Estimate `config.free` from `experiments` with the named method.
 
     `options`: the method's `Options` (or a mapping of them; keywords in `more` are added);

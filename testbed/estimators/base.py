@@ -90,10 +90,12 @@ class Estimate:
             "cost": _finite(self.cost),
             "wall_time_s": float(self.wall_time_s),
             "start": self.start,
-            "coefficients": {n: {"value": _finite(v), "std": _finite(s)}
-                             for n, v, s in zip(self.free, self.values, self.std)},
+            "coefficients": {
+                n: {"value": _finite(v), "std": _finite(s)}
+                for n, v, s in zip(self.free, self.values, self.std)
+            },
             "noise_std": {k: _finite(v) for k, v in self.noise_std.items()},
-        }  # fmt: skip
+        }
         if self.crlb_corrected_std is not None:
             doc["crlb_corrected_std"] = {n: _finite(s) for n, s in zip(self.free, self.crlb_corrected_std)}
         if self.initial_states is not None:
@@ -172,7 +174,9 @@ class Options:
         names = [f.name for f in fields(cls)]
         for name in values:
             if name not in names:
-                raise OptionError(method, name, values[name], f"one of the options of {method}: {', '.join(names)}")
+                raise OptionError(
+                    method, name, values[name], f"one of the options of {method}: {', '.join(names)}"
+                )
         built = cls(**values)
         for f in fields(cls):
             v = getattr(built, f.name)
@@ -211,6 +215,10 @@ class Method:
 
     def __post_init__(self):
         names = {f.name for f in fields(self.options)}
-        for flag, needs in ((self.iterative, "max_iter"), (self.starts, "start"), (self.online, "max_samples")):
+        for flag, needs in (
+            (self.iterative, "max_iter"),
+            (self.starts, "start"),
+            (self.online, "max_samples"),
+        ):
             if flag and needs not in names:
                 raise TypeError(f"method {self.name}: its capabilities need the option {needs}")

@@ -164,8 +164,7 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators.base import Estimate, Method, Options, Progress, Status, is_count, option
 from testbed.measurements import noise_free_channels, noise_from_data
-from testbed.model import (IX, ITHETA, NX, continuous, derivatives, expm_pair,
-                           structure, theta_vector)
+from testbed.model import IX, ITHETA, NX, continuous, derivatives, expm_pair, structure, theta_vector
 
 
 # ---------------------------------------------------------------- square-root kernels (pure)
@@ -278,8 +277,9 @@ CONVENTIONAL_FLOOR = 0.01  # the conventional EKF's default `state_noise` (modul
 
 def _sigmas(v) -> bool:
     """None, or a mapping of names to σ > 0."""
-    return v is None or (isinstance(v, Mapping) and all(isinstance(k, str) and is_number(x) and x > 0
-                                                        for k, x in v.items()))
+    return v is None or (
+        isinstance(v, Mapping) and all(isinstance(k, str) and is_number(x) and x > 0 for k, x in v.items())
+    )
 
 
 def _at_least(low: float, doc: str, default: float):
@@ -293,33 +293,70 @@ _SIGMAS = "a mapping of name to σ > 0, e.g. {'u': 0.01}"
 class FilterOptions(Options):
     """Options of `mekf` and `ekf` (the module docstring says what each choice means)."""
 
-    max_samples: int | None = option(None, lambda v: v is None or (is_count(v) and v >= 1),
-                                     "an integer ≥ 1 (samples)", "stop after this many samples; None: all")
-    noise_std: Mapping[str, float] | None = option(None, _sigmas, _SIGMAS,
-                                                   "measurement σ per measured state; None: from the data")
+    max_samples: int | None = option(
+        None,
+        lambda v: v is None or (is_count(v) and v >= 1),
+        "an integer ≥ 1 (samples)",
+        "stop after this many samples; None: all",
+    )
+    noise_std: Mapping[str, float] | None = option(
+        None, _sigmas, _SIGMAS, "measurement σ per measured state; None: from the data"
+    )
     prior_std: Mapping[str, float] | None = option(None, _sigmas, _SIGMAS, "a-priori σ per free coefficient")
     prior_frac: float = _at_least(0.0, "a-priori σ as a fraction of |value|", 0.5)
-    prior_floor: float | None = option(None, lambda v: v is None or (is_number(v) and v > 0), "a number > 0",
-                                       "least a-priori σ; None: 1e-3 × the largest |coefficient|")
-    param_noise: float = _at_least(0.0, "coefficients' random-walk σ per sample, fraction of the prior σ", 1e-6)
-    state_noise: float | None = option(None, lambda v: v is None or (is_number(v) and v >= 0), "a finite number ≥ 0",
-                                       "model-error σ floor per sample, fraction of R's σ; None: 0 for the "
-                                       "square-root filters, 0.01 for the conventional one")
-    noise_window: int = option(50, lambda v: is_count(v) and v >= 0, "an integer ≥ 0",
-                               "samples averaged by the covariance matching; 0: model error at the floor")
+    prior_floor: float | None = option(
+        None,
+        lambda v: v is None or (is_number(v) and v > 0),
+        "a number > 0",
+        "least a-priori σ; None: 1e-3 × the largest |coefficient|",
+    )
+    param_noise: float = _at_least(
+        0.0, "coefficients' random-walk σ per sample, fraction of the prior σ", 1e-6
+    )
+    state_noise: float | None = option(
+        None,
+        lambda v: v is None or (is_number(v) and v >= 0),
+        "a finite number ≥ 0",
+        "model-error σ floor per sample, fraction of R's σ; None: 0 for the "
+        "square-root filters, 0.01 for the conventional one",
+    )
+    noise_window: int = option(
+        50,
+        lambda v: is_count(v) and v >= 0,
+        "an integer ≥ 0",
+        "samples averaged by the covariance matching; 0: model error at the floor",
+    )
     noise_margin: float = _at_least(0.0, "standard errors of that average an excess must pass to count", 2.0)
     unmeasured_std: float = _at_least(0.0, "initial σ of an unmeasured state (SI)", 1.0)
     unmeasured_noise: float = _at_least(0.0, "process σ per sample of an unmeasured state (SI)", 1e-3)
     refresh_tol: float = _at_least(0.0, "recompute the exact model when a coefficient moved this many σ", 0.2)
-    passes: int = option(1, lambda v: is_count(v) and v >= 1, "an integer ≥ 1",
-                         "passes over the data: 1 the on-line filter, more its fixed-interval iterations")
-    pass_tol: float = _at_least(0.0, "the iterations stop when no coefficient moved more than this many σ", 0.1)
-    sqrt: str = option("qr", lambda v: v in ("qr", "svd"), "'qr' or 'svd'",
-                       "time-update root: qr (one QR with the update) or svd (U Σ, the paper's)")
-    nis_window: int = option(200, lambda v: is_count(v) and v >= 1, "an integer ≥ 1",
-                             "samples over which the innovations are tested for divergence")
-    nis_limit: float = _at_least(0.0, "mean normalised innovation squared per channel that means divergence", 25.0)
-    explode: float = _at_least(0.0, "prior σ a coefficient may move before the filter counts as diverged", 100.0)
+    passes: int = option(
+        1,
+        lambda v: is_count(v) and v >= 1,
+        "an integer ≥ 1",
+        "passes over the data: 1 the on-line filter, more its fixed-interval iterations",
+    )
+    pass_tol: float = _at_least(
+        0.0, "the iterations stop when no coefficient moved more than this many σ", 0.1
+    )
+    sqrt: str = option(
+        "qr",
+        lambda v: v in ("qr", "svd"),
+        "'qr' or 'svd'",
+        "time-update root: qr (one QR with the update) or svd (U Σ, the paper's)",
+    )
+    nis_window: int = option(
+        200,
+        lambda v: is_count(v) and v >= 1,
+        "an integer ≥ 1",
+        "samples over which the innovations are tested for divergence",
+    )
+    nis_limit: float = _at_least(
+        0.0, "mean normalised innovation squared per channel that means divergence", 25.0
+    )
+    explode: float = _at_least(
+        0.0, "prior σ a coefficient may move before the filter counts as diverged", 100.0
+    )
 
 
 @dataclass(frozen=True)
@@ -379,7 +416,7 @@ class FilterEstimate(Estimate):
         """CSV `t,<name>,<name>_std,...` of the estimate and ±σ histories."""
         cols = [self.history_t[:, None]]
         for j in range(len(self.free)):
-            cols += [self.history[:, j:j + 1], self.history_std[:, j:j + 1]]
+            cols += [self.history[:, j : j + 1], self.history_std[:, j : j + 1]]
         buf = io.StringIO()
         buf.write(",".join(["t"] + [f"{n}{s}" for n in self.free for s in ("", "_std")]) + "\n")
         np.savetxt(buf, np.hstack(cols), delimiter=",", fmt="%.10g")
@@ -448,8 +485,15 @@ class _ModelError:
     for the next time update. `rows` are the matched states, `cols` their places among the
     measured channels."""
 
-    def __init__(self, q: np.ndarray, measured: Sequence[str], rows: np.ndarray, y: np.ndarray,
-                 st: _State, o: FilterOptions):  # fmt: skip
+    def __init__(
+        self,
+        q: np.ndarray,
+        measured: Sequence[str],
+        rows: np.ndarray,
+        y: np.ndarray,
+        st: _State,
+        o: FilterOptions,
+    ):
         self.q = q.copy()
         self.cols = np.array([j for j, name in enumerate(measured) if name in st.matched], dtype=int)
         self.rows = rows[self.cols]
@@ -486,8 +530,7 @@ class _Books:
     (histories, cost, count), check for divergence (module docstring) and call the callback.
     `signed`: the variances can turn negative (a formed P; a root's are sums of squares)."""
 
-    def __init__(self, st: _State, o: FilterOptions, m: int, callback: Callable | None,
-                 signed: bool = False):  # fmt: skip
+    def __init__(self, st: _State, o: FilterOptions, m: int, callback: Callable | None, signed: bool = False):
         self.st, self.o, self.m, self.callback, self.signed = st, o, m, callback, signed
         self.ring, self.ring_sum = np.zeros(o.nis_window), 0.0  # NIS per channel, last window
         self.lim = o.explode * st.sig0
@@ -512,8 +555,10 @@ class _Books:
         if slot == window - 1:
             self.ring_sum = float(ring.sum())  # no drift of the running sum
         if k + 1 >= window and self.ring_sum > self.o.nis_limit * window:
-            raise _Diverged(f"innovations {math.sqrt(self.ring_sum / window):.3g}× their "
-                            f"predicted σ over {window} samples")  # fmt: skip
+            raise _Diverged(
+                f"innovations {math.sqrt(self.ring_sum / window):.3g}× their "
+                f"predicted σ over {window} samples"
+            )
         if (np.abs(th - st.th0) > self.lim).any():
             raise _Diverged(_far(st, self.o))
         st.count = c + 1
@@ -521,8 +566,16 @@ class _Books:
             self.callback(Progress(c + 1, th.copy(), math.nan, np.sqrt(var)))
 
 
-def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r, U: float,
-               modified: bool, callback: Callable | None) -> None:  # fmt: skip
+def _sqrt_pass(
+    e: Experiment,
+    st: _State,
+    model: _Model,
+    o: FilterOptions,
+    sigma_r,
+    U: float,
+    modified: bool,
+    callback: Callable | None,
+) -> None:
     """One experiment through the square-root filter(s) (module docstring, "Square root")."""
     n, p = NX, len(st.th)
     N = n + p
@@ -580,7 +633,7 @@ def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma
                 break
             if k == 0:  # process noise from the first time update on
                 ja[:, N:] = np.diag(np.concatenate([error.q, st.qth]))
-                jk[:, n + N:] = np.diag(error.q)
+                jk[:, n + N :] = np.diag(error.q)
             # --- time update, linearised at the KF's estimate (and the reference θ_r, if any)
             xi = np.concatenate((xk, inputs[k]))
             E, D = model.linearised(th if ref is None else ref, var, xi)
@@ -590,7 +643,7 @@ def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma
                 x = E @ np.concatenate((x, inputs[k]))
                 jk[:, :n] = E[:, :n] @ Jx
                 if ref is None:  # θ̂'s uncertainty enters the KF as noise; θ_r is given
-                    jk[:, n:N + n] = D @ Ja[n:]
+                    jk[:, n : N + n] = D @ Ja[n:]
             else:
                 x = xk = E @ xi
             if ref is not None:  # x⁻ = Φ_r x + Γ_r δ + s_r + D (θ̂ − θ_r): linear in [x; θ]
@@ -604,8 +657,9 @@ def _sqrt_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma
     st.t_offset = st.t_now + e.dt
 
 
-def _conventional_pass(e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r,
-                       U: float, callback: Callable | None) -> None:  # fmt: skip
+def _conventional_pass(
+    e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r, U: float, callback: Callable | None
+) -> None:
     """One experiment through the textbook EKF: `P = F P Fᵀ + Q`, `P = P − K C P`."""
     n, p = NX, len(st.th)
     rows, y, sr, x, sx0, qx = _experiment(e, sigma_r, U, o)
@@ -658,9 +712,19 @@ def _conventional_pass(e: Experiment, st: _State, model: _Model, o: FilterOption
     st.t_offset = st.t_now + e.dt
 
 
-def _pass(experiments: Sequence[Experiment], st: _State, s, theta: np.ndarray, idx: np.ndarray,
-          o: FilterOptions, sigma_r, U: float, modified: bool, square_root: bool,
-          callback: Callable | None) -> dict | None:  # fmt: skip
+def _pass(
+    experiments: Sequence[Experiment],
+    st: _State,
+    s,
+    theta: np.ndarray,
+    idx: np.ndarray,
+    o: FilterOptions,
+    sigma_r,
+    U: float,
+    modified: bool,
+    square_root: bool,
+    callback: Callable | None,
+) -> dict | None:
     """One pass of the filter over the experiments in sequence, into `st`; its divergence
     (reason, sample, time) or None."""
     diverged = None
@@ -698,9 +762,16 @@ def _covariance(st: _State, square_root: bool):
     return Ja @ Ja.T, Ja
 
 
-def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
-         modified: bool, square_root: bool, options: FilterOptions,
-         callback: Callable | None) -> FilterEstimate:  # fmt: skip
+def _run(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    *,
+    method: str,
+    modified: bool,
+    square_root: bool,
+    options: FilterOptions,
+    callback: Callable | None,
+) -> FilterEstimate:
     """The filter over the experiments in sequence, `options.passes` times at most (module
     docstring, "Fixed-interval iterations"). `modified`: centre the Jacobian on a parallel KF
     (square-root only); otherwise on the filter's own estimate."""
@@ -717,14 +788,16 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
     sig0 = np.maximum(options.prior_frac * np.abs(th0), floor)
     for name, v in (options.prior_std or {}).items():
         if name not in config.free:
-            raise InputError(f"option prior_std[{name!r}]: not a free coefficient; free: "
-                             f"{', '.join(config.free)}")  # fmt: skip
+            raise InputError(
+                f"option prior_std[{name!r}]: not a free coefficient; free: {', '.join(config.free)}"
+            )
         sig0[config.free.index(name)] = float(v)
     sigma_r = noise_from_data(experiments)
     for name, v in (options.noise_std or {}).items():
         if name not in sigma_r:
-            raise InputError(f"option noise_std[{name!r}]: not a measured state; measured: "
-                             f"{', '.join(sigma_r)}")  # fmt: skip
+            raise InputError(
+                f"option noise_std[{name!r}]: not a measured state; measured: {', '.join(sigma_r)}"
+            )
         sigma_r[name] = float(v)
 
     # covariance matching needs R to be the noise, which a channel without noise does not tell
@@ -734,13 +807,22 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
     ref = step = None  # the previous pass's estimate; the largest move from it, in final σ
     for done in range(1, options.passes + 1):
         start = th0 if ref is None else ref  # the prior N(start, diag σ₀²), re-centred
-        st = _State(th=start.copy(), Jth=np.diag(sig0), qth=options.param_noise * sig0,
-                    th0=start.copy(), sig0=sig0, names=tuple(config.free),
-                    hist=np.full((total, p), np.nan), hist_var=np.full((total, p), np.nan),
-                    hist_t=np.full(total, np.nan), ldiag=np.ones((total, NX)), total=total,
-                    matched=frozenset(sigma_r) - quiet, ref=ref)  # fmt: skip
-        diverged = _pass(experiments, st, s, theta, idx, options, sigma_r, U, modified,
-                         square_root, callback)  # fmt: skip
+        st = _State(
+            th=start.copy(),
+            Jth=np.diag(sig0),
+            qth=options.param_noise * sig0,
+            th0=start.copy(),
+            sig0=sig0,
+            names=tuple(config.free),
+            hist=np.full((total, p), np.nan),
+            hist_var=np.full((total, p), np.nan),
+            hist_t=np.full(total, np.nan),
+            ldiag=np.ones((total, NX)),
+            total=total,
+            matched=frozenset(sigma_r) - quiet,
+            ref=ref,
+        )
+        diverged = _pass(experiments, st, s, theta, idx, options, sigma_r, U, modified, square_root, callback)
         P, Ja = _covariance(st, square_root)
         std = np.sqrt(np.maximum(np.diag(P)[n:], 0.0)) if P is not None else sig0
         if diverged or st.count < samples:
@@ -760,26 +842,42 @@ def _run(experiments: Sequence[Experiment], config: ModelConfig, *, method: str,
     elif count < samples:
         status = Status.MAX_ITERATIONS
     else:
-        tail = hist[int(0.9 * count):]
+        tail = hist[int(0.9 * count) :]
         settled = np.all(np.abs(tail - values) <= 3.0 * std)
         iterated = options.passes == 1 or (step is not None and step <= options.pass_tol)
         status = Status.CONVERGED if settled and iterated else Status.MAX_ITERATIONS
     model_error = None
     if st.q_samples.any():  # the model error found: RMS over the samples of its σ per sample
-        model_error = {name: float(np.sqrt(st.q2_sum[i] / st.q_samples[i]))
-                       for name, i in IX.items() if st.q_samples[i]}  # fmt: skip
+        model_error = {
+            name: float(np.sqrt(st.q2_sum[i] / st.q_samples[i])) for name, i in IX.items() if st.q_samples[i]
+        }
     return FilterEstimate(
-        method=method, status=status, free=tuple(config.free), values=values, std=std,
-        cost=cost, iterations=count, wall_time_s=time.perf_counter() - t_start,
-        noise_std=sigma_r, start="config", history=hist, message=diverged["reason"] if diverged else "",
-        history_t=st.hist_t[:count], history_std=hist_std, covariance=P, covariance_root=Ja,
+        method=method,
+        status=status,
+        free=tuple(config.free),
+        values=values,
+        std=std,
+        cost=cost,
+        iterations=count,
+        wall_time_s=time.perf_counter() - t_start,
+        noise_std=sigma_r,
+        start="config",
+        history=hist,
+        message=diverged["reason"] if diverged else "",
+        history_t=st.hist_t[:count],
+        history_std=hist_std,
+        covariance=P,
+        covariance_root=Ja,
         filter=f"{'square-root' if square_root else 'conventional'} {'MEKF' if modified else 'EKF'}",
-        nis_mean=st.nis_sum / max(count, 1), sqrt=options.sqrt if square_root else None,
+        nis_mean=st.nis_sum / max(count, 1),
+        sqrt=options.sqrt if square_root else None,
         max_covariance_asymmetry=None if square_root else float(st.asym),
         diverged_sample=diverged["sample"] if diverged else None,
-        diverged_t=diverged["t"] if diverged else None, model_error_std=model_error,
-        passes=done if options.passes > 1 else None, last_step_std=step if options.passes > 1 else None,
-    )  # fmt: skip
+        diverged_t=diverged["t"] if diverged else None,
+        model_error_std=model_error,
+        passes=done if options.passes > 1 else None,
+        last_step_std=step if options.passes > 1 else None,
+    )
 
 
 def _far(st: _State, o: FilterOptions) -> str:
@@ -794,26 +892,47 @@ def _hint(st: _State, reason: str, experiments: Sequence[Experiment]) -> str:
     nis = st.nis_sum / max(st.count, 1)
     if nis <= 10.0:
         return ""
-    out = "" if "innovations" in reason else (f"; the innovations were {math.sqrt(nis):.3g}× "
-                                              "their predicted σ on average")  # fmt: skip
+    out = (
+        ""
+        if "innovations" in reason
+        else (f"; the innovations were {math.sqrt(nis):.3g}× their predicted σ on average")
+    )
     quiet = noise_free_channels(experiments)
     if quiet:
-        out += (f"; the data look noise-free ({', '.join(quiet)}): the filter weighs the model "
-                "against measurement noise, and without noise any model error diverges it; "
-                "give noise_std or fit measured (noisy) data")  # fmt: skip
+        out += (
+            f"; the data look noise-free ({', '.join(quiet)}): the filter weighs the model "
+            "against measurement noise, and without noise any model error diverges it; "
+            "give noise_std or fit measured (noisy) data"
+        )
     return out
 
 
 def _method(name: str, modified: bool, square_root: bool, summary: str) -> Method:
     def fit(experiments, config, options, callback):
-        return _run(experiments, config, method=name, modified=modified, square_root=square_root,
-                    options=options, callback=callback)
+        return _run(
+            experiments,
+            config,
+            method=name,
+            modified=modified,
+            square_root=square_root,
+            options=options,
+            callback=callback,
+        )
 
-    return Method(name=name, fit=fit, options=FilterOptions, summary=summary, iterative=False,
-                  starts=False, online=True)
+    return Method(
+        name=name, fit=fit, options=FilterOptions, summary=summary, iterative=False, starts=False, online=True
+    )
 
 
-MEKF = _method("mekf", modified=True, square_root=True,
-               summary="the modified extended Kalman filter with a square-root covariance (on-line)")
-EKF = _method("ekf", modified=False, square_root=False,
-              summary="the conventional augmented extended Kalman filter (on-line baseline)")
+MEKF = _method(
+    "mekf",
+    modified=True,
+    square_root=True,
+    summary="the modified extended Kalman filter with a square-root covariance (on-line)",
+)
+EKF = _method(
+    "ekf",
+    modified=False,
+    square_root=False,
+    summary="the conventional augmented extended Kalman filter (on-line baseline)",
+)
