@@ -19,7 +19,7 @@ Convergence (ml-gn, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Sequence
 
 import numpy as np
@@ -124,88 +124,166 @@ def newton_raphson(prob: linear.Problem, p: np.ndarray, max_iter: int = 100, cal
     return Outcome(p, status, it, np.array(history), M)
 
 
+def _J_M(prob: linear.Problem, theta: np.ndarray, R: np.ndarray) -> float:
+    """`J_M(θ) = 1/N Σ eᵀR⁻¹e` with the initial states fitted at θ; ∞ for an invalid model."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = linear.fit_initial_states(prob, theta, R)[1]
+    except np.linalg.LinAlgError:
+        return np.inf
+    if linear.exploded(prob, out) is not None:
+        return np.inf
+    res = [r.y - y for r, y in zip(prob.records, out)]
+    return 2.0 * linear.weighted_cost(prob, res, R) / prob.n_samples
+
+
+def _stages(prob: linear.Problem, first_length: float) -> list[linear.Problem]:
+    """The record-length continuation: each experiment's first T s for T = `first_length`,
+    2·`first_length`, 4·`first_length`, … while shorter than 90 % of the longest record (a stage
+    nearly as long as the record would only repeat it), then all of it."""
+    longest = max(len(r.y) * r.dt for r in prob.records)
+    lengths, T = [], first_length
+    while T < 0.9 * longest:
+        lengths.append(T)
+        T *= 2
+    return [replace(prob, records=tuple(replace(r, y=r.y[:n], inputs=r.inputs[:n])
+                                        for r in prob.records
+                                        for n in [max(int(round(T / r.dt)), 1)]))
+            for T in lengths] + [prob]  # fmt: skip
+
+
+def _coefficients(kind: str, m: int) -> tuple[float, float, float, float]:
+    """Reflection, expansion, contraction and shrink coefficients in m dimensions: the paper's
+    (1, 2, ½, ½), or Gao & Han's dimension-adaptive (1, 1 + 2/m, ¾ − 1/(2m), 1 − 1/m), which
+    equal the paper's for m = 2."""
+    if kind == "paper" or m < 2:
+        return 1.0, 2.0, 0.5, 0.5
+    return 1.0, 1.0 + 2.0 / m, 0.75 - 0.5 / m, 1.0 - 1.0 / m
+
+
+def _simplex(J, x: np.ndarray, edges: np.ndarray, coefficients, tol: float, it: int, max_iter: int,
+             report) -> tuple[np.ndarray, float, int, bool]:  # fmt: skip
+    """One run of the paper's eight steps from a fresh simplex: `x` and `x + edges[i]`.
+
+    Returns the lowest corner, its J, the iteration count (continued from `it`) and whether the
+    stopping rule (step 3, spread ≤ `tol`) stopped it rather than `max_iter`.
+    """
+    alpha, gamma, beta, delta = coefficients
+    m = len(x)
+    simplex = np.vstack([x, x + edges])
+    J_i = np.array([J(v) for v in simplex])
+    stopped = False
+    while it < max_iter:
+        # 1. the highest and lowest corners
+        hi, lo = int(np.argmax(J_i)), int(np.argmin(J_i))
+        # 2. the centroid of all corners but the highest
+        b = (simplex.sum(0) - simplex[hi]) / m
+        J_b = J(b)
+        # 3. stopping rule: {1/(m+1) Σ (J_i − J_b)²}^½ ≤ ε (a diverged corner, J = ∞, makes it
+        #    ∞ or NaN: not stopped)
+        with np.errstate(over="ignore", invalid="ignore"):
+            spread = np.sqrt(np.mean((J_i - J_b) ** 2))
+        if spread <= tol:
+            stopped = True
+            break
+        it += 1
+        # 4. reflection: θ_r = θ_b + α(θ_b − θ_h)
+        r = b + alpha * (b - simplex[hi])
+        J_r = J(r)
+        if J_r < J_i[lo]:
+            # 5. expansion: θ_e = θ_b + γ(θ_r − θ_b)
+            e = b + gamma * (r - b)
+            J_e = J(e)
+            simplex[hi], J_i[hi] = (e, J_e) if J_e < J_i[lo] else (r, J_r)
+        elif not np.all(J_r >= np.delete(J_i, hi)):
+            # 6. better than some corner other than the highest
+            simplex[hi], J_i[hi] = r, J_r
+        else:
+            # 7. contraction, on the reflected side if it beats the highest:
+            #    θ_c = θ_b + β(θ_r − θ_b), else θ_c = θ_b + β(θ_h − θ_b)
+            c = b + beta * ((r if J_r < J_i[hi] else simplex[hi]) - b)
+            J_c = J(c)
+            if J_c < J_i[hi]:
+                # 8. accept the contraction ...
+                simplex[hi], J_i[hi] = c, J_c
+            else:
+                # ... or shrink towards the lowest corner: θ_i = θ_l + δ(θ_i − θ_l)
+                simplex = simplex[lo] + delta * (simplex - simplex[lo])
+                J_i = np.array([J_i[lo] if i == lo else J(v) for i, v in enumerate(simplex)])
+        lo = int(np.argmin(J_i))
+        report(it, simplex[lo], float(J_i[lo]))
+    lo = int(np.argmin(J_i))
+    return simplex[lo].copy(), float(J_i[lo]), it, stopped
+
+
 def nelder_mead(prob: linear.Problem, p: np.ndarray, max_iter: int | None = None, callback=None,
                 eps: float = 1e-3, step: float = 0.1, restart_step: float = 0.02,
-                r_tol: float = 1e-3, max_relaxations: int = 20) -> Outcome:  # fmt: skip
+                r_tol: float = 1e-3, max_relaxations: int = 20, coefficients: str = "adaptive",
+                first_length: float = 60.0, stage_eps: float = 1.0) -> Outcome:  # fmt: skip
     """The paper's eight-step simplex on J_M(θ) with R fixed; R relaxed between simplex runs.
 
     Stopping rule (step 3): `{1/(m+1) Σ (J_M(θ_i) − J_M(θ_b))²}^½ ≤ ε`, with ε = `eps`/N (J_M is
-    a mean over N samples, so `eps` is in units of the χ² statistic N·J_M). The first simplex
-    spans `step`·|θ_i| along each axis (`step` in absolute units for a zero θ_i), the restarts
-    after each R update `restart_step`·|θ_i|. Converged when a run stops by its rule and the R
-    update that follows changes no variance by more than `r_tol` (relative); STALLED if that
-    takes more than `max_relaxations` runs.
+    a mean over N samples, so `eps` is in units of the χ² statistic N·J_M).
+
+    Globalisation, for starts outside output error's local basin (from 40 % off, Gauss-Newton
+    converges on the first 60 s or 120 s of the REMUS-class rudder PRBS but not on 300 s: the
+    heading integrates the yaw-rate error, so the cost's nonconvexity grows with record length):
+
+    - Scaled coordinates: the simplex moves in x_i = θ_i/|θ_i,start| (θ_i where θ_i,start = 0),
+      so every coefficient is searched in proportion to its size. The first simplex spans `step`
+      along each axis; every later run starts afresh from the best corner with `restart_step`.
+    - Coefficients (`coefficients`): the paper's reflection 1, expansion 2, contraction ½ and
+      shrink ½, or (default) Gao & Han's dimension-adaptive 1, 1 + 2/m, ¾ − 1/(2m), 1 − 1/m,
+      which equal the paper's for m = 2 and make expansion less greedy and shrinking gentler as
+      m grows, against the simplex's degeneration in many dimensions (Gao & Han 2012).
+    - Restarts: a run that stops by its rule may have stagnated (the simplex degenerates); a fresh
+      simplex at its best corner either moves on or confirms the minimum.
+    - Record-length continuation (`first_length`): the simplex first fits each experiment's first
+      `first_length` s, then twice that, and so on, and finally the whole record; each stage
+      ends when a run stops by the rule with ε = `stage_eps`/N (corners within about a Cramér-Rao
+      σ of each other for `stage_eps` = 1: enough to start the next stage inside its basin) and
+      starts the next from its best corner with R relaxed.
+
+    On the whole record, R is relaxed after each run and the next run starts afresh from the
+    best corner. Converged when a run stops by its rule, improves J_M over its start by no more
+    than ε, and the R update that follows changes no variance by more than `r_tol` (relative);
+    STALLED if that takes more than `max_relaxations` runs.
     """
-    m = nf = prob.n_free
-    max_iter = 500 * m if max_iter is None else max_iter
-    tol = eps / prob.n_samples
-    R = linear.noise_variance(prob, linear.residuals(prob, p))
-    history, it = [p[:nf].copy()], 0
+    nf = prob.n_free
+    max_iter = 500 * nf if max_iter is None else max_iter
+    coef = _coefficients(coefficients, nf)
+    scale = np.where(p[:nf] != 0, np.abs(p[:nf]), 1.0)  # θ = scale·x
+    history, it, x = [p[:nf].copy()], 0, p[:nf] / scale
 
-    def J_M(theta: np.ndarray) -> float:
-        try:
-            with np.errstate(over="ignore", invalid="ignore"):
-                out = linear.fit_initial_states(prob, theta, R)[1]
-        except np.linalg.LinAlgError:
-            return np.inf
-        if linear.exploded(prob, out) is not None:
-            return np.inf
-        res = [r.y - y for r, y in zip(prob.records, out)]
-        return 2.0 * linear.weighted_cost(prob, res, R) / prob.n_samples
+    def report(i: int, best: np.ndarray, J: float) -> None:
+        history.append(scale * best)
+        if callback is not None:
+            callback(Progress(i, scale * best, J))
 
-    best = p[:nf].copy()
-    for relaxation in range(max_relaxations):
-        size = step if relaxation == 0 else restart_step
-        h = np.where(best != 0, size * np.abs(best), size)
-        simplex = np.vstack([best, best + np.diag(h)])
-        J = np.array([J_M(v) for v in simplex])
-        stopped = False
-        while it < max_iter:
-            # 1. the highest and lowest corners
-            hi, lo = int(np.argmax(J)), int(np.argmin(J))
-            # 2. the centroid of all corners but the highest
-            b = (simplex.sum(0) - simplex[hi]) / m
-            Jb = J_M(b)
-            # 3. stopping rule (a diverged corner, J = ∞, makes the spread ∞ or NaN: not stopped)
-            with np.errstate(over="ignore", invalid="ignore"):
-                spread = np.sqrt(np.mean((J - Jb) ** 2))
-            if spread <= tol:
-                stopped = True
+    stages = _stages(prob, first_length)
+    for stage in stages:
+        size = step if stage is stages[0] else restart_step
+        tol = (eps if stage is prob else stage_eps) / stage.n_samples
+        q = linear.initial_states(stage, scale * x)
+        R = linear.noise_variance(stage, linear.residuals(stage, q))
+        for _ in range(max_relaxations):
+            def J(v: np.ndarray, stage=stage, R=R) -> float:
+                return _J_M(stage, scale * v, R)
+
+            J_start = J(x)
+            x, J_best, it, stopped = _simplex(J, x, size * np.eye(nf), coef, tol, it, max_iter, report)
+            size = restart_step
+            if not stopped:
+                return Outcome(linear.initial_states(prob, scale * x, R), Status.MAX_ITERATIONS, it,
+                               np.array(history))  # fmt: skip
+            # R from the residuals at the best corner: the relaxation step
+            q = linear.initial_states(stage, scale * x, R)
+            R, R_old = linear.noise_variance(stage, linear.residuals(stage, q)), R
+            if stage is not prob or (J_start - J_best <= tol and np.max(np.abs(R / R_old - 1)) < r_tol):
                 break
-            it += 1
-            # 4. reflection
-            r = 2 * b - simplex[hi]
-            Jr = J_M(r)
-            if Jr < J[lo]:
-                # 5. expansion
-                e = 2 * r - b
-                Je = J_M(e)
-                simplex[hi], J[hi] = (e, Je) if Je < J[lo] else (r, Jr)
-            elif not np.all(Jr >= np.delete(J, hi)):
-                # 6. better than some corner other than the highest
-                simplex[hi], J[hi] = r, Jr
-            else:
-                # 7. contraction, on the reflected side if it beats the highest
-                c = (r + b) / 2 if Jr < J[hi] else (simplex[hi] + b) / 2
-                Jc = J_M(c)
-                if Jc < J[hi]:
-                    # 8. accept the contraction ...
-                    simplex[hi], J[hi] = c, Jc
-                else:
-                    # ... or shrink towards the lowest corner
-                    simplex = (simplex + simplex[lo]) / 2
-                    J = np.array([J[lo] if i == lo else J_M(v) for i, v in enumerate(simplex)])
-            history.append(simplex[np.argmin(J)].copy())
-            if callback is not None:
-                callback(Progress(it, history[-1].copy(), float(np.min(J))))
-        best = simplex[np.argmin(J)].copy()
-        q = linear.initial_states(prob, best, R)
-        if not stopped:
-            return Outcome(q, Status.MAX_ITERATIONS, it, np.array(history))
-        R, R_old = linear.noise_variance(prob, linear.residuals(prob, q)), R
-        if np.max(np.abs(R / R_old - 1)) < r_tol:
-            return Outcome(linear.initial_states(prob, best, R), Status.CONVERGED, it, np.array(history))
-    return Outcome(linear.initial_states(prob, best, R), Status.STALLED, it, np.array(history))
+        else:
+            return Outcome(linear.initial_states(prob, scale * x, R), Status.STALLED, it, np.array(history))
+    return Outcome(linear.initial_states(prob, scale * x, R), Status.CONVERGED, it, np.array(history))
 
 
 def _start(prob: linear.Problem, experiments, config: ModelConfig, start: str) -> np.ndarray:
@@ -346,11 +424,18 @@ class SimplexOptions(Options):
     start: str = _START
     eps: float = _positive("stopping rule: the spread of J_M over the corners, in units of the χ² "
                            "statistic N·J_M", 1e-3)
-    step: float = _positive("first simplex: the fraction of each |θ_i| it spans", 0.1)
-    restart_step: float = _positive("restarts after each noise update: the fraction of |θ_i|", 0.02)
+    step: float = _positive("first simplex: the fraction of each |θ_i,start| it spans", 0.1)
+    restart_step: float = _positive("later runs' fresh simplex: the fraction of |θ_i,start|", 0.02)
     r_tol: float = _positive("converged when a noise update changes no variance by more than this", 1e-3)
     max_relaxations: int = option(20, lambda v: is_count(v) and v >= 1, "an integer ≥ 1",
-                                  "simplex runs (each after a noise update) before STALLED")
+                                  "simplex runs on the whole record (each after a noise update) "
+                                  "before STALLED")
+    coefficients: str = option("adaptive", lambda v: v in ("adaptive", "paper"), "adaptive or paper",
+                               "reflection, expansion, contraction and shrink: the paper's (1, 2, ½, "
+                               "½) or Gao & Han's dimension-adaptive (1, 1 + 2/m, ¾ − 1/(2m), 1 − 1/m)")
+    first_length: float = _positive("record-length continuation: seconds of each experiment fitted "
+                                     "first, doubled per stage up to the whole record", 60.0)
+    stage_eps: float = _positive("stopping rule of the continuation's shorter stages (as eps)", 1.0)
 
 
 def _method(name: str, optimiser, options: type[Options], summary: str) -> Method:
