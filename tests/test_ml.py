@@ -156,3 +156,51 @@ def test_start_from_the_mekf_estimate():
     assert est.start == "mekf" and est.converged
     gn = identify(data, prior, method="ml-gn")
     _same_optimum(est, gn, 0.01)
+
+
+LATERAL = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr")
+
+
+def _beyond_the_local_basin(free, duration, experiment=slice(None)):
+    """Data and a start 40 % off where output error's local basin has ended (the heading
+    integrates the yaw-rate error over the long record), with ml-gn's optimum from the
+    equation-error start (inside the basin) as the reference."""
+    data = experiments(seed=1, duration=duration)[experiment]
+    prior = prior_config(free, error=0.4)
+    local = identify(data, prior, method="ml-gn", start="config")
+    reference = identify(data, prior, method="ml-gn", start="equation-error")
+    assert reference.converged
+    assert not (local.converged and np.allclose(local.values, reference.values, rtol=1e-3)), \
+        "the start is inside ml-gn's basin: not a test of the globalisation"  # fmt: skip
+    return data, prior, reference
+
+
+def _converges_to_the_truth(est, reference, free):
+    assert est.converged and est.start == "config", est.status
+    want = np.array([TRUTH[n] for n in free])
+    z = (est.values - want) / est.std
+    assert np.all(np.abs(z) < 4), dict(zip(free, z.round(2)))
+    # the simplex's rule stops on the spread of J_M, not its slope: along the sway-yaw valley
+    # (Y_v, Y_r, Y_dr strongly correlated) it stops a fraction of a σ short of the optimum
+    _same_optimum(est, reference, 0.25)
+
+
+def test_ml_nm_converges_from_beyond_the_gauss_newton_basin():
+    # the sway-yaw rows from 150 s of the rudder PRBS: ml-gn from the start stays stuck; the
+    # simplex reaches the optimum through the 60 s and 120 s stages of its continuation
+    data, prior, reference = _beyond_the_local_basin(LATERAL, 150.0, slice(0, 1))
+    est = identify(data, prior, method="ml-nm", start="config")
+    _converges_to_the_truth(est, reference, LATERAL)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="ml-nm reaches its iteration limit (500 per coefficient) with the sway-yaw rows still 15-35 σ off",
+)
+def test_ml_nm_converges_on_21_free_coefficients_from_40_percent_off():
+    # two 300 s experiments (12 000 samples); the added-mass and surge terms free as well
+    free = FREE + ("X_u", "X_udot", "Z_wdot", "Z_qdot", "M_wdot", "M_qdot")
+    data, prior, reference = _beyond_the_local_basin(free, 300.0)
+    est = identify(data, prior, method="ml-nm", start="config")
+    _converges_to_the_truth(est, reference, free)

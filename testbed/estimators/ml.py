@@ -19,7 +19,7 @@ Convergence (ml-gn, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Sequence
 
 import numpy as np
@@ -28,8 +28,7 @@ from testbed import linear
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators import mekf
-from testbed.estimators.base import (Callback, Estimate, Method, Options, Progress, Status, is_count,
-                                     option)
+from testbed.estimators.base import Callback, Estimate, Method, Options, Progress, Status, is_count, option
 
 
 @dataclass(frozen=True)
@@ -66,13 +65,14 @@ def _simulate(prob: linear.Problem, p: np.ndarray):
 
 def _report(callback: Callback | None, prob: linear.Problem, it: int, p: np.ndarray, res) -> None:
     if callback is not None:
-        callback(Progress(it, p[:prob.n_free].copy(), linear.negative_log_likelihood(prob, res)))
+        callback(Progress(it, p[: prob.n_free].copy(), linear.negative_log_likelihood(prob, res)))
 
 
-def gauss_newton(prob: linear.Problem, p: np.ndarray, max_iter: int = 50, callback=None,
-                 tol: float = 1e-3) -> Outcome:  # fmt: skip
+def gauss_newton(
+    prob: linear.Problem, p: np.ndarray, max_iter: int = 50, callback=None, tol: float = 1e-3
+) -> Outcome:
     """Levenberg-Marquardt on `½ Σ eᵀR⁻¹e`, R re-estimated before every step."""
-    history, lam = [p[:prob.n_free].copy()], 0.01
+    history, lam = [p[: prob.n_free].copy()], 0.01
     xs, res = _simulate(prob, p)
     for it in range(max_iter + 1):
         R, g, M, converged = _terms(prob, p, xs, res, tol)
@@ -88,17 +88,18 @@ def gauss_newton(prob: linear.Problem, p: np.ndarray, max_iter: int = 50, callba
             lam *= 10
             if lam > 1e12:
                 return Outcome(p, Status.STALLED, it, np.array(history), M)
-        history.append(p[:prob.n_free].copy())
+        history.append(p[: prob.n_free].copy())
         _report(callback, prob, it + 1, p, res)
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
     return Outcome(p, status, it, np.array(history), M)
 
 
 @linear.compiled()  # second-order sensitivities at every iteration: the compiler pays off
-def newton_raphson(prob: linear.Problem, p: np.ndarray, max_iter: int = 100, callback=None,
-                   tol: float = 1e-3) -> Outcome:  # fmt: skip
+def newton_raphson(
+    prob: linear.Problem, p: np.ndarray, max_iter: int = 100, callback=None, tol: float = 1e-3
+) -> Outcome:
     """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step."""
-    history, N = [p[:prob.n_free].copy()], prob.n_samples
+    history, N = [p[: prob.n_free].copy()], prob.n_samples
     last = p
     for it in range(max_iter + 1):
         sim = _simulate(prob, p)
@@ -120,94 +121,192 @@ def newton_raphson(prob: linear.Problem, p: np.ndarray, max_iter: int = 100, cal
         except np.linalg.LinAlgError:
             return Outcome(p, Status.DIVERGED, it, np.array(history))
         last, p = p, p + step
-        history.append(p[:prob.n_free].copy())
+        history.append(p[: prob.n_free].copy())
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
     return Outcome(p, status, it, np.array(history), M)
 
 
+def _J_M(prob: linear.Problem, theta: np.ndarray, R: np.ndarray) -> float:
+    """`J_M(θ) = 1/N Σ eᵀR⁻¹e` with the initial states fitted at θ; ∞ for an invalid model."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = linear.fit_initial_states(prob, theta, R)[1]
+    except np.linalg.LinAlgError:
+        return np.inf
+    if linear.exploded(prob, out) is not None:
+        return np.inf
+    res = [r.y - y for r, y in zip(prob.records, out)]
+    return 2.0 * linear.weighted_cost(prob, res, R) / prob.n_samples
+
+
+def _stages(prob: linear.Problem, first_length: float) -> list[linear.Problem]:
+    """The record-length continuation: each experiment's first T s for T = `first_length`,
+    2·`first_length`, 4·`first_length`, … while shorter than 90 % of the longest record (a stage
+    nearly as long as the record would only repeat it), then all of it."""
+    longest = max(len(r.y) * r.dt for r in prob.records)
+    lengths, T = [], first_length
+    while T < 0.9 * longest:
+        lengths.append(T)
+        T *= 2
+    return [
+        replace(
+            prob,
+            records=tuple(
+                replace(r, y=r.y[:n], inputs=r.inputs[:n])
+                for r in prob.records
+                for n in [max(int(round(T / r.dt)), 1)]
+            ),
+        )
+        for T in lengths
+    ] + [prob]
+
+
+def _coefficients(kind: str, m: int) -> tuple[float, float, float, float]:
+    """Reflection, expansion, contraction and shrink coefficients in m dimensions: the paper's
+    (1, 2, ½, ½), or Gao & Han's dimension-adaptive (1, 1 + 2/m, ¾ − 1/(2m), 1 − 1/m), which
+    equal the paper's for m = 2."""
+    if kind == "paper" or m < 2:
+        return 1.0, 2.0, 0.5, 0.5
+    return 1.0, 1.0 + 2.0 / m, 0.75 - 0.5 / m, 1.0 - 1.0 / m
+
+
+def _simplex(
+    J, x: np.ndarray, edges: np.ndarray, coefficients, tol: float, it: int, max_iter: int, report
+) -> tuple[np.ndarray, float, int, bool]:
+    """One run of the paper's eight steps from a fresh simplex: `x` and `x + edges[i]`.
+
+    Returns the lowest corner, its J, the iteration count (continued from `it`) and whether the
+    stopping rule (step 3, spread ≤ `tol`) stopped it rather than `max_iter`.
+    """
+    alpha, gamma, beta, delta = coefficients
+    m = len(x)
+    simplex = np.vstack([x, x + edges])
+    J_i = np.array([J(v) for v in simplex])
+    stopped = False
+    while it < max_iter:
+        # 1. the highest and lowest corners
+        hi, lo = int(np.argmax(J_i)), int(np.argmin(J_i))
+        # 2. the centroid of all corners but the highest
+        b = (simplex.sum(0) - simplex[hi]) / m
+        J_b = J(b)
+        # 3. stopping rule: {1/(m+1) Σ (J_i − J_b)²}^½ ≤ ε (a diverged corner, J = ∞, makes it
+        #    ∞ or NaN: not stopped)
+        with np.errstate(over="ignore", invalid="ignore"):
+            spread = np.sqrt(np.mean((J_i - J_b) ** 2))
+        if spread <= tol:
+            stopped = True
+            break
+        it += 1
+        # 4. reflection: θ_r = θ_b + α(θ_b − θ_h)
+        r = b + alpha * (b - simplex[hi])
+        J_r = J(r)
+        if J_r < J_i[lo]:
+            # 5. expansion: θ_e = θ_b + γ(θ_r − θ_b)
+            e = b + gamma * (r - b)
+            J_e = J(e)
+            simplex[hi], J_i[hi] = (e, J_e) if J_e < J_i[lo] else (r, J_r)
+        elif not np.all(J_r >= np.delete(J_i, hi)):
+            # 6. better than some corner other than the highest
+            simplex[hi], J_i[hi] = r, J_r
+        else:
+            # 7. contraction, on the reflected side if it beats the highest:
+            #    θ_c = θ_b + β(θ_r − θ_b), else θ_c = θ_b + β(θ_h − θ_b)
+            c = b + beta * ((r if J_r < J_i[hi] else simplex[hi]) - b)
+            J_c = J(c)
+            if J_c < J_i[hi]:
+                # 8. accept the contraction ...
+                simplex[hi], J_i[hi] = c, J_c
+            else:
+                # ... or shrink towards the lowest corner: θ_i = θ_l + δ(θ_i − θ_l)
+                simplex = simplex[lo] + delta * (simplex - simplex[lo])
+                J_i = np.array([J_i[lo] if i == lo else J(v) for i, v in enumerate(simplex)])
+        lo = int(np.argmin(J_i))
+        report(it, simplex[lo], float(J_i[lo]))
+    lo = int(np.argmin(J_i))
+    return simplex[lo].copy(), float(J_i[lo]), it, stopped
+
+
 @linear.compiled()  # thousands of simulations: the compiler pays off
-def nelder_mead(prob: linear.Problem, p: np.ndarray, max_iter: int | None = None, callback=None,
-                eps: float = 1e-3, step: float = 0.1, restart_step: float = 0.02,
-                r_tol: float = 1e-3, max_relaxations: int = 20) -> Outcome:  # fmt: skip
+def nelder_mead(
+    prob: linear.Problem,
+    p: np.ndarray,
+    max_iter: int | None = None,
+    callback=None,
+    eps: float = 1e-3,
+    step: float = 0.1,
+    restart_step: float = 0.02,
+    r_tol: float = 1e-3,
+    max_relaxations: int = 20,
+    coefficients: str = "adaptive",
+    first_length: float = 60.0,
+    stage_eps: float = 1.0,
+) -> Outcome:
     """The paper's eight-step simplex on J_M(θ) with R fixed; R relaxed between simplex runs.
 
     Stopping rule (step 3): `{1/(m+1) Σ (J_M(θ_i) − J_M(θ_b))²}^½ ≤ ε`, with ε = `eps`/N (J_M is
-    a mean over N samples, so `eps` is in units of the χ² statistic N·J_M). The first simplex
-    spans `step`·|θ_i| along each axis (`step` in absolute units for a zero θ_i), the restarts
-    after each R update `restart_step`·|θ_i|. Converged when a run stops by its rule and the R
-    update that follows changes no variance by more than `r_tol` (relative); STALLED if that
-    takes more than `max_relaxations` runs.
+    a mean over N samples, so `eps` is in units of the χ² statistic N·J_M).
+
+    Globalisation, for starts outside output error's local basin (from 40 % off, Gauss-Newton
+    converges on the first 60 s or 120 s of the REMUS-class rudder PRBS but not on 300 s: the
+    heading integrates the yaw-rate error, so the cost's nonconvexity grows with record length):
+
+    - Scaled coordinates: the simplex moves in x_i = θ_i/|θ_i,start| (θ_i where θ_i,start = 0),
+      so every coefficient is searched in proportion to its size. The first simplex spans `step`
+      along each axis; every later run starts afresh from the best corner with `restart_step`.
+    - Coefficients (`coefficients`): the paper's reflection 1, expansion 2, contraction ½ and
+      shrink ½, or (default) Gao & Han's dimension-adaptive 1, 1 + 2/m, ¾ − 1/(2m), 1 − 1/m,
+      which equal the paper's for m = 2 and make expansion less greedy and shrinking gentler as
+      m grows, against the simplex's degeneration in many dimensions (Gao & Han 2012).
+    - Restarts: a run that stops by its rule may have stagnated (the simplex degenerates); a fresh
+      simplex at its best corner either moves on or confirms the minimum.
+    - Record-length continuation (`first_length`): the simplex first fits each experiment's first
+      `first_length` s, then twice that, and so on, and finally the whole record; each stage
+      ends when a run stops by the rule with ε = `stage_eps`/N (corners within about a Cramér-Rao
+      σ of each other for `stage_eps` = 1: enough to start the next stage inside its basin) and
+      starts the next from its best corner with R relaxed.
+
+    On the whole record, R is relaxed after each run and the next run starts afresh from the
+    best corner. Converged when a run stops by its rule, improves J_M over its start by no more
+    than ε, and the R update that follows changes no variance by more than `r_tol` (relative);
+    STALLED if that takes more than `max_relaxations` runs.
     """
-    m = nf = prob.n_free
-    max_iter = 500 * m if max_iter is None else max_iter
-    tol = eps / prob.n_samples
-    R = linear.noise_variance(prob, linear.residuals(prob, p))
-    history, it = [p[:nf].copy()], 0
+    nf = prob.n_free
+    max_iter = 500 * nf if max_iter is None else max_iter
+    coef = _coefficients(coefficients, nf)
+    scale = np.where(p[:nf] != 0, np.abs(p[:nf]), 1.0)  # θ = scale·x
+    history, it, x = [p[:nf].copy()], 0, p[:nf] / scale
 
-    def J_M(theta: np.ndarray) -> float:
-        try:
-            with np.errstate(over="ignore", invalid="ignore"):
-                out = linear.fit_initial_states(prob, theta, R)[1]
-        except np.linalg.LinAlgError:
-            return np.inf
-        if linear.exploded(prob, out) is not None:
-            return np.inf
-        res = [r.y - y for r, y in zip(prob.records, out)]
-        return 2.0 * linear.weighted_cost(prob, res, R) / prob.n_samples
+    def report(i: int, best: np.ndarray, J: float) -> None:
+        history.append(scale * best)
+        if callback is not None:
+            callback(Progress(i, scale * best, J))
 
-    best = p[:nf].copy()
-    for relaxation in range(max_relaxations):
-        size = step if relaxation == 0 else restart_step
-        h = np.where(best != 0, size * np.abs(best), size)
-        simplex = np.vstack([best, best + np.diag(h)])
-        J = np.array([J_M(v) for v in simplex])
-        stopped = False
-        while it < max_iter:
-            # 1. the highest and lowest corners
-            hi, lo = int(np.argmax(J)), int(np.argmin(J))
-            # 2. the centroid of all corners but the highest
-            b = (simplex.sum(0) - simplex[hi]) / m
-            Jb = J_M(b)
-            # 3. stopping rule (a diverged corner, J = ∞, makes the spread ∞ or NaN: not stopped)
-            with np.errstate(over="ignore", invalid="ignore"):
-                spread = np.sqrt(np.mean((J - Jb) ** 2))
-            if spread <= tol:
-                stopped = True
+    stages = _stages(prob, first_length)
+    for stage in stages:
+        size = step if stage is stages[0] else restart_step
+        tol = (eps if stage is prob else stage_eps) / stage.n_samples
+        q = linear.initial_states(stage, scale * x)
+        R = linear.noise_variance(stage, linear.residuals(stage, q))
+        for _ in range(max_relaxations):
+
+            def J(v: np.ndarray, stage=stage, R=R) -> float:
+                return _J_M(stage, scale * v, R)
+
+            J_start = J(x)
+            x, J_best, it, stopped = _simplex(J, x, size * np.eye(nf), coef, tol, it, max_iter, report)
+            size = restart_step
+            if not stopped:
+                return Outcome(
+                    linear.initial_states(prob, scale * x, R), Status.MAX_ITERATIONS, it, np.array(history)
+                )
+            # R from the residuals at the best corner: the relaxation step
+            q = linear.initial_states(stage, scale * x, R)
+            R, R_old = linear.noise_variance(stage, linear.residuals(stage, q)), R
+            if stage is not prob or (J_start - J_best <= tol and np.max(np.abs(R / R_old - 1)) < r_tol):
                 break
-            it += 1
-            # 4. reflection
-            r = 2 * b - simplex[hi]
-            Jr = J_M(r)
-            if Jr < J[lo]:
-                # 5. expansion
-                e = 2 * r - b
-                Je = J_M(e)
-                simplex[hi], J[hi] = (e, Je) if Je < J[lo] else (r, Jr)
-            elif not np.all(Jr >= np.delete(J, hi)):
-                # 6. better than some corner other than the highest
-                simplex[hi], J[hi] = r, Jr
-            else:
-                # 7. contraction, on the reflected side if it beats the highest
-                c = (r + b) / 2 if Jr < J[hi] else (simplex[hi] + b) / 2
-                Jc = J_M(c)
-                if Jc < J[hi]:
-                    # 8. accept the contraction ...
-                    simplex[hi], J[hi] = c, Jc
-                else:
-                    # ... or shrink towards the lowest corner
-                    simplex = (simplex + simplex[lo]) / 2
-                    J = np.array([J[lo] if i == lo else J_M(v) for i, v in enumerate(simplex)])
-            history.append(simplex[np.argmin(J)].copy())
-            if callback is not None:
-                callback(Progress(it, history[-1].copy(), float(np.min(J))))
-        best = simplex[np.argmin(J)].copy()
-        q = linear.initial_states(prob, best, R)
-        if not stopped:
-            return Outcome(q, Status.MAX_ITERATIONS, it, np.array(history))
-        R, R_old = linear.noise_variance(prob, linear.residuals(prob, q)), R
-        if np.max(np.abs(R / R_old - 1)) < r_tol:
-            return Outcome(linear.initial_states(prob, best, R), Status.CONVERGED, it, np.array(history))
-    return Outcome(linear.initial_states(prob, best, R), Status.STALLED, it, np.array(history))
+        else:
+            return Outcome(linear.initial_states(prob, scale * x, R), Status.STALLED, it, np.array(history))
+    return Outcome(linear.initial_states(prob, scale * x, R), Status.CONVERGED, it, np.array(history))
 
 
 def _start(prob: linear.Problem, experiments, config: ModelConfig, start: str) -> np.ndarray:
@@ -219,41 +318,73 @@ def _start(prob: linear.Problem, experiments, config: ModelConfig, start: str) -
         return np.array([ee.coefficients[n] for n in prob.free])
     est = mekf.MEKF.fit(experiments, config, mekf.FilterOptions(), None)
     if est.status is Status.DIVERGED:
-        raise InputError(f"{prob.source}: start='mekf': the MEKF diverged ({est.message}); expected "
-                         "a filter that converges, or start auto or equation-error")  # fmt: skip
+        raise InputError(
+            f"{prob.source}: start='mekf': the MEKF diverged ({est.message}); expected "
+            "a filter that converges, or start auto or equation-error"
+        )
     return np.array([est.coefficients[n] for n in prob.free])
 
 
-def _estimate(name: str, prob: linear.Problem, out: Outcome, start: str, t0: float,
-              start_reason: str = "") -> Estimate:  # fmt: skip
+def _estimate(
+    name: str, prob: linear.Problem, out: Outcome, start: str, t0: float, start_reason: str = ""
+) -> Estimate:
     """The `Estimate` where the optimiser stopped, with its Cramér-Rao analysis; a DIVERGED one
     (the reason in its `message`) where that analysis breaks down or is not finite."""
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             info = linear.assess(prob, out.p, out.fisher)
         # an infinite bound is an unidentifiable coefficient's (linear.crlb); NaN is a failure
-        why = None if all(np.all(np.isfinite(a)) for a in (info.values, info.cost)) \
-            and not np.any(np.isnan(info.crlb_std)) else "the estimate or its Cramér-Rao bound is not finite"  # fmt: skip
+        why = (
+            None
+            if all(np.all(np.isfinite(a)) for a in (info.values, info.cost))
+            and not np.any(np.isnan(info.crlb_std))
+            else "the estimate or its Cramér-Rao bound is not finite"
+        )
     except np.linalg.LinAlgError as exc:
         why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
     if why is not None:
         nf = prob.n_free
         return Estimate(
-            method=name, status=Status.DIVERGED, free=prob.free, values=out.p[:nf].copy(),
-            std=np.full(nf, np.nan), cost=np.nan, iterations=out.iterations,
-            wall_time_s=time.perf_counter() - t0, noise_std={}, start=start, history=out.history,
-            message=why, start_reason=start_reason,
-        )  # fmt: skip
+            method=name,
+            status=Status.DIVERGED,
+            free=prob.free,
+            values=out.p[:nf].copy(),
+            std=np.full(nf, np.nan),
+            cost=np.nan,
+            iterations=out.iterations,
+            wall_time_s=time.perf_counter() - t0,
+            noise_std={},
+            start=start,
+            history=out.history,
+            message=why,
+            start_reason=start_reason,
+        )
     return Estimate(
-        method=name, status=out.status, free=prob.free, values=info.values, std=info.crlb_std,
-        cost=info.cost, iterations=out.iterations, wall_time_s=time.perf_counter() - t0,
-        noise_std=info.noise_std, start=start, history=out.history, start_reason=start_reason,
-        crlb_corrected_std=np.asarray(info.crlb_corrected_std, float), initial_states=info.initial_states,
-    )  # fmt: skip
+        method=name,
+        status=out.status,
+        free=prob.free,
+        values=info.values,
+        std=info.crlb_std,
+        cost=info.cost,
+        iterations=out.iterations,
+        wall_time_s=time.perf_counter() - t0,
+        noise_std=info.noise_std,
+        start=start,
+        history=out.history,
+        start_reason=start_reason,
+        crlb_corrected_std=np.asarray(info.crlb_corrected_std, float),
+        initial_states=info.initial_states,
+    )
 
 
-def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelConfig,
-         options: Options, callback: Callback | None) -> Estimate:
+def _fit(
+    name: str,
+    optimiser,
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    options: Options,
+    callback: Callback | None,
+) -> Estimate:
     t0 = time.perf_counter()
     prob = linear.problem(experiments, config)
     start = options.start
@@ -267,9 +398,11 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
             p0 = linear.initial_states(prob, _start(prob, experiments, config, start))
         why = linear.divergence(prob, p0)
         if why is not None and start == "config":
-            raise InputError(f"{prob.source}: the a-priori model diverges ({why}); expected "
-                             "coefficients giving a bounded response, or start auto")  # fmt: skip
-        out = run(p0) if why is None else Outcome(p0, Status.DIVERGED, 0, p0[None, :prob.n_free])
+            raise InputError(
+                f"{prob.source}: the a-priori model diverges ({why}); expected "
+                "coefficients giving a bounded response, or start auto"
+            )
+        out = run(p0) if why is None else Outcome(p0, Status.DIVERGED, 0, p0[None, : prob.n_free])
         return _estimate(name, prob, out, start, t0)
 
     # auto: from whichever of the a-priori values and the equation-error estimate fits the data
@@ -280,18 +413,26 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
         return linear.negative_log_likelihood(prob, linear.residuals(prob, p))
 
     with np.errstate(over="ignore", invalid="ignore"):  # diverging starts are handled below
-        starts = {"config": linear.initial_states(prob, prob.start),
-                  "equation-error": linear.initial_states(prob, _start(prob, experiments, config, "equation-error"))}  # fmt: skip
+        starts = {
+            "config": linear.initial_states(prob, prob.start),
+            "equation-error": linear.initial_states(
+                prob, _start(prob, experiments, config, "equation-error")
+            ),
+        }
     why = {k: linear.divergence(prob, p) for k, p in starts.items()}
     costs = {k: np.inf if why[k] else cost(p) for k, p in starts.items()}
     if not np.isfinite(min(costs.values())):
-        raise InputError(f"{prob.source}: the a-priori model diverges ({why['config']}) and so does "
-                         "the equation-error one")  # fmt: skip
+        raise InputError(
+            f"{prob.source}: the a-priori model diverges ({why['config']}) and so does the equation-error one"
+        )
     order = sorted(starts, key=lambda k: (costs[k], k != "config"))
     first = run(starts[order[0]])
-    reason = ("" if order[0] == "config" else
-              f"it fits the data better than the a-priori values (cost {costs['equation-error']:.6g} "
-              f"against {costs['config']:.6g})")  # fmt: skip
+    reason = (
+        ""
+        if order[0] == "config"
+        else f"it fits the data better than the a-priori values (cost {costs['equation-error']:.6g} "
+        f"against {costs['config']:.6g})"
+    )
     if first.status is Status.CONVERGED or not np.isfinite(costs[order[1]]):
         return _estimate(name, prob, first, order[0], t0, reason)
     second = run(starts[order[1]])
@@ -302,18 +443,29 @@ def _fit(name: str, optimiser, experiments: Sequence[Experiment], config: ModelC
 
 
 STARTS = ("auto", "config", "equation-error", "mekf")
-_START = option("auto", lambda v: v in STARTS, f"one of {', '.join(STARTS)}",
-                "where the iterations begin: auto (whichever of the a-priori values and the "
-                "equation-error estimate fits the data better, then the other if the fit from it "
-                "fails), config (the a-priori values only), equation-error or mekf")
-_TOL = option(1e-3, lambda v: is_number(v) and v > 0, "a number > 0",
-              "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ")
+_START = option(
+    "auto",
+    lambda v: v in STARTS,
+    f"one of {', '.join(STARTS)}",
+    "where the iterations begin: auto (whichever of the a-priori values and the "
+    "equation-error estimate fits the data better, then the other if the fit from it "
+    "fails), config (the a-priori values only), equation-error or mekf",
+)
+_TOL = option(
+    1e-3,
+    lambda v: is_number(v) and v > 0,
+    "a number > 0",
+    "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ",
+)
 
 
 def _max_iter(default: int | None):
-    return option(default, lambda v: (v is None and default is None) or (is_count(v) and v >= 0),
-                  "an integer ≥ 0 (iterations)",
-                  "iteration limit" + ("; None: 500 per free coefficient" if default is None else ""))
+    return option(
+        default,
+        lambda v: (v is None and default is None) or (is_count(v) and v >= 0),
+        "an integer ≥ 0 (iterations)",
+        "iteration limit" + ("; None: 500 per free coefficient" if default is None else ""),
+    )
 
 
 @dataclass(frozen=True)
@@ -344,13 +496,31 @@ class SimplexOptions(Options):
 
     max_iter: int | None = _max_iter(None)
     start: str = _START
-    eps: float = _positive("stopping rule: the spread of J_M over the corners, in units of the χ² "
-                           "statistic N·J_M", 1e-3)
-    step: float = _positive("first simplex: the fraction of each |θ_i| it spans", 0.1)
-    restart_step: float = _positive("restarts after each noise update: the fraction of |θ_i|", 0.02)
+    eps: float = _positive(
+        "stopping rule: the spread of J_M over the corners, in units of the χ² statistic N·J_M", 1e-3
+    )
+    step: float = _positive("first simplex: the fraction of each |θ_i,start| it spans", 0.1)
+    restart_step: float = _positive("later runs' fresh simplex: the fraction of |θ_i,start|", 0.02)
     r_tol: float = _positive("converged when a noise update changes no variance by more than this", 1e-3)
-    max_relaxations: int = option(20, lambda v: is_count(v) and v >= 1, "an integer ≥ 1",
-                                  "simplex runs (each after a noise update) before STALLED")
+    max_relaxations: int = option(
+        20,
+        lambda v: is_count(v) and v >= 1,
+        "an integer ≥ 1",
+        "simplex runs on the whole record (each after a noise update) before STALLED",
+    )
+    coefficients: str = option(
+        "adaptive",
+        lambda v: v in ("adaptive", "paper"),
+        "adaptive or paper",
+        "reflection, expansion, contraction and shrink: the paper's (1, 2, ½, "
+        "½) or Gao & Han's dimension-adaptive (1, 1 + 2/m, ¾ − 1/(2m), 1 − 1/m)",
+    )
+    first_length: float = _positive(
+        "record-length continuation: seconds of each experiment fitted "
+        "first, doubled per stage up to the whole record",
+        60.0,
+    )
+    stage_eps: float = _positive("stopping rule of the continuation's shorter stages (as eps)", 1.0)
 
 
 def _method(name: str, optimiser, options: type[Options], summary: str) -> Method:
@@ -360,9 +530,18 @@ def _method(name: str, optimiser, options: type[Options], summary: str) -> Metho
     return Method(name=name, fit=fit, options=options, summary=summary)
 
 
-ML_GN = _method("ml-gn", gauss_newton, GaussNewtonOptions,
-                "maximum likelihood output error by Gauss-Newton with Levenberg-Marquardt damping")
-ML_NR = _method("ml-nr", newton_raphson, NewtonRaphsonOptions,
-                "maximum likelihood output error by the paper's modified Newton-Raphson (Eq. 10)")
-ML_NM = _method("ml-nm", nelder_mead, SimplexOptions,
-                "maximum likelihood output error by the paper's Nelder-Mead simplex")
+ML_GN = _method(
+    "ml-gn",
+    gauss_newton,
+    GaussNewtonOptions,
+    "maximum likelihood output error by Gauss-Newton with Levenberg-Marquardt damping",
+)
+ML_NR = _method(
+    "ml-nr",
+    newton_raphson,
+    NewtonRaphsonOptions,
+    "maximum likelihood output error by the paper's modified Newton-Raphson (Eq. 10)",
+)
+ML_NM = _method(
+    "ml-nm", nelder_mead, SimplexOptions, "maximum likelihood output error by the paper's Nelder-Mead simplex"
+)
