@@ -23,7 +23,6 @@ from testbed.data import Experiment, ModelConfig, load_data, read_config, read_c
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, identify, lookup
 from testbed.linear import check_fit
-from testbed.report import log_fit
 from testbed.validation import Validation, validate
 
 __all__ = [
@@ -191,6 +190,8 @@ def identify_data(
     with contextlib.ExitStack() as stack:  # every output, or none of them
         temporary = {path: stack.enter_context(atomic_file(path)) for path in files}
         if rrd is not None:
+            from testbed.report import log_fit  # Rerun and MuJoCo load only for a recording
+
             log_fit(rrd, experiments, cfg, estimate, iterations, comparison, validation=validation)
         for path, content in files.items():
             temporary[path].write_text(content)

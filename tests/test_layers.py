@@ -112,3 +112,15 @@ def test_the_architecture_page_names_every_module_in_layer_order():
     positions = [text.find(f"`{n}`") for n in names]
     assert [n for n, p in zip(names, positions) if p < 0] == []
     assert positions == sorted(positions)
+
+
+def test_fitting_a_csv_loads_neither_mujoco_nor_rerun_nor_a_compiler():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, testbed.cli, testbed.jobs, testbed.estimators; "
+        "print(sorted({'mujoco', 'rerun', 'numba', 'scipy'} & set(sys.modules)))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"
