@@ -16,16 +16,7 @@ import numpy as np
 
 from testbed.linear import crlb, fisher
 from testbed.measurements import noise_from_data
-from testbed.model import (
-    ITHETA,
-    IX,
-    NX,
-    Structure,
-    structure,
-    theta_vector,
-    tilde,
-    unobserved,
-)
+from testbed.model import ITHETA, IX, NX, Structure, structure, theta_vector, tilde, unobserved
 
 
 @dataclass(frozen=True)

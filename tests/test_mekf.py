@@ -10,14 +10,7 @@ from filterpy.kalman import KalmanFilter, SquareRootKalmanFilter
 from testbed.data import Experiment, ModelConfig, load_data
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
-from testbed.estimators.mekf import (
-    FilterOptions,
-    _Model,
-    _run,
-    sqrt_update,
-    svd_root,
-    tria,
-)
+from testbed.estimators.mekf import FilterOptions, _Model, _run, sqrt_update, svd_root, tria
 from testbed.measurements import noise_free_channels, noise_from_data
 from testbed.model import (
     COEFFICIENTS,
