@@ -155,6 +155,11 @@ def is_count(v) -> bool:
     return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
 
+def count_option(default: int, least: int, doc: str):
+    """An integer option of at least `least`."""
+    return option(default, lambda v: is_count(v) and v >= least, f"an integer ≥ {least}", doc)
+
+
 @dataclass(frozen=True)
 class Options:
     """A method's options: frozen, built by keyword, every field an `option` with its check."""

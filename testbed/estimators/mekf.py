@@ -162,7 +162,16 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
-from testbed.estimators.base import Estimate, Method, Options, Progress, Status, is_count, option
+from testbed.estimators.base import (
+    Estimate,
+    Method,
+    Options,
+    Progress,
+    Status,
+    count_option,
+    is_count,
+    option,
+)
 from testbed.measurements import noise_free_channels, noise_from_data
 from testbed.model import IX, ITHETA, NX, continuous, derivatives, expm_pair, structure, theta_vector
 
@@ -320,21 +329,15 @@ class FilterOptions(Options):
         "model-error σ floor per sample, fraction of R's σ; None: 0 for the "
         "square-root filters, 0.01 for the conventional one",
     )
-    noise_window: int = option(
-        50,
-        lambda v: is_count(v) and v >= 0,
-        "an integer ≥ 0",
-        "samples averaged by the covariance matching; 0: model error at the floor",
+    noise_window: int = count_option(
+        50, 0, "samples averaged by the covariance matching; 0: model error at the floor"
     )
     noise_margin: float = _at_least(0.0, "standard errors of that average an excess must pass to count", 2.0)
     unmeasured_std: float = _at_least(0.0, "initial σ of an unmeasured state (SI)", 1.0)
     unmeasured_noise: float = _at_least(0.0, "process σ per sample of an unmeasured state (SI)", 1e-3)
     refresh_tol: float = _at_least(0.0, "recompute the exact model when a coefficient moved this many σ", 0.2)
-    passes: int = option(
-        1,
-        lambda v: is_count(v) and v >= 1,
-        "an integer ≥ 1",
-        "passes over the data: 1 the on-line filter, more its fixed-interval iterations",
+    passes: int = count_option(
+        1, 1, "passes over the data: 1 the on-line filter, more its fixed-interval iterations"
     )
     pass_tol: float = _at_least(
         0.0, "the iterations stop when no coefficient moved more than this many σ", 0.1
@@ -345,12 +348,7 @@ class FilterOptions(Options):
         "'qr' or 'svd'",
         "time-update root: qr (one QR with the update) or svd (U Σ, the paper's)",
     )
-    nis_window: int = option(
-        200,
-        lambda v: is_count(v) and v >= 1,
-        "an integer ≥ 1",
-        "samples over which the innovations are tested for divergence",
-    )
+    nis_window: int = count_option(200, 1, "samples over which the innovations are tested for divergence")
     nis_limit: float = _at_least(
         0.0, "mean normalised innovation squared per channel that means divergence", 25.0
     )

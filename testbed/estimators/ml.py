@@ -28,7 +28,17 @@ from testbed import linear
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators import mekf
-from testbed.estimators.base import Callback, Estimate, Method, Options, Progress, Status, is_count, option
+from testbed.estimators.base import (
+    Callback,
+    Estimate,
+    Method,
+    Options,
+    Progress,
+    Status,
+    count_option,
+    is_count,
+    option,
+)
 
 
 @dataclass(frozen=True)
@@ -502,11 +512,8 @@ class SimplexOptions(Options):
     step: float = _positive("first simplex: the fraction of each |θ_i,start| it spans", 0.1)
     restart_step: float = _positive("later runs' fresh simplex: the fraction of |θ_i,start|", 0.02)
     r_tol: float = _positive("converged when a noise update changes no variance by more than this", 1e-3)
-    max_relaxations: int = option(
-        20,
-        lambda v: is_count(v) and v >= 1,
-        "an integer ≥ 1",
-        "simplex runs on the whole record (each after a noise update) before STALLED",
+    max_relaxations: int = count_option(
+        20, 1, "simplex runs on the whole record (each after a noise update) before STALLED"
     )
     coefficients: str = option(
         "adaptive",
