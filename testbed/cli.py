@@ -192,13 +192,17 @@ def _cmd_design(args) -> int:
 
     if args.out == STDOUT:
         raise InputError("--out -: the design is a scenario file; expected a file name (.toml)")
+    if args.rrd == STDOUT:
+        raise InputError("--rrd -: a recording is a file; expected a file name (.rrd)")
     _quiet_mujoco()
     free = [n.strip() for n in args.free.split(",") if n.strip()] if args.free else None
     result = write_design(
-        args.out, args.duration, args.criterion, free, args.mjcf, args.speed, args.start_from
+        args.out, args.duration, args.criterion, free, args.mjcf, args.speed, args.start_from, args.rrd
     )
     print(result.table(), file=sys.stderr)
     print(args.out)
+    if args.rrd is not None:
+        print(args.rrd, file=sys.stderr)
     return 0
 
 
@@ -365,6 +369,9 @@ def parser() -> argparse.ArgumentParser:
         help="estimates JSON of the last fit: design at its coefficients and noise",
     )
     s.add_argument("--out", type=Path, required=True, help="the scenario file to write (.toml)")
+    s.add_argument(
+        "--rrd", type=Path, help="also log the comparison with Scenario II to this Rerun recording"
+    )
     s.set_defaults(func=_cmd_design)
 
     s = sub.add_parser("reproduce", help="the paper's study: Scenario I and II x 4 methods x seeds, on Dask")

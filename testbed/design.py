@@ -46,6 +46,8 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
 
 from testbed.analysis import UNCERTAIN
 from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
@@ -54,7 +56,8 @@ from testbed.errors import InputError, atomic_write_text, check_outputs
 from testbed import linear
 from testbed.linear import crlb, predict
 from testbed.measurements import NOISE_STD
-from testbed.model import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
+from testbed.recording import STYLE, axis_range, data_id, panel_title, recording, series, time_column, x_range
+from testbed.model import COEFFICIENTS, INPUTS, IX, NX, STATES, continuous, structure, theta_vector
 from testbed.scenario import ExperimentSpec, Scenario, fly_scenario, program, scenario, scenario_text
 from testbed.signals import TAPS, Hold, Multisine, Prbs, Signal, Square
 from testbed.truth import analytic_config, model_config
@@ -553,6 +556,8 @@ class Design:
     growth: Mapping[str, float] = field(default_factory=dict)  # type -> factor over Scenario II's peaks
     peaks: Mapping[str, Mapping[str, float]] = field(default_factory=dict)  # experiment -> `peaks`
     unidentified: Mapping[str, str] = field(default_factory=dict)  # left out of the design, and why
+    # experiment -> (t, states (N, 10; u absolute), fin angles (N, 3)) as the design model flies it
+    flights: Mapping[str, tuple] = field(default_factory=dict)
 
     @property
     def duration(self) -> float:
@@ -723,11 +728,12 @@ def design(
             )
         if any(not check_result.passed(e.name) for e in scn.experiments):
             raise InputError(f"no design inside the linear regime: {check_result.table()}")
-    F, flown_peaks = 0.0, {}
+    F, flown_peaks, flights = 0.0, {}, {}
     for k, e in enumerate(scn.experiments):
         t, xs, f = fly_model(m, e, scn.duration_of(e), SEED, k)
         F = F + fisher(m, t, xs, f, e.name)
         flown_peaks[e.name] = peaks(xs, f, m.speed, 1.0 / m.control_rate)
+        flights[e.name] = (t, xs + m.speed * (np.arange(NX) == IX["u"]), f)
     base = scenario_information(m, duration)
     return Design(
         scenario=scn,
@@ -743,7 +749,87 @@ def design(
         growth={k: c.growth for k, c in cands.items() if k in durations},
         peaks=flown_peaks,
         unidentified=unidentified,
+        flights=flights,
     )
+
+
+BOUNDS_KEY = (
+    "relative Cramér-Rao bound (%) of each free coefficient, in the order of the table: "
+    "bold blue, the design; grey, Scenario II at the same flight time"
+)
+MOVED = 1e-9  # a flight's channel spanning less than this (rad, m/s, m) is not drawn
+FLIGHTS_KEY = "the designed experiment as the design model flies it (the linear model with its autopilots)"
+
+
+def log_design(path: str | Path, d: Design) -> Path:
+    """A Rerun recording of a design: the `bounds` tab (per free coefficient the predicted
+    relative Cramér-Rao bound of the design beside Scenario II's at the same flight time, as
+    paired bars, with the table), then per designed experiment its fin angles and states as
+    the design model flies it."""
+    title = "testbed design"
+    rel = {"design": d.relative(d.crlb), "scenario_II": d.relative(d.crlb_base)}
+    k = np.arange(len(d.free), dtype=float)
+    tabs = []
+    with recording(path, title, data_id(title, d.text())) as rec:
+        for (label, r), offset, role in zip(rel.items(), (-0.2, 0.2), ("estimate", "measured")):
+            bars = rr.BarChart(
+                np.nan_to_num(100 * r), color=STYLE[role][0], abscissa=k + offset, widths=np.full(len(k), 0.4)
+            )
+            rec.log(f"/bounds/{label}", bars, static=True)
+        table = "\n".join(
+            [
+                "| # | coefficient | value | design σ | design % | II σ | II % | II/design |",
+                "|---|---|---|---|---|---|---|---|",
+            ]
+            + [
+                f"| {i} | {n} | {v:.4g} | {a:.3g} | {100 * a / abs(v):.3g} | {b:.3g} | {100 * b / abs(v):.3g} | {b / a:.2f} |"
+                if v
+                else f"| {i} | {n} | 0 | {a:.3g} | - | {b:.3g} | - | {b / a:.2f} |"
+                for i, (n, v, a, b) in enumerate(zip(d.free, d.values, d.crlb, d.crlb_base))
+            ]
+            + ["", d.table().splitlines()[-1]]
+        )
+        rec.log("/bounds/table", rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN), static=True)
+        rec.log("/key/bounds", rr.TextDocument(BOUNDS_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
+        tabs.append(
+            rrb.Horizontal(
+                rrb.Vertical(
+                    rrb.BarChartView(
+                        origin="/bounds", contents=[f"/bounds/{n}" for n in rel], name="relative bounds (%)"
+                    ),
+                    rrb.TextDocumentView(origin="/key/bounds", name="key", titlebar=False),
+                    row_shares=[12, 1],
+                ),
+                rrb.TextDocumentView(origin="/bounds/table", name="table"),
+                column_shares=[3, 2],
+                name="bounds",
+            )
+        )
+        rec.log("/key/flights", rr.TextDocument(FLIGHTS_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
+        for name, (t, xs, fins) in d.flights.items():
+            columns = {**{c: fins[:, j] for j, c in enumerate(INPUTS)}, **{c: xs[:, IX[c]] for c in STATES}}
+            panels = []
+            for c, v in columns.items():
+                if np.ptp(v) < MOVED:
+                    continue  # a channel this experiment does not move (its roundoff is not drawn)
+                series(rec, f"/flights/{name}/{c}", time_column(t), v, ("model",), (c,))
+                panels.append(
+                    rrb.TimeSeriesView(
+                        origin=f"/flights/{name}/{c}",
+                        name=panel_title(c),
+                        axis_x=x_range("time", t[0], t[-1]),
+                        axis_y=rrb.ScalarAxis(range=axis_range(v)),
+                        plot_legend=rrb.PlotLegend(visible=False),
+                    )
+                )
+            key = rrb.TextDocumentView(origin="/key/flights", name="key", titlebar=False)
+            tabs.append(rrb.Vertical(rrb.Grid(*panels, grid_columns=4), key, row_shares=[24, 1], name=name))
+        rec.send_blueprint(
+            rrb.Blueprint(
+                rrb.Tabs(*tabs, active_tab=0), rrb.TimePanel(state="collapsed"), collapse_panels=True
+            )
+        )
+    return Path(path)
 
 
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
@@ -761,11 +847,15 @@ def write_design(
     mjcf=None,
     speed: float | None = None,
     start_from: str | Path | None = None,
+    rrd: str | Path | None = None,
 ) -> Design:
     """`design` at the analytic model of `mjcf`, or at the estimates JSON `start_from` (its
-    coefficients and noise: the sequential design), written as a scenario file to `out`."""
-    check_outputs([start_from] if start_from else [], {"out": out})
+    coefficients and noise: the sequential design), written as a scenario file to `out`, and
+    with `rrd` logged to that Rerun recording (`log_design`)."""
+    check_outputs([start_from] if start_from else [], {"out": out, "rrd": rrd})
     estimates, noise = read_estimates(start_from) if start_from else (None, None)
     result = design(duration, criterion_, free, mjcf, speed, estimates, noise)
     atomic_write_text(out, result.text())
+    if rrd is not None:
+        log_design(rrd, result)
     return result

@@ -134,6 +134,33 @@ def test_cli_design_errors(tmp_path, capsys):
     assert main(["design", "--out", str(tmp_path / "no" / "d.toml")]) == 2
 
 
+def test_the_design_recording_holds_the_comparison_and_the_flights(tmp_path):
+    """Read back: the paired bars are the relative bounds of the design and of Scenario II, the
+    table names every free coefficient, and each designed experiment has its moved channels."""
+    import rerun.chunk
+
+    free = ("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")
+    d = D.design(60.0, "A", free=free, check=False)
+    path = D.log_design(tmp_path / "design.rrd", d)
+    bars, entities, table = {}, set(), ""
+    for chunk in rerun.chunk.RrdReader(str(path)).stream():
+        entities.add(str(chunk.entity_path))
+        rb = chunk.to_record_batch()
+        names = [f.name for f in rb.schema]
+        if "BarChart:values" in names:
+            bars[str(chunk.entity_path)] = np.array(
+                rb.column(names.index("BarChart:values"))[0].as_py()[0]["buffer"]
+            )
+        if "TextDocument:text" in names and str(chunk.entity_path) == "/bounds/table":
+            table = rb.column(names.index("TextDocument:text"))[0].as_py()[0]
+    assert np.allclose(bars["/bounds/design"], 100 * d.relative(d.crlb))
+    assert np.allclose(bars["/bounds/scenario_II"], 100 * d.relative(d.crlb_base))
+    assert all(f"| {n} |" in table for n in free)
+    for e in d.scenario.experiments:
+        assert f"/flights/{e.name}/delta_r" in entities or f"/flights/{e.name}/delta_er" in entities
+        assert f"/flights/{e.name}/u" not in entities  # not moved by the linear model: not drawn
+
+
 def _free(run_estimates):
     return set(json.loads(run_estimates.read_text())["coefficients"])
 
@@ -161,7 +188,8 @@ def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identif
     from testbed.validation import fit_percent
 
     designed = tmp_path / "designed.toml"
-    assert main(["design", "--out", str(designed)]) == 0
+    assert main(["design", "--out", str(designed), "--rrd", str(tmp_path / "design.rrd")]) == 0
+    assert (tmp_path / "design.rrd").stat().st_size > 0
     runs = {"designed": tmp_path / "designed", "II": tmp_path / "II"}
     assert main(["simulate", "--scenario", str(designed), "--out", str(runs["designed"])]) == 0
     assert main(["simulate", "--scenario", "II", "--out", str(runs["II"])]) == 0
