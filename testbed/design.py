@@ -347,7 +347,14 @@ class Candidate:
         return spec(self.kind, self.fins, duration, name, self.hold)
 
 
-def information(m: Model, kind: str, fins: Mapping[str, Signal], duration: float, hold=None, growth=1.0):
+def information(
+    m: Model,
+    kind: str,
+    fins: Mapping[str, Signal],
+    duration: float,
+    hold: float | None = None,
+    growth: float = 1.0,
+) -> Candidate:
     """The candidate of these signals: its information flown on the design model."""
     t, xs, f = fly_model(m, spec(kind, fins, duration, hold=hold), duration)
     return Candidate(kind, fins, duration, fisher(m, t, xs, f, kind), hold, growth)
