@@ -55,7 +55,7 @@ def study(scales, seed: int) -> str:
     )
     for k in scales:
         s = scaled(base, k)
-        check = linearity(s, EXCITED, seed=seed)
+        check = linearity(s, EXCITED, seeds=(seed,))
         flights, lin = fly_scenario(s, seed=seed)
         U = lin.vehicle.speed
         for f in flights:
