@@ -218,3 +218,33 @@ def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identif
     for n, c in est["coefficients"].items():
         tol = max(3 * est["crlb_corrected_std"][n], 0.03 * abs(analytic[n]))
         assert abs(c["value"] - analytic[n]) <= tol, (n, c["value"], analytic[n])
+
+
+def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
+    """`--from EST.json`: the design model takes the estimate's coefficients (its free set)
+    and noise; the information scales as 1/σ², so doubling every noise σ doubles every bound
+    of the same design exactly."""
+    from testbed.cli import main
+    from testbed.truth import analytic_config
+
+    analytic = analytic_config()[0].coefficients
+    free = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr", "K_p", "K_der", "K_del")
+    estimate = {n: 1.2 * analytic[n] for n in free}
+    path = tmp_path / "est.json"
+    path.write_text(
+        json.dumps({"coefficients": {n: {"value": v} for n, v in estimate.items()}, "noise_std": {"v": 0.03}})
+    )
+    values, noise = D.read_estimates(path)
+    d1 = D.design(120.0, "A", estimates=values, noise_std=noise, check=False)
+    assert d1.source == "estimate" and set(d1.free) == set(free)
+    assert np.allclose(d1.values, [estimate[n] for n in d1.free])
+    d2 = D.design(120.0, "A", estimates=values, noise_std={k: 2 * v for k, v in noise.items()}, check=False)
+    assert d2.scenario == d1.scenario and np.allclose(d2.crlb, 2 * d1.crlb)
+    d0 = D.design(120.0, "A", free=free, check=False)  # at the analytic model
+    assert not np.allclose(d0.crlb_base, d1.crlb_base)
+
+    out = tmp_path / "next.toml"
+    assert main(["design", "--from", str(path), "--duration", "120", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "at the estimate" in text and all(f"#   {n} " in text for n in free)
+    assert parse_scenario(tomllib.loads(text), str(out)).experiments
