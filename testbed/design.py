@@ -13,7 +13,7 @@ has two levels:
 
 1. per experiment type (`TEMPLATES`: which fin channels a signal drives, which autopilot loops
    hold the others), the signal of each channel — a PRBS (its clock) or a multisine of
-   Schroeder phases (its band) — chosen for the criterion on its own; for the elevators'
+   minimal crest factor (its band) — chosen for the criterion on its own; for the elevators'
    experiment also the step of the slow hold's depth reference (`HOLD_STEPS`), whose slow
    heave-pitch motion carries most of the information on the heave row;
 2. the split of the flight time between the types (10 s steps, each flown type ≥ 20 s), chosen
@@ -255,13 +255,14 @@ def regime_limits(m: Model, base: Scenario | str = "II") -> Limits:
 
 def candidates(duration: float) -> list[Signal]:
     """The signal shapes (amplitude REFERENCE) tried on each channel: PRBS at each clock (its order
-    the shortest whose period covers the record), multisines over each band."""
+    the shortest whose period covers the record), multisines over each band with the phases of
+    the smallest crest factor found (`signals.min_crest_phases`: the most power for the peak)."""
     out: list[Signal] = []
     for clock in PRBS_CLOCKS:
         order = next((n for n in sorted(TAPS) if (2**n - 1) * clock >= duration), max(TAPS))
         out.append(Prbs(amplitude=REFERENCE, order=max(order, 5), clock=clock))
     for lo, hi in MULTISINE_BANDS:
-        out.append(Multisine(amplitude=REFERENCE, frequencies=band(duration, lo, hi)))
+        out.append(Multisine(amplitude=REFERENCE, frequencies=band(duration, lo, hi), phases="min-crest"))
     return out
 
 

@@ -13,7 +13,7 @@ reads it). The signals:
 | `prbs` | `amplitude`, `order`, `clock` | ±`amplitude`, a maximal-length LFSR sequence, one bit per `clock` s, phase from the run's seed |
 | `doublet` | `amplitude`, `width`, `start` | +a for `width`, −a for `width`, then 0 |
 | `3211` | `amplitude`, `unit`, `start` | +a, −a, +a, −a for 3, 2, 1, 1 `unit`s, then 0 |
-| `multisine` | `amplitude`, `frequencies`, `start` | Σ cos(2π f_k t + φ_k), Schroeder phases φ_k = −π k(k−1)/K (low crest factor), scaled to peak `amplitude` |
+| `multisine` | `amplitude`, `frequencies`, `start`, `phases` | Σ cos(2π f_k t + φ_k), scaled to peak `amplitude`; `phases` `schroeder` (φ_k = −π k(k−1)/K, low crest factor) or `min-crest` (the smallest crest factor found from them, `min_crest_phases`) |
 | `zigzag` | `angle`, `on`, `switch` | ±`angle`, switched when `on` (`psi` or `theta`) passes ∓`switch` (default `angle`) from its initial value |
 
 A positive fin turns the nose negative (rudder: to port; elevators: down), so the zigzag
@@ -22,6 +22,7 @@ starts at +angle and switches when the angle has gone to −angle.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields
 from typing import Callable, ClassVar, Mapping
@@ -97,6 +98,58 @@ def schroeder_phases(k: int) -> np.ndarray:
     crest factor."""
     i = np.arange(1, k + 1)
     return -np.pi * i * (i - 1) / k
+
+
+PEAK_SAMPLES = 40001  # the grid a multisine's peak is measured on
+CLIP_ITERATIONS = 200  # of the crest-factor minimisation
+CLIP = 0.9  # the level it clips at, as a fraction of the current peak
+
+
+def peak_window(frequencies: np.ndarray) -> np.ndarray:
+    """The times a multisine's peak is measured over: 20 periods of its lowest frequency (at
+    most 200 s) on a fine grid."""
+    return np.linspace(0.0, min(20.0 / frequencies.min(), 200.0), PEAK_SAMPLES)
+
+
+def multisine_peak(frequencies: np.ndarray, phases: np.ndarray) -> float:
+    """max |Σ cos(2π f_k t + φ_k)| over `peak_window`."""
+    t = peak_window(frequencies)
+    return float(np.abs(np.cos(2 * np.pi * np.outer(t, frequencies) + phases).sum(1)).max())
+
+
+@functools.lru_cache(maxsize=64)
+def min_crest_phases(frequencies: tuple) -> tuple:
+    """Phases of the flat-spectrum multisine Σ cos(2π f_k t + φ_k) with the smallest peak found
+    (its rms is fixed, √(K/2), so the smallest crest factor): from Schroeder's phases, the
+    time-frequency swapping of Van der Ouderaa, Schoukens and Renneboog (1988) — clip the signal
+    at a level below its peak, give each line the phase of the clipped signal's least-squares
+    component on it, restore the flat amplitudes — keeping the best phases seen. Deterministic."""
+    f = np.asarray(frequencies, float)
+    if len(f) == 1:
+        return (0.0,)
+    # the search grid: 16 samples per period of the highest line over the peak window
+    span = peak_window(f)[-1]
+    t = np.linspace(0.0, span, int(min(PEAK_SAMPLES, 16 * f.max() * span + 1)))
+    arg = 2 * np.pi * np.outer(t, f)
+    # Σ a_k cos(arg_k + φ_k) = Σ (a_k cos φ_k) cos arg_k − (a_k sin φ_k) sin arg_k
+    project = np.linalg.pinv(np.hstack([np.cos(arg), -np.sin(arg)]))
+    phi = schroeder_phases(len(f))
+    best, best_peak = phi, np.abs(np.cos(arg + phi).sum(1)).max()
+    for _ in range(CLIP_ITERATIONS):
+        x = np.cos(arg + phi).sum(1)
+        level = CLIP * np.abs(x).max()
+        c = project @ np.clip(x, -level, level)
+        phi = np.arctan2(c[len(f) :], c[: len(f)])
+        peak = np.abs(np.cos(arg + phi).sum(1)).max()
+        if peak < best_peak:
+            best, best_peak = phi, peak
+    return tuple(float(v) for v in best)
+
+
+PHASES = {
+    "schroeder": lambda f: schroeder_phases(len(f)),
+    "min-crest": lambda f: np.array(min_crest_phases(f)),
+}
 
 
 # -- the signals ---------------------------------------------------------------------------------
@@ -268,17 +321,17 @@ class Multisine(Signal):
             lambda v: isinstance(v, tuple) and len(v) > 0 and all(is_number(f) and f > 0 for f in v),
             "a non-empty list of frequencies > 0 Hz",
         ),
+        "phases": (lambda v: v in PHASES, " or ".join(repr(k) for k in PHASES)),
     }
     amplitude: float = 0.0
     frequencies: tuple = (0.1, 0.2, 0.3)
     start: float = 0.0
+    phases: str = "schroeder"
 
     def program(self, rng):
-        f, phi = np.asarray(self.frequencies), schroeder_phases(len(self.frequencies))
-        # the peak over 20 periods of the lowest frequency (at most 200 s), on a fine grid
-        grid = np.linspace(0.0, min(20.0 / f.min(), 200.0), 40001)
-        peak = np.abs(np.cos(2 * np.pi * np.outer(grid, f) + phi).sum(1)).max()
-        scale, start = self.amplitude / peak, self.start
+        f = np.asarray(self.frequencies, float)
+        phi = PHASES[self.phases](self.frequencies)
+        scale, start = self.amplitude / multisine_peak(f, phi), self.start
 
         def program(t, x):
             if t < start - 1e-9:
