@@ -49,6 +49,7 @@ from typing import Callable
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from testbed.errors import InputError
 from testbed.model import IX, NX, discretize
 
 FIN_LIMIT = 0.40  # rad, the torpedo's servo range
@@ -133,6 +134,37 @@ def design(A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = H
     )
 
 
+def closed_loop(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> np.ndarray:
+    """The sampled closed loop of all loops in their linear range, from the design's gains:
+    state (x, ∫yaw, ∫pitch, ∫roll), commands zero, the fins held over each control period dt
+    (the exact zero-order-hold model of (A, B))."""
+    Phi, Gamma, _ = discretize(A, B, np.zeros(NX), dt)
+    mix = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, -1.0]])  # (δr, δe, δa) -> fins
+    K = np.array([d.yaw_rate.K, d.pitch.K, d.roll.K])
+    K[1, IX["z"]] -= d.pitch.g_ref * d.k_depth / d.speed  # θ_cmd = k_z (z − z_cmd) / U
+    Ki = np.diag([d.yaw_rate.Ki, d.pitch.Ki, d.roll.Ki])
+    E = np.zeros((3, NX))  # the integrated errors x_tracked − ref
+    E[0, IX["r"]], E[2, IX["phi"]] = 1.0, 1.0
+    E[1, IX["theta"]], E[1, IX["z"]] = 1.0, -d.k_depth / d.speed
+    # x⁺ = Φ x − Γ mix (K x + Ki ∫),  ∫⁺ = ∫ + dt E x
+    return np.block([[Phi - Gamma @ mix @ K, -Gamma @ mix @ Ki], [dt * E, np.eye(3)]])
+
+
+def check_sampled(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> None:
+    """InputError unless the loops, designed in continuous time, are stable sampled every dt:
+    the fins' effectiveness grows as U², and above some speed the pitch loop's gain makes its
+    sampled mode at the Nyquist frequency grow (this torpedo at 50 Hz: above about 27 m/s).
+    The heading, which no loop holds, is the one mode on the unit circle."""
+    w = np.linalg.eigvals(closed_loop(A, B, d, dt))
+    k = int(np.argmax(np.abs(w)))
+    if abs(w[k]) > 1.0 + 1e-9:
+        raise InputError(
+            f"speed={d.speed:g} m/s with control_rate={1 / dt:g} Hz: the autopilots are unstable when "
+            f"sampled (a mode at {abs(np.angle(w[k])) / (2 * np.pi * dt):.1f} Hz grows {abs(w[k]):.3g}x "
+            "per step); expected a lower speed or a higher control rate"
+        )
+
+
 @dataclass
 class Autopilot:
     """The autopilots with their integrators (the only state). Modes switch loops on or off."""
@@ -145,6 +177,13 @@ class Autopilot:
         d = self.design
         self._loops = (d.yaw_rate, d.pitch, d.roll)
         self._K = np.array([c.K for c in self._loops])  # one product per step for all loops
+
+    @classmethod
+    def designed(cls, A: np.ndarray, B: np.ndarray, speed: float, dt: float) -> "Autopilot":
+        """The autopilots designed on (A, B) at trim `speed`, run every dt s (`check_sampled`)."""
+        d = design(A, B, speed)
+        check_sampled(A, B, d, dt)
+        return cls(d, dt)
 
     def reset(self) -> None:
         self.integrators[:] = 0.0

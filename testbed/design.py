@@ -50,7 +50,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from testbed.analysis import UNCERTAIN
-from testbed.autopilot import FIN_LIMIT, Autopilot, design as design_autopilot, fly_linear
+from testbed.autopilot import FIN_LIMIT, Autopilot, fly_linear
 from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
 from testbed import linear
@@ -179,7 +179,7 @@ def model(
             "expected coefficients of a stable vehicle to design at"
         )
     speed = config.vehicle.speed
-    ap = Autopilot(design_autopilot(A, B, speed), 1.0 / control_rate)
+    ap = Autopilot.designed(A, B, speed, 1.0 / control_rate)
     config = replace(config, outputs=FITTED)
     return Model(config, A, B, ap, dict(noise_std or NOISE_STD), control_rate)
 

@@ -51,7 +51,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from testbed.autopilot import FIN_LIMIT, Autopilot, design
+from testbed.autopilot import FIN_LIMIT, Autopilot
 from testbed.data import MIN_ROWS, number
 from testbed.errors import InputError, is_number
 from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
@@ -457,7 +457,7 @@ def fly_scenario(
     speed = s.speed if s.speed is not None else cruise_speed(plant.model)
     s = replace(s, speed=speed)
     lin = analytic_model(plant.model, speed)
-    autopilot = Autopilot(design(lin.A_full, lin.B_full, speed), 1.0 / s.control_rate)
+    autopilot = Autopilot.designed(lin.A_full, lin.B_full, speed, 1.0 / s.control_rate)
     flights = []
     for k, e in enumerate(s.experiments):
         report = (lambda f, name=e.name: progress(name, f)) if progress else None

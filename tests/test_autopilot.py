@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from testbed import autopilot as ap
+from testbed.errors import InputError
 from testbed.model import IX, NX, discretize
 from testbed.truth import analytic_model
 from testbed.vehicle import load_model
@@ -24,17 +25,7 @@ def design(lin):
 
 
 def _closed_loop(lin, d):
-    """The discrete closed loop of all loops in their linear range, written from the design's
-    gains (not from `Autopilot.step`): state (x, ∫yaw, ∫pitch, ∫roll), commands zero."""
-    Phi, Gamma, _ = discretize(lin.A_full, lin.B_full, np.zeros(NX), DT)
-    mix = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, -1.0]])  # (δr, δe, δa) -> fins
-    K = np.array([d.yaw_rate.K, d.pitch.K, d.roll.K])
-    K[1, IX["z"]] -= d.pitch.g_ref * d.k_depth / d.speed  # θ_cmd = k_z (z − z_cmd) / U
-    Ki = np.diag([d.yaw_rate.Ki, d.pitch.Ki, d.roll.Ki])
-    E = np.zeros((3, NX))  # the integrated errors x_tracked − ref
-    E[0, IX["r"]], E[2, IX["phi"]] = 1.0, 1.0
-    E[1, IX["theta"]], E[1, IX["z"]] = 1.0, -d.k_depth / d.speed
-    return np.block([[Phi - Gamma @ mix @ K, -Gamma @ mix @ Ki], [DT * E, np.eye(3)]])
+    return ap.closed_loop(lin.A_full, lin.B_full, d, DT)
 
 
 def test_closed_loop_is_stable_and_is_what_step_computes(lin, design):
@@ -193,3 +184,24 @@ def test_vertical_hold_is_slow_and_leaves_the_elevators_equal(lin, design):
     fins, theta_cmd = autopilot.step(x, elevators=0.004, hold_depth=100.0)
     expected = 0.004 - design.hold[0] * 0.1 - design.hold[1] * 3.0
     assert fins == pytest.approx((0.0, expected, expected), abs=1e-15) and theta_cmd is None
+
+
+def test_autopilots_unstable_when_sampled_are_refused():
+    """Above about 27 m/s the pitch loop, designed in continuous time, has a sampled mode at
+    25 Hz (the Nyquist frequency at 50 Hz) outside the unit circle: refused with the speed and
+    the rate named; at 200 Hz the same loops are stable."""
+    lin = analytic_model(load_model(), 30.0)
+    with pytest.raises(InputError, match=r"speed=30 m/s with control_rate=50 Hz.*25\.0 Hz"):
+        ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, DT)
+    assert ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, 0.005).dt == 0.005
+    d = ap.design(lin.A_full, lin.B_full, 30.0)
+    assert np.abs(np.linalg.eigvals(ap.closed_loop(lin.A_full, lin.B_full, d, DT))).max() > 1.2
+
+
+def test_cli_refuses_a_speed_its_autopilots_cannot_fly(tmp_path, capsys):
+    from testbed.cli import main
+
+    assert main(["simulate", "--scenario", "II", "--speed", "30", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--speed 30 m/s" in err and "control_rate=50" in err, err
+    assert not (tmp_path / "run").exists()
