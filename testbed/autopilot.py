@@ -134,11 +134,9 @@ def design(A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = H
     )
 
 
-def closed_loop(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> np.ndarray:
-    """The sampled closed loop of all loops in their linear range, from the design's gains:
-    state (x, ∫yaw, ∫pitch, ∫roll), commands zero, the fins held over each control period dt
-    (the exact zero-order-hold model of (A, B))."""
-    Phi, Gamma, _ = discretize(A, B, np.zeros(NX), dt)
+def _loop_gains(d: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mix K, mix Ki, E) of all loops in their linear range, commands zero: the fins are
+    −(mix K x + mix Ki ∫), and the integrators integrate E x."""
     mix = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, -1.0]])  # (δr, δe, δa) -> fins
     K = np.array([d.yaw_rate.K, d.pitch.K, d.roll.K])
     K[1, IX["z"]] -= d.pitch.g_ref * d.k_depth / d.speed  # θ_cmd = k_z (z − z_cmd) / U
@@ -146,15 +144,30 @@ def closed_loop(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> np.ndarra
     E = np.zeros((3, NX))  # the integrated errors x_tracked − ref
     E[0, IX["r"]], E[2, IX["phi"]] = 1.0, 1.0
     E[1, IX["theta"]], E[1, IX["z"]] = 1.0, -d.k_depth / d.speed
-    # x⁺ = Φ x − Γ mix (K x + Ki ∫),  ∫⁺ = ∫ + dt E x
-    return np.block([[Phi - Gamma @ mix @ K, -Gamma @ mix @ Ki], [dt * E, np.eye(3)]])
+    return mix @ K, mix @ Ki, E
+
+
+def closed_loop(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> np.ndarray:
+    """The sampled closed loop of all loops in their linear range, from the design's gains:
+    state (x, ∫yaw, ∫pitch, ∫roll), commands zero, the fins held over each control period dt
+    (the exact zero-order-hold model of (A, B))."""
+    Phi, Gamma, _ = discretize(A, B, np.zeros(NX), dt)
+    K, Ki, E = _loop_gains(d)
+    # x⁺ = Φ x − Γ (K x + Ki ∫),  ∫⁺ = ∫ + dt E x
+    return np.block([[Phi - Gamma @ K, -Gamma @ Ki], [dt * E, np.eye(3)]])
 
 
 def check_sampled(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> None:
-    """InputError unless the loops, designed in continuous time, are stable sampled every dt:
-    the fins' effectiveness grows as U², and above some speed the pitch loop's gain makes its
-    sampled mode at the Nyquist frequency grow (this torpedo at 50 Hz: above about 27 m/s).
-    The heading, which no loop holds, is the one mode on the unit circle."""
+    """InputError when the loops, stable in continuous time, are unstable sampled every dt: the
+    fins' effectiveness grows as U², and above some speed the pitch loop's gain makes its
+    sampled mode at the Nyquist frequency grow (this torpedo at 50 Hz: above about 27 m/s). The
+    heading, which no loop holds, is the one mode on the unit circle; a vehicle unstable in a
+    mode no loop holds is left to the plant, which stops where its motion diverges."""
+    K, Ki, E = _loop_gains(d)
+    # ẋ = (A − B K) x − B Ki ∫,  d∫/dt = E x
+    continuous = np.block([[A - B @ K, -B @ Ki], [E, np.zeros((3, 3))]])
+    if np.linalg.eigvals(continuous).real.max() > 1e-9:
+        return
     w = np.linalg.eigvals(closed_loop(A, B, d, dt))
     k = int(np.argmax(np.abs(w)))
     if abs(w[k]) > 1.0 + 1e-9:
