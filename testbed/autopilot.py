@@ -39,6 +39,11 @@ Fin commands are clipped to ±FIN_LIMIT. An integrator stops integrating while i
 not realised (saturated, including where the pitch and roll mix on one elevator exceeds the stop)
 and its error would push further into the stop (conditional integration: no wind-up).
 `Autopilot.integrators` is its only state.
+
+The loops are designed in continuous time and run at the scenario's control rate;
+`Autopilot.designed` refuses a speed at which they are unstable when sampled (`check_sampled`:
+the bundled torpedo at 50 Hz above about 27 m/s, where the pitch loop's gain, growing with the
+fins' U² effectiveness, makes its mode at the Nyquist frequency diverge).
 """
 
 from __future__ import annotations
