@@ -200,6 +200,25 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary)
 
 
+def unidentified(result: Identifiability) -> dict[str, str]:
+    """The coefficients `screen`'s rule fixes, name → why: in an exactly unidentifiable drift
+    group; analysed at 0 (no relative bound); or a Cramér-Rao bound above `UNCERTAIN` of the
+    value analysed at."""
+    fixed = {}
+    drifting = {n for g in result.structural.drift_groups for n in g}
+    for n, value, std in zip(result.free, result.values, result.crlb_std):
+        if n in drifting:
+            fixed[n] = "in an exactly unidentifiable drift group"
+        elif value == 0:
+            fixed[n] = f"analysed at 0, Cramér-Rao bound {std:.3g} (no relative bound)"
+        elif n in result.uncertain:  # relative bound above UNCERTAIN
+            fixed[n] = (
+                f"Cramér-Rao bound {100 * std / abs(value):.0f} % of its a-priori value "
+                f"(above {100 * UNCERTAIN:.0f} %)"
+            )
+    return fixed
+
+
 def screen(experiments, config):
     """`(config, fixed)`: the config with only the coefficients these data identify left free,
     and `fixed` (name → reason) for the others, which stay at their a-priori values.
@@ -214,21 +233,7 @@ def screen(experiments, config):
     """
 
     result = identifiability(experiments, config, noise_from_data(config.fitted(experiments)))
-    fixed = {}
-    drifting = {n for g in result.structural.drift_groups for n in g}
-    for n, value, std in zip(result.free, result.values, result.crlb_std):
-        if n in drifting:
-            fixed[n] = "not identifiable from these data: in an exactly unidentifiable drift group"
-        elif value == 0:
-            fixed[n] = (
-                f"not identifiable from these data: analysed at 0, Cramér-Rao bound {std:.3g} "
-                "(no relative bound)"
-            )
-        elif n in result.uncertain:  # relative bound above UNCERTAIN
-            fixed[n] = (
-                f"not identifiable from these data: Cramér-Rao bound {100 * std / abs(value):.0f} % "
-                f"of its a-priori value (above {100 * UNCERTAIN:.0f} %)"
-            )
+    fixed = {n: f"not identifiable from these data: {why}" for n, why in unidentified(result).items()}
     free = tuple(n for n in config.free if n not in fixed)
     return replace(config, free=free), fixed
 

@@ -49,6 +49,12 @@ def _to_stdout(path: Path | None) -> Path | None:
     return None if path == STDOUT else path
 
 
+def _check_recording(path: Path | None) -> None:
+    """A Rerun recording is written to a file, never to standard output (`--rrd -`)."""
+    if path == STDOUT:
+        raise InputError("--rrd -: a recording is a file; expected a file name (.rrd)")
+
+
 def _emit(out: Path | None, text: str) -> None:
     """Say where the output went, or print it when it went nowhere else."""
     if out is None:
@@ -117,8 +123,7 @@ def _cmd_identify(args) -> int:
     from testbed.jobs import identify_data
 
     out = _to_stdout(args.out)
-    if args.rrd == STDOUT:
-        raise InputError("--rrd -: a recording is a file; expected a file name (.rrd)")
+    _check_recording(args.rrd)
     given = {"start": args.start, "max_iter": args.max_iter, "max_samples": args.max_samples}
     options = {k: v for k, v in given.items() if v is not None}
     live = sys.stderr.isatty() and lookup(args.method).iterative  # a progress line (ml-nm runs for minutes)
@@ -192,8 +197,7 @@ def _cmd_design(args) -> int:
 
     if args.out == STDOUT:
         raise InputError("--out -: the design is a scenario file; expected a file name (.toml)")
-    if args.rrd == STDOUT:
-        raise InputError("--rrd -: a recording is a file; expected a file name (.rrd)")
+    _check_recording(args.rrd)
     _quiet_mujoco()
     free = [n.strip() for n in args.free.split(",") if n.strip()] if args.free else None
     result = write_design(

@@ -49,7 +49,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from testbed.analysis import UNCERTAIN
+from testbed.analysis import identifiability, unidentified
 from testbed.autopilot import FIN_LIMIT, Autopilot, fly_linear
 from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
@@ -193,12 +193,17 @@ def fly_model(m: Model, e: ExperimentSpec, duration: float, seed: int = SEED, in
     return fly_linear(m.A, m.B, m.autopilot, program(s, e, seed, index), duration, x0, FIN_RATE)
 
 
+def experiment(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design") -> Experiment:
+    """A flight of `fly_model` as noise-free data: every state (u absolute) and the fin angles."""
+    y = xs.copy()
+    y[:, IX["u"]] += m.speed
+    return Experiment(name, t, STATES, y, fins)
+
+
 def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design") -> np.ndarray:
     """Fisher information of `m.config.free` from one noise-free experiment (initial states
     eliminated), with the sensor noise `m.noise_std`."""
-    y = xs.copy()
-    y[:, IX["u"]] += m.speed
-    e = Experiment(name, t, STATES, y, fins)
+    e = experiment(m, t, xs, fins, name)
     return linear.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
 
 
@@ -459,34 +464,27 @@ def split(cands: Mapping[str, Candidate], total: float, s: np.ndarray, kind: str
     return {n: d for n, d in zip(names, best) if d > 0}
 
 
-def scenario_information(m: Model, total: float, base: Scenario | str = "II") -> np.ndarray:
-    """Fisher information of Scenario II flown for `total` s (split evenly, as it is)."""
+def scenario_flights(m: Model, total: float, base: Scenario | str = "II") -> list[Experiment]:
+    """Scenario II flown by the design model for `total` s (split evenly, as it is)."""
     base = scenario(base)
     each = total / len(base.experiments)
+    return [experiment(m, *fly_model(m, e, each, SEED, k), e.name) for k, e in enumerate(base.experiments)]
+
+
+def scenario_information(m: Model, total: float, base: Scenario | str = "II") -> np.ndarray:
+    """Fisher information of Scenario II flown for `total` s."""
     F = 0.0
-    for k, e in enumerate(base.experiments):
-        t, xs, f = fly_model(m, e, each, SEED, k)
-        F = F + fisher(m, t, xs, f, e.name)
+    for e in scenario_flights(m, total, base):
+        F = F + linear.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
     return F
 
 
 def identified(m: Model, total: float) -> dict[str, str]:
-    """The free coefficients that Scenario II flown for `total` s leaves unidentified by the
-    rule `identify` screens with (`analysis.screen`), with the reason: analysed at 0 (no relative
-    bound), or a Cramér-Rao bound above UNCERTAIN of the value (∞ in a drift group). The design
-    leaves them out by default: they would dominate any criterion, and the regime's amplitudes
-    cannot bring them within reach."""
-    std = crlb(scenario_information(m, total)).std
-    fixed = {}
-    for n, sd in zip(m.config.free, std):
-        v = m.config.coefficients[n]
-        if v == 0:
-            fixed[n] = f"analysed at 0, Cramér-Rao bound {sd:.3g} (no relative bound)"
-        elif not sd / abs(v) <= UNCERTAIN:
-            fixed[n] = (
-                f"Cramér-Rao bound {100 * sd / abs(v):.0f} % of its value (above {100 * UNCERTAIN:.0f} %)"
-            )
-    return fixed
+    """The free coefficients that Scenario II flown for `total` s leaves unidentified, by the
+    rule `identify` screens with (`analysis.unidentified`), with the reason. The design leaves
+    them out by default: they would dominate any criterion, and the regime's amplitudes cannot
+    bring them within reach."""
+    return unidentified(identifiability(scenario_flights(m, total), m.config, m.noise_std))
 
 
 # -- the check on the truth plant --------------------------------------------------------------------------
@@ -561,11 +559,11 @@ class Design:
     linearity: Linearity | None
     shrinks: Mapping[str, int] = field(default_factory=dict)  # experiment -> amplitude reductions
     source: str = "analytic model"
-    growth: Mapping[str, float] = field(default_factory=dict)  # type -> factor over Scenario II's peaks
+    # type -> (factor grown over Scenario II's peaks, the hold's depth step in m or None)
+    growth: Mapping[str, tuple[float, float | None]] = field(default_factory=dict)
     peaks: Mapping[str, Mapping[str, float]] = field(default_factory=dict)  # experiment -> `peaks`
-    unidentified: Mapping[str, str] = field(default_factory=dict)  # left out of the design, and why
-    # experiment -> (t, states (N, 10; u absolute), fin angles (N, 3)) as the design model flies it
-    flights: Mapping[str, tuple] = field(default_factory=dict)
+    left_out: Mapping[str, str] = field(default_factory=dict)  # free coefficients not designed for, and why
+    flights: tuple[Experiment, ...] = ()  # the designed experiments as the design model flies them
 
     @property
     def duration(self) -> float:
@@ -584,22 +582,42 @@ class Design:
             out.append((self.free[k], float(r[k])))
         return tuple(out)
 
-    def table(self) -> str:
-        """Per coefficient: value, predicted bound and relative bound of the design and of
-        Scenario II at the same flight time, and their ratio."""
-        lines = [
-            f"{'coefficient':<12}{'value':>12}{'design σ':>11}{'design %':>10}{'II σ':>11}{'II %':>10}{'II/design':>10}"
+    COLUMNS = ("coefficient", "value", "design σ", "design %", "II σ", "II %", "II/design")
+
+    def rows(self) -> list[tuple[str, ...]]:
+        """Per coefficient, formatted (`COLUMNS`): value, predicted bound and relative bound (%)
+        of the design and of Scenario II at the same flight time, and their ratio."""
+        rel = 100 * self.relative(self.crlb), 100 * self.relative(self.crlb_base)
+        return [
+            (
+                n,
+                f"{v:.4g}",
+                f"{a:.3g}",
+                f"{ra:.3g}" if v else "-",
+                f"{b:.3g}",
+                f"{rb:.3g}" if v else "-",
+                f"{b / a:.2f}",
+            )
+            for n, v, a, b, ra, rb in zip(self.free, self.values, self.crlb, self.crlb_base, *rel)
         ]
-        for n, v, a, b in zip(self.free, self.values, self.crlb, self.crlb_base):
-            ra = f"{100 * a / abs(v):.3g}" if v else "-"
-            rb = f"{100 * b / abs(v):.3g}" if v else "-"
-            lines.append(f"{n:<12}{v:>12.4g}{a:>11.3g}{ra:>10}{b:>11.3g}{rb:>10}{b / a:>10.2f}")
+
+    def summary(self) -> str:
         (n1, w1), (n2, w2) = self.worst()
-        lines.append(
+        return (
             f"worst relative bound: design {100 * w1:.3g} % ({n1}), Scenario II {100 * w2:.3g} % ({n2}), "
             f"{self.duration:g} s each"
         )
-        return "\n".join(lines)
+
+    def table(self) -> str:
+        """`rows` under `COLUMNS`, fixed width, then the worst relative bounds."""
+        widths = (12, 12, 11, 10, 11, 10, 10)
+
+        def line(cells):  # the name left-aligned, the numbers right-aligned
+            return "".join(
+                f"{c:<{w}}" if k == 0 else f"{c:>{w}}" for k, (c, w) in enumerate(zip(cells, widths))
+            )
+
+        return "\n".join([line(self.COLUMNS), *map(line, self.rows()), self.summary()])
 
     def text(self) -> str:
         """The scenario file, its header comments giving how it was designed and the bounds."""
@@ -608,9 +626,9 @@ class Design:
             f"Designed experiment ({self.criterion}-optimal Fisher information of {len(self.free)} free "
             f"coefficients at the {self.source}), {self.duration:g} s of flight."
         ]
-        if self.unidentified:
+        if self.left_out:
             head += ["Left out (Scenario II at this flight time does not identify them; --free to choose):"]
-            head += [f"  {n}: {why}" for n, why in self.unidentified.items()]
+            head += [f"  {n}: {why}" for n, why in self.left_out.items()]
         head += [
             "Signal shapes ranked with their peaks at Scenario II's on the same model:",
             "  " + self.limits.table(),
@@ -619,11 +637,10 @@ class Design:
             head += [
                 "then grown on the truth plant to the largest amplitude that keeps the linear "
                 f"regime's rule with its tolerances x{GROWTH_MARGIN:g}: "
-                + ", ".join(f"{k} x{g:.2f}" for k, g in self.growth.items())
-                + "".join(
-                    f"; {e.name}'s hold steps the depth {2 * e.hold_depth.amplitude:g} m at mid-record"
-                    for e in self.scenario.experiments
-                    if e.hold_depth is not None and e.name in self.growth
+                + ", ".join(
+                    f"{k} x{g:.2f}"
+                    + ("" if h is None else f" (its hold steps the depth {h:g} m at mid-record)")
+                    for k, (g, h) in self.growth.items()
                 )
             ]
         head += ["Peaks on the design model:"]
@@ -686,11 +703,9 @@ def design(
         free = check_free(free, "free")
         config = replace(config, free=tuple(n for n in COEFFICIENTS if n in free))
     m = model(config, noise_std)
-    unidentified = {} if free is not None else identified(m, duration)
-    if unidentified:
-        m = replace(
-            m, config=replace(m.config, free=tuple(n for n in m.config.free if n not in unidentified))
-        )
+    left_out = {} if free is not None else identified(m, duration)
+    if left_out:
+        m = replace(m, config=replace(m.config, free=tuple(n for n in m.config.free if n not in left_out)))
     limits = regime_limits(m)
     s = scales(m.config)
     cands = best_signals(m, limits, criterion_, mjcf=mjcf, check=check)
@@ -736,12 +751,12 @@ def design(
             )
         if any(not check_result.passed(e.name) for e in scn.experiments):
             raise InputError(f"no design inside the linear regime: {check_result.table()}")
-    F, flown_peaks, flights = 0.0, {}, {}
+    F, flown_peaks, flights = 0.0, {}, []
     for k, e in enumerate(scn.experiments):
         t, xs, f = fly_model(m, e, scn.duration_of(e), SEED, k)
         F = F + fisher(m, t, xs, f, e.name)
         flown_peaks[e.name] = peaks(xs, f, m.speed, 1.0 / m.control_rate)
-        flights[e.name] = (t, xs + m.speed * (np.arange(NX) == IX["u"]), f)
+        flights.append(experiment(m, t, xs, f, e.name))
     base = scenario_information(m, duration)
     return Design(
         scenario=scn,
@@ -754,10 +769,10 @@ def design(
         linearity=check_result,
         shrinks=shrinks,
         source=source,
-        growth={k: c.growth for k, c in cands.items() if k in durations},
+        growth={k: (c.growth, c.hold) for k, c in cands.items() if k in durations},
         peaks=flown_peaks,
-        unidentified=unidentified,
-        flights=flights,
+        left_out=left_out,
+        flights=tuple(flights),
     )
 
 
@@ -785,17 +800,9 @@ def log_design(path: str | Path, d: Design) -> Path:
             )
             rec.log(f"/bounds/{label}", bars, static=True)
         table = "\n".join(
-            [
-                "| # | coefficient | value | design σ | design % | II σ | II % | II/design |",
-                "|---|---|---|---|---|---|---|---|",
-            ]
-            + [
-                f"| {i} | {n} | {v:.4g} | {a:.3g} | {100 * a / abs(v):.3g} | {b:.3g} | {100 * b / abs(v):.3g} | {b / a:.2f} |"
-                if v
-                else f"| {i} | {n} | 0 | {a:.3g} | - | {b:.3g} | - | {b / a:.2f} |"
-                for i, (n, v, a, b) in enumerate(zip(d.free, d.values, d.crlb, d.crlb_base))
-            ]
-            + ["", d.table().splitlines()[-1]]
+            [f"| # | {' | '.join(d.COLUMNS)} |", "|---" * (len(d.COLUMNS) + 1) + "|"]
+            + [f"| {i} | {' | '.join(row)} |" for i, row in enumerate(d.rows())]
+            + ["", d.summary()]
         )
         rec.log("/bounds/table", rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN), static=True)
         rec.log("/key/bounds", rr.TextDocument(BOUNDS_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
@@ -814,8 +821,12 @@ def log_design(path: str | Path, d: Design) -> Path:
             )
         )
         rec.log("/key/flights", rr.TextDocument(FLIGHTS_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
-        for name, (t, xs, fins) in d.flights.items():
-            columns = {**{c: fins[:, j] for j, c in enumerate(INPUTS)}, **{c: xs[:, IX[c]] for c in STATES}}
+        for e in d.flights:
+            name, t = e.name, e.t
+            columns = {
+                **{c: e.inputs[:, j] for j, c in enumerate(INPUTS)},
+                **{c: e.column(c) for c in STATES},
+            }
             panels = []
             for c, v in columns.items():
                 if np.ptp(v) < MOVED:

@@ -105,10 +105,15 @@ CLIP_ITERATIONS = 200  # of the crest-factor minimisation
 CLIP = 0.9  # the level it clips at, as a fraction of the current peak
 
 
+def peak_span(frequencies: np.ndarray) -> float:
+    """How long a multisine's peak is measured over: 20 periods of its lowest frequency, at
+    most 200 s."""
+    return min(20.0 / frequencies.min(), 200.0)
+
+
 def peak_window(frequencies: np.ndarray) -> np.ndarray:
-    """The times a multisine's peak is measured over: 20 periods of its lowest frequency (at
-    most 200 s) on a fine grid."""
-    return np.linspace(0.0, min(20.0 / frequencies.min(), 200.0), PEAK_SAMPLES)
+    """The times a multisine's peak is measured at: `peak_span` on a fine grid."""
+    return np.linspace(0.0, peak_span(frequencies), PEAK_SAMPLES)
 
 
 def multisine_peak(frequencies: np.ndarray, phases: np.ndarray) -> float:
@@ -128,7 +133,7 @@ def min_crest_phases(frequencies: tuple) -> tuple:
     if len(f) == 1:
         return (0.0,)
     # the search grid: 16 samples per period of the highest line over the peak window
-    span = peak_window(f)[-1]
+    span = peak_span(f)
     t = np.linspace(0.0, span, int(min(PEAK_SAMPLES, 16 * f.max() * span + 1)))
     arg = 2 * np.pi * np.outer(t, f)
     # Σ a_k cos(arg_k + φ_k) = Σ (a_k cos φ_k) cos arg_k − (a_k sin φ_k) sin arg_k
