@@ -153,7 +153,7 @@ def _cmd_identify(args) -> int:
         print(file=sys.stderr)  # end the progress line
     if estimate.start_reason:
         print(
-            f"testbed identify: started from the {estimate.start} estimate: {estimate.start_reason}",
+            f"testbed identify: kept the fit from the {estimate.start} start, {estimate.start_reason}",
             file=sys.stderr,
         )
     if done.comparison is not None:
@@ -301,7 +301,7 @@ def parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("identify", help="estimate the free coefficients from data")
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
-    s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-nr, ml-nm, mekf, ekf")
+    s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-lm, ml-nr, ml-nm, mekf, ekf")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument(
         "--out",
@@ -313,8 +313,10 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--start",
         default=None,
-        help="ml-* only: auto (default: the better-fitting of the a-priori values and the "
-        "equation-error estimate, then the other), config, equation-error or mekf",
+        help="ml-* only: auto (default: from the a-priori values and the equation-error "
+        "estimate, and the MEKF's if those end apart; the least cost is kept), config, "
+        "equation-error, mekf, or global (auto's starts and the best of many drawn around "
+        "the a-priori values)",
     )
     s.add_argument("--max-iter", type=int, default=None, help="iteration limit (ml-* methods)")
     s.add_argument("--max-samples", type=int, default=None, help="stop after this many samples (mekf, ekf)")

@@ -624,6 +624,51 @@ def gauss_newton_terms(
     return g, M
 
 
+def segmented(prob: Problem, count: int, least: int) -> Problem:
+    """`prob` with each record cut into `count` consecutive segments of (nearly) equal length,
+    each a record of its own with its own initial state: output error on segments, the multiple
+    shooting of boundary-value problems with the continuity between segments relaxed.
+
+    A segment has at least `least` samples (a shorter record keeps fewer segments, at least one).
+    Over a segment of length T a model's error grows by at most e^(aT) for its least stable
+    rate a, where over the whole record it grows by e^(a·T_record): short segments keep the cost
+    of an unstable or poor model's error bounded. The unmeasured components of each segment's
+    initial state stay at trim, as for a whole record.
+    """
+    records, offset = [], prob.n_free
+    for r in prob.records:
+        n = len(r.y)
+        pieces = max(1, min(count, n // max(least, 1)))
+        edges = np.linspace(0, n, pieces + 1).round().astype(int)
+        for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+            name = r.name if pieces == 1 else f"{r.name}[{j}]"
+            records.append(Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset))
+            offset += len(r.measured)
+    return Problem(
+        prob.structure,
+        prob.theta,
+        prob.free,
+        prob.index,
+        tuple(records),
+        prob.channels,
+        prob.speed,
+        prob.source,
+    )
+
+
+def reduced(M: np.ndarray, g: np.ndarray, nf: int) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations of the first `nf` parameters with the others (the initial states)
+    solved for: the Schur complement `F = M_θθ − M_θx M_xx⁻¹ M_xθ` and `g_θ − M_θx M_xx⁻¹ g_x`,
+    the Gauss-Newton model of the cost as a function of θ alone (variable projection)."""
+    Mxx, Mtx = M[nf:, nf:], M[:nf, nf:]
+    if Mxx.size:
+        K = np.linalg.lstsq(Mxx, np.column_stack([Mtx.T, g[nf:]]), rcond=None)[0]
+        F, gr = M[:nf, :nf] - Mtx @ K[:, :nf], g[:nf] - Mtx @ K[:, nf]
+    else:
+        F, gr = M[:nf, :nf].copy(), g[:nf].copy()
+    return (F + F.T) / 2, gr
+
+
 def fit_initial_states(
     prob: Problem, values: np.ndarray, R: np.ndarray | None = None
 ) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -641,15 +686,27 @@ def fit_initial_states(
     grams = []  # per record and channel c: Σ GᵀG (k, k, k), Σ Gᵀv (k, k), Σ v² (k,); v = y − y_forced
     for r in prob.records:
         d, k = models[r.dt], len(r.measured)
-        X = np.zeros((NX, 1 + k))  # column 0: the forced response; then one per x0 component
-        X[r.measured, 1 + np.arange(k)] = 1.0
         Q, b, ss = np.zeros((k, k, k)), np.zeros((k, k)), np.zeros(k)
         u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
-        for samples, Y in _pieces(d.E[:, :NX], d.E[:, NX:], u1, X, r.measured, np.ones(k), PIECE):
-            G, v = Y[:, :, 1:], r.y[samples].T - Y[:, :, 0]  # channel first
-            Q += G.transpose(0, 2, 1) @ G
-            b += (G.transpose(0, 2, 1) @ v[:, :, None])[:, :, 0]
-            ss += np.sum(v**2, axis=1)
+        Phi, forcing = d.E[:, :NX], d.E[:, NX:]
+        # columns: 0 the forced response, 1 + i the response to x0's i-th measured component;
+        # each part of the model that evolves on its own (`_uncoupled`) is propagated alone
+        acts = np.column_stack([forcing.any(axis=1), np.eye(NX, dtype=bool)[:, r.measured]])
+        for states, params, channels in _uncoupled(Phi != 0, acts, r.measured):
+            params = np.union1d([0], params)  # a part the inputs do not force has a zero column 0
+            at = np.full(NX, -1)
+            at[states] = np.arange(len(states))
+            x0 = params[1:] - 1  # the x0 components of this part, indexes into r.measured
+            X = np.zeros((len(states), len(params)))
+            X[at[r.measured[x0]], 1 + np.arange(len(x0))] = 1.0
+            rows = at[r.measured[channels]]
+            for samples, Y in _pieces(
+                Phi[np.ix_(states, states)], forcing[states], u1, X, rows, np.ones(len(rows)), PIECE
+            ):
+                G, v = Y[:, :, 1:], r.y[np.ix_(samples, channels)].T - Y[:, :, 0]  # channel first
+                Q[np.ix_(channels, x0, x0)] += G.transpose(0, 2, 1) @ G
+                b[np.ix_(channels, x0)] += (G.transpose(0, 2, 1) @ v[:, :, None])[:, :, 0]
+                ss[channels] += np.sum(v**2, axis=1)
         grams.append((Q, b, ss))
 
     def solve(variance) -> list[np.ndarray]:
@@ -659,13 +716,15 @@ def fit_initial_states(
             k = len(r.measured)
             wt = 1.0 / variance(r)
             # normal equations: k ≤ 10 unknowns pinned by the first samples, so squaring the
-            # condition number is harmless; scaled to a largest entry of 1, as LAPACK's norms
-            # overflow beyond ~1e154
+            # condition number is harmless; scaled to a unit diagonal (Jacobi), so that each
+            # component counts whatever its units and weights, and LAPACK's norms do not
+            # overflow (beyond ~1e154)
             with np.errstate(over="ignore", invalid="ignore"):
                 N, rhs = np.tensordot(wt, Q, 1), wt @ b
-                big = float(np.max(np.abs(N)))
-            if all(np.all(np.isfinite(a)) for a in (N, rhs, ss)) and big > 0:
-                x0 = np.linalg.lstsq(N / big, rhs / big, rcond=None)[0]
+                D = np.sqrt(np.abs(np.diag(N)))
+                D = np.where(D > 0, D, 1.0)
+            if all(np.all(np.isfinite(a)) for a in (N, rhs, ss, D)):
+                x0 = np.linalg.lstsq(N / np.outer(D, D), rhs / D, rcond=None)[0] / D
                 sums.append(np.maximum(ss - 2 * b @ x0 + np.einsum("j,cjl,l->c", x0, Q, x0), 0.0))
             else:
                 x0 = r.y[0]
@@ -890,7 +949,7 @@ def assess(
     return Information(
         prob.free,
         p[:nf].copy(),
-        _eliminated(M, nf),
+        reduced(M, np.zeros(len(M)), nf)[0],
         std[:nf],
         corr[:nf, :nf],
         np.where(np.isinf(std[:nf]), np.inf, np.sqrt(np.maximum(np.diag(corrected), 0.0))),
@@ -899,13 +958,6 @@ def assess(
         negative_log_likelihood(prob, res),
         p.copy(),
     )
-
-
-def _eliminated(M: np.ndarray, nf: int) -> np.ndarray:
-    """The information about the first `nf` parameters with the others (the initial states)
-    estimated too: the Schur complement `M_θθ − M_θx M_xx⁻¹ M_xθ`."""
-    F = M[:nf, :nf] - M[:nf, nf:] @ np.linalg.solve(M[nf:, nf:], M[nf:, :nf])
-    return (F + F.T) / 2
 
 
 def _values(prob: Problem, values) -> np.ndarray:
@@ -965,7 +1017,7 @@ def fisher(
     xs = states(prob, p)
     res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
     M = gauss_newton_terms(prob, p, xs, res, noise_variance(prob, res) if R is None else R)[1]
-    return _eliminated(M, prob.n_free)
+    return reduced(M, np.zeros(len(M)), prob.n_free)[0]
 
 
 def _analysed(experiments, config, values, noise_std) -> tuple[Problem, np.ndarray, np.ndarray | None]:
