@@ -2,8 +2,6 @@
 against scipy's constrained minimiser, its Hessian against finite differences of the cost, its
 multiple-shooting segments against the whole record."""
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 from scipy.optimize import NonlinearConstraint, minimize
@@ -48,14 +46,15 @@ def test_hessian_is_the_second_derivative_of_the_cost_with_the_initial_states_fi
     config = truth_config(VERTICAL)
     prob = linear.problem(data, config)
     theta = prob.start * 1.05  # off the optimum, where the second-order terms count
-    R = trust_region.point(prob, prob.start, None).R
+    R = trust_region.point(prob, prob.start).R
 
     def cost(th):
         p, out = linear.fit_initial_states(prob, th, R)
         return linear.weighted_cost(prob, [r.y - y for r, y in zip(prob.records, out)], R)
 
-    at = trust_region.point(prob, theta, R)
-    at = replace(at, R=R)
+    p, out = linear.fit_initial_states(prob, theta, R)
+    res = [r.y - y for r, y in zip(prob.records, out)]
+    at = trust_region.Point(p, res, R, linear.negative_log_likelihood(prob, res))
     H = trust_region.hessian(prob, at)
     h = 1e-4 * np.abs(theta)
     fd = np.empty_like(H)
@@ -81,7 +80,7 @@ def test_segments_cover_the_record_each_with_its_own_initial_state():
         np.testing.assert_array_equal(np.vstack([q.inputs for q in pieces]), r.inputs)
     assert seg.n_params == prob.n_free + sum(len(r.measured) for r in seg.records)
     # noise-free data at the truth: every segment's initial state is fitted exactly
-    for e in trust_region.point(seg, prob.start, None).res:
+    for e in trust_region.point(seg, prob.start).res:
         assert np.max(np.abs(e)) < 1e-8
 
 
@@ -91,7 +90,7 @@ def test_a_stationary_point_is_checked_for_a_minimum():
     est = identify(data, config, method="ml-gn", start="config")
     assert est.converged
     prob = linear.problem(data, config)
-    at = trust_region.point(prob, est.values, None)
+    at = trust_region.point(prob, est.values)
     assert trust_region.second_order(prob, at, np.abs(est.values)) is None
     H = trust_region.hessian(prob, at)
     assert np.all(np.linalg.eigvalsh(H) > 0)

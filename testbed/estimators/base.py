@@ -133,8 +133,8 @@ class Outcome:
     iterations: int
     history: np.ndarray  # (iterations + 1, n_free)
     fisher: np.ndarray | None = None  # M at p, when the optimiser has it (saves `assess` a pass)
-    path: tuple = ()  # (stage, θ, σ) at the end of each continuation stage, for `follow`
-    joined: int = -1  # which of the earlier fits it followed it joined on the way (-1: none)
+    optimum: tuple = ()  # (θ, σ) where it converged, for later fits to recognise (`follow`)
+    joined: int = -1  # which earlier optimum's basin it entered and stopped in (-1: none)
 
 
 @dataclass(frozen=True)

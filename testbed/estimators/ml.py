@@ -443,7 +443,7 @@ def _fit(
         J0 = _cost(prob, p0)
         more = {}
         if optimiser is trust_region.trust_region:
-            more = {"follow": tuple(f.outcome.path for f in earlier)}
+            more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
         elif not np.isfinite(J0):
             # only the multiple-shooting optimiser can start from a model that diverges over the
             # whole record (an unstable a-priori model): on short segments it does not
@@ -455,8 +455,8 @@ def _fit(
 
         out = optimiser(prob, p0, callback=report if callback else None, **tuning, **more)
         if out.joined >= 0:  # on an earlier fit's path: it ends where that one did
-            twin = earlier[out.joined]
-            out = replace(twin.outcome, iterations=out.iterations, history=out.history, path=(), joined=-1)
+            twin = [f for f in earlier if f.outcome.optimum][out.joined]
+            out = replace(twin.outcome, iterations=out.iterations, history=out.history, optimum=(), joined=-1)
             return Fit(label, out, twin.cost, J0, twin.start)
         J = _cost(prob, out.p)
         if J > J0 + 1e-9 * abs(J0) and out.status is not Status.DIVERGED:

@@ -12,14 +12,19 @@ projection, Golub & Pereyra).
   exactly through the eigenvectors of `D⁻¹FD⁻¹`). `D = diag(1/s)` with `s_i` the larger of the
   coefficient's a-priori magnitude and its Cramér-Rao bound there: Δ = 1 lets every coefficient
   move by its own size (or, a-priori 0, by one standard error), whatever its units.
-- Acceptance on the true likelihood: `ρ = (J(θ) − J(θ + d)) / (m(0) − m(d))`, J recomputed with
-  the noise re-estimated at θ + d; the step is taken when ρ > `ACCEPT`, and Δ shrinks (ρ < ¼)
-  or grows (ρ > ¾ at the boundary) as in every trust-region method (Nocedal & Wright, Alg. 4.1).
-- Multiple shooting: from a poor start the whole record's output error is far from quadratic
-  (an unstable or wrong model's error grows along the record, and the heading integrates it), so
-  the method first fits the records cut into `segments` pieces, each with its own initial state
-  (`linear.segmented`), then halves the count stage by stage to the whole record. Each stage
-  starts from the one before; only the last, on the whole record, decides convergence.
+- Acceptance: `ρ = (W(θ) − W(θ + d)) / (m(0) − m(d))`, W the weighted cost `½ Σ eᵀR⁻¹e` with R
+  held at its estimate at θ and the trial's initial states fitted with it; the step is taken
+  when ρ > `ACCEPT`, and Δ shrinks (ρ < ¼) or grows (ρ > ¾ at the boundary) as in every
+  trust-region method (Nocedal & Wright, Alg. 4.1). Then R is re-estimated at θ + d. Every step
+  taken lowers the likelihood itself: W falls at the old R, and R̂ lowers it further.
+- Multiple shooting, where the fit on the whole record fails: from a poor start the whole
+  record's output error is far from quadratic (an unstable or wrong model's error grows along the
+  record, and the heading integrates it), so the method fits the records cut into `segments`
+  pieces, each with its own initial state (`linear.segmented`), then `SHRINK` times fewer stage
+  by stage to the whole record, each stage from the one before; only the last decides
+  convergence. Not first: with the continuity between segments relaxed, a model that is not
+  the data's (real data) has another optimum on segments than on the whole record, and the
+  whole record's fit from there can end in another basin than from the start.
 - Converged: the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (`√(g_rᵀF⁻¹g_r)`), and the
   point passes the second-order check: the Hessian of the cost (second-order sensitivities
   included, `linear.curvature`, the initial states eliminated) has no negative eigenvalue. A
@@ -29,7 +34,7 @@ projection, Golub & Pereyra).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -49,9 +54,10 @@ __all__ = [
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
+DIRECT = 30  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
 SHRINK = 4  # each multiple-shooting stage has this many times fewer segments than the one before
-JOIN = 0.5  # two fits whose stage ends are within this many Cramér-Rao σ are on one path
+JOIN = 0.5  # a fit within this many Cramér-Rao σ of an earlier optimum is in its basin
 MIN_RADIUS = 1e-3  # the trust radius a stage hands on, at least (scaled units)
 NEGATIVE = 1e-8  # an eigenvalue of the scaled Hessian below −NEGATIVE × its largest is negative curvature
 
@@ -66,9 +72,10 @@ class Point:
     J: float
 
 
-def point(prob: linear.Problem, theta: np.ndarray, R: np.ndarray | None) -> Point | None:
-    """The point at θ, the initial states fitted with the noise variance `R` (None: from the
-    data, then the residuals); None where the model is invalid there (singular Mt, diverging)."""
+def point(prob: linear.Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Point | None:
+    """The point at θ: the initial states fitted with the noise variance `R` (None: R and they
+    at their maximum likelihood, `linear.fit_initial_states`), R re-estimated from the residuals;
+    None where the model is invalid there (singular Mt, diverging)."""
     if not np.all(np.isfinite(theta)):
         return None
     try:
@@ -160,17 +167,30 @@ class Descent:
     status: Status
     iterations: int
     delta: float
-    fisher: np.ndarray  # M at the point (the full parameter vector's), with its R
+    fisher: np.ndarray | None  # M at the point (the full parameter vector's), with its R
+    joined: int = -1  # the earlier optimum (of `follow`) whose basin it entered; -1: none
 
 
 def _descend(
-    prob: linear.Problem, start: Point, s: np.ndarray, delta: float, tol: float, max_iter: int, report
+    prob: linear.Problem,
+    start: Point,
+    s: np.ndarray,
+    delta: float,
+    tol: float,
+    max_iter: int,
+    report,
+    follow: tuple = (),
 ) -> Descent:
     """Trust-region steps on one stage's problem from `start` until the Gauss-Newton step is
-    shorter than `tol` Cramér-Rao σ (CONVERGED), `max_iter` steps (MAX_ITERATIONS), or the
-    region shrinks to nothing (STALLED)."""
+    shorter than `tol` Cramér-Rao σ (CONVERGED), `max_iter` steps (MAX_ITERATIONS), the region
+    shrinks to nothing (STALLED), or a step lands within `JOIN` Cramér-Rao σ of one of the
+    optima `follow` ((θ, σ) of earlier fits on the same problem): inside its quadratic basin,
+    bound for the same point."""
     nf, x, it = prob.n_free, start, 0
     while True:
+        for i, (theta, std) in enumerate(follow):
+            if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
+                return Descent(x, Status.CONVERGED, it, delta, None, joined=i)
         g, M = linear.gauss_newton_terms(prob, x.p, linear.states(prob, x.p), x.res, x.R)
         F, gr = linear.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
@@ -181,8 +201,17 @@ def _descend(
         while True:
             d, predicted = subproblem(F, gr, s, delta)
             trial = point(prob, x.p[:nf] + d, x.R)
-            # ρ = actual / predicted decrease of the likelihood
-            rho = (x.J - trial.J) / predicted if trial is not None and predicted > 0 else -np.inf
+            # ρ = actual / predicted decrease of the weighted cost with R held at its estimate at
+            # x, the trial's initial states fitted with that R: a smooth function of the step
+            # (the likelihood relaxed in R and x0 at every trial need not be: their alternation
+            # can stall short of its fixed point). A decrease there is one of the likelihood
+            # too, which the trial's own R̂ lowers further (½ Σ N_c ln R̂_c ≤ ½ Σ eᵀR⁻¹e + const)
+            rho = (
+                (linear.weighted_cost(prob, x.res, x.R) - linear.weighted_cost(prob, trial.res, x.R))
+                / predicted
+                if trial is not None and predicted > 0
+                else -np.inf
+            )
             size = np.linalg.norm(d / s)
             if rho < 0.25:
                 delta = 0.25 * size
@@ -208,13 +237,14 @@ def trust_region(
     follow: tuple = (),
 ) -> Outcome:
     """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
-    are fitted): multiple-shooting stages of `segments`, `segments`/`SHRINK`, … pieces per
-    record, then the whole record, each by trust-region steps (`_descend`) from a region of
-    `radius` × √n_free, and the second-order check at the end, leaving at most `escapes` saddles.
+    are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
+    scaled coordinates, with the second-order check at the end (leaving at most `escapes`
+    saddles). Where that fails (no convergence in `DIRECT` iterations, or the model diverges over
+    the whole record from `p`), multiple shooting from `p` again: stages of `segments`, `segments`/`SHRINK`, … pieces
+    per record, then the whole record; the better of the two is the result.
 
-    `follow`: earlier fits' `Outcome.path`s on the same problem. Where this fit's stage ends
-    within `JOIN` Cramér-Rao σ of an earlier fit's end of the same stage, both continue from the
-    same point to the same optimum: this one stops there (`Outcome.joined`: which earlier fit)."""
+    `follow`: earlier fits' optima `(θ, σ)` on the same problem (`Outcome.optimum`); a fit that
+    steps into one's basin stops there (`Outcome.joined`: which one)."""
     nf = prob.n_free
     history: list[np.ndarray] = [p[:nf].copy()]
 
@@ -231,41 +261,62 @@ def trust_region(
         ):
             stages.append(stage)
         n //= SHRINK
-    theta, s, delta, path = p[:nf].copy(), None, radius, []
-    for k, stage in enumerate(stages + [prob]):
-        x = point(stage, theta, None)
+    outs = [
+        _stages(
+            prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
+        )
+    ]
+    if outs[0].status is not Status.CONVERGED and stages:
+        left = max_iter - (len(history) - 1)
+        outs.append(_stages(prob, stages, p, left, tol, radius, escapes, follow, report))
+    out = min(outs, key=lambda d: (d.status is not Status.CONVERGED, d.point.J if d.point else np.inf))
+    if out.point is None:
+        return Outcome(p, Status.DIVERGED, len(history) - 1, np.array(history))
+    optimum = ()
+    if out.status is Status.CONVERGED and out.fisher is not None:
+        optimum = (
+            out.point.p[:nf].copy(),
+            linear.crlb(linear.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]).std,
+        )
+    return Outcome(
+        out.point.p, out.status, len(history) - 1, np.array(history), out.fisher, optimum, out.joined
+    )
+
+
+def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> Descent:
+    """`_descend` on each of `stages` (multiple-shooting problems) in turn and then on `prob`,
+    each from the one before's θ; the second-order check on `prob`'s optimum. The descent on
+    `prob` (point None where the model diverges on it)."""
+    nf = prob.n_free
+    theta, s, delta, used = p[:nf].copy(), None, None, 0
+    for stage in stages + [prob]:
+        x = point(stage, theta)
         if x is None:  # the model diverges on this stage from the last one's θ
             if stage is prob:
-                return Outcome(p, Status.DIVERGED, len(history) - 1, np.array(history))
+                return Descent(None, Status.DIVERGED, used, 0.0, None)
             continue
         if s is None:
             g, M = linear.gauss_newton_terms(stage, x.p, linear.states(stage, x.p), x.res, x.R)
-            s = _scale(prob.start, theta, linear.reduced(M, g, nf)[0])
-            delta = radius * np.sqrt(nf)
-        tol_stage = tol if stage is prob else max(tol, STAGE_TOL)
-        out = _descend(stage, x, s, delta, tol_stage, max_iter - (len(history) - 1), report)
-        for _ in range(escapes + 1 if stage is prob else 0):
-            if out.status is not Status.CONVERGED:
+            s, delta = _scale(prob.start, theta, linear.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
+        final = stage is prob
+        tol_stage = tol if final else max(tol, STAGE_TOL)
+        out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow if final else ())
+        used += out.iterations
+        for k in range(escapes + 1 if final else 0):
+            if out.status is not Status.CONVERGED or out.joined >= 0:
                 break
             v = second_order(stage, out.point, s, out.fisher)
             if v is None:
                 break
-            moved = _leave_saddle(stage, out.point, v, out.delta) if _ < escapes else None
+            moved = _leave_saddle(stage, out.point, v, out.delta) if k < escapes else None
             if moved is None:
-                out = Descent(out.point, Status.SADDLE, out.iterations, out.delta, out.fisher)
+                out = replace(out, status=Status.SADDLE)
                 break
             report(moved)
-            out = _descend(stage, moved, s, out.delta, tol_stage, max_iter - (len(history) - 1), report)
+            out = _descend(stage, moved, s, out.delta, tol_stage, max_iter - used, report, follow)
+            used += out.iterations
         theta, delta = out.point.p[:nf].copy(), max(out.delta, MIN_RADIUS)
-        if stage is not prob:
-            std = linear.crlb(linear.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]).std
-            path.append((k, theta, std))
-            for i, earlier in enumerate(follow):
-                if out.status is Status.CONVERGED and any(
-                    j == k and np.all(np.abs(theta - t) <= JOIN * sd) for j, t, sd in earlier
-                ):
-                    return Outcome(out.point.p, out.status, len(history) - 1, np.array(history), joined=i)
-    return Outcome(out.point.p, out.status, len(history) - 1, np.array(history), out.fisher, tuple(path))
+    return out
 
 
 def _leave_saddle(prob: linear.Problem, x: Point, v: np.ndarray, delta: float) -> Point | None:
