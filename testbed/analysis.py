@@ -229,10 +229,12 @@ def screen(experiments, config):
     when its Cramér-Rao bound is above `UNCERTAIN` (50 %) of its a-priori value (or it is
     analysed at 0): then the data hardly excite it, and freeing it only lets it absorb the
     noise and the linear model's own bias (`identify` with every coefficient free is
-    `--free-all` on the command line).
+    `--free-all` on the command line). The config's `noise_std` is the noise where it gives it.
     """
 
-    result = identifiability(experiments, config, noise_from_data(config.fitted(experiments)))
+    result = identifiability(
+        experiments, config, noise_from_data(config.fitted(experiments), config.noise_std)
+    )
     fixed = {n: f"not identifiable from these data: {why}" for n, why in unidentified(result).items()}
     free = tuple(n for n in config.free if n not in fixed)
     return replace(config, free=free), fixed

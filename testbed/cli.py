@@ -44,6 +44,29 @@ def _seed(text: str) -> int:
     return v
 
 
+def _noise_std(text: str) -> dict[str, float]:
+    """`--noise-std r=0.002,psi=0.01`: state → σ (SI), checked (`data.check_noise_std`)."""
+    from testbed.data import check_noise_std
+
+    values = {}
+    for pair in filter(None, (p.strip() for p in text.split(","))):
+        name, eq, value = (part.strip() for part in pair.partition("="))
+        if not eq:
+            raise argparse.ArgumentTypeError(f"{pair!r}: expected state=σ pairs, e.g. r=0.002,psi=0.01")
+        if name in values:
+            raise argparse.ArgumentTypeError(f"{text!r} gives {name} twice")
+        try:
+            values[name] = float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{pair!r}: {value!r} is not a number") from None
+    if not values:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected state=σ pairs, e.g. r=0.002,psi=0.01")
+    try:
+        return check_noise_std(values, repr(text))
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _to_stdout(path: Path | None) -> Path | None:
     """None (standard output) for `--out -`, else the path."""
     return None if path == STDOUT else path
@@ -146,6 +169,7 @@ def _cmd_identify(args) -> int:
         perturb=args.perturb,
         seed=args.seed,
         free_all=args.free_all,
+        noise_std=args.noise_std,
         progress=progress if live else None,
     )
     estimate = done.estimate
@@ -175,7 +199,7 @@ def _cmd_analyze(args) -> int:
     from testbed.jobs import analyze_data
 
     out = _to_stdout(args.out)
-    result = analyze_data(args.data, config=args.config, out=out)
+    result = analyze_data(args.data, config=args.config, out=out, noise_std=args.noise_std)
     _emit(out, result.to_json())
     for line in result.summary:
         print(line, file=sys.stderr)
@@ -268,6 +292,10 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
+NOISE_STD_HELP = (
+    "the sensors' noise σ per state, SI, e.g. r=0.002,psi=0.01 (for data whose noise cannot be "
+    "read off them: low-pass filtered); replaces the config's [identify] noise_std entry by entry"
+)
 BUILTIN_SCENARIOS = ("I", "II", "turn", "zigzag", "zigzag-vertical")  # testbed/scenarios/*.toml
 
 
@@ -335,12 +363,14 @@ def parser() -> argparse.ArgumentParser:
         help="estimate every coefficient of [identify] free (default: those the data "
         "identify; the others stay at their a-priori values, see `analyze`)",
     )
+    s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
     s.set_defaults(func=_cmd_identify)
 
     s = sub.add_parser("analyze", help="identifiability: Fisher information, CRLB, drift groups")
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument("--out", type=Path, help="identifiability JSON (default or -: stdout)")
+    s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
     s.set_defaults(func=_cmd_analyze)
 
     s = sub.add_parser(
