@@ -35,7 +35,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from statistics import NormalDist
 from typing import Iterator, Mapping, NamedTuple, Sequence
 
@@ -93,6 +93,7 @@ class Problem:
     channels: tuple[str, ...]  # the measured states of all experiments, STATES order
     speed: float
     source: str
+    known: np.ndarray | None = None  # (len(channels),) R where [identify] noise_std gives it, else NaN
 
     @property
     def n_free(self) -> int:
@@ -214,6 +215,7 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
         channels,
         config.vehicle.speed,
         where,
+        np.array([(config.noise_std or {}).get(c, np.nan) ** 2 for c in channels]),
     )
 
 
@@ -561,14 +563,16 @@ def noise_variance(prob: Problem, res: Sequence[np.ndarray]) -> np.ndarray:
 def _pooled_variance(prob: Problem, sums: Sequence[np.ndarray]) -> np.ndarray:
     """R from each experiment's residual sums of squares per measured channel (`noise_variance`).
 
-    Floored far below any real sensor noise so that a noise-free fit stays finite.
+    Floored far below any real sensor noise so that a noise-free fit stays finite; the channels
+    whose noise the config gives (`[identify] noise_std`) keep it.
     """
     ss, n, scale = np.zeros(len(prob.channels)), np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
     for r, e2 in zip(prob.records, sums):  # a record's channels are distinct
         ss[r.channels] += e2
         n[r.channels] += len(r.y)
         scale[r.channels] += np.sum(r.y**2, axis=0)
-    return np.maximum(ss / n, 1e-14 * scale / n + 1e-30)
+    R = np.maximum(ss / n, 1e-14 * scale / n + 1e-30)
+    return R if prob.known is None else np.where(np.isnan(prob.known), R, prob.known)
 
 
 def weighted_cost(prob: Problem, res: Sequence[np.ndarray], R: np.ndarray) -> float:
@@ -577,12 +581,14 @@ def weighted_cost(prob: Problem, res: Sequence[np.ndarray], R: np.ndarray) -> fl
 
 
 def negative_log_likelihood(prob: Problem, res: Sequence[np.ndarray]) -> float:
-    """−ln p(Z|θ, R̂) with R̂ the ML noise variance: ½ Σ_c N_c (ln 2π R̂_c + 1)."""
+    """−ln p(Z|θ, R) = ½ Σ_c (N_c ln 2π R_c + S_c/R_c), S_c channel c's residual sum of squares,
+    R_c the ML noise variance S_c/N_c (then ½ Σ_c N_c (ln 2π R_c + 1)) or the config's."""
     R = noise_variance(prob, res)
-    n = np.zeros(len(prob.channels))
-    for r in prob.records:
+    n, S = np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
+    for r, e in zip(prob.records, res):
         n[r.channels] += len(r.y)
-    return float(0.5 * np.sum(n * (np.log(2 * np.pi * R) + 1)))
+        S[r.channels] += np.sum(e**2, axis=0)
+    return float(0.5 * np.sum(n * np.log(2 * np.pi * R) + S / R))
 
 
 def exploded(prob: Problem, outs: Sequence[np.ndarray]) -> str | None:
@@ -645,16 +651,7 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
             name = r.name if pieces == 1 else f"{r.name}[{j}]"
             records.append(Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset))
             offset += len(r.measured)
-    return Problem(
-        prob.structure,
-        prob.theta,
-        prob.free,
-        prob.index,
-        tuple(records),
-        prob.channels,
-        prob.speed,
-        prob.source,
-    )
+    return replace(prob, records=tuple(records))
 
 
 def _eliminate(M: np.ndarray, nf: int, rhs: np.ndarray) -> np.ndarray:

@@ -234,3 +234,19 @@ def test_ml_nm_converges_on_21_free_coefficients_from_40_percent_off():
     data, prior, reference = _beyond_the_local_basin(free, 300.0)
     est = identify(data, prior, method="ml-nm", start="config", max_iter=30_000)
     _converges_to_the_truth(est, reference, free, sigmas=1.5)
+
+
+def test_known_noise_from_the_config_is_held_and_weighs_the_fit(data, from_truth):
+    # [identify] noise_std: the channels it names keep that σ (not re-estimated), so the
+    # likelihood weighs them by it: r's σ doubled quarters r's share of the Fisher information,
+    # so no bound shrinks (M only loses a positive semidefinite part) and N_r's grows
+    known = replace(truth_config(), noise_std={"r": 2 * NOISE["r"]})
+    est = identify(data, known, method="ml-gn", start="config")
+    assert est.converged and est.noise_std["r"] == 2 * NOISE["r"]
+    for state, sd in est.noise_std.items():
+        if state != "r":
+            assert sd == pytest.approx(from_truth.noise_std[state], rel=1e-3)
+    i = FREE.index("N_r")
+    assert np.all(est.std >= 0.99 * from_truth.std) and est.std[i] > 1.01 * from_truth.std[i]
+    z = (est.values - from_truth.values) / est.std
+    assert np.all(np.abs(z) < 1.0)  # the same data: the optimum moves within its bounds
