@@ -98,11 +98,11 @@ DELTA_J = starts.DELTA_J
 
 @pytest.mark.xfail(
     strict=True,
-    reason="ml-gn today: from the truth and from 40 % off, Levenberg-Marquardt creeps (ΔJ ≈ 0.01 per "
-    "iteration) and stops at the iteration limit, 6-27 σ from the optimum from 40 % off; its "
-    "bounds are infinite (the initial state's unstable direction makes M singular to 1e-12)",
+    reason="today's ml-gn stops at its iteration limit (50) from every start: from the truth its "
+    "Levenberg-Marquardt steps lower J by ~0.01 each; from 40 % off (auto: the equation-error "
+    "estimate) it ends 1709 above that in J and 6-27 σ away; its bounds come out infinite",
 )
-@pytest.mark.parametrize("seed", [0, 1, 2])  # the start's model: stable; unstable +0.035 1/s; +1.3 1/s
+@pytest.mark.parametrize("seed", [0, 2])  # the start's model: course-stable; diverging at +1.3 1/s
 def test_default_ml_gn_reaches_the_optimum_of_a_course_unstable_vehicle(unstable, optimum, seed):
     truth, e, sigma = unstable
     signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(SWAY_YAW))
@@ -146,6 +146,9 @@ def test_a_fit_reaches_the_optimum_within_delta_j_and_a_tenth_of_sigma():
     assert not starts.reaches(_fit(-99.5, [1.06, 2.0]), best)  # 0.12 σ
     assert not starts.reaches(_fit(-98.5, [1.0, 2.0]), best)  # ΔJ = 1.5
     assert not starts.reaches(_fit(-100.0, [1.0, 2.0], converged=False), best)
+    # an unbounded σ at the reference judges nothing near it: only the reference itself is there
+    unbounded = replace(best, std=np.array([0.5, np.inf]))
+    assert starts.reaches(best, unbounded) and not starts.reaches(_fit(-100.0, [1.0, 2.001]), unbounded)
     assert starts.reference([_fit(np.nan, [0, 0]), _fit(-3.0, [1, 1]), _fit(-5.0, [2, 2])]).cost == -5.0
 
 
