@@ -677,10 +677,10 @@ def reduced(M: np.ndarray, g: np.ndarray, nf: int) -> tuple[np.ndarray, np.ndarr
 
 
 def fit_initial_states(
-    prob: Problem, values: np.ndarray, R: np.ndarray | None = None
+    prob: Problem, values: np.ndarray, R: np.ndarray | None = None, full: bool = False
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """The parameter vector at the free `values` with the best-fitting initial states, and the
-    model outputs there.
+    model outputs there (`full`: the whole states, (N, 10) per record).
 
     The outputs are linear in x0 (`y = y_forced + G x0`, G = CΦᵏ), so x0 is a weighted linear
     least-squares solution; when R is not given, R from the data's spread, then R and x0 in turn
@@ -758,7 +758,8 @@ def fit_initial_states(
                 break
     else:
         solve(lambda r: R[r.channels])
-    return p, [_states(r, models[r.dt], prob.x0(r, p))[:, r.measured] for r in prob.records]
+    xs = [_states(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
+    return p, xs if full else [x[:, r.measured] for r, x in zip(prob.records, xs)]
 
 
 def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = None) -> np.ndarray:

@@ -52,9 +52,9 @@ def test_hessian_is_the_second_derivative_of_the_cost_with_the_initial_states_fi
         p, out = linear.fit_initial_states(prob, th, R)
         return linear.weighted_cost(prob, [r.y - y for r, y in zip(prob.records, out)], R)
 
-    p, out = linear.fit_initial_states(prob, theta, R)
-    res = [r.y - y for r, y in zip(prob.records, out)]
-    at = trust_region.Point(p, res, R, linear.negative_log_likelihood(prob, res))
+    p, xs = linear.fit_initial_states(prob, theta, R, full=True)
+    res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
+    at = trust_region.Point(p, xs, res, R, linear.negative_log_likelihood(prob, res))
     H = trust_region.hessian(prob, at)
     h = 1e-4 * np.abs(theta)
     fd = np.empty_like(H)

@@ -54,7 +54,7 @@ __all__ = [
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
-DIRECT = 30  # iterations on the whole record before multiple shooting is tried instead
+DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
 SHRINK = 4  # each multiple-shooting stage has this many times fewer segments than the one before
 JOIN = 0.5  # a fit within this many Cramér-Rao σ of an earlier optimum is in its basin
@@ -64,9 +64,10 @@ NEGATIVE = 1e-8  # an eigenvalue of the scaled Hessian below −NEGATIVE × its 
 
 @dataclass(frozen=True)
 class Point:
-    """θ with its best initial states: the full parameter vector, residuals, R and J."""
+    """θ with its best initial states: the full parameter vector, states, residuals, R and J."""
 
     p: np.ndarray
+    xs: list
     res: list
     R: np.ndarray
     J: float
@@ -80,13 +81,14 @@ def point(prob: linear.Problem, theta: np.ndarray, R: np.ndarray | None = None) 
         return None
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-            p, out = linear.fit_initial_states(prob, theta, R)
+            p, xs = linear.fit_initial_states(prob, theta, R, full=True)
     except np.linalg.LinAlgError:
         return None
+    out = [x[:, r.measured] for r, x in zip(prob.records, xs)]
     if linear.exploded(prob, out) is not None:
         return None
     res = [r.y - y for r, y in zip(prob.records, out)]
-    return Point(p, res, linear.noise_variance(prob, res), linear.negative_log_likelihood(prob, res))
+    return Point(p, xs, res, linear.noise_variance(prob, res), linear.negative_log_likelihood(prob, res))
 
 
 def subproblem(F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float) -> tuple[np.ndarray, float]:
@@ -143,7 +145,7 @@ def hessian(prob: linear.Problem, at: Point, M: np.ndarray | None = None) -> np.
     if known."""
     weights = [e / at.R[r.channels] for r, e in zip(prob.records, at.res)]
     if M is None:
-        M = linear.gauss_newton_terms(prob, at.p, linear.states(prob, at.p), at.res, at.R)[1]
+        M = linear.gauss_newton_terms(prob, at.p, at.xs, at.res, at.R)[1]
     return linear.reduced(M - linear.curvature(prob, at.p, weights), np.zeros(len(M)), prob.n_free)[0]
 
 
@@ -191,7 +193,7 @@ def _descend(
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
                 return Descent(x, Status.CONVERGED, it, delta, None, joined=i)
-        g, M = linear.gauss_newton_terms(prob, x.p, linear.states(prob, x.p), x.res, x.R)
+        g, M = linear.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
         F, gr = linear.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
         if np.sqrt(max(gr @ linear.crlb(F).covariance @ gr, 0.0)) < tol:
@@ -239,9 +241,11 @@ def trust_region(
     """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
     are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
     scaled coordinates, with the second-order check at the end (leaving at most `escapes`
-    saddles). Where that fails (no convergence in `DIRECT` iterations, or the model diverges over
-    the whole record from `p`), multiple shooting from `p` again: stages of `segments`, `segments`/`SHRINK`, … pieces
-    per record, then the whole record; the better of the two is the result.
+    saddles). Where that does not converge in `DIRECT` iterations (or the model diverges over the
+    whole record from `p`), multiple shooting from `p` again: stages of `segments`,
+    `segments`/`SHRINK`, … pieces per record, then the whole record. Where that does not converge
+    either and ends above the point the whole record's fit had reached, that fit goes on from
+    there. `max_iter` bounds the iterations of all of them together.
 
     `follow`: earlier fits' optima `(θ, σ)` on the same problem (`Outcome.optimum`); a fit that
     steps into one's basin stops there (`Outcome.joined`: which one)."""
@@ -261,15 +265,22 @@ def trust_region(
         ):
             stages.append(stage)
         n //= SHRINK
-    outs = [
-        _stages(
-            prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
-        )
-    ]
-    if outs[0].status is not Status.CONVERGED and stages:
-        left = max_iter - (len(history) - 1)
-        outs.append(_stages(prob, stages, p, left, tol, radius, escapes, follow, report))
-    out = min(outs, key=lambda d: (d.status is not Status.CONVERGED, d.point.J if d.point else np.inf))
+
+    def left() -> int:
+        return max_iter - (len(history) - 1)
+
+    direct = _stages(
+        prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
+    )
+    out = direct
+    if direct.status is not Status.CONVERGED and stages:
+        out = _stages(prob, stages, p, left(), tol, radius, escapes, follow, report)
+        if (
+            out.status is not Status.CONVERGED
+            and direct.point is not None
+            and (out.point is None or direct.point.J < out.point.J)
+        ):  # the whole record's fit was on its way to a better point than the segments led to
+            out = _stages(prob, [], direct.point.p, left(), tol, radius, escapes, follow, report)
     if out.point is None:
         return Outcome(p, Status.DIVERGED, len(history) - 1, np.array(history))
     optimum = ()
@@ -296,7 +307,7 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> 
                 return Descent(None, Status.DIVERGED, used, 0.0, None)
             continue
         if s is None:
-            g, M = linear.gauss_newton_terms(stage, x.p, linear.states(stage, x.p), x.res, x.R)
+            g, M = linear.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
             s, delta = _scale(prob.start, theta, linear.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
         final = stage is prob
         tol_stage = tol if final else max(tol, STAGE_TOL)
