@@ -57,7 +57,7 @@ LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
 SHRINK = 4  # each multiple-shooting stage has this many times fewer segments than the one before
-JOIN = 0.5  # a fit within this many Cramér-Rao σ of an earlier optimum is in its basin
+JOIN = 2.0  # a fit within this many Cramér-Rao σ of an earlier optimum is in its basin (ΔJ ≈ 2 in the quadratic model)
 MIN_RADIUS = 1e-3  # the trust radius a stage hands on, at least (scaled units)
 NEGATIVE = 1e-8  # an eigenvalue of the scaled Hessian below −NEGATIVE × its largest is negative curvature
 
@@ -311,7 +311,7 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> 
             s, delta = _scale(prob.start, theta, linear.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
         final = stage is prob
         tol_stage = tol if final else max(tol, STAGE_TOL)
-        out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow if final else ())
+        out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow)
         used += out.iterations
         for k in range(escapes + 1 if final else 0):
             if out.status is not Status.CONVERGED or out.joined >= 0:
