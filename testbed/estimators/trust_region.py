@@ -54,6 +54,7 @@ __all__ = [
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
+NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ) is inside the optimum's basin
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
 SHRINK = 4  # each multiple-shooting stage has this many times fewer segments than the one before
@@ -171,6 +172,7 @@ class Descent:
     delta: float
     fisher: np.ndarray | None  # M at the point (the full parameter vector's), with its R
     joined: int = -1  # the earlier optimum (of `follow`) whose basin it entered; -1: none
+    step: float = np.inf  # the last Gauss-Newton step's length in Cramér-Rao σ
 
 
 def _descend(
@@ -196,10 +198,11 @@ def _descend(
         g, M = linear.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
         F, gr = linear.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
-        if np.sqrt(max(gr @ linear.crlb(F).covariance @ gr, 0.0)) < tol:
-            return Descent(x, Status.CONVERGED, it, delta, M)
+        step = np.sqrt(max(gr @ linear.crlb(F).covariance @ gr, 0.0))
+        if step < tol:
+            return Descent(x, Status.CONVERGED, it, delta, M, step=step)
         if it >= max_iter:
-            return Descent(x, Status.MAX_ITERATIONS, it, delta, M)
+            return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step)
         while True:
             d, predicted = subproblem(F, gr, s, delta)
             trial = point(prob, x.p[:nf] + d, x.R)
@@ -222,7 +225,7 @@ def _descend(
             if rho > ACCEPT:
                 break
             if delta < 1e-12 or predicted <= 0:
-                return Descent(x, Status.STALLED, it, delta, M)
+                return Descent(x, Status.STALLED, it, delta, M, step=step)
         x, it = trial, it + 1
         report(x)
 
@@ -241,8 +244,9 @@ def trust_region(
     """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
     are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
     scaled coordinates, with the second-order check at the end (leaving at most `escapes`
-    saddles). Where that does not converge in `DIRECT` iterations (or the model diverges over the
-    whole record from `p`), multiple shooting from `p` again: stages of `segments`,
+    saddles). Where that does not converge in `DIRECT` iterations and its Gauss-Newton step is
+    still `NEAR` σ or longer (or the model diverges over the whole record from `p`), multiple
+    shooting from `p` again, with half the iterations left: stages of `segments`,
     `segments`/`SHRINK`, … pieces per record, then the whole record. Where that does not converge
     either and ends above the point the whole record's fit had reached, that fit goes on from
     there. `max_iter` bounds the iterations of all of them together.
@@ -273,13 +277,18 @@ def trust_region(
         prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
     )
     out = direct
-    if direct.status is not Status.CONVERGED and stages:
-        out = _stages(prob, stages, p, left(), tol, radius, escapes, follow, report)
+    if direct.status is Status.MAX_ITERATIONS and direct.step < NEAR:
+        # inside the optimum's quadratic basin already: on to it
+        out = _stages(prob, [], direct.point.p, left(), tol, radius, escapes, follow, report)
+    elif direct.status is not Status.CONVERGED and stages:
+        # multiple shooting gets half of what is left; the whole record's fit the rest where it
+        # was on its way to a better point than the segments led to
+        out = _stages(prob, stages, p, left() // 2, tol, radius, escapes, follow, report)
         if (
             out.status is not Status.CONVERGED
             and direct.point is not None
             and (out.point is None or direct.point.J < out.point.J)
-        ):  # the whole record's fit was on its way to a better point than the segments led to
+        ):
             out = _stages(prob, [], direct.point.p, left(), tol, radius, escapes, follow, report)
     if out.point is None:
         return Outcome(p, Status.DIVERGED, len(history) - 1, np.array(history))
