@@ -106,9 +106,10 @@ def _parameters(rec, estimate, iterations, comparison):
         static=True,
     )
     if cost is not None:
-        # J is a negative log-likelihood (any sign): its distance to the final value, which
-        # shrinks geometrically as the fit converges, on a log scale; the last point is 0: not drawn
-        above = np.log10(np.where(cost - cost[-1] > 0, cost - cost[-1], np.nan))
+        # J is a negative log-likelihood (any sign): its distance to the least value reached (the
+        # estimate's, also with several starts in turn), which shrinks geometrically as the fit
+        # converges, on a log scale; the least itself is 0: not drawn
+        above = np.log10(np.where(cost - cost.min() > 0, cost - cost.min(), np.nan))
         series(rec, "/cost", index, above, ("cost",), ("log10(J - J_final)",))
         side.insert(
             0,
