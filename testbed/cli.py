@@ -145,7 +145,7 @@ def _cmd_identify(args) -> int:
         options=options,
         perturb=args.perturb,
         seed=args.seed,
-        free_all=args.free_all,
+        screen=args.screen,
         progress=progress if live else None,
     )
     estimate = done.estimate
@@ -160,6 +160,12 @@ def _cmd_identify(args) -> int:
         print(done.comparison.table(), file=sys.stderr)
     for n, why in done.fixed.items():
         print(f"{n:<12}fixed at {done.config.coefficients[n]:.4g}: {why}", file=sys.stderr)
+    if done.screen and not done.fixed:
+        print(
+            f"testbed identify: estimated as listed; the screen would fix {', '.join(done.screen)} "
+            '(the estimates JSON\'s "screen" says why; --screen applies it)',
+            file=sys.stderr,
+        )
     print(done.validation.table(), file=sys.stderr)
     for path in done.written:
         print(path, file=sys.stderr if path == args.rrd else sys.stdout)
@@ -327,11 +333,21 @@ def parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--seed", type=_seed, default=0, help="signs of --perturb (default 0)")
     s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
-    s.add_argument(
-        "--free-all",
+    listed = s.add_mutually_exclusive_group()
+    listed.add_argument(
+        "--screen",
         action="store_true",
-        help="estimate every coefficient of [identify] free (default: those the data "
-        "identify; the others stay at their a-priori values, see `analyze`)",
+        default=None,
+        help="estimate only the coefficients of [identify] free that the data determine, the "
+        "others at their a-priori values (default where the config says screen = true, as a "
+        "run's model.toml does)",
+    )
+    listed.add_argument(
+        "--free-all",
+        dest="screen",
+        action="store_false",
+        help="estimate every coefficient of [identify] free as listed, even a candidate list "
+        "(screen = true); the screen is only reported (default for a config without it)",
     )
     s.set_defaults(func=_cmd_identify)
 

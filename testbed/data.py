@@ -74,6 +74,7 @@ class ModelConfig:
     free: tuple[str, ...] = ()
     source: str = ""
     outputs: tuple[str, ...] | None = None  # [identify] outputs: the states fitted (None: all measured)
+    screen: bool = False  # [identify] screen: `free` is a candidate list that `identify` screens
 
     def fitted(self, experiments: Sequence[Experiment]) -> list[Experiment]:
         """The experiments reduced to the config's outputs (all of them without `outputs`)."""
@@ -345,7 +346,10 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
         if not isinstance(outputs, list) or not all(isinstance(s, str) for s in outputs):
             raise InputError(f"{source}: [identify] outputs must be a list of state names")
         outputs = tuple(s for s in STATES if s in outputs) + tuple(s for s in outputs if s not in STATES)
-    config = ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs)
+    screen = ident.get("screen", False)
+    if not isinstance(screen, bool):
+        raise InputError(f"{source}: [identify] screen = {screen!r}; expected true or false")
+    config = ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs, screen)
     check_config(config)
     return config
 
@@ -404,6 +408,12 @@ def number(v, where: str) -> float:
     return value
 
 
+_SCREEN_NOTE = (
+    "screen = true: free is a candidate list; identify fixes the candidates these data do not "
+    "determine (docs/cli.md#what-is-estimated); without it free is estimated as written"
+)
+
+
 def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) -> str:
     """TOML text of a model config; `comments` annotate vehicle constants or coefficients."""
     comments = comments or {}
@@ -414,7 +424,10 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
 
     lines = ["[vehicle]"] + [line(k, getattr(config.vehicle, k)) for k in Vehicle.names()]
     lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
-    lines += ["", "[identify]", "free = [" + ", ".join(f'"{n}"' for n in config.free) + "]"]
+    lines += ["", "[identify]"]
+    if config.screen:
+        lines += [f"# {_SCREEN_NOTE}", "screen = true"]
+    lines += ["free = [" + ", ".join(f'"{n}"' for n in config.free) + "]"]
     if config.outputs is not None:
         note = f"  # {comments['outputs']}" if "outputs" in comments else ""
         lines.append("outputs = [" + ", ".join(f'"{s}"' for s in config.outputs) + "]" + note)
