@@ -288,8 +288,7 @@ def insignificant(free, estimate, information: np.ndarray, prior) -> dict[str, s
             break
         k = eligible[np.argmin(z[eligible])]
         fixed[free[rest[k]]] = (
-            f"estimate {value[k]:.4g} ± {std[k]:.2g}, {z[k]:.1f} σ from 0 (below {SIGNIFICANT:g} σ): "
-            "these data do not tell it from 0"
+            f"estimate {value[k]:.4g} ± {std[k]:.2g}, {z[k]:.1f} σ from 0 (below {SIGNIFICANT:g} σ)"
         )
     return fixed
 

@@ -410,7 +410,7 @@ def number(v, where: str) -> float:
 
 _SCREEN_NOTE = (
     "screen = true: free is a candidate list; identify fixes the candidates these data do not "
-    "determine (docs/cli.md#what-is-estimated); without it free is estimated as written"
+    "determine (docs/cli.md#the-screen); without it free is estimated as written"
 )
 
 
