@@ -350,10 +350,11 @@ def identify_screened(
     s = screening(experiments, config, options if same else None, steps.append if same else None)
     fitted = s.config if apply else config
     if not fitted.free:
+        first = next(iter(s.fixed))
         raise InputError(
             f"{config.source or 'config'}: no candidate of [identify] free is determined by these "
-            f"data ({next(iter(s.fixed.values()))}); expected data that excite them, or the list "
-            "estimated as written (screen=False, --free-all)"
+            f"data ({first} {s.fixed[first]}); expected data that excite them, or the list "
+            "estimated as written (screen=False)"
         )
     if same and s.fit is not None and s.fit.free == fitted.free:
         for step in steps if callback is not None else ():

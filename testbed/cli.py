@@ -248,22 +248,23 @@ def _cmd_replay(args) -> int:
     return 0
 
 
-def _flags(parser: argparse.ArgumentParser) -> dict[str, tuple[str, bool]]:
-    """Parameter name → (the flag that sets it, whether it is a switch)."""
-    return {
-        a.dest: (max(a.option_strings, key=len), a.const is True)
+def _flags(parser: argparse.ArgumentParser) -> list[tuple[str, str, bool | None]]:
+    """(parameter name, the flag that sets it, the value it sets if a switch, else None)."""
+    return [
+        (a.dest, max(a.option_strings, key=len), a.const if isinstance(a.const, bool) else None)
         for a in parser._actions
         if a.option_strings and a.dest != "help"
-    }
+    ]
 
 
-def in_flags(message: str, flags: dict[str, tuple[str, bool]]) -> str:
-    """A library message names parameters as Python does (`max_iter=-1`, `force=True`); the user
-    typed flags (`--max-iter -1`, `--force`)."""
-    for dest, (flag, switch) in flags.items():
-        if switch:
-            message = message.replace(f"{dest}=True", flag)
-        message = re.sub(rf"(?<![\w.-]){dest}=", f"{flag} ", message)
+def in_flags(message: str, flags: list[tuple[str, str, bool | None]]) -> str:
+    """A library message names parameters as Python does (`max_iter=-1`, `force=True`,
+    `screen=False`); the user typed flags (`--max-iter -1`, `--force`, `--free-all`)."""
+    for dest, flag, switch in flags:
+        if switch is None:
+            message = re.sub(rf"(?<![\w.-]){dest}=", f"{flag} ", message)
+        else:
+            message = message.replace(f"{dest}={switch}", flag)
     return message
 
 

@@ -159,3 +159,20 @@ def test_the_candidate_marker_is_written_read_and_checked(tmp_path):
         read_config(path)
     path.write_text(text.replace("screen = true\n", ""))
     assert not read_config(path).screen
+
+
+def test_a_candidate_list_the_data_leave_empty_is_a_one_line_error(foreign, tmp_path, capsys):
+    """K_dr is 0 in the foreign body: alone on a candidate list, the others at the foreign
+    body's values, the screen fixes it and leaves nothing to estimate; estimated as written
+    (--free-all), it is fitted."""
+    _, truth, csvs, _, _ = foreign
+    only = replace(truth, free=("K_dr",), screen=True)
+    path = tmp_path / "only.toml"
+    path.write_text(config_text(only))
+    argv = ["identify", *map(str, csvs), "--config", str(path), "--out", str(tmp_path / "e.json")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no candidate of [identify] free is determined" in err and "K_dr" in err
+    assert not (tmp_path / "e.json").exists()
+    assert main(argv + ["--free-all"]) == 0
+    assert list(json.loads((tmp_path / "e.json").read_text())["coefficients"]) == ["K_dr"]
