@@ -15,7 +15,6 @@ from testbed.analysis import SIGNIFICANT, UNCERTAIN, identifiability, insignific
 from testbed.cli import main
 from testbed.data import config_text, read_config, write_csv
 from testbed.errors import InputError
-from testbed.estimators import identify
 from testbed.jobs import identify_data
 from testbed.linear import synthetic
 from testbed.measurements import NOISE_STD, noise_from_data
@@ -66,12 +65,27 @@ def foreign(tmp_path_factory):
     return data, truth, csvs, candidates, explicit
 
 
-def test_a_candidate_list_frees_what_the_data_determine_even_at_an_a_priori_zero(foreign, tmp_path):
-    data, truth, csvs, candidates, _ = foreign
+@pytest.fixture(scope="module")
+def candidate_run(foreign, tmp_path_factory):
+    """`identify` (ml-gn) on the foreign data from the candidate list: the screen applied."""
+    csvs, candidates = foreign[2], foreign[3]
+    out = tmp_path_factory.mktemp("candidates") / "e.json"
+    return identify_data(csvs, config=candidates, out=out), json.loads(out.read_text())
+
+
+@pytest.fixture(scope="module")
+def explicit_run(foreign, tmp_path_factory):
+    """`identify` (ml-gn) on the foreign data from the explicit list: the screen only reported."""
+    csvs, explicit = foreign[2], foreign[4]
+    out = tmp_path_factory.mktemp("explicit") / "e.json"
+    return identify_data(csvs, config=explicit, out=out), json.loads(out.read_text())
+
+
+def test_a_candidate_list_frees_what_the_data_determine_even_at_an_a_priori_zero(foreign, candidate_run):
+    _, truth, _, candidates, _ = foreign
     config = read_config(candidates)
     assert config.screen and all(config.coefficients[n] == 0.0 for n in ZERO)
-    done = identify_data(csvs, config=candidates, out=tmp_path / "e.json")
-    doc = json.loads((tmp_path / "e.json").read_text())
+    done, doc = candidate_run
     est = dict(zip(done.estimate.free, zip(done.estimate.values, done.estimate.std)))
     for n in ZERO:  # determined at > 4 σ, and where the foreign body has them
         value, std = est[n]
@@ -83,23 +97,31 @@ def test_a_candidate_list_frees_what_the_data_determine_even_at_an_a_priori_zero
     assert all("σ from 0" in f["reason"] for f in doc["fixed"].values())
 
 
-def test_an_explicit_list_is_fitted_as_written_and_the_screen_only_reported(foreign, tmp_path, capsys):
-    data, _, csvs, candidates, explicit = foreign
-    config = read_config(explicit)
-    assert not config.screen
-    out = tmp_path / "e.json"
-    assert main(["identify", *map(str, csvs), "--config", str(explicit), "--out", str(out)]) == 0
-    err = capsys.readouterr().err
-    doc = json.loads(out.read_text())
+def test_an_explicit_list_is_fitted_as_written_and_the_screen_only_reported(
+    foreign, explicit_run, candidate_run
+):
+    config = read_config(foreign[4])
+    done, doc = explicit_run
+    assert not config.screen and not done.fixed
     assert list(doc["coefficients"]) == list(config.free) and "fixed" not in doc
-    screened = screening(data, config)
-    assert doc["screen"] == screened.fixed and "K_dr" in doc["screen"]
-    (line,) = [x for x in err.splitlines() if "the screen would fix" in x]
-    assert all(n in line for n in doc["screen"]) and "--screen" in line
-    # --screen applies it to the explicit list; --free-all honours even the candidate list
-    assert set(identify_data(csvs, config=explicit, screen=True).fixed) == set(doc["screen"])
-    honoured = identify_data(csvs, config=candidates, screen=False)
-    assert honoured.estimate.free == config.free and not honoured.fixed and honoured.screen
+    # the same screen as on the candidate list, reported only
+    fixed = candidate_run[1]["fixed"]
+    assert doc["screen"] == {n: f["reason"] for n, f in fixed.items()} == done.screen
+
+
+def test_what_the_screen_fixes_costs_the_fit_little_and_leaves_the_rest_significant(
+    explicit_run, candidate_run
+):
+    """The backward elimination works on the cost's quadratic model. Refitted with ml-gn (the
+    candidate run), every candidate left free is significant, and the cost has risen from the
+    fit of the whole list (the explicit run, the screen's own fit) by at most SIGNIFICANT²/2
+    per coefficient fixed (each was within SIGNIFICANT σ of its a-priori value)."""
+    whole, refit = explicit_run[0].estimate, candidate_run[0].estimate
+    assert whole.converged and refit.converged
+    assert np.all(np.abs(refit.values) >= SIGNIFICANT * refit.std), dict(
+        zip(refit.free, refit.values / refit.std)
+    )
+    assert 0 <= refit.cost - whole.cost <= SIGNIFICANT**2 / 2 * len(candidate_run[0].fixed)
 
 
 def test_a_tiny_a_priori_value_the_data_determine_is_not_fixed():
@@ -115,24 +137,8 @@ def test_a_tiny_a_priori_value_the_data_determine_is_not_fixed():
     assert at_prior.crlb_std[k] > UNCERTAIN * abs(at_prior.values[k])
     s = screening(data, prior)
     assert "K_v" in s.config.free
-    fit = identify(data, s.config)
-    value, std = dict(zip(fit.free, zip(fit.values, fit.std)))["K_v"]
+    value, std = dict(zip(s.fit.free, zip(s.fit.values, s.fit.std)))["K_v"]
     assert abs(value) > 4 * std and abs(value - truth.coefficients["K_v"]) < 4 * std
-
-
-def test_what_the_screen_fixes_costs_the_fit_little_and_leaves_the_rest_significant(foreign):
-    """The backward elimination works on the cost's quadratic model; refitted with ml-gn, every
-    candidate left free is significant and the cost has risen by at most SIGNIFICANT²/2 per
-    coefficient fixed (each was within SIGNIFICANT σ of its a-priori value)."""
-    data, _, _, candidates, _ = foreign
-    s = screening(data, read_config(candidates))
-    assert s.fixed and s.fit.converged
-    refit = identify(data, s.config, method="ml-gn")
-    assert refit.converged
-    assert np.all(np.abs(refit.values) >= SIGNIFICANT * refit.std), dict(
-        zip(refit.free, refit.values / refit.std)
-    )
-    assert refit.cost - s.fit.cost <= SIGNIFICANT**2 / 2 * len(s.fixed)
 
 
 def test_backward_elimination_keeps_the_partner_of_a_drifting_pair():
@@ -161,18 +167,31 @@ def test_the_candidate_marker_is_written_read_and_checked(tmp_path):
     assert not read_config(path).screen
 
 
-def test_a_candidate_list_the_data_leave_empty_is_a_one_line_error(foreign, tmp_path, capsys):
-    """K_dr is 0 in the foreign body: alone on a candidate list, the others at the foreign
-    body's values, the screen fixes it and leaves nothing to estimate; estimated as written
-    (--free-all), it is fitted."""
+def test_the_flags_override_the_config_and_an_empty_screen_is_a_one_line_error(foreign, tmp_path, capsys):
+    """K_dr alone free, the others at the foreign body's values (K_dr is 0 there). Listed
+    explicitly, it is fitted and the screen, which would fix it, reported in one line; with
+    --screen the screen leaves nothing to estimate: a one-line error, nothing written. As a
+    candidate list the other way round, --free-all fitting it."""
     _, truth, csvs, _, _ = foreign
-    only = replace(truth, free=("K_dr",), screen=True)
-    path = tmp_path / "only.toml"
-    path.write_text(config_text(only))
-    argv = ["identify", *map(str, csvs), "--config", str(path), "--out", str(tmp_path / "e.json")]
-    assert main(argv) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "no candidate of [identify] free is determined" in err and "K_dr" in err
-    assert not (tmp_path / "e.json").exists()
-    assert main(argv + ["--free-all"]) == 0
-    assert list(json.loads((tmp_path / "e.json").read_text())["coefficients"]) == ["K_dr"]
+    out = tmp_path / "e.json"
+
+    def identify(path, *flags):
+        code = main(["identify", *map(str, csvs), "--config", str(path), "--out", str(out), *flags])
+        err = capsys.readouterr().err
+        if code == 2:
+            assert err.count("\n") == 1 and "no candidate of [identify] free is determined" in err
+            assert "K_dr" in err and not out.exists()
+            return
+        assert code == 0
+        (line,) = [x for x in err.splitlines() if "the screen would fix" in x]
+        assert "K_dr" in line and "--screen" in line
+        doc = json.loads(out.read_text())
+        assert list(doc["coefficients"]) == ["K_dr"] and list(doc["screen"]) == ["K_dr"]
+        out.unlink()
+        return doc
+
+    for screen, flag in ((False, "--screen"), (True, "--free-all")):
+        path = tmp_path / f"only-{screen}.toml"
+        path.write_text(config_text(replace(truth, free=("K_dr",), screen=screen)))
+        assert (identify(path) is None) is screen
+        assert (identify(path, flag) is None) is not screen
