@@ -2,8 +2,8 @@
 
 A corpus of about three hundred cases over a workspace of valid inputs (two small measurement
 CSVs simulated from the linear model, a model config, a run directory with truth files): the
-CSVs broken in every way `CSV_MUTATIONS` knows, the config's every vehicle constant and some
-coefficients given impossible values, the manifest's every broken form, every flag given bad
+CSVs broken in every way `CSV_MUTATIONS` knows, the config's every vehicle constant, some
+coefficients and its noise_std given impossible values, the manifest's every broken form, every flag given bad
 values, every kind of output target (a folder, a file in the way, an input, standard output, a
 missing folder), and the cases of the bad-input issue one by one. Each case runs `testbed` on a
 fresh copy of the workspace; the tally counts:
@@ -416,6 +416,27 @@ def corpus(root: Path) -> list[Case]:
         broken = json.loads(json.dumps(doc)) | {"identify": {"free": free}}
         argv = ("identify", "data", "--config", "bad.toml", "--out", "out/e.json", *fit)
         cases.append(Case(f"config free {label}", argv, (("bad.toml", toml_text(broken).encode()),)))
+    for label, noise in (
+        ("not a table", 0.01),
+        ("unknown state", {"yaw": 0.01}),
+        ("zero", {"r": 0}),
+        ("negative", {"r": -1.0}),
+        ("huge", {"r": 1e300}),
+        ("tiny", {"r": 1e-300}),
+        ("text", {"r": "0.01"}),
+        ("table", {"r": {"a": 1}}),
+        ("given", {"r": 0.002, "psi": 0.01}),
+    ):
+        broken = json.loads(json.dumps(doc))
+        broken.setdefault("identify", {})["noise_std"] = noise
+        for method in ("ml-gn", "mekf"):
+            argv = ("identify", "data", "--config", "bad.toml", "--method", method, "--out", "out/e.json")
+            argv += fit if method == "ml-gn" else ()
+            cases.append(
+                Case(
+                    f"config noise_std {label} ({method})", argv, (("bad.toml", toml_text(broken).encode()),)
+                )
+            )
     text = (root / "cfg.toml").read_bytes()
     for label, blob in (
         ("empty", b""),
@@ -463,6 +484,7 @@ def corpus(root: Path) -> list[Case]:
             "--perturb": ["0", "-1", "nan", "inf", "1e400", "x"],
             "--seed": ["-1", "x", "1.5", str(2**70)],
             "--rrd": ["out", "-", "out/no/f.rrd", "keep.txt/f.rrd", "data/h.csv"],
+            "--noise-std": ["r=-1", "yaw=1", "r", "", ",", "r=nan", "r=1e-300", "r=1,r=2", "r=0.002"],
         },
         "truth": {
             "--speed": ["0", "-1", "nan", "inf", "1e-6", "x", "1e300"],

@@ -298,7 +298,7 @@ def screening(experiments, config, options=None, callback=None) -> Screen:
 
     Nothing is fixed for its a-priori magnitude, nor for being 0. Stage 1, at the a-priori
     coefficients with the measurement noise read off the data (third differences,
-    `noise_from_data`): the structurally unidentifiable candidates are fixed
+    `noise_from_data`) where the config's `noise_std` does not give it: the structurally unidentifiable candidates are fixed
     (`structurally_unidentified`). Stage 2: the rest are fitted with `ml-gn` (`options`, its
     options; `callback`, its progress), and those the estimate does not make significant are
     fixed by backward elimination (`insignificant`). A fixed candidate stays at its a-priori
@@ -306,7 +306,8 @@ def screening(experiments, config, options=None, callback=None) -> Screen:
     data, a candidate no fitted state depends on) is an `InputError` first (`check_fit`).
     """
     check_fit(experiments, config)
-    result = identifiability(experiments, config, noise_from_data(config.fitted(experiments)))
+    noise = noise_from_data(config.fitted(experiments), config.noise_std)
+    result = identifiability(experiments, config, noise)
     fixed = {
         n: f"not determined by these data: {why}" for n, why in structurally_unidentified(result).items()
     }

@@ -44,6 +44,29 @@ def _seed(text: str) -> int:
     return v
 
 
+def _noise_std(text: str) -> dict[str, float]:
+    """`--noise-std r=0.002,psi=0.01`: state → σ (SI), checked (`data.check_noise_std`)."""
+    from testbed.data import check_noise_std
+
+    values = {}
+    for pair in filter(None, (p.strip() for p in text.split(","))):
+        name, eq, value = (part.strip() for part in pair.partition("="))
+        if not eq:
+            raise argparse.ArgumentTypeError(f"{pair!r}: expected state=σ pairs, e.g. r=0.002,psi=0.01")
+        if name in values:
+            raise argparse.ArgumentTypeError(f"{text!r} gives {name} twice")
+        try:
+            values[name] = float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{pair!r}: {value!r} is not a number") from None
+    if not values:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected state=σ pairs, e.g. r=0.002,psi=0.01")
+    try:
+        return check_noise_std(values, repr(text))
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _to_stdout(path: Path | None) -> Path | None:
     """None (standard output) for `--out -`, else the path."""
     return None if path == STDOUT else path
@@ -146,6 +169,7 @@ def _cmd_identify(args) -> int:
         perturb=args.perturb,
         seed=args.seed,
         screen=args.screen,
+        noise_std=args.noise_std,
         progress=progress if live else None,
     )
     estimate = done.estimate
@@ -153,7 +177,7 @@ def _cmd_identify(args) -> int:
         print(file=sys.stderr)  # end the progress line
     if estimate.start_reason:
         print(
-            f"testbed identify: started from the {estimate.start} estimate: {estimate.start_reason}",
+            f"testbed identify: kept the fit from the {estimate.start} start, {estimate.start_reason}",
             file=sys.stderr,
         )
     if done.comparison is not None:
@@ -181,7 +205,7 @@ def _cmd_analyze(args) -> int:
     from testbed.jobs import analyze_data
 
     out = _to_stdout(args.out)
-    result = analyze_data(args.data, config=args.config, out=out)
+    result = analyze_data(args.data, config=args.config, out=out, noise_std=args.noise_std)
     _emit(out, result.to_json())
     for line in result.summary:
         print(line, file=sys.stderr)
@@ -275,6 +299,10 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
+NOISE_STD_HELP = (
+    "the sensors' noise σ per state, SI, e.g. r=0.002,psi=0.01 (for data whose noise cannot be "
+    "read off them: low-pass filtered); replaces the config's [identify] noise_std entry by entry"
+)
 BUILTIN_SCENARIOS = ("I", "II", "turn", "zigzag", "zigzag-vertical")  # testbed/scenarios/*.toml
 
 
@@ -308,7 +336,7 @@ def parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("identify", help="estimate the free coefficients from data")
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
-    s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-nr, ml-nm, mekf, ekf")
+    s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-lm, ml-nr, ml-nm, mekf, ekf")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument(
         "--out",
@@ -320,8 +348,10 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--start",
         default=None,
-        help="ml-* only: auto (default: the better-fitting of the a-priori values and the "
-        "equation-error estimate, then the other), config, equation-error or mekf",
+        help="ml-* only: auto (default: from the a-priori values and the equation-error "
+        "estimate, and the MEKF's if those end apart; the least cost is kept), config, "
+        "equation-error, mekf, or global (auto's starts and the best of many drawn around "
+        "the a-priori values)",
     )
     s.add_argument("--max-iter", type=int, default=None, help="iteration limit (ml-* methods)")
     s.add_argument("--max-samples", type=int, default=None, help="stop after this many samples (mekf, ekf)")
@@ -350,12 +380,14 @@ def parser() -> argparse.ArgumentParser:
         help="estimate every coefficient of [identify] free as listed, even a candidate list "
         "(screen = true); the screen is only reported (default for a config without it)",
     )
+    s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
     s.set_defaults(func=_cmd_identify)
 
     s = sub.add_parser("analyze", help="identifiability: Fisher information, CRLB, drift groups")
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument("--out", type=Path, help="identifiability JSON (default or -: stdout)")
+    s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
     s.set_defaults(func=_cmd_analyze)
 
     s = sub.add_parser(

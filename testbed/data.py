@@ -33,6 +33,12 @@ MAX_DATA = 1e6
 # The largest magnitude of a vehicle constant or coefficient (SI): a supertanker's yaw inertia is
 # ~1e13 kg m², its dimensional coefficients ~1e12. Products of a few such numbers stay finite.
 MAX_CONSTANT = 1e15
+# The least measurement-noise σ (SI): the floor that keeps a noise covariance R = σ² positive
+# definite in double precision, far below any sensor's noise (1 nrad, 1 nm/s).
+MIN_NOISE_STD = 1e-9
+# Angles that wrap at ±π in a log (`read_csv` unwraps them): roll and heading. Pitch stays
+# within ±π/2.
+WRAPPING = ("phi", "psi")
 
 
 @dataclass(frozen=True)
@@ -74,14 +80,36 @@ class ModelConfig:
     free: tuple[str, ...] = ()
     source: str = ""
     outputs: tuple[str, ...] | None = None  # [identify] outputs: the states fitted (None: all measured)
+    # [identify] noise_std: state → the sensors' noise σ (SI), known; None: read off the data
+    noise_std: Mapping[str, float] | None = None
     screen: bool = False  # [identify] screen: `free` is a candidate list that `identify` screens
 
     def fitted(self, experiments: Sequence[Experiment]) -> list[Experiment]:
-        """The experiments reduced to the config's outputs (all of them without `outputs`)."""
-        return list(experiments) if self.outputs is None else [e.only(self.outputs) for e in experiments]
+        """The experiments reduced to the config's outputs (all of them without `outputs`).
+        Each record keeps the outputs it measures; `InputError` for an output that no record
+        measures, or a record that measures none."""
+        if self.outputs is None:
+            return list(experiments)
+        measured = {s for e in experiments for s in e.measured}
+        missing = [s for s in self.outputs if s not in measured]
+        if missing:
+            raise InputError(
+                f"{self.source or 'config'}: [identify] outputs names {', '.join(missing)}, which no "
+                f"record measures (they measure {', '.join(s for s in STATES if s in measured)}); "
+                "expected measured states, or no outputs to fit every measured state"
+            )
+        return [e.only(self.outputs) for e in experiments]
 
     def with_coefficients(self, values: Mapping[str, float]) -> "ModelConfig":
         return replace(self, coefficients={**self.coefficients, **values})
+
+    def with_noise_std(self, values: Mapping[str, float] | None, where: str = "noise_std") -> "ModelConfig":
+        """The config with `values` (state → σ, checked as `where`) replacing its `noise_std`
+        entry by entry; the states `values` leaves out keep the config's σ."""
+        if not values:
+            return self
+        merged = {**(self.noise_std or {}), **check_noise_std(values, where)}
+        return replace(self, noise_std={s: merged[s] for s in STATES if s in merged})
 
 
 def read_text(path: str | Path, expected: str) -> str:
@@ -181,10 +209,27 @@ def read_csv(path: str | Path, name: str | None = None) -> Experiment:
         name or path.name.removesuffix(".csv"),
         values[:, 0],
         measured,
-        values[:, 1 : 1 + n],
+        _unwrapped(path, values[:, 1 : 1 + n], measured),
         values[:, 1 + n :],
         str(path),
     )
+
+
+def _unwrapped(path: Path, y: np.ndarray, measured: Sequence[str]) -> np.ndarray:
+    """`y` with each angle that wraps at ±π in logs (`WRAPPING`) made continuous: a column that
+    jumps by more than π between two rows is unwrapped (`np.unwrap`: each such jump is taken as a
+    wrap, and whole turns are added from there on), so the angle starts at its first row's value
+    and never jumps by more than π. A column without such a jump is left as it is, bit for bit."""
+    for j, name in enumerate(measured):
+        if name in WRAPPING and np.any(np.abs(np.diff(y[:, j])) > np.pi):
+            y[:, j] = np.unwrap(y[:, j])
+            large = _too_large(y[:, j : j + 1])
+            if large:
+                raise InputError(
+                    f"{path}: column '{name}' unwrapped (it jumps by more than π) reaches "
+                    f"{y[large[0], j]:.10g} at data row {large[0] + 1}, {_TOO_LARGE}"
+                )
+    return y
 
 
 def _plain_table(body: str, columns: int) -> np.ndarray | None:
@@ -346,10 +391,13 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
         if not isinstance(outputs, list) or not all(isinstance(s, str) for s in outputs):
             raise InputError(f"{source}: [identify] outputs must be a list of state names")
         outputs = tuple(s for s in STATES if s in outputs) + tuple(s for s in outputs if s not in STATES)
+    noise = ident.get("noise_std") if isinstance(ident, dict) else None
+    if noise is not None:
+        noise = check_noise_std(noise, f"{source}: [identify] noise_std") or None
     screen = ident.get("screen", False)
     if not isinstance(screen, bool):
         raise InputError(f"{source}: [identify] screen = {screen!r}; expected true or false")
-    config = ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs, screen)
+    config = ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs, noise, screen)
     check_config(config)
     return config
 
@@ -376,6 +424,28 @@ def check_config(config: ModelConfig) -> None:
             f"{source}: [identify] outputs = {list(config.outputs)!r}; expected a non-empty "
             f"list of states ({', '.join(STATES)})"
         )
+    if config.noise_std is not None:
+        check_noise_std(config.noise_std, f"{source}: [identify] noise_std")
+
+
+def check_noise_std(noise, where: str) -> dict[str, float]:
+    """`noise` as a dict state → σ in `STATES` order once it is a mapping of state names to
+    numbers from `MIN_NOISE_STD` to `MAX_DATA` (SI); InputError naming `where` and the first
+    entry that is not."""
+    if not isinstance(noise, Mapping):
+        shown = str(noise).lower() if isinstance(noise, bool) else repr(noise)[:40]
+        raise InputError(
+            f"{where} = {shown}; expected a table of state = σ (SI), e.g. {{r = 0.002, psi = 0.01}}"
+        )
+    for name, v in noise.items():
+        if name not in STATES:
+            raise InputError(f"{where} names {str(name)[:40]!r}, not a state (one of {', '.join(STATES)})")
+        v = number(v, f"{where}: {name}")
+        if not MIN_NOISE_STD <= v <= MAX_DATA:
+            raise InputError(
+                f"{where}: {name} = {v:g}; expected a σ from {MIN_NOISE_STD:g} to {MAX_DATA:g} (SI)"
+            )
+    return {s: float(noise[s]) for s in STATES if s in noise}
 
 
 def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
@@ -431,6 +501,10 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
     if config.outputs is not None:
         note = f"  # {comments['outputs']}" if "outputs" in comments else ""
         lines.append("outputs = [" + ", ".join(f'"{s}"' for s in config.outputs) + "]" + note)
+    if config.noise_std:
+        note = f"  # {comments['noise_std']}" if "noise_std" in comments else ""
+        pairs = ", ".join(f"{s} = {float(v)!r}" for s, v in config.noise_std.items())
+        lines.append(f"noise_std = {{{pairs}}}{note}")
     return "\n".join(lines + [""])
 
 

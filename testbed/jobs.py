@@ -126,6 +126,7 @@ def identify_data(
     perturb: float | None = None,
     seed: int = 0,
     screen: bool | None = None,
+    noise_std: Mapping[str, float] | None = None,
     progress: Callable[[Progress], None] | None = None,
 ) -> Identified:
     """Identify the coefficients of `data` (run directories or CSVs) and write the estimates JSON
@@ -136,12 +137,15 @@ def identify_data(
     options; `perturb`: move every free start by this fraction (signs from `seed`);
     `screen`: fit only the candidates of the config's free list that the data determine
     (`analysis.identify_screened`), or (False) the list as written, the screen only reported in
-    the JSON's `screen`; default: as the config's `[identify] screen` says. A diverged fit is
-    an `InputError` and writes nothing; a fit that ran but did not converge is written (`Identified.estimate.converged` says so).
+    the JSON's `screen`; default: as the config's `[identify] screen` says; `noise_std`: the
+    sensors' noise σ per state, replacing the config's `[identify] noise_std` entry by entry. A
+    diverged fit is an `InputError` and writes nothing; a fit that ran but did not converge is
+    written (`Identified.estimate.converged` says so).
     """
     m = lookup(method)
     opts = m.options.build(m.name, options or {})
     experiments, cfg, run_config, read = inputs(data, config)
+    cfg = cfg.with_noise_std(noise_std)
     truth = truth_data(data) if run_config is not None else None
     read += [Path(e.source) for e in truth or ()]
     history = (
@@ -161,11 +165,13 @@ def identify_data(
     screened = identify_screened(experiments, cfg, m.name, opts, callback, apply=screen)
     cfg, estimate = screened.config, screened.estimate
     if estimate.status is Status.DIVERGED:
+        expected = f" (expected {'another start or ' if m.starts else ''}a better a-priori config)"
+        if "; give " in estimate.message:  # the reason says what to give (a filter's noise-free data)
+            expected = ""
         raise InputError(
             f"method={m.name!r}: {estimate.status.message}"
             f"{f' ({estimate.message})' if estimate.message else ''} on "
-            f"{', '.join(map(str, data))}; no estimate written (expected "
-            f"{'another start or ' if m.starts else ''}a better a-priori config)"
+            f"{', '.join(map(str, data))}; no estimate written{expected}"
         )
     doc = estimate.json_fields()
     if screened.fixed:
@@ -203,10 +209,13 @@ def analyze_data(
     *,
     config: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
+    noise_std: Mapping[str, float] | None = None,
 ) -> Identifiability:
     """Identifiability of the config's free coefficients from `data` (Fisher information,
-    Cramér-Rao bounds, correlations, drift groups), written as JSON to `out`."""
+    Cramér-Rao bounds, correlations, drift groups), written as JSON to `out`; `noise_std` as
+    for `identify_data`."""
     experiments, cfg, _, read = inputs(data, config)
+    cfg = cfg.with_noise_std(noise_std)
     check_outputs(read, {"out": out})
     if not cfg.free:
         raise InputError(f"{cfg.source or 'config'}: [identify] free is empty; nothing to analyse")

@@ -35,7 +35,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from statistics import NormalDist
 from typing import Iterator, Mapping, NamedTuple, Sequence
 
@@ -64,6 +64,7 @@ from testbed.model import (
 
 NW = NX + NU + 1  # length of w = [x; δ; 1]
 EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
+RELAXATIONS = 20  # noise updates of `fit_initial_states` at most (each a k × k solve per record)
 PIECE = 1024  # samples per piece of sensitivities (`_pieces`): a piece's work arrays stay in the CPU's cache
 
 
@@ -92,6 +93,7 @@ class Problem:
     channels: tuple[str, ...]  # the measured states of all experiments, STATES order
     speed: float
     source: str
+    known: np.ndarray | None = None  # (len(channels),) R where [identify] noise_std gives it, else NaN
 
     @property
     def n_free(self) -> int:
@@ -213,6 +215,7 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
         channels,
         config.vehicle.speed,
         where,
+        np.array([(config.noise_std or {}).get(c, np.nan) ** 2 for c in channels]),
     )
 
 
@@ -560,14 +563,16 @@ def noise_variance(prob: Problem, res: Sequence[np.ndarray]) -> np.ndarray:
 def _pooled_variance(prob: Problem, sums: Sequence[np.ndarray]) -> np.ndarray:
     """R from each experiment's residual sums of squares per measured channel (`noise_variance`).
 
-    Floored far below any real sensor noise so that a noise-free fit stays finite.
+    Floored far below any real sensor noise so that a noise-free fit stays finite; the channels
+    whose noise the config gives (`[identify] noise_std`) keep it.
     """
     ss, n, scale = np.zeros(len(prob.channels)), np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
     for r, e2 in zip(prob.records, sums):  # a record's channels are distinct
         ss[r.channels] += e2
         n[r.channels] += len(r.y)
         scale[r.channels] += np.sum(r.y**2, axis=0)
-    return np.maximum(ss / n, 1e-14 * scale / n + 1e-30)
+    R = np.maximum(ss / n, 1e-14 * scale / n + 1e-30)
+    return R if prob.known is None else np.where(np.isnan(prob.known), R, prob.known)
 
 
 def weighted_cost(prob: Problem, res: Sequence[np.ndarray], R: np.ndarray) -> float:
@@ -576,12 +581,14 @@ def weighted_cost(prob: Problem, res: Sequence[np.ndarray], R: np.ndarray) -> fl
 
 
 def negative_log_likelihood(prob: Problem, res: Sequence[np.ndarray]) -> float:
-    """−ln p(Z|θ, R̂) with R̂ the ML noise variance: ½ Σ_c N_c (ln 2π R̂_c + 1)."""
+    """−ln p(Z|θ, R) = ½ Σ_c (N_c ln 2π R_c + S_c/R_c), S_c channel c's residual sum of squares,
+    R_c the ML noise variance S_c/N_c (then ½ Σ_c N_c (ln 2π R_c + 1)) or the config's."""
     R = noise_variance(prob, res)
-    n = np.zeros(len(prob.channels))
-    for r in prob.records:
+    n, S = np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
+    for r, e in zip(prob.records, res):
         n[r.channels] += len(r.y)
-    return float(0.5 * np.sum(n * (np.log(2 * np.pi * R) + 1)))
+        S[r.channels] += np.sum(e**2, axis=0)
+    return float(0.5 * np.sum(n * np.log(2 * np.pi * R) + S / R))
 
 
 def exploded(prob: Problem, outs: Sequence[np.ndarray]) -> str | None:
@@ -624,59 +631,135 @@ def gauss_newton_terms(
     return g, M
 
 
+def segmented(prob: Problem, count: int, least: int) -> Problem:
+    """`prob` with each record cut into `count` consecutive segments of (nearly) equal length,
+    each a record of its own with its own initial state: output error on segments, the multiple
+    shooting of boundary-value problems with the continuity between segments relaxed.
+
+    A segment has at least `least` samples (a shorter record keeps fewer segments, at least one).
+    Over a segment of length T a model's error grows by at most e^(aT) for its least stable
+    rate a, where over the whole record it grows by e^(a·T_record): short segments keep the cost
+    of an unstable or poor model's error bounded. The unmeasured components of each segment's
+    initial state stay at trim, as for a whole record.
+    """
+    records, offset = [], prob.n_free
+    for r in prob.records:
+        n = len(r.y)
+        pieces = max(1, min(count, n // max(least, 1)))
+        edges = np.linspace(0, n, pieces + 1).round().astype(int)
+        for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+            name = r.name if pieces == 1 else f"{r.name}[{j}]"
+            records.append(Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset))
+            offset += len(r.measured)
+    return replace(prob, records=tuple(records))
+
+
+def _eliminate(M: np.ndarray, nf: int, rhs: np.ndarray) -> np.ndarray:
+    """`M_xx⁻¹ rhs`, x the parameters after the first `nf` (the initial states), with M_xx
+    scaled to a unit diagonal first: an unstable model's initial-state sensitivities grow along
+    the record, so M_xx spans many decades."""
+    Mxx = M[nf:, nf:]
+    D = np.sqrt(np.maximum(np.diag(Mxx), 0.0))
+    D = np.where(D > 0, D, 1.0)
+    return np.linalg.lstsq(Mxx / np.outer(D, D), rhs / D[:, None], rcond=None)[0] / D[:, None]
+
+
+def reduced(M: np.ndarray, g: np.ndarray, nf: int) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations of the first `nf` parameters with the others (the initial states)
+    solved for: the Schur complement `F = M_θθ − M_θx M_xx⁻¹ M_xθ` and `g_θ − M_θx M_xx⁻¹ g_x`,
+    the Gauss-Newton model of the cost as a function of θ alone (variable projection)."""
+    if len(M) > nf:
+        K = _eliminate(M, nf, np.column_stack([M[nf:, :nf], g[nf:]]))
+        F, gr = M[:nf, :nf] - M[:nf, nf:] @ K[:, :nf], g[:nf] - M[:nf, nf:] @ K[:, nf]
+    else:
+        F, gr = M[:nf, :nf].copy(), g[:nf].copy()
+    return (F + F.T) / 2, gr
+
+
 def fit_initial_states(
-    prob: Problem, values: np.ndarray, R: np.ndarray | None = None
+    prob: Problem, values: np.ndarray, R: np.ndarray | None = None, full: bool = False
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """The parameter vector at the free `values` with the best-fitting initial states, and the
-    model outputs there.
+    model outputs there (`full`: the whole states, (N, 10) per record).
 
     The outputs are linear in x0 (`y = y_forced + G x0`, G = CΦᵏ), so x0 is a weighted linear
-    least-squares solution: R from the data's spread and then from the residuals when not given.
-    For any diagonal weighting the normal equations are sums of per-channel Gram matrices of
-    `[G, y − y_forced]`, gathered in one pass. A model whose responses are not finite gets the
-    first measured samples. Real values only: this solve is not complex-step safe.
+    least-squares solution; when R is not given, R from the data's spread, then R and x0 in turn
+    towards their joint fixed point, where x0 and R maximise the likelihood for these
+    coefficients. Each channel c is reduced once, in one pass, to the triangular factor of
+    `[G_c  y_c − y_c,forced]` (QR, a piece at a time): for any weights the least-squares problem
+    is then k small triangular blocks, solved without squaring its condition number, which an
+    unstable model's G makes large (its free response grows along the record). A model whose
+    responses are not finite gets the first measured samples. Real values only: this solve is
+    not complex-step safe.
     """
     models = _models(prob, values, 0)
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
-    grams = []  # per record and channel c: Σ GᵀG (k, k, k), Σ Gᵀv (k, k), Σ v² (k,); v = y − y_forced
+    factors = []  # per record: (k, k + 1, k + 1) upper-triangular factors of [G_c v_c], channel c
     for r in prob.records:
         d, k = models[r.dt], len(r.measured)
-        X = np.zeros((NX, 1 + k))  # column 0: the forced response; then one per x0 component
-        X[r.measured, 1 + np.arange(k)] = 1.0
-        Q, b, ss = np.zeros((k, k, k)), np.zeros((k, k)), np.zeros(k)
+        T = np.zeros((k, k + 1, k + 1))
         u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
-        for samples, Y in _pieces(d.E[:, :NX], d.E[:, NX:], u1, X, r.measured, np.ones(k), PIECE):
-            G, v = Y[:, :, 1:], r.y[samples].T - Y[:, :, 0]  # channel first
-            Q += G.transpose(0, 2, 1) @ G
-            b += (G.transpose(0, 2, 1) @ v[:, :, None])[:, :, 0]
-            ss += np.sum(v**2, axis=1)
-        grams.append((Q, b, ss))
+        Phi, forcing = d.E[:, :NX], d.E[:, NX:]
+        # columns: 0 the forced response, 1 + i the response to x0's i-th measured component;
+        # each part of the model that evolves on its own (`_uncoupled`) is propagated alone
+        acts = np.column_stack([forcing.any(axis=1), np.eye(NX, dtype=bool)[:, r.measured]])
+        finite = True
+        for states, params, channels in _uncoupled(Phi != 0, acts, r.measured):
+            params = np.union1d([0], params)  # a part the inputs do not force has a zero column 0
+            at = np.full(NX, -1)
+            at[states] = np.arange(len(states))
+            x0 = params[1:] - 1  # the x0 components of this part, indexes into r.measured
+            X = np.zeros((len(states), len(params)))
+            X[at[r.measured[x0]], 1 + np.arange(len(x0))] = 1.0
+            rows = at[r.measured[channels]]
+            cols = np.r_[x0, k]  # where [G v] of this part's channels sit in [G_c v_c]
+            for samples, Y in _pieces(
+                Phi[np.ix_(states, states)], forcing[states], u1, X, rows, np.ones(len(rows)), PIECE
+            ):
+                block = np.zeros((len(channels), len(samples) + k + 1, k + 1))
+                block[:, : k + 1] = T[channels]
+                with np.errstate(over="ignore", invalid="ignore"):
+                    block[:, k + 1 :, cols] = np.concatenate(
+                        [Y[:, :, 1:], (r.y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
+                    )
+                if not np.all(np.isfinite(block)):
+                    finite = False
+                    break
+                T[channels] = np.linalg.qr(block, mode="r")[:, : k + 1]
+        factors.append(T if finite else None)
 
     def solve(variance) -> list[np.ndarray]:
-        """x0 per record for channel variances `variance(record)`, and the residual sums of squares."""
+        """x0 per record for channel variances `variance(record)` (stored in `p`), and the
+        residual sums of squares there: min Σ_c ‖(G_c x − v_c)‖²/R_c = Σ_c ‖U_c x − z_c‖²/R_c + ρ_c²/R_c
+        with [U_c z_c; 0 ρ_c] channel c's factor."""
         sums = []
-        for r, (Q, b, ss) in zip(prob.records, grams):
+        for r, T in zip(prob.records, factors):
             k = len(r.measured)
-            wt = 1.0 / variance(r)
-            # normal equations: k ≤ 10 unknowns pinned by the first samples, so squaring the
-            # condition number is harmless; scaled to a largest entry of 1, as LAPACK's norms
-            # overflow beyond ~1e154
-            with np.errstate(over="ignore", invalid="ignore"):
-                N, rhs = np.tensordot(wt, Q, 1), wt @ b
-                big = float(np.max(np.abs(N)))
-            if all(np.all(np.isfinite(a)) for a in (N, rhs, ss)) and big > 0:
-                x0 = np.linalg.lstsq(N / big, rhs / big, rcond=None)[0]
-                sums.append(np.maximum(ss - 2 * b @ x0 + np.einsum("j,cjl,l->c", x0, Q, x0), 0.0))
-            else:
-                x0 = r.y[0]
+            if T is None:
+                p[r.offset : r.offset + k] = r.y[0]
                 sums.append(np.full(k, np.inf))
+                continue
+            w = variance(r) ** -0.5
+            A, z = (T[:, :k, :k] * w[:, None, None]).reshape(-1, k), (T[:, :k, k] * w[:, None]).ravel()
+            D = np.linalg.norm(A, axis=0)  # columns scaled to unit length: x0's units do not count
+            D = np.where(D > 0, D, 1.0)
+            x0 = np.linalg.lstsq(A / D, z, rcond=None)[0] / D
             p[r.offset : r.offset + k] = x0
+            sums.append(np.sum((T[:, :k, :k] @ x0 - T[:, :k, k]) ** 2, axis=1) + T[:, k, k] ** 2)
         return sums
 
     if R is None:
         R = _pooled_variance(prob, solve(lambda r: (np.std(r.y, axis=0) + 1e-12) ** 2))
-    solve(lambda r: R[r.channels])
-    return p, [_states(r, models[r.dt], prob.x0(r, p))[:, r.measured] for r in prob.records]
+        for _ in range(RELAXATIONS):
+            new = _pooled_variance(prob, solve(lambda r: R[r.channels]))
+            settled = np.all(np.abs(new - R) <= 1e-12 * R)
+            R = new
+            if settled:
+                break
+    else:
+        solve(lambda r: R[r.channels])
+    xs = [_states(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
+    return p, xs if full else [x[:, r.measured] for r, x in zip(prob.records, xs)]
 
 
 def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = None) -> np.ndarray:
@@ -880,9 +963,14 @@ def assess(
     R = noise_variance(prob, res) if R is None else R
     if M is None:
         M = gauss_newton_terms(prob, p, xs, res, R)[1]
-    cov, std, corr = crlb(M)
-    corrected = colored_covariance(prob, p, xs, res, R, cov)
     nf = prob.n_free
+    # the bounds of θ from its information with the initial states eliminated, which stays well
+    # conditioned where M itself does not (an unstable model's); the colored bound needs the θ
+    # rows of M⁻¹ too: [F⁻¹, −F⁻¹ M_θx M_xx⁻¹] (the inverse of a 2 × 2 block matrix)
+    F = reduced(M, np.zeros(len(M)), nf)[0]
+    cov, std, corr = crlb(F)
+    rows = np.hstack([cov, -cov @ _eliminate(M, nf, M[nf:, :nf]).T]) if len(M) > nf else cov
+    corrected = colored_covariance(prob, p, xs, res, R, rows)
     x0 = {}
     for r in prob.records:
         xr = prob.x0(r, p) + np.eye(NX)[IX["u"]] * prob.speed
@@ -890,22 +978,15 @@ def assess(
     return Information(
         prob.free,
         p[:nf].copy(),
-        _eliminated(M, nf),
-        std[:nf],
-        corr[:nf, :nf],
-        np.where(np.isinf(std[:nf]), np.inf, np.sqrt(np.maximum(np.diag(corrected), 0.0))),
+        F,
+        std,
+        corr,
+        np.where(np.isinf(std), np.inf, np.sqrt(np.maximum(np.diag(corrected), 0.0))),
         dict(zip(prob.channels, map(float, np.sqrt(R)))),
         x0,
         negative_log_likelihood(prob, res),
         p.copy(),
     )
-
-
-def _eliminated(M: np.ndarray, nf: int) -> np.ndarray:
-    """The information about the first `nf` parameters with the others (the initial states)
-    estimated too: the Schur complement `M_θθ − M_θx M_xx⁻¹ M_xθ`."""
-    F = M[:nf, :nf] - M[:nf, nf:] @ np.linalg.solve(M[nf:, nf:], M[nf:, :nf])
-    return (F + F.T) / 2
 
 
 def _values(prob: Problem, values) -> np.ndarray:
@@ -965,7 +1046,7 @@ def fisher(
     xs = states(prob, p)
     res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
     M = gauss_newton_terms(prob, p, xs, res, noise_variance(prob, res) if R is None else R)[1]
-    return _eliminated(M, prob.n_free)
+    return reduced(M, np.zeros(len(M)), prob.n_free)[0]
 
 
 def _analysed(experiments, config, values, noise_std) -> tuple[Problem, np.ndarray, np.ndarray | None]:

@@ -30,7 +30,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, median
+from testbed.data import MIN_NOISE_STD, Experiment, median
 from testbed.errors import InputError
 from testbed.model import STATES
 
@@ -101,14 +101,21 @@ def _third_differences(experiments: Sequence[Experiment]) -> dict[str, list[np.n
     return out
 
 
-def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
-    """Measurement noise σ per measured state, pooled over the experiments: robust third
-    differences: for white noise `Var(Δ³e) = 20 σ²`, and a signal smooth over four samples adds
-    little to `Δ³y` (where it is fast, the σ is an upper bound).
-    A state measured only in records of fewer than 4 samples has none: `InputError`."""
+def noise_from_data(
+    experiments: Sequence[Experiment], given: Mapping[str, float] | None = None
+) -> dict[str, float]:
+    """Measurement noise σ per measured state: `given[state]` where it is given (the sensors' σ,
+    known: a model config's `noise_std`), else read off the data, pooled over the experiments:
+    robust third differences: for white noise `Var(Δ³e) = 20 σ²`, and a signal smooth over four
+    samples adds little to `Δ³y` (where it is fast, the σ is an upper bound).
+    A state so read but measured only in records of fewer than 4 samples: `InputError`."""
+    given = given or {}
     pooled = _third_differences(experiments)
     out = {}
     for name in (s for s in STATES if s in pooled):
+        if name in given:
+            out[name] = float(given[name])
+            continue
         d = np.concatenate(pooled[name])
         if not d.size:
             where = ", ".join(e.source or e.name for e in experiments if name in e.measured)
@@ -117,7 +124,7 @@ def noise_from_data(experiments: Sequence[Experiment]) -> dict[str, float]:
                 "(third differences) expected at least 4"
             )
         mad = 1.4826 * median(np.abs(d - median(d)))
-        out[name] = max(mad / math.sqrt(20.0), 1e-9)  # floor: R must stay positive definite
+        out[name] = max(mad / math.sqrt(20.0), MIN_NOISE_STD)  # R must stay positive definite
     return out
 
 

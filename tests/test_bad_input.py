@@ -18,7 +18,7 @@ import pytest
 
 import testbed.estimators
 from testbed.cli import main
-from testbed.data import ModelConfig, config_text, read_config, read_csv
+from testbed.data import ModelConfig, config_text, read_config, read_csv, write_config
 from testbed.errors import InputError, atomic_file
 from testbed.estimators import Estimate, Status, identify
 from testbed.runs import simulate
@@ -217,6 +217,66 @@ def test_an_impossible_vehicle_is_refused(run, tmp_path, capsys, line, new, word
         refused(capsys, *argv, "--config", config, words=["c.toml", "[vehicle]", words])
 
 
+@pytest.mark.parametrize(
+    "noise, words",
+    [
+        ("0.01", "[identify] noise_std = 0.01; expected a table of state = σ (SI)"),
+        ("{yaw = 0.01}", "[identify] noise_std names 'yaw', not a state (one of u, v, w,"),
+        ("{r = 0}", "[identify] noise_std: r = 0; expected a σ from 1e-09 to 1e+06 (SI)"),
+        ("{r = -0.002}", "[identify] noise_std: r = -0.002; expected a σ from 1e-09"),
+        ("{psi = nan}", "[identify] noise_std: psi = nan; expected a finite number"),
+        ('{r = "0.002"}', "[identify] noise_std: r = '0.002'; expected a finite number"),
+    ],
+)
+def test_a_bad_noise_std_in_the_config_is_refused(run, tmp_path, capsys, noise, words):
+    config = _config(run, tmp_path, **{"free = [": f"noise_std = {noise}\nfree = ["})
+    for argv in (["identify", run, "--method", "mekf"], ["identify", run], ["analyze", run]):
+        refused(capsys, *argv, "--config", config, "--out", tmp_path / "e.json", words=["c.toml", words])
+    assert not (tmp_path / "e.json").exists()
+
+
+@pytest.mark.parametrize(
+    "value, words",
+    [
+        ("r=-1", "'r=-1': r = -1; expected a σ from 1e-09 to 1e+06 (SI)"),
+        ("r=0.002,yaw=1", "names 'yaw', not a state"),
+        ("r=inf", "'r=inf': r = inf; expected a finite number"),
+        ("r", "'r': expected state=σ pairs, e.g. r=0.002,psi=0.01"),
+        ("", "expected state=σ pairs"),
+        ("r=x", "'r=x': 'x' is not a number"),
+        ("r=1,r=2", "gives r twice"),
+    ],
+)
+def test_a_bad_noise_std_flag_is_refused_naming_it(run, tmp_path, capsys, value, words):
+    for command in ("identify", "analyze"):
+        refused(
+            capsys,
+            command,
+            run,
+            "--noise-std",
+            value,
+            "--out",
+            tmp_path / "e.json",
+            words=["--noise-std", words],
+        )
+    assert not (tmp_path / "e.json").exists()
+
+
+def test_an_output_no_record_measures_is_refused(run, tmp_path, capsys):
+    # the run's model.toml fits every measured state but z, r among them; this log has no r
+    k = _rows(run)[0].index("r")
+    data = _write(tmp_path / "no-r.csv", [r[:k] + r[k + 1 :] for r in _rows(run)])
+    words = [
+        "model.toml: [identify] outputs names r, which no record measures",
+        "(they measure u, v, w, p, q, phi, theta, psi, z)",
+    ]
+    for argv in (["identify", "--method", "mekf"], ["identify"], ["analyze"]):
+        refused(
+            capsys, *argv, data, "--config", run / "model.toml", "--out", tmp_path / "e.json", words=words
+        )
+    assert not (tmp_path / "e.json").exists()
+
+
 @pytest.mark.parametrize("method", ["mekf", "ml-gn"])
 def test_an_inertia_that_is_not_a_bodys_is_refused_before_the_fit(run, tmp_path, capsys, method):
     iz = read_config(run / "model.toml").vehicle.Iz
@@ -241,7 +301,8 @@ def test_an_inertia_that_is_not_a_bodys_is_refused_before_the_fit(run, tmp_path,
 def test_only_u_measured_with_lateral_coefficients_free_is_not_identifiable(run, tmp_path, capsys):
     rows = [[r[0], r[1]] + r[11:] for r in _rows(run)]
     data = _write(tmp_path / "u.csv", rows)
-    config = _config(run, tmp_path, free=("Y_v", "N_r", "Y_dr"))
+    config = tmp_path / "c.toml"  # every measured state fitted (the run's outputs are not measured)
+    write_config(config, replace(read_config(run / "model.toml"), free=("Y_v", "N_r", "Y_dr"), outputs=None))
     for method in ("ml-gn", "mekf"):
         refused(
             capsys,

@@ -1,10 +1,13 @@
 """The file readers and writers: round trips and one-line errors on bad input."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from testbed.data import (
     CSV_COLUMNS,
+    Experiment,
     ModelConfig,
     config_text,
     load_data,
@@ -30,7 +33,8 @@ def _csv(tmp_path, text, name="e.csv"):
 def test_csv_round_trip(tmp_path):
     rng = np.random.default_rng(0)
     t = np.arange(20) * 0.05
-    x, d = rng.normal(size=(20, 10)), rng.normal(size=(20, 3))
+    # within ±1: no angle jumps by more than π between rows, so none is unwrapped
+    x, d = rng.uniform(-1.0, 1.0, size=(20, 10)), rng.normal(size=(20, 3))
     path = write_csv(tmp_path / "run.csv", t, x, d)
     e = read_csv(path)
     assert e.name == "run" and e.measured == STATES
@@ -149,11 +153,33 @@ def _doc(**changes):
         ({"coefficients__Y_vv": 1.0}, r"\[coefficients\] Y_vv is not a coefficient"),
         ({"identify__free": ["X_u", "Y_foo"]}, r"free names 'Y_foo'"),
         ({"identify__free": ["X_u", "X_u"]}, r"names a coefficient twice"),
+        ({"identify__noise_std": 0.01}, r"\[identify\] noise_std = 0.01; expected a table of state = σ"),
+        ({"identify__noise_std": {"yaw": 0.01}}, r"\[identify\] noise_std names 'yaw', not a state"),
+        ({"identify__noise_std": {"r": 0.0}}, r"\[identify\] noise_std: r = 0; expected a σ from 1e-09"),
+        ({"identify__noise_std": {"r": -0.002}}, r"\[identify\] noise_std: r = -0.002; expected a σ"),
+        ({"identify__noise_std": {"psi": 1e7}}, r"\[identify\] noise_std: psi = 1e\+07; expected a σ"),
+        ({"identify__noise_std": {"r": "0.002"}}, r"\[identify\] noise_std: r = '0.002'; expected a finite"),
+        ({"identify__noise_std": {"r": True}}, r"\[identify\] noise_std: r = true; expected a finite"),
+        ({"identify__noise_std": {"r": float("inf")}}, r"\[identify\] noise_std: r = inf; expected a finite"),
     ],
 )
 def test_config_bad_input(changes, words):
     with pytest.raises(InputError, match=words):
         parse_config(_doc(**changes), "m.toml")
+
+
+def test_config_noise_std_round_trip_and_merge(tmp_path):
+    cfg = parse_config(_doc(identify__noise_std={"psi": 0.002, "r": 1}), "m.toml")
+    assert cfg.noise_std == {"r": 1.0, "psi": 0.002}  # in state order, as floats
+    assert "noise_std = {r = 1.0, psi = 0.002}" in config_text(cfg)
+    assert read_config(write_config(tmp_path / "m.toml", cfg)).noise_std == cfg.noise_std
+    assert parse_config(_doc(), "m.toml").noise_std is None
+    assert "noise_std" not in config_text(parse_config(_doc(), "m.toml"))
+    # given values replace the config's entry by entry; the others stay
+    assert cfg.with_noise_std({"r": 0.003, "u": 0.05}).noise_std == {"u": 0.05, "r": 0.003, "psi": 0.002}
+    assert cfg.with_noise_std(None) is cfg
+    with pytest.raises(InputError, match=r"^noise_std: r = -1; expected a σ"):
+        cfg.with_noise_std({"r": -1})
 
 
 def test_config_missing_name_is_zero_and_fixed():
@@ -196,3 +222,55 @@ def test_atomic_directory_leaves_nothing_on_error(tmp_path):
 
 def test_csv_columns_are_the_spec_columns():
     assert ",".join(CSV_COLUMNS) == "t,u,v,w,p,q,r,phi,theta,psi,z,delta_r,delta_er,delta_el"
+
+
+def test_outputs_must_be_measured_by_some_record():
+    """Each `[identify] outputs` entry is measured by at least one record; a record keeps the
+    outputs it measures; one measuring none of them is refused."""
+    t = np.arange(5) * 0.1
+    rv = Experiment("rv", t, ("v", "r"), np.zeros((5, 2)), np.zeros((5, 3)), "rv.csv")
+    vp = Experiment("vp", t, ("v", "psi"), np.zeros((5, 2)), np.zeros((5, 3)), "vp.csv")
+    cfg = ModelConfig(VEHICLE, dict.fromkeys(COEFFICIENTS, 0.0), ("Y_v",), "m.toml", ("r", "psi"))
+    assert [e.measured for e in cfg.fitted([rv, vp])] == [("r",), ("psi",)]
+    missing = replace(cfg, outputs=("r", "z", "q"))
+    with pytest.raises(InputError) as exc:
+        missing.fitted([rv, vp])
+    message = str(exc.value)
+    assert message == (
+        "m.toml: [identify] outputs names z, q, which no record measures (they measure v, r, psi); "
+        "expected measured states, or no outputs to fit every measured state"
+    )
+    with pytest.raises(InputError, match="rv.csv: none of the fitted outputs"):
+        replace(cfg, outputs=("psi",)).fitted([rv, vp])
+
+
+def test_a_wrapped_angle_is_unwrapped_on_reading(tmp_path):
+    """A heading (and a roll) logged within ±π reads as the continuous angle: each jump of more
+    than π between rows is a wrap. The continuous record is the reference."""
+    t = np.arange(400) * 0.05
+    psi = 3.0 + 0.9 * t + 0.3 * np.sin(2.0 * t)  # through +π, then two more turns
+    phi = -2.5 - 0.4 * t  # a slow roll through −π
+    x = np.zeros((len(t), 10))
+    x[:, STATES.index("psi")], x[:, STATES.index("phi")] = psi, phi
+    wrapped = x.copy()
+    for j in (STATES.index("psi"), STATES.index("phi")):
+        wrapped[:, j] = np.angle(np.exp(1j * x[:, j]))  # (−π, π], as an AHRS logs it
+    assert np.abs(np.diff(wrapped, axis=0)).max() > 6.0  # it does wrap
+    e = read_csv(write_csv(tmp_path / "wrapped.csv", t, wrapped, np.zeros((len(t), 3))))
+    np.testing.assert_allclose(e.y, x, rtol=0, atol=1e-8)  # the CSV's 10 digits
+    theta = x.copy()
+    theta[:, STATES.index("theta")] = wrapped[:, STATES.index("psi")]  # pitch is never unwrapped
+    e = read_csv(write_csv(tmp_path / "theta.csv", t, theta, np.zeros((len(t), 3))))
+    np.testing.assert_allclose(e.column("theta"), theta[:, STATES.index("theta")], rtol=0, atol=1e-8)
+
+
+def test_an_angle_unwrapped_beyond_the_data_limit_is_refused(tmp_path):
+    p = _csv(
+        tmp_path, "t,psi,delta_r,delta_er,delta_el\n0,999999,0,0,0\n0.1,999995,0,0,0\n0.2,999995,0,0,0\n"
+    )
+    with pytest.raises(InputError) as exc:
+        read_csv(p)
+    assert str(exc.value) == (
+        f"{p}: column 'psi' unwrapped (it jumps by more than π) reaches 1000001.283 at data row 2, "
+        "beyond ±1e+06; expected a plausible SI value (m, m/s, rad, rad/s)"
+    )

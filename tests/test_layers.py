@@ -33,6 +33,7 @@ LAYERS = [
     ("testbed.examples",),
     ("testbed.estimators.base",),
     ("testbed.estimators.mekf",),
+    ("testbed.estimators.trust_region", "testbed.estimators.starts"),
     ("testbed.estimators.ml",),
     ("testbed.estimators",),
     ("testbed.validation", "testbed.analysis"),

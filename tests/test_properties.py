@@ -3,8 +3,9 @@
 Generated measurement CSVs, model-config TOMLs and run manifests: valid ones with random values,
 and malformed ones (a valid one broken by one to three mutations). The properties:
 
-- a reader returns exactly what a valid file holds (and a file it wrote reads back the same), or
-  raises `InputError` with one line naming the file; no other exception, ever;
+- a reader returns exactly what a valid file holds (a roll or heading that wraps at ±π made
+  continuous; a file it wrote reads back the same), or raises `InputError` with one line
+  naming the file; no other exception, ever;
 - the command line, given such files and random arguments, exits 0, 1 or 2 and never prints a
   traceback; on 2 it prints exactly one stderr line naming a file, flag or value and writes
   nothing; it never changes an input.
@@ -36,6 +37,8 @@ from studies.fuzz import (
 from testbed.data import (
     CSV_COLUMNS,
     MAX_DATA,
+    MIN_NOISE_STD,
+    WRAPPING,
     ModelConfig,
     check_experiment,
     csv_text,
@@ -125,6 +128,15 @@ def mutate_csv(data: bytes, mutations, junk: bytes = b"", at: int = 0) -> bytes:
     return data[:k] + junk + data[k:]
 
 
+def assert_unwrapped(read: np.ndarray, raw: np.ndarray):
+    """`read` is the angle `raw` made continuous: the same first value, whole turns added, no
+    jump of more than π left (up to the rounding of the sums)."""
+    ulp = 1e-12 * max(1.0, float(np.abs(read).max()))
+    turns = (read - raw) / (2 * np.pi)
+    assert read[0] == raw[0] and np.all(np.abs(turns - np.round(turns)) < ulp)
+    assert np.all(np.abs(np.diff(read)) <= np.pi + ulp)
+
+
 @pytest.mark.parametrize("profile", PROFILES)
 def test_a_valid_csv_reads_back_exactly_and_round_trips(tmp_path, profile):
     def make():
@@ -135,11 +147,15 @@ def test_a_valid_csv_reads_back_exactly_and_round_trips(tmp_path, profile):
             e = read_csv(path)
             assert e.measured == measured and e.name == "e"
             np.testing.assert_array_equal(e.t, t)
-            np.testing.assert_array_equal(e.y, y)
             np.testing.assert_array_equal(e.inputs, u)
+            for j, name in enumerate(measured):
+                if name in WRAPPING and np.any(np.abs(np.diff(y[:, j])) > np.pi):
+                    assert_unwrapped(e.y[:, j], y[:, j])
+                else:  # every other column exactly as written
+                    np.testing.assert_array_equal(e.y[:, j], y[:, j])
             again = read_csv(_file(tmp_path, "w.csv", csv_text(e.t, e.y, e.inputs, e.measured).encode()))
             assert again.measured == measured
-            np.testing.assert_allclose(again.y, y, rtol=1e-9, atol=1e-300)
+            np.testing.assert_allclose(again.y, e.y, rtol=1e-9, atol=1e-300)
             assert path.read_bytes() == data  # the reader leaves its input alone
 
         return check
@@ -171,6 +187,7 @@ def test_a_malformed_csv_is_read_or_refused_in_one_line(tmp_path, profile):
 # -- model config --------------------------------------------------------------------------------
 
 POSITIVE = st.floats(1e-2, 1e5)
+NOISE = st.one_of(st.floats(MIN_NOISE_STD, MAX_DATA), st.sampled_from([MIN_NOISE_STD, MAX_DATA, 1]))
 
 
 @st.composite
@@ -184,6 +201,8 @@ def config_doc(draw):
     doc = {"vehicle": vehicle, "coefficients": coefficients}
     if draw(st.booleans()):
         doc["identify"] = {"free": draw(st.lists(st.sampled_from(COEFFICIENTS), unique=True))}
+        if draw(st.booleans()):
+            doc["identify"]["noise_std"] = draw(st.dictionaries(st.sampled_from(STATES), NOISE))
     return doc
 
 
@@ -201,22 +220,23 @@ def bad_config_doc(draw):
             continue
         if not isinstance(doc.get(table), dict):
             continue
-        keys = list(doc[table]) + ["colour", "X_uu", "free", "mass"]
+        keys = list(doc[table]) + ["colour", "X_uu", "free", "mass", "noise_std"]
         key = draw(st.sampled_from(keys))
         if draw(st.booleans()) and key in doc[table]:
             del doc[table][key]
         else:
-            doc[table][key] = copy.deepcopy(
-                draw(st.sampled_from(TOML_BAD_VALUES + [["X_u", "X_u"], ["Y_nope"], [1]]))
-            )
+            bad = [["X_u", "X_u"], ["Y_nope"], [1], {"r": -1.0}, {"yaw": 0.1}, {"psi": "0.1"}]
+            doc[table][key] = copy.deepcopy(draw(st.sampled_from(TOML_BAD_VALUES + bad)))
     return doc
 
 
 def _expected(doc) -> ModelConfig:
+    noise = doc.get("identify", {}).get("noise_std")
     return ModelConfig(
         Vehicle(**{k: float(v) for k, v in doc["vehicle"].items()}),
         {n: float(doc["coefficients"].get(n, 0.0)) for n in COEFFICIENTS},
         tuple(doc.get("identify", {}).get("free", ())),
+        noise_std={s: float(noise[s]) for s in STATES if s in noise} if noise else None,
     )
 
 
@@ -229,16 +249,18 @@ def test_a_valid_config_reads_back_exactly_and_round_trips(tmp_path, profile):
             path = _file(tmp_path, "m.toml", text)
             cfg = read_config(path)
             want = _expected(doc)
-            assert (cfg.vehicle, dict(cfg.coefficients), cfg.free) == (
+            assert (cfg.vehicle, dict(cfg.coefficients), cfg.free, cfg.noise_std) == (
                 want.vehicle,
                 want.coefficients,
                 want.free,
+                want.noise_std,
             )
             back = read_config(write_config(tmp_path / "w.toml", cfg))
-            assert (back.vehicle, dict(back.coefficients), back.free) == (
+            assert (back.vehicle, dict(back.coefficients), back.free, back.noise_std) == (
                 cfg.vehicle,
                 dict(cfg.coefficients),
                 cfg.free,
+                cfg.noise_std,
             )
             assert path.read_bytes() == text
 
@@ -265,6 +287,10 @@ def test_a_malformed_config_is_read_or_refused_in_one_line(tmp_path, profile):
             else:
                 assert all(math.isfinite(v) for v in cfg.coefficients.values())
                 assert cfg.vehicle.speed >= 1e-3 and cfg.vehicle.mass > 0
+                noise = cfg.noise_std or {}
+                assert set(noise) <= set(STATES) and all(
+                    MIN_NOISE_STD <= v <= MAX_DATA for v in noise.values()
+                )
             assert path.read_bytes() == text
 
         return check
@@ -376,6 +402,9 @@ OUTS = st.sampled_from(
 )
 
 
+NOISE_FLAGS = ["r=0.002", "u=0.05,psi=1e-9", "psi=1e6", "r=-1", "yaw=1", "r", "", "r=nan", "r=1,r=2", ","]
+
+
 @st.composite
 def command_line(draw) -> Case:
     """One `testbed` command over the workspace (`studies.fuzz.workspace`), valid or not, with
@@ -409,6 +438,7 @@ def command_line(draw) -> Case:
             "--config", st.sampled_from(["cfg.toml", "cfg.toml", "bad.toml", "missing.toml", "data"])
         )
         argv += maybe("--out", OUTS)
+        argv += maybe("--noise-std", st.sampled_from(NOISE_FLAGS))
         if command == "identify":
             method = draw(st.sampled_from(["ml-gn", "ml-gn", "mekf", "ml-nr", "ml-nm", "ekf", "nope"]))
             argv += ["--method", method]

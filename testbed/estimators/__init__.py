@@ -43,7 +43,9 @@ __all__ = [
     "register",
 ]
 
-METHODS: dict[str, Method] = {m.name: m for m in (ml.ML_GN, ml.ML_NR, ml.ML_NM, mekf.MEKF, mekf.EKF)}
+METHODS: dict[str, Method] = {
+    m.name: m for m in (ml.ML_GN, ml.ML_LM, ml.ML_NR, ml.ML_NM, mekf.MEKF, mekf.EKF)
+}
 
 
 def register(m: Method) -> Method:

@@ -24,6 +24,8 @@ class Status(enum.Enum):
     MAX_ITERATIONS = "iteration limit reached before convergence"
     STALLED = "no step decreased the cost"
     DIVERGED = "the model or the filter diverged"
+    SADDLE = "stopped at a stationary point that is not a minimum (the second-order check failed)"
+    WORSE = "ended with a higher cost than its start"
 
     @property
     def message(self) -> str:
@@ -43,13 +45,16 @@ class Estimate:
             noise (NaN where the fit diverged).
         cost: the method's cost at the estimate (the negative log-likelihood for the
             output-error methods and the filters' innovations).
-        iterations: iterations taken (`iterative` methods) or samples processed (`online`).
+        iterations: iterations taken (`iterative` methods, over every start tried) or samples
+            processed (`online`).
         wall_time_s: wall-clock time of the fit.
         noise_std: measurement noise σ per measured state, as estimated or used.
         start: where the fit started: "config" (the a-priori values), "equation-error", "mekf".
         history: (iterations + 1, n_free) values after each iteration (filters: each sample).
         message: what went wrong, where the status alone does not say (a divergence's reason).
         start_reason: why the fit started from `start` rather than the a-priori values.
+        starts: every start tried (`start` auto or global): its name, the cost it reached, its
+            status and iterations; the estimate is the one of least cost.
         crlb_corrected_std: (n_free,) the bounds corrected for coloured residuals
             (output-error methods; None otherwise).
         initial_states: experiment → state → fitted initial value (absolute u), for the
@@ -69,6 +74,7 @@ class Estimate:
     history: np.ndarray | None = field(default=None, repr=False)
     message: str = ""
     start_reason: str = ""
+    starts: tuple[dict, ...] = ()
     crlb_corrected_std: np.ndarray | None = field(default=None, repr=False)
     initial_states: dict[str, dict[str, float]] | None = field(default=None, repr=False)
 
@@ -102,6 +108,8 @@ class Estimate:
             doc["initial_states"] = self.initial_states
         if self.start_reason:
             doc["start_reason"] = self.start_reason
+        if self.starts:
+            doc["starts"] = [{**t, "cost": _finite(t["cost"])} for t in self.starts]
         if self.status is Status.DIVERGED:
             doc["diverged"] = {"reason": self.message or self.status.message}
         return doc
@@ -114,6 +122,19 @@ def _finite(x) -> float | None:
     """`x` as a JSON number, or null where it is not finite (an unbounded standard error)."""
     x = float(x)
     return x if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """Where an iterative optimiser stopped: the full parameter vector and how."""
+
+    p: np.ndarray
+    status: Status
+    iterations: int
+    history: np.ndarray  # (iterations + 1, n_free)
+    fisher: np.ndarray | None = None  # M at p, when the optimiser has it (saves `assess` a pass)
+    optimum: tuple = ()  # (θ, σ) where it converged, for later fits to recognise (`follow`)
+    joined: int = -1  # which earlier optimum's basin it entered and stopped in (-1: none)
 
 
 @dataclass(frozen=True)

@@ -62,11 +62,14 @@ about its own estimate, `P = F P Fᵀ + Q`, `P = P − K C P` (no symmetrisation
 so rounding shows up as asymmetry and lost definiteness; both are checked every sample.
 
 Choices (all options of `mekf`/`ekf`, see `FilterOptions`):
-- R: measurement noise σ per measured state from `noise_std`, else from the data: the third
-  difference of a smooth signal sampled fast is almost pure noise, `Var(Δ³e) = 20 σ²`; a median
-  absolute deviation makes it robust to the kinks at input steps. States that move fast against
-  the sample rate (roll and yaw rate at 20 Hz) leak into it: it is then an upper bound (up to
-  ~1.5× in the tests), which errs on the safe side (wider σ); give `noise_std` when known.
+- R: measurement noise σ per measured state: the sensors' σ where it is known, from the option
+  `noise_std`, else from the config's `noise_std` (`[identify] noise_std`, `--noise-std`; the
+  option overrides it entry by entry), else from the data: the third difference of a smooth
+  signal sampled fast is almost pure noise, `Var(Δ³e) = 20 σ²`; a median absolute deviation
+  makes it robust to the kinks at input steps. States that move fast against the sample rate
+  (roll and yaw rate at 20 Hz) leak into it: it is then an upper bound (up to ~1.5× in the
+  tests), which errs on the safe side (wider σ); give `noise_std` when known. Process noise is
+  sized from the data either way (below).
 - Initial covariance: measured states start at their first sample with σ = R's; unmeasured ones
   at trim (0) with σ `unmeasured_std`. Free coefficients start at the config's a-priori values with
   σ = `prior_frac`·|value| (default 50 %), at least `prior_floor` (default 1e-3 × the largest
@@ -134,15 +137,21 @@ Choices (all options of `mekf`/`ekf`, see `FilterOptions`):
 - `refresh_tol` (default 0.2; 0: the exact model every sample): see Speed. On a Scenario II
   run the default's final estimates are within 0.1 σ of the every-sample filter's (20 free
   coefficients; 0.02 σ with the 18 that `identify` keeps) at about a fifth of the exponentials.
-- Noise-free data (the runs' `*.truth.csv`): the filter weighs the model against measurement
-  noise; with none (σ from the data down to the 1e-9 floor that keeps R definite) any model error
-  (MuJoCo's plant against the linear model) is a many-σ innovation, and the filter diverges
-  within a few samples. No floor on R makes such a fit meaningful: on Scenario II even 1 % of
-  each signal's spread leaves innovations ~20× their σ. Covariance matching needs R to be the
-  noise: in a channel that `noise_free_channels` finds without noise (and `noise_std` does not
-  give), R from the data is the signal's own roughness, so its model error stays at the floor.
-  It is reported as DIVERGED with the reason, the innovations' size and that the data look
-  noise-free.
+- Noise-free or low-pass filtered data (the runs' `*.truth.csv`; a log whose sensors or export
+  smoothed it): the filter weighs the model against measurement noise; with none left to read
+  (σ from the data down to the 1e-9 floor that keeps R definite, or the small remnant a
+  low-pass filter leaves) any model error (MuJoCo's plant against the linear model; the
+  low-pass filter's smoothing) is a many-σ innovation, and the filter diverges within a few
+  samples. No floor on R makes such a fit meaningful: on Scenario II even 1 % of each signal's
+  spread leaves innovations ~20× their σ. Covariance matching needs R to be the noise: in a
+  channel that `noise_free_channels` finds without noise (and `noise_std` does not give), R
+  from the data is the signal's own roughness, so its model error stays at the floor. It is
+  reported as DIVERGED with the reason, the innovations' size, that the data look noise-free or
+  low-pass filtered, and what to give: the sensors' σ before any low-pass filter, as the
+  config's `noise_std`. That σ is the right weight for a low-pass filtered channel: in the band
+  the filter passes, where the signal is, its noise has the sensor's spectral density (a
+  2nd-order Butterworth at 3 Hz on 20 Hz data, forward and backward: estimates within 2.5
+  Cramér-Rao bounds of the raw data's, their σ 0.6-1.1× those bounds).
 - `cost` is the negative log-likelihood of the innovations, `½ Σ (νᵀ Σν⁻¹ ν + ln det Σν)`
   (without the 2π constant), Σν the augmented filter's innovation covariance.
 - Status CONVERGED when every sample was processed and, over the last 10 % of them, no estimate
@@ -172,8 +181,8 @@ from testbed.estimators.base import (
     is_count,
     option,
 )
-from testbed.measurements import noise_free_channels, noise_from_data
-from testbed.model import IX, ITHETA, NX, continuous, derivatives, expm_pair, structure, theta_vector
+from testbed.measurements import NOISE_STD, noise_free_channels, noise_from_data
+from testbed.model import IX, ITHETA, NX, STATES, continuous, derivatives, expm_pair, structure, theta_vector
 
 
 # ---------------------------------------------------------------- square-root kernels (pure)
@@ -309,7 +318,10 @@ class FilterOptions(Options):
         "stop after this many samples; None: all",
     )
     noise_std: Mapping[str, float] | None = option(
-        None, _sigmas, _SIGMAS, "measurement σ per measured state; None: from the data"
+        None,
+        _sigmas,
+        _SIGMAS,
+        "measurement σ per measured state, over the config's; None: the config's or the data's",
     )
     prior_std: Mapping[str, float] | None = option(None, _sigmas, _SIGMAS, "a-priori σ per free coefficient")
     prior_frac: float = _at_least(0.0, "a-priori σ as a fraction of |value|", 0.5)
@@ -790,16 +802,16 @@ def _run(
                 f"option prior_std[{name!r}]: not a free coefficient; free: {', '.join(config.free)}"
             )
         sig0[config.free.index(name)] = float(v)
-    sigma_r = noise_from_data(experiments)
-    for name, v in (options.noise_std or {}).items():
+    given = {**(config.noise_std or {}), **(options.noise_std or {})}  # the option's entries first
+    sigma_r = noise_from_data(experiments, given)
+    for name in options.noise_std or ():
         if name not in sigma_r:
             raise InputError(
                 f"option noise_std[{name!r}]: not a measured state; measured: {', '.join(sigma_r)}"
             )
-        sigma_r[name] = float(v)
 
     # covariance matching needs R to be the noise, which a channel without noise does not tell
-    quiet = set(noise_free_channels(experiments)) - set(options.noise_std or ())
+    quiet = set(noise_free_channels(experiments)) - set(given)
     samples = sum(len(e.t) for e in experiments)
     total = samples if options.max_samples is None else min(samples, options.max_samples)
     ref = step = None  # the previous pass's estimate; the largest move from it, in final σ
@@ -886,7 +898,8 @@ def _far(st: _State, o: FilterOptions) -> str:
 
 def _hint(st: _State, reason: str, experiments: Sequence[Experiment]) -> str:
     """Why the filter diverged, where the data tell: innovations far beyond their predicted σ;
-    measurements without noise (`noise_free_channels`)."""
+    measured states without noise (`noise_free_channels`) whose σ was not given, and what to
+    give."""
     nis = st.nis_sum / max(st.count, 1)
     if nis <= 10.0:
         return ""
@@ -895,12 +908,17 @@ def _hint(st: _State, reason: str, experiments: Sequence[Experiment]) -> str:
         if "innovations" in reason
         else (f"; the innovations were {math.sqrt(nis):.3g}× their predicted σ on average")
     )
-    quiet = noise_free_channels(experiments)
+    measured = {name for e in experiments for name in e.measured}
+    quiet = [name for name in STATES if name in measured and name not in st.matched]
     if quiet:
+        table = ", ".join(f"{name} = {NOISE_STD[name]:g}" for name in quiet)
+        flag = ",".join(f"{name}={NOISE_STD[name]:g}" for name in quiet)
         out += (
-            f"; the data look noise-free ({', '.join(quiet)}): the filter weighs the model "
-            "against measurement noise, and without noise any model error diverges it; "
-            "give noise_std or fit measured (noisy) data"
+            f"; the data look noise-free or low-pass filtered ({', '.join(quiet)}): the filter "
+            "weighs the model against the measurement noise, which cannot be read off such data, "
+            "so any model error diverges it; give the sensors' noise σ (SI, before any low-pass filter) as "
+            f"[identify] noise_std in the model config, e.g. noise_std = {{{table}}}, or on the "
+            f"command line --noise-std {flag}"
         )
     return out
 

@@ -27,29 +27,19 @@ import numpy as np
 from testbed import linear
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
-from testbed.estimators import mekf
+from testbed.estimators import starts, trust_region
 from testbed.estimators.base import (
     Callback,
     Estimate,
     Method,
     Options,
+    Outcome,
     Progress,
     Status,
     count_option,
     is_count,
     option,
 )
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """Where an optimiser stopped: the full parameter vector and how."""
-
-    p: np.ndarray
-    status: Status
-    iterations: int
-    history: np.ndarray  # (iterations + 1, n_free)
-    fisher: np.ndarray | None = None  # M at p, when the optimiser has it (saves `assess` a pass)
 
 
 def _terms(prob: linear.Problem, p: np.ndarray, xs, res, tol: float):
@@ -319,27 +309,21 @@ def nelder_mead(
     return Outcome(linear.initial_states(prob, scale * x, R), Status.CONVERGED, it, np.array(history))
 
 
-def _start(prob: linear.Problem, experiments, config: ModelConfig, start: str) -> np.ndarray:
-    """Free coefficient values to start from."""
-    if start == "config":
-        return prob.start
-    if start == "equation-error":
-        ee = linear.equation_error(experiments, config)
-        return np.array([ee.coefficients[n] for n in prob.free])
-    est = mekf.MEKF.fit(experiments, config, mekf.FilterOptions(), None)
-    if est.status is Status.DIVERGED:
-        raise InputError(
-            f"{prob.source}: start='mekf': the MEKF diverged ({est.message}); expected "
-            "a filter that converges, or start auto or equation-error"
-        )
-    return np.array([est.coefficients[n] for n in prob.free])
-
-
-def _estimate(
-    name: str, prob: linear.Problem, out: Outcome, start: str, t0: float, start_reason: str = ""
-) -> Estimate:
-    """The `Estimate` where the optimiser stopped, with its Cramér-Rao analysis; a DIVERGED one
-    (the reason in its `message`) where that analysis breaks down or is not finite."""
+def _estimate(name: str, prob: linear.Problem, fit: Fit, t0: float, fits: list[Fit]) -> Estimate:
+    """The `Estimate` where the optimiser stopped from `fit`'s start, with its Cramér-Rao analysis
+    and every start's result (`fits`); a DIVERGED one (the reason in its `message`) where that
+    analysis breaks down or is not finite."""
+    out, start, start_reason = fit.outcome, fit.start, _summary(fits, fit)
+    tried = tuple(
+        {
+            "start": f.start,
+            "cost": f.cost,
+            "status": f.outcome.status.message,
+            "iterations": f.outcome.iterations,
+        }
+        | ({"joined": f.joined} if f.joined else {})
+        for f in fits
+    )
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             info = linear.assess(prob, out.p, out.fisher)
@@ -361,13 +345,14 @@ def _estimate(
             values=out.p[:nf].copy(),
             std=np.full(nf, np.nan),
             cost=np.nan,
-            iterations=out.iterations,
+            iterations=sum(f.outcome.iterations for f in fits),
             wall_time_s=time.perf_counter() - t0,
             noise_std={},
             start=start,
             history=out.history,
             message=why,
             start_reason=start_reason,
+            starts=tried,
         )
     return Estimate(
         method=name,
@@ -376,15 +361,56 @@ def _estimate(
         values=info.values,
         std=info.crlb_std,
         cost=info.cost,
-        iterations=out.iterations,
+        iterations=sum(f.outcome.iterations for f in fits),
         wall_time_s=time.perf_counter() - t0,
         noise_std=info.noise_std,
         start=start,
         history=out.history,
         start_reason=start_reason,
+        starts=tried,
         crlb_corrected_std=np.asarray(info.crlb_corrected_std, float),
         initial_states=info.initial_states,
     )
+
+
+DELTA_J = 1.0  # two fits whose negative log-likelihoods differ by less are at one optimum (½ χ²₁ at 84 %)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """One start's fit: where it began and where the optimiser stopped, with the cost there."""
+
+    start: str
+    outcome: Outcome
+    cost: float  # the negative log-likelihood at outcome.p (inf where the model diverges)
+    start_cost: float
+    joined: str = ""  # the earlier start whose path this one joined, ending where it did
+
+
+def _cost(prob: linear.Problem, p: np.ndarray) -> float:
+    """The negative log-likelihood at `p`; inf where the model diverges there."""
+    if linear.divergence(prob, p) is not None:
+        return np.inf
+    return linear.negative_log_likelihood(prob, linear.residuals(prob, p))
+
+
+def _best(fits: list[Fit]) -> Fit:
+    """The fit of least cost; a converged fit within `DELTA_J` of it (the same optimum) before
+    one that stopped otherwise."""
+    least = min(f.cost for f in fits)
+    converged = [f for f in fits if f.outcome.status is Status.CONVERGED and f.cost <= least + DELTA_J]
+    return min(converged or fits, key=lambda f: f.cost)
+
+
+def _summary(fits: list[Fit], chosen: Fit) -> str:
+    """What every start reached, for the estimate's `start_reason`."""
+    parts = [
+        f"{f.start}: cost {f.cost:.6g} ({f.outcome.status.message}"
+        + (f", on the {f.joined} start's path" if f.joined else "")
+        + ")"
+        for f in fits
+    ]
+    return f"the least cost of {len(fits)} starts ({'; '.join(parts)})" if len(fits) > 1 else ""
 
 
 def _fit(
@@ -395,72 +421,109 @@ def _fit(
     options: Options,
     callback: Callback | None,
 ) -> Estimate:
+    """Fit from the start(s) `options.start` names and keep the best (`_best`).
+
+    `auto`: from the a-priori values and from the equation-error estimate, the better-fitting
+    first; from the MEKF's estimate too when those two end apart (costs more than `DELTA_J`
+    apart) or either fails. `global`: from those two and from the best `polish` of `samples`
+    coefficient vectors drawn in a box around the a-priori values (`starts.box`), ranked by
+    their cost on the first multiple-shooting stage (records cut in 16: a poor model's error does
+    not grow along the whole record there). Every start's result is recorded in the estimate.
+    """
     t0 = time.perf_counter()
     prob = linear.problem(experiments, config)
     start = options.start
-    tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name != "start"}
+    tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name not in START_OPTIONS}
 
-    def run(p: np.ndarray) -> Outcome:
-        return optimiser(prob, p, callback=callback, **tuning)
+    fits: list[Fit] = []
 
-    if start != "auto":
+    def run(label: str, theta: np.ndarray, earlier: Sequence[Fit] = ()) -> Fit:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is reported below
-            p0 = linear.initial_states(prob, _start(prob, experiments, config, start))
-        why = linear.divergence(prob, p0)
-        if why is not None and start == "config":
+            p0 = linear.initial_states(prob, theta)
+        J0 = _cost(prob, p0)
+        more = {}
+        if optimiser is trust_region.trust_region:
+            more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
+        elif not np.isfinite(J0):
+            # only the multiple-shooting optimiser can start from a model that diverges over the
+            # whole record (an unstable a-priori model): on short segments it does not
+            return Fit(label, Outcome(p0, Status.DIVERGED, 0, p0[None, : prob.n_free]), np.inf, np.inf)
+        done = sum(f.outcome.iterations for f in fits)  # the iterations count on over the starts
+
+        def report(step: Progress) -> None:
+            callback(replace(step, iteration=done + step.iteration))
+
+        out = optimiser(prob, p0, callback=report if callback else None, **tuning, **more)
+        if out.joined >= 0:  # on an earlier fit's path: it ends where that one did
+            twin = [f for f in earlier if f.outcome.optimum][out.joined]
+            out = replace(twin.outcome, iterations=out.iterations, history=out.history, optimum=(), joined=-1)
+            return Fit(label, out, twin.cost, J0, twin.start)
+        J = _cost(prob, out.p)
+        if J > J0 + 1e-9 * abs(J0) and out.status is not Status.DIVERGED:
+            out = replace(out, status=Status.WORSE)
+        return Fit(label, out, J, J0)
+
+    if start in ("config", "equation-error", "mekf"):
+        fit = run(start, starts.named(prob, experiments, config, start))
+        if start == "config" and fit.outcome.status is Status.DIVERGED and not np.isfinite(fit.start_cost):
             raise InputError(
-                f"{prob.source}: the a-priori model diverges ({why}); expected "
-                "coefficients giving a bounded response, or start auto"
+                f"{prob.source}: the a-priori model diverges ({linear.divergence(prob, fit.outcome.p)}); "
+                "expected coefficients giving a bounded response, or start auto or global"
             )
-        out = run(p0) if why is None else Outcome(p0, Status.DIVERGED, 0, p0[None, : prob.n_free])
-        return _estimate(name, prob, out, start, t0)
+        return _estimate(name, prob, fit, t0, [fit])
 
-    # auto: from whichever of the a-priori values and the equation-error estimate fits the data
-    # better before any iteration (output error's basin is local: the better start is more often
-    # inside it, and nearer); if that fit fails, from the other; the better of the two if
-    # neither converges.
-    def cost(p):
-        return linear.negative_log_likelihood(prob, linear.residuals(prob, p))
-
-    with np.errstate(over="ignore", invalid="ignore"):  # diverging starts are handled below
-        starts = {
-            "config": linear.initial_states(prob, prob.start),
-            "equation-error": linear.initial_states(
-                prob, _start(prob, experiments, config, "equation-error")
-            ),
-        }
-    why = {k: linear.divergence(prob, p) for k, p in starts.items()}
-    costs = {k: np.inf if why[k] else cost(p) for k, p in starts.items()}
-    if not np.isfinite(min(costs.values())):
-        raise InputError(
-            f"{prob.source}: the a-priori model diverges ({why['config']}) and so does the equation-error one"
-        )
-    order = sorted(starts, key=lambda k: (costs[k], k != "config"))
-    first = run(starts[order[0]])
-    reason = (
-        ""
-        if order[0] == "config"
-        else f"it fits the data better than the a-priori values (cost {costs['equation-error']:.6g} "
-        f"against {costs['config']:.6g})"
-    )
-    if first.status is Status.CONVERGED or not np.isfinite(costs[order[1]]):
-        return _estimate(name, prob, first, order[0], t0, reason)
-    second = run(starts[order[1]])
-    if second.status is not Status.CONVERGED and cost(first.p) <= cost(second.p):
-        return _estimate(name, prob, first, order[0], t0, reason)
-    reason = f"from the {'a-priori values' if order[0] == 'config' else 'equation-error estimate'}: {first.status.message}"
-    return _estimate(name, prob, second, order[1], t0, reason)
+    named = {
+        "config": prob.start,
+        "equation-error": starts.named(prob, experiments, config, "equation-error"),
+    }
+    first = {k: _cost(prob, linear.initial_states(prob, v)) for k, v in named.items()}
+    for k in sorted(named, key=lambda k: (first[k], k != "config")):
+        fits.append(run(k, named[k], fits))
+    if start == "global":
+        for k, theta in enumerate(_polish_starts(prob, options)):
+            fits.append(run(f"box-{k + 1}", theta, fits))
+    elif abs(fits[0].cost - fits[1].cost) > DELTA_J or any(
+        f.outcome.status is not Status.CONVERGED for f in fits
+    ):
+        try:
+            fits.append(run("mekf", starts.named(prob, experiments, config, "mekf"), fits))
+        except InputError:  # the filter refused the data or diverged: no third start
+            pass
+    return _estimate(name, prob, _best(fits), t0, fits)
 
 
-STARTS = ("auto", "config", "equation-error", "mekf")
+def _polish_starts(prob: linear.Problem, options: Options) -> list[np.ndarray]:
+    """The best `options.polish` of `options.samples` box draws (`starts.box`), by their cost on
+    the records cut into 16 segments, each with its own initial state."""
+    rng = np.random.default_rng(options.seed)
+    samples = starts.box(prob, options.samples, options.spread, rng)
+    stage = linear.segmented(prob, 16, trust_region.LEAST_SEGMENT)
+    costs = [_cost(stage, linear.initial_states(stage, theta)) for theta in samples]
+    return [samples[i] for i in np.argsort(costs)[: options.polish] if np.isfinite(costs[i])]
+
+
+STARTS = ("auto", "config", "equation-error", "mekf", "global")
+START_OPTIONS = ("start", "samples", "spread", "polish", "seed")
 _START = option(
     "auto",
     lambda v: v in STARTS,
     f"one of {', '.join(STARTS)}",
-    "where the iterations begin: auto (whichever of the a-priori values and the "
-    "equation-error estimate fits the data better, then the other if the fit from it "
-    "fails), config (the a-priori values only), equation-error or mekf",
+    "where the iterations begin: auto (the a-priori values and the equation-error estimate, "
+    "and the MEKF's when those two end apart or fail; the least cost is kept), config (the "
+    "a-priori values only), equation-error, mekf, or global (auto's first two and the best "
+    "box draws, see samples, spread and polish)",
 )
+_SAMPLES = count_option(
+    200, 1, "start global: coefficient vectors drawn in the box around the a-priori values"
+)
+_SPREAD = option(
+    1.0,
+    lambda v: is_number(v) and v > 0,
+    "a number > 0",
+    "start global: the box spans a-priori × e^±spread (coefficients analysed at 0: ±3 Cramér-Rao bounds)",
+)
+_POLISH = count_option(3, 1, "start global: the best box draws the optimiser is run from")
+_SEED = count_option(0, 0, "start global: the seed of the box draws")
 _TOL = option(
     1e-3,
     lambda v: is_number(v) and v > 0,
@@ -479,12 +542,34 @@ def _max_iter(default: int | None):
 
 
 @dataclass(frozen=True)
+class TrustRegionOptions(Options):
+    """Options of `ml-gn` (`trust_region.trust_region`: what each one means)."""
+
+    max_iter: int = _max_iter(100)
+    start: str = _START
+    tol: float = _TOL
+    segments: int = count_option(
+        16,
+        1,
+        "multiple shooting: each record is first fitted cut into this many pieces, a quarter as many per stage",
+    )
+    samples: int = _SAMPLES
+    spread: float = _SPREAD
+    polish: int = _POLISH
+    seed: int = _SEED
+
+
+@dataclass(frozen=True)
 class GaussNewtonOptions(Options):
-    """Options of `ml-gn`."""
+    """Options of `ml-lm`."""
 
     max_iter: int = _max_iter(50)
     start: str = _START
     tol: float = _TOL
+    samples: int = _SAMPLES
+    spread: float = _SPREAD
+    polish: int = _POLISH
+    seed: int = _SEED
 
 
 @dataclass(frozen=True)
@@ -494,6 +579,10 @@ class NewtonRaphsonOptions(Options):
     max_iter: int = _max_iter(100)
     start: str = _START
     tol: float = _TOL
+    samples: int = _SAMPLES
+    spread: float = _SPREAD
+    polish: int = _POLISH
+    seed: int = _SEED
 
 
 def _positive(doc: str, default: float):
@@ -528,6 +617,10 @@ class SimplexOptions(Options):
         60.0,
     )
     stage_eps: float = _positive("stopping rule of the continuation's shorter stages (as eps)", 1.0)
+    samples: int = _SAMPLES
+    spread: float = _SPREAD
+    polish: int = _POLISH
+    seed: int = _SEED
 
 
 def _method(name: str, optimiser, options: type[Options], summary: str) -> Method:
@@ -539,6 +632,12 @@ def _method(name: str, optimiser, options: type[Options], summary: str) -> Metho
 
 ML_GN = _method(
     "ml-gn",
+    trust_region.trust_region,
+    TrustRegionOptions,
+    "maximum likelihood output error by scaled trust-region Gauss-Newton with multiple shooting",
+)
+ML_LM = _method(
+    "ml-lm",
     gauss_newton,
     GaussNewtonOptions,
     "maximum likelihood output error by Gauss-Newton with Levenberg-Marquardt damping",

@@ -1,0 +1,68 @@
+"""Where the output-error iterations begin: the starts a user has, and a global search's.
+
+- `config`: the a-priori values of the model config.
+- `equation-error`: the linear model's rows fitted by least squares to smoothed derivatives
+  (`linear.equation_error`): no simulation, so no basin, but biased by noise and filtering.
+- `mekf`: the modified EKF's estimate after one pass (`mekf.MEKF`), which follows the states
+  with the data, so a poor model cannot drift away from them.
+- `box`: coefficients drawn in a box around the a-priori values (Latin hypercube): a coefficient
+  θ_i ≠ 0 between θ_i e^−b and θ_i e^b, one analysed at 0 within ±3 of its Cramér-Rao bounds
+  there, for a multi-start search (the paper's future work 2, global optimisation).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from testbed import linear
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError
+from testbed.estimators import mekf
+from testbed.estimators.base import Status
+
+__all__ = ["BOX_BOUNDS", "box", "named"]
+
+BOX_BOUNDS = 3.0  # a coefficient analysed at 0 is searched within ± this many Cramér-Rao bounds
+
+
+def named(
+    prob: linear.Problem, experiments: Sequence[Experiment], config: ModelConfig, start: str
+) -> np.ndarray:
+    """The free coefficients of the start `start` (config, equation-error or mekf); InputError
+    where the MEKF diverges or refuses the data (the reason named)."""
+    if start == "config":
+        return prob.start
+    if start == "equation-error":
+        ee = linear.equation_error(experiments, config)
+        return np.array([ee.coefficients[n] for n in prob.free])
+    est = mekf.MEKF.fit(experiments, config, mekf.FilterOptions(), None)
+    if est.status is Status.DIVERGED:
+        raise InputError(
+            f"{prob.source}: start='mekf': the MEKF diverged ({est.message}); expected "
+            "a filter that converges, or start auto or equation-error"
+        )
+    return np.array([est.coefficients[n] for n in prob.free])
+
+
+def box(prob: linear.Problem, count: int, spread: float, rng: np.random.Generator) -> np.ndarray:
+    """`count` coefficient vectors (count, n_free) drawn by Latin hypercube in the box around the
+    a-priori values: each axis cut into `count` equal strata, one draw in each, the strata
+    shuffled per axis; log-uniform within e^±`spread` for a coefficient ≠ 0, uniform within
+    ±`BOX_BOUNDS` Cramér-Rao bounds (at the a-priori values) for one at 0."""
+    theta0 = prob.start
+    u = rng.permuted(np.tile(np.arange(count), (len(theta0), 1)), axis=1).T + rng.random((count, len(theta0)))
+    u = 2.0 * u / count - 1.0  # (count, n_free) in (−1, 1)
+    half = np.zeros(len(theta0))
+    zero = theta0 == 0
+    if zero.any():
+        with np.errstate(over="ignore", invalid="ignore"):
+            p = linear.initial_states(prob, theta0)
+        if linear.divergence(prob, p) is None:
+            xs = linear.states(prob, p)
+            res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
+            g, M = linear.gauss_newton_terms(prob, p, xs, res, linear.noise_variance(prob, res))
+            std = linear.crlb(linear.reduced(M, g, prob.n_free)[0]).std
+            half = np.where(np.isfinite(std), BOX_BOUNDS * std, 0.0)
+    return np.where(zero, u * half, theta0 * np.exp(spread * u))

@@ -1,0 +1,341 @@
+"""The default `ml-gn` optimiser: a scaled trust-region Gauss-Newton method on the likelihood.
+
+It minimises the negative log-likelihood with the noise variance at its ML value, the cost the
+estimate is judged by, as a function of the free coefficients θ alone: at every θ each record's
+initial state is the weighted least-squares one (`linear.fit_initial_states`; outputs are linear
+in it), so the optimiser moves only in θ and the initial states follow exactly (variable
+projection, Golub & Pereyra).
+
+- The model: `m(d) = J − g_rᵀd + ½ dᵀF d`, with `F` and `g_r` the Gauss-Newton normal equations
+  with the initial states solved for (`linear.reduced`), R the residual variance at θ.
+- The step: the minimiser of `m` within `‖D d‖ ≤ Δ` (Moré's trust-region subproblem, solved
+  exactly through the eigenvectors of `D⁻¹FD⁻¹`). `D = diag(1/s)` with `s_i` the larger of the
+  coefficient's a-priori magnitude and its Cramér-Rao bound there: Δ = 1 lets every coefficient
+  move by its own size (or, a-priori 0, by one standard error), whatever its units.
+- Acceptance: `ρ = (W(θ) − W(θ + d)) / (m(0) − m(d))`, W the weighted cost `½ Σ eᵀR⁻¹e` with R
+  held at its estimate at θ and the trial's initial states fitted with it; the step is taken
+  when ρ > `ACCEPT`, and Δ shrinks (ρ < ¼) or grows (ρ > ¾ at the boundary) as in every
+  trust-region method (Nocedal & Wright, Alg. 4.1). Then R is re-estimated at θ + d. Every step
+  taken lowers the likelihood itself: W falls at the old R, and R̂ lowers it further.
+- Multiple shooting, where the fit on the whole record fails: from a poor start the whole
+  record's output error is far from quadratic (an unstable or wrong model's error grows along the
+  record, and the heading integrates it), so the method fits the records cut into `segments`
+  pieces, each with its own initial state (`linear.segmented`), then `SHRINK` times fewer stage
+  by stage to the whole record, each stage from the one before; only the last decides
+  convergence. Not first: with the continuity between segments relaxed, a model that is not
+  the data's (real data) has another optimum on segments than on the whole record, and the
+  whole record's fit from there can end in another basin than from the start.
+- Converged: the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (`√(g_rᵀF⁻¹g_r)`), and the
+  point passes the second-order check: the Hessian of the cost (second-order sensitivities
+  included, `linear.curvature`, the initial states eliminated) has no negative eigenvalue. A
+  stationary point that fails the check is a saddle: the method steps along the direction of
+  negative curvature and goes on; one it cannot leave ends as `Status.SADDLE`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from testbed import linear
+from testbed.estimators.base import Outcome, Progress, Status
+
+__all__ = [
+    "ACCEPT",
+    "LEAST_SEGMENT",
+    "Point",
+    "hessian",
+    "point",
+    "second_order",
+    "subproblem",
+    "trust_region",
+]
+
+ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
+LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
+DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
+STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
+SHRINK = 4  # each multiple-shooting stage has this many times fewer segments than the one before
+JOIN = 0.5  # a fit within this many Cramér-Rao σ of an earlier optimum is in its basin
+MIN_RADIUS = 1e-3  # the trust radius a stage hands on, at least (scaled units)
+NEGATIVE = 1e-8  # an eigenvalue of the scaled Hessian below −NEGATIVE × its largest is negative curvature
+
+
+@dataclass(frozen=True)
+class Point:
+    """θ with its best initial states: the full parameter vector, states, residuals, R and J."""
+
+    p: np.ndarray
+    xs: list
+    res: list
+    R: np.ndarray
+    J: float
+
+
+def point(prob: linear.Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Point | None:
+    """The point at θ: the initial states fitted with the noise variance `R` (None: R and they
+    at their maximum likelihood, `linear.fit_initial_states`), R re-estimated from the residuals;
+    None where the model is invalid there (singular Mt, diverging)."""
+    if not np.all(np.isfinite(theta)):
+        return None
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
+            p, xs = linear.fit_initial_states(prob, theta, R, full=True)
+    except np.linalg.LinAlgError:
+        return None
+    out = [x[:, r.measured] for r, x in zip(prob.records, xs)]
+    if linear.exploded(prob, out) is not None:
+        return None
+    res = [r.y - y for r, y in zip(prob.records, out)]
+    return Point(p, xs, res, linear.noise_variance(prob, res), linear.negative_log_likelihood(prob, res))
+
+
+def subproblem(F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float) -> tuple[np.ndarray, float]:
+    """The step `d` minimising `−gᵀd + ½ dᵀF d` subject to `‖d/s‖ ≤ Δ`, and its predicted
+    decrease `gᵀd − ½ dᵀF d`.
+
+    In scaled coordinates z = d/s: F̃ = S F S = Q Λ Qᵀ, g̃ = S g, and `z(λ) = Q (Λ + λ)⁻¹ Qᵀ g̃`
+    with λ = 0 if that step lies inside the region, else the λ > 0 with ‖z(λ)‖ = Δ (the secular
+    equation, monotone in λ: solved by bisection in log λ). Null directions of F (λ_i ≈ 0) take
+    no part in the interior step, as in the pseudo-inverse.
+    """
+    Ft, gt = F * np.outer(s, s), g * s
+    lam, Q = np.linalg.eigh((Ft + Ft.T) / 2)
+    c = Q.T @ gt
+    floor = 1e-12 * max(lam.max(initial=0.0), 1e-300)
+
+    def z(mu: float) -> np.ndarray:
+        denom = lam + mu
+        return Q @ np.where(denom > floor, c / np.maximum(denom, floor), 0.0)
+
+    step = z(0.0)
+    if np.linalg.norm(step) > delta:
+        lo, hi = 0.0, max(np.linalg.norm(c) / delta, floor)
+        while np.linalg.norm(z(hi)) > delta:
+            hi *= 4
+        lo = hi / 4 if hi > floor else 0.0
+        for _ in range(60):  # ‖z(μ)‖ is decreasing in μ
+            mid = np.sqrt(lo * hi) if lo > 0 else hi / 2
+            if np.linalg.norm(z(mid)) > delta:
+                lo = mid
+            else:
+                hi = mid
+            if hi - lo <= 1e-10 * hi:
+                break
+        step = z(hi)
+    d = s * step
+    return d, float(g @ d - 0.5 * d @ F @ d)
+
+
+def _scale(prior: np.ndarray, theta: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Each coefficient's scale: the largest of its a-priori magnitude, its magnitude at the
+    start and its Cramér-Rao bound there (`linear.crlb` of the reduced information `F`; 1 where
+    none is finite and positive)."""
+    std = linear.crlb(F).std
+    s = np.maximum(np.maximum(np.abs(prior), np.abs(theta)), np.where(np.isfinite(std), std, 0.0))
+    return np.where(s > 0, s, 1.0)
+
+
+def hessian(prob: linear.Problem, at: Point, M: np.ndarray | None = None) -> np.ndarray:
+    """The Hessian in θ of the weighted cost `½ Σ eᵀR⁻¹e` (R held at `at`'s) with each
+    record's initial state at its least-squares value: `H = M − Σ (e/R) ∂²y` (first- and
+    second-order sensitivities) with the initial states eliminated (Schur complement), the
+    curvature of the cost as the optimiser sees it. `M`: the Gauss-Newton information there,
+    if known."""
+    weights = [e / at.R[r.channels] for r, e in zip(prob.records, at.res)]
+    if M is None:
+        M = linear.gauss_newton_terms(prob, at.p, at.xs, at.res, at.R)[1]
+    return linear.reduced(M - linear.curvature(prob, at.p, weights), np.zeros(len(M)), prob.n_free)[0]
+
+
+def second_order(
+    prob: linear.Problem, at: Point, s: np.ndarray, M: np.ndarray | None = None
+) -> np.ndarray | None:
+    """The direction of most negative curvature (`hessian`, in the coordinates scaled by `s`:
+    unit length there), or None where there is none: the second-order check of a stationary
+    point."""
+    lam, V = np.linalg.eigh(hessian(prob, at, M) * np.outer(s, s))
+    if lam[0] >= -NEGATIVE * max(abs(lam[-1]), 1e-300):
+        return None
+    return s * V[:, 0]
+
+
+@dataclass(frozen=True)
+class Descent:
+    """Where a stage's descent stopped."""
+
+    point: Point
+    status: Status
+    iterations: int
+    delta: float
+    fisher: np.ndarray | None  # M at the point (the full parameter vector's), with its R
+    joined: int = -1  # the earlier optimum (of `follow`) whose basin it entered; -1: none
+
+
+def _descend(
+    prob: linear.Problem,
+    start: Point,
+    s: np.ndarray,
+    delta: float,
+    tol: float,
+    max_iter: int,
+    report,
+    follow: tuple = (),
+) -> Descent:
+    """Trust-region steps on one stage's problem from `start` until the Gauss-Newton step is
+    shorter than `tol` Cramér-Rao σ (CONVERGED), `max_iter` steps (MAX_ITERATIONS), the region
+    shrinks to nothing (STALLED), or a step lands within `JOIN` Cramér-Rao σ of one of the
+    optima `follow` ((θ, σ) of earlier fits on the same problem): inside its quadratic basin,
+    bound for the same point."""
+    nf, x, it = prob.n_free, start, 0
+    while True:
+        for i, (theta, std) in enumerate(follow):
+            if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
+                return Descent(x, Status.CONVERGED, it, delta, None, joined=i)
+        g, M = linear.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
+        F, gr = linear.reduced(M, g, nf)
+        # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
+        if np.sqrt(max(gr @ linear.crlb(F).covariance @ gr, 0.0)) < tol:
+            return Descent(x, Status.CONVERGED, it, delta, M)
+        if it >= max_iter:
+            return Descent(x, Status.MAX_ITERATIONS, it, delta, M)
+        while True:
+            d, predicted = subproblem(F, gr, s, delta)
+            trial = point(prob, x.p[:nf] + d, x.R)
+            # ρ = actual / predicted decrease of the weighted cost with R held at its estimate at
+            # x, the trial's initial states fitted with that R: a smooth function of the step
+            # (the likelihood relaxed in R and x0 at every trial need not be: their alternation
+            # can stall short of its fixed point). A decrease there is one of the likelihood
+            # too, which the trial's own R̂ lowers further (½ Σ N_c ln R̂_c ≤ ½ Σ eᵀR⁻¹e + const)
+            rho = (
+                (linear.weighted_cost(prob, x.res, x.R) - linear.weighted_cost(prob, trial.res, x.R))
+                / predicted
+                if trial is not None and predicted > 0
+                else -np.inf
+            )
+            size = np.linalg.norm(d / s)
+            if rho < 0.25:
+                delta = 0.25 * size
+            elif rho > 0.75 and size > 0.99 * delta:
+                delta *= 2.0
+            if rho > ACCEPT:
+                break
+            if delta < 1e-12 or predicted <= 0:
+                return Descent(x, Status.STALLED, it, delta, M)
+        x, it = trial, it + 1
+        report(x)
+
+
+def trust_region(
+    prob: linear.Problem,
+    p: np.ndarray,
+    max_iter: int = 100,
+    callback=None,
+    tol: float = 1e-3,
+    segments: int = 16,
+    radius: float = 1.0,
+    escapes: int = 3,
+    follow: tuple = (),
+) -> Outcome:
+    """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
+    are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
+    scaled coordinates, with the second-order check at the end (leaving at most `escapes`
+    saddles). Where that does not converge in `DIRECT` iterations (or the model diverges over the
+    whole record from `p`), multiple shooting from `p` again: stages of `segments`,
+    `segments`/`SHRINK`, … pieces per record, then the whole record. Where that does not converge
+    either and ends above the point the whole record's fit had reached, that fit goes on from
+    there. `max_iter` bounds the iterations of all of them together.
+
+    `follow`: earlier fits' optima `(θ, σ)` on the same problem (`Outcome.optimum`); a fit that
+    steps into one's basin stops there (`Outcome.joined`: which one)."""
+    nf = prob.n_free
+    history: list[np.ndarray] = [p[:nf].copy()]
+
+    def report(x: Point) -> None:
+        history.append(x.p[:nf].copy())
+        if callback is not None:
+            callback(Progress(len(history) - 1, x.p[:nf].copy(), x.J))
+
+    stages, n = [], segments
+    while n > 1:
+        stage = linear.segmented(prob, n, LEAST_SEGMENT)
+        if len(stage.records) > len(prob.records) and (
+            not stages or len(stage.records) < len(stages[-1].records)
+        ):
+            stages.append(stage)
+        n //= SHRINK
+
+    def left() -> int:
+        return max_iter - (len(history) - 1)
+
+    direct = _stages(
+        prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
+    )
+    out = direct
+    if direct.status is not Status.CONVERGED and stages:
+        out = _stages(prob, stages, p, left(), tol, radius, escapes, follow, report)
+        if (
+            out.status is not Status.CONVERGED
+            and direct.point is not None
+            and (out.point is None or direct.point.J < out.point.J)
+        ):  # the whole record's fit was on its way to a better point than the segments led to
+            out = _stages(prob, [], direct.point.p, left(), tol, radius, escapes, follow, report)
+    if out.point is None:
+        return Outcome(p, Status.DIVERGED, len(history) - 1, np.array(history))
+    optimum = ()
+    if out.status is Status.CONVERGED and out.fisher is not None:
+        optimum = (
+            out.point.p[:nf].copy(),
+            linear.crlb(linear.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]).std,
+        )
+    return Outcome(
+        out.point.p, out.status, len(history) - 1, np.array(history), out.fisher, optimum, out.joined
+    )
+
+
+def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> Descent:
+    """`_descend` on each of `stages` (multiple-shooting problems) in turn and then on `prob`,
+    each from the one before's θ; the second-order check on `prob`'s optimum. The descent on
+    `prob` (point None where the model diverges on it)."""
+    nf = prob.n_free
+    theta, s, delta, used = p[:nf].copy(), None, None, 0
+    for stage in stages + [prob]:
+        x = point(stage, theta)
+        if x is None:  # the model diverges on this stage from the last one's θ
+            if stage is prob:
+                return Descent(None, Status.DIVERGED, used, 0.0, None)
+            continue
+        if s is None:
+            g, M = linear.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
+            s, delta = _scale(prob.start, theta, linear.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
+        final = stage is prob
+        tol_stage = tol if final else max(tol, STAGE_TOL)
+        out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow if final else ())
+        used += out.iterations
+        for k in range(escapes + 1 if final else 0):
+            if out.status is not Status.CONVERGED or out.joined >= 0:
+                break
+            v = second_order(stage, out.point, s, out.fisher)
+            if v is None:
+                break
+            moved = _leave_saddle(stage, out.point, v, out.delta) if k < escapes else None
+            if moved is None:
+                out = replace(out, status=Status.SADDLE)
+                break
+            report(moved)
+            out = _descend(stage, moved, s, out.delta, tol_stage, max_iter - used, report, follow)
+            used += out.iterations
+        theta, delta = out.point.p[:nf].copy(), max(out.delta, MIN_RADIUS)
+    return out
+
+
+def _leave_saddle(prob: linear.Problem, x: Point, v: np.ndarray, delta: float) -> Point | None:
+    """A point of lower cost along ±v (the direction of negative curvature, unit in scaled
+    coordinates), steps of the trust radius and shorter; None if there is none."""
+    for size in delta * 0.5 ** np.arange(8):
+        for sign in (1.0, -1.0):
+            trial = point(prob, x.p[: prob.n_free] + sign * size * v, x.R)
+            if trial is not None and trial.J < x.J:
+                return trial
+    return None

@@ -1,0 +1,96 @@
+"""The default ML optimiser's parts against independent references: its trust-region step
+against scipy's constrained minimiser, its Hessian against finite differences of the cost, its
+multiple-shooting segments against the whole record."""
+
+import numpy as np
+import pytest
+from scipy.optimize import NonlinearConstraint, minimize
+
+from testbed import linear
+from testbed.estimators import identify, trust_region
+from testbed.examples import experiments, truth_config
+
+VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")
+
+
+def _model(rng, n, rank=None):
+    A = rng.normal(size=(n, rank or n))
+    return A @ A.T, rng.normal(size=n), np.exp(rng.normal(size=n))
+
+
+@pytest.mark.parametrize("delta", [0.05, 0.5, 50.0])
+@pytest.mark.parametrize("rank", [None, 3])
+def test_step_solves_the_trust_region_subproblem_as_scipy_does(delta, rank):
+    rng = np.random.default_rng(7)
+    F, g, s = _model(rng, 5, rank)
+    if rank:  # a singular F: keep g in its range, as Gauss-Newton's is (g = Sᵀ R⁻¹ e, F = Sᵀ R⁻¹ S)
+        g = F @ rng.normal(size=5)
+    d, predicted = trust_region.subproblem(F, g, s, delta)
+
+    def model(x):
+        return -g @ x + 0.5 * x @ F @ x
+
+    inside = NonlinearConstraint(lambda x: np.sum((x / s) ** 2), 0.0, delta**2)
+    best = min(
+        (minimize(model, x0, constraints=[inside], method="trust-constr", options={"gtol": 1e-12, "xtol": 1e-12})
+         for x0 in (np.zeros(5), 0.5 * delta * s * rng.normal(size=5) / np.sqrt(5))),
+        key=lambda r: r.fun,
+    )  # fmt: skip
+    assert np.linalg.norm(d / s) <= delta * (1 + 1e-9)
+    assert model(d) <= best.fun + 1e-7 * max(1.0, abs(best.fun))
+    assert predicted == pytest.approx(-model(d), rel=1e-12)
+
+
+def test_hessian_is_the_second_derivative_of_the_cost_with_the_initial_states_fitted():
+    data = experiments(seed=2, duration=20.0)[1:]
+    config = truth_config(VERTICAL)
+    prob = linear.problem(data, config)
+    theta = prob.start * 1.05  # off the optimum, where the second-order terms count
+    R = trust_region.point(prob, prob.start).R
+
+    def cost(th):
+        p, out = linear.fit_initial_states(prob, th, R)
+        return linear.weighted_cost(prob, [r.y - y for r, y in zip(prob.records, out)], R)
+
+    p, xs = linear.fit_initial_states(prob, theta, R, full=True)
+    res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
+    at = trust_region.Point(p, xs, res, R, linear.negative_log_likelihood(prob, res))
+    H = trust_region.hessian(prob, at)
+    h = 1e-4 * np.abs(theta)
+    fd = np.empty_like(H)
+    for i in range(len(theta)):
+        for j in range(len(theta)):
+            ei, ej = np.eye(len(theta))[i] * h[i], np.eye(len(theta))[j] * h[j]
+            fd[i, j] = (
+                cost(theta + ei + ej) - cost(theta + ei - ej) - cost(theta - ei + ej) + cost(theta - ei - ej)
+            ) / (4 * h[i] * h[j])
+    scale = np.sqrt(np.outer(np.diag(H), np.diag(H)))
+    np.testing.assert_allclose(H / scale, fd / scale, atol=2e-4)
+
+
+def test_segments_cover_the_record_each_with_its_own_initial_state():
+    data = experiments(seed=1, duration=60.0, noise=None)  # noise-free
+    prob = linear.problem(data, truth_config())
+    seg = linear.segmented(prob, 16, trust_region.LEAST_SEGMENT)
+    per_record = len(seg.records) // len(prob.records)
+    assert per_record == min(16, len(prob.records[0].y) // trust_region.LEAST_SEGMENT)
+    for k, r in enumerate(prob.records):
+        pieces = seg.records[k * per_record : (k + 1) * per_record]
+        np.testing.assert_array_equal(np.vstack([q.y for q in pieces]), r.y)
+        np.testing.assert_array_equal(np.vstack([q.inputs for q in pieces]), r.inputs)
+    assert seg.n_params == prob.n_free + sum(len(r.measured) for r in seg.records)
+    # noise-free data at the truth: every segment's initial state is fitted exactly
+    for e in trust_region.point(seg, prob.start).res:
+        assert np.max(np.abs(e)) < 1e-8
+
+
+def test_a_stationary_point_is_checked_for_a_minimum():
+    data = experiments(seed=2, duration=20.0)[1:]
+    config = truth_config(VERTICAL)
+    est = identify(data, config, method="ml-gn", start="config")
+    assert est.converged
+    prob = linear.problem(data, config)
+    at = trust_region.point(prob, est.values)
+    assert trust_region.second_order(prob, at, np.abs(est.values)) is None
+    H = trust_region.hessian(prob, at)
+    assert np.all(np.linalg.eigvalsh(H) > 0)
