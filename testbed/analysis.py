@@ -254,7 +254,7 @@ def structurally_unidentified(result: Identifiability) -> dict[str, str]:
             )
     for n, std in zip(result.free, result.crlb_std):
         if n not in fixed and not np.isfinite(std):
-            fixed[n] = "the Fisher information of these data is singular along it (infinite Cramér-Rao bound)"
+            fixed[n] = "the Fisher information of these data is singular along it (an infinite bound)"
     return fixed
 
 
@@ -298,12 +298,13 @@ def screening(experiments, config, options=None, callback=None) -> Screen:
 
     Nothing is fixed for its a-priori magnitude, nor for being 0. Stage 1, at the a-priori
     coefficients with the measurement noise read off the data (third differences,
-    `noise_from_data`) where the config's `noise_std` does not give it: the structurally unidentifiable candidates are fixed
-    (`structurally_unidentified`). Stage 2: the rest are fitted with `ml-gn` (`options`, its
-    options; `callback`, its progress), and those the estimate does not make significant are
-    fixed by backward elimination (`insignificant`). A fixed candidate stays at its a-priori
-    value. When the `ml-gn` fit diverges, stage 2 fixes nothing. What no screen can mend (bad
-    data, a candidate no fitted state depends on) is an `InputError` first (`check_fit`).
+    `noise_from_data`) where the config's `noise_std` does not give it: the structurally
+    unidentifiable candidates are fixed (`structurally_unidentified`). Stage 2: the rest are
+    fitted with `ml-gn` (`options`, its options; `callback`, its progress), and those the
+    estimate does not make significant are fixed by backward elimination (`insignificant`). A
+    fixed candidate stays at its a-priori value. When the `ml-gn` fit diverges, stage 2 fixes
+    nothing. What no screen can mend (bad data, a candidate no fitted state depends on) is an
+    `InputError` first (`check_fit`).
     """
     check_fit(experiments, config)
     noise = noise_from_data(config.fitted(experiments), config.noise_std)
