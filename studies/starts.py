@@ -42,9 +42,9 @@ from testbed.errors import InputError, atomic_write_text
 from testbed.estimators import identify, lookup
 from testbed.runs import simulate
 
-# What `testbed identify` frees on Scenario II (seed 1, 60 s) with its default screen: the
-# analytic model's free list less Y_p and K_r (bounds 265 % and 159 % of their values) and K_dr
-# (0 a-priori). Written out so the study fits exactly these, whatever a screen would say.
+# What `testbed identify` frees on Scenario II (seed 1, 60 s) with its screen: the analytic
+# model's free list less Y_p, K_r and K_dr (estimates 1.2, 0.6 and 0.5 σ from 0). Written out so
+# the study fits exactly these, whatever a screen would say.
 FREE = (
     "Y_v",
     "Y_r",

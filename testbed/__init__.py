@@ -7,7 +7,7 @@ The public API (each name is loaded on first use, so `import testbed` stays ligh
 - runs: `simulate` (fly a scenario, built-in or a file, and write its run directory);
 - identification: `identify` (one front door for every method), `Estimate`, `Status`, `METHODS`;
 - analysis: `analyze` (identifiability: Fisher information, Cramér-Rao bounds, drift groups),
-  `screen` (the free set the data identify), `compare` (against the analytic model),
+  `screen` (the candidates the data determine), `compare` (against the analytic model),
   `validate` (fit % and residual whiteness);
 - the study: `reproduce` (the paper's study as a campaign, with its report);
 - errors: `InputError` (a `ValueError`: bad input, named), `OptionError`.

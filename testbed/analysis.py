@@ -14,7 +14,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from testbed.linear import crlb, fisher
+from testbed.data import ModelConfig
+from testbed.errors import InputError
+from testbed.estimators import Estimate, Status, identify, lookup
+from testbed.linear import check_fit, crlb, fisher
 from testbed.measurements import noise_from_data
 from testbed.model import ITHETA, IX, NX, Structure, structure, theta_vector, tilde, unobserved
 
@@ -200,44 +203,182 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary)
 
 
-def unidentified(result: Identifiability) -> dict[str, str]:
-    """The coefficients `screen`'s rule fixes, name → why: in an exactly unidentifiable drift
-    group; analysed at 0 (no relative bound); or a Cramér-Rao bound above `UNCERTAIN` of the
-    value analysed at."""
+# -- the screen ------------------------------------------------------------------------------------
+
+SIGNIFICANT = 1 / UNCERTAIN  # |estimate| / σ below which these data cannot tell a coefficient from 0
+
+
+@dataclass(frozen=True)
+class Screen:
+    """What the screen made of a candidate list (`screening`).
+
+    Attributes:
+        config: the config with only the candidates these data determine left free.
+        fixed: the other candidates, name → why, in the order they were fixed.
+        fit: the `ml-gn` fit of the candidates the structural stage left (None when it left
+            none), whose estimate the significance stage tested.
+    """
+
+    config: ModelConfig
+    fixed: dict[str, str]
+    fit: Estimate | None
+
+
+@dataclass(frozen=True)
+class Screened:
+    """A fit behind the screen (`identify_screened`): `config` fitted, its `estimate`, `screen`
+    (name → why) what the screen fixes, and whether it was `applied` (else only reported)."""
+
+    config: ModelConfig
+    estimate: Estimate
+    screen: dict[str, str]
+    applied: bool
+
+    @property
+    def fixed(self) -> dict[str, str]:
+        """The candidates left at their a-priori values, name → why."""
+        return self.screen if self.applied else {}
+
+
+def structurally_unidentified(result: Identifiability) -> dict[str, str]:
+    """The screen's first stage, name → why, whatever the coefficients' values: the free
+    coefficients in an exactly unidentifiable drift group (`structural`) and those along which
+    the Fisher information of these data is singular (an infinite Cramér-Rao bound)."""
     fixed = {}
-    drifting = {n for g in result.structural.drift_groups for n in g}
-    for n, value, std in zip(result.free, result.values, result.crlb_std):
-        if n in drifting:
-            fixed[n] = "in an exactly unidentifiable drift group"
-        elif value == 0:
-            fixed[n] = f"analysed at 0, Cramér-Rao bound {std:.3g} (no relative bound)"
-        elif n in result.uncertain:  # relative bound above UNCERTAIN
+    for group in result.structural.drift_groups:
+        for n in group:
             fixed[n] = (
-                f"Cramér-Rao bound {100 * std / abs(value):.0f} % of its a-priori value "
-                f"(above {100 * UNCERTAIN:.0f} %)"
+                "no fitted state depends on it"
+                if n in result.structural.unobserved
+                else f"in the exactly unidentifiable drift group {', '.join(group)}"
             )
+    for n, std in zip(result.free, result.crlb_std):
+        if n not in fixed and not np.isfinite(std):
+            fixed[n] = "the Fisher information of these data is singular along it (an infinite bound)"
     return fixed
 
 
-def screen(experiments, config):
-    """`(config, fixed)`: the config with only the coefficients these data identify left free,
-    and `fixed` (name → reason) for the others, which stay at their a-priori values.
+def insignificant(free, estimate, information: np.ndarray, prior) -> dict[str, str]:
+    """The screen's second stage, name → why in the order fixed: backward elimination at an
+    estimate of `free` (`estimate`, with the Fisher `information` there).
 
-    The rule, at the a-priori coefficients (`identifiability`) with the measurement noise read
-    off the data (third differences, `noise_from_data`: not inflated by the a-priori model's
-    own error): a coefficient is fixed when it is in an exactly unidentifiable drift group, or
-    when its Cramér-Rao bound is above `UNCERTAIN` (50 %) of its a-priori value (or it is
-    analysed at 0): then the data hardly excite it, and freeing it only lets it absorb the
-    noise and the linear model's own bias (`identify` with every coefficient free is
-    `--free-all` on the command line). The config's `noise_std` is the noise where it gives it.
+    Each round takes the least significant coefficient, |θ̂|/σ below `SIGNIFICANT` (its
+    Cramér-Rao bound above `UNCERTAIN` of the estimate: the data cannot tell it from 0), whose
+    a-priori value the data do not contradict either (|θ̂ − prior| ≤ `SIGNIFICANT` σ, so fixing
+    it there costs the fit little), and fixes it at `prior`. The others are then re-estimated
+    with the cost's quadratic model, θ̂_r − F_rr⁻¹ F_rs (prior_s − θ̂_s) with σ from F_rr, and
+    the next round tests them: a coefficient that drifts with another (say K_v with K_r) is
+    insignificant while both are free and determined once the other is fixed, so fixing all
+    insignificant ones at once would lose both.
     """
+    free, theta, prior = list(free), np.asarray(estimate, float), np.asarray(prior, float)
+    fixed: dict[str, str] = {}
+    while len(fixed) < len(free):
+        rest = [i for i, n in enumerate(free) if n not in fixed]
+        held = [i for i, n in enumerate(free) if n in fixed]
+        bounds = crlb(information[np.ix_(rest, rest)])
+        shift = information[np.ix_(rest, held)] @ (prior[held] - theta[held])
+        value = theta[rest] - bounds.covariance @ shift
+        std = bounds.std
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(np.isfinite(std), np.abs(value) / std, 0.0)
+            off = np.where(np.isfinite(std), np.abs(value - prior[rest]) / std, 0.0)
+        eligible = np.flatnonzero((z < SIGNIFICANT) & (off <= SIGNIFICANT))
+        if not len(eligible):
+            break
+        k = eligible[np.argmin(z[eligible])]
+        fixed[free[rest[k]]] = (
+            f"estimate {value[k]:.4g} ± {std[k]:.2g}, {z[k]:.1f} σ from 0 (below {SIGNIFICANT:g} σ)"
+        )
+    return fixed
 
-    result = identifiability(
-        experiments, config, noise_from_data(config.fitted(experiments), config.noise_std)
-    )
-    fixed = {n: f"not identifiable from these data: {why}" for n, why in unidentified(result).items()}
-    free = tuple(n for n in config.free if n not in fixed)
-    return replace(config, free=free), fixed
+
+def screening(experiments, config, options=None, callback=None) -> Screen:
+    """The screen of the candidate list `config.free`: which candidates these data determine.
+
+    Nothing is fixed for its a-priori magnitude, nor for being 0. Stage 1, at the a-priori
+    coefficients with the measurement noise read off the data (third differences,
+    `noise_from_data`) where the config's `noise_std` does not give it: the structurally
+    unidentifiable candidates are fixed (`structurally_unidentified`). Stage 2: the rest are
+    fitted with `ml-gn` (`options`, its options; `callback`, its progress), and those the
+    estimate does not make significant are fixed by backward elimination (`insignificant`). A
+    fixed candidate stays at its a-priori value. When the `ml-gn` fit diverges, stage 2 fixes
+    nothing. What no screen can mend (bad data, a candidate no fitted state depends on) is an
+    `InputError` first (`check_fit`).
+    """
+    check_fit(experiments, config)
+    noise = noise_from_data(config.fitted(experiments), config.noise_std)
+    result = identifiability(experiments, config, noise)
+    fixed = {
+        n: f"not determined by these data: {why}" for n, why in structurally_unidentified(result).items()
+    }
+    candidates = replace(config, free=tuple(n for n in config.free if n not in fixed))
+    if not candidates.free:
+        return Screen(candidates, fixed, None)
+    fit = identify(experiments, candidates, method="ml-gn", options=options, callback=callback)
+    if fit.status is Status.DIVERGED:
+        return Screen(candidates, fixed, fit)
+    at = candidates.with_coefficients(fit.coefficients)
+    information = fisher(candidates.fitted(experiments), at, noise_std=fit.noise_std)
+    prior = [config.coefficients[n] for n in candidates.free]
+    for n, why in insignificant(candidates.free, fit.values, information, prior).items():
+        fixed[n] = f"not determined by these data: {why}"
+    return Screen(replace(config, free=tuple(n for n in config.free if n not in fixed)), fixed, fit)
+
+
+def screen(experiments, config):
+    """`(config, fixed)`: the config with only the candidates of `config.free` these data
+    determine left free, and `fixed` (name → why) for the others, which stay at their a-priori
+    values (`screening`)."""
+    s = screening(experiments, config)
+    return s.config, s.fixed
+
+
+def identify_screened(
+    experiments, config, method: str = "ml-gn", options=None, callback=None, apply: bool | None = None
+) -> Screened:
+    """Screen `config.free` (`screening`) and fit with `method` (`options`, `callback` as for
+    `identify`).
+
+    `apply`: fit only the candidates the screen leaves free (default: `config.screen`, the
+    config's `[identify] screen`); otherwise fit `config.free` as written, the screen only
+    reported. The screen's `ml-gn` fit is the fit itself when `method` is `ml-gn` and the free set
+    is the same (then `callback` gets its steps when it ends); otherwise `method` fits anew.
+    `InputError` when the screen applied leaves nothing free.
+    """
+    apply = config.screen if apply is None else apply
+    same = lookup(method).name == "ml-gn"
+    steps = []
+    s = screening(experiments, config, options if same else None, steps.append if same else None)
+    fitted = s.config if apply else config
+    if not fitted.free:
+        first = next(iter(s.fixed))
+        raise InputError(
+            f"{config.source or 'config'}: no candidate of [identify] free is determined by these "
+            f"data ({first} {s.fixed[first]}); expected data that excite them, or the list "
+            "estimated as written (screen=False)"
+        )
+    if same and s.fit is not None and s.fit.free == fitted.free:
+        for step in steps if callback is not None else ():
+            callback(step)
+        estimate = s.fit
+    else:
+        estimate = identify(experiments, fitted, method=method, options=options, callback=callback)
+    return Screened(fitted, estimate, s.fixed, apply)
+
+
+def unidentified(experiments, config, noise_std=None) -> dict[str, str]:
+    """The screen's rule where the data would come from the config's own model (the design's
+    default free set), name → why: stage 1, then stage 2 at the config's coefficients, which a fit
+    of such data estimates (on average), with the Fisher information there; no fit needed."""
+    result = identifiability(experiments, config, noise_std)
+    fixed = structurally_unidentified(result)
+    rest = replace(config, free=tuple(n for n in config.free if n not in fixed))
+    if rest.free:
+        values = [config.coefficients[n] for n in rest.free]
+        information = fisher(rest.fitted(experiments), rest, noise_std=noise_std)
+        fixed.update(insignificant(rest.free, values, information, values))
+    return fixed
 
 
 def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, ...]:

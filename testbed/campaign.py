@@ -1,13 +1,13 @@
 """The paper's study as a campaign: Scenario I and II × {ml-nr, ml-nm, mekf, ml-gn} × noise seeds.
 
 Each cell flies its scenario with its seed (a run directory shared by the four methods of that
-scenario and seed, cached under `DIR/runs/`), screens the free set the data identify
-(`analysis.screen`, as `testbed identify` does), identifies it starting from the analytic model
-and compares with the analytic model. Cells are tasks on a `dask.distributed` cluster: a
-`LocalCluster` (2 single-threaded worker processes) by default, or a running cluster by its
-scheduler address. A worker that dies mid-cell has its task resubmitted by the scheduler; a cell
-whose task fails anyway (an exception escaping it, a worker lost too often) is recorded as
-failed with its reason.
+scenario and seed, cached under `DIR/runs/`), screens the candidates of the run's model.toml
+and identifies those the data determine starting from the analytic model
+(`analysis.identify_screened`, as `testbed identify` does), and compares with the analytic
+model. Cells are tasks on a `dask.distributed` cluster: a `LocalCluster` (2 single-threaded
+worker processes) by default, or a running cluster by its scheduler address. A worker that dies
+mid-cell has its task resubmitted by the scheduler; a cell whose task fails anyway (an exception
+escaping it, a worker lost too often) is recorded as failed with its reason.
 
 Every finished cell is written at once to `DIR/cells/<key>.json` (a temporary file renamed), the
 key a hash of everything the cell's result depends on (scenario text, method, seed, options,
@@ -36,10 +36,10 @@ import mujoco
 import numpy as np
 from dask.distributed import Client, LocalCluster, as_completed
 
-from testbed.analysis import compare, screen, structural
+from testbed.analysis import compare, identify_screened, structural
 from testbed.data import load_data
 from testbed.errors import InputError, atomic_write_text
-from testbed.estimators import FilterEstimate, identify, lookup
+from testbed.estimators import FilterEstimate, lookup
 from testbed.figures import write_report
 from testbed.model import COEFFICIENTS, structure, theta_vector
 from testbed.runs import simulate
@@ -61,7 +61,7 @@ COLUMNS = (
     "status",
     "reason",
 )
-FORMAT = 1  # version of the cell file: part of every key, so a new format recomputes
+FORMAT = 2  # version of the cell file: part of every key, so a new format recomputes
 QUICK_DURATION = 30.0  # s per experiment in --quick
 HISTORY_POINTS = 400  # the MEKF's per-sample history, thinned to this many points per cell
 
@@ -158,18 +158,16 @@ def run_cell(cell: Cell, data) -> dict:
     doc = {"key": cell.key, "cell": asdict(cell)}
     try:
         experiments, analytic = data
-        config, fixed = screen(experiments, analytic)
         doc["drift"] = drift_directions(analytic, experiments)
-        doc["fixed"] = {
-            n: {"value": float(analytic.coefficients[n]), "reason": why} for n, why in fixed.items()
-        }
-        if not config.free:
-            raise InputError(f"no coefficient is identifiable from these data ({next(iter(fixed.values()))})")
         costs = []
         method = lookup(cell.method)
         options = {"start": "config"} if method.starts else {}
         callback = (lambda step: costs.append(float(step.cost))) if method.iterative else None
-        est = identify(experiments, config, method=cell.method, options=options, callback=callback)
+        screened = identify_screened(experiments, analytic, cell.method, options, callback, apply=True)
+        doc["fixed"] = {
+            n: {"value": float(analytic.coefficients[n]), "reason": why} for n, why in screened.fixed.items()
+        }
+        est = screened.estimate
         comparison = compare(est, analytic)
         doc.update(
             status=est.status.name.lower().replace("_", " "),

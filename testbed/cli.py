@@ -168,7 +168,7 @@ def _cmd_identify(args) -> int:
         options=options,
         perturb=args.perturb,
         seed=args.seed,
-        free_all=args.free_all,
+        screen=args.screen,
         noise_std=args.noise_std,
         progress=progress if live else None,
     )
@@ -184,6 +184,12 @@ def _cmd_identify(args) -> int:
         print(done.comparison.table(), file=sys.stderr)
     for n, why in done.fixed.items():
         print(f"{n:<12}fixed at {done.config.coefficients[n]:.4g}: {why}", file=sys.stderr)
+    if done.screen and not done.fixed:
+        print(
+            f"testbed identify: estimated as listed; the screen would fix {', '.join(done.screen)} "
+            '(the estimates JSON\'s "screen" says why; --screen applies it)',
+            file=sys.stderr,
+        )
     print(done.validation.table(), file=sys.stderr)
     for path in done.written:
         print(path, file=sys.stderr if path == args.rrd else sys.stdout)
@@ -266,22 +272,23 @@ def _cmd_replay(args) -> int:
     return 0
 
 
-def _flags(parser: argparse.ArgumentParser) -> dict[str, tuple[str, bool]]:
-    """Parameter name → (the flag that sets it, whether it is a switch)."""
-    return {
-        a.dest: (max(a.option_strings, key=len), a.const is True)
+def _flags(parser: argparse.ArgumentParser) -> list[tuple[str, str, bool | None]]:
+    """(parameter name, the flag that sets it, the value it sets if a switch, else None)."""
+    return [
+        (a.dest, max(a.option_strings, key=len), a.const if isinstance(a.const, bool) else None)
         for a in parser._actions
         if a.option_strings and a.dest != "help"
-    }
+    ]
 
 
-def in_flags(message: str, flags: dict[str, tuple[str, bool]]) -> str:
-    """A library message names parameters as Python does (`max_iter=-1`, `force=True`); the user
-    typed flags (`--max-iter -1`, `--force`)."""
-    for dest, (flag, switch) in flags.items():
-        if switch:
-            message = message.replace(f"{dest}=True", flag)
-        message = re.sub(rf"(?<![\w.-]){dest}=", f"{flag} ", message)
+def in_flags(message: str, flags: list[tuple[str, str, bool | None]]) -> str:
+    """A library message names parameters as Python does (`max_iter=-1`, `force=True`,
+    `screen=False`); the user typed flags (`--max-iter -1`, `--force`, `--free-all`)."""
+    for dest, flag, switch in flags:
+        if switch is None:
+            message = re.sub(rf"(?<![\w.-]){dest}=", f"{flag} ", message)
+        else:
+            message = message.replace(f"{dest}={switch}", flag)
     return message
 
 
@@ -357,11 +364,21 @@ def parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--seed", type=_seed, default=0, help="signs of --perturb (default 0)")
     s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
-    s.add_argument(
-        "--free-all",
+    listed = s.add_mutually_exclusive_group()
+    listed.add_argument(
+        "--screen",
         action="store_true",
-        help="estimate every coefficient of [identify] free (default: those the data "
-        "identify; the others stay at their a-priori values, see `analyze`)",
+        default=None,
+        help="estimate only the coefficients of [identify] free that the data determine, the "
+        "others at their a-priori values (default where the config says screen = true, as a "
+        "run's model.toml does)",
+    )
+    listed.add_argument(
+        "--free-all",
+        dest="screen",
+        action="store_false",
+        help="estimate every coefficient of [identify] free as listed, even a candidate list "
+        "(screen = true); the screen is only reported (default for a config without it)",
     )
     s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
     s.set_defaults(func=_cmd_identify)

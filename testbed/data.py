@@ -82,6 +82,7 @@ class ModelConfig:
     outputs: tuple[str, ...] | None = None  # [identify] outputs: the states fitted (None: all measured)
     # [identify] noise_std: state → the sensors' noise σ (SI), known; None: read off the data
     noise_std: Mapping[str, float] | None = None
+    screen: bool = False  # [identify] screen: `free` is a candidate list that `identify` screens
 
     def fitted(self, experiments: Sequence[Experiment]) -> list[Experiment]:
         """The experiments reduced to the config's outputs (all of them without `outputs`).
@@ -393,7 +394,10 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     noise = ident.get("noise_std") if isinstance(ident, dict) else None
     if noise is not None:
         noise = check_noise_std(noise, f"{source}: [identify] noise_std") or None
-    config = ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs, noise)
+    screen = ident.get("screen", False)
+    if not isinstance(screen, bool):
+        raise InputError(f"{source}: [identify] screen = {screen!r}; expected true or false")
+    config = ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs, noise, screen)
     check_config(config)
     return config
 
@@ -474,6 +478,12 @@ def number(v, where: str) -> float:
     return value
 
 
+_SCREEN_NOTE = (
+    "screen = true: free is a candidate list; identify fixes the candidates these data do not "
+    "determine (docs/cli.md#the-screen); without it free is estimated as written"
+)
+
+
 def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) -> str:
     """TOML text of a model config; `comments` annotate vehicle constants or coefficients."""
     comments = comments or {}
@@ -484,7 +494,10 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
 
     lines = ["[vehicle]"] + [line(k, getattr(config.vehicle, k)) for k in Vehicle.names()]
     lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
-    lines += ["", "[identify]", "free = [" + ", ".join(f'"{n}"' for n in config.free) + "]"]
+    lines += ["", "[identify]"]
+    if config.screen:
+        lines += [f"# {_SCREEN_NOTE}", "screen = true"]
+    lines += ["free = [" + ", ".join(f'"{n}"' for n in config.free) + "]"]
     if config.outputs is not None:
         note = f"  # {comments['outputs']}" if "outputs" in comments else ""
         lines.append("outputs = [" + ", ".join(f'"{s}"' for s in config.outputs) + "]" + note)

@@ -49,7 +49,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from testbed.analysis import identifiability, unidentified
+from testbed.analysis import unidentified
 from testbed.autopilot import FIN_LIMIT, Autopilot, fly_linear
 from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
@@ -480,11 +480,12 @@ def scenario_information(m: Model, total: float, base: Scenario | str = "II") ->
 
 
 def identified(m: Model, total: float) -> dict[str, str]:
-    """The free coefficients that Scenario II flown for `total` s leaves unidentified, by the
-    rule `identify` screens with (`analysis.unidentified`), with the reason. The design leaves
-    them out by default: they would dominate any criterion, and the regime's amplitudes cannot
-    bring them within reach."""
-    return unidentified(identifiability(scenario_flights(m, total), m.config, m.noise_std))
+    """The free coefficients that Scenario II flown for `total` s leaves undetermined, by the
+    rule `identify` screens with (`analysis.unidentified`: its data are the design model's own,
+    so its estimates are the model's coefficients), with the reason. The design leaves them out
+    by default: they would dominate any criterion, and the regime's amplitudes cannot bring them
+    within reach."""
+    return unidentified(scenario_flights(m, total), m.config, m.noise_std)
 
 
 # -- the check on the truth plant --------------------------------------------------------------------------

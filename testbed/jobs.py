@@ -18,11 +18,10 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis import Comparison, Identifiability, compare, identifiability, screen
+from testbed.analysis import Comparison, Identifiability, compare, identifiability, identify_screened
 from testbed.data import Experiment, ModelConfig, load_data, read_config, read_csv, read_estimates, run_csvs
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, identify, lookup
-from testbed.linear import check_fit
 from testbed.validation import Validation, validate
 
 __all__ = [
@@ -96,8 +95,9 @@ class Identified:
 
     Attributes:
         estimate: the fit.
-        config: the model config fitted (after screening: the free set the data identify).
-        fixed: coefficient → why it was fixed at its a-priori value by the screening.
+        config: the model config fitted (the screen applied: the candidates the data determine).
+        fixed: coefficient → why the screen applied left it at its a-priori value.
+        screen: coefficient → why the screen fixes it, or where it was not applied would fix it.
         comparison: against the run's analytic model (None for data without one).
         validation: fit % and residual whiteness of the fitted model on the data.
         document: the estimates JSON as a mapping; `text` as written.
@@ -107,6 +107,7 @@ class Identified:
     estimate: Estimate
     config: ModelConfig
     fixed: dict[str, str]
+    screen: dict[str, str]
     comparison: Comparison | None
     validation: Validation
     document: dict
@@ -124,7 +125,7 @@ def identify_data(
     options: Mapping | None = None,
     perturb: float | None = None,
     seed: int = 0,
-    free_all: bool = False,
+    screen: bool | None = None,
     noise_std: Mapping[str, float] | None = None,
     progress: Callable[[Progress], None] | None = None,
 ) -> Identified:
@@ -134,11 +135,12 @@ def identify_data(
 
     `config`: the model config (default: the run's model.toml); `options`: the method's
     options; `perturb`: move every free start by this fraction (signs from `seed`);
-    `free_all`: fit every coefficient of the config's free list, not only those the data
-    identify (`analysis.screen`); `noise_std`: the sensors' noise σ per state, replacing the
-    config's `[identify] noise_std` entry by entry. A diverged fit is an `InputError` and writes
-    nothing; a fit that ran but did not converge is written (`Identified.estimate.converged`
-    says so).
+    `screen`: fit only the candidates of the config's free list that the data determine
+    (`analysis.identify_screened`), or (False) the list as written, the screen only reported in
+    the JSON's `screen`; default: as the config's `[identify] screen` says; `noise_std`: the
+    sensors' noise σ per state, replacing the config's `[identify] noise_std` entry by entry. A
+    diverged fit is an `InputError` and writes nothing; a fit that ran but did not converge is
+    written (`Identified.estimate.converged` says so).
     """
     m = lookup(method)
     opts = m.options.build(m.name, options or {})
@@ -152,16 +154,6 @@ def identify_data(
     check_outputs(read, {"out": out, "history": history, "rrd": rrd})
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
-    check_fit(experiments, cfg)  # what no screening can mend, named first
-    fixed = {}
-    if not free_all:
-        cfg, fixed = screen(experiments, cfg)
-        if not cfg.free:
-            raise InputError(
-                f"no coefficient of [identify] free is identifiable from "
-                f"{', '.join(map(str, data))} ({next(iter(fixed.values()))}); "
-                "expected data that excite them, or free_all=True"
-            )
     iterations = []  # (iteration, values, cost) of the iterative methods, for the recording
 
     def callback(step: Progress) -> None:
@@ -170,7 +162,8 @@ def identify_data(
         if progress is not None:
             progress(step)
 
-    estimate = identify(experiments, cfg, method=m.name, options=opts, callback=callback)
+    screened = identify_screened(experiments, cfg, m.name, opts, callback, apply=screen)
+    cfg, estimate = screened.config, screened.estimate
     if estimate.status is Status.DIVERGED:
         expected = f" (expected {'another start or ' if m.starts else ''}a better a-priori config)"
         if "; give " in estimate.message:  # the reason says what to give (a filter's noise-free data)
@@ -181,8 +174,12 @@ def identify_data(
             f"{', '.join(map(str, data))}; no estimate written{expected}"
         )
     doc = estimate.json_fields()
-    if fixed:
-        doc["fixed"] = {n: {"value": float(cfg.coefficients[n]), "reason": why} for n, why in fixed.items()}
+    if screened.fixed:
+        doc["fixed"] = {
+            n: {"value": float(cfg.coefficients[n]), "reason": why} for n, why in screened.fixed.items()
+        }
+    if not screened.applied:
+        doc["screen"] = dict(screened.screen)
     comparison = None
     if run_config is not None:
         comparison = truth_comparison(estimate, run_config, truth)
@@ -202,7 +199,9 @@ def identify_data(
         for path, content in files.items():
             temporary[path].write_text(content)
     written = tuple(files) + ((Path(rrd),) if rrd is not None else ())
-    return Identified(estimate, cfg, fixed, comparison, validation, doc, text, written)
+    return Identified(
+        estimate, cfg, screened.fixed, screened.screen, comparison, validation, doc, text, written
+    )
 
 
 def analyze_data(

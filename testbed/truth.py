@@ -442,8 +442,10 @@ def analytic_config_text(mjcf: str | Path | None = None, speed: float | None = N
 
 
 def model_config(lin: LinearModel, mjcf=None):
-    """`(ModelConfig, comments)` of an analytic model already computed (see `analytic_config`)."""
-    return ModelConfig(lin.vehicle, dict(lin.coefficients), FREE, str(mjcf or "")), _comments(lin, mjcf)
+    """`(ModelConfig, comments)` of an analytic model already computed (see `analytic_config`); its
+    free list, `FREE`, is the candidates `identify` screens (`screen`), not a user's choice."""
+    config = ModelConfig(lin.vehicle, dict(lin.coefficients), FREE, str(mjcf or ""), screen=True)
+    return config, _comments(lin, mjcf)
 
 
 def _comments(lin: LinearModel, mjcf) -> dict[str, str]:

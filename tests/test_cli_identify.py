@@ -41,9 +41,11 @@ def test_every_method_on_a_scenario_ii_run(run, tmp_path, capsys, method, limit)
     config = read_config(run / "model.toml")
     free = list(doc["coefficients"])
     assert doc["method"] == method and doc["converged"] is (code == 0)
-    # what the data identify is estimated; the rest stays at the a-priori value, with the reason
+    # the run's free list is a candidate list: what the data determine is estimated; the rest
+    # stays at the a-priori value, with the reason
+    assert config.screen and "screen" not in doc
     assert set(free) | set(doc["fixed"]) == set(config.free) and not set(free) & set(doc["fixed"])
-    assert all("not identifiable" in f["reason"] for f in doc["fixed"].values())
+    assert all("not determined by these data" in f["reason"] for f in doc["fixed"].values())
     assert all(f"{n}" in printed.err for n in doc["fixed"])
     assert all(np.isfinite(c["value"]) and c["std"] > 0 for c in doc["coefficients"].values())
     assert (
@@ -220,11 +222,15 @@ def test_a_run_without_truth_files_is_compared_without_the_bias_column(run, tmp_
 
 
 def test_free_all_estimates_every_listed_coefficient(run, tmp_path, capsys):
-    """By default what the data do not identify stays fixed; --free-all frees the whole list."""
+    """By default what the data do not determine of a run's candidate list stays fixed;
+    --free-all frees the whole list, the screen only reported (one line on stderr)."""
     out = tmp_path / "all.json"
-    _ok(capsys, ["identify", run, "--free-all", "--max-iter", "3", "--out", out])
+    _, printed = _ok(capsys, ["identify", run, "--free-all", "--max-iter", "3", "--out", out])
     doc = json.loads(out.read_text())
     assert set(doc["coefficients"]) == set(read_config(run / "model.toml").free) and "fixed" not in doc
+    assert doc["screen"] and set(doc["screen"]) < set(doc["coefficients"])
+    (line,) = [x for x in printed.err.splitlines() if "the screen would fix" in x]
+    assert all(n in line for n in doc["screen"])
 
 
 def test_a_wrapped_heading_fits_as_the_continuous_one(tmp_path, capsys):

@@ -181,7 +181,8 @@ def test_files_measurement_csv_and_config():
     config = section(text, "Model config TOML")
     assert (
         missing_code(
-            config, Vehicle.names() + ("free", "outputs", "[vehicle]", "[coefficients]", "[identify]")
+            config,
+            Vehicle.names() + ("free", "screen", "outputs", "[vehicle]", "[coefficients]", "[identify]"),
         )
         == []
     )
@@ -303,7 +304,7 @@ def test_files_estimates_json_keys():
     keys = set(fitted.json_fields()) | set(diverged.json_fields())
     assert {"crlb_corrected_std", "initial_states", "start_reason", "diverged", "sqrt"} <= keys
     identify = _written_keys(_function_tree(identify_data), "doc")
-    assert {"fixed", "comparison", "validation"} <= identify
+    assert {"fixed", "screen", "comparison", "validation"} <= identify
     assert missing_code(text, sorted(keys | identify)) == []
     assert [s.message for s in Status if s is not Status.DIVERGED and s.message not in text] == []
 
