@@ -54,7 +54,7 @@ __all__ = [
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
-NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ) is inside the optimum's basin
+NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 1.0  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
 SHRINK = 4  # each multiple-shooting stage has this many times fewer segments than the one before
@@ -244,9 +244,9 @@ def trust_region(
     """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
     are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
     scaled coordinates, with the second-order check at the end (leaving at most `escapes`
-    saddles). Where that does not converge in `DIRECT` iterations and its Gauss-Newton step is
-    still `NEAR` σ or longer (or the model diverges over the whole record from `p`), multiple
-    shooting from `p` again, with half the iterations left: stages of `segments`,
+    saddles). Where that does not converge in `DIRECT` iterations (`DIRECT` more if its
+    Gauss-Newton step is then below `NEAR` σ), or the model diverges over the whole record from
+    `p`, multiple shooting from `p` again, with half the iterations left: stages of `segments`,
     `segments`/`SHRINK`, … pieces per record, then the whole record. Where that does not converge
     either and ends above the point the whole record's fit had reached, that fit goes on from
     there. `max_iter` bounds the iterations of all of them together.
@@ -276,11 +276,11 @@ def trust_region(
     direct = _stages(
         prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
     )
+    if direct.status is Status.MAX_ITERATIONS and direct.step < NEAR and stages:
+        # near a stationary point: as many iterations again before anything else
+        direct = _stages(prob, [], direct.point.p, min(left(), DIRECT), tol, radius, escapes, follow, report)
     out = direct
-    if direct.status is Status.MAX_ITERATIONS and direct.step < NEAR:
-        # inside the optimum's quadratic basin already: on to it
-        out = _stages(prob, [], direct.point.p, left(), tol, radius, escapes, follow, report)
-    elif direct.status is not Status.CONVERGED and stages:
+    if direct.status is not Status.CONVERGED and stages:
         # multiple shooting gets half of what is left; the whole record's fit the rest where it
         # was on its way to a better point than the segments led to
         out = _stages(prob, stages, p, left() // 2, tol, radius, escapes, follow, report)
