@@ -1,0 +1,297 @@
+"""Real data: the KVLCC2 tanker's free-running trials, identified with testbed's sway-yaw model.
+
+    python studies/kvlcc2.py RAW_DIR [--data DIR] [--out DIR] [--convert-only] [--fit NAME]
+
+RAW_DIR holds one of the two public SIMMAN 2008 sets (as in the repository
+martinlarsalbert/System-identification-of-Vessel-Manoeuvring-Models, `data/01_raw/...`):
+
+- MARIN: `MARIN_FREE_KVLCC2_{zz_10,zz_-10,zz_20,zz_-20,tc_35,tc_-35}_m.dat`, full scale, 3 header
+  lines, 11 columns: t, x0, y0, φ, ψ, ẋ0, ẏ0, p, r, δ, n (deg, deg/s, m/s, rpm). t is printed to
+  three significant digits (a step of 0.135 s repeats stamps beyond 10 s).
+- HSVA: `HSVA_CPMC_KVLCC2_Z_*.dat`, model scale 1:45.7, 4 header lines, 12 columns: t, x0, y0,
+  ψ, ẋ0, ẏ0, r, φ, δ, n, thrust, torque.
+
+Column meanings were checked on the data: dx0/dt = ẋ0 and dy0/dt = ẏ0 (earth-fixed velocities,
+not body ones), dψ/dt = r, dφ/dt = p (MARIN). HSVA's 8th column has no rate to check it
+against; its size and its correlation with sway match MARIN's roll angle, so it is read as φ.
+The SIMMAN report gives the conventions: origin amidships, ψ positive to starboard, φ
+starboard down, δ positive steering to port. A positive δ thus turns the bow to port, as a
+positive rudder turns testbed's torpedo (N_dr < 0): δ is kept as it is, in radians.
+
+Conversion (`convert`): the times are rebuilt as a uniform step when every printed stamp is the
+rounding of one (else repeated stamps are merged by their mean); ψ is unwrapped; body velocities
+at the CG are u = ẋ0 cos ψ + ẏ0 sin ψ, v = −ẋ0 sin ψ + ẏ0 cos ψ + x_G r (x_G: CG forward of the
+midship origin); states are interpolated onto a uniform grid (1 s full scale, 0.1 s model scale)
+and each input is its mean over the interval it holds (the zero-order hold). The model config
+per record: the ship's constants (`ship_data.yml` beside RAW_DIR or one level up), the approach
+speed as U, and a-priori coefficients from Clarke, Gedling & Hine (1983) and the rudder's lift.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linprog
+
+from testbed.data import ModelConfig, write_config, write_csv
+from testbed.model import COEFFICIENTS, Vehicle
+
+G = 9.81
+LAYOUTS = {  # raw columns in file order; angles in deg, rates in deg/s
+    "MARIN": ("t", "x0", "y0", "phi", "psi", "dx0", "dy0", "p", "r", "delta", "n"),
+    "HSVA": ("t", "x0", "y0", "psi", "dx0", "dy0", "r", "phi", "delta", "n", "thrust", "torque"),
+}
+SCALE = {"MARIN": 45.7, "HSVA": 1.0}  # the data's scale relative to ship_data.yml (model scale)
+RHO = {"MARIN": 1025.0, "HSVA": 1000.0}  # sea water at full scale; the towing tank's fresh water
+STEP = {"MARIN": 1.0, "HSVA": 0.1}  # s, the resampled step
+# Not in ship_data.yml (model scale, from the SIMMAN 2008 KVLCC2 particulars and HSVA's report):
+GM, KG, KXX = 0.125, 0.407, 0.372  # m, m, roll radius of gyration / B (added inertia included)
+K_RUDDER = 0.95  # (u_R/U)² (1 + a_H): the rudder's inflow (0.85 U) and hull interaction (a_H 0.31)
+ROLL_DAMPING = 0.05  # the roll mode's damping ratio, a-priori (no bilge keels)
+SWAY_YAW_FREE = ("Y_v", "Y_r", "N_v", "N_r", "Y_dr", "N_dr")
+ROLL_FREE = ("K_v", "K_p", "K_r", "K_dr")
+
+
+def kind_of(path: Path) -> str:
+    for kind in LAYOUTS:
+        if path.name.upper().startswith(kind):
+            return kind
+    raise ValueError(f"{path}: not a MARIN_ or HSVA_ record")
+
+
+def read_dat(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The raw columns of a .dat file and each stamp's printing resolution (one unit of its last
+    digit). Lines that are not all numbers (headers, blank or tab-only lines) are skipped."""
+    names = LAYOUTS[kind_of(path)]
+    rows, ulp = [], []
+    for line in path.read_bytes().decode("latin-1").splitlines():
+        fields = line.split()
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            continue
+        if len(values) == len(names):
+            rows.append(values)
+            ulp.append(last_digit(fields[0]))
+    if len(rows) < 3:
+        raise ValueError(f"{path}: fewer than 3 rows of {len(names)} numbers")
+    a = np.array(rows)
+    return {n: a[:, k] for k, n in enumerate(names)}, np.array(ulp)
+
+
+def last_digit(token: str) -> float:
+    """One unit of the last printed digit of a number: '1.36E-01' → 0.001, '0.050000' → 1e-6."""
+    m = re.fullmatch(r"[-+]?\d*(?:\.(\d*))?(?:[eE]([-+]?\d+))?", token)
+    decimals = len(m.group(1) or "") if m else 0
+    return 10.0 ** (int(m.group(2) or 0) - decimals) if m else 1.0
+
+
+def uniform_time(t: np.ndarray, ulp: np.ndarray, slack: float = 1.1) -> np.ndarray | None:
+    """The uniform times t0 + k Δ nearest the printed stamps in the worst case (a Chebyshev fit,
+    each stamp's deviation counted in its half printing unit), if every stamp is within `slack`
+    half units of them: the stamps are those of one uniform clock, rounded. Else None (a gap)."""
+    k = np.arange(t.size, dtype=float)
+    half = 0.5 * ulp
+    # variables t0, Δ, e: minimise e subject to |t0 + k Δ − t_k| ≤ e half_k
+    A = np.block([[np.c_[np.ones_like(k), k, -half]], [np.c_[-np.ones_like(k), -k, -half]]])
+    fit = linprog([0, 0, 1], A_ub=A, b_ub=np.r_[t, -t], bounds=[(None, None)] * 2 + [(0, None)])
+    if not fit.success or fit.x[1] <= 0 or fit.x[2] > slack:
+        return None
+    return fit.x[0] + fit.x[1] * k
+
+
+def merged(t: np.ndarray, cols: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Rows sharing a stamp merged into their mean, stamps sorted."""
+    stamps, which = np.unique(t, return_inverse=True)
+    counts = np.bincount(which)
+    return stamps, {n: np.bincount(which, weights=c) / counts for n, c in cols.items()}
+
+
+def interval_mean(t: np.ndarray, y: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
+    """The mean of the linear interpolant of y over [grid_k, grid_k + dt) (the last: its value)."""
+    area = np.concatenate([[0.0], np.cumsum(np.diff(t) * (y[1:] + y[:-1]) / 2)])
+
+    def integral(tau):
+        i = np.clip(np.searchsorted(t, tau, side="right") - 1, 0, t.size - 2)
+        return area[i] + (tau - t[i]) * (y[i] + np.interp(tau, t, y)) / 2
+
+    mean = np.interp(grid, t, y)
+    inside = grid + dt <= t[-1]
+    mean[inside] = (integral(grid[inside] + dt) - integral(grid[inside])) / dt
+    return mean
+
+
+def ship(raw_dir: Path, kind: str) -> dict[str, float]:
+    """The ship's particulars at the data's scale (SI): L, B, T, CB, rho, m, volume, x_G, Iz,
+    Ix, Iy, GM, KG, A_R, H_R, x_R (midship origin); `ship_data.yml` is at model scale."""
+    path = next(
+        (p for p in (raw_dir / "ship_data.yml", raw_dir.parent / "ship_data.yml") if p.exists()), None
+    )
+    if path is None:
+        raise ValueError(f"{raw_dir}: no ship_data.yml beside it or one level up")
+    data = {}
+    for line in path.read_text().splitlines():  # flat `key: number  # comment` lines
+        m = re.match(r"^(\w+):\s*([-+0-9.eE]+)\s*(#.*)?$", line)
+        if m:
+            data[m.group(1)] = float(m.group(2))
+    lam, rho = SCALE[kind], RHO[kind]
+    s = {"rho": rho, "CB": data["CB"], "GM": GM * lam, "KG": KG * lam}
+    s.update({k: data[k] * lam for k in ("L", "B", "T", "x_G", "H_R", "x_r")})
+    s["A_R"] = data["A_R"] * lam**2
+    s["volume"] = data["volume"] * lam**3
+    s["m"] = rho * s["volume"]
+    s["Iz"] = data["I_z"] / data["m"] * lam**2 * s["m"] - s["m"] * s["x_G"] ** 2  # about the CG
+    s["Ix"] = s["m"] * (KXX * s["B"]) ** 2
+    s["Iy"] = s["m"] * (0.25 * s["L"]) ** 2
+    return s
+
+
+def record(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, float]]:
+    """One raw record converted: the uniform grid, the states (SI, body axes at the CG, absolute u)
+    and delta_r (rad, interval means), and the ship's particulars."""
+    kind = kind_of(path)
+    cols, ulp = read_dat(path)
+    s = ship(path.parent, kind)
+    cols["psi"] = np.unwrap(np.deg2rad(cols["psi"]))
+    t = uniform_time(cols["t"], ulp)
+    if t is None:
+        t, cols = merged(cols["t"], cols)
+    dt = STEP[kind]
+    grid = np.arange(t[0], t[-1] + 1e-9, dt)
+    at = {n: np.interp(grid, t, c) for n, c in cols.items()}
+    psi, r = at["psi"], np.deg2rad(at["r"])
+    out = {
+        "u": at["dx0"] * np.cos(psi) + at["dy0"] * np.sin(psi),
+        "v": -at["dx0"] * np.sin(psi) + at["dy0"] * np.cos(psi) + s["x_G"] * r,
+        "r": r,
+        "phi": np.deg2rad(at["phi"]),
+        "psi": psi,
+        "delta_r": interval_mean(t, np.deg2rad(cols["delta"]), grid, dt),
+    }
+    if "p" in cols:
+        out["p"] = np.deg2rad(at["p"])
+    return grid - grid[0], out, s
+
+
+def approach_speed(t: np.ndarray, states: dict[str, np.ndarray]) -> float:
+    """U: the mean surge speed over the record's first five samples (the approach)."""
+    return float(np.mean(states["u"][:5]))
+
+
+def clarke(s: dict[str, float], U: float) -> dict[str, float]:
+    """Sway-yaw derivatives of Clarke, Gedling & Hine (1983), dimensional (½ρL²U, ½ρL³U, ...,
+    ½ρL³, ...), moved from the midship origin to the CG: D_G = Tᵀ D_O T, T = [[1, −x_G], [0, 1]]."""
+    L, B, T, CB, rho = s["L"], s["B"], s["T"], s["CB"], s["rho"]
+    k = -math.pi * (T / L) ** 2
+    q = 0.5 * rho
+    damping = np.array(
+        [
+            [
+                q * L**2 * U * k * (1 + 0.40 * CB * B / T),
+                q * L**3 * U * k * (-0.5 + 2.2 * B / L - 0.080 * B / T),
+            ],
+            [
+                q * L**3 * U * k * (0.5 + 2.4 * T / L),
+                q * L**4 * U * k * (0.25 + 0.039 * B / T - 0.56 * B / L),
+            ],
+        ]
+    )
+    added = np.array(
+        [
+            [
+                q * L**3 * k * (1 + 0.16 * CB * B / T - 5.1 * (B / L) ** 2),
+                q * L**4 * k * (0.67 * B / L - 0.0033 * (B / T) ** 2),
+            ],
+            [
+                q * L**4 * k * (1.1 * B / L - 0.041 * B / T),
+                q * L**5 * k * (1 / 12 + 0.017 * CB * B / T - 0.33 * B / L),
+            ],
+        ]
+    )
+    shift = np.array([[1.0, -s["x_G"]], [0.0, 1.0]])
+    D, M = shift.T @ damping @ shift, shift.T @ added @ shift
+    return {
+        "Y_v": D[0, 0], "Y_r": D[0, 1], "N_v": D[1, 0], "N_r": D[1, 1],
+        "Y_vdot": M[0, 0], "Y_rdot": M[0, 1], "N_vdot": M[1, 0], "N_rdot": M[1, 1],
+    }  # fmt: skip
+
+
+def prior(s: dict[str, float], U: float, roll: bool) -> dict[str, float]:
+    """Every a-priori coefficient: Clarke's sway and yaw, the rudder's lift (Fujii's slope
+    6.13 Λ/(Λ + 2.25), Λ = H_R²/A_R, on K_RUDDER ½ρU²A_R; N_dr at the rudder's arm from the CG),
+    surge from the ITTC-57 friction line (form factor 0.3); with `roll`, the lateral forces'
+    heeling arms (hull at T/2 below the waterline, rudder at H_R/2 above the keel) and
+    ROLL_DAMPING."""
+    c = clarke(s, U)
+    aspect = s["H_R"] ** 2 / s["A_R"]
+    c["Y_dr"] = K_RUDDER * 0.5 * s["rho"] * U**2 * s["A_R"] * 6.13 * aspect / (aspect + 2.25)
+    c["N_dr"] = (s["x_r"] - s["x_G"]) * c["Y_dr"]
+    wetted = 1.7 * s["L"] * s["T"] + s["volume"] / s["T"]  # Mumford's wetted surface
+    reynolds = U * s["L"] / 1.19e-6
+    drag = 1.3 * 0.075 / (math.log10(reynolds) - 2) ** 2 * 0.5 * s["rho"] * wetted * U**2
+    c["X_u"], c["X_udot"] = -2 * drag / U, -0.05 * s["m"]
+    c["Z_wdot"], c["M_qdot"] = -s["m"], -0.5 * s["Iy"]  # only to give heave and pitch an inertia
+    if roll:
+        z_hull, z_rudder = s["KG"] - s["T"] / 2, s["KG"] - s["H_R"] / 2
+        c["K_v"], c["K_r"], c["K_dr"] = -z_hull * c["Y_v"], -z_hull * c["Y_r"], -z_rudder * c["Y_dr"]
+        c["K_p"] = -2 * ROLL_DAMPING * math.sqrt(s["m"] * G * s["GM"] * s["Ix"])
+    return c
+
+
+def model_config(
+    s: dict[str, float], U: float, roll: bool, measured=("v", "p", "r", "phi", "psi")
+) -> ModelConfig:
+    """The record's model config: W = B = m g, the restoring arm zB = −GM (the metacentre above
+    the CG stands for the waterplane's restoring), free and fitted as the variant says."""
+    W = s["m"] * G
+    vehicle = Vehicle(s["m"], s["Ix"], s["Iy"], s["Iz"], W, W, 0.0, 0.0, -s["GM"], U)
+    values = prior(s, U, roll)
+    coefficients = {n: float(values.get(n, 0.0)) for n in COEFFICIENTS}
+    free = SWAY_YAW_FREE + (ROLL_FREE if roll else ())
+    outputs = tuple(
+        n for n in ("v", "p", "r", "phi", "psi") if n in measured and (roll or n in ("v", "r", "psi"))
+    )
+    return ModelConfig(vehicle, coefficients, free, outputs=outputs)
+
+
+def convert(raw_dir: Path, data_dir: Path) -> list[str]:
+    """Every record of RAW_DIR as `NAME.csv`, `NAME.toml` (sway-yaw) and `NAME-roll.toml`
+    (sway-yaw-roll) in data_dir; returns the names."""
+    paths = sorted(p for p in raw_dir.glob("*.dat") if p.name.upper().startswith(tuple(LAYOUTS)))
+    if not paths:
+        raise ValueError(f"{raw_dir}: no MARIN_*.dat or HSVA_*.dat records")
+    data_dir.mkdir(parents=True, exist_ok=True)
+    names = []
+    for path in paths:
+        name = re.sub(r"^(MARIN_FREE_KVLCC2_|HSVA_CPMC_KVLCC2_)|_m$", "", path.stem)
+        t, x, s = record(path)
+        measured = [n for n in ("u", "v", "p", "r", "phi", "psi") if n in x]
+        inputs = np.column_stack([x["delta_r"], np.zeros_like(t), np.zeros_like(t)])
+        write_csv(data_dir / f"{name}.csv", t, np.column_stack([x[n] for n in measured]), inputs, measured)
+        U = approach_speed(t, x)
+        write_config(data_dir / f"{name}.toml", model_config(s, U, roll=False))
+        write_config(data_dir / f"{name}-roll.toml", model_config(s, U, True, measured))
+        names.append(name)
+    return names
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("raw", type=Path, help="folder of MARIN_*.dat or HSVA_*.dat records")
+    ap.add_argument(
+        "--data", type=Path, default=None, help="where the CSVs and configs go (default OUT/data)"
+    )
+    ap.add_argument("--out", type=Path, default=Path("runs/kvlcc2"), help="the study's folder")
+    ap.add_argument("--convert-only", action="store_true", help="only write the CSVs and configs")
+    a = ap.parse_args(argv)
+    names = convert(a.raw, a.data or a.out / "data")
+    print("\n".join(names))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
