@@ -30,15 +30,22 @@ speed as U, and a-priori coefficients from Clarke, Gedling & Hine (1983) and the
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
+import json
 import math
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linprog
+from scipy.optimize import least_squares, linprog
 
-from testbed.data import ModelConfig, write_config, write_csv
+from testbed import linear
+from testbed.data import ModelConfig, read_config, read_csv, write_config, write_csv
+from testbed.errors import atomic_write_text
 from testbed.model import COEFFICIENTS, Vehicle
+from testbed.validation import validate
 
 G = 9.81
 LAYOUTS = {  # raw columns in file order; angles in deg, rates in deg/s
@@ -177,11 +184,6 @@ def record(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, flo
     return grid - grid[0], out, s
 
 
-def approach_speed(t: np.ndarray, states: dict[str, np.ndarray]) -> float:
-    """U: the mean surge speed over the record's first five samples (the approach)."""
-    return float(np.mean(states["u"][:5]))
-
-
 def clarke(s: dict[str, float], U: float) -> dict[str, float]:
     """Sway-yaw derivatives of Clarke, Gedling & Hine (1983), dimensional (½ρL²U, ½ρL³U, ...,
     ½ρL³, ...), moved from the midship origin to the CG: D_G = Tᵀ D_O T, T = [[1, −x_G], [0, 1]]."""
@@ -272,24 +274,188 @@ def convert(raw_dir: Path, data_dir: Path) -> list[str]:
         measured = [n for n in ("u", "v", "p", "r", "phi", "psi") if n in x]
         inputs = np.column_stack([x["delta_r"], np.zeros_like(t), np.zeros_like(t)])
         write_csv(data_dir / f"{name}.csv", t, np.column_stack([x[n] for n in measured]), inputs, measured)
-        U = approach_speed(t, x)
+        U = float(np.mean(x["u"][:5]))  # the approach speed
         write_config(data_dir / f"{name}.toml", model_config(s, U, roll=False))
         write_config(data_dir / f"{name}-roll.toml", model_config(s, U, True, measured))
         names.append(name)
     return names
 
 
+# --- the study -------------------------------------------------------------------------------------
+
+# (label, method, extra options); an option the CLI does not accept yet is reported, not fatal
+METHODS = (
+    ("ml-gn", "ml-gn", ()),
+    ("ml-gn config", "ml-gn", ("--start", "config")),
+    ("ml-gn global", "ml-gn", ("--start", "global")),
+    ("ml-nm", "ml-nm", ()),
+    ("mekf", "mekf", ()),
+)
+FIT = {"MARIN": "zz_10", "HSVA": "Z_10_01"}  # the most linear well-excited zigzag of each set
+CHANNELS = ("v", "r", "psi")
+
+
+def identify_cli(csv: Path, toml: Path, method: str, extra, out: Path) -> dict:
+    """`testbed identify` on one record: its estimates JSON, or {"status": why} if it wrote none."""
+    out.unlink(missing_ok=True)
+    cmd = [sys.executable, "-m", "testbed", "identify", str(csv), "--config", str(toml), "--method", method]
+    run = subprocess.run(cmd + [*extra, "--out", str(out)], capture_output=True, text=True)
+    if run.returncode in (0, 1) and out.exists():
+        return json.loads(out.read_text())
+    why = (run.stderr.strip().splitlines() or [""])[-1].removeprefix("testbed identify: error: ")
+    return {"status": f"no estimate (exit {run.returncode}): {why.split(';')[0]}"}
+
+
+def concentrated(prob: linear.Problem, theta: np.ndarray, rounds: int = 50) -> tuple[float, np.ndarray]:
+    """The negative log-likelihood at the free `theta` with the initial states and the noise at
+    their ML values (alternated until the noise settles), and the parameter vector there."""
+    R = None
+    for _ in range(rounds):
+        p = linear.initial_states(prob, theta, R)
+        R_new = linear.noise_variance(prob, linear.residuals(prob, p))
+        if R is not None and np.allclose(R_new, R, rtol=1e-9, atol=0):
+            break
+        R = R_new
+    return linear.negative_log_likelihood(prob, linear.residuals(prob, p)), p
+
+
+def reference(prob: linear.Problem, starts) -> tuple[float, np.ndarray, np.ndarray]:
+    """The same likelihood minimised by scipy's trust-region reflective least squares on the
+    noise-weighted residuals over (θ, x0), the noise re-estimated between rounds until it
+    settles; the best over `starts`: (cost, θ, Cramér-Rao σ of θ from the final Jacobian)."""
+    best = (np.inf, None, None)
+    for theta in starts:
+        p, R = concentrated(prob, np.asarray(theta, dtype=float))[1], None
+        for _ in range(30):
+            R_new = linear.noise_variance(prob, linear.residuals(prob, p))
+            if R is not None and np.allclose(R_new, R, rtol=1e-8, atol=0):
+                break
+            R = R_new
+            weight = [1 / np.sqrt(R[r.channels]) for r in prob.records]
+
+            def weighted(q, weight=weight):
+                with np.errstate(all="ignore"):
+                    e = np.concatenate([(e * w).ravel() for e, w in zip(linear.residuals(prob, q), weight)])
+                return np.nan_to_num(e, nan=1e10, posinf=1e10, neginf=-1e10)
+
+            fit = least_squares(weighted, p, method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
+            p = fit.x
+        cost = linear.negative_log_likelihood(prob, linear.residuals(prob, p))
+        if cost < best[0]:
+            J = fit.jac / np.linalg.norm(fit.jac, axis=0)  # columns scaled to 1: θ and x0 differ by 1e14
+            std = np.sqrt(np.diag(np.linalg.inv(J.T @ J))) / np.linalg.norm(fit.jac, axis=0)
+            best = (cost, p[: prob.n_free], std[: prob.n_free])
+    return best
+
+
+def fit_percent(est: dict, csv: Path, toml: Path) -> list[float]:
+    """The fit % of v, r, ψ on a record of the config `toml` with the estimated coefficients."""
+    coefficients = {n: c["value"] for n, c in est.get("coefficients", {}).items()}
+    v = validate([read_csv(csv)], read_config(toml).with_coefficients(coefficients)).experiments
+    return [next(iter(v.values()))[c].fit_percent for c in CHANNELS]
+
+
+def study_record(data: Path, name: str, others: list[str], out: Path, variant: str) -> list[dict]:
+    """Every method on one record, the reference fit, and each fit's validation on `others`."""
+    csv, toml = data / f"{name}.csv", data / f"{name}{variant}.toml"
+    config = read_config(toml)
+    experiments = config.fitted([read_csv(csv)])
+    rows = []
+    for label, method, extra in METHODS:
+        est = identify_cli(csv, toml, method, extra, out / f"{name}.{label.replace(' ', '-')}.json")
+        rows.append({"record": name, "method": label, "estimate": est})
+    found = [r["estimate"] for r in rows if "coefficients" in r["estimate"]]
+    free = tuple(found[0]["coefficients"]) if found else config.free  # as the default screen left it
+    prob = linear.problem(experiments, replace(config, free=free))
+    starts = [prob.start] + [
+        [e["coefficients"][n]["value"] for n in free] for e in found if tuple(e["coefficients"]) == free
+    ]
+    ref_cost, ref_theta, ref_std = reference(prob, starts)
+    for row in rows:
+        est = row["estimate"]
+        if "coefficients" not in est:
+            continue
+        values = {n: c["value"] for n, c in est["coefficients"].items()}
+        own = linear.problem(experiments, replace(config.with_coefficients(values), free=tuple(values)))
+        row["ml_cost"] = concentrated(own, own.start)[0]
+        row["dJ"] = row["ml_cost"] - ref_cost
+        if tuple(values) == free:
+            row["dtheta_sigma"] = float(np.max(np.abs([values[n] for n in free] - ref_theta) / ref_std))
+        row["validation"] = {
+            o: fit_percent(est, data / f"{o}.csv", data / f"{o}{variant}.toml") for o in others
+        }
+    coefficients = {n: {"value": float(v), "std": float(s)} for n, v, s in zip(free, ref_theta, ref_std)}
+    ref = {"status": "reference", "cost": ref_cost, "coefficients": coefficients}
+    rows.append({"record": name, "method": "scipy trf", "estimate": ref, "ml_cost": ref_cost, "dJ": 0.0})
+    return rows
+
+
+def number(x, fmt: str = ".1f") -> str:
+    return "–" if x is None or not np.isfinite(x) else format(x, fmt)
+
+
+def tables(rows: list[dict], fit: str, prior: ModelConfig) -> str:
+    """The study as Markdown: every record and method; the chosen record's coefficients and its
+    validation on every other record."""
+    out = [
+        "| record | method | status | cost | ΔJ | iterations | wall s | max \\|Δθ\\|/σ | "
+        "fit % v / r / ψ on the others (median) |",
+        "|---|---|---|---:|---:|---:|---:|---:|---|",
+    ]
+    for r in rows:
+        e = r["estimate"]
+        fits = np.array(list(r.get("validation", {}).values()), dtype=float).reshape(-1, len(CHANNELS))
+        median = " / ".join(number(x, ".0f") for x in np.median(fits, axis=0)) if fits.size else "–"
+        out.append(
+            f"| {r['record']} | {r['method']} | {e['status']} | {number(e.get('cost'))} | "
+            f"{number(r.get('dJ'), '.2f')} | {e.get('iterations', '–')} | {number(e.get('wall_time_s'), '.2f')} | "
+            f"{number(r.get('dtheta_sigma'), '.2f')} | {median} |"
+        )
+    chosen = [r for r in rows if r["record"] == fit]
+    names = list(chosen[-1]["estimate"]["coefficients"]) if chosen else []
+    out += ["", f"Coefficients fitted on {fit} (value ± Cramér-Rao σ, SI):", ""]
+    out += ["| method | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    out.append("| a priori | " + " | ".join(f"{prior.coefficients[n]:.3g}" for n in names) + " |")
+    for r in chosen:
+        c = r["estimate"].get("coefficients", {})
+        cells = [f"{c[n]['value']:.3g} ± {number(c[n]['std'], '.2g')}" if n in c else "–" for n in names]
+        out.append(f"| {r['method']} | " + " | ".join(cells) + " |")
+    others = list(next((r["validation"] for r in chosen if "validation" in r), {}))
+    out += ["", f"Fit % (v / r / ψ) of the model fitted on {fit}, simulated on each other record:", ""]
+    out += ["| method | " + " | ".join(others) + " |", "|---|" + "---|" * len(others)]
+    for r in chosen:
+        if "validation" in r:
+            cells = [" / ".join(number(x, ".0f") for x in r["validation"][o]) for o in others]
+            out.append(f"| {r['method']} | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("raw", type=Path, help="folder of MARIN_*.dat or HSVA_*.dat records")
-    ap.add_argument(
-        "--data", type=Path, default=None, help="where the CSVs and configs go (default OUT/data)"
-    )
+    ap.add_argument("--data", type=Path, help="where the CSVs and configs go (default OUT/data)")
     ap.add_argument("--out", type=Path, default=Path("runs/kvlcc2"), help="the study's folder")
     ap.add_argument("--convert-only", action="store_true", help="only write the CSVs and configs")
+    ap.add_argument("--fit", help="the record shown in detail (default: zz_10, Z_10_01)")
+    ap.add_argument("--records", nargs="+", help="fit only these records (default: every one)")
+    ap.add_argument("--roll", action="store_true", help="the sway-yaw-roll configs (NAME-roll.toml)")
     a = ap.parse_args(argv)
-    names = convert(a.raw, a.data or a.out / "data")
-    print("\n".join(names))
+    data = a.data or a.out / "data"
+    names = convert(a.raw, data)
+    if a.convert_only:
+        print("\n".join(names))
+        return 0
+    fit = a.fit or FIT[kind_of(next(a.raw.glob("*.dat")))]
+    variant = "-roll" if a.roll else ""
+    (a.out / "estimates").mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in a.records or names:
+        print(f"fitting {name} ...", file=sys.stderr)
+        rows += study_record(data, name, [o for o in names if o != name], a.out / "estimates", variant)
+    atomic_write_text(a.out / "study.json", json.dumps(rows, indent=1, default=float) + "\n")
+    text = tables(rows, fit, read_config(data / f"{fit}{variant}.toml"))
+    atomic_write_text(a.out / "study.md", text)
+    print(text)
     return 0
 
 
