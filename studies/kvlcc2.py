@@ -319,32 +319,50 @@ def concentrated(prob: linear.Problem, theta: np.ndarray, rounds: int = 50) -> t
     return linear.negative_log_likelihood(prob, linear.residuals(prob, p)), p
 
 
-def reference(prob: linear.Problem, starts) -> tuple[float, np.ndarray, np.ndarray]:
+def weighted(prob: linear.Problem, R: np.ndarray):
+    """The residuals over the noise σ as a function of p (a diverging model's: large, finite),
+    and their Jacobian from testbed's exact output sensitivities."""
+    weight = [R[r.channels] ** -0.5 for r in prob.records]
+
+    def fun(q):
+        with np.errstate(all="ignore"):
+            e = np.concatenate([(e * w).ravel() for e, w in zip(linear.residuals(prob, q), weight)])
+        return np.nan_to_num(e, nan=1e10, posinf=1e10, neginf=-1e10)
+
+    def jac(q):
+        rows = []
+        for r, S, w in zip(prob.records, linear.sensitivities(prob, q), weight):
+            block = np.zeros((r.y.size, prob.n_params))
+            block[:, prob.columns(r)] = -(S * w[None, :, None]).reshape(r.y.size, -1)
+            rows.append(block)
+        return np.concatenate(rows)
+
+    return fun, jac
+
+
+def reference(prob: linear.Problem, starts, rounds: int = 12) -> tuple[float, np.ndarray, np.ndarray, str]:
     """The same likelihood minimised by scipy's trust-region reflective least squares on the
-    noise-weighted residuals over (θ, x0), the noise re-estimated between rounds until it
-    settles; the best over `starts`: (cost, θ, Cramér-Rao σ of θ from the final Jacobian)."""
-    best = (np.inf, None, None)
+    noise-weighted residuals over (θ, x0), the noise re-estimated between rounds until the cost
+    settles (< 0.001 per round; else after `rounds`); the best over `starts`: (cost, θ, the
+    Cramér-Rao σ of θ from the final Jacobian, "settled" or "round limit")."""
+    best = (np.inf, None, None, "")
     for theta in starts:
-        p, R = concentrated(prob, np.asarray(theta, dtype=float))[1], None
-        for _ in range(30):
-            R_new = linear.noise_variance(prob, linear.residuals(prob, p))
-            if R is not None and np.allclose(R_new, R, rtol=1e-8, atol=0):
+        p = concentrated(prob, np.asarray(theta, dtype=float))[1]
+        cost, status = np.inf, "round limit"
+        for _ in range(rounds):
+            fun, jac = weighted(prob, linear.noise_variance(prob, linear.residuals(prob, p)))
+            fit = least_squares(
+                fun, p, jac, method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=200
+            )
+            p, last = fit.x, cost
+            cost = linear.negative_log_likelihood(prob, linear.residuals(prob, p))
+            if abs(last - cost) < 1e-3:
+                status = "settled"
                 break
-            R = R_new
-            weight = [1 / np.sqrt(R[r.channels]) for r in prob.records]
-
-            def weighted(q, weight=weight):
-                with np.errstate(all="ignore"):
-                    e = np.concatenate([(e * w).ravel() for e, w in zip(linear.residuals(prob, q), weight)])
-                return np.nan_to_num(e, nan=1e10, posinf=1e10, neginf=-1e10)
-
-            fit = least_squares(weighted, p, method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
-            p = fit.x
-        cost = linear.negative_log_likelihood(prob, linear.residuals(prob, p))
         if cost < best[0]:
-            J = fit.jac / np.linalg.norm(fit.jac, axis=0)  # columns scaled to 1: θ and x0 differ by 1e14
-            std = np.sqrt(np.diag(np.linalg.inv(J.T @ J))) / np.linalg.norm(fit.jac, axis=0)
-            best = (cost, p[: prob.n_free], std[: prob.n_free])
+            norm = np.linalg.norm(fit.jac, axis=0)  # columns scaled to 1: θ and x0 differ by 1e14
+            std = np.sqrt(np.diag(np.linalg.inv((fit.jac / norm).T @ (fit.jac / norm)))) / norm
+            best = (cost, p[: prob.n_free], std[: prob.n_free], status)
     return best
 
 
@@ -367,10 +385,9 @@ def study_record(data: Path, name: str, others: list[str], out: Path, variant: s
     found = [r["estimate"] for r in rows if "coefficients" in r["estimate"]]
     free = tuple(found[0]["coefficients"]) if found else config.free  # as the default screen left it
     prob = linear.problem(experiments, replace(config, free=free))
-    starts = [prob.start] + [
-        [e["coefficients"][n]["value"] for n in free] for e in found if tuple(e["coefficients"]) == free
-    ]
-    ref_cost, ref_theta, ref_std = reference(prob, starts)
+    gn = [r["estimate"] for r in rows[:1] if tuple(r["estimate"].get("coefficients", ())) == free]
+    starts = [prob.start] + [[e["coefficients"][n]["value"] for n in free] for e in gn]  # a priori, ml-gn's
+    ref_cost, ref_theta, ref_std, ref_status = reference(prob, starts)
     for row in rows:
         est = row["estimate"]
         if "coefficients" not in est:
@@ -385,7 +402,7 @@ def study_record(data: Path, name: str, others: list[str], out: Path, variant: s
             o: fit_percent(est, data / f"{o}.csv", data / f"{o}{variant}.toml") for o in others
         }
     coefficients = {n: {"value": float(v), "std": float(s)} for n, v, s in zip(free, ref_theta, ref_std)}
-    ref = {"status": "reference", "cost": ref_cost, "coefficients": coefficients}
+    ref = {"status": ref_status, "cost": ref_cost, "coefficients": coefficients}
     rows.append({"record": name, "method": "scipy trf", "estimate": ref, "ml_cost": ref_cost, "dJ": 0.0})
     return rows
 
