@@ -187,33 +187,18 @@ def record(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, flo
 def clarke(s: dict[str, float], U: float) -> dict[str, float]:
     """Sway-yaw derivatives of Clarke, Gedling & Hine (1983), dimensional (½ρL²U, ½ρL³U, ...,
     ½ρL³, ...), moved from the midship origin to the CG: D_G = Tᵀ D_O T, T = [[1, −x_G], [0, 1]]."""
-    L, B, T, CB, rho = s["L"], s["B"], s["T"], s["CB"], s["rho"]
-    k = -math.pi * (T / L) ** 2
-    q = 0.5 * rho
-    damping = np.array(
-        [
-            [
-                q * L**2 * U * k * (1 + 0.40 * CB * B / T),
-                q * L**3 * U * k * (-0.5 + 2.2 * B / L - 0.080 * B / T),
-            ],
-            [
-                q * L**3 * U * k * (0.5 + 2.4 * T / L),
-                q * L**4 * U * k * (0.25 + 0.039 * B / T - 0.56 * B / L),
-            ],
-        ]
-    )
-    added = np.array(
-        [
-            [
-                q * L**3 * k * (1 + 0.16 * CB * B / T - 5.1 * (B / L) ** 2),
-                q * L**4 * k * (0.67 * B / L - 0.0033 * (B / T) ** 2),
-            ],
-            [
-                q * L**4 * k * (1.1 * B / L - 0.041 * B / T),
-                q * L**5 * k * (1 / 12 + 0.017 * CB * B / T - 0.33 * B / L),
-            ],
-        ]
-    )
+    L, b, t, CB = s["L"], s["B"] / s["L"], s["T"] / s["L"], s["CB"]  # b = B/L, t = T/L
+    damping = [
+        [1 + 0.40 * CB * b / t, -0.5 + 2.2 * b - 0.080 * b / t],
+        [0.5 + 2.4 * t, 0.25 + 0.039 * b / t - 0.56 * b],
+    ]
+    added = [
+        [1 + 0.16 * CB * b / t - 5.1 * b**2, 0.67 * b - 0.0033 * (b / t) ** 2],
+        [1.1 * b - 0.041 * b / t, 1 / 12 + 0.017 * CB * b / t - 0.33 * b],
+    ]
+    # prime → SI: ½ρ L² [[1, L], [L, L²]], times U (damping) or L (added mass), and Clarke's −π (T/L)²
+    unit = -math.pi * t**2 * 0.5 * s["rho"] * np.array([[L**2, L**3], [L**3, L**4]])
+    damping, added = unit * U * np.array(damping), unit * L * np.array(added)
     shift = np.array([[1.0, -s["x_G"]], [0.0, 1.0]])
     D, M = shift.T @ damping @ shift, shift.T @ added @ shift
     return {
@@ -361,7 +346,8 @@ def reference(prob: linear.Problem, starts, rounds: int = 12) -> tuple[float, np
                 break
         if cost < best[0]:
             norm = np.linalg.norm(fit.jac, axis=0)  # columns scaled to 1: θ and x0 differ by 1e14
-            std = np.sqrt(np.diag(np.linalg.inv((fit.jac / norm).T @ (fit.jac / norm)))) / norm
+            with np.errstate(invalid="ignore"):  # NaN where the information is numerically singular
+                std = np.sqrt(np.diag(np.linalg.inv((fit.jac / norm).T @ (fit.jac / norm)))) / norm
             best = (cost, p[: prob.n_free], std[: prob.n_free], status)
     return best
 
@@ -378,15 +364,15 @@ def study_record(data: Path, name: str, others: list[str], out: Path, variant: s
     csv, toml = data / f"{name}.csv", data / f"{name}{variant}.toml"
     config = read_config(toml)
     experiments = config.fitted([read_csv(csv)])
-    rows = []
+    a_priori = {n: {"value": config.coefficients[n], "std": None} for n in config.free}
+    rows = [{"record": name, "method": "a priori", "estimate": {"status": "–", "coefficients": a_priori}}]
     for label, method, extra in METHODS:
         est = identify_cli(csv, toml, method, extra, out / f"{name}.{label.replace(' ', '-')}.json")
         rows.append({"record": name, "method": label, "estimate": est})
-    found = [r["estimate"] for r in rows if "coefficients" in r["estimate"]]
-    free = tuple(found[0]["coefficients"]) if found else config.free  # as the default screen left it
+    gn = rows[1]["estimate"]  # ml-gn from its default start: the free set as the default screen left it
+    free = tuple(gn.get("coefficients", config.free))
     prob = linear.problem(experiments, replace(config, free=free))
-    gn = [r["estimate"] for r in rows[:1] if tuple(r["estimate"].get("coefficients", ())) == free]
-    starts = [prob.start] + [[e["coefficients"][n]["value"] for n in free] for e in gn]  # a priori, ml-gn's
+    starts = [prob.start] + ([[gn["coefficients"][n]["value"] for n in free]] if "coefficients" in gn else [])
     ref_cost, ref_theta, ref_std, ref_status = reference(prob, starts)
     for row in rows:
         est = row["estimate"]
@@ -411,12 +397,12 @@ def number(x, fmt: str = ".1f") -> str:
     return "–" if x is None or not np.isfinite(x) else format(x, fmt)
 
 
-def tables(rows: list[dict], fit: str, prior: ModelConfig) -> str:
+def tables(rows: list[dict], fit: str) -> str:
     """The study as Markdown: every record and method; the chosen record's coefficients and its
     validation on every other record."""
     out = [
-        "| record | method | status | cost | ΔJ | iterations | wall s | max \\|Δθ\\|/σ | "
-        "fit % v / r / ψ on the others (median) |",
+        "| record | method | status | cost (its own) | ΔJ (ML cost − scipy's) | iterations | wall s | "
+        "max \\|Δθ\\|/σ | fit % v / r / ψ on the others (median) |",
         "|---|---|---|---:|---:|---:|---:|---:|---|",
     ]
     for r in rows:
@@ -432,10 +418,10 @@ def tables(rows: list[dict], fit: str, prior: ModelConfig) -> str:
     names = list(chosen[-1]["estimate"]["coefficients"]) if chosen else []
     out += ["", f"Coefficients fitted on {fit} (value ± Cramér-Rao σ, SI):", ""]
     out += ["| method | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
-    out.append("| a priori | " + " | ".join(f"{prior.coefficients[n]:.3g}" for n in names) + " |")
     for r in chosen:
         c = r["estimate"].get("coefficients", {})
         cells = [f"{c[n]['value']:.3g} ± {number(c[n]['std'], '.2g')}" if n in c else "–" for n in names]
+        cells = [c.removesuffix(" ± –") for c in cells]
         out.append(f"| {r['method']} | " + " | ".join(cells) + " |")
     others = list(next((r["validation"] for r in chosen if "validation" in r), {}))
     out += ["", f"Fit % (v / r / ψ) of the model fitted on {fit}, simulated on each other record:", ""]
@@ -470,7 +456,7 @@ def main(argv=None) -> int:
         print(f"fitting {name} ...", file=sys.stderr)
         rows += study_record(data, name, [o for o in names if o != name], a.out / "estimates", variant)
     atomic_write_text(a.out / "study.json", json.dumps(rows, indent=1, default=float) + "\n")
-    text = tables(rows, fit, read_config(data / f"{fit}{variant}.toml"))
+    text = tables(rows, fit)
     atomic_write_text(a.out / "study.md", text)
     print(text)
     return 0
