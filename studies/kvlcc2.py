@@ -325,7 +325,7 @@ def weighted(prob: linear.Problem, R: np.ndarray):
     return fun, jac
 
 
-def reference(prob: linear.Problem, starts, rounds: int = 12) -> tuple[float, np.ndarray, np.ndarray, str]:
+def reference(prob: linear.Problem, starts, rounds: int = 20) -> tuple[float, np.ndarray, np.ndarray, str]:
     """The same likelihood minimised by scipy's trust-region reflective least squares on the
     noise-weighted residuals over (θ, x0), the noise re-estimated between rounds until the cost
     settles (< 0.001 per round; else after `rounds`); the best over `starts`: (cost, θ, the
@@ -371,25 +371,33 @@ def study_record(data: Path, name: str, others: list[str], out: Path, variant: s
         rows.append({"record": name, "method": label, "estimate": est})
     gn = rows[1]["estimate"]  # ml-gn from its default start: the free set as the default screen left it
     free = tuple(gn.get("coefficients", config.free))
-    prob = linear.problem(experiments, replace(config, free=free))
-    starts = [prob.start] + ([[gn["coefficients"][n]["value"] for n in free]] if "coefficients" in gn else [])
-    ref_cost, ref_theta, ref_std, ref_status = reference(prob, starts)
+    for row in rows:  # every fit's ML cost: x0 and the noise at their ML values for its coefficients
+        values = {n: c["value"] for n, c in row["estimate"].get("coefficients", {}).items()}
+        if values:
+            own = linear.problem(experiments, replace(config.with_coefficients(values), free=tuple(values)))
+            row["ml_cost"] = concentrated(own, own.start)[0]
+    # scipy from the a-priori values, ml-gn's estimate and the best fit of any method
+    fits = [r for r in rows if "ml_cost" in r and tuple(r["estimate"]["coefficients"]) == free]
+    starts = {r["method"]: [r["estimate"]["coefficients"][n]["value"] for n in free] for r in fits[:2]}
+    best = min(fits, key=lambda r: r["ml_cost"])
+    starts[best["method"]] = [best["estimate"]["coefficients"][n]["value"] for n in free]
+    ref_cost, ref_theta, ref_std, status = reference(
+        linear.problem(experiments, replace(config, free=free)), starts.values()
+    )
+    coefficients = {n: {"value": float(v), "std": float(s)} for n, v, s in zip(free, ref_theta, ref_std)}
+    ref = {"status": status, "cost": ref_cost, "coefficients": coefficients}
+    rows.append({"record": name, "method": "scipy trf", "estimate": ref, "ml_cost": ref_cost})
     for row in rows:
         est = row["estimate"]
-        if "coefficients" not in est:
+        if "ml_cost" not in row:
             continue
-        values = {n: c["value"] for n, c in est["coefficients"].items()}
-        own = linear.problem(experiments, replace(config.with_coefficients(values), free=tuple(values)))
-        row["ml_cost"] = concentrated(own, own.start)[0]
         row["dJ"] = row["ml_cost"] - ref_cost
-        if tuple(values) == free:
-            row["dtheta_sigma"] = float(np.max(np.abs([values[n] for n in free] - ref_theta) / ref_std))
+        if tuple(est["coefficients"]) == free:
+            values = [est["coefficients"][n]["value"] for n in free]
+            row["dtheta_sigma"] = float(np.max(np.abs(values - ref_theta) / ref_std))
         row["validation"] = {
             o: fit_percent(est, data / f"{o}.csv", data / f"{o}{variant}.toml") for o in others
         }
-    coefficients = {n: {"value": float(v), "std": float(s)} for n, v, s in zip(free, ref_theta, ref_std)}
-    ref = {"status": ref_status, "cost": ref_cost, "coefficients": coefficients}
-    rows.append({"record": name, "method": "scipy trf", "estimate": ref, "ml_cost": ref_cost, "dJ": 0.0})
     return rows
 
 
