@@ -1,6 +1,7 @@
 """Real data: the KVLCC2 tanker's free-running trials, identified with testbed's sway-yaw model.
 
     python studies/kvlcc2.py RAW_DIR [--data DIR] [--out DIR] [--convert-only] [--fit NAME]
+                             [--records NAME...] [--roll]
 
 RAW_DIR holds one of the two public SIMMAN 2008 sets (as in the repository
 martinlarsalbert/System-identification-of-Vessel-Manoeuvring-Models, `data/01_raw/...`):
@@ -18,13 +19,13 @@ The SIMMAN report gives the conventions: origin amidships, ψ positive to starbo
 starboard down, δ positive steering to port. A positive δ thus turns the bow to port, as a
 positive rudder turns testbed's torpedo (N_dr < 0): δ is kept as it is, in radians.
 
-Conversion (`convert`): the times are rebuilt as a uniform step when every printed stamp is the
-rounding of one (else repeated stamps are merged by their mean); ψ is unwrapped; body velocities
-at the CG are u = ẋ0 cos ψ + ẏ0 sin ψ, v = −ẋ0 sin ψ + ẏ0 cos ψ + x_G r (x_G: CG forward of the
-midship origin); states are interpolated onto a uniform grid (1 s full scale, 0.1 s model scale)
-and each input is its mean over the interval it holds (the zero-order hold). The model config
-per record: the ship's constants (`ship_data.yml` beside RAW_DIR or one level up), the approach
-speed as U, and a-priori coefficients from Clarke, Gedling & Hine (1983) and the rudder's lift.
+Conversion (`convert`): uniform time (`uniform_time`), ψ unwrapped, body velocities at the CG, a
+uniform grid (1 s full scale, 0.1 s model scale), inputs as interval means (the zero-order
+hold); one model config per record (its approach speed as U, a-priori coefficients from Clarke,
+Gedling & Hine 1983 and the rudder's lift; `ship_data.yml` beside RAW_DIR or one level up).
+The study (`study_record`): every method of METHODS on each record through `testbed identify`,
+a scipy reference of the same likelihood, and every fit validated on the other records; Markdown
+tables on standard output and in OUT/study.md, the numbers in OUT/study.json.
 """
 
 from __future__ import annotations
@@ -135,11 +136,8 @@ def interval_mean(t: np.ndarray, y: np.ndarray, grid: np.ndarray, dt: float) -> 
 def ship(raw_dir: Path, kind: str) -> dict[str, float]:
     """The ship's particulars at the data's scale (SI): L, B, T, CB, rho, m, volume, x_G, Iz,
     Ix, Iy, GM, KG, A_R, H_R, x_R (midship origin); `ship_data.yml` is at model scale."""
-    path = next(
-        (p for p in (raw_dir / "ship_data.yml", raw_dir.parent / "ship_data.yml") if p.exists()), None
-    )
-    if path is None:
-        raise ValueError(f"{raw_dir}: no ship_data.yml beside it or one level up")
+    path = raw_dir / "ship_data.yml"
+    path = path if path.exists() else raw_dir.parent / "ship_data.yml"
     data = {}
     for line in path.read_text().splitlines():  # flat `key: number  # comment` lines
         m = re.match(r"^(\w+):\s*([-+0-9.eE]+)\s*(#.*)?$", line)
@@ -422,6 +420,14 @@ def tables(rows: list[dict], fit: str) -> str:
             f"{number(r.get('dJ'), '.2f')} | {e.get('iterations', '–')} | {number(e.get('wall_time_s'), '.2f')} | "
             f"{number(r.get('dtheta_sigma'), '.2f')} | {median} |"
         )
+    out += ["", "Per method over the records: converged; at scipy's optimum (ΔJ < 1); median wall time:", ""]
+    out += ["| method | converged | ΔJ < 1 | median wall s |", "|---|---:|---:|---:|"]
+    for label, *_ in METHODS:
+        mine = [r for r in rows if r["method"] == label]
+        done = sum(r["estimate"].get("converged", False) for r in mine)
+        best = sum(r.get("dJ", np.inf) < 1 for r in mine)
+        wall = np.median([r["estimate"].get("wall_time_s", np.nan) for r in mine])
+        out.append(f"| {label} | {done} of {len(mine)} | {best} of {len(mine)} | {number(wall, '.2f')} |")
     chosen = [r for r in rows if r["record"] == fit]
     names = list(chosen[-1]["estimate"]["coefficients"]) if chosen else []
     out += ["", f"Coefficients fitted on {fit} (value ± Cramér-Rao σ, SI):", ""]
