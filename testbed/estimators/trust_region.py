@@ -13,11 +13,10 @@ projection, Golub & Pereyra).
   coefficient's a-priori magnitude and its Cramér-Rao bound there: Δ = 1 lets every coefficient
   move by its own size (or, a-priori 0, by one standard error), whatever its units.
 - Acceptance: `ρ = (W(θ) − W(θ + d)) / (m(0) − m(d))`, W the weighted cost `½ Σ eᵀR⁻¹e` with R
-  held and the trial's initial states fitted with it; the step is taken when ρ > `ACCEPT`, and
-  Δ shrinks (ρ < ¼) or grows (ρ > ¾ at the boundary) as in every trust-region method (Nocedal
-  & Wright, Alg. 4.1). R is relaxed in rounds: re-estimated from the residuals when the steps
-  at the R held have converged (Maine & Iliff). Every step and every round lowers the
-  likelihood itself: W falls at the R held, and R̂ lowers it further.
+  held at its estimate at θ and the trial's initial states fitted with it; the step is taken
+  when ρ > `ACCEPT`, and Δ shrinks (ρ < ¼) or grows (ρ > ¾ at the boundary) as in every
+  trust-region method (Nocedal & Wright, Alg. 4.1). Then R is re-estimated at θ + d. Every step
+  taken lowers the likelihood itself: W falls at the old R, and R̂ lowers it further.
 - Multiple shooting, where the fit on the whole record fails: from a poor start the whole
   record's output error is far from quadratic (an unstable or wrong model's error grows along the
   record, and the heading integrates it), so the method fits the records cut into `segments`
@@ -53,8 +52,6 @@ __all__ = [
     "trust_region",
 ]
 
-ROUND_TOL = 0.1  # σ: the steps' convergence before each noise update while R still moves
-R_TOL = 1e-4  # converged only where the noise variance re-estimated changes by less (relative)
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
 NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
@@ -189,17 +186,11 @@ def _descend(
     follow: tuple = (),
 ) -> Descent:
     """Trust-region steps on one stage's problem from `start` until the Gauss-Newton step is
-    shorter than `tol` Cramér-Rao σ with the noise variance settled (CONVERGED), `max_iter`
-    steps (MAX_ITERATIONS), the region shrinks to nothing or R does not settle (STALLED), or a
-    step lands within `JOIN` Cramér-Rao σ of one of the optima `follow` ((θ, σ) of earlier fits
-    on the same problem): inside its quadratic basin, bound for the same point.
-
-    R is relaxed in rounds (Maine & Iliff): held while θ steps, re-estimated from the residuals
-    when the steps have converged (to `ROUND_TOL` σ until R settles, then to `tol`), until it
-    changes by less than `R_TOL`. Re-estimated at every
-    step, it would move the cost under the steps, and the alternation of θ and R converges only
-    linearly."""
-    nf, x, it, rounds, settled = prob.n_free, start, 0, 0, False
+    shorter than `tol` Cramér-Rao σ (CONVERGED), `max_iter` steps (MAX_ITERATIONS), the region
+    shrinks to nothing (STALLED), or a step lands within `JOIN` Cramér-Rao σ of one of the
+    optima `follow` ((θ, σ) of earlier fits on the same problem): inside its quadratic basin,
+    bound for the same point."""
+    nf, x, it = prob.n_free, start, 0
     while True:
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
@@ -208,23 +199,18 @@ def _descend(
         F, gr = linear.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
         step = np.sqrt(max(gr @ linear.crlb(F).covariance @ gr, 0.0))
-        if step < (tol if settled else max(tol, ROUND_TOL)):
-            R = linear.noise_variance(prob, x.res)
-            settled = bool(np.all(np.abs(R - x.R) <= R_TOL * x.R))
-            if settled and step < tol:
-                return Descent(x, Status.CONVERGED, it, delta, M, step=step)
-            rounds += 1
-            if rounds > linear.RELAXATIONS:
-                return Descent(x, Status.STALLED, it, delta, M, step=step)
-            x = replace(x, R=R)  # the next round, about the same point
-            continue
+        if step < tol:
+            return Descent(x, Status.CONVERGED, it, delta, M, step=step)
         if it >= max_iter:
             return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step)
         while True:
             d, predicted = subproblem(F, gr, s, delta)
             trial = point(prob, x.p[:nf] + d, x.R)
-            # ρ = actual / predicted decrease of the weighted cost with R held, the trial's
-            # initial states fitted with that R: a smooth function of the step
+            # ρ = actual / predicted decrease of the weighted cost with R held at its estimate at
+            # x, the trial's initial states fitted with that R: a smooth function of the step
+            # (the likelihood relaxed in R and x0 at every trial need not be: their alternation
+            # can stall short of its fixed point). A decrease there is one of the likelihood
+            # too, which the trial's own R̂ lowers further (½ Σ N_c ln R̂_c ≤ ½ Σ eᵀR⁻¹e + const)
             rho = (
                 (linear.weighted_cost(prob, x.res, x.R) - linear.weighted_cost(prob, trial.res, x.R))
                 / predicted
@@ -240,7 +226,7 @@ def _descend(
                 break
             if delta < 1e-12 or predicted <= 0:
                 return Descent(x, Status.STALLED, it, delta, M, step=step)
-        x, it = replace(trial, R=x.R), it + 1
+        x, it = trial, it + 1
         report(x)
 
 
