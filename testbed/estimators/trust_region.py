@@ -9,9 +9,10 @@ projection, Golub & Pereyra).
 - The model: `m(d) = J − g_rᵀd + ½ dᵀF d`, with `F` and `g_r` the Gauss-Newton normal equations
   with the initial states solved for (`linear.reduced`), R the residual variance at θ.
 - The step: the minimiser of `m` within `‖D d‖ ≤ Δ` (Moré's trust-region subproblem, solved
-  exactly through the eigenvectors of `D⁻¹FD⁻¹`). `D = diag(1/s)` with `s_i` the larger of the
-  coefficient's a-priori magnitude and its Cramér-Rao bound there: Δ = 1 lets every coefficient
-  move by its own size (or, a-priori 0, by one standard error), whatever its units.
+  exactly through the eigenvectors of `D⁻¹FD⁻¹`). `D = diag(1/s)` with `s_i` the largest of the
+  coefficient's a-priori magnitude, its magnitude at the start and its Cramér-Rao bound there: a
+  unit lets every coefficient move by its own size (or, a-priori 0, by one standard error),
+  whatever its units; the first region is √n_free units.
 - Acceptance: `ρ = (W(θ) − W(θ + d)) / (m(0) − m(d))`, W the weighted cost `½ Σ eᵀR⁻¹e` with R
   held at its estimate at θ and the trial's initial states fitted with it; the step is taken
   when ρ > `ACCEPT`, and Δ shrinks (ρ < ¼) or grows (ρ > ¾ at the boundary) as in every
