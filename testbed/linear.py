@@ -726,6 +726,8 @@ def fit_initial_states(
                     finite = False
                     break
                 T[channels] = np.linalg.qr(block, mode="r")[:, : k + 1]
+            if not finite:
+                break
         factors.append(T if finite else None)
 
     def solve(variance) -> list[np.ndarray]:

@@ -313,7 +313,7 @@ def _estimate(name: str, prob: linear.Problem, fit: Fit, t0: float, fits: list[F
     """The `Estimate` where the optimiser stopped from `fit`'s start, with its Cramér-Rao analysis
     and every start's result (`fits`); a DIVERGED one (the reason in its `message`) where that
     analysis breaks down or is not finite."""
-    out, start, start_reason = fit.outcome, fit.start, _summary(fits, fit)
+    out, start, start_reason = fit.outcome, fit.start, _summary(fits)
     tried = tuple(
         {
             "start": f.start,
@@ -384,14 +384,16 @@ class Fit:
     outcome: Outcome
     cost: float  # the negative log-likelihood at outcome.p (inf where the model diverges)
     start_cost: float
-    joined: str = ""  # the earlier start whose path this one joined, ending where it did
+    joined: str = ""  # the earlier start whose optimum's basin this one entered, ending there
 
 
 def _cost(prob: linear.Problem, p: np.ndarray) -> float:
-    """The negative log-likelihood at `p`; inf where the model diverges there."""
-    if linear.divergence(prob, p) is not None:
+    """The negative log-likelihood at `p`; inf where the model diverges there (`linear.exploded`)."""
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
+        out = linear.outputs(prob, p)
+    if linear.exploded(prob, out) is not None:
         return np.inf
-    return linear.negative_log_likelihood(prob, linear.residuals(prob, p))
+    return linear.negative_log_likelihood(prob, [r.y - y for r, y in zip(prob.records, out)])
 
 
 def _best(fits: list[Fit]) -> Fit:
@@ -402,7 +404,7 @@ def _best(fits: list[Fit]) -> Fit:
     return min(converged or fits, key=lambda f: f.cost)
 
 
-def _summary(fits: list[Fit], chosen: Fit) -> str:
+def _summary(fits: list[Fit]) -> str:
     """What every start reached, for the estimate's `start_reason`."""
     parts = [
         f"{f.start}: cost {f.cost:.6g} ({f.outcome.status.message}"
@@ -437,10 +439,13 @@ def _fit(
 
     fits: list[Fit] = []
 
-    def run(label: str, theta: np.ndarray, earlier: Sequence[Fit] = ()) -> Fit:
+    def begin(theta: np.ndarray) -> tuple[np.ndarray, float]:
+        """The parameter vector at θ with its best initial states, and its cost."""
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is reported below
             p0 = linear.initial_states(prob, theta)
-        J0 = _cost(prob, p0)
+        return p0, _cost(prob, p0)
+
+    def run(label: str, p0: np.ndarray, J0: float, earlier: Sequence[Fit] = ()) -> Fit:
         more = {}
         if optimiser is trust_region.trust_region:
             more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
@@ -464,7 +469,7 @@ def _fit(
         return Fit(label, out, J, J0)
 
     if start in ("config", "equation-error", "mekf"):
-        fit = run(start, starts.named(prob, experiments, config, start))
+        fit = run(start, *begin(starts.named(prob, experiments, config, start)))
         if start == "config" and fit.outcome.status is Status.DIVERGED and not np.isfinite(fit.start_cost):
             raise InputError(
                 f"{prob.source}: the a-priori model diverges ({linear.divergence(prob, fit.outcome.p)}); "
@@ -476,17 +481,17 @@ def _fit(
         "config": prob.start,
         "equation-error": starts.named(prob, experiments, config, "equation-error"),
     }
-    first = {k: _cost(prob, linear.initial_states(prob, v)) for k, v in named.items()}
-    for k in sorted(named, key=lambda k: (first[k], k != "config")):
-        fits.append(run(k, named[k], fits))
+    first = {k: begin(v) for k, v in named.items()}
+    for k in sorted(named, key=lambda k: (first[k][1], k != "config")):
+        fits.append(run(k, *first[k], fits))
     if start == "global":
         for k, theta in enumerate(_polish_starts(prob, options)):
-            fits.append(run(f"box-{k + 1}", theta, fits))
+            fits.append(run(f"box-{k + 1}", *begin(theta), fits))
     elif abs(fits[0].cost - fits[1].cost) > DELTA_J or any(
         f.outcome.status is not Status.CONVERGED for f in fits
     ):
         try:
-            fits.append(run("mekf", starts.named(prob, experiments, config, "mekf"), fits))
+            fits.append(run("mekf", *begin(starts.named(prob, experiments, config, "mekf")), fits))
         except InputError:  # the filter refused the data or diverged: no third start
             pass
     return _estimate(name, prob, _best(fits), t0, fits)
@@ -497,7 +502,7 @@ def _polish_starts(prob: linear.Problem, options: Options) -> list[np.ndarray]:
     the records cut into 16 segments, each with its own initial state."""
     rng = np.random.default_rng(options.seed)
     samples = starts.box(prob, options.samples, options.spread, rng)
-    stage = linear.segmented(prob, 16, trust_region.LEAST_SEGMENT)
+    stage = linear.segmented(prob, trust_region.SEGMENTS, trust_region.LEAST_SEGMENT)
     costs = [_cost(stage, linear.initial_states(stage, theta)) for theta in samples]
     return [samples[i] for i in np.argsort(costs)[: options.polish] if np.isfinite(costs[i])]
 
@@ -549,7 +554,7 @@ class TrustRegionOptions(Options):
     start: str = _START
     tol: float = _TOL
     segments: int = count_option(
-        16,
+        trust_region.SEGMENTS,
         1,
         "multiple shooting: each record is first fitted cut into this many pieces, a quarter as many per stage",
     )

@@ -45,6 +45,7 @@ from testbed.estimators.base import Outcome, Progress, Status
 __all__ = [
     "ACCEPT",
     "LEAST_SEGMENT",
+    "SEGMENTS",
     "Point",
     "hessian",
     "point",
@@ -54,6 +55,7 @@ __all__ = [
 ]
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
+SEGMENTS = 16  # multiple shooting's first stage: segments per record
 LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
 NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
@@ -237,7 +239,7 @@ def trust_region(
     max_iter: int = 100,
     callback=None,
     tol: float = 1e-3,
-    segments: int = 16,
+    segments: int = SEGMENTS,
     radius: float = 1.0,
     escapes: int = 3,
     follow: tuple = (),
