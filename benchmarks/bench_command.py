@@ -42,7 +42,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from testbed.examples import FREE, TRUTH, experiments, prior_config  # noqa: E402
+from testbed.identification.examples import FREE, TRUTH, experiments, prior_config  # noqa: E402
 
 from testbed.data import write_config, write_csv  # noqa: E402
 

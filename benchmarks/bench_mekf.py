@@ -38,8 +38,8 @@ from filterpy.kalman import KalmanFilter  # noqa: E402
 
 from testbed.data import Experiment, ModelConfig, load_data  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
-from testbed.measurements import noise_from_data  # noqa: E402
-from testbed.model import (  # noqa: E402
+from testbed.simulation.measurements import noise_from_data  # noqa: E402
+from testbed.models.linear import (  # noqa: E402
     COEFFICIENTS,
     STATES,
     Vehicle,
@@ -201,7 +201,7 @@ def main(argv=None) -> None:
     ap.add_argument("--no-synthetic", action="store_true", help="the real Scenario II run only")
     args = ap.parse_args(argv)
 
-    from testbed.runs import simulate
+    from testbed.simulation.runs import simulate
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()

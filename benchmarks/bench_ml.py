@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.scipy_reference import scipy_fit  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
-from testbed.examples import FREE, TRUTH, experiments, prior_config  # noqa: E402
+from testbed.identification.examples import FREE, TRUTH, experiments, prior_config  # noqa: E402
 
 
 def _best(runs, rounds: int = 5):

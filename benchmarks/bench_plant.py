@@ -16,7 +16,7 @@ import time
 import mujoco
 import numpy as np
 
-from testbed.plant import Plant
+from testbed.simulation.plant import Plant
 
 
 def rate(run, steps):

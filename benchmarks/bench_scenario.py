@@ -32,10 +32,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()
-    import testbed.report  # noqa: F401  (the recording's imports, as simulate pays them)
-    from testbed.plant import Plant
-    from testbed.runs import simulate
-    from testbed.scenario import fly_scenario, scenario
+    import testbed.presentation.report  # noqa: F401  (the recording's imports, as simulate pays them)
+    from testbed.simulation.plant import Plant
+    from testbed.simulation.runs import simulate
+    from testbed.simulation.scenario import fly_scenario, scenario
 
     Plant().step((0.0, 0.0, 0.0))  # loads the compiled completion
     startup = time.perf_counter() - t0

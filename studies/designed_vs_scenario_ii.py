@@ -20,14 +20,14 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from testbed.analysis import identifiability
+from testbed.analysis.identifiability import identifiability
 from testbed.data import load_data, read_config
-from testbed.design import TEMPLATES, write_design
+from testbed.analysis.design import TEMPLATES, write_design
 from testbed.jobs import identify_data
-from testbed.linear import predict
-from testbed.model import STATES
-from testbed.runs import simulate
-from testbed.validation import fit_percent
+from testbed.identification.outputerror import predict
+from testbed.models.linear import STATES
+from testbed.simulation.runs import simulate
+from testbed.analysis.validation import fit_percent
 
 
 def lowest_fit(run: Path) -> tuple[str, float]:

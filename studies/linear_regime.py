@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.design import linearity
-from testbed.scenario import fly_scenario, scenario
-from testbed.signals import Prbs
+from testbed.analysis.design import linearity
+from testbed.simulation.scenario import fly_scenario, scenario
+from testbed.simulation.signals import Prbs
 
 EXCITED = {"horizontal": ("v", "r", "psi"), "vertical": ("w", "q", "theta", "z"), "roll": ("p", "phi")}
 

@@ -20,15 +20,15 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from testbed.analysis import screen
+from testbed.analysis.identifiability import screen
 from testbed.data import Experiment
 from testbed.errors import atomic_write_text
 from testbed.estimators import identify
-from testbed.measurements import measure, rng_for
-from testbed.model import STATES
-from testbed.scenario import fly_scenario, scenario
-from testbed.truth import model_config
-from testbed.vehicle import default_mjcf
+from testbed.simulation.measurements import measure, rng_for
+from testbed.models.linear import STATES
+from testbed.simulation.scenario import fly_scenario, scenario
+from testbed.simulation.analytic import model_config
+from testbed.simulation.vehicle import default_mjcf
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
 from studies.seeds import counted, fit_seeds, scatter  # noqa: E402

@@ -36,11 +36,11 @@ from typing import Sequence
 
 import numpy as np
 
-from testbed import linear
+from testbed.identification import outputerror
 from testbed.data import Experiment, ModelConfig, load_data
 from testbed.errors import InputError, atomic_write_text
 from testbed.estimators import identify, lookup
-from testbed.runs import simulate
+from testbed.simulation.runs import simulate
 
 # What `testbed identify` frees on Scenario II (seed 1, 60 s) with its screen: the analytic
 # model's free list less Y_p, K_r and K_dr (estimates 1.2, 0.6 and 0.5 σ from 0). Written out so
@@ -128,7 +128,7 @@ def scenario_run(run: Path, seed: int, duration: float | None) -> Path:
 
 def bounds(experiments: Sequence[Experiment], config: ModelConfig) -> np.ndarray:
     """Cramér-Rao σ of `config.free` at the config's coefficients (noise: the residual there)."""
-    return linear.information(config.fitted(experiments), config).crlb_std
+    return outputerror.information(config.fitted(experiments), config).crlb_std
 
 
 def perturbed_starts(

@@ -111,7 +111,7 @@ def _quiet_mujoco() -> None:
 
 
 def _cmd_truth(args) -> int:
-    from testbed.truth import analytic_config_text
+    from testbed.simulation.analytic import analytic_config_text
 
     _quiet_mujoco()
     out = _to_stdout(args.out)
@@ -120,7 +120,7 @@ def _cmd_truth(args) -> int:
 
 
 def _cmd_simulate(args) -> int:
-    from testbed.runs import simulate
+    from testbed.simulation.runs import simulate
 
     if args.out == STDOUT:
         raise InputError("--out -: a run directory is a folder, not standard output; expected a folder name")
@@ -223,7 +223,7 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_design(args) -> int:
-    from testbed.design import write_design
+    from testbed.analysis.design import write_design
 
     if args.out == STDOUT:
         raise InputError("--out -: the design is a scenario file; expected a file name (.toml)")
@@ -241,7 +241,7 @@ def _cmd_design(args) -> int:
 
 
 def _cmd_reproduce(args) -> int:
-    from testbed.campaign import reproduce
+    from testbed.study.campaign import reproduce
 
     _quiet_mujoco()
     bar = ProgressBar()
@@ -266,7 +266,7 @@ def _cmd_reproduce(args) -> int:
 
 
 def _cmd_replay(args) -> int:
-    from testbed.report import replay
+    from testbed.presentation.report import replay
 
     print(replay(args.run))
     return 0
@@ -303,7 +303,7 @@ NOISE_STD_HELP = (
     "the sensors' noise σ per state, SI, e.g. r=0.002,psi=0.01 (for data whose noise cannot be "
     "read off them: low-pass filtered); replaces the config's [identify] noise_std entry by entry"
 )
-BUILTIN_SCENARIOS = ("I", "II", "turn", "zigzag", "zigzag-vertical")  # testbed/scenarios/*.toml
+BUILTIN_SCENARIOS = ("I", "II", "turn", "zigzag", "zigzag-vertical")  # testbed/simulation/scenarios/*.toml
 
 
 def parser() -> argparse.ArgumentParser:

@@ -22,7 +22,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from testbed.errors import InputError, atomic_write_text, is_number
-from testbed.model import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
+from testbed.models.linear import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
 
 CSV_COLUMNS = ("t",) + STATES + INPUTS
 MIN_ROWS = 3  # the fewest samples a record can have: the estimators difference and fit x0 on them

@@ -18,11 +18,17 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis import Comparison, Identifiability, compare, identifiability, identify_screened
+from testbed.analysis.identifiability import (
+    Comparison,
+    Identifiability,
+    compare,
+    identifiability,
+    identify_screened,
+)
 from testbed.data import Experiment, ModelConfig, load_data, read_config, read_csv, read_estimates, run_csvs
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, identify, lookup
-from testbed.validation import Validation, validate
+from testbed.analysis.validation import Validation, validate
 
 __all__ = [
     "Identified",
@@ -193,7 +199,7 @@ def identify_data(
     with contextlib.ExitStack() as stack:  # every output, or none of them
         temporary = {path: stack.enter_context(atomic_file(path)) for path in files}
         if rrd is not None:
-            from testbed.report import log_fit  # Rerun and MuJoCo load only for a recording
+            from testbed.presentation.report import log_fit  # Rerun and MuJoCo load only for a recording
 
             log_fit(rrd, experiments, cfg, estimate, iterations, comparison, validation=validation)
         for path, content in files.items():

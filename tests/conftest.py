@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
-from testbed.scenario import Flight
+from testbed.simulation.scenario import Flight
 
 _COMMON = dict(
     deadline=None,

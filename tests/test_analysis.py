@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from testbed.analysis import structural
-from testbed.model import COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, structure, tilde
+from testbed.analysis.identifiability import structural
+from testbed.models.linear import COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, structure, tilde
 
 VEHICLE = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
 SWAY_YAW = (

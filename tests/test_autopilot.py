@@ -5,11 +5,11 @@ import re
 import numpy as np
 import pytest
 
-from testbed import autopilot as ap
+from testbed.simulation import autopilot as ap
 from testbed.errors import InputError
-from testbed.model import IX, NX, discretize
-from testbed.truth import analytic_model
-from testbed.vehicle import load_model
+from testbed.models.linear import IX, NX, discretize
+from testbed.simulation.analytic import analytic_model
+from testbed.simulation.vehicle import load_model
 
 DT = 0.02  # 50 Hz, the scenarios' control rate
 

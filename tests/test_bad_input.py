@@ -21,7 +21,7 @@ from testbed.cli import main
 from testbed.data import ModelConfig, config_text, read_config, read_csv, write_config
 from testbed.errors import InputError, atomic_file
 from testbed.estimators import Estimate, Status, identify
-from testbed.runs import simulate
+from testbed.simulation.runs import simulate
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # numpy's floating-point warnings
 
@@ -334,9 +334,9 @@ def test_identify_refuses_a_negative_seed(run, capsys):
 
 @pytest.mark.parametrize("duration", ["0.001", "0.02", "1e300"])
 def test_simulate_refuses_a_duration_it_could_not_use_up_front(tmp_path, capsys, monkeypatch, duration):
-    import testbed.runs
+    import testbed.simulation.runs
 
-    monkeypatch.setattr(testbed.runs, "fly_scenario", lambda *a, **k: pytest.fail("flew"))
+    monkeypatch.setattr(testbed.simulation.runs, "fly_scenario", lambda *a, **k: pytest.fail("flew"))
     refused(
         capsys,
         "simulate",

@@ -10,8 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from testbed import campaign
-from testbed.campaign import Cell, conclusions, plan, read_results, results_csv, results_rows, run_cell
+from testbed.study import campaign
+from testbed.study.campaign import Cell, conclusions, plan, read_results, results_csv, results_rows, run_cell
 from testbed.errors import InputError
 
 TINY = dict(scenarios=("II",), methods=("ml-gn", "mekf"), duration=4.0)

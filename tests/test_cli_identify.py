@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from testbed import examples
+from testbed.identification import examples
 from testbed.cli import main
 from testbed.data import config_text, read_config, write_config, write_csv
-from testbed.linear import synthetic
-from testbed.model import COEFFICIENTS, IX
-from testbed.runs import simulate
+from testbed.identification.outputerror import synthetic
+from testbed.models.linear import COEFFICIENTS, IX
+from testbed.simulation.runs import simulate
 
 
 @pytest.fixture(scope="module")

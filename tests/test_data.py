@@ -19,7 +19,7 @@ from testbed.data import (
     write_csv,
 )
 from testbed.errors import InputError, atomic_directory
-from testbed.model import COEFFICIENTS, STATES, Vehicle
+from testbed.models.linear import COEFFICIENTS, STATES, Vehicle
 
 VEHICLE = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
 

@@ -8,15 +8,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed import design as D
+from testbed.analysis import design as D
 from testbed.errors import InputError
-from testbed.scenario import parse_scenario
-from testbed.signals import Multisine, Prbs
+from testbed.simulation.scenario import parse_scenario
+from testbed.simulation.signals import Multisine, Prbs
 
 
 @pytest.fixture(scope="module")
 def model():
-    from testbed.truth import analytic_config
+    from testbed.simulation.analytic import analytic_config
 
     config = analytic_config()[0]
     return D.model(replace(config, free=("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")))
@@ -74,7 +74,7 @@ def test_largest_amplitude_meets_a_bound_exactly(model):
 def test_fisher_matches_finite_differences_of_the_outputs(model):
     """Independent reference: F = Σ Sᵀ R⁻¹ S with S the central differences of the simulated
     outputs (initial states at trim are known here and the experiment starts at trim)."""
-    from testbed.linear import synthetic
+    from testbed.identification.outputerror import synthetic
 
     e = D.spec("horizontal", {"rudder": Prbs(amplitude=1e-3, order=8, clock=0.2)})
     t, xs, fins = D.fly_model(model, e, 20.0)
@@ -183,9 +183,9 @@ def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identif
     coefficients both free (the roll row's K_v, K_p, K_der, K_del among them)."""
     from testbed.cli import main
     from testbed.data import load_data, read_config
-    from testbed.linear import predict
-    from testbed.model import STATES
-    from testbed.validation import fit_percent
+    from testbed.identification.outputerror import predict
+    from testbed.models.linear import STATES
+    from testbed.analysis.validation import fit_percent
 
     designed = tmp_path / "designed.toml"
     assert main(["design", "--out", str(designed), "--rrd", str(tmp_path / "design.rrd")]) == 0
@@ -225,7 +225,7 @@ def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
     and noise; the information scales as 1/σ², so doubling every noise σ doubles every bound
     of the same design exactly."""
     from testbed.cli import main
-    from testbed.truth import analytic_config
+    from testbed.simulation.analytic import analytic_config
 
     analytic = analytic_config()[0].coefficients
     free = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr", "K_p", "K_der", "K_del")

@@ -82,7 +82,7 @@ def table_rows(text: str) -> list[list[str]]:
 
 
 def test_model_names_in_their_order():
-    from testbed.model import COEFFICIENTS, INPUTS, STATES
+    from testbed.models.linear import COEFFICIENTS, INPUTS, STATES
 
     text = page("model.md")
     assert f"`{' '.join(STATES)}`" in text
@@ -98,7 +98,7 @@ ROWS = {"surge": "u", "sway": "v", "heave": "w", "roll": "p", "pitch": "q", "yaw
 def test_model_table_places_every_coefficient_in_its_row():
     """Each row of the equations table names, on its left side, the coefficients of that row of
     Mt and, on its right side, those of that row of At and Bt: no more, no fewer."""
-    from testbed.model import COEFFICIENTS, IX, Vehicle, structure
+    from testbed.models.linear import COEFFICIENTS, IX, Vehicle, structure
 
     s = structure(Vehicle(30.0, 1.0, 2.0, 3.0, 290.0, 300.0, 0.01, 0.02, -0.03, 1.5))
     rows = {r[0]: r for r in table_rows(section(page("model.md"), "The equations")) if len(r) == 3}
@@ -113,7 +113,7 @@ def test_model_table_places_every_coefficient_in_its_row():
 
 
 def test_model_vehicle_constants():
-    from testbed.model import Vehicle
+    from testbed.models.linear import Vehicle
 
     rows = table_rows(section(page("model.md"), "The equations"))
     keys = {k for r in rows for k in re.findall(r"`(\w+)`", r[1])} if rows else set()
@@ -151,7 +151,7 @@ def test_cli_every_command_option_and_choice():
 
 def test_cli_builtin_scenarios_and_methods():
     from testbed.estimators import METHODS
-    from testbed.scenario import BUILTIN
+    from testbed.simulation.scenario import BUILTIN
 
     text = page("cli.md")
     simulate = section(text, "testbed simulate")
@@ -172,7 +172,7 @@ def test_cli_exit_statuses():
 
 def test_files_measurement_csv_and_config():
     from testbed.data import CSV_COLUMNS
-    from testbed.model import Vehicle
+    from testbed.models.linear import Vehicle
 
     text = page("files.md")
     csv = section(text, "Measurement CSV")
@@ -201,7 +201,7 @@ def _default(f) -> str | None:
 
 
 def test_files_every_signal_with_its_fields_and_defaults():
-    from testbed.signals import SIGNALS
+    from testbed.simulation.signals import SIGNALS
 
     rows = {r[0]: r for r in table_rows(section(page("files.md"), "Signals"))}
     assert SIGNALS
@@ -216,8 +216,8 @@ def test_files_every_signal_with_its_fields_and_defaults():
 
 
 def test_files_scenario_keys():
-    from testbed import scenario
-    from testbed.measurements import Sensors
+    from testbed.simulation import scenario
+    from testbed.simulation.measurements import Sensors
 
     body = section(page("files.md"), "Scenario file")
     top = getattr(scenario, "_TOP")  # the keys the reader accepts
@@ -310,8 +310,8 @@ def test_files_estimates_json_keys():
 
 
 def test_files_comparison_and_validation_keys():
-    from testbed.analysis import Comparison
-    from testbed.validation import ChannelMetrics, whiteness
+    from testbed.analysis.identifiability import Comparison
+    from testbed.analysis.validation import ChannelMetrics, whiteness
 
     one = np.array([1.0])
     comparison = Comparison(("X_u",), one, one * 1.1, one * 0.1, one * 1.05, note="n").to_dict()
@@ -335,7 +335,7 @@ def _written_keys_dumps(fn) -> set[str]:
 
 
 def test_files_identifiability_json_keys():
-    from testbed.analysis import Identifiability, Structural
+    from testbed.analysis.identifiability import Identifiability, Structural
 
     free = ("X_u",)
     result = Identifiability(
@@ -371,7 +371,7 @@ def test_files_run_directory_manifest():
 
 
 def test_files_reproduce_outputs():
-    from testbed.campaign import COLUMNS, conclusions
+    from testbed.study.campaign import COLUMNS, conclusions
     from testbed.estimators import Status
 
     body = section(page("files.md"), "Reproduce outputs")

@@ -18,33 +18,42 @@ import testbed
 
 LAYERS = [
     ("testbed.errors", "testbed.threads"),
-    ("testbed.model",),
+    ("testbed.models", "testbed.models.linear"),
     ("testbed.data",),
-    ("testbed.measurements",),
-    ("testbed.vehicle",),
-    ("testbed.plant",),
-    ("testbed.truth",),
-    ("testbed.autopilot", "testbed.signals"),
-    ("testbed.scenario",),
-    ("testbed.recording",),
-    ("testbed.runs",),
-    ("testbed.kernels",),
-    ("testbed.linear",),
-    ("testbed.examples",),
+    ("testbed.simulation", "testbed.simulation.measurements"),
+    ("testbed.simulation.vehicle",),
+    ("testbed.simulation.plant",),
+    ("testbed.simulation.analytic",),
+    ("testbed.simulation.autopilot", "testbed.simulation.signals"),
+    ("testbed.simulation.scenario",),
+    ("testbed.simulation.recording",),
+    ("testbed.simulation.runs",),
+    ("testbed.identification", "testbed.identification.kernels"),
+    ("testbed.identification.outputerror",),
+    ("testbed.identification.examples",),
     ("testbed.estimators.base",),
     ("testbed.estimators.mekf",),
     ("testbed.estimators.trust_region", "testbed.estimators.starts"),
     ("testbed.estimators.ml",),
     ("testbed.estimators",),
-    ("testbed.validation", "testbed.analysis"),
-    ("testbed.design", "testbed.report"),
+    ("testbed.analysis", "testbed.analysis.validation", "testbed.analysis.identifiability"),
+    ("testbed.analysis.design", "testbed.presentation", "testbed.presentation.report"),
+    ("testbed.presentation.figures",),
     ("testbed.jobs",),
-    ("testbed.figures",),
-    ("testbed.campaign",),
+    ("testbed.study", "testbed.study.campaign"),
     ("testbed.cli",),
     ("testbed.__main__",),
     ("testbed",),
 ]
+PACKAGES = (
+    "testbed.models",
+    "testbed.simulation",
+    "testbed.identification",
+    "testbed.estimators",
+    "testbed.analysis",
+    "testbed.presentation",
+    "testbed.study",
+)
 RANK = {name: k for k, names in enumerate(LAYERS) for name in names}
 ROOT = Path(testbed.__file__).parent
 
@@ -82,6 +91,12 @@ def test_no_import_points_up_or_sideways():
             if owner in RANK and RANK[owner] >= RANK[me] and owner != me:
                 upward.append(f"{me} imports {target}")
     assert upward == []
+
+
+def test_the_folders_follow_the_layers():
+    """Each subpackage's modules come after every module of the subpackages before it."""
+    spans = [[RANK[m] for m in RANK if m == package or m.startswith(package + ".")] for package in PACKAGES]
+    assert [(max(a), min(b)) for a, b in zip(spans, spans[1:]) if max(a) > min(b)] == []
 
 
 def test_the_check_sees_an_upward_import(tmp_path):

@@ -9,15 +9,15 @@ import pytest
 from filterpy.kalman import KalmanFilter, SquareRootKalmanFilter
 from scipy.signal import butter, filtfilt
 
-from testbed import examples
+from testbed.identification import examples
 from testbed.cli import main
 from testbed.data import Experiment, ModelConfig, load_data, write_config, write_csv
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
 from testbed.estimators.mekf import FilterOptions, _Model, _run, sqrt_update, svd_root, tria
-from testbed.linear import information
-from testbed.measurements import noise_free_channels, noise_from_data
-from testbed.model import (
+from testbed.identification.outputerror import information
+from testbed.simulation.measurements import noise_free_channels, noise_from_data
+from testbed.models.linear import (
     COEFFICIENTS,
     ITHETA,
     IX,
@@ -28,7 +28,7 @@ from testbed.model import (
     structure,
     theta_vector,
 )
-from testbed.runs import simulate
+from testbed.simulation.runs import simulate
 
 # A torpedo like the bundled one at 20 m/s (SI units); CB slightly off the CG so S ≠ 0.
 VEHICLE = Vehicle(170.75, 2.16, 67.25, 67.24, 1675.1, 1675.1, 0.0, 0.0, -0.0179, 20.0)

@@ -21,10 +21,10 @@ from testbed.estimators import (
     identify,
     lookup,
 )
-from testbed.linear import synthetic
-from testbed.measurements import NOISE_STD
-from testbed.model import INPUTS
-from testbed.truth import analytic_config
+from testbed.identification.outputerror import synthetic
+from testbed.simulation.measurements import NOISE_STD
+from testbed.models.linear import INPUTS
+from testbed.simulation.analytic import analytic_config
 
 FREE = ("N_r", "N_dr")  # the yaw row's damping and rudder power: well excited by a rudder PRBS
 

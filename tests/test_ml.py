@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.examples import FREE, NOISE, TRUTH, experiments, prior_config, truth_config
+from testbed.identification.examples import FREE, NOISE, TRUTH, experiments, prior_config, truth_config
 
 from testbed.errors import InputError
 from testbed.estimators import METHODS, Status, identify
-from testbed.linear import information
+from testbed.identification.outputerror import information
 
 WANT = np.array([TRUTH[n] for n in FREE])
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from testbed.model import (
+from testbed.models.linear import (
     COEFFICIENTS,
     Vehicle,
     continuous,
@@ -13,7 +13,7 @@ from testbed.model import (
     tilde,
 )
 
-from testbed.examples import TRUTH, VEHICLE  # noqa: E402
+from testbed.identification.examples import TRUTH, VEHICLE  # noqa: E402
 
 
 def test_matrices_match_the_spec_table():

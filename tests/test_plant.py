@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from testbed import truth
+from testbed.simulation import analytic
 from testbed.cli import main
 from testbed.errors import InputError
-from testbed.plant import Plant
-from testbed.vehicle import added_mass, constants, default_mjcf, load_model, rigid_body_mass
+from testbed.simulation.plant import Plant
+from testbed.simulation.vehicle import added_mass, constants, default_mjcf, load_model, rigid_body_mass
 
 WRENCH = np.array([300.0, -120.0, 80.0, 6.0, -25.0, 40.0])  # N, N m; body axes (FRD) at the CG
 
@@ -285,17 +285,17 @@ def test_bad_mjcf_is_one_line_input_error(tmp_path):
         with pytest.raises(InputError, match=message):
             Plant(model=model)
         with pytest.raises(InputError, match=message):
-            truth.analytic_model(model, 20.0)
+            analytic.analytic_model(model, 20.0)
 
 
 def _open_loop_fit(plant, amplitude, seconds=4.0):
     """Fit % (100 (1 − ‖y − ŷ‖/‖y − ȳ‖)) per state of the analytic model (projected onto the linear model, exact
     zero-order hold at the physics step, fins as recorded) against the plant, both from trim,
     with independent 0.1 s PRBS on rudder, elevators together and elevators differentially."""
-    from testbed.model import continuous, discretize, structure, theta_vector
-    from testbed.signals import prbs
+    from testbed.models.linear import continuous, discretize, structure, theta_vector
+    from testbed.simulation.signals import prbs
 
-    lin = truth.analytic_model(plant.model, 20.0)
+    lin = analytic.analytic_model(plant.model, 20.0)
     plant.reset(20.0, depth=100.0)
     h, n = plant.timestep, round(seconds / plant.timestep)
     bits = [prbs(10, np.random.default_rng(k)) for k in range(3)]

@@ -5,14 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from testbed.analysis import screen
+from testbed.analysis.identifiability import screen
 from testbed.cli import main
 from testbed.data import Experiment, load_data, read_config
 from testbed.estimators import identify
-from testbed.linear import predict
-from testbed.model import STATES
-from testbed.runs import simulate
-from testbed.validation import fit_percent
+from testbed.identification.outputerror import predict
+from testbed.models.linear import STATES
+from testbed.simulation.runs import simulate
+from testbed.analysis.validation import fit_percent
 
 # The channels each experiment is designed to excite.
 EXCITED = {"horizontal": ("v", "r", "psi"), "vertical": ("w", "q", "theta", "z"), "roll": ("p", "phi")}

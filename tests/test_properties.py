@@ -49,7 +49,7 @@ from testbed.data import (
     write_config,
 )
 from testbed.errors import InputError
-from testbed.model import COEFFICIENTS, INPUTS, STATES, Vehicle
+from testbed.models.linear import COEFFICIENTS, INPUTS, STATES, Vehicle
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # a numpy warning is a failure
 PROFILES = ["suite", pytest.param("slow", marks=pytest.mark.slow)]

@@ -12,15 +12,17 @@ import pytest
 import rerun.chunk
 from scipy.spatial.transform import Rotation
 
-from testbed import recording, report
-from testbed.analysis import compare
+from testbed.simulation import recording
+
+from testbed.presentation import report
+from testbed.analysis.identifiability import compare
 from testbed.data import ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed import linear
-from testbed.linear import synthetic
-from testbed.model import INPUTS, STATES
-from testbed.truth import analytic_config
+from testbed.identification import outputerror
+from testbed.identification.outputerror import synthetic
+from testbed.models.linear import INPUTS, STATES
+from testbed.simulation.analytic import analytic_config
 
 FIN_NAMES = ("rudder", "elevator_right", "elevator_left")
 
@@ -481,7 +483,7 @@ def test_comparison_is_a_table_by_coefficient_name(tmp_path, yaw_fit):
 
 
 def test_validation_metrics_are_a_table_and_a_tab(tmp_path, yaw_fit):
-    from testbed.validation import validate
+    from testbed.analysis.validation import validate
 
     config, data, start = yaw_fit
     est = identify(data, start, method="ml-gn")
@@ -509,7 +511,7 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
     def no_fit(*args, **kwargs):
         raise AssertionError("the initial states were fitted again")
 
-    monkeypatch.setattr(linear, "fit_initial_states", no_fit)
+    monkeypatch.setattr(outputerror, "fit_initial_states", no_fit)
     path = report.log_fit(tmp_path / "fit.rrd", data, start, moved, [])
     psi = _scalars(path, f"/outputs/{name}/psi")[:, 1]  # (measured, model)
     assert psi[0] == pytest.approx(x0["psi"] + 1.0)
@@ -519,7 +521,7 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
     partial = dataclasses.replace(est, initial_states={name: {"psi": x0["psi"] + 1.0}})
     for e in (dataclasses.replace(est, initial_states=None), partial):
         path = report.log_fit(tmp_path / "fit2.rrd", data, start, e, [])
-        expected = linear.predict(data, start.with_coefficients(est.coefficients), e.initial_states)[0]
+        expected = outputerror.predict(data, start.with_coefficients(est.coefficients), e.initial_states)[0]
         assert np.allclose(_scalars(path, f"/outputs/{name}/psi")[:, 1], expected[:, 2])
 
 

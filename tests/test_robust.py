@@ -9,15 +9,15 @@ import pytest
 from scipy.optimize import brentq
 
 from studies import starts
-from testbed import linear
-from testbed.analysis import screen
+from testbed.identification import outputerror
+from testbed.analysis.identifiability import screen
 from testbed.data import load_data
 from testbed.errors import InputError
 from testbed.estimators import OptionError, identify
-from testbed.measurements import NOISE_STD
-from testbed.model import IX, continuous, discretize, structure, theta_vector
-from testbed.signals import Prbs
-from testbed.truth import analytic_config
+from testbed.simulation.measurements import NOISE_STD
+from testbed.models.linear import IX, continuous, discretize, structure, theta_vector
+from testbed.simulation.signals import Prbs
+from testbed.simulation.analytic import analytic_config
 
 # -- a course-unstable vehicle ---------------------------------------------------------------------
 
@@ -43,7 +43,7 @@ def unstable():
     its heading against a rudder PRBS (course-unstable ships are tested under an autopilot or in
     zigzags: open loop the heading runs away), its lateral states measured with the run's sensor
     noise. The autopilot reads the noise-free states (as a filtered estimate would); the data
-    are the linear model's own response to the rudder it recorded (`linear.synthetic`)."""
+    are the linear model's own response to the rudder it recorded (`outputerror.synthetic`)."""
     config = analytic_config()[0]
     nv = config.coefficients["N_v"]
 
@@ -62,12 +62,14 @@ def unstable():
         inputs[k, 0] = program(tk, x) + K_PSI * x[IX["psi"]] + K_R * x[IX["r"]]
         x = Phi @ x + Gamma @ inputs[k] + s
     noise = {c: NOISE_STD[c] for c in LATERAL}
-    experiment = linear.synthetic(
+    experiment = outputerror.synthetic(
         truth, t, inputs, noise, LATERAL, np.random.default_rng(1), name="autopilot"
     )
     # the bounds at the truth with the noise known, the initial states eliminated (Schur
     # complement): independent of any fit
-    sigma = np.sqrt(np.diag(np.linalg.inv(linear.information([experiment], truth, noise_std=noise).fisher)))
+    sigma = np.sqrt(
+        np.diag(np.linalg.inv(outputerror.information([experiment], truth, noise_std=noise).fisher))
+    )
     return truth, experiment, sigma
 
 

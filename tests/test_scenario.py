@@ -12,16 +12,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed import runs
-from testbed import scenario as sc
-from testbed import signals as sig
+from testbed.simulation import runs
+from testbed.simulation import scenario as sc
+from testbed.simulation import signals as sig
 from testbed.cli import BUILTIN_SCENARIOS, main
 from testbed.data import load_data
 from testbed.errors import InputError
-from testbed.measurements import rng_for
-from testbed.model import IX
-from testbed.truth import analytic_model
-from testbed.vehicle import load_model
+from testbed.simulation.measurements import rng_for
+from testbed.models.linear import IX
+from testbed.simulation.analytic import analytic_model
+from testbed.simulation.vehicle import load_model
 
 
 def _short(name, duration):
@@ -261,7 +261,7 @@ def test_min_crest_phases_lower_the_peak_of_schroeders_and_keep_the_amplitude():
     """Independent reference: the peak of Σ cos(2π f_k t + φ_k) evaluated on its own grid; the
     crest factor (peak / rms, rms √(K/2) for K lines) of the designed multisines falls by a
     fifth or more from Schroeder's phases, and the signal still peaks at its amplitude."""
-    from testbed.signals import Multisine, min_crest_phases, schroeder_phases
+    from testbed.simulation.signals import Multisine, min_crest_phases, schroeder_phases
 
     f = np.array([k / 60.0 for k in (1, 2, 3, 5, 8, 12, 18, 27, 40, 60, 90, 135, 180)])
     t = np.linspace(0.0, 60.0, 120001)  # one common period of these harmonics, finely

@@ -12,15 +12,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.analysis import SIGNIFICANT, UNCERTAIN, identifiability, insignificant, screening
+from testbed.analysis.identifiability import SIGNIFICANT, UNCERTAIN, identifiability, insignificant, screening
 from testbed.cli import main
 from testbed.data import config_text, read_config, write_csv
 from testbed.errors import InputError
 from testbed.jobs import identify_data
-from testbed.linear import synthetic
-from testbed.measurements import NOISE_STD, noise_from_data
-from testbed.signals import Prbs
-from testbed.truth import analytic_config, analytic_config_text
+from testbed.identification.outputerror import synthetic
+from testbed.simulation.measurements import NOISE_STD, noise_from_data
+from testbed.simulation.signals import Prbs
+from testbed.simulation.analytic import analytic_config, analytic_config_text
 
 MEASURED = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
 ZERO = ("Z_q", "M_w", "N_v", "N_p")  # 0 in the user's a-priori config, not in the foreign body

@@ -82,7 +82,7 @@ def _png_size(path) -> tuple[int, int]:
 @pytest.mark.slow
 @pytest.mark.skipif(shots.missing() is not None, reason="no Chromium or playwright here")
 def test_screenshots_of_a_run_recording(tmp_path, flights):
-    from testbed import recording
+    from testbed.simulation import recording
 
     rrd = recording.log_run(tmp_path / "recording.rrd", flights)
     assert (

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from testbed import truth
-from testbed.analysis import structural
+from testbed.simulation import analytic
+from testbed.analysis.identifiability import structural
 from testbed.cli import main
 from testbed.data import parse_config, read_config
 from testbed.errors import InputError
-from testbed.plant import Plant
-from testbed.model import COEFFICIENTS, IX, STATES, continuous, structure, theta_vector
-from testbed.vehicle import added_mass, default_mjcf, load_model
+from testbed.simulation.plant import Plant
+from testbed.models.linear import COEFFICIENTS, IX, STATES, continuous, structure, theta_vector
+from testbed.simulation.vehicle import added_mass, default_mjcf, load_model
 
 SPEEDS = (20.0, 12.0)
 
@@ -27,7 +27,7 @@ SPEEDS = (20.0, 12.0)
 @functools.cache
 def models(speed):
     model = load_model()
-    return truth.analytic_model(model, speed), truth.numerical_model(model, speed)
+    return analytic.analytic_model(model, speed), analytic.numerical_model(model, speed)
 
 
 def close(actual, reference, rel=0.02, atol=1e-6):
@@ -99,7 +99,7 @@ def test_geom_jacobian_matches_mujoco():
         return d.qfrc_passive.copy()  # identity pose: (force, torque) in the geom's axes
 
     v = np.array([3.0, -1.2, 0.7])
-    terms = truth.geom_terms(r, coef, m.geom_fluid[0, 6:12], rho, beta, v)
+    terms = analytic.geom_terms(r, coef, m.geom_fluid[0, 6:12], rho, beta, v)
     phi = sum(t[0] for t in terms.values())
     J = sum(t[1] for t in terms.values())
     nu0 = np.concatenate([v, np.zeros(3)])
@@ -112,7 +112,7 @@ def test_geom_jacobian_matches_mujoco():
 def test_kutta_lift_along_the_chord_closed_form():
     """At v = U e_x + δv: f_K ≈ C_K ρ π r_y r_z U (0, (1 − r_x²/r_y²) δv_y, (1 − r_x²/r_z²) δv_z)."""
     r, U, rho, C_K = np.array([0.10, 0.11, 0.05]), 17.0, 1025.0, 0.9
-    J = truth.geom_terms(r, (0, 0, 0, C_K, 0), np.zeros(6), rho, 0.0, [U, 0, 0])["lift"][1]
+    J = analytic.geom_terms(r, (0, 0, 0, C_K, 0), np.zeros(6), rho, 0.0, [U, 0, 0])["lift"][1]
     k = C_K * rho * np.pi * r[1] * r[2] * U
     expected = np.diag([0.0, k * (1 - r[0] ** 2 / r[1] ** 2), k * (1 - r[0] ** 2 / r[2] ** 2)])
     assert np.allclose(J[:3, :3], expected, rtol=1e-12, atol=1e-9)
@@ -158,7 +158,7 @@ def test_open_loop_stable_at_cruise():
 
 def test_default_free_list_is_identifiable():
     lin, _ = models(20.0)
-    config, _ = truth.analytic_config(None, 20.0)
+    config, _ = analytic.analytic_config(None, 20.0)
     s = structure(lin.vehicle)
     assert structural(s, theta_vector(lin.coefficients), config.free, STATES).null_directions == 0
     assert not any(n.endswith("dot") for n in config.free)
@@ -170,7 +170,7 @@ def test_cli_truth_round_trip(capsys, tmp_path):
     text = capsys.readouterr().out
     config = parse_config(tomllib.loads(text))
     assert config.coefficients == lin.coefficients and config.vehicle == lin.vehicle
-    assert set(config.coefficients) == set(COEFFICIENTS) and config.free == truth.FREE
+    assert set(config.coefficients) == set(COEFFICIENTS) and config.free == analytic.FREE
     assert "outside the linear model: " in text and "X_qdot" in text  # terms outside it are in the comments
     out = tmp_path / "model.toml"
     assert main(["truth", "--speed", "20", "--mjcf", str(default_mjcf()), "--out", str(out)]) == 0
@@ -196,11 +196,11 @@ def test_cli_truth_bad_input(capsys, tmp_path):
     )  # named as given, not as NaN
     for speed in (0.0, -1.0, float("inf"), float("nan"), 1e-300, 451.0, 1e300):
         with pytest.raises(InputError, match=r"speed=.*; expected a trim speed of 0\.001 to 450 m/s"):
-            truth.analytic_config(None, speed)
+            analytic.analytic_config(None, speed)
         with pytest.raises(InputError, match="expected a trim speed"):
-            truth.analytic_model(load_model(), speed)
+            analytic.analytic_model(load_model(), speed)
     with pytest.raises(InputError, match="speed"):
-        truth.numerical_model(load_model(), -1.0)
+        analytic.numerical_model(load_model(), -1.0)
     bad = tmp_path / "bad.xml"
     bad.write_text("<mujoco><worldbody><body>")
     assert "bad.xml" in _one_line_error(["truth", "--mjcf", str(bad)], capsys)

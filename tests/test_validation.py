@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from testbed.cli import main
-from testbed.validation import CONFIDENCE, chi2_sf, fit_percent, whiteness
+from testbed.analysis.validation import CONFIDENCE, chi2_sf, fit_percent, whiteness
 
 
 def test_fit_percent_is_one_minus_the_relative_error_norm():

@@ -25,7 +25,7 @@ from testbed.errors import InputError
 from testbed.estimators import mekf, ml
 from testbed.estimators.base import Callback, Estimate, Method, OptionError, Options, Progress, Status
 from testbed.estimators.mekf import FilterEstimate, FilterOptions
-from testbed.linear import check_fit
+from testbed.identification.outputerror import check_fit
 
 __all__ = [
     "Callback",

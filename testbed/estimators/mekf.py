@@ -3,7 +3,7 @@ with a square-root covariance, and the conventional augmented EKF as its baselin
 
 The augmented state is the 10 model states (`u` as the perturbation u_abs − U) followed by the free
 coefficients θ, which are constant up to a small random walk. The states follow the exact
-zero-order-hold model `x[k+1] = Φ(θ) x[k] + Γ(θ) δ[k] + s(θ)` of `testbed.model`; its Jacobian
+zero-order-hold model `x[k+1] = Φ(θ) x[k] + Γ(θ) δ[k] + s(θ)` of `testbed.models.linear`; its Jacobian
 wrt θ, `D = ∂Φ/∂θ x + ∂Γ/∂θ δ + ∂s/∂θ`, is exact as well: with `M = [[A, B, S], [0, 0, 0]]`,
 Van Loan's block exponential `expm([[M, ∂M], [0, M]] Δ)` holds `∂expm(MΔ)` in its upper-right
 block, so there is no series truncation and singular A (ψ, z integrators) is fine (`expm_pair`:
@@ -181,8 +181,18 @@ from testbed.estimators.base import (
     is_count,
     option,
 )
-from testbed.measurements import NOISE_STD, noise_free_channels, noise_from_data
-from testbed.model import IX, ITHETA, NX, STATES, continuous, derivatives, expm_pair, structure, theta_vector
+from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
+from testbed.models.linear import (
+    IX,
+    ITHETA,
+    NX,
+    STATES,
+    continuous,
+    derivatives,
+    expm_pair,
+    structure,
+    theta_vector,
+)
 
 
 # ---------------------------------------------------------------- square-root kernels (pure)

@@ -1,4 +1,4 @@
-"""The recursions of `testbed.linear` compiled (numba), for optimisers that simulate thousands of
+"""The recursions of `testbed.identification.outputerror` compiled (numba), for optimisers that simulate thousands of
 times: loading the compiler costs about 0.35 s once per process (its import and its compiled
 code read back from the cache), which a simplex search wins back many times over and a single
 Gauss-Newton fit of a measurement file does not (`linear.compiled`).

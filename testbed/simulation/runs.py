@@ -23,12 +23,19 @@ from typing import Callable
 
 from testbed.data import config_text, csv_text
 from testbed.errors import atomic_directory
-from testbed.measurements import check_seed
-from testbed.model import STATES
-from testbed.recording import log_run
-from testbed.scenario import UNFITTED_DEPTH, Scenario, check_flyable, fly_scenario, scenario, scenario_text
-from testbed.truth import model_config
-from testbed.vehicle import default_mjcf
+from testbed.simulation.measurements import check_seed
+from testbed.models.linear import STATES
+from testbed.simulation.recording import log_run
+from testbed.simulation.scenario import (
+    UNFITTED_DEPTH,
+    Scenario,
+    check_flyable,
+    fly_scenario,
+    scenario,
+    scenario_text,
+)
+from testbed.simulation.analytic import model_config
+from testbed.simulation.vehicle import default_mjcf
 
 
 def simulate(

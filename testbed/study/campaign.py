@@ -13,7 +13,7 @@ Every finished cell is written at once to `DIR/cells/<key>.json` (a temporary fi
 key a hash of everything the cell's result depends on (scenario text, method, seed, options,
 testbed version): after a crash or Ctrl-C, `reproduce` again computes only the cells that have
 no file. The results (`results.csv`), the verdicts on the paper's three conclusions
-(`conclusions.json`, `conclusions`) and the report (`testbed.figures`) are derived from the cell
+(`conclusions.json`, `conclusions`) and the report (`testbed.presentation.figures`) are derived from the cell
 files alone.
 """
 
@@ -36,14 +36,14 @@ import mujoco
 import numpy as np
 from dask.distributed import Client, LocalCluster, as_completed
 
-from testbed.analysis import compare, identify_screened, structural
+from testbed.analysis.identifiability import compare, identify_screened, structural
 from testbed.data import load_data
 from testbed.errors import InputError, atomic_write_text
 from testbed.estimators import FilterEstimate, lookup
-from testbed.figures import write_report
-from testbed.model import COEFFICIENTS, structure, theta_vector
-from testbed.runs import simulate
-from testbed.scenario import scenario, scenario_text
+from testbed.presentation.figures import write_report
+from testbed.models.linear import COEFFICIENTS, structure, theta_vector
+from testbed.simulation.runs import simulate
+from testbed.simulation.scenario import scenario, scenario_text
 
 SCENARIOS = ("I", "II")
 METHODS = ("ml-nr", "ml-nm", "mekf", "ml-gn")  # the paper's three, then the modern reference

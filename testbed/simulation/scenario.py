@@ -1,6 +1,6 @@
 """Scenarios: experiments defined in scenario files, flown by the truth plant, written as runs.
 
-A scenario file (TOML; `testbed/scenarios/*.toml` are the built-in ones, in the same format)
+A scenario file (TOML; `testbed/simulation/scenarios/*.toml` are the built-in ones, in the same format)
 sets the trim speed, initial depth, control and sample rates, the sensors and, per experiment,
 its duration, the signal on each fin channel and which autopilot loops hold what:
 
@@ -25,8 +25,8 @@ autopilot = {depth = 0.0, roll = 0.0}
 ```
 
 Fin channels: `rudder`, `elevators` (together, δe) and `differential` (δa: δer = δe + δa,
-δel = δe − δa), each a signal (`testbed.signals`; a number is a hold). Autopilot loops
-(`testbed.autopilot`): `depth` (m below the initial depth; 0 holds it), `yaw_rate` (rad/s),
+δel = δe − δa), each a signal (`testbed.simulation.signals`; a number is a hold). Autopilot loops
+(`testbed.simulation.autopilot`): `depth` (m below the initial depth; 0 holds it), `yaw_rate` (rad/s),
 `roll` (rad), each a number or a signal; a loop drives its fin channel, so a channel cannot be
 both. `hold = {depth = ...}` is the slow pitch-depth hold that keeps an open-loop `elevators`
 signal from letting the nearly neutral pitch random-walk (poles at 0.2 rad/s, far below a PRBS
@@ -51,15 +51,15 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from testbed.autopilot import FIN_LIMIT, Autopilot
+from testbed.simulation.autopilot import FIN_LIMIT, Autopilot
 from testbed.data import MIN_ROWS, number
 from testbed.errors import InputError, is_number
-from testbed.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
-from testbed.model import IX, NX, STATES
-from testbed.plant import Plant
-from testbed.signals import Signal, parse_signal, signal_table
-from testbed.truth import analytic_model
-from testbed.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
+from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
+from testbed.models.linear import IX, NX, STATES
+from testbed.simulation.plant import Plant
+from testbed.simulation.signals import Signal, parse_signal, signal_table
+from testbed.simulation.analytic import analytic_model
+from testbed.simulation.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
 
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).
 UNFITTED_DEPTH = (

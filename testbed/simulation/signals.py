@@ -30,7 +30,7 @@ from typing import Callable, ClassVar, Mapping
 import numpy as np
 
 from testbed.errors import InputError, is_number
-from testbed.model import IX
+from testbed.models.linear import IX
 
 Program = Callable[[float, np.ndarray], float]
 

@@ -22,8 +22,8 @@ matplotlib.use("Agg")  # headless: figures are files
 import matplotlib.pyplot as plt  # noqa: E402
 
 from testbed.errors import atomic_file, atomic_write_text
-from testbed.model import INPUTS
-from testbed.recording import data_id, recording
+from testbed.models.linear import INPUTS
+from testbed.simulation.recording import data_id, recording
 
 COLORS = {"ml-nr": "#d62728", "ml-nm": "#1f77b4", "mekf": "#2ca02c", "ml-gn": "#7f7f7f"}
 RATIO_LIMITS = (0.0, 2.0)  # estimate / analytic shown; values beyond are drawn at the edge

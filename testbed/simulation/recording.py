@@ -29,8 +29,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from testbed.errors import atomic_file
-from testbed.model import INPUTS, IX, STATES
-from testbed.vehicle import FINS, FLIP, load_model, rotation
+from testbed.models.linear import INPUTS, IX, STATES
+from testbed.simulation.vehicle import FINS, FLIP, load_model, rotation
 
 # Every series keeps one style per role, in every tab of every recording: measured values thin
 # and light, the truth (or the fitted model) bold, commands as steps. Role -> (RGB, width in UI points).

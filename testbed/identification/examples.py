@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.linear import synthetic
-from testbed.model import COEFFICIENTS, Vehicle
+from testbed.identification.outputerror import synthetic
+from testbed.models.linear import COEFFICIENTS, Vehicle
 
 VEHICLE = Vehicle(
     mass=30.51,

@@ -4,7 +4,7 @@ The Fisher information of the free coefficients θ of an experiment is computed 
 (the analytic model, or the estimate of the last fit) from the experiment as that model would
 fly it: the linear model with the autopilots closing the loops they hold (`fly_linear`), every
 state measured but the depth (which a run does not fit), white sensor noise of
-`testbed.measurements.NOISE_STD`, each experiment's initial state estimated:
+`testbed.simulation.measurements.NOISE_STD`, each experiment's initial state estimated:
 
     F = Σ_experiments Σ_k (∂ŷ_k/∂θ)ᵀ R⁻¹ (∂ŷ_k/∂θ)      (initial states eliminated)
 
@@ -49,19 +49,35 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from testbed.analysis import unidentified
-from testbed.autopilot import FIN_LIMIT, Autopilot, fly_linear
+from testbed.analysis.identifiability import unidentified
+from testbed.simulation.autopilot import FIN_LIMIT, Autopilot, fly_linear
 from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
-from testbed import linear
-from testbed.linear import crlb, predict
-from testbed.measurements import NOISE_STD
-from testbed.recording import STYLE, axis_range, data_id, panel_title, recording, series, time_column, x_range
-from testbed.model import COEFFICIENTS, INPUTS, IX, NX, STATES, continuous, structure, theta_vector
-from testbed.scenario import ExperimentSpec, Scenario, fly_scenario, program, scenario, scenario_text
-from testbed.signals import TAPS, Hold, Multisine, Prbs, Signal, Square
-from testbed.truth import analytic_config, model_config
-from testbed.validation import fit_percent
+from testbed.identification import outputerror
+from testbed.identification.outputerror import crlb, predict
+from testbed.simulation.measurements import NOISE_STD
+from testbed.simulation.recording import (
+    STYLE,
+    axis_range,
+    data_id,
+    panel_title,
+    recording,
+    series,
+    time_column,
+    x_range,
+)
+from testbed.models.linear import COEFFICIENTS, INPUTS, IX, NX, STATES, continuous, structure, theta_vector
+from testbed.simulation.scenario import (
+    ExperimentSpec,
+    Scenario,
+    fly_scenario,
+    program,
+    scenario,
+    scenario_text,
+)
+from testbed.simulation.signals import TAPS, Hold, Multisine, Prbs, Signal, Square
+from testbed.simulation.analytic import analytic_config, model_config
+from testbed.analysis.validation import fit_percent
 
 CRITERIA = ("D", "A", "E")
 FIN_RATE = 2.0  # rad/s, the servos' slew rate (the plant's and fly_linear's)
@@ -204,7 +220,7 @@ def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str 
     """Fisher information of `m.config.free` from one noise-free experiment (initial states
     eliminated), with the sensor noise `m.noise_std`."""
     e = experiment(m, t, xs, fins, name)
-    return linear.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
+    return outputerror.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
 
 
 # -- criteria ----------------------------------------------------------------------------------------
@@ -475,7 +491,7 @@ def scenario_information(m: Model, total: float, base: Scenario | str = "II") ->
     """Fisher information of Scenario II flown for `total` s."""
     F = 0.0
     for e in scenario_flights(m, total, base):
-        F = F + linear.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
+        F = F + outputerror.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
     return F
 
 

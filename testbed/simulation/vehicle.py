@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from testbed.errors import InputError
-from testbed.model import MAX_SPEED, MIN_SPEED, Vehicle
+from testbed.models.linear import MAX_SPEED, MIN_SPEED, Vehicle
 
 FINS = ("rudder", "elevator_right", "elevator_left")
 FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> body axes (FRD); also ENU-ish world <-> NED
@@ -27,7 +27,7 @@ FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> body axes (FRD);
 
 def default_mjcf() -> Path:
     """The bundled torpedo."""
-    return Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "torpedo.xml"
+    return Path(__file__).resolve().parent / "mjcf" / "torpedo.xml"
 
 
 def load_model(path: str | Path | None = None) -> mujoco.MjModel:

@@ -58,8 +58,8 @@ import numba
 import numpy as np
 
 from testbed.errors import InputError
-from testbed.model import Vehicle
-from testbed.vehicle import (
+from testbed.models.linear import Vehicle
+from testbed.simulation.vehicle import (
     FINS,
     FLIP,
     check_model,

@@ -2,7 +2,7 @@
 
 A fit opens on its parameters tab, one plot per coefficient, on the timeline they are logged on:
 `iteration` for the off-line fits, `time` for the filters. Styles, series and atomic writing
-are the run recordings' (`testbed.recording`). `replay` finds a recording's viewer.
+are the run recordings' (`testbed.simulation.recording`). `replay` finds a recording's viewer.
 """
 
 from __future__ import annotations
@@ -19,8 +19,16 @@ import rerun.blueprint as rrb
 
 from testbed.errors import InputError
 from testbed.estimators import FilterEstimate
-from testbed.linear import predict
-from testbed.recording import axis_range, data_id, panel_title, recording, series, time_column, x_range
+from testbed.identification.outputerror import predict
+from testbed.simulation.recording import (
+    axis_range,
+    data_id,
+    panel_title,
+    recording,
+    series,
+    time_column,
+    x_range,
+)
 
 OUTPUTS_KEY = "thin grey: measured · bold red: the identified model's response to the measured fin angles"
 PARAMETERS_KEY = {
@@ -211,7 +219,7 @@ def log_fit(
 ) -> Path:
     """A recording of a fit: the parameters tab (each coefficient's estimate per iteration, or
     over time for the filters, with ±σ, the analytic value and the truth fit; the cost), the
-    comparison table, the validation metrics (`testbed.validation.Validation`: fit % and
+    comparison table, the validation metrics (`testbed.analysis.validation.Validation`: fit % and
     residual whiteness per experiment and channel), and measured versus model outputs per
     experiment. It opens on the parameters tab and the timeline they are logged on.
 

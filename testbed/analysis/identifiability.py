@@ -17,9 +17,9 @@ import numpy as np
 from testbed.data import ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify, lookup
-from testbed.linear import check_fit, crlb, fisher
-from testbed.measurements import noise_from_data
-from testbed.model import ITHETA, IX, NX, Structure, structure, theta_vector, tilde, unobserved
+from testbed.identification.outputerror import check_fit, crlb, fisher
+from testbed.simulation.measurements import noise_from_data
+from testbed.models.linear import ITHETA, IX, NX, Structure, structure, theta_vector, tilde, unobserved
 
 
 @dataclass(frozen=True)

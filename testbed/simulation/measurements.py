@@ -32,7 +32,7 @@ import numpy as np
 
 from testbed.data import MIN_NOISE_STD, Experiment, median
 from testbed.errors import InputError
-from testbed.model import STATES
+from testbed.models.linear import STATES
 
 NOISE_STD = {
     "u": 0.05,

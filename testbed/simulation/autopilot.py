@@ -1,7 +1,7 @@
 """Autopilots designed from the analytic linear model: course rate, depth, roll, and a slow hold.
 
 Each loop is a linear-quadratic regulator with integral action, designed on its block of the
-analytic model (`testbed.truth.analytic_model`) with Bryson's rule (Q = diag(1/x_max²),
+analytic model (`testbed.simulation.analytic.analytic_model`) with Bryson's rule (Q = diag(1/x_max²),
 R = 1/δ_max²):
 
 - course rate: rudder on (v, r, ∫(r − r_cmd)), with the steady-state rudder as feedforward;
@@ -55,7 +55,7 @@ import numpy as np
 from scipy.linalg import solve_continuous_are
 
 from testbed.errors import InputError
-from testbed.model import IX, NX, discretize
+from testbed.models.linear import IX, NX, discretize
 
 FIN_LIMIT = 0.40  # rad, the torpedo's servo range
 YAW, PITCH, ROLL = 0, 1, 2  # the integrators

@@ -43,7 +43,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
-from testbed.model import (
+from testbed.models.linear import (
     ITHETA,
     IX,
     NU,
@@ -268,15 +268,17 @@ def _models(prob: Problem, values: np.ndarray, order: int) -> dict[float, Discre
 # --- simulation and sensitivities -------------------------------------------------------------
 
 
-_KERNELS = contextvars.ContextVar("kernels", default=None)  # testbed.kernels within `compiled()`
+_KERNELS = contextvars.ContextVar(
+    "kernels", default=None
+)  # testbed.identification.kernels within `compiled()`
 
 
 @contextlib.contextmanager
 def compiled():
-    """Within this context the recursions over the samples run compiled (`testbed.kernels`), for
+    """Within this context the recursions over the samples run compiled (`testbed.identification.kernels`), for
     optimisers that simulate thousands of times; outside it, in numpy blocks (`_Scan`), which
     need no compiler loaded: a process that fits one file is done before numba would be."""
-    from testbed import kernels
+    from testbed.identification import kernels
 
     token = _KERNELS.set(kernels)
     try:
