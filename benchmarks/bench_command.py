@@ -2,11 +2,11 @@
 
     python benchmarks/bench_command.py [--rounds 3] [--keep DIR]
 
-Data: the Monte Carlo study's linear model (REMUS-class vehicle, its truth and noise), two
+Data: the Monte Carlo study's linear model (REMUS-class vehicle, its coefficients and noise), two
 experiments of 300 s at 20 Hz (12 000 samples), all ten states measured; 21 free coefficients:
 the study's 15 and the longitudinal added-mass and surge terms (X_udot, X_u, Z_wdot, Z_qdot,
 M_wdot, M_qdot; the data identify each to within 6 % and none is in a drift group), their
-a-priori values 30 % off the truth. The two CSVs and the model config are written to a
+a-priori values 30 % off the simulated coefficients. The two CSVs and the model config are written to a
 temporary folder, then two processes are timed from their start to their exit:
 
 - the command: `testbed identify A.csv B.csv --config cfg.toml --out est.json` (the console
@@ -22,7 +22,7 @@ temporary folder, then two processes are timed from their start to their exit:
 After one untimed run of the command (Python's byte-code cache written, as for any user), the
 two alternate for `--rounds` rounds and each one's best round counts (other work on a
 shared machine only slows a process down). Printed: the times, their ratio against the goal
-(the command ≥ 30× faster than the plain reference), each one's error against the truth in the command's Cramér-Rao σ,
+(the command ≥ 30× faster than the plain reference), each one's error against the simulated coefficients in the command's Cramér-Rao σ,
 and how far apart the two estimates are (they must agree).
 """
 
@@ -42,7 +42,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from testbed.identification.examples import FREE, TRUTH, experiments, prior_config  # noqa: E402
+from testbed.identification.examples import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config  # noqa: E402
 
 from testbed.data import write_config, write_csv  # noqa: E402
 
@@ -123,11 +123,11 @@ def main() -> int:
         plain = json.loads((folder / "plain.json").read_text())
         n = sum(len(np.loadtxt(f, delimiter=",", skiprows=1, usecols=0)) for f in csvs)
     names = FREE + EXTRA
-    truth = np.array([TRUTH[n] for n in names])
+    simulated = np.array([EXAMPLE_COEFFICIENTS[n] for n in names])
     values = np.array([est["coefficients"][n]["value"] for n in names])
     std = np.array([est["coefficients"][n]["std"] for n in names])
     reference = np.array([ref["coefficients"][n] for n in names])
-    z_cmd, z_ref = (values - truth) / std, (reference - truth) / std
+    z_cmd, z_ref = (values - simulated) / std, (reference - simulated) / std
     best = {name: min(w for w, _ in t) for name, t in times.items()}
     cpu = {name: min(c for _, c in t) for name, t in times.items()}
     print(
@@ -136,9 +136,9 @@ def main() -> int:
         f"{100 * START_ERROR:.0f} % off"
     )
     print(
-        f"{'coefficient':12s} {'truth':>10s} {'identify':>10s} {'scipy':>10s} {'cmd err/σ':>9s} {'ref err/σ':>9s}"
+        f"{'coefficient':12s} {'simulated':>10s} {'identify':>10s} {'scipy':>10s} {'cmd err/σ':>9s} {'ref err/σ':>9s}"
     )
-    for name, t, a, b, za, zb in zip(names, truth, values, reference, z_cmd, z_ref):
+    for name, t, a, b, za, zb in zip(names, simulated, values, reference, z_cmd, z_ref):
         print(f"{name:12s} {t:10.4g} {a:10.4g} {b:10.4g} {za:9.2f} {zb:9.2f}")
     print(
         f"testbed identify: {best['testbed identify']:7.3f} s whole command (best of {args.rounds}; "
@@ -152,7 +152,7 @@ def main() -> int:
         f"fit {ref['fit_time_s']:.3f} s, {ref['model_evaluations']} model evaluations in "
         f"{ref['rounds']} R-relaxation rounds, rms error {np.sqrt(np.mean(z_ref**2)):.3f} σ"
     )
-    z_plain = (np.array([plain["coefficients"][n] for n in names]) - truth) / std
+    z_plain = (np.array([plain["coefficients"][n] for n in names]) - simulated) / std
     print(
         f"plain scipy     : {best['plain scipy']:7.3f} s whole command (best of {args.rounds}; "
         f"CPU {cpu['plain scipy']:.3f} s), fit {plain['fit_time_s']:.3f} s, {plain['model_evaluations']} "

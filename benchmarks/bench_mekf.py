@@ -14,7 +14,7 @@ estimate against the filter that recomputes the exact model every sample (refres
 units of its σ (the price of the default's model refresh policy).
 
 Secondary, synthetic: the linear model of a torpedo like the bundled one simulated exactly
-(ZOH), 20 and 50 Hz, 21 free coefficients started 20 % off; here the truth is known, so the
+(ZOH), 20 and 50 Hz, 21 free coefficients started 20 % off; here the coefficients the data were simulated from are known, so the
 largest |error|/σ against it is printed as well.
 
 Timing: single-threaded BLAS as the command line sets it; best of `--repeat` runs (other load on
@@ -81,7 +81,7 @@ def filterpy_rate(experiments, config: ModelConfig, noise: dict[str, float]) -> 
     return count / (time.perf_counter() - start)
 
 
-def measure(experiments, config, repeat: int, truth=None, indent="  ") -> float:
+def measure(experiments, config, repeat: int, simulated=None, indent="  ") -> float:
     """Print one line per variant; returns the default's × real time."""
     samples = sum(len(e.t) for e in experiments)
     rate = 1.0 / experiments[0].dt
@@ -97,8 +97,8 @@ def measure(experiments, config, repeat: int, truth=None, indent="  ") -> float:
             f"{indent}{rate:4.0f} Hz  {label:34s} {sps:7.0f} samples/s = {sps / rate:6.1f}× real "
             f"time = {sps / reference:5.3f}× filterpy KF  [{est.status.name}"
         )
-        if truth is not None:
-            line += f", max |error|/σ {np.max(np.abs(est.values - truth) / est.std):.2f}"
+        if simulated is not None:
+            line += f", max |error|/σ {np.max(np.abs(est.values - simulated) / est.std):.2f}"
         print(line + "]", flush=True)
         if default_ratio is None:
             default, default_ratio = est, sps / rate
@@ -115,7 +115,7 @@ def measure(experiments, config, repeat: int, truth=None, indent="  ") -> float:
 # ---------------------------------------------------------------- the synthetic case
 
 VEHICLE = Vehicle(170.75, 2.16, 67.25, 67.24, 1675.1, 1675.1, 0.0, 0.0, -0.0179, 20.0)
-TRUTH = dict(
+SIMULATED = dict(
     zip(
         COEFFICIENTS,
         (
@@ -183,7 +183,7 @@ def synthetic(dt, seed=0):
             elevator - prbs(rng, n, dt, 0.2 * a, 0.7),
         ]
     )
-    Phi, Gamma, s = discretize(*continuous(structure(VEHICLE), theta_vector(TRUTH)), dt)
+    Phi, Gamma, s = discretize(*continuous(structure(VEHICLE), theta_vector(SIMULATED)), dt)
     experiments = []
     for name, inputs in (("horizontal", horizontal), ("vertical", vertical)):
         x, X = np.zeros(10), np.zeros((n, 10))
@@ -224,15 +224,15 @@ def main(argv=None) -> None:
     if args.no_synthetic:
         return
     rng = np.random.default_rng(1)
-    start = {n: TRUTH[n] * (1 + 0.2 * rng.choice([-1, 1])) for n in FREE}
-    config = ModelConfig(VEHICLE, dict(TRUTH), FREE).with_coefficients(start)
-    truth = np.array([TRUTH[n] for n in FREE])
+    start = {n: SIMULATED[n] * (1 + 0.2 * rng.choice([-1, 1])) for n in FREE}
+    config = ModelConfig(VEHICLE, dict(SIMULATED), FREE).with_coefficients(start)
+    simulated = np.array([SIMULATED[n] for n in FREE])
     print(
         f"Synthetic (linear model, exact ZOH): 2 × {DURATION:g} s, 10 states measured, "
         f"{len(FREE)} free coefficients started 20 % off"
     )
     for rate in (20.0, 50.0):
-        measure(synthetic(1.0 / rate), config, args.repeat, truth)
+        measure(synthetic(1.0 / rate), config, args.repeat, simulated)
 
 
 if __name__ == "__main__":

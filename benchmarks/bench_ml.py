@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.scipy_reference import scipy_fit  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
-from testbed.identification.examples import FREE, TRUTH, experiments, prior_config  # noqa: E402
+from testbed.identification.examples import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config  # noqa: E402
 
 
 def _best(runs, rounds: int = 5):
@@ -47,22 +47,22 @@ def _best(runs, rounds: int = 5):
 def main() -> int:
     data = experiments(seed=0)
     prior = prior_config(error=0.3)
-    truth = np.array([TRUTH[n] for n in FREE])
+    simulated = np.array([EXAMPLE_COEFFICIENTS[n] for n in FREE])
     # best of five each: the first call in a process also loads compiled code from numba's cache
     (t_gn, est), (t_ls, (values, nfev, rounds)) = _best(
         [lambda: identify(data, prior, method="ml-gn", start="config"), lambda: scipy_fit(data, prior)]
     )
-    z_gn = (est.values - truth) / est.std
-    z_ls = (values - truth) / est.std
+    z_gn = (est.values - simulated) / est.std
+    z_ls = (values - simulated) / est.std
     print(
         f"BLAS threads: {os.environ['OPENBLAS_NUM_THREADS']}; "
         f"data: 2 experiments x {len(data[0].t)} samples, {len(FREE)} coefficients + "
         f"{sum(len(e.measured) for e in data)} initial states, start 30 % off"
     )
     print(
-        f"{'coefficient':12s} {'truth':>10s} {'ml-gn':>10s} {'scipy':>10s} {'gn err/σ':>9s} {'ls err/σ':>9s}"
+        f"{'coefficient':12s} {'simulated':>10s} {'ml-gn':>10s} {'scipy':>10s} {'gn err/σ':>9s} {'ls err/σ':>9s}"
     )
-    for n, t, a, b, za, zb in zip(FREE, truth, est.values, values, z_gn, z_ls):
+    for n, t, a, b, za, zb in zip(FREE, simulated, est.values, values, z_gn, z_ls):
         print(f"{n:12s} {t:10.4g} {a:10.4g} {b:10.4g} {za:9.2f} {zb:9.2f}")
     print(
         f"ml-gn : {t_gn:7.3f} s, {est.iterations} iterations, {est.status.name}, "

@@ -43,7 +43,7 @@ from typing import Callable
 import numpy as np
 
 from testbed.data import ModelConfig, config_text, csv_text
-from testbed.identification.examples import NOISE, TRUTH, VEHICLE, inputs
+from testbed.identification.examples import NOISE, EXAMPLE_COEFFICIENTS, VEHICLE, inputs
 from testbed.identification.outputerror import synthetic
 from testbed.models.linear import INPUTS, STATES, Vehicle
 
@@ -54,22 +54,24 @@ FREE = ("Y_v", "Y_r", "N_v", "N_r", "Z_w", "M_q")  # observed from both experime
 
 def workspace(root: Path) -> Path:
     """Valid inputs in `root`: data/h.csv and data/v.csv (2 s at 20 Hz, noisy), cfg.toml (FREE,
-    30 % off the truth), run/ (a run directory: the two CSVs, their noise-free .truth.csv,
-    model.toml at the truth and manifest.json), keep.txt (a user's file) and an empty out/."""
+    30 % off the example's coefficients), run/ (a run directory: the two CSVs, their noise-free .truth.csv,
+    model.toml at the example's coefficients and manifest.json), keep.txt (a user's file) and an empty out/."""
     rng = np.random.default_rng(7)
-    truth = ModelConfig(VEHICLE, dict(TRUTH), FREE, "truth")
+    example = ModelConfig(VEHICLE, dict(EXAMPLE_COEFFICIENTS), FREE, "example")
     for folder in ("data", "run", "out"):
         (root / folder).mkdir(parents=True, exist_ok=True)
     for name, (t, u) in inputs(duration=2.0, dt=0.05).items():
-        clean = synthetic(truth, t, u, name=name)
-        noisy = synthetic(truth, t, u, NOISE, rng=rng, name=name)
+        clean = synthetic(example, t, u, name=name)
+        noisy = synthetic(example, t, u, NOISE, rng=rng, name=name)
         text = csv_text(t, noisy.y, u)
         (root / "data" / f"{name[0]}.csv").write_text(text)
         (root / "run" / f"{name}.csv").write_text(text)
         (root / "run" / f"{name}.truth.csv").write_text(csv_text(t, clean.y, u))
-    prior = truth.with_coefficients({n: TRUTH[n] * (1.3 if k % 2 else 0.7) for k, n in enumerate(FREE)})
+    prior = example.with_coefficients(
+        {n: EXAMPLE_COEFFICIENTS[n] * (1.3 if k % 2 else 0.7) for k, n in enumerate(FREE)}
+    )
     (root / "cfg.toml").write_text(config_text(prior))
-    (root / "run" / "model.toml").write_text(config_text(truth))
+    (root / "run" / "model.toml").write_text(config_text(example))
     manifest = {"scenario": "fuzz", "experiments": ["horizontal", "vertical"]}
     (root / "run" / "manifest.json").write_text(json.dumps(manifest))
     (root / "keep.txt").write_text("a user's file\n")

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from testbed.errors import atomic_write_text
-from testbed.identification.examples import FREE, TRUTH, experiments, prior_config
+from testbed.identification.examples import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
 from studies.seeds import counted, fit_seeds, scatter  # noqa: E402
@@ -30,12 +30,12 @@ from studies.seeds import counted, fit_seeds, scatter  # noqa: E402
 
 def study(seeds: int, duration: float, methods: list[str]) -> str:
     """Run the study; return the table as CSV text (the bound: ml-gn's mean Cramér-Rao bound)."""
-    truth = np.array([TRUTH[n] for n in FREE])
+    simulated = np.array([EXAMPLE_COEFFICIENTS[n] for n in FREE])
     fits = fit_seeds(seeds, lambda seed: experiments(seed, duration), prior_config(), methods)
-    spread = {m: scatter(fits[m], truth) for m in methods}
+    spread = {m: scatter(fits[m], simulated) for m in methods}
     crlb, corrected = spread["ml-gn"].reported, spread["ml-gn"].corrected
     out = io.StringIO()
-    head = ["coefficient", "truth", "crlb_mean", "crlb_corrected_over_crlb"]
+    head = ["coefficient", "simulated", "crlb_mean", "crlb_corrected_over_crlb"]
     for m in methods:
         head += [
             f"{m}_mean_err_sigma",
@@ -47,7 +47,7 @@ def study(seeds: int, duration: float, methods: list[str]) -> str:
         ]
     out.write(",".join(head) + "\n")
     for i, name in enumerate(FREE):
-        cells = [name, f"{truth[i]:.6g}", f"{crlb[i]:.4g}", f"{corrected[i] / crlb[i]:.3f}"]
+        cells = [name, f"{simulated[i]:.6g}", f"{crlb[i]:.4g}", f"{corrected[i] / crlb[i]:.3f}"]
         for m in methods:
             sc = spread[m]
             cells += [

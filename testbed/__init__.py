@@ -3,7 +3,7 @@
 The public API (each name is loaded on first use, so `import testbed` stays light):
 
 - data: `load_data`, `read_csv`, `read_config`, `Experiment`, `ModelConfig`;
-- truth: `analytic_config` (the analytic linear model of an MJCF body);
+- the simulation: `analytic_config` (the analytic linear model of an MJCF body);
 - runs: `simulate` (fly a scenario, built-in or a file, and write its run directory);
 - identification: `identify` (one front door for every method), `Estimate`, `Status`, `METHODS`;
 - analysis: `analyze` (identifiability: Fisher information, Cramér-Rao bounds, drift groups),
@@ -12,9 +12,7 @@ The public API (each name is loaded on first use, so `import testbed` stays ligh
 - the study: `reproduce` (the paper's study as a campaign, with its report);
 - errors: `InputError` (a `ValueError`: bad input, named), `OptionError`.
 
-Layers, each importing only those before it: errors → model → data → measurements → vehicle →
-plant → truth → autopilot, signals → scenario → recording → runs → linear → estimators →
-validation, analysis → design, report → jobs → figures → campaign → cli.
+The layers, each importing only those before it, are listed in docs/architecture.md.
 """
 
 from __future__ import annotations

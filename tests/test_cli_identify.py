@@ -239,7 +239,7 @@ def test_a_wrapped_heading_fits_as_the_continuous_one(tmp_path, capsys):
     t, u = examples.inputs(duration=30.0)["horizontal"]
     x0 = np.zeros(10)
     x0[IX["psi"]] = 3.0
-    e = synthetic(examples.truth_config(), t, u, examples.NOISE, rng=np.random.default_rng(5), x0=x0)
+    e = synthetic(examples.example_config(), t, u, examples.NOISE, rng=np.random.default_rng(5), x0=x0)
     j = e.measured.index("psi")
     wrapped = e.y.copy()
     wrapped[:, j] = np.angle(np.exp(1j * e.y[:, j]))

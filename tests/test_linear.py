@@ -7,7 +7,14 @@ import pytest
 
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed.identification.examples import FREE, NOISE, TRUTH, experiments, prior_config, truth_config
+from testbed.identification.examples import (
+    FREE,
+    NOISE,
+    EXAMPLE_COEFFICIENTS,
+    experiments,
+    prior_config,
+    example_config,
+)
 from testbed.identification import outputerror
 from testbed.models.linear import IX, NX, continuous
 
@@ -22,7 +29,7 @@ def _data(duration=3.0, noise=NOISE):
 
 
 def _problem(duration=3.0, free=FREE):
-    prob = outputerror.problem(_data(duration), truth_config(free))
+    prob = outputerror.problem(_data(duration), example_config(free))
     return prob, outputerror.initial_states(prob, prob.start)
 
 
@@ -82,7 +89,7 @@ def test_zero_order_hold_model_matches_fine_rk4_with_singular_A():
 def test_initial_states_are_recovered_exactly_from_noise_free_data():
     x0 = np.zeros(NX)
     x0[[IX["v"], IX["w"], IX["q"], IX["phi"], IX["z"]]] = 0.05, -0.03, 0.02, 0.04, 1.5
-    cfg = truth_config()
+    cfg = example_config()
     t, u = np.arange(0, 5, 0.05), np.zeros((100, 3))
     exp = outputerror.synthetic(cfg, t, u, x0=x0, name="release")
     prob = outputerror.problem([exp], cfg)
@@ -179,7 +186,7 @@ def test_colored_residual_bound_grows_with_an_ar1_correlation_as_theory_says():
     rho = 0.7
     fits = _fits(lambda rng, shape, std: _ar1(rng, shape, rho, std), 4)
     ratio = np.mean([e.crlb_corrected_std / e.std for e in fits], axis=0)
-    prob = outputerror.problem(experiments(0, 60.0, noise=None), truth_config())
+    prob = outputerror.problem(experiments(0, 60.0, noise=None), example_config())
     p = outputerror.initial_states(prob, prob.start)
     sigma = np.array([NOISE[c] for c in prob.channels])
     M, mid = np.zeros((prob.n_params, prob.n_params)), np.zeros((prob.n_params, prob.n_params))
@@ -259,20 +266,23 @@ def test_uncoupled_parts_are_the_connected_states_and_parameters():
 
 def test_information_is_consistent():
     data = _data(duration=30.0)
-    info = outputerror.information(data, truth_config())
+    info = outputerror.information(data, example_config())
     F = info.fisher
     np.testing.assert_allclose(F, F.T, rtol=1e-12)
-    np.testing.assert_allclose(outputerror.fisher(data, truth_config()), F, rtol=1e-12)
+    np.testing.assert_allclose(outputerror.fisher(data, example_config()), F, rtol=1e-12)
     # crlb of the coefficients with the initial states as nuisance = the Schur complement's inverse
     np.testing.assert_allclose(info.crlb_std, np.sqrt(np.diag(np.linalg.inv(F))), rtol=1e-6)
     np.testing.assert_allclose(np.diag(info.correlation), 1.0, rtol=1e-9)
-    for state, sd in info.noise_std.items():  # residual std at the truth ≈ the simulated noise
+    for (
+        state,
+        sd,
+    ) in info.noise_std.items():  # residual std at the simulated coefficients ≈ the simulated noise
         assert abs(sd / NOISE[state] - 1) < 0.1, state
     # the bound ignoring colour and the corrected one agree for white residuals (within noise)
     ratio = info.crlb_corrected_std / info.crlb_std
     assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
     # values override the config: a 10 % change of one free coefficient raises the cost
-    worse = outputerror.information(data, truth_config(), {"N_r": 0.9 * TRUTH["N_r"]})
+    worse = outputerror.information(data, example_config(), {"N_r": 0.9 * EXAMPLE_COEFFICIENTS["N_r"]})
     assert worse.cost > info.cost
 
 
@@ -304,12 +314,12 @@ def test_crlb_is_the_closed_form_inverse_and_infinite_along_null_directions():
     np.testing.assert_allclose(outputerror.crlb(F).std, [0.5, 1.0, np.inf])
 
 
-def test_equation_error_recovers_noise_free_truth():
+def test_equation_error_recovers_the_coefficients_from_noise_free_data():
     data = experiments(seed=0, duration=30.0, noise=None)
-    prior = truth_config().with_coefficients({n: 0.6 * TRUTH[n] for n in FREE})
+    prior = example_config().with_coefficients({n: 0.6 * EXAMPLE_COEFFICIENTS[n] for n in FREE})
     ee = outputerror.equation_error(data, prior)
     got = np.array([ee.coefficients[n] for n in FREE])
-    want = np.array([TRUTH[n] for n in FREE])
+    want = np.array([EXAMPLE_COEFFICIENTS[n] for n in FREE])
     np.testing.assert_allclose(got, want, rtol=0.01)
 
 
@@ -330,17 +340,17 @@ def test_smoothing_is_savitzky_golay_within_the_record():
 def test_bad_input():
     data = _data()
     with pytest.raises(InputError, match="Y_bogus"):
-        outputerror.problem(data, replace(truth_config(), free=("Y_v", "Y_bogus")))
+        outputerror.problem(data, replace(example_config(), free=("Y_v", "Y_bogus")))
     y = data[0].y.copy()
     y[3, 1] = np.nan
     with pytest.raises(InputError, match="NaN"):
-        outputerror.problem([replace(data[0], y=y)], truth_config())
+        outputerror.problem([replace(data[0], y=y)], example_config())
     t = data[0].t.copy()
     t[5] += 0.01
     with pytest.raises(InputError, match="uniform"):
-        outputerror.problem([replace(data[0], t=t)], truth_config())
+        outputerror.problem([replace(data[0], t=t)], example_config())
     with pytest.raises(InputError, match="expected 15"):
-        outputerror.information(data, truth_config(), np.zeros(3))
+        outputerror.information(data, example_config(), np.zeros(3))
 
 
 def test_unmeasured_initial_states_stay_at_trim():

@@ -1,5 +1,5 @@
 """The MEKF and the conventional EKF: kernels against filterpy and complex steps, estimates
-against the truth of simulated data, numerical soundness, divergence detection."""
+against the coefficients that simulated the data, numerical soundness, divergence detection."""
 
 import json
 from dataclasses import replace
@@ -32,7 +32,7 @@ from testbed.simulation.runs import simulate
 
 # A torpedo like the bundled one at 20 m/s (SI units); CB slightly off the CG so S ≠ 0.
 VEHICLE = Vehicle(170.75, 2.16, 67.25, 67.24, 1675.1, 1675.1, 0.0, 0.0, -0.0179, 20.0)
-TRUTH = {
+SIMULATED = {
     "X_udot": -8.11,
     "X_u": -265.6,
     "Y_vdot": -158.6,
@@ -97,13 +97,13 @@ def _horizontal(seed, T=30.0, dt=0.05, noise=NOISE):
     n = round(T / dt)
     inputs = np.zeros((n, 3))
     inputs[:, 0] = _prbs(rng, n, dt, np.deg2rad(2.0), 0.5)
-    return _simulate(TRUTH, inputs, dt, noise, seed + 1000, "horizontal")
+    return _simulate(SIMULATED, inputs, dt, noise, seed + 1000, "horizontal")
 
 
 def _start(free, seed=3, spread=0.3):
     rng = np.random.default_rng(seed)
-    start = {n: TRUTH[n] * (1 + spread * rng.choice([-1, 1])) for n in free}
-    return ModelConfig(VEHICLE, dict(TRUTH), tuple(free)).with_coefficients(start)
+    start = {n: SIMULATED[n] * (1 + spread * rng.choice([-1, 1])) for n in free}
+    return ModelConfig(VEHICLE, dict(SIMULATED), tuple(free)).with_coefficients(start)
 
 
 def _spd(rng, n):
@@ -182,7 +182,7 @@ def test_model_matches_complex_step():
     # *dot terms (continuous/derivatives at every call) and none (affine in θ).
     vehicle = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.01, 0.002, -0.0196, 1.54)
     s = structure(vehicle)
-    theta = theta_vector({n: v / 40 for n, v in TRUTH.items()}) + 0.1  # K_dr ≠ 0 too
+    theta = theta_vector({n: v / 40 for n, v in SIMULATED.items()}) + 0.1  # K_dr ≠ 0 too
     for free in (
         ("Y_vdot", "Y_r", "Z_de", "K_pdot", "K_del", "N_rdot"),
         ("Y_v", "Y_r", "Z_de", "K_p", "K_del", "N_r"),
@@ -207,7 +207,7 @@ def test_model_matches_complex_step():
 
 def test_model_refresh_policy_carries_E_to_first_order():
     s = structure(VEHICLE)
-    theta = theta_vector(TRUTH)
+    theta = theta_vector(SIMULATED)
     idx = np.array([ITHETA[n] for n in SWAY_YAW])
     model = _Model(s, theta, idx)
     dt, th0 = 0.05, theta[idx].copy()
@@ -251,16 +251,16 @@ def test_noise_from_data_recovers_the_measurement_noise():
     assert np.all(ratio > 0.9) and np.all(ratio < 1.6), ratio
 
 
-def test_mekf_estimates_lie_within_a_few_sigma_of_the_truth():
+def test_mekf_estimates_lie_within_a_few_sigma_of_the_simulated_coefficients():
     e = _horizontal(seed=2)
     config = _start(SWAY_YAW)
-    truth = np.array([TRUTH[n] for n in SWAY_YAW])
+    simulated = np.array([SIMULATED[n] for n in SWAY_YAW])
     seen = []
     for method in ("mekf", "ekf"):
         est = identify([e], config, method, callback=lambda step: seen.append(step.iteration))
         assert est.status is Status.CONVERGED, est.message
-        assert np.all(np.abs(est.values - truth) < 4 * est.std), (est.values - truth) / est.std
-        assert np.all(est.std < 0.05 * np.abs(truth))  # far tighter than the 50 % prior
+        assert np.all(np.abs(est.values - simulated) < 4 * est.std), (est.values - simulated) / est.std
+        assert np.all(est.std < 0.05 * np.abs(simulated))  # far tighter than the 50 % prior
         assert est.iterations == len(e.t) and est.history.shape == (len(e.t), len(SWAY_YAW))
         np.testing.assert_array_equal(est.history[-1], est.values)
         np.testing.assert_allclose(est.history_std[-1], est.std)
@@ -296,7 +296,7 @@ def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     inputs = np.column_stack(
         [_prbs(rng, n, 0.05, 0.03, 0.5), _prbs(rng, n, 0.05, 0.03, 0.4), _prbs(rng, n, 0.05, 0.03, 0.7)]
     )
-    e = _simulate(TRUTH, inputs, 0.05, 1e-6, seed=7)
+    e = _simulate(SIMULATED, inputs, 0.05, 1e-6, seed=7)
     config = _start(free, spread=0.01)
     opts = dict(noise_std={s: 1e-6 for s in STATES}, refresh_tol=0.0)
     ekf = identify([e], config, "ekf", **opts)
@@ -334,13 +334,13 @@ def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     assert np.abs(Pm - Pm.T).max() <= 4 * eps * np.abs(Pm).max()  # symmetric to rounding
     sv = np.linalg.svd(J, compute_uv=False)
     assert sv[-1] / sv[0] < 1e-8 and sv[-1] > 0
-    truth = np.array([TRUTH[n] for n in free])
-    assert np.all(np.abs(mekf.values - truth) < 4 * mekf.std)
+    simulated = np.array([SIMULATED[n] for n in free])
+    assert np.all(np.abs(mekf.values - simulated) < 4 * mekf.std)
 
 
 def test_a_wildly_wrong_model_is_reported_as_diverged():
     e = _horizontal(seed=8, T=20.0)
-    wrong = {**TRUTH, "K_p": 10 * abs(TRUTH["K_p"]), "N_r": -0.1 * TRUTH["N_r"]}  # unstable
+    wrong = {**SIMULATED, "K_p": 10 * abs(SIMULATED["K_p"]), "N_r": -0.1 * SIMULATED["N_r"]}  # unstable
     config = ModelConfig(VEHICLE, wrong, ("Y_dr",))
     for method in ("mekf", "ekf"):
         est = identify([e], config, method)
@@ -436,10 +436,10 @@ def test_noise_free_data_diverge_with_the_reason():
     n = 400
     inputs = np.zeros((n, 3))
     inputs[:, 0] = _prbs(np.random.default_rng(11), n, 0.05, np.deg2rad(2.0), 0.5)
-    e = _simulate({**TRUTH, "N_r": 1.1 * TRUTH["N_r"]}, inputs, 0.05, 0.0, seed=12)
+    e = _simulate({**SIMULATED, "N_r": 1.1 * SIMULATED["N_r"]}, inputs, 0.05, 0.0, seed=12)
     assert noise_free_channels([e]) == list(STATES)
     assert noise_free_channels([_horizontal(seed=12, T=20.0)]) == []
-    config = ModelConfig(VEHICLE, dict(TRUTH), ("Y_v", "N_v", "Y_dr"))
+    config = ModelConfig(VEHICLE, dict(SIMULATED), ("Y_v", "N_v", "Y_dr"))
     est = identify([e], config, "mekf")
     assert est.status is Status.DIVERGED
     reason = est.message
@@ -455,15 +455,15 @@ def test_low_pass_filtered_data_fit_given_the_sensors_noise_in_the_config(tmp_pa
     # on 20 Hz data, forward and backward: no lag): its noise cannot be read off it, and with R
     # from the data the filter's own smoothing is a many-σ model error. Refused, naming what to
     # give. Given the sensors' σ (before the low-pass filter: the noise density in the band it
-    # passes, where the sway-yaw response is), the filter converges near the truth: within 4
+    # passes, where the sway-yaw response is), the filter converges near the simulated coefficients: within 4
     # Cramér-Rao bounds of the raw data with that noise (filtering only loses information).
     free = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr")
     raw = examples.experiments(seed=1)[0]  # horizontal: a rudder PRBS, 60 s at 20 Hz
     b, a = butter(2, 3.0, fs=1.0 / raw.dt)
     filtered = replace(raw, y=filtfilt(b, a, raw.y, axis=0))
     assert noise_free_channels([filtered]) == list(STATES)
-    truth = np.array([examples.TRUTH[n] for n in free])
-    bound = information([raw], examples.truth_config(free), noise_std=examples.NOISE).crlb_std
+    simulated = np.array([examples.EXAMPLE_COEFFICIENTS[n] for n in free])
+    bound = information([raw], examples.example_config(free), noise_std=examples.NOISE).crlb_std
     prior = examples.prior_config(free)  # 30 % off
     given = replace(prior, noise_std=examples.NOISE)
 
@@ -473,7 +473,7 @@ def test_low_pass_filtered_data_fit_given_the_sensors_noise_in_the_config(tmp_pa
         assert words in refused.message, refused.message
     est = identify([filtered], given, "mekf")
     assert est.status is Status.CONVERGED, est.message
-    assert np.all(np.abs(est.values - truth) < 4 * bound), (est.values - truth) / bound
+    assert np.all(np.abs(est.values - simulated) < 4 * bound), (est.values - simulated) / bound
     assert est.noise_std == examples.NOISE
 
     # The same through the command line: the noise in the config file, or the flag.
@@ -498,7 +498,7 @@ def test_low_pass_filtered_data_fit_given_the_sensors_noise_in_the_config(tmp_pa
     code, err, doc = cli(noted)
     assert code == 0, err
     values = np.array([doc["coefficients"][n]["value"] for n in free])
-    assert np.all(np.abs(values - truth) < 4 * bound), (values - truth) / bound
+    assert np.all(np.abs(values - simulated) < 4 * bound), (values - simulated) / bound
     assert doc["noise_std"] == examples.NOISE
     code, err, by_flag = cli(bare, "--noise-std", flag)
     assert code == 0 and by_flag["coefficients"] == doc["coefficients"], err
@@ -545,8 +545,8 @@ def test_model_error_matches_a_known_process_noise():
     forced = [IX["v"], IX["p"], IX["r"]]
     process = np.zeros(10)
     process[forced] = 3.0 * NOISE[forced]
-    e = _simulate(TRUTH, inputs, 0.05, NOISE, seed=15, process=process)
-    config = ModelConfig(VEHICLE, dict(TRUTH), ("Y_dr",))
+    e = _simulate(SIMULATED, inputs, 0.05, NOISE, seed=15, process=process)
+    config = ModelConfig(VEHICLE, dict(SIMULATED), ("Y_dr",))
     noise = dict(zip(STATES, NOISE))
     found = {}
     for margin in (0.0, 2.0):

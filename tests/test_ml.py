@@ -7,13 +7,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.identification.examples import FREE, NOISE, TRUTH, experiments, prior_config, truth_config
+from testbed.identification.examples import (
+    FREE,
+    NOISE,
+    EXAMPLE_COEFFICIENTS,
+    experiments,
+    prior_config,
+    example_config,
+)
 
 from testbed.errors import InputError
 from testbed.estimators import METHODS, Status, identify
 from testbed.identification.outputerror import information
 
-WANT = np.array([TRUTH[n] for n in FREE])
+WANT = np.array([EXAMPLE_COEFFICIENTS[n] for n in FREE])
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")
 
 
@@ -23,8 +30,8 @@ def data():
 
 
 @pytest.fixture(scope="module")
-def from_truth(data):
-    return identify(data, truth_config(), method="ml-gn")
+def from_simulated(data):
+    return identify(data, example_config(), method="ml-gn")
 
 
 def _same_optimum(a, b, sigmas):
@@ -40,15 +47,15 @@ def _vertical(duration=20.0):
     return [replace(v, measured=keep, y=v.y[:, [v.measured.index(s) for s in keep]])]
 
 
-def test_ml_gn_recovers_the_truth_within_its_cramer_rao_bounds(data, from_truth):
-    est = from_truth
+def test_ml_gn_recovers_the_simulated_coefficients_within_its_cramer_rao_bounds(data, from_simulated):
+    est = from_simulated
     assert est.status is Status.CONVERGED and est.converged
     z = (est.values - WANT) / est.std
     assert np.all(np.abs(z) < 4), dict(zip(FREE, z.round(2)))
     for state, sd in est.noise_std.items():
         assert abs(sd / NOISE[state] - 1) < 0.05, state
     # the bounds reuse the optimiser's last Fisher matrix: the same as a fresh analysis there
-    info = information(data, truth_config(), est.values)
+    info = information(data, example_config(), est.values)
     np.testing.assert_allclose(est.std, info.crlb_std, rtol=1e-3)
     np.testing.assert_allclose(est.crlb_corrected_std, info.crlb_corrected_std, rtol=1e-3)
     doc = json.loads(est.to_json())
@@ -58,7 +65,7 @@ def test_ml_gn_recovers_the_truth_within_its_cramer_rao_bounds(data, from_truth)
     assert abs(doc["initial_states"]["horizontal"]["u"] - 1.54) < 0.01  # absolute u
 
 
-def test_ml_gn_converges_from_40_percent_off(data, from_truth):
+def test_ml_gn_converges_from_40_percent_off(data, from_simulated):
     seen = []
     est = identify(
         data,
@@ -68,13 +75,13 @@ def test_ml_gn_converges_from_40_percent_off(data, from_truth):
         callback=lambda step: seen.append((step.iteration, step.values, step.cost)),
     )
     assert est.converged and est.start == "config"
-    _same_optimum(est, from_truth, 0.01)
+    _same_optimum(est, from_simulated, 0.01)
     assert [s[0] for s in seen] == list(range(1, est.iterations + 1))
     assert len(est.history) == est.iterations + 1
     np.testing.assert_allclose(seen[-1][1], est.values)
 
 
-def test_auto_fits_from_both_starts_and_keeps_the_least_cost(data, from_truth):
+def test_auto_fits_from_both_starts_and_keeps_the_least_cost(data, from_simulated):
     est = identify(data, prior_config(error=0.4), method="ml-gn")  # start="auto" is the default
     assert est.converged
     tried = {t["start"]: t for t in est.starts}
@@ -82,23 +89,23 @@ def test_auto_fits_from_both_starts_and_keeps_the_least_cost(data, from_truth):
     assert all(t["status"] == "converged" for t in tried.values())
     assert est.cost == min(t["cost"] for t in tried.values()) and est.start in tried
     assert "least cost of 2 starts" in est.start_reason
-    _same_optimum(est, from_truth, 0.01)
+    _same_optimum(est, from_simulated, 0.01)
     doc = json.loads(est.to_json())
     assert [t["start"] for t in doc["starts"]] == [t["start"] for t in est.starts]
 
 
-def test_auto_from_an_a_priori_model_that_diverges_over_the_record(data, from_truth):
+def test_auto_from_an_a_priori_model_that_diverges_over_the_record(data, from_simulated):
     # ±40 % alternating makes the a-priori yaw-sway model unstable: its response over the whole
     # record diverges, but not over the first multiple-shooting stage's segments
-    prior = truth_config().with_coefficients(
-        {n: TRUTH[n] * (1.4 if i % 2 else 0.6) for i, n in enumerate(FREE)}
+    prior = example_config().with_coefficients(
+        {n: EXAMPLE_COEFFICIENTS[n] * (1.4 if i % 2 else 0.6) for i, n in enumerate(FREE)}
     )
     est = identify(data, prior, method="ml-gn")  # start="auto" is the default
     assert est.converged
-    _same_optimum(est, from_truth, 0.01)
+    _same_optimum(est, from_simulated, 0.01)
     alone = identify(data, prior, method="ml-gn", start="config")
     assert alone.converged and alone.start == "config"
-    _same_optimum(alone, from_truth, 0.01)
+    _same_optimum(alone, from_simulated, 0.01)
 
 
 def test_the_least_cost_fit_is_kept_even_unconverged():
@@ -116,8 +123,8 @@ def test_the_least_cost_fit_is_kept_even_unconverged():
 
 def test_ml_nr_and_ml_nm_converge_on_an_easy_case():
     data = _vertical()
-    prior = truth_config(VERTICAL).with_coefficients(
-        {n: TRUTH[n] * (1.1 if i % 2 else 0.9) for i, n in enumerate(VERTICAL)}
+    prior = example_config(VERTICAL).with_coefficients(
+        {n: EXAMPLE_COEFFICIENTS[n] * (1.1 if i % 2 else 0.9) for i, n in enumerate(VERTICAL)}
     )
     gn = identify(data, prior, method="ml-gn")
     nr = identify(data, prior, method="ml-nr")
@@ -133,13 +140,13 @@ def test_ml_nr_divergence_is_reported_not_raised():
     # Roll damping three times too large: Eq. 10's first step (indefinite Hessian + λI) makes the
     # roll mode unstable, while Gauss-Newton converges from the same start (the paper's finding).
     data = experiments(seed=1, duration=10.0)[1:]
-    prior = truth_config(("K_p",)).with_coefficients({"K_p": 3 * TRUTH["K_p"]})
+    prior = example_config(("K_p",)).with_coefficients({"K_p": 3 * EXAMPLE_COEFFICIENTS["K_p"]})
     est = identify(data, prior, method="ml-nr", max_iter=30, start="config")
     assert est.status is Status.DIVERGED and not est.converged
     assert np.all(np.isfinite(est.values)) and np.isfinite(est.cost) and np.all(np.isfinite(est.std))
     assert json.loads(est.to_json())["converged"] is False
     gn = identify(data, prior, method="ml-gn")
-    assert gn.converged and abs(gn.values[0] - TRUTH["K_p"]) < 4 * gn.std[0]
+    assert gn.converged and abs(gn.values[0] - EXAMPLE_COEFFICIENTS["K_p"]) < 4 * gn.std[0]
 
 
 def test_iteration_limit_is_not_convergence(data):
@@ -156,17 +163,21 @@ def test_iteration_limit_is_not_convergence(data):
 
 def test_unknown_coefficient_in_free_is_input_error(data):
     with pytest.raises(InputError, match="Y_nope"):
-        identify(data, replace(truth_config(), free=("Y_v", "Y_nope")), method="ml-gn")
+        identify(data, replace(example_config(), free=("Y_v", "Y_nope")), method="ml-gn")
 
 
-def test_diverging_a_priori_model_is_input_error_unless_multiple_shooting_starts_from_it(data, from_truth):
-    prior = truth_config().with_coefficients({"M_q": 3 * abs(TRUTH["M_q"])})  # pitch unstable
+def test_diverging_a_priori_model_is_input_error_unless_multiple_shooting_starts_from_it(
+    data, from_simulated
+):
+    prior = example_config().with_coefficients(
+        {"M_q": 3 * abs(EXAMPLE_COEFFICIENTS["M_q"])}
+    )  # pitch unstable
     with pytest.raises(InputError, match="a-priori model diverges.*experiment"):
         identify(data, prior, method="ml-lm", start="config")
     est = identify(data, prior, method="ml-gn", start="config")  # on short segments it does not diverge
-    assert est.converged and abs(est.cost - from_truth.cost) < 1e-6 * abs(from_truth.cost)
+    assert est.converged and abs(est.cost - from_simulated.cost) < 1e-6 * abs(from_simulated.cost)
     with pytest.raises(InputError, match="start='sideways'"):
-        identify(data, truth_config(), method="ml-gn", start="sideways")
+        identify(data, example_config(), method="ml-gn", start="sideways")
 
 
 @pytest.mark.skipif(
@@ -175,7 +186,7 @@ def test_diverging_a_priori_model_is_input_error_unless_multiple_shooting_starts
 )
 def test_start_from_the_mekf_estimate():
     data = _vertical(duration=30.0)
-    prior = truth_config(VERTICAL).with_coefficients({n: 1.2 * TRUTH[n] for n in VERTICAL})
+    prior = example_config(VERTICAL).with_coefficients({n: 1.2 * EXAMPLE_COEFFICIENTS[n] for n in VERTICAL})
     est = identify(data, prior, method="ml-gn", start="mekf")
     assert est.start == "mekf" and est.converged
     gn = identify(data, prior, method="ml-gn")
@@ -199,9 +210,9 @@ def _beyond_the_local_basin(free, duration, experiment=slice(None)):
     return data, prior, reference
 
 
-def _converges_to_the_truth(est, reference, free, sigmas=0.25):
+def _converges_to_the_simulated(est, reference, free, sigmas=0.25):
     assert est.converged and est.start == "config", est.status
-    want = np.array([TRUTH[n] for n in free])
+    want = np.array([EXAMPLE_COEFFICIENTS[n] for n in free])
     z = (est.values - want) / est.std
     assert np.all(np.abs(z) < 4), dict(zip(free, z.round(2)))
     # the simplex's rule stops on the spread of J_M, not its slope: along the sway-yaw valley
@@ -214,14 +225,14 @@ def test_ml_nm_converges_from_beyond_the_gauss_newton_basin():
     # simplex reaches the optimum through the 60 s and 120 s stages of its continuation
     data, prior, reference = _beyond_the_local_basin(LATERAL, 150.0, slice(0, 1))
     est = identify(data, prior, method="ml-nm", start="config")
-    _converges_to_the_truth(est, reference, LATERAL)
+    _converges_to_the_simulated(est, reference, LATERAL)
 
 
 def test_ml_gn_converges_from_beyond_the_levenberg_marquardt_basin():
     # the same start, where ml-lm stays stuck
     data, prior, reference = _beyond_the_local_basin(LATERAL, 150.0, slice(0, 1))
     est = identify(data, prior, method="ml-gn", start="config")
-    _converges_to_the_truth(est, reference, LATERAL, sigmas=0.01)
+    _converges_to_the_simulated(est, reference, LATERAL, sigmas=0.01)
 
 
 @pytest.mark.slow
@@ -233,20 +244,20 @@ def test_ml_nm_converges_on_21_free_coefficients_from_40_percent_off():
     free = FREE + ("X_u", "X_udot", "Z_wdot", "Z_qdot", "M_wdot", "M_qdot")
     data, prior, reference = _beyond_the_local_basin(free, 300.0)
     est = identify(data, prior, method="ml-nm", start="config", max_iter=30_000)
-    _converges_to_the_truth(est, reference, free, sigmas=1.5)
+    _converges_to_the_simulated(est, reference, free, sigmas=1.5)
 
 
-def test_known_noise_from_the_config_is_held_and_weighs_the_fit(data, from_truth):
+def test_known_noise_from_the_config_is_held_and_weighs_the_fit(data, from_simulated):
     # [identify] noise_std: the channels it names keep that σ (not re-estimated), so the
     # likelihood weighs them by it: r's σ doubled quarters r's share of the Fisher information,
     # so no bound shrinks (M only loses a positive semidefinite part) and N_r's grows
-    known = replace(truth_config(), noise_std={"r": 2 * NOISE["r"]})
+    known = replace(example_config(), noise_std={"r": 2 * NOISE["r"]})
     est = identify(data, known, method="ml-gn", start="config")
     assert est.converged and est.noise_std["r"] == 2 * NOISE["r"]
     for state, sd in est.noise_std.items():
         if state != "r":
-            assert sd == pytest.approx(from_truth.noise_std[state], rel=1e-3)
+            assert sd == pytest.approx(from_simulated.noise_std[state], rel=1e-3)
     i = FREE.index("N_r")
-    assert np.all(est.std >= 0.99 * from_truth.std) and est.std[i] > 1.01 * from_truth.std[i]
-    z = (est.values - from_truth.values) / est.std
+    assert np.all(est.std >= 0.99 * from_simulated.std) and est.std[i] > 1.01 * from_simulated.std[i]
+    z = (est.values - from_simulated.values) / est.std
     assert np.all(np.abs(z) < 1.0)  # the same data: the optimum moves within its bounds

@@ -13,7 +13,7 @@ from testbed.models.linear import (
     tilde,
 )
 
-from testbed.identification.examples import TRUTH, VEHICLE  # noqa: E402
+from testbed.identification.examples import EXAMPLE_COEFFICIENTS, VEHICLE  # noqa: E402
 
 
 def test_matrices_match_the_spec_table():
@@ -83,7 +83,7 @@ def test_discretize_equals_scipy_expm_from_fine_to_coarse_steps():
     from steps far below the fastest mode to steps that square many times."""
     from scipy.linalg import expm
 
-    A, B, S = continuous(structure(VEHICLE), theta_vector(TRUTH))
+    A, B, S = continuous(structure(VEHICLE), theta_vector(EXAMPLE_COEFFICIENTS))
     big = np.zeros((14, 14))
     big[:10] = np.column_stack([A, B, S])
     for dt in (1e-4, 0.02, 0.5, 5.0, 60.0):

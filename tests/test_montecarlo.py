@@ -25,7 +25,7 @@ def test_mekf_reports_the_scatter_of_its_estimates():
     fits = fit_seeds(
         seeds, lambda seed: montecarlo.experiments(seed, 30.0), montecarlo.prior_config(), ["mekf"]
     )["mekf"]
-    sc = scatter(fits, np.array([montecarlo.TRUTH[n] for n in montecarlo.FREE]))
+    sc = scatter(fits, np.array([montecarlo.EXAMPLE_COEFFICIENTS[n] for n in montecarlo.FREE]))
     assert sc.used == seeds
     bias, ratio = sc.bias / sc.reported, sc.reported / sc.std
     assert np.all(np.abs(bias) < 2.0), bias

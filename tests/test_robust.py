@@ -50,10 +50,10 @@ def unstable():
     def pole(f):
         return _largest_pole(config.with_coefficients({"N_v": f * nv})) - POLE
 
-    truth = replace(
+    simulated = replace(
         config.with_coefficients({"N_v": brentq(pole, 1.0, 30.0) * nv}), free=SWAY_YAW, outputs=LATERAL
     )
-    A, B, S = continuous(structure(truth.vehicle), theta_vector(truth.coefficients))
+    A, B, S = continuous(structure(simulated.vehicle), theta_vector(simulated.coefficients))
     Phi, Gamma, s = discretize(A, B, S, DT)
     t = np.arange(0.0, DURATION, DT)
     program = PRBS.program(np.random.default_rng(3))
@@ -63,21 +63,21 @@ def unstable():
         x = Phi @ x + Gamma @ inputs[k] + s
     noise = {c: NOISE_STD[c] for c in LATERAL}
     experiment = outputerror.synthetic(
-        truth, t, inputs, noise, LATERAL, np.random.default_rng(1), name="autopilot"
+        simulated, t, inputs, noise, LATERAL, np.random.default_rng(1), name="autopilot"
     )
-    # the bounds at the truth with the noise known, the initial states eliminated (Schur
+    # the bounds at the simulated coefficients with the noise known, the initial states eliminated (Schur
     # complement): independent of any fit
     sigma = np.sqrt(
-        np.diag(np.linalg.inv(outputerror.information([experiment], truth, noise_std=noise).fisher))
+        np.diag(np.linalg.inv(outputerror.information([experiment], simulated, noise_std=noise).fisher))
     )
-    return truth, experiment, sigma
+    return simulated, experiment, sigma
 
 
 @pytest.fixture(scope="module")
 def optimum(unstable):
     """The reference: ml-gn started at the truth."""
-    truth, e, _ = unstable
-    return identify([e], truth, method="ml-gn", start="config")
+    simulated, e, _ = unstable
+    return identify([e], simulated, method="ml-gn", start="config")
 
 
 def test_the_course_unstable_vehicle_is_unstable_and_held(unstable):
@@ -86,8 +86,8 @@ def test_the_course_unstable_vehicle_is_unstable_and_held(unstable):
     # where open loop the root grows 403-fold
     config = analytic_config()[0]
     assert _largest_pole(config) <= 0.0  # the analytic torpedo is straight-line stable
-    truth, e, _ = unstable
-    A = continuous(structure(truth.vehicle), theta_vector(truth.coefficients))[0]
+    simulated, e, _ = unstable
+    A = continuous(structure(simulated.vehicle), theta_vector(simulated.coefficients))[0]
     ev = np.linalg.eigvals(A)
     root = ev[np.argmax(ev.real)]
     assert 0.02 - 1e-9 <= root.real <= 0.05 and root.imag == 0.0, root
@@ -100,10 +100,10 @@ DELTA_J = starts.DELTA_J
 
 @pytest.mark.parametrize("seed", [0, 2])  # the start's model: course-stable; diverging at +1.3 1/s
 def test_default_ml_gn_reaches_the_optimum_of_a_course_unstable_vehicle(unstable, optimum, seed):
-    truth, e, sigma = unstable
+    simulated, e, sigma = unstable
     signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(SWAY_YAW))
-    start = truth.with_coefficients(
-        {n: truth.coefficients[n] * (1 + 0.4 * s) for n, s in zip(SWAY_YAW, signs)}
+    start = simulated.with_coefficients(
+        {n: simulated.coefficients[n] * (1 + 0.4 * s) for n, s in zip(SWAY_YAW, signs)}
     )
     fit = identify([e], start, method="ml-gn")
     assert fit.converged and optimum.converged, (fit.status, optimum.status)

@@ -28,16 +28,16 @@ ZERO = ("Z_q", "M_w", "N_v", "N_p")  # 0 in the user's a-priori config, not in t
 EXPERIMENTS = {"rudder": ((1, 0, 0), 0.001), "elevators": ((0, 1, 1), 0.001), "roll": ((0, 1, -1), 0.001)}
 
 
-def flights(truth, seed=3):
-    """Scenario II's three PRBS experiments (60 s at 20 Hz, open loop) flown by `truth`'s linear
-    model, with the testbed's sensor noise."""
+def flights(simulated, seed=3):
+    """Scenario II's three PRBS experiments (60 s at 20 Hz, open loop) flown by the linear model
+    `simulated`, with the testbed's sensor noise."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 60.0, 0.05)
     out = []
     for name, (signs, amplitude) in EXPERIMENTS.items():
         program = Prbs(amplitude=amplitude, order=10, clock=0.1).program(rng)
         fins = np.outer([program(ti, None) for ti in t], signs)
-        out.append(synthetic(truth, t, fins, NOISE_STD, measured=MEASURED, rng=rng, name=name))
+        out.append(synthetic(simulated, t, fins, NOISE_STD, measured=MEASURED, rng=rng, name=name))
     return out
 
 
@@ -51,19 +51,19 @@ def write(tmp, data, config, name):
 
 @pytest.fixture(scope="module")
 def foreign(tmp_path_factory):
-    """The foreign torpedo's data, its truth, and the user's a-priori config (ZERO at 0) as a
+    """The foreign torpedo's data, the model they were simulated from, and the user's a-priori config (ZERO at 0) as a
     candidate list and as an explicit list, written as files."""
     analytic = analytic_config()[0]
     c = analytic.coefficients
-    truth = analytic.with_coefficients(
+    simulated = analytic.with_coefficients(
         {"Y_v": 1.3 * c["Y_v"], "N_r": 0.8 * c["N_r"], "M_q": 1.2 * c["M_q"]} | {n: 1.5 * c[n] for n in ZERO}
     )
     prior = analytic.with_coefficients(dict.fromkeys(ZERO, 0.0))
     tmp = tmp_path_factory.mktemp("foreign")
-    data = flights(truth)
+    data = flights(simulated)
     csvs, candidates = write(tmp, data, replace(prior, screen=True), "candidates")
     explicit = write(tmp, data, replace(prior, screen=False), "explicit")[1]
-    return data, truth, csvs, candidates, explicit
+    return data, simulated, csvs, candidates, explicit
 
 
 @pytest.fixture(scope="module")
@@ -85,26 +85,26 @@ def explicit_run(foreign, tmp_path_factory):
 def test_a_priori_zeros_the_data_determine_are_freed_from_a_short_candidate_list(foreign, tmp_path):
     """ZERO and K_dr as candidates, the rest at the foreign body's values: ZERO is estimated (4
     to 100 σ from 0, where the foreign body has them), K_dr (0 in both bodies) is fixed."""
-    _, truth, csvs, _, _ = foreign
+    _, simulated, csvs, _, _ = foreign
     path = tmp_path / "short.toml"
-    prior = truth.with_coefficients(dict.fromkeys(ZERO, 0.0))
+    prior = simulated.with_coefficients(dict.fromkeys(ZERO, 0.0))
     path.write_text(config_text(replace(prior, free=ZERO + ("K_dr",), screen=True)))
     done = identify_data(csvs, config=path)
     assert done.estimate.free == ZERO and list(done.fixed) == ["K_dr"]
     for n, value, std in zip(done.estimate.free, done.estimate.values, done.estimate.std):
-        assert abs(value) > 4 * std and abs(value - truth.coefficients[n]) < 4 * std, (n, value, std)
+        assert abs(value) > 4 * std and abs(value - simulated.coefficients[n]) < 4 * std, (n, value, std)
 
 
 @pytest.mark.slow
 def test_a_candidate_list_frees_what_the_data_determine_even_at_an_a_priori_zero(foreign, candidate_run):
-    _, truth, _, candidates, _ = foreign
+    _, simulated, _, candidates, _ = foreign
     config = read_config(candidates)
     assert config.screen and all(config.coefficients[n] == 0.0 for n in ZERO)
     done, doc = candidate_run
     est = dict(zip(done.estimate.free, zip(done.estimate.values, done.estimate.std)))
     for n in ZERO:  # determined at > 4 σ, and where the foreign body has them
         value, std = est[n]
-        assert abs(value) > 4 * std and abs(value - truth.coefficients[n]) < 4 * std, (n, value, std)
+        assert abs(value) > 4 * std and abs(value - simulated.coefficients[n]) < 4 * std, (n, value, std)
     # what the data cannot tell from 0 is fixed at its a-priori value (K_dr is 0 in both bodies),
     # with its reason; the rest of the list is estimated, and nothing is only reported
     assert "K_dr" in doc["fixed"] and set(doc["fixed"]) == set(done.fixed) and "screen" not in doc
@@ -146,16 +146,16 @@ def test_a_tiny_a_priori_value_the_data_determine_is_not_fixed():
     thousandth of it: the bound at the a-priori value is far above 50 % of that value (the old
     rule fixed it), but the estimate is many σ from 0."""
     analytic = analytic_config()[0]
-    truth = analytic.with_coefficients({"K_v": 15 * analytic.coefficients["K_v"]})
-    prior = replace(truth.with_coefficients({"K_v": truth.coefficients["K_v"] / 1000}), screen=True)
-    data = flights(truth, seed=5)
+    simulated = analytic.with_coefficients({"K_v": 15 * analytic.coefficients["K_v"]})
+    prior = replace(simulated.with_coefficients({"K_v": simulated.coefficients["K_v"] / 1000}), screen=True)
+    data = flights(simulated, seed=5)
     at_prior = identifiability(data, prior, noise_from_data(prior.fitted(data)))
     k = at_prior.free.index("K_v")
     assert at_prior.crlb_std[k] > UNCERTAIN * abs(at_prior.values[k])
     s = screening(data, prior)
     assert "K_v" in s.config.free
     value, std = dict(zip(s.fit.free, zip(s.fit.values, s.fit.std)))["K_v"]
-    assert abs(value) > 4 * std and abs(value - truth.coefficients["K_v"]) < 4 * std
+    assert abs(value) > 4 * std and abs(value - simulated.coefficients["K_v"]) < 4 * std
 
 
 def test_backward_elimination_keeps_the_partner_of_a_drifting_pair():
@@ -189,7 +189,7 @@ def test_the_flags_override_the_config_and_an_empty_screen_is_a_one_line_error(f
     explicitly, it is fitted and the screen, which would fix it, reported in one line; with
     --screen the screen leaves nothing to estimate: a one-line error, nothing written. As a
     candidate list the other way round, --free-all fitting it."""
-    _, truth, csvs, _, _ = foreign
+    _, simulated, csvs, _, _ = foreign
     out = tmp_path / "e.json"
 
     def identify(path, *flags):
@@ -209,6 +209,6 @@ def test_the_flags_override_the_config_and_an_empty_screen_is_a_one_line_error(f
 
     for screen, flag in ((False, "--screen"), (True, "--free-all")):
         path = tmp_path / f"only-{screen}.toml"
-        path.write_text(config_text(replace(truth, free=("K_dr",), screen=screen)))
+        path.write_text(config_text(replace(simulated, free=("K_dr",), screen=screen)))
         assert (identify(path) is None) is screen
         assert (identify(path, flag) is None) is not screen

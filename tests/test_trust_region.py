@@ -8,7 +8,7 @@ from scipy.optimize import NonlinearConstraint, minimize
 
 from testbed.identification import outputerror
 from testbed.estimators import identify, trust_region
-from testbed.identification.examples import experiments, truth_config
+from testbed.identification.examples import experiments, example_config
 
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")
 
@@ -43,7 +43,7 @@ def test_step_solves_the_trust_region_subproblem_as_scipy_does(delta, rank):
 
 def test_hessian_is_the_second_derivative_of_the_cost_with_the_initial_states_fitted():
     data = experiments(seed=2, duration=20.0)[1:]
-    config = truth_config(VERTICAL)
+    config = example_config(VERTICAL)
     prob = outputerror.problem(data, config)
     theta = prob.start * 1.05  # off the optimum, where the second-order terms count
     R = trust_region.point(prob, prob.start).R
@@ -70,7 +70,7 @@ def test_hessian_is_the_second_derivative_of_the_cost_with_the_initial_states_fi
 
 def test_segments_cover_the_record_each_with_its_own_initial_state():
     data = experiments(seed=1, duration=60.0, noise=None)  # noise-free
-    prob = outputerror.problem(data, truth_config())
+    prob = outputerror.problem(data, example_config())
     seg = outputerror.segmented(prob, 16, trust_region.LEAST_SEGMENT)
     per_record = len(seg.records) // len(prob.records)
     assert per_record == min(16, len(prob.records[0].y) // trust_region.LEAST_SEGMENT)
@@ -79,14 +79,14 @@ def test_segments_cover_the_record_each_with_its_own_initial_state():
         np.testing.assert_array_equal(np.vstack([q.y for q in pieces]), r.y)
         np.testing.assert_array_equal(np.vstack([q.inputs for q in pieces]), r.inputs)
     assert seg.n_params == prob.n_free + sum(len(r.measured) for r in seg.records)
-    # noise-free data at the truth: every segment's initial state is fitted exactly
+    # noise-free data at the simulated coefficients: every segment's initial state is fitted exactly
     for e in trust_region.point(seg, prob.start).res:
         assert np.max(np.abs(e)) < 1e-8
 
 
 def test_a_stationary_point_is_checked_for_a_minimum():
     data = experiments(seed=2, duration=20.0)[1:]
-    config = truth_config(VERTICAL)
+    config = example_config(VERTICAL)
     est = identify(data, config, method="ml-gn", start="config")
     assert est.converged
     prob = outputerror.problem(data, config)

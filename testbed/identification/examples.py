@@ -3,7 +3,7 @@ synthetic experiments simulated exactly from the linear model (`linear.synthetic
 
 The data's model is known exactly, so the studies (Monte Carlo against the Cramér-Rao bounds,
 the bad-input corpus), the benchmarks and the tests use it wherever an estimator is to be checked
-against the truth rather than against the MuJoCo plant. Two Scenario-II-like experiments: a
+against the coefficients the data were simulated from rather than against the MuJoCo plant. Two Scenario-II-like experiments: a
 rudder PRBS, and an elevator PRBS with a differential part for roll; all ten states measured.
 """
 
@@ -30,7 +30,7 @@ VEHICLE = Vehicle(
 _U = VEHICLE.speed
 # REMUS-like linear coefficients (Prestero 2001, linearised at U), with the Munk moments and the
 # rate damping adjusted so that the linear model is stable in both planes.
-TRUTH = dict.fromkeys(COEFFICIENTS, 0.0) | dict(
+EXAMPLE_COEFFICIENTS = dict.fromkeys(COEFFICIENTS, 0.0) | dict(
     X_udot=-0.93,
     X_u=-2 * 1.62 * _U,
     Y_vdot=-35.5,
@@ -79,14 +79,15 @@ FREE = (
 NOISE = dict(u=0.01, v=0.01, w=0.01, p=0.003, q=0.003, r=0.003, phi=0.002, theta=0.002, psi=0.002, z=0.02)
 
 
-def truth_config(free=FREE) -> ModelConfig:
-    return ModelConfig(VEHICLE, dict(TRUTH), tuple(free), "truth")
+def example_config(free=FREE) -> ModelConfig:
+    """The example vehicle at its own coefficients, `free` to be identified."""
+    return ModelConfig(VEHICLE, dict(EXAMPLE_COEFFICIENTS), tuple(free), "example")
 
 
 def prior_config(free=FREE, error: float = 0.3) -> ModelConfig:
-    """A-priori values `error` off the truth, alternating sign (a stable starting model)."""
-    off = {n: TRUTH[n] * (1 + error if i % 3 == 0 else 1 - error) for i, n in enumerate(free)}
-    return truth_config(free).with_coefficients(off)
+    """A-priori values `error` off the example's coefficients, alternating sign (a stable starting model)."""
+    off = {n: EXAMPLE_COEFFICIENTS[n] * (1 + error if i % 3 == 0 else 1 - error) for i, n in enumerate(free)}
+    return example_config(free).with_coefficients(off)
 
 
 def _prbs(rng: np.random.Generator, n: int, hold: int, amplitude: float) -> np.ndarray:
@@ -113,6 +114,6 @@ def experiments(
     """The two experiments with noise realisation `seed` (the input design is fixed)."""
     rng = np.random.default_rng(10_000 + seed)
     return [
-        synthetic(truth_config(), t, u, noise, rng=rng, name=name)
+        synthetic(example_config(), t, u, noise, rng=rng, name=name)
         for name, (t, u) in inputs(duration, dt).items()
     ]

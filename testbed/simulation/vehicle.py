@@ -54,7 +54,7 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
     """Raise `InputError` naming the first missing or wrong element the plant relies on.
 
     The one check for the plant and the analytic model alike: `load_model` runs it, and so do
-    `Plant` and `truth.analytic_model` on a model passed in (it may have been changed).
+    `Plant` and `analytic.analytic_model` on a model passed in (it may have been changed).
     """
 
     def need(kind, name, what):
