@@ -17,6 +17,8 @@ from pathlib import Path
 
 from testbed.threads import one_blas_thread
 
+__all__ = ["BUILTIN_SCENARIOS", "INTERNAL_ERROR", "main", "parser"]
+
 one_blas_thread()  # before numpy loads
 
 from testbed.errors import InputError  # noqa: E402

@@ -24,6 +24,32 @@ import numpy as np
 from testbed.errors import InputError, atomic_write_text, is_number
 from testbed.models.linear import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
 
+__all__ = [
+    "CSV_COLUMNS",
+    "Experiment",
+    "MAX_DATA",
+    "MIN_NOISE_STD",
+    "MIN_ROWS",
+    "ModelConfig",
+    "WRAPPING",
+    "check_config",
+    "check_experiment",
+    "check_free",
+    "check_noise_std",
+    "config_text",
+    "csv_text",
+    "load_data",
+    "median",
+    "number",
+    "parse_config",
+    "read_config",
+    "read_csv",
+    "read_estimates",
+    "run_csvs",
+    "write_config",
+    "write_csv",
+]
+
 CSV_COLUMNS = ("t",) + STATES + INPUTS
 MIN_ROWS = 3  # the fewest samples a record can have: the estimators difference and fit x0 on them
 # The largest magnitude a measured state or input may have, in SI units (m, m/s, rad, rad/s):

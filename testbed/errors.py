@@ -21,6 +21,19 @@ import tempfile
 from pathlib import Path
 from typing import Mapping, Sequence
 
+__all__ = [
+    "InputError",
+    "atomic_directory",
+    "atomic_file",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "check_output_directory",
+    "check_output_file",
+    "check_outputs",
+    "is_number",
+    "is_stream",
+]
+
 
 def _umask() -> int:
     umask = os.umask(0)

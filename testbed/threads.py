@@ -3,6 +3,8 @@ is fastest, and numpy's and scipy's OpenBLAS pools contend on small machines."""
 
 import os
 
+__all__ = ["one_blas_thread"]
+
 
 def one_blas_thread() -> None:
     """Ask numpy's and scipy's BLAS for one thread, unless the user chose (only before numpy loads)."""

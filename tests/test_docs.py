@@ -215,13 +215,24 @@ def test_files_every_signal_with_its_fields_and_defaults():
                 assert f"`{f.name}` ({default})" in row[1], f"signal {kind}: {f.name} default {default}"
 
 
+def accepted_keys(doc: dict) -> tuple[str, ...]:
+    """The keys the scenario reader accepts where `doc` has an unknown one, read off its error."""
+    from testbed.errors import InputError
+    from testbed.simulation.scenario import parse_scenario
+
+    with pytest.raises(InputError, match="unknown key 'unknown'; expected ") as error:
+        parse_scenario(doc, "probe")
+    return tuple(str(error.value).split("; expected ")[1].split(", "))
+
+
 def test_files_scenario_keys():
     from testbed.simulation import scenario
     from testbed.simulation.measurements import Sensors
 
     body = section(page("files.md"), "Scenario file")
-    top = getattr(scenario, "_TOP")  # the keys the reader accepts
-    experiment = getattr(scenario, "_EXPERIMENT")
+    top = accepted_keys({"unknown": 1})  # the keys the reader accepts, as its error lists them
+    experiment = accepted_keys({"experiment": [{"name": "e", "unknown": 1}]})
+    assert {"name", "duration", "experiment"} <= set(top) and {"name", "rudder"} <= set(experiment)
     sensors = tuple(f.name for f in fields(Sensors)) + ("measured",)
     assert missing_code(body, top + experiment + sensors + tuple(scenario.LOOPS) + scenario.CHANNELS) == []
 

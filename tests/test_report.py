@@ -184,7 +184,7 @@ def _umask() -> int:
 def test_attitude_quaternions_are_z_y_x_euler_angles():
     rng = np.random.default_rng(3)
     phi, theta, psi = rng.uniform(-3, 3, (3, 50))
-    q = recording._euler_quat(phi, theta, psi)
+    q = recording.euler_quaternions(phi, theta, psi)
     expected = Rotation.from_euler("ZYX", np.column_stack([psi, theta, phi])).as_quat()
     assert np.allclose(np.abs(np.sum(q * expected, axis=1)), 1.0, atol=1e-12)
 

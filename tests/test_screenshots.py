@@ -60,7 +60,7 @@ def test_tabs_are_switched_in_a_copy_of_the_blueprint():
 
 
 def test_cursor_is_seconds_on_duration_timelines_and_an_index_on_sequences():
-    assert shots._cursor("1.5", 2) == 1_500_000_000 and shots._cursor("7", 1) == 7
+    assert shots.timeline_cursor("1.5", 2) == 1_500_000_000 and shots.timeline_cursor("7", 1) == 7
 
 
 def test_without_a_browser_it_says_so_and_exits_0(tmp_path, monkeypatch, capsys):

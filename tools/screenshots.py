@@ -273,7 +273,7 @@ def with_active_tab(blueprint: dict, name: str) -> dict:
     return out
 
 
-def _cursor(value: str, kind: int) -> int:
+def timeline_cursor(value: str, kind: int) -> int:
     """`--at` in the timeline's unit: seconds -> ns on duration/timestamp timelines, else an index."""
     return int(round(float(value) * 1e9)) if kind in (2, 3) else int(value)
 
@@ -317,7 +317,7 @@ def shoot(
                     viewer.control(set_blueprint_request(with_active_tab(blueprint, name)))
                 for value in at or [None]:
                     if value is not None:
-                        viewer.control(set_time_request(timeline, _cursor(value, kinds[timeline])))
+                        viewer.control(set_time_request(timeline, timeline_cursor(value, kinds[timeline])))
                     time.sleep(settle)
                     path = out / (
                         _slug(name or "viewer") + (f"-{_slug(value)}" if value is not None else "") + ".png"

@@ -21,6 +21,24 @@ from testbed.identification.outputerror import check_fit, crlb, fisher
 from testbed.simulation.measurements import noise_from_data
 from testbed.models.linear import ITHETA, IX, NX, Structure, structure, theta_vector, tilde, unobserved
 
+__all__ = [
+    "Comparison",
+    "Identifiability",
+    "SIGNIFICANT",
+    "Screen",
+    "Screened",
+    "Structural",
+    "UNCERTAIN",
+    "compare",
+    "identifiability",
+    "identify_screened",
+    "insignificant",
+    "screen",
+    "screening",
+    "structural",
+    "unidentified",
+]
+
 
 @dataclass(frozen=True)
 class Structural:

@@ -26,6 +26,17 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.identification.outputerror import predict
 
+__all__ = [
+    "CONFIDENCE",
+    "ChannelMetrics",
+    "Validation",
+    "Whiteness",
+    "chi2_sf",
+    "fit_percent",
+    "validate",
+    "whiteness",
+]
+
 LAGS = 25  # autocorrelation lags tested (0.5 s at 50 Hz: beyond the torpedo's fast modes)
 CONFIDENCE = 2.576  # 99 % two-sided normal quantile
 WHITE_P = 0.01  # Ljung-Box p-value at or above which a residual counts as white

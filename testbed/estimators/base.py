@@ -16,6 +16,20 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 
+__all__ = [
+    "Callback",
+    "Estimate",
+    "Method",
+    "OptionError",
+    "Options",
+    "Outcome",
+    "Progress",
+    "Status",
+    "count_option",
+    "is_count",
+    "option",
+]
+
 
 class Status(enum.Enum):
     """How a fit ended; only CONVERGED is a success. The value is the message."""

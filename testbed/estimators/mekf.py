@@ -194,6 +194,8 @@ from testbed.models.linear import (
     theta_vector,
 )
 
+__all__ = ["EKF", "FilterEstimate", "FilterOptions", "MEKF", "sqrt_update", "svd_root", "tria"]
+
 
 # ---------------------------------------------------------------- square-root kernels (pure)
 

@@ -41,6 +41,19 @@ from testbed.estimators.base import (
     option,
 )
 
+__all__ = [
+    "DELTA_J",
+    "Fit",
+    "GaussNewtonOptions",
+    "ML_GN",
+    "ML_LM",
+    "ML_NM",
+    "ML_NR",
+    "NewtonRaphsonOptions",
+    "SimplexOptions",
+    "TrustRegionOptions",
+]
+
 
 def _terms(prob: outputerror.Problem, p: np.ndarray, xs, res, tol: float):
     """R, g and M at `p` (`outputerror.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is

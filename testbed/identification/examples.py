@@ -15,6 +15,17 @@ from testbed.data import Experiment, ModelConfig
 from testbed.identification.outputerror import synthetic
 from testbed.models.linear import COEFFICIENTS, Vehicle
 
+__all__ = [
+    "EXAMPLE_COEFFICIENTS",
+    "FREE",
+    "NOISE",
+    "VEHICLE",
+    "example_config",
+    "experiments",
+    "inputs",
+    "prior_config",
+]
+
 VEHICLE = Vehicle(
     mass=30.51,
     Ix=0.177,

@@ -10,6 +10,8 @@ Each computes what `linear._Scan` computes, sample by sample: numpy's per-call o
 import numba
 import numpy as np
 
+__all__ = ["propagate", "recursion"]
+
 
 @numba.njit(cache=True)
 def propagate(Phi, x, F):

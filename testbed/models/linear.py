@@ -15,6 +15,31 @@ from typing import Mapping
 
 import numpy as np
 
+__all__ = [
+    "COEFFICIENTS",
+    "INPUTS",
+    "ITHETA",
+    "IX",
+    "MAX_SPEED",
+    "MIN_SPEED",
+    "NTHETA",
+    "NU",
+    "NX",
+    "STATES",
+    "Structure",
+    "Vehicle",
+    "continuous",
+    "derivatives",
+    "discretize",
+    "expm_pair",
+    "fastest_rate",
+    "inertia_defect",
+    "structure",
+    "theta_vector",
+    "tilde",
+    "unobserved",
+]
+
 STATES = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "z")
 INPUTS = ("delta_r", "delta_er", "delta_el")
 COEFFICIENTS = (

@@ -18,6 +18,8 @@ import matplotlib
 import numpy as np
 import rerun as rr
 
+__all__ = ["write_report"]
+
 matplotlib.use("Agg")  # headless: figures are files
 import matplotlib.pyplot as plt  # noqa: E402
 

@@ -30,6 +30,8 @@ from testbed.simulation.recording import (
     x_range,
 )
 
+__all__ = ["log_fit", "replay"]
+
 OUTPUTS_KEY = "thin grey: measured · bold red: the identified model's response to the measured fin angles"
 PARAMETERS_KEY = {
     "iteration": (

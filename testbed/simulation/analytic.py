@@ -52,6 +52,18 @@ from testbed.simulation.vehicle import (
     trim_speed,
 )
 
+__all__ = [
+    "FREE",
+    "LinearModel",
+    "OutsideTerm",
+    "analytic_config",
+    "analytic_config_text",
+    "analytic_model",
+    "geom_terms",
+    "model_config",
+    "numerical_model",
+]
+
 TERMS = ("drag", "lift", "magnus", "added_mass", "viscous")  # MuJoCo's ellipsoid-model forces
 ROWS = "XYZKMN"  # force/moment letter of the rows u v w p q r
 _T6 = np.kron(np.eye(2), FLIP)  # MuJoCo hull axes (FLU) <-> body axes (FRD), for (lin, ang)

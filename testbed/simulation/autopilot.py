@@ -57,6 +57,21 @@ from scipy.linalg import solve_continuous_are
 from testbed.errors import InputError
 from testbed.models.linear import IX, NX, discretize
 
+__all__ = [
+    "Autopilot",
+    "Channel",
+    "Design",
+    "FIN_LIMIT",
+    "HOLD_BANDWIDTH",
+    "STEPS",
+    "StepMetrics",
+    "closed_loop",
+    "design",
+    "fly_linear",
+    "step_metrics",
+    "step_response",
+]
+
 FIN_LIMIT = 0.40  # rad, the torpedo's servo range
 YAW, PITCH, ROLL = 0, 1, 2  # the integrators
 

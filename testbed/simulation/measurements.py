@@ -34,6 +34,16 @@ from testbed.data import MIN_NOISE_STD, Experiment, median
 from testbed.errors import InputError
 from testbed.models.linear import STATES
 
+__all__ = [
+    "NOISE_STD",
+    "Sensors",
+    "check_seed",
+    "measure",
+    "noise_free_channels",
+    "noise_from_data",
+    "rng_for",
+]
+
 NOISE_STD = {
     "u": 0.05,
     "v": 0.02,

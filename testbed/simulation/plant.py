@@ -73,6 +73,8 @@ from testbed.simulation.vehicle import (
     skew,
 )
 
+__all__ = ["Plant"]
+
 
 class Plant:
     """A stateful simulator of the completed plant (state lives in MuJoCo's `MjData`).

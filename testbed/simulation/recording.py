@@ -32,6 +32,19 @@ from testbed.errors import atomic_file
 from testbed.models.linear import INPUTS, IX, STATES
 from testbed.simulation.vehicle import FINS, FLIP, load_model, rotation
 
+__all__ = [
+    "STYLE",
+    "axis_range",
+    "data_id",
+    "euler_quaternions",
+    "log_run",
+    "panel_title",
+    "recording",
+    "series",
+    "time_column",
+    "x_range",
+]
+
 # Every series keeps one style per role, in every tab of every recording: measured values thin
 # and light, the truth (or the fitted model) bold, commands as steps. Role -> (RGB, width in UI points).
 STYLE = {
@@ -178,7 +191,7 @@ def _quat_wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
     return np.array([q[1], q[2], q[3], q[0]])
 
 
-def _euler_quat(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
+def euler_quaternions(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
     """Quaternions (N, 4; x, y, z, w) of the body-to-NED rotation Rz(ψ) Ry(θ) Rx(φ)."""
     cr, sr = np.cos(phi / 2), np.sin(phi / 2)
     cp, sp = np.cos(theta / 2), np.sin(theta / 2)
@@ -331,7 +344,7 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
             root = f"/{flight.name}"
             t = time_column(flight.t)
             x = flight.truth
-            quats = _euler_quat(x[:, IX["phi"]], x[:, IX["theta"]], x[:, IX["psi"]])
+            quats = euler_quaternions(x[:, IX["phi"]], x[:, IX["theta"]], x[:, IX["psi"]])
             rec.send_columns(
                 f"{root}/vehicle",
                 indexes=[t],

@@ -37,6 +37,8 @@ from testbed.simulation.scenario import (
 from testbed.simulation.analytic import model_config
 from testbed.simulation.vehicle import default_mjcf
 
+__all__ = ["simulate"]
+
 
 def simulate(
     s: Scenario | str,

@@ -61,6 +61,24 @@ from testbed.simulation.signals import Signal, parse_signal, signal_table
 from testbed.simulation.analytic import analytic_model
 from testbed.simulation.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
 
+__all__ = [
+    "BUILTIN",
+    "CHANNELS",
+    "ExperimentSpec",
+    "Flight",
+    "LOOPS",
+    "SCENARIO_DIR",
+    "Scenario",
+    "UNFITTED_DEPTH",
+    "check_flyable",
+    "fly_scenario",
+    "parse_scenario",
+    "program",
+    "read_scenario",
+    "scenario",
+    "scenario_text",
+]
+
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).
 UNFITTED_DEPTH = (
     "depth is measured but not fitted: it integrates U θ, and the second-order drag "

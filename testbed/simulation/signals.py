@@ -32,6 +32,27 @@ import numpy as np
 from testbed.errors import InputError, is_number
 from testbed.models.linear import IX
 
+__all__ = [
+    "Doublet",
+    "Hold",
+    "Input3211",
+    "Multisine",
+    "Prbs",
+    "Program",
+    "SIGNALS",
+    "Signal",
+    "Square",
+    "Step",
+    "TAPS",
+    "Zigzag",
+    "min_crest_phases",
+    "parse_signal",
+    "prbs",
+    "prbs_spectrum",
+    "schroeder_phases",
+    "signal_table",
+]
+
 Program = Callable[[float, np.ndarray], float]
 
 # Maximal-length feedback taps (1-indexed register stages) for orders 2..20.

@@ -21,6 +21,30 @@ import numpy as np
 from testbed.errors import InputError
 from testbed.models.linear import MAX_SPEED, MIN_SPEED, Vehicle
 
+__all__ = [
+    "FINS",
+    "FLIP",
+    "Hydrostatics",
+    "MAX_SPEED",
+    "MIN_SPEED",
+    "added_mass",
+    "buoyancy_centre",
+    "check_model",
+    "constants",
+    "cruise_speed",
+    "default_mjcf",
+    "fin_rate_limit",
+    "fluid_geoms",
+    "hydrostatics",
+    "load_model",
+    "motion_transform",
+    "rigid_body_mass",
+    "rotation",
+    "semi_axes",
+    "skew",
+    "trim_speed",
+]
+
 FINS = ("rudder", "elevator_right", "elevator_left")
 FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> body axes (FRD); also ENU-ish world <-> NED
 

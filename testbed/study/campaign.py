@@ -45,6 +45,20 @@ from testbed.models.linear import COEFFICIENTS, structure, theta_vector
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text
 
+__all__ = [
+    "COLUMNS",
+    "Cell",
+    "Outcome",
+    "QUICK_DURATION",
+    "conclusions",
+    "plan",
+    "read_results",
+    "reproduce",
+    "results_csv",
+    "results_rows",
+    "run_cell",
+]
+
 SCENARIOS = ("I", "II")
 METHODS = ("ml-nr", "ml-nm", "mekf", "ml-gn")  # the paper's three, then the modern reference
 COLUMNS = (
