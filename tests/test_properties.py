@@ -49,6 +49,7 @@ from testbed.data import (
     write_config,
 )
 from testbed.errors import InputError
+from testbed.estimators import METHODS
 from testbed.models.linear import COEFFICIENTS, INPUTS, STATES, Vehicle
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # a numpy warning is a failure
@@ -480,12 +481,13 @@ def command_line(draw) -> Case:
     return Case(" ".join(argv), tuple(argv), tuple(files))
 
 
-def commands_behave(ws, cases, profile):
+def commands_behave(ws, cases, profile, reaches_the_fit=False):
     """Run each command line drawn from `cases` on a fresh copy of the workspace
     (`studies.fuzz.run_case`: fd-level capture, numpy warnings as errors) and require no crash
     (a traceback, a status other than 0, 1 or 2, or a status 2 without exactly one stderr line
     naming a file, flag or value) and no partial output (anything written on failure, or an
-    input changed)."""
+    input changed). `reaches_the_fit`: the options drawn are the method's own, so none is
+    refused as an option the method does not have."""
 
     def make():
         @given(cases)
@@ -493,6 +495,8 @@ def commands_behave(ws, cases, profile):
             o = run_case(ws, case)
             assert o.kind != "crash", (case.argv, o.code, o.err[-2000:])
             assert not o.partial, (case.argv, o.code, o.partial, o.err[-500:])
+            if reaches_the_fit:
+                assert "expected one of the options of" not in o.err, (case.argv, o.err)
 
         return check
 
@@ -506,17 +510,33 @@ def test_the_command_line_exits_0_1_or_2_in_one_line_and_writes_nothing_on_failu
 
 @st.composite
 def fit_on_random_data(draw) -> Case:
-    """identify or analyze on a valid CSV of random values (anywhere in the plausible range, at
-    any sampling step), alone or beside a workspace experiment, with the workspace config."""
-    method = draw(st.sampled_from(["ml-gn", "ml-nr", "ml-nm", "mekf", "ekf", None]))
+    """identify (every registered method) or analyze on a valid CSV of random values (anywhere
+    in the plausible range, at any sampling step), alone or beside a workspace experiment, with
+    the workspace config. Each method is given only the options its capabilities say it has:
+    an iterative method at most 3 iterations; a filter, sometimes, a sample limit."""
+    method = draw(st.sampled_from([*sorted(METHODS), None]))
     data = ["random.csv"] + draw(st.sampled_from([[], ["data/h.csv"]]))
-    argv = (
-        ["analyze", *data] if method is None else ["identify", *data, "--method", method, "--max-iter", "3"]
-    )
+    if method is None:
+        argv = ["analyze", *data]
+    else:
+        argv = ["identify", *data, "--method", method]
+        if METHODS[method].iterative:
+            argv += ["--max-iter", "3"]
+        if METHODS[method].online and draw(st.booleans()):
+            argv += ["--max-samples", str(draw(st.integers(1, 30)))]
     argv += ["--config", "cfg.toml", "--out", "out/e.json"]
     return Case(" ".join(argv), tuple(argv), (("random.csv", draw(measurement(LARGE))[0]),))
 
 
 @pytest.mark.parametrize("profile", PROFILES)
 def test_fits_on_random_valid_data_end_in_0_1_or_2(ws, profile):
-    commands_behave(ws, fit_on_random_data(), profile)
+    commands_behave(ws, fit_on_random_data(), profile, reaches_the_fit=True)
+
+
+def test_every_method_takes_the_options_it_is_drawn_with():
+    """The draws above name only options a method has: its options accept them."""
+    for name, method in METHODS.items():
+        given = {"max_iter": 3} if method.iterative else {}
+        given |= {"max_samples": 30} if method.online else {}
+        options = method.options.build(name, {}, **given)
+        assert all(getattr(options, k) == v for k, v in given.items()), name
