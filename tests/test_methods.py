@@ -72,14 +72,19 @@ class TestEveryMethod:
         seen = []
         est = identify(data, start, method=name, callback=seen.append)
         assert isinstance(est, Estimate) and est.method == name and est.free == FREE
-        assert est.status in (Status.CONVERGED, Status.MAX_ITERATIONS), est.message
+        # Every method converges here: two coefficients of one row, both well excited by the
+        # rudder PRBS, 20 % off, within its default limits (ml-nr, the slowest, in about 200
+        # iterations). A converged fit is within 5 of its σ (or 3 %) of the coefficients that
+        # simulated the data.
+        assert est.status is Status.CONVERGED and est.converged, est.message
         assert isinstance(est, FilterEstimate) == m.online
         assert est.values.shape == est.std.shape == (len(FREE),) and np.all(est.std > 0)
         simulated = np.array([config.coefficients[n] for n in FREE])
-        if est.converged:  # the paper's Newton-Raphson creeps (steps of μ/λ): it may not get there
-            assert np.all(
-                np.abs(est.values - simulated) <= np.maximum(5 * est.std, 0.03 * np.abs(simulated))
-            ), (est.values, simulated, est.std)
+        assert np.all(np.abs(est.values - simulated) <= np.maximum(5 * est.std, 0.03 * np.abs(simulated))), (
+            est.values,
+            simulated,
+            est.std,
+        )
         assert seen and all(isinstance(s, Progress) and s.values.shape == (len(FREE),) for s in seen)
         assert seen[-1].iteration == est.iterations
         doc = json.loads(est.to_json())
