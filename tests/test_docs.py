@@ -432,11 +432,25 @@ def test_links_resolve(source):
             assert anchor in anchors(resolved), f"{source}: link {target}: no heading #{anchor}"
 
 
-def test_readme_links_every_page():
+def test_readme_and_the_index_link_every_page():
     links = set(LINK.findall((ROOT / "README.md").read_text(encoding="utf-8")))
-    for name in PAGES:
-        assert f"docs/{name}" in links
-        assert f"({name})" in page("README.md")
+    index = set(LINK.findall(page("README.md")))
+    pages = sorted(p.name for p in DOCS.glob("*.md") if p.name != "README.md")
+    assert set(PAGES) <= set(pages)
+    assert [name for name in pages if f"docs/{name}" not in links] == []
+    assert [name for name in pages if name not in index] == []
+
+
+def test_readme_is_short_and_starts_with_the_two_commands():
+    """At most 200 lines; its set-up gives one command that installs and runs the main job and
+    one that installs the test extras and runs the tests, as code blocks of one line each."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 200
+    blocks = re.findall(r"```bash\n(.*?)```", section(text, "Set-up (Python 3.11 and pip)"), re.S)
+    assert [b.strip() for b in blocks] == [
+        "pip install -e . && testbed reproduce --quick --out runs/quick",
+        "pip install -e '.[test]' && ruff format --check . && python -m pytest -q",
+    ]
 
 
 @pytest.mark.parametrize("name", PAGES + ("README.md",))
