@@ -74,7 +74,7 @@ def test_largest_amplitude_meets_a_bound_exactly(model):
 def test_fisher_matches_finite_differences_of_the_outputs(model):
     """Independent reference: F = Σ Sᵀ R⁻¹ S with S the central differences of the simulated
     outputs (initial states at trim are known here and the experiment starts at trim)."""
-    from testbed.identification.outputerror import synthetic
+    from testbed.identification.prediction import synthetic
 
     e = D.spec("horizontal", {"rudder": Prbs(amplitude=1e-3, order=8, clock=0.2)})
     t, xs, fins = D.fly_model(model, e, 20.0)
@@ -183,7 +183,7 @@ def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identif
     coefficients both free (the roll row's K_v, K_p, K_der, K_del among them)."""
     from testbed.cli import main
     from testbed.data import load_data, read_config
-    from testbed.identification.outputerror import predict
+    from testbed.identification.prediction import predict
     from testbed.models.linear import STATES
     from testbed.analysis.validation import fit_percent
 

@@ -15,7 +15,7 @@ from testbed.data import Experiment, ModelConfig, load_data, write_config, write
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
 from testbed.estimators.mekf import FilterOptions, _Model, _run, sqrt_update, svd_root, tria
-from testbed.identification.outputerror import information
+from testbed.identification.bounds import information
 from testbed.simulation.measurements import noise_free_channels, noise_from_data
 from testbed.models.linear import (
     COEFFICIENTS,

@@ -11,7 +11,7 @@ from testbed.identification.examples import FREE, NOISE, TRUTH, experiments, pri
 
 from testbed.errors import InputError
 from testbed.estimators import METHODS, Status, identify
-from testbed.identification.outputerror import information
+from testbed.identification.bounds import information
 
 WANT = np.array([TRUTH[n] for n in FREE])
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")

@@ -53,8 +53,9 @@ from testbed.analysis.identifiability import unidentified
 from testbed.simulation.autopilot import FIN_LIMIT, Autopilot, fly_linear
 from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
 from testbed.errors import InputError, atomic_write_text, check_outputs
-from testbed.identification import outputerror
-from testbed.identification.outputerror import crlb, predict
+from testbed.identification import bounds
+from testbed.identification.bounds import crlb
+from testbed.identification.prediction import predict
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.recording import (
     STYLE,
@@ -220,7 +221,7 @@ def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str 
     """Fisher information of `m.config.free` from one noise-free experiment (initial states
     eliminated), with the sensor noise `m.noise_std`."""
     e = experiment(m, t, xs, fins, name)
-    return outputerror.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
+    return bounds.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
 
 
 # -- criteria ----------------------------------------------------------------------------------------
@@ -491,7 +492,7 @@ def scenario_information(m: Model, total: float, base: Scenario | str = "II") ->
     """Fisher information of Scenario II flown for `total` s."""
     F = 0.0
     for e in scenario_flights(m, total, base):
-        F = F + outputerror.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
+        F = F + bounds.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
     return F
 
 

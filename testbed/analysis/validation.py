@@ -24,7 +24,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.identification.outputerror import predict
+from testbed.identification.prediction import predict
 
 LAGS = 25  # autocorrelation lags tested (0.5 s at 50 Hz: beyond the torpedo's fast modes)
 CONFIDENCE = 2.576  # 99 % two-sided normal quantile
