@@ -223,7 +223,7 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_design(args) -> int:
-    from testbed.analysis.design import write_design
+    from testbed.presentation.design_report import table, write_design
 
     if args.out == STDOUT:
         raise InputError("--out -: the design is a scenario file; expected a file name (.toml)")
@@ -233,7 +233,7 @@ def _cmd_design(args) -> int:
     result = write_design(
         args.out, args.duration, args.criterion, free, args.mjcf, args.speed, args.start_from, args.rrd
     )
-    print(result.table(), file=sys.stderr)
+    print(table(result), file=sys.stderr)
     print(args.out)
     if args.rrd is not None:
         print(args.rrd, file=sys.stderr)

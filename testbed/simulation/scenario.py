@@ -51,7 +51,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from testbed.simulation.autopilot import FIN_LIMIT, Autopilot
+from testbed.simulation.autopilot import Autopilot
 from testbed.data import MIN_ROWS, number
 from testbed.errors import InputError, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
@@ -60,6 +60,29 @@ from testbed.simulation.plant import Plant
 from testbed.simulation.signals import Signal, parse_signal, signal_table
 from testbed.simulation.analytic import analytic_model
 from testbed.simulation.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
+
+__all__ = [
+    "BUILTIN",
+    "CHANNELS",
+    "FIN_COMMANDS",
+    "LOOPS",
+    "SAMPLES",
+    "SCENARIO_DIR",
+    "UNFITTED_DEPTH",
+    "ExperimentSpec",
+    "Flight",
+    "Program",
+    "Scenario",
+    "check_fins",
+    "check_flyable",
+    "fly",
+    "fly_scenario",
+    "parse_scenario",
+    "program",
+    "read_scenario",
+    "scenario",
+    "scenario_text",
+]
 
 # Why a run's model.toml fits every measured state but the depth (measured, and validated).
 UNFITTED_DEPTH = (
@@ -102,12 +125,6 @@ class ExperimentSpec:
                 f"{where}: hold needs an elevators signal and no depth autopilot; "
                 "expected the hold to keep an open-loop elevator signal in bounds"
             )
-        for channel, s in self.fins.items():
-            if s.peak() > FIN_LIMIT:
-                raise InputError(
-                    f"{where}: {channel} reaches {s.peak():g} rad; expected at most the "
-                    f"fin range {FIN_LIMIT} rad"
-                )
         if self.duration is not None and not _positive(self.duration):
             raise InputError(f"{where}: duration {self.duration!r}; expected a finite number > 0 (s)")
 
@@ -457,7 +474,8 @@ def fly_scenario(
     speed = s.speed if s.speed is not None else cruise_speed(plant.model)
     s = replace(s, speed=speed)
     lin = analytic_model(plant.model, speed)
-    autopilot = Autopilot.designed(lin.A_full, lin.B_full, speed, 1.0 / s.control_rate)
+    check_fins(s, lin.fins.angle, mjcf)
+    autopilot = Autopilot.designed(lin.A_full, lin.B_full, speed, 1.0 / s.control_rate, lin.fins.angle)
     flights = []
     for k, e in enumerate(s.experiments):
         report = (lambda f, name=e.name: progress(name, f)) if progress else None
@@ -474,6 +492,18 @@ def fly_scenario(
             )
         )
     return flights, lin
+
+
+def check_fins(s: Scenario, limit: float, mjcf=None) -> None:
+    """InputError unless every fin signal of `s` stays within the vehicle's fin range ±`limit`
+    rad (its MJCF's servo range, `vehicle.fin_limits`)."""
+    for e in s.experiments:
+        for channel, signal in e.fins.items():
+            if signal.peak() > limit:
+                raise InputError(
+                    f"{s.source or s.name}: experiment {e.name!r}: {channel} reaches {signal.peak():g} rad; "
+                    f"expected at most the fin range of {mjcf or 'the bundled torpedo'}, {limit:g} rad"
+                )
 
 
 def check_flyable(s: Scenario) -> None:
