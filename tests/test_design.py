@@ -253,3 +253,57 @@ def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
     text = out.read_text()
     assert "at the estimate" in text and all(f"#   {n} " in text for n in free)
     assert parse_scenario(tomllib.loads(text), str(out)).experiments
+
+
+def test_design_from_an_unstable_estimate_names_the_file_the_mode_and_the_coefficient(tmp_path, capsys):
+    """The yaw damping's sign flipped: refused (exit 2, nothing written) naming the estimates
+    file, the growing mode (its rate: A's eigenvalue of largest real part) and N_r."""
+    from testbed.cli import main
+    from testbed.models.linear import continuous, structure, theta_vector
+    from testbed.simulation.analytic import analytic_config
+
+    config = analytic_config()[0]
+    flipped = config.with_coefficients({"N_r": -config.coefficients["N_r"]})
+    A = continuous(structure(flipped.vehicle), theta_vector(flipped.coefficients))[0]
+    rate = np.linalg.eigvals(A).real.max()
+    assert rate > 1.0  # premise: the flipped model diverges
+    path = tmp_path / "est.json"
+    path.write_text(json.dumps({"coefficients": {"N_r": {"value": flipped.coefficients["N_r"]}}}))
+    out = tmp_path / "next.toml"
+    assert main(["design", "--from", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: the linear model is unstable: a mode in r" in err, err
+    assert f"grows at {rate:.3g} 1/s" in err and "depends most on N_r = " in err
+    assert "\n" not in err.strip() and not out.exists()
+
+
+def test_a_multisine_above_half_the_control_rate_is_refused_naming_the_field(tmp_path, capsys):
+    """A line at or above the Nyquist frequency of the control rate is sampled as another one
+    (at 1e308 Hz its phase overflows): refused up front, the field and the bound named."""
+    import warnings
+
+    from testbed.cli import main
+
+    def doc(frequencies, rate=50.0):
+        rudder = {"signal": "multisine", "amplitude": 0.01, "frequencies": frequencies}
+        return {"control_rate": rate, "experiment": [{"name": "a", "rudder": rudder}]}
+
+    expected = (
+        r"s.toml: experiment 'a' rudder: multisine frequencies up to {} Hz; expected frequencies below {} Hz"
+    )
+    with pytest.raises(
+        InputError, match=expected.format(r"1e\+308", "25") + r", half the control_rate \(50 Hz\)"
+    ):
+        parse_scenario(doc([0.1, 1e308]), "s.toml")
+    with pytest.raises(InputError, match=expected.format("50", "50")):
+        parse_scenario(doc([0.1, 50.0], rate=100.0), "s.toml")
+    assert parse_scenario(doc([0.1, 49.9], rate=100.0), "s.toml").experiments
+    path = tmp_path / "s.toml"
+    path.write_text(
+        '[[experiment]]\nname = "a"\nrudder = {signal = "multisine", amplitude = 0.01, frequencies = [0.1, 1e308]}\n'
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["simulate", "--scenario", str(path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "frequencies up to 1e+308 Hz" in err and "speed" not in err and not (tmp_path / "run").exists()

@@ -56,7 +56,17 @@ from testbed.data import Experiment, ModelConfig, check_free
 from testbed.errors import InputError
 from testbed.identification import bounds
 from testbed.identification.bounds import crlb
-from testbed.models.linear import COEFFICIENTS, IX, NX, STATES, continuous, structure, theta_vector
+from testbed.models.linear import (
+    COEFFICIENTS,
+    IX,
+    NX,
+    STATES,
+    continuous,
+    derivatives,
+    inertia_defect,
+    structure,
+    theta_vector,
+)
 from testbed.simulation.analytic import analytic, model_config
 from testbed.simulation.autopilot import Autopilot, fly_linear
 from testbed.simulation.measurements import NOISE_STD
@@ -69,6 +79,7 @@ __all__ = [
     "CRITERIA",
     "GROWTH",
     "GROWTH_BISECTIONS",
+    "GROWING",
     "GROWTH_MARGIN",
     "HOLD_STEPS",
     "MAX_EXPERIMENT",
@@ -98,6 +109,7 @@ __all__ = [
     "hold_signal",
     "identified",
     "information",
+    "instability",
     "largest",
     "model",
     "regime_limits",
@@ -110,6 +122,7 @@ __all__ = [
 ]
 
 CRITERIA = ("D", "A", "E")
+GROWING = 1e-6  # 1/s: a mode whose real part exceeds it grows (the design model must be stable)
 STEP = 10.0  # s, the grid of the time split
 MIN_EXPERIMENT = 20.0  # s, the shortest experiment of a split
 # s, the longest record: the depth integrates the second-order pitch drift (it grows as the cube
@@ -174,16 +187,48 @@ def model(
 ) -> Model:
     """The design model of `config` (its coefficients, its free list), autopilots designed on it,
     with the vehicle's fins `fins`."""
-    A, B, _ = continuous(structure(config.vehicle), theta_vector(config.coefficients))
-    if not np.all(np.isfinite(A)) or np.linalg.eigvals(A).real.max() > 1e-6:
+    why = instability(config)
+    if why is not None:
         raise InputError(
-            f"{config.source or 'model'}: the linear model is unstable or not finite; "
-            "expected coefficients of a stable vehicle to design at"
+            f"{config.source or 'model'}: {why}; expected the coefficients of a stable vehicle to design at"
         )
+    A, B, _ = continuous(structure(config.vehicle), theta_vector(config.coefficients))
     speed = config.vehicle.speed
     ap = Autopilot.designed(A, B, speed, 1.0 / control_rate, fins.angle)
     config = replace(config, outputs=FITTED)
     return Model(config, A, B, ap, fins, dict(noise_std or NOISE_STD), control_rate)
+
+
+def instability(config: ModelConfig) -> str | None:
+    """Why the linear model of `config` is no vehicle to design at, or None: its Mt is not a
+    body's, or it is not finite, or its least stable mode grows. A growing mode is named by its
+    largest states (the eigenvector's components) and by the coefficients its growth rate
+    depends on most: those of largest |Re ∂λ/∂θ_i · θ_i| (the change of the rate per relative
+    change of θ_i, ∂λ/∂θ_i = wᴴ ∂A/∂θ_i v with w, v its left and right eigenvectors, wᴴv = 1)."""
+    s, theta = structure(config.vehicle), theta_vector(config.coefficients)
+    defect = inertia_defect(s, theta)
+    if defect:
+        return f"the inertia matrix Mt is not a body's: {defect}"
+    A, B, S = continuous(s, theta)
+    if not np.all(np.isfinite(A)):
+        return "the linear model is not finite"
+    lam, V = np.linalg.eig(A)
+    k = int(np.argmax(lam.real))
+    if lam[k].real <= GROWING:
+        return None
+    v = np.abs(V[:, k])
+    states = [STATES[i] for i in np.argsort(-v)[:3] if v[i] >= 0.1 * v.max()]
+    dA = derivatives(s, theta, A, B, S)[0]
+    effect = np.abs((np.linalg.inv(V)[k] @ dA @ V[:, k]).real * theta)
+    top = [i for i in np.argsort(-effect)[:3] if effect[i] > 0]
+    oscillating = (
+        f", oscillating at {abs(lam[k].imag) / (2 * np.pi):.3g} Hz" if abs(lam[k].imag) > GROWING else ""
+    )
+    return (
+        f"the linear model is unstable: a mode in {', '.join(states)} grows at {lam[k].real:.3g} 1/s"
+        f"{oscillating}; its growth depends most on "
+        + ", ".join(f"{COEFFICIENTS[i]} = {theta[i]:.4g}" for i in top)
+    )
 
 
 def fly_model(m: Model, e: ExperimentSpec, duration: float, seed: int = SEED, index: int = 0):
@@ -544,12 +589,14 @@ def design(
     estimates: Mapping[str, float] | None = None,
     noise_std: Mapping[str, float] | None = None,
     check: bool = True,
+    estimates_source: str = "estimates",
 ) -> Design:
     """Design a scenario of `duration` s in total for the criterion (`D`, `A`, `E`) of the
     Fisher information of `free` (default: the analytic model's free list) at the analytic
     model of `mjcf` at `speed`, or at `estimates` (coefficient -> value, e.g. the last fit's:
-    the sequential design). `check`: fly it on the truth plant and scale down any experiment
-    that leaves the linear regime."""
+    the sequential design; `estimates_source`: where they were read, for the errors). `check`:
+    fly it on the truth plant and scale down any experiment that leaves the linear regime.
+    InputError where the model designed at is no stable vehicle (`instability`)."""
     if criterion_ not in CRITERIA:
         raise InputError(f"criterion={criterion_!r}; expected one of {', '.join(CRITERIA)}")
     if not (
@@ -563,9 +610,9 @@ def design(
         unknown = sorted(set(estimates) - set(COEFFICIENTS))
         if unknown:
             raise InputError(
-                f"estimates: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+                f"{estimates_source}: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
             )
-        config = config.with_coefficients(dict(estimates))
+        config = replace(config.with_coefficients(dict(estimates)), source=estimates_source)
         source = "estimate"
         free = free if free is not None else tuple(n for n in COEFFICIENTS if n in estimates)
     if free is not None:

@@ -240,7 +240,16 @@ def write_design(
     with `rrd` logged to that Rerun recording (`log_design`)."""
     check_outputs([start_from] if start_from else [], {"out": out, "rrd": rrd})
     estimates, noise = read_estimates(start_from) if start_from else (None, None)
-    result = design(duration, criterion_, free, mjcf, speed, estimates, noise)
+    result = design(
+        duration,
+        criterion_,
+        free,
+        mjcf,
+        speed,
+        estimates,
+        noise,
+        estimates_source=str(start_from or "estimates"),
+    )
     atomic_write_text(out, text(result))
     if rrd is not None:
         log_design(rrd, result)

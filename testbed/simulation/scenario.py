@@ -179,6 +179,13 @@ class Scenario:
                 f"{self.source or 'scenario'}: control rate {self.control_rate} Hz and sample "
                 f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate"
             )
+        for e in self.experiments:
+            held = {"hold.depth": e.hold_depth} if e.hold_depth is not None else {}
+            loops = {f"autopilot.{k}": v for k, v in e.autopilot.items()}
+            for key, signal in {**e.fins, **loops, **held}.items():
+                why = signal.undersampled(self.control_rate)
+                if why is not None:
+                    raise InputError(f"{self.source or 'scenario'}: experiment {e.name!r} {key}: {why}")
 
     def with_overrides(self, duration=None, speed=None) -> "Scenario":
         """The scenario with every experiment lasting `duration` and trimmed at `speed` (None:
