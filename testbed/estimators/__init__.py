@@ -13,6 +13,8 @@ a caller never guesses them from the name:
   `Estimate.iterations` counts the samples processed, and it returns a `FilterEstimate` with the
   estimate and σ histories.
 
+A method with none of them (`equation-error`) is solved at once: one iteration, no limit.
+
 Every method reports its progress to `callback(Progress)` after each iteration (or sample).
 """
 
