@@ -1,7 +1,7 @@
 """The references the ML benchmarks measure `ml-gn` against: scipy output-error fits.
 
 `scipy.optimize.least_squares` with its defaults (trf, 2-point finite-difference Jacobian) on
-testbed's own simulator (`outputerror.residuals`: the strong reference), or, with `--plain`, on a
+testbed's own simulator (`recursions.residuals`: the strong reference), or, with `--plain`, on a
 simulator written with scipy alone as a user without testbed would write it (the exact
 zero-order hold by `scipy.linalg.expm` of the block matrix, the outputs by `scipy.signal.dlsim`);
 the free coefficients and each
@@ -29,12 +29,13 @@ from scipy.linalg import expm  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 from scipy.signal import dlsim  # noqa: E402
 
-from testbed.identification import outputerror  # noqa: E402
+from testbed.identification import likelihood, recursions  # noqa: E402
+from testbed.identification.problem import Problem, problem  # noqa: E402
 from testbed.data import read_config, read_csv  # noqa: E402
 from testbed.models.linear import NU, NX, continuous  # noqa: E402
 
 
-def plain_residuals(prob: outputerror.Problem, q: np.ndarray) -> list[np.ndarray]:
+def plain_residuals(prob: Problem, q: np.ndarray) -> list[np.ndarray]:
     """The residuals at `q` simulated with scipy alone: `expm([[A, B, S], [0, 0, 0]] Δ)` gives
     Φ and Γ = [B S]'s zero-order hold, `dlsim` the outputs from each experiment's x0."""
     A, B, S = continuous(prob.structure, prob.coefficients(q[: prob.n_free]))
@@ -53,10 +54,10 @@ def plain_residuals(prob: outputerror.Problem, q: np.ndarray) -> list[np.ndarray
 def scipy_fit(data, config, plain: bool = False) -> tuple[np.ndarray, int, int]:
     """Output error by least_squares (2-point Jacobian), R relaxed between fits: the free values,
     the model evaluations and the relaxation rounds. `plain`: on `plain_residuals`."""
-    prob = outputerror.problem(data, config)
-    residuals = (lambda q: plain_residuals(prob, q)) if plain else (lambda q: outputerror.residuals(prob, q))
-    p = outputerror.initial_states(prob, prob.start)
-    R = outputerror.noise_variance(prob, residuals(p))
+    prob = problem(data, config)
+    residuals = (lambda q: plain_residuals(prob, q)) if plain else (lambda q: recursions.residuals(prob, q))
+    p = likelihood.initial_states(prob, prob.start)
+    R = likelihood.noise_variance(prob, residuals(p))
     nfev = rounds = 0
     for rounds in range(1, 11):
 
@@ -67,7 +68,7 @@ def scipy_fit(data, config, plain: bool = False) -> tuple[np.ndarray, int, int]:
 
         sol = least_squares(weighted, p, jac="2-point", method="trf")  # scipy's defaults
         p, nfev = sol.x, nfev + sol.nfev + sol.njev * len(p)
-        R, R_old = outputerror.noise_variance(prob, residuals(p)), R
+        R, R_old = likelihood.noise_variance(prob, residuals(p)), R
         if np.max(np.abs(R / R_old - 1)) < 1e-3:
             break
     return p[: prob.n_free], nfev, rounds

@@ -44,7 +44,7 @@ import numpy as np
 
 from testbed.data import ModelConfig, config_text, csv_text
 from testbed.identification.examples import NOISE, EXAMPLE_COEFFICIENTS, VEHICLE, inputs
-from testbed.identification.outputerror import synthetic
+from testbed.identification.prediction import synthetic
 from testbed.models.linear import INPUTS, STATES, Vehicle
 
 FREE = ("Y_v", "Y_r", "N_v", "N_r", "Z_w", "M_q")  # observed from both experiments of the workspace

@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares, linprog
 
-from testbed.identification import outputerror
+from testbed.identification import likelihood, recursions
+from testbed.identification.problem import Problem, problem
 from testbed.data import ModelConfig, read_config, read_csv, write_config, write_csv
 from testbed.errors import atomic_write_text
 from testbed.models.linear import COEFFICIENTS, Vehicle
@@ -289,32 +290,32 @@ def identify_cli(csv: Path, toml: Path, method: str, extra, out: Path) -> dict:
     return {"status": f"no estimate (exit {run.returncode}): {why.split(';')[0]}"}
 
 
-def concentrated(prob: outputerror.Problem, theta: np.ndarray, rounds: int = 50) -> tuple[float, np.ndarray]:
+def concentrated(prob: Problem, theta: np.ndarray, rounds: int = 50) -> tuple[float, np.ndarray]:
     """The negative log-likelihood at the free `theta` with the initial states and the noise at
     their ML values (alternated until the noise settles), and the parameter vector there."""
     R = None
     for _ in range(rounds):
-        p = outputerror.initial_states(prob, theta, R)
-        R_new = outputerror.noise_variance(prob, outputerror.residuals(prob, p))
+        p = likelihood.initial_states(prob, theta, R)
+        R_new = likelihood.noise_variance(prob, recursions.residuals(prob, p))
         if R is not None and np.allclose(R_new, R, rtol=1e-9, atol=0):
             break
         R = R_new
-    return outputerror.negative_log_likelihood(prob, outputerror.residuals(prob, p)), p
+    return likelihood.negative_log_likelihood(prob, recursions.residuals(prob, p)), p
 
 
-def weighted(prob: outputerror.Problem, R: np.ndarray):
+def weighted(prob: Problem, R: np.ndarray):
     """The residuals over the noise σ as a function of p (a diverging model's: large, finite),
     and their Jacobian from testbed's exact output sensitivities."""
     weight = [R[r.channels] ** -0.5 for r in prob.records]
 
     def fun(q):
         with np.errstate(all="ignore"):
-            e = np.concatenate([(e * w).ravel() for e, w in zip(outputerror.residuals(prob, q), weight)])
+            e = np.concatenate([(e * w).ravel() for e, w in zip(recursions.residuals(prob, q), weight)])
         return np.nan_to_num(e, nan=1e10, posinf=1e10, neginf=-1e10)
 
     def jac(q):
         rows = []
-        for r, S, w in zip(prob.records, outputerror.sensitivities(prob, q), weight):
+        for r, S, w in zip(prob.records, recursions.sensitivities(prob, q), weight):
             block = np.zeros((r.y.size, prob.n_params))
             block[:, prob.columns(r)] = -(S * w[None, :, None]).reshape(r.y.size, -1)
             rows.append(block)
@@ -323,9 +324,7 @@ def weighted(prob: outputerror.Problem, R: np.ndarray):
     return fun, jac
 
 
-def reference(
-    prob: outputerror.Problem, starts, rounds: int = 20
-) -> tuple[float, np.ndarray, np.ndarray, str]:
+def reference(prob: Problem, starts, rounds: int = 20) -> tuple[float, np.ndarray, np.ndarray, str]:
     """The same likelihood minimised by scipy's trust-region reflective least squares on the
     noise-weighted residuals over (θ, x0), the noise re-estimated between rounds until the cost
     settles (< 0.001 per round; else after `rounds`); the best over `starts`: (cost, θ, the
@@ -335,12 +334,12 @@ def reference(
         p = concentrated(prob, np.asarray(theta, dtype=float))[1]
         cost, status = np.inf, "round limit"
         for _ in range(rounds):
-            fun, jac = weighted(prob, outputerror.noise_variance(prob, outputerror.residuals(prob, p)))
+            fun, jac = weighted(prob, likelihood.noise_variance(prob, recursions.residuals(prob, p)))
             fit = least_squares(
                 fun, p, jac, method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=200
             )
             p, last = fit.x, cost
-            cost = outputerror.negative_log_likelihood(prob, outputerror.residuals(prob, p))
+            cost = likelihood.negative_log_likelihood(prob, recursions.residuals(prob, p))
             if abs(last - cost) < 1e-3:
                 status = "settled"
                 break
@@ -374,9 +373,7 @@ def study_record(data: Path, name: str, others: list[str], out: Path, variant: s
     for row in rows:  # every fit's ML cost: x0 and the noise at their ML values for its coefficients
         values = {n: c["value"] for n, c in row["estimate"].get("coefficients", {}).items()}
         if values:
-            own = outputerror.problem(
-                experiments, replace(config.with_coefficients(values), free=tuple(values))
-            )
+            own = problem(experiments, replace(config.with_coefficients(values), free=tuple(values)))
             row["ml_cost"] = concentrated(own, own.start)[0]
     # scipy from the a-priori values, ml-gn's estimate and the best fit of any method
     fits = [r for r in rows if "ml_cost" in r and tuple(r["estimate"]["coefficients"]) == free]
@@ -384,7 +381,7 @@ def study_record(data: Path, name: str, others: list[str], out: Path, variant: s
     best = min(fits, key=lambda r: r["ml_cost"])
     starts[best["method"]] = [best["estimate"]["coefficients"][n]["value"] for n in free]
     ref_cost, ref_theta, ref_std, status = reference(
-        outputerror.problem(experiments, replace(config, free=free)), starts.values()
+        problem(experiments, replace(config, free=free)), starts.values()
     )
     coefficients = {n: {"value": float(v), "std": float(s)} for n, v, s in zip(free, ref_theta, ref_std)}
     ref = {"status": status, "cost": ref_cost, "coefficients": coefficients}

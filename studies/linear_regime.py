@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.analysis.design import linearity
+from testbed.analysis.regime import linearity
 from testbed.simulation.scenario import fly_scenario, scenario
 from testbed.simulation.signals import Prbs
 

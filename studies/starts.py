@@ -36,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from testbed.identification import outputerror
+from testbed.identification.bounds import information
 from testbed.data import Experiment, ModelConfig, load_data
 from testbed.errors import InputError, atomic_write_text
 from testbed.estimators import identify, lookup
@@ -128,7 +128,7 @@ def scenario_run(run: Path, seed: int, duration: float | None) -> Path:
 
 def bounds(experiments: Sequence[Experiment], config: ModelConfig) -> np.ndarray:
     """Cramér-Rao σ of `config.free` at the config's coefficients (noise: the residual there)."""
-    return outputerror.information(config.fitted(experiments), config).crlb_std
+    return information(config.fitted(experiments), config).crlb_std
 
 
 def perturbed_starts(

@@ -225,7 +225,7 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_design(args) -> int:
-    from testbed.analysis.design import write_design
+    from testbed.presentation.design_report import table, write_design
 
     if args.out == STDOUT:
         raise InputError("--out -: the design is a scenario file; expected a file name (.toml)")
@@ -235,7 +235,7 @@ def _cmd_design(args) -> int:
     result = write_design(
         args.out, args.duration, args.criterion, free, args.mjcf, args.speed, args.start_from, args.rrd
     )
-    print(result.table(), file=sys.stderr)
+    print(table(result), file=sys.stderr)
     print(args.out)
     if args.rrd is not None:
         print(args.rrd, file=sys.stderr)
@@ -338,7 +338,9 @@ def parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("identify", help="estimate the free coefficients from data")
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
-    s.add_argument("--method", default="ml-gn", help="ml-gn (default), ml-lm, ml-nr, ml-nm, mekf, ekf")
+    s.add_argument(
+        "--method", default="ml-gn", help="ml-gn (default), ml-lm, ml-nr, ml-nm, mekf, ekf, equation-error"
+    )
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument(
         "--out",

@@ -33,13 +33,13 @@ def test_closed_loop_is_stable_and_is_what_step_computes(lin, design):
     radius = np.sort(np.abs(np.linalg.eigvals(M)))
     assert radius[-1] == pytest.approx(1.0) and radius[-2] < 0.999  # only the heading ψ is free
     # Autopilot.step in its linear range is that closed loop, step for step
-    autopilot = ap.Autopilot(design, DT)
+    autopilot = ap.Autopilot(design, DT, lin.fins.angle)
     xi = np.zeros(NX + 3)
     xi[[IX["v"], IX["q"], IX["phi"], IX["z"]]] = (0.05, 0.01, 0.02, 0.5)
     Phi, Gamma, _ = discretize(lin.A_full, lin.B_full, np.zeros(NX), DT)
     for _ in range(300):
         fins, _ = autopilot.step(xi[:NX], depth=0.0, yaw_rate=0.0, roll=0.0)
-        assert max(map(abs, fins)) < ap.FIN_LIMIT  # unsaturated
+        assert max(map(abs, fins)) < lin.fins.angle  # unsaturated
         following = M @ xi
         assert Phi @ xi[:NX] + Gamma @ np.array(fins) == pytest.approx(following[:NX], abs=1e-12)
         assert autopilot.integrators == pytest.approx(following[NX:], abs=1e-12)
@@ -56,10 +56,10 @@ def _documented_table():
 
 @pytest.mark.parametrize("loop", list(ap.STEPS))
 def test_step_responses_reach_the_command_as_documented(lin, design, loop):
-    t, y, fins, m = ap.step_response(lin.A_full, lin.B_full, design, loop)
+    t, y, fins, m = ap.step_response(lin.A_full, lin.B_full, design, loop, lin.fins)
     state, keyword, start, end = ap.STEPS[loop]
     assert m.final == pytest.approx(end, abs=0.02 * abs(end - start))  # reaches the command
-    assert np.abs(fins).max() <= ap.FIN_LIMIT
+    assert np.abs(fins).max() <= lin.fins.angle
     rise, overshoot, settling = _documented_table()[loop]
     assert (round(m.rise, 2), round(100 * m.overshoot, 1), round(m.settling, 2)) == (
         rise,
@@ -83,16 +83,21 @@ def test_step_metrics_of_a_second_order_system():
 
 
 def test_fins_stay_within_the_stops(lin, design):
-    autopilot = ap.Autopilot(design, DT)
+    autopilot = ap.Autopilot(design, DT, lin.fins.angle)
     t, xs, fins = ap.fly_linear(
-        lin.A_full, lin.B_full, autopilot, lambda t, x: {"yaw_rate": 10.0, "depth": 300.0, "roll": 1.0}, 10.0
+        lin.A_full,
+        lin.B_full,
+        autopilot,
+        lambda t, x: {"yaw_rate": 10.0, "depth": 300.0, "roll": 1.0},
+        10.0,
+        rate_limit=lin.fins.rate,
     )
     rng = np.random.default_rng(1)
     commands = [
         autopilot.step(x, yaw_rate=4.0, depth=300.0, roll=1.0)[0] for x in rng.normal(0, 3, (200, NX))
     ]
-    assert np.abs(fins).max() <= ap.FIN_LIMIT and np.abs(commands).max() <= ap.FIN_LIMIT
-    assert np.abs(fins[:, 0]).max() == pytest.approx(ap.FIN_LIMIT)  # it did saturate
+    assert np.abs(fins).max() <= lin.fins.angle and np.abs(commands).max() <= lin.fins.angle
+    assert np.abs(fins[:, 0]).max() == pytest.approx(lin.fins.angle)  # it did saturate
 
 
 class _Naive(ap.Autopilot):
@@ -115,13 +120,14 @@ def _recovery(lin, design, kind):
     rudder's stop) for 10 s, then 20 deg/s: the excursion past the new command (fraction of
     the step) and the settling time."""
     target = np.radians(20.0)
-    autopilot = kind(design, DT)
+    autopilot = kind(design, DT, lin.fins.angle)
     t, xs, _ = ap.fly_linear(
         lin.A_full,
         lin.B_full,
         autopilot,
         lambda t, x: {"yaw_rate": 30.0 if t < 10.0 else target, "depth": 0.0, "roll": 0.0},
         20.0,
+        rate_limit=lin.fins.rate,
     )
     after = t >= 10.0
     r = xs[after, IX["r"]]
@@ -147,14 +153,14 @@ def _demands(design, de, da):
     return x
 
 
-def test_elevator_mix_past_the_stop_does_not_wind_up_the_integrators(design):
-    autopilot = ap.Autopilot(design, DT)
+def test_elevator_mix_past_the_stop_does_not_wind_up_the_integrators(lin, design):
+    autopilot = ap.Autopilot(design, DT, lin.fins.angle)
     x = _demands(design, 0.3, 0.2)  # each within the stop, the right elevator (0.5) not
     errors = np.array([x[IX["theta"]], x[IX["phi"]]])
     # premise: both integrators would push their demand further into the stop
     assert np.all(-np.array([design.pitch.Ki, design.roll.Ki]) * errors > 0)
     fins, _ = autopilot.step(x, depth=50.0, roll=0.0)
-    assert fins[1:] == pytest.approx((ap.FIN_LIMIT, 0.1))
+    assert fins[1:] == pytest.approx((lin.fins.angle, 0.1))
     assert np.all(autopilot.integrators[1:] == 0.0)  # no wind-up
     # within the stops both integrate; and past them an integrator still unwinds
     fins, _ = autopilot.step(_demands(design, 0.1, 0.1), depth=50.0, roll=0.0)
@@ -163,7 +169,7 @@ def test_elevator_mix_past_the_stop_does_not_wind_up_the_integrators(design):
     autopilot.integrators[1] = -0.5 / design.pitch.Ki  # the pitch integrator alone asks +0.5
     x = _demands(design, -0.01, 0.2)  # its error now pulls back from the stop
     fins, _ = autopilot.step(x, depth=50.0, roll=0.0)
-    assert fins[1] == ap.FIN_LIMIT
+    assert fins[1] == lin.fins.angle
     assert autopilot.integrators[1] == pytest.approx(-0.5 / design.pitch.Ki + x[IX["theta"]] * DT)
 
 
@@ -178,7 +184,7 @@ def test_vertical_hold_is_slow_and_leaves_the_elevators_equal(lin, design):
     slow = poles[(np.abs(poles) > 1e-9) & (np.abs(poles) < 0.22)]
     assert len(slow) == 2 and np.abs(slow) == pytest.approx([ap.HOLD_BANDWIDTH] * 2, rel=0.05)
     assert -slow[0].real / abs(slow[0]) == pytest.approx(np.sqrt(0.5), abs=0.02)
-    autopilot = ap.Autopilot(design, DT)
+    autopilot = ap.Autopilot(design, DT, lin.fins.angle)
     x = np.zeros(NX)
     x[IX["theta"]], x[IX["z"]] = 0.1, 103.0
     fins, theta_cmd = autopilot.step(x, elevators=0.004, hold_depth=100.0)
@@ -192,8 +198,8 @@ def test_autopilots_unstable_when_sampled_are_refused():
     the rate named; at 200 Hz the same loops are stable."""
     lin = analytic_model(load_model(), 30.0)
     with pytest.raises(InputError, match=r"speed=30 m/s with control_rate=50 Hz.*25\.0 Hz"):
-        ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, DT)
-    assert ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, 0.005).dt == 0.005
+        ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, DT, lin.fins.angle)
+    assert ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, 0.005, lin.fins.angle).dt == 0.005
     d = ap.design(lin.A_full, lin.B_full, 30.0)
     assert np.abs(np.linalg.eigvals(ap.closed_loop(lin.A_full, lin.B_full, d, DT))).max() > 1.2
 

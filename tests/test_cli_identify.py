@@ -11,7 +11,7 @@ from rerun.chunk import RrdReader
 from testbed.identification import examples
 from testbed.cli import main
 from testbed.data import config_text, read_config, write_config, write_csv
-from testbed.identification.outputerror import synthetic
+from testbed.identification.prediction import synthetic
 from testbed.models.linear import COEFFICIENTS, IX
 from testbed.simulation.runs import simulate
 

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from testbed.analysis import design as D
+from testbed.analysis import regime
+from testbed.presentation import design_report
 from testbed.errors import InputError
 from testbed.simulation.scenario import parse_scenario
 from testbed.simulation.signals import Multisine, Prbs
@@ -16,10 +18,11 @@ from testbed.simulation.signals import Multisine, Prbs
 
 @pytest.fixture(scope="module")
 def model():
-    from testbed.simulation.analytic import analytic_config
+    from testbed.simulation.analytic import analytic, model_config
 
-    config = analytic_config()[0]
-    return D.model(replace(config, free=("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")))
+    lin = analytic()
+    config = model_config(lin)[0]
+    return D.model(replace(config, free=("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")), lin.fins)
 
 
 def test_criteria_on_relative_coefficients():
@@ -61,26 +64,28 @@ def test_largest_amplitude_meets_a_bound_exactly(model):
     sig = Prbs(amplitude=1e-3, order=10, clock=0.1)
     c = D.largest(model, "horizontal", {"rudder": sig}, limits, 60.0)
     t, xs, fins = D.fly_model(model, D.spec("horizontal", {"rudder": D.scaled(sig, 1e-3 * c)}), 60.0)
-    ratios = limits.ratios(D.peaks(xs, fins, model.speed, 0.02))
+    ratios = limits.ratios(regime.peaks(xs, fins, model.speed, 0.02))
     assert max(ratios.values()) == pytest.approx(1.0, abs=1e-6)
     assert max(ratios, key=ratios.get) in ("yaw_rate", "sideslip")
     # a multisine gets the amplitude that reaches its own binding peak
     ms = Multisine(amplitude=1e-3, frequencies=D.band(60.0, 0.0, 1.0))
     c2 = D.largest(model, "roll", {"differential": ms}, limits, 60.0)
     t, xs, fins = D.fly_model(model, D.spec("roll", {"differential": D.scaled(ms, 1e-3 * c2)}), 60.0)
-    assert max(limits.ratios(D.peaks(xs, fins, model.speed, 0.02)).values()) == pytest.approx(1.0, abs=1e-6)
+    assert max(limits.ratios(regime.peaks(xs, fins, model.speed, 0.02)).values()) == pytest.approx(
+        1.0, abs=1e-6
+    )
 
 
 def test_fisher_matches_finite_differences_of_the_outputs(model):
     """Independent reference: F = Σ Sᵀ R⁻¹ S with S the central differences of the simulated
     outputs (initial states at trim are known here and the experiment starts at trim)."""
-    from testbed.identification.outputerror import synthetic
+    from testbed.identification.prediction import synthetic
 
     e = D.spec("horizontal", {"rudder": Prbs(amplitude=1e-3, order=8, clock=0.2)})
     t, xs, fins = D.fly_model(model, e, 20.0)
     F = D.fisher(model, t, xs, fins)
     cfg = model.config
-    chans = [c for c in D.FITTED]
+    chans = [c for c in regime.FITTED]
     w = np.array([1.0 / model.noise_std[c] ** 2 for c in chans])
 
     def out(cfg_):
@@ -107,14 +112,14 @@ def test_read_estimates(tmp_path):
     p.write_text(
         json.dumps({"coefficients": {"Y_v": {"value": -2000.0, "std": 10.0}}, "noise_std": {"v": 0.03}})
     )
-    values, noise = D.read_estimates(p)
+    values, noise = design_report.read_estimates(p)
     assert values == {"Y_v": -2000.0} and noise["v"] == 0.03 and noise["r"] == 0.002
     p.write_text(json.dumps({"coefficients": {"Y_q": {"value": 1.0}}}))
     with pytest.raises(InputError, match="Y_q"):
-        D.read_estimates(p)
+        design_report.read_estimates(p)
     p.write_text("{")
     with pytest.raises(InputError, match="estimates JSON"):
-        D.read_estimates(p)
+        design_report.read_estimates(p)
 
 
 def test_design_refuses_bad_arguments():
@@ -141,7 +146,7 @@ def test_the_design_recording_holds_the_comparison_and_the_flights(tmp_path):
 
     free = ("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")
     d = D.design(60.0, "A", free=free, check=False)
-    path = D.log_design(tmp_path / "design.rrd", d)
+    path = design_report.log_design(tmp_path / "design.rrd", d)
     bars, entities, table = {}, set(), ""
     for chunk in rerun.chunk.RrdReader(str(path)).stream():
         entities.add(str(chunk.entity_path))
@@ -183,7 +188,7 @@ def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identif
     coefficients both free (the roll row's K_v, K_p, K_der, K_del among them)."""
     from testbed.cli import main
     from testbed.data import load_data, read_config
-    from testbed.identification.outputerror import predict
+    from testbed.identification.prediction import predict
     from testbed.models.linear import STATES
     from testbed.analysis.validation import fit_percent
 
@@ -234,7 +239,7 @@ def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
     path.write_text(
         json.dumps({"coefficients": {n: {"value": v} for n, v in estimate.items()}, "noise_std": {"v": 0.03}})
     )
-    values, noise = D.read_estimates(path)
+    values, noise = design_report.read_estimates(path)
     d1 = D.design(120.0, "A", estimates=values, noise_std=noise, check=False)
     assert d1.source == "estimate" and set(d1.free) == set(free)
     assert np.allclose(d1.values, [estimate[n] for n in d1.free])
@@ -248,3 +253,57 @@ def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
     text = out.read_text()
     assert "at the estimate" in text and all(f"#   {n} " in text for n in free)
     assert parse_scenario(tomllib.loads(text), str(out)).experiments
+
+
+def test_design_from_an_unstable_estimate_names_the_file_the_mode_and_the_coefficient(tmp_path, capsys):
+    """The yaw damping's sign flipped: refused (exit 2, nothing written) naming the estimates
+    file, the growing mode (its rate: A's eigenvalue of largest real part) and N_r."""
+    from testbed.cli import main
+    from testbed.models.linear import continuous, structure, theta_vector
+    from testbed.simulation.analytic import analytic_config
+
+    config = analytic_config()[0]
+    flipped = config.with_coefficients({"N_r": -config.coefficients["N_r"]})
+    A = continuous(structure(flipped.vehicle), theta_vector(flipped.coefficients))[0]
+    rate = np.linalg.eigvals(A).real.max()
+    assert rate > 1.0  # premise: the flipped model diverges
+    path = tmp_path / "est.json"
+    path.write_text(json.dumps({"coefficients": {"N_r": {"value": flipped.coefficients["N_r"]}}}))
+    out = tmp_path / "next.toml"
+    assert main(["design", "--from", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: the linear model is unstable: a mode in r" in err, err
+    assert f"grows at {rate:.3g} 1/s" in err and "depends most on N_r = " in err
+    assert "\n" not in err.strip() and not out.exists()
+
+
+def test_a_multisine_above_half_the_control_rate_is_refused_naming_the_field(tmp_path, capsys):
+    """A line at or above the Nyquist frequency of the control rate is sampled as another one
+    (at 1e308 Hz its phase overflows): refused up front, the field and the bound named."""
+    import warnings
+
+    from testbed.cli import main
+
+    def doc(frequencies, rate=50.0):
+        rudder = {"signal": "multisine", "amplitude": 0.01, "frequencies": frequencies}
+        return {"control_rate": rate, "experiment": [{"name": "a", "rudder": rudder}]}
+
+    expected = (
+        r"s.toml: experiment 'a' rudder: multisine frequencies up to {} Hz; expected frequencies below {} Hz"
+    )
+    with pytest.raises(
+        InputError, match=expected.format(r"1e\+308", "25") + r", half the control_rate \(50 Hz\)"
+    ):
+        parse_scenario(doc([0.1, 1e308]), "s.toml")
+    with pytest.raises(InputError, match=expected.format("50", "50")):
+        parse_scenario(doc([0.1, 50.0], rate=100.0), "s.toml")
+    assert parse_scenario(doc([0.1, 49.9], rate=100.0), "s.toml").experiments
+    path = tmp_path / "s.toml"
+    path.write_text(
+        '[[experiment]]\nname = "a"\nrudder = {signal = "multisine", amplitude = 0.01, frequencies = [0.1, 1e308]}\n'
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["simulate", "--scenario", str(path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "frequencies up to 1e+308 Hz" in err and "speed" not in err and not (tmp_path / "run").exists()

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from studies import kvlcc2
-from testbed.identification import outputerror
+from testbed.identification import recursions
+from testbed.identification.problem import problem
 from testbed.data import read_config, read_csv
 
 SHIP = """# model scale, as in the repository
@@ -143,6 +144,6 @@ def test_a_positive_rudder_turns_the_written_model_to_port_as_the_data_do(tmp_pa
     config = read_config(tmp_path / "out" / f"{name}.toml")
     e = read_csv(tmp_path / "out" / f"{name}.csv")
     step = e.__class__(e.name, e.t, ("r",), np.zeros((e.t.size, 1)), np.tile([0.1, 0, 0], (e.t.size, 1)))
-    prob = outputerror.problem([step], config)
-    r = outputerror.outputs(prob, np.r_[prob.start, 0.0])[0][:, 0]
+    prob = problem([step], config)
+    r = recursions.outputs(prob, np.r_[prob.start, 0.0])[0][:, 0]
     assert r[-1] < 0  # positive δ steers to port (SIMMAN), as on testbed's torpedo (N_dr < 0)

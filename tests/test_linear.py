@@ -12,10 +12,14 @@ from testbed.identification.examples import (
     NOISE,
     EXAMPLE_COEFFICIENTS,
     experiments,
+    inputs,
     prior_config,
     example_config,
 )
-from testbed.identification import outputerror
+from testbed.identification import bounds
+from testbed.estimators import equation_error
+from testbed.identification import likelihood, prediction, recursions, scan
+from testbed.identification.problem import problem
 from testbed.models.linear import IX, NX, continuous
 
 VERTICAL_SUBSET = ("u", "w", "q", "theta", "z", "p", "phi")
@@ -29,18 +33,18 @@ def _data(duration=3.0, noise=NOISE):
 
 
 def _problem(duration=3.0, free=FREE):
-    prob = outputerror.problem(_data(duration), example_config(free))
-    return prob, outputerror.initial_states(prob, prob.start)
+    prob = problem(_data(duration), example_config(free))
+    return prob, likelihood.initial_states(prob, prob.start)
 
 
 def test_first_order_sensitivities_match_complex_step():
     prob, p = _problem()
-    sens = outputerror.sensitivities(prob, p)
+    sens = recursions.sensitivities(prob, p)
     h = 1e-30
     for j in range(prob.n_params):
         pc = p.astype(complex)
         pc[j] += 1j * h
-        for r, S, yc in zip(prob.records, sens, outputerror.outputs(prob, pc)):
+        for r, S, yc in zip(prob.records, sens, recursions.outputs(prob, pc)):
             ref, cols = yc.imag / h, list(prob.columns(r))
             if j not in cols:  # another experiment's initial state
                 assert not ref.any()
@@ -56,12 +60,12 @@ def test_second_order_sensitivities_match_complex_step():
     one_hot[1][25, VERTICAL_SUBSET.index("q")] = 1.0  # ∂²q[25]/∂p∂p of the second experiment
     h = 1e-30
     for weights in (random, one_hot):
-        H = outputerror.curvature(prob, p, weights)
+        H = recursions.curvature(prob, p, weights)
         ref = np.zeros_like(H)
         for j in range(prob.n_params):
             pc = p.astype(complex)
             pc[j] += 1j * h
-            for r, w, S in zip(prob.records, weights, outputerror.sensitivities(prob, pc)):
+            for r, w, S in zip(prob.records, weights, recursions.sensitivities(prob, pc)):
                 ref[prob.columns(r), j] += np.einsum("nk,nkp->p", w, S.imag / h)
         np.testing.assert_allclose(H, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
         np.testing.assert_allclose(H, H.T, atol=1e-12 * np.abs(H).max())
@@ -71,7 +75,7 @@ def test_zero_order_hold_model_matches_fine_rk4_with_singular_A():
     prob, p = _problem(duration=4.0)
     A, B, S = continuous(prob.structure, prob.theta)
     assert np.linalg.matrix_rank(A) < NX  # ψ and z are pure integrators
-    for r, yhat in zip(prob.records, outputerror.outputs(prob, p)):
+    for r, yhat in zip(prob.records, recursions.outputs(prob, p)):
         x, h, sub = prob.x0(r, p).copy(), r.dt / 200, 200
         f = lambda x, u: A @ x + B @ u + S  # noqa: E731
         ref = [x[r.measured]]
@@ -91,13 +95,13 @@ def test_initial_states_are_recovered_exactly_from_noise_free_data():
     x0[[IX["v"], IX["w"], IX["q"], IX["phi"], IX["z"]]] = 0.05, -0.03, 0.02, 0.04, 1.5
     cfg = example_config()
     t, u = np.arange(0, 5, 0.05), np.zeros((100, 3))
-    exp = outputerror.synthetic(cfg, t, u, x0=x0, name="release")
-    prob = outputerror.problem([exp], cfg)
-    p, outs = outputerror.fit_initial_states(prob, prob.start)
+    exp = prediction.synthetic(cfg, t, u, x0=x0, name="release")
+    prob = problem([exp], cfg)
+    p, outs = likelihood.fit_initial_states(prob, prob.start)
     np.testing.assert_allclose(p[prob.n_free :], x0, atol=1e-9)
     np.testing.assert_allclose(outs[0], prob.records[0].y, atol=1e-9)
     # predict returns absolute u, as in the data
-    np.testing.assert_allclose(outputerror.predict([exp], cfg)[0], exp.y, atol=1e-9)
+    np.testing.assert_allclose(prediction.predict([exp], cfg)[0], exp.y, atol=1e-9)
 
 
 def _ar1(rng, shape, rho, std):
@@ -114,14 +118,14 @@ def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
     prob, p = _problem(duration=6.0)
     rng = np.random.default_rng(5)
     res = [_ar1(rng, r.y.shape, 0.6, 0.01) for r in prob.records]  # colored: K above the floor
-    R = outputerror.noise_variance(prob, res)
+    R = likelihood.noise_variance(prob, res)
     mid, lags = np.zeros((prob.n_params, prob.n_params)), []
-    for r, S, v in zip(prob.records, outputerror.sensitivities(prob, p), res):
+    for r, S, v in zip(prob.records, recursions.sensitivities(prob, p), res):
         n, cols = len(v), prob.columns(r)
         W = S / R[r.channels][None, :, None]
         Rvv = np.array([v[: n - tau].T @ v[tau:] for tau in range(n)]) / n  # 1/N Σ_m v(m) v(m+τ)ᵀ
         rho = np.diagonal(Rvv, axis1=1, axis2=2)
-        K = outputerror._lag_window(rho[1 : n // 4 + 1] / rho[0], n)
+        K = bounds.lag_window(rho[1 : n // 4 + 1] / rho[0], n)
         lags.append(K)
         for i in range(n):
             for j in range(max(i - K, 0), min(i + K + 1, n)):
@@ -129,11 +133,11 @@ def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
                 mid[np.ix_(cols, cols)] += (
                     (1 - abs(tau) / (K + 1)) * W[i].T @ (Rvv[tau] if tau >= 0 else Rvv[-tau].T) @ W[j]
                 )
-    assert all(outputerror.MIN_LAGS < K <= 60 for K in lags), lags
+    assert all(bounds.MIN_LAGS < K <= 60 for K in lags), lags
     A = rng.normal(size=(prob.n_params, prob.n_params))
     cov = A @ A.T  # any symmetric matrix in place of M⁻¹: the sandwich is linear in each side
     ref = (cov @ mid @ cov)[: prob.n_free, : prob.n_free]
-    got = outputerror.colored_covariance(prob, p, outputerror.states(prob, p), res, R, cov)
+    got = bounds.colored_covariance(prob, p, recursions.states(prob, p), res, R, cov)
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
 
 
@@ -143,9 +147,9 @@ def test_lag_window_is_the_floor_for_white_residuals_and_spans_a_colored_correla
 
     def window(v):
         r = np.array([np.sum(v[: n - tau] * v[tau:], axis=0) for tau in range(n // 4 + 1)])
-        return outputerror._lag_window(r[1:] / r[0], n)
+        return bounds.lag_window(r[1:] / r[0], n)
 
-    assert window(rng.normal(size=(n, 10))) == outputerror.MIN_LAGS
+    assert window(rng.normal(size=(n, 10))) == bounds.MIN_LAGS
     # AR(1), ρ = 0.9: τ_int = (1+ρ)/(1−ρ) = 19, so six of them: about 114 lags
     assert 90 <= window(_ar1(rng, (n, 3), 0.9, 1.0)) <= 160
     # a slow oscillation (period 100 samples) in one channel: the window spans its
@@ -186,11 +190,11 @@ def test_colored_residual_bound_grows_with_an_ar1_correlation_as_theory_says():
     rho = 0.7
     fits = _fits(lambda rng, shape, std: _ar1(rng, shape, rho, std), 4)
     ratio = np.mean([e.crlb_corrected_std / e.std for e in fits], axis=0)
-    prob = outputerror.problem(experiments(0, 60.0, noise=None), example_config())
-    p = outputerror.initial_states(prob, prob.start)
+    prob = problem(experiments(0, 60.0, noise=None), example_config())
+    p = likelihood.initial_states(prob, prob.start)
     sigma = np.array([NOISE[c] for c in prob.channels])
     M, mid = np.zeros((prob.n_params, prob.n_params)), np.zeros((prob.n_params, prob.n_params))
-    for r, S in zip(prob.records, outputerror.sensitivities(prob, p)):
+    for r, S in zip(prob.records, recursions.sensitivities(prob, p)):
         cols, n = prob.columns(r), len(S)
         T = rho ** np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
         for c, ch in enumerate(r.channels):
@@ -209,12 +213,12 @@ def test_colored_residual_bound_grows_with_an_ar1_correlation_as_theory_says():
 
 def test_sensitivities_made_in_pieces_equal_the_whole_recursion():
     prob, p = _problem(duration=3.0)
-    models, xs = outputerror._models(prob, p[: prob.n_free], 1), outputerror.states(prob, p)
-    for r, x, S in zip(prob.records, xs, outputerror.sensitivities(prob, p, xs)):
+    models, xs = recursions.discrete_models(prob, p[: prob.n_free], 1), recursions.states(prob, p)
+    for r, x, S in zip(prob.records, xs, recursions.sensitivities(prob, p, xs)):
         scale = np.linspace(0.5, 2.0, len(r.measured))
         for size in (7, 8, len(x) - 1):  # odd and even pieces carry the recursion on
             got, parts = np.zeros_like(S), set()
-            for channels, params, pieces in outputerror._sensitivity_parts(
+            for channels, params, pieces in recursions.sensitivity_parts(
                 prob, r, models[r.dt], x, r.measured, scale, size
             ):
                 for samples, piece in pieces:
@@ -230,18 +234,18 @@ def test_compiled_recursions_equal_the_numpy_blocks():
     pc[0] += 1e-30j  # complex steps run through both too
 
     def everything():
-        xs, res = outputerror.states(prob, p), outputerror.residuals(prob, p)
-        R = outputerror.noise_variance(prob, res)
+        xs, res = recursions.states(prob, p), recursions.residuals(prob, p)
+        R = likelihood.noise_variance(prob, res)
         return (
             *xs,
-            *outputerror.sensitivities(prob, p, xs),
-            *outputerror.gauss_newton_terms(prob, p, xs, res, R),
-            outputerror.fit_initial_states(prob, prob.start)[0],
-            *outputerror.outputs(prob, pc),
+            *recursions.sensitivities(prob, p, xs),
+            *likelihood.gauss_newton_terms(prob, p, xs, res, R),
+            likelihood.fit_initial_states(prob, prob.start)[0],
+            *recursions.outputs(prob, pc),
         )
 
     blocks = everything()
-    with outputerror.compiled():
+    with scan.compiled():
         compiled = everything()
     for a, b in zip(blocks, compiled):  # g sums noise-sized residuals: to rounding of its largest entry
         np.testing.assert_allclose(a.real, b.real, rtol=1e-11, atol=1e-11 * np.abs(a.real).max())
@@ -253,23 +257,23 @@ def test_uncoupled_parts_are_the_connected_states_and_parameters():
     coupled[1, 0] = True  # state 0 feeds 1, 2 and 3 are alone
     acts = np.zeros((4, 3), bool)
     acts[0, 0] = acts[2, 1] = acts[3, 2] = True  # parameter 2 acts on state 3 only
-    parts = outputerror._uncoupled(coupled, acts, np.array([1, 2, 3]))
+    parts = recursions.uncoupled(coupled, acts, np.array([1, 2, 3]))
     assert [[list(a) for a in part] for part in parts] == [
         [[0, 1], [0], [0]],
         [[2], [1], [1]],
         [[3], [2], [2]],
     ]
     acts[3, 1] = True  # parameter 1 now acts on 2 and 3 together: one part
-    parts = outputerror._uncoupled(coupled, acts, np.array([1, 2]))  # state 3 not asked for
+    parts = recursions.uncoupled(coupled, acts, np.array([1, 2]))  # state 3 not asked for
     assert [[list(a) for a in part] for part in parts] == [[[0, 1], [0], [0]], [[2, 3], [1, 2], [1]]]
 
 
 def test_information_is_consistent():
     data = _data(duration=30.0)
-    info = outputerror.information(data, example_config())
+    info = bounds.information(data, example_config())
     F = info.fisher
     np.testing.assert_allclose(F, F.T, rtol=1e-12)
-    np.testing.assert_allclose(outputerror.fisher(data, example_config()), F, rtol=1e-12)
+    np.testing.assert_allclose(bounds.fisher(data, example_config()), F, rtol=1e-12)
     # crlb of the coefficients with the initial states as nuisance = the Schur complement's inverse
     np.testing.assert_allclose(info.crlb_std, np.sqrt(np.diag(np.linalg.inv(F))), rtol=1e-6)
     np.testing.assert_allclose(np.diag(info.correlation), 1.0, rtol=1e-9)
@@ -282,7 +286,7 @@ def test_information_is_consistent():
     ratio = info.crlb_corrected_std / info.crlb_std
     assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
     # values override the config: a 10 % change of one free coefficient raises the cost
-    worse = outputerror.information(data, example_config(), {"N_r": 0.9 * EXAMPLE_COEFFICIENTS["N_r"]})
+    worse = bounds.information(data, example_config(), {"N_r": 0.9 * EXAMPLE_COEFFICIENTS["N_r"]})
     assert worse.cost > info.cost
 
 
@@ -291,13 +295,13 @@ def test_crlb_is_the_closed_form_inverse_and_infinite_along_null_directions():
     J = np.random.default_rng(0).standard_normal((40, 4))
     F = J.T @ J
     inv = np.linalg.inv(F)
-    cov, std, corr = outputerror.crlb(F)
+    cov, std, corr = bounds.crlb(F)
     np.testing.assert_allclose(cov, inv, rtol=1e-10)
     np.testing.assert_allclose(std, np.sqrt(np.diag(inv)), rtol=1e-10)
     np.testing.assert_allclose(corr, inv / np.outer(std, std), rtol=1e-10, atol=1e-14)
     # nearly singular 2×2, F = [[a, b], [b, c]]: σ₁ = √(c/(ac − b²)), ρ = −b/√(ac), exactly
     a, b, c = 1.0e6, 1.0e3 * (1.0 - 1e-7), 1.0  # ac − b² = 2e-7 ab: eigenvalue ratio 1e-7
-    cov, std, corr = outputerror.crlb(np.array([[a, b], [b, c]]))
+    cov, std, corr = bounds.crlb(np.array([[a, b], [b, c]]))
     np.testing.assert_allclose(std, [np.sqrt(c / (a * c - b * b)), np.sqrt(a / (a * c - b * b))], rtol=1e-6)
     np.testing.assert_allclose(corr[0, 1], -b / np.sqrt(a * c), rtol=1e-12)
     # two coefficients that only act as their sum (null direction (1, −1)/√2, up to rounding)
@@ -306,21 +310,39 @@ def test_crlb_is_the_closed_form_inverse_and_infinite_along_null_directions():
     F = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 4.0]]) + 1e-17
     assert np.all(np.isfinite(np.sqrt(np.diag(np.linalg.pinv(F, rcond=1e-12, hermitian=True)))))
     for d in (np.ones(3), np.array([1e-4, 1e5, 1e3])):
-        cov, std, corr = outputerror.crlb(F / np.outer(d, d))
+        cov, std, corr = bounds.crlb(F / np.outer(d, d))
         np.testing.assert_allclose(std, [np.inf, np.inf, 0.5 * d[2]], rtol=1e-9)
         assert np.all(np.isnan(corr[:2])) and np.all(np.isnan(corr[:, :2])) and corr[2, 2] == 1.0
     # a coefficient with no information at all (zero row)
     F = np.diag([4.0, 1.0, 0.0])
-    np.testing.assert_allclose(outputerror.crlb(F).std, [0.5, 1.0, np.inf])
+    np.testing.assert_allclose(bounds.crlb(F).std, [0.5, 1.0, np.inf])
 
 
 def test_equation_error_recovers_the_coefficients_from_noise_free_data():
     data = experiments(seed=0, duration=30.0, noise=None)
     prior = example_config().with_coefficients({n: 0.6 * EXAMPLE_COEFFICIENTS[n] for n in FREE})
-    ee = outputerror.equation_error(data, prior)
-    got = np.array([ee.coefficients[n] for n in FREE])
+    got, left = equation_error.regression(problem(data, prior))
+    assert left == {}
     want = np.array([EXAMPLE_COEFFICIENTS[n] for n in FREE])
     np.testing.assert_allclose(got, want, rtol=0.01)
+
+
+def test_equation_error_refuses_data_that_leave_a_row_out():
+    t, u = inputs(duration=10.0)["horizontal"]
+    config = prior_config(free=("N_r", "N_dr"))
+    data = [prediction.synthetic(example_config(), t, u, measured=("r", "psi"), name="yaw")]
+    got, left = equation_error.regression(problem(data, config))
+    assert set(left) == {"N_r", "N_dr"} and "v" in left["N_r"] and "r" in left["N_r"]
+    np.testing.assert_array_equal(got, [config.coefficients["N_r"], config.coefficients["N_dr"]])
+    with pytest.raises(InputError, match=r"cannot estimate N_r, N_dr \(their row involves v, .*r\)"):
+        identify(data, config, method="equation-error")
+    # the same data measuring sway too: the row is used
+    data = [prediction.synthetic(example_config(), t, u, measured=("v", "p", "r", "phi", "psi"), name="yaw")]
+    est = identify(data, config, method="equation-error")
+    assert est.converged and est.iterations == 1
+    np.testing.assert_allclose(
+        est.values, [EXAMPLE_COEFFICIENTS["N_r"], EXAMPLE_COEFFICIENTS["N_dr"]], rtol=0.01
+    )
 
 
 def test_smoothing_is_savitzky_golay_within_the_record():
@@ -330,7 +352,7 @@ def test_smoothing_is_savitzky_golay_within_the_record():
     for win in (5, 11, 39):
         h = win // 2
         np.testing.assert_allclose(
-            outputerror._smoothed(y, win),
+            equation_error.smoothed(y, win),
             savgol_filter(y, win, 3, axis=0)[h : len(y) - h],
             rtol=1e-12,
             atol=1e-12 * np.abs(y).max(),
@@ -340,17 +362,17 @@ def test_smoothing_is_savitzky_golay_within_the_record():
 def test_bad_input():
     data = _data()
     with pytest.raises(InputError, match="Y_bogus"):
-        outputerror.problem(data, replace(example_config(), free=("Y_v", "Y_bogus")))
+        problem(data, replace(example_config(), free=("Y_v", "Y_bogus")))
     y = data[0].y.copy()
     y[3, 1] = np.nan
     with pytest.raises(InputError, match="NaN"):
-        outputerror.problem([replace(data[0], y=y)], example_config())
+        problem([replace(data[0], y=y)], example_config())
     t = data[0].t.copy()
     t[5] += 0.01
     with pytest.raises(InputError, match="uniform"):
-        outputerror.problem([replace(data[0], t=t)], example_config())
+        problem([replace(data[0], t=t)], example_config())
     with pytest.raises(InputError, match="expected 15"):
-        outputerror.information(data, example_config(), np.zeros(3))
+        bounds.information(data, example_config(), np.zeros(3))
 
 
 def test_unmeasured_initial_states_stay_at_trim():
@@ -363,22 +385,20 @@ def test_unmeasured_initial_states_stay_at_trim():
 
 def test_gauss_newton_terms_are_the_weighted_sums_of_the_sensitivities():
     prob, p = _problem()  # two experiments measuring different subsets
-    p = outputerror.initial_states(prob, prob.start * 1.1)
-    xs, res = outputerror.states(prob, p), outputerror.residuals(prob, p)
-    R = outputerror.noise_variance(prob, res)
+    p = likelihood.initial_states(prob, prob.start * 1.1)
+    xs, res = recursions.states(prob, p), recursions.residuals(prob, p)
+    R = likelihood.noise_variance(prob, res)
     g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
-    for r, S, e in zip(prob.records, outputerror.sensitivities(prob, p), res):
+    for r, S, e in zip(prob.records, recursions.sensitivities(prob, p), res):
         cols, rinv = prob.columns(r), 1 / R[r.channels]
         g[cols] += np.einsum("nkp,k,nk->p", S, rinv, e)
         M[np.ix_(cols, cols)] += np.einsum("nkp,k,nkq->pq", S, rinv, S)
-    g2, M2 = outputerror.gauss_newton_terms(prob, p, xs, res, R)
+    g2, M2 = likelihood.gauss_newton_terms(prob, p, xs, res, R)
     np.testing.assert_allclose(g2, g, rtol=1e-10, atol=1e-12 * np.abs(g).max())
     np.testing.assert_allclose(M2, M, rtol=1e-10, atol=1e-12 * np.abs(M).max())
 
 
 def test_fft_length_is_the_least_5_smooth_number_not_below_n():
-    from testbed.identification.outputerror import _fft_length
-
     def smooth(m):
         for q in (2, 3, 5):
             while m % q == 0:
@@ -386,11 +406,9 @@ def test_fft_length_is_the_least_5_smooth_number_not_below_n():
         return m == 1
 
     for n in [*range(1, 400), 6001, 7502, 12345]:
-        L = _fft_length(n)
+        L = bounds.fft_length(n)
         assert L >= n and smooth(L) and not any(smooth(m) for m in range(n, L)), (n, L)
 
 
 def test_lag_window_of_a_record_too_short_to_test_is_its_half():
-    from testbed.identification.outputerror import _lag_window
-
-    assert _lag_window(np.empty((0, 3)), 3) == 1
+    assert bounds.lag_window(np.empty((0, 3)), 3) == 1

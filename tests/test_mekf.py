@@ -14,8 +14,8 @@ from testbed.cli import main
 from testbed.data import Experiment, ModelConfig, load_data, write_config, write_csv
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
-from testbed.estimators.mekf import FilterOptions, _Model, _run, sqrt_update, svd_root, tria
-from testbed.identification.outputerror import information
+from testbed.estimators.mekf import FilterOptions, DiscreteModel, run_filter, sqrt_update, svd_root, tria
+from testbed.identification.bounds import information
 from testbed.simulation.measurements import noise_free_channels, noise_from_data
 from testbed.models.linear import (
     COEFFICIENTS,
@@ -178,7 +178,7 @@ def _zoh(A, B, S, dt):
 
 
 def test_model_matches_complex_step():
-    # _Model.exact (expm_pair) against scipy's expm and its complex steps, on both paths: free
+    # DiscreteModel.exact (expm_pair) against scipy's expm and its complex steps, on both paths: free
     # *dot terms (continuous/derivatives at every call) and none (affine in θ).
     vehicle = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.01, 0.002, -0.0196, 1.54)
     s = structure(vehicle)
@@ -188,7 +188,7 @@ def test_model_matches_complex_step():
         ("Y_v", "Y_r", "Z_de", "K_p", "K_del", "N_r"),
     ):
         idx = np.array([ITHETA[n] for n in free])
-        model = _Model(s, theta, idx)
+        model = DiscreteModel(s, theta, idx)
         assert model.affine == (free[0] == "Y_v")
         th = theta[idx] * 1.1  # away from the start: the affine path's M(θ) is moved
         at = theta.copy()
@@ -209,7 +209,7 @@ def test_model_refresh_policy_carries_E_to_first_order():
     s = structure(VEHICLE)
     theta = theta_vector(SIMULATED)
     idx = np.array([ITHETA[n] for n in SWAY_YAW])
-    model = _Model(s, theta, idx)
+    model = DiscreteModel(s, theta, idx)
     dt, th0 = 0.05, theta[idx].copy()
     var = (0.1 * np.abs(th0)) ** 2
     xi = np.concatenate([np.random.default_rng(13).normal(size=10), [0.01, -0.02, 0.0, 1.0]])
@@ -309,7 +309,7 @@ def test_poorly_scaled_problem_breaks_the_conventional_covariance_only():
     assert ekf.max_covariance_asymmetry > 1e5 * eps
 
     # The same EKF (same centre, same model) in square-root form, stopped at the same sample.
-    sq = _run(
+    sq = run_filter(
         [e],
         config,
         method="ekf-sqrt",

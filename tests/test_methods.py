@@ -21,7 +21,7 @@ from testbed.estimators import (
     identify,
     lookup,
 )
-from testbed.identification.outputerror import synthetic
+from testbed.identification.prediction import synthetic
 from testbed.simulation.measurements import NOISE_STD
 from testbed.models.linear import INPUTS
 from testbed.simulation.analytic import analytic_config
@@ -35,10 +35,12 @@ def problem():
     config, _ = analytic_config()
     config = dataclasses.replace(config, free=FREE)
     rng = np.random.default_rng(7)
-    t = np.arange(0.0, 40.0, 0.05)
+    t = np.arange(0.0, 40.0, 0.02)  # 50 Hz, the bundled scenarios' control rate
     inputs = np.zeros((len(t), len(INPUTS)))
-    inputs[:, 0] = 0.02 * np.repeat(rng.choice([-1.0, 1.0], size=len(t) // 20 + 1), 20)[: len(t)]
-    data = [synthetic(config, t, inputs, NOISE_STD, measured=("v", "r", "psi"), rng=rng, name="rudder")]
+    inputs[:, 0] = 0.02 * np.repeat(rng.choice([-1.0, 1.0], size=len(t) // 50 + 1), 50)[: len(t)]  # held 1 s
+    # the yaw row involves sway, roll and roll rate too: measured, so that every method can use it
+    measured = ("v", "p", "r", "phi", "psi")
+    data = [synthetic(config, t, inputs, NOISE_STD, measured=measured, rng=rng, name="rudder")]
     start = config.with_coefficients({n: 0.8 * config.coefficients[n] for n in FREE})
     return data, config, start
 
@@ -93,6 +95,11 @@ class TestEveryMethod:
     def test_an_iteration_or_sample_limit_stops_it_unconverged(self, name, problem):
         data, _, start = problem
         m = lookup(name)
+        if not (m.iterative or m.online):  # a direct method has no limit to set: both are refused
+            for limit in ("max_iter", "max_samples"):
+                with pytest.raises(OptionError, match=f"option {limit}=0"):
+                    identify(data, start, method=name, options={limit: 0})
+            return
         limit = {"max_iter": 0} if m.iterative else {"max_samples": 5}
         est = identify(data, start, method=name, options=limit)
         assert est.status is Status.MAX_ITERATIONS and not est.converged
@@ -100,7 +107,14 @@ class TestEveryMethod:
 
     def test_options_may_be_an_instance_a_mapping_or_keywords(self, name, problem):
         m = lookup(name)
-        key = "max_iter" if m.iterative else "max_samples"
+        # a limit where the method has one, else its first option (a direct method's are > 0)
+        key = (
+            "max_iter"
+            if m.iterative
+            else "max_samples"
+            if m.online
+            else dataclasses.fields(m.options)[0].name
+        )
         value = 3
         built = m.options.build(name, {key: value})
         assert m.options.build(name, built) == built == m.options.build(name, **{key: value})

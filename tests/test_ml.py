@@ -18,7 +18,7 @@ from testbed.identification.examples import (
 
 from testbed.errors import InputError
 from testbed.estimators import METHODS, Status, identify
-from testbed.identification.outputerror import information
+from testbed.identification.bounds import information
 
 WANT = np.array([EXAMPLE_COEFFICIENTS[n] for n in FREE])
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")
@@ -110,15 +110,15 @@ def test_auto_from_an_a_priori_model_that_diverges_over_the_record(data, from_si
 
 def test_the_least_cost_fit_is_kept_even_unconverged():
     from testbed.estimators.base import Outcome
-    from testbed.estimators.ml import DELTA_J, Fit, _best
+    from testbed.estimators.ml import DELTA_J, Fit, best_fit
 
     def fit(name, status, cost):
         return Fit(name, Outcome(np.zeros(1), status, 1, np.zeros((2, 1))), cost, cost + 5)
 
     near = [fit("config", Status.CONVERGED, -100.0), fit("mekf", Status.MAX_ITERATIONS, -100.0 - DELTA_J / 2)]
-    assert _best(near).start == "config"  # one optimum: the converged fit
+    assert best_fit(near).start == "config"  # one optimum: the converged fit
     far = [fit("config", Status.CONVERGED, -100.0), fit("mekf", Status.MAX_ITERATIONS, -100.0 - 3 * DELTA_J)]
-    assert _best(far).start == "mekf"  # the converged fit is not the optimum: say so
+    assert best_fit(far).start == "mekf"  # the converged fit is not the optimum: say so
 
 
 def test_ml_nr_and_ml_nm_converge_on_an_easy_case():

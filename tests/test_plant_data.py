@@ -9,7 +9,7 @@ from testbed.analysis.identifiability import screen
 from testbed.cli import main
 from testbed.data import Experiment, load_data, read_config
 from testbed.estimators import identify
-from testbed.identification.outputerror import predict
+from testbed.identification.prediction import predict
 from testbed.models.linear import STATES
 from testbed.simulation.runs import simulate
 from testbed.analysis.validation import fit_percent

@@ -17,14 +17,6 @@ import testbed
 ROOT = Path(testbed.__file__).parent
 REPO = ROOT.parent
 # Being split into smaller modules, which declare their own `__all__`.
-SPLITTING = {"testbed.identification.outputerror", "testbed.analysis.design"}
-# Unit tests of a filter's discrete model and its run over the experiments, and of the choice
-# among ML starts, whose functions the estimators keep private.
-PRIVATE_UNITS = {
-    ("testbed.estimators.mekf", "_Model"),
-    ("testbed.estimators.mekf", "_run"),
-    ("testbed.estimators.ml", "_best"),
-}
 
 
 def module_name(path: Path) -> str:
@@ -44,7 +36,7 @@ def declared_all(path: Path) -> ast.expr | None:
     return None
 
 
-@pytest.mark.parametrize("name", sorted(set(MODULES) - SPLITTING))
+@pytest.mark.parametrize("name", sorted(MODULES))
 def test_every_module_declares_all_and_every_name_in_it_exists(name):
     declared = declared_all(MODULES[name])
     assert declared is not None, f"{MODULES[name]}: no __all__"
@@ -108,7 +100,7 @@ def test_everything_uses_only_the_public_names():
         own = module_name(path) if path.is_relative_to(ROOT) else None
         for line, module, name in uses(path):
             dunder = name.startswith("__") and name.endswith("__")  # __file__, __doc__, __version__
-            if dunder or module in SPLITTING or module == own or (module, name) in PRIVATE_UNITS:
+            if dunder or module == own:
                 continue
             public = importlib.import_module(module).__all__
             if name not in public and not inspect.ismodule(

@@ -19,8 +19,8 @@ from testbed.analysis.identifiability import compare
 from testbed.data import ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed.identification import outputerror
-from testbed.identification.outputerror import synthetic
+from testbed.identification import likelihood, prediction
+from testbed.identification.prediction import synthetic
 from testbed.models.linear import INPUTS, STATES
 from testbed.simulation.analytic import analytic_config
 
@@ -511,7 +511,7 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
     def no_fit(*args, **kwargs):
         raise AssertionError("the initial states were fitted again")
 
-    monkeypatch.setattr(outputerror, "fit_initial_states", no_fit)
+    monkeypatch.setattr(likelihood, "fit_initial_states", no_fit)
     path = report.log_fit(tmp_path / "fit.rrd", data, start, moved, [])
     psi = _scalars(path, f"/outputs/{name}/psi")[:, 1]  # (measured, model)
     assert psi[0] == pytest.approx(x0["psi"] + 1.0)
@@ -521,7 +521,7 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
     partial = dataclasses.replace(est, initial_states={name: {"psi": x0["psi"] + 1.0}})
     for e in (dataclasses.replace(est, initial_states=None), partial):
         path = report.log_fit(tmp_path / "fit2.rrd", data, start, e, [])
-        expected = outputerror.predict(data, start.with_coefficients(est.coefficients), e.initial_states)[0]
+        expected = prediction.predict(data, start.with_coefficients(est.coefficients), e.initial_states)[0]
         assert np.allclose(_scalars(path, f"/outputs/{name}/psi")[:, 1], expected[:, 2])
 
 

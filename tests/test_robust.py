@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import brentq
 
 from studies import starts
-from testbed.identification import outputerror
+from testbed.identification import bounds, prediction
 from testbed.analysis.identifiability import screen
 from testbed.data import load_data
 from testbed.errors import InputError
@@ -43,7 +43,7 @@ def unstable():
     its heading against a rudder PRBS (course-unstable ships are tested under an autopilot or in
     zigzags: open loop the heading runs away), its lateral states measured with the run's sensor
     noise. The autopilot reads the noise-free states (as a filtered estimate would); the data
-    are the linear model's own response to the rudder it recorded (`outputerror.synthetic`)."""
+    are the linear model's own response to the rudder it recorded (`prediction.synthetic`)."""
     config = analytic_config()[0]
     nv = config.coefficients["N_v"]
 
@@ -62,13 +62,13 @@ def unstable():
         inputs[k, 0] = program(tk, x) + K_PSI * x[IX["psi"]] + K_R * x[IX["r"]]
         x = Phi @ x + Gamma @ inputs[k] + s
     noise = {c: NOISE_STD[c] for c in LATERAL}
-    experiment = outputerror.synthetic(
+    experiment = prediction.synthetic(
         simulated, t, inputs, noise, LATERAL, np.random.default_rng(1), name="autopilot"
     )
     # the bounds at the simulated coefficients with the noise known, the initial states eliminated (Schur
     # complement): independent of any fit
     sigma = np.sqrt(
-        np.diag(np.linalg.inv(outputerror.information([experiment], simulated, noise_std=noise).fisher))
+        np.diag(np.linalg.inv(bounds.information([experiment], simulated, noise_std=noise).fisher))
     )
     return simulated, experiment, sigma
 

@@ -17,7 +17,7 @@ from testbed.cli import main
 from testbed.data import config_text, read_config, write_csv
 from testbed.errors import InputError
 from testbed.jobs import identify_data
-from testbed.identification.outputerror import synthetic
+from testbed.identification.prediction import synthetic
 from testbed.simulation.measurements import NOISE_STD, noise_from_data
 from testbed.simulation.signals import Prbs
 from testbed.simulation.analytic import analytic_config, analytic_config_text

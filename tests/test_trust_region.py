@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.optimize import NonlinearConstraint, minimize
 
-from testbed.identification import outputerror
+from testbed.identification import likelihood
+from testbed.identification.problem import problem
 from testbed.estimators import identify, trust_region
 from testbed.identification.examples import experiments, example_config
 
@@ -44,17 +45,17 @@ def test_step_solves_the_trust_region_subproblem_as_scipy_does(delta, rank):
 def test_hessian_is_the_second_derivative_of_the_cost_with_the_initial_states_fitted():
     data = experiments(seed=2, duration=20.0)[1:]
     config = example_config(VERTICAL)
-    prob = outputerror.problem(data, config)
+    prob = problem(data, config)
     theta = prob.start * 1.05  # off the optimum, where the second-order terms count
     R = trust_region.point(prob, prob.start).R
 
     def cost(th):
-        p, out = outputerror.fit_initial_states(prob, th, R)
-        return outputerror.weighted_cost(prob, [r.y - y for r, y in zip(prob.records, out)], R)
+        p, out = likelihood.fit_initial_states(prob, th, R)
+        return likelihood.weighted_cost(prob, [r.y - y for r, y in zip(prob.records, out)], R)
 
-    p, xs = outputerror.fit_initial_states(prob, theta, R, full=True)
+    p, xs = likelihood.fit_initial_states(prob, theta, R, full=True)
     res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
-    at = trust_region.Point(p, xs, res, R, outputerror.negative_log_likelihood(prob, res))
+    at = trust_region.Point(p, xs, res, R, likelihood.negative_log_likelihood(prob, res))
     H = trust_region.hessian(prob, at)
     h = 1e-4 * np.abs(theta)
     fd = np.empty_like(H)
@@ -70,8 +71,8 @@ def test_hessian_is_the_second_derivative_of_the_cost_with_the_initial_states_fi
 
 def test_segments_cover_the_record_each_with_its_own_initial_state():
     data = experiments(seed=1, duration=60.0, noise=None)  # noise-free
-    prob = outputerror.problem(data, example_config())
-    seg = outputerror.segmented(prob, 16, trust_region.LEAST_SEGMENT)
+    prob = problem(data, example_config())
+    seg = likelihood.segmented(prob, 16, trust_region.LEAST_SEGMENT)
     per_record = len(seg.records) // len(prob.records)
     assert per_record == min(16, len(prob.records[0].y) // trust_region.LEAST_SEGMENT)
     for k, r in enumerate(prob.records):
@@ -89,7 +90,7 @@ def test_a_stationary_point_is_checked_for_a_minimum():
     config = example_config(VERTICAL)
     est = identify(data, config, method="ml-gn", start="config")
     assert est.converged
-    prob = outputerror.problem(data, config)
+    prob = problem(data, config)
     at = trust_region.point(prob, est.values)
     assert trust_region.second_order(prob, at, np.abs(est.values)) is None
     H = trust_region.hessian(prob, at)

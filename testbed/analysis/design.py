@@ -35,64 +35,102 @@ carry over to another signal. The shapes are ranked with their peaks at Scenario
 design model (`Limits`, `largest`: linear, no flight); the chosen one is then grown on the truth
 plant to the largest amplitude the rule allows (`grow`), and the flown design is checked again
 (an experiment that breaks the rule is scaled down until it holds). The sequential design
-(`estimates`) checks the rule on the same plant (`mjcf`), its stand-in for the vehicle.
+(`estimates`) checks the rule on the same plant (`mjcf`), its stand-in for the vehicle. The fins'
+range and slew rate are the MJCF's (`vehicle.fin_limits`), for the flights and the bounds alike.
+
+The regime's peaks and the check on the truth plant are `testbed.analysis.regime`; the design's
+text, scenario file and Rerun recording are `testbed.presentation.design_report`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
 
 from testbed.analysis.identifiability import unidentified
-from testbed.simulation.autopilot import FIN_LIMIT, Autopilot, fly_linear
-from testbed.data import Experiment, ModelConfig, check_free, read_estimates as data_read_estimates
-from testbed.errors import InputError, atomic_write_text, check_outputs
-from testbed.identification import outputerror
-from testbed.identification.outputerror import crlb, predict
+from testbed.analysis.regime import FITTED, SEED, Limits, Linearity, linearity, peaks
+from testbed.data import Experiment, ModelConfig, check_free
+from testbed.errors import InputError
+from testbed.identification import bounds
+from testbed.identification.bounds import crlb
+from testbed.models.linear import (
+    COEFFICIENTS,
+    IX,
+    NX,
+    STATES,
+    continuous,
+    derivatives,
+    inertia_defect,
+    structure,
+    theta_vector,
+)
+from testbed.simulation.analytic import analytic, model_config
+from testbed.simulation.autopilot import Autopilot, fly_linear
 from testbed.simulation.measurements import NOISE_STD
-from testbed.simulation.recording import (
-    STYLE,
-    axis_range,
-    data_id,
-    panel_title,
-    recording,
-    series,
-    time_column,
-    x_range,
-)
-from testbed.models.linear import COEFFICIENTS, INPUTS, IX, NX, STATES, continuous, structure, theta_vector
-from testbed.simulation.scenario import (
-    ExperimentSpec,
-    Scenario,
-    fly_scenario,
-    program,
-    scenario,
-    scenario_text,
-)
+from testbed.simulation.scenario import ExperimentSpec, Scenario, program, scenario
 from testbed.simulation.signals import TAPS, Hold, Multisine, Prbs, Signal, Square
-from testbed.simulation.analytic import analytic_config, model_config
-from testbed.analysis.validation import fit_percent
+from testbed.simulation.vehicle import FinLimits
+
+__all__ = [
+    "CHECK_SEEDS",
+    "CRITERIA",
+    "GROWTH",
+    "GROWTH_BISECTIONS",
+    "GROWING",
+    "GROWTH_MARGIN",
+    "HOLD_STEPS",
+    "MAX_EXPERIMENT",
+    "MAX_SHRINKS",
+    "MIN_EXPERIMENT",
+    "MULTISINE_BANDS",
+    "MULTISINE_LINES",
+    "PRBS_CLOCKS",
+    "REFERENCE",
+    "SCENARIO_HOLD",
+    "SHRINK",
+    "STEP",
+    "TEMPLATES",
+    "Candidate",
+    "Design",
+    "Model",
+    "band",
+    "best_signals",
+    "candidates",
+    "criterion",
+    "design",
+    "evaluate",
+    "experiment",
+    "fisher",
+    "fly_model",
+    "grow",
+    "hold_signal",
+    "identified",
+    "information",
+    "instability",
+    "largest",
+    "model",
+    "regime_limits",
+    "scaled",
+    "scales",
+    "scenario_flights",
+    "scenario_information",
+    "spec",
+    "split",
+]
 
 CRITERIA = ("D", "A", "E")
-FIN_RATE = 2.0  # rad/s, the servos' slew rate (the plant's and fly_linear's)
+GROWING = 1e-6  # 1/s: a mode whose real part exceeds it grows (the design model must be stable)
 STEP = 10.0  # s, the grid of the time split
 MIN_EXPERIMENT = 20.0  # s, the shortest experiment of a split
 # s, the longest record: the depth integrates the second-order pitch drift (it grows as the cube
 # of the time), and Scenario II's regime was measured on 60 s records; more time for a type is
 # flown as several records (each its own initial state and PRBS phase)
 MAX_EXPERIMENT = 60.0
-SEED = 1  # the PRBS phases and noise streams the design is evaluated and flown with
 CHECK_SEEDS = (0, 1, 2)  # the PRBS phases the flown design is checked with (simulate's default: 0)
 GROWTH_MARGIN = 0.7  # the rule's tolerances an amplitude is grown to: a margin for other phases
-FITTED = tuple(s for s in STATES if s != "z")  # a run's model.toml fits every state but depth
-RESIDUAL_LIMIT = 0.2  # second-order residual / sensor noise on fitted channels (Scenario II's rule)
-FIT_LIMIT = 99.0  # % fit of the analytic model on every excited channel, depth included
 SHRINK = 0.8  # amplitude factor per failed linearity check
 MAX_SHRINKS = 6
 
@@ -120,50 +158,6 @@ MULTISINE_LINES = 24  # at most, log-spaced harmonics of the record's fundamenta
 REFERENCE = 1e-3  # rad, the amplitude a shape is simulated at before it is scaled to the bounds
 
 
-@dataclass(frozen=True)
-class Limits:
-    """Peak bounds of the linear regime: rates rad/s, angles rad, velocities m/s."""
-
-    yaw_rate: float
-    pitch_rate: float
-    roll_rate: float
-    sideslip: float  # |v|/U, rad
-    heave: float  # |w|, m/s
-    pitch: float
-    roll: float
-    fin: float = FIN_LIMIT
-    fin_rate: float = FIN_RATE
-
-    def ratios(self, peaks: Mapping[str, float]) -> dict[str, float]:
-        """Each peak over its bound (≤ 1 inside the regime)."""
-        return {k: peaks[k] / getattr(self, k) for k in peaks}
-
-    def table(self) -> str:
-        deg = math.degrees
-        return (
-            f"yaw rate {deg(self.yaw_rate):.2f} deg/s, pitch rate {deg(self.pitch_rate):.2f} deg/s, "
-            f"roll rate {deg(self.roll_rate):.2f} deg/s, sideslip {deg(self.sideslip):.3f} deg, "
-            f"heave {self.heave:.4f} m/s, pitch {deg(self.pitch):.2f} deg, roll {deg(self.roll):.2f} deg, "
-            f"fin {self.fin:g} rad, fin rate {self.fin_rate:g} rad/s"
-        )
-
-
-def peaks(xs: np.ndarray, fins: np.ndarray, speed: float, dt: float) -> dict[str, float]:
-    """The limited quantities' peaks over a flight (states (N, 10), fin angles (N, 3))."""
-    i = IX
-    return {
-        "yaw_rate": float(np.abs(xs[:, i["r"]]).max()),
-        "pitch_rate": float(np.abs(xs[:, i["q"]]).max()),
-        "roll_rate": float(np.abs(xs[:, i["p"]]).max()),
-        "sideslip": float(np.abs(xs[:, i["v"]]).max() / speed),
-        "heave": float(np.abs(xs[:, i["w"]]).max()),
-        "pitch": float(np.abs(xs[:, i["theta"]]).max()),
-        "roll": float(np.abs(xs[:, i["phi"]]).max()),
-        "fin": float(np.abs(fins).max()),
-        "fin_rate": float(np.abs(np.diff(fins, axis=0)).max() / dt),
-    }
-
-
 # -- the model the design is made at ---------------------------------------------------------------
 
 
@@ -175,6 +169,7 @@ class Model:
     A: np.ndarray
     B: np.ndarray
     autopilot: Autopilot
+    fins: FinLimits  # the vehicle's fin range and slew rate (its MJCF's)
     noise_std: Mapping[str, float]
     control_rate: float = 50.0
     depth: float = 100.0
@@ -185,19 +180,55 @@ class Model:
 
 
 def model(
-    config: ModelConfig, noise_std: Mapping[str, float] | None = None, control_rate: float = 50.0
+    config: ModelConfig,
+    fins: FinLimits,
+    noise_std: Mapping[str, float] | None = None,
+    control_rate: float = 50.0,
 ) -> Model:
-    """The design model of `config` (its coefficients, its free list), autopilots designed on it."""
-    A, B, _ = continuous(structure(config.vehicle), theta_vector(config.coefficients))
-    if not np.all(np.isfinite(A)) or np.linalg.eigvals(A).real.max() > 1e-6:
+    """The design model of `config` (its coefficients, its free list), autopilots designed on it,
+    with the vehicle's fins `fins`."""
+    why = instability(config)
+    if why is not None:
         raise InputError(
-            f"{config.source or 'model'}: the linear model is unstable or not finite; "
-            "expected coefficients of a stable vehicle to design at"
+            f"{config.source or 'model'}: {why}; expected the coefficients of a stable vehicle to design at"
         )
+    A, B, _ = continuous(structure(config.vehicle), theta_vector(config.coefficients))
     speed = config.vehicle.speed
-    ap = Autopilot.designed(A, B, speed, 1.0 / control_rate)
+    ap = Autopilot.designed(A, B, speed, 1.0 / control_rate, fins.angle)
     config = replace(config, outputs=FITTED)
-    return Model(config, A, B, ap, dict(noise_std or NOISE_STD), control_rate)
+    return Model(config, A, B, ap, fins, dict(noise_std or NOISE_STD), control_rate)
+
+
+def instability(config: ModelConfig) -> str | None:
+    """Why the linear model of `config` is no vehicle to design at, or None: its Mt is not a
+    body's, or it is not finite, or its least stable mode grows. A growing mode is named by its
+    largest states (the eigenvector's components) and by the coefficients its growth rate
+    depends on most: those of largest |Re ∂λ/∂θ_i · θ_i| (the change of the rate per relative
+    change of θ_i, ∂λ/∂θ_i = wᴴ ∂A/∂θ_i v with w, v its left and right eigenvectors, wᴴv = 1)."""
+    s, theta = structure(config.vehicle), theta_vector(config.coefficients)
+    defect = inertia_defect(s, theta)
+    if defect:
+        return f"the inertia matrix Mt is not a body's: {defect}"
+    A, B, S = continuous(s, theta)
+    if not np.all(np.isfinite(A)):
+        return "the linear model is not finite"
+    lam, V = np.linalg.eig(A)
+    k = int(np.argmax(lam.real))
+    if lam[k].real <= GROWING:
+        return None
+    v = np.abs(V[:, k])
+    states = [STATES[i] for i in np.argsort(-v)[:3] if v[i] >= 0.1 * v.max()]
+    dA = derivatives(s, theta, A, B, S)[0]
+    effect = np.abs((np.linalg.inv(V)[k] @ dA @ V[:, k]).real * theta)
+    top = [i for i in np.argsort(-effect)[:3] if effect[i] > 0]
+    oscillating = (
+        f", oscillating at {abs(lam[k].imag) / (2 * np.pi):.3g} Hz" if abs(lam[k].imag) > GROWING else ""
+    )
+    return (
+        f"the linear model is unstable: a mode in {', '.join(states)} grows at {lam[k].real:.3g} 1/s"
+        f"{oscillating}; its growth depends most on "
+        + ", ".join(f"{COEFFICIENTS[i]} = {theta[i]:.4g}" for i in top)
+    )
 
 
 def fly_model(m: Model, e: ExperimentSpec, duration: float, seed: int = SEED, index: int = 0):
@@ -206,7 +237,7 @@ def fly_model(m: Model, e: ExperimentSpec, duration: float, seed: int = SEED, in
     x0 = np.zeros(NX)
     x0[IX["z"]] = m.depth
     m.autopilot.reset()
-    return fly_linear(m.A, m.B, m.autopilot, program(s, e, seed, index), duration, x0, FIN_RATE)
+    return fly_linear(m.A, m.B, m.autopilot, program(s, e, seed, index), duration, x0, rate_limit=m.fins.rate)
 
 
 def experiment(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design") -> Experiment:
@@ -220,7 +251,7 @@ def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str 
     """Fisher information of `m.config.free` from one noise-free experiment (initial states
     eliminated), with the sensor noise `m.noise_std`."""
     e = experiment(m, t, xs, fins, name)
-    return outputerror.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
+    return bounds.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
 
 
 # -- criteria ----------------------------------------------------------------------------------------
@@ -267,7 +298,11 @@ def regime_limits(m: Model, base: Scenario | str = "II") -> Limits:
         for key, v in peaks(xs, fins, m.speed, 1.0 / m.control_rate).items():
             worst[key] = max(worst.get(key, 0.0), v)
     return Limits(
-        **{k: worst[k] for k in ("yaw_rate", "pitch_rate", "roll_rate", "sideslip", "heave", "pitch", "roll")}
+        **{
+            k: worst[k] for k in ("yaw_rate", "pitch_rate", "roll_rate", "sideslip", "heave", "pitch", "roll")
+        },
+        fin=m.fins.angle,
+        fin_rate=m.fins.rate,
     )
 
 
@@ -491,7 +526,7 @@ def scenario_information(m: Model, total: float, base: Scenario | str = "II") ->
     """Fisher information of Scenario II flown for `total` s."""
     F = 0.0
     for e in scenario_flights(m, total, base):
-        F = F + outputerror.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
+        F = F + bounds.fisher(m.config.fitted([e]), m.config, noise_std=m.noise_std)
     return F
 
 
@@ -502,61 +537,6 @@ def identified(m: Model, total: float) -> dict[str, str]:
     by default: they would dominate any criterion, and the regime's amplitudes cannot bring them
     within reach."""
     return unidentified(scenario_flights(m, total), m.config, m.noise_std)
-
-
-# -- the check on the truth plant --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Linearity:
-    """Per experiment, the worst over the seeds flown: the lowest fit of the analytic model on
-    its excited channels, and the largest second-order residual over the sensor noise on the
-    fitted channels."""
-
-    fit: Mapping[str, tuple[str, float]]  # experiment -> (channel, fit %)
-    residual: Mapping[str, tuple[str, float]]  # experiment -> (channel, rms residual / noise)
-    speed_loss: Mapping[str, float]  # experiment -> peak speed loss, fraction of U
-    seeds: tuple[int, ...] = (SEED,)
-
-    def passed(self, name: str, margin: float = 1.0) -> bool:
-        """The rule, its two tolerances (100 % − fit, residual) times `margin` (≤ 1: stricter)."""
-        return (
-            self.fit[name][1] >= 100.0 - margin * (100.0 - FIT_LIMIT)
-            and self.residual[name][1] < margin * RESIDUAL_LIMIT
-        )
-
-    def table(self) -> str:
-        return "\n".join(
-            f"{n}: lowest fit {c} {f:.2f} %, largest second-order residual "
-            f"{self.residual[n][0]} {self.residual[n][1]:.3f} of the noise, speed loss "
-            f"{100 * self.speed_loss[n]:.3f} %"
-            for n, (c, f) in self.fit.items()
-        )
-
-
-def linearity(
-    s: Scenario, excited: Mapping[str, Sequence[str]], mjcf=None, seeds: Sequence[int] = (SEED,)
-) -> Linearity:
-    """Fly `s` noise-free on the truth plant with each seed's PRBS phases; compare with the
-    analytic model simulated open loop with the flown inputs from the first sample (`excited`:
-    experiment -> its channels). The worst over the seeds."""
-    fit, residual, loss = {}, {}, {}
-    for seed in seeds:
-        flights, lin = fly_scenario(s, seed=seed, mjcf=mjcf)
-        config = model_config(lin)[0]
-        truth = [Experiment(f.name, f.t, STATES, f.truth, f.fins) for f in flights]
-        start = {e.name: dict(zip(STATES, e.y[0])) for e in truth}
-        U = lin.vehicle.speed
-        for e, yhat in zip(truth, predict(truth, config, start)):
-            fits = {c: fit_percent(e.column(c), yhat[:, IX[c]]) for c in excited[e.name]}
-            res = {c: float(np.std(e.column(c) - yhat[:, IX[c]])) / s.sensors.noise_std[c] for c in FITTED}
-            c1, c2 = min(fits, key=fits.get), max(res, key=res.get)
-            if e.name not in fit or fits[c1] < fit[e.name][1]:
-                fit[e.name] = (c1, fits[c1])
-            if e.name not in residual or res[c2] > residual[e.name][1]:
-                residual[e.name] = (c2, res[c2])
-            loss[e.name] = max(loss.get(e.name, 0.0), float((U - e.column("u").min()) / U))
-    return Linearity(fit, residual, loss, tuple(seeds))
 
 
 # -- the design ------------------------------------------------------------------------------------------
@@ -599,88 +579,6 @@ class Design:
             out.append((self.free[k], float(r[k])))
         return tuple(out)
 
-    COLUMNS = ("coefficient", "value", "design σ", "design %", "II σ", "II %", "II/design")
-
-    def rows(self) -> list[tuple[str, ...]]:
-        """Per coefficient, formatted (`COLUMNS`): value, predicted bound and relative bound (%)
-        of the design and of Scenario II at the same flight time, and their ratio."""
-        rel = 100 * self.relative(self.crlb), 100 * self.relative(self.crlb_base)
-        return [
-            (
-                n,
-                f"{v:.4g}",
-                f"{a:.3g}",
-                f"{ra:.3g}" if v else "-",
-                f"{b:.3g}",
-                f"{rb:.3g}" if v else "-",
-                f"{b / a:.2f}",
-            )
-            for n, v, a, b, ra, rb in zip(self.free, self.values, self.crlb, self.crlb_base, *rel)
-        ]
-
-    def summary(self) -> str:
-        (n1, w1), (n2, w2) = self.worst()
-        return (
-            f"worst relative bound: design {100 * w1:.3g} % ({n1}), Scenario II {100 * w2:.3g} % ({n2}), "
-            f"{self.duration:g} s each"
-        )
-
-    def table(self) -> str:
-        """`rows` under `COLUMNS`, fixed width, then the worst relative bounds."""
-        widths = (12, 12, 11, 10, 11, 10, 10)
-
-        def line(cells):  # the name left-aligned, the numbers right-aligned
-            return "".join(
-                f"{c:<{w}}" if k == 0 else f"{c:>{w}}" for k, (c, w) in enumerate(zip(cells, widths))
-            )
-
-        return "\n".join([line(self.COLUMNS), *map(line, self.rows()), self.summary()])
-
-    def text(self) -> str:
-        """The scenario file, its header comments giving how it was designed and the bounds."""
-        deg = math.degrees
-        head = [
-            f"Designed experiment ({self.criterion}-optimal Fisher information of {len(self.free)} free "
-            f"coefficients at the {self.source}), {self.duration:g} s of flight."
-        ]
-        if self.left_out:
-            head += ["Left out (Scenario II at this flight time does not identify them; --free to choose):"]
-            head += [f"  {n}: {why}" for n, why in self.left_out.items()]
-        head += [
-            "Signal shapes ranked with their peaks at Scenario II's on the same model:",
-            "  " + self.limits.table(),
-        ]
-        if self.growth:
-            head += [
-                "then grown on the truth plant to the largest amplitude that keeps the linear "
-                f"regime's rule with its tolerances x{GROWTH_MARGIN:g}: "
-                + ", ".join(
-                    f"{k} x{g:.2f}"
-                    + ("" if h is None else f" (its hold steps the depth {h:g} m at mid-record)")
-                    for k, (g, h) in self.growth.items()
-                )
-            ]
-        head += ["Peaks on the design model:"]
-        head += [
-            f"  {n}: yaw rate {deg(p['yaw_rate']):.2f} deg/s, pitch rate {deg(p['pitch_rate']):.2f} deg/s, "
-            f"roll rate {deg(p['roll_rate']):.2f} deg/s, sideslip {deg(p['sideslip']):.3f} deg, "
-            f"pitch {deg(p['pitch']):.2f} deg, roll {deg(p['roll']):.2f} deg, fin {deg(p['fin']):.3f} deg"
-            for n, p in self.peaks.items()
-        ]
-        if self.linearity is not None:
-            head += [
-                "Flown noise-free on the truth plant with the PRBS phases of seeds "
-                f"{', '.join(map(str, self.linearity.seeds))}, the worst (the rule: fit >= 99 % on "
-                "excited channels, second-order residual < 0.2 of the noise on fitted channels):"
-            ]
-            head += ["  " + line for line in self.linearity.table().splitlines()]
-        head += [
-            "Predicted Cramér-Rao bounds (sensor noise of the scenario's sensors), against the "
-            "paper's Scenario II at the same flight time:"
-        ]
-        head += ["  " + line for line in self.table().splitlines()]
-        return "".join(f"# {line}\n" for line in head) + "\n" + scenario_text(self.scenario)
-
 
 def design(
     duration: float = 180.0,
@@ -691,27 +589,30 @@ def design(
     estimates: Mapping[str, float] | None = None,
     noise_std: Mapping[str, float] | None = None,
     check: bool = True,
+    estimates_source: str = "estimates",
 ) -> Design:
     """Design a scenario of `duration` s in total for the criterion (`D`, `A`, `E`) of the
     Fisher information of `free` (default: the analytic model's free list) at the analytic
     model of `mjcf` at `speed`, or at `estimates` (coefficient -> value, e.g. the last fit's:
-    the sequential design). `check`: fly it on the truth plant and scale down any experiment
-    that leaves the linear regime."""
+    the sequential design; `estimates_source`: where they were read, for the errors). `check`:
+    fly it on the truth plant and scale down any experiment that leaves the linear regime.
+    InputError where the model designed at is no stable vehicle (`instability`)."""
     if criterion_ not in CRITERIA:
         raise InputError(f"criterion={criterion_!r}; expected one of {', '.join(CRITERIA)}")
     if not (
         isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 2 * MIN_EXPERIMENT
     ):
         raise InputError(f"duration={duration!r}; expected at least {2 * MIN_EXPERIMENT:g} s")
-    config = analytic_config(mjcf, speed)[0]
+    lin = analytic(mjcf, speed)
+    config = model_config(lin, mjcf)[0]
     source = "analytic model"
     if estimates:
         unknown = sorted(set(estimates) - set(COEFFICIENTS))
         if unknown:
             raise InputError(
-                f"estimates: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+                f"{estimates_source}: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
             )
-        config = config.with_coefficients(dict(estimates))
+        config = replace(config.with_coefficients(dict(estimates)), source=estimates_source)
         source = "estimate"
         free = free if free is not None else tuple(n for n in COEFFICIENTS if n in estimates)
     if free is not None:
@@ -719,7 +620,7 @@ def design(
             raise InputError("free is empty; expected coefficient names, e.g. Y_v,N_r")
         free = check_free(free, "free")
         config = replace(config, free=tuple(n for n in COEFFICIENTS if n in free))
-    m = model(config, noise_std)
+    m = model(config, lin.fins, noise_std)
     left_out = {} if free is not None else identified(m, duration)
     if left_out:
         m = replace(m, config=replace(m.config, free=tuple(n for n in m.config.free if n not in left_out)))
@@ -791,107 +692,3 @@ def design(
         left_out=left_out,
         flights=tuple(flights),
     )
-
-
-BOUNDS_KEY = (
-    "relative Cramér-Rao bound (%) of each free coefficient, in the order of the table: "
-    "bold blue, the design; grey, Scenario II at the same flight time"
-)
-MOVED = 1e-9  # a flight's channel spanning less than this (rad, m/s, m) is not drawn
-FLIGHTS_KEY = "the designed experiment as the design model flies it (the linear model with its autopilots)"
-
-
-def log_design(path: str | Path, d: Design) -> Path:
-    """A Rerun recording of a design: the `bounds` tab (per free coefficient the predicted
-    relative Cramér-Rao bound of the design beside Scenario II's at the same flight time, as
-    paired bars, with the table), then per designed experiment its fin angles and states as
-    the design model flies it."""
-    title = "testbed design"
-    rel = {"design": d.relative(d.crlb), "scenario_II": d.relative(d.crlb_base)}
-    k = np.arange(len(d.free), dtype=float)
-    tabs = []
-    with recording(path, title, data_id(title, d.text())) as rec:
-        for (label, r), offset, role in zip(rel.items(), (-0.2, 0.2), ("estimate", "measured")):
-            bars = rr.BarChart(
-                np.nan_to_num(100 * r), color=STYLE[role][0], abscissa=k + offset, widths=np.full(len(k), 0.4)
-            )
-            rec.log(f"/bounds/{label}", bars, static=True)
-        table = "\n".join(
-            [f"| # | {' | '.join(d.COLUMNS)} |", "|---" * (len(d.COLUMNS) + 1) + "|"]
-            + [f"| {i} | {' | '.join(row)} |" for i, row in enumerate(d.rows())]
-            + ["", d.summary()]
-        )
-        rec.log("/bounds/table", rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN), static=True)
-        rec.log("/key/bounds", rr.TextDocument(BOUNDS_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
-        tabs.append(
-            rrb.Horizontal(
-                rrb.Vertical(
-                    rrb.BarChartView(
-                        origin="/bounds", contents=[f"/bounds/{n}" for n in rel], name="relative bounds (%)"
-                    ),
-                    rrb.TextDocumentView(origin="/key/bounds", name="key", titlebar=False),
-                    row_shares=[12, 1],
-                ),
-                rrb.TextDocumentView(origin="/bounds/table", name="table"),
-                column_shares=[3, 2],
-                name="bounds",
-            )
-        )
-        rec.log("/key/flights", rr.TextDocument(FLIGHTS_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
-        for e in d.flights:
-            name, t = e.name, e.t
-            columns = {
-                **{c: e.inputs[:, j] for j, c in enumerate(INPUTS)},
-                **{c: e.column(c) for c in STATES},
-            }
-            panels = []
-            for c, v in columns.items():
-                if np.ptp(v) < MOVED:
-                    continue  # a channel this experiment does not move (its roundoff is not drawn)
-                series(rec, f"/flights/{name}/{c}", time_column(t), v, ("model",), (c,))
-                panels.append(
-                    rrb.TimeSeriesView(
-                        origin=f"/flights/{name}/{c}",
-                        name=panel_title(c),
-                        axis_x=x_range("time", t[0], t[-1]),
-                        axis_y=rrb.ScalarAxis(range=axis_range(v)),
-                        plot_legend=rrb.PlotLegend(visible=False),
-                    )
-                )
-            key = rrb.TextDocumentView(origin="/key/flights", name="key", titlebar=False)
-            tabs.append(rrb.Vertical(rrb.Grid(*panels, grid_columns=4), key, row_shares=[24, 1], name=name))
-        rec.send_blueprint(
-            rrb.Blueprint(
-                rrb.Tabs(*tabs, active_tab=0), rrb.TimePanel(state="collapsed"), collapse_panels=True
-            )
-        )
-    return Path(path)
-
-
-def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
-    """The coefficients and the noise of an estimates JSON (`data.read_estimates`), the noise
-    completed with the sensors' defaults (`measurements.NOISE_STD`) for the states it lacks."""
-    values, noise = data_read_estimates(path)
-    return values, None if noise is None else {**NOISE_STD, **noise}
-
-
-def write_design(
-    out: str | Path,
-    duration: float = 180.0,
-    criterion_: str = "A",
-    free: Sequence[str] | None = None,
-    mjcf=None,
-    speed: float | None = None,
-    start_from: str | Path | None = None,
-    rrd: str | Path | None = None,
-) -> Design:
-    """`design` at the analytic model of `mjcf`, or at the estimates JSON `start_from` (its
-    coefficients and noise: the sequential design), written as a scenario file to `out`, and
-    with `rrd` logged to that Rerun recording (`log_design`)."""
-    check_outputs([start_from] if start_from else [], {"out": out, "rrd": rrd})
-    estimates, noise = read_estimates(start_from) if start_from else (None, None)
-    result = design(duration, criterion_, free, mjcf, speed, estimates, noise)
-    atomic_write_text(out, result.text())
-    if rrd is not None:
-        log_design(rrd, result)
-    return result

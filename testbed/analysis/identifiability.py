@@ -17,7 +17,8 @@ import numpy as np
 from testbed.data import ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify, lookup
-from testbed.identification.outputerror import check_fit, crlb, fisher
+from testbed.identification.problem import check_fit
+from testbed.identification.bounds import crlb, fisher
 from testbed.simulation.measurements import noise_from_data
 from testbed.models.linear import ITHETA, IX, NX, Structure, structure, theta_vector, tilde, unobserved
 
@@ -150,7 +151,7 @@ class Identifiability:
     free: tuple[str, ...]
     values: np.ndarray  # the coefficients analysed (the config's)
     fisher: np.ndarray
-    crlb_std: np.ndarray  # inf where unidentifiable (`linear.crlb`, and every structural drift group)
+    crlb_std: np.ndarray  # inf where unidentifiable (`bounds.crlb`, and every structural drift group)
     correlation: np.ndarray  # NaN in an unidentifiable coefficient's row and column
     structural: Structural
     practical_groups: tuple[tuple[str, ...], ...]

@@ -24,7 +24,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.identification.outputerror import predict
+from testbed.identification.prediction import predict
 
 __all__ = [
     "CONFIDENCE",

@@ -13,6 +13,8 @@ a caller never guesses them from the name:
   `Estimate.iterations` counts the samples processed, and it returns a `FilterEstimate` with the
   estimate and σ histories.
 
+A method with none of them (`equation-error`) is solved at once: one iteration, no limit.
+
 Every method reports its progress to `callback(Progress)` after each iteration (or sample).
 """
 
@@ -22,10 +24,10 @@ from typing import Mapping, Sequence
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import mekf, ml
+from testbed.estimators import equation_error, mekf, ml
 from testbed.estimators.base import Callback, Estimate, Method, OptionError, Options, Progress, Status
 from testbed.estimators.mekf import FilterEstimate, FilterOptions
-from testbed.identification.outputerror import check_fit
+from testbed.identification.problem import check_fit
 
 __all__ = [
     "Callback",
@@ -44,7 +46,8 @@ __all__ = [
 ]
 
 METHODS: dict[str, Method] = {
-    m.name: m for m in (ml.ML_GN, ml.ML_LM, ml.ML_NR, ml.ML_NM, mekf.MEKF, mekf.EKF)
+    m.name: m
+    for m in (ml.ML_GN, ml.ML_LM, ml.ML_NR, ml.ML_NM, mekf.MEKF, mekf.EKF, equation_error.EQUATION_ERROR)
 }
 
 
@@ -73,7 +76,7 @@ def identify(
 
     `options`: the method's `Options` (or a mapping of them; keywords in `more` are added);
     `callback(Progress)` after every iteration or sample. Everything is checked before the fit
-    starts: the options (`OptionError`), the data and the config (`linear.check_fit`).
+    starts: the options (`OptionError`), the data and the config (`problem.check_fit`).
     """
     m = lookup(method)
     opts = m.options.build(m.name, options, **more)

@@ -194,7 +194,17 @@ from testbed.models.linear import (
     theta_vector,
 )
 
-__all__ = ["EKF", "FilterEstimate", "FilterOptions", "MEKF", "sqrt_update", "svd_root", "tria"]
+__all__ = [
+    "EKF",
+    "DiscreteModel",
+    "FilterEstimate",
+    "FilterOptions",
+    "MEKF",
+    "run_filter",
+    "sqrt_update",
+    "svd_root",
+    "tria",
+]
 
 
 # ---------------------------------------------------------------- square-root kernels (pure)
@@ -240,7 +250,7 @@ def svd_root(X: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------- the model and its Jacobian
 
 
-class _Model:
+class DiscreteModel:
     """The discrete model `E = [Φ Γ s]` and `∂E/∂θ` (n, p, q) at the free coefficients `th`.
 
     When no free coefficient enters the mass matrix Mt (no free *dot term: Scenario II's default
@@ -591,7 +601,7 @@ class _Books:
 def _sqrt_pass(
     e: Experiment,
     st: _State,
-    model: _Model,
+    model: DiscreteModel,
     o: FilterOptions,
     sigma_r,
     U: float,
@@ -680,7 +690,13 @@ def _sqrt_pass(
 
 
 def _conventional_pass(
-    e: Experiment, st: _State, model: _Model, o: FilterOptions, sigma_r, U: float, callback: Callable | None
+    e: Experiment,
+    st: _State,
+    model: DiscreteModel,
+    o: FilterOptions,
+    sigma_r,
+    U: float,
+    callback: Callable | None,
 ) -> None:
     """One experiment through the textbook EKF: `P = F P Fᵀ + Q`, `P = P − K C P`."""
     n, p = NX, len(st.th)
@@ -754,7 +770,7 @@ def _pass(
         # an overflow or 0/0 makes a state, coefficient or variance non-finite, which `_Books`
         # reports as the divergence it is (numpy's warnings would only repeat it)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            model = _Model(s, theta, idx)
+            model = DiscreteModel(s, theta, idx)
             for e in experiments:
                 if st.count >= st.total:
                     break
@@ -784,7 +800,7 @@ def _covariance(st: _State, square_root: bool):
     return Ja @ Ja.T, Ja
 
 
-def _run(
+def run_filter(
     experiments: Sequence[Experiment],
     config: ModelConfig,
     *,
@@ -937,7 +953,7 @@ def _hint(st: _State, reason: str, experiments: Sequence[Experiment]) -> str:
 
 def _method(name: str, modified: bool, square_root: bool, summary: str) -> Method:
     def fit(experiments, config, options, callback):
-        return _run(
+        return run_filter(
             experiments,
             config,
             method=name,

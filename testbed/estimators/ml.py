@@ -2,7 +2,7 @@
 
 All three minimise the paper's likelihood with the noise covariance estimated by relaxation
 (R from the residuals, then held while θ steps), from the same start, with the same model and
-initial-state parameters (`outputerror`), so they compare fairly:
+initial-state parameters (`testbed.identification`), so they compare fairly:
 
 - `ml-gn` (default): Gauss-Newton with Levenberg-Marquardt damping (Marquardt's diagonal
   scaling); fast and statistically efficient.
@@ -24,7 +24,8 @@ from typing import Sequence
 
 import numpy as np
 
-from testbed.identification import outputerror
+from testbed.identification import bounds, likelihood, recursions, scan
+from testbed.identification.problem import Problem, problem
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators import starts, trust_region
@@ -44,6 +45,7 @@ from testbed.estimators.base import (
 __all__ = [
     "DELTA_J",
     "Fit",
+    "best_fit",
     "GaussNewtonOptions",
     "ML_GN",
     "ML_LM",
@@ -55,34 +57,34 @@ __all__ = [
 ]
 
 
-def _terms(prob: outputerror.Problem, p: np.ndarray, xs, res, tol: float):
-    """R, g and M at `p` (`outputerror.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is
+def _terms(prob: Problem, p: np.ndarray, xs, res, tol: float):
+    """R, g and M at `p` (`likelihood.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is
     shorter than `tol` in Cramér-Rao units: converged."""
-    R = outputerror.noise_variance(prob, res)
-    g, M = outputerror.gauss_newton_terms(prob, p, xs, res, R)
-    return R, g, M, np.sqrt(max(g @ outputerror.crlb(M).covariance @ g, 0.0)) < tol
+    R = likelihood.noise_variance(prob, res)
+    g, M = likelihood.gauss_newton_terms(prob, p, xs, res, R)
+    return R, g, M, np.sqrt(max(g @ bounds.crlb(M).covariance @ g, 0.0)) < tol
 
 
-def _simulate(prob: outputerror.Problem, p: np.ndarray):
+def _simulate(prob: Problem, p: np.ndarray):
     """States and residuals at `p`, or None where the model is invalid (singular Mt, diverging)."""
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-            xs = outputerror.states(prob, p)
+            xs = recursions.states(prob, p)
     except np.linalg.LinAlgError:
         return None
     out = [x[:, r.measured] for r, x in zip(prob.records, xs)]
-    if not np.all(np.isfinite(p)) or outputerror.exploded(prob, out) is not None:
+    if not np.all(np.isfinite(p)) or likelihood.exploded(prob, out) is not None:
         return None
     return xs, [r.y - y for r, y in zip(prob.records, out)]
 
 
-def _report(callback: Callback | None, prob: outputerror.Problem, it: int, p: np.ndarray, res) -> None:
+def _report(callback: Callback | None, prob: Problem, it: int, p: np.ndarray, res) -> None:
     if callback is not None:
-        callback(Progress(it, p[: prob.n_free].copy(), outputerror.negative_log_likelihood(prob, res)))
+        callback(Progress(it, p[: prob.n_free].copy(), likelihood.negative_log_likelihood(prob, res)))
 
 
 def gauss_newton(
-    prob: outputerror.Problem, p: np.ndarray, max_iter: int = 50, callback=None, tol: float = 1e-3
+    prob: Problem, p: np.ndarray, max_iter: int = 50, callback=None, tol: float = 1e-3
 ) -> Outcome:
     """Levenberg-Marquardt on `½ Σ eᵀR⁻¹e`, R re-estimated before every step."""
     history, lam = [p[: prob.n_free].copy()], 0.01
@@ -91,11 +93,11 @@ def gauss_newton(
         R, g, M, converged = _terms(prob, p, xs, res, tol)
         if converged or it == max_iter:
             break
-        J0, D = outputerror.weighted_cost(prob, res, R), np.diag(np.maximum(np.diag(M), 1e-300))
+        J0, D = likelihood.weighted_cost(prob, res, R), np.diag(np.maximum(np.diag(M), 1e-300))
         while True:
             trial = p + np.linalg.solve(M + lam * D, g)
             sim = _simulate(prob, trial)
-            if sim is not None and outputerror.weighted_cost(prob, sim[1], R) < J0:
+            if sim is not None and likelihood.weighted_cost(prob, sim[1], R) < J0:
                 p, (xs, res), lam = trial, sim, max(lam / 10, 1e-12)
                 break
             lam *= 10
@@ -107,9 +109,9 @@ def gauss_newton(
     return Outcome(p, status, it, np.array(history), M)
 
 
-@outputerror.compiled()  # second-order sensitivities at every iteration: the compiler pays off
+@scan.compiled()  # second-order sensitivities at every iteration: the compiler pays off
 def newton_raphson(
-    prob: outputerror.Problem, p: np.ndarray, max_iter: int = 100, callback=None, tol: float = 1e-3
+    prob: Problem, p: np.ndarray, max_iter: int = 100, callback=None, tol: float = 1e-3
 ) -> Outcome:
     """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step."""
     history, N = [p[: prob.n_free].copy()], prob.n_samples
@@ -126,7 +128,7 @@ def newton_raphson(
             break
         grad = -2.0 / N * g  # ∂J_M/∂p
         weights = [e / R[r.channels] for r, e in zip(prob.records, res)]
-        hess = 2.0 / N * (M - outputerror.curvature(prob, p, weights))  # ∂²J_M/∂p² (Eq. 3 sensitivities)
+        hess = 2.0 / N * (M - recursions.curvature(prob, p, weights))  # ∂²J_M/∂p² (Eq. 3 sensitivities)
         lam = float(np.max(np.abs(grad)))
         mu = 0.5 if lam > 1 else 1.0 / (lam + 1.0)
         try:
@@ -139,20 +141,20 @@ def newton_raphson(
     return Outcome(p, status, it, np.array(history), M)
 
 
-def _J_M(prob: outputerror.Problem, theta: np.ndarray, R: np.ndarray) -> float:
+def _J_M(prob: Problem, theta: np.ndarray, R: np.ndarray) -> float:
     """`J_M(θ) = 1/N Σ eᵀR⁻¹e` with the initial states fitted at θ; ∞ for an invalid model."""
     try:
         with np.errstate(over="ignore", invalid="ignore"):
-            out = outputerror.fit_initial_states(prob, theta, R)[1]
+            out = likelihood.fit_initial_states(prob, theta, R)[1]
     except np.linalg.LinAlgError:
         return np.inf
-    if outputerror.exploded(prob, out) is not None:
+    if likelihood.exploded(prob, out) is not None:
         return np.inf
     res = [r.y - y for r, y in zip(prob.records, out)]
-    return 2.0 * outputerror.weighted_cost(prob, res, R) / prob.n_samples
+    return 2.0 * likelihood.weighted_cost(prob, res, R) / prob.n_samples
 
 
-def _stages(prob: outputerror.Problem, first_length: float) -> list[outputerror.Problem]:
+def _stages(prob: Problem, first_length: float) -> list[Problem]:
     """The record-length continuation: each experiment's first T s for T = `first_length`,
     2·`first_length`, 4·`first_length`, … while shorter than 90 % of the longest record (a stage
     nearly as long as the record would only repeat it), then all of it."""
@@ -239,9 +241,9 @@ def _simplex(
     return simplex[lo].copy(), float(J_i[lo]), it, stopped
 
 
-@outputerror.compiled()  # thousands of simulations: the compiler pays off
+@scan.compiled()  # thousands of simulations: the compiler pays off
 def nelder_mead(
-    prob: outputerror.Problem,
+    prob: Problem,
     p: np.ndarray,
     max_iter: int | None = None,
     callback=None,
@@ -298,8 +300,8 @@ def nelder_mead(
     for stage in stages:
         size = step if stage is stages[0] else restart_step
         tol = (eps if stage is prob else stage_eps) / stage.n_samples
-        q = outputerror.initial_states(stage, scale * x)
-        R = outputerror.noise_variance(stage, outputerror.residuals(stage, q))
+        q = likelihood.initial_states(stage, scale * x)
+        R = likelihood.noise_variance(stage, recursions.residuals(stage, q))
         for _ in range(max_relaxations):
 
             def J(v: np.ndarray, stage=stage, R=R) -> float:
@@ -310,24 +312,24 @@ def nelder_mead(
             size = restart_step
             if not stopped:
                 return Outcome(
-                    outputerror.initial_states(prob, scale * x, R),
+                    likelihood.initial_states(prob, scale * x, R),
                     Status.MAX_ITERATIONS,
                     it,
                     np.array(history),
                 )
             # R from the residuals at the best corner: the relaxation step
-            q = outputerror.initial_states(stage, scale * x, R)
-            R, R_old = outputerror.noise_variance(stage, outputerror.residuals(stage, q)), R
+            q = likelihood.initial_states(stage, scale * x, R)
+            R, R_old = likelihood.noise_variance(stage, recursions.residuals(stage, q)), R
             if stage is not prob or (J_start - J_best <= tol and np.max(np.abs(R / R_old - 1)) < r_tol):
                 break
         else:
             return Outcome(
-                outputerror.initial_states(prob, scale * x, R), Status.STALLED, it, np.array(history)
+                likelihood.initial_states(prob, scale * x, R), Status.STALLED, it, np.array(history)
             )
-    return Outcome(outputerror.initial_states(prob, scale * x, R), Status.CONVERGED, it, np.array(history))
+    return Outcome(likelihood.initial_states(prob, scale * x, R), Status.CONVERGED, it, np.array(history))
 
 
-def _estimate(name: str, prob: outputerror.Problem, fit: Fit, t0: float, fits: list[Fit]) -> Estimate:
+def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) -> Estimate:
     """The `Estimate` where the optimiser stopped from `fit`'s start, with its Cramér-Rao analysis
     and every start's result (`fits`); a DIVERGED one (the reason in its `message`) where that
     analysis breaks down or is not finite."""
@@ -344,8 +346,8 @@ def _estimate(name: str, prob: outputerror.Problem, fit: Fit, t0: float, fits: l
     )
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            info = outputerror.assess(prob, out.p, out.fisher)
-        # an infinite bound is an unidentifiable coefficient's (outputerror.crlb); NaN is a failure
+            info = bounds.assess(prob, out.p, out.fisher)
+        # an infinite bound is an unidentifiable coefficient's (bounds.crlb); NaN is a failure
         why = (
             None
             if all(np.all(np.isfinite(a)) for a in (info.values, info.cost))
@@ -405,16 +407,16 @@ class Fit:
     joined: str = ""  # the earlier start whose optimum's basin this one entered, ending there
 
 
-def _cost(prob: outputerror.Problem, p: np.ndarray) -> float:
-    """The negative log-likelihood at `p`; inf where the model diverges there (`outputerror.exploded`)."""
+def _cost(prob: Problem, p: np.ndarray) -> float:
+    """The negative log-likelihood at `p`; inf where the model diverges there (`likelihood.exploded`)."""
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-        out = outputerror.outputs(prob, p)
-    if outputerror.exploded(prob, out) is not None:
+        out = recursions.outputs(prob, p)
+    if likelihood.exploded(prob, out) is not None:
         return np.inf
-    return outputerror.negative_log_likelihood(prob, [r.y - y for r, y in zip(prob.records, out)])
+    return likelihood.negative_log_likelihood(prob, [r.y - y for r, y in zip(prob.records, out)])
 
 
-def _best(fits: list[Fit]) -> Fit:
+def best_fit(fits: list[Fit]) -> Fit:
     """The fit of least cost; a converged fit within `DELTA_J` of it (the same optimum) before
     one that stopped otherwise."""
     least = min(f.cost for f in fits)
@@ -441,7 +443,7 @@ def _fit(
     options: Options,
     callback: Callback | None,
 ) -> Estimate:
-    """Fit from the start(s) `options.start` names and keep the best (`_best`).
+    """Fit from the start(s) `options.start` names and keep the best (`best_fit`).
 
     `auto`: from the a-priori values and from the equation-error estimate, the better-fitting
     first; from the MEKF's estimate too when those two end apart (costs more than `DELTA_J`
@@ -451,7 +453,7 @@ def _fit(
     not grow along the whole record there). Every start's result is recorded in the estimate.
     """
     t0 = time.perf_counter()
-    prob = outputerror.problem(experiments, config)
+    prob = problem(experiments, config)
     start = options.start
     tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name not in START_OPTIONS}
 
@@ -460,7 +462,7 @@ def _fit(
     def begin(theta: np.ndarray) -> tuple[np.ndarray, float]:
         """The parameter vector at θ with its best initial states, and its cost."""
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is reported below
-            p0 = outputerror.initial_states(prob, theta)
+            p0 = likelihood.initial_states(prob, theta)
         return p0, _cost(prob, p0)
 
     def run(label: str, p0: np.ndarray, J0: float, earlier: Sequence[Fit] = ()) -> Fit:
@@ -490,7 +492,7 @@ def _fit(
         fit = run(start, *begin(starts.named(prob, experiments, config, start)))
         if start == "config" and fit.outcome.status is Status.DIVERGED and not np.isfinite(fit.start_cost):
             raise InputError(
-                f"{prob.source}: the a-priori model diverges ({outputerror.divergence(prob, fit.outcome.p)}); "
+                f"{prob.source}: the a-priori model diverges ({likelihood.divergence(prob, fit.outcome.p)}); "
                 "expected coefficients giving a bounded response, or start auto or global"
             )
         return _estimate(name, prob, fit, t0, [fit])
@@ -512,16 +514,16 @@ def _fit(
             fits.append(run("mekf", *begin(starts.named(prob, experiments, config, "mekf")), fits))
         except InputError:  # the filter refused the data or diverged: no third start
             pass
-    return _estimate(name, prob, _best(fits), t0, fits)
+    return _estimate(name, prob, best_fit(fits), t0, fits)
 
 
-def _polish_starts(prob: outputerror.Problem, options: Options) -> list[np.ndarray]:
+def _polish_starts(prob: Problem, options: Options) -> list[np.ndarray]:
     """The best `options.polish` of `options.samples` box draws (`starts.box`), by their cost on
     the records cut into 16 segments, each with its own initial state."""
     rng = np.random.default_rng(options.seed)
     samples = starts.box(prob, options.samples, options.spread, rng)
-    stage = outputerror.segmented(prob, trust_region.SEGMENTS, trust_region.LEAST_SEGMENT)
-    costs = [_cost(stage, outputerror.initial_states(stage, theta)) for theta in samples]
+    stage = likelihood.segmented(prob, trust_region.SEGMENTS, trust_region.LEAST_SEGMENT)
+    costs = [_cost(stage, likelihood.initial_states(stage, theta)) for theta in samples]
     return [samples[i] for i in np.argsort(costs)[: options.polish] if np.isfinite(costs[i])]
 
 

@@ -2,7 +2,8 @@
 
 - `config`: the a-priori values of the model config.
 - `equation-error`: the linear model's rows fitted by least squares to smoothed derivatives
-  (`outputerror.equation_error`): no simulation, so no basin, but biased by noise and filtering.
+  (`equation_error.regression`, the method `equation-error`): no simulation, so no basin, but
+  biased by noise and filtering.
 - `mekf`: the modified EKF's estimate after one pass (`mekf.MEKF`), which follows the states
   with the data, so a poor model cannot drift away from them.
 - `box`: coefficients drawn in a box around the a-priori values (Latin hypercube): a coefficient
@@ -16,7 +17,10 @@ from typing import Sequence
 
 import numpy as np
 
-from testbed.identification import outputerror
+from testbed.identification import bounds
+from testbed.estimators import equation_error
+from testbed.identification import likelihood, recursions
+from testbed.identification.problem import Problem
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import mekf
@@ -27,16 +31,13 @@ __all__ = ["BOX_BOUNDS", "box", "named"]
 BOX_BOUNDS = 3.0  # a coefficient analysed at 0 is searched within ± this many Cramér-Rao bounds
 
 
-def named(
-    prob: outputerror.Problem, experiments: Sequence[Experiment], config: ModelConfig, start: str
-) -> np.ndarray:
+def named(prob: Problem, experiments: Sequence[Experiment], config: ModelConfig, start: str) -> np.ndarray:
     """The free coefficients of the start `start` (config, equation-error or mekf); InputError
     where the MEKF diverges or refuses the data (the reason named)."""
     if start == "config":
         return prob.start
     if start == "equation-error":
-        ee = outputerror.equation_error(experiments, config)
-        return np.array([ee.coefficients[n] for n in prob.free])
+        return equation_error.regression(prob)[0]
     est = mekf.MEKF.fit(experiments, config, mekf.FilterOptions(), None)
     if est.status is Status.DIVERGED:
         raise InputError(
@@ -46,7 +47,7 @@ def named(
     return np.array([est.coefficients[n] for n in prob.free])
 
 
-def box(prob: outputerror.Problem, count: int, spread: float, rng: np.random.Generator) -> np.ndarray:
+def box(prob: Problem, count: int, spread: float, rng: np.random.Generator) -> np.ndarray:
     """`count` coefficient vectors (count, n_free) drawn by Latin hypercube in the box around the
     a-priori values: each axis cut into `count` equal strata, one draw in each, the strata
     shuffled per axis; log-uniform within e^±`spread` for a coefficient ≠ 0, uniform within
@@ -58,11 +59,11 @@ def box(prob: outputerror.Problem, count: int, spread: float, rng: np.random.Gen
     zero = theta0 == 0
     if zero.any():
         with np.errstate(over="ignore", invalid="ignore"):
-            p = outputerror.initial_states(prob, theta0)
-        if outputerror.divergence(prob, p) is None:
-            xs = outputerror.states(prob, p)
+            p = likelihood.initial_states(prob, theta0)
+        if likelihood.divergence(prob, p) is None:
+            xs = recursions.states(prob, p)
             res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
-            g, M = outputerror.gauss_newton_terms(prob, p, xs, res, outputerror.noise_variance(prob, res))
-            std = outputerror.crlb(outputerror.reduced(M, g, prob.n_free)[0]).std
+            g, M = likelihood.gauss_newton_terms(prob, p, xs, res, likelihood.noise_variance(prob, res))
+            std = bounds.crlb(likelihood.reduced(M, g, prob.n_free)[0]).std
             half = np.where(np.isfinite(std), BOX_BOUNDS * std, 0.0)
     return np.where(zero, u * half, theta0 * np.exp(spread * u))

@@ -2,12 +2,12 @@
 
 It minimises the negative log-likelihood with the noise variance at its ML value, the cost the
 estimate is judged by, as a function of the free coefficients θ alone: at every θ each record's
-initial state is the weighted least-squares one (`outputerror.fit_initial_states`; outputs are linear
+initial state is the weighted least-squares one (`likelihood.fit_initial_states`; outputs are linear
 in it), so the optimiser moves only in θ and the initial states follow exactly (variable
 projection, Golub & Pereyra).
 
 - The model: `m(d) = J − g_rᵀd + ½ dᵀF d`, with `F` and `g_r` the Gauss-Newton normal equations
-  with the initial states solved for (`outputerror.reduced`), R the residual variance at θ.
+  with the initial states solved for (`likelihood.reduced`), R the residual variance at θ.
 - The step: the minimiser of `m` within `‖D d‖ ≤ Δ` (Moré's trust-region subproblem, solved
   exactly through the eigenvectors of `D⁻¹FD⁻¹`). `D = diag(1/s)` with `s_i` the largest of the
   coefficient's a-priori magnitude, its magnitude at the start and its Cramér-Rao bound there: a
@@ -21,14 +21,14 @@ projection, Golub & Pereyra).
 - Multiple shooting, where the fit on the whole record fails: from a poor start the whole
   record's output error is far from quadratic (an unstable or wrong model's error grows along the
   record, and the heading integrates it), so the method fits the records cut into `segments`
-  pieces, each with its own initial state (`outputerror.segmented`), then `SHRINK` times fewer stage
+  pieces, each with its own initial state (`likelihood.segmented`), then `SHRINK` times fewer stage
   by stage to the whole record, each stage from the one before; only the last decides
   convergence. Not first: with the continuity between segments relaxed, a model that is not
   the data's (real data) has another optimum on segments than on the whole record, and the
   whole record's fit from there can end in another basin than from the start.
 - Converged: the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (`√(g_rᵀF⁻¹g_r)`), and the
   point passes the second-order check: the Hessian of the cost (second-order sensitivities
-  included, `outputerror.curvature`, the initial states eliminated) has no negative eigenvalue. A
+  included, `recursions.curvature`, the initial states eliminated) has no negative eigenvalue. A
   stationary point that fails the check is a saddle: the method steps along the direction of
   negative curvature and goes on; one it cannot leave ends as `Status.SADDLE`.
 """
@@ -39,7 +39,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from testbed.identification import outputerror
+from testbed.identification import bounds, likelihood, recursions
+from testbed.identification.problem import Problem
 from testbed.estimators.base import Outcome, Progress, Status
 
 __all__ = [
@@ -77,23 +78,23 @@ class Point:
     J: float
 
 
-def point(prob: outputerror.Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Point | None:
+def point(prob: Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Point | None:
     """The point at θ: the initial states fitted with the noise variance `R` (None: R and they
-    at their maximum likelihood, `outputerror.fit_initial_states`), R re-estimated from the residuals;
+    at their maximum likelihood, `likelihood.fit_initial_states`), R re-estimated from the residuals;
     None where the model is invalid there (singular Mt, diverging)."""
     if not np.all(np.isfinite(theta)):
         return None
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-            p, xs = outputerror.fit_initial_states(prob, theta, R, full=True)
+            p, xs = likelihood.fit_initial_states(prob, theta, R, full=True)
     except np.linalg.LinAlgError:
         return None
     out = [x[:, r.measured] for r, x in zip(prob.records, xs)]
-    if outputerror.exploded(prob, out) is not None:
+    if likelihood.exploded(prob, out) is not None:
         return None
     res = [r.y - y for r, y in zip(prob.records, out)]
     return Point(
-        p, xs, res, outputerror.noise_variance(prob, res), outputerror.negative_log_likelihood(prob, res)
+        p, xs, res, likelihood.noise_variance(prob, res), likelihood.negative_log_likelihood(prob, res)
     )
 
 
@@ -136,14 +137,14 @@ def subproblem(F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float) -> tup
 
 def _scale(prior: np.ndarray, theta: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Each coefficient's scale: the largest of its a-priori magnitude, its magnitude at the
-    start and its Cramér-Rao bound there (`outputerror.crlb` of the reduced information `F`; 1 where
+    start and its Cramér-Rao bound there (`bounds.crlb` of the reduced information `F`; 1 where
     none is finite and positive)."""
-    std = outputerror.crlb(F).std
+    std = bounds.crlb(F).std
     s = np.maximum(np.maximum(np.abs(prior), np.abs(theta)), np.where(np.isfinite(std), std, 0.0))
     return np.where(s > 0, s, 1.0)
 
 
-def hessian(prob: outputerror.Problem, at: Point, M: np.ndarray | None = None) -> np.ndarray:
+def hessian(prob: Problem, at: Point, M: np.ndarray | None = None) -> np.ndarray:
     """The Hessian in θ of the weighted cost `½ Σ eᵀR⁻¹e` (R held at `at`'s) with each
     record's initial state at its least-squares value: `H = M − Σ (e/R) ∂²y` (first- and
     second-order sensitivities) with the initial states eliminated (Schur complement), the
@@ -151,15 +152,11 @@ def hessian(prob: outputerror.Problem, at: Point, M: np.ndarray | None = None) -
     if known."""
     weights = [e / at.R[r.channels] for r, e in zip(prob.records, at.res)]
     if M is None:
-        M = outputerror.gauss_newton_terms(prob, at.p, at.xs, at.res, at.R)[1]
-    return outputerror.reduced(M - outputerror.curvature(prob, at.p, weights), np.zeros(len(M)), prob.n_free)[
-        0
-    ]
+        M = likelihood.gauss_newton_terms(prob, at.p, at.xs, at.res, at.R)[1]
+    return likelihood.reduced(M - recursions.curvature(prob, at.p, weights), np.zeros(len(M)), prob.n_free)[0]
 
 
-def second_order(
-    prob: outputerror.Problem, at: Point, s: np.ndarray, M: np.ndarray | None = None
-) -> np.ndarray | None:
+def second_order(prob: Problem, at: Point, s: np.ndarray, M: np.ndarray | None = None) -> np.ndarray | None:
     """The direction of most negative curvature (`hessian`, in the coordinates scaled by `s`:
     unit length there), or None where there is none: the second-order check of a stationary
     point."""
@@ -183,7 +180,7 @@ class Descent:
 
 
 def _descend(
-    prob: outputerror.Problem,
+    prob: Problem,
     start: Point,
     s: np.ndarray,
     delta: float,
@@ -202,10 +199,10 @@ def _descend(
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
                 return Descent(x, Status.CONVERGED, it, delta, None, joined=i)
-        g, M = outputerror.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
-        F, gr = outputerror.reduced(M, g, nf)
+        g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
+        F, gr = likelihood.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
-        step = np.sqrt(max(gr @ outputerror.crlb(F).covariance @ gr, 0.0))
+        step = np.sqrt(max(gr @ bounds.crlb(F).covariance @ gr, 0.0))
         if step < tol:
             return Descent(x, Status.CONVERGED, it, delta, M, step=step)
         if it >= max_iter:
@@ -219,10 +216,7 @@ def _descend(
             # can stall short of its fixed point). A decrease there is one of the likelihood
             # too, which the trial's own R̂ lowers further (½ Σ N_c ln R̂_c ≤ ½ Σ eᵀR⁻¹e + const)
             rho = (
-                (
-                    outputerror.weighted_cost(prob, x.res, x.R)
-                    - outputerror.weighted_cost(prob, trial.res, x.R)
-                )
+                (likelihood.weighted_cost(prob, x.res, x.R) - likelihood.weighted_cost(prob, trial.res, x.R))
                 / predicted
                 if trial is not None and predicted > 0
                 else -np.inf
@@ -241,7 +235,7 @@ def _descend(
 
 
 def trust_region(
-    prob: outputerror.Problem,
+    prob: Problem,
     p: np.ndarray,
     max_iter: int = 100,
     callback=None,
@@ -273,7 +267,7 @@ def trust_region(
 
     stages, n = [], segments
     while n > 1:
-        stage = outputerror.segmented(prob, n, LEAST_SEGMENT)
+        stage = likelihood.segmented(prob, n, LEAST_SEGMENT)
         if len(stage.records) > len(prob.records) and (
             not stages or len(stage.records) < len(stages[-1].records)
         ):
@@ -306,7 +300,7 @@ def trust_region(
     if out.status is Status.CONVERGED and out.fisher is not None:
         optimum = (
             out.point.p[:nf].copy(),
-            outputerror.crlb(outputerror.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]).std,
+            bounds.crlb(likelihood.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]).std,
         )
     return Outcome(
         out.point.p, out.status, len(history) - 1, np.array(history), out.fisher, optimum, out.joined
@@ -326,8 +320,8 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> 
                 return Descent(None, Status.DIVERGED, used, 0.0, None)
             continue
         if s is None:
-            g, M = outputerror.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
-            s, delta = _scale(prob.start, theta, outputerror.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
+            g, M = likelihood.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
+            s, delta = _scale(prob.start, theta, likelihood.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
         final = stage is prob
         tol_stage = tol if final else max(tol, STAGE_TOL)
         out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow)
@@ -349,7 +343,7 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> 
     return out
 
 
-def _leave_saddle(prob: outputerror.Problem, x: Point, v: np.ndarray, delta: float) -> Point | None:
+def _leave_saddle(prob: Problem, x: Point, v: np.ndarray, delta: float) -> Point | None:
     """A point of lower cost along ±v (the direction of negative curvature, unit in scaled
     coordinates), steps of the trust radius and shorter; None if there is none."""
     for size in delta * 0.5 ** np.arange(8):

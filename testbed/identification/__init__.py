@@ -1,7 +1,9 @@
-"""The numerical core of identification: the linear model's output-error likelihood, its
-sensitivities and Cramér-Rao bounds (`outputerror`, with its compiled recursions in `kernels`),
-and the example vehicle's exactly simulated experiments (`examples`). The estimators themselves
-are `testbed.estimators`.
+"""The numerical core of identification, for the linear model: the output-error problem
+(`problem`), the recursions over the samples (`scan`, compiled in `kernels`), the model's states
+and exact sensitivities (`recursions`), the likelihood (`likelihood`), the Fisher information and
+Cramér-Rao bounds (`bounds`), the model's predictions and synthetic data (`prediction`), and the
+example vehicle's exactly simulated experiments (`examples`). The estimators themselves are
+`testbed.estimators`.
 """
 
 __all__: list[str] = []

@@ -1,5 +1,5 @@
 """The REMUS-class example vehicle: a small AUV with REMUS-like linear coefficients, and
-synthetic experiments simulated exactly from the linear model (`linear.synthetic`).
+synthetic experiments simulated exactly from the linear model (`prediction.synthetic`).
 
 The data's model is known exactly, so the studies (Monte Carlo against the Cramér-Rao bounds,
 the bad-input corpus), the benchmarks and the tests use it wherever an estimator is to be checked
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.identification.outputerror import synthetic
+from testbed.identification.prediction import synthetic
 from testbed.models.linear import COEFFICIENTS, Vehicle
 
 __all__ = [

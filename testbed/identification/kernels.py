@@ -1,9 +1,9 @@
-"""The recursions of `testbed.identification.outputerror` compiled (numba), for optimisers that simulate thousands of
-times: loading the compiler costs about 0.35 s once per process (its import and its compiled
+"""The recursions of `testbed.identification.scan` compiled (numba), for optimisers that simulate
+thousands of times: loading the compiler costs about 0.35 s once per process (its import and its compiled
 code read back from the cache), which a simplex search wins back many times over and a single
-Gauss-Newton fit of a measurement file does not (`linear.compiled`).
+Gauss-Newton fit of a measurement file does not (`scan.compiled`).
 
-Each computes what `linear._Scan` computes, sample by sample: numpy's per-call overhead on a
+Each computes what `scan.Scan` computes, sample by sample: numpy's per-call overhead on a
 10×10 product is ~50× the arithmetic, a compiled loop has none.
 """
 

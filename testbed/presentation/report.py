@@ -19,7 +19,7 @@ import rerun.blueprint as rrb
 
 from testbed.errors import InputError
 from testbed.estimators import FilterEstimate
-from testbed.identification.outputerror import predict
+from testbed.identification.prediction import predict
 from testbed.simulation.recording import (
     axis_range,
     data_id,

@@ -37,11 +37,13 @@ from testbed.simulation.plant import Plant
 from testbed.simulation.vehicle import (
     FINS,
     FLIP,
+    FinLimits,
     added_mass,
     buoyancy_centre,
     check_model,
     constants,
     cruise_speed,
+    fin_limits,
     fluid_geoms,
     load_model,
     motion_transform,
@@ -54,8 +56,11 @@ from testbed.simulation.vehicle import (
 
 __all__ = [
     "FREE",
+    "ROWS",
+    "TERMS",
     "LinearModel",
     "OutsideTerm",
+    "analytic",
     "analytic_config",
     "analytic_config_text",
     "analytic_model",
@@ -111,6 +116,7 @@ class LinearModel:
     parts: dict[str, tuple[np.ndarray, np.ndarray]]  # per fluid term: its (At, Bt) rows u..r
     added_mass: np.ndarray  # M_A, 6×6 about the CG, body axes (FRD), fins at 0
     thrust: float  # N, the trim drag
+    fins: FinLimits  # the servos' range and rate, from the MJCF
 
 
 # -- one geom: MuJoCo's ellipsoid model and its Jacobian --------------------------------------
@@ -295,6 +301,7 @@ def analytic_model(model: mujoco.MjModel, speed: float) -> LinearModel:
         parts,
         M_A,
         thrust,
+        fins=fin_limits(model),
     )
 
 
@@ -431,6 +438,13 @@ def _kinematics(x, U) -> np.ndarray:
 # -- the model config --------------------------------------------------------------------------
 
 
+def analytic(mjcf: str | Path | None = None, speed: float | None = None) -> LinearModel:
+    """The analytic model of `mjcf` (default: the bundled torpedo) at `speed` (default: its
+    cruise speed)."""
+    model = load_model(mjcf)
+    return analytic_model(model, cruise_speed(model) if speed is None else trim_speed(speed))
+
+
 def analytic_config(mjcf: str | Path | None = None, speed: float | None = None):
     """`(ModelConfig, comments)` of the analytic model of `mjcf` (default: the bundled torpedo)
     at `speed` (default: its cruise speed), for `testbed.data.config_text`.
@@ -438,9 +452,7 @@ def analytic_config(mjcf: str | Path | None = None, speed: float | None = None):
     The comments give each coefficient's make-up and, on each row's damping coefficient, the
     full model's terms outside the linear model's structure.
     """
-    model = load_model(mjcf)
-    speed = cruise_speed(model) if speed is None else trim_speed(speed)
-    return model_config(analytic_model(model, speed), mjcf)
+    return model_config(analytic(mjcf, speed), mjcf)
 
 
 def analytic_config_text(mjcf: str | Path | None = None, speed: float | None = None, out=None) -> str:

@@ -10,7 +10,7 @@ R = 1/δ_max²):
 - roll: elevators differentially, δa = (δer − δel)/2, on (p, φ, ∫(φ − φ_cmd)).
 
 The fins are strong (20 deg/s of turn takes under 1 deg of rudder at 20 m/s), so δ_max is small
-to keep the loops from banging between the stops at the 2 rad/s fin rate limit.
+to keep the loops from banging between the stops at the torpedo's 2 rad/s fin rate limit.
 
 Step responses on the analytic model at 20 m/s (`step_response`: the autopilot at 50 Hz on the
 exact zero-order-hold model, fins rate-limited to 2 rad/s; Scenario I's step sizes; rise 10–90 %,
@@ -35,7 +35,8 @@ q eliminated by singular perturbation: θ̇ ≈ −24.5 δe at 20 m/s) with Butt
 dominates the elevators above ~0.1 Hz while depth and pitch stay bounded. It has no integrator
 (nothing to wind up).
 
-Fin commands are clipped to ±FIN_LIMIT. An integrator stops integrating while its fin command is
+Fin commands are clipped to the vehicle's fin range, ±`fin_limit` (the MJCF's servo range,
+`testbed.simulation.vehicle.fin_limits`). An integrator stops integrating while its fin command is
 not realised (saturated, including where the pitch and roll mix on one elevator exceeds the stop)
 and its error would push further into the stop (conditional integration: no wind-up).
 `Autopilot.integrators` is its only state.
@@ -56,23 +57,25 @@ from scipy.linalg import solve_continuous_are
 
 from testbed.errors import InputError
 from testbed.models.linear import IX, NX, discretize
+from testbed.simulation.vehicle import FinLimits
 
 __all__ = [
+    "HOLD_BANDWIDTH",
+    "STEPS",
     "Autopilot",
     "Channel",
     "Design",
-    "FIN_LIMIT",
-    "HOLD_BANDWIDTH",
-    "STEPS",
     "StepMetrics",
+    "check_sampled",
     "closed_loop",
     "design",
+    "design_channel",
+    "design_hold",
     "fly_linear",
     "step_metrics",
     "step_response",
 ]
 
-FIN_LIMIT = 0.40  # rad, the torpedo's servo range
 YAW, PITCH, ROLL = 0, 1, 2  # the integrators
 
 
@@ -204,6 +207,7 @@ class Autopilot:
 
     design: Design
     dt: float  # control period, s
+    fin_limit: float  # rad: fin commands are clipped to ±fin_limit (the MJCF's servo range)
     integrators: np.ndarray = field(default_factory=lambda: np.zeros(3))  # YAW, PITCH, ROLL
 
     def __post_init__(self):
@@ -212,11 +216,12 @@ class Autopilot:
         self._K = np.array([c.K for c in self._loops])  # one product per step for all loops
 
     @classmethod
-    def designed(cls, A: np.ndarray, B: np.ndarray, speed: float, dt: float) -> "Autopilot":
-        """The autopilots designed on (A, B) at trim `speed`, run every dt s (`check_sampled`)."""
+    def designed(cls, A: np.ndarray, B: np.ndarray, speed: float, dt: float, fin_limit: float) -> "Autopilot":
+        """The autopilots designed on (A, B) at trim `speed`, run every dt s (`check_sampled`),
+        their fin commands clipped to ±`fin_limit` rad."""
         d = design(A, B, speed)
         check_sampled(A, B, d, dt)
-        return cls(d, dt)
+        return cls(d, dt, fin_limit)
 
     def reset(self) -> None:
         self.integrators[:] = 0.0
@@ -243,13 +248,13 @@ class Autopilot:
         """
         if differential is not None and roll is not None:
             raise ValueError("differential and roll both drive the elevators' difference; give one")
-        d = self.design
+        d, stop = self.design, self.fin_limit
         kx = (self._K @ x).tolist()
         if rudder is not None:
-            dr = _clip(rudder)
+            dr = _clip(rudder, stop)
         elif yaw_rate is not None:
             u = self._output(YAW, yaw_rate, kx)
-            dr = _clip(u)
+            dr = _clip(u, stop)
             self._integrate(YAW, x, yaw_rate, u, dr)
         else:
             dr = 0.0
@@ -266,7 +271,7 @@ class Autopilot:
                 de = self._output(PITCH, theta_cmd, kx)
             if roll is not None:
                 da = self._output(ROLL, roll, kx)
-        er, el = _clip(de + da), _clip(de - da)
+        er, el = _clip(de + da, stop), _clip(de - da, stop)
         # What the elevators realise of each loop's demand, after the stops on their sum.
         if theta_cmd is not None:
             self._integrate(PITCH, x, theta_cmd, de, 0.5 * (er + el))
@@ -288,7 +293,7 @@ class Autopilot:
         self.integrators[k] += error * self.dt
 
 
-def _clip(value: float, limit: float = FIN_LIMIT) -> float:
+def _clip(value: float, limit: float) -> float:
     return min(max(value, -limit), limit)
 
 
@@ -302,12 +307,13 @@ def fly_linear(
     commands: Callable[[float, np.ndarray], dict],
     duration: float,
     x0: np.ndarray | None = None,
-    rate_limit: float = 2.0,
+    *,
+    rate_limit: float,
 ):
     """Fly `autopilot` on the linear model ẋ = A x + B δ (exact zero-order hold at its period).
 
-    `commands(t, x)` gives `Autopilot.step`'s keywords. The fins slew at `rate_limit` (rad/s)
-    towards the commands, as the plant's servos; each period holds the fin's mean angle over it.
+    `commands(t, x)` gives `Autopilot.step`'s keywords. The fins slew at `rate_limit` (rad/s;
+    the vehicle's, `FinLimits.rate`) towards the commands, as the plant's servos; each period holds the fin's mean angle over it.
     Returns times (N,), states (N, NX) and fin angles (N, 3) at the control instants.
     """
     dt = autopilot.dt
@@ -362,19 +368,21 @@ def step_response(
     B: np.ndarray,
     design_: Design,
     loop: str,
+    fins: FinLimits,
     duration: float = 10.0,
     rate: float = 50.0,
     target: float | None = None,
 ):
     """The closed-loop response of `loop` (a key of STEPS) to its step, the other loops holding
     (course-rate steps hold depth and roll; depth and roll steps hold each other and zero course
-    rate). Returns (t, y, fins, StepMetrics); `target` overrides the step's end value."""
+    rate), with the vehicle's fin range and rate `fins`. Returns (t, y, fins, StepMetrics);
+    `target` overrides the step's end value."""
     state, key, start, end = STEPS[loop]
     end = end if target is None else target
     hold = {"yaw_rate": 0.0, "depth": 100.0, "roll": 0.0}
     x0 = np.zeros(NX)
     x0[IX["z"]] = 100.0
-    ap = Autopilot(design_, 1.0 / rate)
-    t, xs, fins = fly_linear(A, B, ap, lambda t, x: {**hold, key: end}, duration, x0)
+    ap = Autopilot(design_, 1.0 / rate, fins.angle)
+    t, xs, angles = fly_linear(A, B, ap, lambda t, x: {**hold, key: end}, duration, x0, rate_limit=fins.rate)
     y = xs[:, IX[state]]
-    return t, y, fins, step_metrics(t, y, start, end)
+    return t, y, angles, step_metrics(t, y, start, end)

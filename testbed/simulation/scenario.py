@@ -51,7 +51,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from testbed.simulation.autopilot import FIN_LIMIT, Autopilot
+from testbed.simulation.autopilot import Autopilot
 from testbed.data import MIN_ROWS, number
 from testbed.errors import InputError, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
@@ -64,13 +64,18 @@ from testbed.simulation.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
 __all__ = [
     "BUILTIN",
     "CHANNELS",
+    "FIN_COMMANDS",
+    "LOOPS",
+    "SAMPLES",
+    "SCENARIO_DIR",
+    "UNFITTED_DEPTH",
     "ExperimentSpec",
     "Flight",
-    "LOOPS",
-    "SCENARIO_DIR",
+    "Program",
     "Scenario",
-    "UNFITTED_DEPTH",
+    "check_fins",
     "check_flyable",
+    "fly",
     "fly_scenario",
     "parse_scenario",
     "program",
@@ -120,12 +125,6 @@ class ExperimentSpec:
                 f"{where}: hold needs an elevators signal and no depth autopilot; "
                 "expected the hold to keep an open-loop elevator signal in bounds"
             )
-        for channel, s in self.fins.items():
-            if s.peak() > FIN_LIMIT:
-                raise InputError(
-                    f"{where}: {channel} reaches {s.peak():g} rad; expected at most the "
-                    f"fin range {FIN_LIMIT} rad"
-                )
         if self.duration is not None and not _positive(self.duration):
             raise InputError(f"{where}: duration {self.duration!r}; expected a finite number > 0 (s)")
 
@@ -180,6 +179,13 @@ class Scenario:
                 f"{self.source or 'scenario'}: control rate {self.control_rate} Hz and sample "
                 f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate"
             )
+        for e in self.experiments:
+            held = {"hold.depth": e.hold_depth} if e.hold_depth is not None else {}
+            loops = {f"autopilot.{k}": v for k, v in e.autopilot.items()}
+            for key, signal in {**e.fins, **loops, **held}.items():
+                why = signal.undersampled(self.control_rate)
+                if why is not None:
+                    raise InputError(f"{self.source or 'scenario'}: experiment {e.name!r} {key}: {why}")
 
     def with_overrides(self, duration=None, speed=None) -> "Scenario":
         """The scenario with every experiment lasting `duration` and trimmed at `speed` (None:
@@ -475,7 +481,8 @@ def fly_scenario(
     speed = s.speed if s.speed is not None else cruise_speed(plant.model)
     s = replace(s, speed=speed)
     lin = analytic_model(plant.model, speed)
-    autopilot = Autopilot.designed(lin.A_full, lin.B_full, speed, 1.0 / s.control_rate)
+    check_fins(s, lin.fins.angle, mjcf)
+    autopilot = Autopilot.designed(lin.A_full, lin.B_full, speed, 1.0 / s.control_rate, lin.fins.angle)
     flights = []
     for k, e in enumerate(s.experiments):
         report = (lambda f, name=e.name: progress(name, f)) if progress else None
@@ -492,6 +499,18 @@ def fly_scenario(
             )
         )
     return flights, lin
+
+
+def check_fins(s: Scenario, limit: float, mjcf=None) -> None:
+    """InputError unless every fin signal of `s` stays within the vehicle's fin range ±`limit`
+    rad (its MJCF's servo range, `vehicle.fin_limits`)."""
+    for e in s.experiments:
+        for channel, signal in e.fins.items():
+            if signal.peak() > limit:
+                raise InputError(
+                    f"{s.source or s.name}: experiment {e.name!r}: {channel} reaches {signal.peak():g} rad; "
+                    f"expected at most the fin range of {mjcf or 'the bundled torpedo'}, {limit:g} rad"
+                )
 
 
 def check_flyable(s: Scenario) -> None:

@@ -33,20 +33,28 @@ from testbed.errors import InputError, is_number
 from testbed.models.linear import IX
 
 __all__ = [
+    "CLIP",
+    "CLIP_ITERATIONS",
+    "PEAK_SAMPLES",
+    "PHASES",
+    "SIGNALS",
+    "TAPS",
     "Doublet",
     "Hold",
     "Input3211",
     "Multisine",
     "Prbs",
     "Program",
-    "SIGNALS",
     "Signal",
     "Square",
     "Step",
-    "TAPS",
     "Zigzag",
     "min_crest_phases",
+    "multisine_peak",
     "parse_signal",
+    "peak_span",
+    "peak_window",
+    "periods",
     "prbs",
     "prbs_spectrum",
     "schroeder_phases",
@@ -200,6 +208,11 @@ class Signal:
     def peak(self) -> float:
         """The largest |value| the signal takes (for the fin-range check)."""
         raise NotImplementedError
+
+    def undersampled(self, rate: float) -> str | None:
+        """Why the signal cannot be sampled `rate` times a second (the control rate, at which
+        the autopilots read it), or None."""
+        return None
 
 
 _FINITE = (is_number, "a finite number")
@@ -368,6 +381,17 @@ class Multisine(Signal):
 
     def peak(self):
         return abs(self.amplitude)
+
+    def undersampled(self, rate):
+        """A line at or above half the sampling rate (Nyquist) is sampled as a lower one (at
+        exactly half, as a constant times ±1): the flown signal would not be this multisine."""
+        highest = max(self.frequencies)
+        if highest < rate / 2:
+            return None
+        return (
+            f"multisine frequencies up to {highest:g} Hz; expected frequencies below {rate / 2:g} Hz, "
+            f"half the control_rate ({rate:g} Hz) at which the signal is sampled"
+        )
 
 
 @dataclass(frozen=True)

@@ -24,15 +24,17 @@ from testbed.models.linear import MAX_SPEED, MIN_SPEED, Vehicle
 __all__ = [
     "FINS",
     "FLIP",
-    "Hydrostatics",
     "MAX_SPEED",
     "MIN_SPEED",
+    "FinLimits",
+    "Hydrostatics",
     "added_mass",
     "buoyancy_centre",
     "check_model",
     "constants",
     "cruise_speed",
     "default_mjcf",
+    "fin_limits",
     "fin_rate_limit",
     "fluid_geoms",
     "hydrostatics",
@@ -43,6 +45,7 @@ __all__ = [
     "semi_axes",
     "skew",
     "trim_speed",
+    "volume",
 ]
 
 FINS = ("rudder", "elevator_right", "elevator_left")
@@ -286,6 +289,23 @@ def fin_rate_limit(model: mujoco.MjModel) -> float:
     """Fin slew-rate limit, rad/s (custom numeric `fin_rate_limit`, else unlimited)."""
     i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, "fin_rate_limit")
     return float(model.numeric_data[model.numeric_adr[i]]) if i >= 0 else np.inf
+
+
+@dataclass(frozen=True)
+class FinLimits:
+    """What the fins' servos allow, read from the MJCF (`fin_limits`)."""
+
+    angle: float  # rad: the fins' stop nearest to 0, which the autopilots clip their commands to (±)
+    rate: float  # rad/s: the slew-rate limit (inf: none)
+
+
+def fin_limits(model: mujoco.MjModel) -> FinLimits:
+    """The fins' limits as the plant applies them: the servos' control ranges (`ctrlrange` of the
+    actuators `rudder`, `elevator_right`, `elevator_left`; the smallest |bound| of the three, as
+    the autopilots clip symmetrically; inf where none is limited) and `fin_rate_limit`."""
+    ids = [model.actuator(f).id for f in FINS]
+    bounds = [np.abs(model.actuator_ctrlrange[i]).min() for i in ids if model.actuator_ctrllimited[i]]
+    return FinLimits(angle=float(min(bounds, default=np.inf)), rate=fin_rate_limit(model))
 
 
 def rigid_body_mass(model: mujoco.MjModel) -> np.ndarray:

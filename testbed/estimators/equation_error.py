@@ -1,0 +1,190 @@
+"""The equation-error method `equation-error`: the linear model's rows regressed on smoothed
+derivatives of the measured states. No simulation, so no basin of attraction and no divergence
+along the record, but biased by the noise and by the smoothing; the ML methods start from it
+(`estimators.starts`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError, is_number
+from testbed.estimators.base import Callback, Estimate, Method, Options, Progress, Status, option
+from testbed.identification.bounds import assess
+from testbed.identification.likelihood import divergence, initial_states
+from testbed.identification.problem import Problem, problem
+from testbed.models.linear import NX, STATES, tilde
+
+__all__ = ["EQUATION_ERROR", "SMOOTHABLE", "WINDOW_S", "EquationErrorOptions", "regression", "smoothed"]
+
+WINDOW_S = 0.5  # the smoothing window's default width, seconds
+SMOOTHABLE = 5  # the shortest window a cubic is smoothed over: a record needs as many samples
+
+
+def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, dict[str, tuple[str, ...]]]:
+    """The free coefficients (n_free,) from a least-squares fit of the linear model's rows, and
+    those left at their a-priori values for want of data: name → the states their row involves.
+
+    Each dynamics row `Mt ẋ = At x + Bt δ + St` is linear in its coefficients. The measured states
+    are smoothed (Savitzky-Golay, cubic, `window_s` wide) and the row is averaged over each
+    sample interval, where the input is held: ẋ ≈ Δx/Δt, x ≈ the interval's midpoint; the row's
+    free coefficients are then a linear regression. A row is used only on experiments that
+    measure every state it involves (and are long enough to smooth); the free coefficients of a
+    row that no experiment supports, and directions the data do not excite, keep their a-priori
+    values (minimum-norm correction).
+    """
+    s, theta = prob.structure, prob.theta
+    fixed = theta.copy()
+    fixed[prob.index] = 0.0
+    Mf, Af, Bf, Sf = tilde(s, fixed)  # known part: constants and fixed coefficients
+    values, left = prob.start, {}
+    intervals = []  # per record: (ẋ, x, δ) over its sample intervals, or None if too short to smooth
+    for r in prob.records:
+        n = len(r.y)
+        win = min(max(SMOOTHABLE, int(round(window_s / r.dt)) | 1), n - (1 - n % 2))
+        if win < SMOOTHABLE:
+            intervals.append(None)
+            continue
+        # only intervals whose smoothing window lies within the record: the ends would be
+        # extrapolated
+        xs = np.zeros((n - win + 1, NX))
+        xs[:, r.measured] = smoothed(r.y, win)
+        us = smoothed(r.inputs, win)
+        # over each sample interval the input is held: the row equation averaged over it
+        # has ẋ = Δx/Δt, x at the midpoint and δ exactly, with no derivative across a step;
+        # the same (linear) smoothing of states and inputs keeps that equation consistent
+        intervals.append((np.diff(xs, axis=0) / r.dt, (xs[1:] + xs[:-1]) / 2, us[:-1]))
+    for row in range(6):  # u v w p q r
+        cols = [
+            j
+            for j, i in enumerate(prob.index)
+            if s.dMt[i, row].any() or s.dAt[i, row].any() or s.dBt[i, row].any()
+        ]
+        if not cols:
+            continue
+        idx = prob.index[cols]
+        involved = (
+            (Mf[row] != 0) | (Af[row] != 0) | (s.dMt[idx, row] != 0).any(0) | (s.dAt[idx, row] != 0).any(0)
+        )
+        involved[row] = True
+        X, Y = [], []
+        for r, record in zip(prob.records, intervals):
+            if record is None or not set(np.flatnonzero(involved)) <= set(r.measured):
+                continue
+            xdot, x, u = record
+            # Σ_free θ_i (∂Mt_i ẋ − ∂At_i x − ∂Bt_i δ)_row = (At_f x + Bt_f δ + St_f − Mt_f ẋ)_row
+            X.append(xdot @ s.dMt[idx, row].T - x @ s.dAt[idx, row].T - u @ s.dBt[idx, row].T)
+            Y.append(x @ Af[row] + u @ Bf[row] + Sf[row] - xdot @ Mf[row])
+        if not X:
+            needs = tuple(STATES[i] for i in np.flatnonzero(involved))
+            left |= {prob.free[j]: needs for j in cols}
+            continue
+        X, Y = np.vstack(X), np.concatenate(Y)
+        prior = values[cols]
+        scale = np.linalg.norm(X, axis=0)
+        scale = np.where(scale > 0, scale, 1.0)
+        step = np.linalg.lstsq(X / scale, Y - X @ prior, rcond=1e-8)[0] / scale
+        values[cols] = prior + step
+    return values, left
+
+
+def smoothed(y: np.ndarray, win: int) -> np.ndarray:
+    """Savitzky-Golay smoothing of `y` (N, k), cubic, over `win` (odd) samples: at each sample
+    whose window lies within the record (N − win + 1 of them), the value there of the cubic
+    fitted to the window by least squares, a fixed weighted sum of the window."""
+    h = win // 2
+    # the fitted cubic's value at the window's centre: the first row of the Vandermonde pseudo-inverse
+    c = np.linalg.pinv(np.vander(np.arange(-h, h + 1.0), 4, increasing=True))[0]
+    n = len(y) - 2 * h
+    return sum(c[o] * y[o : o + n] for o in range(win))
+
+
+@dataclass(frozen=True)
+class EquationErrorOptions(Options):
+    """Options of `equation-error`."""
+
+    window_s: float = option(
+        WINDOW_S,
+        lambda v: is_number(v) and v > 0,
+        "a number > 0 (seconds)",
+        "the width of the cubic Savitzky-Golay window that smooths the measured states and inputs",
+    )
+
+
+def _fit(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    options: EquationErrorOptions,
+    callback: Callback | None,
+) -> Estimate:
+    """The regression's coefficients, with the output-error analysis at them (`bounds.assess`): the
+    Cramér-Rao bounds, the noise and the initial states that fit best, the negative
+    log-likelihood as the cost, so that it compares with the other methods' estimates. One
+    iteration: the regression is solved once. DIVERGED where the linear model at the estimate
+    diverges on the data (the bounds are then meaningless), the reason named; InputError where the
+    data leave a free coefficient out of the regression (`regression`)."""
+    t0 = time.perf_counter()
+    prob = problem(experiments, config)
+    values, left = regression(prob, options.window_s)
+    if left:
+        rows = {needs: [n for n in left if left[n] == needs] for needs in left.values()}
+        raise InputError(
+            f"{prob.source}: method='equation-error' cannot estimate "
+            + "; ".join(
+                f"{', '.join(names)} (their row involves {', '.join(needs)})" for needs, names in rows.items()
+            )
+            + f": no experiment of at least {SMOOTHABLE} samples measures all those states; expected "
+            "experiments that do, or another method"
+        )
+    history = np.vstack([prob.start, values])
+    why = None if np.all(np.isfinite(values)) else "the regression's estimate is not finite"
+    if why is None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            p = initial_states(prob, values)
+        why = divergence(prob, p)
+    if why is not None:
+        return Estimate(
+            method=EQUATION_ERROR.name,
+            status=Status.DIVERGED,
+            free=prob.free,
+            values=values,
+            std=np.full(prob.n_free, np.nan),
+            cost=np.nan,
+            iterations=1,
+            wall_time_s=time.perf_counter() - t0,
+            noise_std={},
+            history=history,
+            message=why,
+        )
+    info = assess(prob, p)
+    if callback is not None:
+        callback(Progress(1, info.values.copy(), info.cost))
+    return Estimate(
+        method=EQUATION_ERROR.name,
+        status=Status.CONVERGED,
+        free=prob.free,
+        values=info.values,
+        std=info.crlb_std,
+        cost=info.cost,
+        iterations=1,
+        wall_time_s=time.perf_counter() - t0,
+        noise_std=info.noise_std,
+        history=history,
+        crlb_corrected_std=np.asarray(info.crlb_corrected_std, float),
+        initial_states=info.initial_states,
+    )
+
+
+EQUATION_ERROR = Method(
+    name="equation-error",
+    fit=_fit,
+    options=EquationErrorOptions,
+    summary="equation error: the linear model's rows regressed on smoothed derivatives of the measured states",
+    iterative=False,
+    starts=False,
+)

@@ -1,0 +1,309 @@
+"""The uncertainty of the output-error estimate: the Fisher information (initial states
+eliminated), Cramér-Rao bounds with one rule for a singular matrix, and Morelli & Klein's bound
+for coloured residuals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from statistics import NormalDist
+from typing import Mapping, NamedTuple, Sequence
+
+import numpy as np
+
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError
+from testbed.identification.likelihood import (
+    divergence,
+    eliminate,
+    gauss_newton_terms,
+    initial_states,
+    negative_log_likelihood,
+    noise_variance,
+    reduced,
+)
+from testbed.identification.problem import Problem, free_values, problem
+from testbed.identification.recursions import channel_weights, discrete_models, sensitivity_parts, states
+from testbed.identification.scan import PIECE
+from testbed.models.linear import IX, NX, STATES
+
+__all__ = [
+    "INTEGRATED_TIMES",
+    "MIN_LAGS",
+    "NULL",
+    "Bounds",
+    "Information",
+    "assess",
+    "colored_covariance",
+    "crlb",
+    "fft_length",
+    "fisher",
+    "information",
+    "lag_window",
+]
+
+
+class Bounds(NamedTuple):
+    """The Cramér-Rao bounds of a Fisher information matrix (see `crlb`)."""
+
+    covariance: np.ndarray  # (n, n) a generalised inverse of M: M⁻¹ where M is regular
+    std: np.ndarray  # (n,) √(M⁻¹)_ii; inf for an unidentifiable parameter
+    correlation: np.ndarray  # (n, n) cov_ij / (σ_i σ_j); NaN in an unidentifiable one's row and column
+
+
+NULL = 1e-12  # eigenvalue of the scaled Fisher matrix, relative to its largest, that counts as 0
+
+
+def crlb(M: np.ndarray) -> Bounds:
+    """Cramér-Rao bounds of the Fisher information `M`: covariance, standard deviations and
+    correlations, with one rule for a singular or nearly singular M.
+
+    M is scaled to unit diagonal (`Mₛ = D⁻¹ M D⁻¹`, D = √diag M, so the rule does not depend on
+    the parameters' units) and Mₛ = V Λ Vᵀ; eigenvalues at or below `NULL` × the largest are null
+    directions. `covariance = D⁻¹ V₊ Λ₊⁻¹ V₊ᵀ D⁻¹` over the other eigenvalues, a generalised
+    inverse of M. A parameter whose unit vector lies in the range of M has the bound
+    `σ_i² = (M⁻)_ii`, the same for every generalised inverse; one with a component above √NULL
+    along the null directions (or no information at all, M_ii = 0) is unidentifiable: no unbiased
+    estimator has a finite variance, so σ_i = inf (a truncated pseudo-inverse would report a
+    small, wrong bound) and its correlations are NaN.
+    """
+    M = (M + M.T) / 2
+    D = np.sqrt(np.maximum(np.diag(M), 0.0))
+    informed = D > 0
+    D = np.where(informed, D, 1.0)
+    lam, V = np.linalg.eigh(M / np.outer(D, D))
+    null = lam <= NULL * max(lam.max(initial=0.0), 1e-300)
+    cov = (V[:, ~null] / lam[~null]) @ V[:, ~null].T / np.outer(D, D)
+    unidentifiable = ~informed | (np.linalg.norm(V[:, null], axis=1) > np.sqrt(NULL))
+    std = np.where(unidentifiable, np.inf, np.sqrt(np.maximum(np.diag(cov), 0.0)))
+    s = np.where(unidentifiable, np.nan, std)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(s, s)
+    corr[np.diag_indices_from(corr)] = np.where(unidentifiable, np.nan, 1.0)
+    return Bounds(cov, std, corr)
+
+
+MIN_LAGS = 10  # the lag window's floor (`lag_window`), samples
+INTEGRATED_TIMES = 6  # the lag window's length in integrated autocorrelation times (`lag_window`)
+
+
+def fft_length(n: int) -> int:
+    """The least 2^a 3^b 5^c ≥ n: an FFT length numpy's pocketfft transforms fast."""
+    best = 1 << max(n - 1, 0).bit_length()
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            m = p35 * (1 << max((n - 1) // p35, 0).bit_length()) if p35 < n else p35
+            best = min(best, m)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def lag_window(rho: np.ndarray, n: int) -> int:
+    """K, the lags the residual autocorrelation is kept to in `colored_covariance`.
+
+    `rho`: (lags 1 … n/4, k) each channel's residual autocorrelation coefficient ρ(τ) =
+    r_cc(τ)/r_cc(0), `n` the record's samples. K covers, in every channel, both
+    - twice the last lag at which ρ is significant, so that the Bartlett taper still weighs it by
+      ½ or more: outside ±z·√((1 + 2 Σ_j<τ ρ(j)²)/n), Bartlett's band for a correlation that has
+      ended before τ, z for 99 % over all those lags and channels at once (Bonferroni) — an
+      oscillating or late correlation;
+    - c = `INTEGRATED_TIMES` integrated autocorrelation times, the first M ≥ c (1 + 2 Σ_τ≤M ρ(τ))
+      (Sokal's automatic window) — a slowly decaying correlation, whose tail stays inside the
+      band but adds up (AR(1): τ_int = (1+ρ)/(1−ρ));
+    at least `MIN_LAGS`, at most n/2. White residuals keep the floor: K/N small, so the window
+    adds little sampling noise to the bound.
+    """
+    if not rho.size:  # a record of under 4 samples: no lag to test
+        return min(MIN_LAGS, n // 2)
+    # Bartlett's variance of ρ(τ) beyond the correlation: (1 + 2 Σ_j<τ ρ(j)²)/n
+    var = (1.0 + 2.0 * (np.cumsum(rho**2, axis=0) - rho**2)) / n
+    z = NormalDist().inv_cdf(1.0 - 0.005 / rho.size)
+    outside = np.flatnonzero(np.any(rho**2 > z**2 * var, axis=1))
+    last = outside[-1] + 1 if len(outside) else 0
+    # M ≥ c τ_int(M), τ_int(M) = 1 + 2 Σ_τ≤M ρ(τ): the first such M in the slowest channel (none: n)
+    reached = np.arange(1, len(rho) + 1)[:, None] >= INTEGRATED_TIMES * (1.0 + 2.0 * np.cumsum(rho, axis=0))
+    sokal = np.max(np.argmax(reached, axis=0)) + 1 if np.all(np.any(reached, axis=0)) else n
+    return int(min(max(2 * last, sokal, MIN_LAGS), n // 2))
+
+
+def colored_covariance(
+    prob: Problem,
+    p: np.ndarray,
+    xs: Sequence[np.ndarray],
+    res: Sequence[np.ndarray],
+    R: np.ndarray,
+    cov: np.ndarray,
+) -> np.ndarray:
+    """Morelli & Klein's covariance of the free coefficients for colored residuals,
+
+        C (Σ_i Σ_j S(i)ᵀR⁻¹ R_vv(i−j) R⁻¹S(j)) Cᵀ,   R_vv(τ) = w(τ) 1/N Σ_m v(m) v(m+τ)ᵀ,
+
+    per experiment, with C = `cov[:n_free]` (cov = M⁻¹, the bound for white residuals), S the
+    output sensitivities, v the residuals (`xs`: the states at `p`, `res`: the residuals) and
+    w(τ) = 1 − |τ|/(K+1) for |τ| ≤ K, 0 beyond: the Bartlett lag window, K from `lag_window`.
+
+    The window is what makes the bound agree with M⁻¹ for white residuals. Over all lags the
+    sample autocorrelation's spectrum is the periodogram |V(f)|²/N, and the fit's normal equations
+    `Σ_m S(m)ᵀR⁻¹v(m) = Σ_f S(f)ᴴR⁻¹V(f) = 0` leave it with holes exactly where the sensitivities'
+    spectra lie, so the all-lag sum reads low (down to 0.8 of M⁻¹'s σ on 60 s records); the long-lag
+    estimates carry only that bias and sampling noise. The Bartlett window smooths the periodogram
+    over a band ~1/K wide (a convolution with the Fejér kernel), filling the holes from the
+    neighbouring frequencies, and keeps the estimate positive semidefinite. Its lag-0 term alone
+    is M; white residuals add lag terms of relative size √(K/N).
+
+    Computed per frequency of an L-point DFT grid, L ≥ N + K (no wrap-around): with
+    Φ(f) = Σ_|τ|≤K R_vv(τ) e^{+iωτ} (K lags summed directly) and Z = R^-½ S Cᵀ (the sensitivities
+    already projected by C: n_free columns, not n_params) the double sum is
+    `1/L Σ_f Z(f)ᴴ Φ(f) Z(f)`.
+    """
+    models, nf = discrete_models(prob, p[: prob.n_free], 1), prob.n_free
+    out = np.zeros((nf, nf))
+    # R^-½ S Cᵀ, time first; one buffer for all records (fresh pages are dear)
+    Z = np.empty((max(len(r.y) for r in prob.records), max(len(r.measured) for r in prob.records), nf))
+    for r, x, e in zip(prob.records, xs, res):
+        n, k, C = len(e), len(r.measured), cov[:nf, prob.columns(r)].T
+        Zr = Z[:n, :k]
+        Zr[...] = 0.0
+        for channels, params, pieces in sensitivity_parts(
+            prob, r, models[r.dt], x, r.measured, channel_weights(r, R), PIECE
+        ):
+            for samples, S in pieces:
+                Zr[np.ix_(np.arange(n)[samples], channels)] = (S @ C[params]).transpose(1, 0, 2)
+        v = e / np.sqrt(R[r.channels])  # R^-½ v
+        # per channel Σ_m v(m) v(m+τ), τ = 0 … n/4 (an FFT grid with no wrap-around at those lags)
+        V = np.fft.rfft(v, fft_length(n + n // 4 + 2), axis=0)
+        auto = np.fft.irfft(V.real**2 + V.imag**2, axis=0)[: n // 4 + 2]
+        K = lag_window(auto[1 : n // 4 + 1] / np.maximum(auto[0], 1e-300), n)
+        L = fft_length(n + K + 1)  # lags up to K without wrap-around
+        # G(τ) = w(τ) R_vv(τ), 0 < τ ≤ K
+        G = np.empty((K, k * k))
+        for tau in range(1, K + 1):
+            G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[: n - tau].T @ v[tau:])).ravel()
+        # Φ(f) = R_vv(0) + Σ_τ>0 (G(τ) e^{+iωτ} + G(τ)ᵀ e^{−iωτ}) (as R_vv(−τ) = R_vv(τ)ᵀ)
+        #      = R_vv(0) + Gc + Gcᵀ + i (Gs − Gsᵀ), Gc = Σ_τ G(τ) cos ωτ, Gs = Σ_τ G(τ) sin ωτ
+        omega_tau = 2 * np.pi / L * np.outer(np.arange(L // 2 + 1), np.arange(1, K + 1))
+        Gc, Gs = (np.cos(omega_tau) @ G).reshape(-1, k, k), (np.sin(omega_tau) @ G).reshape(-1, k, k)
+        Phi = np.empty(Gc.shape, complex)
+        np.add(Gc, Gc.transpose(0, 2, 1), out=Phi.real)
+        Phi.real += v.T @ v / n
+        np.subtract(Gs, Gs.transpose(0, 2, 1), out=Phi.imag)
+        Zf = np.fft.rfft(Zr, L, axis=0)  # (frequencies, k, n_free)
+        PhiZ = Phi @ Zf
+        Zf[0] *= 0.5  # DC and Nyquist appear once in the full spectrum, the others twice
+        if L % 2 == 0:
+            Zf[-1] *= 0.5
+        # 1/L Σ_f Z(f)ᴴ Φ(f) Z(f), real part: Re(aᴴb) = aᵣᵀbᵣ + aᵢᵀbᵢ, one real product of the
+        # arrays viewed as (re, im) pairs
+        RI = np.ascontiguousarray(Zf).reshape(-1, nf).view(float).T @ PhiZ.reshape(-1, nf).view(float)
+        out += (RI[0::2, 0::2] + RI[1::2, 1::2]) * (2.0 / L)
+    return out
+
+
+@dataclass(frozen=True)
+class Information:
+    """Cramér-Rao analysis of the free coefficients at `values` (initial states estimated)."""
+
+    free: tuple[str, ...]
+    values: np.ndarray  # (n_free,)
+    fisher: np.ndarray  # (n_free, n_free), the initial states eliminated (Schur complement)
+    crlb_std: np.ndarray  # (n_free,) Cramér-Rao standard errors
+    correlation: np.ndarray  # (n_free, n_free)
+    crlb_corrected_std: np.ndarray  # (n_free,) Morelli-Klein colored-residual bound
+    noise_std: dict[str, float]  # per measured state: √R
+    initial_states: dict[str, dict[str, float]]  # experiment → measured state → x0 (absolute u)
+    cost: float  # negative log-likelihood (R at its ML value)
+    p: np.ndarray  # (n_params,) the full parameter vector
+
+    @property
+    def relative_std(self) -> np.ndarray:
+        return self.crlb_std / np.maximum(np.abs(self.values), 1e-300)
+
+
+def assess(
+    prob: Problem, p: np.ndarray, M: np.ndarray | None = None, R: np.ndarray | None = None
+) -> Information:
+    """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`.
+
+    `M`: `gauss_newton_terms(prob, p, …, R)[1]` with R the residual variance at `p`, if an
+    optimiser already has it (not checked: the caller vouches that it belongs to `p`). `R`: the
+    noise variance per channel to use instead of the residual variance at `p`.
+    """
+    xs = states(prob, p)
+    res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
+    R = noise_variance(prob, res) if R is None else R
+    if M is None:
+        M = gauss_newton_terms(prob, p, xs, res, R)[1]
+    nf = prob.n_free
+    # the bounds of θ from its information with the initial states eliminated, which stays well
+    # conditioned where M itself does not (an unstable model's); the colored bound needs the θ
+    # rows of M⁻¹ too: [F⁻¹, −F⁻¹ M_θx M_xx⁻¹] (the inverse of a 2 × 2 block matrix)
+    F = reduced(M, np.zeros(len(M)), nf)[0]
+    cov, std, corr = crlb(F)
+    rows = np.hstack([cov, -cov @ eliminate(M, nf, M[nf:, :nf]).T]) if len(M) > nf else cov
+    corrected = colored_covariance(prob, p, xs, res, R, rows)
+    x0 = {}
+    for r in prob.records:
+        xr = prob.x0(r, p) + np.eye(NX)[IX["u"]] * prob.speed
+        x0[r.name] = {STATES[i]: float(xr[i]) for i in r.measured}
+    return Information(
+        prob.free,
+        p[:nf].copy(),
+        F,
+        std,
+        corr,
+        np.where(np.isinf(std), np.inf, np.sqrt(np.maximum(np.diag(corrected), 0.0))),
+        dict(zip(prob.channels, map(float, np.sqrt(R)))),
+        x0,
+        negative_log_likelihood(prob, res),
+        p.copy(),
+    )
+
+
+def information(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    values: Mapping[str, float] | np.ndarray | None = None,
+    noise_std: Mapping[str, float] | None = None,
+) -> Information:
+    """Cramér-Rao analysis of `config.free` at `values` (default: the config's coefficients).
+
+    The initial states are fitted (linear least squares); R is `noise_std`² where given (per
+    channel), else the residual variance there, which also holds the model's error at `values`.
+    A model that diverges on the data has no meaningful bound: InputError.
+    """
+    prob, p, R = _analysed(experiments, config, values, noise_std)
+    return assess(prob, p, R=R)
+
+
+def fisher(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    values: Mapping[str, float] | np.ndarray | None = None,
+    noise_std: Mapping[str, float] | None = None,
+) -> np.ndarray:
+    """`information(...).fisher` alone: the Fisher information of `config.free` (n_free, n_free),
+    the initial states eliminated, without the bounds (no colored-residual analysis)."""
+    prob, p, R = _analysed(experiments, config, values, noise_std)
+    xs = states(prob, p)
+    res = [r.y - x[:, r.measured] for r, x in zip(prob.records, xs)]
+    M = gauss_newton_terms(prob, p, xs, res, noise_variance(prob, res) if R is None else R)[1]
+    return reduced(M, np.zeros(len(M)), prob.n_free)[0]
+
+
+def _analysed(experiments, config, values, noise_std) -> tuple[Problem, np.ndarray, np.ndarray | None]:
+    """The problem, the parameter vector at `values` with the best-fitting initial states and R
+    from `noise_std` (None without) for `information` and `fisher`; InputError where the model
+    diverges on the data: it has no meaningful bound."""
+    prob = problem(experiments, config)
+    with np.errstate(over="ignore", invalid="ignore"):
+        p = initial_states(prob, free_values(prob, values))
+    why = divergence(prob, p)
+    if why is not None:
+        raise InputError(
+            f"{prob.source}: the model diverges at these coefficients ({why}); "
+            "expected coefficients giving a bounded response"
+        )
+    return prob, p, None if noise_std is None else np.array([noise_std[c] ** 2 for c in prob.channels])

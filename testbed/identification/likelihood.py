@@ -1,0 +1,271 @@
+"""The output-error likelihood: residuals' noise, costs, the Gauss-Newton normal equations, the
+best-fitting initial states, and the problem cut into segments (multiple shooting).
+
+Noise: `v ~ N(0, R)` with `R` diagonal, one variance per measured state (pooled over the
+experiments). The paper's likelihood `J_M = 1/N Σ eᵀR⁻¹e` is minimised by relaxation: `R` is set
+to the residual variance per channel, then held fixed while θ steps (Maine & Iliff).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from testbed.identification import scan
+from testbed.identification.problem import Problem, Record
+from testbed.identification.recursions import (
+    channel_weights,
+    discrete_models,
+    outputs,
+    sensitivity_parts,
+    trajectory,
+    uncoupled,
+)
+from testbed.models.linear import NX, STATES, continuous
+
+__all__ = [
+    "EXPLODE",
+    "RELAXATIONS",
+    "divergence",
+    "eliminate",
+    "exploded",
+    "fit_initial_states",
+    "gauss_newton_terms",
+    "initial_states",
+    "negative_log_likelihood",
+    "noise_variance",
+    "reduced",
+    "segmented",
+    "weighted_cost",
+]
+
+EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
+RELAXATIONS = 20  # noise updates of `fit_initial_states` at most (each a k × k solve per record)
+
+
+def noise_variance(prob: Problem, res: Sequence[np.ndarray]) -> np.ndarray:
+    """R: residual variance per channel (len(prob.channels),), pooled over the experiments."""
+    return _pooled_variance(prob, [np.sum(e**2, axis=0) for e in res])
+
+
+def _pooled_variance(prob: Problem, sums: Sequence[np.ndarray]) -> np.ndarray:
+    """R from each experiment's residual sums of squares per measured channel (`noise_variance`).
+
+    Floored far below any real sensor noise so that a noise-free fit stays finite; the channels
+    whose noise the config gives (`[identify] noise_std`) keep it.
+    """
+    ss, n, scale = np.zeros(len(prob.channels)), np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
+    for r, e2 in zip(prob.records, sums):  # a record's channels are distinct
+        ss[r.channels] += e2
+        n[r.channels] += len(r.y)
+        scale[r.channels] += np.sum(r.y**2, axis=0)
+    R = np.maximum(ss / n, 1e-14 * scale / n + 1e-30)
+    return R if prob.known is None else np.where(np.isnan(prob.known), R, prob.known)
+
+
+def weighted_cost(prob: Problem, res: Sequence[np.ndarray], R: np.ndarray) -> float:
+    """`½ Σ_k eᵀ R⁻¹ e` over all experiments (R held fixed: the relaxation step)."""
+    return 0.5 * sum(float(np.sum(e**2 / R[r.channels])) for r, e in zip(prob.records, res))
+
+
+def negative_log_likelihood(prob: Problem, res: Sequence[np.ndarray]) -> float:
+    """−ln p(Z|θ, R) = ½ Σ_c (N_c ln 2π R_c + S_c/R_c), S_c channel c's residual sum of squares,
+    R_c the ML noise variance S_c/N_c (then ½ Σ_c N_c (ln 2π R_c + 1)) or the config's."""
+    R = noise_variance(prob, res)
+    n, S = np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
+    for r, e in zip(prob.records, res):
+        n[r.channels] += len(r.y)
+        S[r.channels] += np.sum(e**2, axis=0)
+    return float(0.5 * np.sum(n * np.log(2 * np.pi * R) + S / R))
+
+
+def exploded(prob: Problem, outs: Sequence[np.ndarray]) -> str | None:
+    """Why the simulated outputs count as diverged (non-finite or ≫ the data), or None."""
+    for r, yhat in zip(prob.records, outs):
+        bound = EXPLODE * np.max(np.abs(r.y), axis=0) + 1.0
+        bad = ~np.isfinite(yhat) | (np.abs(yhat) > bound)
+        if bad.any():
+            k, c = np.argwhere(bad)[0]
+            return (
+                f"experiment '{r.name}': simulated {STATES[r.measured[c]]} reaches "
+                f"{yhat[k, c]:.3g} at t = {k * r.dt:.3g} s"
+            )
+    return None
+
+
+def gauss_newton_terms(
+    prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray], res: Sequence[np.ndarray], R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """`g = Σ Sᵀ R⁻¹ e` (minus the gradient of the weighted cost) and `M = Σ Sᵀ R⁻¹ S` (Fisher) at
+    `p` (`xs`: the states there, `res`: the residuals), S the output sensitivities, made and summed
+    a piece at a time (`scan.pieces`)."""
+    models = discrete_models(prob, p[: prob.n_free], 1)
+    g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
+    for r, x, e in zip(prob.records, xs, res):
+        e, cols = e / np.sqrt(R[r.channels]), prob.columns(r)
+        gr, Mr = np.zeros(len(cols)), np.zeros((len(cols), len(cols)))
+        for channels, params, pieces in sensitivity_parts(
+            prob, r, models[r.dt], x, r.measured, channel_weights(r, R), scan.PIECE
+        ):
+            ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
+            for samples, S in pieces:
+                S = S.reshape(-1, len(params))  # weighted: R^-½ S, channel by channel
+                gp += S.T @ ep[samples].T.ravel()
+                Mp += S.T @ S  # numpy's matmul takes Sᵀ S as one symmetric update
+            gr[params] += gp
+            Mr[np.ix_(params, params)] += Mp
+        g[cols] += gr
+        M[np.ix_(cols, cols)] += Mr
+    return g, M
+
+
+def segmented(prob: Problem, count: int, least: int) -> Problem:
+    """`prob` with each record cut into `count` consecutive segments of (nearly) equal length,
+    each a record of its own with its own initial state: output error on segments, the multiple
+    shooting of boundary-value problems with the continuity between segments relaxed.
+
+    A segment has at least `least` samples (a shorter record keeps fewer segments, at least one).
+    Over a segment of length T a model's error grows by at most e^(aT) for its least stable
+    rate a, where over the whole record it grows by e^(a·T_record): short segments keep the cost
+    of an unstable or poor model's error bounded. The unmeasured components of each segment's
+    initial state stay at trim, as for a whole record.
+    """
+    records, offset = [], prob.n_free
+    for r in prob.records:
+        n = len(r.y)
+        pieces = max(1, min(count, n // max(least, 1)))
+        edges = np.linspace(0, n, pieces + 1).round().astype(int)
+        for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+            name = r.name if pieces == 1 else f"{r.name}[{j}]"
+            records.append(Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset))
+            offset += len(r.measured)
+    return replace(prob, records=tuple(records))
+
+
+def eliminate(M: np.ndarray, nf: int, rhs: np.ndarray) -> np.ndarray:
+    """`M_xx⁻¹ rhs`, x the parameters after the first `nf` (the initial states), with M_xx
+    scaled to a unit diagonal first: an unstable model's initial-state sensitivities grow along
+    the record, so M_xx spans many decades."""
+    Mxx = M[nf:, nf:]
+    D = np.sqrt(np.maximum(np.diag(Mxx), 0.0))
+    D = np.where(D > 0, D, 1.0)
+    return np.linalg.lstsq(Mxx / np.outer(D, D), rhs / D[:, None], rcond=None)[0] / D[:, None]
+
+
+def reduced(M: np.ndarray, g: np.ndarray, nf: int) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations of the first `nf` parameters with the others (the initial states)
+    solved for: the Schur complement `F = M_θθ − M_θx M_xx⁻¹ M_xθ` and `g_θ − M_θx M_xx⁻¹ g_x`,
+    the Gauss-Newton model of the cost as a function of θ alone (variable projection)."""
+    if len(M) > nf:
+        K = eliminate(M, nf, np.column_stack([M[nf:, :nf], g[nf:]]))
+        F, gr = M[:nf, :nf] - M[:nf, nf:] @ K[:, :nf], g[:nf] - M[:nf, nf:] @ K[:, nf]
+    else:
+        F, gr = M[:nf, :nf].copy(), g[:nf].copy()
+    return (F + F.T) / 2, gr
+
+
+def fit_initial_states(
+    prob: Problem, values: np.ndarray, R: np.ndarray | None = None, full: bool = False
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The parameter vector at the free `values` with the best-fitting initial states, and the
+    model outputs there (`full`: the whole states, (N, 10) per record).
+
+    The outputs are linear in x0 (`y = y_forced + G x0`, G = CΦᵏ), so x0 is a weighted linear
+    least-squares solution; when R is not given, R from the data's spread, then R and x0 in turn
+    towards their joint fixed point, where x0 and R maximise the likelihood for these
+    coefficients. Each channel c is reduced once, in one pass, to the triangular factor of
+    `[G_c  y_c − y_c,forced]` (QR, a piece at a time): for any weights the least-squares problem
+    is then k small triangular blocks, solved without squaring its condition number, which an
+    unstable model's G makes large (its free response grows along the record). A model whose
+    responses are not finite gets the first measured samples. Real values only: this solve is
+    not complex-step safe.
+    """
+    models = discrete_models(prob, values, 0)
+    p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
+    factors = []  # per record: (k, k + 1, k + 1) upper-triangular factors of [G_c v_c], channel c
+    for r in prob.records:
+        d, k = models[r.dt], len(r.measured)
+        T = np.zeros((k, k + 1, k + 1))
+        u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
+        Phi, forcing = d.E[:, :NX], d.E[:, NX:]
+        # columns: 0 the forced response, 1 + i the response to x0's i-th measured component;
+        # each part of the model that evolves on its own (`uncoupled`) is propagated alone
+        acts = np.column_stack([forcing.any(axis=1), np.eye(NX, dtype=bool)[:, r.measured]])
+        finite = True
+        for states, params, channels in uncoupled(Phi != 0, acts, r.measured):
+            params = np.union1d([0], params)  # a part the inputs do not force has a zero column 0
+            at = np.full(NX, -1)
+            at[states] = np.arange(len(states))
+            x0 = params[1:] - 1  # the x0 components of this part, indexes into r.measured
+            X = np.zeros((len(states), len(params)))
+            X[at[r.measured[x0]], 1 + np.arange(len(x0))] = 1.0
+            rows = at[r.measured[channels]]
+            cols = np.r_[x0, k]  # where [G v] of this part's channels sit in [G_c v_c]
+            for samples, Y in scan.pieces(
+                Phi[np.ix_(states, states)], forcing[states], u1, X, rows, np.ones(len(rows)), scan.PIECE
+            ):
+                block = np.zeros((len(channels), len(samples) + k + 1, k + 1))
+                block[:, : k + 1] = T[channels]
+                with np.errstate(over="ignore", invalid="ignore"):
+                    block[:, k + 1 :, cols] = np.concatenate(
+                        [Y[:, :, 1:], (r.y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
+                    )
+                if not np.all(np.isfinite(block)):
+                    finite = False
+                    break
+                T[channels] = np.linalg.qr(block, mode="r")[:, : k + 1]
+            if not finite:
+                break
+        factors.append(T if finite else None)
+
+    def solve(variance) -> list[np.ndarray]:
+        """x0 per record for channel variances `variance(record)` (stored in `p`), and the
+        residual sums of squares there: min Σ_c ‖(G_c x − v_c)‖²/R_c = Σ_c ‖U_c x − z_c‖²/R_c + ρ_c²/R_c
+        with [U_c z_c; 0 ρ_c] channel c's factor."""
+        sums = []
+        for r, T in zip(prob.records, factors):
+            k = len(r.measured)
+            if T is None:
+                p[r.offset : r.offset + k] = r.y[0]
+                sums.append(np.full(k, np.inf))
+                continue
+            w = variance(r) ** -0.5
+            A, z = (T[:, :k, :k] * w[:, None, None]).reshape(-1, k), (T[:, :k, k] * w[:, None]).ravel()
+            D = np.linalg.norm(A, axis=0)  # columns scaled to unit length: x0's units do not count
+            D = np.where(D > 0, D, 1.0)
+            x0 = np.linalg.lstsq(A / D, z, rcond=None)[0] / D
+            p[r.offset : r.offset + k] = x0
+            sums.append(np.sum((T[:, :k, :k] @ x0 - T[:, :k, k]) ** 2, axis=1) + T[:, k, k] ** 2)
+        return sums
+
+    if R is None:
+        R = _pooled_variance(prob, solve(lambda r: (np.std(r.y, axis=0) + 1e-12) ** 2))
+        for _ in range(RELAXATIONS):
+            new = _pooled_variance(prob, solve(lambda r: R[r.channels]))
+            settled = np.all(np.abs(new - R) <= 1e-12 * R)
+            R = new
+            if settled:
+                break
+    else:
+        solve(lambda r: R[r.channels])
+    xs = [trajectory(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
+    return p, xs if full else [x[:, r.measured] for r, x in zip(prob.records, xs)]
+
+
+def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = None) -> np.ndarray:
+    """The parameter vector at the free `values` with the best-fitting initial states."""
+    return fit_initial_states(prob, values, R)[0]
+
+
+def divergence(prob: Problem, p: np.ndarray) -> str | None:
+    """Why the model at `p` diverges on the data (with its least stable eigenvalue), or None."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        why = exploded(prob, outputs(prob, p))
+    if why is None:
+        return None
+    A = continuous(prob.structure, prob.coefficients(p[: prob.n_free]))[0]
+    ev = np.linalg.eigvals(A)
+    worst = ev[np.argmax(ev.real)]
+    return f"{why}; A's largest eigenvalue real part is {worst.real:.3g} 1/s"

@@ -1,0 +1,224 @@
+"""The linear model as the output-error fit simulates it: the exact zero-order-hold
+discretisation `x[k+1] = Φ x[k] + Γ δ[k] + s`, written `x[k+1] = E w[k]` with `E = [Φ Γ s]` and
+`w[k] = [x[k]; δ[k]; 1]`, its states from each experiment's initial state, and their exact
+sensitivities.
+
+`∂E/∂θ_i` and `∂²E/∂θ_i∂θ_j` come from the exponential of block-triangular augmented matrices
+(the discrete counterpart of the paper's Eq. 3), and the sensitivities are propagated by the
+recursions obtained by differentiating `x[k+1] = E w[k]` (`testbed.identification.scan`),
+separately for each part of the model that evolves on its own (`uncoupled`: a torpedo's lateral
+and longitudinal motions are uncoupled in the linear model, a quarter of the arithmetic).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from testbed.identification import scan
+from testbed.identification.problem import Problem, Record
+from testbed.models.linear import NU, NX, continuous, derivatives, discretize, expm_pair, tilde
+
+__all__ = [
+    "NW",
+    "Discrete",
+    "channel_weights",
+    "curvature",
+    "discrete",
+    "discrete_models",
+    "outputs",
+    "residuals",
+    "sensitivities",
+    "sensitivity_parts",
+    "states",
+    "trajectory",
+    "uncoupled",
+]
+
+NW = NX + NU + 1  # length of w = [x; δ; 1]
+
+
+@dataclass(frozen=True)
+class Discrete:
+    """`E = [Φ Γ s]` (10, 14) and its derivatives w.r.t. the free coefficients."""
+
+    E: np.ndarray
+    dE: np.ndarray | None = None  # (n_free, 10, 14)
+    d2E: np.ndarray | None = None  # (n_free, n_free, 10, 14)
+
+
+def discrete(prob: Problem, values: np.ndarray, dt: float, order: int = 0) -> Discrete:
+    """The ZOH model at the free `values` and its first (`order` ≥ 1) and second derivatives.
+
+    With `F(θ)` the augmented matrix [[A, B, S], [0, 0, 0]], `E = exp(F Δ)`; its derivatives are
+    the top-right blocks of the exponentials of block-triangular matrices (Van Loan /
+    Najfeld-Havel, `expm_pair`), all at once, with
+    `∂²[A B S]/∂θ_i∂θ_j = −Mt⁻¹(∂Mt_i ∂[A B S]_j + ∂Mt_j ∂[A B S]_i)` (Mt, At affine in θ).
+    """
+    s, theta = prob.structure, prob.coefficients(values)
+    A, B, S = continuous(s, theta)
+    if order == 0 or prob.n_free == 0:
+        return Discrete(np.column_stack(discretize(A, B, S, dt)))
+    nf = prob.n_free
+    dA, dB, dS = derivatives(s, theta, A, B, S, prob.index)
+    dABS = np.concatenate([dA, dB, dS[:, :, None]], axis=2)  # (nf, 10, 14)
+    ABS = np.column_stack([A, B, S])
+    if order == 1:
+        E, dE = expm_pair(ABS, dABS.transpose(1, 0, 2), dt)
+        return Discrete(E, dE.transpose(1, 0, 2))
+    Mt = tilde(s, theta)[0]
+    G = np.einsum("iab,jbc->ijac", s.dMt[prob.index], dABS)
+    iu, ju = np.triu_indices(nf)
+    d2ABS = -np.linalg.solve(Mt[None], (G + G.transpose(1, 0, 2, 3))[iu, ju])  # (pairs, 10, 14)
+    E, dE, block = expm_pair(ABS, dABS.transpose(1, 0, 2), dt, (d2ABS, iu, ju))
+    d2E = np.zeros((nf, nf, NX, NW), dtype=E.dtype)
+    d2E[iu, ju] = block
+    d2E[ju, iu] = block
+    return Discrete(E, dE.transpose(1, 0, 2), d2E)
+
+
+def discrete_models(prob: Problem, values: np.ndarray, order: int) -> dict[float, Discrete]:
+    """`discrete` at the free `values` for each sampling interval of the records."""
+    return {dt: discrete(prob, values, dt, order) for dt in {r.dt for r in prob.records}}
+
+
+def trajectory(record: Record, d: Discrete, x0: np.ndarray) -> np.ndarray:
+    """State trajectory (N, 10) of one record from the full initial state `x0`."""
+    return scan.propagate(d.E[:, :NX], x0, record.inputs[:-1] @ d.E[:, NX : NX + NU].T + d.E[:, -1])
+
+
+def _w(x: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """`w[k] = [x[k]; δ[k]; 1]` (N, 14)."""
+    return np.column_stack([x, inputs.astype(x.dtype), np.ones(len(x), dtype=x.dtype)])
+
+
+def states(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
+    """Simulated states (N, 10) per experiment at the parameter vector `p` (u as a perturbation)."""
+    models = discrete_models(prob, p[: prob.n_free], 0)
+    return [trajectory(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
+
+
+def outputs(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
+    """Model outputs (N, k) per experiment at the parameter vector `p` (u as a perturbation)."""
+    return [x[:, r.measured] for r, x in zip(prob.records, states(prob, p))]
+
+
+def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
+    """Measured minus model outputs (N, k) per experiment."""
+    return [r.y - yhat for r, yhat in zip(prob.records, outputs(prob, p))]
+
+
+def sensitivity_parts(
+    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray, size: int
+) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:
+    """`scale[c] ∂x_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
+    states `x` (N, 10), for each `uncoupled` part of the model: (channels, params, pieces), the
+    pieces as in `scan.pieces` with (T, len(channels), len(params)) arrays; `channels` index `rows`,
+    `params` p. Sensitivities across the parts are zero and not given.
+
+    ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ.
+    """
+    nf, rows = prob.n_free, np.asarray(rows)
+    dtype = np.result_type(x, d.E)  # complex under the complex-step tests
+    w, Phi = _w(x, record.inputs), d.E[:, :NX]
+    dE = d.dE if nf else np.zeros((0, NX, NW), dtype=dtype)
+    acts = np.column_stack([dE.any(axis=2).T, np.eye(NX, dtype=bool)[:, record.measured]])
+    for states, params, channels in uncoupled(Phi != 0, acts, rows):
+        at = np.full(NX, -1)
+        at[states] = np.arange(len(states))
+        theta, x0 = params[params < nf], params[params >= nf]
+        X = np.zeros((len(states), len(params)), dtype=dtype)  # the θ columns first
+        X[at[record.measured[x0 - nf]], len(theta) + np.arange(len(x0))] = 1.0
+        D = dE[theta][:, states, :].transpose(1, 0, 2).reshape(-1, NW)  # rows: (state, θ)
+        yield (
+            channels,
+            params,
+            scan.pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]], scale[channels], size),
+        )
+
+
+def uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
+    """The parts of the model that evolve independently: (states, params, channels) for each.
+
+    `coupled[a, l]`: state l feeds state a (Φ's pattern); `acts[:, j]`: the states parameter j
+    acts on; `rows`: the states asked for. A torpedo's lateral and longitudinal motions are
+    uncoupled in the linear model, so each part propagates only its own states and parameters
+    (a quarter of the arithmetic); a fully coupled model is one part.
+    """
+    shared = acts.astype(int) @ acts.T.astype(int) > 0  # states one parameter acts on together
+    reach = coupled | coupled.T | shared | np.eye(len(coupled), dtype=bool)
+    while True:  # transitive closure by squaring: ⌈log₂ n⌉ products at most
+        wider = reach.astype(int) @ reach.astype(int) > 0
+        if (wider == reach).all():
+            break
+        reach = wider
+    label = reach.argmax(axis=1)  # a part's label: its first state
+    out = []
+    for part in sorted(set(label.tolist())):  # (np.unique would import numpy.ma: 50 ms)
+        params = np.flatnonzero(acts[label == part].any(axis=0))
+        channels = np.flatnonzero(label[rows] == part)
+        if len(params) and len(channels):
+            out.append((np.flatnonzero(label == part), params, channels))
+    return out
+
+
+def _sensitivities(
+    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray
+) -> np.ndarray:
+    """All of `sensitivity_parts` at once: (N, len(rows), q)."""
+    S = np.zeros((len(x), len(rows), prob.n_free + len(record.measured)), dtype=np.result_type(x, d.E))
+    for channels, params, pieces in sensitivity_parts(prob, record, d, x, rows, scale, len(x)):
+        for samples, piece in pieces:
+            S[np.ix_(samples, channels, params)] = piece.transpose(1, 0, 2)
+    return S
+
+
+def sensitivities(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:
+    """Per experiment: output sensitivities (N, k, q) to the experiment's own parameters
+    `p[prob.columns(record)]` (q = n_free + k; the others have no effect). `xs`: the states at
+    `p` (`states(prob, p)`) if already known. (The estimators take them in pieces instead.)
+    """
+    models = discrete_models(prob, p[: prob.n_free], 1)
+    xs = states(prob, p) if xs is None else xs
+    return [
+        _sensitivities(prob, r, models[r.dt], x, r.measured, np.ones(len(r.measured)))
+        for r, x in zip(prob.records, xs)
+    ]
+
+
+def channel_weights(record: Record, R: np.ndarray) -> np.ndarray:
+    """Per measured channel: 1/√R, which weights the sensitivities."""
+    return R[record.channels] ** -0.5
+
+
+def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np.ndarray:
+    """`Σ_k Σ_c weights[k, c] ∂²y_c[k]/∂p∂p` (n_params, n_params), `weights` (N, k) per experiment.
+
+    The second-order sensitivities of the paper's Eq. 3, discretised exactly, obey
+      ∂²x[k+1]/∂p_i∂p_j = Φ ∂²x[k] + ∂Φ_i ∂x[k]/∂p_j + ∂Φ_j ∂x[k]/∂p_i + ∂²E_ij w[k],  ∂²x[0] = 0
+    (only coefficients move Φ and E: the initial-state entries of ∂Φ, ∂²E are zero). Their
+    weighted sum is taken by the adjoint recursion `μ[k] = Cᵀweights[k] + Φᵀ μ[k+1]`:
+    `Σ_k aₖᵀ ∂²x[k] = Σ_k μ[k+1]ᵀ (forcing at k)`, exact, with no N·n_params² array. A one-hot
+    weight gives the second-order sensitivity of one output sample.
+    """
+    models = discrete_models(prob, p[: prob.n_free], 2)
+    nf, H = prob.n_free, np.zeros((prob.n_params, prob.n_params), dtype=p.dtype)
+    for r, wr in zip(prob.records, weights):
+        d = models[r.dt]
+        x = trajectory(r, d, prob.x0(r, p))
+        w, X = _w(x, r.inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX))
+        a = np.zeros((len(w), NX), dtype=np.result_type(wr, p))
+        a[:, r.measured] = wr
+        Phi = d.E[:, :NX]
+        mu = scan.propagate(Phi.T, a[-1], a[-2::-1])[::-1]  # μ[k], k = 0 … N−1
+        dPhi = np.zeros((X.shape[2], NX, NX), dtype=X.dtype)
+        dPhi[:nf] = d.dE[:, :, :NX]
+        H1 = np.einsum("jib,jbl->il", np.einsum("ja,iab->jib", mu[1:], dPhi), X[:-1])
+        Hr = H1 + H1.T
+        if nf:
+            Hr[:nf, :nf] += np.einsum("ilab,ab->il", d.d2E, mu[1:].T @ w[:-1])
+        cols = prob.columns(r)
+        H[np.ix_(cols, cols)] += Hr
+    return H
