@@ -39,6 +39,7 @@ from testbed.estimators.base import (
     count_option,
     is_count,
     option,
+    unphysical,
 )
 
 
@@ -341,6 +342,7 @@ def _estimate(name: str, prob: outputerror.Problem, fit: Fit, t0: float, fits: l
         )
     except np.linalg.LinAlgError as exc:
         why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
+    why = unphysical(prob.structure, prob.coefficients(out.p[: prob.n_free])) or why
     if why is not None:
         nf = prob.n_free
         return Estimate(
