@@ -169,12 +169,15 @@ def test_campaign_on_two_workers_survives_a_killed_worker_and_resumes(tmp_path, 
     rows = _check_outputs(out, cells)
     assert all(r["status"] != "failed" for r in rows), [r["reason"] for r in rows if r["status"] == "failed"]
 
-    # a crash after some cells: they are kept, only the missing one is computed again
-    lost = cells[1]
+    # a crash after some cells: they are kept, only the missing one and one whose file was cut
+    # short are computed again
+    lost, cut = cells[1], cells[2]
     (out / "cells" / f"{lost.key}.json").unlink()
-    kept = {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json")}
+    path = out / "cells" / f"{cut.key}.json"
+    path.write_bytes(path.read_bytes()[:100])
+    kept = {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json") if p != path}
     again = campaign.reproduce(out, seeds=2, scheduler=c.scheduler_address, **TINY)
-    assert again.computed == 1 and again.reused == len(cells) - 1
+    assert again.computed == 2 and again.reused == len(cells) - 2
     assert {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json") if p.name in kept} == kept
     rows_again = _check_outputs(out, cells)
     before = {(r["method"], r["seed"], r["coefficient"]): r["estimate"] for r in rows}

@@ -269,7 +269,7 @@ def reproduce(
     cells = plan(seeds, quick, methods, scenarios, duration)
     check_folder(out)
     cells_dir = out / "cells"
-    todo = [c for c in cells if not (cells_dir / f"{c.key}.json").exists()]
+    todo = [c for c in cells if read_cell(cells_dir / f"{c.key}.json") is None]
     # the first seed of each scenario is always loaded: its inputs are the report's Figs. 3 and 5
     runs = sorted(
         {(c.scenario, c.seed, c.duration) for c in todo} | {(s, 1, cells[0].duration) for s in scenarios}
@@ -320,10 +320,20 @@ def reproduce(
                     inputs[s] = future.result()[0]
                 except Exception:  # the report says which figure is missing
                     inputs[s] = None
-    docs = [json.loads((cells_dir / f"{c.key}.json").read_text()) for c in cells]
+    docs = [read_cell(cells_dir / f"{c.key}.json") for c in cells]
     write_outputs(out, docs, inputs)
     conclusions = json.loads((out / "conclusions.json").read_text())
     return Outcome(out, len(todo), len(cells) - len(todo), failed, conclusions, time.perf_counter() - t0)
+
+
+def read_cell(path: Path) -> dict | None:
+    """A finished cell's file, or None where there is none or it cannot be read as one (cut
+    short, edited): that cell is computed again and its file replaced."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError, RecursionError):
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("cell"), dict) and "status" in doc else None
 
 
 def check_folder(out: Path) -> None:
