@@ -721,6 +721,14 @@ def test_reproduce_never_writes_into_a_users_folder(tmp_path, capsys):
     assert {p.name: p.read_bytes() for p in mine.iterdir()} == before
 
 
+def test_a_flag_left_at_its_default_is_named_as_the_default(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs" / "reproduce").mkdir(parents=True)
+    (tmp_path / "runs" / "reproduce" / "results.csv").write_text("my results\n")
+    refused(capsys, "reproduce", "--quick", words=["error: the default --out runs/reproduce: holds"])
+    assert (tmp_path / "runs" / "reproduce" / "results.csv").read_text() == "my results\n"
+
+
 def test_reproduce_bounds_seeds_before_building_the_plan(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     t0 = time.perf_counter()
