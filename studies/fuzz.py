@@ -1,6 +1,6 @@
 """Bad input tried against the command line as a user's files and arguments would be, tallied.
 
-A corpus of about three hundred cases over a workspace of valid inputs (two small measurement
+A corpus of about five hundred cases over a workspace of valid inputs (two small measurement
 CSVs simulated from the linear model, a model config, a run directory with truth files): the
 CSVs broken in every way `CSV_MUTATIONS` knows, the config's every vehicle constant, some
 coefficients and its noise_std given impossible values, the manifest's every broken form, every flag given bad

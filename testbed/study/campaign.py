@@ -20,6 +20,7 @@ files alone.
 from __future__ import annotations
 
 import csv
+import functools
 import hashlib
 import io
 import json
@@ -90,7 +91,7 @@ class Cell:
         """The cached run directory's name, shared by the methods of a scenario and seed."""
         return f"{self.scenario}-seed{self.seed}" + (f"-{self.duration:g}s" if self.duration else "")
 
-    @property
+    @functools.cached_property  # reads the scenario file: once per cell
     def key(self) -> str:
         """`<scenario>-<method>-seed<N>-<hash>`: the hash of every input the result depends on."""
         flown = scenario(self.scenario).with_overrides(duration=self.duration)
