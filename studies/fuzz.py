@@ -1,16 +1,18 @@
 """Bad input tried against the command line as a user's files and arguments would be, tallied.
 
-A corpus of about three hundred cases over a workspace of valid inputs (two small measurement
+A corpus of about five hundred cases over a workspace of valid inputs (two small measurement
 CSVs simulated from the linear model, a model config, a run directory with truth files): the
 CSVs broken in every way `CSV_MUTATIONS` knows, the config's every vehicle constant, some
 coefficients and its noise_std given impossible values, the manifest's every broken form, every flag given bad
 values, every kind of output target (a folder, a file in the way, an input, standard output, a
-missing folder), and the cases of the bad-input issue one by one. Each case runs `testbed` on a
+missing folder), the cases of the bad-input issue one by one, and `input_cases`: scenario
+files, estimates, names and `reproduce`. Each case runs `testbed` on a
 fresh copy of the workspace; the tally counts:
 
 - errors: exit status 2 with exactly one stderr line naming a file, flag or value;
 - crashes: any other failure: a traceback, a status other than 0, 1 or 2, a second stderr line
-  (a numpy warning is made an error here, so it counts), or an unnamed one-line error;
+  (a numpy warning is made an error here, so it counts), an unnamed one-line error, or one
+  that blames a flag the command line did not give (a value read from a file, named as a flag);
 - partial outputs: anything written on failure, or an input changed, whatever the status.
 
     python studies/fuzz.py              # in this process (fd-level output captured)
@@ -30,6 +32,7 @@ import io
 import json
 import math
 import os
+import re
 import shutil
 import stat
 import subprocess
@@ -45,7 +48,7 @@ import numpy as np
 from testbed.data import ModelConfig, config_text, csv_text
 from testbed.identification.examples import NOISE, EXAMPLE_COEFFICIENTS, VEHICLE, inputs
 from testbed.identification.prediction import synthetic
-from testbed.models.linear import INPUTS, STATES, Vehicle
+from testbed.models.linear import COEFFICIENTS, INPUTS, STATES, Vehicle
 
 FREE = ("Y_v", "Y_r", "N_v", "N_r", "Z_w", "M_q")  # observed from both experiments of the workspace
 
@@ -581,6 +584,90 @@ def corpus(root: Path) -> list[Case]:
             keep = [0, 1] + [rows[0].index(n) for n in INPUTS]
             files = (("u.csv", _text([[r[c] for c in keep] for r in rows])),)
         cases.append(Case(f"issue: {label}", argv, files))
+    return cases + input_cases(root)
+
+
+def input_cases(root: Path) -> list[Case]:
+    """The bad input of the scenario files, estimates, names and campaigns: deep nesting in every
+    reader, names that cannot be file names, values a scenario file gives, a fit with all 35
+    coefficients free, and `reproduce` on a user's folder, with absurd seeds or no scheduler."""
+    from testbed.simulation.scenario import SCENARIO_DIR
+
+    scenario = (SCENARIO_DIR / "II.toml").read_text().replace("duration = 60.0", "duration = 0.5")
+
+    def edited(**changes) -> bytes:
+        text = scenario
+        for old, new in changes.items():
+            text = text.replace(old, new)
+        return text.encode()
+
+    deep_toml, deep_json = b"a = " + b"[" * 100_000, b'{"coefficients": ' + b"[" * 100_000
+    names = {
+        "scenario name ../escaped": {'name = "II"': 'name = "../escaped"'},
+        "scenario name ..": {'name = "II"': 'name = ".."'},
+        "scenario name with NUL": {'name = "II"': 'name = "a\\u0000b"'},
+        "scenario name of 300 bytes": {'name = "II"': f'name = "{"n" * 300}"'},
+        "experiment name with NUL": {'name = "horizontal"': 'name = "hor\\u0000izontal"'},
+        "experiment name of 300 bytes": {'name = "horizontal"': f'name = "{"h" * 300}"'},
+        "experiment name with a backslash": {'name = "horizontal"': 'name = "a\\\\b"'},
+        "scenario speed 30 (autopilots unstable)": {"duration = 0.5": "duration = 0.5\nspeed = 30.0"},
+        "scenario duration 1e7": {"duration = 0.5": "duration = 10000000.0"},
+        "experiment duration 1e7": {'name = "roll"': 'name = "roll"\nduration = 1e7'},
+        "scenario speed 1e-6": {"duration = 0.5": "duration = 0.5\nspeed = 1e-6"},
+    }
+    cases = [
+        Case(
+            f"input: {label}",
+            ("simulate", "--scenario", "s.toml", "--quiet"),
+            (("s.toml", edited(**changes)),),
+        )
+        for label, changes in names.items()
+    ]
+    cases += [
+        Case(
+            "input: scenario nested 100 000 deep",
+            ("simulate", "--scenario", "s.toml", "--quiet"),
+            (("s.toml", deep_toml),),
+        ),
+        Case(
+            "input: estimates nested 100 000 deep (validate)",
+            ("validate", "run", "--estimates", "est.json", "--out", "out/v.json"),
+            (("est.json", deep_json),),
+        ),
+        Case(
+            "input: estimates nested 100 000 deep (design)",
+            ("design", "--from", "est.json", "--out", "out/d.toml"),
+            (("est.json", deep_json),),
+        ),
+        Case(
+            "input: --duration on a scenario file",
+            ("simulate", "--scenario", "s.toml", "--duration", "1e-6", "--quiet"),
+            (("s.toml", edited()),),
+        ),
+    ]
+    every = re.sub(
+        r"^free = .*$",
+        "free = [" + ", ".join(f'"{n}"' for n in COEFFICIENTS) + "]",
+        (root / "run" / "model.toml").read_text(),
+        flags=re.M,
+    )
+    cases.append(
+        Case(
+            "input: identify --free-all, all 35 free",
+            ("identify", "run", "--config", "all.toml", "--free-all", "--out", "out/e.json"),
+            (("all.toml", every.encode()),),
+        )
+    )
+    mine = (("mine/results.csv", b"my results\n"), ("mine/notes.txt", b"my notes\n"))
+    for label, argv, files in (
+        ("a user's folder", ("--quick", "--out", "mine"), mine),
+        ("a user's file", ("--quick", "--out", "keep.txt"), ()),
+        ("seeds 1e9", ("--seeds", "1000000000", "--out", "out/study"), ()),
+        ("seeds 0", ("--seeds", "0", "--out", "out/study"), ()),
+        ("a malformed scheduler", ("--scheduler", "not an address", "--out", "out/study"), ()),
+        ("no scheduler listening", ("--scheduler", "tcp://127.0.0.1:1", "--out", "out/study"), ()),
+    ):
+        cases.append(Case(f"input: reproduce, {label}", ("reproduce", *argv), files))
     return cases
 
 
@@ -611,6 +698,7 @@ def prepare(ws: Path, case: Case) -> Path:
             content = (ws / source).read_bytes()
             for mutation, where in mutations:
                 content = apply_csv_mutation(content, mutation, where)
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
         (root / name).write_bytes(content)
     return root
 
@@ -690,9 +778,16 @@ def judge(argv, code, out, err, before: dict, after: dict) -> tuple[str, str]:
     failed = code not in (0, 1)
     partial = [p for p in changed if failed or not _is_output(p, argv)]
     named = [a for a in argv if a] + [Path(a).name for a in argv if a]
+    blamed = re.match(r"testbed \S+: error: (--[\w-]+)", err)  # the flag the error starts with
     if code in (0, 1) and "Traceback" not in err + out:
         kind = "ok"
-    elif code == 2 and err.count("\n") == 1 and "Traceback" not in err and any(a in err for a in named):
+    elif (
+        code == 2
+        and err.count("\n") == 1
+        and "Traceback" not in err
+        and any(a in err for a in named)
+        and (blamed is None or blamed.group(1) in argv)
+    ):
         kind = "error"
     else:
         kind = "crash"

@@ -274,21 +274,25 @@ def _cmd_replay(args) -> int:
     return 0
 
 
-def _flags(parser: argparse.ArgumentParser) -> list[tuple[str, str, bool | None]]:
-    """(parameter name, the flag that sets it, the value it sets if a switch, else None)."""
+def _flags(parser: argparse.ArgumentParser) -> list[tuple[str, str, bool | None, object]]:
+    """(parameter name, the flag that sets it, the value it sets if a switch, else None, its
+    default)."""
     return [
-        (a.dest, max(a.option_strings, key=len), a.const if isinstance(a.const, bool) else None)
+        (a.dest, max(a.option_strings, key=len), a.const if isinstance(a.const, bool) else None, a.default)
         for a in parser._actions
         if a.option_strings and a.dest != "help"
     ]
 
 
-def in_flags(message: str, flags: list[tuple[str, str, bool | None]]) -> str:
+def in_flags(message: str, flags: list[tuple[str, str, bool | None, object]], args=None) -> str:
     """A library message names parameters as Python does (`max_iter=-1`, `force=True`,
-    `screen=False`); the user typed flags (`--max-iter -1`, `--force`, `--free-all`)."""
-    for dest, flag, switch in flags:
+    `screen=False`); the user typed flags (`--max-iter -1`, `--force`, `--free-all`). A parameter
+    whose flag `args` leaves at its default is named as that default (`the default --out
+    runs/reproduce`): the user typed no such flag."""
+    for dest, flag, switch, default in flags:
         if switch is None:
-            message = re.sub(rf"(?<![\w.-]){dest}=", f"{flag} ", message)
+            typed = args is None or getattr(args, dest, default) != default
+            message = re.sub(rf"(?<![\w.-]){dest}=", f"{flag} " if typed else f"the default {flag} ", message)
         else:
             message = message.replace(f"{dest}={switch}", flag)
     return message
@@ -479,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except InputError as exc:
-        print(f"testbed {args.command}: error: {in_flags(str(exc), args.flags)}", file=sys.stderr)
+        print(f"testbed {args.command}: error: {in_flags(str(exc), args.flags, args)}", file=sys.stderr)
         return 2
     except MemoryError:
         print(

@@ -13,6 +13,7 @@ import json
 import math
 import numbers
 import os
+import reprlib
 import stat
 import tomllib
 from dataclasses import dataclass, replace
@@ -21,13 +22,14 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.errors import InputError, atomic_write_text, is_number
+from testbed.errors import InputError, atomic_write_text
 from testbed.models.linear import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
 
 __all__ = [
     "CSV_COLUMNS",
     "Experiment",
     "MAX_DATA",
+    "MAX_NAME",
     "MIN_NOISE_STD",
     "MIN_ROWS",
     "ModelConfig",
@@ -35,6 +37,7 @@ __all__ = [
     "check_config",
     "check_experiment",
     "check_free",
+    "check_name",
     "check_noise_std",
     "config_text",
     "csv_text",
@@ -45,6 +48,8 @@ __all__ = [
     "read_config",
     "read_csv",
     "read_estimates",
+    "read_json",
+    "read_toml",
     "run_csvs",
     "write_config",
     "write_csv",
@@ -155,6 +160,28 @@ def read_text(path: str | Path, expected: str) -> str:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     utf16 = data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE))
     return data.decode("utf-16" if utf16 else "utf-8-sig", errors="replace")
+
+
+def read_toml(path: str | Path, expected: str) -> dict:
+    """The document of the TOML file at `path` (`read_text`); `InputError` naming the file where
+    it is not valid TOML, nested too deeply to read included (a recursive parser's stack)."""
+    try:
+        return tomllib.loads(read_text(path, expected))
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML ({exc}); expected {expected}") from None
+    except RecursionError:
+        raise InputError(f"{path}: not valid TOML (nested too deeply); expected {expected}") from None
+
+
+def read_json(path: str | Path, expected: str):
+    """The document of the JSON file at `path` (`read_text`); `InputError` naming the file where
+    it is not valid JSON, nested too deeply to read included."""
+    try:
+        return json.loads(read_text(path, expected))
+    except RecursionError:
+        raise InputError(f"{path}: not valid JSON (nested too deeply); expected {expected}") from None
+    except ValueError as exc:
+        raise InputError(f"{path}: not valid JSON ({exc}); expected {expected}") from None
 
 
 def median(a: np.ndarray) -> float:
@@ -363,14 +390,7 @@ def write_csv(path: str | Path, t, states, inputs, measured: Sequence[str] = STA
 
 def read_config(path: str | Path) -> ModelConfig:
     """Read and validate a model config TOML."""
-    path = Path(path)
-    try:
-        doc = tomllib.loads(read_text(path, "a model config TOML file"))
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML ({exc})") from None
-    except RecursionError:
-        raise InputError(f"{path}: not valid TOML (nested too deeply)") from None
-    return parse_config(doc, str(path))
+    return parse_config(read_toml(path, "a model config TOML file"), str(path))
 
 
 # what each vehicle constant must be, beyond a finite number within ±MAX_CONSTANT
@@ -541,23 +561,18 @@ def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
     """The coefficients (name → value) of an estimates JSON, and its `noise_std`
     (state → σ) when it has one of positive numbers, else None; InputError naming the file."""
-    path = Path(path)
+    expected = "an estimates JSON with coefficients {name: {value: ...}}"
+    doc = read_json(path, expected)
     try:
-        doc = json.loads(path.read_text())
         values = {n: c["value"] for n, c in doc["coefficients"].items()}
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    except (ValueError, KeyError, TypeError, AttributeError):
-        raise InputError(
-            f"{path}: expected an estimates JSON with coefficients {{name: {{value: ...}}}}"
-        ) from None
+    except (KeyError, TypeError, AttributeError):
+        raise InputError(f"{path}: expected {expected}") from None
     for n, v in values.items():
         if n not in COEFFICIENTS:
             raise InputError(
-                f"{path}: coefficient {n!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+                f"{path}: coefficient {n[:40]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
             )
-        if not is_number(v):
-            raise InputError(f"{path}: coefficient {n} = {v!r}; expected a finite number")
+        values[n] = number(v, f"{path}: coefficient {n}")
     noise = doc.get("noise_std")
     if not (
         isinstance(noise, Mapping)
@@ -589,18 +604,37 @@ def run_csvs(run: Path) -> list[Path]:
     return files
 
 
+MAX_NAME = 100  # bytes (UTF-8) of a name that becomes a file name, with room for suffixes in 255
+
+
+def check_name(name: str, where: str) -> str:
+    """`name` if it can be a file or folder name by itself (an experiment's CSV, a scenario's run
+    directory): a string of 1 to `MAX_NAME` bytes in UTF-8, without a folder separator (/ or \\)
+    or a control character (NUL included), not starting with a dot (a hidden file, `.` and `..`);
+    `InputError` naming `where` otherwise."""
+    if not isinstance(name, str):
+        raise InputError(f"{where} {reprlib.repr(name)}; expected a string")
+    size = len(name.encode("utf-8", errors="replace"))
+    if not 0 < size <= MAX_NAME or name.startswith(".") or any(c in "/\\" or c < " " for c in name):
+        raise InputError(
+            f"{where} {reprlib.repr(name)}{f' ({size} bytes)' if size > MAX_NAME else ''}; "
+            f"expected a file name of 1 to {MAX_NAME} bytes, without / or \\, "
+            "control characters or a leading dot"
+        )
+    return name
+
+
 def _manifest_experiments(manifest: Path) -> list[str]:
     """The experiment names a run's manifest lists: distinct file names (no folder part)."""
     expected = f"{manifest}: expected JSON with an 'experiments' list of names"
     try:
-        names = json.loads(read_text(manifest, "a run manifest (JSON)"))["experiments"]
-    except (ValueError, KeyError, TypeError, IndexError, RecursionError):
+        names = read_json(manifest, "a run manifest (JSON) with an 'experiments' list")["experiments"]
+    except (KeyError, TypeError, IndexError):
         raise InputError(expected) from None
     if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
         raise InputError(expected)
     for n in names:
-        if n in ("", ".", "..") or any(c in n for c in "/\\\0"):
-            raise InputError(f"{manifest}: experiment {n[:40]!r}; expected a file name without a folder")
+        check_name(n, f"{manifest}: experiment")
     if len(set(names)) != len(names):
         raise InputError(
             f"{manifest}: experiment {sorted(n for n in names if names.count(n) > 1)[0]!r} is listed twice"

@@ -197,7 +197,7 @@ def test_autopilots_unstable_when_sampled_are_refused():
     25 Hz (the Nyquist frequency at 50 Hz) outside the unit circle: refused with the speed and
     the rate named; at 200 Hz the same loops are stable."""
     lin = analytic_model(load_model(), 30.0)
-    with pytest.raises(InputError, match=r"speed=30 m/s with control_rate=50 Hz.*25\.0 Hz"):
+    with pytest.raises(InputError, match=r"sampled at 50 Hz at a trim speed of 30 m/s.*25\.0 Hz"):
         ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, DT, lin.fins.angle)
     assert ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, 0.005, lin.fins.angle).dt == 0.005
     d = ap.design(lin.A_full, lin.B_full, 30.0)
@@ -209,5 +209,7 @@ def test_cli_refuses_a_speed_its_autopilots_cannot_fly(tmp_path, capsys):
 
     assert main(["simulate", "--scenario", "II", "--speed", "30", "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "--speed 30 m/s" in err and "control_rate=50" in err, err
+    assert err.count("\n") == 1 and "--speed 30 m/s" in err and "scenario II: control_rate = 50 Hz" in err, (
+        err
+    )
     assert not (tmp_path / "run").exists()

@@ -9,8 +9,10 @@ the user as an extra stderr line fails the test (as an internal error, exit stat
 import csv
 import json
 import os
+import shutil
 import stat
 import threading
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -18,10 +20,14 @@ import pytest
 
 import testbed.estimators
 from testbed.cli import main
-from testbed.data import ModelConfig, config_text, read_config, read_csv, write_config
+from testbed.analysis.identifiability import identifiability, structurally_unidentified
+from testbed.data import ModelConfig, config_text, load_data, read_config, read_csv, write_config
 from testbed.errors import InputError, atomic_file
 from testbed.estimators import Estimate, Status, identify
+from testbed.models.linear import COEFFICIENTS
+from testbed.simulation.measurements import noise_from_data
 from testbed.simulation.runs import simulate
+from testbed.simulation.scenario import SCENARIO_DIR
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # numpy's floating-point warnings
 
@@ -500,7 +506,7 @@ def test_a_broken_truth_file_is_found_before_the_fit(run, tmp_path, capsys, monk
 @pytest.mark.parametrize(
     "experiments, words",
     [
-        (["../outside"], "expected a file name without a folder"),
+        (["../outside"], "expected a file name of 1 to 100 bytes, without / or"),
         (["horizontal", "horizontal"], "listed twice"),
         ("horizontal", "'experiments' list of names"),
     ],
@@ -533,6 +539,214 @@ def test_the_same_file_twice_is_refused_and_namesakes_are_told_apart(run, tmp_pa
     code, out, err = cli(capsys, "identify", run, other, "--max-iter", "1", "--out", tmp_path / "e.json")
     assert code in (0, 1), err
     assert len(json.loads((tmp_path / "e.json").read_text())["initial_states"]) == 6  # 2 runs × 3 experiments
+
+
+# -- nesting, names and where a value came from ---------------------------------------------------
+
+DEEP = {"toml": "a = " + "[" * 100_000 + "\n", "json": '{"coefficients": ' + "[" * 100_000 + "}"}
+
+
+def _scenario(tmp_path, name="s.toml", **replace_text):
+    """The built-in Scenario II as a user's file of 2 s experiments, with `replace_text` applied."""
+    text = (SCENARIO_DIR / "II.toml").read_text().replace("duration = 60.0", "duration = 2.0")
+    for old, new in replace_text.items():
+        assert old in text
+        text = text.replace(old, new)
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    "reader", ["config", "scenario", "estimates (validate)", "estimates (design)", "manifest"]
+)
+def test_every_reader_refuses_deep_nesting_in_one_line(run, tmp_path, capsys, reader):
+    kind = "json" if reader.startswith(("estimates", "manifest")) else "toml"
+    bad = tmp_path / f"deep.{kind}"
+    bad.write_text(DEEP[kind])
+    out = tmp_path / "out"
+    argv = {
+        "config": ("identify", run, "--config", bad, "--out", out),
+        "scenario": ("simulate", "--scenario", bad, "--out", out),
+        "estimates (validate)": ("validate", run, "--estimates", bad, "--out", out),
+        "estimates (design)": ("design", "--from", bad, "--out", out),
+        "manifest": ("identify", tmp_path / "run", "--out", out),
+    }[reader]
+    if reader == "manifest":
+        shutil.copytree(run, tmp_path / "run")
+        bad = tmp_path / "run" / "manifest.json"
+        bad.write_text(DEEP[kind])
+    refused(capsys, *argv, words=[bad, "nested too deeply"])
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "old, new, words",
+    [
+        ('name = "II"', 'name = "../escaped"', ["s.toml: name '../escaped'"]),
+        ('name = "II"', 'name = ".."', ["s.toml: name '..'"]),
+        ('name = "II"', 'name = "a\\u0000b"', ["s.toml: name 'a\\x00b'"]),
+        ('name = "II"', f'name = "{"n" * 300}"', ["s.toml: name", "(300 bytes)"]),
+        ('name = "horizontal"', 'name = "hor\\u0000izontal"', ["experiment name 'hor\\x00izontal'"]),
+        ('name = "horizontal"', f'name = "{"h" * 300}"', ["experiment name", "(300 bytes)"]),
+        ('name = "horizontal"', 'name = "a\\\\b"', ["experiment name 'a\\\\b'"]),
+    ],
+)
+def test_scenario_and_experiment_names_are_file_names(tmp_path, capsys, monkeypatch, old, new, words):
+    """A name becomes a file or folder name (runs/<scenario>-seed<N>, <experiment>.csv): one
+    with a separator, `..`, a NUL or 300 bytes is refused before the flight, and nothing is
+    written anywhere (a run named ../escaped once landed outside runs/)."""
+    monkeypatch.chdir(tmp_path)
+    path = _scenario(tmp_path, **{old: new})
+    refused(capsys, "simulate", "--scenario", path, "--quiet", words=words + ["expected a file name"])
+    assert _listing(tmp_path) == ["s.toml"]
+
+
+def test_a_manifest_experiment_with_a_nul_byte_is_refused(run, tmp_path, capsys):
+    shutil.copytree(run, tmp_path / "run")
+    (tmp_path / "run" / "manifest.json").write_text(json.dumps({"experiments": ["a\x00b"]}))
+    refused(capsys, "identify", tmp_path / "run", words=["manifest.json: experiment 'a\\x00b'"])
+
+
+def test_values_from_a_scenario_file_are_blamed_on_its_fields_not_on_flags(tmp_path, capsys):
+    """A value the user did not type is named by the file and field it came from."""
+    fast = _scenario(tmp_path, "fast.toml", **{"duration = 2.0": "duration = 2.0\nspeed = 30.0"})
+    err = refused(
+        capsys, "simulate", "--scenario", fast, "--out", tmp_path / "r", words=["fast.toml: speed = 30 m/s"]
+    )
+    assert "--speed" not in err and "control_rate = 50 Hz" in err and "unstable" in err
+    long = _scenario(tmp_path, "long.toml", **{"duration = 2.0": "duration = 10000000.0"})
+    err = refused(
+        capsys,
+        "simulate",
+        "--scenario",
+        long,
+        "--out",
+        tmp_path / "r",
+        words=["long.toml: duration = 10000000.0 (experiment"],
+    )
+    assert "--duration" not in err
+    one = _scenario(tmp_path, "one.toml", **{'name = "roll"': 'name = "roll"\nduration = 1e7'})
+    refused(
+        capsys,
+        "simulate",
+        "--scenario",
+        one,
+        "--out",
+        tmp_path / "r",
+        words=["one.toml: experiment 'roll': duration = 10000000.0"],
+    )
+    # the flags, when typed, are named as flags
+    refused(
+        capsys,
+        "simulate",
+        "--scenario",
+        long,
+        "--duration",
+        "1e-6",
+        "--out",
+        tmp_path / "r",
+        words=["--duration 1e-06"],
+    )
+    refused(
+        capsys,
+        "simulate",
+        "--scenario",
+        fast,
+        "--speed",
+        "1e-6",
+        "--out",
+        tmp_path / "r",
+        words=["--speed 1e-06"],
+    )
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.fixture(scope="module")
+def fuzz_workspace(tmp_path_factory):
+    """The fuzz study's workspace (a 2 s synthetic run at 20 Hz) with every coefficient free."""
+    from studies.fuzz import workspace
+
+    root = workspace(tmp_path_factory.mktemp("ws"))
+    cfg = read_config(root / "run" / "model.toml")
+    write_config(root / "all.toml", replace(cfg, free=COEFFICIENTS, source=""))
+    return root
+
+
+def test_a_fit_that_leaves_the_physical_region_has_diverged(fuzz_workspace):
+    """On the fuzz workspace's run the screen's fit of the 16 candidates it keeps (of all 35)
+    converges in cost where Mt is no body's: a diverged fit (not bad input), with the reason."""
+    experiments, _ = load_data([fuzz_workspace / "run"])
+    cfg = read_config(fuzz_workspace / "all.toml")
+    noise = noise_from_data(cfg.fitted(experiments), cfg.noise_std)
+    fixed = structurally_unidentified(identifiability(experiments, cfg, noise))
+    candidates = replace(cfg, free=tuple(n for n in cfg.free if n not in fixed))
+    est = identify(experiments, candidates, method="ml-gn")
+    assert est.status is Status.DIVERGED and "left the physical region" in est.message
+    assert "inertia matrix Mt is not a body's" in est.message
+    assert (
+        identify(experiments, candidates, method="ml-gn", options={"max_iter": 0}).status
+        is Status.MAX_ITERATIONS
+    )
+
+
+def test_identify_free_all_never_blames_a_sound_config_for_the_fit(fuzz_workspace, tmp_path, capsys):
+    """`--free-all` with all 35 free: the screen's fit leaves the physical region; that fit has
+    diverged (the screen fixes nothing), the config is not at fault."""
+    out = tmp_path / "e.json"
+    code, _, err = cli(
+        capsys,
+        "identify",
+        fuzz_workspace / "run",
+        "--config",
+        fuzz_workspace / "all.toml",
+        "--free-all",
+        "--out",
+        out,
+    )
+    assert "not a body's" not in err or "diverged" in err, err
+    assert code in (0, 1) and json.loads(out.read_text())["method"] == "ml-gn", err
+
+
+# -- reproduce -----------------------------------------------------------------------------------
+
+
+def test_reproduce_never_writes_into_a_users_folder(tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "results.csv").write_text("my results\n")
+    (mine / "notes.txt").write_text("my notes\n")
+    before = {p.name: p.read_bytes() for p in mine.iterdir()}
+    refused(capsys, "reproduce", "--quick", "--out", mine, words=[f"--out {mine}", ".testbed-campaign"])
+    assert {p.name: p.read_bytes() for p in mine.iterdir()} == before
+
+
+def test_a_flag_left_at_its_default_is_named_as_the_default(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs" / "reproduce").mkdir(parents=True)
+    (tmp_path / "runs" / "reproduce" / "results.csv").write_text("my results\n")
+    refused(capsys, "reproduce", "--quick", words=["error: the default --out runs/reproduce: holds"])
+    assert (tmp_path / "runs" / "reproduce" / "results.csv").read_text() == "my results\n"
+
+
+def test_reproduce_bounds_seeds_before_building_the_plan(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    t0 = time.perf_counter()
+    refused(capsys, "reproduce", "--seeds", "1000000000", words=["--seeds 1000000000", "1 to 1000"])
+    assert time.perf_counter() - t0 < 5.0 and _listing(tmp_path) == []
+
+
+def test_reproduce_with_a_malformed_scheduler_address_writes_nothing(tmp_path, capsys):
+    refused(
+        capsys,
+        "reproduce",
+        "--scheduler",
+        "not an address",
+        "--out",
+        tmp_path / "study",
+        words=["--scheduler not an address"],
+    )
+    assert _listing(tmp_path) == []
 
 
 # -- the library ---------------------------------------------------------------------------------

@@ -6,12 +6,13 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from testbed.study import campaign
-from testbed.study.campaign import Cell, conclusions, plan, read_results, results_csv, results_rows, run_cell
+from testbed.study.campaign import Cell, conclusions, plan, read_results, results_csv, results_rows
 from testbed.errors import InputError
 
 TINY = dict(scenarios=("II",), methods=("ml-gn", "mekf"), duration=4.0)
@@ -30,12 +31,33 @@ def test_plan_covers_scenarios_methods_and_seeds_with_distinct_keys():
         plan(0)
 
 
-def test_a_failing_cell_is_a_result_with_its_reason():
-    doc = run_cell(Cell("II", "ml-gn", 1), data=None)
-    assert doc["status"] == "failed" and doc["converged"] is False
-    assert "TypeError" in doc["reason"] and doc["rows"] == []
-    rows = results_rows([doc])
-    assert len(rows) == 1 and rows[0]["coefficient"] == "" and rows[0]["status"] == "failed"
+def test_seeds_are_bounded_before_the_plan_is_built():
+    assert len(plan(campaign.MAX_SEEDS, methods=("ml-gn",), scenarios=("II",))) == campaign.MAX_SEEDS
+    t0 = time.perf_counter()
+    for seeds in (campaign.MAX_SEEDS + 1, 10**9, True, 2.0):
+        with pytest.raises(InputError, match=f"seeds={seeds!r}; expected an integer from 1 to 1000"):
+            plan(seeds)
+    assert time.perf_counter() - t0 < 1.0  # 10⁹ seeds' cells would take a minute and 6 GB to build
+
+
+def test_the_campaign_folder_is_new_empty_or_a_campaigns(tmp_path):
+    campaign.check_folder(tmp_path / "new" / "study")  # made when the campaign starts
+    (tmp_path / "empty").mkdir()
+    campaign.check_folder(tmp_path / "empty")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "results.csv").write_text("my results\n")
+    (mine / "notes.txt").write_text("notes\n")
+    with pytest.raises(InputError, match=f"out={mine}: holds files that are not a campaign's"):
+        campaign.check_folder(mine)
+    with pytest.raises(InputError, match="is a file"):
+        campaign.check_folder(mine / "notes.txt")
+    with pytest.raises(InputError, match="notes.txt is a file, not a folder"):
+        campaign.check_folder(mine / "notes.txt" / "study")
+    campaign.make_folder(tmp_path / "empty")
+    assert sorted(p.name for p in (tmp_path / "empty").iterdir()) == [campaign.MARKER, "cells"]
+    (tmp_path / "empty" / "results.csv").write_text("the campaign's\n")
+    campaign.check_folder(tmp_path / "empty")  # a campaign's folder: resumed
 
 
 def _doc(scenario, method, seed, ratios, converged=True, std=1e-6):
@@ -147,12 +169,15 @@ def test_campaign_on_two_workers_survives_a_killed_worker_and_resumes(tmp_path, 
     rows = _check_outputs(out, cells)
     assert all(r["status"] != "failed" for r in rows), [r["reason"] for r in rows if r["status"] == "failed"]
 
-    # a crash after some cells: they are kept, only the missing one is computed again
-    lost = cells[1]
+    # a crash after some cells: they are kept, only the missing one and one whose file was cut
+    # short are computed again
+    lost, cut = cells[1], cells[2]
     (out / "cells" / f"{lost.key}.json").unlink()
-    kept = {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json")}
+    path = out / "cells" / f"{cut.key}.json"
+    path.write_bytes(path.read_bytes()[:100])
+    kept = {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json") if p != path}
     again = campaign.reproduce(out, seeds=2, scheduler=c.scheduler_address, **TINY)
-    assert again.computed == 1 and again.reused == len(cells) - 1
+    assert again.computed == 2 and again.reused == len(cells) - 2
     assert {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json") if p.name in kept} == kept
     rows_again = _check_outputs(out, cells)
     before = {(r["method"], r["seed"], r["coefficient"]): r["estimate"] for r in rows}
@@ -161,6 +186,28 @@ def test_campaign_on_two_workers_survives_a_killed_worker_and_resumes(tmp_path, 
     np.testing.assert_allclose([after[k] for k in before], [before[k] for k in before], rtol=1e-9)
 
 
-def test_unreachable_scheduler_is_a_one_line_error(tmp_path):
-    with pytest.raises(InputError, match="scheduler=tcp://127.0.0.1:1"):
-        campaign.reproduce(tmp_path, seeds=1, scheduler="tcp://127.0.0.1:1", **TINY)
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:1", "not an address"])
+def test_a_scheduler_that_does_not_answer_is_an_error_before_anything_is_written(tmp_path, address):
+    with pytest.raises(InputError, match=f"scheduler={address}: cannot connect"):
+        campaign.reproduce(tmp_path / "study", seeds=1, scheduler=address, **TINY)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_cell_whose_run_cannot_be_read_fails_with_the_files_reason(tmp_path, cluster):
+    """A cached run whose measurement file was cut short: each cell on it is recorded as failed,
+    its reason naming the file, and the results, verdicts and report are still written."""
+    c, client = cluster
+    out = tmp_path / "study"
+    campaign.make_folder(out)
+    broken = Path(campaign.load_run(str(out), "II", 1, TINY["duration"])[0][0].source)
+    broken.write_bytes(broken.read_bytes()[:200])  # mid-row: a short last row
+    done = campaign.reproduce(out, seeds=1, scheduler=c.scheduler_address, **TINY)
+    assert done.failed == len(TINY["methods"]) and done.computed == len(TINY["methods"])
+    rows = read_results(out / "results.csv")
+    assert {r["method"] for r in rows} == set(TINY["methods"])
+    for r in rows:
+        assert r["status"] == "failed" and r["coefficient"] == "" and not r["converged"]
+        assert r["reason"].startswith("InputError: ") and str(broken) in r["reason"], r["reason"]
+    verdicts = json.loads((out / "conclusions.json").read_text())
+    assert not any(v["holds"] for v in verdicts.values())
+    assert (out / "report.html").is_file()

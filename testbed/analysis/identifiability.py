@@ -37,6 +37,7 @@ __all__ = [
     "screen",
     "screening",
     "structural",
+    "structurally_unidentified",
     "unidentified",
 ]
 
@@ -476,18 +477,24 @@ class Comparison:
                 "identified": float(x),
                 "std": float(s),
                 "relative_error": float((x - a) / abs(a)) if a else None,
-                "error_sigmas": float((x - a) / s) if s > 0 else None,
+                "error_sigmas": float((x - a) / s) if 0 < s < np.inf else None,
             }
             if self.truth_fit is not None:
                 t = self.truth_fit[k]
                 row["truth_fit"] = float(t)
                 row["model_bias_relative"] = float((t - a) / abs(a)) if a else None
-                row["noise_sigmas"] = float((x - t) / s) if s > 0 else None
+                row["noise_sigmas"] = float((x - t) / s) if 0 < s < np.inf else None
             out.append(row)
         return out
 
     def to_dict(self) -> dict:
-        return {"rows": self.rows(), **({"note": self.note} if self.note else {})}
+        """The rows as JSON values: a value that is not finite (the unbounded std of a direction
+        the data do not determine) is null."""
+        rows = [
+            {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in r.items()}
+            for r in self.rows()
+        ]
+        return {"rows": rows, **({"note": self.note} if self.note else {})}
 
     def table(self) -> str:
         head = f"{'coefficient':<12}{'analytic':>12}{'identified':>12}{'std':>10}{'rel.err':>9}{'sigmas':>8}"

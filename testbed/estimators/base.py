@@ -15,6 +15,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
+from testbed.models.linear import Structure, inertia_defect
 
 __all__ = [
     "Callback",
@@ -28,6 +29,7 @@ __all__ = [
     "count_option",
     "is_count",
     "option",
+    "unphysical",
 ]
 
 
@@ -136,6 +138,17 @@ def _finite(x) -> float | None:
     """`x` as a JSON number, or null where it is not finite (an unbounded standard error)."""
     x = float(x)
     return x if math.isfinite(x) else None
+
+
+def unphysical(s: Structure, theta: np.ndarray) -> str | None:
+    """Why coefficients a fit reached lie outside the physical region, as the reason of a
+    DIVERGED result: no body has their inertia matrix (`inertia_defect`); None inside it."""
+    defect = inertia_defect(s, theta)
+    return (
+        f"the fit left the physical region: the inertia matrix Mt is not a body's ({defect})"
+        if defect
+        else None
+    )
 
 
 @dataclass(frozen=True)

@@ -180,6 +180,7 @@ from testbed.estimators.base import (
     count_option,
     is_count,
     option,
+    unphysical,
 )
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
 from testbed.models.linear import (
@@ -875,6 +876,11 @@ def run_filter(
     values = st.th.copy()
     hist, hist_std = st.hist[:count], np.sqrt(np.maximum(st.hist_var[:count], 0.0))
     cost = st.cost + float(np.log(np.abs(st.ldiag[:count])).sum())
+    reached = theta.copy()
+    reached[idx] = values
+    why = None if diverged else unphysical(s, reached)
+    if why:
+        diverged = {"reason": why, "sample": None, "t": None}
     if diverged:
         status = Status.DIVERGED
     elif count < samples:

@@ -40,6 +40,7 @@ from testbed.estimators.base import (
     count_option,
     is_count,
     option,
+    unphysical,
 )
 
 __all__ = [
@@ -356,6 +357,7 @@ def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) ->
         )
     except np.linalg.LinAlgError as exc:
         why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
+    why = unphysical(prob.structure, prob.coefficients(out.p[: prob.n_free])) or why
     if why is not None:
         nf = prob.n_free
         return Estimate(

@@ -195,8 +195,8 @@ def check_sampled(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> None:
     k = int(np.argmax(np.abs(w)))
     if abs(w[k]) > 1.0 + 1e-9:
         raise InputError(
-            f"speed={d.speed:g} m/s with control_rate={1 / dt:g} Hz: the autopilots are unstable when "
-            f"sampled (a mode at {abs(np.angle(w[k])) / (2 * np.pi * dt):.1f} Hz grows {abs(w[k]):.3g}x "
+            f"the autopilots are unstable when sampled at {1 / dt:g} Hz at a trim speed of {d.speed:g} m/s "
+            f"(a mode at {abs(np.angle(w[k])) / (2 * np.pi * dt):.1f} Hz grows {abs(w[k]):.3g}x "
             "per step); expected a lower speed or a higher control rate"
         )
 

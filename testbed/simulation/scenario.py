@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping
@@ -52,7 +51,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from testbed.simulation.autopilot import Autopilot
-from testbed.data import MIN_ROWS, number
+from testbed.data import MIN_ROWS, check_name, number, read_toml
 from testbed.errors import InputError, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.models.linear import IX, NX, STATES
@@ -143,6 +142,7 @@ class Scenario:
     sensors: Sensors = field(default_factory=Sensors)
     measured: tuple[str, ...] = STATES  # the state columns of the measurement CSVs
     source: str = ""  # the file it was read from, or "built-in"
+    given: frozenset[str] = field(default=frozenset(), compare=False)  # fields set by `with_overrides`
 
     def __post_init__(self):
         checks = {
@@ -154,29 +154,27 @@ class Scenario:
             "depth": (is_number, "a finite number (m)"),
             "control_rate": (_positive, "a finite number > 0 (Hz)"),
         }
+        check_name(self.name, f"{self.where}: name")
         for name, (ok, expected) in checks.items():
             if not ok(getattr(self, name)):
                 raise InputError(
-                    f"{self.source or 'scenario'}: {name} = {getattr(self, name)!r}; expected {expected}"
+                    f"{self.described(**{name: repr(getattr(self, name))})}; expected {expected}"
                 )
         if not self.experiments:
-            raise InputError(f"{self.source or 'scenario'}: no [[experiment]]; expected at least one")
-        names = [e.name for e in self.experiments]
-        if len(set(names)) != len(names) or any(not n or "/" in n or n.startswith(".") for n in names):
-            raise InputError(
-                f"{self.source or 'scenario'}: experiment names {names}; expected distinct "
-                "names usable as file names"
-            )
+            raise InputError(f"{self.where}: no [[experiment]]; expected at least one")
+        names = [check_name(e.name, f"{self.where}: experiment name") for e in self.experiments]
+        if len(set(names)) != len(names):
+            raise InputError(f"{self.where}: experiment names {names}; expected distinct names")
         unknown = [s for s in self.measured if s not in STATES]
         if unknown or not self.measured:
             raise InputError(
-                f"{self.source or 'scenario'}: measured {list(self.measured)}; expected a "
+                f"{self.where}: measured {list(self.measured)}; expected a "
                 f"non-empty list of {', '.join(STATES)}"
             )
         ratio = self.control_rate / self.sensors.rate
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise InputError(
-                f"{self.source or 'scenario'}: control rate {self.control_rate} Hz and sample "
+                f"{self.where}: control rate {self.control_rate} Hz and sample "
                 f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate"
             )
         for e in self.experiments:
@@ -187,16 +185,41 @@ class Scenario:
                 if why is not None:
                     raise InputError(f"{self.source or 'scenario'}: experiment {e.name!r} {key}: {why}")
 
+    @property
+    def where(self) -> str:
+        """The scenario as a message names it: its file, else its name."""
+        if self.source == "built-in":
+            return f"the built-in scenario {self.name}"
+        return self.source or f"scenario {self.name!r}"
+
+    def described(self, **values: str) -> str:
+        """Fields (name → value as text) as a message names them, by where each came from: a
+        caller's (`with_overrides`, the command line's flags) as `name=value`, the scenario
+        file's as `<file>: name = value`, one left unset as `the default name value`."""
+        given = [f"{k}={v}" for k, v in values.items() if k in self.given]
+        unset = [
+            f"the default {k} {v}"
+            for k, v in values.items()
+            if k not in self.given and getattr(self, k) is None
+        ]
+        read = [
+            f"{k} = {v}" for k, v in values.items() if k not in self.given and getattr(self, k) is not None
+        ]
+        return ", ".join(given + ([f"{self.where}: {', '.join(read)}"] if read else []) + unset)
+
     def with_overrides(self, duration=None, speed=None) -> "Scenario":
         """The scenario with every experiment lasting `duration` and trimmed at `speed` (None:
         unchanged), as `testbed simulate --duration --speed` give them."""
         s = self
         if duration is not None:
             s = replace(
-                s, duration=duration, experiments=tuple(replace(e, duration=None) for e in s.experiments)
+                s,
+                duration=duration,
+                experiments=tuple(replace(e, duration=None) for e in s.experiments),
+                given=s.given | {"duration"},
             )
         if speed is not None:
-            s = replace(s, speed=speed)
+            s = replace(s, speed=speed, given=s.given | {"speed"})
         return s
 
     def duration_of(self, e: ExperimentSpec) -> float:
@@ -224,16 +247,7 @@ def scenario(name_or_path: str | Path | Scenario) -> Scenario:
 
 def read_scenario(path: str | Path) -> Scenario:
     """Read and check a scenario file; InputError naming the file and field otherwise."""
-    path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8-sig"))
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such scenario file") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a folder; expected a scenario file (.toml)") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not valid TOML ({exc}); expected a scenario file") from None
-    return parse_scenario(doc, str(path))
+    return parse_scenario(read_toml(path, "a scenario file (.toml)"), str(path))
 
 
 _TOP = ("name", "description", "duration", "speed", "depth", "control_rate", "sensors", "experiment")
@@ -479,10 +493,14 @@ def fly_scenario(
     check_seed(seed)
     plant = Plant(mjcf)
     speed = s.speed if s.speed is not None else cruise_speed(plant.model)
-    s = replace(s, speed=speed)
     lin = analytic_model(plant.model, speed)
     check_fins(s, lin.fins.angle, mjcf)
-    autopilot = Autopilot.designed(lin.A_full, lin.B_full, speed, 1.0 / s.control_rate, lin.fins.angle)
+    try:
+        autopilot = Autopilot.designed(lin.A_full, lin.B_full, speed, 1.0 / s.control_rate, lin.fins.angle)
+    except InputError as exc:  # name where the speed and the rate came from
+        named = s.described(speed=f"{speed:g} m/s", control_rate=f"{s.control_rate:g} Hz")
+        raise InputError(f"{named}: {exc}") from None
+    s = replace(s, speed=speed)
     flights = []
     for k, e in enumerate(s.experiments):
         report = (lambda f, name=e.name: progress(name, f)) if progress else None
@@ -520,7 +538,12 @@ def check_flyable(s: Scenario) -> None:
     for e in s.experiments:
         duration = s.duration_of(e)
         if not low <= math.floor(duration * rate + 1e-9) + 1 <= high:
+            where = (
+                f"{s.where}: experiment {e.name!r}: duration = {duration!r}"
+                if e.duration is not None
+                else f"{s.described(duration=repr(duration))} (experiment {e.name!r})"
+            )
             raise InputError(
-                f"duration={duration!r} (experiment {e.name!r}); expected {(low - 1) / rate:g} to "
+                f"{where}; expected {(low - 1) / rate:g} to "
                 f"{(high - 1) / rate:g} s ({low} to {high} samples at {rate:g} Hz)"
             )

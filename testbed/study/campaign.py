@@ -20,11 +20,13 @@ files alone.
 from __future__ import annotations
 
 import csv
+import functools
 import hashlib
 import io
 import json
 import logging
 import math
+import os
 import time
 import traceback
 from dataclasses import asdict, dataclass, replace
@@ -38,7 +40,7 @@ from dask.distributed import Client, LocalCluster, as_completed
 
 from testbed.analysis.identifiability import compare, identify_screened, structural
 from testbed.data import load_data
-from testbed.errors import InputError, atomic_write_text
+from testbed.errors import InputError, atomic_write_text, check_output_directory
 from testbed.estimators import FilterEstimate, lookup
 from testbed.presentation.figures import write_report
 from testbed.models.linear import COEFFICIENTS, structure, theta_vector
@@ -48,10 +50,16 @@ from testbed.simulation.scenario import scenario, scenario_text
 __all__ = [
     "COLUMNS",
     "Cell",
+    "MARKER",
+    "MAX_SEEDS",
     "Outcome",
     "QUICK_DURATION",
+    "check_folder",
     "conclusions",
+    "load_run",
+    "make_folder",
     "plan",
+    "read_cell",
     "read_results",
     "reproduce",
     "results_csv",
@@ -76,6 +84,8 @@ COLUMNS = (
     "reason",
 )
 FORMAT = 2  # version of the cell file: part of every key, so a new format recomputes
+MAX_SEEDS = 1000  # noise seeds 1..N: 8000 cells at most, weeks of one machine's time
+MARKER = ".testbed-campaign"  # the file that makes a folder a campaign's, which reproduce resumes
 QUICK_DURATION = 30.0  # s per experiment in --quick
 HISTORY_POINTS = 400  # the MEKF's per-sample history, thinned to this many points per cell
 
@@ -101,7 +111,7 @@ class Cell:
         """The cached run directory's name, shared by the methods of a scenario and seed."""
         return f"{self.scenario}-seed{self.seed}" + (f"-{self.duration:g}s" if self.duration else "")
 
-    @property
+    @functools.cached_property  # reads the scenario file: once per cell
     def key(self) -> str:
         """`<scenario>-<method>-seed<N>-<hash>`: the hash of every input the result depends on."""
         flown = scenario(self.scenario).with_overrides(duration=self.duration)
@@ -121,8 +131,8 @@ def plan(
 ) -> list[Cell]:
     """The campaign's cells, scenario by scenario, seed by seed, method by method; seeds 1..N.
     `quick`: experiments of `QUICK_DURATION` s (unless `duration` says otherwise)."""
-    if not (isinstance(seeds, int) and seeds >= 1):
-        raise InputError(f"seeds={seeds!r}; expected an integer ≥ 1")
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEEDS:
+        raise InputError(f"seeds={seeds!r}; expected an integer from 1 to {MAX_SEEDS}")
     for m in methods:
         if m not in METHODS:
             raise InputError(f"method {m!r} is not in the study; expected one of {', '.join(METHODS)}")
@@ -278,18 +288,16 @@ def reproduce(
     out = Path(out)
     seeds = seeds if seeds is not None else (1 if quick else 20)
     cells = plan(seeds, quick, methods, scenarios, duration)
+    check_folder(out)
     cells_dir = out / "cells"
-    try:
-        cells_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"out={out}: cannot create ({exc.strerror})") from None
-    todo = [c for c in cells if not (cells_dir / f"{c.key}.json").exists()]
+    todo = [c for c in cells if read_cell(cells_dir / f"{c.key}.json") is None]
     # the first seed of each scenario is always loaded: its inputs are the report's Figs. 3 and 5
     runs = sorted(
         {(c.scenario, c.seed, c.duration) for c in todo} | {(s, 1, cells[0].duration) for s in scenarios}
     )
     failed = 0
     with _client(scheduler, workers) as client:
+        make_folder(out)  # only once the scheduler answered
         where = hashlib.sha256(str(out.resolve()).encode()).hexdigest()[
             :8
         ]  # unique per DIR on a shared scheduler
@@ -333,10 +341,51 @@ def reproduce(
                     inputs[s] = future.result()[0]
                 except Exception:  # the report says which figure is missing
                     inputs[s] = None
-    docs = [json.loads((cells_dir / f"{c.key}.json").read_text()) for c in cells]
+    docs = [read_cell(cells_dir / f"{c.key}.json") for c in cells]
     write_outputs(out, docs, inputs)
     conclusions = json.loads((out / "conclusions.json").read_text())
     return Outcome(out, len(todo), len(cells) - len(todo), failed, conclusions, time.perf_counter() - t0)
+
+
+def read_cell(path: Path) -> dict | None:
+    """A finished cell's file, or None where there is none or it cannot be read as one (cut
+    short, edited): that cell is computed again and its file replaced."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError, RecursionError):
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("cell"), dict) and "status" in doc else None
+
+
+def check_folder(out: Path) -> None:
+    """`InputError` unless `out` can hold the campaign: a new folder (its parents made), an empty
+    one or a campaign's (holding `MARKER`, which it resumes). A folder of anything else is a
+    user's, whose files (a results.csv, say) the campaign's would replace."""
+    if not os.path.lexists(out):
+        check_output_directory(out, label=f"out={out}")  # a file in the way of its parents
+        return
+    try:
+        if not out.is_dir():
+            raise InputError(f"out={out}: is a file; expected a folder for the campaign")
+        if not (out / MARKER).is_file() and any(out.iterdir()):
+            raise InputError(
+                f"out={out}: holds files that are not a campaign's (no {MARKER}); expected a new "
+                "or empty folder, or a campaign's folder to resume"
+            )
+    except OSError as exc:
+        raise InputError(f"out={out}: cannot read ({exc.strerror or exc})") from None
+
+
+def make_folder(out: Path) -> None:
+    """Make the campaign's folder `out` (checked by `check_folder`), its `MARKER` and `cells/`."""
+    try:
+        (out / "cells").mkdir(parents=True, exist_ok=True)
+        if not (out / MARKER).is_file():
+            atomic_write_text(
+                out / MARKER, "a testbed reproduce campaign: `testbed reproduce --out` resumes it\n"
+            )
+    except OSError as exc:
+        raise InputError(f"out={out}: cannot create ({exc.strerror or exc})") from None
 
 
 class _client:
