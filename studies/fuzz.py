@@ -491,7 +491,7 @@ def corpus(root: Path) -> list[Case]:
             "--rrd": ["out", "-", "out/no/f.rrd", "keep.txt/f.rrd", "data/h.csv"],
             "--noise-std": ["r=-1", "yaw=1", "r", "", ",", "r=nan", "r=1e-300", "r=1,r=2", "r=0.002"],
         },
-        "truth": {
+        "analytic": {
             "--speed": ["0", "-1", "nan", "inf", "1e-6", "x", "1e300"],
             "--mjcf": ["data", "missing.xml", "cfg.toml", "/dev/null"],
         },
@@ -505,7 +505,7 @@ def corpus(root: Path) -> list[Case]:
     }
     base = {
         "identify": ("identify", "run", "--out", "out/e.json", *fit),
-        "truth": ("truth", "--out", "out/m.toml"),
+        "analytic": ("analytic", "--out", "out/m.toml"),
         "simulate": ("simulate", "--quiet", "--scenario", "I", "--duration", "0.06", "--out", "out/run"),
     }
     for command, options in flags.items():
@@ -536,7 +536,7 @@ def corpus(root: Path) -> list[Case]:
             ("identify", "run", *fit),
             ("identify", "run", "--method", "mekf"),
             ("analyze", "run"),
-            ("truth",),
+            ("analytic",),
         ):
             cases.append(Case(f"{argv[0]} {' '.join(argv[2:4])} --out {target}", (*argv, "--out", target)))
     for target in ("out", "keep.txt", "keep.txt/run", "-", "data", "run", "out/new/run"):

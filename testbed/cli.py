@@ -112,7 +112,7 @@ def _quiet_mujoco() -> None:
     mujoco.set_mju_user_warning(lambda message: None)
 
 
-def _cmd_truth(args) -> int:
+def _cmd_analytic(args) -> int:
     from testbed.simulation.analytic import analytic_config_text
 
     _quiet_mujoco()
@@ -319,11 +319,11 @@ def parser() -> argparse.ArgumentParser:
     )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
 
-    s = sub.add_parser("truth", help="write the analytic linear model of an MJCF body (TOML)")
+    s = sub.add_parser("analytic", help="write the analytic linear model of an MJCF body (TOML)")
     s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
     s.add_argument("--speed", type=_positive, default=None, help="trim speed U, m/s (default: cruise)")
     s.add_argument("--out", type=Path, help="output TOML (default or -: stdout)")
-    s.set_defaults(func=_cmd_truth)
+    s.set_defaults(func=_cmd_analytic)
 
     s = sub.add_parser("simulate", help="generate a scenario run directory")
     s.add_argument(
@@ -494,7 +494,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"testbed {args.command}: interrupted; nothing was written", file=sys.stderr)
         return 130
-    except BrokenPipeError:  # the reader of standard output went away (`testbed truth | head`)
+    except BrokenPipeError:  # the reader of standard output went away (`testbed analytic | head`)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
         return 128 + signal.SIGPIPE
     except Exception:

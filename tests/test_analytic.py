@@ -166,14 +166,14 @@ def test_default_free_list_is_identifiable():
 
 def test_cli_truth_round_trip(capsys, tmp_path):
     lin, _ = models(20.0)
-    assert main(["truth", "--speed", "20"]) == 0
+    assert main(["analytic", "--speed", "20"]) == 0
     text = capsys.readouterr().out
     config = parse_config(tomllib.loads(text))
     assert config.coefficients == lin.coefficients and config.vehicle == lin.vehicle
     assert set(config.coefficients) == set(COEFFICIENTS) and config.free == analytic.FREE
     assert "outside the linear model: " in text and "X_qdot" in text  # terms outside it are in the comments
     out = tmp_path / "model.toml"
-    assert main(["truth", "--speed", "20", "--mjcf", str(default_mjcf()), "--out", str(out)]) == 0
+    assert main(["analytic", "--speed", "20", "--mjcf", str(default_mjcf()), "--out", str(out)]) == 0
     assert read_config(out).coefficients == lin.coefficients
 
 
@@ -188,11 +188,11 @@ def _one_line_error(argv, capsys):
 
 
 def test_cli_truth_bad_input(capsys, tmp_path):
-    assert "--speed" in _one_line_error(["truth", "--speed", "0"], capsys)
-    assert "speed" in _one_line_error(["truth", "--speed", "inf"], capsys)
-    assert "--speed 1e-300" in _one_line_error(["truth", "--speed", "1e-300"], capsys)
+    assert "--speed" in _one_line_error(["analytic", "--speed", "0"], capsys)
+    assert "speed" in _one_line_error(["analytic", "--speed", "inf"], capsys)
+    assert "--speed 1e-300" in _one_line_error(["analytic", "--speed", "1e-300"], capsys)
     assert "--speed 1e+300" in _one_line_error(
-        ["truth", "--speed", "1e300"], capsys
+        ["analytic", "--speed", "1e300"], capsys
     )  # named as given, not as NaN
     for speed in (0.0, -1.0, float("inf"), float("nan"), 1e-300, 451.0, 1e300):
         with pytest.raises(InputError, match=r"speed=.*; expected a trim speed of 0\.001 to 450 m/s"):
@@ -203,11 +203,11 @@ def test_cli_truth_bad_input(capsys, tmp_path):
         analytic.numerical_model(load_model(), -1.0)
     bad = tmp_path / "bad.xml"
     bad.write_text("<mujoco><worldbody><body>")
-    assert "bad.xml" in _one_line_error(["truth", "--mjcf", str(bad)], capsys)
+    assert "bad.xml" in _one_line_error(["analytic", "--mjcf", str(bad)], capsys)
     finless = tmp_path / "finless.xml"
     finless.write_text("""<mujoco><option density="1000"/><worldbody><body name="hull">
       <freejoint name="hull"/><geom type="ellipsoid" size="1 0.2 0.2" fluidshape="ellipsoid"/>
       </body></worldbody><actuator><motor name="thruster" joint="hull" gear="1 0 0 0 0 0"/>
       </actuator></mujoco>""")
-    assert "rudder" in _one_line_error(["truth", "--mjcf", str(finless)], capsys)
-    assert "missing.xml" in _one_line_error(["truth", "--mjcf", str(tmp_path / "missing.xml")], capsys)
+    assert "rudder" in _one_line_error(["analytic", "--mjcf", str(finless)], capsys)
+    assert "missing.xml" in _one_line_error(["analytic", "--mjcf", str(tmp_path / "missing.xml")], capsys)

@@ -371,7 +371,7 @@ def test_misleading_path_messages_name_the_file_in_the_way(run, tmp_path, capsys
         file / "run",
         words=[f"{file} is a file, not a folder"],
     )
-    refused(capsys, "truth", "--mjcf", tmp_path, words=[f"{tmp_path}: is a folder; expected an MJCF file"])
+    refused(capsys, "analytic", "--mjcf", tmp_path, words=[f"{tmp_path}: is a folder; expected an MJCF file"])
     assert _listing(tmp_path) == ["x.csv"] and file.read_text() == "not a folder\n"
 
 
@@ -429,7 +429,7 @@ def _null_device(tmp_path):
 @pytest.mark.parametrize(
     "command",
     [
-        ["truth"],
+        ["analytic"],
         ["identify", "--method", "ml-gn", "--max-iter", "1"],
         ["identify", "--method", "mekf"],
         ["analyze"],
@@ -438,7 +438,7 @@ def _null_device(tmp_path):
 def test_a_character_device_as_out_is_written_into_not_replaced(run, tmp_path, capsys, command):
     node = _null_device(tmp_path)
     rdev = os.stat(node).st_rdev
-    data = [] if command[0] == "truth" else [run]
+    data = [] if command[0] == "analytic" else [run]
     code, _, err = cli(capsys, command[0], *data, *command[1:], "--out", node)
     assert code in (0, 1), err
     st = os.stat(node)
@@ -467,7 +467,7 @@ def test_dash_is_standard_output(run, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     code, out, err = cli(capsys, "analyze", run, "--out", "-")
     assert code == 0 and json.loads(out)["free"]
-    code, out, err = cli(capsys, "truth", "--out", "-")
+    code, out, err = cli(capsys, "analytic", "--out", "-")
     assert code == 0 and out.startswith("[vehicle]")
     refused(capsys, "simulate", "--scenario", "I", "--out", "-", words=["--out -"])
     refused(capsys, "identify", run, "--rrd", "-", words=["--rrd -"])

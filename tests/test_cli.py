@@ -7,7 +7,7 @@ import pytest
 
 from testbed.cli import main
 
-COMMANDS = ["truth", "simulate", "identify", "analyze", "replay"]
+COMMANDS = ["analytic", "simulate", "identify", "analyze", "replay"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)

@@ -411,7 +411,7 @@ def command_line(draw) -> Case:
     """One `testbed` command over the workspace (`studies.fuzz.workspace`), valid or not, with
     the files it may name: bad.csv (a workspace CSV mutated), random.csv (a valid CSV of random
     values), bad.toml, run's manifest."""
-    command = draw(st.sampled_from(["identify", "identify", "identify", "analyze", "truth", "simulate"]))
+    command = draw(st.sampled_from(["identify", "identify", "identify", "analyze", "analytic", "simulate"]))
     maybe = lambda flag, values: [flag, draw(values)] if draw(st.booleans()) else []  # noqa: E731
     files = []
     if command in ("identify", "analyze"):
@@ -461,8 +461,11 @@ def command_line(draw) -> Case:
             files.append(("run/manifest.json", draw(manifest_text())))
         if "bad.toml" in argv:
             files.append(("bad.toml", toml_text(draw(bad_config_doc())).encode()))
-    elif command == "truth":
-        argv = ["truth", *maybe("--mjcf", st.sampled_from(["data", "missing.xml", "cfg.toml", "/dev/null"]))]
+    elif command == "analytic":
+        argv = [
+            "analytic",
+            *maybe("--mjcf", st.sampled_from(["data", "missing.xml", "cfg.toml", "/dev/null"])),
+        ]
         argv += maybe("--speed", st.one_of(NUMBERS, st.sampled_from(["20", "0.0005", "451"])))
         argv += maybe("--out", OUTS)
     else:
