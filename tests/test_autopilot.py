@@ -103,16 +103,16 @@ def test_fins_stay_within_the_stops(lin, design):
 class _Naive(ap.Autopilot):
     """Integrates whatever the stops do (wind-up)."""
 
-    def _integrate(self, k, x, ref, demanded, realised):
-        self.integrators[k] += (x[IX[self._loops[k].tracked]] - ref) * self.dt
+    def integrate(self, k, x, ref, demanded, realised):
+        self.integrators[k] += (x[IX[self.loops[k].tracked]] - ref) * self.dt
 
 
 class _Clamped(ap.Autopilot):
     """The reference: the integrator held still whenever its fin is cut by a stop."""
 
-    def _integrate(self, k, x, ref, demanded, realised):
+    def integrate(self, k, x, ref, demanded, realised):
         if abs(demanded - realised) < 1e-12:
-            super()._integrate(k, x, ref, demanded, realised)
+            super().integrate(k, x, ref, demanded, realised)
 
 
 def _recovery(lin, design, kind):

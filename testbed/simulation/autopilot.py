@@ -212,8 +212,8 @@ class Autopilot:
 
     def __post_init__(self):
         d = self.design
-        self._loops = (d.yaw_rate, d.pitch, d.roll)
-        self._K = np.array([c.K for c in self._loops])  # one product per step for all loops
+        self.loops = (d.yaw_rate, d.pitch, d.roll)
+        self._K = np.array([c.K for c in self.loops])  # one product per step for all loops
 
     @classmethod
     def designed(cls, A: np.ndarray, B: np.ndarray, speed: float, dt: float, fin_limit: float) -> "Autopilot":
@@ -255,7 +255,7 @@ class Autopilot:
         elif yaw_rate is not None:
             u = self._output(YAW, yaw_rate, kx)
             dr = _clip(u, stop)
-            self._integrate(YAW, x, yaw_rate, u, dr)
+            self.integrate(YAW, x, yaw_rate, u, dr)
         else:
             dr = 0.0
         theta_cmd = None
@@ -274,21 +274,22 @@ class Autopilot:
         er, el = _clip(de + da, stop), _clip(de - da, stop)
         # What the elevators realise of each loop's demand, after the stops on their sum.
         if theta_cmd is not None:
-            self._integrate(PITCH, x, theta_cmd, de, 0.5 * (er + el))
+            self.integrate(PITCH, x, theta_cmd, de, 0.5 * (er + el))
         if roll is not None and elevators is None:
-            self._integrate(ROLL, x, roll, da, 0.5 * (er - el))
+            self.integrate(ROLL, x, roll, da, 0.5 * (er - el))
         return (dr, er, el), theta_cmd
 
     def _output(self, k: int, ref: float, kx: list) -> float:
-        ch = self._loops[k]
+        ch = self.loops[k]
         return ch.g_ref * ref - kx[k] - ch.Ki * self.integrators[k]
 
-    def _integrate(self, k: int, x: np.ndarray, ref: float, demanded: float, realised: float) -> None:
+    def integrate(self, k: int, x: np.ndarray, ref: float, demanded: float, realised: float) -> None:
         """Conditional integration: not while the demand is cut by a stop and the error pushes
-        it further in (the integrator's push on δ is −K_i error)."""
-        error = x[IX[self._loops[k].tracked]] - ref
+        it further in (the integrator's push on δ is −K_i error). A subclass may replace the
+        rule (the tests compare it with plain and clamped integration)."""
+        error = x[IX[self.loops[k].tracked]] - ref
         cut = demanded - realised  # rounding of the elevator mix is no cut
-        if abs(cut) > 1e-12 and (-self._loops[k].Ki * error > 0) == (cut > 0):
+        if abs(cut) > 1e-12 and (-self.loops[k].Ki * error > 0) == (cut > 0):
             return
         self.integrators[k] += error * self.dt
 
