@@ -267,7 +267,8 @@ class Plant:
 
     def _plain(self) -> None:
         """Plain MuJoCo: only the external wrench is applied."""
-        _apply_wrench(self._k)
+        k = self._k
+        _apply_wrench(k.qfrc, k.xmat[k.hull], k.dofs, k.wrench)
 
     def _complete(self) -> None:
         """Add the added-mass inertia to d.M; the bias and buoyancy to qfrc_applied (the
@@ -391,13 +392,13 @@ def _advance(model, data, k, n, complete, h, cmd, slew):
     none). The completed plant's RK4 leaves `data.time` to the caller."""
     warned = k.warnings.copy()
     for i in range(n):
-        _servo(k, cmd, slew)
+        _servo(k.reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
         if complete:
             _step(model, data, k, h)
         else:
-            _apply_wrench(k)
+            _apply_wrench(k.qfrc, k.xmat[k.hull], k.dofs, k.wrench)
             _mj_step(model, data)
-        cause = _unstable(k, warned)
+        cause = _unstable(k.warnings, warned, k.qvel)
         if cause >= 0:
             return i + 1, cause
     return n, -1
@@ -416,11 +417,14 @@ def _forward(model, data, k, M9, actuate):
     _mj_kinematics(model, data)
     _mj_comPos(model, data)
     if actuate:
-        _actuation(model, data, k)
+        _actuation(model, data, k.xmat[k.hull], k.qfrc_actuator, k.dofs, k.actuation)
     _mj_makeM(model, data)
     _mj_fwdVelocity(model, data)
     _complete(k, M9)
-    H = np.zeros((6, 6))
+    H = np.empty((6, 6))
+    for r in range(6):
+        for c in range(6):
+            H[r, c] = 0.0
     for e in range(k.rows.shape[0]):  # d.M holds the lower triangle
         r, c = k.rows[e], k.cols[e]
         if r < 6 and c < 6:
@@ -454,24 +458,25 @@ def _step(model, data, k, h):
             lam = _rk4_step(model, data, k, h / 2**level, M9, level == 0)
         if level > 0 or h * lam <= _RK4_MAX_H_LAMBDA:
             return
-        level = min(_LEVELS, int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))))
+        level = int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA)))
+        if level > _LEVELS:
+            level = _LEVELS
         _copy(q0, k.qpos)
         _copy(v0, k.qvel)
 
 
 @numba.njit(**_INNER)
-def _actuation(model, data, k):
-    """The actuators' generalized force on the hull, in hull axes, into `k.actuation` (the
-    kinematics current): the propulsor is fixed to the hull and its thrust held over the step,
+def _actuation(model, data, R, f, dofs, actuation):
+    """The actuators' generalized force on the hull, in hull axes, into `actuation` (R: the
+    hull's `xmat` row, the kinematics current; f: MuJoCo's actuator force): the propulsor is fixed to the hull and its thrust held over the step,
     so it turns with the hull (`_complete` applies it at each stage); the fin servos act on the
     prescribed fins only."""
     _mj_transmission(model, data)
     _mj_fwdActuation(model, data)
-    R, f = k.xmat[k.hull], k.qfrc_actuator
-    d = k.dofs
-    k.actuation[0], k.actuation[1], k.actuation[2] = _turn_back(R, f[d[0]], f[d[1]], f[d[2]])
+    d = dofs
+    actuation[0], actuation[1], actuation[2] = _turn_back(R, f[d[0]], f[d[1]], f[d[2]])
     for i in range(3, 6):  # the free joint's angular dofs are in hull axes already
-        k.actuation[i] = f[d[i]]
+        actuation[i] = f[d[i]]
 
 
 @numba.njit(**_INNER)
@@ -486,7 +491,9 @@ def _rk4_step(model, data, k, h, M9, actuate):
     stiffness detection)."""
     q0, v0 = k.qpos.copy(), k.qvel.copy()
     nv = v0.shape[0]
-    vel_sum, acc_sum, vel = np.zeros(nv), np.zeros(nv), np.empty(nv)
+    vel_sum, acc_sum, vel = np.empty(nv), np.empty(nv), np.empty(nv)
+    for i in range(nv):
+        vel_sum[i] = acc_sum[i] = 0.0
     accs = np.empty((3, nv))
     for stage in range(4):
         _forward(model, data, k, M9, actuate and stage == 0)
@@ -531,30 +538,35 @@ def _copy(src, dst):
 
 
 @numba.njit(**_INNER)
-def _unstable(k, warned):
+def _unstable(warnings, warned, qvel):
     """The first MuJoCo warning counter that moved since `warned` (on bad qpos, qvel, qacc
     MuJoCo resets the state and goes on), len(warned) for velocities non-finite or beyond
     `_MAX_VELOCITY`, or -1 for neither."""
     for i in range(warned.shape[0]):
-        if k.warnings[i] != warned[i]:
+        if warnings[i] != warned[i]:
             return i
-    for i in range(k.qvel.shape[0]):
-        if not abs(k.qvel[i]) <= _MAX_VELOCITY:  # NaN too
+    for i in range(qvel.shape[0]):
+        if not abs(qvel[i]) <= _MAX_VELOCITY:  # NaN too
             return warned.shape[0]
     return -1
 
 
 @numba.njit(**_INNER)
-def _servo(k, cmd, slew):
-    """Move the servo reference toward `cmd`, clipped to the servo range, by at most `slew`."""
+def _servo(reference, limits, ctrl, fin_act, cmd, slew):
+    """Move the servo reference toward `cmd`, clipped to the servo range (`limits`), by at most
+    `slew`; the fins' actuators (`fin_act`) in MuJoCo's `ctrl` follow it."""
     for i in range(cmd.shape[0]):
-        target = min(max(cmd[i], k.limits[i, 0]), k.limits[i, 1])
-        gap = target - k.reference[i]
+        target = cmd[i]
+        if target < limits[i, 0]:
+            target = limits[i, 0]
+        if target > limits[i, 1]:
+            target = limits[i, 1]
+        gap = target - reference[i]
         if abs(gap) <= slew:
-            k.reference[i] = target
+            reference[i] = target
         else:
-            k.reference[i] += slew if gap > 0 else -slew
-        k.ctrl[k.fin_act[i]] = k.reference[i]
+            reference[i] += slew if gap > 0 else -slew
+        ctrl[fin_act[i]] = reference[i]
 
 
 @numba.njit(**_INNER)
@@ -584,15 +596,15 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @numba.njit(cache=True)
-def _apply_wrench(k):
-    """Plain MuJoCo's applied force: the external wrench alone (body axes turned to MuJoCo's)."""
-    R, w = k.xmat[k.hull], k.wrench
+def _apply_wrench(qfrc, R, dofs, w):
+    """Plain MuJoCo's applied force `qfrc`: the external wrench `w` alone (body axes turned to
+    MuJoCo's; R: the hull's `xmat` row)."""
     f = _turn(R, w[0], -w[1], -w[2])
-    for i in range(k.qfrc.shape[0]):
-        k.qfrc[i] = 0.0
+    for i in range(qfrc.shape[0]):
+        qfrc[i] = 0.0
     for i in range(3):
-        k.qfrc[k.dofs[i]] = f[i]
-        k.qfrc[k.dofs[3 + i]] = w[3 + i] if i == 0 else -w[3 + i]
+        qfrc[dofs[i]] = f[i]
+        qfrc[dofs[3 + i]] = w[3 + i] if i == 0 else -w[3 + i]
 
 
 @numba.njit(cache=True)
