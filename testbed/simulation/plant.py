@@ -251,7 +251,8 @@ class Plant:
         t0 = d.time
         # The whole loop is compiled, calling MuJoCo's C API (Python around each step would
         # cost more than the step itself: benchmarks/bench_plant.py).
-        done, cause = _advance(*self._addresses, k, n, self.complete, m.opt.timestep, cmd, slew)
+        advance = _advance if self.complete else _advance_plain
+        done, cause = advance(*self._addresses, k, n, m.opt.timestep, cmd, slew)
         if self.complete:
             d.time = t0 + done * m.opt.timestep
         if cause >= 0:
@@ -268,13 +269,13 @@ class Plant:
     def _plain(self) -> None:
         """Plain MuJoCo: only the external wrench is applied."""
         k = self._k
-        _apply_wrench(k.qfrc, k.xmat[k.hull], k.dofs, k.wrench)
+        _wrench_applied(k.qfrc, k.xmat[k.hull], k.dofs, k.wrench)
 
     def _complete(self) -> None:
         """Add the added-mass inertia to d.M; the bias and buoyancy to qfrc_applied (the
         actuators' force is MuJoCo's own here: `mj_fwdActuation` follows)."""
         self._k.actuation[:] = 0.0
-        _complete(self._k, _added_mass(self._k))
+        _completion(self._k)
 
     def body_accelerations(self) -> np.ndarray:
         """(u̇ v̇ ẇ ṗ q̇ ṙ) in body axes (FRD) at the current state, the fins held where they are.
@@ -387,21 +388,38 @@ _INNER = dict(no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
 
 @numba.njit(cache=True)
-def _advance(model, data, k, n, complete, h, cmd, slew):
-    """`n` steps of `h` s; returns (steps taken, `_unstable`'s cause for the last one, -1 if
-    none). The completed plant's RK4 leaves `data.time` to the caller."""
+def _advance(model, data, k, n, h, cmd, slew):
+    """`n` steps of `h` s of the completed plant; returns (steps taken, `_unstable`'s cause
+    for the last one, -1 if none). RK4 leaves `data.time` to the caller."""
     warned = k.warnings.copy()
     for i in range(n):
         _servo(k.reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
-        if complete:
-            _step(model, data, k, h)
-        else:
-            _apply_wrench(k.qfrc, k.xmat[k.hull], k.dofs, k.wrench)
-            _mj_step(model, data)
+        _step(model, data, k, h)
         cause = _unstable(k.warnings, warned, k.qvel)
         if cause >= 0:
             return i + 1, cause
     return n, -1
+
+
+@numba.njit(cache=True)
+def _advance_plain(model, data, k, n, h, cmd, slew):
+    """`_advance` for plain MuJoCo: `mj_step` with the external wrench applied (`h` is the
+    model's own timestep)."""
+    warned = k.warnings.copy()
+    for i in range(n):
+        _servo(k.reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
+        _apply_wrench(k.qfrc, k.xmat[k.hull], k.dofs, k.wrench)
+        _mj_step(model, data)
+        cause = _unstable(k.warnings, warned, k.qvel)
+        if cause >= 0:
+            return i + 1, cause
+    return n, -1
+
+
+@numba.njit(cache=True)
+def _completion(k):
+    """`_complete` with the added mass at the fins' current angles, from Python."""
+    _complete(k, _added_mass(k))
 
 
 @numba.njit(**_INNER)
@@ -441,7 +459,7 @@ def _forward(model, data, k, M9, actuate):
     _mj_checkAcc(model, data)  # a bad qacc is flagged in the warning counters
 
 
-@numba.njit(**_INNER)
+@numba.njit(inline="always", **_INNER)
 def _step(model, data, k, h):
     """One step of `h` s: RK4, or 2ʲ RK4 steps of h/2ʲ where the step's stiffness estimate puts
     h λ outside RK4's stability region (roll damping grows with the turn rate: −49 rad/s at trim,
@@ -479,7 +497,7 @@ def _actuation(model, data, R, f, dofs, actuation):
         actuation[i] = f[d[i]]
 
 
-@numba.njit(**_INNER)
+@numba.njit(inline="always", **_INNER)
 def _rk4_step(model, data, k, h, M9, actuate):
     """Classical RK4 on the hull's (qpos, qvel), positions on the quaternion manifold, fins held:
     x₁ = x₀ + h (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a completed forward evaluation (M9: the fins'
@@ -596,6 +614,12 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @numba.njit(cache=True)
+def _wrench_applied(qfrc, R, dofs, w):
+    """`_apply_wrench`, from Python."""
+    _apply_wrench(qfrc, R, dofs, w)
+
+
+@numba.njit(**_INNER)
 def _apply_wrench(qfrc, R, dofs, w):
     """Plain MuJoCo's applied force `qfrc`: the external wrench `w` alone (body axes turned to
     MuJoCo's; R: the hull's `xmat` row)."""
@@ -607,7 +631,7 @@ def _apply_wrench(qfrc, R, dofs, w):
         qfrc[dofs[3 + i]] = w[3 + i] if i == 0 else -w[3 + i]
 
 
-@numba.njit(cache=True)
+@numba.njit(**_INNER)
 def _added_mass(k):
     """M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij in hull axes (X_k affine in b = (1, cos δ_k, sin δ_k)):
     a function of the fin angles only, so once per step (the fins are held over it)."""
@@ -625,7 +649,7 @@ def _added_mass(k):
     return M9
 
 
-@numba.njit(cache=True)
+@numba.njit(**_INNER)
 def _complete(k, M9):
     """Add Tᵀ M9 T to the CSR mass matrix; write the generalized force
     F = −M9 γ + buoyancy + wrench + the actuators' force on the hull (`k.actuation`, hull axes),
