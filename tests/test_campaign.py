@@ -161,6 +161,24 @@ def test_campaign_on_two_workers_survives_a_killed_worker_and_resumes(tmp_path, 
     np.testing.assert_allclose([after[k] for k in before], [before[k] for k in before], rtol=1e-9)
 
 
+def _plant_cache() -> tuple[str, int, int]:
+    """Fly the plant one step; where its compiled step's cache is, and how many times this
+    process loaded it from there or compiled it."""
+    from testbed.simulation import plant
+
+    plant.Plant().step()
+    stats = plant._advance.stats
+    return stats.cache_path, sum(stats.cache_hits.values()), sum(stats.cache_misses.values())
+
+
+def test_workers_load_the_compiled_step_from_the_cache_this_process_fills(cluster):
+    c, client = cluster
+    path, _, _ = _plant_cache()  # compiled here if the cache is empty, then on disk
+    client.restart()  # new worker processes, nothing compiled in them
+    for where, (their_path, hits, misses) in client.run(_plant_cache).items():
+        assert (their_path, hits, misses) == (path, 1, 0), where
+
+
 def test_unreachable_scheduler_is_a_one_line_error(tmp_path):
     with pytest.raises(InputError, match="scheduler=tcp://127.0.0.1:1"):
         campaign.reproduce(tmp_path, seeds=1, scheduler="tcp://127.0.0.1:1", **TINY)

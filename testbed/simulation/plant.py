@@ -590,21 +590,13 @@ def _servo(reference, limits, ctrl, fin_act, cmd, slew):
 @numba.njit(**_INNER)
 def _turn(R, x, y, z):
     """R (x, y, z), as a tuple, R a rotation matrix stored row by row (MuJoCo's `xmat` row)."""
-    return (
-        R[0] * x + R[1] * y + R[2] * z,
-        R[3] * x + R[4] * y + R[5] * z,
-        R[6] * x + R[7] * y + R[8] * z,
-    )
+    return (R[0] * x + R[1] * y + R[2] * z, R[3] * x + R[4] * y + R[5] * z, R[6] * x + R[7] * y + R[8] * z)
 
 
 @numba.njit(**_INNER)
 def _turn_back(R, x, y, z):
     """Rᵀ (x, y, z), as a tuple, R as in `_turn`."""
-    return (
-        R[0] * x + R[3] * y + R[6] * z,
-        R[1] * x + R[4] * y + R[7] * z,
-        R[2] * x + R[5] * y + R[8] * z,
-    )
+    return (R[0] * x + R[3] * y + R[6] * z, R[1] * x + R[4] * y + R[7] * z, R[2] * x + R[5] * y + R[8] * z)
 
 
 @numba.njit(**_INNER)
