@@ -380,10 +380,12 @@ _MAX_VELOCITY = 1e4  # m/s or rad/s: no vehicle gets near; MuJoCo's own limit (1
 
 
 # The compiled step is written as scalar loops over small arrays, without numpy's library
-# functions (cross, norm, slice assignment, reshape): each of those costs the compiler more than
-# the whole step does, and a new install compiles it once (benchmarks/bench_cold.py). The
-# helpers are compiled into `_advance` only (no Python entry of their own), except the three
-# that `Plant` also calls from Python.
+# functions (cross, norm, slice assignment, reshape, min): each of those costs the compiler more
+# than the whole step does, and a new install compiles it once (benchmarks/bench_cold.py). The
+# helpers have no Python entry of their own (`_INNER`), the leaves take the arrays they use, not
+# the whole `_Kernel`, and `_step` and `_rk4_step` are inlined into `_advance` (a compiled
+# function is optimised again in every caller it is linked into); the plain-MuJoCo loop and the
+# completion called from Python are compiled apart, only when used.
 _INNER = dict(no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
 
