@@ -186,6 +186,23 @@ def test_campaign_on_two_workers_survives_a_killed_worker_and_resumes(tmp_path, 
     np.testing.assert_allclose([after[k] for k in before], [before[k] for k in before], rtol=1e-9)
 
 
+def _plant_cache() -> tuple[str, int, int]:
+    """Fly the plant one step; where its compiled step's cache is, and how many times this
+    process loaded it from there or compiled it."""
+    from testbed.simulation import plant
+
+    plant.Plant().step()
+    return plant.step_cache()
+
+
+def test_workers_load_the_compiled_step_from_the_cache_this_process_fills(cluster):
+    c, client = cluster
+    path, _, _ = _plant_cache()  # compiled here if the cache is empty, then on disk
+    client.restart()  # new worker processes, nothing compiled in them
+    for where, (their_path, hits, misses) in client.run(_plant_cache).items():
+        assert (their_path, hits, misses) == (path, 1, 0), where
+
+
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:1", "not an address"])
 def test_a_scheduler_that_does_not_answer_is_an_error_before_anything_is_written(tmp_path, address):
     with pytest.raises(InputError, match=f"scheduler={address}: cannot connect"):

@@ -73,7 +73,7 @@ from testbed.simulation.vehicle import (
     skew,
 )
 
-__all__ = ["Plant"]
+__all__ = ["Plant", "step_cache"]
 
 
 class Plant:
@@ -253,7 +253,8 @@ class Plant:
         t0 = d.time
         # The whole loop is compiled, calling MuJoCo's C API (Python around each step would
         # cost more than the step itself: benchmarks/bench_plant.py).
-        done, cause = _advance(*self._addresses, k, n, self.complete, m.opt.timestep, cmd, slew)
+        advance = _advance if self.complete else _advance_plain
+        done, cause = advance(*self._addresses, k, n, m.opt.timestep, cmd, slew)
         if self.complete:
             d.time = t0 + done * m.opt.timestep
         if cause >= 0:
@@ -269,13 +270,14 @@ class Plant:
 
     def _plain(self) -> None:
         """Plain MuJoCo: only the external wrench is applied."""
-        _apply_wrench(self._k)
+        k = self._k
+        _wrench_applied(k.qfrc, k.xmat[k.hull], k.dofs, k.wrench)
 
     def _complete(self) -> None:
         """Add the added-mass inertia to d.M; the bias and buoyancy to qfrc_applied (the
         actuators' force is MuJoCo's own here: `mj_fwdActuation` follows)."""
         self._k.actuation[:] = 0.0
-        _complete(self._k, _added_mass(self._k))
+        _completion(self._k)
 
     def body_accelerations(self) -> np.ndarray:
         """(u̇ v̇ ẇ ṗ q̇ ṙ) in body axes (FRD) at the current state, the fins held where they are.
@@ -379,25 +381,52 @@ _mj_integratePos = numba.types.ExternalFunction(
 _MAX_VELOCITY = 1e4  # m/s or rad/s: no vehicle gets near; MuJoCo's own limit (1e10) is late
 
 
+# The compiled step is written as scalar loops over small arrays, without numpy's library
+# functions (cross, norm, slice assignment, reshape, min): each of those costs the compiler more
+# than the whole step does, and a new install compiles it once (benchmarks/bench_cold.py). The
+# helpers have no Python entry of their own (`_INNER`), the leaves take the arrays they use, not
+# the whole `_Kernel`, and `_step` and `_rk4_step` are inlined into `_advance` (a compiled
+# function is optimised again in every caller it is linked into); the plain-MuJoCo loop and the
+# completion called from Python are compiled apart, only when used.
+_INNER = dict(no_cpython_wrapper=True, no_cfunc_wrapper=True)
+
+
 @numba.njit(cache=True)
-def _advance(model, data, k, n, complete, h, cmd, slew):
-    """`n` steps of `h` s; returns (steps taken, `_unstable`'s cause for the last one, -1 if
-    none). The completed plant's RK4 leaves `data.time` to the caller."""
+def _advance(model, data, k, n, h, cmd, slew):
+    """`n` steps of `h` s of the completed plant; returns (steps taken, `_unstable`'s cause
+    for the last one, -1 if none). RK4 leaves `data.time` to the caller."""
     warned = k.warnings.copy()
     for i in range(n):
-        _servo(k, cmd, slew)
-        if complete:
-            _step(model, data, k, h)
-        else:
-            _apply_wrench(k)
-            _mj_step(model, data)
-        cause = _unstable(k, warned)
+        _servo(k.reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
+        _step(model, data, k, h)
+        cause = _unstable(k.warnings, warned, k.qvel)
         if cause >= 0:
             return i + 1, cause
     return n, -1
 
 
 @numba.njit(cache=True)
+def _advance_plain(model, data, k, n, h, cmd, slew):
+    """`_advance` for plain MuJoCo: `mj_step` with the external wrench applied (`h` is the
+    model's own timestep)."""
+    warned = k.warnings.copy()
+    for i in range(n):
+        _servo(k.reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
+        _apply_wrench(k.qfrc, k.xmat[k.hull], k.dofs, k.wrench)
+        _mj_step(model, data)
+        cause = _unstable(k.warnings, warned, k.qvel)
+        if cause >= 0:
+            return i + 1, cause
+    return n, -1
+
+
+@numba.njit(cache=True)
+def _completion(k):
+    """`_complete` with the added mass at the fins' current angles, from Python."""
+    _complete(k, _added_mass(k))
+
+
+@numba.njit(**_INNER)
 def _forward(model, data, k, M9, actuate):
     """q̈ into `k.qacc`, the fins at rest relative to the hull: MuJoCo's forward stages,
     completed, and the hull's acceleration from the hull block of the complete mass matrix (the
@@ -410,11 +439,14 @@ def _forward(model, data, k, M9, actuate):
     _mj_kinematics(model, data)
     _mj_comPos(model, data)
     if actuate:
-        _actuation(model, data, k)
+        _actuation(model, data, k.xmat[k.hull], k.qfrc_actuator, k.dofs, k.actuation)
     _mj_makeM(model, data)
     _mj_fwdVelocity(model, data)
     _complete(k, M9)
-    H = np.zeros((6, 6))
+    H = np.empty((6, 6))
+    for r in range(6):
+        for c in range(6):
+            H[r, c] = 0.0
     for e in range(k.rows.shape[0]):  # d.M holds the lower triangle
         r, c = k.rows[e], k.cols[e]
         if r < 6 and c < 6:
@@ -424,13 +456,14 @@ def _forward(model, data, k, M9, actuate):
         j = k.dofs[i]
         rhs[i] = k.qfrc_passive[j] + k.qfrc[j] - k.qfrc_bias[j]
     a = _solve_spd(H, rhs)  # H q̈_hull = f_hull
-    k.qacc[:] = 0.0
+    for i in range(k.qacc.shape[0]):
+        k.qacc[i] = 0.0
     for i in range(6):
         k.qacc[k.dofs[i]] = a[i]
     _mj_checkAcc(model, data)  # a bad qacc is flagged in the warning counters
 
 
-@numba.njit(cache=True)
+@numba.njit(inline="always", **_INNER)
 def _step(model, data, k, h):
     """One step of `h` s: RK4, or 2ʲ RK4 steps of h/2ʲ where the step's stiffness estimate puts
     h λ outside RK4's stability region (roll damping grows with the turn rate: −49 rad/s at trim,
@@ -441,31 +474,34 @@ def _step(model, data, k, h):
         k.integral[f] += h * k.reference[f]
     q0, v0 = k.qpos.copy(), k.qvel.copy()
     M9 = _added_mass(k)
-    lam = _rk4_step(model, data, k, h, M9, True)
-    if h * lam <= _RK4_MAX_H_LAMBDA:
-        return
-    level = min(_LEVELS, int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))))
-    k.qpos[:], k.qvel[:] = q0, v0
-    for _ in range(2**level):  # the actuation of the step's start, held
-        _rk4_step(model, data, k, h / 2**level, M9, False)
+    level = 0
+    while True:  # level 0: one RK4 step; then, if it was too stiff, 2ʲ of them from the start
+        for _ in range(2**level):  # the actuation of the step's start, held
+            lam = _rk4_step(model, data, k, h / 2**level, M9, level == 0)
+        if level > 0 or h * lam <= _RK4_MAX_H_LAMBDA:
+            return
+        level = int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA)))
+        if level > _LEVELS:
+            level = _LEVELS
+        _copy(q0, k.qpos)
+        _copy(v0, k.qvel)
 
 
-@numba.njit(cache=True)
-def _actuation(model, data, k):
-    """The actuators' generalized force on the hull, in hull axes, into `k.actuation` (the
-    kinematics current): the propulsor is fixed to the hull and its thrust held over the step,
+@numba.njit(**_INNER)
+def _actuation(model, data, R, f, dofs, actuation):
+    """The actuators' generalized force on the hull, in hull axes, into `actuation` (R: the
+    hull's `xmat` row, the kinematics current; f: MuJoCo's actuator force): the propulsor is fixed to the hull and its thrust held over the step,
     so it turns with the hull (`_complete` applies it at each stage); the fin servos act on the
     prescribed fins only."""
     _mj_transmission(model, data)
     _mj_fwdActuation(model, data)
-    R, f = k.xmat[k.hull].reshape(3, 3), k.qfrc_actuator
-    d = k.dofs
-    k.actuation[0], k.actuation[1], k.actuation[2] = _turn(R.T, f[d[0]], f[d[1]], f[d[2]])
+    d = dofs
+    actuation[0], actuation[1], actuation[2] = _turn_back(R, f[d[0]], f[d[1]], f[d[2]])
     for i in range(3, 6):  # the free joint's angular dofs are in hull axes already
-        k.actuation[i] = f[d[i]]
+        actuation[i] = f[d[i]]
 
 
-@numba.njit(cache=True)
+@numba.njit(inline="always", **_INNER)
 def _rk4_step(model, data, k, h, M9, actuate):
     """Classical RK4 on the hull's (qpos, qvel), positions on the quaternion manifold, fins held:
     x₁ = x₀ + h (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a completed forward evaluation (M9: the fins'
@@ -476,86 +512,129 @@ def _rk4_step(model, data, k, h, M9, actuate):
     between the second and third stages over their velocities' change, as in Hairer & Wanner's
     stiffness detection)."""
     q0, v0 = k.qpos.copy(), k.qvel.copy()
-    vel_sum, acc_sum = np.zeros_like(v0), np.zeros_like(v0)
-    accs = np.empty((3, v0.shape[0]))
-    for stage, (weight, c) in enumerate(((1.0, 0.5), (2.0, 0.5), (2.0, 1.0), (1.0, 0.0))):
+    nv = v0.shape[0]
+    vel_sum, acc_sum, vel = np.empty(nv), np.empty(nv), np.empty(nv)
+    for i in range(nv):
+        vel_sum[i] = acc_sum[i] = 0.0
+    accs = np.empty((3, nv))
+    for stage in range(4):
         _forward(model, data, k, M9, actuate and stage == 0)
-        vel_sum += weight * k.qvel
-        acc_sum += weight * k.qacc
+        weight = _RK4_WEIGHTS[stage]
+        for i in range(nv):
+            vel_sum[i] += weight * k.qvel[i]
+            acc_sum[i] += weight * k.qacc[i]
         if stage < 3:  # the next stage's point: x₀ + c h kᵢ
-            accs[stage] = k.qacc
-            vel = k.qvel.copy()
-            k.qpos[:] = q0
+            c = _RK4_NODES[stage]
+            for i in range(nv):
+                accs[stage, i] = k.qacc[i]
+                vel[i] = k.qvel[i]
+            _copy(q0, k.qpos)
             _mj_integratePos(model, k.qpos.ctypes.data, vel.ctypes.data, c * h)
-            k.qvel[:] = v0 + c * h * accs[stage]
-    vel_sum /= 6.0
-    k.qpos[:] = q0
+            for i in range(nv):
+                k.qvel[i] = v0[i] + c * h * accs[stage, i]
+    for i in range(nv):
+        vel_sum[i] /= 6.0
+    _copy(q0, k.qpos)
     _mj_integratePos(model, k.qpos.ctypes.data, vel_sum.ctypes.data, h)
-    k.qvel[:] = v0 + h / 6.0 * acc_sum
-    dv = 0.5 * h * np.linalg.norm(accs[1] - accs[0])
-    return np.linalg.norm(accs[2] - accs[1]) / dv if dv > 0 else 0.0
+    for i in range(nv):
+        k.qvel[i] = v0[i] + h / 6.0 * acc_sum[i]
+    dv, da = 0.0, 0.0  # squared norms
+    for i in range(nv):
+        dv += (accs[1, i] - accs[0, i]) ** 2
+        da += (accs[2, i] - accs[1, i]) ** 2
+    dv = 0.5 * h * math.sqrt(dv)
+    return math.sqrt(da) / dv if dv > 0 else 0.0
 
 
-# RK4's stability region reaches −2.79 on the real axis: past 2.0 a step is split into 2ʲ steps
-# with h λ ≤ 1, up to 2^_LEVELS of them.
+# RK4's weights and the next stage's node, by stage. Its stability region reaches −2.79 on the
+# real axis: past 2.0 a step is split into 2ʲ steps with h λ ≤ 1, up to 2^_LEVELS of them.
+_RK4_WEIGHTS, _RK4_NODES = (1.0, 2.0, 2.0, 1.0), (0.5, 0.5, 1.0)
 _RK4_MAX_H_LAMBDA, _RK4_SUB_H_LAMBDA, _LEVELS = 2.0, 1.0, 8
 
 
-@numba.njit(cache=True)
-def _unstable(k, warned):
+@numba.njit(**_INNER)
+def _copy(src, dst):
+    """dst[:] = src, elementwise."""
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+@numba.njit(**_INNER)
+def _unstable(warnings, warned, qvel):
     """The first MuJoCo warning counter that moved since `warned` (on bad qpos, qvel, qacc
     MuJoCo resets the state and goes on), len(warned) for velocities non-finite or beyond
     `_MAX_VELOCITY`, or -1 for neither."""
     for i in range(warned.shape[0]):
-        if k.warnings[i] != warned[i]:
+        if warnings[i] != warned[i]:
             return i
-    for i in range(k.qvel.shape[0]):
-        if not abs(k.qvel[i]) <= _MAX_VELOCITY:  # NaN too
+    for i in range(qvel.shape[0]):
+        if not abs(qvel[i]) <= _MAX_VELOCITY:  # NaN too
             return warned.shape[0]
     return -1
 
 
-@numba.njit(cache=True)
-def _servo(k, cmd, slew):
-    """Move the servo reference toward `cmd`, clipped to the servo range, by at most `slew`."""
+@numba.njit(**_INNER)
+def _servo(reference, limits, ctrl, fin_act, cmd, slew):
+    """Move the servo reference toward `cmd`, clipped to the servo range (`limits`), by at most
+    `slew`; the fins' actuators (`fin_act`) in MuJoCo's `ctrl` follow it."""
     for i in range(cmd.shape[0]):
-        target = min(max(cmd[i], k.limits[i, 0]), k.limits[i, 1])
-        gap = target - k.reference[i]
-        k.reference[i] = target if abs(gap) <= slew else k.reference[i] + np.sign(gap) * slew
-        k.ctrl[k.fin_act[i]] = k.reference[i]
+        target = cmd[i]
+        if target < limits[i, 0]:
+            target = limits[i, 0]
+        if target > limits[i, 1]:
+            target = limits[i, 1]
+        gap = target - reference[i]
+        if abs(gap) <= slew:
+            reference[i] = target
+        else:
+            reference[i] += slew if gap > 0 else -slew
+        ctrl[fin_act[i]] = reference[i]
 
 
-@numba.njit(cache=True)
+@numba.njit(**_INNER)
 def _turn(R, x, y, z):
-    """R (x, y, z), as a tuple: a 3-vector product without numpy's small-array overhead."""
-    return (
-        R[0, 0] * x + R[0, 1] * y + R[0, 2] * z,
-        R[1, 0] * x + R[1, 1] * y + R[1, 2] * z,
-        R[2, 0] * x + R[2, 1] * y + R[2, 2] * z,
-    )
+    """R (x, y, z), as a tuple, R a rotation matrix stored row by row (MuJoCo's `xmat` row)."""
+    return (R[0] * x + R[1] * y + R[2] * z, R[3] * x + R[4] * y + R[5] * z, R[6] * x + R[7] * y + R[8] * z)
+
+
+@numba.njit(**_INNER)
+def _turn_back(R, x, y, z):
+    """Rᵀ (x, y, z), as a tuple, R as in `_turn`."""
+    return (R[0] * x + R[3] * y + R[6] * z, R[1] * x + R[4] * y + R[7] * z, R[2] * x + R[5] * y + R[8] * z)
+
+
+@numba.njit(**_INNER)
+def _cross(a0, a1, a2, b0, b1, b2):
+    """a × b, as a tuple."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
 @numba.njit(cache=True)
-def _apply_wrench(k):
-    """Plain MuJoCo's applied force: the external wrench alone (body axes turned to MuJoCo's)."""
-    R, w = k.xmat[k.hull].reshape(3, 3), k.wrench
+def _wrench_applied(qfrc, R, dofs, w):
+    """`_apply_wrench`, from Python."""
+    _apply_wrench(qfrc, R, dofs, w)
+
+
+@numba.njit(**_INNER)
+def _apply_wrench(qfrc, R, dofs, w):
+    """Plain MuJoCo's applied force `qfrc`: the external wrench `w` alone (body axes turned to
+    MuJoCo's; R: the hull's `xmat` row)."""
     f = _turn(R, w[0], -w[1], -w[2])
-    k.qfrc[:] = 0.0
+    for i in range(qfrc.shape[0]):
+        qfrc[i] = 0.0
     for i in range(3):
-        k.qfrc[k.dofs[i]] = f[i]
-        k.qfrc[k.dofs[3 + i]] = w[3 + i] if i == 0 else -w[3 + i]
+        qfrc[dofs[i]] = f[i]
+        qfrc[dofs[3 + i]] = w[3 + i] if i == 0 else -w[3 + i]
 
 
-# Compiled: run at every RK4 stage, where numpy's per-call overhead on 9×9 arrays would cost
-# three times MuJoCo's own forward pass.
-@numba.njit(cache=True)
+@numba.njit(**_INNER)
 def _added_mass(k):
     """M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij in hull axes (X_k affine in b = (1, cos δ_k, sin δ_k)):
     a function of the fin angles only, so once per step (the fins are held over it)."""
     P = k.P
     M9 = k.M_hull.copy()
     for f in range(P.shape[0]):
-        c, s = np.cos(k.qpos[k.fin_qadr[f]]), np.sin(k.qpos[k.fin_qadr[f]])
+        c, s = math.cos(k.qpos[k.fin_qadr[f]]), math.sin(k.qpos[k.fin_qadr[f]])
         b = (1.0, c, s)
         for i in range(3):
             for j in range(3):
@@ -566,23 +645,24 @@ def _added_mass(k):
     return M9
 
 
-@numba.njit(cache=True)
+@numba.njit(**_INNER)
 def _complete(k, M9):
     """Add Tᵀ M9 T to the CSR mass matrix; write the generalized force
     F = −M9 γ + buoyancy + wrench + the actuators' force on the hull (`k.actuation`, hull axes),
     in MuJoCo's coordinates (fin rates are zero)."""
-    R, q, dofs = k.xmat[k.hull].reshape(3, 3), k.qvel, k.dofs
+    R, q, dofs = k.xmat[k.hull], k.qvel, k.dofs
     M9 = M9.copy()
     nu = np.empty(9)  # ν = (v, ω, δ̇), v = Rᵀ q̇_lin in hull axes
     for i in range(9):
         nu[i] = q[dofs[i]]
-    nu[0], nu[1], nu[2] = _turn(R.T, nu[0], nu[1], nu[2])
-    cw = np.cross(nu[3:6], nu[:3])
+    nu[0], nu[1], nu[2] = _turn_back(R, nu[0], nu[1], nu[2])
+    cw = _cross(nu[3], nu[4], nu[5], nu[0], nu[1], nu[2])
     F = np.empty(9)
     for r in range(9):  # −M9 γ with γ = (−ω × v, 0, 0)
         F[r] = M9[r, 0] * cw[0] + M9[r, 1] * cw[1] + M9[r, 2] * cw[2]
-    B, w, a = k.buoyancy, k.wrench, k.actuation
-    torque = np.cross(k.centre, np.array(_turn(R.T, B[0], B[1], B[2])))
+    B, w, a, cb = k.buoyancy, k.wrench, k.actuation, k.centre
+    Bh = _turn_back(R, B[0], B[1], B[2])
+    torque = _cross(cb[0], cb[1], cb[2], Bh[0], Bh[1], Bh[2])
     F[3] += torque[0] + w[3] + a[3]
     F[4] += torque[1] - w[4] + a[4]
     F[5] += torque[2] - w[5] + a[5]
@@ -598,7 +678,7 @@ def _complete(k, M9):
         k.qfrc[dofs[i]] = F[i] + (B[i] if i < 3 else 0.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(**_INNER)
 def _solve_spd(H, b):
     """x = H⁻¹ b for a small symmetric positive definite H, by Cholesky H = L Lᵀ (in place)."""
     n = b.shape[0]
@@ -660,3 +740,10 @@ def _added_mass_basis(model: mujoco.MjModel):
         P[k] = [[Xi.T @ Mb @ Xj for Xj in Xs] for Xi in Xs]
         volume, moment = volume + V, moment + V * (p + Q0 @ cb)
     return P, M_hull, volume, moment / volume
+
+
+def step_cache() -> tuple[str, int, int]:
+    """Where the completed plant's compiled step is cached on disk, and how many times this
+    process loaded it from there and compiled it (numba's dispatcher statistics)."""
+    stats = _advance.stats
+    return stats.cache_path, sum(stats.cache_hits.values()), sum(stats.cache_misses.values())
