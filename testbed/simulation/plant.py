@@ -476,11 +476,12 @@ def _step(model, data, k, h):
     M9 = _added_mass(k)
     level = 0
     while True:  # level 0: one RK4 step; then, if it was too stiff, 2ʲ of them from the start
-        for _ in range(2**level):  # the actuation of the step's start, held
-            lam = _rk4_step(model, data, k, h / 2**level, M9, level == 0)
+        steps = 1 << level
+        for _ in range(steps):  # the actuation of the step's start, held
+            lam = _rk4_step(model, data, k, h / steps, M9, level == 0)
         if level > 0 or h * lam <= _RK4_MAX_H_LAMBDA:
             return
-        level = int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA)))
+        level = math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))
         if level > _LEVELS:
             level = _LEVELS
         _copy(q0, k.qpos)
@@ -540,8 +541,9 @@ def _rk4_step(model, data, k, h, M9, actuate):
         k.qvel[i] = v0[i] + h / 6.0 * acc_sum[i]
     dv, da = 0.0, 0.0  # squared norms
     for i in range(nv):
-        dv += (accs[1, i] - accs[0, i]) ** 2
-        da += (accs[2, i] - accs[1, i]) ** 2
+        d1, d2 = accs[1, i] - accs[0, i], accs[2, i] - accs[1, i]
+        dv += d1 * d1
+        da += d2 * d2
     dv = 0.5 * h * math.sqrt(dv)
     return math.sqrt(da) / dv if dv > 0 else 0.0
 
