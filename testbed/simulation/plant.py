@@ -35,7 +35,7 @@ and MuJoCo's −ω × m_A v for the fin body), measured on the torpedo with dyna
 the fin's force per radian (B₁ ≈ 0.0019 s · B): an input lead that the linear model has no place
 for (with it, the analytic model tracks an open-loop PRBS response to only 96–98 % fit).
 
-The hull is integrated by classical RK4 (`_rk4_step`, one compiled loop over the steps), each
+The hull is integrated by classical RK4 (`_advance`, one compiled loop over the steps), each
 of the four stages a completed forward evaluation with the fins at their held angles. MuJoCo's
 own step would not do: its RK4 stages cannot be completed, and its first-order
 steps are far from the continuous plant that the analytic model linearises (even at 4 ms, implicit
@@ -390,8 +390,10 @@ _MAX_VELOCITY = 1e4  # m/s or rad/s: no vehicle gets near; MuJoCo's own limit (1
 # functions (cross, norm, slice assignment, reshape, min): each of those costs the compiler more
 # than the whole step does, and a new install compiles it once (benchmarks/bench_cold.py). The
 # helpers have no Python entry of their own (`_INNER`), the leaves take the arrays they use, not
-# the whole `_Kernel`, and `_step` and `_rk4_step` are inlined into `_advance` (a compiled
-# function is optimised again in every caller it is linked into); the plain-MuJoCo loop and the
+# the whole `_Kernel`, and the step and its RK4 stages are written out in `_advance`, their one
+# caller: a compiled function is optimised again in every caller it is linked into, and one
+# inlined by numba copies its IR and the whole `_Kernel` (a reference count per array) at every
+# call. Its scratch arrays are made once per call, not per step. The plain-MuJoCo loop and the
 # completion called from Python are compiled apart, only when used.
 _INNER = dict(no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
@@ -399,12 +401,80 @@ _INNER = dict(no_cpython_wrapper=True, no_cfunc_wrapper=True)
 @numba.njit(cache=True)
 def _advance(model, data, k, n, h, cmd, slew):
     """`n` steps of `h` s of the completed plant; returns (steps taken, `_unstable`'s cause
-    for the last one, -1 if none). RK4 leaves `data.time` to the caller."""
+    for the last one, -1 if none). RK4 leaves `data.time` to the caller.
+
+    Each step moves the fin servos, holds the fins, and integrates by classical RK4, or by 2ʲ
+    RK4 steps of h/2ʲ where the step's stiffness estimate puts h λ outside RK4's stability
+    region (roll damping grows with the turn rate: −49 rad/s at trim, near −1000 rad/s turning
+    at 1.4 rad/s with the fins at 0.15 rad). An RK4 step of `dt` on the hull's (qpos, qvel),
+    positions on the quaternion manifold: x₁ = x₀ + dt (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a
+    completed forward evaluation (`_forward`, with the fins' added mass at their held angles
+    and the actuators' force of the step's first stage). Its stiffness estimate is
+    λ ≈ ‖a₃ − a₂‖ / ‖(dt/2)(a₂ − a₁)‖ (the accelerations' change between the second and third
+    stages over their velocities' change, as in Hairer & Wanner's stiffness detection)."""
+    qpos, qvel, qacc, reference = k.qpos, k.qvel, k.qacc, k.reference
+    nv = qvel.shape[0]
     warned = k.warnings.copy()
+    q_step, v_step = qpos.copy(), qvel.copy()  # the state at the step's start
+    q0, v0 = qpos.copy(), qvel.copy()  # at the RK4 step's start
+    vel_sum, acc_sum, vel = np.empty(nv), np.empty(nv), np.empty(nv)
+    accs = np.empty((3, nv))
     for i in range(n):
-        _servo(k.reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
-        _step(model, data, k, h)
-        cause = _unstable(k.warnings, warned, k.qvel)
+        _servo(reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
+        for f in range(reference.shape[0]):  # the fins, held over the step
+            qpos[k.fin_qadr[f]] = reference[f]
+            qvel[k.dofs[6 + f]] = 0.0
+            k.integral[f] += h * reference[f]
+        _copy(qpos, q_step)
+        _copy(qvel, v_step)
+        M9 = _added_mass(k)
+        level = 0
+        while True:  # level 0: one RK4 step; then, if it was too stiff, 2ʲ of them from the start
+            steps = 1 << level
+            dt = h / steps
+            for _ in range(steps):
+                _copy(qpos, q0)
+                _copy(qvel, v0)
+                for j in range(nv):
+                    vel_sum[j] = acc_sum[j] = 0.0
+                for stage in range(4):
+                    _forward(model, data, k, M9, level == 0 and stage == 0)
+                    weight = _RK4_WEIGHTS[stage]
+                    for j in range(nv):
+                        vel_sum[j] += weight * qvel[j]
+                        acc_sum[j] += weight * qacc[j]
+                    if stage < 3:  # the next stage's point: x₀ + c dt kᵢ
+                        c = _RK4_NODES[stage]
+                        for j in range(nv):
+                            accs[stage, j] = qacc[j]
+                            vel[j] = qvel[j]
+                        _copy(q0, qpos)
+                        _mj_integratePos(model, qpos.ctypes.data, vel.ctypes.data, c * dt)
+                        for j in range(nv):
+                            qvel[j] = v0[j] + c * dt * accs[stage, j]
+                for j in range(nv):
+                    vel_sum[j] /= 6.0
+                _copy(q0, qpos)
+                _mj_integratePos(model, qpos.ctypes.data, vel_sum.ctypes.data, dt)
+                for j in range(nv):
+                    qvel[j] = v0[j] + dt / 6.0 * acc_sum[j]
+            if level > 0:
+                break
+            dv, da = 0.0, 0.0  # squared norms
+            for j in range(nv):
+                d1, d2 = accs[1, j] - accs[0, j], accs[2, j] - accs[1, j]
+                dv += d1 * d1
+                da += d2 * d2
+            dv = 0.5 * dt * math.sqrt(dv)
+            lam = math.sqrt(da) / dv if dv > 0 else 0.0
+            if h * lam <= _RK4_MAX_H_LAMBDA:
+                break
+            level = math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))
+            if level > _LEVELS:
+                level = _LEVELS
+            _copy(q_step, qpos)
+            _copy(v_step, qvel)
+        cause = _unstable(k.warnings, warned, qvel)
         if cause >= 0:
             return i + 1, cause
     return n, -1
@@ -516,31 +586,6 @@ def _forward(model, data, k, M9, actuate):
     _mj_checkAcc(model, data)  # a bad qacc is flagged in the warning counters
 
 
-@numba.njit(inline="always", **_INNER)
-def _step(model, data, k, h):
-    """One step of `h` s: RK4, or 2ʲ RK4 steps of h/2ʲ where the step's stiffness estimate puts
-    h λ outside RK4's stability region (roll damping grows with the turn rate: −49 rad/s at trim,
-    near −1000 rad/s turning at 1.4 rad/s with the fins at 0.15 rad)."""
-    for f in range(k.reference.shape[0]):  # the fins, held over the step
-        k.qpos[k.fin_qadr[f]] = k.reference[f]
-        k.qvel[k.dofs[6 + f]] = 0.0
-        k.integral[f] += h * k.reference[f]
-    q0, v0 = k.qpos.copy(), k.qvel.copy()
-    M9 = _added_mass(k)
-    level = 0
-    while True:  # level 0: one RK4 step; then, if it was too stiff, 2ʲ of them from the start
-        steps = 1 << level
-        for _ in range(steps):  # the actuation of the step's start, held
-            lam = _rk4_step(model, data, k, h / steps, M9, level == 0)
-        if level > 0 or h * lam <= _RK4_MAX_H_LAMBDA:
-            return
-        level = math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))
-        if level > _LEVELS:
-            level = _LEVELS
-        _copy(q0, k.qpos)
-        _copy(v0, k.qvel)
-
-
 @numba.njit(**_INNER)
 def _actuation(model, data, R, f, dofs, actuation):
     """The actuators' generalized force on the hull, in hull axes, into `actuation` (R: the
@@ -553,52 +598,6 @@ def _actuation(model, data, R, f, dofs, actuation):
     actuation[0], actuation[1], actuation[2] = _turn_back(R, f[d[0]], f[d[1]], f[d[2]])
     for i in range(3, 6):  # the free joint's angular dofs are in hull axes already
         actuation[i] = f[d[i]]
-
-
-@numba.njit(inline="always", **_INNER)
-def _rk4_step(model, data, k, h, M9, actuate):
-    """Classical RK4 on the hull's (qpos, qvel), positions on the quaternion manifold, fins held:
-    x₁ = x₀ + h (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a completed forward evaluation (M9: the fins'
-    added mass at their held angles, `_added_mass`; `actuate`: read the actuators' force at the
-    first stage).
-
-    Returns the stiffness estimate λ ≈ ‖a₃ − a₂‖ / ‖(h/2)(a₂ − a₁)‖ (the accelerations' change
-    between the second and third stages over their velocities' change, as in Hairer & Wanner's
-    stiffness detection)."""
-    q0, v0 = k.qpos.copy(), k.qvel.copy()
-    nv = v0.shape[0]
-    vel_sum, acc_sum, vel = np.empty(nv), np.empty(nv), np.empty(nv)
-    for i in range(nv):
-        vel_sum[i] = acc_sum[i] = 0.0
-    accs = np.empty((3, nv))
-    for stage in range(4):
-        _forward(model, data, k, M9, actuate and stage == 0)
-        weight = _RK4_WEIGHTS[stage]
-        for i in range(nv):
-            vel_sum[i] += weight * k.qvel[i]
-            acc_sum[i] += weight * k.qacc[i]
-        if stage < 3:  # the next stage's point: x₀ + c h kᵢ
-            c = _RK4_NODES[stage]
-            for i in range(nv):
-                accs[stage, i] = k.qacc[i]
-                vel[i] = k.qvel[i]
-            _copy(q0, k.qpos)
-            _mj_integratePos(model, k.qpos.ctypes.data, vel.ctypes.data, c * h)
-            for i in range(nv):
-                k.qvel[i] = v0[i] + c * h * accs[stage, i]
-    for i in range(nv):
-        vel_sum[i] /= 6.0
-    _copy(q0, k.qpos)
-    _mj_integratePos(model, k.qpos.ctypes.data, vel_sum.ctypes.data, h)
-    for i in range(nv):
-        k.qvel[i] = v0[i] + h / 6.0 * acc_sum[i]
-    dv, da = 0.0, 0.0  # squared norms
-    for i in range(nv):
-        d1, d2 = accs[1, i] - accs[0, i], accs[2, i] - accs[1, i]
-        dv += d1 * d1
-        da += d2 * d2
-    dv = 0.5 * h * math.sqrt(dv)
-    return math.sqrt(da) / dv if dv > 0 else 0.0
 
 
 # RK4's weights and the next stage's node, by stage. Its stability region reaches −2.79 on the
