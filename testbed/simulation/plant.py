@@ -390,8 +390,8 @@ _MAX_VELOCITY = 1e4  # m/s or rad/s: no vehicle gets near; MuJoCo's own limit (1
 # functions (cross, norm, slice assignment, reshape, min): each of those costs the compiler more
 # than the whole step does, and a new install compiles it once (benchmarks/bench_cold.py). The
 # helpers have no Python entry of their own (`_INNER`), the leaves take the arrays they use, not
-# the whole `_Kernel`, and the step and its RK4 stages are written out in `_advance`, their one
-# caller: a compiled function is optimised again in every caller it is linked into, and one
+# the whole `_Kernel`, and the step, its RK4 stages and their forward evaluation are written out
+# in `_advance`, their one caller: a compiled function is optimised again in every caller it is linked into, and one
 # inlined by numba copies its IR and the whole `_Kernel` (a reference count per array) at every
 # call. Its scratch arrays are made once per call, not per step. The plain-MuJoCo loop and the
 # completion called from Python are compiled apart, only when used.
@@ -408,8 +408,8 @@ def _advance(model, data, k, n, h, cmd, slew):
     region (roll damping grows with the turn rate: −49 rad/s at trim, near −1000 rad/s turning
     at 1.4 rad/s with the fins at 0.15 rad). An RK4 step of `dt` on the hull's (qpos, qvel),
     positions on the quaternion manifold: x₁ = x₀ + dt (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a
-    completed forward evaluation (`_forward`, with the fins' added mass at their held angles
-    and the actuators' force of the step's first stage). Its stiffness estimate is
+    completed forward evaluation (below, with the fins' added mass at their held angles and the
+    actuators' force of the step's first stage). Its stiffness estimate is
     λ ≈ ‖a₃ − a₂‖ / ‖(dt/2)(a₂ − a₁)‖ (the accelerations' change between the second and third
     stages over their velocities' change, as in Hairer & Wanner's stiffness detection)."""
     qpos, qvel, qacc, reference = k.qpos, k.qvel, k.qacc, k.reference
@@ -419,11 +419,13 @@ def _advance(model, data, k, n, h, cmd, slew):
     q0, v0 = qpos.copy(), qvel.copy()  # at the RK4 step's start
     vel_sum, acc_sum, vel = np.empty(nv), np.empty(nv), np.empty(nv)
     accs = np.empty((3, nv))
+    H, rhs = np.empty((6, 6)), np.empty(6)
+    rows, cols, M, dofs = k.rows, k.cols, k.M, k.dofs
     for i in range(n):
         _servo(reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
         for f in range(reference.shape[0]):  # the fins, held over the step
             qpos[k.fin_qadr[f]] = reference[f]
-            qvel[k.dofs[6 + f]] = 0.0
+            qvel[dofs[6 + f]] = 0.0
             k.integral[f] += h * reference[f]
         _copy(qpos, q_step)
         _copy(qvel, v_step)
@@ -438,7 +440,36 @@ def _advance(model, data, k, n, h, cmd, slew):
                 for j in range(nv):
                     vel_sum[j] = acc_sum[j] = 0.0
                 for stage in range(4):
-                    _forward(model, data, k, M9, level == 0 and stage == 0)
+                    # q̈ with the fins at rest relative to the hull: MuJoCo's forward stages,
+                    # completed, and the hull's acceleration from the hull block of the complete
+                    # mass matrix (the fins' accelerations are prescribed, zero in MuJoCo's
+                    # coordinates). Only the stages this body needs: kinematics, mass matrix,
+                    # velocity (fluid forces, bias); no factorisation, collision or constraints
+                    # (`check_model`: none), and the actuators' force on the hull (`_actuation`)
+                    # held over the step: read at its first stage, from that stage's kinematics.
+                    _mj_kinematics(model, data)
+                    _mj_comPos(model, data)
+                    if level == 0 and stage == 0:
+                        _actuation(model, data, k.xmat[k.hull], k.qfrc_actuator, dofs, k.actuation)
+                    _mj_makeM(model, data)
+                    _mj_fwdVelocity(model, data)
+                    _complete(k, M9)
+                    for row in range(6):
+                        for col in range(6):
+                            H[row, col] = 0.0
+                    for e in range(rows.shape[0]):  # d.M holds the lower triangle
+                        row, col = rows[e], cols[e]
+                        if row < 6 and col < 6:
+                            H[row, col] = H[col, row] = M[e]
+                    for j in range(6):  # f = passive + applied (actuators included) − bias
+                        d = dofs[j]
+                        rhs[j] = k.qfrc_passive[d] + k.qfrc[d] - k.qfrc_bias[d]
+                    a = _solve_spd(H, rhs)  # H q̈_hull = f_hull
+                    for j in range(nv):
+                        qacc[j] = 0.0
+                    for j in range(6):
+                        qacc[dofs[j]] = a[j]
+                    _mj_checkAcc(model, data)  # a bad qacc is flagged in the warning counters
                     weight = _RK4_WEIGHTS[stage]
                     for j in range(nv):
                         vel_sum[j] += weight * qvel[j]
@@ -547,43 +578,6 @@ def _advance_plain(model, data, k, n, h, cmd, slew):
 def _completion(k):
     """`_complete` with the added mass at the fins' current angles, from Python."""
     _complete(k, _added_mass(k))
-
-
-@numba.njit(**_INNER)
-def _forward(model, data, k, M9, actuate):
-    """q̈ into `k.qacc`, the fins at rest relative to the hull: MuJoCo's forward stages,
-    completed, and the hull's acceleration from the hull block of the complete mass matrix (the
-    fins' accelerations are prescribed, zero in MuJoCo's coordinates).
-
-    Only the stages this body needs: kinematics, mass matrix, velocity (fluid forces, bias); no
-    factorisation (the hull block is solved here), collision or constraints (`check_model`:
-    none), and the actuators' force on the hull (`_actuation`) held over the step: read at the
-    step's first stage (`actuate`), from that stage's kinematics."""
-    _mj_kinematics(model, data)
-    _mj_comPos(model, data)
-    if actuate:
-        _actuation(model, data, k.xmat[k.hull], k.qfrc_actuator, k.dofs, k.actuation)
-    _mj_makeM(model, data)
-    _mj_fwdVelocity(model, data)
-    _complete(k, M9)
-    H = np.empty((6, 6))
-    for r in range(6):
-        for c in range(6):
-            H[r, c] = 0.0
-    for e in range(k.rows.shape[0]):  # d.M holds the lower triangle
-        r, c = k.rows[e], k.cols[e]
-        if r < 6 and c < 6:
-            H[r, c] = H[c, r] = k.M[e]
-    rhs = np.empty(6)
-    for i in range(6):  # f = passive + applied (actuators included) − bias
-        j = k.dofs[i]
-        rhs[i] = k.qfrc_passive[j] + k.qfrc[j] - k.qfrc_bias[j]
-    a = _solve_spd(H, rhs)  # H q̈_hull = f_hull
-    for i in range(k.qacc.shape[0]):
-        k.qacc[i] = 0.0
-    for i in range(6):
-        k.qacc[k.dofs[i]] = a[i]
-    _mj_checkAcc(model, data)  # a bad qacc is flagged in the warning counters
 
 
 @numba.njit(**_INNER)
