@@ -429,7 +429,7 @@ def _advance(model, data, k, n, h, cmd, slew):
             k.integral[f] += h * reference[f]
         _copy(qpos, q_step)
         _copy(qvel, v_step)
-        M9 = _added_mass(k)
+        M9 = _added_mass(k.P, k.M_hull, k.qpos, k.fin_qadr)
         level = 0
         while True:  # level 0: one RK4 step; then, if it was too stiff, 2ʲ of them from the start
             steps = 1 << level
@@ -577,7 +577,7 @@ def _advance_plain(model, data, k, n, h, cmd, slew):
 @numba.njit(cache=True)
 def _completion(k):
     """`_complete` with the added mass at the fins' current angles, from Python."""
-    _complete(k, _added_mass(k))
+    _complete(k, _added_mass(k.P, k.M_hull, k.qpos, k.fin_qadr))
 
 
 @numba.njit(**_INNER)
@@ -676,13 +676,13 @@ def _apply_wrench(qfrc, R, dofs, w):
 
 
 @numba.njit(**_INNER)
-def _added_mass(k):
-    """M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij in hull axes (X_k affine in b = (1, cos δ_k, sin δ_k)):
-    a function of the fin angles only, so once per step (the fins are held over it)."""
-    P = k.P
-    M9 = k.M_hull.copy()
+def _added_mass(P, M_hull, qpos, fin_qadr):
+    """M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij in hull axes (X_k affine in b = (1, cos δ_k, sin δ_k),
+    δ_k = qpos[fin_qadr[k]]): a function of the fin angles only, so once per step (the fins are
+    held over it)."""
+    M9 = M_hull.copy()
     for f in range(P.shape[0]):
-        c, s = math.cos(k.qpos[k.fin_qadr[f]]), math.sin(k.qpos[k.fin_qadr[f]])
+        c, s = math.cos(qpos[fin_qadr[f]]), math.sin(qpos[fin_qadr[f]])
         b = (1.0, c, s)
         for i in range(3):
             for j in range(3):
