@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import copy
 import math
-import threading
 from pathlib import Path
 from typing import NamedTuple
 
@@ -155,8 +154,6 @@ class Plant:
             np.zeros(6),
         )
         self.reset()
-        if complete:  # the step compiles (or loads) while the caller sets up the rest
-            _compile_ahead((*self._addresses, self._k, 1, self.timestep, np.zeros(len(FINS)), self._rate))
 
     @property
     def wrench(self) -> np.ndarray:
@@ -256,8 +253,6 @@ class Plant:
         t0 = d.time
         # The whole loop is compiled, calling MuJoCo's C API (Python around each step would
         # cost more than the step itself: benchmarks/bench_plant.py).
-        if self.complete:
-            _wait_ahead()
         advance = _advance if self.complete else _advance_plain
         done, cause = advance(*self._addresses, k, n, m.opt.timestep, cmd, slew)
         if self.complete:
@@ -509,54 +504,6 @@ def _advance(model, data, k, n, h, cmd, slew):
         if cause >= 0:
             return i + 1, cause
     return n, -1
-
-
-class _Ahead:
-    """`_advance` compiled for `signature` (or loaded from numba's cache) in a thread of its own;
-    `wait` joins it and raises what the compiler raised there on the waiting thread."""
-
-    def __init__(self, signature: tuple):
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(
-            target=self._compile, args=(signature,), name="compile the plant's step"
-        )
-        self.thread.start()
-
-    def _compile(self, signature: tuple) -> None:
-        try:
-            _advance.compile(signature)
-        except BaseException as exc:  # raised again by `wait`
-            self.error = exc
-
-    def wait(self) -> None:
-        self.thread.join()
-        if self.error is not None:
-            raise self.error
-
-
-# The compile started for the first completed plant of the process, until its first step: the
-# compiler's Python half runs while the caller's setup waits for MuJoCo or BLAS, and LLVM's half
-# (which releases the GIL) while it runs. One at a time: numba compiles under one lock anyway.
-_ahead: _Ahead | None = None
-_ahead_lock = threading.Lock()
-
-
-def _compile_ahead(args: tuple) -> None:
-    """Start compiling `_advance` for the types of `args` unless it is compiled or under way."""
-    global _ahead
-    signature = tuple(numba.typeof(a) for a in args)
-    with _ahead_lock:
-        if _ahead is None and signature not in _advance.overloads:
-            _ahead = _Ahead(signature)
-
-
-def _wait_ahead() -> None:
-    """Join the compile `_compile_ahead` started, if any (its error raised here)."""
-    global _ahead
-    with _ahead_lock:
-        ahead, _ahead = _ahead, None
-    if ahead is not None:
-        ahead.wait()
 
 
 @numba.njit(cache=True)
