@@ -35,7 +35,7 @@ and MuJoCo's −ω × m_A v for the fin body), measured on the torpedo with dyna
 the fin's force per radian (B₁ ≈ 0.0019 s · B): an input lead that the linear model has no place
 for (with it, the analytic model tracks an open-loop PRBS response to only 96–98 % fit).
 
-The hull is integrated by classical RK4 (`_rk4_step`, one compiled loop over the steps), each
+The hull is integrated by classical RK4 (`_advance`, one compiled loop over the steps), each
 of the four stages a completed forward evaluation with the fins at their held angles. MuJoCo's
 own step would not do: its RK4 stages cannot be completed, and its first-order
 steps are far from the continuous plant that the analytic model linearises (even at 4 ms, implicit
@@ -385,8 +385,10 @@ _MAX_VELOCITY = 1e4  # m/s or rad/s: no vehicle gets near; MuJoCo's own limit (1
 # functions (cross, norm, slice assignment, reshape, min): each of those costs the compiler more
 # than the whole step does, and a new install compiles it once (benchmarks/bench_cold.py). The
 # helpers have no Python entry of their own (`_INNER`), the leaves take the arrays they use, not
-# the whole `_Kernel`, and `_step` and `_rk4_step` are inlined into `_advance` (a compiled
-# function is optimised again in every caller it is linked into); the plain-MuJoCo loop and the
+# the whole `_Kernel`, and the step, its RK4 stages and their forward evaluation are written out
+# in `_advance`, their one caller: a compiled function is optimised again in every caller it is linked into, and one
+# inlined by numba copies its IR and the whole `_Kernel` (a reference count per array) at every
+# call. Its scratch arrays are made once per call, not per step. The plain-MuJoCo loop and the
 # completion called from Python are compiled apart, only when used.
 _INNER = dict(no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
@@ -394,12 +396,111 @@ _INNER = dict(no_cpython_wrapper=True, no_cfunc_wrapper=True)
 @numba.njit(cache=True)
 def _advance(model, data, k, n, h, cmd, slew):
     """`n` steps of `h` s of the completed plant; returns (steps taken, `_unstable`'s cause
-    for the last one, -1 if none). RK4 leaves `data.time` to the caller."""
+    for the last one, -1 if none). RK4 leaves `data.time` to the caller.
+
+    Each step moves the fin servos, holds the fins, and integrates by classical RK4, or by 2ʲ
+    RK4 steps of h/2ʲ where the step's stiffness estimate puts h λ outside RK4's stability
+    region (roll damping grows with the turn rate: −49 rad/s at trim, near −1000 rad/s turning
+    at 1.4 rad/s with the fins at 0.15 rad). An RK4 step of `dt` on the hull's (qpos, qvel),
+    positions on the quaternion manifold: x₁ = x₀ + dt (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a
+    completed forward evaluation (below, with the fins' added mass at their held angles and the
+    actuators' force of the step's first stage). Its stiffness estimate is
+    λ ≈ ‖a₃ − a₂‖ / ‖(dt/2)(a₂ − a₁)‖ (the accelerations' change between the second and third
+    stages over their velocities' change, as in Hairer & Wanner's stiffness detection)."""
+    qpos, qvel, qacc, reference = k.qpos, k.qvel, k.qacc, k.reference
+    nv = qvel.shape[0]
     warned = k.warnings.copy()
+    q_step, v_step = qpos.copy(), qvel.copy()  # the state at the step's start
+    q0, v0 = qpos.copy(), qvel.copy()  # at the RK4 step's start
+    vel_sum, acc_sum, vel = np.empty(nv), np.empty(nv), np.empty(nv)
+    accs = np.empty((3, nv))
+    H, rhs = np.empty((6, 6)), np.empty(6)
+    rows, cols, M, dofs = k.rows, k.cols, k.M, k.dofs
     for i in range(n):
-        _servo(k.reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
-        _step(model, data, k, h)
-        cause = _unstable(k.warnings, warned, k.qvel)
+        _servo(reference, k.limits, k.ctrl, k.fin_act, cmd, slew)
+        for f in range(reference.shape[0]):  # the fins, held over the step
+            qpos[k.fin_qadr[f]] = reference[f]
+            qvel[dofs[6 + f]] = 0.0
+            k.integral[f] += h * reference[f]
+        _copy(qpos, q_step)
+        _copy(qvel, v_step)
+        M9 = _added_mass(k.P, k.M_hull, k.qpos, k.fin_qadr)
+        level = 0
+        while True:  # level 0: one RK4 step; then, if it was too stiff, 2ʲ of them from the start
+            steps = 1 << level
+            dt = h / steps
+            for _ in range(steps):
+                _copy(qpos, q0)
+                _copy(qvel, v0)
+                for j in range(nv):
+                    vel_sum[j] = acc_sum[j] = 0.0
+                for stage in range(4):
+                    # q̈ with the fins at rest relative to the hull: MuJoCo's forward stages,
+                    # completed, and the hull's acceleration from the hull block of the complete
+                    # mass matrix (the fins' accelerations are prescribed, zero in MuJoCo's
+                    # coordinates). Only the stages this body needs: kinematics, mass matrix,
+                    # velocity (fluid forces, bias); no factorisation, collision or constraints
+                    # (`check_model`: none), and the actuators' force on the hull (`_actuation`)
+                    # held over the step: read at its first stage, from that stage's kinematics.
+                    _mj_kinematics(model, data)
+                    _mj_comPos(model, data)
+                    if level == 0 and stage == 0:
+                        _actuation(model, data, k.xmat[k.hull], k.qfrc_actuator, dofs, k.actuation)
+                    _mj_makeM(model, data)
+                    _mj_fwdVelocity(model, data)
+                    _complete(k, M9)
+                    for row in range(6):
+                        for col in range(6):
+                            H[row, col] = 0.0
+                    for e in range(rows.shape[0]):  # d.M holds the lower triangle
+                        row, col = rows[e], cols[e]
+                        if row < 6 and col < 6:
+                            H[row, col] = H[col, row] = M[e]
+                    for j in range(6):  # f = passive + applied (actuators included) − bias
+                        d = dofs[j]
+                        rhs[j] = k.qfrc_passive[d] + k.qfrc[d] - k.qfrc_bias[d]
+                    a = _solve_spd(H, rhs)  # H q̈_hull = f_hull
+                    for j in range(nv):
+                        qacc[j] = 0.0
+                    for j in range(6):
+                        qacc[dofs[j]] = a[j]
+                    _mj_checkAcc(model, data)  # a bad qacc is flagged in the warning counters
+                    weight = _RK4_WEIGHTS[stage]
+                    for j in range(nv):
+                        vel_sum[j] += weight * qvel[j]
+                        acc_sum[j] += weight * qacc[j]
+                    if stage < 3:  # the next stage's point: x₀ + c dt kᵢ
+                        c = _RK4_NODES[stage]
+                        for j in range(nv):
+                            accs[stage, j] = qacc[j]
+                            vel[j] = qvel[j]
+                        _copy(q0, qpos)
+                        _mj_integratePos(model, qpos.ctypes.data, vel.ctypes.data, c * dt)
+                        for j in range(nv):
+                            qvel[j] = v0[j] + c * dt * accs[stage, j]
+                for j in range(nv):
+                    vel_sum[j] /= 6.0
+                _copy(q0, qpos)
+                _mj_integratePos(model, qpos.ctypes.data, vel_sum.ctypes.data, dt)
+                for j in range(nv):
+                    qvel[j] = v0[j] + dt / 6.0 * acc_sum[j]
+            if level > 0:
+                break
+            dv, da = 0.0, 0.0  # squared norms
+            for j in range(nv):
+                d1, d2 = accs[1, j] - accs[0, j], accs[2, j] - accs[1, j]
+                dv += d1 * d1
+                da += d2 * d2
+            dv = 0.5 * dt * math.sqrt(dv)
+            lam = math.sqrt(da) / dv if dv > 0 else 0.0
+            if h * lam <= _RK4_MAX_H_LAMBDA:
+                break
+            level = math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA))
+            if level > _LEVELS:
+                level = _LEVELS
+            _copy(q_step, qpos)
+            _copy(v_step, qvel)
+        cause = _unstable(k.warnings, warned, qvel)
         if cause >= 0:
             return i + 1, cause
     return n, -1
@@ -423,68 +524,7 @@ def _advance_plain(model, data, k, n, h, cmd, slew):
 @numba.njit(cache=True)
 def _completion(k):
     """`_complete` with the added mass at the fins' current angles, from Python."""
-    _complete(k, _added_mass(k))
-
-
-@numba.njit(**_INNER)
-def _forward(model, data, k, M9, actuate):
-    """q̈ into `k.qacc`, the fins at rest relative to the hull: MuJoCo's forward stages,
-    completed, and the hull's acceleration from the hull block of the complete mass matrix (the
-    fins' accelerations are prescribed, zero in MuJoCo's coordinates).
-
-    Only the stages this body needs: kinematics, mass matrix, velocity (fluid forces, bias); no
-    factorisation (the hull block is solved here), collision or constraints (`check_model`:
-    none), and the actuators' force on the hull (`_actuation`) held over the step: read at the
-    step's first stage (`actuate`), from that stage's kinematics."""
-    _mj_kinematics(model, data)
-    _mj_comPos(model, data)
-    if actuate:
-        _actuation(model, data, k.xmat[k.hull], k.qfrc_actuator, k.dofs, k.actuation)
-    _mj_makeM(model, data)
-    _mj_fwdVelocity(model, data)
-    _complete(k, M9)
-    H = np.empty((6, 6))
-    for r in range(6):
-        for c in range(6):
-            H[r, c] = 0.0
-    for e in range(k.rows.shape[0]):  # d.M holds the lower triangle
-        r, c = k.rows[e], k.cols[e]
-        if r < 6 and c < 6:
-            H[r, c] = H[c, r] = k.M[e]
-    rhs = np.empty(6)
-    for i in range(6):  # f = passive + applied (actuators included) − bias
-        j = k.dofs[i]
-        rhs[i] = k.qfrc_passive[j] + k.qfrc[j] - k.qfrc_bias[j]
-    a = _solve_spd(H, rhs)  # H q̈_hull = f_hull
-    for i in range(k.qacc.shape[0]):
-        k.qacc[i] = 0.0
-    for i in range(6):
-        k.qacc[k.dofs[i]] = a[i]
-    _mj_checkAcc(model, data)  # a bad qacc is flagged in the warning counters
-
-
-@numba.njit(inline="always", **_INNER)
-def _step(model, data, k, h):
-    """One step of `h` s: RK4, or 2ʲ RK4 steps of h/2ʲ where the step's stiffness estimate puts
-    h λ outside RK4's stability region (roll damping grows with the turn rate: −49 rad/s at trim,
-    near −1000 rad/s turning at 1.4 rad/s with the fins at 0.15 rad)."""
-    for f in range(k.reference.shape[0]):  # the fins, held over the step
-        k.qpos[k.fin_qadr[f]] = k.reference[f]
-        k.qvel[k.dofs[6 + f]] = 0.0
-        k.integral[f] += h * k.reference[f]
-    q0, v0 = k.qpos.copy(), k.qvel.copy()
-    M9 = _added_mass(k)
-    level = 0
-    while True:  # level 0: one RK4 step; then, if it was too stiff, 2ʲ of them from the start
-        for _ in range(2**level):  # the actuation of the step's start, held
-            lam = _rk4_step(model, data, k, h / 2**level, M9, level == 0)
-        if level > 0 or h * lam <= _RK4_MAX_H_LAMBDA:
-            return
-        level = int(math.ceil(math.log2(h * lam / _RK4_SUB_H_LAMBDA)))
-        if level > _LEVELS:
-            level = _LEVELS
-        _copy(q0, k.qpos)
-        _copy(v0, k.qvel)
+    _complete(k, _added_mass(k.P, k.M_hull, k.qpos, k.fin_qadr))
 
 
 @numba.njit(**_INNER)
@@ -499,51 +539,6 @@ def _actuation(model, data, R, f, dofs, actuation):
     actuation[0], actuation[1], actuation[2] = _turn_back(R, f[d[0]], f[d[1]], f[d[2]])
     for i in range(3, 6):  # the free joint's angular dofs are in hull axes already
         actuation[i] = f[d[i]]
-
-
-@numba.njit(inline="always", **_INNER)
-def _rk4_step(model, data, k, h, M9, actuate):
-    """Classical RK4 on the hull's (qpos, qvel), positions on the quaternion manifold, fins held:
-    x₁ = x₀ + h (k₁ + 2k₂ + 2k₃ + k₄)/6, each kᵢ a completed forward evaluation (M9: the fins'
-    added mass at their held angles, `_added_mass`; `actuate`: read the actuators' force at the
-    first stage).
-
-    Returns the stiffness estimate λ ≈ ‖a₃ − a₂‖ / ‖(h/2)(a₂ − a₁)‖ (the accelerations' change
-    between the second and third stages over their velocities' change, as in Hairer & Wanner's
-    stiffness detection)."""
-    q0, v0 = k.qpos.copy(), k.qvel.copy()
-    nv = v0.shape[0]
-    vel_sum, acc_sum, vel = np.empty(nv), np.empty(nv), np.empty(nv)
-    for i in range(nv):
-        vel_sum[i] = acc_sum[i] = 0.0
-    accs = np.empty((3, nv))
-    for stage in range(4):
-        _forward(model, data, k, M9, actuate and stage == 0)
-        weight = _RK4_WEIGHTS[stage]
-        for i in range(nv):
-            vel_sum[i] += weight * k.qvel[i]
-            acc_sum[i] += weight * k.qacc[i]
-        if stage < 3:  # the next stage's point: x₀ + c h kᵢ
-            c = _RK4_NODES[stage]
-            for i in range(nv):
-                accs[stage, i] = k.qacc[i]
-                vel[i] = k.qvel[i]
-            _copy(q0, k.qpos)
-            _mj_integratePos(model, k.qpos.ctypes.data, vel.ctypes.data, c * h)
-            for i in range(nv):
-                k.qvel[i] = v0[i] + c * h * accs[stage, i]
-    for i in range(nv):
-        vel_sum[i] /= 6.0
-    _copy(q0, k.qpos)
-    _mj_integratePos(model, k.qpos.ctypes.data, vel_sum.ctypes.data, h)
-    for i in range(nv):
-        k.qvel[i] = v0[i] + h / 6.0 * acc_sum[i]
-    dv, da = 0.0, 0.0  # squared norms
-    for i in range(nv):
-        dv += (accs[1, i] - accs[0, i]) ** 2
-        da += (accs[2, i] - accs[1, i]) ** 2
-    dv = 0.5 * h * math.sqrt(dv)
-    return math.sqrt(da) / dv if dv > 0 else 0.0
 
 
 # RK4's weights and the next stage's node, by stage. Its stability region reaches −2.79 on the
@@ -628,13 +623,13 @@ def _apply_wrench(qfrc, R, dofs, w):
 
 
 @numba.njit(**_INNER)
-def _added_mass(k):
-    """M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij in hull axes (X_k affine in b = (1, cos δ_k, sin δ_k)):
-    a function of the fin angles only, so once per step (the fins are held over it)."""
-    P = k.P
-    M9 = k.M_hull.copy()
+def _added_mass(P, M_hull, qpos, fin_qadr):
+    """M9 = M_hull + Σ_k Σ_ij b_i b_j P_kij in hull axes (X_k affine in b = (1, cos δ_k, sin δ_k),
+    δ_k = qpos[fin_qadr[k]]): a function of the fin angles only, so once per step (the fins are
+    held over it)."""
+    M9 = M_hull.copy()
     for f in range(P.shape[0]):
-        c, s = math.cos(k.qpos[k.fin_qadr[f]]), math.sin(k.qpos[k.fin_qadr[f]])
+        c, s = math.cos(qpos[fin_qadr[f]]), math.sin(qpos[fin_qadr[f]])
         b = (1.0, c, s)
         for i in range(3):
             for j in range(3):
