@@ -3,6 +3,7 @@ a crash and surviving a worker killed mid-run; the conclusions' rules on results
 
 import json
 import os
+import shutil
 import signal
 import threading
 import time
@@ -16,6 +17,34 @@ from testbed.study.campaign import Cell, conclusions, plan, read_results, result
 from testbed.errors import InputError
 
 TINY = dict(scenarios=("II",), methods=("ml-gn", "mekf"), duration=4.0)
+
+
+def test_a_cell_key_follows_the_code(tmp_path, monkeypatch):
+    """Editing any source or data file of the package changes the hash and so every cell's key;
+    Python's compiled caches do not."""
+    package = tmp_path / "testbed"
+    shutil.copytree(
+        Path(campaign.__file__).resolve().parents[1], package, ignore=shutil.ignore_patterns("*.pyc")
+    )
+    before = campaign.source_hash(package)
+    (package / "__pycache__").mkdir(exist_ok=True)
+    (package / "__pycache__" / "x.cpython-311.pyc").write_bytes(b"compiled")
+    assert campaign.source_hash(package) == before
+    for edited in (
+        "identification/likelihood.py",
+        "simulation/scenarios/II.toml",
+        "simulation/mjcf/torpedo.xml",
+    ):
+        path = package / edited
+        text = path.read_bytes()
+        path.write_bytes(text + b"\n")
+        assert campaign.source_hash(package) != before, edited
+        path.write_bytes(text)
+    assert campaign.source_hash(package) == before
+    cell = Cell("II", "ml-gn", 1)
+    key = cell.key
+    monkeypatch.setattr(campaign, "code_hash", lambda: "other code")
+    assert Cell("II", "ml-gn", 1).key != key
 
 
 def test_plan_covers_scenarios_methods_and_seeds_with_distinct_keys():

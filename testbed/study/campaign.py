@@ -11,7 +11,7 @@ escaping it, a worker lost too often) is recorded as failed with its reason.
 
 Every finished cell is written at once to `DIR/cells/<key>.json` (a temporary file renamed), the
 key a hash of everything the cell's result depends on (scenario text, method, seed, options,
-testbed version): after a crash or Ctrl-C, `reproduce` again computes only the cells that have
+and the package's code: every source and data file of `testbed`): after a crash or Ctrl-C, `reproduce` again computes only the cells that have
 no file. The results (`results.csv`), the verdicts on the paper's three conclusions
 (`conclusions.json`, `conclusions`) and the report (`testbed.presentation.figures`) are derived from the cell
 files alone.
@@ -30,7 +30,6 @@ import os
 import time
 import traceback
 from dataclasses import asdict, dataclass, replace
-from importlib import metadata
 from pathlib import Path
 from typing import Callable
 
@@ -48,6 +47,7 @@ from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text
 
 __all__ = [
+    "CODE_FILES",
     "COLUMNS",
     "Cell",
     "MARKER",
@@ -55,6 +55,7 @@ __all__ = [
     "Outcome",
     "QUICK_DURATION",
     "check_folder",
+    "code_hash",
     "conclusions",
     "load_run",
     "make_folder",
@@ -65,6 +66,7 @@ __all__ = [
     "results_csv",
     "results_rows",
     "run_cell",
+    "source_hash",
 ]
 
 SCENARIOS = ("I", "II")
@@ -97,6 +99,28 @@ ACCEPTABLE = 0.8  # a method is acceptable when ≥ 80 % of its cells are
 UNSATISFACTORY = 0.5  # and unsatisfactory when fewer than 50 % are
 
 
+CODE_FILES = ("*.py", "*.toml", "*.xml")  # what the package computes with: its modules and data
+
+
+def source_hash(root: str | os.PathLike) -> str:
+    """SHA-256 of the package's code under `root`: every file matching `CODE_FILES`, by its path
+    relative to `root` and its bytes, in path order (compiled caches and other files ignored)."""
+    root = Path(root)
+    files = sorted({p for pattern in CODE_FILES for p in root.rglob(pattern) if "__pycache__" not in p.parts})
+    h = hashlib.sha256()
+    for p in files:
+        data = p.read_bytes()
+        h.update(f"{p.relative_to(root).as_posix()}\0{len(data)}\0".encode())
+        h.update(data)
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=None)
+def code_hash() -> str:
+    """`source_hash` of this installation of testbed: a cell computed by other code is computed again."""
+    return source_hash(Path(__file__).resolve().parents[1])
+
+
 @dataclass(frozen=True)
 class Cell:
     """One identification: a scenario's data with one noise seed, fitted by one method."""
@@ -120,7 +144,7 @@ class Cell:
             "scenario": scenario_text(replace(flown, source="")),
             "method": self.method,
             "seed": self.seed,
-            "version": metadata.version("testbed"),
+            "code": code_hash(),
         }
         h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
         return f"{self.scenario}-{self.method}-seed{self.seed}-{h}"
