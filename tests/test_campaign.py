@@ -2,6 +2,7 @@
 a crash and surviving a worker killed mid-run; the conclusions' rules on results built by hand."""
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -106,6 +107,16 @@ def _doc(scenario, method, seed, ratios, converged=True, std=1e-6):
 
 
 DRIFT = {"null_directions": 2, "drift_groups": [["X_udot", "X_u"]], "null_directions_inertia_known": 0}
+
+
+def test_a_coefficient_passes_within_ten_percent_or_three_finite_sigmas():
+    def ok(estimate, std):
+        return campaign.coefficient_ok({"analytic": 100.0, "estimate": estimate, "std": std})
+
+    assert ok(109.0, 0.1) and not ok(111.0, 0.1)  # the 10 % clause, both ways
+    assert ok(130.0, 10.1) and not ok(131.0, 10.0)  # the 3 σ clause, both ways
+    assert not ok(150.0, math.inf) and ok(105.0, math.inf)  # an infinite σ bounds nothing
+    assert not ok(150.0, math.nan) and not ok(math.nan, 1.0)
 
 
 def test_conclusion_rules_decide_from_results_csv(tmp_path):

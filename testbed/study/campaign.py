@@ -56,6 +56,7 @@ __all__ = [
     "QUICK_DURATION",
     "check_folder",
     "code_hash",
+    "coefficient_ok",
     "conclusions",
     "load_run",
     "make_folder",
@@ -503,11 +504,16 @@ def read_results(path) -> list[dict]:
 
 
 def coefficient_ok(r: dict) -> bool:
-    """Within `COEFFICIENT_TOLERANCE` of the analytic value or `COEFFICIENT_SIGMAS` of its σ."""
+    """Within `COEFFICIENT_TOLERANCE` of the analytic value or `COEFFICIENT_SIGMAS` of its σ; an
+    infinite (or missing) σ bounds nothing, so only the first clause can pass such a coefficient."""
     err = abs(r["estimate"] - r["analytic"])
+    sigma = r["std"]
     return bool(
         np.isfinite(err)
-        and (err <= COEFFICIENT_TOLERANCE * abs(r["analytic"]) or err <= COEFFICIENT_SIGMAS * r["std"])
+        and (
+            err <= COEFFICIENT_TOLERANCE * abs(r["analytic"])
+            or (np.isfinite(sigma) and err <= COEFFICIENT_SIGMAS * sigma)
+        )
     )
 
 
