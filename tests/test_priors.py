@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -245,3 +246,17 @@ def test_free_coefficients_are_matched_by_name():
     assert judge(swapped, BEST).success
     with pytest.raises(InputError, match="same free coefficients"):
         judge(estimate([10.0], 100.0, free=("Y_v",), std=(1.0,)), BEST)
+
+
+def test_the_classes_are_documented_as_in_the_code():
+    """docs/studies.md's table of classes lists each class's coefficients and spread as the code."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "studies.md").read_text(encoding="utf-8")
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) == 4 and cells[0] in MEMBERS:
+            rows[cells[0]] = (cells[1], float(cells[2]))
+    assert set(rows) == set(MEMBERS)
+    for c, (names, spread) in rows.items():
+        listed = MEMBERS[c] if c != "added mass" else ("the …dot terms",)
+        assert names == ", ".join(listed) and spread == SPREAD[c]
