@@ -25,7 +25,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from testbed.data import ModelConfig
-from testbed.errors import InputError
+from testbed.errors import InputError, is_number
 from testbed.estimators.base import Estimate, Status
 from testbed.models.linear import COEFFICIENTS
 from testbed.simulation.measurements import check_seed
@@ -81,12 +81,7 @@ def prior(
     """The a-priori model for start spread `spread` (s ≥ 0) and `seed`: `config` with every
     coefficient perturbed (module docstring); `std` maps each coefficient `config` has at 0 to
     its Cramér-Rao σ on the data set (`analyze`'s bounds). s = 0 returns `config` itself."""
-    if (
-        isinstance(spread, bool)
-        or not isinstance(spread, (int, float))
-        or not spread >= 0
-        or math.isinf(spread)
-    ):
+    if not (is_number(spread) and spread >= 0):
         raise InputError(f"start spread {spread!r}: expected a finite number ≥ 0")
     seed = check_seed(seed)
     if spread == 0:
