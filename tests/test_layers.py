@@ -5,8 +5,8 @@ own or a later one): the errors and file safety; the linear model's equations; d
 sensor noise; the MJCF vehicle, its plant and its analytic model; autopilots and input signals;
 scenarios; recordings and run directories; the linear model's services; the estimators (their
 contract, then the methods, then the front door); validation and identifiability analysis;
-experiment design and fit reports; the headless jobs; the campaign's figures and the campaign;
-the command line; the public API.
+experiment design and fit reports; the headless jobs; the study's a-priori models and its judge
+of success; the campaign's figures and the campaign; the command line; the public API.
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ LAYERS = [
     ("testbed.presentation", "testbed.presentation.report", "testbed.presentation.design_report"),
     ("testbed.presentation.figures",),
     ("testbed.jobs",),
+    ("testbed.study.priors",),
     ("testbed.study", "testbed.study.campaign"),
     ("testbed.cli",),
     ("testbed.__main__",),
