@@ -10,7 +10,8 @@ initial-state parameters (`testbed.identification`), so they compare fairly:
   second-order sensitivities, `μ ∂J/∂θ + (∂²J/∂θ² + λI) Δθ = 0`, λ = max|∂J/∂θ|, μ = 0.5 if
   λ > 1 else 1/(λ+1); every step is taken (no line search), so its drift and divergence show.
 - `ml-nm`: the paper's eight-step Nelder-Mead simplex on J_M with its stopping rule; the
-  initial states are fitted by linear least squares at every θ (outputs are linear in them).
+  initial states are fitted by linear least squares at every θ (outputs are linear in them:
+  `concentrated.cost`, the cost alone, without sensitivities).
 
 Convergence (ml-gn, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 `√(gᵀ M⁻¹ g)`, is below `tol` (default 1e-3): the estimate is within 0.001 σ of the optimum.
