@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.identification import concentrated, likelihood, scan
+from testbed.identification import concentrated, likelihood, recursions, scan
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS, FREE, experiments, prior_config
 from testbed.identification.problem import problem
 
@@ -14,11 +14,10 @@ from testbed.identification.problem import problem
 def _reference(prob, values, R) -> float:
     """`J_M = 1/N Σ eᵀR⁻¹e` with the initial states fitted by QR; ∞ where the model diverges."""
     with np.errstate(over="ignore", invalid="ignore"):
-        out = likelihood.fit_initial_states(prob, values, R)[1]
-    if likelihood.exploded(prob, out) is not None:
-        return np.inf
-    res = [r.y - y for r, y in zip(prob.records, out)]
-    return 2.0 * likelihood.weighted_cost(prob, res, R) / prob.n_samples
+        p = likelihood.initial_states(prob, values, R)
+        if likelihood.divergence(prob, p) is not None:
+            return np.inf
+        return 2.0 * likelihood.weighted_cost(prob, recursions.residuals(prob, p), R) / prob.n_samples
 
 
 def _mixed_records():
@@ -58,6 +57,18 @@ def test_cost_of_a_diverging_model_is_infinite():
     R = np.full(len(prob.channels), 1e-4)
     assert _reference(prob, values, R) == np.inf
     assert concentrated.cost(prob, values, R) == np.inf
+
+
+def test_cost_of_a_strongly_unstable_model_is_exact():
+    # pitch unstable at 0.29 1/s over 60 s (growth e¹⁷, outputs still bounded): the Gramian's
+    # condition number is ~1e18, where the normal equations would overstate the cost by 0.3 %
+    prob = problem(experiments(seed=1, duration=60.0), prior_config(error=0.3))
+    values = prob.start.copy()
+    values[FREE.index("M_q")] = -0.4 * EXAMPLE_COEFFICIENTS["M_q"]
+    R = np.full(len(prob.channels), 1e-4)
+    want = _reference(prob, values, R)
+    assert np.isfinite(want)
+    assert concentrated.cost(prob, values, R) == pytest.approx(want, rel=1e-10)
 
 
 @pytest.mark.parametrize("N", [1, 2, 3, 8, 13, 1000])

@@ -14,7 +14,10 @@ the adjoint recursion run backwards. A ≥ W (its k = 0 term): positive definite
 then summed from the residuals of the trajectory simulated from that x0, never from
 `vᵀWv − bᵀx0`, whose cancellation would cost digits: x0's rounding error (the normal
 equations square the condition number) enters the cost only to second order. This is the
-minimum `likelihood.fit_initial_states` finds with R given, by a third of its arithmetic.
+minimum `likelihood.fit_initial_states` finds with R given, by a third of its arithmetic. Where
+the Gramian scaled to a unit diagonal is conditioned worse than `CONDITION` (a strongly
+unstable model: its free response grows by decades along the record), the cost is computed
+from that QR solve instead, which does not square the condition number.
 """
 
 from __future__ import annotations
@@ -22,12 +25,14 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.identification import scan
-from testbed.identification.likelihood import exploded
+from testbed.identification.likelihood import exploded, fit_initial_states
 from testbed.identification.problem import Problem
 from testbed.identification.recursions import discrete_models
 from testbed.models.linear import NU, NX
 
-__all__ = ["cost", "gramian"]
+__all__ = ["CONDITION", "cost", "gramian"]
+
+CONDITION = 1e10  # beyond it, x0 from the normal equations would shift the cost by more than ~1e-12 of it
 
 
 def gramian(Phi: np.ndarray, Q: np.ndarray, N: int) -> np.ndarray:
@@ -61,11 +66,16 @@ def cost(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
                 if key not in grams:
                     Q = np.zeros((NX, NX))
                     Q[m, m] = W
-                    grams[key] = gramian(Phi, Q, N)[np.ix_(m, m)]
-                A = grams[key]
-                D = np.sqrt(np.diag(A))  # unit diagonal: x0's units do not count
+                    A = gramian(Phi, Q, N)[np.ix_(m, m)]
+                    D = np.sqrt(np.diag(A))  # unit diagonal: x0's units do not count
+                    A = A / np.outer(D, D)
+                    bounds = np.linalg.eigvalsh(A)[[0, -1]]
+                    if not bounds[0] * CONDITION >= bounds[1]:  # NaN too
+                        return _by_qr(prob, values, R)
+                    grams[key] = A, D
+                A, D = grams[key]
                 x0 = np.zeros(NX)
-                x0[m] = np.linalg.solve(A / np.outer(D, D), b / D) / D
+                x0[m] = np.linalg.solve(A, b / D) / D
                 y = scan.propagate(Phi, x0, F)[:, m]
                 outs.append(y)
                 total += float(np.sum((r.y - y) ** 2 * W))
@@ -74,3 +84,14 @@ def cost(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
     if exploded(prob, outs) is not None or not np.isfinite(total):
         return np.inf
     return total / prob.n_samples
+
+
+def _by_qr(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
+    """`cost` with the initial states from `likelihood.fit_initial_states` (QR factors)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = fit_initial_states(prob, values, R)[1]
+    if exploded(prob, out) is not None:
+        return np.inf
+    return (
+        sum(float(np.sum((r.y - y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out)) / prob.n_samples
+    )
