@@ -32,7 +32,9 @@ from testbed.models.linear import NU, NX
 
 __all__ = ["CONDITION", "cost", "gramian"]
 
-CONDITION = 1e10  # beyond it, x0 from the normal equations would shift the cost by more than ~1e-12 of it
+# the Gramian's condition number (unit diagonal) up to which x0 comes from the normal equations:
+# on the example vehicle the cost then agrees with the QR solve's to 4e-16 at 5e10, 1e-11 at 4e12
+CONDITION = 1e10
 
 
 def gramian(Phi: np.ndarray, Q: np.ndarray, N: int) -> np.ndarray:
