@@ -32,7 +32,11 @@ LAYERS = [
     ("testbed.identification.problem", "testbed.identification.scan"),
     ("testbed.identification.recursions",),
     ("testbed.identification.likelihood",),
-    ("testbed.identification.bounds", "testbed.identification.prediction"),
+    (
+        "testbed.identification.bounds",
+        "testbed.identification.prediction",
+        "testbed.identification.concentrated",
+    ),
     ("testbed.identification.examples",),
     ("testbed.estimators.base",),
     ("testbed.estimators.mekf", "testbed.estimators.equation_error"),

@@ -10,7 +10,8 @@ initial-state parameters (`testbed.identification`), so they compare fairly:
   second-order sensitivities, `μ ∂J/∂θ + (∂²J/∂θ² + λI) Δθ = 0`, λ = max|∂J/∂θ|, μ = 0.5 if
   λ > 1 else 1/(λ+1); every step is taken (no line search), so its drift and divergence show.
 - `ml-nm`: the paper's eight-step Nelder-Mead simplex on J_M with its stopping rule; the
-  initial states are fitted by linear least squares at every θ (outputs are linear in them).
+  initial states are fitted by linear least squares at every θ (outputs are linear in them:
+  `concentrated.cost`, the cost alone, without sensitivities).
 
 Convergence (ml-gn, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 `√(gᵀ M⁻¹ g)`, is below `tol` (default 1e-3): the estimate is within 0.001 σ of the optimum.
@@ -24,7 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
-from testbed.identification import bounds, likelihood, recursions, scan
+from testbed.identification import bounds, concentrated, likelihood, recursions, scan
 from testbed.identification.problem import Problem, problem
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
@@ -142,19 +143,6 @@ def newton_raphson(
     return Outcome(p, status, it, np.array(history), M)
 
 
-def _J_M(prob: Problem, theta: np.ndarray, R: np.ndarray) -> float:
-    """`J_M(θ) = 1/N Σ eᵀR⁻¹e` with the initial states fitted at θ; ∞ for an invalid model."""
-    try:
-        with np.errstate(over="ignore", invalid="ignore"):
-            out = likelihood.fit_initial_states(prob, theta, R)[1]
-    except np.linalg.LinAlgError:
-        return np.inf
-    if likelihood.exploded(prob, out) is not None:
-        return np.inf
-    res = [r.y - y for r, y in zip(prob.records, out)]
-    return 2.0 * likelihood.weighted_cost(prob, res, R) / prob.n_samples
-
-
 def _stages(prob: Problem, first_length: float) -> list[Problem]:
     """The record-length continuation: each experiment's first T s for T = `first_length`,
     2·`first_length`, 4·`first_length`, … while shorter than 90 % of the longest record (a stage
@@ -204,14 +192,14 @@ def _simplex(
         hi, lo = int(np.argmax(J_i)), int(np.argmin(J_i))
         # 2. the centroid of all corners but the highest
         b = (simplex.sum(0) - simplex[hi]) / m
-        J_b = J(b)
         # 3. stopping rule: {1/(m+1) Σ (J_i − J_b)²}^½ ≤ ε (a diverged corner, J = ∞, makes it
-        #    ∞ or NaN: not stopped)
+        #    ∞ or NaN: not stopped). The spread is at least the corners' own standard deviation
+        #    (its minimum over J_b, at their mean): J_b is computed only where that does not
+        #    already decide, which leaves the rule as it is at one simulation less per iteration
         with np.errstate(over="ignore", invalid="ignore"):
-            spread = np.sqrt(np.mean((J_i - J_b) ** 2))
-        if spread <= tol:
-            stopped = True
-            break
+            if np.std(J_i) <= tol and np.sqrt(np.mean((J_i - J(b)) ** 2)) <= tol:
+                stopped = True
+                break
         it += 1
         # 4. reflection: θ_r = θ_b + α(θ_b − θ_h)
         r = b + alpha * (b - simplex[hi])
@@ -306,7 +294,7 @@ def nelder_mead(
         for _ in range(max_relaxations):
 
             def J(v: np.ndarray, stage=stage, R=R) -> float:
-                return _J_M(stage, scale * v, R)
+                return concentrated.cost(stage, scale * v, R)
 
             J_start = J(x)
             x, J_best, it, stopped = _simplex(J, x, size * np.eye(nf), coef, tol, it, max_iter, report)
