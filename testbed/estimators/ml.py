@@ -1,11 +1,12 @@
-"""Maximum-likelihood output-error methods: `ml-gn`, `ml-nr`, `ml-nm`.
+"""Maximum-likelihood output-error methods: `ml-gn`, `ml-lm`, `ml-nr`, `ml-nm`.
 
-All three minimise the paper's likelihood with the noise covariance estimated by relaxation
+All four minimise the paper's likelihood with the noise covariance estimated by relaxation
 (R from the residuals, then held while θ steps), from the same start, with the same model and
 initial-state parameters (`testbed.identification`), so they compare fairly:
 
-- `ml-gn` (default): Gauss-Newton with Levenberg-Marquardt damping (Marquardt's diagonal
-  scaling); fast and statistically efficient.
+- `ml-gn` (default): the scaled trust-region Gauss-Newton method of `trust_region`, with
+  multiple shooting and a second-order check at the optimum, from the starts of `starts`.
+- `ml-lm`: Gauss-Newton with Levenberg-Marquardt damping (Marquardt's diagonal scaling).
 - `ml-nr`: the paper's modified Newton-Raphson, Eq. 10, exactly: the Hessian of J_M from the
   second-order sensitivities, `μ ∂J/∂θ + (∂²J/∂θ² + λI) Δθ = 0`, λ = max|∂J/∂θ|, μ = 0.5 if
   λ > 1 else 1/(λ+1); every step is taken (no line search), so its drift and divergence show.
@@ -13,7 +14,7 @@ initial-state parameters (`testbed.identification`), so they compare fairly:
   initial states are fitted by linear least squares at every θ (outputs are linear in them:
   `concentrated.cost`, the cost alone, without sensitivities).
 
-Convergence (ml-gn, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
+Convergence (ml-lm, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 `√(gᵀ M⁻¹ g)`, is below `tol` (default 1e-3): the estimate is within 0.001 σ of the optimum.
 """
 
