@@ -11,10 +11,10 @@ escaping it, a worker lost too often) is recorded as failed with its reason.
 
 Every finished cell is written at once to `DIR/cells/<key>.json` (a temporary file renamed), the
 key a hash of everything the cell's result depends on (scenario text, method, seed, options,
-and the package's code: every source and data file of `testbed`): after a crash or Ctrl-C, `reproduce` again computes only the cells that have
-no file. The results (`results.csv`), the verdicts on the paper's three conclusions
-(`conclusions.json`, `conclusions`) and the report (`testbed.presentation.figures`) are derived from the cell
-files alone.
+and the package's code: every source and data file of `testbed`): after a crash or Ctrl-C,
+`reproduce` again computes only the cells that have no file. The results (`results.csv`), the
+verdicts on the paper's three conclusions (`conclusions.json`, `conclusions`) and the report
+(`testbed.presentation.figures`) are derived from the cell files alone.
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ MARKER = ".testbed-campaign"  # the file that makes a folder a campaign's, which
 QUICK_DURATION = 30.0  # s per experiment in --quick
 HISTORY_POINTS = 400  # the MEKF's per-sample history, thinned to this many points per cell
 
-# The rules that decide the paper's conclusions (README "Reproducing the paper").
+# The rules that decide the paper's conclusions (docs/studies.md).
 COEFFICIENT_TOLERANCE = 0.10  # a coefficient is acceptable within 10 % of the analytic value ...
 COEFFICIENT_SIGMAS = 3.0  # ... or within 3 of its Cramér-Rao σ
 CELL_FRACTION = 0.8  # a cell is acceptable when it converged and ≥ 80 % of its coefficients are
