@@ -18,16 +18,12 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.bench_startup import ENV, wall  # noqa: E402
 
 GOAL = 3.0
-
-
-def wall(argv: list[str], cwd: str, env: dict) -> float:
-    """Wall time of one run of `argv` to its exit, its output discarded; it must succeed."""
-    t0 = time.perf_counter()
-    subprocess.run(argv, cwd=cwd, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - t0
 
 
 def main() -> int:
@@ -35,8 +31,7 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=3, help="cold and warm runs each (the best counts)")
     args = ap.parse_args()
     python = sys.executable
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env["OPENBLAS_NUM_THREADS"] = "1"
+    env = dict(ENV, OPENBLAS_NUM_THREADS="1")
     cold, warm = [], []
     with tempfile.TemporaryDirectory() as cwd:
         package = subprocess.run(

@@ -28,10 +28,10 @@ GOAL_S = 0.3
 ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
 
-def wall(argv: list[str], cwd: str) -> float:
-    """Wall time of one run of `argv` to its exit, its output discarded; it must succeed."""
+def wall(argv: list[str], cwd: str, env: dict = ENV) -> float:
+    """Wall time of one run of `argv` in `env` to its exit, its output discarded; it must succeed."""
     t0 = time.perf_counter()
-    subprocess.run(argv, cwd=cwd, env=ENV, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(argv, cwd=cwd, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     return time.perf_counter() - t0
 
 
