@@ -36,6 +36,16 @@ def _positive(text: str) -> float:
     return v
 
 
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 <= v < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number >= 0")
+    return v
+
+
 def _seed(text: str) -> int:
     try:
         v = int(text)
@@ -254,6 +264,9 @@ def _cmd_reproduce(args) -> int:
         quick=args.quick,
         duration=args.duration,
         progress=bar,
+        spreads=args.start_spread,
+        arms=args.arms,
+        truths=args.truth,
     )
     bar.close()
     print(
@@ -262,7 +275,8 @@ def _cmd_reproduce(args) -> int:
         file=sys.stderr,
     )
     for k, v in done.conclusions.items():
-        print(f"conclusion {k}: {'holds' if v['holds'] else 'refuted'}: {v['evidence']}", file=sys.stderr)
+        verdict = {True: "holds", False: "refuted", None: "undecided"}[v["holds"]]
+        print(f"conclusion {k}: {verdict}: {v['evidence']}", file=sys.stderr)
     print(done.out / "report.html")
     return 0
 
@@ -435,7 +449,9 @@ def parser() -> argparse.ArgumentParser:
     )
     s.set_defaults(func=_cmd_design)
 
-    s = sub.add_parser("reproduce", help="the paper's study: Scenario I and II x 4 methods x seeds, on Dask")
+    s = sub.add_parser(
+        "reproduce", help="the paper's study: data sets x seeds x start spreads x arms, on Dask"
+    )
     s.add_argument("--seeds", type=int, default=None, help="noise seeds 1..N (default 20; 1 with --quick)")
     s.add_argument(
         "--out",
@@ -459,6 +475,30 @@ def parser() -> argparse.ArgumentParser:
         type=_positive,
         default=None,
         help="seconds per experiment (default: the scenarios' own, 30 with --quick)",
+    )
+    s.add_argument(
+        "--start-spread",
+        type=_non_negative,
+        nargs="+",
+        default=None,
+        metavar="S",
+        help="start spreads: the a-priori model's errors, log-normal per coefficient class "
+        "(0: the analytic model; default: the study's, docs/studies.md)",
+    )
+    s.add_argument(
+        "--arms",
+        nargs="+",
+        default=None,
+        metavar="ARM",
+        help="the arms fitted, or all (default: the paper's methods, ml-gn and the drift arms; "
+        "docs/studies.md lists them)",
+    )
+    s.add_argument(
+        "--truth",
+        nargs="+",
+        default=None,
+        metavar="TRUTH",
+        help="what Scenario I and II are flown on: plant (MuJoCo), linear (the analytic model) (default both)",
     )
     s.set_defaults(func=_cmd_reproduce)
 

@@ -32,6 +32,7 @@ __all__ = [
     "check_outputs",
     "is_number",
     "is_stream",
+    "one_line",
 ]
 
 
@@ -43,6 +44,11 @@ def _umask() -> int:
 
 class InputError(ValueError):
     """Bad input from a user: the message is one line, fit to print as it is."""
+
+
+def one_line(exc: BaseException) -> str:
+    """`Type: message` of an exception on one line, for a result that records why it failed."""
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"
 
 
 def is_number(v) -> bool:

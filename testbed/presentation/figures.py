@@ -1,11 +1,13 @@
 """The campaign's report: PNG figures (matplotlib, Agg: no display needed), report.html beside
 them, and report.rrd (the same results in Rerun).
 
-Figures, named after the paper's: `fig3-inputs-I.png` and `fig5-inputs-II.png` (the fin angles
-of the first seed's experiments), `fig4-coefficients-I.png` and `fig6-coefficients-II.png` (each
-free coefficient's estimate over the analytic value, per method: the median over the seeds and
-the range), `iterations-<scenario>.png` (the estimates of the first seed through the fit of
-ml-nr, ml-nm and the MEKF).
+Figures: `success-spread.png` (the probability of reaching the data's optimum against the start
+spread, per data set and arm, with Wilson intervals); named after the paper's,
+`fig3-inputs-I.png` and `fig5-inputs-II.png` (the fin angles of the first seed's experiments),
+`fig4-coefficients-I.png` and `fig6-coefficients-II.png` (each free coefficient's estimate over
+the analytic value on the plant's data, per arm: the median over the seeds and the range);
+`iterations-<scenario>.png` (the estimates of the first seed through the fit of the paper's
+three methods).
 """
 
 from __future__ import annotations
@@ -27,9 +29,16 @@ from testbed.errors import atomic_file, atomic_write_text
 from testbed.models.linear import INPUTS
 from testbed.simulation.recording import data_id, recording
 
-COLORS = {"ml-nr": "#d62728", "ml-nm": "#1f77b4", "mekf": "#2ca02c", "ml-gn": "#7f7f7f"}
 RATIO_LIMITS = (0.0, 2.0)  # estimate / analytic shown; values beyond are drawn at the edge
-HISTORY_METHODS = ("ml-nr", "ml-nm", "mekf")
+HISTORY_ARMS = ("ml-nr", "ml-nm-paper", "mekf-paper")  # the paper's three methods, as it ran them
+FIGURE_NUMBERS = {"I": 3, "II": 5}  # the paper's figures of each scenario's inputs (its coefficients: +1)
+LISTED = 40  # cells that did not converge or failed, listed by name; the rest counted
+
+
+def colors(arms) -> dict[str, str]:
+    """One colour per arm, in the order given (matplotlib's tab20)."""
+    cmap = plt.get_cmap("tab20")
+    return {a: matplotlib.colors.to_hex(cmap(i % 20)) for i, a in enumerate(arms)}
 
 
 def _save(fig, path: Path) -> str:
@@ -62,32 +71,34 @@ def input_figure(out: Path, scenario: str, experiments, number: int) -> str:
     return _save(fig, out / f"fig{number}-inputs-{scenario}.png")
 
 
-def coefficient_figure(out: Path, scenario: str, rows: list[dict], number: int, methods) -> str:
-    """Estimate / analytic per free coefficient and method: median over the seeds (marker;
-    hollow where some seed's fit did not converge) and the range (bar)."""
-    rows = [r for r in rows if r["scenario"] == scenario and r["coefficient"]]
+def coefficient_figure(out: Path, scenario: str, rows: list[dict], number: int, arms, palette) -> str:
+    """Estimate / analytic per free coefficient and arm on the plant's data of `scenario` at its
+    first spread: median over the seeds (marker; hollow where some seed's fit did not converge)
+    and the range (bar)."""
+    rows = [r for r in rows if r["scenario"] == scenario and r["truth"] == "plant" and r["coefficient"]]
+    spread = min((r["spread"] for r in rows), default=0.0)
+    rows = [r for r in rows if r["spread"] == spread]
+    arms = [a for a in arms if any(r["arm"] == a for r in rows)]
     names = list(dict.fromkeys(r["coefficient"] for r in rows))
     fig, ax = plt.subplots(figsize=(8, 0.36 * max(len(names), 4) + 1.6), constrained_layout=True)
     lo, hi = RATIO_LIMITS
-    for k, m in enumerate(methods):
-        offset = (k - (len(methods) - 1) / 2) * 0.18
+    for k, m in enumerate(arms):
+        offset = (k - (len(arms) - 1) / 2) * min(0.8 / max(len(arms), 1), 0.18)
         for i, n in enumerate(names):
-            rs = [r for r in rows if r["method"] == m and r["coefficient"] == n]
-            if not rs:
-                continue
+            rs = [r for r in rows if r["arm"] == m and r["coefficient"] == n]
             ratio = np.array([r["estimate"] / r["analytic"] if r["analytic"] else math.nan for r in rs])
             ratio = ratio[np.isfinite(ratio)]
             if not ratio.size:
                 continue
             med, a, b = np.clip([np.median(ratio), ratio.min(), ratio.max()], lo, hi)
             all_conv = all(r["converged"] for r in rs)
-            ax.plot([a, b], [i + offset] * 2, color=COLORS[m], lw=1.5)
+            ax.plot([a, b], [i + offset] * 2, color=palette[m], lw=1.5)
             ax.plot(
-                med, i + offset, "o", color=COLORS[m], mfc=COLORS[m] if all_conv else "white", ms=5, label=m
+                med, i + offset, "o", color=palette[m], mfc=palette[m] if all_conv else "white", ms=5, label=m
             )
     handles, labels = ax.get_legend_handles_labels()
-    seen = dict(zip(labels, handles))  # one entry per method
-    ax.legend(seen.values(), seen.keys(), loc="lower right", fontsize=8)
+    seen = dict(zip(labels, handles))  # one entry per arm
+    ax.legend(seen.values(), seen.keys(), loc="lower right", fontsize=7)
     ax.axvline(1.0, color="k", lw=0.8)
     ax.axvspan(0.9, 1.1, color="k", alpha=0.06)
     ax.set_yticks(range(len(names)), names)
@@ -98,27 +109,78 @@ def coefficient_figure(out: Path, scenario: str, rows: list[dict], number: int, 
         "clipped to [0, 2]; grey band ±10 %)",
         fontsize=8,
     )
-    ax.set_title(f"Fig. {number}: identified against analytic coefficients, Scenario {scenario}")
+    ax.set_title(f"Fig. {number}: identified against analytic, Scenario {scenario} (start spread {spread:g})")
     ax.grid(axis="x", alpha=0.3)
     return _save(fig, out / f"fig{number}-coefficients-{scenario}.png")
 
 
+def success_figure(out: Path, summary: list[dict], arms, palette) -> str | None:
+    """The probability of reaching the data's optimum against the start spread, one panel per
+    data set, one line per judged arm, with the Wilson 95 % interval of each proportion."""
+    judged = [r for r in summary if r["judged"]]
+    sets = list(dict.fromkeys((r["scenario"], r["truth"]) for r in judged))
+    if not sets:
+        return None
+    cols = min(len(sets), 4)
+    nrows = math.ceil(len(sets) / cols)
+    fig, axes = plt.subplots(
+        nrows,
+        cols,
+        figsize=(3.6 * cols + 1.4, 3.1 * nrows + 0.6),
+        squeeze=False,
+        sharey=True,
+        constrained_layout=True,
+    )
+    for ax, (s, t) in zip(axes.flat, sets):
+        here = [r for r in judged if (r["scenario"], r["truth"]) == (s, t)]
+        spreads = sorted({r["spread"] for r in here})
+        for k, a in enumerate(x for x in arms if any(r["arm"] == x for r in here)):
+            pts = sorted((r["spread"], r) for r in here if r["arm"] == a)
+            dx = (k - 3) * 0.004 * (max(spreads) - min(spreads) or 1.0)  # the intervals side by side
+            x = np.array([p[0] for p in pts]) + dx
+            p = np.array([p[1]["success"] / p[1]["judged"] for p in pts])
+            lo = p - np.array([q[1]["success_low"] for q in pts])
+            hi = np.array([q[1]["success_high"] for q in pts]) - p
+            ax.errorbar(x, p, yerr=[lo, hi], marker="o", ms=4, lw=1.2, capsize=2, color=palette[a], label=a)
+        ax.set_title(f"{s} on the {t}", fontsize=10)
+        ax.set_xlabel("start spread s")
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_xticks(spreads)
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[len(sets) :]:
+        ax.axis("off")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("P(reach the optimum)")
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    for ax in axes.flat[1 : len(sets)]:
+        h, lab = ax.get_legend_handles_labels()
+        handles += [x for x, y in zip(h, lab) if y not in labels]
+        labels += [y for y in lab if y not in labels]
+    fig.legend(handles, labels, loc="outside right upper", fontsize=8)
+    fig.suptitle("Success against the start spread (bars: Wilson 95 % intervals)")
+    return _save(fig, out / "success-spread.png")
+
+
 def history_figure(out: Path, scenario: str, docs: list[dict]) -> str | None:
-    """The first seed's estimates / analytic through the fit of ml-nr, ml-nm and the MEKF."""
+    """The first seed's estimates / analytic through the fit of the paper's three methods, on the
+    plant's data of `scenario` at its first spread."""
+    here = [d for d in docs if d["cell"]["scenario"] == scenario and d["cell"]["truth"] == "plant"]
+    if not here:
+        return None
+    seed = min(d["cell"]["seed"] for d in here)
+    spread = min(d["cell"]["spread"] for d in here)
     picked = {
-        d["cell"]["method"]: d
-        for d in docs
-        if d["cell"]["scenario"] == scenario
-        and d["cell"]["seed"] == min(x["cell"]["seed"] for x in docs)
-        and d.get("history")
+        d["cell"]["arm"]: d
+        for d in here
+        if d["cell"]["seed"] == seed and d["cell"]["spread"] == spread and d.get("history")
     }
-    methods = [m for m in HISTORY_METHODS if m in picked]
-    if not methods:
+    arms = [m for m in HISTORY_ARMS if m in picked]
+    if not arms:
         return None
     fig, axes = plt.subplots(
-        1, len(methods), figsize=(4.8 * len(methods), 4.2), squeeze=False, constrained_layout=True
+        1, len(arms), figsize=(4.8 * len(arms), 4.2), squeeze=False, constrained_layout=True
     )
-    for ax, m in zip(axes[0], methods):
+    for ax, m in zip(axes[0], arms):
         d = picked[m]
         h = d["history"]
         ratio = np.array(h["ratio"], dtype=float)
@@ -126,13 +188,10 @@ def history_figure(out: Path, scenario: str, docs: list[dict]) -> str | None:
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_ylim(RATIO_LIMITS[0] - 0.05, RATIO_LIMITS[1] + 0.05)
         ax.set_xlabel(h["x_name"])
-        ax.set_title(
-            f"{m}: {d['status']}, {d['iterations']} iterations" if m != "mekf" else f"{m}: {d['status']}",
-            fontsize=10,
-        )
+        ax.set_title(f"{m}: {d['status']}, {d['iterations']} iterations", fontsize=10)
         ax.grid(alpha=0.3)
     axes[0, 0].set_ylabel("estimate / analytic (one line per coefficient)")
-    fig.suptitle(f"Iteration histories, Scenario {scenario} (seed {min(x['cell']['seed'] for x in docs)})")
+    fig.suptitle(f"Iteration histories, Scenario {scenario} (seed {seed}, start spread {spread:g})")
     return _save(fig, out / f"iterations-{scenario}.png")
 
 
@@ -143,17 +202,25 @@ def write_report(
     verdicts: dict,
     inputs: dict,
     summary: list[dict],
-    methods,
-    scenarios,
+    regime: dict,
+    drift: dict,
+    arms,
 ) -> Path:
-    """The figures, report.html and report.rrd in `out`: `summary` per scenario and method,
-    `methods` and `scenarios` in the order the figures show them."""
-    methods = [m for m in methods if any(d["cell"]["method"] == m for d in docs)]
-    scenarios = [s for s in scenarios if any(d["cell"]["scenario"] == s for d in docs)]
+    """The figures, report.html and report.rrd in `out`: `summary` per data set, spread and arm,
+    `regime` and `drift` per data set, `arms` in the order the figures show them."""
+    arms = [a for a in arms if any(d["cell"]["arm"] == a for d in docs)]
+    palette = colors(arms)
     figures, missing = [], []
-    for s in scenarios:  # the paper's order: each scenario's inputs, then its coefficients
-        number = {"I": 3, "II": 5}[s]
-        if inputs.get(s):
+    name = success_figure(out, summary, arms, palette)
+    if name:
+        figures.append(("Probability of reaching the data's optimum against the start spread", name))
+    for (
+        s,
+        number,
+    ) in FIGURE_NUMBERS.items():  # the paper's order: each scenario's inputs, then its coefficients
+        if s not in inputs:
+            continue
+        if inputs[s]:
             figures.append(
                 (f"Fig. {number}: input histories, Scenario {s}", input_figure(out, s, inputs[s], number))
             )
@@ -162,16 +229,16 @@ def write_report(
         figures.append(
             (
                 f"Fig. {number + 1}: identified against analytic, Scenario {s}",
-                coefficient_figure(out, s, rows, number + 1, methods),
+                coefficient_figure(out, s, rows, number + 1, arms, palette),
             )
         )
-    for s in scenarios:
+    for s in FIGURE_NUMBERS:
         name = history_figure(out, s, docs)
         if name:
             figures.append((f"Iteration histories, Scenario {s}", name))
-        else:
-            missing.append(f"iteration histories of Scenario {s}: no cell has a history")
-    atomic_write_text(out / "report.html", report_html(verdicts, summary, figures, missing, docs))
+    atomic_write_text(
+        out / "report.html", report_html(verdicts, summary, regime, drift, figures, missing, docs)
+    )
     write_rrd(out / "report.rrd", docs)
     return out / "report.html"
 
@@ -183,53 +250,100 @@ PAPER = {
     "descent is unsatisfactory.",
     "3": "ML with the Nelder-Mead simplex gives satisfactory results when the inputs are designed as "
     "pseudo-random binary sequences.",
+    "mekf": "The modified extended Kalman filter gives similar results in both scenarios.",
 }
+VERDICT = {True: ("holds", "holds"), False: ("refuted", "refuted"), None: ("undecided", "undecided")}
 
 
-def report_html(verdicts: dict, summary: list[dict], figures, missing, docs) -> str:
+def _pct(v: float) -> str:
+    return f"{100 * v:.1f} %" if np.isfinite(v) else "–"
+
+
+def report_html(
+    verdicts: dict, summary: list[dict], regime: dict, drift: dict, figures, missing, docs
+) -> str:
     e = html.escape
     seeds = sorted({d["cell"]["seed"] for d in docs})
+    spreads = sorted({d["cell"]["spread"] for d in docs})
     parts = [
         "<!doctype html><html lang='en'><head><meta charset='utf-8'><title>testbed reproduce: Kim &amp; Rhee</title>",
-        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
+        "<style>body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}"
         "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:left}"
         "th{background:#f3f3f3}.holds{color:#1a7f37;font-weight:bold}.refuted{color:#b3261e;font-weight:bold}"
+        ".undecided{color:#8a6d00;font-weight:bold}"
         "img{max-width:100%;border:1px solid #ddd;margin:0.5em 0}figure{margin:1.5em 0}</style></head><body>",
         "<h1>Kim &amp; Rhee reproduced</h1>",
-        f"<p>{len(docs)} cells: Scenario I and II × {{ml-nr, ml-nm, mekf, ml-gn}} × seeds "
-        f"{e(', '.join(map(str, seeds)))}. Each cell identifies the coefficients its data identify "
-        "(screened free set) starting from the analytic model, and compares with it. Files: "
-        "<a href='results.csv'>results.csv</a>, <a href='conclusions.json'>conclusions.json</a>, "
-        "<a href='report.rrd'>report.rrd</a> (open with <code>rerun report.rrd</code>).</p>",
-        "<h2>The paper's conclusions</h2><table><tr><th>#</th><th>conclusion</th><th>verdict</th><th>evidence</th></tr>",
+        f"<p>{len(docs)} cells: data sets × seeds {e(', '.join(map(str, seeds)))} × start spreads "
+        f"{e(', '.join(f'{s:g}' for s in spreads))} × arms. Every arm of a data set, seed and spread "
+        "starts from the same a-priori model (log-normal errors per coefficient class, the screen run "
+        "at it) and is judged against the data's best-likelihood optimum (within 0.1 σ and a "
+        "χ²-sized ΔJ). Files: <a href='results.csv'>results.csv</a>, <a href='summary.csv'>summary.csv</a>, "
+        "<a href='conclusions.json'>conclusions.json</a>, <a href='regime.json'>regime.json</a>, "
+        "<a href='drift.json'>drift.json</a>, <a href='report.rrd'>report.rrd</a> "
+        "(open with <code>rerun report.rrd</code>).</p>",
+        "<h2>The paper's conclusions</h2><table><tr><th>#</th><th>the paper</th><th>verdict</th>"
+        "<th>rule</th><th>evidence</th></tr>",
     ]
-    for k in ("1", "2", "3"):
-        v = verdicts[k]
-        cls, word = ("holds", "holds") if v["holds"] else ("refuted", "refuted")
+    for k, v in verdicts.items():
+        cls, word = VERDICT[v["holds"]]
         parts.append(
-            f"<tr><td>{k}</td><td>{e(PAPER[k])}</td><td class='{cls}'>{word}</td><td>{e(v['evidence'])}</td></tr>"
+            f"<tr><td>{e(k)}</td><td>{e(PAPER.get(k, ''))}</td><td class='{cls}'>{word}</td>"
+            f"<td>{e(v.get('rule', ''))}</td><td>{e(v['evidence'])}</td></tr>"
         )
     parts.append(
-        "</table><h2>Cells</h2><table><tr><th>scenario</th><th>method</th><th>cells</th><th>converged</th>"
-        "<th>acceptable</th><th>failed</th><th>median relative error</th><th>median wall time (s)</th></tr>"
+        "</table><h2>Where the linear reference holds</h2><p>The analytic linear model simulated open "
+        "loop with each data set's recorded fin angles (first seed), its fit against the noise-free "
+        "truth: the lowest over the excited channels.</p><table><tr><th>data set</th>"
+        "<th>lowest truth fit</th><th>details</th></tr>"
+    )
+    for key, r in regime.items():
+        detail = {k: v for k, v in r.items() if k != "lowest_truth_fit" and not isinstance(v, dict)}
+        parts.append(
+            f"<tr><td>{e(key)}</td><td>{r['lowest_truth_fit']:.1f} %</td>"
+            f"<td>{e(', '.join(f'{k} {v:.3g}' if isinstance(v, float) else f'{k} {v}' for k, v in detail.items()))}</td></tr>"
+        )
+    parts.append("</table>")
+    if drift:
+        parts.append(
+            "<h2>Drift in practice</h2><table><tr><th>data set</th><th>cond. Mt-form</th>"
+            "<th>cond. A-form</th><th>largest correlation, Mt-form</th><th>null scatter Mt-form</th>"
+            "<th>null scatter A-form</th><th>relative drift Mt-form</th><th>seeds</th></tr>"
+        )
+        for key, d in drift.items():
+            a, b, rho = d["correlation_mt"]
+            parts.append(
+                f"<tr><td>{e(key)}</td><td>{d['condition_mt']:.3g}</td><td>{d['condition_a']:.3g}</td>"
+                f"<td>{e(a)}–{e(b)} {rho:+.3f}</td><td>{d['null_scatter_mt']:.3g}</td>"
+                f"<td>{d['null_scatter_a']:.3g}</td><td>{_pct(d['relative_drift_mt'])}</td><td>{d['seeds']}</td></tr>"
+            )
+        parts.append("</table>")
+    parts.append(
+        "<h2>Arms</h2><table><tr><th>data set</th><th>spread</th><th>arm</th><th>cells</th><th>success</th>"
+        "<th>95 % interval</th><th>diverged</th><th>stalled</th><th>elsewhere</th><th>failed</th>"
+        "<th>accurate</th><th>median relative error</th><th>median evaluations</th><th>median wall time (s)</th></tr>"
     )
     for r in summary:
-        rel = f"{100 * r['median_relative_error']:.1f} %" if np.isfinite(r["median_relative_error"]) else "–"
+        share = f"{r['success']}/{r['judged']}" if r["judged"] else "–"
+        ci = f"{100 * r['success_low']:.0f}–{100 * r['success_high']:.0f} %" if r["judged"] else "–"
         parts.append(
-            f"<tr><td>{e(r['scenario'])}</td><td>{e(r['method'])}</td><td>{r['cells']}</td>"
-            f"<td>{r['converged']}</td><td>{r['acceptable']}</td><td>{r['failed']}</td><td>{rel}</td>"
+            f"<tr><td>{e(r['scenario'])}/{e(r['truth'])}</td><td>{r['spread']:g}</td><td>{e(r['arm'])}</td>"
+            f"<td>{r['cells']}</td><td>{share}</td><td>{ci}</td><td>{r['diverged']}</td><td>{r['stalled']}</td>"
+            f"<td>{r['elsewhere']}</td><td>{r['failed']}</td><td>{r['accurate']}</td>"
+            f"<td>{_pct(r['median_relative_error'])}</td><td>{r['median_evaluations']:.0f}</td>"
             f"<td>{r['median_wall_time_s']:.1f}</td></tr>"
         )
     parts.append("</table>")
     failures = [d for d in docs if d["status"] != "converged"]
     if failures:
-        parts.append("<h2>Cells that did not converge</h2><ul>")
-        for d in failures:
+        parts.append(f"<h2>Cells that did not converge ({len(failures)})</h2><ul>")
+        for d in failures[:LISTED]:
             c = d["cell"]
             parts.append(
-                f"<li>Scenario {e(c['scenario'])}, {e(c['method'])}, seed {c['seed']}: "
+                f"<li>{e(c['scenario'])}/{e(c['truth'])}, spread {c['spread']:g}, {e(c['arm'])}, seed {c['seed']}: "
                 f"{e(d['status'])}{': ' + e(d['reason']) if d.get('reason') else ''}</li>"
             )
+        if len(failures) > LISTED:
+            parts.append(f"<li>… and {len(failures) - LISTED} more (results.csv, column reason)</li>")
         parts.append("</ul>")
     parts.append("<h2>Figures</h2>")
     for caption, name in figures:
@@ -243,19 +357,19 @@ def report_html(verdicts: dict, summary: list[dict], figures, missing, docs) -> 
 
 
 def write_rrd(path: Path, docs: list[dict]) -> Path:
-    """report.rrd: per scenario, method and coefficient the estimate / analytic over the seeds
-    (timeline `seed`), and the first seed's histories (timelines `iteration` and `time`)."""
+    """report.rrd: per data set, spread, coefficient and arm the estimate / analytic over the
+    seeds (timeline `seed`), and the first seed's histories (timelines `iteration` and `time`)."""
     title = "testbed reproduce"
     keys = sorted(d["key"] for d in docs)
     with recording(path, title, data_id(title, *keys)) as rec:
         series: dict[str, list] = {}
         for d in docs:
             c = d["cell"]
-            for r in d["rows"]:
-                if r["analytic"]:
-                    series.setdefault(
-                        f"coefficients/{c['scenario']}/{r['coefficient']}/{c['method']}", []
-                    ).append((c["seed"], r["estimate"] / r["analytic"]))
+            where = f"{c['scenario']}/{c['truth']}/s{c['spread']:g}"
+            for n, v in d.get("values", {}).items():
+                a = d["analytic"][n]
+                if a:
+                    series.setdefault(f"coefficients/{where}/{n}/{c['arm']}", []).append((c["seed"], v / a))
         for entity, points in series.items():
             points.sort()
             rec.send_columns(
@@ -276,7 +390,7 @@ def write_rrd(path: Path, docs: list[dict]) -> Path:
             )
             for j, n in enumerate(d.get("free", [])):
                 rec.send_columns(
-                    f"histories/{c['scenario']}/{c['method']}/{n}",
+                    f"histories/{c['scenario']}/{c['truth']}/s{c['spread']:g}/{c['arm']}/{n}",
                     indexes=[timeline],
                     columns=rr.Scalars.columns(scalars=ratio[:, j]),
                 )

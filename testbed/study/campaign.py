@@ -1,282 +1,115 @@
-"""The paper's study as a campaign: Scenario I and II × {ml-nr, ml-nm, mekf, ml-gn} × noise seeds.
+"""The paper's study as a campaign: data sets × noise seeds × start spreads × arms, on Dask.
 
-Each cell flies its scenario with its seed (a run directory shared by the four methods of that
-scenario and seed, cached under `DIR/runs/`), screens the candidates of the run's model.toml
-and identifies those the data determine starting from the analytic model
-(`analysis.identify_screened`, as `testbed identify` does), and compares with the analytic
-model. Cells are tasks on a `dask.distributed` cluster: a `LocalCluster` (2 single-threaded
-worker processes) by default, or a running cluster by its scheduler address. A worker that dies
+A data set is a scenario flown on a truth (`cells.Cell`): Scenario I and II on the MuJoCo plant
+and on the analytic linear model flown as the plant (where the linear reference is exact), and
+the input factorial (`FACTORIAL`: Scenario II's layout with PRBS, square, 3-2-1-1 and multisine
+inputs) on the plant. Per data set, seed and spread one a-priori model, screened at itself
+(`cells.start`), is where every arm (`arms.ARMS`) starts; the `OPTIMUM` cell looks for the data's
+best-likelihood optimum, against which each arm is judged (`results`). The verdicts on the
+paper's conclusions are `rules.conclusions` of results.csv, of the analytic model's open-loop
+fit per data set (`regime.json`) and of the drift measured per data set (`drift.json`).
+
+Cells are tasks on a `dask.distributed` cluster: a `LocalCluster` (2 single-threaded worker
+processes) by default, or a running cluster by its scheduler address. A worker that dies
 mid-cell has its task resubmitted by the scheduler; a cell whose task fails anyway (an exception
 escaping it, a worker lost too often) is recorded as failed with its reason.
 
 Every finished cell is written at once to `DIR/cells/<key>.json` (a temporary file renamed), the
-key a hash of everything the cell's result depends on (scenario text, method, seed, options,
-and the package's code: every source and data file of `testbed`): after a crash or Ctrl-C,
-`reproduce` again computes only the cells that have no file. The results (`results.csv`), the
-verdicts on the paper's three conclusions (`conclusions.json`, `conclusions`) and the report
-(`testbed.presentation.figures`) are derived from the cell files alone.
+key a hash of everything the cell's result depends on (scenario text, truth, spread, arm and its
+options, seed, and the package's code: `hashing.code_hash`): after a crash or Ctrl-C,
+`reproduce` again computes only the cells that have no file. The outputs are derived from the
+cell files and the run directories alone.
 """
 
 from __future__ import annotations
 
-import csv
-import functools
 import hashlib
-import io
 import json
 import logging
-import math
 import os
 import time
-import traceback
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
 
-import mujoco
 import numpy as np
 from dask.distributed import Client, LocalCluster, as_completed
 
-from testbed.analysis.identifiability import compare, identify_screened, structural
+from testbed.analysis.drift import evidence, forms
+from testbed.analysis.regime import open_loop_fit
 from testbed.data import load_data
-from testbed.errors import InputError, atomic_write_text, check_output_directory
-from testbed.estimators import FilterEstimate, lookup
+from testbed.errors import InputError, atomic_write_text, check_output_directory, is_number, one_line
 from testbed.presentation.figures import write_report
-from testbed.models.linear import COEFFICIENTS, structure, theta_vector
-from testbed.simulation.runs import simulate
-from testbed.simulation.scenario import scenario, scenario_text
+from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS, arms as checked_arms
+from testbed.study.cells import OPTIMUM, Cell, load_run, run_cell, start
+from testbed.study.results import SUMMARY_COLUMNS, read_results, results_csv, results_rows, summary_table
+from testbed.study.rules import conclusions
 
 __all__ = [
-    "CODE_FILES",
-    "COLUMNS",
-    "Cell",
+    "FACTORIAL",
     "MARKER",
     "MAX_SEEDS",
     "Outcome",
     "QUICK_DURATION",
+    "SCENARIOS",
+    "SPREADS",
+    "TRUTHS",
     "check_folder",
-    "code_hash",
-    "coefficient_ok",
-    "conclusions",
-    "load_run",
     "make_folder",
     "plan",
     "read_cell",
-    "read_results",
     "reproduce",
-    "results_csv",
-    "results_rows",
-    "run_cell",
-    "source_hash",
 ]
 
-SCENARIOS = ("I", "II")
-METHODS = ("ml-nr", "ml-nm", "mekf", "ml-gn")  # the paper's three, then the modern reference
-COLUMNS = (
-    "scenario",
-    "method",
-    "seed",
-    "coefficient",
-    "analytic",
-    "estimate",
-    "std",
-    "converged",
-    "iterations",
-    "wall_time_s",
-    "status",
-    "reason",
-)
-FORMAT = 2  # version of the cell file: part of every key, so a new format recomputes
-MAX_SEEDS = 1000  # noise seeds 1..N: 8000 cells at most, weeks of one machine's time
+SCENARIOS = ("I", "II")  # the paper's, fitted by every arm on every truth
+TRUTHS = ("plant", "linear")
+FACTORIAL = ("inputs-prbs", "inputs-square", "inputs-3211", "inputs-multisine")  # on the plant
+SPREADS = (0.4,)  # the default start spread: a user's a-priori model (`priors.SPREAD`)
+MAX_SEEDS = 1000  # noise seeds 1..N: weeks of one machine's time at the most
+MAX_SPREAD = 3.0  # e^±3σ_c: beyond it an a-priori model is no model
 MARKER = ".testbed-campaign"  # the file that makes a folder a campaign's, which reproduce resumes
 QUICK_DURATION = 30.0  # s per experiment in --quick
-HISTORY_POINTS = 400  # the MEKF's per-sample history, thinned to this many points per cell
-
-# The rules that decide the paper's conclusions (docs/studies.md).
-COEFFICIENT_TOLERANCE = 0.10  # a coefficient is acceptable within 10 % of the analytic value ...
-COEFFICIENT_SIGMAS = 3.0  # ... or within 3 of its Cramér-Rao σ
-CELL_FRACTION = 0.8  # a cell is acceptable when it converged and ≥ 80 % of its coefficients are
-ACCEPTABLE = 0.8  # a method is acceptable when ≥ 80 % of its cells are
-UNSATISFACTORY = 0.5  # and unsatisfactory when fewer than 50 % are
-
-
-CODE_FILES = ("*.py", "*.toml", "*.xml")  # what the package computes with: its modules and data
-
-
-def source_hash(root: str | os.PathLike) -> str:
-    """SHA-256 of the package's code under `root`: every file matching `CODE_FILES`, by its path
-    relative to `root` and its bytes, in path order (compiled caches and other files ignored)."""
-    root = Path(root)
-    files = sorted({p for pattern in CODE_FILES for p in root.rglob(pattern) if "__pycache__" not in p.parts})
-    h = hashlib.sha256()
-    for p in files:
-        data = p.read_bytes()
-        h.update(f"{p.relative_to(root).as_posix()}\0{len(data)}\0".encode())
-        h.update(data)
-    return h.hexdigest()
-
-
-@functools.lru_cache(maxsize=None)
-def code_hash() -> str:
-    """`source_hash` of this installation of testbed: a cell computed by other code is computed again."""
-    return source_hash(Path(__file__).resolve().parents[1])
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One identification: a scenario's data with one noise seed, fitted by one method."""
-
-    scenario: str
-    method: str
-    seed: int
-    duration: float | None = None  # s per experiment (None: the scenario's own)
-
-    @property
-    def run_name(self) -> str:
-        """The cached run directory's name, shared by the methods of a scenario and seed."""
-        return f"{self.scenario}-seed{self.seed}" + (f"-{self.duration:g}s" if self.duration else "")
-
-    @functools.cached_property  # reads the scenario file: once per cell
-    def key(self) -> str:
-        """`<scenario>-<method>-seed<N>-<hash>`: the hash of every input the result depends on."""
-        flown = scenario(self.scenario).with_overrides(duration=self.duration)
-        doc = {
-            "format": FORMAT,
-            "scenario": scenario_text(replace(flown, source="")),
-            "method": self.method,
-            "seed": self.seed,
-            "code": code_hash(),
-        }
-        h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
-        return f"{self.scenario}-{self.method}-seed{self.seed}-{h}"
 
 
 def plan(
-    seeds: int, quick: bool = False, methods=METHODS, scenarios=SCENARIOS, duration: float | None = None
+    seeds: int,
+    quick: bool = False,
+    arms=DEFAULT_ARMS,
+    spreads=SPREADS,
+    truths=TRUTHS,
+    scenarios=SCENARIOS,
+    factorial=FACTORIAL,
+    duration: float | None = None,
 ) -> list[Cell]:
-    """The campaign's cells, scenario by scenario, seed by seed, method by method; seeds 1..N.
-    `quick`: experiments of `QUICK_DURATION` s (unless `duration` says otherwise)."""
+    """The campaign's cells, data set by data set, seed by seed, spread by spread: the `OPTIMUM`
+    cell, then `arms` (`all`: every arm); the input factorial's data sets with `FACTORIAL_ARMS`
+    among them only, the drift arms on `scenarios` only. Seeds 1..N; `quick`: experiments of
+    `QUICK_DURATION` s (unless `duration` says otherwise)."""
     if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEEDS:
         raise InputError(f"seeds={seeds!r}; expected an integer from 1 to {MAX_SEEDS}")
-    for m in methods:
-        if m not in METHODS:
-            raise InputError(f"method {m!r} is not in the study; expected one of {', '.join(METHODS)}")
+    arms = checked_arms(arms)
+    spreads = tuple(dict.fromkeys(spreads))
+    for s in spreads:
+        if isinstance(s, bool) or not is_number(s) or not 0 <= s <= MAX_SPREAD:
+            raise InputError(f"start spread {s!r}; expected a number from 0 to {MAX_SPREAD:g}")
+    if not spreads:
+        raise InputError("start spread: none given; expected at least one number from 0 to {MAX_SPREAD:g}")
+    for t in truths:
+        if t not in TRUTHS:
+            raise InputError(f"truth {t!r}; expected one of {', '.join(TRUTHS)}")
     duration = duration if duration is not None else (QUICK_DURATION if quick else None)
-    return [Cell(s, m, seed, duration) for s in scenarios for seed in range(1, seeds + 1) for m in methods]
-
-
-# -- the work of one cell (runs on a worker) -------------------------------------------------------
-
-
-def load_run(out: str, scenario: str, seed: int, duration: float | None):
-    """The experiments and analytic model config of a run, flying it into `out/runs/` first
-    unless it is there (several workers may fly the same run at once: the first rename wins)."""
-    mujoco.set_mju_user_warning(lambda message: None)  # the plant raises its warnings as errors
-    run = Path(out) / "runs" / Cell(scenario, "", seed, duration).run_name
-    if not (run / "manifest.json").exists():
-        run.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            simulate(scenario, seed=seed, out=run, duration=duration)
-        except (InputError, OSError):
-            if not (run / "manifest.json").exists():  # not a lost race with another worker
-                raise
-    return load_data([run])
-
-
-def drift_directions(config, experiments) -> dict:
-    """Exact (structural) unidentifiability of the Mt-form model on these outputs: with all 35
-    coefficients free, and with the inertia terms (the `*_dot`, i.e. Mt) known — the general
-    state equation ẋ = A x + B δ in its At, Bt entries."""
-
-    measured = sorted({m for e in config.fitted(experiments) for m in e.measured})
-    theta = theta_vector(config.coefficients)
-    s = structure(config.vehicle)
-    all_free = structural(s, theta, COEFFICIENTS, measured)
-    no_inertia = structural(s, theta, tuple(n for n in COEFFICIENTS if not n.endswith("dot")), measured)
-    return {
-        "null_directions": all_free.null_directions,
-        "drift_groups": [list(g) for g in all_free.drift_groups],
-        "null_directions_inertia_known": no_inertia.null_directions,
-    }
-
-
-def run_cell(cell: Cell, data) -> dict:
-    """Screen, identify from the analytic model and compare one cell; never raises: a failure is
-    returned as a result with `status` "failed" and its reason."""
-    t0 = time.perf_counter()
-    doc = {"key": cell.key, "cell": asdict(cell)}
-    try:
-        experiments, analytic = data
-        doc["drift"] = drift_directions(analytic, experiments)
-        costs = []
-        method = lookup(cell.method)
-        options = {"start": "config"} if method.starts else {}
-        callback = (lambda step: costs.append(float(step.cost))) if method.iterative else None
-        screened = identify_screened(experiments, analytic, cell.method, options, callback, apply=True)
-        doc["fixed"] = {
-            n: {"value": float(analytic.coefficients[n]), "reason": why} for n, why in screened.fixed.items()
-        }
-        est = screened.estimate
-        comparison = compare(est, analytic)
-        doc.update(
-            status=est.status.name.lower().replace("_", " "),
-            reason=_reason(est),
-            converged=bool(est.converged),
-            iterations=int(est.iterations),
-            wall_time_s=float(est.wall_time_s),
-            free=list(est.free),
-            rows=[
-                {
-                    "coefficient": r["name"],
-                    "analytic": r["analytic"],
-                    "estimate": r["identified"],
-                    "std": r["std"],
-                }
-                for r in comparison.rows()
-            ],
-            history=_history(est, comparison.analytic, costs),
-        )
-    except Exception as exc:  # a failed cell is a result too
-        doc.update(
-            status="failed",
-            reason=_one_line(exc),
-            converged=False,
-            iterations=0,
-            wall_time_s=time.perf_counter() - t0,
-            rows=[],
-            traceback=traceback.format_exc(),
-        )
-    return doc
-
-
-def _reason(est) -> str:
-    if est.converged:
-        return ""
-    return est.status.message + (f" ({est.message})" if est.message else "")
-
-
-def _one_line(exc: BaseException) -> str:
-    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"
-
-
-def _history(est, analytic: np.ndarray, costs: list[float]) -> dict:
-    """The estimates over the fit, divided by the analytic values: per iteration for the off-line
-    methods (with J_M), per sample (thinned to `HISTORY_POINTS`, with the time) for the filters."""
-    h = est.history
-    if h is None:
-        return {}
-    h = np.asarray(h, float)
-    scale = np.where(analytic != 0, analytic, 1.0)
-    out = {}
-    if isinstance(est, FilterEstimate):
-        t = est.history_t
-        pick = np.unique(np.linspace(0, len(h) - 1, min(len(h), HISTORY_POINTS)).round().astype(int))
-        h, out["x"], out["x_name"] = h[pick], np.asarray(t, float)[pick].tolist(), "time (s)"
-    else:
-        out["x"], out["x_name"] = list(range(len(h))), "iteration"
-        out["cost"] = costs
-    out["ratio"] = np.where(np.isfinite(h / scale), h / scale, None).tolist()
-    return out
+    sets = [(s, t, arms) for s in scenarios for t in truths]
+    sets += [
+        (s, "plant", tuple(a for a in arms if a in FACTORIAL_ARMS)) for s in factorial if "plant" in truths
+    ]
+    return [
+        Cell(s, a, seed, float(sp), t, duration)
+        for s, t, chosen in sets
+        if chosen
+        for seed in range(1, seeds + 1)
+        for sp in spreads
+        for a in (OPTIMUM, *chosen)
+    ]
 
 
 # -- the campaign (runs on the client) -------------------------------------------------------------
@@ -301,40 +134,45 @@ def reproduce(
     quick: bool = False,
     progress: Callable[[float, str], None] | None = None,
     workers: int = 2,
-    methods=METHODS,
+    arms=DEFAULT_ARMS,
+    spreads=SPREADS,
+    truths=TRUTHS,
     scenarios=SCENARIOS,
+    factorial=FACTORIAL,
     duration: float | None = None,
 ) -> Outcome:
-    """Run (or resume) the campaign into `out` and write results.csv, conclusions.json,
-    report.html with its figures and report.rrd. `scheduler`: the address of a running Dask
-    scheduler (its workers must see `out`); default a LocalCluster of `workers` processes.
-    `seeds`: 1..N (default 20, or 1 with `quick`)."""
+    """Run (or resume) the campaign into `out` and write results.csv, summary.csv,
+    conclusions.json, regime.json, drift.json, report.html with its figures and report.rrd.
+    `scheduler`: the address of a running Dask scheduler (its workers must see `out`); default
+    a LocalCluster of `workers` processes. `seeds`: 1..N (default 20, or 1 with `quick`)."""
     t0 = time.perf_counter()
     out = Path(out)
     seeds = seeds if seeds is not None else (1 if quick else 20)
-    cells = plan(seeds, quick, methods, scenarios, duration)
+    arms, spreads, truths = (
+        d if v is None else v for v, d in ((arms, DEFAULT_ARMS), (spreads, SPREADS), (truths, TRUTHS))
+    )
+    cells = plan(seeds, quick, arms, spreads, truths, scenarios, factorial, duration)
     check_folder(out)
     cells_dir = out / "cells"
     todo = [c for c in cells if read_cell(cells_dir / f"{c.key}.json") is None]
-    # the first seed of each scenario is always loaded: its inputs are the report's Figs. 3 and 5
-    runs = sorted(
-        {(c.scenario, c.seed, c.duration) for c in todo} | {(s, 1, cells[0].duration) for s in scenarios}
-    )
+    runs = sorted({_run(c) for c in cells})
+    starts = sorted({_start(c) for c in todo})
     failed = 0
     with _client(scheduler, workers) as client:
         make_folder(out)  # only once the scheduler answered
         where = hashlib.sha256(str(out.resolve()).encode()).hexdigest()[
             :8
         ]  # unique per DIR on a shared scheduler
+        needed = {r for r in runs if any(_run(c) == r for c in todo)}
         data = {
-            r: client.submit(
-                load_run, str(out.resolve()), *r, key=f"run-{Cell(r[0], '', r[1], r[2]).run_name}-{where}"
-            )
-            for r in runs
+            r: client.submit(load_run, str(out.resolve()), *r, key=f"run-{_name(r)}-{where}") for r in needed
+        }
+        begun = {
+            k: client.submit(start, data[k[:4]], k[4], k[2], key=f"start-{_name(k[:4])}-s{k[4]:g}-{where}")
+            for k in starts
         }
         futures = {
-            client.submit(run_cell, c, data[(c.scenario, c.seed, c.duration)], key=f"cell-{c.key}"): c
-            for c in todo
+            client.submit(run_cell, c, data[_run(c)], begun[_start(c)], key=f"cell-{c.key}"): c for c in todo
         }
         done = len(cells) - len(todo)
         for future in as_completed(futures):
@@ -346,30 +184,40 @@ def reproduce(
                     "key": cell.key,
                     "cell": asdict(cell),
                     "status": "failed",
-                    "reason": _one_line(exc),
+                    "reason": one_line(exc),
                     "converged": False,
                     "iterations": 0,
+                    "evaluations": 0,
                     "wall_time_s": 0.0,
-                    "rows": [],
+                    "free": [],
+                    "values": {},
                 }
             failed += doc["status"] == "failed"
             atomic_write_text(cells_dir / f"{cell.key}.json", json.dumps(doc, indent=1) + "\n")
             done += 1
             if progress is not None:
                 progress(
-                    done / len(cells), f"{cell.scenario} {cell.method} seed {cell.seed}: {doc['status']}"
+                    done / len(cells),
+                    f"{cell.scenario}/{cell.truth} s={cell.spread:g} {cell.arm} seed {cell.seed}: {doc['status']}",
                 )
-        inputs = {}
-        for (s, seed, d), future in data.items():
-            if seed == 1 and d == cells[0].duration:
-                try:
-                    inputs[s] = future.result()[0]
-                except Exception:  # the report says which figure is missing
-                    inputs[s] = None
+        for f in list(data.values()) + list(begun.values()):
+            f.cancel()
     docs = [read_cell(cells_dir / f"{c.key}.json") for c in cells]
-    write_outputs(out, docs, inputs)
-    conclusions = json.loads((out / "conclusions.json").read_text())
-    return Outcome(out, len(todo), len(cells) - len(todo), failed, conclusions, time.perf_counter() - t0)
+    write_outputs(out, docs, cells)
+    verdicts = json.loads((out / "conclusions.json").read_text())
+    return Outcome(out, len(todo), len(cells) - len(todo), failed, verdicts, time.perf_counter() - t0)
+
+
+def _run(c: Cell) -> tuple:
+    return (c.scenario, c.truth, c.seed, c.duration)
+
+
+def _start(c: Cell) -> tuple:
+    return (*_run(c), c.spread)
+
+
+def _name(r: tuple) -> str:
+    return Cell(r[0], "", r[2], truth=r[1], duration=r[3]).run_name
 
 
 def read_cell(path: Path) -> dict | None:
@@ -426,7 +274,7 @@ class _client:
                 self.client = Client(self.address, timeout="10s")
             except (OSError, TimeoutError, ValueError) as exc:
                 raise InputError(
-                    f"scheduler={self.address}: cannot connect ({_one_line(exc)}); "
+                    f"scheduler={self.address}: cannot connect ({one_line(exc)}); "
                     "expected the address of a running Dask scheduler, e.g. tcp://host:8786"
                 ) from None
             return self.client
@@ -446,201 +294,71 @@ class _client:
             self.cluster.close()
 
 
-# -- results, conclusions, report ------------------------------------------------------------------
+# -- the outputs ------------------------------------------------------------------------------------
 
 
-def results_rows(docs: list[dict]) -> list[dict]:
-    """One row per cell and coefficient; a cell without coefficients (failed) keeps one row with
-    an empty coefficient and its reason."""
-    rows = []
-    for d in docs:
-        c = d["cell"]
-        base = {
-            "scenario": c["scenario"],
-            "method": c["method"],
-            "seed": c["seed"],
-            "converged": d["converged"],
-            "iterations": d["iterations"],
-            "wall_time_s": round(d["wall_time_s"], 3),
-            "status": d["status"],
-            "reason": d.get("reason", ""),
+def regime(out: Path, cells: list[Cell]) -> dict[str, dict]:
+    """Per data set ("scenario/truth"), the analytic model's open-loop fit on its first seed's run
+    (`regime.open_loop_fit`); a run that cannot be read is left out."""
+    found = {}
+    for c in cells:
+        key = f"{c.scenario}/{c.truth}"
+        if key in found or c.seed != 1:
+            continue
+        try:
+            found[key] = open_loop_fit(out / "runs" / c.run_name).to_dict()
+        except (InputError, OSError):
+            continue
+    return found
+
+
+def drift(out: Path, docs: list[dict], cells: list[Cell]) -> dict[str, dict]:
+    """Per data set ("scenario/truth") with drift cells: the Mt-form against the A-form at its first
+    spread (`drift.forms` at the analytic model of the first seed's run, `drift.evidence` of the
+    converged estimates over the seeds)."""
+    found = {}
+    for c in cells:
+        key = f"{c.scenario}/{c.truth}"
+        if key in found or c.arm != DRIFT_ARMS[0] or c.seed != 1:
+            continue
+        picked = {
+            a: [
+                d["values"]
+                for d in docs
+                if d
+                and d["converged"]
+                and (d["cell"]["scenario"], d["cell"]["truth"], d["cell"]["spread"], d["cell"]["arm"])
+                == (c.scenario, c.truth, c.spread, a)
+            ]
+            for a in DRIFT_ARMS
         }
-        for r in d["rows"] or [
-            {"coefficient": "", "analytic": math.nan, "estimate": math.nan, "std": math.nan}
-        ]:
-            rows.append({**base, **r})
-    return rows
+        try:
+            experiments, analytic = load_data([out / "runs" / c.run_name])
+            f = forms(experiments, analytic)
+            found[key] = {"spread": c.spread, **evidence(f, picked[DRIFT_ARMS[0]], picked[DRIFT_ARMS[1]])}
+        except (InputError, OSError, np.linalg.LinAlgError, ValueError):
+            continue
+    return found
 
 
-def results_csv(rows: list[dict]) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow(
-            {k: (format(v, ".10g") if isinstance(v, float) else v) for k, v in r.items() if k in COLUMNS}
-        )
-    return buf.getvalue()
-
-
-def read_results(path) -> list[dict]:
-    """results.csv back as rows with numbers, booleans and ints."""
-    rows = []
-    with open(path, newline="") as f:
-        for r in csv.DictReader(f):
-            rows.append(
-                {
-                    **r,
-                    "seed": int(r["seed"]),
-                    "analytic": float(r["analytic"]),
-                    "estimate": float(r["estimate"]),
-                    "std": float(r["std"]),
-                    "converged": r["converged"] == "True",
-                    "iterations": int(r["iterations"]),
-                    "wall_time_s": float(r["wall_time_s"]),
-                }
-            )
-    return rows
-
-
-def coefficient_ok(r: dict) -> bool:
-    """Within `COEFFICIENT_TOLERANCE` of the analytic value or `COEFFICIENT_SIGMAS` of its σ; an
-    infinite (or missing) σ bounds nothing, so only the first clause can pass such a coefficient."""
-    err = abs(r["estimate"] - r["analytic"])
-    sigma = r["std"]
-    return bool(
-        np.isfinite(err)
-        and (
-            err <= COEFFICIENT_TOLERANCE * abs(r["analytic"])
-            or (np.isfinite(sigma) and err <= COEFFICIENT_SIGMAS * sigma)
-        )
-    )
-
-
-def cell_table(rows: list[dict]) -> dict[tuple, dict]:
-    """Per cell (scenario, method, seed): converged, the fraction of acceptable coefficients, the
-    median relative error, and whether the cell is acceptable."""
-    cells: dict[tuple, list[dict]] = {}
-    for r in rows:
-        cells.setdefault((r["scenario"], r["method"], r["seed"]), []).append(r)
-    out = {}
-    for k, rs in cells.items():
-        coef = [r for r in rs if r["coefficient"]]
-        ok = np.mean([coefficient_ok(r) for r in coef]) if coef else 0.0
-        rel = [abs(r["estimate"] - r["analytic"]) / abs(r["analytic"]) for r in coef if r["analytic"]]
-        rel = float(np.median(rel)) if rel and np.all(np.isfinite(rel)) else math.inf
-        converged = rs[0]["converged"]
-        out[k] = {
-            "converged": converged,
-            "fraction_ok": float(ok),
-            "median_relative_error": rel,
-            "acceptable": bool(converged and ok >= CELL_FRACTION),
-            "status": rs[0]["status"],
-        }
-    return out
-
-
-def _share(table, method, scenarios=SCENARIOS) -> tuple[int, int]:
-    picked = [v for (s, m, _), v in table.items() if m == method and s in scenarios]
-    return sum(v["acceptable"] for v in picked), len(picked)
-
-
-def conclusions(rows: list[dict], drift: dict[str, dict]) -> dict:
-    """The paper's three conclusions, each decided by its rule (README) from the results and,
-    for the first, the structural analysis recorded with the cells (`drift`, per scenario)."""
-    table = cell_table(rows)
-    out = {}
-    # 1. no global identifiability; simultaneous drift because of the inertia matrix
-    parts, holds = [], bool(drift)
-    for s, d in sorted(drift.items()):
-        inertia = all(any(n.endswith("dot") for n in g) for g in d["drift_groups"])
-        holds &= d["null_directions"] > 0 and inertia and d["null_directions_inertia_known"] == 0
-        parts.append(
-            f"Scenario {s}: with all 35 coefficients free, {d['null_directions']} exactly "
-            f"unidentifiable direction(s) in {len(d['drift_groups'])} drift group(s) of "
-            f"{sum(map(len, d['drift_groups']))} coefficients"
-            f"{', each with inertia (…dot) terms' if inertia else ', not all with inertia terms'}; "
-            f"with the inertia matrix known (a general state equation in At, Bt): "
-            f"{d['null_directions_inertia_known']}"
-        )
-    out["1"] = {"holds": holds, "evidence": "; ".join(parts) or "no cell recorded the structural analysis"}
-    # 2. ML with Nelder-Mead acceptable; ML with Newton-Raphson and steepest descent unsatisfactory
-    nm_ok, nm_n = _share(table, "ml-nm")
-    nr_ok, nr_n = _share(table, "ml-nr")
-    nr_conv = sum(v["converged"] for (s, m, _), v in table.items() if m == "ml-nr")
-    holds = nm_n > 0 and nr_n > 0 and nm_ok >= ACCEPTABLE * nm_n and nr_ok < UNSATISFACTORY * nr_n
-    out["2"] = {
-        "holds": bool(holds),
-        "evidence": (
-            f"ml-nm acceptable in {nm_ok}/{nm_n} cells (rule: ≥ {ACCEPTABLE:.0%}); ml-nr acceptable in "
-            f"{nr_ok}/{nr_n} cells (rule: < {UNSATISFACTORY:.0%}), converged in {nr_conv}/{nr_n}; "
-            + _medians(table, ("ml-nm", "ml-nr"))
-        ),
-    }
-    # 3. Nelder-Mead satisfactory when the inputs are PRBS (Scenario II) — better than Scenario I
-    ok2, n2 = _share(table, "ml-nm", ("II",))
-    med = {s: _median(table, "ml-nm", s) for s in SCENARIOS}
-    holds = n2 > 0 and ok2 >= ACCEPTABLE * n2 and med["II"] < med["I"]
-    out["3"] = {
-        "holds": bool(holds),
-        "evidence": (
-            f"ml-nm on Scenario II (PRBS inputs) acceptable in {ok2}/{n2} cells (rule: ≥ {ACCEPTABLE:.0%}); "
-            f"median relative error {_pct(med['II'])} on Scenario II against {_pct(med['I'])} on "
-            "Scenario I (rule: smaller on II)"
-        ),
-    }
-    return out
-
-
-def _median(table, method, scenario) -> float:
-    v = [x["median_relative_error"] for (s, m, _), x in table.items() if m == method and s == scenario]
-    return float(np.median(v)) if v else math.inf
-
-
-def _medians(table, methods) -> str:
-    return "; ".join(
-        f"median relative error of {m}: "
-        + ", ".join(f"Scenario {s} {_pct(_median(table, m, s))}" for s in SCENARIOS)
-        for m in methods
-    )
-
-
-def _pct(v: float) -> str:
-    return f"{100 * v:.1f} %" if np.isfinite(v) else "n/a (no converged estimate)"
-
-
-def summary_table(rows: list[dict]) -> list[dict]:
-    """Per scenario and method: cells, converged, acceptable, median relative error, wall time."""
-    table = cell_table(rows)
-    times = {}
-    for r in rows:
-        times.setdefault((r["scenario"], r["method"]), {})[r["seed"]] = r["wall_time_s"]
-    out = []
-    for s, m in dict.fromkeys((s, m) for s, m, _ in table):
-        v = [x for (a, b, _), x in table.items() if (a, b) == (s, m)]
-        rel = [x["median_relative_error"] for x in v if np.isfinite(x["median_relative_error"])]
-        out.append(
-            {
-                "scenario": s,
-                "method": m,
-                "cells": len(v),
-                "converged": sum(x["converged"] for x in v),
-                "acceptable": sum(x["acceptable"] for x in v),
-                "failed": sum(x["status"] == "failed" for x in v),
-                "median_relative_error": float(np.median(rel)) if rel else math.nan,
-                "median_wall_time_s": float(np.median(list(times[(s, m)].values()))),
-            }
-        )
-    return out
-
-
-def write_outputs(out: Path, docs: list[dict], inputs: dict) -> None:
-    """results.csv, conclusions.json, the figures, report.html and report.rrd from the cells."""
-
+def write_outputs(out: Path, docs: list[dict], cells: list[Cell]) -> None:
+    """results.csv, summary.csv, regime.json, drift.json, conclusions.json, the figures,
+    report.html and report.rrd from the cells and the runs."""
     rows = results_rows(docs)
     atomic_write_text(out / "results.csv", results_csv(rows))
     rows = read_results(out / "results.csv")  # the verdicts are computed from the file itself
-    drift = {d["cell"]["scenario"]: d["drift"] for d in docs if "drift" in d}
-    verdicts = conclusions(rows, drift)
+    found_regime, found_drift = regime(out, cells), drift(out, docs, cells)
+    atomic_write_text(out / "regime.json", json.dumps(found_regime, indent=2) + "\n")
+    atomic_write_text(out / "drift.json", json.dumps(found_drift, indent=2) + "\n")
+    verdicts = conclusions(rows, found_regime, found_drift)
     atomic_write_text(out / "conclusions.json", json.dumps(verdicts, indent=2) + "\n")
-    write_report(out, docs, rows, verdicts, inputs, summary_table(rows), METHODS, SCENARIOS)
+    summary = summary_table(rows)
+    atomic_write_text(out / "summary.csv", results_csv(summary, SUMMARY_COLUMNS))
+    inputs = {}
+    for s in dict.fromkeys(c.scenario for c in cells):
+        first = next(c for c in cells if c.scenario == s)
+        try:
+            inputs[s] = load_data([out / "runs" / first.run_name])[0]
+        except (InputError, OSError):
+            inputs[s] = None  # the report says which figure is missing
+    write_report(out, docs, rows, verdicts, inputs, summary, found_regime, found_drift, tuple(ARMS))

@@ -1,0 +1,125 @@
+"""The study's arms: each a registered method with the options that make it one of the variants
+the paper compares, or one of its future work's.
+
+An arm is fitted from the a-priori model of its cell (`testbed.study.priors.prior`), the screen
+run at that prior, so every arm of a data set, seed and spread starts from the same model with
+the same free coefficients. The drift arms fit two fixed parametrisations instead, unscreened,
+for conclusion 1 (`testbed.analysis.drift`): the Mt-form with the inertia terms free
+(normalised) and the A-form with them known.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+from testbed.errors import InputError
+from testbed.estimators.mekf import PAPER_OPTIONS
+
+__all__ = ["ARMS", "Arm", "DEFAULT_ARMS", "DRIFT_ARMS", "FACTORIAL_ARMS", "arm", "arms"]
+
+
+@dataclass(frozen=True)
+class Arm:
+    """A method with options: `name` in results.csv, `method` the registered estimator.
+
+    `free`: "screened" (the screen's free set at the cell's prior, shared by the judged arms),
+    "mt" (the candidates and the inertia terms, normalised) or "a" (the candidates as written,
+    the inertia known); only the screened arms are judged against the data's optimum."""
+
+    name: str
+    method: str
+    summary: str
+    options: Mapping = field(default_factory=dict)
+    free: str = "screened"
+
+    @property
+    def judged(self) -> bool:
+        return self.free == "screened"
+
+
+ARMS: dict[str, Arm] = {
+    a.name: a
+    for a in (
+        Arm("ml-nr", "ml-nr", "the paper's Newton-Raphson (Eq. 10), λ in SI units", {"coordinates": "si"}),
+        Arm(
+            "ml-nr-scaled",
+            "ml-nr",
+            "Newton-Raphson in coordinates scaled by the start",
+            {"coordinates": "scaled"},
+        ),
+        Arm(
+            "ml-nm-paper",
+            "ml-nm",
+            "the paper's Nelder-Mead: coefficients (1, 2, ½, ½), one simplex",
+            {"coefficients": "paper", "restarts": False},
+        ),
+        Arm(
+            "ml-nm-paper-restarts",
+            "ml-nm",
+            "Nelder-Mead, the paper's coefficients, with restarts and record-length continuation",
+            {"coefficients": "paper", "restarts": True},
+        ),
+        Arm(
+            "ml-nm-adaptive",
+            "ml-nm",
+            "Nelder-Mead with Gao & Han's adaptive coefficients, one simplex",
+            {"coefficients": "adaptive", "restarts": False},
+        ),
+        Arm(
+            "ml-nm-adaptive-restarts",
+            "ml-nm",
+            "Nelder-Mead, adaptive coefficients, restarts and continuation (ml-nm's default)",
+            {"coefficients": "adaptive", "restarts": True},
+        ),
+        Arm("mekf-paper", "mekf", "the paper's square-root modified EKF: fixed model noise", PAPER_OPTIONS),
+        Arm("mekf", "mekf", "the modified EKF with covariance-matched model noise (the default)"),
+        Arm(
+            "mekf+ml-gn",
+            "ml-gn",
+            "on-line then off-line: ml-gn from the MEKF's estimate (the paper's future work 1)",
+            {"start": "mekf"},
+        ),
+        Arm(
+            "ml-gn",
+            "ml-gn",
+            "output error by trust-region Gauss-Newton (the modern reference)",
+            {"start": "config"},
+        ),
+        Arm(
+            "ml-gn-global",
+            "ml-gn",
+            "ml-gn from the best draws of the prior's box (the paper's future work 2)",
+            {"start": "global"},
+        ),
+        Arm(
+            "drift-mt",
+            "ml-gn",
+            "conclusion 1: the Mt-form, inertia terms free (normalised)",
+            {"start": "config"},
+            "mt",
+        ),
+        Arm("drift-a", "ml-gn", "conclusion 1: the A-form, the inertia known", {"start": "config"}, "a"),
+    )
+}
+# The paper's three methods as it ran them, the modern reference, and the drift arms.
+DEFAULT_ARMS = ("ml-nr", "ml-nm-paper", "mekf-paper", "ml-gn", "drift-mt", "drift-a")
+FACTORIAL_ARMS = ("ml-nm-paper", "ml-gn")  # the arms the input factorial's data sets are fitted with
+DRIFT_ARMS = ("drift-mt", "drift-a")
+
+
+def arm(name: str) -> Arm:
+    """The arm called `name`; `InputError` if there is none."""
+    if name not in ARMS:
+        raise InputError(f"arm {name!r} is unknown; expected one of {', '.join(ARMS)}, or all")
+    return ARMS[name]
+
+
+def arms(names) -> tuple[str, ...]:
+    """The arms `names` lists (`all`: every arm), checked, in `ARMS` order."""
+    names = tuple(names)
+    if "all" in names:
+        return tuple(ARMS)
+    for n in names:
+        arm(n)
+    return tuple(n for n in ARMS if n in names)

@@ -1,0 +1,271 @@
+"""The campaign's results from its cell files: every judged cell against its data set's
+best-likelihood optimum, results.csv, and the table per data set, spread and arm.
+
+The optimum of a data set, seed and spread is the lowest `cost` (the output-error negative
+log-likelihood at the estimate, the same measure for every method) among its `OPTIMUM` cell and
+its judged arms' cells: the optimum search from the analytic values, or an arm where one went
+lower. Its σ are that cell's Cramér-Rao σ (corrected for coloured residuals), the `OPTIMUM`
+cell's where that cell's are not finite (a filter's). Each judged cell is then judged by
+`priors.judge`: success, diverged, stalled at the limit or converged elsewhere; a cell whose fit
+failed is "failed"; the drift arms are not judged (their outcome is empty).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from testbed.estimators.base import Status
+from testbed.study.arms import ARMS
+from testbed.study.cells import OPTIMUM
+from testbed.study.priors import Judgement, judge
+from testbed.study.rules import coefficient_ok, wilson
+
+__all__ = [
+    "COLUMNS",
+    "SUMMARY_COLUMNS",
+    "Point",
+    "judgements",
+    "read_results",
+    "results_csv",
+    "results_rows",
+    "summary_table",
+]
+
+COLUMNS = (
+    "scenario",
+    "truth",
+    "spread",
+    "arm",
+    "method",
+    "seed",
+    "coefficient",
+    "analytic",
+    "optimum",
+    "estimate",
+    "std",
+    "converged",
+    "status",
+    "outcome",
+    "sigmas",
+    "delta_cost",
+    "iterations",
+    "evaluations",
+    "wall_time_s",
+    "reason",
+)
+SUMMARY_COLUMNS = (
+    "scenario",
+    "truth",
+    "spread",
+    "arm",
+    "cells",
+    "success",
+    "judged",
+    "success_low",
+    "success_high",
+    "diverged",
+    "stalled",
+    "elsewhere",
+    "failed",
+    "accurate",
+    "median_relative_error",
+    "median_evaluations",
+    "median_wall_time_s",
+)
+NUMBERS = ("spread", "analytic", "optimum", "estimate", "std", "sigmas", "delta_cost", "wall_time_s")
+INTEGERS = ("seed", "iterations", "evaluations")
+
+
+@dataclass(frozen=True)
+class Point:
+    """A cell's estimate as the judge reads it: free names, values, σ, cost and status."""
+
+    free: tuple
+    coefficients: dict
+    std: tuple
+    cost: float
+    status: Status
+
+
+def _point(doc: dict, sigma: dict | None = None) -> Point:
+    free = tuple(doc["free"])
+    std = doc.get("std", {})
+    s = tuple(
+        float(std[n])
+        if std.get(n) is not None and math.isfinite(std[n])
+        else float((sigma or {}).get(n, math.inf))
+        for n in free
+    )
+    status = Status[doc["status"].upper().replace(" ", "_")] if doc["status"] != "failed" else Status.DIVERGED
+    return Point(free, dict(doc["values"]), s, float(doc.get("cost", math.inf)), status)
+
+
+def _group(doc: dict) -> tuple:
+    c = doc["cell"]
+    return (c["scenario"], c["truth"], c["spread"], c["seed"], c["duration"])
+
+
+def judgements(docs: list[dict]) -> dict[str, tuple[Judgement, Point] | None]:
+    """Per judged cell's key: its judgement and the optimum it was judged against (None where the
+    cell failed or its group has no finite optimum)."""
+    groups: dict[tuple, list[dict]] = {}
+    for d in docs:
+        groups.setdefault(_group(d), []).append(d)
+    out = {}
+    for group in groups.values():
+        reference = next((d for d in group if d["cell"]["arm"] == OPTIMUM and d["status"] != "failed"), None)
+        judged = [d for d in group if d["cell"]["arm"] in ARMS and ARMS[d["cell"]["arm"]].judged]
+        sigma = {n: s for n, s in zip(reference["free"], _point(reference).std)} if reference else {}
+        candidates = [
+            d
+            for d in judged + ([reference] if reference else [])
+            if d["status"] != "failed" and math.isfinite(d.get("cost", math.inf))
+        ]
+        best = _point(min(candidates, key=lambda d: d["cost"]), sigma) if candidates else None
+        for d in judged:
+            if d["status"] == "failed" or best is None or tuple(d["free"]) != best.free:
+                out[d["key"]] = None
+                continue
+            out[d["key"]] = (judge(_point(d), best), best)
+    return out
+
+
+def results_rows(docs: list[dict]) -> list[dict]:
+    """One row per cell and coefficient (the `OPTIMUM` cells appear as the `optimum` column of
+    the others); a cell without coefficients (failed) keeps one row with an empty coefficient."""
+    verdicts = judgements(docs)
+    rows = []
+    for d in docs:
+        c = d["cell"]
+        if c["arm"] == OPTIMUM:
+            continue
+        verdict = verdicts.get(d["key"])
+        judged = ARMS[c["arm"]].judged if c["arm"] in ARMS else False
+        outcome = (
+            "failed" if d["status"] == "failed" else (verdict[0].outcome.name.lower() if verdict else "")
+        )
+        if judged and outcome == "" and d["status"] != "failed":
+            outcome = "unjudged"
+        base = {
+            "scenario": c["scenario"],
+            "truth": c["truth"],
+            "spread": c["spread"],
+            "arm": c["arm"],
+            "method": ARMS[c["arm"]].method if c["arm"] in ARMS else "",
+            "seed": c["seed"],
+            "converged": d["converged"],
+            "status": d["status"],
+            "outcome": outcome,
+            "sigmas": verdict[0].sigmas if verdict else math.nan,
+            "delta_cost": verdict[0].delta_cost if verdict else math.nan,
+            "iterations": d["iterations"],
+            "evaluations": d.get("evaluations", 0),
+            "wall_time_s": round(d["wall_time_s"], 3),
+            "reason": d.get("reason", ""),
+        }
+        optimum = verdict[1].coefficients if verdict else {}
+        names = d.get("free") or [""]
+        for n in names:
+            rows.append(
+                {
+                    **base,
+                    "coefficient": n,
+                    "analytic": d["analytic"][n] if n else math.nan,
+                    "optimum": optimum.get(n, math.nan),
+                    "estimate": d["values"][n] if n else math.nan,
+                    "std": _std(d, n),
+                }
+            )
+    return rows
+
+
+def _std(doc: dict, name: str) -> float:
+    v = doc.get("std", {}).get(name) if name else None
+    return math.nan if v is None else float(v)
+
+
+def results_csv(rows: list[dict], columns=COLUMNS) -> str:
+    """`rows` as CSV with `columns` (results.csv; `SUMMARY_COLUMNS`: summary.csv), floats to 10 digits."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, columns, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow(
+            {k: (format(v, ".10g") if isinstance(v, float) else v) for k, v in r.items() if k in COLUMNS}
+        )
+    return buf.getvalue()
+
+
+def read_results(path) -> list[dict]:
+    """results.csv back as rows with numbers, booleans and ints."""
+    rows = []
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            rows.append(
+                {
+                    **r,
+                    **{k: float(r[k]) for k in NUMBERS},
+                    **{k: int(r[k]) for k in INTEGERS},
+                    "converged": r["converged"] == "True",
+                }
+            )
+    return rows
+
+
+def cells(rows: list[dict]) -> dict[tuple, list[dict]]:
+    """The rows of each cell: (scenario, truth, spread, arm, seed) → rows."""
+    out: dict[tuple, list[dict]] = {}
+    for r in rows:
+        out.setdefault((r["scenario"], r["truth"], r["spread"], r["arm"], r["seed"]), []).append(r)
+    return out
+
+
+def summary_table(rows: list[dict]) -> list[dict]:
+    """Per data set, spread and arm: cells, each outcome's count, the success proportion with its
+    Wilson 95 % interval, the cells whose coefficients are acceptable against the analytic model
+    (`rules.coefficient_ok` on every one), the median relative error against it, and the median
+    evaluations and wall time."""
+    groups: dict[tuple, list[list[dict]]] = {}
+    for (s, t, sp, a, _), rs in cells(rows).items():
+        groups.setdefault((s, t, sp, a), []).append(rs)
+    out = []
+    for (s, t, sp, a), cs in groups.items():
+        outcomes = [rs[0]["outcome"] for rs in cs]
+        judged = [o for o in outcomes if o]
+        k, n = outcomes.count("success"), len(judged)
+        lo, hi = wilson(k, n) if n else (math.nan, math.nan)
+        coef = [[r for r in rs if r["coefficient"]] for rs in cs]
+        rel = [
+            float(
+                np.median(
+                    [abs(r["estimate"] - r["analytic"]) / abs(r["analytic"]) for r in c if r["analytic"]]
+                )
+            )
+            for c in coef
+            if any(r["analytic"] for r in c)
+        ]
+        rel = [v for v in rel if np.isfinite(v)]
+        out.append(
+            {
+                "scenario": s,
+                "truth": t,
+                "spread": sp,
+                "arm": a,
+                "cells": len(cs),
+                "success": k,
+                "judged": n,
+                "success_low": lo,
+                "success_high": hi,
+                **{o: outcomes.count(o) for o in ("diverged", "stalled", "elsewhere", "failed")},
+                "accurate": sum(bool(c) and all(coefficient_ok(r) for r in c) for c in coef),
+                "median_relative_error": float(np.median(rel)) if rel else math.nan,
+                "median_evaluations": float(np.median([rs[0]["evaluations"] for rs in cs])),
+                "median_wall_time_s": float(np.median([rs[0]["wall_time_s"] for rs in cs])),
+            }
+        )
+    return out
