@@ -94,7 +94,7 @@ def hand_forms():
     Q = np.linalg.qr(G)[0]
     mt = _hand_form(("Y_v", "Y_r", "N_v", "N_r", "Y_rdot"), Q @ np.diag([1e-6, 1e-4, 1e-2, 1.0, 5.0]) @ Q.T)
     a = _hand_form(("Y_v", "Y_r", "N_v", "N_r"), np.diag([0.5, 2.0, 4.0, 8.0]))
-    return drift.Forms(mt, a, 0, {})
+    return drift.Forms(mt=mt, a=a, null_directions_mt=0, noise_std={})
 
 
 def _draws(f, n, rng, drift_sigmas=0.0):

@@ -104,14 +104,21 @@ def form(F: np.ndarray, config: ModelConfig) -> Form:
     """The `Form` of the information `F` of `config.free` at the config's coefficients."""
     s = scales(config)
     lam, V = np.linalg.eigh(F * np.outer(s, s))
-    V *= np.where(V[np.argmax(np.abs(V), 0), np.arange(len(V))] < 0, -1.0, 1.0)  # largest component > 0
-    rho = np.abs(np.nan_to_num(crlb(F).correlation))
+    largest = V[np.argmax(np.abs(V), 0), np.arange(len(V))]
+    V *= np.where(largest < 0, -1.0, 1.0)  # each direction's sign: its largest component positive
+    corr = crlb(F).correlation
+    rho = np.abs(np.nan_to_num(corr))
     np.fill_diagonal(rho, -1.0)
-    i, j = np.unravel_index(np.argmax(rho), rho.shape)
-    corr = crlb(F).correlation[i, j]
-    values = theta_vector(config.coefficients)[[ITHETA[n] for n in config.free]]
-    pair = (config.free[min(i, j)], config.free[max(i, j)], float(corr))
-    return Form(tuple(config.free), values, s, F, lam, V, pair)
+    i, j = sorted(np.unravel_index(np.argmax(rho), rho.shape))
+    return Form(
+        free=tuple(config.free),
+        values=theta_vector(config.coefficients)[[ITHETA[n] for n in config.free]],
+        scales=s,
+        fisher=F,
+        eigenvalues=lam,
+        eigenvectors=V,
+        correlation=(config.free[i], config.free[j], float(corr[i, j])),
+    )
 
 
 @dataclass(frozen=True)
@@ -140,10 +147,10 @@ def forms(
     measured = sorted({m for e in data for m in e.measured}, key=list(IX).index)
     null = structural(structure(config.vehicle), theta_vector(config.coefficients), mt.free, measured)
     return Forms(
-        form(fisher(data, mt, noise_std=noise), mt),
-        form(fisher(data, a, noise_std=noise), a),
-        null.null_directions,
-        noise,
+        mt=form(fisher(data, mt, noise_std=noise), mt),
+        a=form(fisher(data, a, noise_std=noise), a),
+        null_directions_mt=null.null_directions,
+        noise_std=noise,
     )
 
 
