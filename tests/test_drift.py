@@ -137,6 +137,10 @@ def test_evidence_needs_two_seeds_and_every_coefficient(hand_forms):
     partial = [{k: v for k, v in e.items() if k != "N_r"} for e in _draws(hand_forms.mt, 3, rng)]
     with pytest.raises(InputError, match="no N_r"):
         drift.evidence(hand_forms, partial, _draws(hand_forms.a, 3, rng))
+    nan = _draws(hand_forms.mt, 3, rng)
+    nan[1]["Y_v"] = float("nan")
+    with pytest.raises(InputError, match=r"estimates_mt\[1\]: Y_v = nan"):
+        drift.evidence(hand_forms, nan, _draws(hand_forms.a, 3, rng))
 
 
 def test_forms_of_the_example_data():

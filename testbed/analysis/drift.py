@@ -164,7 +164,11 @@ def _projections(f: Form, estimates: Sequence[Mapping[str, float]], k: int, what
             raise InputError(
                 f"{what}: an estimate has no {missing[0]}; expected every one of {', '.join(f.free)}"
             )
-    Z = (np.array([[float(e[n]) for n in f.free] for e in estimates]) - f.values) / f.scales
+    theta = np.array([[float(e[n]) for n in f.free] for e in estimates])
+    if not np.isfinite(theta).all():
+        seed, i = np.argwhere(~np.isfinite(theta))[0]
+        raise InputError(f"{what}[{seed}]: {f.free[i]} = {theta[seed, i]}; expected finite estimates")
+    Z = (theta - f.values) / f.scales
     return Z @ f.eigenvectors[:, :k]
 
 
