@@ -57,8 +57,8 @@ def normalised(config: ModelConfig) -> ModelConfig:
     row's scale. One diagonal per row is not enough where Mt couples three rows: the torpedo's
     lateral rows v, p, r (Y_pdot, Y_rdot, K_vdot, K_rdot, N_vdot, N_pdot) keep one exact null
     direction each, a row plus a multiple of another that leaves its diagonal unchanged (the
-    vertical rows w, q are pinned by the restoring moment z_B B in q's row, which w's row does
-    not have). So, while `structural` finds a null direction with every state measured, the
+    vertical rows w, q are pinned through the restoring moment z_B B in q's row, which w's row
+    does not have; weakly, so M_wdot drifts in practice: docs/studies.md). So, while `structural` finds a null direction with every state measured, the
     added-mass term with the largest relative component (|v_i| / s_i) along one is fixed too
     (on the Scenario II torpedo: Y_rdot, K_rdot, N_vdot, leaving Y_pdot, Z_qdot, K_vdot,
     M_wdot, N_pdot free). The result has 0 exact null directions when every state is measured:
@@ -185,8 +185,8 @@ def evidence(
 ) -> dict:
     """What the seeds' estimates say about drift, JSON-able.
 
-    `estimates_mt`, `estimates_a`: one {name: value} per seed, fitted in the Mt-form and in the
-    A-form. Each form's estimates are projected on its own k worst directions (relative
+    `estimates_mt`, `estimates_a`: one {name: value} per seed (at least 2, finite: the caller
+    chooses which fits count), fitted in the Mt-form and in the A-form. Each form's estimates are projected on its own k worst directions (relative
     coordinates); `null_scatter_*` is the rms over those directions of (the seeds' sample σ along
     the direction) / (its Cramér-Rao σ): ≈ 1 where the drift is the noise the bounds predict
     (with n seeds, within the sampling error of a σ from n − 1 degrees of freedom), ≫ 1 where
