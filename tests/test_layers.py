@@ -46,6 +46,7 @@ LAYERS = [
     ("testbed.analysis", "testbed.analysis.validation", "testbed.analysis.identifiability"),
     ("testbed.analysis.regime",),
     ("testbed.analysis.design",),
+    ("testbed.analysis.drift",),
     ("testbed.presentation", "testbed.presentation.report", "testbed.presentation.design_report"),
     ("testbed.presentation.figures",),
     ("testbed.jobs",),
