@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -314,30 +315,37 @@ def regime(out: Path, cells: list[Cell]) -> dict[str, dict]:
 
 def drift(out: Path, docs: list[dict], cells: list[Cell]) -> dict[str, dict]:
     """Per data set ("scenario/truth") with drift cells: the Mt-form against the A-form at its first
-    spread (`drift.forms` at the analytic model of the first seed's run, `drift.evidence` of the
-    converged estimates over the seeds)."""
+    spread: `drift.forms` at the analytic model of the first seed's run and `drift.evidence` of
+    every seed's finite estimates, converged or not (a fit that drifts off to its limit is the
+    evidence), with how many of each form's fits converged."""
     found = {}
     for c in cells:
         key = f"{c.scenario}/{c.truth}"
         if key in found or c.arm != DRIFT_ARMS[0] or c.seed != 1:
             continue
+        mine = [
+            d
+            for d in docs
+            if d
+            and d["status"] != "failed"
+            and (d["cell"]["scenario"], d["cell"]["truth"], d["cell"]["spread"])
+            == (c.scenario, c.truth, c.spread)
+        ]
         picked = {
-            a: [
-                d["values"]
-                for d in docs
-                if d
-                and d["converged"]
-                and (d["cell"]["scenario"], d["cell"]["truth"], d["cell"]["spread"], d["cell"]["arm"])
-                == (c.scenario, c.truth, c.spread, a)
-            ]
+            a: [d for d in mine if d["cell"]["arm"] == a and all(map(math.isfinite, d["values"].values()))]
             for a in DRIFT_ARMS
         }
         try:
             experiments, analytic = load_data([out / "runs" / c.run_name])
             f = forms(experiments, analytic)
-            found[key] = {"spread": c.spread, **evidence(f, picked[DRIFT_ARMS[0]], picked[DRIFT_ARMS[1]])}
+            measured = evidence(f, *([d["values"] for d in picked[a]] for a in DRIFT_ARMS))
         except (InputError, OSError, np.linalg.LinAlgError, ValueError):
             continue
+        found[key] = {
+            "spread": c.spread,
+            **measured,
+            **{f"converged_{a.split('-')[1]}": sum(d["converged"] for d in picked[a]) for a in DRIFT_ARMS},
+        }
     return found
 
 

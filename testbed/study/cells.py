@@ -181,14 +181,16 @@ def likelihood_at(experiments, config) -> float:
 def _fitted_config(cell: Cell, data, begin: Start):
     """The model config the cell fits: the start's (screened) for a judged arm and the optimum
     (the latter from the analytic values of its free coefficients); the candidates as written
-    for the A-form drift arm, with the inertia terms normalised for the Mt-form one."""
+    for the A-form drift arm, with the inertia terms normalised for the Mt-form one (the prior's
+    values throughout)."""
     analytic = data[1]
     if cell.arm == OPTIMUM:
         return begin.config.with_coefficients({n: analytic.coefficients[n] for n in begin.config.free})
     a = ARMS[cell.arm]
     if a.free == "screened":
         return begin.config
-    return normalised(begin.prior) if a.free == "mt" else begin.prior
+    # the Mt-form's free set is the analytic model's normalisation, the one `drift.forms` analyses
+    return replace(begin.prior, free=normalised(analytic).free) if a.free == "mt" else begin.prior
 
 
 def run_cell(cell: Cell, data, begin: Start) -> dict:
