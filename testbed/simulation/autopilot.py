@@ -312,7 +312,8 @@ def fly_linear(
     *,
     rate_limit: float,
 ):
-    """Fly `autopilot` on the linear model ẋ = A x + B δ (exact zero-order hold at its period).
+    """Fly `autopilot` on the linear model ẋ = A x + B δ (a `LinearPlant`: exact zero-order hold
+    at its period).
 
     `commands(t, x)` gives `Autopilot.step`'s keywords. The fins slew at `rate_limit` (rad/s;
     the vehicle's, `FinLimits.rate`) towards the commands, as the plant's servos; each period holds the fin's mean angle over it.
