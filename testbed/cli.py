@@ -133,9 +133,12 @@ def _cmd_analytic(args) -> int:
 
 def _cmd_simulate(args) -> int:
     from testbed.simulation.runs import simulate
+    from testbed.simulation.scenario import TRUTHS
 
     if args.out == STDOUT:
         raise InputError("--out -: a run directory is a folder, not standard output; expected a folder name")
+    if args.truth not in TRUTHS:
+        raise InputError(f"--truth {args.truth}; expected one of {', '.join(TRUTHS)}")
     _quiet_mujoco()
     bar = ProgressBar(not args.quiet)
     run = simulate(
@@ -147,6 +150,7 @@ def _cmd_simulate(args) -> int:
         speed=args.speed,
         mjcf=args.mjcf,
         progress=bar,
+        truth=args.truth,
     )
     bar.close()
     print(run)
@@ -351,6 +355,11 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=_positive, help="seconds per experiment (default: the scenario's)")
     s.add_argument("--speed", type=_positive, help="cruise speed, m/s (default: the vehicle's)")
     s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
+    s.add_argument(
+        "--truth",
+        default="plant",
+        help="what flies: plant (the MuJoCo plant, default) or linear (the run's analytic linear model)",
+    )
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_cmd_simulate)
 

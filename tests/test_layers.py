@@ -22,7 +22,7 @@ LAYERS = [
     ("testbed.data",),
     ("testbed.simulation", "testbed.simulation.measurements"),
     ("testbed.simulation.vehicle",),
-    ("testbed.simulation.plant",),
+    ("testbed.simulation.plant", "testbed.simulation.linear_plant"),
     ("testbed.simulation.analytic",),
     ("testbed.simulation.autopilot", "testbed.simulation.signals"),
     ("testbed.simulation.scenario",),

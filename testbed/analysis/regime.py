@@ -1,30 +1,55 @@
-"""The linear regime of an experiment: the peaks of the quantities that bound it, and the check
+"""The linear regime of an experiment: the peaks of the quantities that bound it, the check
 that the analytic model tracks the truth plant flying it (`linearity`, the rule that sized
 Scenario II: fit ≥ 99 % on every excited channel, second-order residual below a fifth of the
-sensor noise on every fitted channel).
+sensor noise on every fitted channel), and the same comparison on a run directory
+(`open_loop_fit`): how far a data set lies from the analytic model's linear regime.
+
+Both simulate the analytic model open loop (`open_loop`): from the first noise-free truth sample,
+driven by the flown fin angles (each sample interval's mean, the zero-order hold of the model).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Mapping, Sequence
-
 
 import numpy as np
 
 from testbed.analysis.validation import fit_percent
-from testbed.data import Experiment
+from testbed.data import MIN_NOISE_STD, Experiment, ModelConfig, read_config, read_csv, run_csvs
+from testbed.errors import InputError
 from testbed.identification.prediction import predict
 from testbed.models.linear import IX, STATES
 from testbed.simulation.analytic import model_config
-from testbed.simulation.scenario import Scenario, fly_scenario
+from testbed.simulation.scenario import Scenario, fly_scenario, read_scenario
 
-__all__ = ["FITTED", "FIT_LIMIT", "RESIDUAL_LIMIT", "SEED", "Limits", "Linearity", "linearity", "peaks"]
+__all__ = [
+    "EXCITED_SNR",
+    "FITTED",
+    "FIT_LIMIT",
+    "RESIDUAL_LIMIT",
+    "SEED",
+    "Limits",
+    "Linearity",
+    "OpenLoopFit",
+    "linearity",
+    "open_loop",
+    "open_loop_fit",
+    "peaks",
+    "speed_loss",
+]
 
 SEED = 1  # the PRBS phases and noise streams the design is evaluated and flown with
 FITTED = tuple(s for s in STATES if s != "z")  # a run's model.toml fits every state but depth
 RESIDUAL_LIMIT = 0.2  # second-order residual / sensor noise on fitted channels (Scenario II's rule)
 FIT_LIMIT = 99.0  # % fit of the analytic model on every excited channel, depth included
+# A run's channel counts as excited (`open_loop_fit`) where its noise-free truth's standard
+# deviation is at least EXCITED_SNR times its sensor noise σ: a response that stands out of the
+# noise in the data (σ at least `MIN_NOISE_STD`). Weaker motion (cross-coupling below the noise, rounding in a channel the
+# experiment leaves alone) is reported but does not set the lowest fit.
+EXCITED_SNR = 2.0
 
 
 @dataclass(frozen=True)
@@ -89,6 +114,17 @@ class Linearity:
         )
 
 
+def open_loop(truth: Sequence[Experiment], config: ModelConfig) -> list[np.ndarray]:
+    """The model of `config` simulated open loop on each noise-free experiment (every state):
+    from its first sample, driven by its inputs. Per experiment (N, 10), absolute u."""
+    return predict(truth, config, {e.name: dict(zip(e.measured, e.y[0])) for e in truth})
+
+
+def speed_loss(truth: Experiment, speed: float) -> float:
+    """The largest loss of speed below the trim `speed` over a noise-free experiment, a fraction."""
+    return float((speed - truth.column("u").min()) / speed)
+
+
 def linearity(
     s: Scenario, excited: Mapping[str, Sequence[str]], mjcf=None, seeds: Sequence[int] = (SEED,)
 ) -> Linearity:
@@ -100,9 +136,8 @@ def linearity(
         flights, lin = fly_scenario(s, seed=seed, mjcf=mjcf)
         config = model_config(lin)[0]
         truth = [Experiment(f.name, f.t, STATES, f.truth, f.fins) for f in flights]
-        start = {e.name: dict(zip(STATES, e.y[0])) for e in truth}
         U = lin.vehicle.speed
-        for e, yhat in zip(truth, predict(truth, config, start)):
+        for e, yhat in zip(truth, open_loop(truth, config)):
             fits = {c: fit_percent(e.column(c), yhat[:, IX[c]]) for c in excited[e.name]}
             res = {c: float(np.std(e.column(c) - yhat[:, IX[c]])) / s.sensors.noise_std[c] for c in FITTED}
             c1, c2 = min(fits, key=fits.get), max(res, key=res.get)
@@ -110,5 +145,103 @@ def linearity(
                 fit[e.name] = (c1, fits[c1])
             if e.name not in residual or res[c2] > residual[e.name][1]:
                 residual[e.name] = (c2, res[c2])
-            loss[e.name] = max(loss.get(e.name, 0.0), float((U - e.column("u").min()) / U))
+            loss[e.name] = max(loss.get(e.name, 0.0), speed_loss(e, U))
     return Linearity(fit, residual, loss, tuple(seeds))
+
+
+@dataclass(frozen=True)
+class OpenLoopFit:
+    """The analytic model open loop against a run (`open_loop_fit`). Per experiment: its fit %
+    (`fit_percent`) per channel against the measured data and against the noise-free truth, the
+    excited channels (`EXCITED_SNR`), the speed loss (% of U), the peak pitch (deg) and pitch
+    rate (deg/s). NaN where a channel does not vary."""
+
+    speed: float  # trim speed U, m/s
+    data: Mapping[str, Mapping[str, float]]  # experiment -> measured channel -> fit %
+    truth: Mapping[str, Mapping[str, float]]  # experiment -> state -> fit %
+    excited: Mapping[str, tuple[str, ...]]  # experiment -> its excited states
+    speed_loss: Mapping[str, float]  # experiment -> %, of U
+    peak_pitch: Mapping[str, float]  # experiment -> deg
+    peak_pitch_rate: Mapping[str, float]  # experiment -> deg/s
+
+    @property
+    def lowest(self) -> tuple[str, str, float] | None:
+        """(experiment, channel, fit %) of the lowest truth fit over the excited channels; None
+        where no channel is excited."""
+        fits = [(n, c, self.truth[n][c]) for n, cs in self.excited.items() for c in cs]
+        return min(fits, key=lambda f: f[2]) if fits else None
+
+    @property
+    def lowest_truth_fit(self) -> float:
+        """The lowest truth fit % over the excited channels of every experiment (NaN: none)."""
+        return self.lowest[2] if self.lowest else math.nan
+
+    def to_dict(self) -> dict:
+        """JSON-able (NaN as None), with the derived `lowest_truth_fit` and `lowest`."""
+        lowest = self.lowest
+        return {
+            "speed": self.speed,
+            "lowest_truth_fit": _json(self.lowest_truth_fit),
+            "lowest": None if lowest is None else {"experiment": lowest[0], "channel": lowest[1]},
+            "excited_snr": EXCITED_SNR,
+            "data": {n: {c: _json(v) for c, v in fits.items()} for n, fits in self.data.items()},
+            "truth": {n: {c: _json(v) for c, v in fits.items()} for n, fits in self.truth.items()},
+            "excited": {n: list(cs) for n, cs in self.excited.items()},
+            "speed_loss": dict(self.speed_loss),
+            "peak_pitch": dict(self.peak_pitch),
+            "peak_pitch_rate": dict(self.peak_pitch_rate),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "OpenLoopFit":
+        """The inverse of `to_dict` (its derived keys are recomputed, not read)."""
+        fits = lambda key: {  # noqa: E731
+            n: {c: math.nan if v is None else float(v) for c, v in f.items()} for n, f in d[key].items()
+        }
+        return cls(
+            speed=float(d["speed"]),
+            data=fits("data"),
+            truth=fits("truth"),
+            excited={n: tuple(cs) for n, cs in d["excited"].items()},
+            speed_loss={n: float(v) for n, v in d["speed_loss"].items()},
+            peak_pitch={n: float(v) for n, v in d["peak_pitch"].items()},
+            peak_pitch_rate={n: float(v) for n, v in d["peak_pitch_rate"].items()},
+        )
+
+
+def _json(v: float) -> float | None:
+    return None if math.isnan(v) else float(v)
+
+
+def open_loop_fit(run: str | Path) -> OpenLoopFit:
+    """The analytic model of a run directory (its `model.toml`) simulated open loop on each
+    experiment (`open_loop`: from the first `<experiment>.truth.csv` sample, with its fin
+    angles), against the measured data (`<experiment>.csv`) and the noise-free truth; the
+    excited channels, the truth's speed loss and peak pitch and pitch rate (see `OpenLoopFit`).
+    The sensor noise σ that decides which channels are excited is the run's `scenario.toml`'s."""
+    run = Path(run)
+    config = read_config(run / "model.toml")
+    sigma = read_scenario(run / "scenario.toml").sensors.noise_std
+    data = [read_csv(f) for f in run_csvs(run)]
+    truth = [read_csv(run / f"{e.name}.truth.csv") for e in data]
+    for e in truth:
+        if e.measured != STATES:
+            raise InputError(
+                f"{e.source}: columns {', '.join(e.measured)}; expected every state ({', '.join(STATES)})"
+            )
+    U = config.vehicle.speed
+    fields = ("data", "truth", "excited", "speed_loss", "peak_pitch", "peak_pitch_rate")
+    out = {key: {} for key in fields}  # field -> experiment -> its value
+    for d, e, yhat in zip(data, truth, open_loop(truth, config)):
+        p = peaks(e.y, e.inputs, U, e.dt)
+        values = (
+            {c: fit_percent(d.column(c), yhat[:, IX[c]]) for c in d.measured},
+            {c: fit_percent(e.column(c), yhat[:, IX[c]]) for c in STATES},
+            tuple(c for c in STATES if np.std(e.column(c)) >= EXCITED_SNR * max(sigma[c], MIN_NOISE_STD)),
+            100.0 * speed_loss(e, U),
+            math.degrees(p["pitch"]),
+            math.degrees(p["pitch_rate"]),
+        )
+        for key, v in zip(fields, values):
+            out[key][d.name] = v
+    return OpenLoopFit(speed=U, **out)

@@ -57,6 +57,7 @@ from scipy.linalg import solve_continuous_are
 
 from testbed.errors import InputError
 from testbed.models.linear import IX, NX, discretize
+from testbed.simulation.linear_plant import LinearPlant
 from testbed.simulation.vehicle import FinLimits
 
 __all__ = [
@@ -311,26 +312,22 @@ def fly_linear(
     *,
     rate_limit: float,
 ):
-    """Fly `autopilot` on the linear model ẋ = A x + B δ (exact zero-order hold at its period).
+    """Fly `autopilot` on the linear model ẋ = A x + B δ (a `LinearPlant`: exact zero-order hold
+    at its period).
 
     `commands(t, x)` gives `Autopilot.step`'s keywords. The fins slew at `rate_limit` (rad/s;
     the vehicle's, `FinLimits.rate`) towards the commands, as the plant's servos; each period holds the fin's mean angle over it.
     Returns times (N,), states (N, NX) and fin angles (N, 3) at the control instants.
     """
     dt = autopilot.dt
-    Phi, Gamma, _ = discretize(A, B, np.zeros(NX), dt)
+    plant = LinearPlant(A, B, np.zeros(NX), dt, rate_limit)
+    plant.reset(x0=x0)
     n = int(round(duration / dt)) + 1
-    x = np.zeros(NX) if x0 is None else np.array(x0, float)
-    fin = np.zeros(3)
     xs, fins = np.empty((n, NX)), np.empty((n, 3))
     for k in range(n):
-        xs[k], fins[k] = x, fin
-        cmd, _ = autopilot.step(x, **commands(k * dt, x))
-        move = np.clip(np.asarray(cmd) - fin, -rate_limit * dt, rate_limit * dt)
-        # the fin ramps for the fraction |move| / (rate dt) of the period, then holds
-        held = fin + move * (1.0 - 0.5 * np.abs(move) / (rate_limit * dt))
-        x = Phi @ x + Gamma @ held
-        fin = fin + move
+        xs[k], fins[k] = plant.x, plant.fin
+        cmd, _ = autopilot.step(plant.x, **commands(k * dt, plant.x))
+        plant.step(cmd)
     return np.arange(n) * dt, xs, fins
 
 

@@ -1,9 +1,10 @@
 """Run directories: a flown scenario written as the files users fit, replay and regenerate.
 
-`simulate` flies a scenario and writes `runs/<scenario>-seed<N>/`: one measurement CSV and one
+`simulate` flies a scenario (on the MuJoCo plant, or with `truth="linear"` on the analytic
+linear model itself) and writes `runs/<scenario>-seed<N>/`: one measurement CSV and one
 noise-free `.truth.csv` per experiment, `model.toml` (the analytic linear model at the run's
 trim, with every coefficient), `scenario.toml` (the scenario as flown), `recording.rrd` (Rerun)
-and `manifest.json` (scenario, seed, settings, the MJCF file and its SHA-256, package versions,
+and `manifest.json` (scenario, seed, truth, settings, the MJCF file and its SHA-256, package versions,
 the command that regenerates the run, start and end times). The directory is built under a
 temporary name and renamed: it appears whole or not at all.
 """
@@ -30,6 +31,7 @@ from testbed.simulation.scenario import (
     UNFITTED_DEPTH,
     Scenario,
     check_flyable,
+    check_truth,
     fly_scenario,
     scenario,
     scenario_text,
@@ -50,8 +52,11 @@ def simulate(
     speed=None,
     mjcf=None,
     progress: Callable[[float, str], None] | None = None,
+    truth: str = "plant",
 ) -> Path:
-    """Fly a scenario (object, built-in name or file) and write its run directory."""
+    """Fly a scenario (object, built-in name or file) and write its run directory. `truth`:
+    "plant" flies the MuJoCo plant, "linear" the run's analytic linear model (`fly_scenario`)."""
+    check_truth(truth)
     s = scenario(s).with_overrides(duration=duration, speed=speed)
     check_seed(seed)
     check_flyable(s)
@@ -61,7 +66,7 @@ def simulate(
     names = [e.name for e in s.experiments]
     report = (lambda name, f: progress((names.index(name) + f) / len(names), name)) if progress else None
     with atomic_directory(out, force) as tmp:
-        flights, lin = fly_scenario(s, seed, mjcf_path, report)
+        flights, lin = fly_scenario(s, seed, mjcf_path, report, truth)
         measured = [STATES.index(c) for c in s.measured]
         for f in flights:
             (tmp / f"{f.name}.csv").write_text(
@@ -74,17 +79,19 @@ def simulate(
         (tmp / "model.toml").write_text(config_text(config, comments))
         flown = replace(s, speed=lin.vehicle.speed, source="")
         (tmp / "scenario.toml").write_text(scenario_text(flown))
-        log_run(tmp / "recording.rrd", flights, mjcf_path, title=f"testbed {s.name} seed {seed}")
+        title = f"testbed {s.name} seed {seed}" + (f" ({truth} truth)" if truth != "plant" else "")
+        log_run(tmp / "recording.rrd", flights, mjcf_path, title=title)
         manifest = {
             "scenario": s.name,
             "scenario_source": s.source,
             "seed": seed,
+            "truth": truth,
             "experiments": [f.name for f in flights],
             "settings": _settings(flown),
             "mjcf": str(mjcf_path.resolve()),
             "mjcf_sha256": hashlib.sha256(mjcf_path.read_bytes()).hexdigest(),
             "versions": _versions(),
-            "command": _command(s, seed, flown, mjcf, out),
+            "command": _command(s, seed, flown, mjcf, out, truth),
             "started": started.isoformat(),
             "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(),
         }
@@ -118,7 +125,7 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path) -> str:
+def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path, truth: str) -> str:
     """The command that regenerates the run: the built-in scenario by name where the run flew it
     as built but for the command line's --duration and --speed, else the run's scenario.toml."""
     parts = ["testbed", "simulate", "--seed", str(seed)]
@@ -138,4 +145,6 @@ def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path) -> str:
         parts += ["--scenario", str(out.resolve() / "scenario.toml")]
     if mjcf is not None:
         parts += ["--mjcf", str(Path(mjcf).resolve())]
+    if truth != "plant":
+        parts += ["--truth", truth]
     return shlex.join(parts)

@@ -36,6 +36,10 @@ The built-in scenarios: `I` (the paper's sea-trial scenario: depth steps of 20 m
 course rate ±20 °/s every 1.5 s, roll held at zero), `II` (PRBS experiments in the linear
 regime, see its file), `turn`, `zigzag` and `zigzag-vertical` (validation manoeuvres).
 
+A scenario flies on the MuJoCo plant or, as the linear-truth arm, on the analytic linear model
+itself (`fly_scenario(..., truth="linear")`): the same autopilots, fin range and rate, signals
+and noise streams, so only the plant differs.
+
 `simulate` writes a run directory whole or not at all, with the resolved scenario
 as `scenario.toml`, which `testbed simulate --scenario` runs again.
 """
@@ -54,7 +58,8 @@ from testbed.simulation.autopilot import Autopilot
 from testbed.data import MIN_ROWS, check_name, number, read_toml
 from testbed.errors import InputError, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
-from testbed.models.linear import IX, NX, STATES
+from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector
+from testbed.simulation.linear_plant import LinearPlant
 from testbed.simulation.plant import Plant
 from testbed.simulation.signals import Signal, parse_signal, signal_table
 from testbed.simulation.analytic import analytic_model
@@ -67,6 +72,7 @@ __all__ = [
     "LOOPS",
     "SAMPLES",
     "SCENARIO_DIR",
+    "TRUTHS",
     "UNFITTED_DEPTH",
     "ExperimentSpec",
     "Flight",
@@ -74,6 +80,7 @@ __all__ = [
     "Scenario",
     "check_fins",
     "check_flyable",
+    "check_truth",
     "fly",
     "fly_scenario",
     "parse_scenario",
@@ -94,6 +101,7 @@ CHANNELS = ("rudder", "elevators", "differential")  # fin channels a signal can 
 SAMPLES = (MIN_ROWS, 10**6)  # the samples an experiment may have (MIN_ROWS: the fewest a fit takes)
 LOOPS = {"yaw_rate": "rudder", "depth": "elevators", "roll": "differential"}  # loop -> its channel
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
+TRUTHS = ("plant", "linear")  # what a scenario can be flown on: the MuJoCo plant, the analytic model
 BUILTIN = tuple(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
 
 
@@ -424,7 +432,7 @@ class Flight:
 
 
 def fly(
-    plant: Plant,
+    plant: Plant | LinearPlant,
     autopilot: Autopilot,
     name: str,
     program: Program,
@@ -485,10 +493,17 @@ def fly(
 
 
 def fly_scenario(
-    s: Scenario | str, seed: int = 0, mjcf=None, progress: Callable[[str, float], None] | None = None
+    s: Scenario | str,
+    seed: int = 0,
+    mjcf=None,
+    progress: Callable[[str, float], None] | None = None,
+    truth: str = "plant",
 ) -> tuple[list[Flight], object]:
     """Fly every experiment of a scenario (or built-in name, or file); returns the flights and
-    the analytic linear model."""
+    the analytic linear model. `truth`: what flies — "plant", the MuJoCo plant, or "linear",
+    the analytic linear model of the run's model.toml (`LinearPlant`, its fins rate-limited as
+    the servos), with the same autopilots, programs and sensor noise streams."""
+    check_truth(truth)
     s = scenario(s)
     check_seed(seed)
     plant = Plant(mjcf)
@@ -501,6 +516,9 @@ def fly_scenario(
         named = s.described(speed=f"{speed:g} m/s", control_rate=f"{s.control_rate:g} Hz")
         raise InputError(f"{named}: {exc}") from None
     s = replace(s, speed=speed)
+    if truth == "linear":
+        A, B, S = continuous(structure(lin.vehicle), theta_vector(lin.coefficients))
+        plant = LinearPlant(A, B, S, 1.0 / s.control_rate, lin.fins.rate)
     flights = []
     for k, e in enumerate(s.experiments):
         report = (lambda f, name=e.name: progress(name, f)) if progress else None
@@ -517,6 +535,12 @@ def fly_scenario(
             )
         )
     return flights, lin
+
+
+def check_truth(truth) -> None:
+    """InputError unless `truth` names what a scenario can fly on (`TRUTHS`)."""
+    if truth not in TRUTHS:
+        raise InputError(f"truth={truth!r}; expected one of {', '.join(TRUTHS)}")
 
 
 def check_fins(s: Scenario, limit: float, mjcf=None) -> None:
