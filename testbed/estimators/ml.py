@@ -114,10 +114,27 @@ def gauss_newton(
 
 @scan.compiled()  # second-order sensitivities at every iteration: the compiler pays off
 def newton_raphson(
-    prob: Problem, p: np.ndarray, max_iter: int = 100, callback=None, tol: float = 1e-3
+    prob: Problem,
+    p: np.ndarray,
+    max_iter: int = 100,
+    callback=None,
+    tol: float = 1e-3,
+    coordinates: str = "si",
 ) -> Outcome:
-    """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step."""
+    """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step.
+
+    `coordinates`: where the iteration runs, which sets λ = max|∂J_M/∂x| and μ: "si", the
+    parameters in SI units (the paper's), or "scaled", the free coefficients scaled by the
+    start, x_i = θ_i/|θ_i,start| (θ_i where θ_i,start = 0; the initial states stay in SI), with
+    ∂J_M/∂x = S ∂J_M/∂p and ∂²J_M/∂x² = S ∂²J_M/∂p² S, S = diag(∂p/∂x), and the step S Δx.
+    In SI units λ is the largest gradient entry of whichever coefficient has the largest units,
+    and the damping λI then holds every step to about one SI unit; scaled, every coefficient
+    moves in proportion to its size.
+    """
     history, N = [p[: prob.n_free].copy()], prob.n_samples
+    S = np.ones(len(p))
+    if coordinates == "scaled":
+        S[: prob.n_free] = np.where(p[: prob.n_free] != 0, np.abs(p[: prob.n_free]), 1.0)
     last = p
     for it in range(max_iter + 1):
         sim = _simulate(prob, p)
@@ -129,13 +146,14 @@ def newton_raphson(
         R, g, M, converged = _terms(prob, p, xs, res, tol)
         if converged or it == max_iter:
             break
-        grad = -2.0 / N * g  # ∂J_M/∂p
+        grad = -2.0 / N * g * S  # ∂J_M/∂x
         weights = [e / R[r.channels] for r, e in zip(prob.records, res)]
-        hess = 2.0 / N * (M - recursions.curvature(prob, p, weights))  # ∂²J_M/∂p² (Eq. 3 sensitivities)
+        # ∂²J_M/∂x² (Eq. 3 sensitivities)
+        hess = 2.0 / N * (M - recursions.curvature(prob, p, weights)) * np.outer(S, S)
         lam = float(np.max(np.abs(grad)))
         mu = 0.5 if lam > 1 else 1.0 / (lam + 1.0)
         try:
-            step = np.linalg.solve(hess + lam * np.eye(len(p)), -mu * grad)
+            step = S * np.linalg.solve(hess + lam * np.eye(len(p)), -mu * grad)
         except np.linalg.LinAlgError:
             return Outcome(p, Status.DIVERGED, it, np.array(history))
         last, p = p, p + step
@@ -595,6 +613,13 @@ class NewtonRaphsonOptions(Options):
     max_iter: int = _max_iter(100)
     start: str = _START
     tol: float = _TOL
+    coordinates: str = option(
+        "si",
+        lambda v: v in ("si", "scaled"),
+        "si or scaled",
+        "where Eq. 10 runs, which sets λ = max|∂J/∂x| and μ: si (the paper's, SI units) or "
+        "scaled (each free coefficient over its start's magnitude, x_i = θ_i/|θ_i,start|)",
+    )
     samples: int = _SAMPLES
     spread: float = _SPREAD
     polish: int = _POLISH
