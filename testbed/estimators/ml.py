@@ -193,17 +193,24 @@ def _coefficients(kind: str, m: int) -> tuple[float, float, float, float]:
     return 1.0, 1.0 + 2.0 / m, 0.75 - 0.5 / m, 1.0 - 1.0 / m
 
 
-def _simplex(
-    J, x: np.ndarray, edges: np.ndarray, coefficients, tol: float, it: int, max_iter: int, report
-) -> tuple[np.ndarray, float, int, bool]:
-    """One run of the paper's eight steps from a fresh simplex: `x` and `x + edges[i]`.
+def _fresh(x: np.ndarray, size: float) -> np.ndarray:
+    """A fresh simplex (m + 1, m): `x` and `x + size·e_i` for each axis i."""
+    return np.vstack([x, x + size * np.eye(len(x))])
 
-    Returns the lowest corner, its J, the iteration count (continued from `it`) and whether the
-    stopping rule (step 3, spread ≤ `tol`) stopped it rather than `max_iter`.
+
+def _simplex(
+    J, simplex: np.ndarray, coefficients, tol: float, it: int, max_iter: int, report
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """One run of the paper's eight steps from the corners `simplex` (m + 1, m), their J
+    evaluated first.
+
+    Returns the corners where it stopped (the lowest first), their J, the iteration count
+    (continued from `it`) and whether the stopping rule (step 3, spread ≤ `tol`) stopped it
+    rather than `max_iter`.
     """
     alpha, gamma, beta, delta = coefficients
-    m = len(x)
-    simplex = np.vstack([x, x + edges])
+    m = simplex.shape[1]
+    simplex = simplex.copy()
     J_i = np.array([J(v) for v in simplex])
     stopped = False
     while it < max_iter:
@@ -245,8 +252,8 @@ def _simplex(
                 J_i = np.array([J_i[lo] if i == lo else J(v) for i, v in enumerate(simplex)])
         lo = int(np.argmin(J_i))
         report(it, simplex[lo], float(J_i[lo]))
-    lo = int(np.argmin(J_i))
-    return simplex[lo].copy(), float(J_i[lo]), it, stopped
+    order = np.argsort(J_i, kind="stable")
+    return simplex[order], J_i[order], it, stopped
 
 
 @scan.compiled()  # thousands of simulations: the compiler pays off
@@ -263,6 +270,7 @@ def nelder_mead(
     coefficients: str = "adaptive",
     first_length: float = 60.0,
     stage_eps: float = 1.0,
+    restarts: bool = True,
 ) -> Outcome:
     """The paper's eight-step simplex on J_M(θ) with R fixed; R relaxed between simplex runs.
 
@@ -292,6 +300,13 @@ def nelder_mead(
     best corner. Converged when a run stops by its rule, improves J_M over its start by no more
     than ε, and the R update that follows changes no variance by more than `r_tol` (relative);
     STALLED if that takes more than `max_relaxations` runs.
+
+    `restarts=False` is the paper's simplex without the globalisation's restarts and
+    continuation (still in the scaled coordinates, with `coefficients`): one simplex on the whole
+    record from the first simplex at the start (`step` along each axis); when it stops by its
+    rule, R is relaxed at its best corner and the same simplex goes on, its corners' J
+    re-evaluated under the new R. Converged when it stops by its rule and that R update changes
+    no variance by more than `r_tol`; STALLED after `max_relaxations` R updates.
     """
     nf = prob.n_free
     max_iter = 500 * nf if max_iter is None else max_iter
@@ -304,6 +319,10 @@ def nelder_mead(
         if callback is not None:
             callback(Progress(i, scale * best, J))
 
+    if not restarts:
+        return _one_simplex(
+            prob, x, scale, coef, eps, step, r_tol, max_relaxations, max_iter, report, history
+        )
     stages = _stages(prob, first_length)
     for stage in stages:
         size = step if stage is stages[0] else restart_step
@@ -316,8 +335,8 @@ def nelder_mead(
                 return concentrated.cost(stage, scale * v, R)
 
             J_start = J(x)
-            x, J_best, it, stopped = _simplex(J, x, size * np.eye(nf), coef, tol, it, max_iter, report)
-            size = restart_step
+            corners, J_i, it, stopped = _simplex(J, _fresh(x, size), coef, tol, it, max_iter, report)
+            x, J_best, size = corners[0], J_i[0], restart_step
             if not stopped:
                 return Outcome(
                     likelihood.initial_states(prob, scale * x, R),
@@ -335,6 +354,36 @@ def nelder_mead(
                 likelihood.initial_states(prob, scale * x, R), Status.STALLED, it, np.array(history)
             )
     return Outcome(likelihood.initial_states(prob, scale * x, R), Status.CONVERGED, it, np.array(history))
+
+
+def _one_simplex(
+    prob: Problem, x, scale, coef, eps, step, r_tol, max_relaxations, max_iter, report, history
+) -> Outcome:
+    """`nelder_mead` with `restarts=False`: one simplex from the start's first, R relaxed
+    whenever it stops by its rule, its corners re-evaluated under the new R."""
+    tol = eps / prob.n_samples
+    R = likelihood.noise_variance(
+        prob, recursions.residuals(prob, likelihood.initial_states(prob, scale * x))
+    )
+    corners, it = _fresh(x, step), 0
+    for _ in range(max_relaxations):
+
+        def J(v: np.ndarray, R=R) -> float:
+            return concentrated.cost(prob, scale * v, R)
+
+        corners, _, it, stopped = _simplex(J, corners, coef, tol, it, max_iter, report)
+        if not stopped:
+            status = Status.MAX_ITERATIONS
+            break
+        # R from the residuals at the best corner: the relaxation step
+        q = likelihood.initial_states(prob, scale * corners[0], R)
+        R, R_old = likelihood.noise_variance(prob, recursions.residuals(prob, q)), R
+        if np.max(np.abs(R / R_old - 1)) < r_tol:
+            status = Status.CONVERGED
+            break
+    else:
+        status = Status.STALLED
+    return Outcome(likelihood.initial_states(prob, scale * corners[0], R), status, it, np.array(history))
 
 
 def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) -> Estimate:
@@ -658,6 +707,14 @@ class SimplexOptions(Options):
         60.0,
     )
     stage_eps: float = _positive("stopping rule of the continuation's shorter stages (as eps)", 1.0)
+    restarts: bool = option(
+        True,
+        lambda v: isinstance(v, bool),
+        "True or False",
+        "True: the record-length continuation and a fresh simplex after each noise update; False: "
+        "the paper's one simplex on the whole record from the first, its corners re-evaluated "
+        "after each noise update",
+    )
     samples: int = _SAMPLES
     spread: float = _SPREAD
     polish: int = _POLISH
