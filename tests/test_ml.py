@@ -166,8 +166,8 @@ def test_ml_nm_with_and_without_restarts_reaches_the_optimum(monkeypatch):
     )
     gn = identify(data, prior, method="ml-gn", start="config")
     made = []
-    fresh = ml._fresh
-    monkeypatch.setattr(ml, "_fresh", lambda x, size: made.append(size) or fresh(x, size))
+    fresh = ml.fresh_simplex
+    monkeypatch.setattr(ml, "fresh_simplex", lambda x, size: made.append(size) or fresh(x, size))
     counts = {}
     for restarts in (True, False):
         made.clear()

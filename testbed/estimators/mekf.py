@@ -182,6 +182,7 @@ from testbed.estimators.base import (
     option,
     unphysical,
 )
+from testbed.identification.recursions import simulated
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
 from testbed.models.linear import (
     IX,
@@ -844,6 +845,7 @@ def run_filter(
     samples = sum(len(e.t) for e in experiments)
     total = samples if options.max_samples is None else min(samples, options.max_samples)
     ref = step = None  # the previous pass's estimate; the largest move from it, in final σ
+    processed = 0  # samples filtered over the passes
     for done in range(1, options.passes + 1):
         start = th0 if ref is None else ref  # the prior N(start, diag σ₀²), re-centred
         st = _State(
@@ -862,6 +864,8 @@ def run_filter(
             ref=ref,
         )
         diverged = _pass(experiments, st, s, theta, idx, options, sigma_r, U, modified, square_root, callback)
+        processed += st.count
+        simulated(st.count * (1 + p))  # the state and its p parameter columns propagated
         P, Ja = _covariance(st, square_root)
         std = np.sqrt(np.maximum(np.diag(P)[n:], 0.0)) if P is not None else sig0
         if diverged or st.count < samples:
@@ -905,6 +909,7 @@ def run_filter(
         iterations=count,
         wall_time_s=time.perf_counter() - t_start,
         noise_std=sigma_r,
+        evaluations=-(-processed * (1 + p) // samples),
         start="config",
         history=hist,
         message=diverged["reason"] if diverged else "",

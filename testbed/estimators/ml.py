@@ -49,6 +49,7 @@ __all__ = [
     "DELTA_J",
     "Fit",
     "best_fit",
+    "fresh_simplex",
     "GaussNewtonOptions",
     "ML_GN",
     "ML_LM",
@@ -193,7 +194,7 @@ def _coefficients(kind: str, m: int) -> tuple[float, float, float, float]:
     return 1.0, 1.0 + 2.0 / m, 0.75 - 0.5 / m, 1.0 - 1.0 / m
 
 
-def _fresh(x: np.ndarray, size: float) -> np.ndarray:
+def fresh_simplex(x: np.ndarray, size: float) -> np.ndarray:
     """A fresh simplex (m + 1, m): `x` and `x + size·e_i` for each axis i."""
     return np.vstack([x, x + size * np.eye(len(x))])
 
@@ -335,7 +336,7 @@ def nelder_mead(
                 return concentrated.cost(stage, scale * v, R)
 
             J_start = J(x)
-            corners, J_i, it, stopped = _simplex(J, _fresh(x, size), coef, tol, it, max_iter, report)
+            corners, J_i, it, stopped = _simplex(J, fresh_simplex(x, size), coef, tol, it, max_iter, report)
             x, J_best, size = corners[0], J_i[0], restart_step
             if not stopped:
                 return Outcome(
@@ -365,7 +366,7 @@ def _one_simplex(
     R = likelihood.noise_variance(
         prob, recursions.residuals(prob, likelihood.initial_states(prob, scale * x))
     )
-    corners, it = _fresh(x, step), 0
+    corners, it = fresh_simplex(x, step), 0
     for _ in range(max_relaxations):
 
         def J(v: np.ndarray, R=R) -> float:
@@ -386,10 +387,10 @@ def _one_simplex(
     return Outcome(likelihood.initial_states(prob, scale * corners[0], R), status, it, np.array(history))
 
 
-def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) -> Estimate:
+def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit], evaluations: int) -> Estimate:
     """The `Estimate` where the optimiser stopped from `fit`'s start, with its Cramér-Rao analysis
-    and every start's result (`fits`); a DIVERGED one (the reason in its `message`) where that
-    analysis breaks down or is not finite."""
+    and every start's result (`fits`) and the fit's `evaluations`; a DIVERGED one (the reason
+    in its `message`) where that analysis breaks down or is not finite."""
     out, start, start_reason = fit.outcome, fit.start, _summary(fits)
     tried = tuple(
         {
@@ -426,6 +427,7 @@ def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) ->
             iterations=sum(f.outcome.iterations for f in fits),
             wall_time_s=time.perf_counter() - t0,
             noise_std={},
+            evaluations=evaluations,
             start=start,
             history=out.history,
             message=why,
@@ -442,6 +444,7 @@ def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) ->
         iterations=sum(f.outcome.iterations for f in fits),
         wall_time_s=time.perf_counter() - t0,
         noise_std=info.noise_std,
+        evaluations=evaluations,
         start=start,
         history=out.history,
         start_reason=start_reason,
@@ -508,8 +511,20 @@ def _fit(
     apart) or either fails. `global`: from those two and from the best `polish` of `samples`
     coefficient vectors drawn in a box around the a-priori values (`starts.box`), ranked by
     their cost on the first multiple-shooting stage (records cut in 16: a poor model's error does
-    not grow along the whole record there). Every start's result is recorded in the estimate.
+    not grow along the whole record there). Every start's result is recorded in the estimate,
+    and the simulations of all of them counted (`Estimate.evaluations`).
     """
+    with recursions.counting() as tally:
+        return _fit_counted(name, optimiser, experiments, config, options, callback, tally)
+
+
+def _evaluations(prob: Problem, tally: list[int]) -> int:
+    """The samples simulated (`recursions.counting`) as simulations of the whole data set, rounded up."""
+    return -(-tally[0] // prob.n_samples)
+
+
+def _fit_counted(name, optimiser, experiments, config, options, callback, tally) -> Estimate:
+    """`_fit`, the simulations tallied in `tally`."""
     t0 = time.perf_counter()
     prob = problem(experiments, config)
     start = options.start
@@ -553,7 +568,7 @@ def _fit(
                 f"{prob.source}: the a-priori model diverges ({likelihood.divergence(prob, fit.outcome.p)}); "
                 "expected coefficients giving a bounded response, or start auto or global"
             )
-        return _estimate(name, prob, fit, t0, [fit])
+        return _estimate(name, prob, fit, t0, [fit], _evaluations(prob, tally))
 
     named = {
         "config": prob.start,
@@ -572,7 +587,7 @@ def _fit(
             fits.append(run("mekf", *begin(starts.named(prob, experiments, config, "mekf")), fits))
         except InputError:  # the filter refused the data or diverged: no third start
             pass
-    return _estimate(name, prob, best_fit(fits), t0, fits)
+    return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally))
 
 
 def _polish_starts(prob: Problem, options: Options) -> list[np.ndarray]:
