@@ -202,6 +202,7 @@ __all__ = [
     "FilterEstimate",
     "FilterOptions",
     "MEKF",
+    "PAPER_OPTIONS",
     "run_filter",
     "sqrt_update",
     "svd_root",
@@ -315,6 +316,14 @@ class DiscreteModel:
 # ---------------------------------------------------------------- options and result
 
 CONVENTIONAL_FLOOR = 0.01  # the conventional EKF's default `state_noise` (module docstring)
+
+# The paper's MEKF (§5): its model of the data has measurement noise R alone (§4's likelihood),
+# and its square-root algorithm propagates J_{k,k−1} from the model with no process-noise term:
+# the model is taken as exact, so the measured states' model-noise covariance is fixed at zero —
+# no covariance matching (`noise_window` 0) and no floor (`state_noise` 0). The coefficients'
+# random walk (`param_noise`, 1e-6 of the prior σ) and the unmeasured states' process noise stay
+# at their defaults, numerical allowances the paper's constant coefficients do not change.
+PAPER_OPTIONS = {"noise_window": 0, "state_noise": 0.0}
 
 
 def _sigmas(v) -> bool:
