@@ -9,10 +9,12 @@ initial-state parameters (`testbed.identification`), so they compare fairly:
 - `ml-lm`: Gauss-Newton with Levenberg-Marquardt damping (Marquardt's diagonal scaling).
 - `ml-nr`: the paper's modified Newton-Raphson, Eq. 10, exactly: the Hessian of J_M from the
   second-order sensitivities, `μ ∂J/∂θ + (∂²J/∂θ² + λI) Δθ = 0`, λ = max|∂J/∂θ|, μ = 0.5 if
-  λ > 1 else 1/(λ+1); every step is taken (no line search), so its drift and divergence show.
+  λ > 1 else 1/(λ+1); every step is taken (no line search), so its drift and divergence show;
+  in SI units (the paper's) or, option `coordinates="scaled"`, in coordinates scaled by the start.
 - `ml-nm`: the paper's eight-step Nelder-Mead simplex on J_M with its stopping rule; the
   initial states are fitted by linear least squares at every θ (outputs are linear in them:
-  `concentrated.cost`, the cost alone, without sensitivities).
+  `concentrated.cost`, the cost alone, without sensitivities); with restarts and a
+  record-length continuation (default) or, option `restarts=False`, the paper's one simplex.
 
 Convergence (ml-lm, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 `√(gᵀ M⁻¹ g)`, is below `tol` (default 1e-3): the estimate is within 0.001 σ of the optimum.
