@@ -221,6 +221,7 @@ def test_the_screen_takes_the_information_at_an_estimate_with_a_mode_faster_than
     # roll mode. The screen's Fisher information at that estimate is no check of the user's
     # inputs: the screen completes and keeps K_p, which the data determine (the quasi-static
     # roll rate p = K_δ δ / −K_p).
+    from testbed.analysis.validation import validate
     from testbed.identification import examples
     from testbed.identification.problem import COARSEST
     from testbed.models.linear import fastest_rate, structure, theta_vector
@@ -243,3 +244,7 @@ def test_the_screen_takes_the_information_at_an_estimate_with_a_mode_faster_than
     assert rate(prior.with_coefficients(s.fit.coefficients)) * dt > COARSEST  # the fit found the fast mode
     assert "K_p" in s.config.free and "K_p" not in s.fixed
     assert abs(s.fit.coefficients["K_p"] + 200.0) < 3 * s.fit.std[s.fit.free.index("K_p")]
+    # the fitted model is validated on the same data too: with its fast roll mode it follows the
+    # roll the differential elevator drives (the rudder experiment's p is noise)
+    fit = validate(data, prior.with_coefficients(s.fit.coefficients))
+    assert fit.experiments["vertical"]["p"].fit_percent > 80
