@@ -29,6 +29,7 @@ from testbed.data import Experiment, ModelConfig, load_data, read_config, read_c
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, identify, lookup
 from testbed.analysis.validation import Validation, validate
+from testbed.identification.problem import check_inputs
 
 __all__ = [
     "Identified",
@@ -241,6 +242,7 @@ def validate_data(
     the validation JSON (also written to `out`) with them."""
     experiments, cfg, run_config, read = inputs(data, config)
     check_outputs(read + [estimates], {"out": out})
+    check_inputs(experiments, cfg)  # the user's data against the user's model (validate checks no step)
     coefficients = read_estimates(estimates)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
     text = (

@@ -564,3 +564,20 @@ def test_model_error_matches_a_known_process_noise():
     # Without it the same filter's innovations outgrow their σ.
     fixed = identify([e], config, "mekf", noise_std=noise, prior_frac=1e-6, noise_window=0)
     assert fixed.nis_mean > 3.0, fixed.nis_mean
+
+
+def test_the_papers_mekf_has_a_fixed_zero_model_noise_and_fits_an_exact_model():
+    # PAPER_OPTIONS: no covariance matching, no floor; on data from the linear model itself (the
+    # model exact, where Q = 0 is the truth) the filter converges within its σ of the simulated
+    # coefficients and reports no model error, where the default matches some.
+    from testbed.estimators.mekf import PAPER_OPTIONS
+
+    assert FilterOptions.build("mekf", PAPER_OPTIONS) == FilterOptions(noise_window=0, state_noise=0.0)
+    data = examples.experiments(seed=4, duration=60.0)
+    prior = examples.prior_config(error=0.2)
+    paper = identify(data, prior, "mekf", PAPER_OPTIONS)
+    assert paper.converged and paper.model_error_std is None
+    want = np.array([examples.EXAMPLE_COEFFICIENTS[n] for n in examples.FREE])
+    z = np.abs(paper.values - want) / paper.std
+    assert np.all(z < 4), dict(zip(examples.FREE, z.round(2)))
+    assert identify(data, prior, "mekf").model_error_std is not None

@@ -120,3 +120,34 @@ class TestEveryMethod:
         assert m.options.build(name, built) == built == m.options.build(name, **{key: value})
         with pytest.raises(OptionError, match=f"{key}=-1"):
             identify(*problem[::2], method=name, **{key: -1})
+
+
+@pytest.mark.parametrize("name", sorted(METHODS))
+def test_evaluations_count_the_simulations_of_the_data_set(name, problem, monkeypatch):
+    # Estimate.evaluations: simulations of the whole data set, a sensitivity pass counting
+    # 1 + n_free. An iterative fit's grow with its iterations; a filter's are its passes times
+    # the state and its parameter columns; equation error simulates nothing.
+    from testbed.identification import concentrated
+
+    data, _, start = problem
+    m = lookup(name)
+    if m.online:
+        for passes in (1, 3):
+            est = identify(data, start, method=name, passes=passes)
+            assert est.evaluations == (est.passes or 1) * (1 + len(FREE)), (passes, est.passes)
+        assert identify(data, start, method=name, max_samples=5).evaluations == 1  # a share, rounded up
+    elif m.iterative:
+        calls = []
+        cost = concentrated.cost
+        monkeypatch.setattr(concentrated, "cost", lambda *a: calls.append(1) or cost(*a))
+        few, more = (identify(data, start, method=name, start="config", max_iter=k) for k in (1, 3))
+        assert 0 < few.evaluations < more.evaluations, (few.evaluations, more.evaluations)
+        if name == "ml-nm":  # its cost evaluations, and the few simulations of its noise updates
+            calls.clear()
+            full = identify(data, start, method=name, start="config")
+            # besides: the start's initial states and cost, and per noise update (20 at most) the
+            # initial states and residuals at the best corner
+            assert len(calls) < full.evaluations <= len(calls) + 2 + 2 * 20, (len(calls), full.evaluations)
+    else:
+        assert identify(data, start, method=name).evaluations == 0
+    assert json.loads(identify(data, start, method=name).to_json())["evaluations"] >= 0

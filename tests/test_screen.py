@@ -212,3 +212,39 @@ def test_the_flags_override_the_config_and_an_empty_screen_is_a_one_line_error(f
         path.write_text(config_text(replace(simulated, free=("K_dr",), screen=screen)))
         assert (identify(path) is None) is screen
         assert (identify(path, flag) is None) is not screen
+
+
+def test_the_screen_takes_the_information_at_an_estimate_with_a_mode_faster_than_the_step():
+    # Data from a vehicle whose roll mode (K_p = −200: 1.05e3 1/s) decays below rounding within
+    # one 0.05 s step, fitted from an a-priori model whose fastest mode (5.2e2 1/s) the step
+    # still resolves: the user's inputs pass the step check, and the fit reaches the data's fast
+    # roll mode. The screen's Fisher information at that estimate is no check of the user's
+    # inputs: the screen completes and keeps K_p, which the data determine (the quasi-static
+    # roll rate p = K_δ δ / −K_p).
+    from testbed.analysis.validation import validate
+    from testbed.identification import examples
+    from testbed.identification.problem import COARSEST
+    from testbed.models.linear import fastest_rate, structure, theta_vector
+
+    roll = dict(K_der=100.0, K_del=100.0)
+    truth = examples.example_config().with_coefficients(roll | dict(K_p=-200.0))
+    prior = examples.example_config().with_coefficients(roll | dict(K_p=-100.0))
+    rng = np.random.default_rng(3)
+    data = [
+        synthetic(truth, t, u, examples.NOISE, rng=rng, name=n) for n, (t, u) in examples.inputs().items()
+    ]
+    dt = float(data[0].t[1] - data[0].t[0])
+
+    def rate(c):
+        return fastest_rate(structure(c.vehicle), theta_vector(c.coefficients))
+
+    assert rate(prior) * dt < COARSEST < rate(truth) * dt
+    s = screening(data, prior, {"start": "config"})
+    assert s.fit.converged
+    assert rate(prior.with_coefficients(s.fit.coefficients)) * dt > COARSEST  # the fit found the fast mode
+    assert "K_p" in s.config.free and "K_p" not in s.fixed
+    assert abs(s.fit.coefficients["K_p"] + 200.0) < 3 * s.fit.std[s.fit.free.index("K_p")]
+    # the fitted model is validated on the same data too: with its fast roll mode it follows the
+    # roll the differential elevator drives (the rudder experiment's p is noise)
+    fit = validate(data, prior.with_coefficients(s.fit.coefficients))
+    assert fit.experiments["vertical"]["p"].fit_percent > 80

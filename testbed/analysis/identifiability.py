@@ -338,8 +338,12 @@ def screening(experiments, config, options=None, callback=None) -> Screen:
     fit = identify(experiments, candidates, method="ml-gn", options=options, callback=callback)
     if fit.status is Status.DIVERGED:
         return Screen(candidates, fixed, fit)
-    at = candidates.with_coefficients(fit.coefficients)
-    information = fisher(candidates.fitted(experiments), at, noise_std=fit.noise_std)
+    # the information at the estimate, the problem checked against the a-priori candidates: the
+    # step check (`problem.check_inputs`) is about the user's model, not a model the fit reached
+    # (the simulation is exact at any step; a mode too fast for it only makes the data blind to it)
+    information = fisher(
+        candidates.fitted(experiments), candidates, values=fit.coefficients, noise_std=fit.noise_std
+    )
     prior = [config.coefficients[n] for n in candidates.free]
     for n, why in insignificant(candidates.free, fit.values, information, prior).items():
         fixed[n] = f"not determined by these data: {why}"

@@ -161,8 +161,10 @@ def validate(
 ) -> Validation:
     """Fit % and residual whiteness of `config`'s model on every measured channel of the
     experiments (its initial states fitted, or taken from `initial`: experiment → state → x0),
-    and the fit % of `analytic`'s model on the same data (initial states fitted)."""
-    yhat = predict(experiments, config, initial)
+    and the fit % of `analytic`'s model on the same data (initial states fitted). `config` is a
+    fitted model, not checked against the sampling steps (`problem.check_inputs`, `resolve`):
+    a fit may reach a mode faster than the data show; the caller checks the user's config."""
+    yhat = predict(experiments, config, initial, resolve=False)
     base = predict(experiments, analytic) if analytic is not None else [None] * len(experiments)
     out = {}
     for e, y_model, y_base in zip(experiments, yhat, base):

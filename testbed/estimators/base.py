@@ -64,6 +64,16 @@ class Estimate:
         iterations: iterations taken (`iterative` methods, over every start tried) or samples
             processed (`online`).
         wall_time_s: wall-clock time of the fit.
+        evaluations: how many times the fit simulated the model over the whole data set, a
+            sensitivity pass counting 1 + n_free (the states and their derivatives), as tallied
+            where the simulations run (`recursions.counting`; shorter records count their share,
+            rounded up in the total), the Cramér-Rao analysis at the estimate not included.
+            ml-gn, ml-lm, ml-nr: cost evaluations and sensitivity passes (ml-nr's
+            second-order pass counts 1 + n_free too), over every start tried (a start's own
+            fit, the MEKF's, included); ml-nm: cost evaluations (`concentrated.cost`) and its
+            noise updates' simulations; mekf, ekf: passes × (1 + n_free), the filter
+            propagating the state and its parameter columns (a pass cut short by
+            `max_samples` counts its share); equation-error: 0 (a regression, no simulation).
         noise_std: measurement noise σ per measured state, as estimated or used.
         start: where the fit started: "config" (the a-priori values), "equation-error", "mekf".
         history: (iterations + 1, n_free) values after each iteration (filters: each sample).
@@ -86,6 +96,7 @@ class Estimate:
     iterations: int
     wall_time_s: float
     noise_std: dict[str, float]
+    evaluations: int = 0
     start: str = "config"
     history: np.ndarray | None = field(default=None, repr=False)
     message: str = ""
@@ -109,6 +120,7 @@ class Estimate:
             "converged": self.converged,
             "status": self.status.message,
             "iterations": int(self.iterations),
+            "evaluations": int(self.evaluations),
             "cost": _finite(self.cost),
             "wall_time_s": float(self.wall_time_s),
             "start": self.start,

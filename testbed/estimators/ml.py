@@ -9,10 +9,12 @@ initial-state parameters (`testbed.identification`), so they compare fairly:
 - `ml-lm`: Gauss-Newton with Levenberg-Marquardt damping (Marquardt's diagonal scaling).
 - `ml-nr`: the paper's modified Newton-Raphson, Eq. 10, exactly: the Hessian of J_M from the
   second-order sensitivities, `μ ∂J/∂θ + (∂²J/∂θ² + λI) Δθ = 0`, λ = max|∂J/∂θ|, μ = 0.5 if
-  λ > 1 else 1/(λ+1); every step is taken (no line search), so its drift and divergence show.
+  λ > 1 else 1/(λ+1); every step is taken (no line search), so its drift and divergence show;
+  in SI units (the paper's) or, option `coordinates="scaled"`, in coordinates scaled by the start.
 - `ml-nm`: the paper's eight-step Nelder-Mead simplex on J_M with its stopping rule; the
   initial states are fitted by linear least squares at every θ (outputs are linear in them:
-  `concentrated.cost`, the cost alone, without sensitivities).
+  `concentrated.cost`, the cost alone, without sensitivities); with restarts and a
+  record-length continuation (default) or, option `restarts=False`, the paper's one simplex.
 
 Convergence (ml-lm, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 `√(gᵀ M⁻¹ g)`, is below `tol` (default 1e-3): the estimate is within 0.001 σ of the optimum.
@@ -49,6 +51,7 @@ __all__ = [
     "DELTA_J",
     "Fit",
     "best_fit",
+    "fresh_simplex",
     "GaussNewtonOptions",
     "ML_GN",
     "ML_LM",
@@ -114,10 +117,27 @@ def gauss_newton(
 
 @scan.compiled()  # second-order sensitivities at every iteration: the compiler pays off
 def newton_raphson(
-    prob: Problem, p: np.ndarray, max_iter: int = 100, callback=None, tol: float = 1e-3
+    prob: Problem,
+    p: np.ndarray,
+    max_iter: int = 100,
+    callback=None,
+    tol: float = 1e-3,
+    coordinates: str = "si",
 ) -> Outcome:
-    """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step."""
+    """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step.
+
+    `coordinates`: where the iteration runs, which sets λ = max|∂J_M/∂x| and μ: "si", the
+    parameters in SI units (the paper's), or "scaled", the free coefficients scaled by the
+    start, x_i = θ_i/|θ_i,start| (θ_i where θ_i,start = 0; the initial states stay in SI), with
+    ∂J_M/∂x = S ∂J_M/∂p and ∂²J_M/∂x² = S ∂²J_M/∂p² S, S = diag(∂p/∂x), and the step S Δx.
+    In SI units λ is the largest gradient entry of whichever coefficient has the largest units,
+    and the damping λI then holds every step to about one SI unit; scaled, every coefficient
+    moves in proportion to its size.
+    """
     history, N = [p[: prob.n_free].copy()], prob.n_samples
+    S = np.ones(len(p))
+    if coordinates == "scaled":
+        S[: prob.n_free] = np.where(p[: prob.n_free] != 0, np.abs(p[: prob.n_free]), 1.0)
     last = p
     for it in range(max_iter + 1):
         sim = _simulate(prob, p)
@@ -129,13 +149,14 @@ def newton_raphson(
         R, g, M, converged = _terms(prob, p, xs, res, tol)
         if converged or it == max_iter:
             break
-        grad = -2.0 / N * g  # ∂J_M/∂p
+        grad = -2.0 / N * g * S  # ∂J_M/∂x
         weights = [e / R[r.channels] for r, e in zip(prob.records, res)]
-        hess = 2.0 / N * (M - recursions.curvature(prob, p, weights))  # ∂²J_M/∂p² (Eq. 3 sensitivities)
+        # ∂²J_M/∂x² (Eq. 3 sensitivities)
+        hess = 2.0 / N * (M - recursions.curvature(prob, p, weights)) * np.outer(S, S)
         lam = float(np.max(np.abs(grad)))
         mu = 0.5 if lam > 1 else 1.0 / (lam + 1.0)
         try:
-            step = np.linalg.solve(hess + lam * np.eye(len(p)), -mu * grad)
+            step = S * np.linalg.solve(hess + lam * np.eye(len(p)), -mu * grad)
         except np.linalg.LinAlgError:
             return Outcome(p, Status.DIVERGED, it, np.array(history))
         last, p = p, p + step
@@ -175,17 +196,24 @@ def _coefficients(kind: str, m: int) -> tuple[float, float, float, float]:
     return 1.0, 1.0 + 2.0 / m, 0.75 - 0.5 / m, 1.0 - 1.0 / m
 
 
-def _simplex(
-    J, x: np.ndarray, edges: np.ndarray, coefficients, tol: float, it: int, max_iter: int, report
-) -> tuple[np.ndarray, float, int, bool]:
-    """One run of the paper's eight steps from a fresh simplex: `x` and `x + edges[i]`.
+def fresh_simplex(x: np.ndarray, size: float) -> np.ndarray:
+    """A fresh simplex (m + 1, m): `x` and `x + size·e_i` for each axis i."""
+    return np.vstack([x, x + size * np.eye(len(x))])
 
-    Returns the lowest corner, its J, the iteration count (continued from `it`) and whether the
-    stopping rule (step 3, spread ≤ `tol`) stopped it rather than `max_iter`.
+
+def _simplex(
+    J, simplex: np.ndarray, coefficients, tol: float, it: int, max_iter: int, report
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """One run of the paper's eight steps from the corners `simplex` (m + 1, m), their J
+    evaluated first.
+
+    Returns the corners where it stopped (the lowest first), their J, the iteration count
+    (continued from `it`) and whether the stopping rule (step 3, spread ≤ `tol`) stopped it
+    rather than `max_iter`.
     """
     alpha, gamma, beta, delta = coefficients
-    m = len(x)
-    simplex = np.vstack([x, x + edges])
+    m = simplex.shape[1]
+    simplex = simplex.copy()
     J_i = np.array([J(v) for v in simplex])
     stopped = False
     while it < max_iter:
@@ -227,8 +255,8 @@ def _simplex(
                 J_i = np.array([J_i[lo] if i == lo else J(v) for i, v in enumerate(simplex)])
         lo = int(np.argmin(J_i))
         report(it, simplex[lo], float(J_i[lo]))
-    lo = int(np.argmin(J_i))
-    return simplex[lo].copy(), float(J_i[lo]), it, stopped
+    order = np.argsort(J_i, kind="stable")
+    return simplex[order], J_i[order], it, stopped
 
 
 @scan.compiled()  # thousands of simulations: the compiler pays off
@@ -245,6 +273,7 @@ def nelder_mead(
     coefficients: str = "adaptive",
     first_length: float = 60.0,
     stage_eps: float = 1.0,
+    restarts: bool = True,
 ) -> Outcome:
     """The paper's eight-step simplex on J_M(θ) with R fixed; R relaxed between simplex runs.
 
@@ -274,6 +303,13 @@ def nelder_mead(
     best corner. Converged when a run stops by its rule, improves J_M over its start by no more
     than ε, and the R update that follows changes no variance by more than `r_tol` (relative);
     STALLED if that takes more than `max_relaxations` runs.
+
+    `restarts=False` is the paper's simplex without the globalisation's restarts and
+    continuation (still in the scaled coordinates, with `coefficients`): one simplex on the whole
+    record from the first simplex at the start (`step` along each axis); when it stops by its
+    rule, R is relaxed at its best corner and the same simplex goes on, its corners' J
+    re-evaluated under the new R. Converged when it stops by its rule and that R update changes
+    no variance by more than `r_tol`; STALLED after `max_relaxations` R updates.
     """
     nf = prob.n_free
     max_iter = 500 * nf if max_iter is None else max_iter
@@ -286,6 +322,10 @@ def nelder_mead(
         if callback is not None:
             callback(Progress(i, scale * best, J))
 
+    if not restarts:
+        return _one_simplex(
+            prob, x, scale, coef, eps, step, r_tol, max_relaxations, max_iter, report, history
+        )
     stages = _stages(prob, first_length)
     for stage in stages:
         size = step if stage is stages[0] else restart_step
@@ -298,8 +338,8 @@ def nelder_mead(
                 return concentrated.cost(stage, scale * v, R)
 
             J_start = J(x)
-            x, J_best, it, stopped = _simplex(J, x, size * np.eye(nf), coef, tol, it, max_iter, report)
-            size = restart_step
+            corners, J_i, it, stopped = _simplex(J, fresh_simplex(x, size), coef, tol, it, max_iter, report)
+            x, J_best, size = corners[0], J_i[0], restart_step
             if not stopped:
                 return Outcome(
                     likelihood.initial_states(prob, scale * x, R),
@@ -319,10 +359,40 @@ def nelder_mead(
     return Outcome(likelihood.initial_states(prob, scale * x, R), Status.CONVERGED, it, np.array(history))
 
 
-def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) -> Estimate:
+def _one_simplex(
+    prob: Problem, x, scale, coef, eps, step, r_tol, max_relaxations, max_iter, report, history
+) -> Outcome:
+    """`nelder_mead` with `restarts=False`: one simplex from the start's first, R relaxed
+    whenever it stops by its rule, its corners re-evaluated under the new R."""
+    tol = eps / prob.n_samples
+    R = likelihood.noise_variance(
+        prob, recursions.residuals(prob, likelihood.initial_states(prob, scale * x))
+    )
+    corners, it = fresh_simplex(x, step), 0
+    for _ in range(max_relaxations):
+
+        def J(v: np.ndarray, R=R) -> float:
+            return concentrated.cost(prob, scale * v, R)
+
+        corners, _, it, stopped = _simplex(J, corners, coef, tol, it, max_iter, report)
+        if not stopped:
+            status = Status.MAX_ITERATIONS
+            break
+        # R from the residuals at the best corner: the relaxation step
+        q = likelihood.initial_states(prob, scale * corners[0], R)
+        R, R_old = likelihood.noise_variance(prob, recursions.residuals(prob, q)), R
+        if np.max(np.abs(R / R_old - 1)) < r_tol:
+            status = Status.CONVERGED
+            break
+    else:
+        status = Status.STALLED
+    return Outcome(likelihood.initial_states(prob, scale * corners[0], R), status, it, np.array(history))
+
+
+def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit], evaluations: int) -> Estimate:
     """The `Estimate` where the optimiser stopped from `fit`'s start, with its Cramér-Rao analysis
-    and every start's result (`fits`); a DIVERGED one (the reason in its `message`) where that
-    analysis breaks down or is not finite."""
+    and every start's result (`fits`) and the fit's `evaluations`; a DIVERGED one (the reason
+    in its `message`) where that analysis breaks down or is not finite."""
     out, start, start_reason = fit.outcome, fit.start, _summary(fits)
     tried = tuple(
         {
@@ -359,6 +429,7 @@ def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) ->
             iterations=sum(f.outcome.iterations for f in fits),
             wall_time_s=time.perf_counter() - t0,
             noise_std={},
+            evaluations=evaluations,
             start=start,
             history=out.history,
             message=why,
@@ -375,6 +446,7 @@ def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit]) ->
         iterations=sum(f.outcome.iterations for f in fits),
         wall_time_s=time.perf_counter() - t0,
         noise_std=info.noise_std,
+        evaluations=evaluations,
         start=start,
         history=out.history,
         start_reason=start_reason,
@@ -441,8 +513,20 @@ def _fit(
     apart) or either fails. `global`: from those two and from the best `polish` of `samples`
     coefficient vectors drawn in a box around the a-priori values (`starts.box`), ranked by
     their cost on the first multiple-shooting stage (records cut in 16: a poor model's error does
-    not grow along the whole record there). Every start's result is recorded in the estimate.
+    not grow along the whole record there). Every start's result is recorded in the estimate,
+    and the simulations of all of them counted (`Estimate.evaluations`).
     """
+    with recursions.counting() as tally:
+        return _fit_counted(name, optimiser, experiments, config, options, callback, tally)
+
+
+def _evaluations(prob: Problem, tally: list[int]) -> int:
+    """The samples simulated (`recursions.counting`) as simulations of the whole data set, rounded up."""
+    return -(-tally[0] // prob.n_samples)
+
+
+def _fit_counted(name, optimiser, experiments, config, options, callback, tally) -> Estimate:
+    """`_fit`, the simulations tallied in `tally`."""
     t0 = time.perf_counter()
     prob = problem(experiments, config)
     start = options.start
@@ -486,7 +570,7 @@ def _fit(
                 f"{prob.source}: the a-priori model diverges ({likelihood.divergence(prob, fit.outcome.p)}); "
                 "expected coefficients giving a bounded response, or start auto or global"
             )
-        return _estimate(name, prob, fit, t0, [fit])
+        return _estimate(name, prob, fit, t0, [fit], _evaluations(prob, tally))
 
     named = {
         "config": prob.start,
@@ -505,7 +589,7 @@ def _fit(
             fits.append(run("mekf", *begin(starts.named(prob, experiments, config, "mekf")), fits))
         except InputError:  # the filter refused the data or diverged: no third start
             pass
-    return _estimate(name, prob, best_fit(fits), t0, fits)
+    return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally))
 
 
 def _polish_starts(prob: Problem, options: Options) -> list[np.ndarray]:
@@ -595,6 +679,13 @@ class NewtonRaphsonOptions(Options):
     max_iter: int = _max_iter(100)
     start: str = _START
     tol: float = _TOL
+    coordinates: str = option(
+        "si",
+        lambda v: v in ("si", "scaled"),
+        "si or scaled",
+        "where Eq. 10 runs, which sets λ = max|∂J/∂x| and μ: si (the paper's, SI units) or "
+        "scaled (each free coefficient over its start's magnitude, x_i = θ_i/|θ_i,start|)",
+    )
     samples: int = _SAMPLES
     spread: float = _SPREAD
     polish: int = _POLISH
@@ -633,6 +724,14 @@ class SimplexOptions(Options):
         60.0,
     )
     stage_eps: float = _positive("stopping rule of the continuation's shorter stages (as eps)", 1.0)
+    restarts: bool = option(
+        True,
+        lambda v: isinstance(v, bool),
+        "True or False",
+        "True: the record-length continuation and a fresh simplex after each noise update; False: "
+        "the paper's one simplex on the whole record from the first, its corners re-evaluated "
+        "after each noise update",
+    )
     samples: int = _SAMPLES
     spread: float = _SPREAD
     polish: int = _POLISH

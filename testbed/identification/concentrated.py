@@ -27,7 +27,7 @@ import numpy as np
 from testbed.identification import scan
 from testbed.identification.likelihood import exploded, fit_initial_states
 from testbed.identification.problem import Problem
-from testbed.identification.recursions import discrete_models
+from testbed.identification.recursions import discrete_models, simulated
 from testbed.models.linear import NU, NX
 
 __all__ = ["CONDITION", "cost", "gramian"]
@@ -50,7 +50,9 @@ def gramian(Phi: np.ndarray, Q: np.ndarray, N: int) -> np.ndarray:
 
 def cost(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
     """`J_M = 1/N Σ eᵀR⁻¹e` at the free `values` with R held and the initial states at their
-    best; ∞ for an invalid model (singular Mt, or outputs that diverge: `likelihood.exploded`)."""
+    best; ∞ for an invalid model (singular Mt, or outputs that diverge: `likelihood.exploded`).
+    One simulation of the records (`recursions.simulated`; its fallback `_by_qr` another)."""
+    simulated(prob.n_samples)
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
             models = discrete_models(prob, values, 0)

@@ -20,6 +20,7 @@ from testbed.identification.recursions import (
     discrete_models,
     outputs,
     sensitivity_parts,
+    simulated,
     trajectory,
     uncoupled,
 )
@@ -102,6 +103,7 @@ def gauss_newton_terms(
     `p` (`xs`: the states there, `res`: the residuals), S the output sensitivities, made and summed
     a piece at a time (`scan.pieces`)."""
     models = discrete_models(prob, p[: prob.n_free], 1)
+    simulated(prob.n_samples * prob.n_free)  # the sensitivities; the states `xs` are given
     g, M = np.zeros(prob.n_params), np.zeros((prob.n_params, prob.n_params))
     for r, x, e in zip(prob.records, xs, res):
         e, cols = e / np.sqrt(R[r.channels]), prob.columns(r)
@@ -183,6 +185,7 @@ def fit_initial_states(
     not complex-step safe.
     """
     models = discrete_models(prob, values, 0)
+    simulated(prob.n_samples)  # one simulation: the responses to x0 are linear in it
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
     factors = []  # per record: (k, k + 1, k + 1) upper-triangular factors of [G_c v_c], channel c
     for r in prob.records:

@@ -119,7 +119,7 @@ def check_fit(experiments: Sequence[Experiment], config: ModelConfig) -> None:
         )
 
 
-def check_inputs(experiments: Sequence[Experiment], config: ModelConfig) -> None:
+def check_inputs(experiments: Sequence[Experiment], config: ModelConfig, resolve: bool = True) -> None:
     """`InputError` unless the experiments and the config can be fitted together, before any work:
 
     - each record is usable (`data.check_experiment`) and the config valid (`data.check_config`);
@@ -128,6 +128,9 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig) -> None
     - each record's sampling interval Δ resolves the model: over one step the fastest mode
       (rate ρ) decays by e^(−ρΔ), and beyond ρΔ = ln 2⁵³ that is below double-precision
       rounding, so the record shows none of it. Such a step is the data's fault (t in ms, say).
+      Checked where `resolve`: for a user's model against a user's data. A model a fit reached
+      from these data (`resolve=False`) may have such a mode: the simulation is exact at any
+      step, and the data are only blind to that mode.
     """
     if not experiments:
         raise InputError("no experiments given; expected at least one measurement record")
@@ -139,7 +142,7 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig) -> None
     defect = inertia_defect(s, theta)
     if defect:
         raise InputError(f"{source}: the inertia matrix Mt is not a body's: {defect}")
-    rate = fastest_rate(s, theta)
+    rate = fastest_rate(s, theta) if resolve else 0.0
     for e in experiments:
         dt = float(e.t[1] - e.t[0])
         if rate * dt > COARSEST:
@@ -150,9 +153,10 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig) -> None
             )
 
 
-def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
-    """Check the experiments and the config (`check_inputs`) and set up the output-error problem."""
-    check_inputs(experiments, config)
+def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: bool = True) -> Problem:
+    """Check the experiments and the config (`check_inputs`, `resolve` as there) and set up the
+    output-error problem."""
+    check_inputs(experiments, config, resolve)
     where = config.source or "config"
     theta = theta_vector(config.coefficients)
     channels = tuple(s for s in STATES if any(s in e.measured for e in experiments))

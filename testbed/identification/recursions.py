@@ -12,6 +12,8 @@ and longitudinal motions are uncoupled in the linear model, a quarter of the ari
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 from dataclasses import dataclass
 from typing import Iterator, Sequence
 
@@ -25,6 +27,7 @@ __all__ = [
     "NW",
     "Discrete",
     "channel_weights",
+    "counting",
     "curvature",
     "discrete",
     "discrete_models",
@@ -32,12 +35,36 @@ __all__ = [
     "residuals",
     "sensitivities",
     "sensitivity_parts",
+    "simulated",
     "states",
     "trajectory",
     "uncoupled",
 ]
 
 NW = NX + NU + 1  # length of w = [x; δ; 1]
+
+_COUNTERS = contextvars.ContextVar("counters", default=())  # the open `counting` blocks' tallies
+
+
+@contextlib.contextmanager
+def counting() -> Iterator[list[int]]:
+    """Within this context the model's simulations are tallied: yields a one-item list that
+    holds the samples simulated so far, a sample of a state trajectory counting 1 and one of a
+    sensitivity pass 1 + n_free (the states and their derivative columns). An estimator's
+    evaluations are that tally over its data's samples. Blocks nest: each counts everything
+    simulated inside it."""
+    tally = [0]
+    token = _COUNTERS.set(_COUNTERS.get() + (tally,))
+    try:
+        yield tally
+    finally:
+        _COUNTERS.reset(token)
+
+
+def simulated(samples: int) -> None:
+    """Add `samples` simulated samples (trajectory samples × columns) to every open `counting` block."""
+    for tally in _COUNTERS.get():
+        tally[0] += samples
 
 
 @dataclass(frozen=True)
@@ -97,6 +124,7 @@ def _w(x: np.ndarray, inputs: np.ndarray) -> np.ndarray:
 def states(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Simulated states (N, 10) per experiment at the parameter vector `p` (u as a perturbation)."""
     models = discrete_models(prob, p[: prob.n_free], 0)
+    simulated(prob.n_samples)
     return [trajectory(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
 
 
@@ -182,6 +210,7 @@ def sensitivities(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray] | None 
     """
     models = discrete_models(prob, p[: prob.n_free], 1)
     xs = states(prob, p) if xs is None else xs
+    simulated(prob.n_samples * prob.n_free)
     return [
         _sensitivities(prob, r, models[r.dt], x, r.measured, np.ones(len(r.measured)))
         for r, x in zip(prob.records, xs)
@@ -205,6 +234,7 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
     """
     models = discrete_models(prob, p[: prob.n_free], 2)
     nf, H = prob.n_free, np.zeros((prob.n_params, prob.n_params), dtype=p.dtype)
+    simulated(prob.n_samples * (1 + nf))  # the states and their sensitivities, for the adjoint
     for r, wr in zip(prob.records, weights):
         d = models[r.dt]
         x = trajectory(r, d, prob.x0(r, p))

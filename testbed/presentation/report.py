@@ -241,7 +241,7 @@ def log_fit(
         )
     fitted = config.with_coefficients(estimate.coefficients)
     try:
-        outputs = predict(experiments, fitted, estimate.initial_states)
+        outputs = predict(experiments, fitted, estimate.initial_states, resolve=False)
     except (InputError, np.linalg.LinAlgError, ValueError):
         outputs = [None] * len(experiments)  # a model that cannot be simulated: log the rest
     tabs = []
