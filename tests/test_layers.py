@@ -50,6 +50,7 @@ LAYERS = [
     ("testbed.presentation.figures",),
     ("testbed.jobs",),
     ("testbed.study.priors",),
+    ("testbed.study.rules",),
     ("testbed.study", "testbed.study.campaign"),
     ("testbed.cli",),
     ("testbed.__main__",),

@@ -402,7 +402,10 @@ def test_library_checks_its_inputs(tmp_path):
         with pytest.raises(InputError, match="seed"):
             sc.fly_scenario(_short("I", 1.0), seed=bad)
     assert rng_for(np.int64(3), 0).integers(1 << 30) == rng_for(3, 0).integers(1 << 30)
-    with pytest.raises(InputError, match="unknown; expected one of I, II, turn, zigzag, zigzag-vertical"):
+    with pytest.raises(
+        InputError,
+        match="unknown; expected one of I, II, inputs-3211, inputs-multisine, inputs-prbs, inputs-square, turn, zigzag, zigzag-vertical",
+    ):
         sc.scenario("III")
 
 
