@@ -144,7 +144,11 @@ def _success(picked) -> tuple[int, int]:
 
 def _proportion(k: int, n: int) -> str:
     lo, hi = wilson(k, n)
-    return f"{k}/{n} ({k / n:.0%}, {LEVEL:.0%} CI {lo:.0%}–{hi:.0%})" if n else "0/0"
+    return (
+        f"{k}/{n} ({100 * k / n:.0f} %, {100 * LEVEL:.0f} % CI {100 * lo:.0f}–{100 * hi:.0f} %)"
+        if n
+        else "0/0"
+    )
 
 
 def _pct(v: float) -> str:
@@ -168,7 +172,7 @@ def _drift(drift: dict, regime: dict) -> dict:
     rule = (
         f"On every data set with a valid linear reference whose drift was measured (≥ 2 seeds), the "
         f"Mt-form's Fisher condition number is ≥ {CONDITION_RATIO:g}× the A-form's and its seeds' rms "
-        f"relative deviation along its worst direction is ≥ {RELATIVE_DRIFT:.0%}."
+        f"relative deviation along its worst direction is ≥ {100 * RELATIVE_DRIFT:.0f} %."
     )
     measured = {
         k: d
@@ -201,7 +205,7 @@ def _drift(drift: dict, regime: dict) -> dict:
 def _methods(table, regime) -> dict:
     rule = (
         f"From realistic starts (spread > 0), on the data sets with a valid linear reference, {NM_ARM} "
-        f"reaches the optimum in ≥ {ACCEPTABLE:.0%} of its cells and {NR_ARM} in < {UNSATISFACTORY:.0%}, "
+        f"reaches the optimum in ≥ {100 * ACCEPTABLE:.0f} % of its cells and {NR_ARM} in < {100 * UNSATISFACTORY:.0f} %, "
         "at every spread."
     )
     nm, nr = (_pick(table, arm, lambda key, spread: valid_reference(key, regime)) for arm in (NM_ARM, NR_ARM))
@@ -229,9 +233,9 @@ def _methods(table, regime) -> dict:
 
 def _inputs(table, regime) -> dict:
     rule = (
-        f"From realistic starts, {NM_ARM} on {FACTORIAL[0]} reaches the optimum in ≥ {ACCEPTABLE:.0%} of "
+        f"From realistic starts, {NM_ARM} on {FACTORIAL[0]} reaches the optimum in ≥ {100 * ACCEPTABLE:.0f} % of "
         "its cells at every spread, and its share of accurate cells (every coefficient within 10 % or "
-        f"3 σ of the analytic model) has a {LEVEL:.0%} Wilson interval reaching the best share among the "
+        f"3 σ of the analytic model) has a {100 * LEVEL:.0f} % Wilson interval reaching the best share among the "
         "other inputs (PRBS no worse within sampling error); only data sets with a valid linear "
         "reference count."
     )
@@ -271,7 +275,7 @@ def _inputs(table, regime) -> dict:
 def _mekf(table) -> dict:
     rule = (
         f"From realistic starts, on the linear-truth data sets I/linear and II/linear, {MEKF_ARMS[0]}'s "
-        f"median relative error against the (exact) analytic model is ≤ {COEFFICIENT_TOLERANCE:.0%} on "
+        f"median relative error against the (exact) analytic model is ≤ {100 * COEFFICIENT_TOLERANCE:.0f} % on "
         f"both and the larger is within {MEKF_RATIO:g}× the smaller ({MEKF_ARMS[1]} reported beside it)."
     )
     errors = {
