@@ -194,6 +194,7 @@ def factorial_rows(prbs_success=20, prbs_error=0.02, square_error=0.02):
 def test_conclusion_3_holds_when_prbs_succeeds_and_is_as_accurate():
     out = conclusions(factorial_rows(), FACTORIAL_REGIME, {})["3"]
     assert out["holds"] is True
+    json.dumps(out)
     assert "spread 0.4 20/20" in out["evidence"] and "inputs-3211 0/20" in out["evidence"]
 
 
