@@ -327,7 +327,17 @@ NOISE_STD_HELP = (
     "the sensors' noise σ per state, SI, e.g. r=0.002,psi=0.01 (for data whose noise cannot be "
     "read off them: low-pass filtered); replaces the config's [identify] noise_std entry by entry"
 )
-BUILTIN_SCENARIOS = ("I", "II", "turn", "zigzag", "zigzag-vertical")  # testbed/simulation/scenarios/*.toml
+BUILTIN_SCENARIOS = (
+    "I",
+    "II",
+    "inputs-3211",
+    "inputs-multisine",
+    "inputs-prbs",
+    "inputs-square",
+    "turn",
+    "zigzag",
+    "zigzag-vertical",
+)  # testbed/simulation/scenarios/*.toml
 
 
 def parser() -> argparse.ArgumentParser:

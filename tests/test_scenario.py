@@ -286,6 +286,50 @@ def test_built_in_scenarios_are_files_that_round_trip():
         assert (sc.SCENARIO_DIR / f"{name}.toml").exists()
 
 
+FACTORIAL = {
+    "inputs-prbs": sig.Prbs,
+    "inputs-square": sig.Square,
+    "inputs-3211": sig.Input3211,
+    "inputs-multisine": sig.Multisine,
+}
+HALVED = {("inputs-square", "vertical"), ("inputs-3211", "roll")}  # where Scenario II's peak is not linear
+
+
+@pytest.mark.parametrize("name", sorted(FACTORIAL))
+def test_input_factorial_is_scenario_ii_with_another_signal(name):
+    """Scenario II's layout, loops, hold and duration; its peaks (halved where documented); the
+    power over the record: the peak squared, a multisine's K/2 times its scale squared."""
+    ii, s = sc.scenario("II"), sc.scenario(name)
+    assert name in sc.BUILTIN
+    assert replace(s, name="II", description="", source="", experiments=ii.experiments) == replace(
+        ii, description="", source=""
+    )
+    assert [e.name for e in s.experiments] == [e.name for e in ii.experiments]
+    for e, e2 in zip(s.experiments, ii.experiments):
+        assert (e.autopilot, e.hold_depth, e.duration) == (e2.autopilot, e2.hold_depth, e2.duration)
+        assert e.fins.keys() == e2.fins.keys()
+        for channel, u in e.fins.items():
+            if isinstance(e2.fins[channel], sig.Hold):
+                assert u == e2.fins[channel]
+                continue
+            assert type(u) is FACTORIAL[name]
+            peak = e2.fins[channel].peak() / (2 if (name, e.name) in HALVED else 1)
+            assert u.peak() == pytest.approx(peak, rel=1e-12)
+            t = np.arange(round(s.duration * s.control_rate)) / s.control_rate
+            program = u.program(np.random.default_rng(1))
+            x = np.array([program(ti, None) for ti in t])
+            if isinstance(u, sig.Multisine):
+                f = np.asarray(u.frequencies)
+                # sampled at the control rate: below the peak by at most the top line's half-step
+                assert peak * np.cos(np.pi * f.max() / s.control_rate) <= np.abs(x).max() <= peak * (1 + 1e-9)
+                scale = peak / sig.multisine_peak(f, np.array(sig.min_crest_phases(u.frequencies)))
+                assert np.mean(x**2) == pytest.approx(len(f) / 2 * scale**2, rel=1e-6)  # whole periods
+                assert np.mean(x**2) / peak**2 == pytest.approx(0.45, abs=0.01)  # as documented
+            else:
+                assert np.abs(x).max() == peak
+                assert np.mean(x**2) == pytest.approx(peak**2, rel=1e-12)
+
+
 @pytest.mark.parametrize(
     "text, message",
     [
@@ -402,7 +446,10 @@ def test_library_checks_its_inputs(tmp_path):
         with pytest.raises(InputError, match="seed"):
             sc.fly_scenario(_short("I", 1.0), seed=bad)
     assert rng_for(np.int64(3), 0).integers(1 << 30) == rng_for(3, 0).integers(1 << 30)
-    with pytest.raises(InputError, match="unknown; expected one of I, II, turn, zigzag, zigzag-vertical"):
+    with pytest.raises(
+        InputError,
+        match="unknown; expected one of I, II, inputs-3211, inputs-multisine, inputs-prbs, inputs-square, turn, zigzag, zigzag-vertical",
+    ):
         sc.scenario("III")
 
 
