@@ -382,14 +382,16 @@ def test_files_run_directory_manifest():
 
 
 def test_files_reproduce_outputs():
-    from testbed.study.campaign import COLUMNS, conclusions
     from testbed.estimators import Status
+    from testbed.study.results import COLUMNS, SUMMARY_COLUMNS
+    from testbed.study.rules import conclusions
 
     body = section(page("files.md"), "Reproduce outputs")
     assert ",".join(COLUMNS) in body
+    assert ", ".join(SUMMARY_COLUMNS) in body
     rows = {r[0].strip("`") for r in table_rows(body)}
     assert set(COLUMNS) <= rows
-    verdicts = conclusions([], {})
+    verdicts = conclusions([], {}, {})
     assert [k for k in verdicts if f'`"{k}"`' not in body] == []
     assert missing_tokens(body, sorted({k for v in verdicts.values() for k in v})) == []
     statuses = [s.name.lower().replace("_", " ") for s in Status] + ["failed"]

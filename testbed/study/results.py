@@ -23,7 +23,7 @@ from testbed.estimators.base import Status
 from testbed.study.arms import ARMS
 from testbed.study.cells import OPTIMUM
 from testbed.study.priors import Judgement, judge
-from testbed.study.rules import coefficient_ok, wilson
+from testbed.study.rules import accurate, cells, relative_error, wilson
 
 __all__ = [
     "COLUMNS",
@@ -217,19 +217,11 @@ def read_results(path) -> list[dict]:
     return rows
 
 
-def cells(rows: list[dict]) -> dict[tuple, list[dict]]:
-    """The rows of each cell: (scenario, truth, spread, arm, seed) → rows."""
-    out: dict[tuple, list[dict]] = {}
-    for r in rows:
-        out.setdefault((r["scenario"], r["truth"], r["spread"], r["arm"], r["seed"]), []).append(r)
-    return out
-
-
 def summary_table(rows: list[dict]) -> list[dict]:
     """Per data set, spread and arm: cells, each outcome's count, the success proportion with its
     Wilson 95 % interval, the cells whose coefficients are acceptable against the analytic model
-    (`rules.coefficient_ok` on every one), the median relative error against it, and the median
-    evaluations and wall time."""
+    (`rules.accurate`), the median of the cells' relative errors against it (`rules.relative_error`,
+    those finite), and the median evaluations and wall time."""
     groups: dict[tuple, list[list[dict]]] = {}
     for (s, t, sp, a, _), rs in cells(rows).items():
         groups.setdefault((s, t, sp, a), []).append(rs)
@@ -239,17 +231,7 @@ def summary_table(rows: list[dict]) -> list[dict]:
         judged = [o for o in outcomes if o]
         k, n = outcomes.count("success"), len(judged)
         lo, hi = wilson(k, n) if n else (math.nan, math.nan)
-        coef = [[r for r in rs if r["coefficient"]] for rs in cs]
-        rel = [
-            float(
-                np.median(
-                    [abs(r["estimate"] - r["analytic"]) / abs(r["analytic"]) for r in c if r["analytic"]]
-                )
-            )
-            for c in coef
-            if any(r["analytic"] for r in c)
-        ]
-        rel = [v for v in rel if np.isfinite(v)]
+        rel = [v for v in map(relative_error, cs) if np.isfinite(v)]
         out.append(
             {
                 "scenario": s,
@@ -262,7 +244,7 @@ def summary_table(rows: list[dict]) -> list[dict]:
                 "success_low": lo,
                 "success_high": hi,
                 **{o: outcomes.count(o) for o in ("diverged", "stalled", "elsewhere", "failed")},
-                "accurate": sum(bool(c) and all(coefficient_ok(r) for r in c) for c in coef),
+                "accurate": sum(map(accurate, cs)),
                 "median_relative_error": float(np.median(rel)) if rel else math.nan,
                 "median_evaluations": float(np.median([rs[0]["evaluations"] for rs in cs])),
                 "median_wall_time_s": float(np.median([rs[0]["wall_time_s"] for rs in cs])),
