@@ -95,6 +95,16 @@ def test_plan_pairs_every_arm_with_the_optimum_per_data_set_seed_and_spread():
         plan(1, truths=("wind",))
 
 
+def test_every_output_error_arm_starts_where_it_says_never_from_the_default_starts():
+    """The default start (auto) would also try the equation-error and MEKF starts: an arm starts
+    from the paired a-priori model unless it is about another start."""
+    from testbed.estimators import lookup
+
+    starts = {a.name: a.options.get("start") for a in ARMS.values() if lookup(a.method).starts}
+    assert starts.pop("mekf+ml-gn") == "mekf" and starts.pop("ml-gn-global") == "global"
+    assert set(starts.values()) == {"config"}, starts
+
+
 def test_seeds_are_bounded_before_the_plan_is_built():
     one = dict(arms=("ml-gn",), scenarios=("II",), truths=("plant",), factorial=())
     assert len(plan(campaign.MAX_SEEDS, **one)) == 2 * campaign.MAX_SEEDS  # the optimum and the arm

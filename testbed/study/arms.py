@@ -21,7 +21,9 @@ __all__ = ["ARMS", "Arm", "DEFAULT_ARMS", "DRIFT_ARMS", "FACTORIAL_ARMS", "arm",
 
 @dataclass(frozen=True)
 class Arm:
-    """A method with options: `name` in results.csv, `method` the registered estimator.
+    """A method with options: `name` in results.csv, `method` the registered estimator. The
+    output-error arms start from the cell's a-priori model alone (`start="config"`) unless the
+    arm is about another start: the paired start is the point of the comparison.
 
     `free`: "screened" (the screen's free set at the cell's prior, shared by the judged arms),
     "mt" (the candidates and the inertia terms, normalised) or "a" (the candidates as written,
@@ -41,36 +43,41 @@ class Arm:
 ARMS: dict[str, Arm] = {
     a.name: a
     for a in (
-        Arm("ml-nr", "ml-nr", "the paper's Newton-Raphson (Eq. 10), λ in SI units", {"coordinates": "si"}),
+        Arm(
+            "ml-nr",
+            "ml-nr",
+            "the paper's Newton-Raphson (Eq. 10), λ in SI units",
+            {"coordinates": "si", "start": "config"},
+        ),
         Arm(
             "ml-nr-scaled",
             "ml-nr",
             "Newton-Raphson in coordinates scaled by the start",
-            {"coordinates": "scaled"},
+            {"coordinates": "scaled", "start": "config"},
         ),
         Arm(
             "ml-nm-paper",
             "ml-nm",
             "the paper's Nelder-Mead: coefficients (1, 2, ½, ½), one simplex",
-            {"coefficients": "paper", "restarts": False},
+            {"coefficients": "paper", "restarts": False, "start": "config"},
         ),
         Arm(
             "ml-nm-paper-restarts",
             "ml-nm",
             "Nelder-Mead, the paper's coefficients, with restarts and record-length continuation",
-            {"coefficients": "paper", "restarts": True},
+            {"coefficients": "paper", "restarts": True, "start": "config"},
         ),
         Arm(
             "ml-nm-adaptive",
             "ml-nm",
             "Nelder-Mead with Gao & Han's adaptive coefficients, one simplex",
-            {"coefficients": "adaptive", "restarts": False},
+            {"coefficients": "adaptive", "restarts": False, "start": "config"},
         ),
         Arm(
             "ml-nm-adaptive-restarts",
             "ml-nm",
             "Nelder-Mead, adaptive coefficients, restarts and continuation (ml-nm's default)",
-            {"coefficients": "adaptive", "restarts": True},
+            {"coefficients": "adaptive", "restarts": True, "start": "config"},
         ),
         Arm("mekf-paper", "mekf", "the paper's square-root modified EKF: fixed model noise", PAPER_OPTIONS),
         Arm("mekf", "mekf", "the modified EKF with covariance-matched model noise (the default)"),
