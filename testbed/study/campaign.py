@@ -82,7 +82,7 @@ def plan(
     factorial=FACTORIAL,
     duration: float | None = None,
 ) -> list[Cell]:
-    """The campaign's cells, data set by data set, seed by seed, spread by spread: the `OPTIMUM`
+    """The campaign's cells, seed by seed, spread by spread, data set by data set: the `OPTIMUM`
     cell, then `arms` (`all`: every arm); the input factorial's data sets with `FACTORIAL_ARMS`
     among them only, the drift arms on `scenarios` only. Seeds 1..N; `quick`: experiments of
     `QUICK_DURATION` s (unless `duration` says otherwise)."""
@@ -103,13 +103,13 @@ def plan(
     sets += [
         (s, "plant", tuple(a for a in arms if a in FACTORIAL_ARMS)) for s in factorial if "plant" in truths
     ]
+    # seed by seed: the cells run in this order, so a campaign stopped early has whole seeds
     return [
         Cell(s, a, seed, float(sp), t, duration)
-        for s, t, chosen in sets
-        if chosen
         for seed in range(1, seeds + 1)
         for sp in spreads
-        for a in (OPTIMUM, *chosen)
+        for s, t, chosen in sets
+        for a in ((OPTIMUM, *chosen) if chosen else ())
     ]
 
 
