@@ -35,10 +35,13 @@ FIGURE_NUMBERS = {"I": 3, "II": 5}  # the paper's figures of each scenario's inp
 LISTED = 40  # cells that did not converge or failed, listed by name; the rest counted
 
 
+TRUTH_NAMES = {"plant": "plant", "linear": "linear model"}
+
+
 def colors(arms) -> dict[str, str]:
-    """One colour per arm, in the order given (matplotlib's tab20)."""
-    cmap = plt.get_cmap("tab20")
-    return {a: matplotlib.colors.to_hex(cmap(i % 20)) for i, a in enumerate(arms)}
+    """One colour per arm, in the order given (matplotlib's tab10, tab20 for more than ten)."""
+    cmap = plt.get_cmap("tab10" if len(arms) <= 10 else "tab20")
+    return {a: matplotlib.colors.to_hex(cmap(i % cmap.N)) for i, a in enumerate(arms)}
 
 
 def _save(fig, path: Path) -> str:
@@ -131,20 +134,25 @@ def success_figure(out: Path, summary: list[dict], arms, palette) -> str | None:
         sharey=True,
         constrained_layout=True,
     )
+    shown = [a for a in arms if any(r["arm"] == a for r in judged)]
     for ax, (s, t) in zip(axes.flat, sets):
         here = [r for r in judged if (r["scenario"], r["truth"]) == (s, t)]
         spreads = sorted({r["spread"] for r in here})
-        for k, a in enumerate(x for x in arms if any(r["arm"] == x for r in here)):
+        width = max(spreads) or 1.0
+        for k, a in enumerate(shown):
             pts = sorted((r["spread"], r) for r in here if r["arm"] == a)
-            dx = (k - 3) * 0.004 * (max(spreads) - min(spreads) or 1.0)  # the intervals side by side
+            if not pts:
+                continue
+            dx = (k - (len(shown) - 1) / 2) * 0.02 * width  # the arms' intervals side by side
             x = np.array([p[0] for p in pts]) + dx
             p = np.array([p[1]["success"] / p[1]["judged"] for p in pts])
             lo = p - np.array([q[1]["success_low"] for q in pts])
             hi = np.array([q[1]["success_high"] for q in pts]) - p
             ax.errorbar(x, p, yerr=[lo, hi], marker="o", ms=4, lw=1.2, capsize=2, color=palette[a], label=a)
-        ax.set_title(f"{s} on the {t}", fontsize=10)
+        ax.set_title(f"{s} on the {TRUTH_NAMES.get(t, t)}", fontsize=10)
         ax.set_xlabel("start spread s")
         ax.set_ylim(-0.05, 1.05)
+        ax.set_xlim(min(spreads) - 0.15 * width, max(spreads) + 0.15 * width)
         ax.set_xticks(spreads)
         ax.grid(alpha=0.3)
     for ax in axes.flat[len(sets) :]:
@@ -259,6 +267,12 @@ def _pct(v: float) -> str:
     return f"{100 * v:.1f} %" if np.isfinite(v) else "–"
 
 
+def _lowest(fits: dict, excited: dict) -> float | None:
+    """The lowest fit % over the excited channels of every experiment (None if there is none)."""
+    v = [fits[x][c] for x in excited for c in excited[x] if fits[x].get(c) is not None]
+    return min(v) if v else None
+
+
 def _fit(v) -> str:
     return f"{v:.2f} %" if v is not None and np.isfinite(v) else "–"
 
@@ -298,9 +312,11 @@ def report_html(
         "</table><h2>Where the linear reference holds</h2><p>The analytic linear model simulated open "
         "loop with each data set's recorded fin angles from its first noise-free truth sample (first "
         "seed): its fit % against the noise-free truth on every excited channel (the truth moving at "
-        "least twice the sensor σ), the lowest of them, the speed loss and the peak pitch and pitch "
-        "rate. Where the lowest fit is below 99 % the linear reference does not hold.</p><table>"
+        "least twice the sensor σ), the lowest of them, the lowest against the measured data, the "
+        "speed loss and the peak pitch and pitch rate. Where the lowest truth fit is below 99 % the "
+        "linear reference does not hold.</p><table>"
         "<tr><th>data set</th><th>lowest truth fit</th><th>truth fit per excited channel</th>"
+        "<th>lowest fit to the data</th>"
         "<th>speed loss</th><th>peak pitch</th><th>peak pitch rate</th></tr>"
     )
     for key, r in regime.items():
@@ -314,7 +330,7 @@ def report_html(
         lowest = r["lowest"]
         parts.append(
             f"<tr><td>{e(key)}</td><td>{_fit(r['lowest_truth_fit'])} ({e(str(lowest['channel']))}, "
-            f"{e(str(lowest['experiment']))})</td><td>{e(fits)}</td>"
+            f"{e(str(lowest['experiment']))})</td><td>{e(fits)}</td><td>{_fit(_lowest(r['data'], r['excited']))}</td>"
             f"<td>{max(r['speed_loss'].values()):.2f} %</td><td>{max(r['peak_pitch'].values()):.1f}°</td>"
             f"<td>{max(r['peak_pitch_rate'].values()):.1f} °/s</td></tr>"
         )
