@@ -19,7 +19,14 @@ from testbed.study import campaign, cells, hashing
 from testbed.study.arms import ARMS, DEFAULT_ARMS, FACTORIAL_ARMS
 from testbed.study.campaign import plan
 from testbed.study.cells import OPTIMUM, Cell
-from testbed.study.results import judgements, read_results, results_csv, results_rows, summary_table
+from testbed.study.results import (
+    SUMMARY_COLUMNS,
+    judgements,
+    read_results,
+    results_csv,
+    results_rows,
+    summary_table,
+)
 
 TINY = dict(
     scenarios=("II",),
@@ -209,6 +216,9 @@ def test_the_summary_counts_outcomes_with_wilson_intervals(tmp_path):
         centre + half
     )
     assert row["accurate"] == 7  # the other three are 800 % off with σ 0.1
+    written = results_csv([row], SUMMARY_COLUMNS).splitlines()
+    assert written[0] == ",".join(SUMMARY_COLUMNS)
+    assert dict(zip(SUMMARY_COLUMNS, written[1].split(",")))["success"] == "7"
 
 
 @pytest.fixture(scope="module")

@@ -196,7 +196,7 @@ def results_csv(rows: list[dict], columns=COLUMNS) -> str:
     w.writeheader()
     for r in rows:
         w.writerow(
-            {k: (format(v, ".10g") if isinstance(v, float) else v) for k, v in r.items() if k in COLUMNS}
+            {k: (format(v, ".10g") if isinstance(v, float) else v) for k, v in r.items() if k in columns}
         )
     return buf.getvalue()
 
