@@ -51,8 +51,10 @@ def gramian(Phi: np.ndarray, Q: np.ndarray, N: int) -> np.ndarray:
 def cost(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
     """`J_M = 1/N Σ eᵀR⁻¹e` at the free `values` with R held and the initial states at their
     best; ∞ for an invalid model (singular Mt, or outputs that diverge: `likelihood.exploded`).
-    One simulation of the records (`recursions.simulated`; its fallback `_by_qr` another)."""
-    simulated(prob.n_samples)
+    Three sweeps over the records, each counted as a simulation (`recursions.simulated`): the
+    outputs from x0 = 0, the adjoint that gives x0's normal equations, the outputs from x0 (its
+    fallback `_by_qr` counts its own)."""
+    simulated(3 * prob.n_samples)
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
             models = discrete_models(prob, values, 0)

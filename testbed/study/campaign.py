@@ -41,6 +41,7 @@ from testbed.analysis.regime import open_loop_fit
 from testbed.data import load_data
 from testbed.errors import InputError, atomic_write_text, check_output_directory, is_number, one_line
 from testbed.presentation.figures import write_report
+from testbed.simulation.scenario import TRUTHS
 from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS, arms as checked_arms
 from testbed.study.cells import OPTIMUM, Cell, load_run, run_cell, start
 from testbed.study.results import SUMMARY_COLUMNS, read_results, results_csv, results_rows, summary_table
@@ -63,7 +64,6 @@ __all__ = [
 ]
 
 SCENARIOS = ("I", "II")  # the paper's, fitted by every arm on every truth
-TRUTHS = ("plant", "linear")
 FACTORIAL = ("inputs-prbs", "inputs-square", "inputs-3211", "inputs-multisine")  # on the plant
 SPREADS = (0.4,)  # the default start spread: a user's a-priori model (`priors.SPREAD`)
 MAX_SEEDS = 1000  # noise seeds 1..N: weeks of one machine's time at the most
@@ -156,24 +156,31 @@ def reproduce(
     check_folder(out)
     cells_dir = out / "cells"
     todo = [c for c in cells if read_cell(cells_dir / f"{c.key}.json") is None]
-    runs = sorted({_run(c) for c in cells})
-    starts = sorted({_start(c) for c in todo})
+    # a task's priority is its first cell's place in the plan (Dask runs the higher first), so
+    # the cells run seed by seed, each run and start just before the cells that need it
+    first_run, first_start = {}, {}
+    for i, c in enumerate(todo):
+        first_run.setdefault(_run(c), i)
+        first_start.setdefault(_start(c), i)
     failed = 0
     with _client(scheduler, workers) as client:
         make_folder(out)  # only once the scheduler answered
         where = hashlib.sha256(str(out.resolve()).encode()).hexdigest()[
             :8
         ]  # unique per DIR on a shared scheduler
-        needed = {r for r in runs if any(_run(c) == r for c in todo)}
         data = {
-            r: client.submit(load_run, str(out.resolve()), *r, key=f"run-{_name(r)}-{where}") for r in needed
+            r: client.submit(load_run, str(out.resolve()), *r, key=f"run-{_name(r)}-{where}", priority=-i)
+            for r, i in first_run.items()
         }
         begun = {
-            k: client.submit(start, data[k[:4]], k[4], k[2], key=f"start-{_name(k[:4])}-s{k[4]:g}-{where}")
-            for k in starts
+            k: client.submit(
+                start, data[k[:4]], k[4], k[2], key=f"start-{_name(k[:4])}-s{k[4]:g}-{where}", priority=-i
+            )
+            for k, i in first_start.items()
         }
         futures = {
-            client.submit(run_cell, c, data[_run(c)], begun[_start(c)], key=f"cell-{c.key}"): c for c in todo
+            client.submit(run_cell, c, data[_run(c)], begun[_start(c)], key=f"cell-{c.key}", priority=-i): c
+            for i, c in enumerate(todo)
         }
         done = len(cells) - len(todo)
         for future in as_completed(futures):

@@ -180,17 +180,19 @@ def likelihood_at(experiments, config) -> float:
 
 def _fitted_config(cell: Cell, data, begin: Start):
     """The model config the cell fits: the start's (screened) for a judged arm and the optimum
-    (the latter from the analytic values of its free coefficients); the candidates as written
-    for the A-form drift arm, with the inertia terms normalised for the Mt-form one (the prior's
-    values throughout)."""
+    (the latter from the analytic values of its free coefficients). The drift arms compare two
+    parametrisations of the same model, so everything they do not estimate is the analytic
+    model's (the inertia known means known) and only what they estimate starts from the prior:
+    the candidates as written for the A-form, with the inertia terms normalised (the analytic
+    model's normalisation, the one `drift.forms` analyses) for the Mt-form."""
     analytic = data[1]
     if cell.arm == OPTIMUM:
         return begin.config.with_coefficients({n: analytic.coefficients[n] for n in begin.config.free})
     a = ARMS[cell.arm]
     if a.free == "screened":
         return begin.config
-    # the Mt-form's free set is the analytic model's normalisation, the one `drift.forms` analyses
-    return replace(begin.prior, free=normalised(analytic).free) if a.free == "mt" else begin.prior
+    free = normalised(analytic).free if a.free == "mt" else analytic.free
+    return replace(analytic, free=free).with_coefficients({n: begin.prior.coefficients[n] for n in free})
 
 
 def run_cell(cell: Cell, data, begin: Start) -> dict:
@@ -242,7 +244,7 @@ def run_cell(cell: Cell, data, begin: Start) -> dict:
 
 
 def _number(v) -> float | None:
-    """A σ for JSON: inf stays (as a string JSON can hold), NaN becomes None."""
+    """A σ for JSON: inf stays (Python's json writes and reads it as Infinity), NaN becomes None."""
     v = float(v)
     return None if math.isnan(v) else v
 

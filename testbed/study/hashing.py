@@ -1,23 +1,45 @@
 """What a campaign's cell is keyed by besides its inputs: the package's code, hashed, so a cell
-computed by other code is computed again."""
+computed by other code is computed again. The modules that only read finished cells (the
+results, the rules, the report, the campaign's bookkeeping, the command line) are left out: a
+change to them rewrites the outputs from the same cells."""
 
 from __future__ import annotations
 
 import functools
+from fnmatch import fnmatch
 import hashlib
 import os
 from pathlib import Path
 
-__all__ = ["CODE_FILES", "code_hash", "source_hash"]
+__all__ = ["CODE_FILES", "READERS", "code_hash", "source_hash"]
 
 CODE_FILES = ("*.py", "*.toml", "*.xml")  # what the package computes with: its modules and data
+# what reads finished cells only, relative to the package (no cell's fit runs through them)
+READERS = (
+    "presentation/*",
+    "study/results.py",
+    "study/rules.py",
+    "study/campaign.py",
+    "cli.py",
+    "jobs.py",
+    "__main__.py",
+)
 
 
 def source_hash(root: str | os.PathLike) -> str:
-    """SHA-256 of the package's code under `root`: every file matching `CODE_FILES`, by its path
-    relative to `root` and its bytes, in path order (compiled caches and other files ignored)."""
+    """SHA-256 of the package's code under `root`: every file matching `CODE_FILES` but the
+    `READERS`, by its path relative to `root` and its bytes, in path order (compiled caches and
+    other files ignored)."""
     root = Path(root)
-    files = sorted({p for pattern in CODE_FILES for p in root.rglob(pattern) if "__pycache__" not in p.parts})
+    files = sorted(
+        {
+            p
+            for pattern in CODE_FILES
+            for p in root.rglob(pattern)
+            if "__pycache__" not in p.parts
+            and not any(fnmatch(p.relative_to(root).as_posix(), r) for r in READERS)
+        }
+    )
     h = hashlib.sha256()
     for p in files:
         data = p.read_bytes()

@@ -4,8 +4,8 @@ best-likelihood optimum, results.csv, and the table per data set, spread and arm
 The optimum of a data set, seed and spread is the lowest `cost` (the output-error negative
 log-likelihood at the estimate, the same measure for every method) among its `OPTIMUM` cell and
 its judged arms' cells: the optimum search from the analytic values, or an arm where one went
-lower. Its σ are that cell's Cramér-Rao σ (corrected for coloured residuals), the `OPTIMUM`
-cell's where that cell's are not finite (a filter's). Each judged cell is then judged by
+lower. Its σ are the `OPTIMUM` cell's Cramér-Rao σ (corrected for coloured residuals), the
+lowest cell's own where those are not finite. Each judged cell is then judged by
 `priors.judge`: success, diverged, stalled at the limit or converged elsewhere; a cell whose fit
 failed is "failed"; the drift arms are not judged (their outcome is empty).
 """
@@ -93,14 +93,12 @@ class Point:
 
 
 def _point(doc: dict, sigma: dict | None = None) -> Point:
+    """`doc` as the judge reads it; with `sigma` (the `OPTIMUM` cell's σ), those σ where finite,
+    the doc's own elsewhere."""
     free = tuple(doc["free"])
-    std = doc.get("std", {})
-    s = tuple(
-        float(std[n])
-        if std.get(n) is not None and math.isfinite(std[n])
-        else float((sigma or {}).get(n, math.inf))
-        for n in free
-    )
+    std = {n: v for n, v in doc.get("std", {}).items() if v is not None and math.isfinite(v)}
+    std |= {n: v for n, v in (sigma or {}).items() if math.isfinite(v)}
+    s = tuple(float(std.get(n, math.inf)) for n in free)
     status = Status[doc["status"].upper().replace(" ", "_")] if doc["status"] != "failed" else Status.DIVERGED
     return Point(free, dict(doc["values"]), s, float(doc.get("cost", math.inf)), status)
 
@@ -128,7 +126,7 @@ def judgements(docs: list[dict]) -> dict[str, tuple[Judgement, Point] | None]:
         ]
         best = _point(min(candidates, key=lambda d: d["cost"]), sigma) if candidates else None
         for d in judged:
-            if d["status"] == "failed" or best is None or tuple(d["free"]) != best.free:
+            if d["status"] == "failed" or best is None or set(d["free"]) != set(best.free):
                 out[d["key"]] = None
                 continue
             out[d["key"]] = (judge(_point(d), best), best)
@@ -228,7 +226,7 @@ def summary_table(rows: list[dict]) -> list[dict]:
     out = []
     for (s, t, sp, a), cs in groups.items():
         outcomes = [rs[0]["outcome"] for rs in cs]
-        judged = [o for o in outcomes if o]
+        judged = [o for o in outcomes if o and o != "unjudged"]
         k, n = outcomes.count("success"), len(judged)
         lo, hi = wilson(k, n) if n else (math.nan, math.nan)
         rel = [v for v in map(relative_error, cs) if np.isfinite(v)]
