@@ -156,3 +156,24 @@ def test_forms_of_the_example_data():
     # the A-form's scaled information is a principal submatrix of the Mt-form's (same scales):
     # its eigenvalues interlace, so its condition number is no larger
     assert f.mt.condition > f.a.condition
+
+
+def test_evidence_shared_scatter_compares_the_coefficients_both_forms_estimate(hand_forms):
+    mt, a = hand_forms.mt, hand_forms.a
+    rng = np.random.default_rng(3)
+    base = rng.normal(size=(6, len(a.free)))  # the same relative deviations in both forms
+    est_a = [dict(zip(a.free, a.values * (1 + 0.01 * z))) for z in base]
+    est_mt = [
+        {**e, "Y_rdot": mt.values[mt.free.index("Y_rdot")] * (1 + 0.5 * w)} for e, w in zip(est_a, base[:, 0])
+    ]
+    ev = drift.evidence(hand_forms, est_mt, est_a)
+    # the reference: rms over Y_v, Y_r, N_v, N_r of the sample σ of θ/|θ|, by hand
+    expected = np.sqrt(np.mean((0.01 * base.std(0, ddof=1)) ** 2))
+    assert ev["shared_scatter_mt"] == pytest.approx(expected, rel=1e-9)
+    assert ev["shared_scatter_a"] == pytest.approx(expected, rel=1e-9)  # Y_rdot is not shared
+    loose = [{**e, "N_v": e["N_v"] * (1 + 0.2 * w)} for e, w in zip(est_mt, rng.normal(size=6))]
+    ev = drift.evidence(hand_forms, loose, est_a)
+    assert ev["shared_scatter_mt"] > 3 * ev["shared_scatter_a"]
+    # the A-form's relative information is diag(0.5, 2, 4, 8): its worst direction is Y_v alone
+    assert ev["relative_drift_a"] == pytest.approx(np.sqrt(np.mean((0.01 * base[:, 0]) ** 2)), rel=1e-9)
+    json.dumps(ev, allow_nan=False)

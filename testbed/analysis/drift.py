@@ -177,6 +177,13 @@ def _scatter(f: Form, P: np.ndarray) -> np.ndarray:
     return P.std(0, ddof=1) * np.sqrt(f.eigenvalues[: P.shape[1]])
 
 
+def _shared_scatter(f: Form, estimates: Sequence[Mapping[str, float]], names: Sequence[str]) -> float:
+    """The rms over `names` (a subset of `f.free`) of the seeds' sample σ of the estimate over s_i."""
+    i = [f.free.index(n) for n in names]
+    theta = np.array([[float(e[n]) for n in names] for e in estimates])
+    return float(np.sqrt(np.mean((theta.std(0, ddof=1) / f.scales[i]) ** 2)))
+
+
 def evidence(
     forms: Forms,
     estimates_mt: Sequence[Mapping[str, float]],
@@ -186,11 +193,11 @@ def evidence(
     """What the seeds' estimates say about drift, JSON-able.
 
     `estimates_mt`, `estimates_a`: one {name: value} per seed (at least 2, finite: the caller
-    chooses which fits count), fitted in the Mt-form and in the A-form. Each form's estimates are projected on its own k worst directions (relative
-    coordinates); `null_scatter_*` is the rms over those directions of (the seeds' sample σ along
-    the direction) / (its Cramér-Rao σ): ≈ 1 where the drift is the noise the bounds predict
-    (with n seeds, within the sampling error of a σ from n − 1 degrees of freedom), ≫ 1 where
-    it is more. Keys:
+    chooses which fits count), fitted in the Mt-form and in the A-form. Each form's estimates
+    are projected on its own k worst directions (relative coordinates); `null_scatter_*` is the
+    rms over those directions of (the seeds' sample σ along the direction) / (its Cramér-Rao σ):
+    ≈ 1 where the drift is the noise the bounds predict (with n seeds, within the sampling error
+    of a σ from n − 1 degrees of freedom), ≫ 1 where it is more. Keys:
       condition_mt, condition_a: condition numbers of the scaled Fisher informations;
       correlation_mt, correlation_a: [name, name, ρ], the pair of largest |ρ|;
       null_scatter_mt, null_scatter_a (and per direction, worst first: *_directions);
@@ -198,6 +205,11 @@ def evidence(
       relative_drift_mt: the rms over the seeds of the relative deviation along that direction
           from the coefficients the information was evaluated at (a bias there counts too);
       relative_scatter_mt: the seeds' sample σ along it (relative);
+      relative_drift_a: the same as relative_drift_mt along the A-form's own worst direction;
+      shared_scatter_mt, shared_scatter_a: on the coefficients both forms estimate (the A-form's
+          free set, which the Mt-form frees too), the rms over them of (the seeds' sample σ of
+          the estimate) / s_i (|θ_i| at the information's coefficients, `design.scales`): the
+          like-for-like scatter of the At, Bt coefficients with the inertia free and known;
       eigenvalue_mt, eigenvalue_a: the smallest eigenvalues (1/σ² in relative units);
       inertia_free_mt: the added-mass terms free in the Mt-form; null_directions_mt: its exact
           null directions with the data's measured states; near_null: k; seeds.
@@ -208,6 +220,7 @@ def evidence(
     P_a = _projections(a, estimates_a, k_a, "estimates_a")
     r_mt, r_a = _scatter(mt, P_mt), _scatter(a, P_a)
     worst = mt.eigenvectors[:, 0]
+    shared_mt, shared_a = (_shared_scatter(f, e, a.free) for f, e in ((mt, estimates_mt), (a, estimates_a)))
     top = np.argsort(-np.abs(worst))[:NAMED]
     return {
         "condition_mt": mt.condition,
@@ -221,6 +234,9 @@ def evidence(
         "null_direction_mt": {mt.free[i]: float(worst[i]) for i in top},
         "relative_drift_mt": float(np.sqrt(np.mean(P_mt[:, 0] ** 2))),
         "relative_scatter_mt": float(P_mt[:, 0].std(ddof=1)),
+        "relative_drift_a": float(np.sqrt(np.mean(P_a[:, 0] ** 2))),
+        "shared_scatter_mt": shared_mt,
+        "shared_scatter_a": shared_a,
         "eigenvalue_mt": float(mt.eigenvalues[0]),
         "eigenvalue_a": float(a.eigenvalues[0]),
         "inertia_free_mt": [n for n in mt.free if n in ADDED_MASS],
