@@ -339,15 +339,18 @@ def report_html(
     if drift:
         parts.append(
             "<h2>Drift in practice</h2><table><tr><th>data set</th><th>cond. Mt-form</th>"
-            "<th>cond. A-form</th><th>largest correlation, Mt-form</th><th>null scatter Mt-form</th>"
-            "<th>null scatter A-form</th><th>relative drift Mt-form</th><th>seeds</th></tr>"
+            "<th>cond. A-form</th><th>largest correlation, Mt-form</th><th>shared scatter Mt-form</th>"
+            "<th>shared scatter A-form</th><th>null scatter Mt-form</th><th>null scatter A-form</th>"
+            "<th>relative drift Mt-form</th><th>converged Mt / A</th><th>seeds</th></tr>"
         )
         for key, d in drift.items():
             a, b, rho = d["correlation_mt"]
             parts.append(
                 f"<tr><td>{e(key)}</td><td>{d['condition_mt']:.3g}</td><td>{d['condition_a']:.3g}</td>"
-                f"<td>{e(a)}–{e(b)} {rho:+.3f}</td><td>{d['null_scatter_mt']:.3g}</td>"
-                f"<td>{d['null_scatter_a']:.3g}</td><td>{_pct(d['relative_drift_mt'])}</td><td>{d['seeds']}</td></tr>"
+                f"<td>{e(a)}–{e(b)} {rho:+.3f}</td><td>{d['shared_scatter_mt']:.3g}</td>"
+                f"<td>{d['shared_scatter_a']:.3g}</td><td>{d['null_scatter_mt']:.3g}</td>"
+                f"<td>{d['null_scatter_a']:.3g}</td><td>{_pct(d['relative_drift_mt'])}</td>"
+                f"<td>{d.get('converged_mt', '–')} / {d.get('converged_a', '–')}</td><td>{d['seeds']}</td></tr>"
             )
         parts.append("</table>")
     parts.append(

@@ -45,7 +45,7 @@ from testbed.simulation.scenario import TRUTHS
 from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS, arms as checked_arms
 from testbed.study.cells import OPTIMUM, Cell, load_run, run_cell, start
 from testbed.study.results import SUMMARY_COLUMNS, read_results, results_csv, results_rows, summary_table
-from testbed.study.rules import conclusions
+from testbed.study.rules import FACTORIAL, conclusions
 
 __all__ = [
     "FACTORIAL",
@@ -64,7 +64,6 @@ __all__ = [
 ]
 
 SCENARIOS = ("I", "II")  # the paper's, fitted by every arm on every truth
-FACTORIAL = ("inputs-prbs", "inputs-square", "inputs-3211", "inputs-multisine")  # on the plant
 SPREADS = (0.4,)  # the default start spread: a user's a-priori model (`priors.SPREAD`)
 MAX_SEEDS = 1000  # noise seeds 1..N: weeks of one machine's time at the most
 MAX_SPREAD = 3.0  # e^±3σ_c: beyond it an a-priori model is no model
