@@ -222,10 +222,8 @@ def write_report(
     name = success_figure(out, summary, arms, palette)
     if name:
         figures.append(("Probability of reaching the data's optimum against the start spread", name))
-    for (
-        s,
-        number,
-    ) in FIGURE_NUMBERS.items():  # the paper's order: each scenario's inputs, then its coefficients
+    # the paper's order: each scenario's inputs, then its coefficients
+    for s, number in FIGURE_NUMBERS.items():
         if s not in inputs:
             continue
         if inputs[s]:
