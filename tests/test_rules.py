@@ -342,6 +342,11 @@ def test_mekf_fails_when_one_scenario_is_twice_as_far():
     assert conclusions(mekf_rows(0.07, 0.03), VALID, {})["mekf"]["holds"] is False
 
 
+def test_mekf_tiny_distances_are_similar_within_one_percent_whatever_their_ratio():
+    assert conclusions(mekf_rows(0.002, 0.010), VALID, {})["mekf"]["holds"] is True  # 5×, 0.8 % apart
+    assert conclusions(mekf_rows(0.005, 0.020), VALID, {})["mekf"]["holds"] is False  # 4×, 1.5 % apart
+
+
 def test_mekf_fails_when_both_are_similar_but_far():
     assert conclusions(mekf_rows(0.3, 0.25), VALID, {})["mekf"]["holds"] is False
 
