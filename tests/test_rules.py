@@ -46,6 +46,7 @@ def cell(
         "arm": arm,
         "seed": seed,
         "outcome": outcome,
+        "delta_cost": 0.0 if outcome == "success" else 100.0,  # inside the likelihood region or far out
     }
     if outcome == "failed":
         return [
@@ -231,6 +232,7 @@ def test_conclusion_2_holds_when_nm_succeeds_and_nr_does_not():
     assert "spread 0.2: ml-nm-paper 9/10 (90 %" in out["evidence"]
     assert "ml-nr 2/10 (20 %" in out["evidence"] and "I/plant" not in out["evidence"]
     assert "median relative error 2.0 %" in out["evidence"]
+    assert "ml-nm-paper within the likelihood region of the optimum in 18/20 cells" in out["evidence"]
 
 
 def test_conclusion_2_fails_when_nm_succeeds_in_fewer_than_80_percent():
