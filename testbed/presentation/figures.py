@@ -146,8 +146,9 @@ def success_figure(out: Path, summary: list[dict], arms, palette) -> str | None:
             dx = (k - (len(shown) - 1) / 2) * 0.02 * width  # the arms' intervals side by side
             x = np.array([p[0] for p in pts]) + dx
             p = np.array([p[1]["success"] / p[1]["judged"] for p in pts])
-            lo = p - np.array([q[1]["success_low"] for q in pts])
-            hi = np.array([q[1]["success_high"] for q in pts]) - p
+            # the interval's ends, rounded a hair inside the point at 0 or 1, clipped to it
+            lo = np.clip(p - np.array([q[1]["success_low"] for q in pts]), 0.0, None)
+            hi = np.clip(np.array([q[1]["success_high"] for q in pts]) - p, 0.0, None)
             ax.errorbar(x, p, yerr=[lo, hi], marker="o", ms=4, lw=1.2, capsize=2, color=palette[a], label=a)
         ax.set_title(f"{s} on the {TRUTH_NAMES.get(t, t)}", fontsize=10)
         ax.set_xlabel("start spread s")
