@@ -26,24 +26,23 @@ from testbed.errors import InputError  # noqa: E402
 STDOUT = Path("-")  # `--out -`: standard output
 
 
-def _positive(text: str) -> float:
+def _number(text: str, zero: bool) -> float:
+    """`text` as a finite number > 0, or ≥ 0 where `zero` is allowed; argparse's error otherwise."""
     try:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 < v < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
+    if not (0 <= v if zero else 0 < v) or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number {'>=' if zero else '>'} 0")
     return v
+
+
+def _positive(text: str) -> float:
+    return _number(text, zero=False)
 
 
 def _non_negative(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 <= v < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number >= 0")
-    return v
+    return _number(text, zero=True)
 
 
 def _seed(text: str) -> int:

@@ -104,6 +104,8 @@ def test_plan_pairs_every_arm_with_the_optimum_per_data_set_seed_and_spread():
     for bad in (-0.1, math.inf, math.nan, 4.0, True):
         with pytest.raises(InputError, match="start spread"):
             plan(1, spreads=(bad,))
+    with pytest.raises(InputError, match="none given; expected at least one number from 0 to 3$"):
+        plan(1, spreads=())
     with pytest.raises(InputError, match="truth 'wind'"):
         plan(1, truths=("wind",))
 

@@ -93,7 +93,7 @@ def plan(
         if isinstance(s, bool) or not is_number(s) or not 0 <= s <= MAX_SPREAD:
             raise InputError(f"start spread {s!r}; expected a number from 0 to {MAX_SPREAD:g}")
     if not spreads:
-        raise InputError("start spread: none given; expected at least one number from 0 to {MAX_SPREAD:g}")
+        raise InputError(f"start spread: none given; expected at least one number from 0 to {MAX_SPREAD:g}")
     for t in truths:
         if t not in TRUTHS:
             raise InputError(f"truth {t!r}; expected one of {', '.join(TRUTHS)}")
