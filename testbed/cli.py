@@ -331,7 +331,6 @@ BUILTIN_SCENARIOS = (
     "II",
     "inputs-3211",
     "inputs-multisine",
-    "inputs-prbs",
     "inputs-square",
     "turn",
     "zigzag",

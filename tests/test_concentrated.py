@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.identification import concentrated, likelihood, recursions, scan
+from testbed.identification import concentrated, kernels, likelihood, recursions, scan
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS, FREE, experiments, prior_config
 from testbed.identification.problem import problem
 
@@ -82,6 +82,4 @@ def test_gramian_is_the_sum_of_its_terms(N):
     for _ in range(N):
         want += P.T @ Q @ P
         P = Phi @ P
-    np.testing.assert_allclose(
-        concentrated.gramian(Phi, Q, N), want, rtol=1e-10, atol=1e-12 * np.abs(want).max()
-    )
+    np.testing.assert_allclose(kernels.gramian(Phi, Q, N), want, rtol=1e-10, atol=1e-12 * np.abs(want).max())

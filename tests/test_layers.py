@@ -17,7 +17,7 @@ from pathlib import Path
 import testbed
 
 LAYERS = [
-    ("testbed.errors", "testbed.threads"),
+    ("testbed.errors", "testbed.memory", "testbed.threads"),
     ("testbed.models", "testbed.models.linear"),
     ("testbed.data",),
     ("testbed.simulation", "testbed.simulation.measurements"),

@@ -152,7 +152,7 @@ def test_valid_reference_is_the_linear_truth_or_a_fit_of_99_percent():
     assert valid_reference("I/linear", {})
     assert valid_reference("II/plant", VALID)
     assert not valid_reference("I/plant", VALID)
-    assert not valid_reference("inputs-prbs/plant", VALID)  # no regime measured: not known valid
+    assert not valid_reference("inputs-square/plant", VALID)  # no regime measured: not known valid
 
 
 def test_no_rows_leave_every_conclusion_undecided():
@@ -262,9 +262,9 @@ def factorial_rows(prbs_success=20, prbs_std=0.03, square_std=0.03, other_std=0.
     square) or 20 % (the others) off the analytic model, the optimum 1 % off it."""
     rows = []
     for s in rules.FACTORIAL:
-        success = prbs_success if s == "inputs-prbs" else 20
-        std = prbs_std if s == "inputs-prbs" else square_std if s == "inputs-square" else other_std
-        error = 0.02 if s in ("inputs-prbs", "inputs-square") else 0.2
+        success = prbs_success if s == rules.FACTORIAL[0] else 20
+        std = prbs_std if s == rules.FACTORIAL[0] else square_std if s == "inputs-square" else other_std
+        error = 0.02 if s in (rules.FACTORIAL[0], "inputs-square") else 0.2
         rows += arm_cells(
             s, "plant", "ml-nm-paper", success, n=20, spreads=(0.4,), error=error, std=std, optimum=0.01
         )
@@ -296,7 +296,7 @@ def test_conclusion_3_counts_only_valid_data_sets():
     # the square wave (the only input more informative than PRBS) is outside the linear regime
     out = conclusions(factorial_rows(prbs_std=0.039), regime, {})["3"]
     assert out["holds"] is True and "inputs-square" not in out["evidence"]
-    rows = [r for r in factorial_rows() if r["scenario"] == "inputs-prbs"]
+    rows = [r for r in factorial_rows() if r["scenario"] == rules.FACTORIAL[0]]
     assert conclusions(rows, FACTORIAL_REGIME, {})["3"]["holds"] is None  # nothing to compare with
 
 

@@ -287,7 +287,7 @@ def test_built_in_scenarios_are_files_that_round_trip():
 
 
 FACTORIAL = {
-    "inputs-prbs": sig.Prbs,
+    "II": sig.Prbs,
     "inputs-square": sig.Square,
     "inputs-3211": sig.Input3211,
     "inputs-multisine": sig.Multisine,
@@ -448,7 +448,7 @@ def test_library_checks_its_inputs(tmp_path):
     assert rng_for(np.int64(3), 0).integers(1 << 30) == rng_for(3, 0).integers(1 << 30)
     with pytest.raises(
         InputError,
-        match="unknown; expected one of I, II, inputs-3211, inputs-multisine, inputs-prbs, inputs-square, turn, zigzag, zigzag-vertical",
+        match="unknown; expected one of I, II, inputs-3211, inputs-multisine, inputs-square, turn, zigzag, zigzag-vertical",
     ):
         sc.scenario("III")
 

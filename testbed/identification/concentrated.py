@@ -7,7 +7,7 @@ The outputs are linear in the measured components x0 of the initial state,
 `A x0 = b` with W = R⁻¹ on the record's channels and
 
     A = Σ_k (CΦᵏ)ᵀ W CΦᵏ   the record's observability Gramian over its N samples, made by
-                           doubling in about 2 log₂N products of 10 × 10 matrices,
+                           doubling in about 2 log₂N steps (`kernels.gramian`),
     b = Σ_k (CΦᵏ)ᵀ W (y[k] − C x_f[k]) = λ[0],   λ[k] = Φᵀλ[k+1] + CᵀW (y[k] − C x_f[k]),
 
 the adjoint recursion run backwards. A ≥ W (its k = 0 term): positive definite. The cost is
@@ -24,55 +24,42 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.identification import scan
-from testbed.identification.likelihood import exploded, fit_initial_states
+from testbed.identification.likelihood import EXPLODE, exploded, fit_initial_states
 from testbed.identification.problem import Problem
 from testbed.identification.recursions import discrete_models, simulated
 from testbed.models.linear import NU, NX
 
-__all__ = ["CONDITION", "cost", "gramian"]
+__all__ = ["CONDITION", "cost"]
 
 # the Gramian's condition number (unit diagonal) up to which x0 comes from the normal equations:
 # on the example vehicle the cost then agrees with the QR solve's to 4e-16 at 5e10, 1e-11 at 4e12
 CONDITION = 1e10
 
 
-def gramian(Phi: np.ndarray, Q: np.ndarray, N: int) -> np.ndarray:
-    """`Σ_{k<N} (Φᵏ)ᵀ Q Φᵏ` by doubling, from the most significant bit of N:
-    `S_{2m} = S_m + (Φᵐ)ᵀ S_m Φᵐ` and `S_{m+1} = Q + Φᵀ S_m Φ`."""
-    S, P = np.zeros_like(Q), np.eye(len(Phi))  # S_m, Φᵐ for m = 0
-    for bit in bin(N)[2:]:
-        S, P = S + P.T @ S @ P, P @ P
-        if bit == "1":
-            S, P = Q + Phi.T @ S @ Phi, P @ Phi
-    return S
-
-
 def cost(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
     """`J_M = 1/N Σ eᵀR⁻¹e` at the free `values` with R held and the initial states at their
     best; ∞ for an invalid model (singular Mt, or outputs that diverge: `likelihood.exploded`).
-    Three sweeps over the records, each counted as a simulation (`recursions.simulated`): the
-    outputs from x0 = 0, the adjoint that gives x0's normal equations, the outputs from x0 (its
-    fallback `_by_qr` counts its own)."""
+    Three compiled sweeps over the records (`kernels.adjoint_sum`, `kernels.weighted_sse`), each
+    counted as a simulation (`recursions.simulated`): the outputs from x0 = 0, the adjoint that
+    gives x0's normal equations, the outputs from x0 (its fallback `_by_qr` counts its own)."""
+    from testbed.identification import kernels  # the compiler only where the simplex runs
+
     simulated(3 * prob.n_samples)
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
             models = discrete_models(prob, values, 0)
-            total, grams, outs = 0.0, {}, []
+            total, grams = 0.0, {}
             for r in prob.records:
                 E, m, N = models[r.dt].E, r.measured, len(r.y)
-                Phi = E[:, :NX]
+                Phi = np.ascontiguousarray(E[:, :NX])
                 F = r.inputs[:-1] @ E[:, NX : NX + NU].T + E[:, -1]
                 W = 1.0 / R[r.channels]
-                v = r.y - scan.propagate(Phi, np.zeros(NX), F)[:, m]
-                a = np.zeros((N, NX))
-                a[:, m] = v * W
-                b = scan.propagate(Phi.T, a[-1], a[-2::-1])[-1, m]
+                b = kernels.adjoint_sum(Phi, F, r.y, m, W)
                 key = (r.dt, N, tuple(m), tuple(W))
                 if key not in grams:
                     Q = np.zeros((NX, NX))
                     Q[m, m] = W
-                    A = gramian(Phi, Q, N)[np.ix_(m, m)]
+                    A = kernels.gramian(Phi, Q, N)[np.ix_(m, m)]
                     D = np.sqrt(np.diag(A))  # unit diagonal: x0's units do not count
                     A = A / np.outer(D, D)
                     bounds = np.linalg.eigvalsh(A)[[0, -1]]
@@ -82,12 +69,13 @@ def cost(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
                 A, D = grams[key]
                 x0 = np.zeros(NX)
                 x0[m] = np.linalg.solve(A, b / D) / D
-                y = scan.propagate(Phi, x0, F)[:, m]
-                outs.append(y)
-                total += float(np.sum((r.y - y) ** 2 * W))
+                sse = kernels.weighted_sse(Phi, x0, F, r.y, m, W, EXPLODE)
+                if not sse >= 0:  # the outputs diverged
+                    return np.inf
+                total += sse
     except np.linalg.LinAlgError:
         return np.inf
-    if exploded(prob, outs) is not None or not np.isfinite(total):
+    if not np.isfinite(total):
         return np.inf
     return total / prob.n_samples
 

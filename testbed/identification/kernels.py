@@ -10,10 +10,10 @@ Each computes what `scan.Scan` computes, sample by sample: numpy's per-call over
 import numba
 import numpy as np
 
-__all__ = ["propagate", "recursion"]
+__all__ = ["adjoint_sum", "gramian", "propagate", "recursion", "weighted_sse"]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath={"reassoc"})  # the sums reordered: 1.5× faster
 def propagate(Phi, x, F):
     """`x[k+1] = Φ x[k] + F[k]` in place for k < len(F), from `x[0]`."""
     n = x.shape[1]
@@ -25,7 +25,7 @@ def propagate(Phi, x, F):
             x[k + 1, i] = acc
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath={"reassoc"})
 def recursion(Phi, forcing, X, rows, S):
     """`S[c, t] = X[t][rows[c]]` for t < S.shape[1], with `X[t+1] = Φ X[t] + F[t]` from `X[0] = X`
     (n, m), F[t]'s first j columns `forcing[t]` (n, j) and the others zero; X is left at the
@@ -53,3 +53,83 @@ def recursion(Phi, forcing, X, rows, S):
         x, xn = xn, x
     if x is not X:
         X[:, :] = x
+
+
+@numba.njit(cache=True)
+def adjoint_sum(Phi, F, y, measured, W):
+    """`b = λ[0][measured]` of the adjoint `λ[k] = Φᵀλ[k+1] + a[k]`, `a[k][measured] = W (y[k] −
+    x[k][measured])`, with `x[k+1] = Φ x[k] + F[k]` from x[0] = 0: the right-hand side of the
+    initial state's normal equations (`testbed.identification.concentrated`)."""
+    n, N, c = Phi.shape[0], y.shape[0], len(measured)
+    x = np.empty((N, n))
+    x[0] = 0.0
+    propagate(Phi, x, F)
+    a = np.zeros((N, n))  # a[N − 1 − k]: the adjoint runs backwards
+    for k in range(N):
+        for j in range(c):
+            a[N - 1 - k, measured[j]] = W[j] * (y[k, j] - x[k, measured[j]])
+    lam = x  # λ[N − 1 − k], in x's memory
+    lam[0] = a[0]
+    propagate(np.ascontiguousarray(Phi.T), lam, a[1:])
+    out = np.empty(c)
+    for j in range(c):
+        out[j] = lam[N - 1, measured[j]]
+    return out
+
+
+@numba.njit(cache=True)
+def weighted_sse(Phi, x0, F, y, measured, W, explode):
+    """`Σ_k Σ_j W_j (y[k, j] − x[k][measured[j]])²` along `x[k+1] = Φ x[k] + F[k]` from `x0`;
+    −1 where an output is not finite or beyond `explode`·max|y_j| + 1 (the model diverged,
+    `testbed.identification.likelihood.exploded`)."""
+    N, c = y.shape[0], len(measured)
+    bound = np.zeros(c)
+    for k in range(N):
+        for j in range(c):
+            bound[j] = max(bound[j], abs(y[k, j]))
+    bound = explode * bound + 1.0
+    x = np.empty((N, Phi.shape[0]))
+    x[0] = x0
+    propagate(Phi, x, F)
+    total = 0.0
+    for k in range(N):
+        for j in range(c):
+            v = x[k, measured[j]]
+            if not abs(v) <= bound[j]:  # NaN too
+                return -1.0
+            d = y[k, j] - v
+            total += W[j] * d * d
+    return total
+
+
+@numba.njit(cache=True)
+def _product(A, B, transpose_a):
+    """`A B`, or `Aᵀ B` with `transpose_a`, of square matrices."""
+    n = A.shape[0]
+    C = np.zeros((n, n))
+    for i in range(n):
+        for l in range(n):
+            a = A[l, i] if transpose_a else A[i, l]
+            if a != 0:
+                for j in range(n):
+                    C[i, j] += a * B[l, j]
+    return C
+
+
+@numba.njit(cache=True)
+def gramian(Phi, Q, N):
+    """`Σ_{k<N} (Φᵏ)ᵀ Q Φᵏ` by doubling, from the most significant bit of N:
+    `S_{2m} = S_m + (Φᵐ)ᵀ S_m Φᵐ` and `S_{m+1} = Q + Φᵀ S_m Φ` (about 2 log₂N steps of three
+    products each)."""
+    n = Phi.shape[0]
+    S, P = np.zeros((n, n)), np.eye(n)  # S_m, Φᵐ for m = 0
+    bits = 0
+    while N >> bits:
+        bits += 1
+    for b in range(bits - 1, -1, -1):
+        S = S + _product(P, _product(S, P, False), True)
+        P = _product(P, P, False)
+        if (N >> b) & 1:
+            S = Q + _product(Phi, _product(S, Phi, False), True)
+            P = _product(P, Phi, False)
+    return S

@@ -245,10 +245,12 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
         mu = scan.propagate(Phi.T, a[-1], a[-2::-1])[::-1]  # μ[k], k = 0 … N−1
         dPhi = np.zeros((X.shape[2], NX, NX), dtype=X.dtype)
         dPhi[:nf] = d.dE[:, :, :NX]
-        H1 = np.einsum("jib,jbl->il", np.einsum("ja,iab->jib", mu[1:], dPhi), X[:-1])
+        # H1[i, l] = Σ_k μ[k+1]ᵀ ∂Φ_i ∂x[k]/∂p_l, as one product over (k, b): (q, N·10) (N·10, q)
+        T = np.tensordot(dPhi, mu[1:], axes=([1], [1]))  # T[i, b, k] = (∂Φ_iᵀ μ[k+1])_b
+        H1 = T.transpose(0, 2, 1).reshape(len(dPhi), -1) @ X[:-1].reshape(-1, X.shape[2])
         Hr = H1 + H1.T
         if nf:
-            Hr[:nf, :nf] += np.einsum("ilab,ab->il", d.d2E, mu[1:].T @ w[:-1])
+            Hr[:nf, :nf] += np.tensordot(d.d2E, mu[1:].T @ w[:-1], axes=([2, 3], [0, 1]))
         cols = prob.columns(r)
         H[np.ix_(cols, cols)] += Hr
     return H

@@ -204,9 +204,9 @@ def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
 def tilde(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`Mt, At, Bt, St` at the full coefficient vector `theta` (35,)."""
     return (
-        s.Mt0 + np.tensordot(theta, s.dMt, 1),
-        s.At0 + np.tensordot(theta, s.dAt, 1),
-        s.Bt0 + np.tensordot(theta, s.dBt, 1),
+        s.Mt0 + (theta @ s.dMt.reshape(len(s.dMt), -1)).reshape(s.Mt0.shape),
+        s.At0 + (theta @ s.dAt.reshape(len(s.dAt), -1)).reshape(s.At0.shape),
+        s.Bt0 + (theta @ s.dBt.reshape(len(s.dBt), -1)).reshape(s.Bt0.shape),
         s.St0 + theta @ s.dSt,
     )
 
@@ -275,12 +275,13 @@ def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float, second=None):
             dTi, dTj = dT[:, i, :n].transpose(1, 0, 2), dT[:, j, :n].transpose(1, 0, 2)
             d2T = (d2T[:, :, :n] @ X + dTi @ dXj + dTj @ dXi + T[:, :n] @ d2X) * (1.0 / k)
             d2E += d2T
-        dT = ((dT[:, :, :n].reshape(n * p, n) @ X).reshape(n, p, q) + (T[:, :n] @ dX).reshape(n, p, q)) * (
-            1.0 / k
-        )
+        if p:  # (no derivatives asked: the model alone, thousands of times per simplex fit)
+            dT = (
+                (dT[:, :, :n].reshape(n * p, n) @ X).reshape(n, p, q) + (T[:, :n] @ dX).reshape(n, p, q)
+            ) * (1.0 / k)
+            dE += dT
         T = (T[:, :n] @ X) * (1.0 / k)
         E += T
-        dE += dT
     E[:, :n] += np.eye(n)
     for _ in range(s):  # (E, ∂E, ∂²E) ← (E², E ∂E + ∂E E, …), top rows only
         Ex = E[:, :n]
@@ -289,12 +290,14 @@ def expm_pair(M: np.ndarray, dM: np.ndarray, dt: float, second=None):
             d2E_new = Ex @ d2E + d2E[:, :, :n] @ E + dEi[:, :, :n] @ dEj + dEj[:, :, :n] @ dEi
             d2E_new[:, :, n:] += d2E[:, :, n:]
             d2E = d2E_new
-        dE_new = (Ex @ dE.reshape(n, p * q)).reshape(n, p, q)
-        dE_new += (dE[:, :, :n].reshape(n * p, n) @ E).reshape(n, p, q)
-        dE_new[:, :, n:] += dE[:, :, n:]
+        if p:
+            dE_new = (Ex @ dE.reshape(n, p * q)).reshape(n, p, q)
+            dE_new += (dE[:, :, :n].reshape(n * p, n) @ E).reshape(n, p, q)
+            dE_new[:, :, n:] += dE[:, :, n:]
+            dE = dE_new
         E_new = Ex @ E
         E_new[:, n:] += E[:, n:]
-        E, dE = E_new, dE_new
+        E = E_new
     return (E, dE) if second is None else (E, dE, d2E)
 
 

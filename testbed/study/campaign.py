@@ -34,12 +34,13 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from dask.distributed import Client, LocalCluster, as_completed
+from dask.distributed import Client, LocalCluster, WorkerPlugin, as_completed
 
 from testbed.analysis.drift import evidence, forms
 from testbed.analysis.regime import open_loop_fit
 from testbed.data import load_data
 from testbed.errors import InputError, atomic_write_text, check_output_directory, is_number, one_line
+from testbed.memory import keep_freed_memory
 from testbed.presentation.figures import write_report
 from testbed.simulation.scenario import TRUTHS
 from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS, arms as checked_arms
@@ -49,6 +50,7 @@ from testbed.study.rules import FACTORIAL, conclusions
 
 __all__ = [
     "FACTORIAL",
+    "KeepFreedMemory",
     "MARKER",
     "MAX_SEEDS",
     "Outcome",
@@ -99,8 +101,10 @@ def plan(
             raise InputError(f"truth {t!r}; expected one of {', '.join(TRUTHS)}")
     duration = duration if duration is not None else (QUICK_DURATION if quick else None)
     sets = [(s, t, arms) for s in scenarios for t in truths]
-    sets += [
-        (s, "plant", tuple(a for a in arms if a in FACTORIAL_ARMS)) for s in factorial if "plant" in truths
+    sets += [  # (Scenario II, the PRBS level, is among the scenarios already)
+        (s, "plant", tuple(a for a in arms if a in FACTORIAL_ARMS))
+        for s in factorial
+        if "plant" in truths and s not in scenarios
     ]
     # seed by seed: the cells run in this order, so a campaign stopped early has whole seeds
     return [
@@ -268,6 +272,16 @@ def make_folder(out: Path) -> None:
         raise InputError(f"out={out}: cannot create ({exc.strerror or exc})") from None
 
 
+class KeepFreedMemory(WorkerPlugin):
+    """On every worker, local or remote, freed memory kept for reuse (`testbed.memory`): Dask's
+    nanny starts workers set to hand it back at once, which makes every cell several times slower."""
+
+    name = "testbed-keep-freed-memory"
+
+    def setup(self, worker) -> None:
+        keep_freed_memory()
+
+
 class _client:
     """A Dask client on the scheduler at `address`, or on a LocalCluster of `workers`
     single-threaded processes (closed on exit)."""
@@ -284,15 +298,16 @@ class _client:
                     f"scheduler={self.address}: cannot connect ({one_line(exc)}); "
                     "expected the address of a running Dask scheduler, e.g. tcp://host:8786"
                 ) from None
-            return self.client
-        self.cluster = LocalCluster(
-            n_workers=self.workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-        )
-        self.client = Client(self.cluster)
+        else:
+            self.cluster = LocalCluster(
+                n_workers=self.workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
+            self.client = Client(self.cluster)
+        self.client.register_plugin(KeepFreedMemory())
         return self.client
 
     def __exit__(self, *exc):
