@@ -138,8 +138,8 @@ def test_evaluations_count_the_simulations_of_the_data_set(name, problem, monkey
         assert identify(data, start, method=name, max_samples=5).evaluations == 1  # a share, rounded up
     elif m.iterative:
         calls = []
-        cost = concentrated.cost
-        monkeypatch.setattr(concentrated, "cost", lambda *a: calls.append(1) or cost(*a))
+        call = concentrated.Cost.__call__
+        monkeypatch.setattr(concentrated.Cost, "__call__", lambda self, *a: calls.append(1) or call(self, *a))
         few, more = (identify(data, start, method=name, start="config", max_iter=k) for k in (1, 3))
         assert 0 < few.evaluations < more.evaluations, (few.evaluations, more.evaluations)
         if name == "ml-nm":  # its cost evaluations, and the few simulations of its noise updates

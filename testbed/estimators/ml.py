@@ -332,10 +332,11 @@ def nelder_mead(
         tol = (eps if stage is prob else stage_eps) / stage.n_samples
         q = likelihood.initial_states(stage, scale * x)
         R = likelihood.noise_variance(stage, recursions.residuals(stage, q))
+        cost = concentrated.Cost(stage)
         for _ in range(max_relaxations):
 
-            def J(v: np.ndarray, stage=stage, R=R) -> float:
-                return concentrated.cost(stage, scale * v, R)
+            def J(v: np.ndarray, cost=cost, R=R) -> float:
+                return cost(scale * v, R)
 
             J_start = J(x)
             corners, J_i, it, stopped = _simplex(J, fresh_simplex(x, size), coef, tol, it, max_iter, report)
@@ -368,11 +369,11 @@ def _one_simplex(
     R = likelihood.noise_variance(
         prob, recursions.residuals(prob, likelihood.initial_states(prob, scale * x))
     )
-    corners, it = fresh_simplex(x, step), 0
+    corners, it, cost = fresh_simplex(x, step), 0, concentrated.Cost(prob)
     for _ in range(max_relaxations):
 
         def J(v: np.ndarray, R=R) -> float:
-            return concentrated.cost(prob, scale * v, R)
+            return cost(scale * v, R)
 
         corners, _, it, stopped = _simplex(J, corners, coef, tol, it, max_iter, report)
         if not stopped:

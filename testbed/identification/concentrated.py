@@ -29,55 +29,78 @@ from testbed.identification.problem import Problem
 from testbed.identification.recursions import discrete_models, simulated
 from testbed.models.linear import NU, NX
 
-__all__ = ["CONDITION", "cost"]
+__all__ = ["CONDITION", "Cost", "cost"]
 
 # the Gramian's condition number (unit diagonal) up to which x0 comes from the normal equations:
 # on the example vehicle the cost then agrees with the QR solve's to 4e-16 at 5e10, 1e-11 at 4e12
 CONDITION = 1e10
 
 
-def cost(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
-    """`J_M = 1/N Σ eᵀR⁻¹e` at the free `values` with R held and the initial states at their
-    best; ∞ for an invalid model (singular Mt, or outputs that diverge: `likelihood.exploded`).
-    Three compiled sweeps over the records (`kernels.adjoint_sum`, `kernels.weighted_sse`), each
-    counted as a simulation (`recursions.simulated`): the outputs from x0 = 0, the adjoint that
-    gives x0's normal equations, the outputs from x0 (its fallback `_by_qr` counts its own)."""
-    from testbed.identification import kernels  # the compiler only where the simplex runs
+class Cost:
+    """`J_M(θ)` of `prob` at the free values with R held, prepared once (the records stacked per
+    sampling interval) for the thousands of calls of a simplex search; each call is one compiled
+    pass per sampling interval (`kernels.concentrated_sse`)."""
 
-    simulated(3 * prob.n_samples)
-    try:
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-            models = discrete_models(prob, values, 0)
-            total, grams = 0.0, {}
-            for r in prob.records:
-                E, m, N = models[r.dt].E, r.measured, len(r.y)
-                Phi = np.ascontiguousarray(E[:, :NX])
-                F = r.inputs[:-1] @ E[:, NX : NX + NU].T + E[:, -1]
-                W = 1.0 / R[r.channels]
-                b = kernels.adjoint_sum(Phi, F, r.y, m, W)
-                key = (r.dt, N, tuple(m), tuple(W))
-                if key not in grams:
-                    Q = np.zeros((NX, NX))
-                    Q[m, m] = W
-                    A = kernels.gramian(Phi, Q, N)[np.ix_(m, m)]
-                    D = np.sqrt(np.diag(A))  # unit diagonal: x0's units do not count
-                    A = A / np.outer(D, D)
-                    bounds = np.linalg.eigvalsh(A)[[0, -1]]
-                    if not bounds[0] * CONDITION >= bounds[1]:  # NaN too
+    def __init__(self, prob: Problem):
+        self.prob, self.groups = prob, []
+        for dt in dict.fromkeys(r.dt for r in prob.records):
+            records = [r for r in prob.records if r.dt == dt]
+            starts = np.cumsum([0] + [len(r.y) for r in records])
+            measured = np.zeros((len(records), NX), dtype=np.int64)
+            y = np.zeros((starts[-1], NX))
+            for k, r in enumerate(records):
+                measured[k, : len(r.measured)] = r.measured
+                y[starts[k] : starts[k + 1], : len(r.measured)] = r.y
+            inputs = np.ascontiguousarray(np.concatenate([r.inputs for r in records]), dtype=float)
+            counts = np.array([len(r.measured) for r in records], dtype=np.int64)
+            self.groups.append((dt, records, starts, measured, counts, y, inputs))
+
+    def __call__(self, values: np.ndarray, R: np.ndarray) -> float:
+        """`J_M = 1/N Σ eᵀR⁻¹e` at the free `values`; ∞ for an invalid model (singular Mt, or
+        outputs that diverge: `likelihood.exploded`). Three sweeps over the records, each counted
+        as a simulation (`recursions.simulated`): the outputs from x0 = 0, the adjoint that gives
+        x0's normal equations, the outputs from x0 (its fallback `_by_qr` counts its own)."""
+        from testbed.identification import kernels  # the compiler only where the simplex runs
+
+        prob = self.prob
+        simulated(3 * prob.n_samples)
+        total = 0.0
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
+                models = discrete_models(prob, values, 0)
+                for dt, records, starts, measured, counts, y, inputs in self.groups:
+                    E = models[dt].E
+                    W = np.zeros((len(records), NX))
+                    for k, r in enumerate(records):
+                        W[k, : len(r.channels)] = 1.0 / R[r.channels]
+                    sse = kernels.concentrated_sse(
+                        np.ascontiguousarray(E[:, :NX]),
+                        np.ascontiguousarray(E[:, NX : NX + NU]),
+                        np.ascontiguousarray(E[:, -1]),
+                        inputs,
+                        y,
+                        starts,
+                        measured,
+                        counts,
+                        W,
+                        EXPLODE,
+                        CONDITION,
+                    )
+                    if sse == -2.0:
                         return _by_qr(prob, values, R)
-                    grams[key] = A, D
-                A, D = grams[key]
-                x0 = np.zeros(NX)
-                x0[m] = np.linalg.solve(A, b / D) / D
-                sse = kernels.weighted_sse(Phi, x0, F, r.y, m, W, EXPLODE)
-                if not sse >= 0:  # the outputs diverged
-                    return np.inf
-                total += sse
-    except np.linalg.LinAlgError:
-        return np.inf
-    if not np.isfinite(total):
-        return np.inf
-    return total / prob.n_samples
+                    if not sse >= 0:  # the outputs diverged
+                        return np.inf
+                    total += sse
+        except np.linalg.LinAlgError:
+            return np.inf
+        if not np.isfinite(total):
+            return np.inf
+        return total / prob.n_samples
+
+
+def cost(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
+    """`Cost(prob)(values, R)`: `J_M` once (a search prepares `Cost` once instead)."""
+    return Cost(prob)(values, R)
 
 
 def _by_qr(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:

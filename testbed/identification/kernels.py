@@ -10,7 +10,7 @@ Each computes what `scan.Scan` computes, sample by sample: numpy's per-call over
 import numba
 import numpy as np
 
-__all__ = ["adjoint_sum", "gramian", "propagate", "recursion", "weighted_sse"]
+__all__ = ["adjoint_sum", "concentrated_sse", "gramian", "propagate", "recursion", "weighted_sse"]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})  # the sums reordered: 1.5× faster
@@ -55,7 +55,7 @@ def recursion(Phi, forcing, X, rows, S):
         X[:, :] = x
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath={"reassoc"})
 def adjoint_sum(Phi, F, y, measured, W):
     """`b = λ[0][measured]` of the adjoint `λ[k] = Φᵀλ[k+1] + a[k]`, `a[k][measured] = W (y[k] −
     x[k][measured])`, with `x[k+1] = Φ x[k] + F[k]` from x[0] = 0: the right-hand side of the
@@ -77,7 +77,7 @@ def adjoint_sum(Phi, F, y, measured, W):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath={"reassoc"})
 def weighted_sse(Phi, x0, F, y, measured, W, explode):
     """`Σ_k Σ_j W_j (y[k, j] − x[k][measured[j]])²` along `x[k+1] = Φ x[k] + F[k]` from `x0`;
     −1 where an output is not finite or beyond `explode`·max|y_j| + 1 (the model diverged,
@@ -133,3 +133,51 @@ def gramian(Phi, Q, N):
             S = Q + _product(Phi, _product(S, Phi, False), True)
             P = _product(P, Phi, False)
     return S
+
+
+@numba.njit(cache=True, fastmath={"reassoc"})
+def concentrated_sse(Phi, Gamma, s, inputs, y, starts, measured, counts, W, explode, condition):
+    """`Σ_records Σ_k Σ_j W_rj (y[k, j] − x[k][measured[r, j]])²` with each record's initial
+    state at its best (`testbed.identification.concentrated`): the records stacked in `inputs`
+    and `y` (record r the rows `starts[r]:starts[r+1]`, its `counts[r]` measured states the first
+    columns of y, `measured[r]`, their weights `W[r]`), `x[k+1] = Φ x[k] + Γ δ[k] + s`. Per record
+    `adjoint_sum`, the Gramian (`gramian`) scaled to a unit diagonal, x0 from the normal equations
+    and `weighted_sse`. −1 where the outputs diverge (`weighted_sse`), −2 where a scaled Gramian's
+    condition number exceeds `condition` (x0 then wants a QR solve)."""
+    n, total = Phi.shape[0], 0.0
+    for r in range(len(starts) - 1):
+        a, b, c = starts[r], starts[r + 1], counts[r]
+        N, m, w = b - a, measured[r, :c], W[r, :c]
+        yr = y[a:b, :c]
+        F = np.empty((N - 1, n))
+        for k in range(N - 1):  # F[k] = Γ δ[k] + s
+            for i in range(n):
+                acc = s[i]
+                for j in range(Gamma.shape[1]):
+                    acc += Gamma[i, j] * inputs[a + k, j]
+                F[k, i] = acc
+        rhs = adjoint_sum(Phi, F, yr, m, w)
+        Q = np.zeros((n, n))
+        for j in range(c):
+            Q[m[j], m[j]] = w[j]
+        G = gramian(Phi, Q, N)
+        A = np.empty((c, c))
+        for i in range(c):
+            for j in range(c):
+                A[i, j] = G[m[i], m[j]]
+        D = np.sqrt(np.diag(A).copy())  # unit diagonal: x0's units do not count
+        for i in range(c):
+            for j in range(c):
+                A[i, j] /= D[i] * D[j]
+        bounds = np.linalg.eigvalsh(A)
+        if not bounds[0] * condition >= bounds[-1]:  # NaN too
+            return -2.0
+        x0m = np.linalg.solve(A, rhs / D) / D
+        x0 = np.zeros(n)
+        for j in range(c):
+            x0[m[j]] = x0m[j]
+        sse = weighted_sse(Phi, x0, F, yr, m, w, explode)
+        if not sse >= 0:
+            return -1.0
+        total += sse
+    return total

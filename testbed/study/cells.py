@@ -31,7 +31,7 @@ from testbed.analysis.identifiability import screening
 from testbed.data import load_data
 from testbed.errors import InputError, one_line
 from testbed.estimators import FilterEstimate, identify, lookup
-from testbed.identification import likelihood, recursions
+from testbed.identification import likelihood, recursions, scan
 from testbed.identification.bounds import fisher
 from testbed.identification.problem import problem
 from testbed.models.linear import COEFFICIENTS
@@ -145,6 +145,7 @@ class Start:
     note: str = ""
 
 
+@scan.compiled()  # a campaign's worker fits thousands of times: the compiler pays off
 def start(data, spread: float, seed: int) -> Start:
     """The a-priori model of `spread` and `seed` for the run `data`, screened at itself; where the
     screen fails (its fit diverges on a poor prior) the candidates are fitted as written."""
@@ -195,6 +196,7 @@ def _fitted_config(cell: Cell, data, begin: Start):
     return replace(analytic, free=free).with_coefficients({n: begin.prior.coefficients[n] for n in free})
 
 
+@scan.compiled()
 def run_cell(cell: Cell, data, begin: Start) -> dict:
     """Fit one cell and measure it; never raises: a failure is returned as a result with
     `status` "failed" and its reason."""
