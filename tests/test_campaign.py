@@ -97,6 +97,10 @@ def test_plan_pairs_every_arm_with_the_optimum_per_data_set_seed_and_spread():
     assert Cell("I", "ml-gn", 1).key != Cell("I", "ml-gn", 1, spread=0.4).key
     assert all(c.duration == campaign.QUICK_DURATION for c in plan(1, quick=True))
     assert {c.arm for c in plan(1, arms=("all",))} == {OPTIMUM, *ARMS}
+    # without Scenario II among the scenarios its PRBS level is still fitted by conclusion 3's arm
+    alone = plan(1, scenarios=("I",), spreads=(0.4,))
+    assert {c.arm for c in alone if c.scenario == "II"} == {OPTIMUM, "ml-nm-paper", "ml-gn"}
+    assert {c.arm for c in alone if c.scenario == "inputs-square"} == {OPTIMUM, "ml-gn"}
     with pytest.raises(InputError, match="seeds=0"):
         plan(0)
     with pytest.raises(InputError, match="arm 'ml-xx' is unknown"):

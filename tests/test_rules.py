@@ -280,6 +280,16 @@ def test_conclusion_3_holds_when_prbs_succeeds_and_informs_as_much():
     assert conclusions(factorial_rows(prbs_std=0.037), FACTORIAL_REGIME, {})["3"]["holds"] is True
 
 
+def test_conclusion_3_takes_information_only_from_fits_that_reached_the_optimum():
+    # the square wave's ml-gn cells all stopped elsewhere, with a σ that would beat PRBS's
+    rows = [
+        r for r in factorial_rows(prbs_std=0.039) if r["scenario"] != "inputs-square" or r["arm"] != "ml-gn"
+    ]
+    rows += arm_cells("inputs-square", "plant", "ml-gn", 0, n=20, spreads=(0.4,), std=0.01, optimum=0.01)
+    out = conclusions(rows, FACTORIAL_REGIME, {})["3"]
+    assert out["holds"] is True and "the best other input: inputs-square" not in out["evidence"]
+
+
 def test_conclusion_3_fails_when_prbs_succeeds_in_fewer_than_80_percent():
     assert conclusions(factorial_rows(prbs_success=15), FACTORIAL_REGIME, {})["3"]["holds"] is False
 

@@ -46,7 +46,7 @@ from testbed.simulation.scenario import TRUTHS
 from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS, arms as checked_arms
 from testbed.study.cells import OPTIMUM, Cell, load_run, run_cell, start
 from testbed.study.results import SUMMARY_COLUMNS, read_results, results_csv, results_rows, summary_table
-from testbed.study.rules import FACTORIAL, conclusions
+from testbed.study.rules import FACTORIAL, NM_ARM, conclusions
 
 __all__ = [
     "FACTORIAL",
@@ -101,8 +101,8 @@ def plan(
             raise InputError(f"truth {t!r}; expected one of {', '.join(TRUTHS)}")
     duration = duration if duration is not None else (QUICK_DURATION if quick else None)
     sets = [(s, t, arms) for s in scenarios for t in truths]
-    sets += [  # (Scenario II, the PRBS level, is among the scenarios already)
-        (s, "plant", tuple(a for a in arms if a in FACTORIAL_ARMS))
+    sets += [  # (Scenario II, the PRBS level, with every arm when among the scenarios)
+        (s, "plant", tuple(a for a in arms if a in FACTORIAL_ARMS or (s == FACTORIAL[0] and a == NM_ARM)))
         for s in factorial
         if "plant" in truths and s not in scenarios
     ]
@@ -307,7 +307,11 @@ class _client:
                 silence_logs=logging.ERROR,
             )
             self.client = Client(self.cluster)
-        self.client.register_plugin(KeepFreedMemory())
+        try:
+            self.client.register_plugin(KeepFreedMemory())
+        except BaseException:
+            self.__exit__()
+            raise
         return self.client
 
     def __exit__(self, *exc):

@@ -29,8 +29,8 @@ __all__ = [
     "COEFFICIENT_SIGMAS",
     "COEFFICIENT_TOLERANCE",
     "FACTORIAL",
-    "LEVEL",
     "INFORMATION_ARM",
+    "LEVEL",
     "MEKF_ARMS",
     "MEKF_GAP",
     "MEKF_RATIO",
@@ -322,7 +322,7 @@ def _inputs(table, regime) -> dict:
         f"From realistic starts, on the factorial data sets (on the plant) with a valid linear reference, "
         f"{NM_ARM} on {FACTORIAL[0]} (the PRBS) reaches the optimum in ≥ {100 * ACCEPTABLE:.0f} % of its "
         f"cells at every spread, and {FACTORIAL[0]} informs the coefficients no worse than the best other "
-        f"input: the median over its {INFORMATION_ARM} cells (which reach the optimum: their σ is the "
+        f"input: the median over its {INFORMATION_ARM} cells that reach the optimum (their σ is the "
         f"data's Cramér-Rao bound there) of their median relative σ (std / |optimum|, or / |analytic| "
         f"where the optimum is unknown) is ≤ {SIGMA_RATIO:g}× the smallest other input's."
     )
@@ -344,7 +344,11 @@ def _inputs(table, regime) -> dict:
         k, n = _success([c for c in prbs if c[0][2] == s])
         holds &= k >= ACCEPTABLE * n
         parts.append(f"spread {s:g} {_proportion(k, n)}")
-    sigma = {s: _median(p, relative_sigma) for s, p in informed_by.items() if p}
+    sigma = {
+        s: _median([c for c in p if c[1][0]["outcome"] == "success"], relative_sigma)
+        for s, p in informed_by.items()
+        if p
+    }
     informed = {s: v for s, v in sigma.items() if s != FACTORIAL[0] and not math.isnan(v)}
     if math.isnan(sigma.get(FACTORIAL[0], math.nan)) or not informed:
         best, verdict = "none (no finite σ)", False if not holds else None
