@@ -47,11 +47,15 @@ def main(argv=None) -> int:
             for row in csv.DictReader(f):  # one row per coefficient: a cell's time once
                 key = (row["scenario"], row["truth"], row["spread"], row["arm"], row["seed"])
                 cells[key] = (row["arm"], float(row["wall_time_s"] or 0))
+        total = len(list((out / "cells").glob("*.json")))
     per_arm = Counter()
     for arm, t in cells.values():
         per_arm[arm] += t
     fitting = sum(per_arm.values()) / WORKERS
-    print(f"testbed reproduce --seeds {args.seeds} --start-spread {args.spread:g}: {len(cells)} cells")
+    print(
+        f"testbed reproduce --seeds {args.seeds} --start-spread {args.spread:g}: {total} cells "
+        f"({len(cells)} judged, the others the optimum's)"
+    )
     print(f"command: {wall:7.1f} s; goal {GOAL:g} s: {wall / GOAL:.2f}")
     print(
         f"fitting alone (cells' time / {WORKERS} workers): {fitting:7.1f} s; command / fitting: {wall / fitting:.2f}"
