@@ -1,7 +1,7 @@
 """Benchmark: `testbed reproduce --seeds 20` at one start spread, as a user runs it (goal ≤ 10 min
 on 2 cores).
 
-    python benchmarks/bench_reproduce.py [--seeds 20] [--spread 0.5] [--keep DIR]
+    python benchmarks/bench_reproduce.py [--seeds 20] [--spread 0.4] [--keep DIR]
 
 The command (the console script beside this interpreter) runs from its start to its exit in a new
 folder: every run flown, every start screened, every cell of the default arms fitted, the report
@@ -31,7 +31,7 @@ WORKERS = 2
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--spread", type=float, default=0.5)
+    ap.add_argument("--spread", type=float, default=0.4, help="the start spread (default: the command's own)")
     ap.add_argument("--keep", help="write the campaign here (a new folder) instead of a temporary one")
     args = ap.parse_args(argv)
     testbed = Path(sys.executable).with_name("testbed")
