@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
 import subprocess
 import sys
 import tempfile
@@ -40,7 +39,7 @@ def main(argv=None) -> int:
         command = [str(testbed), "reproduce", "--seeds", str(args.seeds), "--start-spread", str(args.spread)]
         command += ["--out", str(out)]  # (its default: a LocalCluster of 2 workers)
         t0 = time.perf_counter()
-        subprocess.run(command, check=True, stdout=subprocess.DEVNULL, env={**os.environ})
+        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
         wall = time.perf_counter() - t0
         with open(out / "results.csv", newline="", encoding="utf-8") as f:
             cells = {}

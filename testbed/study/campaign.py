@@ -56,7 +56,6 @@ __all__ = [
     "Outcome",
     "QUICK_DURATION",
     "SCENARIOS",
-    "SLOW_ARMS",
     "SPREADS",
     "TRUTHS",
     "check_folder",
@@ -67,7 +66,6 @@ __all__ = [
 ]
 
 SCENARIOS = ("I", "II")  # the paper's, fitted by every arm on every truth
-SLOW_ARMS = ("ml-nm", "ml-nr", "ml-gn-global")  # arms (by prefix) whose cells run for seconds
 SPREADS = (0.4,)  # the default start spread: a user's a-priori model (`priors.SPREAD`)
 MAX_SEEDS = 1000  # noise seeds 1..N: weeks of one machine's time at the most
 MAX_SPREAD = 3.0  # e^±3σ_c: beyond it an a-priori model is no model
@@ -162,9 +160,7 @@ def reproduce(
     cells_dir = out / "cells"
     todo = [c for c in cells if read_cell(cells_dir / f"{c.key}.json") is None]
     # a task's priority is its first cell's place in the plan (Dask runs the higher first), so
-    # the cells run seed by seed, each run and start just before the cells that need it; within a
-    # seed the arms that run for seconds go first, so that the campaign does not end on one of them
-    todo.sort(key=lambda c: (c.seed, not c.arm.startswith(SLOW_ARMS)))
+    # the cells run seed by seed, each run and start just before the cells that need it
     first_run, first_start = {}, {}
     for i, c in enumerate(todo):
         first_run.setdefault(_run(c), i)
@@ -188,17 +184,6 @@ def reproduce(
         futures = {
             client.submit(run_cell, c, data[_run(c)], begun[_start(c)], key=f"cell-{c.key}", priority=-i): c
             for i, c in enumerate(todo)
-        }
-        fits = {  # the analytic model's open-loop fit per run, for regime.json, beside the cells
-            r: client.submit(
-                _open_loop_fit,
-                str(out.resolve()),
-                _name(r),
-                data[r],
-                key=f"regime-{_name(r)}-{where}",
-                priority=-i,
-            )
-            for r, i in first_run.items()
         }
         done = len(cells) - len(todo)
         for future in as_completed(futures):
@@ -226,11 +211,10 @@ def reproduce(
                     done / len(cells),
                     f"{cell.scenario}/{cell.truth} s={cell.spread:g} {cell.arm} seed {cell.seed}: {doc['status']}",
                 )
-        found_fits = {_name(r): f.result() for r, f in fits.items() if f.status == "finished"}
-        for f in list(data.values()) + list(begun.values()) + list(fits.values()):
+        for f in list(data.values()) + list(begun.values()):
             f.cancel()
     docs = [read_cell(cells_dir / f"{c.key}.json") for c in cells]
-    write_outputs(out, docs, cells, found_fits)
+    write_outputs(out, docs, cells)
     verdicts = json.loads((out / "conclusions.json").read_text())
     return Outcome(out, len(todo), len(cells) - len(todo), failed, verdicts, time.perf_counter() - t0)
 
@@ -339,35 +323,20 @@ class _client:
 # -- the outputs ------------------------------------------------------------------------------------
 
 
-def _fit_of(run: Path) -> dict | None:
-    """`regime.open_loop_fit` of a run directory as a dict; None where it cannot be read."""
-    try:
-        return open_loop_fit(run).to_dict()
-    except (InputError, OSError):
-        return None
-
-
-def _open_loop_fit(out: str, name: str, data) -> dict | None:
-    """`_fit_of` the run `name` in `out`, on a worker; `data` (the run's loaded experiments) only
-    orders the task after the run is flown."""
-    return _fit_of(Path(out) / "runs" / name)
-
-
-def regime(out: Path, cells: list[Cell], known: dict | None = None) -> dict[str, dict]:
+def regime(out: Path, cells: list[Cell]) -> dict[str, dict]:
     """Per data set ("scenario/truth"), the analytic model's open-loop fit (`regime.open_loop_fit`)
     on its first seed's run, with `lowest_truth_fit` the median over the seeds' runs of each
     run's lowest (the input sequences and noise differ by seed: one seed's margin does not
-    decide) and `lowest_truth_fit_seeds` each seed's; a run that cannot be read is left out.
-    `known`: fits already made, by run name."""
+    decide) and `lowest_truth_fit_seeds` each seed's; a run that cannot be read is left out."""
     fits: dict[str, dict[int, dict]] = {}
     for c in cells:
         runs = fits.setdefault(f"{c.scenario}/{c.truth}", {})
         if c.seed in runs:
             continue
-        if known and c.run_name in known:
-            runs[c.seed] = known[c.run_name]
-            continue
-        runs[c.seed] = _fit_of(out / "runs" / c.run_name)
+        try:
+            runs[c.seed] = open_loop_fit(out / "runs" / c.run_name).to_dict()
+        except (InputError, OSError):
+            runs[c.seed] = None
     found = {}
     for key, runs in fits.items():
         read = {seed: r for seed, r in sorted(runs.items()) if r is not None}
@@ -419,14 +388,13 @@ def drift(out: Path, docs: list[dict], cells: list[Cell]) -> dict[str, dict]:
     return found
 
 
-def write_outputs(out: Path, docs: list[dict], cells: list[Cell], fits: dict | None = None) -> None:
+def write_outputs(out: Path, docs: list[dict], cells: list[Cell]) -> None:
     """results.csv, summary.csv, regime.json, drift.json, conclusions.json, the figures,
-    report.html and report.rrd from the cells and the runs (`fits`: the runs' open-loop fits
-    already made, by run name)."""
+    report.html and report.rrd from the cells and the runs."""
     rows = results_rows(docs)
     atomic_write_text(out / "results.csv", results_csv(rows))
     rows = read_results(out / "results.csv")  # the verdicts are computed from the file itself
-    found_regime, found_drift = regime(out, cells, fits), drift(out, docs, cells)
+    found_regime, found_drift = regime(out, cells), drift(out, docs, cells)
     atomic_write_text(out / "regime.json", json.dumps(found_regime, indent=2) + "\n")
     atomic_write_text(out / "drift.json", json.dumps(found_drift, indent=2) + "\n")
     verdicts = conclusions(rows, found_regime, found_drift)
