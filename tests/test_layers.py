@@ -19,6 +19,7 @@ import testbed
 LAYERS = [
     ("testbed.errors", "testbed.memory", "testbed.threads"),
     ("testbed.models", "testbed.models.linear"),
+    ("testbed.models.sensors",),
     ("testbed.data",),
     ("testbed.simulation", "testbed.simulation.measurements"),
     ("testbed.simulation.vehicle",),
