@@ -329,6 +329,7 @@ NOISE_STD_HELP = (
 BUILTIN_SCENARIOS = (
     "I",
     "II",
+    "II-trial",
     "inputs-3211",
     "inputs-multisine",
     "inputs-square",

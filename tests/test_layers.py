@@ -25,7 +25,12 @@ LAYERS = [
     ("testbed.simulation.vehicle",),
     ("testbed.simulation.plant", "testbed.simulation.linear_plant"),
     ("testbed.simulation.analytic",),
-    ("testbed.simulation.autopilot", "testbed.simulation.signals"),
+    (
+        "testbed.simulation.autopilot",
+        "testbed.simulation.signals",
+        "testbed.simulation.sensing",
+        "testbed.simulation.trial",
+    ),
     ("testbed.simulation.scenario",),
     ("testbed.simulation.recording",),
     ("testbed.simulation.runs",),

@@ -1,11 +1,13 @@
-"""The linear model flown as a plant: `ẋ = A x + B δ + S` with the fin servos' rate limit.
+"""The linear model flown as a plant: `ẋ = A x + B δ + S (+ W w)` with the fin servos' rate limit.
 
 `LinearPlant` steps the model exactly (zero-order hold at its timestep, the control period) with
 the fins slewing towards their commands at the servos' rate limit, each step holding the fin's
 mean angle over it (the fin ramps for |move| / (rate Δ) of the step, then holds). It offers the
 truth plant's interface (`reset`, `state`, `step`, `fin_angles`, `fin_integral`, `position`,
 `timestep`), so a scenario flies it as it flies the MuJoCo plant (`testbed.simulation.scenario`),
-and `testbed.simulation.autopilot.fly_linear` flies the design's closed loops on it. The fin
+and `testbed.simulation.autopilot.fly_linear` flies the design's closed loops on it. With `W`
+(10 × 6: the state derivative per unit body-axis force and moment at the CG, Mt⁻¹ (I, 0)) it
+takes an external `wrench`, held over each step, as the MuJoCo plant does. The fin
 range is the autopilot's: it clips every command to the servos' range before the plant sees it.
 """
 
@@ -23,8 +25,18 @@ __all__ = ["LinearPlant"]
 class LinearPlant:
     """The linear model (A, B, S) stepped every `timestep` s, fins slewing at `rate_limit` rad/s."""
 
-    def __init__(self, A: np.ndarray, B: np.ndarray, S: np.ndarray, timestep: float, rate_limit: float):
-        self.Phi, self.Gamma, self.s = discretize(A, B, S, timestep)
+    def __init__(
+        self,
+        A: np.ndarray,
+        B: np.ndarray,
+        S: np.ndarray,
+        timestep: float,
+        rate_limit: float,
+        W: np.ndarray | None = None,
+    ):
+        self.Phi, self.Gamma, self.s = discretize(A, B if W is None else np.hstack([B, W]), S, timestep)
+        self.Gamma, self.Gamma_w = self.Gamma[:, : B.shape[1]], self.Gamma[:, B.shape[1] :]
+        self.wrench = np.zeros(self.Gamma_w.shape[1])  # the external wrench's input, held over each step
         self.timestep = float(timestep)
         self.rate_limit = float(rate_limit)
         self.reset()
@@ -70,5 +82,7 @@ class LinearPlant:
                 [u * math.cos(psi) - v * math.sin(psi), u * math.sin(psi) + v * math.cos(psi)]
             )
             self.x = self.Phi @ self.x + self.Gamma @ held + self.s
+            if self.wrench.size:
+                self.x += self.Gamma_w @ self.wrench
             self.fin = self.fin + move
             self.integral += held * dt

@@ -22,11 +22,15 @@ from importlib import metadata
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from testbed.data import config_text, csv_text
 from testbed.errors import atomic_directory
 from testbed.simulation.measurements import check_seed
 from testbed.models.linear import STATES
+from testbed.models.sensors import ACCELERATIONS
 from testbed.simulation.recording import log_run
+from testbed.simulation.sensing import gapped_csv_text
 from testbed.simulation.scenario import (
     UNFITTED_DEPTH,
     Scenario,
@@ -67,14 +71,13 @@ def simulate(
     report = (lambda name, f: progress((names.index(name) + f) / len(names), name)) if progress else None
     with atomic_directory(out, force) as tmp:
         flights, lin = fly_scenario(s, seed, mjcf_path, report, truth)
-        measured = [STATES.index(c) for c in s.measured]
         for f in flights:
             (tmp / f"{f.name}.csv").write_text(
-                csv_text(f.t, f.measured[:, measured], f.fins_measured, s.measured)
+                gapped_csv_text(f.t, _outputs(f, s.columns), f.fins_measured, s.columns)
             )
             (tmp / f"{f.name}.truth.csv").write_text(csv_text(f.t, f.truth, f.fins, STATES))
         config, comments = model_config(lin, mjcf_path)
-        config = replace(config, outputs=tuple(c for c in s.measured if c != "z"))
+        config = replace(config, outputs=tuple(c for c in s.columns if c in STATES and c != "z"))
         comments["outputs"] = UNFITTED_DEPTH
         (tmp / "model.toml").write_text(config_text(config, comments))
         flown = replace(s, speed=lin.vehicle.speed, source="")
@@ -97,6 +100,14 @@ def simulate(
         }
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
     return out
+
+
+def _outputs(f, names) -> np.ndarray:
+    """A flight's measured outputs `names` (N, len(names)): states and specific force."""
+    by_name = {n: f.measured[:, j] for j, n in enumerate(STATES)}
+    if f.specific_force is not None:
+        by_name.update(zip(ACCELERATIONS, f.specific_force.T))
+    return np.column_stack([by_name[n] for n in names])
 
 
 def _settings(s: Scenario) -> dict:

@@ -34,7 +34,8 @@ band; `depth` again relative to the initial depth). A channel neither driven nor
 
 The built-in scenarios: `I` (the paper's sea-trial scenario: depth steps of 20 m every 5 s,
 course rate ±20 °/s every 1.5 s, roll held at zero), `II` (PRBS experiments in the linear
-regime, see its file), `turn`, `zigzag` and `zigzag-vertical` (validation manoeuvres).
+regime, see its file), `II-trial` (Scenario II with a real trial's imperfections: `testbed.simulation.trial`,
+`testbed.simulation.sensing`), `turn`, `zigzag` and `zigzag-vertical` (validation manoeuvres).
 
 A scenario flies on the MuJoCo plant or, as the linear-truth arm, on the analytic linear model
 itself (`fly_scenario(..., truth="linear")`): the same autopilots, fin range and rate, signals
@@ -46,6 +47,7 @@ as `scenario.toml`, which `testbed simulate --scenario` runs again.
 
 from __future__ import annotations
 
+import collections
 import json
 import math
 from dataclasses import dataclass, field, replace
@@ -58,7 +60,24 @@ from testbed.simulation.autopilot import Autopilot
 from testbed.data import MIN_ROWS, check_name, number, read_toml
 from testbed.errors import InputError, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
-from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector
+from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector, tilde
+from testbed.models.sensors import Sensor, outputs
+from testbed.simulation.sensing import (
+    SENSOR_STREAM,
+    check_sensors,
+    columns,
+    parse_sensor,
+    sample,
+    sensor_table,
+)
+from testbed.simulation.trial import (
+    TURBULENCE_STREAM,
+    Backlash,
+    Trial,
+    gauss_markov,
+    parse_trial,
+    trial_table,
+)
 from testbed.simulation.linear_plant import LinearPlant
 from testbed.simulation.plant import Plant
 from testbed.simulation.signals import Signal, parse_signal, signal_table
@@ -148,7 +167,9 @@ class Scenario:
     depth: float = 100.0  # initial depth, m
     control_rate: float = 50.0  # Hz
     sensors: Sensors = field(default_factory=Sensors)
-    measured: tuple[str, ...] = STATES  # the state columns of the measurement CSVs
+    measured: tuple[str, ...] = STATES  # the states the default sensor reads (those no named sensor outputs)
+    named_sensors: tuple[Sensor, ...] = ()  # the [sensors.NAME] tables
+    trial: Trial = field(default_factory=Trial)  # the [trial] table
     source: str = ""  # the file it was read from, or "built-in"
     given: frozenset[str] = field(default=frozenset(), compare=False)  # fields set by `with_overrides`
 
@@ -185,6 +206,7 @@ class Scenario:
                 f"{self.where}: control rate {self.control_rate} Hz and sample "
                 f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate"
             )
+        check_sensors(self.named_sensors, self.sensors.rate, self.where)
         for e in self.experiments:
             held = {"hold.depth": e.hold_depth} if e.hold_depth is not None else {}
             loops = {f"autopilot.{k}": v for k, v in e.autopilot.items()}
@@ -230,6 +252,16 @@ class Scenario:
             s = replace(s, speed=speed, given=s.given | {"speed"})
         return s
 
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The measurement CSVs' output columns: the measured states and the named sensors' outputs."""
+        return columns(self.measured, self.named_sensors)
+
+    @property
+    def is_perfect(self) -> bool:
+        """Sensors at the CG, ideal but for their noise, and a perfect trial: today's flights."""
+        return not self.named_sensors and self.trial.is_perfect
+
     def duration_of(self, e: ExperimentSpec) -> float:
         return e.duration if e.duration is not None else self.duration
 
@@ -258,7 +290,8 @@ def read_scenario(path: str | Path) -> Scenario:
     return parse_scenario(read_toml(path, "a scenario file (.toml)"), str(path))
 
 
-_TOP = ("name", "description", "duration", "speed", "depth", "control_rate", "sensors", "experiment")
+_TOP = ("name", "description", "duration", "speed", "depth", "control_rate", "sensors", "trial", "experiment")
+_SENSORS = ("rate", "fin_std", "noise_std", "measured")
 _EXPERIMENT = ("name", "duration", "autopilot", "hold", *CHANNELS)
 
 
@@ -280,6 +313,12 @@ def parse_scenario(doc: Mapping, source: str = "<scenario>") -> Scenario:
         control_rate=top("control_rate", 50.0),
         sensors=_sensors(doc.get("sensors", {}), f"{source}: sensors"),
         measured=_measured(doc.get("sensors", {}), f"{source}: sensors"),
+        named_sensors=tuple(
+            parse_sensor(k, v, f"{source}: sensors.{k}")
+            for k, v in doc.get("sensors", {}).items()
+            if k not in _SENSORS
+        ),
+        trial=parse_trial(doc.get("trial", {}), f"{source}: trial"),
         experiments=tuple(_experiment(e, f"{source}: experiment {k + 1}") for k, e in enumerate(experiments)),
         source=source,
     )
@@ -288,9 +327,11 @@ def parse_scenario(doc: Mapping, source: str = "<scenario>") -> Scenario:
 def _sensors(doc, where: str) -> Sensors:
     if not isinstance(doc, Mapping):
         raise InputError(f"{where}: expected a table")
-    unknown = sorted(set(doc) - {"rate", "fin_std", "noise_std", "measured"})
+    unknown = sorted(k for k, v in doc.items() if k not in _SENSORS and not isinstance(v, Mapping))
     if unknown:
-        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected rate, fin_std, noise_std, measured")
+        raise InputError(
+            f"{where}: unknown key {unknown[0]!r}; expected {', '.join(_SENSORS)} or a sensor's table"
+        )
     noise = doc.get("noise_std", NOISE_STD)
     if not isinstance(noise, Mapping):
         raise InputError(f"{where}: noise_std must be a table of state = std")
@@ -355,6 +396,11 @@ def scenario_text(s: Scenario) -> str:
         f"noise_std = {_toml(dict(s.sensors.noise_std))}",
         f"measured = {_toml(list(s.measured))}",
     ]
+    for sensor in s.named_sensors:
+        lines += ["", f"[sensors.{sensor.name}]"]
+        lines += [f"{k} = {_toml(v)}" for k, v in sensor_table(sensor).items()]
+    if not s.trial.is_perfect:
+        lines += ["", "[trial]", *[f"{k} = {_toml(v)}" for k, v in trial_table(s.trial).items()]]
     for e in s.experiments:
         lines += ["", "[[experiment]]", f"name = {_toml(e.name)}"]
         if e.duration is not None:
@@ -429,6 +475,7 @@ class Flight:
     # name -> (N,): the program's autopilot keywords (e.g. depth, yaw_rate, rudder, elevators;
     # NaN where absent), the autopilot's pitch command, the fin commands fin_r, fin_er, fin_el
     commands: dict
+    specific_force: np.ndarray | None = None  # (N, 3) ax ay az where a sensor reads them
 
 
 def fly(
@@ -440,8 +487,13 @@ def fly(
     duration: float,
     rng: np.random.Generator,
     progress: Callable[[float], None] | None = None,
+    streams: Callable[[int], np.random.Generator] | None = None,
+    weight: float = 0.0,
 ) -> Flight:
-    """Fly one experiment of `duration` s from straight and level trim; sample, add sensor noise."""
+    """Fly one experiment of `duration` s from straight and level trim; sample, add sensor noise.
+    An imperfect scenario (named sensors, a trial's imperfections) is flown one plant step at a
+    time, the trajectory kept at every step for its sensors: `streams(k)` gives random stream k
+    (the turbulence's, the named sensors' noise), `weight` the vehicle's weight (N)."""
     speed = s.speed if s.speed is not None else cruise_speed(plant.model)
     plant.reset(speed=speed, depth=s.depth)
     per_control = plant.timestep * s.control_rate
@@ -458,6 +510,11 @@ def fly(
     fin_integral = np.empty((n_samples, 3))
     autopilot.reset()
     control_dt = 1.0 / s.control_rate
+    fine = (
+        None
+        if s.is_perfect
+        else _Fine(plant, s.trial, (n_samples - 1) * controls_per_sample * steps + 1, streams, weight)
+    )
     # The per-step work is Python around a ~0.15 ms plant step: keep it to what is needed.
     for k in range((n_samples - 1) * controls_per_sample + 1):
         x = plant.state()
@@ -472,15 +529,26 @@ def fly(
             if progress and i % 50 == 0:
                 progress(i / n_samples)
             if i == n_samples - 1:
+                if fine is not None:
+                    fine.record(x)
                 break
-        plant.step(command, n=steps)
+        if fine is None:
+            plant.step(command, n=steps)
+        else:
+            fine.advance(x, command, steps)
     truth[:, IX["psi"]] = np.unwrap(truth[:, IX["psi"]])
     # The input of sample k is held over [t_k, t_k+1) by the model (zero-order hold): record the
     # fin angle's mean over that interval (exact: the plant holds the fins over each physics
     # step), as an integrating encoder would; the last sample has no interval after it and
     # keeps the angle itself.
     fins[:-1] = np.diff(fin_integral, axis=0) * s.sensors.rate
-    measured, fins_measured = measure(truth, fins, s.sensors, rng)
+    t = np.arange(n_samples) / s.sensors.rate
+    specific_force = None
+    if fine is None:
+        measured, fins_measured = measure(truth, fins, s.sensors, rng)
+    else:
+        measured, fins_measured, specific_force = fine.measure(s, t, truth, fins, rng, streams)
+        pos += np.outer(t, s.trial.current)
     commands = {
         key: np.array([kw.get(key, np.nan) for kw in keywords], float)
         for key in sorted({key for kw in keywords for key in kw})
@@ -488,8 +556,84 @@ def fly(
     commands.update(zip(FIN_COMMANDS, fin_cmds.T))
     if not np.isnan(pitch).all():
         commands["pitch"] = pitch
-    t = np.arange(n_samples) / s.sensors.rate
-    return Flight(name, t, truth, measured, fins, fins_measured, pos, commands)
+    return Flight(name, t, truth, measured, fins, fins_measured, pos, commands, specific_force)
+
+
+class _Fine:
+    """An imperfect flight's plant steps: the fins' command late, through the servo's dead band
+    and the encoder's zero error, the trial's loads as the plant's wrench; the trajectory and the
+    fins' integral kept at every step."""
+
+    def __init__(self, plant, trial: Trial, n: int, streams, weight: float):
+        self.plant, self.trial, self.weight, self.h = plant, trial, weight, plant.timestep
+        self.x, self.integral = np.empty((n, NX)), np.empty((n, 3))
+        self.j = 0
+        lag = round(trial.actuator_delay / self.h)
+        held = -trial.offsets  # before the start the fins were commanded to 0: their true angles
+        self.queue = collections.deque([held] * lag)  # the commands on their way, one per step
+        self.backlash = Backlash(trial.backlash, held)
+        std = trial.turbulence.std
+        self.gusts = None
+        if std.any():
+            self.gusts = gauss_markov(std, trial.turbulence.time, self.h, n, streams(TURBULENCE_STREAM))
+
+    def record(self, x: np.ndarray) -> None:
+        self.x[self.j], self.integral[self.j] = x, self.plant.fin_integral()
+
+    def advance(self, x: np.ndarray, command: np.ndarray, steps: int) -> None:
+        plant, trial = self.plant, self.trial
+        for n in range(steps):
+            if n:
+                x = plant.state()
+            self.record(x)
+            self.queue.append(np.asarray(command, float) - trial.offsets)
+            fin = self.backlash(self.queue.popleft())
+            if trial.has_loads:
+                wrench = trial.loads(x, self.weight)
+                plant.wrench = wrench if self.gusts is None else wrench + self.gusts[self.j]
+            plant.step(fin, n=1)
+            self.j += 1
+        if trial.has_loads and self.j == len(self.x) - 1:
+            plant.wrench = np.zeros(6)  # the plant is reused: no load carries into the next flight
+
+    def fin_means(self, t: np.ndarray, rate: float, fins: np.ndarray) -> np.ndarray:
+        """The recorded fins: each sample interval's mean angle `fin_log_delay` s earlier (the
+        integral is piecewise linear: interpolation is exact; before the start the fins were at 0)."""
+        d = self.trial.fin_log_delay
+        if not d:
+            return fins
+        fine_t = np.arange(len(self.x)) * self.h
+        integral = np.column_stack(
+            [np.interp(t - d, fine_t, self.integral[:, j], left=0.0) for j in range(3)]
+        )
+        out = fins.copy()
+        out[:-1] = np.diff(integral, axis=0) * rate
+        step = min(int(math.floor((t[-1] - d) / self.h + 1e-9)), len(self.x) - 2)  # the last: the angle then
+        out[-1] = (self.integral[step + 1] - self.integral[step]) / self.h if step >= 0 else 0.0
+        return out
+
+    def measure(self, s: Scenario, t, truth, fins, rng, streams):
+        """The measured states (N, 10; NaN where no sensor samples), recorded fins (N, 3) and
+        specific force (N, 3, or None)."""
+        current = s.trial.current
+        fine_t = np.arange(len(self.x)) * self.h
+        fine_x = self.x.copy()
+        fine_x[:, IX["psi"]] = np.unwrap(fine_x[:, IX["psi"]])
+        at_cg = outputs(Sensor(), truth, current=current) if any(current) else truth
+        measured, fins_measured = measure(at_cg, self.fin_means(t, s.sensors.rate, fins), s.sensors, rng)
+        fins_measured = fins_measured + s.trial.offsets
+        measured[:, [IX[n] for n in STATES if n not in s.columns]] = np.nan
+        specific_force = None
+        for k, sensor in enumerate(s.named_sensors):
+            y = sample(sensor, t, s.sensors.rate, fine_t, fine_x, current, streams(SENSOR_STREAM + k))
+            for j, o in enumerate(sensor.outputs):
+                if o in IX:
+                    measured[:, IX[o]] = y[:, j]
+                else:
+                    if specific_force is None:
+                        specific_force = np.full((len(t), 3), np.nan)
+                    specific_force[:, "xyz".index(o[1])] = y[:, j]
+        return measured, fins_measured, specific_force
 
 
 def fly_scenario(
@@ -517,8 +661,12 @@ def fly_scenario(
         raise InputError(f"{named}: {exc}") from None
     s = replace(s, speed=speed)
     if truth == "linear":
-        A, B, S = continuous(structure(lin.vehicle), theta_vector(lin.coefficients))
-        plant = LinearPlant(A, B, S, 1.0 / s.control_rate, lin.fins.rate)
+        st, theta = structure(lin.vehicle), theta_vector(lin.coefficients)
+        A, B, S = continuous(st, theta)
+        W = None
+        if s.trial.has_loads:  # a wrench at the CG forces the six dynamic rows: Mt⁻¹ (wrench, 0)
+            W = np.linalg.solve(tilde(st, theta)[0], np.eye(NX)[:, :6])
+        plant = LinearPlant(A, B, S, 1.0 / s.control_rate, lin.fins.rate, W)
     flights = []
     for k, e in enumerate(s.experiments):
         report = (lambda f, name=e.name: progress(name, f)) if progress else None
@@ -532,6 +680,8 @@ def fly_scenario(
                 s.duration_of(e),
                 rng_for(seed, k, 0),
                 report,
+                lambda stream, k=k: rng_for(seed, k, stream),
+                lin.vehicle.weight,
             )
         )
     return flights, lin

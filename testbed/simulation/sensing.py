@@ -1,0 +1,179 @@
+"""The truth's sensors: named sensors of a scenario file, sampled from the flown trajectory.
+
+A scenario file's `[sensors]` table may hold, besides `rate`, `fin_std`, `noise_std` and
+`measured`, one sub-table per named sensor (`testbed.models.sensors.Sensor`):
+
+```toml
+[sensors.dvl]
+outputs = ["u", "v", "w"]          # states, or ax ay az (specific force)
+position = [0.3, 0.0, 0.1]         # m from the CG, body axes
+misalignment = [0.0, 0.0, 0.0]     # rad, its axes' rotation from the body's (x, y, z)
+frame = "body"                     # u v w in body axes, or "earth" (north-east-down)
+bias = {u = 0.0}                   # per output, its unit
+scale = {u = 0.0}                  # per output, scale-factor error (fraction)
+delay = 0.0                        # s
+rate = 5.0                         # Hz; divides the [sensors] rate (default: that rate)
+noise_std = {u = 0.05}             # per output (default: the state's default noise)
+```
+
+A measured state that no named sensor outputs is read by the default sensor at the CG,
+exactly, with the `[sensors] noise_std`. A sensor's sample k is taken at t_k = k / rate and
+reads the truth at t_k − delay, linearly interpolated between the plant's steps (10 ms for the
+bundled torpedo; before the start the vehicle was at its initial trim); the specific force's
+state derivative is the central difference of the states over the plant's steps. A sensor
+slower than the record leaves its fields empty in the rows it has no sample for.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from testbed.data import check_name, csv_text, number
+from testbed.errors import InputError
+from testbed.models.linear import INPUTS
+from testbed.models.sensors import ACCELERATIONS, OUTPUTS, Sensor, outputs
+from testbed.simulation.measurements import NOISE_STD
+
+__all__ = [
+    "ACCELERATION_STD",
+    "SENSOR_KEYS",
+    "SENSOR_STREAM",
+    "check_sensors",
+    "columns",
+    "gapped_csv_text",
+    "parse_sensor",
+    "sample",
+    "sensor_table",
+]
+
+ACCELERATION_STD = 0.01  # m/s², a navigation-grade MEMS accelerometer's white noise at 50 Hz
+SENSOR_STREAM = 16  # sensor i's noise: random stream SENSOR_STREAM + i of its experiment
+SENSOR_KEYS = ("outputs", "position", "misalignment", "frame", "bias", "scale", "delay", "rate", "noise_std")
+
+
+def _default_std(output: str) -> float:
+    return ACCELERATION_STD if output in ACCELERATIONS else NOISE_STD[output]
+
+
+def parse_sensor(name: str, doc, where: str) -> Sensor:
+    """The `Sensor` of a `[sensors.NAME]` table (`where`: the file and table, for messages)."""
+    check_name(name, f"{where}: sensor name")
+    if not isinstance(doc, Mapping):
+        raise InputError(f"{where}: expected a table")
+    unknown = sorted(set(doc) - set(SENSOR_KEYS))
+    if unknown:
+        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected {', '.join(SENSOR_KEYS)}")
+    outs = doc.get("outputs")
+    if not isinstance(outs, list) or not all(isinstance(o, str) for o in outs):
+        raise InputError(f"{where}.outputs = {outs!r}; expected a list of {', '.join(OUTPUTS)}")
+    kw = {"outputs": tuple(outs)}
+    for key in ("position", "misalignment"):
+        if key in doc:
+            v = doc[key]
+            if not isinstance(v, list) or len(v) != 3:
+                raise InputError(f"{where}.{key} = {v!r}; expected a list of three numbers")
+            kw[key] = tuple(number(a, f"{where}.{key}") for a in v)
+    if "frame" in doc:
+        kw["frame"] = doc["frame"]
+    for key in ("delay", "rate"):
+        if key in doc:
+            kw[key] = number(doc[key], f"{where}.{key}")
+    for key in ("bias", "scale", "noise_std"):
+        table = doc.get(key, {})
+        if not isinstance(table, Mapping):
+            raise InputError(f"{where}.{key}: expected a table of output = value")
+        kw[key] = {o: number(v, f"{where}.{key}.{o}") for o, v in table.items()}
+    kw["noise_std"] = {**{o: _default_std(o) for o in kw["outputs"] if o in OUTPUTS}, **kw["noise_std"]}
+    try:
+        return Sensor(name=name, **kw)
+    except InputError as exc:
+        raise InputError(f"{where.rsplit(': ', 1)[0]}: {exc}") from None
+
+
+def sensor_table(s: Sensor) -> dict:
+    """The `[sensors.NAME]` table of a sensor (`parse_sensor` reads it back to an equal one)."""
+    out = {
+        "outputs": list(s.outputs),
+        "position": list(s.position),
+        "misalignment": list(s.misalignment),
+        "frame": s.frame,
+        "bias": dict(s.bias),
+        "scale": dict(s.scale),
+        "delay": s.delay,
+    }
+    if s.rate is not None:
+        out["rate"] = s.rate
+    out["noise_std"] = dict(s.noise_std)
+    return out
+
+
+def check_sensors(sensors: Sequence[Sensor], rate: float, where: str) -> None:
+    """InputError unless the named sensors' outputs are distinct and each rate divides `rate`."""
+    seen = {}
+    for s in sensors:
+        for o in s.outputs:
+            if o in seen:
+                raise InputError(
+                    f"{where}: sensors.{s.name} outputs {o}, as sensors.{seen[o]} does; expected each output from one sensor"
+                )
+            seen[o] = s.name
+        if s.rate is not None:
+            ratio = rate / s.rate
+            if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+                raise InputError(
+                    f"{where}: sensors.{s.name}.rate = {s.rate!r}; expected the sample rate {rate:g} Hz "
+                    "divided by a whole number"
+                )
+
+
+def columns(measured: Sequence[str], sensors: Sequence[Sensor]) -> tuple[str, ...]:
+    """The measurement CSV's output columns: the measured states and every named sensor's outputs."""
+    named = {o for s in sensors for o in s.outputs}
+    return tuple(o for o in OUTPUTS if o in measured or o in named)
+
+
+def _at(times: np.ndarray, fine_t: np.ndarray, fine: np.ndarray) -> np.ndarray:
+    """Each column of `fine` (at `fine_t`) linearly interpolated at `times`; before the start, the first row."""
+    return np.column_stack([np.interp(times, fine_t, fine[:, j]) for j in range(fine.shape[1])])
+
+
+def sample(
+    sensor: Sensor,
+    t: np.ndarray,
+    rate: float,
+    fine_t: np.ndarray,
+    fine_x: np.ndarray,
+    current,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """The sensor's noisy outputs (len(t), len(outputs)) on the record's clock t (at `rate` Hz),
+    NaN in the rows it has no sample for: each sample reads the truth `delay` s earlier,
+    interpolated in the physics-rate trajectory (fine_t, fine_x: absolute u, ψ unwrapped)."""
+    every = 1 if sensor.rate is None else round(rate / sensor.rate)
+    rows = np.arange(0, len(t), every)
+    times = t[rows] - sensor.delay
+    x = _at(times, fine_t, fine_x)
+    xdot = None
+    if any(o in ACCELERATIONS for o in sensor.outputs):
+        xdot = _at(times, fine_t, np.gradient(fine_x, fine_t, axis=0))
+    y = outputs(sensor, x, xdot, current)
+    std = np.array([sensor.noise_std.get(o, 0.0) for o in sensor.outputs])
+    out = np.full((len(t), len(sensor.outputs)), np.nan)
+    out[rows] = y + rng.standard_normal(y.shape) * std
+    return out
+
+
+def gapped_csv_text(t: np.ndarray, values: np.ndarray, fins: np.ndarray, names: Sequence[str]) -> str:
+    """Measurement-CSV text whose empty fields are the samples a sensor did not take (NaN in
+    `values`); with none missing, `data.csv_text`'s."""
+    if not np.isnan(values).any():
+        return csv_text(t, values, fins, names)
+    out = io.StringIO()
+    out.write(",".join(("t", *names, *INPUTS)) + "\n")
+    for row in np.column_stack([t, values, fins]):
+        out.write(",".join("" if math.isnan(v) else "%.10g" % v for v in row) + "\n")
+    return out.getvalue()
