@@ -31,6 +31,7 @@ LAYERS = [
         "testbed.simulation.sensing",
         "testbed.simulation.trial",
     ),
+    ("testbed.simulation.imperfect",),
     ("testbed.simulation.scenario",),
     ("testbed.simulation.recording",),
     ("testbed.simulation.runs",),

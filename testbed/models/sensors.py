@@ -132,19 +132,6 @@ class Sensor:
         if self.rate is not None and not (is_number(self.rate) and self.rate > 0):
             raise InputError(f"{where}: rate {self.rate!r}; expected a finite number > 0 (Hz)")
 
-    @property
-    def is_ideal(self) -> bool:
-        """True when it reads its states at the CG, exactly (noise aside), with no delay."""
-        return (
-            not any(self.position)
-            and not any(self.misalignment)
-            and self.frame == "body"
-            and not any(self.bias.values())
-            and not any(self.scale.values())
-            and self.delay == 0
-            and not any(o in ACCELERATIONS for o in self.outputs)
-        )
-
 
 # -- rotations -----------------------------------------------------------------------------------
 

@@ -47,7 +47,6 @@ as `scenario.toml`, which `testbed simulate --scenario` runs again.
 
 from __future__ import annotations
 
-import collections
 import json
 import math
 from dataclasses import dataclass, field, replace
@@ -61,23 +60,10 @@ from testbed.data import MIN_ROWS, check_name, number, read_toml
 from testbed.errors import InputError, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector, tilde
-from testbed.models.sensors import Sensor, outputs
-from testbed.simulation.sensing import (
-    SENSOR_STREAM,
-    check_sensors,
-    columns,
-    parse_sensor,
-    sample,
-    sensor_table,
-)
-from testbed.simulation.trial import (
-    TURBULENCE_STREAM,
-    Backlash,
-    Trial,
-    gauss_markov,
-    parse_trial,
-    trial_table,
-)
+from testbed.models.sensors import Sensor
+from testbed.simulation.imperfect import TrialFlight
+from testbed.simulation.sensing import check_sensors, columns, parse_sensor, sensor_table
+from testbed.simulation.trial import Trial, parse_trial, trial_table
 from testbed.simulation.linear_plant import LinearPlant
 from testbed.simulation.plant import Plant
 from testbed.simulation.signals import Signal, parse_signal, signal_table
@@ -510,11 +496,9 @@ def fly(
     fin_integral = np.empty((n_samples, 3))
     autopilot.reset()
     control_dt = 1.0 / s.control_rate
-    fine = (
-        None
-        if s.is_perfect
-        else _Fine(plant, s.trial, (n_samples - 1) * controls_per_sample * steps + 1, streams, weight)
-    )
+    fine = None
+    if not s.is_perfect:
+        fine = TrialFlight(plant, s.trial, (n_samples - 1) * controls_per_sample * steps + 1, streams, weight)
     # The per-step work is Python around a ~0.15 ms plant step: keep it to what is needed.
     for k in range((n_samples - 1) * controls_per_sample + 1):
         x = plant.state()
@@ -547,7 +531,9 @@ def fly(
     if fine is None:
         measured, fins_measured = measure(truth, fins, s.sensors, rng)
     else:
-        measured, fins_measured, specific_force = fine.measure(s, t, truth, fins, rng, streams)
+        measured, fins_measured, specific_force = fine.measure(
+            s.sensors, s.named_sensors, s.columns, t, truth, fins, rng, streams
+        )
         pos += np.outer(t, s.trial.current)
     commands = {
         key: np.array([kw.get(key, np.nan) for kw in keywords], float)
@@ -557,83 +543,6 @@ def fly(
     if not np.isnan(pitch).all():
         commands["pitch"] = pitch
     return Flight(name, t, truth, measured, fins, fins_measured, pos, commands, specific_force)
-
-
-class _Fine:
-    """An imperfect flight's plant steps: the fins' command late, through the servo's dead band
-    and the encoder's zero error, the trial's loads as the plant's wrench; the trajectory and the
-    fins' integral kept at every step."""
-
-    def __init__(self, plant, trial: Trial, n: int, streams, weight: float):
-        self.plant, self.trial, self.weight, self.h = plant, trial, weight, plant.timestep
-        self.x, self.integral = np.empty((n, NX)), np.empty((n, 3))
-        self.j = 0
-        lag = round(trial.actuator_delay / self.h)
-        held = -trial.offsets  # before the start the fins were commanded to 0: their true angles
-        self.queue = collections.deque([held] * lag)  # the commands on their way, one per step
-        self.backlash = Backlash(trial.backlash, held)
-        std = trial.turbulence.std
-        self.gusts = None
-        if std.any():
-            self.gusts = gauss_markov(std, trial.turbulence.time, self.h, n, streams(TURBULENCE_STREAM))
-
-    def record(self, x: np.ndarray) -> None:
-        self.x[self.j], self.integral[self.j] = x, self.plant.fin_integral()
-
-    def advance(self, x: np.ndarray, command: np.ndarray, steps: int) -> None:
-        plant, trial = self.plant, self.trial
-        for n in range(steps):
-            if n:
-                x = plant.state()
-            self.record(x)
-            self.queue.append(np.asarray(command, float) - trial.offsets)
-            fin = self.backlash(self.queue.popleft())
-            if trial.has_loads:
-                wrench = trial.loads(x, self.weight)
-                plant.wrench = wrench if self.gusts is None else wrench + self.gusts[self.j]
-            plant.step(fin, n=1)
-            self.j += 1
-        if trial.has_loads and self.j == len(self.x) - 1:
-            plant.wrench = np.zeros(6)  # the plant is reused: no load carries into the next flight
-
-    def fin_means(self, t: np.ndarray, rate: float, fins: np.ndarray) -> np.ndarray:
-        """The recorded fins: each sample interval's mean angle `fin_log_delay` s earlier (the
-        integral is piecewise linear: interpolation is exact; before the start the fins were at 0)."""
-        d = self.trial.fin_log_delay
-        if not d:
-            return fins
-        fine_t = np.arange(len(self.x)) * self.h
-        integral = np.column_stack(
-            [np.interp(t - d, fine_t, self.integral[:, j], left=0.0) for j in range(3)]
-        )
-        out = fins.copy()
-        out[:-1] = np.diff(integral, axis=0) * rate
-        step = min(int(math.floor((t[-1] - d) / self.h + 1e-9)), len(self.x) - 2)  # the last: the angle then
-        out[-1] = (self.integral[step + 1] - self.integral[step]) / self.h if step >= 0 else 0.0
-        return out
-
-    def measure(self, s: Scenario, t, truth, fins, rng, streams):
-        """The measured states (N, 10; NaN where no sensor samples), recorded fins (N, 3) and
-        specific force (N, 3, or None)."""
-        current = s.trial.current
-        fine_t = np.arange(len(self.x)) * self.h
-        fine_x = self.x.copy()
-        fine_x[:, IX["psi"]] = np.unwrap(fine_x[:, IX["psi"]])
-        at_cg = outputs(Sensor(), truth, current=current) if any(current) else truth
-        measured, fins_measured = measure(at_cg, self.fin_means(t, s.sensors.rate, fins), s.sensors, rng)
-        fins_measured = fins_measured + s.trial.offsets
-        measured[:, [IX[n] for n in STATES if n not in s.columns]] = np.nan
-        specific_force = None
-        for k, sensor in enumerate(s.named_sensors):
-            y = sample(sensor, t, s.sensors.rate, fine_t, fine_x, current, streams(SENSOR_STREAM + k))
-            for j, o in enumerate(sensor.outputs):
-                if o in IX:
-                    measured[:, IX[o]] = y[:, j]
-                else:
-                    if specific_force is None:
-                        specific_force = np.full((len(t), 3), np.nan)
-                    specific_force[:, "xyz".index(o[1])] = y[:, j]
-        return measured, fins_measured, specific_force
 
 
 def fly_scenario(
