@@ -18,7 +18,10 @@ The model config of a run keeps the nominal vehicle, as a real trial's would. Th
 states are relative to the water: a steady uniform current moves the water and the vehicle
 together (Galilean invariance: a uniform steady current changes no force on the body), so it
 adds to the vehicle's track and to what ground-referenced sensors read (a DVL; the
-`testbed.models.sensors` map), not to its motion through the water. The loads — turbulence,
+`testbed.models.sensors` map), not to its motion through the water. (MuJoCo's `opt.wind`, its fluid model's medium velocity,
+is subtracted from each body's velocity in MuJoCo's fluid forces only; the plant's added-mass
+completion, −M9 γ with γ from the velocity over the ground, would not see it: with the states
+relative to the water, no part of the plant needs it.) The loads — turbulence,
 the propeller's torque, the weight's excess at the true CG (its force Δw Cᵀ e₃ and its moment
 r_g × w Cᵀ e₃ about the nominal CG) — enter the truth as an external wrench at the CG, held over
 each of the plant's steps: the MuJoCo plant's `wrench`, and the linear truth's equivalent
