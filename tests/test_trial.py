@@ -260,6 +260,8 @@ def test_ii_trial_round_trips_through_its_scenario_text():
     flown = replace(s, source="")
     assert parse_scenario(tomllib.loads(scenario_text(flown)), "") == flown
     assert not s.is_perfect and s.columns[-3:] == ("ax", "ay", "az")
+    dotted = replace(flown, named_sensors=(replace(flown.named_sensors[0], name="dvl 2.b"),))
+    assert parse_scenario(tomllib.loads(scenario_text(dotted)), "") == dotted
     # every other built-in stays perfect: its scenario.toml has no new table
     for p in SCENARIO_DIR.glob("*.toml"):
         if p.stem != "II-trial":

@@ -327,6 +327,15 @@ def _flight_parts(f) -> list:
     return parts
 
 
+def _held(a: np.ndarray) -> np.ndarray:
+    """Each NaN (a sample a slower sensor did not take) replaced by the last value above it: a
+    sensor's samples drawn held until its next (a column of NaN stays NaN)."""
+    a = np.asarray(a, float)
+    rows = np.where(np.isnan(a), 0, np.arange(len(a))[:, None])
+    np.maximum.accumulate(rows, axis=0, out=rows)
+    return a[rows, np.arange(a.shape[1])]
+
+
 def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: str | None = None) -> Path:
     """A recording of the flights of a run: 3D replay with fin deflections, trails, time series.
 
@@ -389,12 +398,13 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
                     static=True,
                 )
             rec.log(f"{root}/trail", rr.LineStrips3D([flight.position], colors=[(60, 160, 230)]), static=True)
+            measured = _held(flight.measured)
             for j, s in enumerate(STATES):
                 series(
                     rec,
                     f"{root}/states/{s}",
                     t,
-                    np.column_stack([flight.measured[:, j], flight.truth[:, j]]),
+                    np.column_stack([measured[:, j], flight.truth[:, j]]),
                     ("measured", "truth"),
                 )
             for j, s in enumerate(INPUTS):
@@ -418,7 +428,7 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
                     step=True,
                 )
             plotted = {
-                **{s: (flight.measured[:, j], x[:, j]) for j, s in enumerate(STATES)},
+                **{s: (measured[:, j], x[:, j]) for j, s in enumerate(STATES)},
                 **{s: (flight.fins_measured[:, j], flight.fins[:, j]) for j, s in enumerate(INPUTS)},
             }
             ranges = {

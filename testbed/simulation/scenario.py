@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping
@@ -383,7 +384,8 @@ def scenario_text(s: Scenario) -> str:
         f"measured = {_toml(list(s.measured))}",
     ]
     for sensor in s.named_sensors:
-        lines += ["", f"[sensors.{sensor.name}]"]
+        key = sensor.name if re.fullmatch(r"[A-Za-z0-9_-]+", sensor.name) else _toml(sensor.name)
+        lines += ["", f"[sensors.{key}]"]
         lines += [f"{k} = {_toml(v)}" for k, v in sensor_table(sensor).items()]
     if not s.trial.is_perfect:
         lines += ["", "[trial]", *[f"{k} = {_toml(v)}" for k, v in trial_table(s.trial).items()]]
