@@ -18,6 +18,13 @@ fin_std = 2e-5       # rad, fin encoders
 noise_std = {u = 0.05, v = 0.02, ...}   # per state, SI
 measured = ["u", "v", ...]               # the state columns of the measurement CSVs
 
+[sensors.dvl]        # named sensors: `testbed.simulation.sensing`
+outputs = ["u", "v", "w"]
+position = [0.3, 0.0, 0.15]
+
+[trial]              # a trial's imperfections: `testbed.simulation.trial`
+current = [0.25, 0.15, 0.0]
+
 [[experiment]]
 name = "horizontal"
 rudder = {signal = "prbs", amplitude = 0.001, order = 10, clock = 0.1}
