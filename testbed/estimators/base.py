@@ -85,6 +85,9 @@ class Estimate:
             (output-error methods; None otherwise).
         initial_states: experiment → state → fitted initial value (absolute u), for the
             output-error methods, which estimate them (None otherwise).
+        process_noise_std: body state → {"value", "std"}: the process noise's standard deviation
+            f (continuous time, state unit/√s) and its Cramér-Rao bound, for `ml-fem`, which
+            estimates it (None otherwise).
     """
 
     method: str
@@ -104,6 +107,7 @@ class Estimate:
     starts: tuple[dict, ...] = ()
     crlb_corrected_std: np.ndarray | None = field(default=None, repr=False)
     initial_states: dict[str, dict[str, float]] | None = field(default=None, repr=False)
+    process_noise_std: dict[str, dict[str, float]] | None = field(default=None, repr=False)
 
     @property
     def converged(self) -> bool:
@@ -134,6 +138,10 @@ class Estimate:
             doc["crlb_corrected_std"] = {n: _finite(s) for n, s in zip(self.free, self.crlb_corrected_std)}
         if self.initial_states is not None:
             doc["initial_states"] = self.initial_states
+        if self.process_noise_std is not None:
+            doc["process_noise_std"] = {
+                s: {k: _finite(v) for k, v in d.items()} for s, d in self.process_noise_std.items()
+            }
         if self.start_reason:
             doc["start_reason"] = self.start_reason
         if self.starts:
