@@ -17,15 +17,16 @@ matrix. Its exact discretisation (Van Loan; what a simulation of the model draws
 The filter is the steady-state (time-invariant) Kalman filter, valid for a stationary process
 and a record long against the filter's settling. In the filter-error method the innovations'
 covariance 𝒮 is estimated (in closed form) and held while θ and F step, so the gain is written
-in 𝒮 (Maine & Iliff; Jategaonkar Eq. 5.37-5.38): `K = P Cᵀ 𝒮⁻¹`, P the predicted covariance,
-from the Riccati equation in its first-order (continuous) form
+in 𝒮 (Maine & Iliff; Jategaonkar ch. 5): `K = P Cᵀ 𝒮⁻¹`, P the predicted covariance, from the
+discrete algebraic Riccati equation with 𝒮 held,
 
-    A P + P Aᵀ − (1/Δ) P Cᵀ 𝒮⁻¹ C P + F Fᵀ = 0,
+    P = Φ (P − P Cᵀ 𝒮⁻¹ C P) Φᵀ + Q,
 
-a standard continuous algebraic Riccati equation (scipy's `solve_continuous_are`), whose
-discrete counterpart with 𝒮 held has no standard form; it is exact to first order in Δ against
-the model's time constants (50 Hz against seconds here). The measurement noise is what 𝒮 leaves:
-`R = 𝒮 − C P Cᵀ`. From the prediction x̃[0] = x0, with the exact transition,
+which has no standard form (scipy's `solve_discrete_are` holds R, not 𝒮): it is solved by
+Newton's method from its first-order (continuous) form, Jategaonkar's
+`A P + P Aᵀ − (1/Δ) P Cᵀ 𝒮⁻¹ C P + F Fᵀ = 0` (`steady_gain`). The measurement noise is what 𝒮
+leaves, `R = 𝒮 − C P Cᵀ`; with that R, P is the ordinary Kalman filter's (`solve_discrete_are`).
+From the prediction x̃[0] = x0, with the exact transition,
 
     ν[k] = y[k] − C x̃[k],   x̃[k+1] = Φ (x̃[k] + K ν[k]) + Γ δ[k] + s,
 
@@ -49,6 +50,7 @@ __all__ = ["BODY_ROWS", "Filter", "filters", "innovations", "observed", "process
 
 BODY_ROWS = np.array([IX[s] for s in BODY])  # the rows process noise enters
 _REGULAR = 1e-10  # process noise on every state, relative, where the Riccati equation needs it
+_NEWTON = 30  # Newton steps on the discrete Riccati equation, at most
 
 
 def observed(coupled: np.ndarray, measured: np.ndarray) -> np.ndarray:
@@ -66,22 +68,34 @@ def observed(coupled: np.ndarray, measured: np.ndarray) -> np.ndarray:
 def process_covariance(A: np.ndarray, q: np.ndarray, dt: float) -> np.ndarray:
     """Q (10, 10) of the continuous process noise with spectral densities `q` = f² (6,) on the
     body rows, over one interval `dt` (Van Loan)."""
+    W = np.zeros((len(A), len(A)))
+    W[BODY_ROWS, BODY_ROWS] = q
+    return _full_covariance(A, W, dt)
+
+
+def _full_covariance(A: np.ndarray, W: np.ndarray, dt: float) -> np.ndarray:
+    """∫₀^Δ e^{Aτ} W e^{Aᵀτ} dτ (Van Loan)."""
     from scipy.linalg import expm
 
     n = len(A)
-    W = np.zeros((n, n))
-    W[BODY_ROWS, BODY_ROWS] = q
     G = expm(np.block([[-A, W], [np.zeros((n, n)), A.T]]) * dt)
     Q = G[n:, n:].T @ G[:n, n:]
     return (Q + Q.T) / 2
 
 
-def steady_gain(A: np.ndarray, C: np.ndarray, W: np.ndarray, S: np.ndarray, dt: float):
-    """`(K, P)`: the steady-state gain and predicted covariance of the filter in 𝒮 for the
-    continuous `A`, `C` (k, n), `W` = F Fᵀ and the innovations' covariance `S` (k, k); K = 0
-    where W = 0. Where scipy refuses (a mode on the imaginary axis that the process noise does
-    not reach: an integrator), every state gets a process noise 10⁻¹⁰ of the largest. `LinAlgError`
-    if that fails too (a model the filter cannot track)."""
+def steady_gain(A: np.ndarray, Phi: np.ndarray, C: np.ndarray, W: np.ndarray, S: np.ndarray, dt: float):
+    """`(K, P)`: the steady-state gain and predicted covariance of the filter in 𝒮 (`S`, (k, k))
+    for the continuous `A`, its transition `Phi` over `dt`, `C` (k, n) and `W` = F Fᵀ; K = 0
+    where W = 0.
+
+    P solves the discrete Riccati equation with 𝒮 held, `G(P) = Φ(P − P Cᵀ𝒮⁻¹C P)Φᵀ + Q − P = 0`
+    (Q of `process_covariance`), by Newton's method from the solution of its first-order
+    (continuous) form `A P + P Aᵀ − (1/Δ) P Cᵀ 𝒮⁻¹ C P + W = 0` (scipy's `solve_continuous_are`):
+    the step solves `Φ_c dP Φ_cᵀ − (ΦKC) dP (ΦKC)ᵀ − dP = −G(P)`, Φ_c = Φ(I − KC), as one
+    n² × n² linear system. Where scipy refuses the first-order form (a mode on the imaginary axis
+    that the process noise does not reach: an integrator), every state gets a process noise
+    10⁻¹⁰ of the largest there. `LinAlgError` where Newton's method does not settle: no
+    solution with this 𝒮 (the process noise claims more than 𝒮 holds)."""
     n, k = len(A), len(S)
     if not W.any():
         return np.zeros((n, k)), np.zeros((n, n))
@@ -94,10 +108,20 @@ def steady_gain(A: np.ndarray, C: np.ndarray, W: np.ndarray, S: np.ndarray, dt: 
             P = solve_continuous_are(A.T, C.T, W + _REGULAR * np.max(W) * np.eye(n), S * dt)
         except ValueError as exc:
             raise np.linalg.LinAlgError(str(exc)) from exc
-    P = (P + P.T) / 2
-    if not np.all(np.isfinite(P)):
-        raise np.linalg.LinAlgError("the Riccati solution is not finite")
-    return np.linalg.solve(S, C @ P).T, P
+    Q = _full_covariance(A, W, dt)
+    Sinv_C = np.linalg.solve(S, C)
+    for _ in range(_NEWTON):
+        P = (P + P.T) / 2
+        K = P @ Sinv_C.T
+        G = Phi @ (P - K @ C @ P) @ Phi.T + Q - P
+        if not np.all(np.isfinite(G)):
+            break
+        if np.max(np.abs(G)) <= 1e-12 * np.max(np.abs(P)):
+            return K, P
+        Fc, H = Phi - Phi @ K @ C, Phi @ K @ C
+        L = np.kron(Fc, Fc) - np.kron(H, H) - np.eye(n * n)
+        P = P + np.linalg.solve(L, -G.ravel()).reshape(n, n)
+    raise np.linalg.LinAlgError("the Riccati equation in 𝒮 has no solution here")
 
 
 @dataclass(frozen=True)
@@ -138,7 +162,7 @@ def filters(prob: Problem, values: np.ndarray, q: np.ndarray, S: dict, states: d
         Phi = E[:, o]
         rows = np.searchsorted(o, r.measured)
         C = np.eye(len(o))[rows]
-        K, P = steady_gain(A[np.ix_(o, o)], C, W[np.ix_(o, o)], S[key], r.dt)
+        K, P = steady_gain(A[np.ix_(o, o)], Phi, C, W[np.ix_(o, o)], S[key], r.dt)
         out[key] = Filter(o, rows, Phi - Phi @ K @ C, Phi @ K, E[:, NX : NX + NU], E[:, -1], K, P)
     return out
 
