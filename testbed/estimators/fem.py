@@ -341,6 +341,27 @@ def _settle(lik: _Likelihood, p: np.ndarray, S: dict, trials: int):
     return p, None
 
 
+def _projected_step(p, M, g, bound, lam, first) -> np.ndarray:
+    """p plus the damped Gauss-Newton step `(M + λ diag M) Δ = g` (solved with M scaled to a unit
+    diagonal) over the parameters off their bound, f² (from index `first`) kept ≥ 0: a spectral density the step would take below 0 is set
+    to 0 and held there while the step is solved again for the others."""
+    bound = bound.copy()
+    while True:
+        free = np.flatnonzero(~bound)
+        Mf = M[np.ix_(free, free)]
+        d = np.sqrt(np.maximum(np.diag(Mf), 1e-300))  # scaled to a unit diagonal: f²'s units are not θ's
+        scaled = Mf / np.outer(d, d) + lam * np.eye(len(free))
+        trial = p.copy()
+        trial[free] += np.linalg.lstsq(scaled, g[free] / d, rcond=None)[0] / d
+        below = trial < 0
+        below[:first] = False
+        if not below.any():
+            return trial
+        bound |= below
+        p = p.copy()
+        p[below] = 0.0
+
+
 def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
     """The relaxation's iterations from p and 𝒮: (p, 𝒮, status, iterations, history, reason)."""
     nf, nx = lik.nf, lik.nx
@@ -371,11 +392,8 @@ def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
         if it == opts.max_iter:
             break
         J0 = lik.weighted(nus, S)
-        D = np.diag(np.maximum(np.diag(Mf), 1e-300))
         for _ in range(opts.max_trials):
-            trial = p.copy()
-            trial[free] += np.linalg.lstsq(Mf + lam * D, gf, rcond=None)[0]
-            trial[nf + nx :] = np.maximum(trial[nf + nx :], 0.0)
+            trial = _projected_step(p, M, g, bound, lam, nf + nx)
             new = lik.run(trial, S)
             if new is not None and lik.weighted(new[1], S) < J0:
                 p, (flt, nus), lam = trial, new, max(lam / 10, 1e-9)
