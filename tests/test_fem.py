@@ -22,7 +22,7 @@ from testbed.simulation.measurements import NOISE_STD
 
 FREE = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr")  # the sway and yaw rows, excited by the rudder
 MEASURED = ("v", "p", "r", "phi", "psi")
-F = {"v": 0.03, "r": 0.01}  # process noise σ, (m/s)/√s and (rad/s)/√s: turbulence in sway and yaw
+F = {"v": 0.05, "r": 0.02}  # process noise σ, (m/s)/√s and (rad/s)/√s: turbulence in sway and yaw
 HOLD = 0.1  # heading hold: δ_r = PRBS + HOLD (ψ_measured + r_measured), a closed loop
 DT, DURATION = 0.02, 60.0
 
@@ -106,7 +106,7 @@ def test_the_gain_is_the_discrete_kalman_filters(config):
     o = np.array([IX[m] for m in MEASURED])
     Phi = expm(A * DT)[np.ix_(o, o)]
     W = np.zeros((NX, NX))
-    W[IX["v"], IX["v"]], W[IX["r"], IX["r"]] = 0.03**2, 0.01**2
+    W[IX["v"], IX["v"]], W[IX["r"], IX["r"]] = F["v"] ** 2, F["r"] ** 2
     Q = _van_loan(A, W, DT)[np.ix_(o, o)]
     C, R = np.eye(len(o)), np.diag([NOISE_STD[m] ** 2 for m in MEASURED])
     P = _reference_filter(Phi, C, Q, R, Q, 20_000)
@@ -118,7 +118,7 @@ def test_the_gain_is_the_discrete_kalman_filters(config):
     assert np.allclose(np.diag(S - C @ P_fem @ C.T), np.diag(R), rtol=1e-8)
     # and the same from Q's own discretisation (`process_covariance`)
     q = np.zeros(6)
-    q[IX["v"]], q[IX["r"]] = 0.03**2, 0.01**2
+    q[IX["v"]], q[IX["r"]] = F["v"] ** 2, F["r"] ** 2
     assert np.allclose(innovations.process_covariance(A, q, DT)[np.ix_(o, o)], Q, rtol=1e-12, atol=1e-22)
 
 
@@ -132,7 +132,7 @@ def test_the_innovations_and_their_likelihood_are_the_filters(config):
     key = (r.dt, tuple(r.measured))
     S = {key: np.diag([NOISE_STD[m] ** 2 for m in MEASURED]) * 2.0}
     q = np.zeros(6)
-    q[IX["v"]], q[IX["r"]] = 0.03**2, 0.01**2
+    q[IX["v"]], q[IX["r"]] = F["v"] ** 2, F["r"] ** 2
     f = innovations.filters(prob, prob.start, q, S, {key: o})[key]
     x0 = np.zeros(NX)
     x0[r.measured] = r.y[0] * 0.5
