@@ -213,3 +213,20 @@ def test_with_coloured_turbulence_it_still_converges_near_the_truth(config):
     values, std = study["ml-fem"]
     truth = np.array([config.coefficients[n] for n in FREE])
     assert np.all(np.abs(values[0] - truth) < 3 * std[0]), (values[0] - truth) / std[0]
+
+
+def test_the_command_line_fits_with_it(config, tmp_path, capsys):
+    from testbed.cli import main
+    from testbed.data import read_json, write_config, write_csv
+
+    e = turbulent(config, seed=4)[0]
+    data = write_csv(tmp_path / "rudder.csv", e.t, e.y, e.inputs, measured=e.measured)
+    model = write_config(tmp_path / "model.toml", _start(config, 4))
+    out = tmp_path / "fem.json"
+    assert main(["identify", str(data), "--config", str(model), "--method", "ml-fem", "--out", str(out)]) == 0
+    doc = read_json(out, "estimates")
+    assert doc["method"] == "ml-fem" and doc["converged"] and set(doc["coefficients"]) == set(FREE)
+    assert set(doc["process_noise_std"]) == {"v", "p", "r"}
+    assert abs(doc["process_noise_std"]["r"]["value"] - F["r"]) < 3 * doc["process_noise_std"]["r"]["std"]
+    assert main(["identify", str(data), "--config", str(model), "--method", "ml-fem", "--start", "auto"]) == 2
+    assert "ml-fem: option --start 'auto'; expected config or equation-error" in capsys.readouterr().err
