@@ -70,7 +70,8 @@ class Estimate:
             rounded up in the total), the Cramér-Rao analysis at the estimate not included.
             ml-gn, ml-lm, ml-nr: cost evaluations and sensitivity passes (ml-nr's
             second-order pass counts 1 + n_free too), over every start tried (a start's own
-            fit, the MEKF's, included); ml-nm: its cost evaluations (`concentrated.cost`: three sweeps each) and its
+            fit, the MEKF's, included); ml-fem: its filter passes over the data (a
+            finite-difference column one, the initial-state columns one each); ml-nm: its cost evaluations (`concentrated.cost`: three sweeps each) and its
             noise updates' simulations; mekf, ekf: passes × (1 + n_free), the filter
             propagating the state and its parameter columns (a pass cut short by
             `max_samples` counts its share); equation-error: 0 (a regression, no simulation).

@@ -82,12 +82,7 @@ def _noise_spec(v) -> bool:
 class FilterErrorOptions(Options):
     """Options of `ml-fem`."""
 
-    max_iter: int = option(
-        50,
-        lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0,
-        "an integer ≥ 0 (iterations)",
-        "iteration limit",
-    )
+    max_iter: int = count_option(50, 0, "iteration limit of each phase (output error, then the filter)")
     start: str = option(
         "config",
         lambda v: v in ("config", "equation-error"),
@@ -105,7 +100,7 @@ class FilterErrorOptions(Options):
         1e-3,
         lambda v: is_number(v) and v > 0,
         "a number > 0",
-        "converged when an R update changes no variance by more than this (relative)",
+        "converged when an update of 𝒮 changes no variance by more than this (relative)",
     )
     process_noise: str = option(
         "measured",
@@ -135,6 +130,11 @@ def noise_rows(prob: Problem, spec: str) -> np.ndarray:
     return np.array([BODY.index(n) for n in names], dtype=int)
 
 
+def _group(r) -> tuple:
+    """The group of a record: its sampling interval and measured states, which set its filter."""
+    return (r.dt, tuple(r.measured))
+
+
 class _Likelihood:
     """The innovations, their covariances and sensitivities of one problem, p = (θ, x0s, f²)."""
 
@@ -152,6 +152,7 @@ class _Likelihood:
         self.groups = sorted(self.states)
 
     def q(self, p: np.ndarray) -> np.ndarray:
+        """The spectral densities f² of the six body rows from p (0 on the rows without noise)."""
         q = np.zeros(len(BODY))
         q[self.rows] = p[self.nf + self.nx :]
         return q
@@ -163,7 +164,7 @@ class _Likelihood:
         try:
             with np.errstate(over="ignore", invalid="ignore"):
                 flt = innovations.filters(prob, p[: self.nf], self.q(p), S, self.states)
-                nus = [innovations.innovations(r, flt[self._key(r)], prob.x0(r, p)) for r in prob.records]
+                nus = [innovations.innovations(r, flt[_group(r)], prob.x0(r, p)) for r in prob.records]
         except np.linalg.LinAlgError:
             return None
         if not all(np.all(np.isfinite(v)) for v in nus) or likelihood.exploded(
@@ -171,10 +172,6 @@ class _Likelihood:
         ):
             return None
         return flt, nus
-
-    @staticmethod
-    def _key(r):
-        return (r.dt, tuple(r.measured))
 
     def covariances(self, nus) -> dict:
         """𝒮 per group in closed form: 1/N Σ ννᵀ; with no process noise the pooled diagonal
@@ -186,17 +183,18 @@ class _Likelihood:
         sums = {g: 0.0 for g in self.groups}
         counts = {g: 0 for g in self.groups}
         for r, v in zip(prob.records, nus):
-            sums[self._key(r)] = sums[self._key(r)] + v.T @ v
-            counts[self._key(r)] += len(v)
+            sums[_group(r)] = sums[_group(r)] + v.T @ v
+            counts[_group(r)] += len(v)
         return {g: sums[g] / counts[g] for g in self.groups}
 
     def channels(self, key) -> np.ndarray:
-        return next(r.channels for r in self.prob.records if self._key(r) == key)
+        """The channels (indexes into `prob.channels`) of a group's records."""
+        return next(r.channels for r in self.prob.records if _group(r) == key)
 
     def weighted(self, nus, S) -> float:
         """½ Σ νᵀ 𝒮⁻¹ ν (𝒮 held: the relaxation's cost)."""
         return 0.5 * sum(
-            float(np.sum(v * np.linalg.solve(S[self._key(r)], v.T).T)) for r, v in zip(self.prob.records, nus)
+            float(np.sum(v * np.linalg.solve(S[_group(r)], v.T).T)) for r, v in zip(self.prob.records, nus)
         )
 
     def negative_log_likelihood(self, nus) -> float:
@@ -206,7 +204,7 @@ class _Likelihood:
         S = self.covariances(nus)
         n = {g: 0 for g in self.groups}
         for r in self.prob.records:
-            n[self._key(r)] += len(r.y)
+            n[_group(r)] += len(r.y)
         return float(
             sum(0.5 * n[g] * (len(S[g]) + np.linalg.slogdet(2 * np.pi * S[g])[1]) for g in self.groups)
         )
@@ -232,9 +230,9 @@ class _Likelihood:
             plus[i], minus[i], steps[i] = a[1], b[1], h2
         g, M = np.zeros(n), np.zeros((n, n))
         for k, (r, v) in enumerate(zip(prob.records, nus)):
-            key = self._key(r)
+            key = _group(r)
             W = np.linalg.inv(np.linalg.cholesky(S[key]))  # whitening: W ν has unit covariance
-            own = [i for i in cols] + list(range(r.offset, r.offset + len(r.measured)))
+            own = cols + list(range(r.offset, r.offset + len(r.measured)))
             J = np.zeros((len(v), len(r.measured), len(own)))
             for c, i in enumerate(cols):
                 J[:, :, c] = (plus[i][k] - minus[i][k]) / steps[i]
@@ -242,6 +240,7 @@ class _Likelihood:
             for c, m in enumerate(r.measured):
                 e = np.zeros(len(f.states))
                 e[np.searchsorted(f.states, m)] = 1.0
+                recursions.simulated(len(v))
                 x = scan.propagate(f.Phi_c, e, np.zeros((len(v) - 1, len(e))))
                 J[:, :, len(cols) + c] = -x[:, f.rows]
             Jw = np.einsum("ab,nbq->naq", W, J).reshape(-1, len(own))
@@ -259,7 +258,7 @@ class _Likelihood:
         nc = len(prob.channels)
         room, cpc, n = np.zeros(nc), np.zeros(nc), np.zeros(nc)
         for r in prob.records:
-            key = self._key(r)
+            key = _group(r)
             room[r.channels] += len(r.y) * np.diag(S[key])
             cpc[r.channels] += len(r.y) * np.diag(flt[key].CPC)
             n[r.channels] += len(r.y)
@@ -305,9 +304,8 @@ def _fit(
         p = likelihood.initial_states(prob, theta0)
         scale = np.concatenate([np.where(theta0 != 0, np.abs(theta0), 1.0), np.ones(lik.nx), q0])
         done, history = 0, np.zeros((0, prob.n_free))
-        if (
-            lik.noisy
-        ):  # output error first: from a poor θ the filter takes the model's error for process noise
+        if lik.noisy:
+            # output error first: from a poor θ the filter takes the model's error for process noise
             first = _Likelihood(prob, rows[:0], theta0)
             out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, callback)
             if out[2] is not Status.DIVERGED:
