@@ -27,7 +27,7 @@ f at f = 0 (it depends on f²), so Gauss-Newton in f never reaches a row without
 where in f² it stops on the bound (an active bound: held at 0 while the gradient points below).
 
 Converged when the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (over the parameters off
-their bound) and the R update changed no variance by more than `r_tol` (relative). The Cramér-Rao
+their bound) and the update of 𝒮 changed no variance by more than `r_tol` (relative). The Cramér-Rao
 bounds are those of the information `Σ (∂ν/∂p)ᵀ 𝒮⁻¹ (∂ν/∂p)` at the estimate, the initial states
 and f² eliminated as for output error.
 
@@ -90,11 +90,10 @@ class FilterErrorOptions(Options):
         "where the iterations begin: config (the a-priori values) or equation-error",
     )
     tol: float = option(
-        0.02,
+        1e-3,
         lambda v: is_number(v) and v > 0,
         "a number > 0",
-        "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ (the "
-        "finite-difference sensitivities leave the gradient about 0.01 σ off with process noise)",
+        "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ",
     )
     r_tol: float = option(
         1e-3,
