@@ -59,7 +59,8 @@ from testbed.estimators.base import (
 )
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
 from testbed.identification.problem import Problem, problem
-from testbed.models.linear import BODY, IX, NX, STATES
+from testbed.identification.innovations import BODY
+from testbed.models.linear import IX, NX, STATES
 
 __all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
 

@@ -44,11 +44,21 @@ import numpy as np
 from testbed.identification import scan
 from testbed.identification.problem import Problem, Record
 from testbed.identification.recursions import discrete_models, simulated
-from testbed.models.linear import BODY, IX, NU, NX, continuous
+from testbed.models.linear import IX, NU, NX, STATES, continuous
 
-__all__ = ["BODY_ROWS", "Filter", "filters", "innovations", "observed", "process_covariance", "steady_gain"]
+__all__ = [
+    "BODY",
+    "BODY_ROWS",
+    "Filter",
+    "filters",
+    "innovations",
+    "observed",
+    "process_covariance",
+    "steady_gain",
+]
 
-BODY_ROWS = np.array([IX[s] for s in BODY])  # the rows process noise enters
+BODY = STATES[:6]  # u v w p q r: the rows process noise enters
+BODY_ROWS = np.array([IX[s] for s in BODY])
 _REGULAR = 1e-10  # process noise on every state, relative, where the Riccati equation needs it
 _NEWTON = 30  # Newton steps on the discrete Riccati equation, at most
 
