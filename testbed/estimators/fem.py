@@ -31,8 +31,9 @@ their bound) and the update of 𝒮 changed no variance by more than `r_tol` (re
 bounds are those of the information `Σ (∂ν/∂p)ᵀ 𝒮⁻¹ (∂ν/∂p)` at the estimate, the initial states
 and f² eliminated as for output error.
 
-With no process noise (`process_noise="none"`) K = 0, ν are the output-error residuals and 𝒮 = R
-is the diagonal residual variance: the fit is output error, and ends at `ml-gn`'s optimum.
+With process noise R follows from 𝒮 (the config's `noise_std` is not used). With no process noise
+(`process_noise="none"`) K = 0, ν are the output-error residuals and 𝒮 = R is the diagonal
+residual variance (the config's `noise_std` where it gives a channel's): the fit is output error, and ends at `ml-gn`'s optimum.
 """
 
 from __future__ import annotations
