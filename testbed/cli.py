@@ -375,7 +375,9 @@ def parser() -> argparse.ArgumentParser:
     s = sub.add_parser("identify", help="estimate the free coefficients from data")
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument(
-        "--method", default="ml-gn", help="ml-gn (default), ml-lm, ml-nr, ml-nm, mekf, ekf, equation-error"
+        "--method",
+        default="ml-gn",
+        help="ml-gn (default), ml-lm, ml-nr, ml-nm, ml-fem, mekf, ekf, equation-error",
     )
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument(

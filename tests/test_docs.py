@@ -298,6 +298,7 @@ def test_files_estimates_json_keys():
         start_reason="why",
         crlb_corrected_std=np.array([0.2]),
         initial_states={"e": {"u": 1.0}},
+        process_noise_std={"v": {"value": 0.1, "std": 0.01}},
     )
     diverged = FilterEstimate(
         "mekf",
@@ -313,7 +314,14 @@ def test_files_estimates_json_keys():
         last_step_std=0.1,
     )
     keys = set(fitted.json_fields()) | set(diverged.json_fields())
-    assert {"crlb_corrected_std", "initial_states", "start_reason", "diverged", "sqrt"} <= keys
+    assert {
+        "crlb_corrected_std",
+        "initial_states",
+        "process_noise_std",
+        "start_reason",
+        "diverged",
+        "sqrt",
+    } <= keys
     identify = _written_keys(_function_tree(identify_data), "doc")
     assert {"fixed", "screen", "comparison", "validation"} <= identify
     assert missing_code(text, sorted(keys | identify)) == []

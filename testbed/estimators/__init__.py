@@ -24,7 +24,7 @@ from typing import Mapping, Sequence
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import equation_error, mekf, ml
+from testbed.estimators import equation_error, fem, mekf, ml
 from testbed.estimators.base import Callback, Estimate, Method, OptionError, Options, Progress, Status
 from testbed.estimators.mekf import FilterEstimate, FilterOptions
 from testbed.identification.problem import check_fit
@@ -47,7 +47,16 @@ __all__ = [
 
 METHODS: dict[str, Method] = {
     m.name: m
-    for m in (ml.ML_GN, ml.ML_LM, ml.ML_NR, ml.ML_NM, mekf.MEKF, mekf.EKF, equation_error.EQUATION_ERROR)
+    for m in (
+        ml.ML_GN,
+        ml.ML_LM,
+        ml.ML_NR,
+        ml.ML_NM,
+        fem.ML_FEM,
+        mekf.MEKF,
+        mekf.EKF,
+        equation_error.EQUATION_ERROR,
+    )
 }
 
 

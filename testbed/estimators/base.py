@@ -70,7 +70,8 @@ class Estimate:
             rounded up in the total), the Cramér-Rao analysis at the estimate not included.
             ml-gn, ml-lm, ml-nr: cost evaluations and sensitivity passes (ml-nr's
             second-order pass counts 1 + n_free too), over every start tried (a start's own
-            fit, the MEKF's, included); ml-nm: its cost evaluations (`concentrated.cost`: three sweeps each) and its
+            fit, the MEKF's, included); ml-fem: its filter passes over the data (a
+            finite-difference column one, the initial-state columns one each); ml-nm: its cost evaluations (`concentrated.cost`: three sweeps each) and its
             noise updates' simulations; mekf, ekf: passes × (1 + n_free), the filter
             propagating the state and its parameter columns (a pass cut short by
             `max_samples` counts its share); equation-error: 0 (a regression, no simulation).
@@ -85,6 +86,9 @@ class Estimate:
             (output-error methods; None otherwise).
         initial_states: experiment → state → fitted initial value (absolute u), for the
             output-error methods, which estimate them (None otherwise).
+        process_noise_std: body state → {"value", "std"}: the process noise's standard deviation
+            f (continuous time, state unit/√s) and its Cramér-Rao bound, for `ml-fem`, which
+            estimates it (None otherwise).
     """
 
     method: str
@@ -104,6 +108,7 @@ class Estimate:
     starts: tuple[dict, ...] = ()
     crlb_corrected_std: np.ndarray | None = field(default=None, repr=False)
     initial_states: dict[str, dict[str, float]] | None = field(default=None, repr=False)
+    process_noise_std: dict[str, dict[str, float]] | None = field(default=None, repr=False)
 
     @property
     def converged(self) -> bool:
@@ -134,6 +139,10 @@ class Estimate:
             doc["crlb_corrected_std"] = {n: _finite(s) for n, s in zip(self.free, self.crlb_corrected_std)}
         if self.initial_states is not None:
             doc["initial_states"] = self.initial_states
+        if self.process_noise_std is not None:
+            doc["process_noise_std"] = {
+                s: {k: _finite(v) for k, v in d.items()} for s, d in self.process_noise_std.items()
+            }
         if self.start_reason:
             doc["start_reason"] = self.start_reason
         if self.starts:

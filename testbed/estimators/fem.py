@@ -1,0 +1,477 @@
+"""`ml-fem`: maximum likelihood with a Kalman filter in the likelihood (the filter-error method of
+Maine & Iliff 1981/1986 and Jategaonkar, Flight Vehicle System Identification, ch. 5), for data
+with process noise (turbulence), where output error is biased.
+
+The model and its steady-state filter are `identification.innovations`: process noise of
+spectral density f_j² on each chosen body row j (Jategaonkar's diagonal distribution matrix F =
+diag(f), continuous time, discretised exactly), measurement noise R diagonal. The negative
+log-likelihood of the innovations ν, with 𝒮 their covariance,
+
+    L = ½ Σ_k νᵀ 𝒮⁻¹ ν + (N/2) ln det 2π𝒮,
+
+is minimised by relaxation (Maine & Iliff), from output error's optimum (the same iterations with
+F = 0: from a poor θ the filter would take the model's error for process noise), each iteration:
+
+1. 𝒮 in closed form, `1/N Σ ν νᵀ` per group of records with one Δ and one measured set;
+2. one Gauss-Newton step (Levenberg-Marquardt damped, accepted only where ½Σνᵀ𝒮⁻¹ν falls) on
+   p = (θ_free, each record's initial prediction in its measured states, f²) with 𝒮 and R fixed;
+   the innovations' sensitivities by central differences in θ and f² (each a new filter: its
+   gain from the Riccati equation), exact in the initial state (ν is linear in it);
+3. R compatible with 𝒮 and the filter's P: `R = diag(𝒮 − C P Cᵀ)`. Where that would not be
+   positive (beyond a floor of `R_FLOOR` 𝒮), R takes the floor and the process noise of the
+   channel's own body row is scaled down by the ratio of the room left to C P Cᵀ, Jategaonkar's
+   correction of F.
+
+F is estimated through f² (the spectral densities), bounded below by 0: the likelihood is flat in
+f at f = 0 (it depends on f²), so Gauss-Newton in f never reaches a row without process noise,
+where in f² it stops on the bound (an active bound: held at 0 while the gradient points below).
+
+Converged when the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (over the parameters off
+their bound) and the update of 𝒮 changed no variance by more than `r_tol` (relative). The Cramér-Rao
+bounds are those of the information `Σ (∂ν/∂p)ᵀ 𝒮⁻¹ (∂ν/∂p)` at the estimate, the initial states
+and f² eliminated as for output error.
+
+With process noise R follows from 𝒮 (the config's `noise_std` is not used). With no process noise
+(`process_noise="none"`) K = 0, ν are the output-error residuals and 𝒮 = R is the diagonal
+residual variance (the config's `noise_std` where it gives a channel's): the fit is output error, and ends at `ml-gn`'s optimum.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError, is_number
+from testbed.estimators import starts
+from testbed.estimators.base import (
+    Callback,
+    Estimate,
+    Method,
+    Options,
+    Progress,
+    Status,
+    count_option,
+    option,
+    unphysical,
+)
+from testbed.identification import bounds, innovations, likelihood, recursions, scan
+from testbed.identification.problem import Problem, problem
+from testbed.identification.innovations import BODY
+from testbed.models.linear import IX, NX, STATES
+
+__all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
+
+START_SHARE = 0.05  # f²Δ to start from, as a share of the channel's first differences' variance
+R_FLOOR = 1e-3  # R is kept above this fraction of the innovations' variance per channel
+R_ROOM = 0.05  # where it is not, F is scaled down to leave R about this fraction
+_STEP = 1e-5  # central-difference step, relative to the parameter (or its start's size)
+
+
+def _noise_spec(v) -> bool:
+    if not isinstance(v, str):
+        return False
+    if v in ("measured", "none"):
+        return True
+    names = [n.strip() for n in v.split(",")]
+    return all(n in BODY for n in names) and len(set(names)) == len(names)
+
+
+@dataclass(frozen=True)
+class FilterErrorOptions(Options):
+    """Options of `ml-fem`."""
+
+    max_iter: int = count_option(50, 0, "iteration limit of each phase (output error, then the filter)")
+    start: str = option(
+        "config",
+        lambda v: v in ("config", "equation-error"),
+        "config or equation-error",
+        "where the iterations begin: config (the a-priori values) or equation-error",
+    )
+    tol: float = option(
+        1e-3,
+        lambda v: is_number(v) and v > 0,
+        "a number > 0",
+        "converged when the Gauss-Newton step is shorter than tol Cramér-Rao σ",
+    )
+    r_tol: float = option(
+        1e-3,
+        lambda v: is_number(v) and v > 0,
+        "a number > 0",
+        "converged when an update of 𝒮 changes no variance by more than this (relative)",
+    )
+    process_noise: str = option(
+        "measured",
+        _noise_spec,
+        "measured, none, or body states separated by commas (e.g. 'v,r')",
+        "the body rows with process noise: measured (every measured body state), none (F = 0: output "
+        "error), or a list of body states",
+    )
+    max_trials: int = count_option(30, 1, "damped steps tried per iteration before STALLED")
+
+
+def noise_rows(prob: Problem, spec: str) -> np.ndarray:
+    """Indexes into BODY of the rows with process noise; `InputError` for a row whose state no
+    record measures (its noise could not be told from the others')."""
+    measured = {int(i) for r in prob.records for i in r.measured}
+    if spec == "none":
+        return np.zeros(0, dtype=int)
+    if spec == "measured":
+        return np.array([j for j, s in enumerate(BODY) if IX[s] in measured], dtype=int)
+    names = [n.strip() for n in spec.split(",")]
+    blind = [n for n in names if IX[n] not in measured]
+    if blind:
+        raise InputError(
+            f"ml-fem: option process_noise={spec!r}: {', '.join(blind)} not measured; expected "
+            "body states the data measure"
+        )
+    return np.array([BODY.index(n) for n in names], dtype=int)
+
+
+def _group(r) -> tuple:
+    """The group of a record: its sampling interval and measured states, which set its filter."""
+    return (r.dt, tuple(r.measured))
+
+
+class _Likelihood:
+    """The innovations, their covariances and sensitivities of one problem, p = (θ, x0s, f²)."""
+
+    def __init__(self, prob: Problem, rows: np.ndarray, theta0: np.ndarray):
+        self.prob, self.rows, self.nf = prob, rows, prob.n_free
+        self.nx = prob.n_params - prob.n_free
+        self.noisy = len(rows) > 0
+        self.states = {}
+        for r in prob.records:
+            d = recursions.discrete(prob, theta0, r.dt, order=1)
+            coupled = d.E[:, :NX] != 0
+            if d.dE is not None:
+                coupled = coupled | (d.dE[:, :, :NX] != 0).any(axis=0)
+            self.states[(r.dt, tuple(r.measured))] = innovations.observed(coupled, r.measured)
+        self.groups = sorted(self.states)
+
+    def q(self, p: np.ndarray) -> np.ndarray:
+        """The spectral densities f² of the six body rows from p (0 on the rows without noise)."""
+        q = np.zeros(len(BODY))
+        q[self.rows] = p[self.nf + self.nx :]
+        return q
+
+    def run(self, p: np.ndarray, S: dict):
+        """(filters, innovations per record) at p with the innovations' covariances `S` (per
+        group), or None where the filter cannot be built or its innovations are not finite."""
+        prob = self.prob
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                flt = innovations.filters(prob, p[: self.nf], self.q(p), S, self.states)
+                nus = [innovations.innovations(r, flt[_group(r)], prob.x0(r, p)) for r in prob.records]
+        except np.linalg.LinAlgError:
+            return None
+        if not all(np.all(np.isfinite(v)) for v in nus) or likelihood.exploded(
+            prob, [r.y - v for r, v in zip(prob.records, nus)]
+        ):
+            return None
+        return flt, nus
+
+    def covariances(self, nus) -> dict:
+        """𝒮 per group in closed form: 1/N Σ ννᵀ; with no process noise the pooled diagonal
+        residual variance of output error (`likelihood.noise_variance`)."""
+        prob = self.prob
+        if not self.noisy:
+            R = likelihood.noise_variance(prob, nus)
+            return {r_key: np.diag(R[self.channels(r_key)]) for r_key in self.groups}
+        sums = {g: 0.0 for g in self.groups}
+        counts = {g: 0 for g in self.groups}
+        for r, v in zip(prob.records, nus):
+            sums[_group(r)] = sums[_group(r)] + v.T @ v
+            counts[_group(r)] += len(v)
+        return {g: sums[g] / counts[g] for g in self.groups}
+
+    def channels(self, key) -> np.ndarray:
+        """The channels (indexes into `prob.channels`) of a group's records."""
+        return next(r.channels for r in self.prob.records if _group(r) == key)
+
+    def weighted(self, nus, S) -> float:
+        """½ Σ νᵀ 𝒮⁻¹ ν (𝒮 held: the relaxation's cost)."""
+        return 0.5 * sum(
+            float(np.sum(v * np.linalg.solve(S[_group(r)], v.T).T)) for r, v in zip(self.prob.records, nus)
+        )
+
+    def negative_log_likelihood(self, nus) -> float:
+        """L with 𝒮 in closed form: Σ_groups (N/2)(k + ln det 2π𝒮) (output error's with none)."""
+        if not self.noisy:
+            return likelihood.negative_log_likelihood(self.prob, nus)
+        S = self.covariances(nus)
+        n = {g: 0 for g in self.groups}
+        for r in self.prob.records:
+            n[_group(r)] += len(r.y)
+        return float(
+            sum(0.5 * n[g] * (len(S[g]) + np.linalg.slogdet(2 * np.pi * S[g])[1]) for g in self.groups)
+        )
+
+    def terms(self, p, flt, nus, S, scale):
+        """g = Σ Jᵀ𝒮⁻¹ν and M = Σ Jᵀ𝒮⁻¹J at p, J = ∂ν/∂p (central differences in θ and f²,
+        exact in x0). `scale`: each parameter's typical size (the step's reference)."""
+        prob, nf, n = self.prob, self.nf, len(p)
+        cols = list(range(nf)) + list(range(nf + self.nx, n))
+        plus, minus, steps = {}, {}, {}
+        for i in cols:
+            h = _STEP * max(abs(p[i]), scale[i])
+            up, down = p.copy(), p.copy()
+            up[i] += h
+            down[i] -= h
+            if i >= nf + self.nx and down[i] < 0:  # f² at its bound: a forward difference
+                down, h2 = p, h
+            else:
+                h2 = 2 * h
+            a, b = self.run(up, S), self.run(down, S)
+            if a is None or b is None:
+                raise np.linalg.LinAlgError("the filter fails next to the estimate")
+            plus[i], minus[i], steps[i] = a[1], b[1], h2
+        g, M = np.zeros(n), np.zeros((n, n))
+        for k, (r, v) in enumerate(zip(prob.records, nus)):
+            key = _group(r)
+            W = np.linalg.inv(np.linalg.cholesky(S[key]))  # whitening: W ν has unit covariance
+            own = cols + list(range(r.offset, r.offset + len(r.measured)))
+            J = np.zeros((len(v), len(r.measured), len(own)))
+            for c, i in enumerate(cols):
+                J[:, :, c] = (plus[i][k] - minus[i][k]) / steps[i]
+            f = flt[key]
+            for c, m in enumerate(r.measured):
+                e = np.zeros(len(f.states))
+                e[np.searchsorted(f.states, m)] = 1.0
+                recursions.simulated(len(v))
+                x = scan.propagate(f.Phi_c, e, np.zeros((len(v) - 1, len(e))))
+                J[:, :, len(cols) + c] = -x[:, f.rows]
+            Jw = np.einsum("ab,nbq->naq", W, J).reshape(-1, len(own))
+            vw = (v @ W.T).ravel()
+            g[own] -= Jw.T @ vw  # −∂(½Σνᵀ𝒮⁻¹ν)/∂p
+            M[np.ix_(own, own)] += Jw.T @ Jw
+        return g, M
+
+    def compatible(self, S, flt, p):
+        """R = diag(𝒮 − C P Cᵀ) pooled per channel, floored at `R_FLOOR` 𝒮, and p with f²
+        scaled down where the floor binds (Jategaonkar's correction of F: every row by the
+        square of the least ratio of (1 − R_ROOM) 𝒮 to C P Cᵀ, P growing about as √f²), with
+        whether it was."""
+        prob = self.prob
+        nc = len(prob.channels)
+        room, cpc, n = np.zeros(nc), np.zeros(nc), np.zeros(nc)
+        for r in prob.records:
+            key = _group(r)
+            room[r.channels] += len(r.y) * np.diag(S[key])
+            cpc[r.channels] += len(r.y) * np.diag(flt[key].CPC)
+            n[r.channels] += len(r.y)
+        room, cpc = room / n, cpc / n
+        R = np.maximum(room - cpc, R_FLOOR * room)
+        binding = room - cpc < R_FLOOR * room
+        p = p.copy()
+        if binding.any():
+            p[self.nf + self.nx :] *= np.min((1 - R_ROOM) * room[binding] / cpc[binding]) ** 2
+        return R, p, bool(binding.any())
+
+
+def _start_noise(lik: _Likelihood) -> tuple[dict, np.ndarray]:
+    """𝒮 and f² to start from, from each channel's first differences, whose variance is about
+    2R + f²Δ (+ the motion's, small at the sampling rates of the data): 𝒮 half of it, f²Δ
+    `START_SHARE` of it on the rows with process noise (a small gain: the Riccati equation's
+    first-order form holds for gains small per step)."""
+    prob = lik.prob
+    ss, n, q = np.zeros(len(prob.channels)), np.zeros(len(prob.channels)), np.zeros(len(lik.rows))
+    for r in prob.records:
+        ss[r.channels] += np.sum(np.diff(r.y, axis=0) ** 2, axis=0)
+        n[r.channels] += len(r.y) - 1
+    d2 = np.maximum(ss / n, 1e-30)
+    dt = min(r.dt for r in prob.records)
+    for k, j in enumerate(lik.rows):
+        q[k] = START_SHARE * d2[prob.channels.index(BODY[j])] / dt
+    return {g: np.diag(d2[lik.channels(g)] / 2) for g in lik.groups}, q
+
+
+def _fit(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    opts: FilterErrorOptions,
+    callback: Callback | None,
+) -> Estimate:
+    with recursions.counting() as tally, scan.compiled():
+        t0 = time.perf_counter()
+        prob = problem(experiments, config)
+        rows = noise_rows(prob, opts.process_noise)
+        theta0 = starts.named(prob, experiments, config, opts.start)
+        lik = _Likelihood(prob, rows, theta0)
+        S, q0 = _start_noise(lik)
+        p = likelihood.initial_states(prob, theta0)
+        scale = np.concatenate([np.where(theta0 != 0, np.abs(theta0), 1.0), np.ones(lik.nx), q0])
+        done, history = 0, np.zeros((0, prob.n_free))
+        if lik.noisy:
+            # output error first: from a poor θ the filter takes the model's error for process noise
+            first = _Likelihood(prob, rows[:0], theta0)
+            out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, callback)
+            if out[2] is not Status.DIVERGED:
+                p, done, history = out[0], out[3], out[4][:-1]
+        more = (
+            None
+            if callback is None
+            else (lambda step: callback(replace(step, iteration=done + step.iteration)))
+        )
+        p, S, status, it, steps, why = _iterate(lik, np.concatenate([p, q0]), S, scale, opts, more)
+        est = _estimate(lik, p, S, status, done + it, np.vstack([history, steps]), why, scale)
+        # the simulations of the whole data set (`recursions.counting`), rounded up
+        return replace(est, evaluations=-(-tally[0] // prob.n_samples), wall_time_s=time.perf_counter() - t0)
+
+
+def _settle(lik: _Likelihood, p: np.ndarray, S: dict, trials: int):
+    """(p, the filter and innovations there) with 𝒮 = `S`, F reduced until the filter runs
+    (halved where the gain overshoots: Φ(I − KC) unstable) and R = 𝒮 − C P Cᵀ is positive
+    (`compatible`); None in place of the filter where that takes more than `trials` steps."""
+    p = p.copy()
+    for _ in range(trials):
+        now = lik.run(p, S)
+        if now is None and lik.noisy and p[lik.nf + lik.nx :].any():
+            p[lik.nf + lik.nx :] /= 2
+            continue
+        if now is None or not lik.noisy:
+            return p, now
+        p, corrected = lik.compatible(S, now[0], p)[1:]
+        if not corrected:
+            return p, now
+    return p, None
+
+
+def _projected_step(p, M, g, bound, lam, first) -> np.ndarray:
+    """p plus the damped Gauss-Newton step `(M + λ diag M) Δ = g` (solved with M scaled to a unit
+    diagonal) over the parameters off their bound, f² (from index `first`) kept ≥ 0: a spectral density the step would take below 0 is set
+    to 0 and held there while the step is solved again for the others."""
+    bound = bound.copy()
+    while True:
+        free = np.flatnonzero(~bound)
+        Mf = M[np.ix_(free, free)]
+        d = np.sqrt(np.maximum(np.diag(Mf), 1e-300))  # scaled to a unit diagonal: f²'s units are not θ's
+        scaled = Mf / np.outer(d, d) + lam * np.eye(len(free))
+        trial = p.copy()
+        trial[free] += np.linalg.lstsq(scaled, g[free] / d, rcond=None)[0] / d
+        below = trial < 0
+        below[:first] = False
+        if not below.any():
+            return trial
+        bound |= below
+        p = p.copy()
+        p[below] = 0.0
+
+
+def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
+    """The relaxation's iterations from p and 𝒮: (p, 𝒮, status, iterations, history, reason)."""
+    nf, nx = lik.nf, lik.nx
+    history = [p[:nf].copy()]
+    p, now = _settle(lik, p, S, opts.max_trials)
+    if now is None:
+        return p, S, Status.DIVERGED, 0, np.array(history), "the filter diverges at the start"
+    S = lik.covariances(now[1])
+    p, now = _settle(lik, p, S, opts.max_trials)
+    if now is None:
+        return p, S, Status.DIVERGED, 0, np.array(history), "the filter diverges at the start"
+    flt, nus = now
+    changed, status, it, lam = np.inf, Status.MAX_ITERATIONS, 0, 1e-3
+    for it in range(opts.max_iter + 1):
+        try:
+            g, M = lik.terms(p, flt, nus, S, scale)
+        except np.linalg.LinAlgError as exc:
+            return p, S, Status.DIVERGED, it, np.array(history), str(exc)
+        q = p[nf + nx :]
+        bound = np.zeros(len(p), dtype=bool)
+        bound[nf + nx :] = (q <= 0) & (g[nf + nx :] <= 0)
+        free = np.flatnonzero(~bound)
+        Mf, gf = M[np.ix_(free, free)], g[free]
+        cov = bounds.crlb(Mf).covariance
+        if np.sqrt(max(gf @ cov @ gf, 0.0)) < opts.tol and changed < opts.r_tol:
+            status = Status.CONVERGED
+            break
+        if it == opts.max_iter:
+            break
+        J0 = lik.weighted(nus, S)
+        for _ in range(opts.max_trials):
+            trial = _projected_step(p, M, g, bound, lam, nf + nx)
+            new = lik.run(trial, S)
+            if new is not None and lik.weighted(new[1], S) < J0:
+                p, (flt, nus), lam = trial, new, max(lam / 10, 1e-9)
+                break
+            lam *= 10
+        else:
+            status = Status.STALLED
+            break
+        # the relaxation: 𝒮 in closed form, then F corrected where R = 𝒮 − CPCᵀ would not be positive
+        S_new = lik.covariances(nus)
+        changed = max(float(np.max(np.abs(np.diag(S_new[g]) / np.diag(S[g]) - 1))) for g in lik.groups)
+        S = S_new
+        q = p[nf + nx :].copy()
+        p, now = _settle(lik, p, S, opts.max_trials)
+        if now is None:
+            return p, S, Status.DIVERGED, it + 1, np.array(history), "the filter diverged"
+        flt, nus = now
+        if np.any(p[nf + nx :] != q):
+            changed = np.inf
+        history.append(p[:nf].copy())
+        if callback is not None:
+            callback(Progress(it + 1, p[:nf].copy(), lik.negative_log_likelihood(nus)))
+    return p, S, status, it, np.array(history), ""
+
+
+def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale) -> Estimate:
+    """The estimate at p with its Cramér-Rao bounds; DIVERGED (with the reason) where the fit
+    failed, left the physical region or its bounds are not finite."""
+    prob, nf, nx = lik.prob, lik.nf, lik.nx
+    noise, process, std, cost = {}, {}, np.full(nf, np.nan), np.nan
+    if status is not Status.DIVERGED:
+        flt, nus = lik.run(p, S)
+        try:
+            M = lik.terms(p, flt, nus, S, scale)[1]
+            F = likelihood.reduced(M, np.zeros(len(M)), nf)[0]
+            std = bounds.crlb(F).std
+            full = bounds.crlb(M).std
+        except np.linalg.LinAlgError as exc:
+            status, why = Status.DIVERGED, f"the Cramér-Rao analysis at the estimate failed ({exc})"
+        else:
+            cost = lik.negative_log_likelihood(nus)
+            variance = lik.compatible(S, flt, p)[0] if lik.noisy else likelihood.noise_variance(prob, nus)
+            noise = dict(zip(prob.channels, map(float, np.sqrt(variance))))
+            for k, j in enumerate(lik.rows):
+                qk = p[nf + nx + k]
+                process[BODY[j]] = {
+                    "value": float(np.sqrt(qk)),
+                    "std": float(full[nf + nx + k] / (2 * np.sqrt(qk))) if qk > 0 else float("inf"),
+                }
+            if not (np.isfinite(cost) and not np.any(np.isnan(std))):
+                status, why = Status.DIVERGED, "the estimate or its Cramér-Rao bound is not finite"
+    why = unphysical(prob.structure, prob.coefficients(p[:nf])) or why
+    if why:
+        status = Status.DIVERGED
+    x0 = {}
+    for r in prob.records:
+        xr = prob.x0(r, p) + np.eye(NX)[IX["u"]] * prob.speed
+        x0[r.name] = {STATES[i]: float(xr[i]) for i in r.measured}
+    return Estimate(
+        method="ml-fem",
+        status=status,
+        free=prob.free,
+        values=p[:nf].copy(),
+        std=std if status is not Status.DIVERGED else np.full(nf, np.nan),
+        cost=cost if status is not Status.DIVERGED else np.nan,
+        iterations=it,
+        wall_time_s=0.0,
+        noise_std=noise if status is not Status.DIVERGED else {},
+        history=history,
+        message=why if status is Status.DIVERGED else "",
+        initial_states=x0,
+        process_noise_std=process if status is not Status.DIVERGED else None,
+    )
+
+
+ML_FEM = Method(
+    name="ml-fem",
+    fit=_fit,
+    options=FilterErrorOptions,
+    summary="maximum likelihood filter error: a steady-state Kalman filter in the likelihood, for data "
+    "with process noise",
+)
