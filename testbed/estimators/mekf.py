@@ -825,6 +825,12 @@ def run_filter(
     docstring, "Fixed-interval iterations"). `modified`: centre the Jacobian on a parallel KF
     (square-root only); otherwise on the filter's own estimate."""
     t_start = time.perf_counter()
+    if config.per_record:
+        raise InputError(
+            f"{config.source or 'config'}: [identify] per_record lists {', '.join(config.per_record)}; "
+            f"{method} estimates one value per name over the records in sequence: expected no "
+            "per_record, or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm) or equation-error"
+        )
     if options.state_noise is None:
         options = replace(options, state_noise=0.0 if square_root else CONVENTIONAL_FLOOR)
     s = structure(config.vehicle)

@@ -109,7 +109,7 @@ def gauss_newton_terms(
         e, cols = e / np.sqrt(R[r.channels]), prob.columns(r)
         gr, Mr = np.zeros(len(cols)), np.zeros((len(cols), len(cols)))
         for channels, params, pieces in sensitivity_parts(
-            prob, r, models[r.dt], x, r.measured, channel_weights(r, R), scan.PIECE
+            prob, r, models[prob.key(r)], x, r.measured, channel_weights(r, R), scan.PIECE
         ):
             ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
             for samples, S in pieces:
@@ -141,7 +141,9 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
         edges = np.linspace(0, n, pieces + 1).round().astype(int)
         for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
             name = r.name if pieces == 1 else f"{r.name}[{j}]"
-            records.append(Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset))
+            records.append(
+                Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset, r.group)
+            )
             offset += len(r.measured)
     return replace(prob, records=tuple(records))
 
@@ -189,7 +191,7 @@ def fit_initial_states(
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
     factors = []  # per record: (k, k + 1, k + 1) upper-triangular factors of [G_c v_c], channel c
     for r in prob.records:
-        d, k = models[r.dt], len(r.measured)
+        d, k = models[prob.key(r)], len(r.measured)
         T = np.zeros((k, k + 1, k + 1))
         u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
         Phi, forcing = d.E[:, :NX], d.E[:, NX:]
@@ -253,7 +255,7 @@ def fit_initial_states(
                 break
     else:
         solve(lambda r: R[r.channels])
-    xs = [trajectory(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
+    xs = [trajectory(r, models[prob.key(r)], prob.x0(r, p)) for r in prob.records]
     return p, xs if full else [x[:, r.measured] for r, x in zip(prob.records, xs)]
 
 

@@ -76,27 +76,31 @@ class Discrete:
     d2E: np.ndarray | None = None  # (n_free, n_free, 10, 14)
 
 
-def discrete(prob: Problem, values: np.ndarray, dt: float, order: int = 0) -> Discrete:
-    """The ZOH model at the free `values` and its first (`order` ≥ 1) and second derivatives.
+def discrete(
+    prob: Problem, values: np.ndarray, dt: float, order: int = 0, group: int | None = None
+) -> Discrete:
+    """The ZOH model at the free `values` and its first (`order` ≥ 1) and second derivatives,
+    for the records of `group` (their own per-record values; the others' derivatives are zero).
 
     With `F(θ)` the augmented matrix [[A, B, S], [0, 0, 0]], `E = exp(F Δ)`; its derivatives are
     the top-right blocks of the exponentials of block-triangular matrices (Van Loan /
     Najfeld-Havel, `expm_pair`), all at once, with
     `∂²[A B S]/∂θ_i∂θ_j = −Mt⁻¹(∂Mt_i ∂[A B S]_j + ∂Mt_j ∂[A B S]_i)` (Mt, At affine in θ).
     """
-    s, theta = prob.structure, prob.coefficients(values)
+    s, theta = prob.structure, prob.coefficients(values, group)
     A, B, S = continuous(s, theta)
     if order == 0 or prob.n_free == 0:
         return Discrete(np.column_stack(discretize(A, B, S, dt)))
-    nf = prob.n_free
+    nf, acting = prob.n_free, prob.acting(-1 if group is None else group)
     dA, dB, dS = derivatives(s, theta, A, B, S, prob.index)
     dABS = np.concatenate([dA, dB, dS[:, :, None]], axis=2)  # (nf, 10, 14)
+    dABS[~acting] = 0.0  # another record's own values do not move this one's model
     ABS = np.column_stack([A, B, S])
     if order == 1:
         E, dE = expm_pair(ABS, dABS.transpose(1, 0, 2), dt)
         return Discrete(E, dE.transpose(1, 0, 2))
     Mt = tilde(s, theta)[0]
-    G = np.einsum("iab,jbc->ijac", s.dMt[prob.index], dABS)
+    G = np.einsum("iab,jbc->ijac", s.dMt[prob.index] * acting[:, None, None], dABS)
     iu, ju = np.triu_indices(nf)
     d2ABS = -np.linalg.solve(Mt[None], (G + G.transpose(1, 0, 2, 3))[iu, ju])  # (pairs, 10, 14)
     E, dE, block = expm_pair(ABS, dABS.transpose(1, 0, 2), dt, (d2ABS, iu, ju))
@@ -106,9 +110,11 @@ def discrete(prob: Problem, values: np.ndarray, dt: float, order: int = 0) -> Di
     return Discrete(E, dE.transpose(1, 0, 2), d2E)
 
 
-def discrete_models(prob: Problem, values: np.ndarray, order: int) -> dict[float, Discrete]:
-    """`discrete` at the free `values` for each sampling interval of the records."""
-    return {dt: discrete(prob, values, dt, order) for dt in {r.dt for r in prob.records}}
+def discrete_models(prob: Problem, values: np.ndarray, order: int) -> dict:
+    """`discrete` at the free `values` for each model the records need (`Problem.key`: each
+    sampling interval, and each record group where some free values are per record)."""
+    keys = {prob.key(r): r for r in prob.records}
+    return {key: discrete(prob, values, r.dt, order, r.group) for key, r in keys.items()}
 
 
 def trajectory(record: Record, d: Discrete, x0: np.ndarray) -> np.ndarray:
@@ -125,7 +131,7 @@ def states(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Simulated states (N, 10) per experiment at the parameter vector `p` (u as a perturbation)."""
     models = discrete_models(prob, p[: prob.n_free], 0)
     simulated(prob.n_samples)
-    return [trajectory(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
+    return [trajectory(r, models[prob.key(r)], prob.x0(r, p)) for r in prob.records]
 
 
 def outputs(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
@@ -212,7 +218,7 @@ def sensitivities(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray] | None 
     xs = states(prob, p) if xs is None else xs
     simulated(prob.n_samples * prob.n_free)
     return [
-        _sensitivities(prob, r, models[r.dt], x, r.measured, np.ones(len(r.measured)))
+        _sensitivities(prob, r, models[prob.key(r)], x, r.measured, np.ones(len(r.measured)))
         for r, x in zip(prob.records, xs)
     ]
 
@@ -236,7 +242,7 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
     nf, H = prob.n_free, np.zeros((prob.n_params, prob.n_params), dtype=p.dtype)
     simulated(prob.n_samples * (1 + nf))  # the states and their sensitivities, for the adjoint
     for r, wr in zip(prob.records, weights):
-        d = models[r.dt]
+        d = models[prob.key(r)]
         x = trajectory(r, d, prob.x0(r, p))
         w, X = _w(x, r.inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX))
         a = np.zeros((len(w), NX), dtype=np.result_type(wr, p))
