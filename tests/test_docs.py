@@ -90,7 +90,8 @@ def test_model_names_in_their_order():
     names = re.search(r"```\n(.*?)```", section(text, "The 35 coefficients"), re.S).group(1).split()
     assert names == list(COEFFICIENTS)
     offsets = re.search(r"```\n(.*?)```", section(text, "Constant offsets"), re.S).group(1).split()
-    assert names + offsets == list(PARAMETERS)
+    biases = re.search(r"```\n(.*?)```", section(text, "Output biases"), re.S).group(1).split()
+    assert names + offsets + biases == list(PARAMETERS)
     assert missing_tokens(text, PARAMETERS + STATES + INPUTS) == []
 
 

@@ -20,7 +20,17 @@ from testbed.estimators import Estimate, Status, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
 from testbed.identification.bounds import crlb, fisher
 from testbed.simulation.measurements import noise_from_data
-from testbed.models.linear import ITHETA, IX, NX, Structure, structure, theta_vector, tilde, unobserved
+from testbed.models.linear import (
+    BIASES,
+    ITHETA,
+    IX,
+    NX,
+    Structure,
+    structure,
+    theta_vector,
+    tilde,
+    unobserved,
+)
 
 __all__ = [
     "Comparison",
@@ -140,18 +150,20 @@ def _groups(names, basis, tol: float = 1e-6) -> tuple[tuple[str, ...], ...]:
 
 
 def _copied(struct: Structural, free: tuple[str, ...]) -> Structural:
-    """`struct`, found for the names of a config's free list, for its values `free` (a per-record
-    name once per record): a direction no data see moves every record's copy alike."""
+    """`struct`, found for names of a config's free list, for its values `free` (a per-record
+    name once per record; the names `struct` leaves out, outside every direction): a direction no
+    data see moves every record's copy alike."""
     if free == struct.free:
         return struct
-    base = [struct.free.index(base_name(n)) for n in free]
+    basis = np.zeros((len(struct.basis), len(free)))
+    for j, n in enumerate(free):
+        if base_name(n) in struct.free:
+            basis[:, j] = struct.basis[:, struct.free.index(base_name(n))]
 
     def copies(names):
         return tuple(n for n in free if base_name(n) in names)
 
-    return Structural(
-        free, struct.basis[:, base], tuple(copies(g) for g in struct.drift_groups), copies(struct.unobserved)
-    )
+    return Structural(free, basis, tuple(copies(g) for g in struct.drift_groups), copies(struct.unobserved))
 
 
 # -- practical identifiability and the identifiability report ------------------------------------
@@ -215,7 +227,9 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     free = expanded(config, [e.name for e in experiments])[0]
     theta = theta_vector(config.coefficients)
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
-    struct = _copied(structural(structure(config.vehicle), theta, config.free, measured), free)
+    # the output biases are no part of the equations' structure: no row operation moves them
+    dynamic = tuple(n for n in config.free if n not in BIASES)
+    struct = _copied(structural(structure(config.vehicle), theta, dynamic, measured), free)
     bounds = crlb(F)
     std, corr = bounds.std.copy(), bounds.correlation.copy()
     # a structural drift group has no information at all: infinite bounds, undefined correlations

@@ -190,7 +190,10 @@ def fit_initial_states(
     simulated(prob.n_samples)  # one simulation: the responses to x0 are linear in it
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
     factors = []  # per record: (k, k + 1, k + 1) upper-triangular factors of [G_c v_c], channel c
-    for r in prob.records:
+    zero = np.zeros((1, NX))
+    # the measured states: the data less their output biases
+    ys = [r.y - prob.outputs(r, zero, values) for r in prob.records]
+    for r, y in zip(prob.records, ys):
         d, k = models[prob.key(r)], len(r.measured)
         T = np.zeros((k, k + 1, k + 1))
         u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
@@ -215,7 +218,7 @@ def fit_initial_states(
                 block[:, : k + 1] = T[channels]
                 with np.errstate(over="ignore", invalid="ignore"):
                     block[:, k + 1 :, cols] = np.concatenate(
-                        [Y[:, :, 1:], (r.y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
+                        [Y[:, :, 1:], (y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
                     )
                 if not np.all(np.isfinite(block)):
                     finite = False
@@ -230,10 +233,10 @@ def fit_initial_states(
         residual sums of squares there: min Σ_c ‖(G_c x − v_c)‖²/R_c = Σ_c ‖U_c x − z_c‖²/R_c + ρ_c²/R_c
         with [U_c z_c; 0 ρ_c] channel c's factor."""
         sums = []
-        for r, T in zip(prob.records, factors):
+        for r, T, y in zip(prob.records, factors, ys):
             k = len(r.measured)
             if T is None:
-                p[r.offset : r.offset + k] = r.y[0]
+                p[r.offset : r.offset + k] = y[0]
                 sums.append(np.full(k, np.inf))
                 continue
             w = variance(r) ** -0.5
@@ -256,7 +259,7 @@ def fit_initial_states(
     else:
         solve(lambda r: R[r.channels])
     xs = [trajectory(r, models[prob.key(r)], prob.x0(r, p)) for r in prob.records]
-    return p, xs if full else [x[:, r.measured] for r, x in zip(prob.records, xs)]
+    return p, xs if full else [prob.outputs(r, x, values) for r, x in zip(prob.records, xs)]
 
 
 def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = None) -> np.ndarray:

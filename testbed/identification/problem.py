@@ -15,7 +15,7 @@ The outputs are the measured states, `u` as the perturbation u_abs − U.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -23,6 +23,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
 from testbed.models.linear import (
+    IBIAS,
     ITHETA,
     IX,
     NX,
@@ -45,6 +46,7 @@ __all__ = [
     "expanded",
     "free_values",
     "problem",
+    "unbiased",
 ]
 
 
@@ -129,6 +131,20 @@ class Problem:
     def columns(self, record: Record) -> np.ndarray:
         """Where the record's own parameters (the free coefficients, its x0) sit in p."""
         return np.r_[: self.n_free, record.offset : record.offset + len(record.measured)]
+
+    @property
+    def biased(self) -> bool:
+        """Whether some output bias is free or nonzero: the outputs are then not the states."""
+        thetas = self.theta[None] if self.thetas is None else self.thetas
+        return bool(np.any(thetas[:, IBIAS]) or np.isin(self.index, IBIAS).any())
+
+    def outputs(self, record: Record, x: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """The record's model outputs (N, k) from its states `x` (N, 10) at the free `values`:
+        the measured states plus their output biases, y = x + b."""
+        y = x[:, record.measured]
+        if not self.biased:
+            return y
+        return y + self.coefficients(values, record.group)[IBIAS[record.measured]]
 
     def x0(self, record: Record, p: np.ndarray) -> np.ndarray:
         """The record's full initial state (10,) from the parameter vector."""
@@ -240,6 +256,17 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
         owner,
         thetas,
     )
+
+
+def unbiased(experiments: Sequence[Experiment], config: ModelConfig) -> list[Experiment]:
+    """The experiments with the config's output biases taken off their measured states (each
+    record's own, `ModelConfig.record_coefficients`): y − b, the states the filters take as
+    measured."""
+    out = []
+    for e in experiments:
+        b = theta_vector(config.record_coefficients(e.name))[IBIAS[[IX[s] for s in e.measured]]]
+        out.append(replace(e, y=np.asarray(e.y, dtype=float) - b) if np.any(b) else e)
+    return out
 
 
 def expanded(config: ModelConfig, names: Sequence[str]) -> tuple[tuple[str, ...], np.ndarray]:
