@@ -16,14 +16,24 @@ import os
 import reprlib
 import stat
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
 from testbed.errors import InputError, atomic_write_text
-from testbed.models.linear import COEFFICIENTS, INPUTS, MAX_SPEED, MIN_SPEED, STATES, Vehicle
+from testbed.models.linear import (
+    BIASES,
+    COEFFICIENTS,
+    INPUTS,
+    MAX_SPEED,
+    MIN_SPEED,
+    OFFSETS,
+    PARAMETERS,
+    STATES,
+    Vehicle,
+)
 
 __all__ = [
     "CSV_COLUMNS",
@@ -37,6 +47,7 @@ __all__ = [
     "check_config",
     "check_experiment",
     "check_free",
+    "check_per_record",
     "check_name",
     "check_noise_std",
     "config_text",
@@ -104,16 +115,28 @@ class Experiment:
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """A model config: the vehicle, all 35 coefficients, and the free ones."""
+    """A model config: the vehicle, all 35 coefficients and 6 offsets, and the free ones."""
 
     vehicle: Vehicle
-    coefficients: Mapping[str, float]  # every name in COEFFICIENTS
+    coefficients: Mapping[str, float]  # every name in PARAMETERS (the coefficients and the offsets)
     free: tuple[str, ...] = ()
     source: str = ""
     outputs: tuple[str, ...] | None = None  # [identify] outputs: the states fitted (None: all measured)
     # [identify] noise_std: state → the sensors' noise σ (SI), known; None: read off the data
     noise_std: Mapping[str, float] | None = None
     screen: bool = False  # [identify] screen: `free` is a candidate list that `identify` screens
+    # [identify] per_record: free names estimated once per record (each experiment its own value)
+    per_record: tuple[str, ...] = ()
+    # experiment name → {name: value}: a record's own values, where they differ from `coefficients`
+    # (an estimate's per-record values, `with_coefficients`)
+    record_values: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+
+    def __post_init__(self):  # a name a config leaves out is 0 (and fixed)
+        object.__setattr__(self, "coefficients", dict.fromkeys(PARAMETERS, 0.0) | dict(self.coefficients))
+
+    def record_coefficients(self, name: str) -> dict[str, float]:
+        """The coefficients and offsets of the record (experiment) called `name`."""
+        return {**self.coefficients, **self.record_values.get(name, {})}
 
     def fitted(self, experiments: Sequence[Experiment]) -> list[Experiment]:
         """The experiments reduced to the config's outputs (all of them without `outputs`).
@@ -132,7 +155,15 @@ class ModelConfig:
         return [e.only(self.outputs) for e in experiments]
 
     def with_coefficients(self, values: Mapping[str, float]) -> "ModelConfig":
-        return replace(self, coefficients={**self.coefficients, **values})
+        """The config with `values` set: coefficients and offsets by name, and a record's own
+        value as `name[experiment]` (an estimate's per-record values)."""
+        shared = {n: v for n, v in values.items() if not n.endswith("]")}
+        records = {e: dict(v) for e, v in self.record_values.items()}
+        for n, v in values.items():
+            if n.endswith("]"):
+                name, experiment = n[:-1].split("[", 1)
+                records.setdefault(experiment, {})[name] = v
+        return replace(self, coefficients={**self.coefficients, **shared}, record_values=records)
 
     def with_noise_std(self, values: Mapping[str, float] | None, where: str = "noise_std") -> "ModelConfig":
         """The config with `values` (state → σ, checked as `where`) replacing its `noise_std`
@@ -421,11 +452,11 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
             f"{source}: [vehicle] {key} is not a vehicle constant; "
             f"expected one of {', '.join(Vehicle.names())}"
         )
-    coefficients = dict.fromkeys(COEFFICIENTS, 0.0)
+    coefficients = dict.fromkeys(PARAMETERS, 0.0)
     for key, v in doc["coefficients"].items():
         if key not in coefficients:
             raise InputError(
-                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets or 10 output biases (docs/model.md)"
             )
         coefficients[key] = number(v, f"{source}: [coefficients] {key}")
     ident = doc.get("identify", {})
@@ -443,7 +474,12 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     screen = ident.get("screen", False)
     if not isinstance(screen, bool):
         raise InputError(f"{source}: [identify] screen = {screen!r}; expected true or false")
-    config = ModelConfig(Vehicle(**values), coefficients, tuple(free), source, outputs, noise, screen)
+    per_record = ident.get("per_record", []) if isinstance(ident, dict) else []
+    if not isinstance(per_record, list) or not all(isinstance(n, str) for n in per_record):
+        raise InputError(f"{source}: [identify] per_record must be a list of names from free")
+    config = ModelConfig(
+        Vehicle(**values), coefficients, tuple(free), source, outputs, noise, screen, tuple(per_record)
+    )
     check_config(config)
     return config
 
@@ -459,12 +495,13 @@ def check_config(config: ModelConfig) -> None:
         if low is not None and not ((v > low if low == 0.0 else v >= low) and v <= high):
             raise InputError(f"{source}: [vehicle] {key} = {v:g}; expected {expected}")
     for key, v in config.coefficients.items():
-        if key not in COEFFICIENTS:
+        if key not in PARAMETERS:
             raise InputError(
-                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets or 10 output biases (docs/model.md)"
             )
         number(v, f"{source}: [coefficients] {key}")
     check_free(config.free, f"{source}: [identify] free")
+    check_per_record(config.per_record, config.free, f"{source}: [identify] per_record")
     if config.outputs is not None and (not config.outputs or any(s not in STATES for s in config.outputs)):
         raise InputError(
             f"{source}: [identify] outputs = {list(config.outputs)!r}; expected a non-empty "
@@ -495,16 +532,32 @@ def check_noise_std(noise, where: str) -> dict[str, float]:
 
 
 def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
-    """`free` as a tuple once every entry is a coefficient name (`COEFFICIENTS`) listed once;
-    InputError naming `where` and the first entry that is not."""
+    """`free` as a tuple once every entry is a coefficient or offset name (`PARAMETERS`) listed
+    once; InputError naming `where` and the first entry that is not."""
     seen = set()
     for n in free:
-        if n not in COEFFICIENTS:
-            raise InputError(f"{where} names {n!r}, not a coefficient (one of {', '.join(COEFFICIENTS)})")
+        if n not in PARAMETERS:
+            raise InputError(
+                f"{where} names {n!r}, not a coefficient (one of {', '.join(COEFFICIENTS)}), "
+                f"an offset (one of {', '.join(OFFSETS)}) or an output bias (b_ and a state)"
+            )
         if n in seen:
             raise InputError(f"{where} names a coefficient twice ({n})")
         seen.add(n)
     return tuple(free)
+
+
+def check_per_record(per_record: Sequence[str], free: Sequence[str], where: str) -> tuple[str, ...]:
+    """`per_record` as a tuple once every entry is a free name listed once; InputError naming
+    `where` and the first entry that is not."""
+    seen = set()
+    for n in per_record:
+        if n not in free:
+            raise InputError(f"{where} names {n[:40]!r}, which free does not list; expected names from free")
+        if n in seen:
+            raise InputError(f"{where} names {n} twice")
+        seen.add(n)
+    return tuple(per_record)
 
 
 def number(v, where: str) -> float:
@@ -540,10 +593,17 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
 
     lines = ["[vehicle]"] + [line(k, getattr(config.vehicle, k)) for k in Vehicle.names()]
     lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
+    lines += [
+        line(k, config.coefficients.get(k, 0.0))
+        for k in OFFSETS + BIASES
+        if config.coefficients.get(k, 0.0) != 0.0 or k in config.free
+    ]
     lines += ["", "[identify]"]
     if config.screen:
         lines += [f"# {_SCREEN_NOTE}", "screen = true"]
     lines += ["free = [" + ", ".join(f'"{n}"' for n in config.free) + "]"]
+    if config.per_record:
+        lines += ["per_record = [" + ", ".join(f'"{n}"' for n in config.per_record) + "]"]
     if config.outputs is not None:
         note = f"  # {comments['outputs']}" if "outputs" in comments else ""
         lines.append("outputs = [" + ", ".join(f'"{s}"' for s in config.outputs) + "]" + note)
@@ -559,18 +619,21 @@ def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:
 
 
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
-    """The coefficients (name → value) of an estimates JSON, and its `noise_std`
-    (state → σ) when it has one of positive numbers, else None; InputError naming the file."""
+    """The coefficients and offsets (name → value) of an estimates JSON, without the values
+    estimated per record, and its `noise_std` (state → σ) when it has one of positive numbers,
+    else None; InputError naming the file."""
     expected = "an estimates JSON with coefficients {name: {value: ...}}"
     doc = read_json(path, expected)
     try:
         values = {n: c["value"] for n, c in doc["coefficients"].items()}
     except (KeyError, TypeError, AttributeError):
         raise InputError(f"{path}: expected {expected}") from None
+    # a value estimated per record (`name[experiment]`) belongs to that record, not to the vehicle
+    values = {n: v for n, v in values.items() if not (n.endswith("]") and n.split("[")[0] in PARAMETERS)}
     for n, v in values.items():
-        if n not in COEFFICIENTS:
+        if n not in PARAMETERS:
             raise InputError(
-                f"{path}: coefficient {n[:40]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
+                f"{path}: coefficient {n[:40]!r} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets or 10 output biases (docs/model.md)"
             )
         values[n] = number(v, f"{path}: coefficient {n}")
     noise = doc.get("noise_std")

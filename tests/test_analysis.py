@@ -3,7 +3,7 @@
 import numpy as np
 
 from testbed.analysis.identifiability import structural
-from testbed.models.linear import COEFFICIENTS, ITHETA, STATES, Vehicle, continuous, structure, tilde
+from testbed.models.linear import COEFFICIENTS, ITHETA, NTHETA, STATES, Vehicle, continuous, structure, tilde
 
 VEHICLE = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
 SWAY_YAW = (
@@ -25,7 +25,10 @@ SWAY_YAW = (
 
 
 def _theta(seed=0):
-    return np.random.default_rng(seed).normal(size=len(COEFFICIENTS)) * 5.0
+    """Random coefficients, no offsets or biases."""
+    return np.r_[
+        np.random.default_rng(seed).normal(size=len(COEFFICIENTS)) * 5.0, np.zeros(NTHETA - len(COEFFICIENTS))
+    ]
 
 
 def _row_operation(s, theta, T):

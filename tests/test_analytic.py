@@ -15,10 +15,10 @@ from scipy.integrate import quad
 from testbed.simulation import analytic
 from testbed.analysis.identifiability import structural
 from testbed.cli import main
-from testbed.data import parse_config, read_config
+from testbed.data import ModelConfig, parse_config, read_config
 from testbed.errors import InputError
 from testbed.simulation.plant import Plant
-from testbed.models.linear import COEFFICIENTS, IX, STATES, continuous, structure, theta_vector
+from testbed.models.linear import IX, PARAMETERS, STATES, continuous, structure, theta_vector
 from testbed.simulation.vehicle import added_mass, default_mjcf, load_model
 
 SPEEDS = (20.0, 12.0)
@@ -169,12 +169,13 @@ def test_cli_truth_round_trip(capsys, tmp_path):
     assert main(["analytic", "--speed", "20"]) == 0
     text = capsys.readouterr().out
     config = parse_config(tomllib.loads(text))
-    assert config.coefficients == lin.coefficients and config.vehicle == lin.vehicle
-    assert set(config.coefficients) == set(COEFFICIENTS) and config.free == analytic.FREE
+    assert config.coefficients == ModelConfig(lin.vehicle, lin.coefficients).coefficients  # offsets 0
+    assert config.vehicle == lin.vehicle
+    assert set(config.coefficients) == set(PARAMETERS) and config.free == analytic.FREE
     assert "outside the linear model: " in text and "X_qdot" in text  # terms outside it are in the comments
     out = tmp_path / "model.toml"
     assert main(["analytic", "--speed", "20", "--mjcf", str(default_mjcf()), "--out", str(out)]) == 0
-    assert read_config(out).coefficients == lin.coefficients
+    assert read_config(out).coefficients == ModelConfig(lin.vehicle, lin.coefficients).coefficients
 
 
 def _one_line_error(argv, capsys):

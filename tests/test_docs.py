@@ -82,14 +82,17 @@ def table_rows(text: str) -> list[list[str]]:
 
 
 def test_model_names_in_their_order():
-    from testbed.models.linear import COEFFICIENTS, INPUTS, STATES
+    from testbed.models.linear import COEFFICIENTS, INPUTS, PARAMETERS, STATES
 
     text = page("model.md")
     assert f"`{' '.join(STATES)}`" in text
     assert f"`{' '.join(INPUTS)}`" in text
     names = re.search(r"```\n(.*?)```", section(text, "The 35 coefficients"), re.S).group(1).split()
     assert names == list(COEFFICIENTS)
-    assert missing_tokens(text, COEFFICIENTS + STATES + INPUTS) == []
+    offsets = re.search(r"```\n(.*?)```", section(text, "Constant offsets"), re.S).group(1).split()
+    biases = re.search(r"```\n(.*?)```", section(text, "Output biases"), re.S).group(1).split()
+    assert names + offsets + biases == list(PARAMETERS)
+    assert missing_tokens(text, PARAMETERS + STATES + INPUTS) == []
 
 
 ROWS = {"surge": "u", "sway": "v", "heave": "w", "roll": "p", "pitch": "q", "yaw": "r"}
@@ -98,18 +101,18 @@ ROWS = {"surge": "u", "sway": "v", "heave": "w", "roll": "p", "pitch": "q", "yaw
 def test_model_table_places_every_coefficient_in_its_row():
     """Each row of the equations table names, on its left side, the coefficients of that row of
     Mt and, on its right side, those of that row of At and Bt: no more, no fewer."""
-    from testbed.models.linear import COEFFICIENTS, IX, Vehicle, structure
+    from testbed.models.linear import IX, PARAMETERS, Vehicle, structure
 
     s = structure(Vehicle(30.0, 1.0, 2.0, 3.0, 290.0, 300.0, 0.01, 0.02, -0.03, 1.5))
     rows = {r[0]: r for r in table_rows(section(page("model.md"), "The equations")) if len(r) == 3}
     assert set(ROWS) | {"kinematics"} <= set(rows)
     for row, state in ROWS.items():
         i = IX[state]
-        left = {n for k, n in enumerate(COEFFICIENTS) if s.dMt[k, i].any()}
-        right = {n for k, n in enumerate(COEFFICIENTS) if s.dAt[k, i].any() or s.dBt[k, i].any()}
-        assert {n for n in COEFFICIENTS if mentions(rows[row][1], n)} == left, row
-        assert {n for n in COEFFICIENTS if mentions(rows[row][2], n)} == right, row
-    assert not any(mentions(" ".join(rows["kinematics"]), n) for n in COEFFICIENTS)
+        left = {n for k, n in enumerate(PARAMETERS) if s.dMt[k, i].any()}
+        right = {n for k, n in enumerate(PARAMETERS) if s.dAt[k, i].any() or s.dBt[k, i].any() or s.dSt[k, i]}
+        assert {n for n in PARAMETERS if mentions(rows[row][1], n)} == left, row
+        assert {n for n in PARAMETERS if mentions(rows[row][2], n)} == right, row
+    assert not any(mentions(" ".join(rows["kinematics"]), n) for n in PARAMETERS)
 
 
 def test_model_vehicle_constants():

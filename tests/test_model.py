@@ -4,6 +4,7 @@ import numpy as np
 
 from testbed.models.linear import (
     COEFFICIENTS,
+    NTHETA,
     Vehicle,
     continuous,
     derivatives,
@@ -20,7 +21,7 @@ def test_matrices_match_the_spec_table():
     veh = Vehicle(30.51, 0.177, 3.45, 3.6, 299.0, 306.0, 0.01, 0.002, -0.0196, 1.54)
     c = dict(zip(COEFFICIENTS, np.random.default_rng(1).normal(size=35)))
     m, U, W, B = veh.mass, veh.speed, veh.weight, veh.buoyancy
-    Mt, At, Bt, St = tilde(structure(veh), np.array([c[n] for n in COEFFICIENTS]))
+    Mt, At, Bt, St = tilde(structure(veh), theta_vector(c))
     M, A, Bm, S = np.eye(10), np.zeros((10, 10)), np.zeros((10, 3)), np.zeros(10)
     u, v, w, p, q, r, phi, th, psi, z = range(10)
     M[u, u] = m - c["X_udot"]
@@ -53,12 +54,12 @@ def test_matrices_match_the_spec_table():
 def test_derivatives_against_central_differences():
     veh = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
     s = structure(veh)
-    theta = np.random.default_rng(2).normal(size=35) * 0.2
+    theta = np.random.default_rng(2).normal(size=NTHETA) * 0.2  # the offsets as well
     A, B, S = continuous(s, theta)
     dA, dB, dS = derivatives(s, theta, A, B, S)
     h = 1e-6
-    for i in range(35):
-        e = np.zeros(35)
+    for i in range(NTHETA):
+        e = np.zeros(NTHETA)
         e[i] = h
         (Ap, Bp, Sp), (Am, Bmn, Sm) = continuous(s, theta + e), continuous(s, theta - e)
         np.testing.assert_allclose(dA[i], (Ap - Am) / (2 * h), atol=1e-7)

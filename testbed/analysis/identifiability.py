@@ -17,10 +17,20 @@ import numpy as np
 from testbed.data import ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify, lookup
-from testbed.identification.problem import check_fit
+from testbed.identification.problem import base_name, check_fit, expanded
 from testbed.identification.bounds import crlb, fisher
 from testbed.simulation.measurements import noise_from_data
-from testbed.models.linear import ITHETA, IX, NX, Structure, structure, theta_vector, tilde, unobserved
+from testbed.models.linear import (
+    BIASES,
+    ITHETA,
+    IX,
+    NX,
+    Structure,
+    structure,
+    theta_vector,
+    tilde,
+    unobserved,
+)
 
 __all__ = [
     "Comparison",
@@ -139,6 +149,23 @@ def _groups(names, basis, tol: float = 1e-6) -> tuple[tuple[str, ...], ...]:
     return tuple(tuple(g) for g in groups.values())
 
 
+def _copied(struct: Structural, free: tuple[str, ...]) -> Structural:
+    """`struct`, found for names of a config's free list, for its values `free` (a per-record
+    name once per record; the names `struct` leaves out, outside every direction): a direction no
+    data see moves every record's copy alike."""
+    if free == struct.free:
+        return struct
+    basis = np.zeros((len(struct.basis), len(free)))
+    for j, n in enumerate(free):
+        if base_name(n) in struct.free:
+            basis[:, j] = struct.basis[:, struct.free.index(base_name(n))]
+
+    def copies(names):
+        return tuple(n for n in free if base_name(n) in names)
+
+    return Structural(free, basis, tuple(copies(g) for g in struct.drift_groups), copies(struct.unobserved))
+
+
 # -- practical identifiability and the identifiability report ------------------------------------
 
 CORRELATED = 0.95  # |correlation| above which two coefficients drift together in practice
@@ -197,17 +224,19 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     measurement noise per channel (default: the residual at the config's coefficients)."""
     experiments = config.fitted(experiments)
     F = fisher(experiments, config, noise_std=noise_std)
-    free = tuple(config.free)
+    free = expanded(config, [e.name for e in experiments])[0]
     theta = theta_vector(config.coefficients)
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
-    struct = structural(structure(config.vehicle), theta, free, measured)
+    # the output biases are no part of the equations' structure: no row operation moves them
+    dynamic = tuple(n for n in config.free if n not in BIASES)
+    struct = _copied(structural(structure(config.vehicle), theta, dynamic, measured), free)
     bounds = crlb(F)
     std, corr = bounds.std.copy(), bounds.correlation.copy()
     # a structural drift group has no information at all: infinite bounds, undefined correlations
     drifting = np.array([n in {m for g in struct.drift_groups for m in g} for n in free])
     std[drifting] = np.inf
     corr[drifting, :] = corr[:, drifting] = np.nan
-    values = theta[[ITHETA[n] for n in free]]
+    values = theta[[ITHETA[base_name(n)] for n in free]]
     pairs = np.argwhere(np.triu(np.abs(corr) > CORRELATED, 1))
     practical = (
         _groups(free, np.array([np.eye(len(free))[i] + np.eye(len(free))[j] for i, j in pairs]))
@@ -330,9 +359,10 @@ def screening(experiments, config, options=None, callback=None) -> Screen:
     noise = noise_from_data(config.fitted(experiments), config.noise_std)
     result = identifiability(experiments, config, noise)
     fixed = {
-        n: f"not determined by these data: {why}" for n, why in structurally_unidentified(result).items()
+        n: f"not determined by these data: {why}"
+        for n, why in _by_name(result.free, structurally_unidentified(result)).items()
     }
-    candidates = replace(config, free=tuple(n for n in config.free if n not in fixed))
+    candidates = _without(config, fixed)
     if not candidates.free:
         return Screen(candidates, fixed, None)
     fit = identify(experiments, candidates, method="ml-gn", options=options, callback=callback)
@@ -344,10 +374,32 @@ def screening(experiments, config, options=None, callback=None) -> Screen:
     information = fisher(
         candidates.fitted(experiments), candidates, values=fit.coefficients, noise_std=fit.noise_std
     )
-    prior = [config.coefficients[n] for n in candidates.free]
-    for n, why in insignificant(candidates.free, fit.values, information, prior).items():
+    prior = [config.coefficients[base_name(n)] for n in fit.free]
+    for n, why in _by_name(fit.free, insignificant(fit.free, fit.values, information, prior)).items():
         fixed[n] = f"not determined by these data: {why}"
-    return Screen(replace(config, free=tuple(n for n in config.free if n not in fixed)), fixed, fit)
+    return Screen(_without(config, fixed), fixed, fit)
+
+
+def _by_name(values: tuple[str, ...], fixed: dict[str, str]) -> dict[str, str]:
+    """The names of a config's free list whose every value (`values`: a per-record name once per
+    record) is in `fixed`, name → why, in the order fixed: a per-record name stays free for every
+    record while the data determine it in one."""
+    out = {}
+    for v, why in fixed.items():
+        n = base_name(v)
+        copies = [m for m in values if base_name(m) == n]
+        if n not in out and all(m in fixed for m in copies):
+            out[n] = why if copies == [n] else f"{why} (in every record: {', '.join(copies)})"
+    return out
+
+
+def _without(config: ModelConfig, fixed) -> ModelConfig:
+    """`config` with the names in `fixed` no longer free (nor per record)."""
+    return replace(
+        config,
+        free=tuple(n for n in config.free if n not in fixed),
+        per_record=tuple(n for n in config.per_record if n not in fixed),
+    )
 
 
 def screen(experiments, config):
@@ -396,12 +448,14 @@ def unidentified(experiments, config, noise_std=None) -> dict[str, str]:
     default free set), name → why: stage 1, then stage 2 at the config's coefficients, which a fit
     of such data estimates (on average), with the Fisher information there; no fit needed."""
     result = identifiability(experiments, config, noise_std)
-    fixed = structurally_unidentified(result)
-    rest = replace(config, free=tuple(n for n in config.free if n not in fixed))
+    fixed = _by_name(result.free, structurally_unidentified(result))
+    rest = _without(config, fixed)
     if rest.free:
-        values = [config.coefficients[n] for n in rest.free]
-        information = fisher(rest.fitted(experiments), rest, noise_std=noise_std)
-        fixed.update(insignificant(rest.free, values, information, values))
+        fitted = rest.fitted(experiments)
+        names = expanded(rest, [e.name for e in fitted])[0]
+        values = [config.coefficients[base_name(n)] for n in names]
+        information = fisher(fitted, rest, noise_std=noise_std)
+        fixed.update(_by_name(names, insignificant(names, values, information, values)))
     return fixed
 
 
@@ -529,7 +583,7 @@ def compare(estimate, analytic_config, truth_estimate=None) -> Comparison:
     """Compare an `Estimate` with a model config's coefficients (and a fit to noise-free data,
     used only if it converged)."""
     names = tuple(estimate.free)
-    analytic = np.array([analytic_config.coefficients[n] for n in names])
+    analytic = np.array([analytic_config.coefficients[base_name(n)] for n in names])
     truth, note = None, ""
     if truth_estimate is not None and truth_estimate.converged:
         t = truth_estimate.coefficients

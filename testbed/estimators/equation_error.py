@@ -38,10 +38,9 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
     row that no experiment supports, and directions the data do not excite, keep their a-priori
     values (minimum-norm correction).
     """
-    s, theta = prob.structure, prob.theta
-    fixed = theta.copy()
-    fixed[prob.index] = 0.0
-    Mf, Af, Bf, Sf = tilde(s, fixed)  # known part: constants and fixed coefficients
+    s = prob.structure
+    # each record's known part: constants and fixed coefficients (a record may have its own)
+    known = [tilde(s, prob.coefficients(np.zeros(prob.n_free), r.group)) for r in prob.records]
     values, left = prob.start, {}
     intervals = []  # per record: (ẋ, x, δ) over its sample intervals, or None if too short to smooth
     for r in prob.records:
@@ -53,7 +52,8 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
         # only intervals whose smoothing window lies within the record: the ends would be
         # extrapolated
         xs = np.zeros((n - win + 1, NX))
-        xs[:, r.measured] = smoothed(r.y, win)
+        # the measured states: the data less their output biases (at the a-priori values)
+        xs[:, r.measured] = smoothed(r.y - prob.outputs(r, np.zeros((1, NX)), prob.start), win)
         us = smoothed(r.inputs, win)
         # over each sample interval the input is held: the row equation averaged over it
         # has ẋ = Δx/Δt, x at the midpoint and δ exactly, with no derivative across a step;
@@ -63,22 +63,25 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
         cols = [
             j
             for j, i in enumerate(prob.index)
-            if s.dMt[i, row].any() or s.dAt[i, row].any() or s.dBt[i, row].any()
+            if s.dMt[i, row].any() or s.dAt[i, row].any() or s.dBt[i, row].any() or s.dSt[i, row]
         ]
         if not cols:
             continue
         idx = prob.index[cols]
-        involved = (
-            (Mf[row] != 0) | (Af[row] != 0) | (s.dMt[idx, row] != 0).any(0) | (s.dAt[idx, row] != 0).any(0)
-        )
+        involved = np.any([(Mf[row] != 0) | (Af[row] != 0) for Mf, Af, _, _ in known], axis=0)
+        involved |= (s.dMt[idx, row] != 0).any(0) | (s.dAt[idx, row] != 0).any(0)
         involved[row] = True
         X, Y = [], []
-        for r, record in zip(prob.records, intervals):
+        for r, record, (Mf, Af, Bf, Sf) in zip(prob.records, intervals, known):
             if record is None or not set(np.flatnonzero(involved)) <= set(r.measured):
                 continue
             xdot, x, u = record
-            # Σ_free θ_i (∂Mt_i ẋ − ∂At_i x − ∂Bt_i δ)_row = (At_f x + Bt_f δ + St_f − Mt_f ẋ)_row
-            X.append(xdot @ s.dMt[idx, row].T - x @ s.dAt[idx, row].T - u @ s.dBt[idx, row].T)
+            # Σ_free θ_i (∂Mt_i ẋ − ∂At_i x − ∂Bt_i δ − ∂St_i)_row = (At_f x + Bt_f δ + St_f − Mt_f ẋ)_row,
+            # each record's own values (per record) acting on its rows alone
+            X.append(
+                (xdot @ s.dMt[idx, row].T - x @ s.dAt[idx, row].T - u @ s.dBt[idx, row].T - s.dSt[idx, row])
+                * prob.acting(r.group)[cols]
+            )
             Y.append(x @ Af[row] + u @ Bf[row] + Sf[row] - xdot @ Mf[row])
         if not X:
             needs = tuple(STATES[i] for i in np.flatnonzero(involved))

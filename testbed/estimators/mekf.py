@@ -182,9 +182,11 @@ from testbed.estimators.base import (
     option,
     unphysical,
 )
+from testbed.identification.problem import unbiased
 from testbed.identification.recursions import simulated
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
 from testbed.models.linear import (
+    BIASES,
     IX,
     ITHETA,
     NX,
@@ -825,6 +827,20 @@ def run_filter(
     docstring, "Fixed-interval iterations"). `modified`: centre the Jacobian on a parallel KF
     (square-root only); otherwise on the filter's own estimate."""
     t_start = time.perf_counter()
+    if config.per_record:
+        raise InputError(
+            f"{config.source or 'config'}: [identify] per_record lists {', '.join(config.per_record)}; "
+            f"{method} estimates one value per name over the records in sequence: expected no "
+            "per_record, or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm) or equation-error"
+        )
+    biases = [n for n in config.free if n in BIASES]
+    if biases:
+        raise InputError(
+            f"{config.source or 'config'}: [identify] free lists the output bias {biases[0]}; {method} "
+            "takes the outputs' biases as the config gives them: expected them fixed, or an "
+            "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
+        )
+    experiments = unbiased(experiments, config)
     if options.state_noise is None:
         options = replace(options, state_noise=0.0 if square_root else CONVENTIONAL_FLOOR)
     s = structure(config.vehicle)

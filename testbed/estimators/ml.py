@@ -78,7 +78,7 @@ def _simulate(prob: Problem, p: np.ndarray):
             xs = recursions.states(prob, p)
     except np.linalg.LinAlgError:
         return None
-    out = [x[:, r.measured] for r, x in zip(prob.records, xs)]
+    out = [prob.outputs(r, x, p[: prob.n_free]) for r, x in zip(prob.records, xs)]
     if not np.all(np.isfinite(p)) or likelihood.exploded(prob, out) is not None:
         return None
     return xs, [r.y - y for r, y in zip(prob.records, out)]

@@ -89,7 +89,7 @@ def point(prob: Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Poin
             p, xs = likelihood.fit_initial_states(prob, theta, R, full=True)
     except np.linalg.LinAlgError:
         return None
-    out = [x[:, r.measured] for r, x in zip(prob.records, xs)]
+    out = [prob.outputs(r, x, theta) for r, x in zip(prob.records, xs)]
     if likelihood.exploded(prob, out) is not None:
         return None
     res = [r.y - y for r, y in zip(prob.records, out)]

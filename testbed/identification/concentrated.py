@@ -38,13 +38,13 @@ CONDITION = 1e10
 
 class Cost:
     """`J_M(θ)` of `prob` at the free values with R held, prepared once (the records stacked per
-    sampling interval) for the thousands of calls of a simplex search; each call is one compiled
+    model they share, `Problem.key`) for the thousands of calls of a simplex search; each call is one compiled
     pass per sampling interval (`kernels.concentrated_sse`)."""
 
     def __init__(self, prob: Problem):
         self.prob, self.groups = prob, []
-        for dt in dict.fromkeys(r.dt for r in prob.records):
-            records = [r for r in prob.records if r.dt == dt]
+        for key in dict.fromkeys(prob.key(r) for r in prob.records):
+            records = [r for r in prob.records if prob.key(r) == key]
             starts = np.cumsum([0] + [len(r.y) for r in records])
             measured = np.zeros((len(records), NX), dtype=np.int64)
             y = np.zeros((starts[-1], NX))
@@ -53,7 +53,7 @@ class Cost:
                 y[starts[k] : starts[k + 1], : len(r.measured)] = r.y
             inputs = np.ascontiguousarray(np.concatenate([r.inputs for r in records]), dtype=float)
             counts = np.array([len(r.measured) for r in records], dtype=np.int64)
-            self.groups.append((dt, records, starts, measured, counts, y, inputs))
+            self.groups.append((key, records, starts, measured, counts, y, inputs))
 
     def __call__(self, values: np.ndarray, R: np.ndarray) -> float:
         """`J_M = 1/N Σ eᵀR⁻¹e` at the free `values`; ∞ for an invalid model (singular Mt, or
@@ -68,8 +68,13 @@ class Cost:
         try:
             with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
                 models = discrete_models(prob, values, 0)
-                for dt, records, starts, measured, counts, y, inputs in self.groups:
-                    E = models[dt].E
+                for key, records, starts, measured, counts, y, inputs in self.groups:
+                    E = models[key].E
+                    if prob.biased:  # the measured states: the data less their output biases
+                        y = y.copy()
+                        zero = np.zeros((1, NX))
+                        for k, r in enumerate(records):
+                            y[starts[k] : starts[k + 1], : len(r.measured)] -= prob.outputs(r, zero, values)
                     W = np.zeros((len(records), NX))
                     for k, r in enumerate(records):
                         W[k, : len(r.channels)] = 1.0 / R[r.channels]

@@ -109,7 +109,7 @@ def gauss_newton_terms(
         e, cols = e / np.sqrt(R[r.channels]), prob.columns(r)
         gr, Mr = np.zeros(len(cols)), np.zeros((len(cols), len(cols)))
         for channels, params, pieces in sensitivity_parts(
-            prob, r, models[r.dt], x, r.measured, channel_weights(r, R), scan.PIECE
+            prob, r, models[prob.key(r)], x, r.measured, channel_weights(r, R), scan.PIECE
         ):
             ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
             for samples, S in pieces:
@@ -141,7 +141,9 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
         edges = np.linspace(0, n, pieces + 1).round().astype(int)
         for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
             name = r.name if pieces == 1 else f"{r.name}[{j}]"
-            records.append(Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset))
+            records.append(
+                Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset, r.group)
+            )
             offset += len(r.measured)
     return replace(prob, records=tuple(records))
 
@@ -188,8 +190,11 @@ def fit_initial_states(
     simulated(prob.n_samples)  # one simulation: the responses to x0 are linear in it
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
     factors = []  # per record: (k, k + 1, k + 1) upper-triangular factors of [G_c v_c], channel c
-    for r in prob.records:
-        d, k = models[r.dt], len(r.measured)
+    zero = np.zeros((1, NX))
+    # the measured states: the data less their output biases
+    ys = [r.y - prob.outputs(r, zero, values) for r in prob.records]
+    for r, y in zip(prob.records, ys):
+        d, k = models[prob.key(r)], len(r.measured)
         T = np.zeros((k, k + 1, k + 1))
         u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
         Phi, forcing = d.E[:, :NX], d.E[:, NX:]
@@ -213,7 +218,7 @@ def fit_initial_states(
                 block[:, : k + 1] = T[channels]
                 with np.errstate(over="ignore", invalid="ignore"):
                     block[:, k + 1 :, cols] = np.concatenate(
-                        [Y[:, :, 1:], (r.y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
+                        [Y[:, :, 1:], (y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
                     )
                 if not np.all(np.isfinite(block)):
                     finite = False
@@ -228,10 +233,10 @@ def fit_initial_states(
         residual sums of squares there: min Σ_c ‖(G_c x − v_c)‖²/R_c = Σ_c ‖U_c x − z_c‖²/R_c + ρ_c²/R_c
         with [U_c z_c; 0 ρ_c] channel c's factor."""
         sums = []
-        for r, T in zip(prob.records, factors):
+        for r, T, y in zip(prob.records, factors, ys):
             k = len(r.measured)
             if T is None:
-                p[r.offset : r.offset + k] = r.y[0]
+                p[r.offset : r.offset + k] = y[0]
                 sums.append(np.full(k, np.inf))
                 continue
             w = variance(r) ** -0.5
@@ -253,8 +258,8 @@ def fit_initial_states(
                 break
     else:
         solve(lambda r: R[r.channels])
-    xs = [trajectory(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
-    return p, xs if full else [x[:, r.measured] for r, x in zip(prob.records, xs)]
+    xs = [trajectory(r, models[prob.key(r)], prob.x0(r, p)) for r in prob.records]
+    return p, xs if full else [prob.outputs(r, x, values) for r, x in zip(prob.records, xs)]
 
 
 def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = None) -> np.ndarray:

@@ -15,7 +15,7 @@ The outputs are the measured states, `u` as the perturbation u_abs − U.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -23,6 +23,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
 from testbed.models.linear import (
+    IBIAS,
     ITHETA,
     IX,
     NX,
@@ -35,7 +36,18 @@ from testbed.models.linear import (
     unobserved,
 )
 
-__all__ = ["COARSEST", "Problem", "Record", "check_fit", "check_inputs", "free_values", "problem"]
+__all__ = [
+    "COARSEST",
+    "Problem",
+    "Record",
+    "base_name",
+    "check_fit",
+    "check_inputs",
+    "expanded",
+    "free_values",
+    "problem",
+    "unbiased",
+]
 
 
 @dataclass(frozen=True)
@@ -49,6 +61,7 @@ class Record:
     channels: np.ndarray  # (k,) indexes into Problem.channels
     dt: float
     offset: int  # where this experiment's initial state starts in p
+    group: int = 0  # which experiment it is (its segments share it): the owner of per-record values
 
 
 @dataclass(frozen=True)
@@ -56,14 +69,36 @@ class Problem:
     """Experiments and model config, checked and converted once for the numerical core."""
 
     structure: Structure
-    theta: np.ndarray  # (35,) the config's coefficients (free ones: the a-priori start)
-    free: tuple[str, ...]
-    index: np.ndarray  # (n_free,) positions of `free` in COEFFICIENTS
+    theta: np.ndarray  # (41,) the config's parameters (free ones: the a-priori start)
+    free: tuple[str, ...]  # a per-record value is named `name[experiment]`
+    index: np.ndarray  # (n_free,) positions of `free` in PARAMETERS
     records: tuple[Record, ...]
     channels: tuple[str, ...]  # the measured states of all experiments, STATES order
     speed: float
     source: str
     known: np.ndarray | None = None  # (len(channels),) R where [identify] noise_std gives it, else NaN
+    # (n_free,) the record group owning each free value (`[identify] per_record`), −1 where shared
+    owner: np.ndarray | None = None
+    # (n_groups, 41) each record group's own θ where the config gives some records their own
+    # values (`ModelConfig.record_values`), else None: every record has `theta`
+    thetas: np.ndarray | None = None
+
+    @property
+    def per_record(self) -> bool:
+        """Whether the records' models differ: some free values, or fixed values, are a
+        record's own."""
+        return self.thetas is not None or (self.owner is not None and bool(np.any(self.owner >= 0)))
+
+    def key(self, record: Record):
+        """Which discrete model `record` is simulated with: one per sampling interval, and per
+        record group where the records' models differ."""
+        return (record.dt, record.group) if self.per_record else record.dt
+
+    def acting(self, group: int) -> np.ndarray:
+        """(n_free,) bool: the free values that act on the records of `group`."""
+        if self.owner is None:
+            return np.ones(self.n_free, dtype=bool)
+        return (self.owner < 0) | (self.owner == group)
 
     @property
     def n_free(self) -> int:
@@ -79,17 +114,37 @@ class Problem:
 
     @property
     def start(self) -> np.ndarray:
-        return self.theta[self.index].copy()
+        """The free values' a-priori values: a per-record one its record's."""
+        if self.thetas is None or self.owner is None:
+            return self.theta[self.index].copy()
+        return np.where(self.owner < 0, self.theta[self.index], self.thetas[self.owner, self.index])
 
-    def coefficients(self, values: np.ndarray) -> np.ndarray:
-        """The full (35,) coefficient vector with the free ones set to `values`."""
-        theta = self.theta.astype(np.result_type(self.theta, values))
-        theta[self.index] = values
+    def coefficients(self, values: np.ndarray, group: int | None = None) -> np.ndarray:
+        """The full (41,) parameter vector θ with the free ones set to `values`: the shared ones,
+        and the per-record ones of record group `group` (None: the shared ones only)."""
+        own = self.theta if group is None or self.thetas is None else self.thetas[group]
+        theta = own.astype(np.result_type(own, values))
+        acting = self.acting(-1 if group is None else group)
+        theta[self.index[acting]] = np.asarray(values)[acting]
         return theta
 
     def columns(self, record: Record) -> np.ndarray:
         """Where the record's own parameters (the free coefficients, its x0) sit in p."""
         return np.r_[: self.n_free, record.offset : record.offset + len(record.measured)]
+
+    @property
+    def biased(self) -> bool:
+        """Whether some output bias is free or nonzero: the outputs are then not the states."""
+        thetas = self.theta[None] if self.thetas is None else self.thetas
+        return bool(np.any(thetas[:, IBIAS]) or np.isin(self.index, IBIAS).any())
+
+    def outputs(self, record: Record, x: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """The record's model outputs (N, k) from its states `x` (N, 10) at the free `values`:
+        the measured states plus their output biases, y = x + b."""
+        y = x[:, record.measured]
+        if not self.biased:
+            return y
+        return y + self.coefficients(values, record.group)[IBIAS[record.measured]]
 
     def x0(self, record: Record, p: np.ndarray) -> np.ndarray:
         """The record's full initial state (10,) from the parameter vector."""
@@ -160,8 +215,9 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
     where = config.source or "config"
     theta = theta_vector(config.coefficients)
     channels = tuple(s for s in STATES if any(s in e.measured for e in experiments))
-    records, offset = [], len(config.free)
-    for e in experiments:
+    free, owner = expanded(config, [e.name for e in experiments])
+    records, offset = [], len(free)
+    for j, e in enumerate(experiments):
         y, inputs, t = (np.asarray(a, dtype=float) for a in (e.y, e.inputs, e.t))
         measured = np.array([IX[s] for s in e.measured])
         y = y.copy()
@@ -176,21 +232,56 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
                 np.array([channels.index(s) for s in e.measured]),
                 float(t[1] - t[0]),
                 offset,
+                j,
             )
         )
         offset += len(measured)
-    index = np.array([ITHETA[n] for n in config.free], dtype=int)
+    index = np.array([ITHETA[base_name(n)] for n in free], dtype=int)
+    own = [e.name in config.record_values for e in experiments]
+    thetas = (
+        np.array([theta_vector(config.record_coefficients(e.name)) for e in experiments])
+        if any(own)
+        else None
+    )
     return Problem(
         structure(config.vehicle),
         theta,
-        tuple(config.free),
+        free,
         index,
         tuple(records),
         channels,
         config.vehicle.speed,
         where,
         np.array([(config.noise_std or {}).get(c, np.nan) ** 2 for c in channels]),
+        owner,
+        thetas,
     )
+
+
+def unbiased(experiments: Sequence[Experiment], config: ModelConfig) -> list[Experiment]:
+    """The experiments with the config's output biases taken off their measured states (each
+    record's own, `ModelConfig.record_coefficients`): y − b, the states the filters take as
+    measured."""
+    out = []
+    for e in experiments:
+        b = theta_vector(config.record_coefficients(e.name))[IBIAS[[IX[s] for s in e.measured]]]
+        out.append(replace(e, y=np.asarray(e.y, dtype=float) - b) if np.any(b) else e)
+    return out
+
+
+def expanded(config: ModelConfig, names: Sequence[str]) -> tuple[tuple[str, ...], np.ndarray]:
+    """The free values of a problem of `config` on records named `names`, in the order of p: the
+    shared names of `config.free`, then each `[identify] per_record` name once per record
+    (`name[record]`); and each one's owner, the record's index (−1 where shared)."""
+    shared = tuple(n for n in config.free if n not in config.per_record)
+    free = shared + tuple(f"{n}[{name}]" for n in config.per_record for name in names)
+    owner = [-1] * len(shared) + [j for _ in config.per_record for j in range(len(names))]
+    return free, np.array(owner, dtype=int)
+
+
+def base_name(name: str) -> str:
+    """The coefficient or offset a free value is of: `N_0` for `N_0[zigzag-port]`."""
+    return name.split("[", 1)[0]
 
 
 def free_values(prob: Problem, values: Mapping[str, float] | np.ndarray | None) -> np.ndarray:

@@ -21,7 +21,7 @@ import numpy as np
 
 from testbed.identification import scan
 from testbed.identification.problem import Problem, Record
-from testbed.models.linear import NU, NX, continuous, derivatives, discretize, expm_pair, tilde
+from testbed.models.linear import IBIAS, NU, NX, continuous, derivatives, discretize, expm_pair, tilde
 
 __all__ = [
     "NW",
@@ -76,27 +76,31 @@ class Discrete:
     d2E: np.ndarray | None = None  # (n_free, n_free, 10, 14)
 
 
-def discrete(prob: Problem, values: np.ndarray, dt: float, order: int = 0) -> Discrete:
-    """The ZOH model at the free `values` and its first (`order` ≥ 1) and second derivatives.
+def discrete(
+    prob: Problem, values: np.ndarray, dt: float, order: int = 0, group: int | None = None
+) -> Discrete:
+    """The ZOH model at the free `values` and its first (`order` ≥ 1) and second derivatives,
+    for the records of `group` (their own per-record values; the others' derivatives are zero).
 
     With `F(θ)` the augmented matrix [[A, B, S], [0, 0, 0]], `E = exp(F Δ)`; its derivatives are
     the top-right blocks of the exponentials of block-triangular matrices (Van Loan /
     Najfeld-Havel, `expm_pair`), all at once, with
     `∂²[A B S]/∂θ_i∂θ_j = −Mt⁻¹(∂Mt_i ∂[A B S]_j + ∂Mt_j ∂[A B S]_i)` (Mt, At affine in θ).
     """
-    s, theta = prob.structure, prob.coefficients(values)
+    s, theta = prob.structure, prob.coefficients(values, group)
     A, B, S = continuous(s, theta)
     if order == 0 or prob.n_free == 0:
         return Discrete(np.column_stack(discretize(A, B, S, dt)))
-    nf = prob.n_free
+    nf, acting = prob.n_free, prob.acting(-1 if group is None else group)
     dA, dB, dS = derivatives(s, theta, A, B, S, prob.index)
     dABS = np.concatenate([dA, dB, dS[:, :, None]], axis=2)  # (nf, 10, 14)
+    dABS[~acting] = 0.0  # another record's own values do not move this one's model
     ABS = np.column_stack([A, B, S])
     if order == 1:
         E, dE = expm_pair(ABS, dABS.transpose(1, 0, 2), dt)
         return Discrete(E, dE.transpose(1, 0, 2))
     Mt = tilde(s, theta)[0]
-    G = np.einsum("iab,jbc->ijac", s.dMt[prob.index], dABS)
+    G = np.einsum("iab,jbc->ijac", s.dMt[prob.index] * acting[:, None, None], dABS)
     iu, ju = np.triu_indices(nf)
     d2ABS = -np.linalg.solve(Mt[None], (G + G.transpose(1, 0, 2, 3))[iu, ju])  # (pairs, 10, 14)
     E, dE, block = expm_pair(ABS, dABS.transpose(1, 0, 2), dt, (d2ABS, iu, ju))
@@ -106,9 +110,11 @@ def discrete(prob: Problem, values: np.ndarray, dt: float, order: int = 0) -> Di
     return Discrete(E, dE.transpose(1, 0, 2), d2E)
 
 
-def discrete_models(prob: Problem, values: np.ndarray, order: int) -> dict[float, Discrete]:
-    """`discrete` at the free `values` for each sampling interval of the records."""
-    return {dt: discrete(prob, values, dt, order) for dt in {r.dt for r in prob.records}}
+def discrete_models(prob: Problem, values: np.ndarray, order: int) -> dict:
+    """`discrete` at the free `values` for each model the records need (`Problem.key`: each
+    sampling interval, and each record group where some free values are per record)."""
+    keys = {prob.key(r): r for r in prob.records}
+    return {key: discrete(prob, values, r.dt, order, r.group) for key, r in keys.items()}
 
 
 def trajectory(record: Record, d: Discrete, x0: np.ndarray) -> np.ndarray:
@@ -125,12 +131,12 @@ def states(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Simulated states (N, 10) per experiment at the parameter vector `p` (u as a perturbation)."""
     models = discrete_models(prob, p[: prob.n_free], 0)
     simulated(prob.n_samples)
-    return [trajectory(r, models[r.dt], prob.x0(r, p)) for r in prob.records]
+    return [trajectory(r, models[prob.key(r)], prob.x0(r, p)) for r in prob.records]
 
 
 def outputs(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Model outputs (N, k) per experiment at the parameter vector `p` (u as a perturbation)."""
-    return [x[:, r.measured] for r, x in zip(prob.records, states(prob, p))]
+    return [prob.outputs(r, x, p[: prob.n_free]) for r, x in zip(prob.records, states(prob, p))]
 
 
 def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
@@ -139,20 +145,34 @@ def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
 
 
 def sensitivity_parts(
-    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray, size: int
+    prob: Problem,
+    record: Record,
+    d: Discrete,
+    x: np.ndarray,
+    rows,
+    scale: np.ndarray,
+    size: int,
+    biases: bool = True,
 ) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:
-    """`scale[c] ∂x_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
+    """`scale[c] ∂y_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
     states `x` (N, 10), for each `uncoupled` part of the model: (channels, params, pieces), the
     pieces as in `scan.pieces` with (T, len(channels), len(params)) arrays; `channels` index `rows`,
-    `params` p. Sensitivities across the parts are zero and not given.
+    `params` p. Sensitivities across the parts are zero and not given. `y` is the state plus its
+    output bias where `biases`, else the state itself.
 
-    ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ.
+    ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ; ∂y_c/∂b_c = 1.
     """
     nf, rows = prob.n_free, np.asarray(rows)
     dtype = np.result_type(x, d.E)  # complex under the complex-step tests
     w, Phi = _w(x, record.inputs), d.E[:, :NX]
     dE = d.dE if nf else np.zeros((0, NX, NW), dtype=dtype)
+    # the free output biases acting on this record: each on its own state's output
+    bias = np.full(nf, -1)
+    if biases:
+        is_bias = np.isin(prob.index, IBIAS) & prob.acting(record.group)
+        bias[is_bias] = prob.index[is_bias] - IBIAS[0]
     acts = np.column_stack([dE.any(axis=2).T, np.eye(NX, dtype=bool)[:, record.measured]])
+    acts[bias[bias >= 0], np.flatnonzero(bias >= 0)] = True
     for states, params, channels in uncoupled(Phi != 0, acts, rows):
         at = np.full(NX, -1)
         at[states] = np.arange(len(states))
@@ -160,11 +180,19 @@ def sensitivity_parts(
         X = np.zeros((len(states), len(params)), dtype=dtype)  # the θ columns first
         X[at[record.measured[x0 - nf]], len(theta) + np.arange(len(x0))] = 1.0
         D = dE[theta][:, states, :].transpose(1, 0, 2).reshape(-1, NW)  # rows: (state, θ)
-        yield (
-            channels,
-            params,
-            scan.pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]], scale[channels], size),
-        )
+        pieces = scan.pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]], scale[channels], size)
+        # the biases: no dynamics (their columns of X stay zero), 1 on their own output
+        direct = [(c, j) for j, i in enumerate(theta) for c in np.flatnonzero(rows[channels] == bias[i])]
+        yield channels, params, pieces if not direct else _biased(pieces, direct, scale[channels])
+
+
+def _biased(pieces, direct, scale):
+    """`pieces` with `S[c, :, j] = scale[c]` for each (c, j) in `direct`: an output bias's
+    sensitivity, 1 on its own output (weighted), wherever the state's is zero."""
+    for samples, S in pieces:
+        for c, j in direct:
+            S[c, :, j] = scale[c]
+        yield samples, S
 
 
 def uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
@@ -193,11 +221,11 @@ def uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
 
 
 def _sensitivities(
-    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray
+    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray, biases: bool = True
 ) -> np.ndarray:
     """All of `sensitivity_parts` at once: (N, len(rows), q)."""
     S = np.zeros((len(x), len(rows), prob.n_free + len(record.measured)), dtype=np.result_type(x, d.E))
-    for channels, params, pieces in sensitivity_parts(prob, record, d, x, rows, scale, len(x)):
+    for channels, params, pieces in sensitivity_parts(prob, record, d, x, rows, scale, len(x), biases):
         for samples, piece in pieces:
             S[np.ix_(samples, channels, params)] = piece.transpose(1, 0, 2)
     return S
@@ -212,7 +240,7 @@ def sensitivities(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray] | None 
     xs = states(prob, p) if xs is None else xs
     simulated(prob.n_samples * prob.n_free)
     return [
-        _sensitivities(prob, r, models[r.dt], x, r.measured, np.ones(len(r.measured)))
+        _sensitivities(prob, r, models[prob.key(r)], x, r.measured, np.ones(len(r.measured)))
         for r, x in zip(prob.records, xs)
     ]
 
@@ -236,9 +264,9 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
     nf, H = prob.n_free, np.zeros((prob.n_params, prob.n_params), dtype=p.dtype)
     simulated(prob.n_samples * (1 + nf))  # the states and their sensitivities, for the adjoint
     for r, wr in zip(prob.records, weights):
-        d = models[r.dt]
+        d = models[prob.key(r)]
         x = trajectory(r, d, prob.x0(r, p))
-        w, X = _w(x, r.inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX))
+        w, X = _w(x, r.inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX), biases=False)
         a = np.zeros((len(w), NX), dtype=np.result_type(wr, p))
         a[:, r.measured] = wr
         Phi = d.E[:, :NX]

@@ -1,7 +1,8 @@
 """The paper's linear model (docs/model.md): `Mt ẋ = At x + Bt δ + St`.
 
-Every matrix is affine in the 35 coefficients, so the model is held as a constant part plus one
-derivative matrix per coefficient (`Structure`); `tilde` evaluates it, `continuous` gives
+Every matrix is affine in the 35 coefficients and the 6 constant offsets (`PARAMETERS`, which
+also holds the outputs' 10 biases), so the model is held as a constant part plus one derivative
+matrix per parameter (`Structure`); `tilde` evaluates it, `continuous` gives
 `A = Mt⁻¹At, B = Mt⁻¹Bt, S = Mt⁻¹St`, and `discretize` gives the exact zero-order-hold model
 through the block-matrix exponential (valid for singular A: ψ and z are pure integrators);
 `expm_pair` gives it with its exact first and second derivatives.
@@ -18,6 +19,8 @@ import numpy as np
 __all__ = [
     "COEFFICIENTS",
     "INPUTS",
+    "BIASES",
+    "IBIAS",
     "ITHETA",
     "IX",
     "MAX_SPEED",
@@ -25,6 +28,8 @@ __all__ = [
     "NTHETA",
     "NU",
     "NX",
+    "OFFSETS",
+    "PARAMETERS",
     "STATES",
     "Structure",
     "Vehicle",
@@ -79,13 +84,23 @@ COEFFICIENTS = (
     "N_r",
     "N_dr",
 )
-NX, NU, NTHETA = len(STATES), len(INPUTS), len(COEFFICIENTS)
+# Constant force and moment offsets per body row (N, N m): what a trial's imperfections add to
+# the right side and no coefficient carries (a fin's zero error times its control derivative, a
+# propeller's torque, a weight or centre-of-gravity error, a steady current's drag). They enter
+# St; a config leaves them 0 and fixed unless it names them.
+OFFSETS = ("X_0", "Y_0", "Z_0", "K_0", "M_0", "N_0")
+# Output biases (SI, per state): a sensor's constant error, y = x + b. They act on the outputs,
+# not on the motion: every derivative matrix is zero for them.
+BIASES = tuple(f"b_{s}" for s in STATES)
+PARAMETERS = COEFFICIENTS + OFFSETS + BIASES  # the model's parameter vector θ, in this order
+NX, NU, NTHETA = len(STATES), len(INPUTS), len(PARAMETERS)
 MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
 # m/s: Mach 0.3 in water (sound: ~1500 m/s); beyond it no incompressible fluid model (MuJoCo's,
 # the paper's) holds, and near 1e150 the fluid terms overflow
 MAX_SPEED = 450.0
 IX = {name: i for i, name in enumerate(STATES)}
-ITHETA = {name: i for i, name in enumerate(COEFFICIENTS)}
+ITHETA = {name: i for i, name in enumerate(PARAMETERS)}
+IBIAS = np.array([ITHETA[b] for b in BIASES])  # θ[IBIAS]: the output biases in state order
 
 # Where each coefficient sits: (matrix, row, column, factor); Mt entries carry a minus sign.
 _PLACES = {
@@ -124,6 +139,8 @@ _PLACES = {
     "N_p": [("At", "r", "p", 1)],
     "N_r": [("At", "r", "r", 1)],
     "N_dr": [("Bt", "r", 0, 1)],
+    **{name: [("St", row, None, 1)] for name, row in zip(OFFSETS, ("u", "v", "w", "p", "q", "r"))},
+    **{name: [] for name in BIASES},
 }
 
 
@@ -155,10 +172,10 @@ class Structure:
     At0: np.ndarray
     Bt0: np.ndarray
     St0: np.ndarray
-    dMt: np.ndarray = field(repr=False)  # (35, 10, 10)
-    dAt: np.ndarray = field(repr=False)  # (35, 10, 10)
-    dBt: np.ndarray = field(repr=False)  # (35, 10, 3)
-    dSt: np.ndarray = field(repr=False)  # (35, 10), all zero: restoring terms are known
+    dMt: np.ndarray = field(repr=False)  # (51, 10, 10)
+    dAt: np.ndarray = field(repr=False)  # (51, 10, 10)
+    dBt: np.ndarray = field(repr=False)  # (51, 10, 3)
+    dSt: np.ndarray = field(repr=False)  # (51, 10): the offsets; the restoring terms are known
 
 
 def structure(vehicle: Vehicle) -> Structure:
@@ -186,23 +203,32 @@ def structure(vehicle: Vehicle) -> Structure:
         At0[i[angle], i[rate]] = 1.0
     At0[i["z"], i["w"]] = 1.0
     At0[i["z"], i["theta"]] = -U
-    d = {"Mt": np.zeros((NTHETA, NX, NX)), "At": np.zeros((NTHETA, NX, NX)), "Bt": np.zeros((NTHETA, NX, NU))}
-    for k, name in enumerate(COEFFICIENTS):
+    d = {
+        "Mt": np.zeros((NTHETA, NX, NX)),
+        "At": np.zeros((NTHETA, NX, NX)),
+        "Bt": np.zeros((NTHETA, NX, NU)),
+        "St": np.zeros((NTHETA, NX)),
+    }
+    for k, name in enumerate(PARAMETERS):
         for matrix, row, col, factor in _PLACES[name]:
-            d[matrix][k, i[row], col if isinstance(col, int) else i[col]] = factor
-    return Structure(Mt0, At0, np.zeros((NX, NU)), St0, d["Mt"], d["At"], d["Bt"], np.zeros((NTHETA, NX)))
+            if col is None:
+                d[matrix][k, i[row]] = factor
+            else:
+                d[matrix][k, i[row], col if isinstance(col, int) else i[col]] = factor
+    return Structure(Mt0, At0, np.zeros((NX, NU)), St0, d["Mt"], d["At"], d["Bt"], d["St"])
 
 
 def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
-    """The 35 coefficients in `COEFFICIENTS` order; a missing name is 0."""
-    unknown = set(coefficients) - set(COEFFICIENTS)
+    """θ: the 35 coefficients, the 6 offsets and the 10 output biases in `PARAMETERS` order; a
+    missing name is 0."""
+    unknown = set(coefficients) - set(PARAMETERS)
     if unknown:
         raise KeyError(f"unknown coefficient {sorted(unknown)[0]!r}")
-    return np.array([float(coefficients.get(n, 0.0)) for n in COEFFICIENTS])
+    return np.array([float(coefficients.get(n, 0.0)) for n in PARAMETERS])
 
 
 def tilde(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`Mt, At, Bt, St` at the full coefficient vector `theta` (35,)."""
+    """`Mt, At, Bt, St` at the full parameter vector `theta` (51,)."""
     return (
         s.Mt0 + (theta @ s.dMt.reshape(len(s.dMt), -1)).reshape(s.Mt0.shape),
         s.At0 + (theta @ s.dAt.reshape(len(s.dAt), -1)).reshape(s.At0.shape),
@@ -364,7 +390,8 @@ def fastest_rate(s: Structure, theta: np.ndarray) -> float:
 
 def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ...]:
     """The coefficients among `free` on which no `measured` state depends, whatever the free
-    values: they cannot be identified from these measurements at all.
+    values (and the output biases of states not measured): they cannot be identified from these
+    measurements at all.
 
     A coefficient enters some rows of `Mt ẋ = At x + Bt δ`; Mt⁻¹ spreads a row to the rows
     coupled with it through Mt (either way: an over-estimate), and At carries a state into the
@@ -384,7 +411,11 @@ def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ..
     seen[[IX[n] for n in measured]] = True
     out = []
     for n, i in zip(free, idx):
-        rows = s.dMt[i].any(1) | s.dAt[i].any(1) | s.dBt[i].any(1)
+        if n in BIASES:  # a bias is seen in its own output alone
+            if n[2:] not in measured:
+                out.append(n)
+            continue
+        rows = s.dMt[i].any(1) | s.dAt[i].any(1) | s.dBt[i].any(1) | (s.dSt[i] != 0)
         reached = coupled[:, rows].any(1)
         for _ in range(NX):
             reached = reached | spread[:, reached].any(1)

@@ -32,7 +32,18 @@ import numpy as np
 
 from testbed.data import ModelConfig, config_text
 from testbed.errors import atomic_write_text, check_outputs
-from testbed.models.linear import COEFFICIENTS, INPUTS, IX, NU, NX, STATES, Vehicle, structure, tilde
+from testbed.models.linear import (
+    COEFFICIENTS,
+    INPUTS,
+    IX,
+    NU,
+    NX,
+    STATES,
+    Vehicle,
+    structure,
+    theta_vector,
+    tilde,
+)
 from testbed.simulation.plant import Plant
 from testbed.simulation.vehicle import (
     FINS,
@@ -271,7 +282,7 @@ def analytic_model(model: mujoco.MjModel, speed: float) -> LinearModel:
 
     coefficients = _project(Mt, At, Bt, vehicle)
     s = structure(vehicle)
-    Mt_s, At_s, Bt_s, St_s = tilde(s, np.array([coefficients[n] for n in COEFFICIENTS]))
+    Mt_s, At_s, Bt_s, St_s = tilde(s, theta_vector(coefficients))
     sol = np.linalg.solve(Mt, np.column_stack([At, Bt]))
     outside = _outside(
         Mt - Mt_s,
