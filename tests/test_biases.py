@@ -58,7 +58,11 @@ def test_the_simplex_cost_with_biases_is_the_qr_likelihood():
     values = prob.start.copy()
     values[prob.free.index("b_v")], values[prob.free.index("b_r[turn-1]")] = 0.02, -0.003
     R = np.full(len(prob.channels), 1e-4)
-    assert concentrated.Cost(prob)(values, R) == pytest.approx(concentrated._by_qr(prob, values, R), rel=1e-9)
+    out = likelihood.fit_initial_states(prob, values, R)[1]  # x0 by QR factors, the outputs there
+    qr = (
+        sum(float(np.sum((r.y - y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out)) / prob.n_samples
+    )
+    assert concentrated.Cost(prob)(values, R) == pytest.approx(qr, rel=1e-9)
 
 
 def test_each_record_s_biases_are_recovered_where_a_model_without_them_is_biased():
@@ -90,7 +94,7 @@ def test_a_bias_the_config_gives_is_taken_off_the_data():
         np.testing.assert_allclose(est.values, [truth[n] for n in est.free], rtol=0.02, err_msg=method)
 
 
-def test_the_filters_refuse_a_free_bias_and_the_screen_fixes_a_heading_bias():
+def test_the_filters_and_ml_fem_refuse_a_free_bias_and_the_screen_fixes_a_heading_bias():
     from testbed.analysis.identifiability import screening
 
     data = _biased(_turns((FIN_OFFSET, -FIN_OFFSET), duration=20.0), BIASES)
@@ -99,6 +103,13 @@ def test_the_filters_refuse_a_free_bias_and_the_screen_fixes_a_heading_bias():
             InputError, match=r"free lists the output bias b_r; .* expected them fixed"
         ) as exc:
             identify(data, _start(LATERAL + ("b_r",)), method=method)
+        assert "\n" not in str(exc.value)
+    for config, words in (
+        (_start(LATERAL + ("b_r",)), r"frees b_r as an output bias; ml-fem"),
+        (_start(LATERAL + ("N_0",), ("N_0",)), r"frees N_0 per record; ml-fem"),
+    ):
+        with pytest.raises(InputError, match=words) as exc:
+            identify(data, config, method="ml-fem")
         assert "\n" not in str(exc.value)
     s = screening(data, _start(LATERAL + ("b_psi",)))
     assert "b_psi" in s.fixed and "singular" in s.fixed["b_psi"]  # the same as another initial heading

@@ -840,7 +840,7 @@ def run_filter(
             "takes the outputs' biases as the config gives them: expected them fixed, or an "
             "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
-    experiments = unbiased(experiments, config)
+    experiments, config = unbiased(experiments, config)
     if options.state_noise is None:
         options = replace(options, state_noise=0.0 if square_root else CONVENTIONAL_FLOOR)
     s = structure(config.vehicle)

@@ -23,6 +23,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
 from testbed.models.linear import (
+    BIASES,
     IBIAS,
     ITHETA,
     IX,
@@ -258,15 +259,17 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
     )
 
 
-def unbiased(experiments: Sequence[Experiment], config: ModelConfig) -> list[Experiment]:
+def unbiased(experiments: Sequence[Experiment], config: ModelConfig) -> tuple[list[Experiment], ModelConfig]:
     """The experiments with the config's output biases taken off their measured states (each
-    record's own, `ModelConfig.record_coefficients`): y − b, the states the filters take as
-    measured."""
+    record's own, `ModelConfig.record_coefficients`), y − b, and the config without them: for
+    the methods that take the outputs as the states (the filters)."""
     out = []
     for e in experiments:
         b = theta_vector(config.record_coefficients(e.name))[IBIAS[[IX[s] for s in e.measured]]]
         out.append(replace(e, y=np.asarray(e.y, dtype=float) - b) if np.any(b) else e)
-    return out
+    zero = dict.fromkeys(BIASES, 0.0)
+    records = {name: {**values, **zero} for name, values in config.record_values.items()}
+    return out, replace(config, coefficients={**config.coefficients, **zero}, record_values=records)
 
 
 def expanded(config: ModelConfig, names: Sequence[str]) -> tuple[tuple[str, ...], np.ndarray]:
