@@ -24,12 +24,12 @@ import numpy as np
 
 from testbed.errors import InputError, atomic_write_text
 from testbed.models.linear import (
-    BIASES,
     COEFFICIENTS,
     INPUTS,
     MAX_SPEED,
     MIN_SPEED,
     OFFSETS,
+    OUTPUT_TERMS,
     PARAMETERS,
     STATES,
     Vehicle,
@@ -456,7 +456,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     for key, v in doc["coefficients"].items():
         if key not in coefficients:
             raise InputError(
-                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets or 10 output biases (docs/model.md)"
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases or the current (docs/model.md)"
             )
         coefficients[key] = number(v, f"{source}: [coefficients] {key}")
     ident = doc.get("identify", {})
@@ -497,7 +497,7 @@ def check_config(config: ModelConfig) -> None:
     for key, v in config.coefficients.items():
         if key not in PARAMETERS:
             raise InputError(
-                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets or 10 output biases (docs/model.md)"
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases or the current (docs/model.md)"
             )
         number(v, f"{source}: [coefficients] {key}")
     check_free(config.free, f"{source}: [identify] free")
@@ -539,7 +539,7 @@ def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
         if n not in PARAMETERS:
             raise InputError(
                 f"{where} names {n!r}, not a coefficient (one of {', '.join(COEFFICIENTS)}), "
-                f"an offset (one of {', '.join(OFFSETS)}) or an output bias (b_ and a state)"
+                f"an offset (one of {', '.join(OFFSETS)}), an output bias (b_ and a state) or the current (c_N, c_E)"
             )
         if n in seen:
             raise InputError(f"{where} names a coefficient twice ({n})")
@@ -595,7 +595,7 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
     lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
     lines += [
         line(k, config.coefficients.get(k, 0.0))
-        for k in OFFSETS + BIASES
+        for k in OFFSETS + OUTPUT_TERMS
         if config.coefficients.get(k, 0.0) != 0.0 or k in config.free
     ]
     lines += ["", "[identify]"]
@@ -633,7 +633,7 @@ def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float]
     for n, v in values.items():
         if n not in PARAMETERS:
             raise InputError(
-                f"{path}: coefficient {n[:40]!r} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets or 10 output biases (docs/model.md)"
+                f"{path}: coefficient {n[:40]!r} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases or the current (docs/model.md)"
             )
         values[n] = number(v, f"{path}: coefficient {n}")
     noise = doc.get("noise_std")

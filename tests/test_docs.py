@@ -91,7 +91,8 @@ def test_model_names_in_their_order():
     assert names == list(COEFFICIENTS)
     offsets = re.search(r"```\n(.*?)```", section(text, "Constant offsets"), re.S).group(1).split()
     biases = re.search(r"```\n(.*?)```", section(text, "Output biases"), re.S).group(1).split()
-    assert names + offsets + biases == list(PARAMETERS)
+    current = re.search(r"```\n(.*?)```", section(text, "A steady current"), re.S).group(1).split()
+    assert names + offsets + biases + current == list(PARAMETERS)
     assert missing_tokens(text, PARAMETERS + STATES + INPUTS) == []
 
 

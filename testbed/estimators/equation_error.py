@@ -53,7 +53,7 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
         # extrapolated
         xs = np.zeros((n - win + 1, NX))
         # the measured states: the data less their output biases (at the a-priori values)
-        xs[:, r.measured] = smoothed(r.y - prob.outputs(r, np.zeros((1, NX)), prob.start), win)
+        xs[:, r.measured] = smoothed(r.y - prob.output_terms(r, prob.start), win)
         us = smoothed(r.inputs, win)
         # over each sample interval the input is held: the row equation averaged over it
         # has ẋ = Δx/Δt, x at the midpoint and δ exactly, with no derivative across a step;

@@ -70,11 +70,10 @@ class Cost:
                 models = discrete_models(prob, values, 0)
                 for key, records, starts, measured, counts, y, inputs in self.groups:
                     E = models[key].E
-                    if prob.biased:  # the measured states: the data less their output biases
+                    if prob.biased:  # the measured states: the data less their output terms
                         y = y.copy()
-                        zero = np.zeros((1, NX))
                         for k, r in enumerate(records):
-                            y[starts[k] : starts[k + 1], : len(r.measured)] -= prob.outputs(r, zero, values)
+                            y[starts[k] : starts[k + 1], : len(r.measured)] -= prob.output_terms(r, values)
                     W = np.zeros((len(records), NX))
                     for k, r in enumerate(records):
                         W[k, : len(r.channels)] = 1.0 / R[r.channels]

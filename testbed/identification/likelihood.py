@@ -142,7 +142,17 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
         for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
             name = r.name if pieces == 1 else f"{r.name}[{j}]"
             records.append(
-                Record(name, r.y[a:b], r.inputs[a:b], r.measured, r.channels, r.dt, offset, r.group)
+                Record(
+                    name,
+                    r.y[a:b],
+                    r.inputs[a:b],
+                    r.measured,
+                    r.channels,
+                    r.dt,
+                    offset,
+                    r.group,
+                    None if r.heading is None else r.heading[a:b],
+                )
             )
             offset += len(r.measured)
     return replace(prob, records=tuple(records))
@@ -190,9 +200,8 @@ def fit_initial_states(
     simulated(prob.n_samples)  # one simulation: the responses to x0 are linear in it
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
     factors = []  # per record: (k, k + 1, k + 1) upper-triangular factors of [G_c v_c], channel c
-    zero = np.zeros((1, NX))
-    # the measured states: the data less their output biases
-    ys = [r.y - prob.outputs(r, zero, values) for r in prob.records]
+    # the measured states: the data less their output terms (biases, the current)
+    ys = [r.y - prob.output_terms(r, values) if prob.biased else r.y for r in prob.records]
     for r, y in zip(prob.records, ys):
         d, k = models[prob.key(r)], len(r.measured)
         T = np.zeros((k, k + 1, k + 1))

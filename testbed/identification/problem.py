@@ -23,8 +23,9 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
 from testbed.models.linear import (
-    BIASES,
+    OUTPUT_TERMS,
     IBIAS,
+    ICURRENT,
     ITHETA,
     IX,
     NX,
@@ -63,6 +64,7 @@ class Record:
     dt: float
     offset: int  # where this experiment's initial state starts in p
     group: int = 0  # which experiment it is (its segments share it): the owner of per-record values
+    heading: np.ndarray | None = None  # (N,) the measured ψ (None: not measured, the trim's 0)
 
 
 @dataclass(frozen=True)
@@ -135,17 +137,33 @@ class Problem:
 
     @property
     def biased(self) -> bool:
-        """Whether some output bias is free or nonzero: the outputs are then not the states."""
+        """Whether some output term (a bias, the current) is free or nonzero: the outputs are then
+        not the states."""
         thetas = self.theta[None] if self.thetas is None else self.thetas
-        return bool(np.any(thetas[:, IBIAS]) or np.isin(self.index, IBIAS).any())
+        terms = np.r_[IBIAS, ICURRENT]
+        return bool(np.any(thetas[:, terms]) or np.isin(self.index, terms).any())
+
+    def output_terms(self, record: Record, values: np.ndarray) -> np.ndarray:
+        """What the outputs add to the measured states at the free `values`, (N, k) or (1, k):
+        each output's bias, and the current in the velocities over the ground,
+        u + c_N cos ψ + c_E sin ψ and v − c_N sin ψ + c_E cos ψ (ψ the record's measured heading)."""
+        theta = self.coefficients(values, record.group)
+        c_n, c_e = theta[ICURRENT]
+        bias = theta[IBIAS[record.measured]]
+        if not (np.any(theta[ICURRENT]) or np.isin(self.index, ICURRENT).any()):
+            return bias[None, :]
+        psi = np.zeros(len(record.y)) if record.heading is None else record.heading
+        cos, sin = np.cos(psi), np.sin(psi)
+        out = np.zeros((len(psi), len(bias)), dtype=theta.dtype) + bias
+        out[:, record.measured == IX["u"]] += (c_n * cos + c_e * sin)[:, None]
+        out[:, record.measured == IX["v"]] += (c_e * cos - c_n * sin)[:, None]
+        return out
 
     def outputs(self, record: Record, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         """The record's model outputs (N, k) from its states `x` (N, 10) at the free `values`:
-        the measured states plus their output biases, y = x + b."""
+        the measured states plus their output terms (`output_terms`)."""
         y = x[:, record.measured]
-        if not self.biased:
-            return y
-        return y + self.coefficients(values, record.group)[IBIAS[record.measured]]
+        return y + self.output_terms(record, values) if self.biased else y
 
     def x0(self, record: Record, p: np.ndarray) -> np.ndarray:
         """The record's full initial state (10,) from the parameter vector."""
@@ -234,6 +252,7 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
                 float(t[1] - t[0]),
                 offset,
                 j,
+                np.asarray(e.column("psi"), dtype=float) if "psi" in e.measured else None,
             )
         )
         offset += len(measured)
@@ -260,14 +279,15 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
 
 
 def unbiased(experiments: Sequence[Experiment], config: ModelConfig) -> tuple[list[Experiment], ModelConfig]:
-    """The experiments with the config's output biases taken off their measured states (each
-    record's own, `ModelConfig.record_coefficients`), y − b, and the config without them: for
-    the methods that take the outputs as the states (the filters)."""
+    """The experiments with the config's output terms (biases, the current) taken off their
+    measured states (each record's own, `ModelConfig.record_coefficients`), and the config
+    without them: for the methods that take the outputs as the states (the filters)."""
     out = []
+    zero = dict.fromkeys(OUTPUT_TERMS, 0.0)
     for e in experiments:
-        b = theta_vector(config.record_coefficients(e.name))[IBIAS[[IX[s] for s in e.measured]]]
-        out.append(replace(e, y=np.asarray(e.y, dtype=float) - b) if np.any(b) else e)
-    zero = dict.fromkeys(BIASES, 0.0)
+        prob = problem([e], replace(config, free=(), per_record=()), resolve=False)
+        terms = prob.output_terms(prob.records[0], np.zeros(0))
+        out.append(replace(e, y=np.asarray(e.y, dtype=float) - terms) if np.any(terms) else e)
     records = {name: {**values, **zero} for name, values in config.record_values.items()}
     return out, replace(config, coefficients={**config.coefficients, **zero}, record_values=records)
 

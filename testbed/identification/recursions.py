@@ -21,7 +21,18 @@ import numpy as np
 
 from testbed.identification import scan
 from testbed.identification.problem import Problem, Record
-from testbed.models.linear import IBIAS, NU, NX, continuous, derivatives, discretize, expm_pair, tilde
+from testbed.models.linear import (
+    IBIAS,
+    ICURRENT,
+    IX,
+    NU,
+    NX,
+    continuous,
+    derivatives,
+    discretize,
+    expm_pair,
+    tilde,
+)
 
 __all__ = [
     "NW",
@@ -166,13 +177,12 @@ def sensitivity_parts(
     dtype = np.result_type(x, d.E)  # complex under the complex-step tests
     w, Phi = _w(x, record.inputs), d.E[:, :NX]
     dE = d.dE if nf else np.zeros((0, NX, NW), dtype=dtype)
-    # the free output biases acting on this record: each on its own state's output
-    bias = np.full(nf, -1)
-    if biases:
-        is_bias = np.isin(prob.index, IBIAS) & prob.acting(record.group)
-        bias[is_bias] = prob.index[is_bias] - IBIAS[0]
+    # the free output terms acting on this record (`Problem.output_terms`), each on its outputs:
+    # free value i → {state: its regressor, the output's derivative}
+    terms = _output_terms(prob, record) if biases else {}
     acts = np.column_stack([dE.any(axis=2).T, np.eye(NX, dtype=bool)[:, record.measured]])
-    acts[bias[bias >= 0], np.flatnonzero(bias >= 0)] = True
+    for i, regressors in terms.items():
+        acts[list(regressors), i] = True
     for states, params, channels in uncoupled(Phi != 0, acts, rows):
         at = np.full(NX, -1)
         at[states] = np.arange(len(states))
@@ -181,17 +191,45 @@ def sensitivity_parts(
         X[at[record.measured[x0 - nf]], len(theta) + np.arange(len(x0))] = 1.0
         D = dE[theta][:, states, :].transpose(1, 0, 2).reshape(-1, NW)  # rows: (state, θ)
         pieces = scan.pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]], scale[channels], size)
-        # the biases: no dynamics (their columns of X stay zero), 1 on their own output
-        direct = [(c, j) for j, i in enumerate(theta) for c in np.flatnonzero(rows[channels] == bias[i])]
-        yield channels, params, pieces if not direct else _biased(pieces, direct, scale[channels])
+        # the output terms: no dynamics (their columns of X stay zero), their regressor on their outputs
+        direct = [
+            (c, j, terms[i][rows[channels][c]])
+            for j, i in enumerate(theta)
+            if i in terms
+            for c in range(len(channels))
+            if rows[channels][c] in terms[i]
+        ]
+        yield channels, params, pieces if not direct else _direct(pieces, direct, scale[channels])
 
 
-def _biased(pieces, direct, scale):
-    """`pieces` with `S[c, :, j] = scale[c]` for each (c, j) in `direct`: an output bias's
-    sensitivity, 1 on its own output (weighted), wherever the state's is zero."""
+def _output_terms(prob: Problem, record: Record) -> dict[int, dict[int, np.ndarray]]:
+    """The free output terms acting on `record`, free index → {state: ∂y_state/∂value (N,) or
+    a scalar}: a bias 1 on its own output; the current's (c_N, c_E) cos ψ, sin ψ on u and
+    −sin ψ, cos ψ on v (`Problem.output_terms`), for the states the record measures."""
+    acting, out = prob.acting(record.group), {}
+    psi = np.zeros(len(record.y)) if record.heading is None else record.heading
+    along = {ICURRENT[0]: (np.cos(psi), -np.sin(psi)), ICURRENT[1]: (np.sin(psi), np.cos(psi))}
+    for i, k in enumerate(prob.index):
+        if not acting[i]:
+            continue
+        if k in IBIAS:
+            regressors = {int(k - IBIAS[0]): 1.0}
+        elif k in along:
+            regressors = dict(zip((IX["u"], IX["v"]), along[k]))
+        else:
+            continue
+        seen = {s: v for s, v in regressors.items() if s in record.measured}
+        if seen:
+            out[i] = seen
+    return out
+
+
+def _direct(pieces, direct, scale):
+    """`pieces` with `S[c, :, j] = scale[c] · regressor` for each (c, j, regressor) in `direct`:
+    an output term's sensitivity (its columns of the state's are zero)."""
     for samples, S in pieces:
-        for c, j in direct:
-            S[c, :, j] = scale[c]
+        for c, j, regressor in direct:
+            S[c, :, j] = scale[c] * (regressor[samples] if np.ndim(regressor) else regressor)
         yield samples, S
 
 

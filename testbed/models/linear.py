@@ -1,7 +1,7 @@
 """The paper's linear model (docs/model.md): `Mt ẋ = At x + Bt δ + St`.
 
 Every matrix is affine in the 35 coefficients and the 6 constant offsets (`PARAMETERS`, which
-also holds the outputs' 10 biases), so the model is held as a constant part plus one derivative
+also holds the outputs' 10 biases and the current), so the model is held as a constant part plus one derivative
 matrix per parameter (`Structure`); `tilde` evaluates it, `continuous` gives
 `A = Mt⁻¹At, B = Mt⁻¹Bt, S = Mt⁻¹St`, and `discretize` gives the exact zero-order-hold model
 through the block-matrix exponential (valid for singular A: ψ and z are pure integrators);
@@ -20,7 +20,9 @@ __all__ = [
     "COEFFICIENTS",
     "INPUTS",
     "BIASES",
+    "CURRENT",
     "IBIAS",
+    "ICURRENT",
     "ITHETA",
     "IX",
     "MAX_SPEED",
@@ -29,6 +31,7 @@ __all__ = [
     "NU",
     "NX",
     "OFFSETS",
+    "OUTPUT_TERMS",
     "PARAMETERS",
     "STATES",
     "Structure",
@@ -92,7 +95,11 @@ OFFSETS = ("X_0", "Y_0", "Z_0", "K_0", "M_0", "N_0")
 # Output biases (SI, per state): a sensor's constant error, y = x + b. They act on the outputs,
 # not on the motion: every derivative matrix is zero for them.
 BIASES = tuple(f"b_{s}" for s in STATES)
-PARAMETERS = COEFFICIENTS + OFFSETS + BIASES  # the model's parameter vector θ, in this order
+# A steady current (m/s, north and east): the water's velocity over the ground. The states are
+# the motion through the water; a velocity log tracking the bottom reads the motion over it.
+CURRENT = ("c_N", "c_E")
+OUTPUT_TERMS = BIASES + CURRENT  # the parameters that act on the outputs alone
+PARAMETERS = COEFFICIENTS + OFFSETS + OUTPUT_TERMS  # the model's parameter vector θ, in this order
 NX, NU, NTHETA = len(STATES), len(INPUTS), len(PARAMETERS)
 MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
 # m/s: Mach 0.3 in water (sound: ~1500 m/s); beyond it no incompressible fluid model (MuJoCo's,
@@ -101,6 +108,7 @@ MAX_SPEED = 450.0
 IX = {name: i for i, name in enumerate(STATES)}
 ITHETA = {name: i for i, name in enumerate(PARAMETERS)}
 IBIAS = np.array([ITHETA[b] for b in BIASES])  # θ[IBIAS]: the output biases in state order
+ICURRENT = np.array([ITHETA[c] for c in CURRENT])  # θ[ICURRENT]: the current (north, east)
 
 # Where each coefficient sits: (matrix, row, column, factor); Mt entries carry a minus sign.
 _PLACES = {
@@ -140,7 +148,7 @@ _PLACES = {
     "N_r": [("At", "r", "r", 1)],
     "N_dr": [("Bt", "r", 0, 1)],
     **{name: [("St", row, None, 1)] for name, row in zip(OFFSETS, ("u", "v", "w", "p", "q", "r"))},
-    **{name: [] for name in BIASES},
+    **{name: [] for name in OUTPUT_TERMS},
 }
 
 
@@ -172,10 +180,10 @@ class Structure:
     At0: np.ndarray
     Bt0: np.ndarray
     St0: np.ndarray
-    dMt: np.ndarray = field(repr=False)  # (51, 10, 10)
-    dAt: np.ndarray = field(repr=False)  # (51, 10, 10)
-    dBt: np.ndarray = field(repr=False)  # (51, 10, 3)
-    dSt: np.ndarray = field(repr=False)  # (51, 10): the offsets; the restoring terms are known
+    dMt: np.ndarray = field(repr=False)  # (53, 10, 10)
+    dAt: np.ndarray = field(repr=False)  # (53, 10, 10)
+    dBt: np.ndarray = field(repr=False)  # (53, 10, 3)
+    dSt: np.ndarray = field(repr=False)  # (53, 10): the offsets; the restoring terms are known
 
 
 def structure(vehicle: Vehicle) -> Structure:
@@ -219,8 +227,8 @@ def structure(vehicle: Vehicle) -> Structure:
 
 
 def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
-    """θ: the 35 coefficients, the 6 offsets and the 10 output biases in `PARAMETERS` order; a
-    missing name is 0."""
+    """θ: the 35 coefficients, the 6 offsets, the 10 output biases and the current in
+    `PARAMETERS` order; a missing name is 0."""
     unknown = set(coefficients) - set(PARAMETERS)
     if unknown:
         raise KeyError(f"unknown coefficient {sorted(unknown)[0]!r}")
@@ -228,7 +236,7 @@ def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
 
 
 def tilde(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`Mt, At, Bt, St` at the full parameter vector `theta` (51,)."""
+    """`Mt, At, Bt, St` at the full parameter vector `theta` (53,)."""
     return (
         s.Mt0 + (theta @ s.dMt.reshape(len(s.dMt), -1)).reshape(s.Mt0.shape),
         s.At0 + (theta @ s.dAt.reshape(len(s.dAt), -1)).reshape(s.At0.shape),
@@ -390,8 +398,8 @@ def fastest_rate(s: Structure, theta: np.ndarray) -> float:
 
 def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ...]:
     """The coefficients among `free` on which no `measured` state depends, whatever the free
-    values (and the output biases of states not measured): they cannot be identified from these
-    measurements at all.
+    values (and the output biases of states not measured, the current without u or v): they
+    cannot be identified from these measurements at all.
 
     A coefficient enters some rows of `Mt ẋ = At x + Bt δ`; Mt⁻¹ spreads a row to the rows
     coupled with it through Mt (either way: an over-estimate), and At carries a state into the
@@ -413,6 +421,10 @@ def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ..
     for n, i in zip(free, idx):
         if n in BIASES:  # a bias is seen in its own output alone
             if n[2:] not in measured:
+                out.append(n)
+            continue
+        if n in CURRENT:  # the current in the velocities over the ground, u and v
+            if not {"u", "v"} & set(measured):
                 out.append(n)
             continue
         rows = s.dMt[i].any(1) | s.dAt[i].any(1) | s.dBt[i].any(1) | (s.dSt[i] != 0)

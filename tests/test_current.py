@@ -1,0 +1,86 @@
+"""A steady current (`c_N`, `c_E`) in the velocities over the ground: y_u = u + c_N cos ψ + c_E sin ψ,
+y_v = v − c_N sin ψ + c_E cos ψ, ψ the measured heading."""
+
+import numpy as np
+import pytest
+
+from testbed.estimators import identify
+from testbed.identification import concentrated, likelihood, recursions
+from testbed.identification.examples import EXAMPLE_COEFFICIENTS
+from testbed.identification.problem import problem
+
+from test_offsets import FIN_OFFSET, LATERAL, _start, _turns  # noqa: F401  (shared data)
+
+CURRENT = (0.12, -0.08)  # m/s north, east: a 0.14 m/s tidal current, a tenth of the example's speed
+
+
+def _with_current(data, truth_data, current):
+    """`data` whose u and v are read over the ground: the current turned by the true heading
+    (from `truth_data`, the same records without noise)."""
+    out = []
+    for e, clean in zip(data, truth_data):
+        psi = clean.column("psi")
+        y = e.y.copy()
+        y[:, e.measured.index("u")] += current[0] * np.cos(psi) + current[1] * np.sin(psi)
+        y[:, e.measured.index("v")] += current[1] * np.cos(psi) - current[0] * np.sin(psi)
+        out.append(type(e)(e.name, e.t, e.measured, y, e.inputs))
+    return out
+
+
+def _data(duration=40.0):
+    offsets = (FIN_OFFSET, -FIN_OFFSET)
+    return _with_current(_turns(offsets, duration), _turns(offsets, duration, noise=False), CURRENT)
+
+
+def test_the_heading_turns_in_these_records():
+    span = [np.ptp(e.column("psi")) for e in _turns((FIN_OFFSET, -FIN_OFFSET), noise=False)]
+    assert min(span) > 0.5  # rad: the current is told from a bias only as the heading turns
+
+
+def test_sensitivities_to_the_current_match_complex_step():
+    data = _data(duration=3.0)
+    prob = problem(data, _start(LATERAL + ("c_N", "c_E", "b_v"), ("c_E",)))
+    p = likelihood.initial_states(prob, prob.start)
+    p[prob.free.index("c_N")] = 0.1
+    sens = recursions.sensitivities(prob, p)
+    h = 1e-30
+    for j in range(prob.n_params):
+        pc = p.astype(complex)
+        pc[j] += 1j * h
+        for r, S, yc in zip(prob.records, sens, recursions.outputs(prob, pc)):
+            ref, cols = yc.imag / h, list(prob.columns(r))
+            if j not in cols:  # another experiment's initial state
+                assert not ref.any()
+                continue
+            np.testing.assert_allclose(S[:, :, cols.index(j)], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+
+
+def test_the_simplex_cost_with_a_current_is_the_qr_likelihood():
+    prob = problem(_data(duration=10.0), _start(LATERAL + ("c_N", "c_E")))
+    values = prob.start.copy()
+    values[-2:] = CURRENT
+    R = np.full(len(prob.channels), 1e-4)
+    out = likelihood.fit_initial_states(prob, values, R)[1]
+    qr = (
+        sum(float(np.sum((r.y - y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out)) / prob.n_samples
+    )
+    assert concentrated.Cost(prob)(values, R) == pytest.approx(qr, rel=1e-9)
+
+
+def test_the_current_is_recovered_beside_the_velocity_biases():
+    offsets = (FIN_OFFSET, -FIN_OFFSET)
+    truth = EXAMPLE_COEFFICIENTS | {"c_N": CURRENT[0], "c_E": CURRENT[1], "b_u": 0.0, "b_v": 0.0}
+    truth |= {
+        f"{n}[turn-{j}]": EXAMPLE_COEFFICIENTS[c] * d0
+        for n, c in (("Y_0", "Y_dr"), ("N_0", "N_dr"))
+        for j, d0 in enumerate(offsets)
+    }
+    data = _data()
+    free = LATERAL + ("Y_0", "N_0", "c_N", "c_E", "b_u", "b_v")
+    est = identify(data, _start(free, ("Y_0", "N_0")), method="ml-gn")
+    assert est.converged
+    sigmas = {n: (v - truth[n]) / s for n, v, s in zip(est.free, est.values, est.std)}
+    assert max(abs(v) for v in sigmas.values()) < 3.0, sigmas
+    plain = identify(data, _start(LATERAL + ("Y_0", "N_0"), ("Y_0", "N_0")), method="ml-gn")
+    worst = max(abs(v - truth[n]) / s for n, v, s in zip(plain.free, plain.values, plain.std))
+    assert worst > 5.0  # the same data, the current left out of the model
