@@ -25,6 +25,7 @@ import numpy as np
 from testbed.errors import InputError, atomic_write_text
 from testbed.models.linear import (
     COEFFICIENTS,
+    DELAY,
     INPUTS,
     MAX_SPEED,
     MIN_SPEED,
@@ -456,7 +457,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     for key, v in doc["coefficients"].items():
         if key not in coefficients:
             raise InputError(
-                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases or the current (docs/model.md)"
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current or input_delay (docs/model.md)"
             )
         coefficients[key] = number(v, f"{source}: [coefficients] {key}")
     ident = doc.get("identify", {})
@@ -497,7 +498,7 @@ def check_config(config: ModelConfig) -> None:
     for key, v in config.coefficients.items():
         if key not in PARAMETERS:
             raise InputError(
-                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases or the current (docs/model.md)"
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current or input_delay (docs/model.md)"
             )
         number(v, f"{source}: [coefficients] {key}")
     check_free(config.free, f"{source}: [identify] free")
@@ -539,7 +540,7 @@ def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
         if n not in PARAMETERS:
             raise InputError(
                 f"{where} names {n!r}, not a coefficient (one of {', '.join(COEFFICIENTS)}), "
-                f"an offset (one of {', '.join(OFFSETS)}), an output bias (b_ and a state) or the current (c_N, c_E)"
+                f"an offset (one of {', '.join(OFFSETS)}), an output bias (b_ and a state), the current (c_N, c_E) or input_delay"
             )
         if n in seen:
             raise InputError(f"{where} names a coefficient twice ({n})")
@@ -595,7 +596,7 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
     lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
     lines += [
         line(k, config.coefficients.get(k, 0.0))
-        for k in OFFSETS + OUTPUT_TERMS
+        for k in OFFSETS + OUTPUT_TERMS + (DELAY,)
         if config.coefficients.get(k, 0.0) != 0.0 or k in config.free
     ]
     lines += ["", "[identify]"]
@@ -633,7 +634,7 @@ def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float]
     for n, v in values.items():
         if n not in PARAMETERS:
             raise InputError(
-                f"{path}: coefficient {n[:40]!r} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases or the current (docs/model.md)"
+                f"{path}: coefficient {n[:40]!r} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current or input_delay (docs/model.md)"
             )
         values[n] = number(v, f"{path}: coefficient {n}")
     noise = doc.get("noise_std")

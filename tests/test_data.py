@@ -19,7 +19,7 @@ from testbed.data import (
     write_csv,
 )
 from testbed.errors import InputError, atomic_directory
-from testbed.models.linear import COEFFICIENTS, OFFSETS, OUTPUT_TERMS, PARAMETERS, STATES, Vehicle
+from testbed.models.linear import COEFFICIENTS, PARAMETERS, STATES, Vehicle
 
 VEHICLE = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
 
@@ -117,7 +117,7 @@ def test_config_round_trip(tmp_path):
     path = write_config(tmp_path / "m.toml", cfg, {"X_u": "surge damping"})
     back = read_config(path)
     assert back.vehicle == VEHICLE and back.free == ("X_u", "N_r")
-    assert back.coefficients == coeffs | dict.fromkeys(OFFSETS + OUTPUT_TERMS, 0.0)
+    assert back.coefficients == dict.fromkeys(PARAMETERS, 0.0) | coeffs
     assert "# surge damping" in config_text(cfg, {"X_u": "surge damping"})
     assert "K_0" not in config_text(cfg)  # offsets appear only where a config sets or frees them
 
@@ -126,7 +126,7 @@ def test_config_round_trip_with_offsets_per_record(tmp_path):
     coeffs = {n: float(i) - 17.5 for i, n in enumerate(COEFFICIENTS)} | {"K_0": -0.25}
     cfg = ModelConfig(VEHICLE, coeffs, ("X_u", "N_0", "K_0"), per_record=("N_0",))
     back = read_config(write_config(tmp_path / "m.toml", cfg))
-    assert back.coefficients == coeffs | dict.fromkeys(("X_0", "Y_0", "Z_0", "M_0", "N_0") + OUTPUT_TERMS, 0.0)
+    assert back.coefficients == dict.fromkeys(PARAMETERS, 0.0) | coeffs
     assert back.free == ("X_u", "N_0", "K_0") and back.per_record == ("N_0",)
 
 

@@ -54,7 +54,7 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
         xs = np.zeros((n - win + 1, NX))
         # the measured states: the data less their output biases (at the a-priori values)
         xs[:, r.measured] = smoothed(r.y - prob.output_terms(r, prob.start), win)
-        us = smoothed(r.inputs, win)
+        us = smoothed(prob.inputs(r, prob.start), win)  # the a-priori input delay
         # over each sample interval the input is held: the row equation averaged over it
         # has ẋ = Δx/Δt, x at the midpoint and δ exactly, with no derivative across a step;
         # the same (linear) smoothing of states and inputs keeps that equation consistent

@@ -61,7 +61,7 @@ from testbed.estimators.base import (
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
 from testbed.identification.problem import Problem, problem, unbiased
 from testbed.identification.innovations import BODY
-from testbed.models.linear import OUTPUT_TERMS, IX, NX, STATES
+from testbed.models.linear import DELAY, IX, NX, OUTPUT_TERMS, STATES
 
 __all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
 
@@ -295,13 +295,14 @@ def _fit(
     opts: FilterErrorOptions,
     callback: Callback | None,
 ) -> Estimate:
-    refused = list(config.per_record) + [n for n in config.free if n in OUTPUT_TERMS]
+    refused = list(config.per_record) + [n for n in config.free if n in OUTPUT_TERMS + (DELAY,)]
     if refused:
         raise InputError(
-            f"{config.source or 'config'}: [identify] frees {refused[0]} "
-            f"{'per record' if refused[0] in config.per_record else 'as an output term'}; ml-fem "
-            "filters every record with one model and the outputs as the states: expected no "
-            "per_record and the biases and the current fixed, or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
+            f"{config.source or 'config'}: [identify] frees {refused[0]}"
+            f"{' per record' if refused[0] in config.per_record else ''}; ml-fem filters every "
+            "record with one model, the outputs as the states and the inputs as given: expected "
+            "no per_record and the biases, the current and the input delay fixed, or an "
+            "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
     experiments, config = unbiased(experiments, config)
     with recursions.counting() as tally, scan.compiled():

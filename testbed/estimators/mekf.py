@@ -186,6 +186,7 @@ from testbed.identification.problem import unbiased
 from testbed.identification.recursions import simulated
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
 from testbed.models.linear import (
+    DELAY,
     OUTPUT_TERMS,
     IX,
     ITHETA,
@@ -833,11 +834,11 @@ def run_filter(
             f"{method} estimates one value per name over the records in sequence: expected no "
             "per_record, or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm) or equation-error"
         )
-    biases = [n for n in config.free if n in OUTPUT_TERMS]
-    if biases:
+    terms = [n for n in config.free if n in OUTPUT_TERMS + (DELAY,)]
+    if terms:
         raise InputError(
-            f"{config.source or 'config'}: [identify] free lists the output term {biases[0]}; {method} "
-            "takes the outputs' biases and the current as the config gives them: expected them fixed, or an "
+            f"{config.source or 'config'}: [identify] free lists {terms[0]}; {method} takes the "
+            "outputs' biases, the current and the inputs' delay as the config gives them: expected them fixed, or an "
             "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
     experiments, config = unbiased(experiments, config)

@@ -178,7 +178,9 @@ def _stages(prob: Problem, first_length: float) -> list[Problem]:
         replace(
             prob,
             records=tuple(
-                replace(r, y=r.y[:n], inputs=r.inputs[:n])
+                replace(
+                    r, y=r.y[:n], inputs=r.inputs[:n], heading=None if r.heading is None else r.heading[:n]
+                )
                 for r in prob.records
                 for n in [max(int(round(T / r.dt)), 1)]
             ),

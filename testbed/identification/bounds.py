@@ -168,7 +168,7 @@ def colored_covariance(
         Zr = Z[:n, :k]
         Zr[...] = 0.0
         for channels, params, pieces in sensitivity_parts(
-            prob, r, models[prob.key(r)], x, r.measured, channel_weights(r, R), PIECE
+            prob, r, models[prob.key(r)], x, r.measured, channel_weights(r, R), PIECE, values=p[:nf]
         ):
             for samples, S in pieces:
                 Zr[np.ix_(np.arange(n)[samples], channels)] = (S @ C[params]).transpose(1, 0, 2)

@@ -70,6 +70,10 @@ class Cost:
                 models = discrete_models(prob, values, 0)
                 for key, records, starts, measured, counts, y, inputs in self.groups:
                     E = models[key].E
+                    if prob.delayed:  # the fins' angles: the recorded ones advanced by the delay
+                        inputs = np.ascontiguousarray(
+                            np.concatenate([prob.inputs(r, values) for r in records])
+                        )
                     if prob.biased:  # the measured states: the data less their output terms
                         y = y.copy()
                         for k, r in enumerate(records):

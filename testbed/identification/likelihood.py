@@ -109,7 +109,14 @@ def gauss_newton_terms(
         e, cols = e / np.sqrt(R[r.channels]), prob.columns(r)
         gr, Mr = np.zeros(len(cols)), np.zeros((len(cols), len(cols)))
         for channels, params, pieces in sensitivity_parts(
-            prob, r, models[prob.key(r)], x, r.measured, channel_weights(r, R), scan.PIECE
+            prob,
+            r,
+            models[prob.key(r)],
+            x,
+            r.measured,
+            channel_weights(r, R),
+            scan.PIECE,
+            values=p[: prob.n_free],
         ):
             ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
             for samples, S in pieces:
@@ -205,7 +212,7 @@ def fit_initial_states(
     for r, y in zip(prob.records, ys):
         d, k = models[prob.key(r)], len(r.measured)
         T = np.zeros((k, k + 1, k + 1))
-        u1 = np.column_stack([r.inputs, np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
+        u1 = np.column_stack([prob.inputs(r, values), np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
         Phi, forcing = d.E[:, :NX], d.E[:, NX:]
         # columns: 0 the forced response, 1 + i the response to x0's i-th measured component;
         # each part of the model that evolves on its own (`uncoupled`) is propagated alone
@@ -267,7 +274,7 @@ def fit_initial_states(
                 break
     else:
         solve(lambda r: R[r.channels])
-    xs = [trajectory(r, models[prob.key(r)], prob.x0(r, p)) for r in prob.records]
+    xs = [trajectory(models[prob.key(r)], prob.x0(r, p), prob.inputs(r, values)) for r in prob.records]
     return p, xs if full else [prob.outputs(r, x, values) for r, x in zip(prob.records, xs)]
 
 

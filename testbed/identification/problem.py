@@ -23,9 +23,11 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
 from testbed.models.linear import (
+    DELAY,
     OUTPUT_TERMS,
     IBIAS,
     ICURRENT,
+    IDELAY,
     ITHETA,
     IX,
     NX,
@@ -48,6 +50,7 @@ __all__ = [
     "expanded",
     "free_values",
     "problem",
+    "shifted",
     "unbiased",
 ]
 
@@ -159,6 +162,25 @@ class Problem:
         out[:, record.measured == IX["v"]] += (c_e * cos - c_n * sin)[:, None]
         return out
 
+    @property
+    def delayed(self) -> bool:
+        """Whether the input delay is free or nonzero: the inputs are then not the recorded ones."""
+        thetas = self.theta[None] if self.thetas is None else self.thetas
+        return bool(np.any(thetas[:, IDELAY]) or np.isin(self.index, IDELAY).any())
+
+    def inputs(self, record: Record, values: np.ndarray) -> np.ndarray:
+        """The fins' angles (N, 3) at the free `values`: the recorded ones advanced by the input
+        delay τ, δ(t_k) = δ_rec(t_k + τ), between samples by linear interpolation and held
+        beyond the record's ends (`shifted`)."""
+        if not self.delayed:
+            return record.inputs
+        return shifted(record.inputs, self.coefficients(values, record.group)[IDELAY] / record.dt)[0]
+
+    def input_rates(self, record: Record, values: np.ndarray) -> np.ndarray:
+        """∂δ/∂τ (N, 3) of `inputs`: the recorded angles' slope between the samples it interpolates."""
+        delay = self.coefficients(values, record.group)[IDELAY]
+        return shifted(record.inputs, delay / record.dt)[1] / record.dt
+
     def outputs(self, record: Record, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         """The record's model outputs (N, k) from its states `x` (N, 10) at the free `values`:
         the measured states plus their output terms (`output_terms`)."""
@@ -170,6 +192,18 @@ class Problem:
         x0 = np.zeros(NX, dtype=p.dtype)
         x0[record.measured] = p[record.offset : record.offset + len(record.measured)]
         return x0
+
+
+def shifted(u: np.ndarray, steps) -> tuple[np.ndarray, np.ndarray]:
+    """`u` (N, m) advanced by `steps` samples (real, or complex under a complex step):
+    u[k + steps] by linear interpolation, held beyond the ends, and the slope
+    u[k + m + 1] − u[k + m] it interpolates along (m = ⌊steps⌋)."""
+    m = math.floor(float(np.real(steps)))
+    f = steps - m
+    k = np.arange(len(u))
+    lo, hi = np.clip(k + m, 0, len(u) - 1), np.clip(k + m + 1, 0, len(u) - 1)
+    slope = u[hi] - u[lo]
+    return u[lo] + f * slope, slope
 
 
 COARSEST = math.log(2.0**53)  # ρΔ beyond which the fastest mode decays below rounding in one step
@@ -280,14 +314,18 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
 
 def unbiased(experiments: Sequence[Experiment], config: ModelConfig) -> tuple[list[Experiment], ModelConfig]:
     """The experiments with the config's output terms (biases, the current) taken off their
-    measured states (each record's own, `ModelConfig.record_coefficients`), and the config
-    without them: for the methods that take the outputs as the states (the filters)."""
+    measured states and its input delay applied to their inputs (each record's own,
+    `ModelConfig.record_coefficients`), and the config without them: for the methods that take
+    the outputs as the states and the inputs as recorded (the filters)."""
     out = []
-    zero = dict.fromkeys(OUTPUT_TERMS, 0.0)
+    zero = dict.fromkeys(OUTPUT_TERMS + (DELAY,), 0.0)
     for e in experiments:
         prob = problem([e], replace(config, free=(), per_record=()), resolve=False)
-        terms = prob.output_terms(prob.records[0], np.zeros(0))
-        out.append(replace(e, y=np.asarray(e.y, dtype=float) - terms) if np.any(terms) else e)
+        r, none = prob.records[0], np.zeros(0)
+        terms = prob.output_terms(r, none)
+        if np.any(terms):
+            e = replace(e, y=np.asarray(e.y, dtype=float) - terms)
+        out.append(replace(e, inputs=prob.inputs(r, none)) if prob.delayed else e)
     records = {name: {**values, **zero} for name, values in config.record_values.items()}
     return out, replace(config, coefficients={**config.coefficients, **zero}, record_values=records)
 

@@ -24,6 +24,7 @@ from testbed.identification.problem import Problem, Record
 from testbed.models.linear import (
     IBIAS,
     ICURRENT,
+    IDELAY,
     IX,
     NU,
     NX,
@@ -128,9 +129,10 @@ def discrete_models(prob: Problem, values: np.ndarray, order: int) -> dict:
     return {key: discrete(prob, values, r.dt, order, r.group) for key, r in keys.items()}
 
 
-def trajectory(record: Record, d: Discrete, x0: np.ndarray) -> np.ndarray:
-    """State trajectory (N, 10) of one record from the full initial state `x0`."""
-    return scan.propagate(d.E[:, :NX], x0, record.inputs[:-1] @ d.E[:, NX : NX + NU].T + d.E[:, -1])
+def trajectory(d: Discrete, x0: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """State trajectory (N, 10) of one record from the full initial state `x0` driven by its
+    `inputs` (N, 3) (`Problem.inputs`)."""
+    return scan.propagate(d.E[:, :NX], x0, inputs[:-1] @ d.E[:, NX : NX + NU].T + d.E[:, -1])
 
 
 def _w(x: np.ndarray, inputs: np.ndarray) -> np.ndarray:
@@ -142,7 +144,8 @@ def states(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Simulated states (N, 10) per experiment at the parameter vector `p` (u as a perturbation)."""
     models = discrete_models(prob, p[: prob.n_free], 0)
     simulated(prob.n_samples)
-    return [trajectory(r, models[prob.key(r)], prob.x0(r, p)) for r in prob.records]
+    values = p[: prob.n_free]
+    return [trajectory(models[prob.key(r)], prob.x0(r, p), prob.inputs(r, values)) for r in prob.records]
 
 
 def outputs(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
@@ -164,19 +167,29 @@ def sensitivity_parts(
     scale: np.ndarray,
     size: int,
     biases: bool = True,
+    values: np.ndarray | None = None,
 ) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:
     """`scale[c] ∂y_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
     states `x` (N, 10), for each `uncoupled` part of the model: (channels, params, pieces), the
     pieces as in `scan.pieces` with (T, len(channels), len(params)) arrays; `channels` index `rows`,
     `params` p. Sensitivities across the parts are zero and not given. `y` is the state plus its
-    output bias where `biases`, else the state itself.
+    output terms where `biases`, else the state itself; `values`: the free values (the inputs'
+    delay among them; None: all 0, for a problem without a delay).
 
-    ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ; ∂y_c/∂b_c = 1.
+    ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ; ∂y_c/∂b_c = 1;
+    for the input delay τ the forcing is Γ ∂δ[k]/∂τ.
     """
     nf, rows = prob.n_free, np.asarray(rows)
     dtype = np.result_type(x, d.E)  # complex under the complex-step tests
-    w, Phi = _w(x, record.inputs), d.E[:, :NX]
+    values = np.zeros(nf) if values is None else values
+    w, Phi = _w(x, prob.inputs(record, values)), d.E[:, :NX]
     dE = d.dE if nf else np.zeros((0, NX, NW), dtype=dtype)
+    delay = np.flatnonzero((prob.index == IDELAY) & prob.acting(record.group))
+    if len(delay):
+        # ∂x[k+1]/∂τ = Φ ∂x[k]/∂τ + Γ ∂δ[k]/∂τ: w carries ∂δ/∂τ, the delay's ∂E row picks it by Γ
+        w = np.column_stack([w, prob.input_rates(record, values).astype(w.dtype)])
+        dE = np.concatenate([dE, np.zeros((nf, NX, NU), dtype=dE.dtype)], axis=2)
+        dE[delay[0], :, NW:] = d.E[:, NX : NX + NU]
     # the free output terms acting on this record (`Problem.output_terms`), each on its outputs:
     # free value i → {state: its regressor, the output's derivative}
     terms = _output_terms(prob, record) if biases else {}
@@ -189,7 +202,7 @@ def sensitivity_parts(
         theta, x0 = params[params < nf], params[params >= nf]
         X = np.zeros((len(states), len(params)), dtype=dtype)  # the θ columns first
         X[at[record.measured[x0 - nf]], len(theta) + np.arange(len(x0))] = 1.0
-        D = dE[theta][:, states, :].transpose(1, 0, 2).reshape(-1, NW)  # rows: (state, θ)
+        D = dE[theta][:, states, :].transpose(1, 0, 2).reshape(-1, w.shape[1])  # rows: (state, θ)
         pieces = scan.pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]], scale[channels], size)
         # the output terms: no dynamics (their columns of X stay zero), their regressor on their outputs
         direct = [
@@ -259,11 +272,20 @@ def uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
 
 
 def _sensitivities(
-    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray, biases: bool = True
+    prob: Problem,
+    record: Record,
+    d: Discrete,
+    x: np.ndarray,
+    rows,
+    scale: np.ndarray,
+    values: np.ndarray,
+    biases: bool = True,
 ) -> np.ndarray:
     """All of `sensitivity_parts` at once: (N, len(rows), q)."""
     S = np.zeros((len(x), len(rows), prob.n_free + len(record.measured)), dtype=np.result_type(x, d.E))
-    for channels, params, pieces in sensitivity_parts(prob, record, d, x, rows, scale, len(x), biases):
+    for channels, params, pieces in sensitivity_parts(
+        prob, record, d, x, rows, scale, len(x), biases, values
+    ):
         for samples, piece in pieces:
             S[np.ix_(samples, channels, params)] = piece.transpose(1, 0, 2)
     return S
@@ -278,7 +300,9 @@ def sensitivities(prob: Problem, p: np.ndarray, xs: Sequence[np.ndarray] | None 
     xs = states(prob, p) if xs is None else xs
     simulated(prob.n_samples * prob.n_free)
     return [
-        _sensitivities(prob, r, models[prob.key(r)], x, r.measured, np.ones(len(r.measured)))
+        _sensitivities(
+            prob, r, models[prob.key(r)], x, r.measured, np.ones(len(r.measured)), p[: prob.n_free]
+        )
         for r, x in zip(prob.records, xs)
     ]
 
@@ -293,7 +317,8 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
 
     The second-order sensitivities of the paper's Eq. 3, discretised exactly, obey
       ∂²x[k+1]/∂p_i∂p_j = Φ ∂²x[k] + ∂Φ_i ∂x[k]/∂p_j + ∂Φ_j ∂x[k]/∂p_i + ∂²E_ij w[k],  ∂²x[0] = 0
-    (only coefficients move Φ and E: the initial-state entries of ∂Φ, ∂²E are zero). Their
+    (only coefficients move Φ and E: the initial-state entries of ∂Φ, ∂²E are zero; the input
+    delay's forcing Γ ∂δ/∂τ adds ∂Γ_i ∂δ/∂τ to its pairs with θ_i). Their
     weighted sum is taken by the adjoint recursion `μ[k] = Cᵀweights[k] + Φᵀ μ[k+1]`:
     `Σ_k aₖᵀ ∂²x[k] = Σ_k μ[k+1]ᵀ (forcing at k)`, exact, with no N·n_params² array. A one-hot
     weight gives the second-order sensitivity of one output sample.
@@ -303,8 +328,9 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
     simulated(prob.n_samples * (1 + nf))  # the states and their sensitivities, for the adjoint
     for r, wr in zip(prob.records, weights):
         d = models[prob.key(r)]
-        x = trajectory(r, d, prob.x0(r, p))
-        w, X = _w(x, r.inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX), biases=False)
+        inputs = prob.inputs(r, p[:nf])
+        x = trajectory(d, prob.x0(r, p), inputs)
+        w, X = _w(x, inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX), p[:nf], biases=False)
         a = np.zeros((len(w), NX), dtype=np.result_type(wr, p))
         a[:, r.measured] = wr
         Phi = d.E[:, :NX]
@@ -317,6 +343,12 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
         Hr = H1 + H1.T
         if nf:
             Hr[:nf, :nf] += np.tensordot(d.d2E, mu[1:].T @ w[:-1], axes=([2, 3], [0, 1]))
+        for j in np.flatnonzero((prob.index == IDELAY) & prob.acting(r.group)):
+            # the delay's forcing Γ ∂δ[k]/∂τ moves with θ_i by ∂Γ_i ∂δ[k]/∂τ (∂²δ/∂τ² = 0)
+            rates = prob.input_rates(r, p[:nf])
+            cross = np.tensordot(d.dE[:, :, NX : NX + NU], mu[1:].T @ rates[:-1], axes=([1, 2], [0, 1]))
+            Hr[:nf, j] += cross
+            Hr[j, :nf] += cross
         cols = prob.columns(r)
         H[np.ix_(cols, cols)] += Hr
     return H

@@ -1,7 +1,7 @@
 """The paper's linear model (docs/model.md): `Mt ẋ = At x + Bt δ + St`.
 
 Every matrix is affine in the 35 coefficients and the 6 constant offsets (`PARAMETERS`, which
-also holds the outputs' 10 biases and the current), so the model is held as a constant part plus one derivative
+also holds the outputs' 10 biases, the current and the inputs' delay), so the model is held as a constant part plus one derivative
 matrix per parameter (`Structure`); `tilde` evaluates it, `continuous` gives
 `A = Mt⁻¹At, B = Mt⁻¹Bt, S = Mt⁻¹St`, and `discretize` gives the exact zero-order-hold model
 through the block-matrix exponential (valid for singular A: ψ and z are pure integrators);
@@ -21,8 +21,10 @@ __all__ = [
     "INPUTS",
     "BIASES",
     "CURRENT",
+    "DELAY",
     "IBIAS",
     "ICURRENT",
+    "IDELAY",
     "ITHETA",
     "IX",
     "MAX_SPEED",
@@ -99,7 +101,10 @@ BIASES = tuple(f"b_{s}" for s in STATES)
 # the motion through the water; a velocity log tracking the bottom reads the motion over it.
 CURRENT = ("c_N", "c_E")
 OUTPUT_TERMS = BIASES + CURRENT  # the parameters that act on the outputs alone
-PARAMETERS = COEFFICIENTS + OFFSETS + OUTPUT_TERMS  # the model's parameter vector θ, in this order
+# The recorded fin angles' lag behind the fins (s): the fins' angle at t is the one recorded at
+# t + input_delay (an encoder or a logger late by that much).
+DELAY = "input_delay"
+PARAMETERS = COEFFICIENTS + OFFSETS + OUTPUT_TERMS + (DELAY,)  # the model's parameter vector θ, in this order
 NX, NU, NTHETA = len(STATES), len(INPUTS), len(PARAMETERS)
 MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
 # m/s: Mach 0.3 in water (sound: ~1500 m/s); beyond it no incompressible fluid model (MuJoCo's,
@@ -109,6 +114,7 @@ IX = {name: i for i, name in enumerate(STATES)}
 ITHETA = {name: i for i, name in enumerate(PARAMETERS)}
 IBIAS = np.array([ITHETA[b] for b in BIASES])  # θ[IBIAS]: the output biases in state order
 ICURRENT = np.array([ITHETA[c] for c in CURRENT])  # θ[ICURRENT]: the current (north, east)
+IDELAY = ITHETA[DELAY]
 
 # Where each coefficient sits: (matrix, row, column, factor); Mt entries carry a minus sign.
 _PLACES = {
@@ -148,7 +154,7 @@ _PLACES = {
     "N_r": [("At", "r", "r", 1)],
     "N_dr": [("Bt", "r", 0, 1)],
     **{name: [("St", row, None, 1)] for name, row in zip(OFFSETS, ("u", "v", "w", "p", "q", "r"))},
-    **{name: [] for name in OUTPUT_TERMS},
+    **{name: [] for name in OUTPUT_TERMS + (DELAY,)},
 }
 
 
@@ -180,10 +186,10 @@ class Structure:
     At0: np.ndarray
     Bt0: np.ndarray
     St0: np.ndarray
-    dMt: np.ndarray = field(repr=False)  # (53, 10, 10)
-    dAt: np.ndarray = field(repr=False)  # (53, 10, 10)
-    dBt: np.ndarray = field(repr=False)  # (53, 10, 3)
-    dSt: np.ndarray = field(repr=False)  # (53, 10): the offsets; the restoring terms are known
+    dMt: np.ndarray = field(repr=False)  # (54, 10, 10)
+    dAt: np.ndarray = field(repr=False)  # (54, 10, 10)
+    dBt: np.ndarray = field(repr=False)  # (54, 10, 3)
+    dSt: np.ndarray = field(repr=False)  # (54, 10): the offsets; the restoring terms are known
 
 
 def structure(vehicle: Vehicle) -> Structure:
@@ -227,8 +233,8 @@ def structure(vehicle: Vehicle) -> Structure:
 
 
 def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
-    """θ: the 35 coefficients, the 6 offsets, the 10 output biases and the current in
-    `PARAMETERS` order; a missing name is 0."""
+    """θ: the 35 coefficients, the 6 offsets, the 10 output biases, the current and the input
+    delay in `PARAMETERS` order; a missing name is 0."""
     unknown = set(coefficients) - set(PARAMETERS)
     if unknown:
         raise KeyError(f"unknown coefficient {sorted(unknown)[0]!r}")
@@ -236,7 +242,7 @@ def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
 
 
 def tilde(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`Mt, At, Bt, St` at the full parameter vector `theta` (53,)."""
+    """`Mt, At, Bt, St` at the full parameter vector `theta` (54,)."""
     return (
         s.Mt0 + (theta @ s.dMt.reshape(len(s.dMt), -1)).reshape(s.Mt0.shape),
         s.At0 + (theta @ s.dAt.reshape(len(s.dAt), -1)).reshape(s.At0.shape),
@@ -426,6 +432,8 @@ def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ..
         if n in CURRENT:  # the current in the velocities over the ground, u and v
             if not {"u", "v"} & set(measured):
                 out.append(n)
+            continue
+        if n == DELAY:  # the inputs' timing: seen wherever they are
             continue
         rows = s.dMt[i].any(1) | s.dAt[i].any(1) | s.dBt[i].any(1) | (s.dSt[i] != 0)
         reached = coupled[:, rows].any(1)

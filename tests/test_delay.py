@@ -1,0 +1,124 @@
+"""The input delay (`input_delay`): the fins' angle at t is the one recorded at t + τ."""
+
+import numpy as np
+import pytest
+
+from testbed.errors import InputError
+from testbed.estimators import identify
+from testbed.identification import concentrated, likelihood, recursions
+from testbed.identification.examples import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE
+from testbed.identification.problem import problem, shifted
+from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector
+
+from test_offsets import LATERAL, _start  # noqa: F401  (shared data)
+
+DELAY = 0.075  # s: a logger 1.5 samples late at 20 Hz
+
+
+def _late(duration=40.0, noise=True):
+    """Rudder PRBS records flown with the fins' true angles, recorded `DELAY` late: the record's
+    angle at t is the fin's at t − DELAY. Simulated on a grid 10× finer than the record's by
+    scipy (its own zero-order hold), so the delay falls between the fine steps exactly."""
+    from scipy import signal
+
+    from testbed.data import Experiment
+    from testbed.identification.examples import inputs
+
+    rng = np.random.default_rng(11) if noise else None
+    A, B, S = continuous(structure(VEHICLE), theta_vector(EXAMPLE_COEFFICIENTS))
+    out = []
+    for j in (1, 2):
+        t, u = inputs(duration=duration, seed=j)["horizontal"]
+        dt, fine = float(t[1] - t[0]), 10
+        h = dt / fine
+        Ad, Bd, *_ = signal.cont2discrete(
+            (A, np.column_stack([B, S]), np.eye(NX), np.zeros((NX, 4))), h, "zoh"
+        )
+        n = len(t) * fine
+        true = np.repeat(u, fine, axis=0)  # the fins' own angle, held over each fine step
+        x = np.zeros((n, NX))
+        for k in range(n - 1):
+            x[k + 1] = Ad @ x[k] + Bd @ np.r_[true[k], 1.0]
+        lag = int(round(DELAY / h))
+        recorded = np.vstack([np.repeat(true[:1], lag, axis=0), true[:-lag]])  # late by DELAY
+        # each record interval's mean angle, as the testbed records it
+        u_rec = recorded.reshape(len(t), fine, 3).mean(axis=1)
+        xs = x[::fine].copy()
+        xs[:, IX["u"]] += VEHICLE.speed
+        y = xs if rng is None else xs + rng.normal(size=xs.shape) * np.array([NOISE[s] for s in STATES])
+        out.append(Experiment(f"late-{j}", t, STATES, y, u_rec))
+    return out
+
+
+def test_shifted_interpolates_and_holds_at_the_ends():
+    u = np.arange(5.0)[:, None] ** 2
+    value, slope = shifted(u, 1.25)
+    np.testing.assert_allclose(value[:, 0], [1.75, 5.25, 10.75, 16, 16])  # u[3.25] = 9 + 0.25·(16 − 9)
+    np.testing.assert_allclose(slope[:, 0], [3, 5, 7, 0, 0])
+    np.testing.assert_allclose(shifted(u, -0.5)[0][:, 0], [0, 0.5, 2.5, 6.5, 12.5])
+
+
+def test_sensitivities_to_the_delay_match_complex_step():
+    data = _late(duration=3.0)
+    prob = problem(data, _start(LATERAL + ("input_delay",)).with_coefficients({"input_delay": 0.03}))
+    p = likelihood.initial_states(prob, prob.start)
+    sens = recursions.sensitivities(prob, p)
+    h = 1e-30
+    for j in range(prob.n_params):
+        pc = p.astype(complex)
+        pc[j] += 1j * h
+        for r, S, yc in zip(prob.records, sens, recursions.outputs(prob, pc)):
+            ref, cols = yc.imag / h, list(prob.columns(r))
+            if j not in cols:
+                assert not ref.any()
+                continue
+            np.testing.assert_allclose(S[:, :, cols.index(j)], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+
+
+def test_second_order_sensitivities_with_a_delay_match_complex_step():
+    data = _late(duration=2.0)
+    prob = problem(data, _start(LATERAL + ("input_delay",)).with_coefficients({"input_delay": 0.03}))
+    p = likelihood.initial_states(prob, prob.start)
+    weights = [np.random.default_rng(3).normal(size=r.y.shape) for r in prob.records]
+    H = recursions.curvature(prob, p, weights)
+    ref = np.zeros_like(H)
+    h = 1e-30
+    for j in range(prob.n_params):
+        pc = p.astype(complex)
+        pc[j] += 1j * h
+        for r, w, S in zip(prob.records, weights, recursions.sensitivities(prob, pc)):
+            ref[prob.columns(r), j] += np.einsum("nk,nkp->p", w, S.imag / h)
+    np.testing.assert_allclose(H, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
+
+
+def test_the_simplex_cost_with_a_delay_is_the_qr_likelihood():
+    prob = problem(_late(duration=10.0), _start(LATERAL + ("input_delay",)))
+    values = prob.start.copy()
+    values[-1] = DELAY
+    R = np.full(len(prob.channels), 1e-4)
+    out = likelihood.fit_initial_states(prob, values, R)[1]
+    qr = (
+        sum(float(np.sum((r.y - y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out)) / prob.n_samples
+    )
+    assert concentrated.Cost(prob)(values, R) == pytest.approx(qr, rel=1e-9)
+
+
+def test_the_delay_is_recovered_where_a_model_without_it_is_biased():
+    data = _late()
+    truth = EXAMPLE_COEFFICIENTS | {"input_delay": DELAY}
+    est = identify(data, _start(LATERAL + ("input_delay",)), method="ml-gn")
+    assert est.converged
+    sigmas = {n: (v - truth[n]) / s for n, v, s in zip(est.free, est.values, est.std)}
+    assert max(abs(v) for v in sigmas.values()) < 3.0, sigmas
+    plain = identify(data, _start(), method="ml-gn")
+    worst = max(abs(v - truth[n]) / s for n, v, s in zip(plain.free, plain.values, plain.std))
+    assert worst > 5.0
+
+
+def test_the_filters_refuse_a_free_delay():
+    data = _late(duration=5.0)
+    config = _start(LATERAL + ("input_delay",))
+    for method, words in (("mekf", "inputs' delay"), ("ekf", "inputs' delay"), ("ml-fem", "input delay")):
+        with pytest.raises(InputError, match=words) as exc:
+            identify(data, config, method=method)
+        assert "\n" not in str(exc.value)
