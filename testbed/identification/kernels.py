@@ -10,7 +10,15 @@ Each computes what `scan.Scan` computes, sample by sample: numpy's per-call over
 import numba
 import numpy as np
 
-__all__ = ["adjoint_sum", "concentrated_sse", "gramian", "propagate", "recursion", "weighted_sse"]
+__all__ = [
+    "adjoint_sum",
+    "concentrated_sse",
+    "gramian",
+    "masked_gramian",
+    "propagate",
+    "recursion",
+    "weighted_sse",
+]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})  # the sums reordered: 1.5× faster
@@ -56,10 +64,11 @@ def recursion(Phi, forcing, X, rows, S):
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
-def adjoint_sum(Phi, F, y, measured, W):
-    """`b = λ[0][measured]` of the adjoint `λ[k] = Φᵀλ[k+1] + a[k]`, `a[k][measured] = W (y[k] −
-    x[k][measured])`, with `x[k+1] = Φ x[k] + F[k]` from x[0] = 0: the right-hand side of the
-    initial state's normal equations (`testbed.identification.concentrated`)."""
+def adjoint_sum(Phi, F, y, measured, W, P):
+    """`b = λ[0][measured]` of the adjoint `λ[k] = Φᵀλ[k+1] + a[k]`, `a[k][measured] = W P[k] (y[k] −
+    x[k][measured])` (P[k, j]: 1 where sample k of channel j is present, 0 where it is missing),
+    with `x[k+1] = Φ x[k] + F[k]` from x[0] = 0: the right-hand side of the initial state's normal
+    equations (`testbed.identification.concentrated`)."""
     n, N, c = Phi.shape[0], y.shape[0], len(measured)
     x = np.empty((N, n))
     x[0] = 0.0
@@ -67,7 +76,7 @@ def adjoint_sum(Phi, F, y, measured, W):
     a = np.zeros((N, n))  # a[N − 1 − k]: the adjoint runs backwards
     for k in range(N):
         for j in range(c):
-            a[N - 1 - k, measured[j]] = W[j] * (y[k, j] - x[k, measured[j]])
+            a[N - 1 - k, measured[j]] = W[j] * P[k, j] * (y[k, j] - x[k, measured[j]])
     lam = x  # λ[N − 1 − k], in x's memory
     lam[0] = a[0]
     propagate(np.ascontiguousarray(Phi.T), lam, a[1:])
@@ -78,10 +87,10 @@ def adjoint_sum(Phi, F, y, measured, W):
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
-def weighted_sse(Phi, x0, F, y, measured, W, explode):
-    """`Σ_k Σ_j W_j (y[k, j] − x[k][measured[j]])²` along `x[k+1] = Φ x[k] + F[k]` from `x0`;
-    −1 where an output is not finite or beyond `explode`·max|y_j| + 1 (the model diverged,
-    `testbed.identification.likelihood.exploded`)."""
+def weighted_sse(Phi, x0, F, y, measured, W, P, explode):
+    """`Σ_k Σ_j W_j P[k, j] (y[k, j] − x[k][measured[j]])²` (P as in `adjoint_sum`) along
+    `x[k+1] = Φ x[k] + F[k]` from `x0`; −1 where an output is not finite or beyond
+    `explode`·max|y_j| + 1 (the model diverged, `testbed.identification.likelihood.exploded`)."""
     N, c = y.shape[0], len(measured)
     bound = np.zeros(c)
     for k in range(N):
@@ -98,7 +107,7 @@ def weighted_sse(Phi, x0, F, y, measured, W, explode):
             if not abs(v) <= bound[j]:  # NaN too
                 return -1.0
             d = y[k, j] - v
-            total += W[j] * d * d
+            total += W[j] * P[k, j] * d * d
     return total
 
 
@@ -135,20 +144,54 @@ def gramian(Phi, Q, N):
     return S
 
 
+@numba.njit(cache=True)
+def masked_gramian(Phi, measured, W, P):
+    """`Σ_k (C Φᵏ)ᵀ diag(W P[k]) C Φᵏ` restricted to the `measured` columns (c, c), C the rows
+    `measured` of the identity, P as in `adjoint_sum`: a record's observability Gramian with its
+    missing samples left out, summed sample by sample (the doubling of `gramian` needs the same
+    weights at every sample)."""
+    n, c, N = Phi.shape[0], len(measured), P.shape[0]
+    R, Rn = np.zeros((c, n)), np.empty((c, n))  # C Φᵏ
+    for j in range(c):
+        R[j, measured[j]] = 1.0
+    A = np.zeros((c, c))
+    for k in range(N):
+        for l in range(c):
+            wl = W[l] * P[k, l]
+            if wl == 0:
+                continue
+            for i in range(c):
+                ri = wl * R[l, measured[i]]
+                for j in range(c):
+                    A[i, j] += ri * R[l, measured[j]]
+        if k == N - 1:
+            break
+        for j in range(c):
+            for i in range(n):
+                acc = 0.0
+                for l in range(n):
+                    acc += R[j, l] * Phi[l, i]
+                Rn[j, i] = acc
+        R, Rn = Rn, R
+    return A
+
+
 @numba.njit(cache=True, fastmath={"reassoc"})
-def concentrated_sse(Phi, Gamma, s, inputs, y, starts, measured, counts, W, explode, condition):
-    """`Σ_records Σ_k Σ_j W_rj (y[k, j] − x[k][measured[r, j]])²` with each record's initial
-    state at its best (`testbed.identification.concentrated`): the records stacked in `inputs`
-    and `y` (record r the rows `starts[r]:starts[r+1]`, its `counts[r]` measured states the first
-    columns of y, `measured[r]`, their weights `W[r]`), `x[k+1] = Φ x[k] + Γ δ[k] + s`. Per record
-    `adjoint_sum`, the Gramian (`gramian`) scaled to a unit diagonal, x0 from the normal equations
-    and `weighted_sse`. −1 where the outputs diverge (`weighted_sse`), −2 where a scaled Gramian's
-    condition number exceeds `condition` (x0 then wants a QR solve)."""
+def concentrated_sse(Phi, Gamma, s, inputs, y, P, complete, starts, measured, counts, W, explode, condition):
+    """`Σ_records Σ_k Σ_j W_rj P[k, j] (y[k, j] − x[k][measured[r, j]])²` with each record's
+    initial state at its best (`testbed.identification.concentrated`): the records stacked in
+    `inputs`, `y` and `P` (record r the rows `starts[r]:starts[r+1]`, its `counts[r]` measured
+    states the first columns of y, `measured[r]`, their weights `W[r]`; P 1 where a sample is
+    present, 0 where it is missing, `complete[r]` where record r misses none),
+    `x[k+1] = Φ x[k] + Γ δ[k] + s`. Per record `adjoint_sum`, the Gramian (`gramian`, or
+    `masked_gramian` for a record with missing samples) scaled to a unit diagonal, x0 from the
+    normal equations and `weighted_sse`. −1 where the outputs diverge (`weighted_sse`), −2 where
+    a scaled Gramian's condition number exceeds `condition` (x0 then wants a QR solve)."""
     n, total = Phi.shape[0], 0.0
     for r in range(len(starts) - 1):
         a, b, c = starts[r], starts[r + 1], counts[r]
         N, m, w = b - a, measured[r, :c], W[r, :c]
-        yr = y[a:b, :c]
+        yr, Pr = y[a:b, :c], P[a:b, :c]
         F = np.empty((N - 1, n))
         for k in range(N - 1):  # F[k] = Γ δ[k] + s
             for i in range(n):
@@ -156,15 +199,18 @@ def concentrated_sse(Phi, Gamma, s, inputs, y, starts, measured, counts, W, expl
                 for j in range(Gamma.shape[1]):
                     acc += Gamma[i, j] * inputs[a + k, j]
                 F[k, i] = acc
-        rhs = adjoint_sum(Phi, F, yr, m, w)
-        Q = np.zeros((n, n))
-        for j in range(c):
-            Q[m[j], m[j]] = w[j]
-        G = gramian(Phi, Q, N)
-        A = np.empty((c, c))
-        for i in range(c):
+        rhs = adjoint_sum(Phi, F, yr, m, w, Pr)
+        if complete[r]:
+            Q = np.zeros((n, n))
             for j in range(c):
-                A[i, j] = G[m[i], m[j]]
+                Q[m[j], m[j]] = w[j]
+            G = gramian(Phi, Q, N)
+            A = np.empty((c, c))
+            for i in range(c):
+                for j in range(c):
+                    A[i, j] = G[m[i], m[j]]
+        else:
+            A = masked_gramian(Phi, m, w, Pr)
         D = np.sqrt(np.diag(A).copy())  # unit diagonal: x0's units do not count
         for i in range(c):
             for j in range(c):
@@ -176,7 +222,7 @@ def concentrated_sse(Phi, Gamma, s, inputs, y, starts, measured, counts, W, expl
         x0 = np.zeros(n)
         for j in range(c):
             x0[m[j]] = x0m[j]
-        sse = weighted_sse(Phi, x0, F, yr, m, w, explode)
+        sse = weighted_sse(Phi, x0, F, yr, m, w, Pr, explode)
         if not sse >= 0:
             return -1.0
         total += sse

@@ -15,7 +15,7 @@ The outputs are the measured states, `u` as the perturbation u_abs − U.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -40,15 +40,33 @@ __all__ = ["COARSEST", "Problem", "Record", "check_fit", "check_inputs", "free_v
 
 @dataclass(frozen=True)
 class Record:
-    """One experiment as the model sees it."""
+    """One experiment as the model sees it. A missing sample (NaN in the experiment) is left out
+    of the likelihood: `present` marks the samples there are, and `y` is 0 where there is none,
+    so that the arithmetic on it stays finite; every residual is taken through `residual`."""
 
     name: str
-    y: np.ndarray  # (N, k) measured states, u as the perturbation u_abs − U
+    y: np.ndarray  # (N, k) measured states, u as the perturbation u_abs − U; 0 where missing
     inputs: np.ndarray  # (N, 3)
     measured: np.ndarray  # (k,) indexes into STATES
     channels: np.ndarray  # (k,) indexes into Problem.channels
     dt: float
     offset: int  # where this experiment's initial state starts in p
+    present: np.ndarray | None = None  # (N, k) bool, the samples there are; None: all of them
+
+    @property
+    def counts(self) -> np.ndarray:
+        """The samples present per channel (k,)."""
+        return np.full(len(self.measured), len(self.y)) if self.present is None else self.present.sum(axis=0)
+
+    def residual(self, yhat: np.ndarray) -> np.ndarray:
+        """`y − yhat` (N, k), 0 at the missing samples."""
+        e = self.y - yhat
+        return e if self.present is None else np.where(self.present, e, 0)
+
+    def rows(self, a: int, b: int) -> "Record":
+        """The record's samples a … b − 1 (its own initial state still at `offset`)."""
+        present = None if self.present is None else self.present[a:b]
+        return replace(self, y=self.y[a:b], inputs=self.inputs[a:b], present=present)
 
 
 @dataclass(frozen=True)
@@ -167,6 +185,8 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
         y = y.copy()
         if "u" in e.measured:
             y[:, e.measured.index("u")] -= config.vehicle.speed
+        present = ~np.isnan(y)
+        y[~present] = 0.0
         records.append(
             Record(
                 e.name,
@@ -176,6 +196,7 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
                 np.array([channels.index(s) for s in e.measured]),
                 float(t[1] - t[0]),
                 offset,
+                None if present.all() else present,
             )
         )
         offset += len(measured)

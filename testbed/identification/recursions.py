@@ -135,16 +135,24 @@ def outputs(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
 
 def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Measured minus model outputs (N, k) per experiment."""
-    return [r.y - yhat for r, yhat in zip(prob.records, outputs(prob, p))]
+    return [r.residual(yhat) for r, yhat in zip(prob.records, outputs(prob, p))]
 
 
 def sensitivity_parts(
-    prob: Problem, record: Record, d: Discrete, x: np.ndarray, rows, scale: np.ndarray, size: int
+    prob: Problem,
+    record: Record,
+    d: Discrete,
+    x: np.ndarray,
+    rows,
+    scale: np.ndarray,
+    size: int,
+    present: np.ndarray | None = None,
 ) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:
     """`scale[c] ∂x_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
     states `x` (N, 10), for each `uncoupled` part of the model: (channels, params, pieces), the
-    pieces as in `scan.pieces` with (T, len(channels), len(params)) arrays; `channels` index `rows`,
-    `params` p. Sensitivities across the parts are zero and not given.
+    pieces as in `scan.pieces` with (len(channels), T, len(params)) arrays; `channels` index `rows`,
+    `params` p. Sensitivities across the parts are zero and not given; `present` (N, len(rows)):
+    the samples there are, the others' sensitivities given as 0 (they are left out of the fit).
 
     ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ.
     """
@@ -160,11 +168,14 @@ def sensitivity_parts(
         X = np.zeros((len(states), len(params)), dtype=dtype)  # the θ columns first
         X[at[record.measured[x0 - nf]], len(theta) + np.arange(len(x0))] = 1.0
         D = dE[theta][:, states, :].transpose(1, 0, 2).reshape(-1, NW)  # rows: (state, θ)
-        yield (
-            channels,
-            params,
-            scan.pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]], scale[channels], size),
-        )
+        pieces = scan.pieces(Phi[np.ix_(states, states)], D, w, X, at[rows[channels]], scale[channels], size)
+        yield channels, params, pieces if present is None else _masked(pieces, present[:, channels])
+
+
+def _masked(pieces: Iterator, present: np.ndarray) -> Iterator:
+    """`pieces` (samples, (channels, T, q) array) with the missing samples' rows zeroed."""
+    for samples, S in pieces:
+        yield samples, S * present[samples].T[:, :, None]
 
 
 def uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
