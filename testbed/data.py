@@ -293,11 +293,12 @@ def _held(path: Path, values: np.ndarray, n: int) -> np.ndarray:
 def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
     """The rows of `values` (t first, then the states, then the inputs) on a uniform grid, the
     rule for logs as they come (docs/files.md#measurement-csv): uniform times are kept as they
-    are; otherwise the grid is t0 + jΔ, Δ the median of the positive steps, each row goes to its
-    nearest grid point, rows on one point are merged (each state the mean of the values present,
-    the inputs of the last row), and a point without a row has every state missing (NaN) and the
-    inputs held. `InputError` naming the data row where the time decreases, and for a grid longer
-    than `MAX_SAMPLES`."""
+    are; otherwise each step between rows spans a whole number of grid steps (its length over
+    the median positive step, rounded), the grid t0 + jΔ is the least-squares line through the
+    stamps at those points, each row goes to its nearest grid point, rows on one point are
+    merged (each state the mean of the values present, the inputs of the last row), and a point
+    without a row has every state missing (NaN) and the inputs held. `InputError` naming the
+    data row where the time decreases, and for a grid longer than `MAX_SAMPLES`."""
     t = values[:, 0]
     dt, off = uniform_step(t)
     if off is None:
@@ -315,16 +316,22 @@ def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
         dt = median(positive) if positive.size else math.nan
         if not dt > 0 or not math.isfinite((t[-1] - t[0]) / dt):
             raise InputError(f"{path}: t never increases; expected times in seconds")
-        j = np.rint((t - t[0]) / dt)
+        j = np.concatenate([[0.0], np.cumsum(np.rint(steps / dt))])  # each step in whole Δ
     if j[-1] + 1 > MAX_SAMPLES:
         raise InputError(
             f"{path}: t spans {t[-1] - t[0]:.10g} s at a median step of {dt:.10g} s, a grid of "
             f"{int(j[-1]) + 1} samples; expected at most {MAX_SAMPLES}"
         )
-    j = j.astype(np.int64)
+    # the grid a + jΔ: the least-squares line through the stamps at those points, so that the
+    # median step's own error (a jittered step's) does not accumulate along the record
+    jc, tc = j - j.mean(), t - t.mean()
+    dt = float(jc @ tc / (jc @ jc))
+    start = float(t.mean() - dt * j.mean())
+    j = np.rint((t - start) / dt).astype(np.int64)
+    start, j = start + int(j[0]) * dt, j - j[0]  # the first row on the grid's first point
     n = int(j[-1]) + 1
     grid = np.full((n, values.shape[1]), np.nan)
-    grid[:, 0] = t[0] + np.arange(n) * dt
+    grid[:, 0] = start + np.arange(n) * dt
     states = values[:, 1 : values.shape[1] - len(INPUTS)]
     present = ~np.isnan(states)
     sums, counts = np.zeros((n, states.shape[1])), np.zeros((n, states.shape[1]))
