@@ -295,23 +295,28 @@ def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
     rule for logs as they come (docs/files.md#measurement-csv): uniform times are kept as they
     are; otherwise each step between rows spans a whole number of grid steps (its length over
     the median positive step, rounded), the grid t0 + jΔ is the least-squares line through the
-    stamps at those points, each row goes to its nearest grid point, rows on one point are
-    merged (each state the mean of the values present, the inputs of the last row), and a point
-    without a row has every state missing (NaN) and the inputs held. `InputError` naming the
+    stamps at those points, each row goes to its nearest grid point (a row logged twice counts
+    once; a row on the point of the row before it whose next point has no row of its own takes
+    that point: a stale stamp), rows still on one point are merged (each state the mean of the
+    values present, the inputs of the last row), and a point without a row has every state
+    missing (NaN) and the inputs held. `InputError` naming the
     data row where the time decreases, and for a grid longer than `MAX_SAMPLES`."""
     t = values[:, 0]
     dt, off = uniform_step(t)
     if off is None:
         return values
     with np.errstate(over="ignore", invalid="ignore"):
-        steps = np.diff(t)
-        back = np.flatnonzero(~(steps >= 0))
+        back = np.flatnonzero(~(np.diff(t) >= 0))
         if back.size:
             k = int(back[0]) + 1
             raise InputError(
                 f"{path}: data row {k + 1}: t = {t[k]:.10g} s after {t[k - 1]:.10g} s; expected "
                 "times that never decrease"
             )
+        same = (values[1:] == values[:-1]) | (np.isnan(values[1:]) & np.isnan(values[:-1]))
+        values = values[np.r_[True, ~same.all(axis=1)]]  # a row logged twice is one row
+        t = values[:, 0]
+        steps = np.diff(t)
         positive = steps[steps > 0]
         dt = median(positive) if positive.size else math.nan
         if not dt > 0 or not math.isfinite((t[-1] - t[0]) / dt):
@@ -329,6 +334,9 @@ def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
     start = float(t.mean() - dt * j.mean())
     j = np.rint((t - start) / dt).astype(np.int64)
     start, j = start + int(j[0]) * dt, j - j[0]  # the first row on the grid's first point
+    for k in np.flatnonzero(np.diff(j) == 0) + 1:  # a row on the point of the row before it
+        if j[k] == j[k - 1] and (k + 1 == len(j) or j[k + 1] > j[k] + 1):
+            j[k] += 1  # a stale stamp: the sample of the next point, which has no row of its own
     n = int(j[-1]) + 1
     grid = np.full((n, values.shape[1]), np.nan)
     grid[:, 0] = start + np.arange(n) * dt

@@ -385,3 +385,19 @@ def test_a_long_jittered_log_keeps_every_row_on_its_own_point(tmp_path):
     assert len(e.t) == n and not np.isnan(e.y).any()
     np.testing.assert_array_equal(e.y, y)
     assert np.max(np.abs(e.t - t)) < 0.25 * dt
+
+
+def test_a_stale_stamp_takes_the_free_point_after_it_and_a_row_logged_twice_counts_once(tmp_path):
+    """A row stamped like the row before it, where the next grid point has no row, is that
+    point's sample (the logger repeated a stale stamp); a row repeated whole is one row."""
+    t = 0.1 * np.arange(10)
+    y = np.column_stack([np.arange(10.0), 100 + np.arange(10.0)])
+    d = np.zeros((10, 3))
+    stamps = t.copy()
+    stamps[4] = stamps[3]  # stale: the sample of t = 0.4 stamped 0.3
+    rows = np.column_stack([stamps, y, d])
+    rows = np.insert(rows, 7, rows[6], axis=0)  # row 6 logged twice
+    e = read_csv(_log(tmp_path, rows[:, 0], rows[:, 1:3], rows[:, 3:]))
+    assert len(e.t) == 10
+    np.testing.assert_array_equal(e.y, y)
+    assert abs(e.t[1] - e.t[0] - 0.1) < 1e-3
