@@ -492,6 +492,10 @@ def read_config(path: str | Path) -> ModelConfig:
     return parse_config(read_toml(path, "a model config TOML file"), str(path))
 
 
+# the vehicle constants every config gives; `Iy` may be left out where no state the data give
+# depends on the pitch row (`problem.check_inputs`), `zB` where `GM` is given, and so may the
+# metacentric heights `GM`, `GM_L` (docs/model.md#the-equations)
+_REQUIRED = ("mass", "Ix", "Iz", "weight", "buoyancy", "xB", "yB", "speed")
 # what each vehicle constant must be, beyond a finite number within ±MAX_CONSTANT
 _VEHICLE_RANGES = {
     "mass": (0.0, "> 0 (kg)"),
@@ -512,9 +516,15 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     veh = doc["vehicle"]
     values = {}
     for key in Vehicle.names():
-        if key not in veh:
-            raise InputError(f"{source}: [vehicle] {key} missing; expected a number (SI)")
-        values[key] = number(veh[key], f"{source}: [vehicle] {key}")
+        if key in veh:
+            values[key] = number(veh[key], f"{source}: [vehicle] {key}")
+        elif key in _REQUIRED or (key == "zB" and "GM" not in veh):
+            raise InputError(
+                f"{source}: [vehicle] {key} missing; expected a number (SI)"
+                + ("" if key in _REQUIRED else ", or GM (a floating body's metacentric height)")
+            )
+        else:
+            values[key] = None
     for key in set(veh) - set(Vehicle.names()):
         raise InputError(
             f"{source}: [vehicle] {key} is not a vehicle constant; "
@@ -552,6 +562,10 @@ def check_config(config: ModelConfig) -> None:
     coefficients as finite numbers within ±`MAX_CONSTANT`, and distinct free coefficient names."""
     source = config.source or "config"
     for key in Vehicle.names():
+        if getattr(config.vehicle, key) is None and (
+            key not in _REQUIRED + ("zB",) or config.vehicle.GM is not None
+        ):
+            continue  # an optional constant left out
         v = number(getattr(config.vehicle, key), f"{source}: [vehicle] {key}")
         low, expected = _VEHICLE_RANGES.get(key, (None, ""))
         high = MAX_SPEED if key == "speed" else math.inf
@@ -637,7 +651,9 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         note = f"  # {comments[key]}" if key in comments else ""
         return f"{key} = {float(value)!r}{note}"
 
-    lines = ["[vehicle]"] + [line(k, getattr(config.vehicle, k)) for k in Vehicle.names()]
+    lines = ["[vehicle]"] + [
+        line(k, getattr(config.vehicle, k)) for k in Vehicle.names() if getattr(config.vehicle, k) is not None
+    ]
     lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
     lines += ["", "[identify]"]
     if config.screen:

@@ -1,5 +1,6 @@
 """The file readers and writers: round trips and one-line errors on bad input."""
 
+import tomllib
 from dataclasses import replace
 
 import numpy as np
@@ -129,7 +130,7 @@ def test_config_round_trip(tmp_path):
 
 def _doc(**changes):
     doc = {
-        "vehicle": {k: getattr(VEHICLE, k) for k in Vehicle.names()},
+        "vehicle": {k: getattr(VEHICLE, k) for k in Vehicle.names() if getattr(VEHICLE, k) is not None},
         "coefficients": {"X_u": -1.0},
         "identify": {"free": ["X_u"]},
     }
@@ -401,3 +402,23 @@ def test_a_stale_stamp_takes_the_free_point_after_it_and_a_row_logged_twice_coun
     assert len(e.t) == 10
     np.testing.assert_array_equal(e.y, y)
     assert abs(e.t[1] - e.t[0] - 0.1) < 1e-3
+
+
+def test_a_4_dof_config_may_leave_out_the_pitch_constants(tmp_path):
+    doc = _doc()
+    del doc["vehicle"]["Iy"]
+    config = parse_config(doc, "m.toml")
+    assert config.vehicle.Iy is None and config.vehicle.omitted() == ("Iy",)
+    assert "Iy" not in config_text(config)
+    assert parse_config(tomllib.loads(config_text(config)), "again").vehicle == config.vehicle
+    doc["vehicle"] |= {"GM": 0.05}
+    del doc["vehicle"]["zB"]
+    assert parse_config(doc, "m.toml").vehicle.omitted() == ("Iy", "zB")
+    doc["vehicle"] |= {"GM_L": 1.5}
+    assert parse_config(doc, "m.toml").vehicle.omitted() == ("Iy",)
+    del doc["vehicle"]["GM"]
+    with pytest.raises(InputError, match=r"m.toml: \[vehicle\] zB missing; expected a number \(SI\), or GM"):
+        parse_config(doc, "m.toml")
+    doc["vehicle"] |= {"zB": 0.0, "GM": float("nan")}
+    with pytest.raises(InputError, match=r"\[vehicle\] GM = nan; expected a finite number"):
+        parse_config(doc, "m.toml")

@@ -384,8 +384,11 @@ def test_bad_input():
     with pytest.raises(InputError, match="Y_bogus"):
         problem(data, replace(example_config(), free=("Y_v", "Y_bogus")))
     y = data[0].y.copy()
-    y[3, 1] = np.nan
-    with pytest.raises(InputError, match="NaN"):
+    y[3, 1] = np.inf
+    with pytest.raises(InputError, match="infinity"):
+        problem([replace(data[0], y=y)], example_config())
+    y[3, 1], y[:, 2] = np.nan, np.nan  # a missing sample is taken; a state with none is not
+    with pytest.raises(InputError, match=f"{data[0].measured[2]} has no value"):
         problem([replace(data[0], y=y)], example_config())
     t = data[0].t.copy()
     t[5] += 0.01

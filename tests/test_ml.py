@@ -404,3 +404,32 @@ def test_masked_initial_states_are_the_least_squares_of_the_samples_present():
         v = (r.y - forced[i]) / np.sqrt(R[r.channels])
         x0 = np.linalg.lstsq(G[r.present], v[r.present], rcond=None)[0]
         np.testing.assert_allclose(p[r.offset : r.offset + k], x0, rtol=1e-7, atol=1e-10)
+
+
+def test_a_4_dof_config_without_iy_fits_lateral_data_and_refuses_vertical_ones():
+    """No Iy in the config: lateral data (v, p, r, φ, ψ) fit exactly as with it; a measured q,
+    or a measured u (the surge row sees θ through W − B), is refused naming Iy and the state."""
+    from testbed.simulation.analytic import analytic_config
+    from testbed.identification.prediction import synthetic
+    from testbed.models.linear import INPUTS
+
+    config, _ = analytic_config()
+    free = ("N_r", "N_dr", "K_p")
+    config = replace(config, free=free, outputs=None, screen=False)
+    rng = np.random.default_rng(2)
+    t = np.arange(0.0, 30.0, 0.02)
+    inputs = np.zeros((len(t), len(INPUTS)))
+    inputs[:, 0] = 0.02 * np.repeat(rng.choice([-1.0, 1.0], size=len(t) // 50 + 1), 50)[: len(t)]
+    inputs[:, 1] = -inputs[:, 0] / 2
+    inputs[:, 2] = inputs[:, 0] / 2
+    lateral = ("v", "p", "r", "phi", "psi")
+    data = [synthetic(config, t, inputs, {s: 1e-3 for s in lateral}, measured=lateral, rng=rng, name="turns")]
+    four = replace(config, vehicle=replace(config.vehicle, Iy=None))
+    a, b = identify(data, config, "ml-gn", start="config"), identify(data, four, "ml-gn", start="config")
+    assert b.converged
+    np.testing.assert_array_equal(a.values, b.values)
+    np.testing.assert_array_equal(a.std, b.std)
+    for extra, named in (("q", "q"), ("u", "u")):
+        more = synthetic(config, t, inputs, measured=lateral + (extra,), name="turns")
+        with pytest.raises(InputError, match=rf"\[vehicle\] Iy missing; .* measured {named} depends on it"):
+            identify([more], four, "ml-gn")

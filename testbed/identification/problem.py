@@ -30,6 +30,7 @@ from testbed.models.linear import (
     Structure,
     fastest_rate,
     inertia_defect,
+    pitch_dependents,
     structure,
     theta_vector,
     unobserved,
@@ -141,6 +142,8 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig, resolve
     """`InputError` unless the experiments and the config can be fitted together, before any work:
 
     - each record is usable (`data.check_experiment`) and the config valid (`data.check_config`);
+    - a 4-DOF config's omitted pitch constants (`Vehicle.omitted`) reach no measured state
+      (`model.pitch_dependents`): the model's stand-ins for them then move nothing the data give;
     - the config's Mt is the inertia of a body (`model.inertia_defect`): a singular or indefinite
       one makes every model built on it blow up, the fault of the config, not of the data;
     - each record's sampling interval Δ resolves the model: over one step the fastest mode
@@ -157,6 +160,17 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig, resolve
     check_config(config)
     source = config.source or "config"
     s, theta = structure(config.vehicle), theta_vector(config.coefficients)
+    omitted = config.vehicle.omitted()
+    if omitted:
+        measured = {n for e in experiments for n in e.measured}
+        needs = pitch_dependents(s, theta, config.free, measured)
+        if needs:
+            raise InputError(
+                f"{source}: [vehicle] {', '.join(omitted)} missing; the pitch row needs "
+                f"{'it' if len(omitted) == 1 else 'them'}, and the measured {', '.join(needs)} "
+                f"depend{'s' if len(needs) == 1 else ''} on it; expected a number (SI), or data "
+                "without the states the pitch row moves"
+            )
     defect = inertia_defect(s, theta)
     if defect:
         raise InputError(f"{source}: the inertia matrix Mt is not a body's: {defect}")
