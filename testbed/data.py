@@ -299,8 +299,8 @@ def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
     once; a row on the point of the row before it whose next point has no row of its own takes
     that point: a stale stamp), rows still on one point are merged (each state the mean of the
     values present, the inputs of the last row), and a point without a row has every state
-    missing (NaN) and the inputs held. `InputError` naming the
-    data row where the time decreases, and for a grid longer than `MAX_SAMPLES`."""
+    missing (NaN) and the inputs held. `InputError` naming the data row where the time
+    decreases, and for a grid longer than `MAX_SAMPLES`."""
     t = values[:, 0]
     dt, off = uniform_step(t)
     if off is None:

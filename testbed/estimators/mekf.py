@@ -666,8 +666,9 @@ def _sqrt_pass(
                 pre_a[m:, m:] = svd_root(ja)
             pre_a[:m, m:] = pre_a[sel, m:]
             ok = present[k]
+            full = ok.all()
             nu = y[k] - x[rows]
-            if not ok.all():  # a missing channel: its row decoupled (C J⁻ = 0, ν = 0), no update
+            if not full:  # a missing channel: its row decoupled (C J⁻ = 0, ν = 0), no update
                 pre_a[:m, m:][~ok] = 0.0
                 nu[~ok] = 0.0
             dx, w, L, Ja = sqrt_update(pre_a, m, nu)
@@ -677,8 +678,10 @@ def _sqrt_pass(
                 if svd:
                     pre_k[m:, m:] = svd_root(jk)
                 pre_k[:m, m:] = pre_k[sel, m:]
-                nuk = np.where(ok, y[k] - xk[rows], 0.0)
-                pre_k[:m, m:][~ok] = 0.0
+                nuk = y[k] - xk[rows]
+                if not full:
+                    pre_k[:m, m:][~ok] = 0.0
+                    nuk[~ok] = 0.0
                 dxk, _, _, Jx = sqrt_update(pre_k, m, nuk)
                 xk += dxk
             else:
@@ -686,7 +689,10 @@ def _sqrt_pass(
             if k > 0 and error.update(nu, np.einsum("ij,ij->i", L, L), ok):  # diag S = diag L Lᵀ
                 ja[error.rows, qa] = jk[error.rows, qk] = error.q[error.rows]
             var = np.einsum("ij,ij->i", Ja[n:], Ja[n:])
-            books.sample(k, xk, th, var, float(w @ w), np.where(ok, L.diagonal(), 1.0), int(ok.sum()))
+            if full:
+                books.sample(k, xk, th, var, float(w @ w), L.diagonal())
+            else:
+                books.sample(k, xk, th, var, float(w @ w), np.where(ok, L.diagonal(), 1.0), int(ok.sum()))
             if k == last:
                 break
             if k == 0:  # process noise from the first time update on
