@@ -66,9 +66,10 @@ def recursion(Phi, forcing, X, rows, S):
 @numba.njit(cache=True, fastmath={"reassoc"})
 def adjoint_sum(Phi, F, y, measured, W, P):
     """`b = λ[0][measured]` of the adjoint `λ[k] = Φᵀλ[k+1] + a[k]`, `a[k][measured] = W P[k] (y[k] −
-    x[k][measured])` (P[k, j]: 1 where sample k of channel j is present, 0 where it is missing),
-    with `x[k+1] = Φ x[k] + F[k]` from x[0] = 0: the right-hand side of the initial state's normal
-    equations (`testbed.identification.concentrated`)."""
+    x[k][measured])` (P[k, j]: 1 where sample k of channel j is present, 0 where it is missing;
+    None: every sample present, compiled apart without P), with `x[k+1] = Φ x[k] + F[k]` from
+    x[0] = 0: the right-hand side of the initial state's normal equations
+    (`testbed.identification.concentrated`)."""
     n, N, c = Phi.shape[0], y.shape[0], len(measured)
     x = np.empty((N, n))
     x[0] = 0.0
@@ -76,7 +77,10 @@ def adjoint_sum(Phi, F, y, measured, W, P):
     a = np.zeros((N, n))  # a[N − 1 − k]: the adjoint runs backwards
     for k in range(N):
         for j in range(c):
-            a[N - 1 - k, measured[j]] = W[j] * P[k, j] * (y[k, j] - x[k, measured[j]])
+            if P is None:
+                a[N - 1 - k, measured[j]] = W[j] * (y[k, j] - x[k, measured[j]])
+            else:
+                a[N - 1 - k, measured[j]] = W[j] * P[k, j] * (y[k, j] - x[k, measured[j]])
     lam = x  # λ[N − 1 − k], in x's memory
     lam[0] = a[0]
     propagate(np.ascontiguousarray(Phi.T), lam, a[1:])
@@ -107,7 +111,10 @@ def weighted_sse(Phi, x0, F, y, measured, W, P, explode):
             if not abs(v) <= bound[j]:  # NaN too
                 return -1.0
             d = y[k, j] - v
-            total += W[j] * P[k, j] * d * d
+            if P is None:
+                total += W[j] * d * d
+            else:
+                total += W[j] * P[k, j] * d * d
     return total
 
 
@@ -199,8 +206,8 @@ def concentrated_sse(Phi, Gamma, s, inputs, y, P, complete, starts, measured, co
                 for j in range(Gamma.shape[1]):
                     acc += Gamma[i, j] * inputs[a + k, j]
                 F[k, i] = acc
-        rhs = adjoint_sum(Phi, F, yr, m, w, Pr)
         if complete[r]:
+            rhs = adjoint_sum(Phi, F, yr, m, w, None)
             Q = np.zeros((n, n))
             for j in range(c):
                 Q[m[j], m[j]] = w[j]
@@ -210,6 +217,7 @@ def concentrated_sse(Phi, Gamma, s, inputs, y, P, complete, starts, measured, co
                 for j in range(c):
                     A[i, j] = G[m[i], m[j]]
         else:
+            rhs = adjoint_sum(Phi, F, yr, m, w, Pr)
             A = masked_gramian(Phi, m, w, Pr)
         D = np.sqrt(np.diag(A).copy())  # unit diagonal: x0's units do not count
         for i in range(c):
@@ -222,7 +230,10 @@ def concentrated_sse(Phi, Gamma, s, inputs, y, P, complete, starts, measured, co
         x0 = np.zeros(n)
         for j in range(c):
             x0[m[j]] = x0m[j]
-        sse = weighted_sse(Phi, x0, F, yr, m, w, Pr, explode)
+        if complete[r]:
+            sse = weighted_sse(Phi, x0, F, yr, m, w, None, explode)
+        else:
+            sse = weighted_sse(Phi, x0, F, yr, m, w, Pr, explode)
         if not sse >= 0:
             return -1.0
         total += sse
