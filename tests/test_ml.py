@@ -433,3 +433,37 @@ def test_a_4_dof_config_without_iy_fits_lateral_data_and_refuses_vertical_ones()
         more = synthetic(config, t, inputs, measured=lateral + (extra,), name="turns")
         with pytest.raises(InputError, match=rf"\[vehicle\] Iy missing; .* measured {named} depends on it"):
             identify([more], four, "ml-gn")
+
+
+def test_a_slower_sensor_s_likelihood_by_hand():
+    """ψ logged at a fifth of the rate (its other samples missing): the negative log-likelihood
+    and the noise variances against a hand computation over the samples ψ has, the other
+    channels over all of theirs."""
+    from testbed.identification import likelihood, recursions
+    from testbed.identification.problem import problem
+
+    data = experiments(seed=7, duration=10.0)
+    slow = []
+    for e in data:
+        y = e.y.copy()
+        y[np.arange(len(y)) % 5 != 0, e.measured.index("psi")] = np.nan
+        slow.append(replace(e, y=y))
+    config = prior_config(error=0.1)
+    prob = problem(slow, config)
+    p = likelihood.initial_states(prob, prob.start)
+    out = recursions.outputs(prob, p)
+    sums, counts = {}, {}
+    for e, yhat in zip(slow, out):
+        for j, s in enumerate(e.measured):
+            y = e.y[:, j] - (config.vehicle.speed if s == "u" else 0.0)
+            at = ~np.isnan(y)
+            sums[s] = sums.get(s, 0.0) + np.sum((y[at] - yhat[at, j]) ** 2)
+            counts[s] = counts.get(s, 0) + int(at.sum())
+    assert counts["psi"] == sum(len(range(0, len(e.t), 5)) for e in slow)
+    R = {s: sums[s] / counts[s] for s in sums}
+    want = sum(0.5 * counts[s] * (np.log(2 * np.pi * R[s]) + 1) for s in sums)
+    res = recursions.residuals(prob, p)
+    np.testing.assert_allclose(
+        likelihood.noise_variance(prob, res), [R[s] for s in prob.channels], rtol=1e-12
+    )
+    assert likelihood.negative_log_likelihood(prob, res) == pytest.approx(want, rel=1e-12)
