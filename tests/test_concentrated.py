@@ -114,14 +114,22 @@ def test_cost_with_missing_samples_is_the_likelihood_of_the_samples_present():
         assert concentrated.cost(prob, values, R) == pytest.approx(want, rel=1e-10)
 
 
-def test_masked_gramian_is_the_sum_over_the_samples_present():
+@pytest.mark.parametrize("missing", [0.3, 0.8, 1.0])
+def test_masked_gramian_is_the_sum_over_the_samples_present(missing):
+    """Few samples missing (the whole Gramian less their terms), most of them (the present ones'
+    terms summed), a channel without any: against the sum written out, Φ with zeros."""
     rng = np.random.default_rng(2)
     Phi = np.eye(6) + 0.05 * rng.normal(size=(6, 6))
-    measured, W = np.array([0, 2, 5]), np.array([1.0, 2.0, 0.5])
-    P = (rng.random((40, 3)) > 0.3).astype(float)
-    want, Pk = np.zeros((3, 3)), np.eye(6)
+    Phi[:3, 3:] = 0.0
+    measured, W = np.array([0, 2, 5, 4]), np.array([1.0, 2.0, 0.5, 3.0])
+    P = (rng.random((40, 4)) > missing).astype(float)
+    P[:, 3] = 1.0 if missing < 1 else 0.0
+    P[-5:] = 0.0
+    want, Pk = np.zeros((4, 4)), np.eye(6)
     for k in range(40):
         C = Pk[measured][:, measured]
         want += C.T @ np.diag(W * P[k]) @ C
         Pk = Pk @ Phi
-    np.testing.assert_allclose(kernels.masked_gramian(Phi, measured, W, P), want, rtol=1e-12)
+    got = kernels.masked_gramian(Phi, measured, W, P)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-13 * np.abs(want).max())
+    np.testing.assert_array_equal(got, got.T)

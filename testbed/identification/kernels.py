@@ -155,31 +155,56 @@ def gramian(Phi, Q, N):
 def masked_gramian(Phi, measured, W, P):
     """`Σ_k (C Φᵏ)ᵀ diag(W P[k]) C Φᵏ` restricted to the `measured` columns (c, c), C the rows
     `measured` of the identity, P as in `adjoint_sum`: a record's observability Gramian with its
-    missing samples left out, summed sample by sample (the doubling of `gramian` needs the same
-    weights at every sample)."""
+    missing samples left out. Where fewer than half the samples are missing, the whole record's
+    Gramian (`gramian`, by doubling) less the missing samples' terms, else the present samples'
+    terms summed; either way the rows C Φᵏ are propagated sample by sample, Φ's zeros skipped
+    (a torpedo's Φ is two uncoupled blocks), up to the last sample that has a term."""
     n, c, N = Phi.shape[0], len(measured), P.shape[0]
+    missing, last_missing, last_present = 0, -1, -1
+    for k in range(N):
+        for l in range(c):
+            if P[k, l] == 0:
+                missing += 1
+                last_missing = k
+            else:
+                last_present = k
+    subtract = 2 * missing < N * c
+    A = np.zeros((c, c))
+    if subtract:
+        Q = np.zeros((n, n))
+        for j in range(c):
+            Q[measured[j], measured[j]] = W[j]
+        G = gramian(Phi, Q, N)
+        for i in range(c):
+            for j in range(c):
+                A[i, j] = G[measured[i], measured[j]]
+    last = last_missing if subtract else last_present
     R, Rn = np.zeros((c, n)), np.empty((c, n))  # C Φᵏ
     for j in range(c):
         R[j, measured[j]] = 1.0
-    A = np.zeros((c, c))
-    for k in range(N):
+    for k in range(last + 1):
         for l in range(c):
-            wl = W[l] * P[k, l]
-            if wl == 0:
+            if (P[k, l] == 0) != subtract or W[l] == 0:
                 continue
+            wl = -W[l] if subtract else W[l]
             for i in range(c):
                 ri = wl * R[l, measured[i]]
-                for j in range(c):
+                for j in range(i, c):
                     A[i, j] += ri * R[l, measured[j]]
-        if k == N - 1:
+        if k == last:
             break
-        for j in range(c):
-            for i in range(n):
-                acc = 0.0
-                for l in range(n):
-                    acc += R[j, l] * Phi[l, i]
-                Rn[j, i] = acc
+        Rn[:, :] = 0.0
+        for a in range(n):
+            for b in range(n):
+                phi = Phi[a, b]
+                if phi == 0:
+                    continue
+                for j in range(c):
+                    Rn[j, b] += R[j, a] * phi
         R, Rn = Rn, R
+    for i in range(c):  # the terms went to the upper triangle: mirrored
+        for j in range(i):
+            A[i, j] = A[j, i]
     return A
 
 
