@@ -32,6 +32,7 @@ import io
 import json
 import math
 import os
+import random
 import re
 import shutil
 import stat
@@ -209,6 +210,43 @@ def _time_scale(factor):
     return mutate
 
 
+def _missing(fraction, columns=STATES):
+    """Empty a `fraction` of the cells of the named columns, picked by `where`."""
+
+    def mutate(rows, where):
+        rng = random.Random(where)
+        for c, name in enumerate(rows[0]):
+            if name in columns:
+                for row in rows[1:]:
+                    if rng.random() < fraction:
+                        row[c] = rng.choice(("", "nan", "NaN", " "))
+        return rows
+
+    return mutate
+
+
+def _empty_column(rows, where):
+    states = [c for c, n in enumerate(rows[0]) if n in STATES]
+    c = states[where % len(states)]
+    for row in rows[1:]:
+        row[c] = ""
+    return rows
+
+
+def _jittered_time(rows, where):
+    rng = random.Random(where)
+    dt = float(rows[2][0]) - float(rows[1][0])
+    for row in rows[1:]:
+        row[0] = repr(float(row[0]) + rng.uniform(-0.45, 0.45) * dt)
+    return rows
+
+
+def _repeated_time(rows, where):
+    for r in range(2 + where % 3, len(rows), 3):
+        rows[r][0] = rows[r - 1][0]
+    return rows
+
+
 def _long_cell(rows, where):
     r, c = _at(rows, where)
     rows[r][c] = "1" * 200_000
@@ -252,6 +290,12 @@ CSV_MUTATIONS: dict[str, Callable] = {
     "scaled 1e8": _scale(1e8),
     "scaled 1e-300": _scale(1e-300),
     "long cell": _long_cell,
+    "missing states": _missing(0.3),
+    "mostly missing": _missing(0.97),
+    "missing fins": _missing(0.3, ("delta_r", "delta_er", "delta_el")),
+    "empty column": _empty_column,
+    "jittered time": _jittered_time,
+    "repeated time": _repeated_time,
     "units row": lambda rows, where: [rows[0], ["s"] * len(rows[0])] + rows[1:],
     "comment line": _insert_line(["# a comment"]),
     "blank lines": _insert_line([]),

@@ -41,6 +41,7 @@ __all__ = [
     "Experiment",
     "MAX_DATA",
     "MAX_NAME",
+    "MAX_SAMPLES",
     "MIN_NOISE_STD",
     "MIN_ROWS",
     "ModelConfig",
@@ -68,6 +69,7 @@ __all__ = [
 ]
 
 CSV_COLUMNS = ("t",) + STATES + INPUTS
+MAX_SAMPLES = 10**6  # the most samples a record's time grid may have
 MIN_ROWS = 3  # the fewest samples a record can have: the estimators difference and fit x0 on them
 # The largest magnitude a measured state or input may have, in SI units (m, m/s, rad, rad/s):
 # 1000 km of depth, 1000 km/s, 10⁶ rad. Beyond it a value is a unit or export error, and its
@@ -86,7 +88,8 @@ WRAPPING = ("phi", "psi")
 
 @dataclass(frozen=True)
 class Experiment:
-    """One continuous record: uniform time `t`, measured states (absolute `u`), inputs (rad)."""
+    """One continuous record: uniform time `t`, measured states (absolute `u`; NaN where a
+    sample is missing), inputs (rad)."""
 
     name: str
     t: np.ndarray  # (N,)
@@ -282,14 +285,13 @@ def read_csv(path: str | Path, name: str | None = None) -> Experiment:
     values = _plain_table(text[lines.tell() :], len(header))
     if values is not None:
         values = values[:, wanted]
-    if (
-        values is None
-        or len(values) < MIN_ROWS
-        or _too_large(values[:, 1:])
-        or uniform_step(values[:, 0])[1] is not None
-    ):
+    if values is None or len(values) < MIN_ROWS or _too_large(values[:, 1:]):
         values = _rows(path, header, wanted, reader)
     n = len(measured)
+    values = _on_grid(path, _held(path, values, n))
+    for j, state in enumerate(measured):
+        if np.isnan(values[:, 1 + j]).all():
+            raise InputError(f"{path}: column '{state}' has no value; expected at least one sample of it")
     return Experiment(
         name or path.name.removesuffix(".csv"),
         values[:, 0],
@@ -300,14 +302,105 @@ def read_csv(path: str | Path, name: str | None = None) -> Experiment:
     )
 
 
+def _held(path: Path, values: np.ndarray, n: int) -> np.ndarray:
+    """`values` (rows: t, `n` states, the inputs) with each missing input (NaN) held at its last
+    recorded value, the zero-order hold the model applies to the fins; `InputError` naming the
+    column where the first row has none to hold."""
+    fins = values[:, 1 + n :]
+    missing = np.isnan(fins)
+    if not missing.any():
+        return values
+    if missing[0].any():
+        raise InputError(
+            f"{path}: data row 1, column '{INPUTS[int(np.argmax(missing[0]))]}' is empty; expected "
+            "the fin angle at the first row (a later gap holds the last recorded value)"
+        )
+    last = np.where(missing, 0, np.arange(len(fins))[:, None])
+    np.maximum.accumulate(last, axis=0, out=last)
+    values = values.copy()
+    values[:, 1 + n :] = np.take_along_axis(fins, last, axis=0)
+    return values
+
+
+def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
+    """The rows of `values` (t first, then the states, then the inputs) on a uniform grid, the
+    rule for logs as they come (docs/files.md#measurement-csv): uniform times are kept as they
+    are; otherwise each step between rows spans a whole number of grid steps (its length over
+    the median positive step, rounded), the grid t0 + jΔ is the least-squares line through the
+    stamps at those points, each row goes to its nearest grid point (a row logged twice counts
+    once; a row on the point of the row before it whose next point has no row of its own takes
+    that point: a stale stamp), rows still on one point are merged (each state the mean of the
+    values present, the inputs of the last row), and a point without a row has every state
+    missing (NaN) and the inputs held. `InputError` naming the data row where the time
+    decreases, and for a grid longer than `MAX_SAMPLES`."""
+    t = values[:, 0]
+    dt, off = uniform_step(t)
+    if off is None:
+        return values
+    with np.errstate(over="ignore", invalid="ignore"):
+        back = np.flatnonzero(~(np.diff(t) >= 0))
+        if back.size:
+            k = int(back[0]) + 1
+            raise InputError(
+                f"{path}: data row {k + 1}: t = {t[k]:.10g} s after {t[k - 1]:.10g} s; expected "
+                "times that never decrease"
+            )
+        same = (values[1:] == values[:-1]) | (np.isnan(values[1:]) & np.isnan(values[:-1]))
+        values = values[np.r_[True, ~same.all(axis=1)]]  # a row logged twice is one row
+        t = values[:, 0]
+        steps = np.diff(t)
+        positive = steps[steps > 0]
+        dt = median(positive) if positive.size else math.nan
+        if not dt > 0 or not math.isfinite((t[-1] - t[0]) / dt):
+            raise InputError(f"{path}: t never increases; expected times in seconds")
+        j = np.concatenate([[0.0], np.cumsum(np.rint(steps / dt))])  # each step in whole Δ
+    if j[-1] + 1 > MAX_SAMPLES:
+        raise InputError(
+            f"{path}: t spans {t[-1] - t[0]:.10g} s at a median step of {dt:.10g} s, a grid of "
+            f"{int(j[-1]) + 1} samples; expected at most {MAX_SAMPLES}"
+        )
+    # the grid a + jΔ: the least-squares line through the stamps at those points, so that the
+    # median step's own error (a jittered step's) does not accumulate along the record
+    jc, tc = j - j.mean(), t - t.mean()
+    dt = float(jc @ tc / (jc @ jc))
+    start = float(t.mean() - dt * j.mean())
+    j = np.rint((t - start) / dt).astype(np.int64)
+    start, j = start + int(j[0]) * dt, j - j[0]  # the first row on the grid's first point
+    for k in np.flatnonzero(np.diff(j) == 0) + 1:  # a row on the point of the row before it
+        if j[k] == j[k - 1] and (k + 1 == len(j) or j[k + 1] > j[k] + 1):
+            j[k] += 1  # a stale stamp: the sample of the next point, which has no row of its own
+    n = int(j[-1]) + 1
+    grid = np.full((n, values.shape[1]), np.nan)
+    grid[:, 0] = start + np.arange(n) * dt
+    states = values[:, 1 : values.shape[1] - len(INPUTS)]
+    present = ~np.isnan(states)
+    sums, counts = np.zeros((n, states.shape[1])), np.zeros((n, states.shape[1]))
+    np.add.at(sums, j, np.where(present, states, 0.0))
+    np.add.at(counts, j, present)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        grid[:, 1 : 1 + states.shape[1]] = np.where(counts > 0, sums / counts, np.nan)
+    last = np.flatnonzero(np.r_[j[1:] != j[:-1], True])  # the last row on each occupied point
+    held = np.zeros(n, dtype=np.int64)
+    held[j[last]] = last
+    occupied = np.zeros(n, dtype=bool)
+    occupied[j[last]] = True
+    held = np.maximum.accumulate(np.where(occupied, held, 0))
+    grid[:, -len(INPUTS) :] = values[held, -len(INPUTS) :]
+    if n < MIN_ROWS:
+        raise InputError(f"{path}: {n} samples on the time grid; expected at least {MIN_ROWS}")
+    return grid
+
+
 def _unwrapped(path: Path, y: np.ndarray, measured: Sequence[str]) -> np.ndarray:
     """`y` with each angle that wraps at ±π in logs (`WRAPPING`) made continuous: a column that
-    jumps by more than π between two rows is unwrapped (`np.unwrap`: each such jump is taken as a
-    wrap, and whole turns are added from there on), so the angle starts at its first row's value
-    and never jumps by more than π. A column without such a jump is left as it is, bit for bit."""
+    jumps by more than π between two of its values (missing samples skipped) is unwrapped
+    (`np.unwrap`: each such jump is taken as a wrap, and whole turns are added from there on), so
+    the angle starts at its first value and never jumps by more than π. A column without such a
+    jump is left as it is, bit for bit."""
     for j, name in enumerate(measured):
-        if name in WRAPPING and np.any(np.abs(np.diff(y[:, j])) > np.pi):
-            y[:, j] = np.unwrap(y[:, j])
+        at = np.flatnonzero(~np.isnan(y[:, j]))
+        if name in WRAPPING and np.any(np.abs(np.diff(y[at, j])) > np.pi):
+            y[at, j] = np.unwrap(y[at, j])
             large = _too_large(y[:, j : j + 1])
             if large:
                 raise InputError(
@@ -330,9 +423,9 @@ def _plain_table(body: str, columns: int) -> np.ndarray | None:
 
 
 def _rows(path: Path, header: list[str], wanted: list[int], reader) -> np.ndarray:
-    """The columns `wanted` of the data rows still in `reader`, checked value by value:
+    """The columns `wanted` (t first) of the data rows still in `reader`, checked value by value:
     `InputError` naming the line and column of the first that is not a finite number within
-    ±`MAX_DATA`, or of a time step off the uniform one."""
+    ±`MAX_DATA`. A state or input may be missing (an empty field or NaN): NaN."""
     rows = []
     try:
         rows.extend(reader)
@@ -346,15 +439,20 @@ def _rows(path: Path, header: list[str], wanted: list[int], reader) -> np.ndarra
         if len(row) != len(header):
             raise InputError(f"{path}: line {k} has {len(row)} fields; the header has {len(header)}")
         for j, col in enumerate(wanted):
+            field = row[col].strip()
+            if j and (not field or field.lower() == "nan"):  # a missing sample
+                values[i, j] = math.nan
+                continue
             try:
-                v = float(row[col])
+                v = float(field)
             except ValueError:
                 raise InputError(
                     f"{path}: line {k}, column '{header[col]}': {row[col][:40]!r} is not a number"
                 ) from None
             if not math.isfinite(v):
                 raise InputError(
-                    f"{path}: line {k}, column '{header[col]}': {row[col].strip()} (expected a finite number)"
+                    f"{path}: line {k}, column '{header[col]}': {field} (expected a finite number"
+                    + (")" if j == 0 else ", or empty or NaN for a missing sample)")
                 )
             values[i, j] = v
     large = _too_large(values[:, 1:])
@@ -363,20 +461,14 @@ def _rows(path: Path, header: list[str], wanted: list[int], reader) -> np.ndarra
         raise InputError(
             f"{path}: line {body[i][0]}, column '{header[col]}': {body[i][1][col].strip()} is {_TOO_LARGE}"
         )
-    dt, off = uniform_step(values[:, 0])
-    if off is not None:
-        line = body[off + 1][0]
-        raise InputError(
-            f"{path}: column 't' is not uniformly sampled (line {line}); expected "
-            + (f"a constant step of {dt:g} s" if dt > 0 else "increasing times (s)")
-        )
     return values
 
 
 def check_experiment(e: Experiment) -> None:
     """`InputError` unless `e` is a record the estimators can use (what `read_csv` ensures of a
     file, for records made in Python): at least `MIN_ROWS` samples of its distinct measured
-    states and the three inputs, finite values within ±`MAX_DATA`, uniformly increasing times."""
+    states and the three inputs, finite values within ±`MAX_DATA` (a state may be missing, NaN,
+    at some samples, not at all of them), uniformly increasing times."""
     name = e.source or e.name
     unknown = [s for s in e.measured if s not in STATES]
     if unknown or not e.measured or len(set(e.measured)) != len(e.measured):
@@ -393,9 +485,16 @@ def check_experiment(e: Experiment) -> None:
             f"{name}: t {t.shape}, states {y.shape}, inputs {inputs.shape}; expected "
             f"N ≥ {MIN_ROWS} samples: (N,), (N, {len(e.measured)}), (N, {len(INPUTS)})"
         )
-    for label, a in (("t", t), ("states", y), ("inputs", inputs)):
+    for label, a in (("t", t), ("inputs", inputs)):
         if not np.all(np.isfinite(a)):
             raise InputError(f"{name}: {label} contain NaN or infinity; expected finite numbers")
+    if np.isinf(y).any():
+        raise InputError(f"{name}: states contain infinity; expected finite numbers (NaN: a missing sample)")
+    empty = np.isnan(y).all(axis=0)
+    if empty.any():
+        raise InputError(
+            f"{name}: {e.measured[int(np.argmax(empty))]} has no value (all NaN); expected at least one sample"
+        )
     for label, a, columns in (("states", y, e.measured), ("inputs", inputs, INPUTS)):
         large = _too_large(a)
         if large:
@@ -425,6 +524,10 @@ def read_config(path: str | Path) -> ModelConfig:
     return parse_config(read_toml(path, "a model config TOML file"), str(path))
 
 
+# the vehicle constants every config gives; `Iy` may be left out where no state the data give
+# depends on the pitch row (`problem.check_inputs`), `zB` where `GM` is given, and so may the
+# metacentric heights `GM`, `GM_L` (docs/model.md#the-equations)
+_REQUIRED = ("mass", "Ix", "Iz", "weight", "buoyancy", "xB", "yB", "speed")
 # what each vehicle constant must be, beyond a finite number within ±MAX_CONSTANT
 _VEHICLE_RANGES = {
     "mass": (0.0, "> 0 (kg)"),
@@ -445,9 +548,15 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     veh = doc["vehicle"]
     values = {}
     for key in Vehicle.names():
-        if key not in veh:
-            raise InputError(f"{source}: [vehicle] {key} missing; expected a number (SI)")
-        values[key] = number(veh[key], f"{source}: [vehicle] {key}")
+        if key in veh:
+            values[key] = number(veh[key], f"{source}: [vehicle] {key}")
+        elif key in _REQUIRED or (key == "zB" and "GM" not in veh):
+            raise InputError(
+                f"{source}: [vehicle] {key} missing; expected a number (SI)"
+                + ("" if key in _REQUIRED else ", or GM (a floating body's metacentric height)")
+            )
+        else:
+            values[key] = None
     for key in set(veh) - set(Vehicle.names()):
         raise InputError(
             f"{source}: [vehicle] {key} is not a vehicle constant; "
@@ -490,6 +599,10 @@ def check_config(config: ModelConfig) -> None:
     coefficients as finite numbers within ±`MAX_CONSTANT`, and distinct free coefficient names."""
     source = config.source or "config"
     for key in Vehicle.names():
+        if getattr(config.vehicle, key) is None and (
+            key not in _REQUIRED + ("zB",) or config.vehicle.GM is not None
+        ):
+            continue  # an optional constant left out
         v = number(getattr(config.vehicle, key), f"{source}: [vehicle] {key}")
         low, expected = _VEHICLE_RANGES.get(key, (None, ""))
         high = MAX_SPEED if key == "speed" else math.inf
@@ -592,7 +705,9 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         note = f"  # {comments[key]}" if key in comments else ""
         return f"{key} = {float(value)!r}{note}"
 
-    lines = ["[vehicle]"] + [line(k, getattr(config.vehicle, k)) for k in Vehicle.names()]
+    lines = ["[vehicle]"] + [
+        line(k, getattr(config.vehicle, k)) for k in Vehicle.names() if getattr(config.vehicle, k) is not None
+    ]
     lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
     lines += [
         line(k, config.coefficients.get(k, 0.0))

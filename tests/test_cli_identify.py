@@ -116,6 +116,15 @@ def _folder(path):
     return path
 
 
+def _column(column, value):
+    def edit(rows):
+        for r in rows[1:]:
+            r[rows[0].index(column)] = value
+        return rows
+
+    return edit
+
+
 def _set(line, column, value):
     def edit(rows):
         rows[line][rows[0].index(column)] = value
@@ -137,13 +146,17 @@ BAD = {
         lambda run, tmp: [_csv(run, tmp, _drop("delta_er")), "--config", run / "model.toml"],
         "'delta_er' missing",
     ),
-    "non-uniform time": (
-        lambda run, tmp: [_csv(run, tmp, _set(5, "t", "0.091")), "--config", run / "model.toml"],
-        "not uniformly sampled",
+    "decreasing time": (
+        lambda run, tmp: [_csv(run, tmp, _set(5, "t", "0.001")), "--config", run / "model.toml"],
+        "data row 5: t = 0.001 s",
     ),
-    "nan": (
-        lambda run, tmp: [_csv(run, tmp, _set(7, "q", "nan")), "--config", run / "model.toml"],
+    "infinity": (
+        lambda run, tmp: [_csv(run, tmp, _set(7, "q", "inf")), "--config", run / "model.toml"],
         "column 'q'",
+    ),
+    "a state without a value": (
+        lambda run, tmp: [_csv(run, tmp, _column("q", "")), "--config", run / "model.toml"],
+        "column 'q' has no value",
     ),
     "diverging model": (
         lambda run, tmp: ["--config", _config(run, tmp, **{"M_q = -": "M_q = "}), "--start", "config"],

@@ -1,5 +1,6 @@
 """The file readers and writers: round trips and one-line errors on bad input."""
 
+import tomllib
 from dataclasses import replace
 
 import numpy as np
@@ -19,7 +20,7 @@ from testbed.data import (
     write_csv,
 )
 from testbed.errors import InputError, atomic_directory
-from testbed.models.linear import COEFFICIENTS, PARAMETERS, STATES, Vehicle
+from testbed.models.linear import COEFFICIENTS, INPUTS, PARAMETERS, STATES, Vehicle
 
 VEHICLE = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
 
@@ -96,12 +97,18 @@ def test_csv_subset_and_extra_columns(tmp_path):
         ("", "empty file"),
         ("t,u,delta_r,delta_er\n0,1,0,0\n", "'delta_el' missing"),
         ("t,delta_r,delta_er,delta_el\n0,0,0,0\n1,0,0,0\n2,0,0,0\n", "no state column"),
-        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,nan,0,0,0\n0.2,1,0,0,0\n", "line 3, column 'u'"),
-        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,x,0,0,0\n0.2,1,0,0,0\n", "'x' is not a number"),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,inf,0,0,0\n0.2,1,0,0,0\n", "line 3, column 'u'"),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\nnan,1,0,0,0\n0.2,1,0,0,0\n", "line 3, column 't'"),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n,1,0,0,0\n0.2,1,0,0,0\n", "line 3, column 't'"),
+        ("t,u,delta_r,delta_er,delta_el\n0,,0,0,0\n0.1,nan,0,0,0\n0.2,,0,0,0\n", "column 'u' has no value"),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,,0,0\n0.1,1,0,0,0\n0.2,1,0,0,0\n", "row 1, column 'delta_r'"),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.2,1,0,0,0\n0.1,1,0,0,0\n", "data row 3: t = 0.1"),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0,1,0,0,0\n0,1,0,0,0\n", "t never increases"),
         (
-            "t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0,0\n0.3,1,0,0,0\n0.4,1,0,0,0\n",
-            "not uniformly sampled",
+            "t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n1e-6,1,0,0,0\n2e-6,1,0,0,0\n3e-6,1,0,0,0\n10,1,0,0,0\n",
+            "grid of 10000001 samples",
         ),
+        ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,x,0,0,0\n0.2,1,0,0,0\n", "'x' is not a number"),
         ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0\n0.2,1,0,0,0\n", "line 3 has 4 fields"),
     ],
 )
@@ -151,7 +158,7 @@ def test_config_per_record_bad_input(tmp_path, per_record, words):
 
 def _doc(**changes):
     doc = {
-        "vehicle": {k: getattr(VEHICLE, k) for k in Vehicle.names()},
+        "vehicle": {k: getattr(VEHICLE, k) for k in Vehicle.names() if getattr(VEHICLE, k) is not None},
         "coefficients": {"X_u": -1.0},
         "identify": {"free": ["X_u"]},
     }
@@ -302,3 +309,144 @@ def test_an_angle_unwrapped_beyond_the_data_limit_is_refused(tmp_path):
         f"{p}: column 'psi' unwrapped (it jumps by more than π) reaches 1000001.283 at data row 2, "
         "beyond ±1e+06; expected a plausible SI value (m, m/s, rad, rad/s)"
     )
+
+
+def _log(tmp_path, t, y, d, measured=("u", "r")):
+    """A measurement CSV written row by row: NaN in `y` or `d` as an empty field."""
+
+    def field(v):
+        return "" if np.isnan(v) else repr(float(v))
+
+    rows = [",".join(("t",) + tuple(measured) + INPUTS)]
+    rows += [",".join(map(field, (tk, *yk, *dk))) for tk, yk, dk in zip(t, y, d)]
+    return _csv(tmp_path, "\n".join(rows) + "\n")
+
+
+def test_missing_state_samples_stay_missing_and_fins_are_held(tmp_path):
+    t = np.arange(8) * 0.1
+    y = np.column_stack([1.0 + t, -t])
+    y[[2, 5], 0] = np.nan
+    y[1::2, 1] = np.nan  # r at half the rate
+    d = np.tile([0.1, 0.2, 0.3], (8, 1))
+    d[3:5, 0] = np.nan
+    d[6, 2] = np.nan
+    e = read_csv(_log(tmp_path, t, y, d))
+    np.testing.assert_array_equal(e.t, t)
+    np.testing.assert_array_equal(np.isnan(e.y), np.isnan(y))
+    np.testing.assert_array_equal(e.y[~np.isnan(y)], y[~np.isnan(y)])
+    np.testing.assert_array_equal(e.inputs, np.tile([0.1, 0.2, 0.3], (8, 1)))  # held: the same
+
+
+def test_nan_as_text_is_a_missing_sample(tmp_path):
+    e = read_csv(_csv(tmp_path, "t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,NaN,0,0,0\n0.2,nan,0,0,0\n"))
+    np.testing.assert_array_equal(np.isnan(e.y[:, 0]), [False, True, True])
+
+
+def test_uniform_times_are_read_bit_for_bit(tmp_path):
+    t = 0.02 * np.arange(50) + 1e-9 * np.random.default_rng(0).normal(size=50)  # within 1e-6 of Δ
+    y, d = np.random.default_rng(1).normal(size=(50, 2)), np.zeros((50, 3))
+    e = read_csv(_log(tmp_path, t, y, d))
+    np.testing.assert_array_equal(e.t, t)
+    np.testing.assert_array_equal(e.y, y)
+
+
+def test_jittered_and_repeated_stamps_go_to_their_grid_points(tmp_path):
+    """Stamps jittered by up to ±20 % of Δ land on their own grid points; a repeated stamp's rows
+    are merged (the mean of each state present, the last row's inputs); a grid point without a
+    row has every state missing and the inputs held; the grid is t0 + jΔ, Δ the median step."""
+    dt, n = 0.02, 40
+    rng = np.random.default_rng(3)
+    grid = 5.0 + dt * np.arange(n)
+    t = grid + rng.uniform(-0.2, 0.2, n) * dt
+    t[0] = grid[0]
+    y = np.column_stack([np.arange(n, dtype=float), 10.0 + np.arange(n)])
+    d = np.column_stack([np.arange(n) * 0.01, np.zeros(n), np.zeros(n)])
+    keep = np.ones(n, dtype=bool)
+    keep[[7, 8, 20]] = False  # no row for these grid points
+    rows_t, rows_y, rows_d = list(t[keep]), list(y[keep]), list(d[keep])
+    at = list(np.flatnonzero(keep)).index(12)
+    rows_t.insert(at + 1, rows_t[at])  # a repeated stamp: a second row for grid point 12
+    rows_y.insert(at + 1, np.array([np.nan, 30.0]))
+    rows_d.insert(at + 1, np.array([0.5, 0.0, 0.0]))
+    e = read_csv(_log(tmp_path, np.array(rows_t), np.array(rows_y), np.array(rows_d)))
+    on = np.flatnonzero(keep)
+    on = np.insert(on, list(on).index(12) + 1, 12)  # the rows' grid points
+    step, start = np.polyfit(on, rows_t, 1)  # the least-squares line through the stamps
+    np.testing.assert_allclose(e.t, start + step * np.arange(n), rtol=0, atol=1e-9)
+    assert abs(step - dt) < 0.01 * dt
+    want_y = y.copy()
+    want_y[~keep] = np.nan
+    want_y[12] = [12.0, (22.0 + 30.0) / 2]
+    np.testing.assert_array_equal(e.y, want_y)
+    want_d = d.copy()
+    want_d[12, 0] = 0.5
+    want_d[[7, 8]] = want_d[6]
+    want_d[13:20] = d[13:20]
+    want_d[20] = want_d[19]
+    np.testing.assert_array_equal(e.inputs, want_d)
+
+
+def test_a_log_fits_as_its_grid(tmp_path):
+    """A log with dropouts, a slower channel and jittered stamps reads as the clean record with
+    those samples missing: the same experiment as a NaN-marked record on the grid."""
+    from testbed.data import check_experiment
+
+    t = 0.1 * np.arange(30)
+    y = np.column_stack([np.sin(t), np.cos(t)])
+    y[::3, 0] = np.nan
+    y[1::2, 1] = np.nan
+    jittered = t + 0.015 * np.sin(7 * t)
+    e = read_csv(_log(tmp_path, jittered, y, np.zeros((30, 3))))
+    check_experiment(e)
+    step, start = np.polyfit(np.arange(30), jittered, 1)
+    np.testing.assert_allclose(e.t, start + step * np.arange(30), atol=1e-9)
+    np.testing.assert_array_equal(e.y, y)
+
+
+def test_a_long_jittered_log_keeps_every_row_on_its_own_point(tmp_path):
+    """±20 % of Δ jitter over 3000 rows: no row leaves its grid point (the median step alone
+    would drift by several samples over the record)."""
+    n, dt = 3000, 0.02
+    rng = np.random.default_rng(5)
+    t = dt * np.arange(n) + rng.uniform(-0.2, 0.2, n) * dt
+    y = rng.normal(size=(n, 2))
+    e = read_csv(_log(tmp_path, t, y, np.zeros((n, 3))))
+    assert len(e.t) == n and not np.isnan(e.y).any()
+    np.testing.assert_array_equal(e.y, y)
+    assert np.max(np.abs(e.t - t)) < 0.25 * dt
+
+
+def test_a_stale_stamp_takes_the_free_point_after_it_and_a_row_logged_twice_counts_once(tmp_path):
+    """A row stamped like the row before it, where the next grid point has no row, is that
+    point's sample (the logger repeated a stale stamp); a row repeated whole is one row."""
+    t = 0.1 * np.arange(10)
+    y = np.column_stack([np.arange(10.0), 100 + np.arange(10.0)])
+    d = np.zeros((10, 3))
+    stamps = t.copy()
+    stamps[4] = stamps[3]  # stale: the sample of t = 0.4 stamped 0.3
+    rows = np.column_stack([stamps, y, d])
+    rows = np.insert(rows, 7, rows[6], axis=0)  # row 6 logged twice
+    e = read_csv(_log(tmp_path, rows[:, 0], rows[:, 1:3], rows[:, 3:]))
+    assert len(e.t) == 10
+    np.testing.assert_array_equal(e.y, y)
+    assert abs(e.t[1] - e.t[0] - 0.1) < 1e-3
+
+
+def test_a_4_dof_config_may_leave_out_the_pitch_constants(tmp_path):
+    doc = _doc()
+    del doc["vehicle"]["Iy"]
+    config = parse_config(doc, "m.toml")
+    assert config.vehicle.Iy is None and config.vehicle.omitted() == ("Iy",)
+    assert "Iy" not in config_text(config)
+    assert parse_config(tomllib.loads(config_text(config)), "again").vehicle == config.vehicle
+    doc["vehicle"] |= {"GM": 0.05}
+    del doc["vehicle"]["zB"]
+    assert parse_config(doc, "m.toml").vehicle.omitted() == ("Iy", "zB")
+    doc["vehicle"] |= {"GM_L": 1.5}
+    assert parse_config(doc, "m.toml").vehicle.omitted() == ("Iy",)
+    del doc["vehicle"]["GM"]
+    with pytest.raises(InputError, match=r"m.toml: \[vehicle\] zB missing; expected a number \(SI\), or GM"):
+        parse_config(doc, "m.toml")
+    doc["vehicle"] |= {"zB": 0.0, "GM": float("nan")}
+    with pytest.raises(InputError, match=r"\[vehicle\] GM = nan; expected a finite number"):
+        parse_config(doc, "m.toml")

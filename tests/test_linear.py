@@ -359,13 +359,36 @@ def test_smoothing_is_savitzky_golay_within_the_record():
         )
 
 
+def test_smoothing_with_missing_samples_fits_the_cubic_to_those_present():
+    """A cubic is its own fit from any four samples: with samples missing, each window with half
+    of them present gives the cubic's value at its centre; one with fewer gives NaN. All present
+    marked: Savitzky-Golay itself."""
+    t = np.linspace(-2, 3, 60)
+    y = np.column_stack([1 + t - 0.5 * t**2 + 0.2 * t**3, 2 - t**3])
+    present = np.random.default_rng(4).random(y.shape) > 0.3
+    present[20:32, 1] = False  # a gap longer than half the window
+    win, h = 11, 5
+    out = equation_error.smoothed(np.where(present, y, 0.0), win, present)
+    counts = np.array([present[k : k + win].sum(axis=0) for k in range(len(y) - 2 * h)])
+    enough = counts >= win / 2
+    assert (~enough).any() and enough.any()
+    np.testing.assert_allclose(out[enough], y[h:-h][enough], rtol=1e-9, atol=1e-9)
+    assert np.isnan(out[~enough]).all()
+    np.testing.assert_allclose(
+        equation_error.smoothed(y, win, np.ones(y.shape, dtype=bool)), equation_error.smoothed(y, win)
+    )
+
+
 def test_bad_input():
     data = _data()
     with pytest.raises(InputError, match="Y_bogus"):
         problem(data, replace(example_config(), free=("Y_v", "Y_bogus")))
     y = data[0].y.copy()
-    y[3, 1] = np.nan
-    with pytest.raises(InputError, match="NaN"):
+    y[3, 1] = np.inf
+    with pytest.raises(InputError, match="infinity"):
+        problem([replace(data[0], y=y)], example_config())
+    y[3, 1], y[:, 2] = np.nan, np.nan  # a missing sample is taken; a state with none is not
+    with pytest.raises(InputError, match=f"{data[0].measured[2]} has no value"):
         problem([replace(data[0], y=y)], example_config())
     t = data[0].t.copy()
     t[5] += 0.01

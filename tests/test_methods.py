@@ -123,6 +123,34 @@ class TestEveryMethod:
 
 
 @pytest.mark.parametrize("name", sorted(METHODS))
+def test_fits_a_record_with_missing_samples(name, problem):
+    """Each method takes a record with a tenth of every state's samples missing (NaN) and a
+    heading sensor at a fifth of the rate: finite estimates and bounds, within 5 σ (or 5 %) of the
+    coefficients that simulated the data."""
+    data, config, start = problem
+    rng = np.random.default_rng(11)
+    e = data[0]
+    y = e.y.copy()
+    y[rng.random(y.shape) < 0.1] = np.nan
+    slow = np.ones(len(y), dtype=bool)
+    slow[::5] = False
+    y[slow, e.measured.index("psi")] = np.nan
+    if name == "ml-fem":  # its steady-state filter needs every sample
+        with pytest.raises(InputError, match=r"missing samples .* expected complete records"):
+            identify([dataclasses.replace(e, y=y)], start, method=name)
+        return
+    est = identify([dataclasses.replace(e, y=y)], start, method=name)
+    assert est.status is Status.CONVERGED, est.message
+    assert np.all(np.isfinite(est.values)) and np.all(np.isfinite(est.std)) and np.all(est.std > 0)
+    simulated = np.array([config.coefficients[n] for n in FREE])
+    assert np.all(np.abs(est.values - simulated) <= np.maximum(5 * est.std, 0.05 * np.abs(simulated))), (
+        est.values,
+        simulated,
+        est.std,
+    )
+
+
+@pytest.mark.parametrize("name", sorted(METHODS))
 def test_evaluations_count_the_simulations_of_the_data_set(name, problem, monkeypatch):
     # Estimate.evaluations: simulations of the whole data set, a sensitivity pass counting
     # 1 + n_free. An iterative fit's grow with its iterations; a filter's are its passes times

@@ -306,3 +306,164 @@ def test_known_noise_from_the_config_is_held_and_weighs_the_fit(data, from_simul
     assert np.all(est.std >= 0.99 * from_simulated.std) and est.std[i] > 1.01 * from_simulated.std[i]
     z = (est.values - from_simulated.values) / est.std
     assert np.all(np.abs(z) < 1.0)  # the same data: the optimum moves within its bounds
+
+
+def _dropped(experiments_, fraction, seed, tail=0):
+    """The experiments with a `fraction` of each state's samples missing (NaN) at random, and
+    every state missing over the last `tail` samples."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for e in experiments_:
+        y = e.y.copy()
+        y[rng.random(y.shape) < fraction] = np.nan
+        if tail:
+            y[-tail:] = np.nan
+        out.append(replace(e, y=y))
+    return out
+
+
+def _cut(experiments_, tail):
+    return [replace(e, t=e.t[:-tail], y=e.y[:-tail], inputs=e.inputs[:-tail]) for e in experiments_]
+
+
+def test_samples_missing_at_the_end_are_the_record_without_them(data):
+    """Every state missing over a record's last 500 samples: the same likelihood, initial states,
+    gradient, information and fit as the record cut short there."""
+    from testbed.identification import likelihood, recursions
+    from testbed.identification.problem import problem
+
+    config = prior_config(error=0.2)
+    masked, cut = problem(_dropped(data, 0.0, 0, tail=500), config), problem(_cut(data, 500), config)
+    assert all(r.present is not None for r in masked.records)
+    p, pc = likelihood.initial_states(masked, masked.start), likelihood.initial_states(cut, cut.start)
+    np.testing.assert_allclose(p, pc, rtol=1e-9, atol=1e-12)
+    res, resc = recursions.residuals(masked, p), recursions.residuals(cut, pc)
+    assert likelihood.negative_log_likelihood(masked, res) == pytest.approx(
+        likelihood.negative_log_likelihood(cut, resc), rel=1e-12
+    )
+    R = likelihood.noise_variance(masked, res)
+    np.testing.assert_allclose(R, likelihood.noise_variance(cut, resc), rtol=1e-12)
+    xs, xsc = recursions.states(masked, p), recursions.states(cut, pc)
+    g, M = likelihood.gauss_newton_terms(masked, p, xs, res, R)
+    gc, Mc = likelihood.gauss_newton_terms(cut, pc, xsc, resc, R)
+    np.testing.assert_allclose(M, Mc, rtol=1e-9, atol=1e-9 * np.abs(Mc).max())
+    np.testing.assert_allclose(g, gc, rtol=1e-7, atol=1e-9 * np.abs(gc).max())
+    a, b = (
+        identify(_dropped(data, 0.0, 0, tail=500), config, "ml-gn"),
+        identify(_cut(data, 500), config, "ml-gn"),
+    )
+    assert np.all(np.abs(a.values - b.values) < 1e-3 * b.std)  # both converged: to 1e-3 σ
+    np.testing.assert_allclose(a.std, b.std, rtol=1e-4)
+
+
+def test_masked_gradient_and_information_match_complex_step():
+    """`gauss_newton_terms` with samples missing at random: g is minus the gradient of the
+    weighted cost (complex step), M the sum of the present samples' weighted sensitivities."""
+    from testbed.identification import likelihood, recursions
+    from testbed.identification.problem import problem
+
+    prob = problem(_dropped(experiments(seed=3, duration=4.0), 0.3, 1), prior_config(error=0.2))
+    p = likelihood.initial_states(prob, prob.start)
+    res = recursions.residuals(prob, p)
+    R = likelihood.noise_variance(prob, res)
+    g, M = likelihood.gauss_newton_terms(prob, p, recursions.states(prob, p), res, R)
+    h, grad = 1e-30, np.zeros(prob.n_params)
+    for j in range(prob.n_params):
+        q = p.astype(complex)
+        q[j] += 1j * h
+        res_c = recursions.residuals(prob, q)
+        grad[j] = sum(0.5 * np.sum(e**2 / R[r.channels]) for r, e in zip(prob.records, res_c)).imag / h
+    np.testing.assert_allclose(-g, grad, rtol=1e-8, atol=1e-10 * np.abs(grad).max())
+    ref = np.zeros_like(M)
+    for r, S in zip(prob.records, recursions.sensitivities(prob, p)):
+        Sw = S * (r.present / np.sqrt(R[r.channels]))[:, :, None]
+        cols = prob.columns(r)
+        ref[np.ix_(cols, cols)] += np.einsum("nkp,nkq->pq", Sw, Sw)
+    np.testing.assert_allclose(M, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+
+
+def test_masked_initial_states_are_the_least_squares_of_the_samples_present():
+    """x0 of `fit_initial_states` (QR of masked blocks) against numpy's least squares on the
+    responses to x0 with the missing rows removed."""
+    from testbed.identification import likelihood, recursions
+    from testbed.identification.problem import problem
+
+    prob = problem(_dropped(experiments(seed=5, duration=20.0), 0.4, 2), prior_config(error=0.2))
+    R = np.linspace(1e-5, 1e-3, len(prob.channels))
+    p = likelihood.initial_states(prob, prob.start, R)
+    base = np.concatenate([prob.start, np.zeros(prob.n_params - prob.n_free)])
+    forced = recursions.outputs(prob, base)
+    for i, r in enumerate(prob.records):
+        k = len(r.measured)
+        G = []
+        for j in range(k):
+            q = base.copy()
+            q[r.offset + j] = 1.0
+            G.append(recursions.outputs(prob, q)[i] - forced[i])
+        G = np.stack(G, axis=2) / np.sqrt(R[r.channels])[None, :, None]  # (N, k, k)
+        v = (r.y - forced[i]) / np.sqrt(R[r.channels])
+        x0 = np.linalg.lstsq(G[r.present], v[r.present], rcond=None)[0]
+        np.testing.assert_allclose(p[r.offset : r.offset + k], x0, rtol=1e-7, atol=1e-10)
+
+
+def test_a_4_dof_config_without_iy_fits_lateral_data_and_refuses_vertical_ones():
+    """No Iy in the config: lateral data (v, p, r, φ, ψ) fit exactly as with it; a measured q,
+    or a measured u (the surge row sees θ through W − B), is refused naming Iy and the state."""
+    from testbed.simulation.analytic import analytic_config
+    from testbed.identification.prediction import synthetic
+    from testbed.models.linear import INPUTS
+
+    config, _ = analytic_config()
+    free = ("N_r", "N_dr", "K_p")
+    config = replace(config, free=free, outputs=None, screen=False)
+    rng = np.random.default_rng(2)
+    t = np.arange(0.0, 30.0, 0.02)
+    inputs = np.zeros((len(t), len(INPUTS)))
+    inputs[:, 0] = 0.02 * np.repeat(rng.choice([-1.0, 1.0], size=len(t) // 50 + 1), 50)[: len(t)]
+    inputs[:, 1] = -inputs[:, 0] / 2
+    inputs[:, 2] = inputs[:, 0] / 2
+    lateral = ("v", "p", "r", "phi", "psi")
+    data = [synthetic(config, t, inputs, {s: 1e-3 for s in lateral}, measured=lateral, rng=rng, name="turns")]
+    four = replace(config, vehicle=replace(config.vehicle, Iy=None))
+    a, b = identify(data, config, "ml-gn", start="config"), identify(data, four, "ml-gn", start="config")
+    assert b.converged
+    np.testing.assert_array_equal(a.values, b.values)
+    np.testing.assert_array_equal(a.std, b.std)
+    for extra, named in (("q", "q"), ("u", "u")):
+        more = synthetic(config, t, inputs, measured=lateral + (extra,), name="turns")
+        with pytest.raises(InputError, match=rf"\[vehicle\] Iy missing; .* measured {named} depends on it"):
+            identify([more], four, "ml-gn")
+
+
+def test_a_slower_sensor_s_likelihood_by_hand():
+    """ψ logged at a fifth of the rate (its other samples missing): the negative log-likelihood
+    and the noise variances against a hand computation over the samples ψ has, the other
+    channels over all of theirs."""
+    from testbed.identification import likelihood, recursions
+    from testbed.identification.problem import problem
+
+    data = experiments(seed=7, duration=10.0)
+    slow = []
+    for e in data:
+        y = e.y.copy()
+        y[np.arange(len(y)) % 5 != 0, e.measured.index("psi")] = np.nan
+        slow.append(replace(e, y=y))
+    config = prior_config(error=0.1)
+    prob = problem(slow, config)
+    p = likelihood.initial_states(prob, prob.start)
+    out = recursions.outputs(prob, p)
+    sums, counts = {}, {}
+    for e, yhat in zip(slow, out):
+        for j, s in enumerate(e.measured):
+            y = e.y[:, j] - (config.vehicle.speed if s == "u" else 0.0)
+            at = ~np.isnan(y)
+            sums[s] = sums.get(s, 0.0) + np.sum((y[at] - yhat[at, j]) ** 2)
+            counts[s] = counts.get(s, 0) + int(at.sum())
+    assert counts["psi"] == sum(len(range(0, len(e.t), 5)) for e in slow)
+    R = {s: sums[s] / counts[s] for s in sums}
+    want = sum(0.5 * counts[s] * (np.log(2 * np.pi * R[s]) + 1) for s in sums)
+    res = recursions.residuals(prob, p)
+    np.testing.assert_allclose(
+        likelihood.noise_variance(prob, res), [R[s] for s in prob.channels], rtol=1e-12
+    )
+    assert likelihood.negative_log_likelihood(prob, res) == pytest.approx(want, rel=1e-12)

@@ -91,3 +91,41 @@ def test_discretize_equals_scipy_expm_from_fine_to_coarse_steps():
         ref = expm(big * dt)[:10]
         got = np.column_stack(discretize(A, B, S, dt))
         assert np.abs(got - ref).max() < 1e-12 * np.abs(ref).max()
+
+
+def test_metacentric_heights_set_the_roll_and_pitch_stiffness_in_closed_form():
+    """With GM and GM_L, and W = B (no restoring force in surge or sway), the roll and pitch
+    rows alone are `(Ix − K_pdot) φ̈ = K_p φ̇ − W GM φ` and `(Iy − M_qdot) θ̈ = M_q θ̇ − W GM_L θ`:
+    their roots `(K_p ± √(K_p² − 4 (Ix − K_pdot) W GM)) / (2 (Ix − K_pdot))` are A's eigenvalues;
+    zB no longer enters either."""
+    W, GM, GM_L = 300.0, 0.05, 1.2
+    c = dict.fromkeys(COEFFICIENTS, 0.0) | {"K_p": -2.0, "K_pdot": -0.1, "M_q": -30.0, "M_qdot": -1.0}
+    theta = theta_vector(c)
+    eigs = []
+    for zB in (-0.02, 0.3):
+        veh = Vehicle(
+            mass=30.0,
+            Ix=0.2,
+            Iy=3.0,
+            Iz=3.2,
+            weight=W,
+            buoyancy=W,
+            xB=0.0,
+            yB=0.0,
+            zB=zB,
+            speed=1.5,
+            GM=GM,
+            GM_L=GM_L,
+        )
+        eigs.append(np.sort_complex(np.linalg.eigvals(continuous(structure(veh), theta)[0])))
+    np.testing.assert_allclose(eigs[0], eigs[1])
+    for inertia, damping, stiffness in ((0.2 + 0.1, -2.0, W * GM), (3.0 + 1.0, -30.0, W * GM_L)):
+        for sign in (1, -1):
+            root = (damping + sign * np.sqrt(complex(damping**2 - 4 * inertia * stiffness))) / (2 * inertia)
+            assert np.min(np.abs(eigs[0] - root)) < 1e-9 * abs(root), (root, eigs[0])
+    # without them, the zB B terms: roll stiffness −zB B
+    veh = Vehicle(
+        mass=30.0, Ix=0.2, Iy=3.0, Iz=3.2, weight=W, buoyancy=W, xB=0.0, yB=0.0, zB=-0.02, speed=1.5
+    )
+    At = tilde(structure(veh), theta)[1]
+    assert At[3, 6] == -0.02 * W and At[4, 7] == -0.02 * W

@@ -163,17 +163,20 @@ def validate(
     experiments (its initial states fitted, or taken from `initial`: experiment → state → x0),
     and the fit % of `analytic`'s model on the same data (initial states fitted). `config` is a
     fitted model, not checked against the sampling steps (`problem.check_inputs`, `resolve`):
-    a fit may reach a mode faster than the data show; the caller checks the user's config."""
+    a fit may reach a mode faster than the data show; the caller checks the user's config. A
+    channel's metrics are over its samples present, its residuals taken in sequence (a missing
+    sample skipped, a slower sensor's at its own rate)."""
     yhat = predict(experiments, config, initial, resolve=False)
     base = predict(experiments, analytic) if analytic is not None else [None] * len(experiments)
     out = {}
     for e, y_model, y_base in zip(experiments, yhat, base):
-        out[e.name] = {
-            c: ChannelMetrics(
-                fit_percent(e.y[:, k], y_model[:, k]),
-                whiteness(e.y[:, k] - y_model[:, k]),
-                None if y_base is None else fit_percent(e.y[:, k], y_base[:, k]),
+        out[e.name] = {}
+        for k, c in enumerate(e.measured):
+            at = ~np.isnan(e.y[:, k])  # the samples present; their residuals in sequence
+            y = e.y[at, k]
+            out[e.name][c] = ChannelMetrics(
+                fit_percent(y, y_model[at, k]),
+                whiteness(y - y_model[at, k]),
+                None if y_base is None else fit_percent(y, y_base[at, k]),
             )
-            for k, c in enumerate(e.measured)
-        }
     return Validation(out)

@@ -33,7 +33,9 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
     Each dynamics row `Mt ẋ = At x + Bt δ + St` is linear in its coefficients. The measured states
     are smoothed (Savitzky-Golay, cubic, `window_s` wide) and the row is averaged over each
     sample interval, where the input is held: ẋ ≈ Δx/Δt, x ≈ the interval's midpoint; the row's
-    free coefficients are then a linear regression. A row is used only on experiments that
+    free coefficients are then a linear regression. Missing samples: the cubic of each window is
+    fitted to the samples present (`smoothed`), and an interval where a state the row involves
+    has too few of them is left out of that row's regression. A row is used only on experiments that
     measure every state it involves (and are long enough to smooth); the free coefficients of a
     row that no experiment supports, and directions the data do not excite, keep their a-priori
     values (minimum-norm correction).
@@ -52,8 +54,8 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
         # only intervals whose smoothing window lies within the record: the ends would be
         # extrapolated
         xs = np.zeros((n - win + 1, NX))
-        # the measured states: the data less their output biases (at the a-priori values)
-        xs[:, r.measured] = smoothed(r.y - prob.output_terms(r, prob.start), win)
+        # the measured states: the data less their output terms (at the a-priori values)
+        xs[:, r.measured] = smoothed(r.y - prob.output_terms(r, prob.start), win, r.present)
         us = smoothed(prob.inputs(r, prob.start), win)  # the a-priori input delay
         # over each sample interval the input is held: the row equation averaged over it
         # has ẋ = Δx/Δt, x at the midpoint and δ exactly, with no derivative across a step;
@@ -76,13 +78,20 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
             if record is None or not set(np.flatnonzero(involved)) <= set(r.measured):
                 continue
             xdot, x, u = record
+            at = np.flatnonzero(involved)  # the states the row involves: the others may be missing
+            xdot, x = xdot[:, at], x[:, at]
             # Σ_free θ_i (∂Mt_i ẋ − ∂At_i x − ∂Bt_i δ − ∂St_i)_row = (At_f x + Bt_f δ + St_f − Mt_f ẋ)_row,
             # each record's own values (per record) acting on its rows alone
-            X.append(
-                (xdot @ s.dMt[idx, row].T - x @ s.dAt[idx, row].T - u @ s.dBt[idx, row].T - s.dSt[idx, row])
-                * prob.acting(r.group)[cols]
-            )
-            Y.append(x @ Af[row] + u @ Bf[row] + Sf[row] - xdot @ Mf[row])
+            Xr = (
+                xdot @ s.dMt[idx, row][:, at].T
+                - x @ s.dAt[idx, row][:, at].T
+                - u @ s.dBt[idx, row].T
+                - s.dSt[idx, row]
+            ) * prob.acting(r.group)[cols]
+            Yr = x @ Af[row, at] + u @ Bf[row] + Sf[row] - xdot @ Mf[row, at]
+            keep = np.isfinite(Yr)  # an interval whose smoothed states are missing: left out
+            X.append(Xr[keep])
+            Y.append(Yr[keep])
         if not X:
             needs = tuple(STATES[i] for i in np.flatnonzero(involved))
             left |= {prob.free[j]: needs for j in cols}
@@ -96,15 +105,34 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
     return values, left
 
 
-def smoothed(y: np.ndarray, win: int) -> np.ndarray:
+def smoothed(y: np.ndarray, win: int, present: np.ndarray | None = None) -> np.ndarray:
     """Savitzky-Golay smoothing of `y` (N, k), cubic, over `win` (odd) samples: at each sample
     whose window lies within the record (N − win + 1 of them), the value there of the cubic
-    fitted to the window by least squares, a fixed weighted sum of the window."""
+    fitted to the window by least squares, a fixed weighted sum of the window. With `present`
+    (N, k; None: every sample) the cubic is fitted to the samples present in the window alone,
+    and the value is NaN where fewer than half of the window's samples are present."""
     h = win // 2
-    # the fitted cubic's value at the window's centre: the first row of the Vandermonde pseudo-inverse
-    c = np.linalg.pinv(np.vander(np.arange(-h, h + 1.0), 4, increasing=True))[0]
     n = len(y) - 2 * h
-    return sum(c[o] * y[o : o + n] for o in range(win))
+    if present is None or present.all():
+        # the fitted cubic's value at the window's centre: the first row of the Vandermonde
+        # pseudo-inverse
+        c = np.linalg.pinv(np.vander(np.arange(-h, h + 1.0), 4, increasing=True))[0]
+        return sum(c[o] * y[o : o + n] for o in range(win))
+    # per window and channel the normal equations of the cubic in s = o − h, weighted by presence:
+    # Σ P s^(a+b) (a, b ≤ 3) and Σ P s^a y, summed over the window's offsets o
+    w = present.astype(float)
+    s = (np.arange(win) - h) / max(h, 1)  # scaled to [−1, 1]: the 4 × 4 systems stay conditioned
+    powers = s[:, None] ** np.arange(7)  # (win, 7)
+    A, b = np.zeros((n, y.shape[1], 7)), np.zeros((n, y.shape[1], 4))
+    for o in range(win):
+        wo = w[o : o + n][:, :, None]
+        A += wo * powers[o]
+        b += (y[o : o + n] * w[o : o + n])[:, :, None] * powers[o, :4]
+    normal = A[:, :, np.add.outer(np.arange(4), np.arange(4))]  # (n, k, 4, 4) Hankel
+    enough = A[:, :, 0] >= win / 2
+    normal[~enough] = np.eye(4)
+    out = np.linalg.solve(normal, b[..., None])[..., 0, 0]
+    return np.where(enough, out, np.nan)
 
 
 @dataclass(frozen=True)

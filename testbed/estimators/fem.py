@@ -304,6 +304,13 @@ def _fit(
             "no per_record and the biases, the current and the input delay fixed, or an "
             "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
+    gaps = next((e for e in experiments if np.isnan(np.asarray(e.y, dtype=float)).any()), None)
+    if gaps is not None:
+        raise InputError(
+            f"{gaps.source or gaps.name}: missing samples (NaN, or a sensor at a lower rate); "
+            "ml-fem runs the steady-state filter over every sample: expected complete records, "
+            "or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm) or mekf"
+        )
     experiments, config = unbiased(experiments, config)
     with recursions.counting() as tally, scan.compiled():
         t0 = time.perf_counter()

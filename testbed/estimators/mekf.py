@@ -507,20 +507,23 @@ class _State:
 
 
 def _experiment(e: Experiment, sigma_r: Mapping[str, float], U: float, o: FilterOptions):
-    """Measured rows, measurements (u as the perturbation), R's σ, the initial state and its σ,
-    and the states' process σ for one experiment."""
+    """Measured rows, measurements (u as the perturbation; 0 where missing), the samples present
+    (N, k), R's σ, the initial state and its σ, and the states' process σ for one experiment. A
+    state missing at the first sample starts at trim with the unmeasured states' σ."""
     rows = np.array([IX[name] for name in e.measured])
     y = e.y.copy()
     if "u" in e.measured:
         y[:, e.measured.index("u")] -= U
+    present = ~np.isnan(y)
+    y[~present] = 0.0
     sr = np.array([sigma_r[name] for name in e.measured])
     x = np.zeros(NX)
     x[rows] = y[0]
     sx0 = np.full(NX, o.unmeasured_std)
-    sx0[rows] = sr
+    sx0[rows] = np.where(present[0], sr, o.unmeasured_std)
     qx = np.full(NX, o.unmeasured_noise)
     qx[rows] = o.state_noise * sr
-    return rows, y, sr, x, sx0, qx
+    return rows, y, present, sr, x, sx0, qx
 
 
 class _ModelError:
@@ -537,6 +540,7 @@ class _ModelError:
         measured: Sequence[str],
         rows: np.ndarray,
         y: np.ndarray,
+        present: np.ndarray,
         st: _State,
         o: FilterOptions,
     ):
@@ -544,7 +548,8 @@ class _ModelError:
         self.cols = np.array([j for j, name in enumerate(measured) if name in st.matched], dtype=int)
         self.rows = rows[self.cols]
         self.floor2 = self.q[self.rows] ** 2
-        self.cap2 = np.maximum(y[:, self.cols].var(axis=0), self.floor2)
+        var = [y[present[:, j], j].var() if present[:, j].any() else 0.0 for j in self.cols]
+        self.cap2 = np.maximum(np.array(var), self.floor2)
         self.alpha = 1.0 / o.noise_window if o.noise_window and len(self.rows) else 0.0
         # the standard error of an exponential average of ν² − S̃ where the model is right (q = 0:
         # Var ν² = 2 S̃²) is S̃ √(2α/(2−α))
@@ -553,21 +558,23 @@ class _ModelError:
         self.s0_bar = None
         self.st = st
 
-    def update(self, nu: np.ndarray, s: np.ndarray) -> bool:
+    def update(self, nu: np.ndarray, s: np.ndarray, present: np.ndarray) -> bool:
         """Innovations `nu` (m,) and the diagonal `s` (m,) of their predicted covariance S, from
-        the measurement update after a time update with `q`; False if nothing is matched."""
+        the measurement update after a time update with `q`, of the channels `present` (m,)
+        (a missing sample's channel keeps its averages); False if nothing is matched."""
         if not self.alpha:
             return False
-        a = self.alpha
+        seen = present[self.cols]
+        a = self.alpha * seen
         s0 = s[self.cols] - self.q[self.rows] ** 2  # S̃ = S − q²: what the model and R predict
         q2_hat = nu[self.cols] ** 2 - s0  # q̂² = ν² − S̃: the innovation's excess over it
         self.q2_bar += a * (q2_hat - self.q2_bar)  # exponential averages over 1/α samples
-        self.s0_bar = s0.copy() if self.s0_bar is None else self.s0_bar + a * (s0 - self.s0_bar)
+        self.s0_bar = s0 * seen if self.s0_bar is None else self.s0_bar + a * (s0 - self.s0_bar)
         # q² = q̄² − margin · se₀ (only what the average resolves), within [floor², Var y]
         q2 = np.clip(self.q2_bar - self.margin * self.s0_bar, self.floor2, self.cap2)
         self.q[self.rows] = np.sqrt(q2)
-        self.st.q2_sum[self.rows] += q2
-        self.st.q_samples[self.rows] += 1
+        self.st.q2_sum[self.rows] += q2 * seen
+        self.st.q_samples[self.rows] += seen
         return True
 
 
@@ -581,13 +588,15 @@ class _Books:
         self.ring, self.ring_sum = np.zeros(o.nis_window), 0.0  # NIS per channel, last window
         self.lim = o.explode * st.sig0
 
-    def sample(self, k: int, x, th, var, nis: float, ldiag) -> None:
+    def sample(self, k: int, x, th, var, nis: float, ldiag, m: int | None = None) -> None:
         """Sample `k` of the experiment: states `x`, coefficients `th`, their variances `var`,
-        the innovations' NIS and |diagonal| of their root `ldiag` (for ln det Σν)."""
-        st, m, ring = self.st, self.m, self.ring
+        the innovations' NIS and |diagonal| of their root `ldiag` (for ln det Σν; 1 for a
+        channel missing there), `m` the channels present (all of them: None)."""
+        st, ring = self.st, self.ring
+        m = self.m if m is None else max(m, 1)
         c = st.count
         st.hist[c], st.hist_var[c], st.hist_t[c] = th, var, st.t_now
-        st.ldiag[c, :m] = ldiag
+        st.ldiag[c, : len(ldiag)] = ldiag
         st.cost += 0.5 * nis
         st.nis_sum += nis / m
         if not math.isfinite(nis + x.sum() + th.sum() + var.sum()):
@@ -625,7 +634,7 @@ def _sqrt_pass(
     """One experiment through the square-root filter(s) (module docstring, "Square root")."""
     n, p = NX, len(st.th)
     N = n + p
-    rows, y, sr, x, sx0, qx = _experiment(e, sigma_r, U, o)
+    rows, y, present, sr, x, sx0, qx = _experiment(e, sigma_r, U, o)
     m = len(rows)
     svd = o.sqrt == "svd"
     # Pre-arrays [[R½, C J⁻], [0, J⁻]], J⁻ the predicted root: [F J, Q½] (augmented filter) and
@@ -646,7 +655,7 @@ def _sqrt_pass(
     xk = x.copy()  # the Kalman filter's estimate: the MEKF's linearisation centre
     th, ref = st.th, st.ref
     books = _Books(st, o, m, callback)
-    error = _ModelError(qx, e.measured, rows, y, st, o)
+    error = _ModelError(qx, e.measured, rows, y, present, st, o)
     qa, qk = N + error.rows, n + N + error.rows  # the matched σ's columns in the roots' Q½ blocks
     model.restart(e.dt, o.refresh_tol)
     t0, last, Ja = e.t[0] - st.t_offset, len(e.t) - 1, None
@@ -659,7 +668,12 @@ def _sqrt_pass(
             if svd:
                 pre_a[m:, m:] = svd_root(ja)
             pre_a[:m, m:] = pre_a[sel, m:]
+            ok = present[k]
+            full = ok.all()
             nu = y[k] - x[rows]
+            if not full:  # a missing channel: its row decoupled (C J⁻ = 0, ν = 0), no update
+                pre_a[:m, m:][~ok] = 0.0
+                nu[~ok] = 0.0
             dx, w, L, Ja = sqrt_update(pre_a, m, nu)
             x += dx[:n]
             th += dx[n:]
@@ -667,14 +681,21 @@ def _sqrt_pass(
                 if svd:
                     pre_k[m:, m:] = svd_root(jk)
                 pre_k[:m, m:] = pre_k[sel, m:]
-                dxk, _, _, Jx = sqrt_update(pre_k, m, y[k] - xk[rows])
+                nuk = y[k] - xk[rows]
+                if not full:
+                    pre_k[:m, m:][~ok] = 0.0
+                    nuk[~ok] = 0.0
+                dxk, _, _, Jx = sqrt_update(pre_k, m, nuk)
                 xk += dxk
             else:
                 xk = x
-            if k > 0 and error.update(nu, np.einsum("ij,ij->i", L, L)):  # diag S = diag L Lᵀ
+            if k > 0 and error.update(nu, np.einsum("ij,ij->i", L, L), ok):  # diag S = diag L Lᵀ
                 ja[error.rows, qa] = jk[error.rows, qk] = error.q[error.rows]
             var = np.einsum("ij,ij->i", Ja[n:], Ja[n:])
-            books.sample(k, xk, th, var, float(w @ w), L.diagonal())
+            if full:
+                books.sample(k, xk, th, var, float(w @ w), L.diagonal())
+            else:
+                books.sample(k, xk, th, var, float(w @ w), np.where(ok, L.diagonal(), 1.0), int(ok.sum()))
             if k == last:
                 break
             if k == 0:  # process noise from the first time update on
@@ -714,7 +735,7 @@ def _conventional_pass(
 ) -> None:
     """One experiment through the textbook EKF: `P = F P Fᵀ + Q`, `P = P − K C P`."""
     n, p = NX, len(st.th)
-    rows, y, sr, x, sx0, qx = _experiment(e, sigma_r, U, o)
+    rows, y, present, sr, x, sx0, qx = _experiment(e, sigma_r, U, o)
     m, R = len(rows), np.diag(sr**2)
     Q = np.diag(np.concatenate([qx, st.qth]) ** 2)
     P = np.zeros((n + p, n + p))
@@ -724,7 +745,7 @@ def _conventional_pass(
     inputs = np.hstack([e.inputs, np.ones((len(e.t), 1))])
     th, ref = st.th, st.ref
     books = _Books(st, o, m, callback, signed=True)
-    error = _ModelError(qx, e.measured, rows, y, st, o)
+    error = _ModelError(qx, e.measured, rows, y, present, st, o)
     model.restart(e.dt, o.refresh_tol)
     t0, last = e.t[0] - st.t_offset, len(e.t) - 1
     try:
@@ -732,23 +753,31 @@ def _conventional_pass(
             if st.count >= st.total:
                 break
             st.t_now = e.t[k] - t0
-            nu = y[k] - x[rows]
+            ok = present[k]  # the channels present: the update takes only those
+            nu = np.where(ok, y[k] - x[rows], 0.0)
             Sv = P[np.ix_(rows, rows)] + R
+            s = np.diag(Sv).copy()
+            if not ok.all():
+                Sv, at = Sv[np.ix_(ok, ok)], rows[ok]
+            else:
+                at = rows
             Linv = np.linalg.inv(np.linalg.cholesky(Sv))  # LinAlgError: not definite
-            K = np.linalg.solve(Sv, P[rows]).T
-            P = P - K @ P[rows]
+            K = np.linalg.solve(Sv, P[at]).T
+            P = P - K @ P[at]
             st.asym = max(st.asym, np.abs(P - P.T).max() / np.abs(P).max())
             try:
                 np.linalg.cholesky(P)
             except np.linalg.LinAlgError:
                 raise _Diverged("the covariance lost positive definiteness") from None
-            dx = K @ nu
+            dx = K @ nu[ok]
             x, th[:] = x + dx[:n], th + dx[n:]
-            if k > 0 and error.update(nu, np.diag(Sv)):
+            if k > 0 and error.update(nu, s, ok):
                 Q[error.rows, error.rows] = error.q[error.rows] ** 2
-            w = Linv @ nu
+            w = Linv @ nu[ok]
             var = np.diag(P)[n:].copy()
-            books.sample(k, x, th, var, float(w @ w), 1.0 / np.diag(Linv))
+            ldiag = np.ones(m)
+            ldiag[ok] = 1.0 / np.diag(Linv)
+            books.sample(k, x, th, var, float(w @ w), ldiag, int(ok.sum()))
             if k == last:
                 break
             xi = np.concatenate((x, inputs[k]))

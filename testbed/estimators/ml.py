@@ -81,7 +81,7 @@ def _simulate(prob: Problem, p: np.ndarray):
     out = [prob.outputs(r, x, p[: prob.n_free]) for r, x in zip(prob.records, xs)]
     if not np.all(np.isfinite(p)) or likelihood.exploded(prob, out) is not None:
         return None
-    return xs, [r.y - y for r, y in zip(prob.records, out)]
+    return xs, [r.residual(y) for r, y in zip(prob.records, out)]
 
 
 def _report(callback: Callback | None, prob: Problem, it: int, p: np.ndarray, res) -> None:
@@ -176,14 +176,7 @@ def _stages(prob: Problem, first_length: float) -> list[Problem]:
         T *= 2
     return [
         replace(
-            prob,
-            records=tuple(
-                replace(
-                    r, y=r.y[:n], inputs=r.inputs[:n], heading=None if r.heading is None else r.heading[:n]
-                )
-                for r in prob.records
-                for n in [max(int(round(T / r.dt)), 1)]
-            ),
+            prob, records=tuple(r.rows(0, n) for r in prob.records for n in [max(int(round(T / r.dt)), 1)])
         )
         for T in lengths
     ] + [prob]
@@ -479,7 +472,7 @@ def _cost(prob: Problem, p: np.ndarray) -> float:
         out = recursions.outputs(prob, p)
     if likelihood.exploded(prob, out) is not None:
         return np.inf
-    return likelihood.negative_log_likelihood(prob, [r.y - y for r, y in zip(prob.records, out)])
+    return likelihood.negative_log_likelihood(prob, [r.residual(y) for r, y in zip(prob.records, out)])
 
 
 def best_fit(fits: list[Fit]) -> Fit:

@@ -62,7 +62,7 @@ def box(prob: Problem, count: int, spread: float, rng: np.random.Generator) -> n
             p = likelihood.initial_states(prob, theta0)
         if likelihood.divergence(prob, p) is None:
             xs = recursions.states(prob, p)
-            res = [r.y - prob.outputs(r, x, theta0) for r, x in zip(prob.records, xs)]
+            res = [r.residual(prob.outputs(r, x, theta0)) for r, x in zip(prob.records, xs)]
             g, M = likelihood.gauss_newton_terms(prob, p, xs, res, likelihood.noise_variance(prob, res))
             std = bounds.crlb(likelihood.reduced(M, g, prob.n_free)[0]).std
             half = np.where(np.isfinite(std), BOX_BOUNDS * std, 0.0)

@@ -92,7 +92,7 @@ def point(prob: Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Poin
     out = [prob.outputs(r, x, theta) for r, x in zip(prob.records, xs)]
     if likelihood.exploded(prob, out) is not None:
         return None
-    res = [r.y - y for r, y in zip(prob.records, out)]
+    res = [r.residual(y) for r, y in zip(prob.records, out)]
     return Point(
         p, xs, res, likelihood.noise_variance(prob, res), likelihood.negative_log_likelihood(prob, res)
     )

@@ -168,7 +168,15 @@ def colored_covariance(
         Zr = Z[:n, :k]
         Zr[...] = 0.0
         for channels, params, pieces in sensitivity_parts(
-            prob, r, models[prob.key(r)], x, r.measured, channel_weights(r, R), PIECE, values=p[:nf]
+            prob,
+            r,
+            models[prob.key(r)],
+            x,
+            r.measured,
+            channel_weights(r, R),
+            PIECE,
+            r.present,
+            values=p[:nf],
         ):
             for samples, S in pieces:
                 Zr[np.ix_(np.arange(n)[samples], channels)] = (S @ C[params]).transpose(1, 0, 2)
@@ -232,7 +240,7 @@ def assess(
     noise variance per channel to use instead of the residual variance at `p`.
     """
     xs = states(prob, p)
-    res = [r.y - prob.outputs(r, x, p[: prob.n_free]) for r, x in zip(prob.records, xs)]
+    res = [r.residual(prob.outputs(r, x, p[: prob.n_free])) for r, x in zip(prob.records, xs)]
     R = noise_variance(prob, res) if R is None else R
     if M is None:
         M = gauss_newton_terms(prob, p, xs, res, R)[1]
@@ -288,7 +296,7 @@ def fisher(
     the initial states eliminated, without the bounds (no colored-residual analysis)."""
     prob, p, R = _analysed(experiments, config, values, noise_std)
     xs = states(prob, p)
-    res = [r.y - prob.outputs(r, x, p[: prob.n_free]) for r, x in zip(prob.records, xs)]
+    res = [r.residual(prob.outputs(r, x, p[: prob.n_free])) for r, x in zip(prob.records, xs)]
     M = gauss_newton_terms(prob, p, xs, res, noise_variance(prob, res) if R is None else R)[1]
     return reduced(M, np.zeros(len(M)), prob.n_free)[0]
 

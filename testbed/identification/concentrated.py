@@ -10,7 +10,9 @@ The outputs are linear in the measured components x0 of the initial state,
                            doubling in about 2 log₂N steps (`kernels.gramian`),
     b = Σ_k (CΦᵏ)ᵀ W (y[k] − C x_f[k]) = λ[0],   λ[k] = Φᵀλ[k+1] + CᵀW (y[k] − C x_f[k]),
 
-the adjoint recursion run backwards. A ≥ W (its k = 0 term): positive definite. The cost is
+the adjoint recursion run backwards. A record with missing samples weights each sample by
+W P[k], P[k] 1 for a channel's sample present and 0 for one missing: its Gramian is summed
+sample by sample (`kernels.masked_gramian`), its adjoint and residuals take P[k] in. A ≥ W (its k = 0 term): positive definite. The cost is
 then summed from the residuals of the trajectory simulated from that x0, never from
 `vᵀWv − bᵀx0`, whose cancellation would cost digits: x0's rounding error (the normal
 equations square the condition number) enters the cost only to second order. This is the
@@ -47,13 +49,16 @@ class Cost:
             records = [r for r in prob.records if prob.key(r) == key]
             starts = np.cumsum([0] + [len(r.y) for r in records])
             measured = np.zeros((len(records), NX), dtype=np.int64)
-            y = np.zeros((starts[-1], NX))
+            y, present = np.zeros((starts[-1], NX)), np.ones((starts[-1], NX))
             for k, r in enumerate(records):
                 measured[k, : len(r.measured)] = r.measured
                 y[starts[k] : starts[k + 1], : len(r.measured)] = r.y
+                if r.present is not None:
+                    present[starts[k] : starts[k + 1], : len(r.measured)] = r.present
+            complete = np.array([r.present is None for r in records])
             inputs = np.ascontiguousarray(np.concatenate([r.inputs for r in records]), dtype=float)
             counts = np.array([len(r.measured) for r in records], dtype=np.int64)
-            self.groups.append((key, records, starts, measured, counts, y, inputs))
+            self.groups.append((key, records, starts, measured, counts, y, present, complete, inputs))
 
     def __call__(self, values: np.ndarray, R: np.ndarray) -> float:
         """`J_M = 1/N Σ eᵀR⁻¹e` at the free `values`; ∞ for an invalid model (singular Mt, or
@@ -68,7 +73,7 @@ class Cost:
         try:
             with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
                 models = discrete_models(prob, values, 0)
-                for key, records, starts, measured, counts, y, inputs in self.groups:
+                for key, records, starts, measured, counts, y, present, complete, inputs in self.groups:
                     E = models[key].E
                     if prob.delayed:  # the fins' angles: the recorded ones advanced by the delay
                         inputs = np.ascontiguousarray(
@@ -78,6 +83,7 @@ class Cost:
                         y = y.copy()
                         for k, r in enumerate(records):
                             y[starts[k] : starts[k + 1], : len(r.measured)] -= prob.output_terms(r, values)
+                        y[present == 0] = 0.0  # a missing sample stays 0
                     W = np.zeros((len(records), NX))
                     for k, r in enumerate(records):
                         W[k, : len(r.channels)] = 1.0 / R[r.channels]
@@ -87,6 +93,8 @@ class Cost:
                         np.ascontiguousarray(E[:, -1]),
                         inputs,
                         y,
+                        present,
+                        complete,
                         starts,
                         measured,
                         counts,
@@ -118,5 +126,6 @@ def _by_qr(prob: Problem, values: np.ndarray, R: np.ndarray) -> float:
     if exploded(prob, out) is not None:
         return np.inf
     return (
-        sum(float(np.sum((r.y - y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out)) / prob.n_samples
+        sum(float(np.sum(r.residual(y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out))
+        / prob.n_samples
     )

@@ -10,7 +10,15 @@ Each computes what `scan.Scan` computes, sample by sample: numpy's per-call over
 import numba
 import numpy as np
 
-__all__ = ["adjoint_sum", "concentrated_sse", "gramian", "propagate", "recursion", "weighted_sse"]
+__all__ = [
+    "adjoint_sum",
+    "concentrated_sse",
+    "gramian",
+    "masked_gramian",
+    "propagate",
+    "recursion",
+    "weighted_sse",
+]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})  # the sums reordered: 1.5× faster
@@ -56,10 +64,12 @@ def recursion(Phi, forcing, X, rows, S):
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
-def adjoint_sum(Phi, F, y, measured, W):
-    """`b = λ[0][measured]` of the adjoint `λ[k] = Φᵀλ[k+1] + a[k]`, `a[k][measured] = W (y[k] −
-    x[k][measured])`, with `x[k+1] = Φ x[k] + F[k]` from x[0] = 0: the right-hand side of the
-    initial state's normal equations (`testbed.identification.concentrated`)."""
+def adjoint_sum(Phi, F, y, measured, W, P):
+    """`b = λ[0][measured]` of the adjoint `λ[k] = Φᵀλ[k+1] + a[k]`, `a[k][measured] = W P[k] (y[k] −
+    x[k][measured])` (P[k, j]: 1 where sample k of channel j is present, 0 where it is missing;
+    None: every sample present, compiled apart without P), with `x[k+1] = Φ x[k] + F[k]` from
+    x[0] = 0: the right-hand side of the initial state's normal equations
+    (`testbed.identification.concentrated`)."""
     n, N, c = Phi.shape[0], y.shape[0], len(measured)
     x = np.empty((N, n))
     x[0] = 0.0
@@ -67,7 +77,10 @@ def adjoint_sum(Phi, F, y, measured, W):
     a = np.zeros((N, n))  # a[N − 1 − k]: the adjoint runs backwards
     for k in range(N):
         for j in range(c):
-            a[N - 1 - k, measured[j]] = W[j] * (y[k, j] - x[k, measured[j]])
+            if P is None:
+                a[N - 1 - k, measured[j]] = W[j] * (y[k, j] - x[k, measured[j]])
+            else:
+                a[N - 1 - k, measured[j]] = W[j] * P[k, j] * (y[k, j] - x[k, measured[j]])
     lam = x  # λ[N − 1 − k], in x's memory
     lam[0] = a[0]
     propagate(np.ascontiguousarray(Phi.T), lam, a[1:])
@@ -78,10 +91,10 @@ def adjoint_sum(Phi, F, y, measured, W):
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
-def weighted_sse(Phi, x0, F, y, measured, W, explode):
-    """`Σ_k Σ_j W_j (y[k, j] − x[k][measured[j]])²` along `x[k+1] = Φ x[k] + F[k]` from `x0`;
-    −1 where an output is not finite or beyond `explode`·max|y_j| + 1 (the model diverged,
-    `testbed.identification.likelihood.exploded`)."""
+def weighted_sse(Phi, x0, F, y, measured, W, P, explode):
+    """`Σ_k Σ_j W_j P[k, j] (y[k, j] − x[k][measured[j]])²` (P as in `adjoint_sum`) along
+    `x[k+1] = Φ x[k] + F[k]` from `x0`; −1 where an output is not finite or beyond
+    `explode`·max|y_j| + 1 (the model diverged, `testbed.identification.likelihood.exploded`)."""
     N, c = y.shape[0], len(measured)
     bound = np.zeros(c)
     for k in range(N):
@@ -98,7 +111,10 @@ def weighted_sse(Phi, x0, F, y, measured, W, explode):
             if not abs(v) <= bound[j]:  # NaN too
                 return -1.0
             d = y[k, j] - v
-            total += W[j] * d * d
+            if P is None:
+                total += W[j] * d * d
+            else:
+                total += W[j] * P[k, j] * d * d
     return total
 
 
@@ -135,20 +151,79 @@ def gramian(Phi, Q, N):
     return S
 
 
+@numba.njit(cache=True)
+def masked_gramian(Phi, measured, W, P):
+    """`Σ_k (C Φᵏ)ᵀ diag(W P[k]) C Φᵏ` restricted to the `measured` columns (c, c), C the rows
+    `measured` of the identity, P as in `adjoint_sum`: a record's observability Gramian with its
+    missing samples left out. Where fewer than half the samples are missing, the whole record's
+    Gramian (`gramian`, by doubling) less the missing samples' terms, else the present samples'
+    terms summed; either way the rows C Φᵏ are propagated sample by sample, Φ's zeros skipped
+    (a torpedo's Φ is two uncoupled blocks), up to the last sample that has a term."""
+    n, c, N = Phi.shape[0], len(measured), P.shape[0]
+    missing, last_missing, last_present = 0, -1, -1
+    for k in range(N):
+        for l in range(c):
+            if P[k, l] == 0:
+                missing += 1
+                last_missing = k
+            else:
+                last_present = k
+    subtract = 2 * missing < N * c
+    A = np.zeros((c, c))
+    if subtract:
+        Q = np.zeros((n, n))
+        for j in range(c):
+            Q[measured[j], measured[j]] = W[j]
+        G = gramian(Phi, Q, N)
+        for i in range(c):
+            for j in range(c):
+                A[i, j] = G[measured[i], measured[j]]
+    last = last_missing if subtract else last_present
+    R, Rn = np.zeros((c, n)), np.empty((c, n))  # C Φᵏ
+    for j in range(c):
+        R[j, measured[j]] = 1.0
+    for k in range(last + 1):
+        for l in range(c):
+            if (P[k, l] == 0) != subtract or W[l] == 0:
+                continue
+            wl = -W[l] if subtract else W[l]
+            for i in range(c):
+                ri = wl * R[l, measured[i]]
+                for j in range(i, c):
+                    A[i, j] += ri * R[l, measured[j]]
+        if k == last:
+            break
+        Rn[:, :] = 0.0
+        for a in range(n):
+            for b in range(n):
+                phi = Phi[a, b]
+                if phi == 0:
+                    continue
+                for j in range(c):
+                    Rn[j, b] += R[j, a] * phi
+        R, Rn = Rn, R
+    for i in range(c):  # the terms went to the upper triangle: mirrored
+        for j in range(i):
+            A[i, j] = A[j, i]
+    return A
+
+
 @numba.njit(cache=True, fastmath={"reassoc"})
-def concentrated_sse(Phi, Gamma, s, inputs, y, starts, measured, counts, W, explode, condition):
-    """`Σ_records Σ_k Σ_j W_rj (y[k, j] − x[k][measured[r, j]])²` with each record's initial
-    state at its best (`testbed.identification.concentrated`): the records stacked in `inputs`
-    and `y` (record r the rows `starts[r]:starts[r+1]`, its `counts[r]` measured states the first
-    columns of y, `measured[r]`, their weights `W[r]`), `x[k+1] = Φ x[k] + Γ δ[k] + s`. Per record
-    `adjoint_sum`, the Gramian (`gramian`) scaled to a unit diagonal, x0 from the normal equations
-    and `weighted_sse`. −1 where the outputs diverge (`weighted_sse`), −2 where a scaled Gramian's
-    condition number exceeds `condition` (x0 then wants a QR solve)."""
+def concentrated_sse(Phi, Gamma, s, inputs, y, P, complete, starts, measured, counts, W, explode, condition):
+    """`Σ_records Σ_k Σ_j W_rj P[k, j] (y[k, j] − x[k][measured[r, j]])²` with each record's
+    initial state at its best (`testbed.identification.concentrated`): the records stacked in
+    `inputs`, `y` and `P` (record r the rows `starts[r]:starts[r+1]`, its `counts[r]` measured
+    states the first columns of y, `measured[r]`, their weights `W[r]`; P 1 where a sample is
+    present, 0 where it is missing, `complete[r]` where record r misses none),
+    `x[k+1] = Φ x[k] + Γ δ[k] + s`. Per record `adjoint_sum`, the Gramian (`gramian`, or
+    `masked_gramian` for a record with missing samples) scaled to a unit diagonal, x0 from the
+    normal equations and `weighted_sse`. −1 where the outputs diverge (`weighted_sse`), −2 where
+    a scaled Gramian's condition number exceeds `condition` (x0 then wants a QR solve)."""
     n, total = Phi.shape[0], 0.0
     for r in range(len(starts) - 1):
         a, b, c = starts[r], starts[r + 1], counts[r]
         N, m, w = b - a, measured[r, :c], W[r, :c]
-        yr = y[a:b, :c]
+        yr, Pr = y[a:b, :c], P[a:b, :c]
         F = np.empty((N - 1, n))
         for k in range(N - 1):  # F[k] = Γ δ[k] + s
             for i in range(n):
@@ -156,15 +231,19 @@ def concentrated_sse(Phi, Gamma, s, inputs, y, starts, measured, counts, W, expl
                 for j in range(Gamma.shape[1]):
                     acc += Gamma[i, j] * inputs[a + k, j]
                 F[k, i] = acc
-        rhs = adjoint_sum(Phi, F, yr, m, w)
-        Q = np.zeros((n, n))
-        for j in range(c):
-            Q[m[j], m[j]] = w[j]
-        G = gramian(Phi, Q, N)
-        A = np.empty((c, c))
-        for i in range(c):
+        if complete[r]:
+            rhs = adjoint_sum(Phi, F, yr, m, w, None)
+            Q = np.zeros((n, n))
             for j in range(c):
-                A[i, j] = G[m[i], m[j]]
+                Q[m[j], m[j]] = w[j]
+            G = gramian(Phi, Q, N)
+            A = np.empty((c, c))
+            for i in range(c):
+                for j in range(c):
+                    A[i, j] = G[m[i], m[j]]
+        else:
+            rhs = adjoint_sum(Phi, F, yr, m, w, Pr)
+            A = masked_gramian(Phi, m, w, Pr)
         D = np.sqrt(np.diag(A).copy())  # unit diagonal: x0's units do not count
         for i in range(c):
             for j in range(c):
@@ -176,7 +255,10 @@ def concentrated_sse(Phi, Gamma, s, inputs, y, starts, measured, counts, W, expl
         x0 = np.zeros(n)
         for j in range(c):
             x0[m[j]] = x0m[j]
-        sse = weighted_sse(Phi, x0, F, yr, m, w, explode)
+        if complete[r]:
+            sse = weighted_sse(Phi, x0, F, yr, m, w, None, explode)
+        else:
+            sse = weighted_sse(Phi, x0, F, yr, m, w, Pr, explode)
         if not sse >= 0:
             return -1.0
         total += sse

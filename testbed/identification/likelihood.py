@@ -2,7 +2,8 @@
 best-fitting initial states, and the problem cut into segments (multiple shooting).
 
 Noise: `v ~ N(0, R)` with `R` diagonal, one variance per measured state (pooled over the
-experiments). The paper's likelihood `J_M = 1/N Σ eᵀR⁻¹e` is minimised by relaxation: `R` is set
+experiments). A missing sample is left out of every sum (`Record.present`): the residuals are 0
+there, and the variances count the samples present. The paper's likelihood `J_M = 1/N Σ eᵀR⁻¹e` is minimised by relaxation: `R` is set
 to the residual variance per channel, then held fixed while θ steps (Maine & Iliff).
 """
 
@@ -14,7 +15,7 @@ from typing import Sequence
 import numpy as np
 
 from testbed.identification import scan
-from testbed.identification.problem import Problem, Record
+from testbed.identification.problem import Problem
 from testbed.identification.recursions import (
     channel_weights,
     discrete_models,
@@ -60,14 +61,16 @@ def _pooled_variance(prob: Problem, sums: Sequence[np.ndarray]) -> np.ndarray:
     ss, n, scale = np.zeros(len(prob.channels)), np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
     for r, e2 in zip(prob.records, sums):  # a record's channels are distinct
         ss[r.channels] += e2
-        n[r.channels] += len(r.y)
+        n[r.channels] += r.counts
         scale[r.channels] += np.sum(r.y**2, axis=0)
+    n = np.maximum(n, 1)  # a channel without a sample present (a stage too short for it)
     R = np.maximum(ss / n, 1e-14 * scale / n + 1e-30)
     return R if prob.known is None else np.where(np.isnan(prob.known), R, prob.known)
 
 
 def weighted_cost(prob: Problem, res: Sequence[np.ndarray], R: np.ndarray) -> float:
-    """`½ Σ_k eᵀ R⁻¹ e` over all experiments (R held fixed: the relaxation step)."""
+    """`½ Σ_k eᵀ R⁻¹ e` over all experiments (R held fixed: the relaxation step); `res` from
+    `Record.residual`, 0 at the missing samples."""
     return 0.5 * sum(float(np.sum(e**2 / R[r.channels])) for r, e in zip(prob.records, res))
 
 
@@ -77,7 +80,7 @@ def negative_log_likelihood(prob: Problem, res: Sequence[np.ndarray]) -> float:
     R = noise_variance(prob, res)
     n, S = np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
     for r, e in zip(prob.records, res):
-        n[r.channels] += len(r.y)
+        n[r.channels] += r.counts
         S[r.channels] += np.sum(e**2, axis=0)
     return float(0.5 * np.sum(n * np.log(2 * np.pi * R) + S / R))
 
@@ -116,6 +119,7 @@ def gauss_newton_terms(
             r.measured,
             channel_weights(r, R),
             scan.PIECE,
+            r.present,
             values=p[: prob.n_free],
         ):
             ep, gp, Mp = e[:, channels], np.zeros(len(params)), np.zeros((len(params), len(params)))
@@ -148,19 +152,7 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
         edges = np.linspace(0, n, pieces + 1).round().astype(int)
         for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
             name = r.name if pieces == 1 else f"{r.name}[{j}]"
-            records.append(
-                Record(
-                    name,
-                    r.y[a:b],
-                    r.inputs[a:b],
-                    r.measured,
-                    r.channels,
-                    r.dt,
-                    offset,
-                    r.group,
-                    None if r.heading is None else r.heading[a:b],
-                )
-            )
+            records.append(replace(r.rows(a, b), name=name, offset=offset))
             offset += len(r.measured)
     return replace(prob, records=tuple(records))
 
@@ -236,6 +228,8 @@ def fit_initial_states(
                     block[:, k + 1 :, cols] = np.concatenate(
                         [Y[:, :, 1:], (y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
                     )
+                    if r.present is not None:  # a missing sample's row: zero, no equation
+                        block[:, k + 1 :] *= r.present[np.ix_(samples, channels)].T[:, :, None]
                 if not np.all(np.isfinite(block)):
                     finite = False
                     break

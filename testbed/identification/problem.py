@@ -35,6 +35,7 @@ from testbed.models.linear import (
     Structure,
     fastest_rate,
     inertia_defect,
+    pitch_dependents,
     structure,
     theta_vector,
     unobserved,
@@ -57,10 +58,12 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Record:
-    """One experiment as the model sees it."""
+    """One experiment as the model sees it. A missing sample (NaN in the experiment) is left out
+    of the likelihood: `present` marks the samples there are, and `y` is 0 where there is none,
+    so that the arithmetic on it stays finite; every residual is taken through `residual`."""
 
     name: str
-    y: np.ndarray  # (N, k) measured states, u as the perturbation u_abs − U
+    y: np.ndarray  # (N, k) measured states, u as the perturbation u_abs − U; 0 where missing
     inputs: np.ndarray  # (N, 3)
     measured: np.ndarray  # (k,) indexes into STATES
     channels: np.ndarray  # (k,) indexes into Problem.channels
@@ -68,6 +71,23 @@ class Record:
     offset: int  # where this experiment's initial state starts in p
     group: int = 0  # which experiment it is (its segments share it): the owner of per-record values
     heading: np.ndarray | None = None  # (N,) the measured ψ (None: not measured, the trim's 0)
+    present: np.ndarray | None = None  # (N, k) bool, the samples there are; None: all of them
+
+    @property
+    def counts(self) -> np.ndarray:
+        """The samples present per channel (k,)."""
+        return np.full(len(self.measured), len(self.y)) if self.present is None else self.present.sum(axis=0)
+
+    def residual(self, yhat: np.ndarray) -> np.ndarray:
+        """`y − yhat` (N, k), 0 at the missing samples."""
+        e = self.y - yhat
+        return e if self.present is None else np.where(self.present, e, 0)
+
+    def rows(self, a: int, b: int) -> "Record":
+        """The record's samples a … b − 1 (its own initial state still at `offset`)."""
+        present = None if self.present is None else self.present[a:b]
+        heading = None if self.heading is None else self.heading[a:b]
+        return replace(self, y=self.y[a:b], inputs=self.inputs[a:b], present=present, heading=heading)
 
 
 @dataclass(frozen=True)
@@ -194,6 +214,16 @@ class Problem:
         return x0
 
 
+def _heading(e: Experiment) -> np.ndarray | None:
+    """The record's measured ψ (N,), its missing samples interpolated (a regressor of the
+    current, not a sample of the likelihood), or None where it has no ψ column."""
+    if "psi" not in e.measured:
+        return None
+    psi, k = np.asarray(e.column("psi"), dtype=float), np.arange(len(e.t))
+    there = np.isfinite(psi)
+    return psi if there.all() else np.interp(k, k[there], psi[there])
+
+
 def shifted(u: np.ndarray, steps) -> tuple[np.ndarray, np.ndarray]:
     """`u` (N, m) advanced by `steps` samples (real, or complex under a complex step):
     u[k + steps] by linear interpolation, held beyond the ends, and the slope
@@ -231,6 +261,8 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig, resolve
     """`InputError` unless the experiments and the config can be fitted together, before any work:
 
     - each record is usable (`data.check_experiment`) and the config valid (`data.check_config`);
+    - a 4-DOF config's omitted pitch constants (`Vehicle.omitted`) reach no measured state
+      (`model.pitch_dependents`): the model's stand-ins for them then move nothing the data give;
     - the config's Mt is the inertia of a body (`model.inertia_defect`): a singular or indefinite
       one makes every model built on it blow up, the fault of the config, not of the data;
     - each record's sampling interval Δ resolves the model: over one step the fastest mode
@@ -247,6 +279,17 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig, resolve
     check_config(config)
     source = config.source or "config"
     s, theta = structure(config.vehicle), theta_vector(config.coefficients)
+    omitted = config.vehicle.omitted()
+    if omitted:
+        measured = {n for e in experiments for n in e.measured}
+        needs = pitch_dependents(s, theta, config.free, measured)
+        if needs:
+            raise InputError(
+                f"{source}: [vehicle] {', '.join(omitted)} missing; the pitch row needs "
+                f"{'it' if len(omitted) == 1 else 'them'}, and the measured {', '.join(needs)} "
+                f"depend{'s' if len(needs) == 1 else ''} on it; expected a number (SI), or data "
+                "without the states the pitch row moves"
+            )
     defect = inertia_defect(s, theta)
     if defect:
         raise InputError(f"{source}: the inertia matrix Mt is not a body's: {defect}")
@@ -276,6 +319,8 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
         y = y.copy()
         if "u" in e.measured:
             y[:, e.measured.index("u")] -= config.vehicle.speed
+        present = ~np.isnan(y)
+        y[~present] = 0.0
         records.append(
             Record(
                 e.name,
@@ -286,7 +331,8 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
                 float(t[1] - t[0]),
                 offset,
                 j,
-                np.asarray(e.column("psi"), dtype=float) if "psi" in e.measured else None,
+                _heading(e),
+                None if present.all() else present,
             )
         )
         offset += len(measured)

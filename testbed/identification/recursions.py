@@ -155,7 +155,7 @@ def outputs(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
 
 def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Measured minus model outputs (N, k) per experiment."""
-    return [r.y - yhat for r, yhat in zip(prob.records, outputs(prob, p))]
+    return [r.residual(yhat) for r, yhat in zip(prob.records, outputs(prob, p))]
 
 
 def sensitivity_parts(
@@ -166,15 +166,17 @@ def sensitivity_parts(
     rows,
     scale: np.ndarray,
     size: int,
+    present: np.ndarray | None = None,
     biases: bool = True,
     values: np.ndarray | None = None,
 ) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:
     """`scale[c] ∂y_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
     states `x` (N, 10), for each `uncoupled` part of the model: (channels, params, pieces), the
-    pieces as in `scan.pieces` with (T, len(channels), len(params)) arrays; `channels` index `rows`,
-    `params` p. Sensitivities across the parts are zero and not given. `y` is the state plus its
-    output terms where `biases`, else the state itself; `values`: the free values (the inputs'
-    delay among them; None: all 0, for a problem without a delay).
+    pieces as in `scan.pieces` with (len(channels), T, len(params)) arrays; `channels` index `rows`,
+    `params` p. Sensitivities across the parts are zero and not given; `present` (N, len(rows)):
+    the samples there are, the others' sensitivities given as 0 (they are left out of the fit).
+    `y` is the state plus its output terms where `biases`, else the state itself; `values`: the
+    free values (the inputs' delay among them; None: all 0, for a problem without a delay).
 
     ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ; ∂y_c/∂b_c = 1;
     for the input delay τ the forcing is Γ ∂δ[k]/∂τ.
@@ -212,7 +214,9 @@ def sensitivity_parts(
             for c in range(len(channels))
             if rows[channels][c] in terms[i]
         ]
-        yield channels, params, pieces if not direct else _direct(pieces, direct, scale[channels])
+        if direct:
+            pieces = _direct(pieces, direct, scale[channels])
+        yield channels, params, pieces if present is None else _masked(pieces, present[:, channels])
 
 
 def _output_terms(prob: Problem, record: Record) -> dict[int, dict[int, np.ndarray]]:
@@ -244,6 +248,12 @@ def _direct(pieces, direct, scale):
         for c, j, regressor in direct:
             S[c, :, j] = scale[c] * (regressor[samples] if np.ndim(regressor) else regressor)
         yield samples, S
+
+
+def _masked(pieces: Iterator, present: np.ndarray) -> Iterator:
+    """`pieces` (samples, (channels, T, q) array) with the missing samples' rows zeroed."""
+    for samples, S in pieces:
+        yield samples, S * present[samples].T[:, :, None]
 
 
 def uncoupled(coupled: np.ndarray, acts: np.ndarray, rows: np.ndarray):
@@ -284,7 +294,7 @@ def _sensitivities(
     """All of `sensitivity_parts` at once: (N, len(rows), q)."""
     S = np.zeros((len(x), len(rows), prob.n_free + len(record.measured)), dtype=np.result_type(x, d.E))
     for channels, params, pieces in sensitivity_parts(
-        prob, record, d, x, rows, scale, len(x), biases, values
+        prob, record, d, x, rows, scale, len(x), biases=biases, values=values
     ):
         for samples, piece in pieces:
             S[np.ix_(samples, channels, params)] = piece.transpose(1, 0, 2)

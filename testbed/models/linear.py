@@ -44,6 +44,7 @@ __all__ = [
     "expm_pair",
     "fastest_rate",
     "inertia_defect",
+    "pitch_dependents",
     "structure",
     "theta_vector",
     "tilde",
@@ -160,22 +161,34 @@ _PLACES = {
 
 @dataclass(frozen=True)
 class Vehicle:
-    """The linear model's known constants (SI; CB relative to the CG in body axes)."""
+    """The linear model's known constants (SI; CB relative to the CG in body axes).
+
+    `GM`, `GM_L`: a floating body's transverse and longitudinal metacentric heights; where given,
+    the roll (pitch) restoring moment is −W GM φ (−W GM_L θ) instead of zB B φ (zB B θ). `Iy`, and
+    `zB` where `GM` is given, serve only the pitch row: they may be None where no state the data
+    give depends on that row (`pitch_dependents`); the model then holds stand-ins (`structure`)."""
 
     mass: float
     Ix: float
-    Iy: float
+    Iy: float | None
     Iz: float
     weight: float
     buoyancy: float
     xB: float
     yB: float
-    zB: float
+    zB: float | None
     speed: float
+    GM: float | None = None
+    GM_L: float | None = None
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
+
+    def omitted(self) -> tuple[str, ...]:
+        """The pitch row's constants left out (None): `Iy`, and `zB` where no `GM_L` replaces it."""
+        needed = (("Iy", self.Iy), ("zB", self.zB if self.GM_L is None else self.GM_L))
+        return tuple(n for n, v in needed if v is None)
 
 
 @dataclass(frozen=True)
@@ -196,10 +209,16 @@ def structure(vehicle: Vehicle) -> Structure:
     """The affine structure of the linear model's table (docs/model.md) for `vehicle`."""
     m, U, W, B = vehicle.mass, vehicle.speed, vehicle.weight, vehicle.buoyancy
     xB, yB, zB = vehicle.xB, vehicle.yB, vehicle.zB
+    # the roll and pitch restoring stiffnesses: −W GM where a metacentric height is given, else
+    # zB B; an omitted pitch constant (`Vehicle.omitted`) gets a stand-in, Iz for Iy and the roll
+    # stiffness for the pitch one, which reaches no state the data give (`pitch_dependents`)
+    roll = -W * vehicle.GM if vehicle.GM is not None else zB * B
+    pitch = -W * vehicle.GM_L if vehicle.GM_L is not None else (zB * B if zB is not None else roll)
+    Iy = vehicle.Iy if vehicle.Iy is not None else vehicle.Iz
     i = IX
     Mt0 = np.eye(NX)
     Mt0[i["u"], i["u"]] = Mt0[i["v"], i["v"]] = Mt0[i["w"], i["w"]] = m
-    Mt0[i["p"], i["p"]], Mt0[i["q"], i["q"]], Mt0[i["r"], i["r"]] = vehicle.Ix, vehicle.Iy, vehicle.Iz
+    Mt0[i["p"], i["p"]], Mt0[i["q"], i["q"]], Mt0[i["r"], i["r"]] = vehicle.Ix, Iy, vehicle.Iz
     At0 = np.zeros((NX, NX))
     St0 = np.zeros(NX)
     At0[i["u"], i["theta"]] = -(W - B)
@@ -207,9 +226,9 @@ def structure(vehicle: Vehicle) -> Structure:
     At0[i["v"], i["phi"]] = W - B
     At0[i["w"], i["q"]] = m * U
     St0[i["w"]] = W - B
-    At0[i["p"], i["phi"]] = zB * B
+    At0[i["p"], i["phi"]] = roll
     St0[i["p"]] = -yB * B
-    At0[i["q"], i["theta"]] = zB * B
+    At0[i["q"], i["theta"]] = pitch
     St0[i["q"]] = xB * B
     At0[i["r"], i["phi"]] = -xB * B
     At0[i["r"], i["theta"]] = -yB * B
@@ -412,15 +431,7 @@ def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ..
     rows that depend on it. The coefficient is observed if this reaches a measured state. Fixed
     coefficients count where they are nonzero, free ones wherever they sit."""
     idx = np.array([ITHETA[n] for n in free], dtype=int)
-    fixed = np.asarray(theta, dtype=float).copy()
-    fixed[idx] = 0.0
-    Mt, At = tilde(s, fixed)[:2]
-    coupled = (Mt != 0) | s.dMt[idx].any(0)
-    coupled = coupled | coupled.T | np.eye(NX, dtype=bool)
-    for _ in range(NX):  # transitive closure: rows mixed by Mt⁻¹
-        coupled = (coupled.astype(int) @ coupled.astype(int)) > 0
-    drives = (At != 0) | s.dAt[idx].any(0)  # drives[r, k]: row r depends on x_k
-    spread = (coupled.astype(int) @ drives.astype(int)) > 0  # spread[l, k]: ẋ_l depends on x_k
+    reach = _reach(s, theta, free)
     seen = np.zeros(NX, dtype=bool)
     seen[[IX[n] for n in measured]] = True
     out = []
@@ -435,10 +446,40 @@ def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ..
             continue
         if n == DELAY:  # the inputs' timing: seen wherever they are
             continue
-        rows = s.dMt[i].any(1) | s.dAt[i].any(1) | s.dBt[i].any(1) | (s.dSt[i] != 0)
+        if not (reach(s.dMt[i].any(1) | s.dAt[i].any(1) | s.dBt[i].any(1) | (s.dSt[i] != 0)) & seen).any():
+            out.append(n)
+    return tuple(out)
+
+
+def _reach(s: Structure, theta: np.ndarray, free):
+    """`reach(rows)`: the states that a change in the `rows` of `Mt ẋ = At x + Bt δ` can move
+    (`unobserved`): Mt⁻¹ spreads a row to the rows coupled with it through Mt (either way: an
+    over-estimate), and At carries a state into the rows that depend on it. Fixed coefficients
+    count where they are nonzero, the `free` ones wherever they sit."""
+    idx = np.array([ITHETA[n] for n in free], dtype=int)
+    fixed = np.asarray(theta, dtype=float).copy()
+    fixed[idx] = 0.0
+    Mt, At = tilde(s, fixed)[:2]
+    coupled = (Mt != 0) | s.dMt[idx].any(0)
+    coupled = coupled | coupled.T | np.eye(NX, dtype=bool)
+    for _ in range(NX):  # transitive closure: rows mixed by Mt⁻¹
+        coupled = (coupled.astype(int) @ coupled.astype(int)) > 0
+    drives = (At != 0) | s.dAt[idx].any(0)  # drives[r, k]: row r depends on x_k
+    spread = (coupled.astype(int) @ drives.astype(int)) > 0  # spread[l, k]: ẋ_l depends on x_k
+
+    def reach(rows: np.ndarray) -> np.ndarray:
         reached = coupled[:, rows].any(1)
         for _ in range(NX):
             reached = reached | spread[:, reached].any(1)
-        if not (reached & seen).any():
-            out.append(n)
-    return tuple(out)
+        return reached
+
+    return reach
+
+
+def pitch_dependents(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ...]:
+    """The states among `measured` that the pitch row moves (Iy and the pitch restoring term sit
+    in it alone): those that need the constants a 4-DOF config may leave out (`Vehicle.omitted`)."""
+    rows = np.zeros(NX, dtype=bool)
+    rows[IX["q"]] = True
+    reached = _reach(s, theta, free)(rows)
+    return tuple(n for n in STATES if n in measured and reached[IX[n]])

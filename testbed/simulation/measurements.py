@@ -103,11 +103,13 @@ def measure(
 
 
 def _third_differences(experiments: Sequence[Experiment]) -> dict[str, list[np.ndarray]]:
-    """Per measured state, the third differences `Δ³y` of each experiment that measures it."""
+    """Per measured state, the third differences `Δ³y` of each experiment that measures it, over
+    its samples present (a missing sample skipped: a slower sensor's at its own rate)."""
     out: dict[str, list[np.ndarray]] = {}
     for e in experiments:
         for j, name in enumerate(e.measured):
-            out.setdefault(name, []).append(np.diff(e.y[:, j], 3))
+            y = e.y[:, j]
+            out.setdefault(name, []).append(np.diff(y[~np.isnan(y)], 3))
     return out
 
 
