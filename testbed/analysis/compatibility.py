@@ -1,0 +1,722 @@
+"""Data compatibility: the flight path reconstructed from the measured rates and velocities.
+
+Before any fit of the dynamics, the kinematics the measurements must obey are checked (flight-
+path reconstruction; Klein & Morelli ch. 10, Jategaonkar ch. 10). The attitude is integrated
+from the rate gyros,
+
+    φ̇ = p + (q sin φ + r cos φ) tan θ,   θ̇ = q cos φ − r sin φ,   ψ̇ = (q sin φ + r cos φ) / cos θ,
+
+and the depth from the Doppler velocity log with the measured attitude,
+
+    ż = −u sin θ + v cos θ sin φ + w cos θ cos φ,
+
+each driving channel c corrected by its sensor's bias b_c, scale factor k_c and its group's
+delay τ (the true value at time t is `(c_measured(t + τ) − b_c) / (1 + k_c)`; a sensor that lags
+by τ has τ > 0). The reconstruction is compared with the measured φ, θ, ψ (the attitude check,
+`ATTITUDE`) and z (the depth check, `DEPTH`), and the initial attitude or depth and the sensor
+parameters are fitted by output error: Gauss-Newton (trust region, `scipy.optimize.
+least_squares`) on the residuals weighted by each output's noise σ, the σ re-estimated from the
+residuals until they settle (relaxation, as in maximum likelihood). The Jacobian is exact: the
+complex step, the measured signals interpolated by cubic splines (a fractional delay is a
+shift along the spline, so a 40 ms delay at 50 Hz is as smooth a parameter as any other). The
+standard deviations are the Cramér-Rao bounds, from the Fisher information at the optimum.
+
+What the delays mean: the gyros' τ is their lag behind the attitude channels, the log's τ its
+lag behind the depth sensor. A delay common to every channel shifts the whole record in time
+and cannot be told from the data; only these relative delays can.
+
+The screen, like the coefficients' (docs/cli.md, the screen): a sensor parameter along which
+the Fisher information of these data is singular is not identifiable (e.g. the log's v bias
+when roll never leaves 0) and is held at 0; of the others, fitted, the least significant is held
+at 0 one at a time while its estimate is within 2 σ of 0 (the others updated for it held there),
+and those left are fitted again. The initial states are always fitted.
+
+Each record is checked alone, and all records together (`pooled`: one set of sensor
+parameters, each record its own initial states). A record missing a channel a check needs is
+not checked for it, and the result says so (`Compatibility.unchecked`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numba
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import least_squares
+
+from testbed.data import MAX_DATA, Experiment, read_json
+from testbed.errors import InputError
+from testbed.simulation.measurements import noise_from_data
+
+__all__ = [
+    "ATTITUDE",
+    "CHECKS",
+    "DEPTH",
+    "MAX_DELAY",
+    "MAX_SCALE",
+    "SENSOR_PARAMETERS",
+    "Check",
+    "Compatibility",
+    "Parameter",
+    "Reconstruction",
+    "check_corrections",
+    "compatibility",
+    "corrected",
+    "read_corrections",
+    "reconstruct",
+]
+
+MAX_DELAY = 1.0  # s: the largest sensor delay fitted or applied, either sign
+MAX_SCALE = 0.5  # the largest |k| of a scale factor fitted or applied (1 + k within 0.5-1.5)
+SIGNIFICANCE = 2.0  # a parameter within this many σ of 0 is held at 0 (the coefficients' screen)
+SINGULAR = 1e-10  # an eigenvalue of the scaled Fisher information below this × the largest: singular
+# Of the parameters within SIGNIFICANCE σ of 0, scale factors are held first, then delays, then
+# biases: a constant velocity makes its bias and scale factor nearly one parameter (u ≈ 20 m/s),
+# and a bias is the commoner error, present whether the channel varies or not.
+HELD_FIRST = ("k", "t", "b")
+STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
+
+
+@dataclass(frozen=True)
+class Check:
+    """One kinematic check: the channels that drive it (corrected by their sensors' parameters),
+    the measured channels it uses as they are, the outputs it reconstructs and the parameters."""
+
+    name: str
+    drives: tuple[str, ...]
+    uses: tuple[str, ...]
+    outputs: tuple[str, ...]
+    initial: tuple[str, ...]
+    delay: str
+
+    @property
+    def sensor(self) -> tuple[str, ...]:
+        """The sensor parameters: each driving channel's bias and scale factor, the delay."""
+        return tuple(f"b_{c}" for c in self.drives) + tuple(f"k_{c}" for c in self.drives) + (self.delay,)
+
+    @property
+    def needs(self) -> tuple[str, ...]:
+        return self.drives + self.uses + self.outputs
+
+
+ATTITUDE = Check(
+    name="attitude",
+    drives=("p", "q", "r"),
+    uses=(),
+    outputs=("phi", "theta", "psi"),
+    initial=("phi0", "theta0", "psi0"),
+    delay="tau_gyro",
+)
+DEPTH = Check(
+    name="depth",
+    drives=("u", "v", "w"),
+    uses=("phi", "theta"),
+    outputs=("z",),
+    initial=("z0",),
+    delay="tau_dvl",
+)
+CHECKS = (ATTITUDE, DEPTH)
+SENSOR_PARAMETERS = ATTITUDE.sensor + DEPTH.sensor
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """An estimate: its value, its Cramér-Rao σ (inf where the data cannot determine it), and
+    whether it was fitted; a parameter the screen held at 0 has `estimated` False and `reason`."""
+
+    value: float
+    std: float
+    estimated: bool = True
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        d = {
+            "value": self.value,
+            "std": self.std if math.isfinite(self.std) else None,
+            "identifiable": self.estimated,
+        }
+        return d | ({"reason": self.reason} if self.reason else {})
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """One check fitted on one or more records.
+
+    Attributes:
+        check: the check's name (`attitude`, `depth`).
+        records: the records fitted (one set of sensor parameters for all).
+        parameters: sensor parameter → estimate (held at 0 where the screen says so).
+        initial: record → initial state → estimate.
+        fit: output → {`noise_std`: σ of the residuals (relaxed), `fit_percent`: 100 (1 − ‖y − ŷ‖
+            / ‖y − ȳ‖) over the records}.
+        iterations: Gauss-Newton iterations over every fit of the relaxation and the screen.
+    """
+
+    check: str
+    records: tuple[str, ...]
+    parameters: Mapping[str, Parameter]
+    initial: Mapping[str, Mapping[str, Parameter]]
+    fit: Mapping[str, Mapping[str, float | None]]
+    iterations: int
+
+    def to_dict(self) -> dict:
+        return {
+            "records": list(self.records),
+            "parameters": {n: p.to_dict() for n, p in self.parameters.items()},
+            "initial": {r: {n: p.to_dict() for n, p in v.items()} for r, v in self.initial.items()},
+            "fit": {c: dict(v) for c, v in self.fit.items()},
+            "iterations": self.iterations,
+        }
+
+
+@dataclass(frozen=True)
+class Compatibility:
+    """The checks of a set of records: each record alone and all pooled.
+
+    Attributes:
+        records: record → check name → its reconstruction.
+        pooled: check name → the reconstruction of every record that has the check's channels.
+        unchecked: record → check name → why it was not checked (missing channels).
+    """
+
+    records: Mapping[str, Mapping[str, Reconstruction]]
+    pooled: Mapping[str, Reconstruction]
+    unchecked: Mapping[str, Mapping[str, str]]
+
+    @property
+    def corrections(self) -> dict[str, float]:
+        """The pooled sensor parameters (0 where held), what `corrected` applies."""
+        return {n: p.value for r in self.pooled.values() for n, p in r.parameters.items()}
+
+    def to_dict(self) -> dict:
+        return {
+            "corrections": self.corrections,
+            "pooled": {c: r.to_dict() for c, r in self.pooled.items()},
+            "records": {
+                name: {c: r.to_dict() for c, r in checks.items()} for name, checks in self.records.items()
+            },
+            "unchecked": {name: dict(why) for name, why in self.unchecked.items() if why},
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
+
+    def table(self) -> str:
+        """The pooled sensor parameters, per record beside them, and each output's fit."""
+        names = list(self.records)
+        lines = []
+        for check, pooled in self.pooled.items():
+            lines.append(f"{check} check ({', '.join(pooled.records)}):")
+            head = f"  {'parameter':<10}{'pooled':>24}" + "".join(f"{n[-22:]:>24}" for n in names)
+            lines.append(head)
+            for n, p in pooled.parameters.items():
+                row = f"  {n:<10}{_cell(p):>24}"
+                for name in names:
+                    r = self.records[name].get(check)
+                    row += f"{_cell(r.parameters[n]) if r else '—':>24}"
+                lines.append(row)
+            for c, f in pooled.fit.items():
+                fit = "—" if f["fit_percent"] is None else f"{f['fit_percent']:.2f} %"
+                lines.append(f"  {c:<10}fit {fit}, residual σ {f['noise_std']:.3g}")
+        for name, why in self.unchecked.items():
+            for check, reason in why.items():
+                lines.append(f"{name}: {check} not checked: {reason}")
+        return "\n".join(lines) + "\n"
+
+
+def _cell(p: Parameter) -> str:
+    if not p.estimated:
+        return "0 (held)"
+    return f"{p.value:.4g} ± {p.std:.2g}"
+
+
+@numba.njit(cache=True)
+def _attitudes(h, rates, x0, out):
+    """RK4 of the attitude kinematics on the sample grid: `rates` (B, 2N − 1, 3) at the samples
+    and the midpoints between them, `h` the N − 1 steps, `x0` (B, 3); `out` (B, N, 3)."""
+    for b in range(rates.shape[0]):
+        x = x0[b].copy()
+        out[b, 0] = x
+        for k in range(h.shape[0]):
+            x = _rk4(x, rates[b, 2 * k], rates[b, 2 * k + 1], rates[b, 2 * k + 2], h[k])
+            out[b, k + 1] = x
+
+
+@numba.njit(cache=True)
+def _rk4(x, w0, wm, w1, h):
+    """One RK4 step of the attitude kinematics, the rates at the step's start, middle and end."""
+    k1 = _euler_rates(x, w0)
+    k2 = _euler_rates(x + 0.5 * h * k1, wm)
+    k3 = _euler_rates(x + 0.5 * h * k2, wm)
+    k4 = _euler_rates(x + h * k3, w1)
+    return x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+
+@numba.njit(cache=True)
+def _euler_rates(x, w):
+    """(φ̇, θ̇, ψ̇) at attitude `x` and body rates `w` = (p, q, r)."""
+    s, c = np.sin(x[0]), np.cos(x[0])
+    qr = w[1] * s + w[2] * c
+    d = np.empty_like(x)
+    d[0] = w[0] + qr * np.tan(x[1])
+    d[1] = w[1] * c - w[2] * s
+    d[2] = qr / np.cos(x[1])
+    return d
+
+
+@numba.njit(cache=True)
+def _linearised(x, w):
+    """A = ∂(φ̇, θ̇, ψ̇)/∂(φ, θ, ψ) and G = ∂(φ̇, θ̇, ψ̇)/∂(p, q, r) at attitude `x`, rates `w`."""
+    s, c, t, ct = np.sin(x[0]), np.cos(x[0]), np.tan(x[1]), np.cos(x[1])
+    qr, dqr = w[1] * s + w[2] * c, w[1] * c - w[2] * s
+    A = np.zeros((3, 3))
+    A[0, 0], A[0, 1] = dqr * t, qr / ct**2
+    A[1, 0] = -qr
+    A[2, 0], A[2, 1] = dqr / ct, qr * t / ct
+    G = np.array([[1.0, s * t, c * t], [0.0, c, -s], [0.0, s / ct, c / ct]])
+    return A, G
+
+
+@numba.njit(cache=True)
+def _attitude_filter(h, rates, x0, y, R, Sw, out):
+    """The whitened innovations `out` (B, N, 3) of the extended Kalman filter of the attitude:
+    the state predicted by `_rk4` from the corrected rates, the measured φ, θ, ψ `y` (N, 3) with
+    noise variances `R`; the rates' noise (variances `Sw`) is the process noise, Q = h² G Sw Gᵀ
+    per step (a random walk of the integrated noise). The gain and the whitening are computed on
+    the first row's real part and held for every row: the complex step then differentiates the
+    innovations at a fixed gain (Maine & Iliff)."""
+    B, N = rates.shape[0], y.shape[0]
+    K = np.zeros((N, 3, 3))
+    W = np.zeros((N, 3, 3))  # the inverse Cholesky factor of the innovations' covariance
+    for i in range(3):
+        W[0, i, i] = 1.0 / np.sqrt(R[i])
+    for b in range(B):
+        x = x0[b].copy()
+        P = np.zeros((3, 3))  # the initial state is a parameter, known exactly
+        for i in range(3):
+            out[b, 0, i] = (y[0, i] - x[i]) * W[0, i, i]
+        for k in range(N - 1):
+            xp = _rk4(x, rates[b, 2 * k], rates[b, 2 * k + 1], rates[b, 2 * k + 2], h[k])
+            if b == 0:
+                A, G = _linearised(x.real, rates[0, 2 * k].real)
+                F = np.eye(3) + h[k] * A
+                Gd = h[k] * G
+                Pp = F @ P @ F.T + Gd @ np.diag(Sw) @ Gd.T
+                S = Pp + np.diag(R)
+                W[k + 1] = np.linalg.inv(np.linalg.cholesky(S))
+                K[k + 1] = Pp @ np.linalg.inv(S)
+                P = (np.eye(3) - K[k + 1]) @ Pp
+                P = 0.5 * (P + P.T)
+            nu = np.empty(3, dtype=np.complex128)
+            for i in range(3):
+                nu[i] = y[k + 1, i] - xp[i]
+            for i in range(3):
+                acc, upd = 0j, 0j
+                for j in range(3):
+                    acc += W[k + 1, i, j] * nu[j]
+                    upd += K[k + 1, i, j] * nu[j]
+                out[b, k + 1, i] = acc
+                x[i] = xp[i] + upd
+
+
+@numba.njit(cache=True)
+def _depth_filter(steps, x0, y, K, W, out):
+    """The whitened innovations `out` (B, N) of the depth's Kalman filter: z predicted by the
+    integrated ż `steps` (B, N − 1), measured `y` (N,), gains `K` and whitening `W` (N,)."""
+    for b in range(steps.shape[0]):
+        x = x0[b]
+        out[b, 0] = (y[0] - x) * W[0]
+        for k in range(steps.shape[1]):
+            xp = x + steps[b, k]
+            nu = y[k + 1] - xp
+            out[b, k + 1] = W[k + 1] * nu
+            x = xp + K[k + 1] * nu
+
+
+class _Record:
+    """One record ready for a check: its splines, fine grid (samples and midpoints), outputs,
+    and the noise variances of its channels (`noise`: channel → σ)."""
+
+    def __init__(self, e: Experiment, check: Check, noise: Mapping[str, float]):
+        self.name = e.name
+        self.t = np.asarray(e.t, dtype=float)
+        self.h = np.diff(self.t)
+        fine = np.empty(2 * len(self.t) - 1)
+        fine[0::2], fine[1::2] = self.t, self.t[:-1] + self.h / 2
+        self.fine = fine
+        self.check = check
+        self.splines = {c: CubicSpline(self.t, e.column(c)) for c in check.drives}
+        self.used = {c: CubicSpline(self.t, e.column(c))(fine) for c in check.uses}
+        self.y = np.column_stack([e.column(c) for c in check.outputs])
+        self.R = np.array([noise[c] ** 2 for c in check.outputs])
+        self.Sw = np.array([noise[c] ** 2 for c in check.drives])
+        if check is DEPTH:
+            self.K, self.W = self._depth_gains(e, noise)
+
+    def _depth_gains(self, e: Experiment, noise: Mapping[str, float]):
+        """The depth filter's gains and whitening: the process noise of ż from the noise of the
+        velocities and of the attitude it uses, per step (first order), as a random walk."""
+        u, v, w, phi, theta = (e.column(c) for c in ("u", "v", "w", "phi", "theta"))
+        s, c, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+        var = (
+            (noise["u"] * st) ** 2
+            + (noise["v"] * ct * s) ** 2
+            + (noise["w"] * ct * c) ** 2
+            + (noise["theta"] * (u * ct + (v * s + w * c) * st)) ** 2
+            + (noise["phi"] * ct * (v * c - w * s)) ** 2
+        )
+        q = self.h**2 * var[:-1]
+        K, W = np.zeros(len(self.t)), np.zeros(len(self.t))
+        W[0] = 1 / math.sqrt(self.R[0])
+        P = 0.0
+        for k, qk in enumerate(q, start=1):
+            Pp = P + qk
+            S = Pp + self.R[0]
+            K[k], W[k] = Pp / S, 1 / math.sqrt(S)
+            P = (1 - K[k]) * Pp
+        return K, W
+
+    def drives(self, tau: np.ndarray) -> np.ndarray:
+        """The driving channels at `fine + tau` (B,) complex, (B, 2N − 1, channels): the spline
+        at the real shift plus i Im(τ) times its slope (the complex step's first order, exact for
+        the derivative); beyond the record's ends the end values are held."""
+        s = self.fine + tau[0].real
+        inside = (s >= self.t[0]) & (s <= self.t[-1])
+        s = np.clip(s, self.t[0], self.t[-1])
+        out = np.empty((len(tau), len(s), len(self.splines)), dtype=complex)
+        for j, spline in enumerate(self.splines.values()):
+            slope = np.where(inside, spline(s, 1), 0.0)
+            out[:, :, j] = spline(s)[None, :] + 1j * tau.imag[:, None] * slope[None, :]
+        return out
+
+    def _corrected(self, x: np.ndarray):
+        """The initial states (B, initial) and the corrected driving channels (B, 2N − 1,
+        channels) of the parameter rows `x` (B, initial + sensor), complex."""
+        check, n = self.check, len(self.check.drives)
+        x0 = x[:, : len(check.initial)]
+        sensor = x[:, len(check.initial) :]
+        b, k, tau = sensor[:, :n], sensor[:, n : 2 * n], sensor[:, -1]
+        return np.ascontiguousarray(x0), (self.drives(tau) - b[:, None, :]) / (1 + k[:, None, :])
+
+    def _depth_steps(self, w: np.ndarray) -> np.ndarray:
+        """The depth's change over each step (B, N − 1): Simpson's rule on ż."""
+        phi, theta = self.used["phi"], self.used["theta"]
+        zdot = -w[:, :, 0] * np.sin(theta) + (w[:, :, 1] * np.sin(phi) + w[:, :, 2] * np.cos(phi)) * np.cos(
+            theta
+        )
+        return self.h / 6 * (zdot[:, 0:-1:2] + 4 * zdot[:, 1::2] + zdot[:, 2::2])
+
+    def outputs(self, x: np.ndarray) -> np.ndarray:
+        """The outputs reconstructed open loop (B, N, outputs) at the parameter rows `x`."""
+        x0, w = self._corrected(x)
+        if self.check is ATTITUDE:
+            out = np.empty((len(x), len(self.t), 3), dtype=complex)
+            _attitudes(self.h, np.ascontiguousarray(w), x0, out)
+            return out
+        steps = self._depth_steps(w)
+        return (np.concatenate([np.zeros((len(x), 1)), np.cumsum(steps, axis=1)], axis=1) + x0)[:, :, None]
+
+    def innovations(self, x: np.ndarray) -> np.ndarray:
+        """The filter's whitened innovations (B, N, outputs) at the parameter rows `x`."""
+        x0, w = self._corrected(x)
+        if self.check is ATTITUDE:
+            out = np.empty((len(x), len(self.t), 3), dtype=complex)
+            _attitude_filter(self.h, np.ascontiguousarray(w), x0, self.y, self.R, self.Sw, out)
+            return out
+        out = np.empty((len(x), len(self.t)), dtype=complex)
+        _depth_filter(
+            np.ascontiguousarray(self._depth_steps(w)), x0[:, 0].copy(), self.y[:, 0], self.K, self.W, out
+        )
+        return out[:, :, None]
+
+    def start(self) -> np.ndarray:
+        """The initial states: the mean of each output's first five samples."""
+        return self.y[:5].mean(axis=0)
+
+    def evaluate(self, x: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """The whitened innovations (N, outputs) at `x` (real) and, with `jac`, their derivatives
+        (N, outputs, parameters) by the complex step."""
+        if not jac:
+            return self.innovations(x[None, :].astype(complex))[0].real, None
+        rows = x[None, :] + 1j * STEP * np.eye(len(x))
+        out = self.innovations(rows)
+        return out[0].real, np.moveaxis(out.imag / STEP, 0, -1)
+
+
+def reconstruct(
+    e: Experiment, check: Check, values: Mapping[str, float] | None = None
+) -> dict[str, np.ndarray]:
+    """The outputs of `check` reconstructed from record `e`: output name → (N,) array, at the
+    parameters `values` (initial states and sensor parameters by name; an initial state left
+    out starts at the mean of the output's first five samples, a sensor parameter at 0)."""
+    _need(e, check)
+    record = _Record(e, check, {c: 1.0 for c in e.measured})
+    values = dict(values or {})
+    unknown = set(values) - set(check.initial) - set(check.sensor)
+    if unknown:
+        raise InputError(
+            f"{check.name} check: {', '.join(sorted(unknown))}: not its parameters; expected "
+            f"{', '.join(check.initial + check.sensor)}"
+        )
+    x0 = record.start()
+    x = np.array(
+        [values.get(n, x0[i]) for i, n in enumerate(check.initial)]
+        + [values.get(n, 0.0) for n in check.sensor]
+    )
+    y = record.outputs(x[None, :].astype(complex))[0].real
+    return {c: y[:, i] for i, c in enumerate(check.outputs)}
+
+
+def _need(e: Experiment, check: Check) -> None:
+    missing = [c for c in check.needs if c not in e.measured]
+    if missing:
+        raise InputError(
+            f"{e.source or e.name}: the {check.name} check needs {', '.join(check.needs)}; "
+            f"missing {', '.join(missing)}"
+        )
+
+
+class _Fit:
+    """The filter-error problem of one check on records: the free sensor parameters (shared),
+    then each record's initial states; the other sensor parameters held at 0."""
+
+    def __init__(self, records: Sequence[_Record], check: Check):
+        self.records, self.check = records, check
+        self.ni = len(check.initial)
+
+    def local(self, x: np.ndarray, free: Sequence[str], r: int) -> np.ndarray:
+        """Record r's parameter row (initial + sensor) from the free vector `x`."""
+        sensor = dict(zip(free, x[: len(free)]))
+        start = len(free) + r * self.ni
+        return np.concatenate([x[start : start + self.ni], [sensor.get(n, 0.0) for n in self.check.sensor]])
+
+    def residuals(self, x, free, jac: bool):
+        """The whitened innovations stacked over records, and their Jacobian."""
+        res, rows = [], []
+        cols = [self.check.sensor.index(n) + self.ni for n in free]
+        for r, rec in enumerate(self.records):
+            e, d = rec.evaluate(self.local(x, free, r), jac)
+            res.append(e.ravel())
+            if jac:
+                J = np.zeros((d.shape[0], d.shape[1], len(x)))
+                J[:, :, : len(free)] = d[:, :, cols]
+                J[:, :, len(free) + r * self.ni : len(free) + (r + 1) * self.ni] = d[:, :, : self.ni]
+                rows.append(J.reshape(-1, len(x)))
+        return np.concatenate(res), (np.concatenate(rows) if jac else None)
+
+    def start(self, free) -> np.ndarray:
+        return np.concatenate([np.zeros(len(free))] + [rec.start() for rec in self.records])
+
+    def bounds(self, free):
+        limit = [
+            MAX_DELAY if n == self.check.delay else MAX_SCALE if n.startswith("k_") else np.inf for n in free
+        ]
+        hi = np.array(limit + [np.inf] * self.ni * len(self.records))
+        return -hi, hi
+
+    def solve(self, x, free):
+        """Gauss-Newton (trust region) from `x`; (x, evaluations)."""
+        cache = {}
+
+        def both(z):
+            key = z.tobytes()
+            if key not in cache:
+                cache.clear()
+                cache[key] = self.residuals(z, free, jac=True)
+            return cache[key]
+
+        lo, hi = self.bounds(free)
+        sol = least_squares(
+            lambda z: both(z)[0],
+            np.clip(x, 0.999 * lo, 0.999 * hi),
+            jac=lambda z: both(z)[1],
+            bounds=(lo, hi),
+            x_scale="jac",
+            method="trf",
+        )
+        return sol.x, int(sol.nfev)
+
+    def covariance(self, x, free) -> np.ndarray:
+        """The inverse Fisher information JᵀJ of the whitened innovations (pseudo-inverse)."""
+        J = self.residuals(x, free, jac=True)[1]
+        return np.linalg.pinv(J.T @ J, rcond=1e-15, hermitian=True)
+
+
+def _singular(J: np.ndarray, names: Sequence[str]) -> list[str]:
+    """The parameters (of the first len(names) columns) to hold so that the Fisher information
+    of the Jacobian J is regular, greedily: the one that weighs most in the least determined
+    direction of the information scaled to unit diagonal, while that direction is singular."""
+    M = J.T @ J
+    d = np.sqrt(np.diag(M))
+    held = [n for i, n in enumerate(names) if d[i] == 0]
+    keep = [i for i in range(J.shape[1]) if i >= len(names) or names[i] not in held]
+    while True:
+        Ms = M[np.ix_(keep, keep)] / np.outer(d[keep], d[keep])
+        lam, V = np.linalg.eigh(Ms)
+        if lam[0] > SINGULAR * lam[-1]:
+            return held
+        sensor = [j for j, i in enumerate(keep) if i < len(names)]
+        if not sensor:
+            return held
+        j = max(sensor, key=lambda j: abs(V[j, 0]))
+        held.append(names[keep[j]])
+        del keep[j]
+
+
+def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
+    """Fit `check` on `records`: the screen, the fit, the bounds, the reconstruction's fit."""
+    fit = _Fit(records, check)
+    names = list(check.sensor)
+    J = fit.residuals(fit.start(names), names, jac=True)[1]
+    reasons = {
+        n: "not identifiable: the Fisher information of these data is singular along it"
+        for n in _singular(J, names)
+    }
+    stds = {n: math.inf for n in reasons}
+    free = [n for n in names if n not in reasons]
+    x, iterations = fit.solve(fit.start(free), free)
+    P = fit.covariance(x, free)
+    held = []
+    while True:  # the least significant held at 0 while within SIGNIFICANCE σ of it
+        z = {
+            i: abs(x[i]) / math.sqrt(P[i, i]) for i in range(len(free)) if free[i] not in held and P[i, i] > 0
+        }
+        z = {i: v for i, v in z.items() if v < SIGNIFICANCE}  # P[i, i] ≤ 0: determined by those held
+        if not z:
+            break
+        i = min(z, key=lambda i: (HELD_FIRST.index(free[i][0]), z[i]))
+        stds[free[i]] = math.sqrt(P[i, i])
+        reasons[free[i]] = (
+            f"not significant: {x[i]:.3g} ± {stds[free[i]]:.2g} is within {SIGNIFICANCE:g} σ of 0"
+        )
+        held.append(free[i])
+        x = x - P[:, i] / P[i, i] * x[i]  # the others given it held at 0 (the cost's quadratic model)
+        P = P - np.outer(P[:, i], P[i, :]) / P[i, i]
+    if held:
+        keep = [i for i, n in enumerate(free) if n not in held] + list(range(len(free), len(x)))
+        free = [n for n in free if n not in held]
+        x, more = fit.solve(x[keep], free)
+        iterations += more
+        P = fit.covariance(x, free)
+    std = np.sqrt(np.diag(P))
+    parameters = {}
+    for n in names:
+        if n in free:
+            parameters[n] = Parameter(value=float(x[free.index(n)]), std=float(std[free.index(n)]))
+        else:
+            parameters[n] = Parameter(value=0.0, std=stds[n], estimated=False, reason=reasons[n])
+    initial, y, yhat = {}, [], []
+    for r, rec in enumerate(records):
+        at = len(free) + r * fit.ni
+        initial[rec.name] = {
+            n: Parameter(value=float(x[at + j]), std=float(std[at + j])) for j, n in enumerate(check.initial)
+        }
+        y.append(rec.y)
+        yhat.append(rec.outputs(fit.local(x, free, r)[None, :].astype(complex))[0].real)
+    y, yhat = np.concatenate(y), np.concatenate(yhat)
+    innovations = fit.residuals(x, free, jac=False)[0].reshape(-1, len(check.outputs))
+    quality = {}
+    for j, c in enumerate(check.outputs):
+        spread = np.linalg.norm(y[:, j] - y[:, j].mean())
+        error = np.linalg.norm(y[:, j] - yhat[:, j])
+        quality[c] = {
+            "noise_std": float(math.sqrt(records[0].R[j])),
+            "residual_std": float(error / math.sqrt(len(y))),
+            "fit_percent": float(100 * (1 - error / spread)) if spread > 0 else None,
+            "innovation_rms": float(np.sqrt(np.mean(innovations[:, j] ** 2))),
+        }
+    return Reconstruction(
+        check=check.name,
+        records=tuple(rec.name for rec in records),
+        parameters=parameters,
+        initial=initial,
+        fit=quality,
+        iterations=iterations,
+    )
+
+
+def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
+    """The data-compatibility check of `experiments`: each record alone (its channels' noise read
+    off it) and all pooled (the noise read off all), each check on the records that measure its
+    channels; `InputError` when no record has the channels of any check."""
+    unchecked: dict[str, dict[str, str]] = {e.name: {} for e in experiments}
+    ready: dict[str, list[Experiment]] = {}
+    for check in CHECKS:
+        for e in experiments:
+            missing = [c for c in check.needs if c not in e.measured]
+            if missing:
+                unchecked[e.name][check.name] = (
+                    f"needs {', '.join(check.needs)}; missing {', '.join(missing)}"
+                )
+            else:
+                ready.setdefault(check.name, []).append(e)
+    if not ready:
+        why = "; ".join(
+            f"{name}: {'; '.join(f'{c} check {w}' for c, w in v.items())}" for name, v in unchecked.items()
+        )
+        raise InputError(f"nothing to check: {why}")
+    noise = {e.name: noise_from_data([e]) for e in experiments}
+    records: dict[str, dict[str, Reconstruction]] = {e.name: {} for e in experiments}
+    pooled = {}
+    for check in CHECKS:
+        some = ready.get(check.name, [])
+        for e in some:
+            records[e.name][check.name] = _reconstruction(check, [_Record(e, check, noise[e.name])])
+        if len(some) == 1:
+            pooled[check.name] = records[some[0].name][check.name]
+        elif some:
+            everyone = noise_from_data(some)
+            pooled[check.name] = _reconstruction(check, [_Record(e, check, everyone) for e in some])
+    return Compatibility(records=records, pooled=pooled, unchecked=unchecked)
+
+
+def check_corrections(values, where: str) -> dict[str, float]:
+    """`values` (sensor parameter → number) checked: known names, finite numbers, biases within
+    ±`MAX_DATA`, scale factors within ±`MAX_SCALE`, delays within ±`MAX_DELAY` s."""
+    if not isinstance(values, Mapping):
+        raise InputError(f'{where}: expected an object of sensor parameters, e.g. {{"b_r": 0.002}}')
+    out = {}
+    for n, v in values.items():
+        if n not in SENSOR_PARAMETERS:
+            raise InputError(
+                f"{where}: {str(n)[:40]!r} is not a sensor parameter; expected {', '.join(SENSOR_PARAMETERS)}"
+            )
+        limit = MAX_DELAY if n.startswith("tau_") else MAX_SCALE if n.startswith("k_") else MAX_DATA
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= limit:
+            raise InputError(f"{where}: {n} = {str(v)[:40]}; expected a number within ±{limit:g}")
+        out[n] = float(v)
+    return out
+
+
+def read_corrections(path: str | Path) -> dict[str, float]:
+    """The `corrections` of a check JSON (`testbed check --out`), checked."""
+    doc = read_json(path, "a check JSON with corrections {name: value}")
+    if not isinstance(doc, Mapping) or "corrections" not in doc:
+        raise InputError(f"{path}: no 'corrections'; expected a check JSON (testbed check --out)")
+    return check_corrections(doc["corrections"], f"{path}: corrections")
+
+
+def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float]) -> list[Experiment]:
+    """The experiments with each measured channel corrected by its sensor's parameters: `(c(t +
+    τ) − b_c) / (1 + k_c)`, c(t + τ) from the cubic spline through the channel (the end values
+    held beyond the record); parameters not given are 0, channels not measured are skipped."""
+    corrections = check_corrections(corrections, "corrections")
+    out = []
+    for e in experiments:
+        y = e.y.copy()
+        for check in CHECKS:
+            tau = corrections.get(check.delay, 0.0)
+            for c in check.drives:
+                if c not in e.measured:
+                    continue
+                j = e.measured.index(c)
+                b, k = corrections.get(f"b_{c}", 0.0), corrections.get(f"k_{c}", 0.0)
+                shifted = CubicSpline(e.t, y[:, j])(np.clip(e.t + tau, e.t[0], e.t[-1])) if tau else y[:, j]
+                y[:, j] = (shifted - b) / (1 + k)
+        out.append(replace(e, y=y))
+    return out
