@@ -568,6 +568,37 @@ def _singular(J: np.ndarray, names: Sequence[str]) -> list[str]:
         del keep[j]
 
 
+def _conditional(x: np.ndarray, P: np.ndarray, i) -> np.ndarray:
+    """The estimate `x` (covariance P) with parameter(s) i held at 0: the others moved as the
+    cost's quadratic model says (the Gaussian conditioned on x[i] = 0)."""
+    i = np.atleast_1d(i)
+    if not len(i):
+        return x
+    return x - P[:, i] @ np.linalg.solve(P[np.ix_(i, i)], x[i])
+
+
+def _insignificant(x, P, free, stds, reasons) -> list[str]:
+    """The parameters of `free` held at 0 one at a time (`HELD_FIRST` order, then the least
+    significant) while one is within SIGNIFICANCE σ of 0, the others updated for each held;
+    their σ and reasons recorded in `stds` and `reasons`."""
+    held = []
+    while True:
+        z = {
+            i: abs(x[i]) / math.sqrt(P[i, i]) for i in range(len(free)) if free[i] not in held and P[i, i] > 0
+        }
+        z = {i: v for i, v in z.items() if v < SIGNIFICANCE}  # P[i, i] ≤ 0: determined by those held
+        if not z:
+            return held
+        i = min(z, key=lambda i: (HELD_FIRST.index(free[i][0]), z[i]))
+        stds[free[i]] = math.sqrt(P[i, i])
+        reasons[free[i]] = (
+            f"not significant: {x[i]:.3g} ± {stds[free[i]]:.2g} is within {SIGNIFICANCE:g} σ of 0"
+        )
+        held.append(free[i])
+        x = _conditional(x, P, i)
+        P = P - np.outer(P[:, i], P[i, :]) / P[i, i]
+
+
 def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
     """Fit `check` on `records`: the screen, the fit, the bounds, the reconstruction's fit."""
     fit = _Fit(records, check)
@@ -581,26 +612,13 @@ def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
     free = [n for n in names if n not in reasons]
     x, iterations = fit.solve(fit.start(free), free)
     P = fit.covariance(x, free)
-    held = []
-    while True:  # the least significant held at 0 while within SIGNIFICANCE σ of it
-        z = {
-            i: abs(x[i]) / math.sqrt(P[i, i]) for i in range(len(free)) if free[i] not in held and P[i, i] > 0
-        }
-        z = {i: v for i, v in z.items() if v < SIGNIFICANCE}  # P[i, i] ≤ 0: determined by those held
-        if not z:
+    while True:  # screened, fitted again, until the fit leaves none within SIGNIFICANCE σ of 0
+        held = _insignificant(x, P, free, stds, reasons)
+        if not held:
             break
-        i = min(z, key=lambda i: (HELD_FIRST.index(free[i][0]), z[i]))
-        stds[free[i]] = math.sqrt(P[i, i])
-        reasons[free[i]] = (
-            f"not significant: {x[i]:.3g} ± {stds[free[i]]:.2g} is within {SIGNIFICANCE:g} σ of 0"
-        )
-        held.append(free[i])
-        x = x - P[:, i] / P[i, i] * x[i]  # the others given it held at 0 (the cost's quadratic model)
-        P = P - np.outer(P[:, i], P[i, :]) / P[i, i]
-    if held:
         keep = [i for i, n in enumerate(free) if n not in held] + list(range(len(free), len(x)))
         free = [n for n in free if n not in held]
-        x, more = fit.solve(x[keep], free)
+        x, more = fit.solve(_conditional(x, P, [i for i in range(len(x)) if i not in keep])[keep], free)
         iterations += more
         P = fit.covariance(x, free)
     std = np.sqrt(np.diag(P))
