@@ -18,7 +18,6 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.compatibility import Compatibility, compatibility, corrected, read_corrections
 from testbed.analysis.identifiability import (
     Comparison,
     Identifiability,
@@ -157,8 +156,11 @@ def identify_data(
     opts = m.options.build(m.name, options or {})
     experiments, cfg, run_config, read = inputs(data, config)
     cfg = cfg.with_noise_std(noise_std)
-    applied = read_corrections(corrections) if corrections is not None else None
-    if applied is not None:
+    applied = None
+    if corrections is not None:  # the check's module loads numba and scipy: only when asked for
+        from testbed.analysis.compatibility import corrected, read_corrections
+
+        applied = read_corrections(corrections)
         experiments = corrected(experiments, applied)
         read.append(Path(corrections))
     truth = truth_data(data) if run_config is not None else None
@@ -241,10 +243,12 @@ def analyze_data(
     return result
 
 
-def check_data(data: Sequence[str | os.PathLike], *, out: str | os.PathLike | None = None) -> Compatibility:
+def check_data(data: Sequence[str | os.PathLike], *, out: str | os.PathLike | None = None):
     """The data-compatibility check of `data` (run directories or measurement CSVs): the
     kinematics reconstructed, the sensor biases, scale factors and delays estimated with their
-    bounds (`analysis.compatibility`), written as JSON to `out`."""
+    bounds, written as JSON to `out`; the `analysis.compatibility.Compatibility`."""
+    from testbed.analysis.compatibility import compatibility  # numba and scipy: only here
+
     experiments, _ = load_data(data)
     read = [Path(e.source) for e in experiments]
     read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]

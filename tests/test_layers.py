@@ -43,7 +43,12 @@ LAYERS = [
     ("testbed.estimators.trust_region", "testbed.estimators.starts"),
     ("testbed.estimators.ml",),
     ("testbed.estimators",),
-    ("testbed.analysis", "testbed.analysis.validation", "testbed.analysis.identifiability"),
+    (
+        "testbed.analysis",
+        "testbed.analysis.validation",
+        "testbed.analysis.identifiability",
+        "testbed.analysis.compatibility",
+    ),
     ("testbed.analysis.regime",),
     ("testbed.analysis.design",),
     ("testbed.analysis.drift",),
