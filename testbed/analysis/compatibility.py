@@ -79,7 +79,26 @@ SINGULAR = 1e-10  # an eigenvalue of the scaled Fisher information below this ×
 # biases: a constant velocity makes its bias and scale factor nearly one parameter (u ≈ 20 m/s),
 # and a bias is the commoner error, present whether the channel varies or not.
 HELD_FIRST = ("k", "t", "b")
-STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
+STEP = 1e-30
+# A scale factor multiplies its channel, a delay its channel's rate of change, the log's u and v
+# biases sin θ and sin φ: a parameter whose regressor is mostly the noise of a measured channel
+# would be fitted to that noise (errors in variables: on a level run, where θ is its noise, the
+# depth follows no −u sin θ and b_u goes to u). Such a parameter is held, not identifiable,
+# unless some record has, for one of its alternatives, every channel's signal (the standard
+# deviation of the channel less its noise) at least `MIN_SIGNAL` times its noise.
+REGRESSORS = {
+    "k_p": (("p",),),
+    "k_q": (("q",),),
+    "k_r": (("r",),),
+    "tau_gyro": (("p",), ("q",), ("r",)),
+    "b_u": (("theta",),),
+    "k_u": (("theta",),),
+    "b_v": (("phi",),),
+    "k_v": (("v", "phi"),),
+    "k_w": (("w",),),
+    "tau_dvl": (("w",), ("u", "theta"), ("v", "phi")),
+}
+MIN_SIGNAL = 3.0  # the complex step: exact derivatives (no difference is taken)
 
 
 @dataclass(frozen=True)
@@ -325,17 +344,25 @@ def _attitude_filter(h, rates, x0, y, R, Sw, out):
 
 
 @numba.njit(cache=True)
-def _depth_filter(steps, x0, y, K, W, out):
-    """The whitened innovations `out` (B, N) of the depth's Kalman filter: z predicted by the
-    integrated ż `steps` (B, N − 1), measured `y` (N,), gains `K` and whitening `W` (N,)."""
+def _depth_filter(steps, q, x0, y, R, out, logs):
+    """The depth's Kalman filter: z predicted by the integrated ż `steps` (B, N − 1), process
+    noise `q` (B, N − 1) per step, measured `y` (N,) with noise variance `R`; its whitened
+    innovations ν / √S to `out` and ln(S / R) to `logs` (B, N), in the rows' complex arithmetic
+    (gain included: the process noise depends on the parameters through the corrected
+    velocities, so the likelihood's ln det S does too)."""
     for b in range(steps.shape[0]):
         x = x0[b]
-        out[b, 0] = (y[0] - x) * W[0]
+        P = 0.0j  # the initial depth is a parameter, known exactly
+        out[b, 0], logs[b, 0] = (y[0] - x) / np.sqrt(R), 0.0
         for k in range(steps.shape[1]):
             xp = x + steps[b, k]
+            Pp = P + q[b, k]
+            S = Pp + R
             nu = y[k + 1] - xp
-            out[b, k + 1] = W[k + 1] * nu
-            x = xp + K[k + 1] * nu
+            out[b, k + 1], logs[b, k + 1] = nu / np.sqrt(S), np.log(S / R)
+            K = Pp / S
+            x = xp + K * nu
+            P = (1 - K) * Pp
 
 
 class _Record:
@@ -355,31 +382,29 @@ class _Record:
         self.y = np.column_stack([e.column(c) for c in check.outputs])
         self.R = np.array([noise[c] ** 2 for c in check.outputs])
         self.Sw = np.array([noise[c] ** 2 for c in check.drives])
-        if check is DEPTH:
-            self.K, self.W = self._depth_gains(e, noise)
+        self.noise = dict(noise)
+        self.signal = {  # channel → the standard deviation of its signal over its noise's
+            c: math.sqrt(max(float(np.var(e.column(c))) - noise[c] ** 2, 0.0)) / noise[c] for c in check.needs
+        }
 
-    def _depth_gains(self, e: Experiment, noise: Mapping[str, float]):
-        """The depth filter's gains and whitening: the process noise of ż from the noise of the
-        velocities and of the attitude it uses, per step (first order), as a random walk."""
-        u, v, w, phi, theta = (e.column(c) for c in ("u", "v", "w", "phi", "theta"))
+    def _depth_noise(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """The depth filter's process noise per step (B, N − 1): the variance of ż from the noise
+        of the velocities (scaled as they are corrected) and of the attitude (times the
+        corrected velocities), at each step's start, integrated as a random walk (h² var)."""
+        n = len(self.check.drives)
+        k = x[:, len(self.check.initial) + n : len(self.check.initial) + 2 * n]
+        u, v, w = (w[:, 0:-1:2, i] for i in range(3))
+        phi, theta = self.used["phi"][0:-1:2], self.used["theta"][0:-1:2]
         s, c, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+        su, sv, sw = (self.noise[ch] / (1 + k[:, [i]]) for i, ch in enumerate(self.check.drives))
         var = (
-            (noise["u"] * st) ** 2
-            + (noise["v"] * ct * s) ** 2
-            + (noise["w"] * ct * c) ** 2
-            + (noise["theta"] * (u * ct + (v * s + w * c) * st)) ** 2
-            + (noise["phi"] * ct * (v * c - w * s)) ** 2
+            (su * st) ** 2
+            + (sv * ct * s) ** 2
+            + (sw * ct * c) ** 2
+            + (self.noise["theta"] * (u * ct + (v * s + w * c) * st)) ** 2
+            + (self.noise["phi"] * ct * (v * c - w * s)) ** 2
         )
-        q = self.h**2 * var[:-1]
-        K, W = np.zeros(len(self.t)), np.zeros(len(self.t))
-        W[0] = 1 / math.sqrt(self.R[0])
-        P = 0.0
-        for k, qk in enumerate(q, start=1):
-            Pp = P + qk
-            S = Pp + self.R[0]
-            K[k], W[k] = Pp / S, 1 / math.sqrt(S)
-            P = (1 - K[k]) * Pp
-        return K, W
+        return self.h**2 * var
 
     def drives(self, tau: np.ndarray) -> np.ndarray:
         """The driving channels at `fine + tau` (B,) complex, (B, 2N − 1, channels): the spline
@@ -421,31 +446,43 @@ class _Record:
         steps = self._depth_steps(w)
         return (np.concatenate([np.zeros((len(x), 1)), np.cumsum(steps, axis=1)], axis=1) + x0)[:, :, None]
 
-    def innovations(self, x: np.ndarray) -> np.ndarray:
-        """The filter's whitened innovations (B, N, outputs) at the parameter rows `x`."""
+    def innovations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The filter's whitened innovations (B, N, outputs) at the parameter rows `x`, and the
+        log-ratios ln(S / R) of their variances to the noise's where these depend on the
+        parameters (the depth check; None for the attitude, whose gain is held)."""
         x0, w = self._corrected(x)
         if self.check is ATTITUDE:
             out = np.empty((len(x), len(self.t), 3), dtype=complex)
             _attitude_filter(self.h, np.ascontiguousarray(w), x0, self.y, self.R, self.Sw, out)
-            return out
-        out = np.empty((len(x), len(self.t)), dtype=complex)
+            return out, None
+        out, logs = (np.empty((len(x), len(self.t)), dtype=complex) for _ in range(2))
+        steps, q = self._depth_steps(w), self._depth_noise(x, w)
         _depth_filter(
-            np.ascontiguousarray(self._depth_steps(w)), x0[:, 0].copy(), self.y[:, 0], self.K, self.W, out
+            np.ascontiguousarray(steps),
+            np.ascontiguousarray(q),
+            x0[:, 0].copy(),
+            self.y[:, 0],
+            self.R[0],
+            out,
+            logs,
         )
-        return out[:, :, None]
+        return out[:, :, None], logs[:, :, None]
 
     def start(self) -> np.ndarray:
         """The initial states: the mean of each output's first five samples."""
         return self.y[:5].mean(axis=0)
 
-    def evaluate(self, x: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """The whitened innovations (N, outputs) at `x` (real) and, with `jac`, their derivatives
-        (N, outputs, parameters) by the complex step."""
-        if not jac:
-            return self.innovations(x[None, :].astype(complex))[0].real, None
-        rows = x[None, :] + 1j * STEP * np.eye(len(x))
-        out = self.innovations(rows)
-        return out[0].real, np.moveaxis(out.imag / STEP, 0, -1)
+    def evaluate(self, x: np.ndarray, jac: bool):
+        """At `x` (real): the whitened innovations e and the log-ratios g (N, outputs; g None
+        for the attitude) and, with `jac`, their derivatives (N, outputs, parameters) by the
+        complex step (else None)."""
+        rows = x[None, :] + 1j * STEP * np.eye(len(x)) if jac else x[None, :].astype(complex)
+        e, g = self.innovations(rows)
+
+        def split(a):
+            return a[0].real, (np.moveaxis(a.imag / STEP, 0, -1) if jac else None)
+
+        return split(e) + (split(g) if g is not None else (None, None))
 
 
 def reconstruct(
@@ -495,19 +532,45 @@ class _Fit:
         start = len(free) + r * self.ni
         return np.concatenate([x[start : start + self.ni], [sensor.get(n, 0.0) for n in self.check.sensor]])
 
-    def residuals(self, x, free, jac: bool):
-        """The whitened innovations stacked over records, and their Jacobian."""
-        res, rows = [], []
+    def _parts(self, x, free, jac: bool):
+        """Per record (e, de, g, dg) as `_Record.evaluate`, the derivatives over the free vector."""
         cols = [self.check.sensor.index(n) + self.ni for n in free]
         for r, rec in enumerate(self.records):
-            e, d = rec.evaluate(self.local(x, free, r), jac)
-            res.append(e.ravel())
+            parts = rec.evaluate(self.local(x, free, r), jac)
             if jac:
-                J = np.zeros((d.shape[0], d.shape[1], len(x)))
-                J[:, :, : len(free)] = d[:, :, cols]
-                J[:, :, len(free) + r * self.ni : len(free) + (r + 1) * self.ni] = d[:, :, : self.ni]
-                rows.append(J.reshape(-1, len(x)))
+                at = slice(len(free) + r * self.ni, len(free) + (r + 1) * self.ni)
+                for i in (1, 3):
+                    d = parts[i]
+                    if d is not None:
+                        J = np.zeros(d.shape[:2] + (len(x),))
+                        J[:, :, : len(free)], J[:, :, at] = d[:, :, cols], d[:, :, : self.ni]
+                        parts = parts[:i] + (J,) + parts[i + 1 :]
+            yield parts
+
+    def residuals(self, x, free, jac: bool):
+        """The residuals whose sum of squares is the negative log-likelihood (up to a constant):
+        the whitened innovations, and where their variance S depends on the parameters
+        √(1 + ln(S / R)), stacked over records; and their Jacobian."""
+        res, rows = [], []
+        for e, de, g, dg in self._parts(x, free, jac):
+            res.append(e.ravel())
+            rows += [de.reshape(-1, len(x))] if jac else []
+            if g is not None:
+                root = np.sqrt(1 + g)
+                res.append(root.ravel())
+                rows += [(dg / (2 * root[:, :, None])).reshape(-1, len(x))] if jac else []
         return np.concatenate(res), (np.concatenate(rows) if jac else None)
+
+    def fisher(self, x, free) -> np.ndarray:
+        """The Fisher information of the innovations ν ~ N(0, S): Σ ∂νᵀ S⁻¹ ∂ν + ½ (∂ ln S)ᵀ ∂ ln S,
+        with S⁻¹ᐟ² ∂ν = ∂e + e ∂g / 2 (e = ν / √S, g = ln S / R)."""
+        M = np.zeros((len(x), len(x)))
+        for e, de, g, dg in self._parts(x, free, jac=True):
+            if g is not None:
+                de = de + e[:, :, None] * dg / 2
+                M += 0.5 * np.einsum("nci,ncj->ij", dg, dg)
+            M += np.einsum("nci,ncj->ij", de, de)
+        return M
 
     def start(self, free) -> np.ndarray:
         return np.concatenate([np.zeros(len(free))] + [rec.start() for rec in self.records])
@@ -542,19 +605,17 @@ class _Fit:
         return sol.x, int(sol.nfev)
 
     def covariance(self, x, free) -> np.ndarray:
-        """The inverse Fisher information JᵀJ of the whitened innovations (pseudo-inverse)."""
-        J = self.residuals(x, free, jac=True)[1]
-        return np.linalg.pinv(J.T @ J, rcond=1e-15, hermitian=True)
+        """The inverse Fisher information (pseudo-inverse): the Cramér-Rao bounds."""
+        return np.linalg.pinv(self.fisher(x, free), rcond=1e-15, hermitian=True)
 
 
-def _singular(J: np.ndarray, names: Sequence[str]) -> list[str]:
-    """The parameters (of the first len(names) columns) to hold so that the Fisher information
-    of the Jacobian J is regular, greedily: the one that weighs most in the least determined
-    direction of the information scaled to unit diagonal, while that direction is singular."""
-    M = J.T @ J
+def _singular(M: np.ndarray, names: Sequence[str]) -> list[str]:
+    """The parameters (of the first len(names) rows) to hold so that the Fisher information M is
+    regular, greedily: the one that weighs most in the least determined direction of the
+    information scaled to unit diagonal, while that direction is singular."""
     d = np.sqrt(np.diag(M))
     held = [n for i, n in enumerate(names) if d[i] == 0]
-    keep = [i for i in range(J.shape[1]) if i >= len(names) or names[i] not in held]
+    keep = [i for i in range(len(M)) if i >= len(names) or names[i] not in held]
     while True:
         Ms = M[np.ix_(keep, keep)] / np.outer(d[keep], d[keep])
         lam, V = np.linalg.eigh(Ms)
@@ -599,14 +660,35 @@ def _insignificant(x, P, free, stds, reasons) -> list[str]:
         P = P - np.outer(P[:, i], P[i, :]) / P[i, i]
 
 
+def _noise_regressors(records: Sequence[_Record], names: Sequence[str]) -> dict[str, str]:
+    """The parameters of `names` whose regressor is mostly noise in every record (`REGRESSORS`),
+    with the reason."""
+    out = {}
+    for n in names:
+        alternatives = REGRESSORS.get(n, ())
+        best = max(
+            (min(rec.signal[c] for c in channels) for rec in records for channels in alternatives),
+            default=math.inf,
+        )
+        if best < MIN_SIGNAL:
+            what = " or ".join("·".join(channels) for channels in alternatives)
+            out[n] = (
+                f"not identifiable: its regressor ({what}) is mostly measurement noise here "
+                f"(signal {best:.2g} × the noise, below {MIN_SIGNAL:g})"
+            )
+    return out
+
+
 def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
     """Fit `check` on `records`: the screen, the fit, the bounds, the reconstruction's fit."""
     fit = _Fit(records, check)
     names = list(check.sensor)
-    J = fit.residuals(fit.start(names), names, jac=True)[1]
-    reasons = {
+    reasons = _noise_regressors(records, names)
+    names_left = [n for n in names if n not in reasons]
+    M = fit.fisher(fit.start(names_left), names_left)
+    reasons |= {
         n: "not identifiable: the Fisher information of these data is singular along it"
-        for n in _singular(J, names)
+        for n in _singular(M, names_left)
     }
     stds = {n: math.inf for n in reasons}
     free = [n for n in names if n not in reasons]
@@ -637,7 +719,7 @@ def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
         y.append(rec.y)
         yhat.append(rec.outputs(fit.local(x, free, r)[None, :].astype(complex))[0].real)
     y, yhat = np.concatenate(y), np.concatenate(yhat)
-    innovations = fit.residuals(x, free, jac=False)[0].reshape(-1, len(check.outputs))
+    innovations = np.concatenate([e for e, *_ in fit._parts(x, free, jac=False)])
     quality = {}
     for j, c in enumerate(check.outputs):
         spread = np.linalg.norm(y[:, j] - y[:, j].mean())
