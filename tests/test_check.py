@@ -196,6 +196,17 @@ def test_roll_never_varying_leaves_the_v_bias_and_scale_not_identifiable(truth):
         assert p.to_dict()["std"] is None and p.to_dict()["identifiable"] is False
 
 
+def test_a_level_run_holds_what_only_noise_would_determine(tmp_path):
+    # Scenario II's horizontal record holds depth and pitch: θ is its sensor's noise, and fitted
+    # to it b_u would go to u (the depth follows no −u sin θ); the screen holds b_u and k_u
+    run = simulate("II", seed=2, duration=5.0, out=tmp_path / "II")
+    level = read_csv(run / "horizontal.csv")
+    depth = compatibility([level]).pooled["depth"]
+    for n in ("b_u", "k_u"):
+        p = depth.parameters[n]
+        assert not p.estimated and "mostly measurement noise" in p.reason, (n, p)
+
+
 def test_a_record_without_depth_or_rates_is_checked_for_what_it_has(truth):
     e = sensed(truth, seed=5)
     no_z = e.only([s for s in STATES if s != "z"])

@@ -14,22 +14,32 @@ each driving channel c corrected by its sensor's bias b_c, scale factor k_c and 
 delay τ (the true value at time t is `(c_measured(t + τ) − b_c) / (1 + k_c)`; a sensor that lags
 by τ has τ > 0). The reconstruction is compared with the measured φ, θ, ψ (the attitude check,
 `ATTITUDE`) and z (the depth check, `DEPTH`), and the initial attitude or depth and the sensor
-parameters are fitted by output error: Gauss-Newton (trust region, `scipy.optimize.
-least_squares`) on the residuals weighted by each output's noise σ, the σ re-estimated from the
-residuals until they settle (relaxation, as in maximum likelihood). The Jacobian is exact: the
-complex step, the measured signals interpolated by cubic splines (a fractional delay is a
-shift along the spline, so a 40 ms delay at 50 Hz is as smooth a parameter as any other). The
-standard deviations are the Cramér-Rao bounds, from the Fisher information at the optimum.
+parameters are fitted by the filter-error method (maximum likelihood of a Kalman filter's
+innovations; Maine & Iliff, Jategaonkar): the noise of the rates and velocities is integrated
+by the kinematics, so it is process noise, and output error would be biased and its bounds
+2–6 times too small. The noise is read off the data (robust third differences): the outputs'
+σ is the filter's measurement noise R, the driving channels' (and, in ż, the attitude's times
+the velocities) its process noise, a random walk of h² σ² per step. The attitude filter is
+extended (linearised at each step), its gain held at each iteration's (Maine & Iliff); the
+depth filter's process noise depends on the corrected velocities, so its gain and the
+likelihood's ln det S follow the parameters. The fit is Gauss-Newton (trust region, `scipy.
+optimize.least_squares`) on the residuals whose sum of squares is the negative
+log-likelihood; its derivatives are exact: the complex step, the measured signals
+interpolated by cubic splines (a fractional delay is a shift along the spline, so a 40 ms
+delay at 50 Hz is as smooth a parameter as any other). The standard deviations are the
+Cramér-Rao bounds, from the Fisher information of the innovations at the optimum.
 
 What the delays mean: the gyros' τ is their lag behind the attitude channels, the log's τ its
 lag behind the depth sensor. A delay common to every channel shifts the whole record in time
 and cannot be told from the data; only these relative delays can.
 
-The screen, like the coefficients' (docs/cli.md, the screen): a sensor parameter along which
-the Fisher information of these data is singular is not identifiable (e.g. the log's v bias
-when roll never leaves 0) and is held at 0; of the others, fitted, the least significant is held
-at 0 one at a time while its estimate is within 2 σ of 0 (the others updated for it held there),
-and those left are fitted again. The initial states are always fitted.
+The screen, like the coefficients' (docs/cli.md, the screen): a sensor parameter whose
+regressor is mostly the noise of a measured channel in every record (`REGRESSORS`) or along
+which the Fisher information of these data is singular is not identifiable (e.g. the log's v
+bias when roll never leaves 0) and is held at 0; of the others, fitted, one at a time a
+parameter within 2 σ of 0 is held at 0 (`HELD_FIRST`: scale factors, delays, then biases; the
+others updated for it held there), and those left are fitted again until none is. The initial
+states are always fitted.
 
 Each record is checked alone, and all records together (`pooled`: one set of sensor
 parameters, each record its own initial states). A record missing a channel a check needs is
