@@ -89,7 +89,7 @@ SINGULAR = 1e-10  # an eigenvalue of the scaled Fisher information below this ×
 # biases: a constant velocity makes its bias and scale factor nearly one parameter (u ≈ 20 m/s),
 # and a bias is the commoner error, present whether the channel varies or not.
 HELD_FIRST = ("k", "t", "b")
-STEP = 1e-30
+STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
 # A scale factor multiplies its channel, a delay its channel's rate of change, the log's u and v
 # biases sin θ and sin φ: a parameter whose regressor is mostly the noise of a measured channel
 # would be fitted to that noise (errors in variables: on a level run, where θ is its noise, the
@@ -108,7 +108,7 @@ REGRESSORS = {
     "k_w": (("w",),),
     "tau_dvl": (("w",), ("u", "theta"), ("v", "phi")),
 }
-MIN_SIGNAL = 3.0  # the complex step: exact derivatives (no difference is taken)
+MIN_SIGNAL = 3.0
 
 
 @dataclass(frozen=True)
@@ -181,9 +181,11 @@ class Reconstruction:
         records: the records fitted (one set of sensor parameters for all).
         parameters: sensor parameter → estimate (held at 0 where the screen says so).
         initial: record → initial state → estimate.
-        fit: output → {`noise_std`: σ of the residuals (relaxed), `fit_percent`: 100 (1 − ‖y − ŷ‖
-            / ‖y − ȳ‖) over the records}.
-        iterations: Gauss-Newton iterations over every fit of the relaxation and the screen.
+        fit: output → {`noise_std`: its measurement noise (read off the data), `residual_std`
+            and `fit_percent`: the RMS of y − ŷ and 100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖) of the
+            reconstruction run open loop at the estimate (None for a constant channel),
+            `innovation_rms`: the RMS of the filter's whitened innovations (≈ 1)}.
+        iterations: the Gauss-Newton function evaluations over every fit of the screen.
     """
 
     check: str
@@ -251,7 +253,9 @@ class Compatibility:
                 lines.append(row)
             for c, f in pooled.fit.items():
                 fit = "—" if f["fit_percent"] is None else f"{f['fit_percent']:.2f} %"
-                lines.append(f"  {c:<10}fit {fit}, residual σ {f['noise_std']:.3g}")
+                lines.append(
+                    f"  {c:<10}fit {fit}, residual σ {f['residual_std']:.3g} (noise σ {f['noise_std']:.3g})"
+                )
         for name, why in self.unchecked.items():
             for check, reason in why.items():
                 lines.append(f"{name}: {check} not checked: {reason}")
