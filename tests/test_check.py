@@ -8,6 +8,7 @@ import json
 import math
 import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -336,6 +337,11 @@ def test_check_writes_the_json_and_prints_the_table(trial, tmp_path, capsys):
         "fit_percent",
         "innovation_rms",
     }
+    documented = (Path(__file__).parents[1] / "docs" / "files.md").read_text().split("## Check JSON")[1]
+    documented = documented.split("\n## ")[0]
+    fit = doc["pooled"]["attitude"]
+    keys = set(doc) | set(fit) | set(fit["fit"]["phi"]) | {k for p in fit["parameters"].values() for k in p}
+    assert len(keys) > 10 and [k for k in sorted(keys) if f"`{k}`" not in documented] == []
     assert main(["check", str(trial), "--out", "-"]) == 0
     std = capsys.readouterr()
     assert json.loads(std.out)["corrections"] == doc["corrections"] and "attitude check" in std.err
