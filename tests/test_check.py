@@ -244,6 +244,20 @@ def test_a_record_without_depth_or_rates_is_checked_for_what_it_has(truth):
         compatibility([e.only(["u", "psi"])])
 
 
+def test_an_attitude_in_degrees_is_not_checked_and_wild_rates_are_an_error(truth):
+    e = sensed(truth, seed=8)
+    y = e.y.copy()
+    for c in ("phi", "theta", "psi"):
+        y[:, e.measured.index(c)] *= 180 / math.pi
+    result = compatibility([replace(e, y=y)])
+    assert "theta reaches 30" in result.unchecked["seed8"]["attitude"] and "attitude" not in result.pooled
+    y = e.y.copy()
+    y[:, e.measured.index("p")] = 1e6 * np.sign(np.sin(7 * e.t))  # ±1e6 rad/s: tan θ blows up
+    with pytest.raises(InputError, match="the attitude check reached no finite estimate") as exc:
+        compatibility([replace(e, y=y)])
+    assert "\n" not in str(exc.value)
+
+
 # -- corrections ------------------------------------------------------------------------------
 
 

@@ -109,6 +109,7 @@ REGRESSORS = {
     "tau_dvl": (("w",), ("u", "theta"), ("v", "phi")),
 }
 MIN_SIGNAL = 3.0
+MAX_PITCH = 1.5  # rad (86°): beyond, the attitude check is not run (tan θ, 1 / cos θ near ±π/2)
 
 
 @dataclass(frozen=True)
@@ -754,6 +755,26 @@ def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
     )
 
 
+def _fitted(check: Check, records: Sequence[_Record]) -> Reconstruction:
+    """`_reconstruction`, a fit the data drive to non-finite values an `InputError` naming them."""
+    with np.errstate(all="ignore"):
+        try:
+            done = _reconstruction(check, records)
+            finite = all(math.isfinite(p.value) for p in done.parameters.values()) and all(
+                math.isfinite(p.value) for v in done.initial.values() for p in v.values()
+            )
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            finite, why = False, f" ({exc})"
+        else:
+            why = ""
+    if not finite:
+        raise InputError(
+            f"{', '.join(r.name for r in records)}: the {check.name} check reached no finite "
+            f"estimate{why}; expected channels in SI units (rad, rad/s, m/s, m)"
+        )
+    return done
+
+
 def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
     """The data-compatibility check of `experiments`: each record alone (its channels' noise read
     off it) and all pooled (the noise read off all), each check on the records that measure its
@@ -763,9 +784,15 @@ def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
     for check in CHECKS:
         for e in experiments:
             missing = [c for c in check.needs if c not in e.measured]
+            steep = float(np.max(np.abs(e.column("theta")))) if "theta" in e.measured else 0.0
             if missing:
                 unchecked[e.name][check.name] = (
                     f"needs {', '.join(check.needs)}; missing {', '.join(missing)}"
+                )
+            elif check is ATTITUDE and steep > MAX_PITCH:
+                unchecked[e.name][check.name] = (
+                    f"theta reaches {steep:.4g} rad, beyond ±{MAX_PITCH:g}: the Euler angles' "
+                    "kinematics are singular at ±π/2 (attitude in radians expected)"
                 )
             else:
                 ready.setdefault(check.name, []).append(e)
@@ -780,12 +807,12 @@ def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
     for check in CHECKS:
         some = ready.get(check.name, [])
         for e in some:
-            records[e.name][check.name] = _reconstruction(check, [_Record(e, check, noise[e.name])])
+            records[e.name][check.name] = _fitted(check, [_Record(e, check, noise[e.name])])
         if len(some) == 1:
             pooled[check.name] = records[some[0].name][check.name]
         elif some:
             everyone = noise_from_data(some)
-            pooled[check.name] = _reconstruction(check, [_Record(e, check, everyone) for e in some])
+            pooled[check.name] = _fitted(check, [_Record(e, check, everyone) for e in some])
     return Compatibility(records=records, pooled=pooled, unchecked=unchecked)
 
 
