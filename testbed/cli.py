@@ -186,6 +186,7 @@ def _cmd_identify(args) -> int:
         screen=args.screen,
         noise_std=args.noise_std,
         progress=progress if live else None,
+        corrections=args.corrections,
     )
     estimate = done.estimate
     if live and estimate.iterations:
@@ -224,6 +225,21 @@ def _cmd_analyze(args) -> int:
     _emit(out, result.to_json())
     for line in result.summary:
         print(line, file=sys.stderr)
+    return 0
+
+
+def _cmd_check(args) -> int:
+    from testbed.jobs import check_data
+
+    out = _to_stdout(args.out)
+    result = check_data(args.data, out=out)
+    if args.out == STDOUT:
+        sys.stdout.write(result.to_json())
+        print(result.table(), end="", file=sys.stderr)
+        return 0
+    sys.stdout.write(result.table())
+    if out is not None:
+        print(out)
     return 0
 
 
@@ -423,6 +439,13 @@ def parser() -> argparse.ArgumentParser:
         "(screen = true); the screen is only reported (default for a config without it)",
     )
     s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
+    s.add_argument(
+        "--corrections",
+        type=Path,
+        metavar="CHECK.json",
+        help="a JSON of `testbed check`: correct the rates and velocities by its sensor biases, "
+        "scale factors and delays before the fit",
+    )
     s.set_defaults(func=_cmd_identify)
 
     s = sub.add_parser("analyze", help="identifiability: Fisher information, CRLB, drift groups")
@@ -431,6 +454,13 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, help="identifiability JSON (default or -: stdout)")
     s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
     s.set_defaults(func=_cmd_analyze)
+
+    s = sub.add_parser(
+        "check", help="data compatibility: the kinematics reconstructed, sensor biases, scale factors, delays"
+    )
+    s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
+    s.add_argument("--out", type=Path, help="check JSON (default: none, the table only; -: stdout)")
+    s.set_defaults(func=_cmd_check)
 
     s = sub.add_parser(
         "validate", help="fit %% and residual whiteness of identified coefficients on (held-out) data"

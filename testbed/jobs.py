@@ -34,6 +34,7 @@ from testbed.identification.problem import check_inputs
 __all__ = [
     "Identified",
     "analyze_data",
+    "check_data",
     "identify_data",
     "inputs",
     "perturbed",
@@ -135,6 +136,7 @@ def identify_data(
     screen: bool | None = None,
     noise_std: Mapping[str, float] | None = None,
     progress: Callable[[Progress], None] | None = None,
+    corrections: str | os.PathLike | None = None,
 ) -> Identified:
     """Identify the coefficients of `data` (run directories or CSVs) and write the estimates JSON
     to `out`, a filter's estimate and ±σ histories beside it (`.history.csv`), and a Rerun
@@ -145,14 +147,22 @@ def identify_data(
     `screen`: fit only the candidates of the config's free list that the data determine
     (`analysis.identify_screened`), or (False) the list as written, the screen only reported in
     the JSON's `screen`; default: as the config's `[identify] screen` says; `noise_std`: the
-    sensors' noise σ per state, replacing the config's `[identify] noise_std` entry by entry. A
-    diverged fit is an `InputError` and writes nothing; a fit that ran but did not converge is
+    sensors' noise σ per state, replacing the config's `[identify] noise_std` entry by entry;
+    `corrections`: a check JSON (`check_data`) whose sensor corrections are applied to the data
+    before the fit (`analysis.compatibility.corrected`). A diverged fit is an `InputError` and writes nothing; a fit that ran but did not converge is
     written (`Identified.estimate.converged` says so).
     """
     m = lookup(method)
     opts = m.options.build(m.name, options or {})
     experiments, cfg, run_config, read = inputs(data, config)
     cfg = cfg.with_noise_std(noise_std)
+    applied = None
+    if corrections is not None:  # the check's module loads numba and scipy: only when asked for
+        from testbed.analysis.compatibility import corrected, read_corrections
+
+        applied = read_corrections(corrections)
+        experiments = corrected(experiments, applied)
+        read.append(Path(corrections))
     truth = truth_data(data) if run_config is not None else None
     read += [Path(e.source) for e in truth or ()]
     history = (
@@ -181,6 +191,8 @@ def identify_data(
             f"{', '.join(map(str, data))}; no estimate written{expected}"
         )
     doc = estimate.json_fields()
+    if applied is not None:
+        doc["corrections"] = {"file": str(corrections), "values": applied}
     if screened.fixed:
         doc["fixed"] = {
             n: {"value": float(cfg.coefficients[n]), "reason": why} for n, why in screened.fixed.items()
@@ -227,6 +239,21 @@ def analyze_data(
     if not cfg.free:
         raise InputError(f"{cfg.source or 'config'}: [identify] free is empty; nothing to analyse")
     result = identifiability(experiments, cfg)
+    write_text(out, result.to_json())
+    return result
+
+
+def check_data(data: Sequence[str | os.PathLike], *, out: str | os.PathLike | None = None):
+    """The data-compatibility check of `data` (run directories or measurement CSVs): the
+    kinematics reconstructed, the sensor biases, scale factors and delays estimated with their
+    bounds, written as JSON to `out`; the `analysis.compatibility.Compatibility`."""
+    from testbed.analysis.compatibility import compatibility  # numba and scipy: only here
+
+    experiments, _ = load_data(data)
+    read = [Path(e.source) for e in experiments]
+    read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]
+    check_outputs(read, {"out": out})
+    result = compatibility(experiments)
     write_text(out, result.to_json())
     return result
 

@@ -7,7 +7,7 @@ import pytest
 
 from testbed.cli import main
 
-COMMANDS = ["analytic", "simulate", "identify", "analyze", "replay"]
+COMMANDS = ["analytic", "simulate", "identify", "analyze", "check", "replay"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)

@@ -1,6 +1,7 @@
 """What a fit means: identifiability (`identifiability`: Fisher information, Cramér-Rao bounds,
 drift groups, the screen, the comparison with the analytic model), validation metrics
-(`validation`) and experiment design (`design`).
+(`validation`), experiment design (`design`), and before any fit the data's kinematic
+compatibility (`compatibility`: sensor biases, scale factors and delays).
 """
 
 __all__: list[str] = []

@@ -1,0 +1,752 @@
+"""Data compatibility: the flight path reconstructed from the measured rates and velocities.
+
+Before any fit of the dynamics, the kinematics the measurements must obey are checked (flight-
+path reconstruction; Klein & Morelli ch. 10, Jategaonkar ch. 10). The attitude is integrated
+from the rate gyros,
+
+    φ̇ = p + (q sin φ + r cos φ) tan θ,   θ̇ = q cos φ − r sin φ,   ψ̇ = (q sin φ + r cos φ) / cos θ,
+
+and the depth from the Doppler velocity log with the measured attitude,
+
+    ż = −u sin θ + v cos θ sin φ + w cos θ cos φ,
+
+each driving channel c corrected by its sensor's bias b_c, scale factor k_c and its group's
+delay τ (the true value at time t is `(c_measured(t + τ) − b_c) / (1 + k_c)`; a sensor that lags
+by τ has τ > 0). The reconstruction is compared with the measured φ, θ, ψ (the attitude check,
+`ATTITUDE`) and z (the depth check, `DEPTH`), and the initial attitude or depth and the sensor
+parameters are fitted by the filter-error method (maximum likelihood of a Kalman filter's
+innovations; Maine & Iliff, Jategaonkar): the noise of the rates and velocities is integrated
+by the kinematics, so it is process noise, and output error would be biased and its bounds
+2–6 times too small. The noise is read off the data (robust third differences): the outputs'
+σ is the filter's measurement noise R, the driving channels' (and, in ż, the attitude's times
+the velocities) its process noise, a random walk of h² σ² per step. The attitude filter is
+extended (linearised at each step), its gain held at each iteration's (Maine & Iliff); the
+depth filter's process noise depends on the corrected velocities, so its gain and the
+likelihood's ln det S follow the parameters. The fit is Gauss-Newton (trust region, `scipy.
+optimize.least_squares`) on the residuals whose sum of squares is the negative
+log-likelihood; its derivatives are exact: the complex step, the measured signals
+interpolated by cubic splines (a fractional delay is a shift along the spline, so a 40 ms
+delay at 50 Hz is as smooth a parameter as any other). The standard deviations are the
+Cramér-Rao bounds, from the Fisher information of the innovations at the optimum.
+
+What the delays mean: the gyros' τ is their lag behind the attitude channels, the log's τ its
+lag behind the depth sensor. A delay common to every channel shifts the whole record in time
+and cannot be told from the data; only these relative delays can.
+
+The screen, like the coefficients' (docs/cli.md, the screen): a sensor parameter whose
+regressor is mostly the noise of a measured channel in every record (`REGRESSORS`) or along
+which the Fisher information of these data is singular is not identifiable (e.g. the log's v
+bias when roll never leaves 0) and is held at 0; of the others, fitted, one at a time a
+parameter within 2 σ of 0 is held at 0 (`HELD_FIRST`: scale factors, delays, then biases; the
+others updated for it held there), and those left are fitted again until none is. The initial
+states are always fitted.
+
+Each record is checked alone, and all records together (`pooled`: one set of sensor
+parameters, each record its own initial states). A record missing a channel a check needs is
+not checked for it, and the result says so (`Compatibility.unchecked`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import least_squares
+
+from testbed.analysis.kinematics import attitude_filter, attitudes, depth_filter
+from testbed.data import MAX_DATA, Experiment, read_json
+from testbed.errors import InputError
+from testbed.simulation.measurements import noise_from_data
+
+__all__ = [
+    "ATTITUDE",
+    "CHECKS",
+    "DEPTH",
+    "MAX_DELAY",
+    "MAX_SCALE",
+    "SENSOR_PARAMETERS",
+    "Check",
+    "Compatibility",
+    "Parameter",
+    "Reconstruction",
+    "check_corrections",
+    "compatibility",
+    "corrected",
+    "read_corrections",
+    "reconstruct",
+]
+
+MAX_DELAY = 1.0  # s: the largest sensor delay fitted or applied, either sign
+MAX_SCALE = 0.5  # the largest |k| of a scale factor fitted or applied (1 + k within 0.5-1.5)
+SIGNIFICANCE = 2.0  # a parameter within this many σ of 0 is held at 0 (the coefficients' screen)
+SINGULAR = 1e-10  # an eigenvalue of the scaled Fisher information below this × the largest: singular
+# Of the parameters within SIGNIFICANCE σ of 0, scale factors are held first, then delays, then
+# biases: a constant velocity makes its bias and scale factor nearly one parameter (u ≈ 20 m/s),
+# and a bias is the commoner error, present whether the channel varies or not.
+HELD_FIRST = ("k", "t", "b")
+STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
+# A scale factor multiplies its channel, a delay its channel's rate of change, the log's u and v
+# biases sin θ and sin φ: a parameter whose regressor is mostly the noise of a measured channel
+# would be fitted to that noise (errors in variables: on a level run, where θ is its noise, the
+# depth follows no −u sin θ and b_u goes to u). Such a parameter is held, not identifiable,
+# unless some record has, for one of its alternatives, every channel's signal (the standard
+# deviation of the channel less its noise) at least `MIN_SIGNAL` times its noise.
+REGRESSORS = {
+    "k_p": (("p",),),
+    "k_q": (("q",),),
+    "k_r": (("r",),),
+    "tau_gyro": (("p",), ("q",), ("r",)),
+    "b_u": (("theta",),),
+    "k_u": (("theta",),),
+    "b_v": (("phi",),),
+    "k_v": (("v", "phi"),),
+    "k_w": (("w",),),
+    "tau_dvl": (("w",), ("u", "theta"), ("v", "phi")),
+}
+MIN_SIGNAL = 3.0
+MAX_PITCH = 1.5  # rad (86°): beyond, the attitude check is not run (tan θ, 1 / cos θ near ±π/2)
+
+
+@dataclass(frozen=True)
+class Check:
+    """One kinematic check: the channels that drive it (corrected by their sensors' parameters),
+    the measured channels it uses as they are, the outputs it reconstructs and the parameters."""
+
+    name: str
+    drives: tuple[str, ...]
+    uses: tuple[str, ...]
+    outputs: tuple[str, ...]
+    initial: tuple[str, ...]
+    delay: str
+
+    @property
+    def sensor(self) -> tuple[str, ...]:
+        """The sensor parameters: each driving channel's bias and scale factor, the delay."""
+        return tuple(f"b_{c}" for c in self.drives) + tuple(f"k_{c}" for c in self.drives) + (self.delay,)
+
+    @property
+    def needs(self) -> tuple[str, ...]:
+        return self.drives + self.uses + self.outputs
+
+
+ATTITUDE = Check(
+    name="attitude",
+    drives=("p", "q", "r"),
+    uses=(),
+    outputs=("phi", "theta", "psi"),
+    initial=("phi0", "theta0", "psi0"),
+    delay="tau_gyro",
+)
+DEPTH = Check(
+    name="depth",
+    drives=("u", "v", "w"),
+    uses=("phi", "theta"),
+    outputs=("z",),
+    initial=("z0",),
+    delay="tau_dvl",
+)
+CHECKS = (ATTITUDE, DEPTH)
+SENSOR_PARAMETERS = ATTITUDE.sensor + DEPTH.sensor
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """An estimate: its value, its Cramér-Rao σ (inf where the data cannot determine it), and
+    whether it was fitted; a parameter the screen held at 0 has `estimated` False and `reason`."""
+
+    value: float
+    std: float
+    estimated: bool = True
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        d = {
+            "value": self.value,
+            "std": self.std if math.isfinite(self.std) else None,
+            "identifiable": self.estimated,
+        }
+        return d | ({"reason": self.reason} if self.reason else {})
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """One check fitted on one or more records.
+
+    Attributes:
+        check: the check's name (`attitude`, `depth`).
+        records: the records fitted (one set of sensor parameters for all).
+        parameters: sensor parameter → estimate (held at 0 where the screen says so).
+        initial: record → initial state → estimate.
+        fit: output → {`noise_std`: its measurement noise (read off the data), `residual_std`
+            and `fit_percent`: the RMS of y − ŷ and 100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖) of the
+            reconstruction run open loop at the estimate (None for a constant channel),
+            `innovation_rms`: the RMS of the filter's whitened innovations (≈ 1)}.
+        iterations: the Gauss-Newton function evaluations over every fit of the screen.
+    """
+
+    check: str
+    records: tuple[str, ...]
+    parameters: Mapping[str, Parameter]
+    initial: Mapping[str, Mapping[str, Parameter]]
+    fit: Mapping[str, Mapping[str, float | None]]
+    iterations: int
+
+    def to_dict(self) -> dict:
+        return {
+            "records": list(self.records),
+            "parameters": {n: p.to_dict() for n, p in self.parameters.items()},
+            "initial": {r: {n: p.to_dict() for n, p in v.items()} for r, v in self.initial.items()},
+            "fit": {c: dict(v) for c, v in self.fit.items()},
+            "iterations": self.iterations,
+        }
+
+
+@dataclass(frozen=True)
+class Compatibility:
+    """The checks of a set of records: each record alone and all pooled.
+
+    Attributes:
+        records: record → check name → its reconstruction.
+        pooled: check name → the reconstruction of every record that has the check's channels.
+        unchecked: record → check name → why it was not checked (missing channels).
+    """
+
+    records: Mapping[str, Mapping[str, Reconstruction]]
+    pooled: Mapping[str, Reconstruction]
+    unchecked: Mapping[str, Mapping[str, str]]
+
+    @property
+    def corrections(self) -> dict[str, float]:
+        """The pooled sensor parameters (0 where held), what `corrected` applies."""
+        return {n: p.value for r in self.pooled.values() for n, p in r.parameters.items()}
+
+    def to_dict(self) -> dict:
+        return {
+            "corrections": self.corrections,
+            "pooled": {c: r.to_dict() for c, r in self.pooled.items()},
+            "records": {
+                name: {c: r.to_dict() for c, r in checks.items()} for name, checks in self.records.items()
+            },
+            "unchecked": {name: dict(why) for name, why in self.unchecked.items() if why},
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
+
+    def table(self) -> str:
+        """The pooled sensor parameters, per record beside them, and each output's fit."""
+        names = list(self.records)
+        lines = []
+        for check, pooled in self.pooled.items():
+            lines.append(f"{check} check ({', '.join(pooled.records)}):")
+            head = f"  {'parameter':<10}{'pooled':>24}" + "".join(f"{n[-22:]:>24}" for n in names)
+            lines.append(head)
+            for n, p in pooled.parameters.items():
+                row = f"  {n:<10}{_cell(p):>24}"
+                for name in names:
+                    r = self.records[name].get(check)
+                    row += f"{_cell(r.parameters[n]) if r else '—':>24}"
+                lines.append(row)
+            for c, f in pooled.fit.items():
+                fit = "—" if f["fit_percent"] is None else f"{f['fit_percent']:.2f} %"
+                lines.append(
+                    f"  {c:<10}fit {fit}, residual σ {f['residual_std']:.3g} (noise σ {f['noise_std']:.3g})"
+                )
+        for name, why in self.unchecked.items():
+            for check, reason in why.items():
+                lines.append(f"{name}: {check} not checked: {reason}")
+        return "\n".join(lines) + "\n"
+
+
+def _cell(p: Parameter) -> str:
+    if not p.estimated:
+        return "0 (held)"
+    return f"{p.value:.4g} ± {p.std:.2g}"
+
+
+class _Record:
+    """One record ready for a check: its splines, fine grid (samples and midpoints), outputs,
+    and the noise variances of its channels (`noise`: channel → σ)."""
+
+    def __init__(self, e: Experiment, check: Check, noise: Mapping[str, float]):
+        self.name = e.name
+        self.t = np.asarray(e.t, dtype=float)
+        self.h = np.diff(self.t)
+        fine = np.empty(2 * len(self.t) - 1)
+        fine[0::2], fine[1::2] = self.t, self.t[:-1] + self.h / 2
+        self.fine = fine
+        self.check = check
+        self.splines = {c: CubicSpline(self.t, e.column(c)) for c in check.drives}
+        self.used = {c: CubicSpline(self.t, e.column(c))(fine) for c in check.uses}
+        self.y = np.column_stack([e.column(c) for c in check.outputs])
+        self.R = np.array([noise[c] ** 2 for c in check.outputs])
+        self.Sw = np.array([noise[c] ** 2 for c in check.drives])
+        self.noise = dict(noise)
+        self.signal = {  # channel → the standard deviation of its signal over its noise's
+            c: math.sqrt(max(float(np.var(e.column(c))) - noise[c] ** 2, 0.0)) / noise[c] for c in check.needs
+        }
+
+    def _depth_noise(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """The depth filter's process noise per step (B, N − 1): the variance of ż from the noise
+        of the velocities (scaled as they are corrected) and of the attitude (times the
+        corrected velocities), at each step's start, integrated as a random walk (h² var)."""
+        n = len(self.check.drives)
+        k = x[:, len(self.check.initial) + n : len(self.check.initial) + 2 * n]
+        u, v, w = (w[:, 0:-1:2, i] for i in range(3))
+        phi, theta = self.used["phi"][0:-1:2], self.used["theta"][0:-1:2]
+        s, c, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+        su, sv, sw = (self.noise[ch] / (1 + k[:, [i]]) for i, ch in enumerate(self.check.drives))
+        var = (
+            (su * st) ** 2
+            + (sv * ct * s) ** 2
+            + (sw * ct * c) ** 2
+            + (self.noise["theta"] * (u * ct + (v * s + w * c) * st)) ** 2
+            + (self.noise["phi"] * ct * (v * c - w * s)) ** 2
+        )
+        return self.h**2 * var
+
+    def drives(self, tau: np.ndarray) -> np.ndarray:
+        """The driving channels at `fine + tau` (B,) complex, (B, 2N − 1, channels): the spline
+        at the real shift plus i Im(τ) times its slope (the complex step's first order, exact for
+        the derivative); beyond the record's ends the end values are held."""
+        s = self.fine + tau[0].real
+        inside = (s >= self.t[0]) & (s <= self.t[-1])
+        s = np.clip(s, self.t[0], self.t[-1])
+        out = np.empty((len(tau), len(s), len(self.splines)), dtype=complex)
+        for j, spline in enumerate(self.splines.values()):
+            slope = np.where(inside, spline(s, 1), 0.0)
+            out[:, :, j] = spline(s)[None, :] + 1j * tau.imag[:, None] * slope[None, :]
+        return out
+
+    def _corrected(self, x: np.ndarray):
+        """The initial states (B, initial) and the corrected driving channels (B, 2N − 1,
+        channels) of the parameter rows `x` (B, initial + sensor), complex."""
+        check, n = self.check, len(self.check.drives)
+        x0 = x[:, : len(check.initial)]
+        sensor = x[:, len(check.initial) :]
+        b, k, tau = sensor[:, :n], sensor[:, n : 2 * n], sensor[:, -1]
+        return np.ascontiguousarray(x0), (self.drives(tau) - b[:, None, :]) / (1 + k[:, None, :])
+
+    def _depth_steps(self, w: np.ndarray) -> np.ndarray:
+        """The depth's change over each step (B, N − 1): Simpson's rule on ż."""
+        phi, theta = self.used["phi"], self.used["theta"]
+        zdot = -w[:, :, 0] * np.sin(theta) + (w[:, :, 1] * np.sin(phi) + w[:, :, 2] * np.cos(phi)) * np.cos(
+            theta
+        )
+        return self.h / 6 * (zdot[:, 0:-1:2] + 4 * zdot[:, 1::2] + zdot[:, 2::2])
+
+    def outputs(self, x: np.ndarray) -> np.ndarray:
+        """The outputs reconstructed open loop (B, N, outputs) at the parameter rows `x`."""
+        x0, w = self._corrected(x)
+        if self.check is ATTITUDE:
+            out = np.empty((len(x), len(self.t), 3), dtype=complex)
+            attitudes(self.h, np.ascontiguousarray(w), x0, out)
+            return out
+        steps = self._depth_steps(w)
+        return (np.concatenate([np.zeros((len(x), 1)), np.cumsum(steps, axis=1)], axis=1) + x0)[:, :, None]
+
+    def innovations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The filter's whitened innovations (B, N, outputs) at the parameter rows `x`, and the
+        log-ratios ln(S / R) of their variances to the noise's where these depend on the
+        parameters (the depth check; None for the attitude, whose gain is held)."""
+        x0, w = self._corrected(x)
+        if self.check is ATTITUDE:
+            out = np.empty((len(x), len(self.t), 3), dtype=complex)
+            attitude_filter(self.h, np.ascontiguousarray(w), x0, self.y, self.R, self.Sw, out)
+            return out, None
+        out, logs = (np.empty((len(x), len(self.t)), dtype=complex) for _ in range(2))
+        steps, q = self._depth_steps(w), self._depth_noise(x, w)
+        depth_filter(
+            np.ascontiguousarray(steps),
+            np.ascontiguousarray(q),
+            x0[:, 0].copy(),
+            self.y[:, 0],
+            self.R[0],
+            out,
+            logs,
+        )
+        return out[:, :, None], logs[:, :, None]
+
+    def start(self) -> np.ndarray:
+        """The initial states: the mean of each output's first five samples."""
+        return self.y[:5].mean(axis=0)
+
+    def evaluate(self, x: np.ndarray, jac: bool):
+        """At `x` (real): the whitened innovations e and the log-ratios g (N, outputs; g None
+        for the attitude) and, with `jac`, their derivatives (N, outputs, parameters) by the
+        complex step (else None)."""
+        rows = x[None, :] + 1j * STEP * np.eye(len(x)) if jac else x[None, :].astype(complex)
+        e, g = self.innovations(rows)
+
+        def split(a):
+            return a[0].real, (np.moveaxis(a.imag / STEP, 0, -1) if jac else None)
+
+        return split(e) + (split(g) if g is not None else (None, None))
+
+
+def reconstruct(
+    e: Experiment, check: Check, values: Mapping[str, float] | None = None
+) -> dict[str, np.ndarray]:
+    """The outputs of `check` reconstructed from record `e`: output name → (N,) array, at the
+    parameters `values` (initial states and sensor parameters by name; an initial state left
+    out starts at the mean of the output's first five samples, a sensor parameter at 0)."""
+    _need(e, check)
+    record = _Record(e, check, {c: 1.0 for c in e.measured})
+    values = dict(values or {})
+    unknown = set(values) - set(check.initial) - set(check.sensor)
+    if unknown:
+        raise InputError(
+            f"{check.name} check: {', '.join(sorted(unknown))}: not its parameters; expected "
+            f"{', '.join(check.initial + check.sensor)}"
+        )
+    x0 = record.start()
+    x = np.array(
+        [values.get(n, x0[i]) for i, n in enumerate(check.initial)]
+        + [values.get(n, 0.0) for n in check.sensor]
+    )
+    y = record.outputs(x[None, :].astype(complex))[0].real
+    return {c: y[:, i] for i, c in enumerate(check.outputs)}
+
+
+def _need(e: Experiment, check: Check) -> None:
+    missing = [c for c in check.needs if c not in e.measured]
+    if missing:
+        raise InputError(
+            f"{e.source or e.name}: the {check.name} check needs {', '.join(check.needs)}; "
+            f"missing {', '.join(missing)}"
+        )
+
+
+class _Fit:
+    """The filter-error problem of one check on records: the free sensor parameters (shared),
+    then each record's initial states; the other sensor parameters held at 0."""
+
+    def __init__(self, records: Sequence[_Record], check: Check):
+        self.records, self.check = records, check
+        self.ni = len(check.initial)
+
+    def local(self, x: np.ndarray, free: Sequence[str], r: int) -> np.ndarray:
+        """Record r's parameter row (initial + sensor) from the free vector `x`."""
+        sensor = dict(zip(free, x[: len(free)]))
+        start = len(free) + r * self.ni
+        return np.concatenate([x[start : start + self.ni], [sensor.get(n, 0.0) for n in self.check.sensor]])
+
+    def _parts(self, x, free, jac: bool):
+        """Per record (e, de, g, dg) as `_Record.evaluate`, the derivatives over the free vector."""
+        cols = [self.check.sensor.index(n) + self.ni for n in free]
+        for r, rec in enumerate(self.records):
+            parts = rec.evaluate(self.local(x, free, r), jac)
+            if jac:
+                at = slice(len(free) + r * self.ni, len(free) + (r + 1) * self.ni)
+                for i in (1, 3):
+                    d = parts[i]
+                    if d is not None:
+                        J = np.zeros(d.shape[:2] + (len(x),))
+                        J[:, :, : len(free)], J[:, :, at] = d[:, :, cols], d[:, :, : self.ni]
+                        parts = parts[:i] + (J,) + parts[i + 1 :]
+            yield parts
+
+    def residuals(self, x, free, jac: bool):
+        """The residuals whose sum of squares is the negative log-likelihood (up to a constant):
+        the whitened innovations, and where their variance S depends on the parameters
+        √(1 + ln(S / R)), stacked over records; and their Jacobian."""
+        res, rows = [], []
+        for e, de, g, dg in self._parts(x, free, jac):
+            res.append(e.ravel())
+            rows += [de.reshape(-1, len(x))] if jac else []
+            if g is not None:
+                root = np.sqrt(1 + g)
+                res.append(root.ravel())
+                rows += [(dg / (2 * root[:, :, None])).reshape(-1, len(x))] if jac else []
+        return np.concatenate(res), (np.concatenate(rows) if jac else None)
+
+    def fisher(self, x, free) -> np.ndarray:
+        """The Fisher information of the innovations ν ~ N(0, S): Σ ∂νᵀ S⁻¹ ∂ν + ½ (∂ ln S)ᵀ ∂ ln S,
+        with S⁻¹ᐟ² ∂ν = ∂e + e ∂g / 2 (e = ν / √S, g = ln S / R)."""
+        M = np.zeros((len(x), len(x)))
+        for e, de, g, dg in self._parts(x, free, jac=True):
+            if g is not None:
+                de = de + e[:, :, None] * dg / 2
+                M += 0.5 * np.einsum("nci,ncj->ij", dg, dg)
+            M += np.einsum("nci,ncj->ij", de, de)
+        return M
+
+    def start(self, free) -> np.ndarray:
+        return np.concatenate([np.zeros(len(free))] + [rec.start() for rec in self.records])
+
+    def bounds(self, free):
+        limit = [
+            MAX_DELAY if n == self.check.delay else MAX_SCALE if n.startswith("k_") else np.inf for n in free
+        ]
+        hi = np.array(limit + [np.inf] * self.ni * len(self.records))
+        return -hi, hi
+
+    def solve(self, x, free):
+        """Gauss-Newton (trust region) from `x`; (x, evaluations)."""
+        cache = {}
+
+        def both(z):
+            key = z.tobytes()
+            if key not in cache:
+                cache.clear()
+                cache[key] = self.residuals(z, free, jac=True)
+            return cache[key]
+
+        lo, hi = self.bounds(free)
+        sol = least_squares(
+            lambda z: both(z)[0],
+            np.clip(x, 0.999 * lo, 0.999 * hi),
+            jac=lambda z: both(z)[1],
+            bounds=(lo, hi),
+            x_scale="jac",
+            method="trf",
+        )
+        return sol.x, int(sol.nfev)
+
+    def covariance(self, x, free) -> np.ndarray:
+        """The inverse Fisher information (pseudo-inverse): the Cramér-Rao bounds."""
+        return np.linalg.pinv(self.fisher(x, free), rcond=1e-15, hermitian=True)
+
+
+def _singular(M: np.ndarray, names: Sequence[str]) -> list[str]:
+    """The parameters (of the first len(names) rows) to hold so that the Fisher information M is
+    regular, greedily: the one that weighs most in the least determined direction of the
+    information scaled to unit diagonal, while that direction is singular."""
+    d = np.sqrt(np.diag(M))
+    held = [n for i, n in enumerate(names) if d[i] == 0]
+    keep = [i for i in range(len(M)) if i >= len(names) or names[i] not in held]
+    while True:
+        Ms = M[np.ix_(keep, keep)] / np.outer(d[keep], d[keep])
+        lam, V = np.linalg.eigh(Ms)
+        if lam[0] > SINGULAR * lam[-1]:
+            return held
+        sensor = [j for j, i in enumerate(keep) if i < len(names)]
+        if not sensor:
+            return held
+        j = max(sensor, key=lambda j: abs(V[j, 0]))
+        held.append(names[keep[j]])
+        del keep[j]
+
+
+def _conditional(x: np.ndarray, P: np.ndarray, i) -> np.ndarray:
+    """The estimate `x` (covariance P) with parameter(s) i held at 0: the others moved as the
+    cost's quadratic model says (the Gaussian conditioned on x[i] = 0)."""
+    i = np.atleast_1d(i)
+    if not len(i):
+        return x
+    return x - P[:, i] @ np.linalg.solve(P[np.ix_(i, i)], x[i])
+
+
+def _insignificant(x, P, free, stds, reasons) -> list[str]:
+    """The parameters of `free` held at 0 one at a time (`HELD_FIRST` order, then the least
+    significant) while one is within SIGNIFICANCE σ of 0, the others updated for each held;
+    their σ and reasons recorded in `stds` and `reasons`."""
+    held = []
+    while True:
+        z = {
+            i: abs(x[i]) / math.sqrt(P[i, i]) for i in range(len(free)) if free[i] not in held and P[i, i] > 0
+        }
+        z = {i: v for i, v in z.items() if v < SIGNIFICANCE}  # P[i, i] ≤ 0: determined by those held
+        if not z:
+            return held
+        i = min(z, key=lambda i: (HELD_FIRST.index(free[i][0]), z[i]))
+        stds[free[i]] = math.sqrt(P[i, i])
+        reasons[free[i]] = (
+            f"not significant: {x[i]:.3g} ± {stds[free[i]]:.2g} is within {SIGNIFICANCE:g} σ of 0"
+        )
+        held.append(free[i])
+        x = _conditional(x, P, i)
+        P = P - np.outer(P[:, i], P[i, :]) / P[i, i]
+
+
+def _noise_regressors(records: Sequence[_Record], names: Sequence[str]) -> dict[str, str]:
+    """The parameters of `names` whose regressor is mostly noise in every record (`REGRESSORS`),
+    with the reason."""
+    out = {}
+    for n in names:
+        alternatives = REGRESSORS.get(n, ())
+        best = max(
+            (min(rec.signal[c] for c in channels) for rec in records for channels in alternatives),
+            default=math.inf,
+        )
+        if best < MIN_SIGNAL:
+            what = " or ".join("·".join(channels) for channels in alternatives)
+            out[n] = (
+                f"not identifiable: its regressor ({what}) is mostly measurement noise here "
+                f"(signal {best:.2g} × the noise, below {MIN_SIGNAL:g})"
+            )
+    return out
+
+
+def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
+    """Fit `check` on `records`: the screen, the fit, the bounds, the reconstruction's fit."""
+    fit = _Fit(records, check)
+    names = list(check.sensor)
+    reasons = _noise_regressors(records, names)
+    names_left = [n for n in names if n not in reasons]
+    M = fit.fisher(fit.start(names_left), names_left)
+    reasons |= {
+        n: "not identifiable: the Fisher information of these data is singular along it"
+        for n in _singular(M, names_left)
+    }
+    stds = {n: math.inf for n in reasons}
+    free = [n for n in names if n not in reasons]
+    x, iterations = fit.solve(fit.start(free), free)
+    P = fit.covariance(x, free)
+    while True:  # screened, fitted again, until the fit leaves none within SIGNIFICANCE σ of 0
+        held = _insignificant(x, P, free, stds, reasons)
+        if not held:
+            break
+        keep = [i for i, n in enumerate(free) if n not in held] + list(range(len(free), len(x)))
+        free = [n for n in free if n not in held]
+        x, more = fit.solve(_conditional(x, P, [i for i in range(len(x)) if i not in keep])[keep], free)
+        iterations += more
+        P = fit.covariance(x, free)
+    std = np.sqrt(np.diag(P))
+    parameters = {}
+    for n in names:
+        if n in free:
+            parameters[n] = Parameter(value=float(x[free.index(n)]), std=float(std[free.index(n)]))
+        else:
+            parameters[n] = Parameter(value=0.0, std=stds[n], estimated=False, reason=reasons[n])
+    initial, y, yhat = {}, [], []
+    for r, rec in enumerate(records):
+        at = len(free) + r * fit.ni
+        initial[rec.name] = {
+            n: Parameter(value=float(x[at + j]), std=float(std[at + j])) for j, n in enumerate(check.initial)
+        }
+        y.append(rec.y)
+        yhat.append(rec.outputs(fit.local(x, free, r)[None, :].astype(complex))[0].real)
+    y, yhat = np.concatenate(y), np.concatenate(yhat)
+    innovations = np.concatenate([e for e, *_ in fit._parts(x, free, jac=False)])
+    quality = {}
+    for j, c in enumerate(check.outputs):
+        spread = np.linalg.norm(y[:, j] - y[:, j].mean())
+        error = np.linalg.norm(y[:, j] - yhat[:, j])
+        quality[c] = {
+            "noise_std": float(math.sqrt(records[0].R[j])),
+            "residual_std": float(error / math.sqrt(len(y))),
+            "fit_percent": float(100 * (1 - error / spread)) if spread > 0 else None,
+            "innovation_rms": float(np.sqrt(np.mean(innovations[:, j] ** 2))),
+        }
+    return Reconstruction(
+        check=check.name,
+        records=tuple(rec.name for rec in records),
+        parameters=parameters,
+        initial=initial,
+        fit=quality,
+        iterations=iterations,
+    )
+
+
+def _fitted(check: Check, records: Sequence[_Record]) -> Reconstruction:
+    """`_reconstruction`, a fit the data drive to non-finite values an `InputError` naming them."""
+    with np.errstate(all="ignore"):
+        try:
+            done = _reconstruction(check, records)
+            finite = all(math.isfinite(p.value) for p in done.parameters.values()) and all(
+                math.isfinite(p.value) for v in done.initial.values() for p in v.values()
+            )
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            finite, why = False, f" ({exc})"
+        else:
+            why = ""
+    if not finite:
+        raise InputError(
+            f"{', '.join(r.name for r in records)}: the {check.name} check reached no finite "
+            f"estimate{why}; expected channels in SI units (rad, rad/s, m/s, m)"
+        )
+    return done
+
+
+def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
+    """The data-compatibility check of `experiments`: each record alone (its channels' noise read
+    off it) and all pooled (the noise read off all), each check on the records that measure its
+    channels; `InputError` when no record has the channels of any check."""
+    unchecked: dict[str, dict[str, str]] = {e.name: {} for e in experiments}
+    ready: dict[str, list[Experiment]] = {}
+    for check in CHECKS:
+        for e in experiments:
+            missing = [c for c in check.needs if c not in e.measured]
+            steep = float(np.max(np.abs(e.column("theta")))) if "theta" in e.measured else 0.0
+            if missing:
+                unchecked[e.name][check.name] = (
+                    f"needs {', '.join(check.needs)}; missing {', '.join(missing)}"
+                )
+            elif check is ATTITUDE and steep > MAX_PITCH:
+                unchecked[e.name][check.name] = (
+                    f"theta reaches {steep:.4g} rad, beyond ±{MAX_PITCH:g}: the Euler angles' "
+                    "kinematics are singular at ±π/2 (attitude in radians expected)"
+                )
+            else:
+                ready.setdefault(check.name, []).append(e)
+    if not ready:
+        why = "; ".join(
+            f"{name}: {'; '.join(f'{c} check {w}' for c, w in v.items())}" for name, v in unchecked.items()
+        )
+        raise InputError(f"nothing to check: {why}")
+    noise = {e.name: noise_from_data([e]) for e in experiments}
+    records: dict[str, dict[str, Reconstruction]] = {e.name: {} for e in experiments}
+    pooled = {}
+    for check in CHECKS:
+        some = ready.get(check.name, [])
+        for e in some:
+            records[e.name][check.name] = _fitted(check, [_Record(e, check, noise[e.name])])
+        if len(some) == 1:
+            pooled[check.name] = records[some[0].name][check.name]
+        elif some:
+            everyone = noise_from_data(some)
+            pooled[check.name] = _fitted(check, [_Record(e, check, everyone) for e in some])
+    return Compatibility(records=records, pooled=pooled, unchecked=unchecked)
+
+
+def check_corrections(values, where: str) -> dict[str, float]:
+    """`values` (sensor parameter → number) checked: known names, finite numbers, biases within
+    ±`MAX_DATA`, scale factors within ±`MAX_SCALE`, delays within ±`MAX_DELAY` s."""
+    if not isinstance(values, Mapping):
+        raise InputError(f'{where}: expected an object of sensor parameters, e.g. {{"b_r": 0.002}}')
+    out = {}
+    for n, v in values.items():
+        if n not in SENSOR_PARAMETERS:
+            raise InputError(
+                f"{where}: {str(n)[:40]!r} is not a sensor parameter; expected {', '.join(SENSOR_PARAMETERS)}"
+            )
+        limit = MAX_DELAY if n.startswith("tau_") else MAX_SCALE if n.startswith("k_") else MAX_DATA
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= limit:
+            raise InputError(f"{where}: {n} = {str(v)[:40]}; expected a number within ±{limit:g}")
+        out[n] = float(v)
+    return out
+
+
+def read_corrections(path: str | Path) -> dict[str, float]:
+    """The `corrections` of a check JSON (`testbed check --out`), checked."""
+    doc = read_json(path, "a check JSON with corrections {name: value}")
+    if not isinstance(doc, Mapping) or "corrections" not in doc:
+        raise InputError(f"{path}: no 'corrections'; expected a check JSON (testbed check --out)")
+    return check_corrections(doc["corrections"], f"{path}: corrections")
+
+
+def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float]) -> list[Experiment]:
+    """The experiments with each measured channel corrected by its sensor's parameters: `(c(t +
+    τ) − b_c) / (1 + k_c)`, c(t + τ) from the cubic spline through the channel (the end values
+    held beyond the record); parameters not given are 0, channels not measured are skipped."""
+    corrections = check_corrections(corrections, "corrections")
+    out = []
+    for e in experiments:
+        y = e.y.copy()
+        for check in CHECKS:
+            tau = corrections.get(check.delay, 0.0)
+            for c in check.drives:
+                if c not in e.measured:
+                    continue
+                j = e.measured.index(c)
+                b, k = corrections.get(f"b_{c}", 0.0), corrections.get(f"k_{c}", 0.0)
+                shifted = CubicSpline(e.t, y[:, j])(np.clip(e.t + tau, e.t[0], e.t[-1])) if tau else y[:, j]
+                y[:, j] = (shifted - b) / (1 + k)
+        out.append(replace(e, y=y))
+    return out

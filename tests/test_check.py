@@ -1,0 +1,447 @@
+"""The data-compatibility check (`testbed check`, `analysis.compatibility`): the kinematics
+against closed forms and an independent integrator, sensor errors injected into a real
+simulated run's noise-free truth recovered within 3 σ, the σ against the scatter over noise
+seeds, the screen, missing channels, `corrected` and `identify --corrections`, the command's
+outputs and errors."""
+
+import json
+import math
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.integrate import solve_ivp
+
+from testbed.analysis.compatibility import (
+    ATTITUDE,
+    DEPTH,
+    SENSOR_PARAMETERS,
+    check_corrections,
+    compatibility,
+    corrected,
+    reconstruct,
+)
+from testbed.cli import main
+from testbed.data import Experiment, read_csv, write_csv
+from testbed.errors import InputError
+from testbed.models.linear import INPUTS, STATES
+from testbed.simulation.measurements import NOISE_STD
+from testbed.simulation.runs import simulate
+
+# Injected: gyro biases of 0.002 rad/s (0.11 deg/s, a tactical-grade gyro's), the log's biases
+# of 0.1 m/s along track and 0.05 m/s on w, and the rates 40 ms (two samples at 50 Hz) late.
+INJECTED = {"b_p": 0.002, "b_q": -0.002, "b_r": 0.002, "tau_gyro": 0.04, "b_u": 0.1, "b_w": 0.05}
+RATES = ("p", "q", "r")
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """Scenario I (the sea trial: pitch to ±30°, the depth and heading changing), 30 s."""
+    return simulate("I", seed=1, duration=30.0, out=tmp_path_factory.mktemp("r") / "I")
+
+
+@pytest.fixture(scope="module")
+def truth(run):
+    return read_csv(run / "scenario-I.truth.csv", "scenario-I")
+
+
+def sensed(truth: Experiment, seed: int, injected=INJECTED, noise=1.0) -> Experiment:
+    """What sensors with the `injected` errors would record of the noise-free `truth`: the rates
+    late by tau_gyro (linear interpolation, the first sample held), the biases added, white
+    noise of the scenario's default σ (times `noise`) on every channel."""
+    rng = np.random.default_rng(seed)
+    y = truth.y.copy()
+    for j, c in enumerate(truth.measured):
+        if c in RATES:
+            y[:, j] = np.interp(truth.t - injected.get("tau_gyro", 0.0), truth.t, y[:, j])
+        y[:, j] += injected.get(f"b_{c}", 0.0) + noise * rng.normal(0.0, NOISE_STD[c], len(truth.t))
+    return replace(truth, y=y, name=f"seed{seed}", source="")
+
+
+def record(t, **channels) -> Experiment:
+    """A record of the given channels (arrays or constants) at times `t`, fins at 0."""
+    measured = tuple(s for s in STATES if s in channels)
+    y = np.column_stack([np.broadcast_to(np.asarray(channels[s], float), t.shape) for s in measured])
+    return Experiment("synthetic", t, measured, y, np.zeros((len(t), len(INPUTS))))
+
+
+# -- the kinematics ---------------------------------------------------------------------------
+
+
+def test_a_coordinated_turn_in_closed_form():
+    # banked at φ0 and turning at Ω: q = Ω sin φ0, r = Ω cos φ0 keep φ and θ = 0 and turn ψ at Ω
+    t = np.arange(0, 20.0, 0.02)
+    phi0, omega, psi0 = 0.3, 0.1, 1.0
+    e = record(t, p=0.0, q=omega * math.sin(phi0), r=omega * math.cos(phi0), phi=phi0, theta=0.0, psi=psi0)
+    out = reconstruct(e, ATTITUDE, {"phi0": phi0, "theta0": 0.0, "psi0": psi0})
+    np.testing.assert_allclose(out["psi"], psi0 + omega * t, atol=1e-12)
+    np.testing.assert_allclose(out["phi"], phi0, atol=1e-12)
+    np.testing.assert_allclose(out["theta"], 0.0, atol=1e-12)
+    # a gyro with bias b and scale factor k reads (1 + k) r + b: corrected, the same turn
+    b, k = 0.01, 0.05
+    biased = record(
+        t,
+        p=0.0,
+        q=omega * math.sin(phi0),
+        r=(1 + k) * omega * math.cos(phi0) + b,
+        phi=phi0,
+        theta=0.0,
+        psi=psi0,
+    )
+    out = reconstruct(biased, ATTITUDE, {"phi0": phi0, "theta0": 0.0, "psi0": psi0, "b_r": b, "k_r": k})
+    np.testing.assert_allclose(out["psi"], psi0 + omega * t, atol=1e-12)
+
+
+def test_depth_at_a_constant_pitch_in_closed_form():
+    # ż = −u sin θ + w cos θ at φ = 0: w = a sin(ωt) integrates to a (1 − cos ωt) / ω
+    t = np.arange(0, 20.0, 0.02)
+    theta, u, a, w0 = 0.2, 20.0, 0.3, 1.5
+    e = record(t, u=u, v=0.0, w=a * np.sin(w0 * t), phi=0.0, theta=theta, z=50.0)
+    z = reconstruct(e, DEPTH, {"z0": 50.0})["z"]
+    exact = 50.0 - u * math.sin(theta) * t + math.cos(theta) * a * (1 - np.cos(w0 * t)) / w0
+    np.testing.assert_allclose(z, exact, atol=1e-6)  # Simpson on the spline: O(h⁴)
+
+
+def test_the_attitude_against_an_independent_integrator():
+    # rates varying on every axis at once, large angles: scipy's DOP853 at 1e-12 on the exact
+    # rates against RK4 on the spline through their 50 Hz samples
+    def rates(t):
+        return np.array([0.3 * np.sin(0.7 * t), 0.2 * np.cos(0.5 * t), 0.25 * np.sin(0.3 * t + 1)])
+
+    def f(t, x):
+        p, q, r = rates(t)
+        s, c = math.sin(x[0]), math.cos(x[0])
+        return [p + (q * s + r * c) * math.tan(x[1]), q * c - r * s, (q * s + r * c) / math.cos(x[1])]
+
+    t = np.arange(0, 30.0, 0.02)
+    x0 = [0.1, -0.2, 0.5]
+    ref = solve_ivp(f, (0, t[-1]), x0, t_eval=t, method="DOP853", rtol=1e-12, atol=1e-12).y
+    p, q, r = rates(t)
+    e = record(t, p=p, q=q, r=r, phi=ref[0], theta=ref[1], psi=ref[2])
+    out = reconstruct(e, ATTITUDE, dict(zip(ATTITUDE.initial, x0)))
+    for i, c in enumerate(ATTITUDE.outputs):
+        np.testing.assert_allclose(out[c], ref[i], atol=1e-7)
+    # the rates read 40 ms late: corrected by tau_gyro, the same attitude
+    late = record(t, p=np.interp(t - 0.04, t, p), q=np.interp(t - 0.04, t, q), r=np.interp(t - 0.04, t, r))
+    e = replace(e, y=np.column_stack([late.y, e.y[:, 3:]]))
+    out = reconstruct(e, ATTITUDE, dict(zip(ATTITUDE.initial, x0)) | {"tau_gyro": 0.04})
+    inside = t < t[-1] - 0.04  # beyond, the late record has no sample of the rates
+    for i, c in enumerate(ATTITUDE.outputs):
+        np.testing.assert_allclose(out[c][inside], ref[i][inside], atol=2e-5)  # linear interpolation's error
+
+
+def test_sensors_without_errors_give_no_delay_on_a_synthetic_roll():
+    # rolling only, p a 0.3 s lag of a ±0.1 rad/s PRBS switching every 0.1 s, integrated exactly
+    # at 1 ms and sampled at 50 Hz: kinks between samples, no sensor error
+    rng = np.random.default_rng(0)
+    fine = np.arange(0, 60.0005, 0.001)
+    switches = np.repeat(rng.choice([-0.1, 0.1], size=601), 100)[: len(fine)]
+    p = np.zeros_like(fine)
+    for k in range(1, len(fine)):
+        p[k] = p[k - 1] + 0.001 / 0.3 * (switches[k - 1] - p[k - 1])
+    phi = np.concatenate([[0.0], np.cumsum((p[1:] + p[:-1]) / 2 * 0.001)])
+    t, p, phi = fine[::20], p[::20], phi[::20]
+    zero = np.zeros_like(t)
+    clean = record(t, p=p, q=zero, r=zero, phi=phi, theta=zero, psi=zero)
+    noisy = clean.y + rng.normal(0.0, 1.0, clean.y.shape) * [NOISE_STD[c] for c in clean.measured]
+    # noise-free: what the spline misses of the kinks between samples is a twentieth of a
+    # sample's delay at most, and a scale error below 0.1 %
+    exact = compatibility([replace(clean, y=clean.y + 1e-7 * rng.normal(size=clean.y.shape))]).pooled
+    assert abs(exact["attitude"].parameters["tau_gyro"].value) < 0.02 / 20
+    assert all(abs(p.value) < 1e-3 for p in exact["attitude"].parameters.values())
+    for n, p in compatibility([replace(clean, y=noisy)]).pooled["attitude"].parameters.items():
+        assert not p.estimated or abs(p.value) < 3 * p.std, (n, p)  # with noise: nothing found
+
+
+# -- recovery -----------------------------------------------------------------------------------
+
+
+def test_injected_biases_and_delay_recovered_within_3_sigma(truth):
+    result = compatibility([sensed(truth, seed=1)])
+    assert result.unchecked == {"seed1": {}}
+    fitted = {n: p for r in result.pooled.values() for n, p in r.parameters.items()}
+    assert set(fitted) == set(SENSOR_PARAMETERS)
+    for n, value in INJECTED.items():
+        p = fitted[n]
+        assert p.estimated, (n, p)
+        assert abs(p.value - value) < 3 * p.std, (n, p)
+        assert p.std < abs(value) / 5, (n, p)  # and determined: not within 3 σ by a large σ
+    for n, p in fitted.items():  # the others are 0 in truth: held, or estimated within 3 σ of it
+        if n not in INJECTED:
+            assert not p.estimated or abs(p.value) < 3 * p.std, (n, p)
+    for r in result.pooled.values():  # the filter's innovations are as white as its noise says
+        for c, fit in r.fit.items():
+            assert 0.8 < fit["innovation_rms"] < 1.25, (c, fit)
+
+
+def test_the_bounds_match_the_scatter_over_noise_seeds(truth):
+    # 12 seeds: the scatter's sampling error is 1/√(2 × 11) = 21 %; the bounds must match it
+    # within 3 of that, and the mean error be within 3 standard errors of 0
+    seeds = range(12)
+    always = ("b_p", "b_q", "b_r", "tau_gyro", "b_w")
+    fits = [compatibility([sensed(truth, seed)]).pooled for seed in seeds]
+    for n in always:
+        check = "attitude" if n in ATTITUDE.sensor else "depth"
+        est = [f[check].parameters[n] for f in fits]
+        assert all(p.estimated for p in est), n
+        values, std = np.array([p.value for p in est]), np.mean([p.std for p in est])
+        ratio = np.std(values, ddof=1) / std
+        assert abs(ratio - 1) < 3 / math.sqrt(2 * (len(seeds) - 1)), (n, ratio)
+        assert abs(values.mean() - INJECTED[n]) < 3 * std / math.sqrt(len(seeds)), (n, values.mean())
+
+
+def test_pooled_records_share_the_sensor_parameters(truth):
+    a, b = sensed(truth, seed=3), sensed(truth, seed=4)
+    result = compatibility([a, b])
+    pooled = result.pooled["attitude"]
+    assert pooled.records == ("seed3", "seed4") and set(pooled.initial) == {"seed3", "seed4"}
+    for n in ("b_p", "b_q", "b_r", "tau_gyro"):
+        alone = [result.records[r]["attitude"].parameters[n].std for r in ("seed3", "seed4")]
+        # twice the data: σ / √2 (within the records' differences)
+        assert 0.6 < pooled.parameters[n].std / (np.mean(alone) / math.sqrt(2)) < 1.4, n
+        assert abs(pooled.parameters[n].value - INJECTED[n]) < 3 * pooled.parameters[n].std
+
+
+# -- the screen and missing channels --------------------------------------------------------
+
+
+def test_roll_never_varying_leaves_the_v_bias_and_scale_not_identifiable(truth):
+    e = sensed(truth, seed=2)
+    y = e.y.copy()
+    y[:, e.measured.index("phi")] = 0.0  # the body never rolls: v has no part in ż
+    depth = compatibility([replace(e, y=y)]).pooled["depth"]
+    for n in ("b_v", "k_v"):
+        p = depth.parameters[n]
+        assert not p.estimated and p.value == 0 and p.std == math.inf and "not identifiable" in p.reason
+        assert p.to_dict()["std"] is None and p.to_dict()["identifiable"] is False
+
+
+def test_a_level_run_holds_what_only_noise_would_determine(tmp_path):
+    # Scenario II's horizontal record holds depth and pitch: θ is its sensor's noise, and fitted
+    # to it b_u would go to u (the depth follows no −u sin θ); the screen holds b_u and k_u
+    run = simulate("II", seed=2, duration=5.0, out=tmp_path / "II")
+    level = read_csv(run / "horizontal.csv")
+    depth = compatibility([level]).pooled["depth"]
+    for n in ("b_u", "k_u"):
+        p = depth.parameters[n]
+        assert not p.estimated and "mostly measurement noise" in p.reason, (n, p)
+
+
+def test_a_record_without_depth_or_rates_is_checked_for_what_it_has(truth):
+    e = sensed(truth, seed=5)
+    no_z = e.only([s for s in STATES if s != "z"])
+    no_r = replace(e.only([s for s in STATES if s != "r"]), name="no-r")
+    result = compatibility([no_z, no_r])
+    assert result.unchecked["seed5"] == {"depth": "needs u, v, w, phi, theta, z; missing z"}
+    assert result.unchecked["no-r"] == {"attitude": "needs p, q, r, phi, theta, psi; missing r"}
+    assert result.pooled["attitude"].records == ("seed5",) and result.pooled["depth"].records == ("no-r",)
+    assert "seed5: depth not checked: needs u, v, w, phi, theta, z; missing z" in result.table()
+    with pytest.raises(InputError, match="nothing to check"):
+        compatibility([e.only(["u", "psi"])])
+
+
+def test_an_attitude_in_degrees_is_not_checked_and_wild_rates_are_an_error(truth):
+    e = sensed(truth, seed=8)
+    y = e.y.copy()
+    for c in ("phi", "theta", "psi"):
+        y[:, e.measured.index(c)] *= 180 / math.pi
+    result = compatibility([replace(e, y=y)])
+    assert "theta reaches 30" in result.unchecked["seed8"]["attitude"] and "attitude" not in result.pooled
+    y = e.y.copy()
+    y[:, e.measured.index("p")] = 1e6 * np.sign(np.sin(7 * e.t))  # ±1e6 rad/s: tan θ blows up
+    with pytest.raises(InputError, match="the attitude check reached no finite estimate") as exc:
+        compatibility([replace(e, y=y)])
+    assert "\n" not in str(exc.value)
+
+
+# -- corrections ------------------------------------------------------------------------------
+
+
+def test_corrected_undoes_the_injected_errors(truth):
+    late = sensed(truth, seed=0, noise=0.0)
+    back = corrected([late], INJECTED)[0]
+    inside = slice(2, -2)  # the first two samples were held by the delay, the last two by its undoing
+    for c in ("p", "q", "r", "u", "w", "v", "phi", "z"):
+        np.testing.assert_allclose(back.column(c)[inside], truth.column(c)[inside], atol=1e-12, err_msg=c)
+    scaled = corrected([truth], {"k_r": 0.1, "b_r": 0.01})[0]
+    np.testing.assert_allclose(scaled.column("r"), (truth.column("r") - 0.01) / 1.1, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    "values, message",
+    [
+        ({"b_x": 1.0}, "'b_x' is not a sensor parameter"),
+        ({"tau_gyro": 1.5}, "tau_gyro = 1.5; expected a number within ±1"),
+        ({"k_p": -0.9}, "k_p = -0.9; expected a number within ±0.5"),
+        ({"b_p": "0.1"}, "b_p = 0.1; expected a number"),
+        ({"b_p": True}, "b_p = True; expected a number"),
+        ({"b_p": math.nan}, "b_p = nan"),
+        ({"b_p": math.inf}, "b_p = inf"),
+        ([1, 2], "expected an object of sensor parameters"),
+    ],
+)
+def test_check_corrections_names_the_bad_value(values, message):
+    with pytest.raises(InputError, match=message.replace("(", r"\(")) as exc:
+        check_corrections(values, "f.json: corrections")
+    assert "\n" not in str(exc.value) and str(exc.value).startswith("f.json: corrections")
+
+
+@given(
+    st.dictionaries(
+        st.sampled_from(SENSOR_PARAMETERS + ("x", "")),
+        st.one_of(st.floats(), st.integers(), st.text(max_size=3), st.none(), st.booleans()),
+    )
+)
+def test_check_corrections_takes_or_refuses_in_one_line(values):
+    try:
+        out = check_corrections(values, "w")
+    except InputError as exc:
+        assert "\n" not in str(exc)
+        return
+    assert set(out) <= set(SENSOR_PARAMETERS) and all(math.isfinite(v) for v in out.values())
+
+
+def test_identify_applies_the_corrections_before_the_fit(run, truth, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(run, bad)
+    e = sensed(truth, seed=6)
+    write_csv(bad / "scenario-I.csv", e.t, e.y, e.inputs, e.measured)
+    good = tmp_path / "good"
+    shutil.copytree(run, good)
+    for folder in (bad, good):  # no truth comparison: an ml-gn fit each, beside the point here
+        (folder / "scenario-I.truth.csv").unlink()
+    fixed = corrected([read_csv(bad / "scenario-I.csv")], INJECTED)[0]
+    write_csv(good / "scenario-I.csv", fixed.t, fixed.y, fixed.inputs, fixed.measured)
+    corrections = tmp_path / "corrections.json"
+    corrections.write_text(json.dumps({"corrections": INJECTED}))
+
+    def fit(data, *extra):
+        out = tmp_path / f"{data.name}{len(extra)}.json"
+        assert (
+            main(
+                ["identify", str(data), "--method", "equation-error", "--free-all", "--out", str(out), *extra]
+            )
+            == 0
+        )
+        return json.loads(out.read_text())
+
+    applied = fit(bad, "--corrections", str(corrections))
+    assert applied["corrections"] == {"file": str(corrections), "values": INJECTED}
+    direct, raw = fit(good), fit(bad)
+    for n, c in direct["coefficients"].items():
+        assert applied["coefficients"][n]["value"] == pytest.approx(c["value"], rel=1e-6), (
+            n
+        )  # the CSV's 10 digits
+    moved = [
+        n
+        for n, c in raw["coefficients"].items()
+        if abs(c["value"] - direct["coefficients"][n]["value"]) > c["std"]
+    ]
+    assert moved  # the uncorrected data fit otherwise: the corrections made the difference
+
+
+# -- the command ------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def trial(run, tmp_path_factory):
+    """The Scenario I run with sensors that have the injected errors."""
+    folder = tmp_path_factory.mktemp("t") / "trial"
+    shutil.copytree(run, folder)
+    e = sensed(read_csv(run / "scenario-I.truth.csv", "scenario-I"), seed=7)
+    write_csv(folder / "scenario-I.csv", e.t, e.y, e.inputs, e.measured)
+    return folder
+
+
+def test_check_writes_the_json_and_prints_the_table(trial, tmp_path, capsys):
+    out = tmp_path / "check.json"
+    assert main(["check", str(trial), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.splitlines()[-1] == str(out) and "tau_gyro" in printed and "attitude check" in printed
+    doc = json.loads(out.read_text())
+    assert set(doc) == {"corrections", "pooled", "records", "unchecked"}
+    assert set(doc["corrections"]) == set(SENSOR_PARAMETERS) and doc["unchecked"] == {}
+    tau = doc["pooled"]["attitude"]["parameters"]["tau_gyro"]
+    assert tau["identifiable"] and abs(tau["value"] - 0.04) < 3 * tau["std"]
+    assert set(doc["records"]["scenario-I"]) == {"attitude", "depth"}
+    assert set(doc["pooled"]["depth"]["fit"]["z"]) == {
+        "noise_std",
+        "residual_std",
+        "fit_percent",
+        "innovation_rms",
+    }
+    documented = (Path(__file__).parents[1] / "docs" / "files.md").read_text().split("## Check JSON")[1]
+    documented = documented.split("\n## ")[0]
+    fit = doc["pooled"]["attitude"]
+    keys = set(doc) | set(fit) | set(fit["fit"]["phi"]) | {k for p in fit["parameters"].values() for k in p}
+    assert len(keys) > 10 and [k for k in sorted(keys) if f"`{k}`" not in documented] == []
+    assert main(["check", str(trial), "--out", "-"]) == 0
+    std = capsys.readouterr()
+    assert json.loads(std.out)["corrections"] == doc["corrections"] and "attitude check" in std.err
+
+
+def test_check_bad_input_one_line_status_2_nothing_written(trial, tmp_path, capsys):
+    csv = trial / "scenario-I.csv"
+    before = csv.read_bytes()
+    no_channels = tmp_path / "thin.csv"
+    no_channels.write_text(
+        "t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.02,1,0,0,0\n0.04,1,0,0,0\n0.06,1,0,0,0\n"
+    )
+    cases = [
+        (["check", str(csv), "--out", str(csv)], "is the input"),
+        (["check", str(trial), "--out", str(tmp_path)], "is a folder"),
+        (["check", str(trial), "--out", str(tmp_path / "no" / "c.json")], "does not exist"),
+        (["check", str(tmp_path / "missing.csv")], "no such file"),
+        (["check", str(no_channels), "--out", str(tmp_path / "c.json")], "nothing to check"),
+    ]
+    for argv, message in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and err.startswith("testbed check: error:"), err
+    assert csv.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["thin.csv"]
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("not json", "not valid JSON"),
+        ("[]", "no 'corrections'"),
+        ("{}", "no 'corrections'"),
+        ('{"corrections": []}', "expected an object of sensor parameters"),
+        ('{"corrections": {"b_s": 1}}', "'b_s' is not a sensor parameter"),
+        ('{"corrections": {"tau_dvl": -2}}', "tau_dvl = -2"),
+        ('{"corrections": {"k_u": 1e400}}', "k_u = inf"),
+        ('{"corrections": {"b_q": null}}', "b_q = None"),
+        ("[" * 100000 + "]" * 100000, "nested too deeply"),
+    ],
+)
+def test_identify_refuses_a_bad_corrections_file(trial, tmp_path, capsys, content, message):
+    bad = tmp_path / "c.json"
+    bad.write_text(content)
+    out = tmp_path / "est.json"
+    argv = [
+        "identify",
+        str(trial),
+        "--method",
+        "equation-error",
+        "--corrections",
+        str(bad),
+        "--out",
+        str(out),
+    ]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err and str(bad) in err, err
+    assert not out.exists()
+
+
+def test_identify_refuses_a_missing_or_folder_corrections(trial, tmp_path, capsys):
+    for path, message in ((tmp_path / "none.json", "cannot read"), (tmp_path, "is a folder")):
+        assert main(["identify", str(trial), "--method", "equation-error", "--corrections", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
