@@ -445,3 +445,22 @@ def test_identify_refuses_a_missing_or_folder_corrections(trial, tmp_path, capsy
         assert main(["identify", str(trial), "--method", "equation-error", "--corrections", str(path)]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
+
+
+def test_a_record_with_missing_samples_is_reported_not_checked():
+    from testbed.analysis.compatibility import compatibility
+
+    t = np.arange(0.0, 20.0, 0.02)
+    rng = np.random.default_rng(0)
+    y = np.zeros((len(t), 10))
+    y[:, 0] = 20.0
+    y[:, 5] = 0.05  # a steady turn: r constant, ψ its integral
+    y[:, 8] = 0.05 * t
+    y[:, 7] = 0.02 * np.sin(0.5 * t)  # pitch varies: the depth check has something to see
+    y[:, 4] = 0.01 * np.cos(0.5 * t)
+    y[:, 9] = np.cumsum(-20.0 * y[:, 7]) * 0.02
+    y += rng.normal(size=y.shape) * 1e-3
+    y[::7, 8] = np.nan  # heading dropouts
+    result = compatibility([Experiment("gappy", t, STATES, y, np.zeros((len(t), 3)))])
+    assert "psi miss samples" in result.unchecked["gappy"]["attitude"]
+    assert "depth" not in result.unchecked["gappy"]

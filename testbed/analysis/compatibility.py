@@ -673,10 +673,15 @@ def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
     for check in CHECKS:
         for e in experiments:
             missing = [c for c in check.needs if c not in e.measured]
-            steep = float(np.max(np.abs(e.column("theta")))) if "theta" in e.measured else 0.0
+            gaps = [c for c in check.needs if c in e.measured and np.isnan(e.column(c)).any()]
+            steep = float(np.nanmax(np.abs(e.column("theta")))) if "theta" in e.measured else 0.0
             if missing:
                 unchecked[e.name][check.name] = (
                     f"needs {', '.join(check.needs)}; missing {', '.join(missing)}"
+                )
+            elif gaps:
+                unchecked[e.name][check.name] = (
+                    f"{', '.join(gaps)} miss samples; its filter needs every sample of {', '.join(check.needs)}"
                 )
             elif check is ATTITUDE and steep > MAX_PITCH:
                 unchecked[e.name][check.name] = (
