@@ -119,10 +119,11 @@ class Experiment:
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """A model config: the vehicle, all 35 coefficients and 6 offsets, and the free ones."""
+    """A model config: the vehicle, the model's parameters (the 35 coefficients, the offsets,
+    the output biases, the current, the inputs' delay), and the free ones."""
 
     vehicle: Vehicle
-    coefficients: Mapping[str, float]  # every name in PARAMETERS (the coefficients and the offsets)
+    coefficients: Mapping[str, float]  # every name in PARAMETERS
     free: tuple[str, ...] = ()
     source: str = ""
     outputs: tuple[str, ...] | None = None  # [identify] outputs: the states fitted (None: all measured)
@@ -595,8 +596,8 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
 
 
 def check_config(config: ModelConfig) -> None:
-    """`InputError` unless `config` holds a physical vehicle (`_VEHICLE_RANGES`), the 35 model
-    coefficients as finite numbers within ±`MAX_CONSTANT`, and distinct free coefficient names."""
+    """`InputError` unless `config` holds a physical vehicle (`_VEHICLE_RANGES`), the model's
+    parameters (`PARAMETERS`) as finite numbers within ±`MAX_CONSTANT`, and distinct free names."""
     source = config.source or "config"
     for key in Vehicle.names():
         if getattr(config.vehicle, key) is None and (

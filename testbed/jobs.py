@@ -29,7 +29,7 @@ from testbed.data import Experiment, ModelConfig, load_data, read_config, read_c
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, identify, lookup
 from testbed.analysis.validation import Validation, validate
-from testbed.identification.problem import check_inputs
+from testbed.identification.problem import base_name, check_inputs
 
 __all__ = [
     "Identified",
@@ -38,6 +38,7 @@ __all__ = [
     "identify_data",
     "inputs",
     "perturbed",
+    "truth_comparison",
     "truth_data",
     "validate_data",
     "write_text",
@@ -91,7 +92,10 @@ def truth_comparison(estimate: Estimate, analytic: ModelConfig, truth: list[Expe
     if truth is None:
         return compare(estimate, analytic)
     try:
-        fit = identify(truth, replace(analytic, free=tuple(estimate.free)), method="ml-gn", start="config")
+        names = tuple(dict.fromkeys(base_name(n) for n in estimate.free))
+        per_record = tuple(dict.fromkeys(base_name(n) for n in estimate.free if n != base_name(n)))
+        config = replace(analytic, free=names, per_record=per_record)
+        fit = identify(truth, config, method="ml-gn", start="config")
     except InputError as exc:
         return replace(compare(estimate, analytic), note=f"no linear-model bias column: {exc}")
     return compare(estimate, analytic, fit)

@@ -111,3 +111,23 @@ def test_the_filters_and_ml_fem_refuse_a_free_bias_and_the_screen_fixes_a_headin
         assert "\n" not in str(exc.value)
     s = screening(data, _start(LATERAL + ("b_psi",)))
     assert "b_psi" in s.fixed and "singular" in s.fixed["b_psi"]  # the same as another initial heading
+
+
+def test_the_coloured_residual_bound_is_not_shrunk_by_missing_samples():
+    """White residuals (the right model): the coloured bound is about the white one, with or
+    without half the samples missing (each lag's sum over the pairs there are)."""
+    from dataclasses import replace
+
+    data = _turns((FIN_OFFSET, -FIN_OFFSET), duration=20.0)
+    config = _start(LATERAL + ("Y_0", "N_0"), ("Y_0", "N_0"))
+    ratios = []
+    for drop in (0.0, 0.5):
+        rng = np.random.default_rng(4)
+        gappy = []
+        for e in data:
+            y = e.y.copy()
+            y[rng.random(y.shape) < drop] = np.nan
+            gappy.append(replace(e, y=y))
+        est = identify(gappy, config, method="ml-gn")
+        ratios.append(np.median(est.crlb_corrected_std / est.std))
+    assert abs(ratios[1] - ratios[0]) < 0.1, ratios

@@ -84,3 +84,27 @@ def test_the_current_is_recovered_beside_the_velocity_biases():
     plain = identify(data, _start(LATERAL + ("Y_0", "N_0"), ("Y_0", "N_0")), method="ml-gn")
     worst = max(abs(v - truth[n]) / s for n, v, s in zip(plain.free, plain.values, plain.std))
     assert worst > 5.0  # the same data, the current left out of the model
+
+
+def test_a_current_without_the_heading_is_refused():
+    from testbed.errors import InputError
+
+    config = _start(LATERAL + ("c_N", "c_E"))
+    for data, outputs in (
+        (_data(duration=5.0), ("u", "v", "r")),
+        ([e.only(("u", "v", "r")) for e in _data(5.0)], None),
+    ):
+        with pytest.raises(InputError, match=r"the current \(c_N, c_E\) turns with the heading") as exc:
+            identify(
+                data,
+                config if outputs is None else config.__class__(**{**config.__dict__, "outputs": outputs}),
+            )
+        assert "\n" not in str(exc.value)
+
+
+def test_equation_error_refuses_free_output_terms_and_delay():
+    from testbed.errors import InputError
+
+    for name in ("c_N", "b_v", "input_delay"):
+        with pytest.raises(InputError, match=rf"free lists {name}; equation-error"):
+            identify(_data(duration=5.0), _start(LATERAL + (name,)), method="equation-error")

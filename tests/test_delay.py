@@ -122,3 +122,10 @@ def test_the_filters_refuse_a_free_delay():
         with pytest.raises(InputError, match=words) as exc:
             identify(data, config, method=method)
         assert "\n" not in str(exc.value)
+
+
+def test_the_screen_keeps_a_delay_the_data_determine():
+    from testbed.analysis.identifiability import screening
+
+    s = screening(_late(duration=20.0), _start(LATERAL + ("input_delay",)))
+    assert "input_delay" not in s.fixed and "input_delay" in s.config.free

@@ -185,3 +185,20 @@ def test_identify_command_reports_and_validates_each_record_with_its_own_offsets
     }
     assert config.record_coefficients("turn-1")["N_0"] == doc["coefficients"]["N_0[turn-1]"]["value"]
     assert config.record_coefficients("other")["N_0"] == 0.0
+
+
+def test_per_record_estimates_keep_the_truth_fit_and_one_model_methods_refuse_their_values():
+    from testbed.jobs import truth_comparison
+
+    offsets = (FIN_OFFSET, -FIN_OFFSET)
+    data, clean = _turns(offsets), _turns(offsets, noise=False)
+    start = _start(LATERAL + ("Y_0", "N_0"), ("Y_0", "N_0"))
+    est = identify(data, start, method="ml-gn")
+    comparison = truth_comparison(est, example_config(LATERAL), clean)
+    assert comparison.note == "" and comparison.truth_fit is not None
+    own = _start().with_coefficients(dict(zip(est.free, est.values)))
+    for method in ("mekf", "ml-fem"):
+        with pytest.raises(
+            InputError, match=r"record 'turn-0' has its own [YN]_0; .* expected shared values"
+        ):
+            identify(data, own, method=method)

@@ -58,6 +58,7 @@ from testbed.identification import bounds
 from testbed.identification.bounds import crlb
 from testbed.models.linear import (
     COEFFICIENTS,
+    PARAMETERS,
     IX,
     NX,
     STATES,
@@ -607,11 +608,13 @@ def design(
     config = model_config(lin, mjcf)[0]
     source = "analytic model"
     if estimates:
-        unknown = sorted(set(estimates) - set(COEFFICIENTS))
+        unknown = sorted(set(estimates) - set(PARAMETERS))
         if unknown:
             raise InputError(
                 f"{estimates_source}: {unknown[0]!r} is not a coefficient name; expected one of the linear model's 35 (docs/model.md)"
             )
+        # a trial's offsets, biases, current and delay describe its records, not the vehicle flown
+        estimates = {n: v for n, v in estimates.items() if n in COEFFICIENTS}
         config = replace(config.with_coefficients(dict(estimates)), source=estimates_source)
         source = "estimate"
         free = free if free is not None else tuple(n for n in COEFFICIENTS if n in estimates)

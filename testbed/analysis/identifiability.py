@@ -21,6 +21,7 @@ from testbed.identification.problem import base_name, check_fit, expanded
 from testbed.identification.bounds import crlb, fisher
 from testbed.simulation.measurements import noise_from_data
 from testbed.models.linear import (
+    DELAY,
     OUTPUT_TERMS,
     ITHETA,
     IX,
@@ -227,8 +228,9 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     free = expanded(config, [e.name for e in experiments])[0]
     theta = theta_vector(config.coefficients)
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
-    # the output biases are no part of the equations' structure: no row operation moves them
-    dynamic = tuple(n for n in config.free if n not in OUTPUT_TERMS)
+    # the output terms and the inputs' delay are no part of the equations' structure: no row
+    # operation moves them
+    dynamic = tuple(n for n in config.free if n not in OUTPUT_TERMS + (DELAY,))
     struct = _copied(structural(structure(config.vehicle), theta, dynamic, measured), free)
     bounds = crlb(F)
     std, corr = bounds.std.copy(), bounds.correlation.copy()

@@ -59,7 +59,7 @@ from testbed.estimators.base import (
     unphysical,
 )
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
-from testbed.identification.problem import Problem, problem, unbiased
+from testbed.identification.problem import Problem, check_shared, problem, unbiased
 from testbed.identification.innovations import BODY
 from testbed.models.linear import DELAY, IX, NX, OUTPUT_TERMS, STATES
 
@@ -312,6 +312,7 @@ def _fit(
             "or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm) or mekf"
         )
     experiments, config = unbiased(experiments, config)
+    check_shared(config, "ml-fem")
     with recursions.counting() as tally, scan.compiled():
         t0 = time.perf_counter()
         prob = problem(experiments, config)

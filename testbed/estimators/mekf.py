@@ -182,7 +182,7 @@ from testbed.estimators.base import (
     option,
     unphysical,
 )
-from testbed.identification.problem import unbiased
+from testbed.identification.problem import check_shared, unbiased
 from testbed.identification.recursions import simulated
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
 from testbed.models.linear import (
@@ -871,6 +871,7 @@ def run_filter(
             "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
     experiments, config = unbiased(experiments, config)
+    check_shared(config, method)
     if options.state_noise is None:
         options = replace(options, state_noise=0.0 if square_root else CONVENTIONAL_FLOOR)
     s = structure(config.vehicle)

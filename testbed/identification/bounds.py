@@ -188,15 +188,19 @@ def colored_covariance(
         L = fft_length(n + K + 1)  # lags up to K without wrap-around
         # G(τ) = w(τ) R_vv(τ), 0 < τ ≤ K
         G = np.empty((K, k * k))
+        # with missing samples (v = 0 there) each lag's sum has fewer pairs: scaled by
+        # (n − τ)/pairs, which leaves a complete record's estimate as it is
+        P = None if r.present is None else r.present.astype(float)
         for tau in range(1, K + 1):
-            G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[: n - tau].T @ v[tau:])).ravel()
+            fewer = 1.0 if P is None else (n - tau) / np.maximum(P[: n - tau].T @ P[tau:], 1.0)
+            G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[: n - tau].T @ v[tau:]) * fewer).ravel()
         # Φ(f) = R_vv(0) + Σ_τ>0 (G(τ) e^{+iωτ} + G(τ)ᵀ e^{−iωτ}) (as R_vv(−τ) = R_vv(τ)ᵀ)
         #      = R_vv(0) + Gc + Gcᵀ + i (Gs − Gsᵀ), Gc = Σ_τ G(τ) cos ωτ, Gs = Σ_τ G(τ) sin ωτ
         omega_tau = 2 * np.pi / L * np.outer(np.arange(L // 2 + 1), np.arange(1, K + 1))
         Gc, Gs = (np.cos(omega_tau) @ G).reshape(-1, k, k), (np.sin(omega_tau) @ G).reshape(-1, k, k)
         Phi = np.empty(Gc.shape, complex)
         np.add(Gc, Gc.transpose(0, 2, 1), out=Phi.real)
-        Phi.real += v.T @ v / n
+        Phi.real += v.T @ v / (n if P is None else np.maximum(P.T @ P, 1.0))
         np.subtract(Gs, Gs.transpose(0, 2, 1), out=Phi.imag)
         Zf = np.fft.rfft(Zr, L, axis=0)  # (frequencies, k, n_free)
         PhiZ = Phi @ Zf

@@ -14,6 +14,7 @@ The outputs are the measured states, `u` as the perturbation u_abs − U.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
@@ -23,6 +24,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
 from testbed.models.linear import (
+    CURRENT,
     DELAY,
     OUTPUT_TERMS,
     IBIAS,
@@ -47,6 +49,7 @@ __all__ = [
     "Record",
     "base_name",
     "check_fit",
+    "check_shared",
     "check_inputs",
     "expanded",
     "free_values",
@@ -95,7 +98,7 @@ class Problem:
     """Experiments and model config, checked and converted once for the numerical core."""
 
     structure: Structure
-    theta: np.ndarray  # (41,) the config's parameters (free ones: the a-priori start)
+    theta: np.ndarray  # (54,) the config's parameters (free ones: the a-priori start)
     free: tuple[str, ...]  # a per-record value is named `name[experiment]`
     index: np.ndarray  # (n_free,) positions of `free` in PARAMETERS
     records: tuple[Record, ...]
@@ -105,11 +108,11 @@ class Problem:
     known: np.ndarray | None = None  # (len(channels),) R where [identify] noise_std gives it, else NaN
     # (n_free,) the record group owning each free value (`[identify] per_record`), −1 where shared
     owner: np.ndarray | None = None
-    # (n_groups, 41) each record group's own θ where the config gives some records their own
+    # (n_groups, 54) each record group's own θ where the config gives some records their own
     # values (`ModelConfig.record_values`), else None: every record has `theta`
     thetas: np.ndarray | None = None
 
-    @property
+    @functools.cached_property
     def per_record(self) -> bool:
         """Whether the records' models differ: some free values, or fixed values, are a
         record's own."""
@@ -146,7 +149,7 @@ class Problem:
         return np.where(self.owner < 0, self.theta[self.index], self.thetas[self.owner, self.index])
 
     def coefficients(self, values: np.ndarray, group: int | None = None) -> np.ndarray:
-        """The full (41,) parameter vector θ with the free ones set to `values`: the shared ones,
+        """The full (54,) parameter vector θ with the free ones set to `values`: the shared ones,
         and the per-record ones of record group `group` (None: the shared ones only)."""
         own = self.theta if group is None or self.thetas is None else self.thetas[group]
         theta = own.astype(np.result_type(own, values))
@@ -158,7 +161,7 @@ class Problem:
         """Where the record's own parameters (the free coefficients, its x0) sit in p."""
         return np.r_[: self.n_free, record.offset : record.offset + len(record.measured)]
 
-    @property
+    @functools.cached_property
     def biased(self) -> bool:
         """Whether some output term (a bias, the current) is free or nonzero: the outputs are then
         not the states."""
@@ -182,7 +185,7 @@ class Problem:
         out[:, record.measured == IX["v"]] += (c_e * cos - c_n * sin)[:, None]
         return out
 
-    @property
+    @functools.cached_property
     def delayed(self) -> bool:
         """Whether the input delay is free or nonzero: the inputs are then not the recorded ones."""
         thetas = self.theta[None] if self.thetas is None else self.thetas
@@ -216,7 +219,7 @@ class Problem:
 
 def _heading(e: Experiment) -> np.ndarray | None:
     """The record's measured ψ (N,), its missing samples interpolated (a regressor of the
-    current, not a sample of the likelihood), or None where it has no ψ column."""
+    current, not a sample of the likelihood: docs/model.md), or None where it has no ψ column."""
     if "psi" not in e.measured:
         return None
     psi, k = np.asarray(e.column("psi"), dtype=float), np.arange(len(e.t))
@@ -312,6 +315,16 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
     theta = theta_vector(config.coefficients)
     channels = tuple(s for s in STATES if any(s in e.measured for e in experiments))
     free, owner = expanded(config, [e.name for e in experiments])
+    current = any(base_name(n) in CURRENT for n in free) or any(
+        theta_vector(config.record_coefficients(e.name))[ICURRENT].any() for e in experiments
+    )
+    for e in experiments:
+        if current and "psi" not in e.measured and {"u", "v"} & set(e.measured):
+            raise InputError(
+                f"{e.source or e.name}: the current (c_N, c_E) turns with the heading, and this "
+                "record fits u or v without psi: expected a psi column (and psi among [identify] "
+                "outputs), or the current 0 and fixed"
+            )
     records, offset = [], len(free)
     for j, e in enumerate(experiments):
         y, inputs, t = (np.asarray(a, dtype=float) for a in (e.y, e.inputs, e.t))
@@ -374,6 +387,19 @@ def unbiased(experiments: Sequence[Experiment], config: ModelConfig) -> tuple[li
         out.append(replace(e, inputs=prob.inputs(r, none)) if prob.delayed else e)
     records = {name: {**values, **zero} for name, values in config.record_values.items()}
     return out, replace(config, coefficients={**config.coefficients, **zero}, record_values=records)
+
+
+def check_shared(config: ModelConfig, method: str) -> None:
+    """`InputError` where `config` gives some record its own coefficient or offset (an
+    estimate's per-record values, `ModelConfig.record_values`): `method` runs one model over
+    every record."""
+    own = {e: n for e, values in config.record_values.items() for n, v in values.items() if v}
+    if own:
+        record, name = next(iter(own.items()))
+        raise InputError(
+            f"{config.source or 'config'}: record {record!r} has its own {name}; {method} runs one "
+            "model over every record: expected shared values, or an output-error method"
+        )
 
 
 def expanded(config: ModelConfig, names: Sequence[str]) -> tuple[tuple[str, ...], np.ndarray]:
