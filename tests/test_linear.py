@@ -219,7 +219,7 @@ def test_sensitivities_made_in_pieces_equal_the_whole_recursion():
         for size in (7, 8, len(x) - 1):  # odd and even pieces carry the recursion on
             got, parts = np.zeros_like(S), set()
             for channels, params, pieces in recursions.sensitivity_parts(
-                prob, r, models[r.dt], x, r.measured, scale, size
+                prob, r, models[prob.key(r)], x, r.measured, scale, size, values=p[: prob.n_free]
             ):
                 for samples, piece in pieces:
                     got[np.ix_(samples, channels, params)] = piece.transpose(1, 0, 2)

@@ -167,8 +167,9 @@ def sensitivity_parts(
     scale: np.ndarray,
     size: int,
     present: np.ndarray | None = None,
+    *,
+    values: np.ndarray,
     biases: bool = True,
-    values: np.ndarray | None = None,
 ) -> Iterator[tuple[np.ndarray, np.ndarray, Iterator]]:
     """`scale[c] ∂y_rows[c][k]/∂p` of one record, p its own parameters (q = n_free + k), from its
     states `x` (N, 10), for each `uncoupled` part of the model: (channels, params, pieces), the
@@ -176,14 +177,13 @@ def sensitivity_parts(
     `params` p. Sensitivities across the parts are zero and not given; `present` (N, len(rows)):
     the samples there are, the others' sensitivities given as 0 (they are left out of the fit).
     `y` is the state plus its output terms where `biases`, else the state itself; `values`: the
-    free values (the inputs' delay among them; None: all 0, for a problem without a delay).
+    free values (the inputs' delay among them).
 
     ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ; ∂y_c/∂b_c = 1;
     for the input delay τ the forcing is Γ ∂δ[k]/∂τ.
     """
     nf, rows = prob.n_free, np.asarray(rows)
     dtype = np.result_type(x, d.E)  # complex under the complex-step tests
-    values = np.zeros(nf) if values is None else values
     w, Phi = _w(x, prob.inputs(record, values)), d.E[:, :NX]
     dE = d.dE if nf else np.zeros((0, NX, NW), dtype=dtype)
     delay = np.flatnonzero((prob.index == IDELAY) & prob.acting(record.group))
