@@ -5,10 +5,11 @@ import pytest
 
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed.identification import concentrated, likelihood, recursions
+from testbed.identification import concentrated, likelihood
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS
 from testbed.identification.problem import problem
 from testbed.models.linear import IX
+from references import assert_sensitivities_match_complex_step, qr_cost
 
 from test_offsets import FIN_OFFSET, LATERAL, _lsim, _start, _turns  # noqa: F401  (shared data)
 
@@ -35,17 +36,7 @@ def test_sensitivities_to_biases_match_complex_step():
     prob = problem(data, _start(LATERAL + ("b_v", "b_r", "N_0"), ("b_r",)))
     p = likelihood.initial_states(prob, prob.start)
     p[prob.free.index("b_v")] = 0.01
-    sens = recursions.sensitivities(prob, p)
-    h = 1e-30
-    for j in range(prob.n_params):
-        pc = p.astype(complex)
-        pc[j] += 1j * h
-        for r, S, yc in zip(prob.records, sens, recursions.outputs(prob, pc)):
-            ref, cols = yc.imag / h, list(prob.columns(r))
-            if j not in cols:  # another experiment's initial state
-                assert not ref.any()
-                continue
-            np.testing.assert_allclose(S[:, :, cols.index(j)], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    sens = assert_sensitivities_match_complex_step(prob, p)
     # a bias moves its own output by exactly 1 and nothing else
     first = prob.records[0]
     S = sens[0][:, :, list(prob.columns(first)).index(prob.free.index("b_r[turn-0]"))]
@@ -58,10 +49,7 @@ def test_the_simplex_cost_with_biases_is_the_qr_likelihood():
     values = prob.start.copy()
     values[prob.free.index("b_v")], values[prob.free.index("b_r[turn-1]")] = 0.02, -0.003
     R = np.full(len(prob.channels), 1e-4)
-    out = likelihood.fit_initial_states(prob, values, R)[1]  # x0 by QR factors, the outputs there
-    qr = (
-        sum(float(np.sum((r.y - y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out)) / prob.n_samples
-    )
+    qr = qr_cost(prob, values, R)
     assert concentrated.Cost(prob)(values, R) == pytest.approx(qr, rel=1e-9)
 
 

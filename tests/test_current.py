@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 
 from testbed.estimators import identify
-from testbed.identification import concentrated, likelihood, recursions
+from testbed.identification import concentrated, likelihood
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS
 from testbed.identification.problem import problem
+from references import assert_sensitivities_match_complex_step, qr_cost
 
 from test_offsets import FIN_OFFSET, LATERAL, _start, _turns  # noqa: F401  (shared data)
 
@@ -42,17 +43,7 @@ def test_sensitivities_to_the_current_match_complex_step():
     prob = problem(data, _start(LATERAL + ("c_N", "c_E", "b_v"), ("c_E",)))
     p = likelihood.initial_states(prob, prob.start)
     p[prob.free.index("c_N")] = 0.1
-    sens = recursions.sensitivities(prob, p)
-    h = 1e-30
-    for j in range(prob.n_params):
-        pc = p.astype(complex)
-        pc[j] += 1j * h
-        for r, S, yc in zip(prob.records, sens, recursions.outputs(prob, pc)):
-            ref, cols = yc.imag / h, list(prob.columns(r))
-            if j not in cols:  # another experiment's initial state
-                assert not ref.any()
-                continue
-            np.testing.assert_allclose(S[:, :, cols.index(j)], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    assert_sensitivities_match_complex_step(prob, p)
 
 
 def test_the_simplex_cost_with_a_current_is_the_qr_likelihood():
@@ -60,10 +51,7 @@ def test_the_simplex_cost_with_a_current_is_the_qr_likelihood():
     values = prob.start.copy()
     values[-2:] = CURRENT
     R = np.full(len(prob.channels), 1e-4)
-    out = likelihood.fit_initial_states(prob, values, R)[1]
-    qr = (
-        sum(float(np.sum((r.y - y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out)) / prob.n_samples
-    )
+    qr = qr_cost(prob, values, R)
     assert concentrated.Cost(prob)(values, R) == pytest.approx(qr, rel=1e-9)
 
 

@@ -9,6 +9,7 @@ from testbed.identification import concentrated, likelihood, recursions
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE
 from testbed.identification.problem import problem, shifted
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector
+from references import assert_sensitivities_match_complex_step, qr_cost
 
 from test_offsets import LATERAL, _start  # noqa: F401  (shared data)
 
@@ -62,17 +63,7 @@ def test_sensitivities_to_the_delay_match_complex_step():
     data = _late(duration=3.0)
     prob = problem(data, _start(LATERAL + ("input_delay",)).with_coefficients({"input_delay": 0.03}))
     p = likelihood.initial_states(prob, prob.start)
-    sens = recursions.sensitivities(prob, p)
-    h = 1e-30
-    for j in range(prob.n_params):
-        pc = p.astype(complex)
-        pc[j] += 1j * h
-        for r, S, yc in zip(prob.records, sens, recursions.outputs(prob, pc)):
-            ref, cols = yc.imag / h, list(prob.columns(r))
-            if j not in cols:
-                assert not ref.any()
-                continue
-            np.testing.assert_allclose(S[:, :, cols.index(j)], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    assert_sensitivities_match_complex_step(prob, p)
 
 
 def test_second_order_sensitivities_with_a_delay_match_complex_step():
@@ -96,10 +87,7 @@ def test_the_simplex_cost_with_a_delay_is_the_qr_likelihood():
     values = prob.start.copy()
     values[-1] = DELAY
     R = np.full(len(prob.channels), 1e-4)
-    out = likelihood.fit_initial_states(prob, values, R)[1]
-    qr = (
-        sum(float(np.sum((r.y - y) ** 2 / R[r.channels])) for r, y in zip(prob.records, out)) / prob.n_samples
-    )
+    qr = qr_cost(prob, values, R)
     assert concentrated.Cost(prob)(values, R) == pytest.approx(qr, rel=1e-9)
 
 
