@@ -443,7 +443,7 @@ def corpus(root: Path) -> list[Case]:
                     (("bad.toml", toml_text(broken).encode()),),
                 )
             )
-    for key in ("X_udot", "N_rdot", "Y_v", "Nope"):
+    for key in ("X_udot", "N_rdot", "Y_v", "Nope", "N_0", "b_r", "c_N", "input_delay", "b_", "N_0[h]"):
         for value in bad + [doc["vehicle"]["Iz"]]:
             broken = json.loads(json.dumps(doc))
             broken["coefficients"][key] = value
@@ -465,6 +465,23 @@ def corpus(root: Path) -> list[Case]:
         broken = json.loads(json.dumps(doc)) | {"identify": {"free": free}}
         argv = ("identify", "data", "--config", "bad.toml", "--out", "out/e.json", *fit)
         cases.append(Case(f"config free {label}", argv, (("bad.toml", toml_text(broken).encode()),)))
+    for label, free, per_record in (
+        ("not in free", ["Y_v"], ["N_r"]),
+        ("twice", ["Y_v", "N_0"], ["N_0", "N_0"]),
+        ("not a list", ["N_0"], "N_0"),
+        ("numbers", ["N_0"], [1]),
+        ("a table", ["N_0"], {"N_0": 1}),
+        ("offsets and biases", ["Y_v", "N_0", "b_r", "c_N", "input_delay"], ["N_0", "b_r"]),
+    ):
+        broken = json.loads(json.dumps(doc)) | {"identify": {"free": free, "per_record": per_record}}
+        for method in ("ml-gn", "mekf", "ml-fem", "equation-error"):
+            argv = ("identify", "data", "--config", "bad.toml", "--method", method, "--out", "out/e.json")
+            argv += fit if method.startswith("ml-") else ()
+            cases.append(
+                Case(
+                    f"config per_record {label} ({method})", argv, (("bad.toml", toml_text(broken).encode()),)
+                )
+            )
     for label, noise in (
         ("not a table", 0.01),
         ("unknown state", {"yaw": 0.01}),
