@@ -482,6 +482,33 @@ def corpus(root: Path) -> list[Case]:
                     f"config per_record {label} ({method})", argv, (("bad.toml", toml_text(broken).encode()),)
                 )
             )
+    for label, sensors in (
+        ("not a table", 1.0),
+        ("sensor not a table", {"dvl": 1.0}),
+        ("no outputs", {"dvl": {"position": [0.1, 0.0, 0.0]}}),
+        ("unknown output", {"dvl": {"outputs": ["yaw"]}}),
+        ("specific force", {"imu": {"outputs": ["ax", "ay", "az"]}}),
+        ("rate", {"dvl": {"outputs": ["u", "v", "w"], "rate": 10.0}}),
+        ("position short", {"dvl": {"outputs": ["u", "v", "w"], "position": [0.1]}}),
+        ("position text", {"dvl": {"outputs": ["u", "v", "w"], "position": ["a", 0, 0]}}),
+        ("frame", {"dvl": {"outputs": ["u", "v", "w"], "frame": "ned"}}),
+        ("earth part", {"dvl": {"outputs": ["u", "v"], "frame": "earth"}}),
+        ("misalignment large", {"dvl": {"outputs": ["u", "v", "w"], "misalignment": [1.0, 0, 0]}}),
+        ("delay negative", {"dvl": {"outputs": ["u", "v", "w"], "delay": -0.1}}),
+        ("delay huge", {"dvl": {"outputs": ["u", "v", "w"], "delay": 1e300}}),
+        ("bias other", {"dvl": {"outputs": ["u"], "bias": {"w": 0.1}}}),
+        ("scale -1", {"dvl": {"outputs": ["u"], "scale": {"u": -1.0}}}),
+        ("twice", {"a": {"outputs": ["u"]}, "b": {"outputs": ["u"]}}),
+        ("name", {".hidden": {"outputs": ["u"]}}),
+        ("good", {"dvl": {"outputs": ["u", "v", "w"], "position": [0.2, 0.0, 0.1], "delay": 0.04}}),
+    ):
+        broken = json.loads(json.dumps(doc)) | {"sensors": sensors}
+        for method in ("ml-gn", "mekf"):
+            argv = ("identify", "data", "--config", "bad.toml", "--method", method, "--out", "out/e.json")
+            argv += fit if method == "ml-gn" else ()
+            cases.append(
+                Case(f"config sensors {label} ({method})", argv, (("bad.toml", toml_text(broken).encode()),))
+            )
     for label, noise in (
         ("not a table", 0.01),
         ("unknown state", {"yaw": 0.01}),

@@ -35,8 +35,10 @@ from testbed.models.linear import (
     STATES,
     Vehicle,
 )
+from testbed.models.sensors import OUTPUTS, Sensor, needs, states_from
 
 __all__ = [
+    "CONFIG_SENSOR_KEYS",
     "CSV_COLUMNS",
     "Experiment",
     "MAX_DATA",
@@ -58,12 +60,15 @@ __all__ = [
     "median",
     "number",
     "parse_config",
+    "parse_sensor",
     "read_config",
     "read_csv",
     "read_estimates",
     "read_json",
     "read_toml",
     "run_csvs",
+    "sensor_table",
+    "toml_value",
     "write_config",
     "write_csv",
 ]
@@ -81,6 +86,9 @@ MAX_CONSTANT = 1e15
 # The least measurement-noise σ (SI): the floor that keeps a noise covariance R = σ² positive
 # definite in double precision, far below any sensor's noise (1 nrad, 1 nm/s).
 MIN_NOISE_STD = 1e-9
+# What a model config's `[sensors.NAME]` says of a sensor: what it reads and its known errors
+# (its rate and noise are the data's own)
+CONFIG_SENSOR_KEYS = ("outputs", "position", "misalignment", "frame", "bias", "scale", "delay")
 # Angles that wrap at ±π in a log (`read_csv` unwraps them): roll and heading. Pitch stays
 # within ±π/2.
 WRAPPING = ("phi", "psi")
@@ -97,6 +105,9 @@ class Experiment:
     y: np.ndarray  # (N, len(measured))
     inputs: np.ndarray  # (N, 3), INPUTS order
     source: str = ""
+    sensors: tuple[
+        str, ...
+    ] = ()  # the config sensors whose readings are already undone (`ModelConfig.readings`)
 
     @property
     def dt(self) -> float:
@@ -135,6 +146,7 @@ class ModelConfig:
     # experiment name → {name: value}: a record's own values, where they differ from `coefficients`
     # (an estimate's per-record values, `with_coefficients`)
     record_values: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    sensors: tuple[Sensor, ...] = ()  # [sensors.NAME]: the sensors whose geometry and errors are known
 
     def __post_init__(self):  # a name a config leaves out is 0 (and fixed)
         object.__setattr__(self, "coefficients", dict.fromkeys(PARAMETERS, 0.0) | dict(self.coefficients))
@@ -143,10 +155,27 @@ class ModelConfig:
         """The coefficients and offsets of the record (experiment) called `name`."""
         return {**self.coefficients, **self.record_values.get(name, {})}
 
+    def readings(self, experiments: Sequence[Experiment]) -> list[Experiment]:
+        """The experiments with each of the config's sensors undone (`models.sensors.states_from`):
+        their readings turned into the CG's body-axis states, the rate and attitude sensors first
+        (the others' lever arms and earth axes use them). Applied once to a record: a record
+        keeps the names of the sensors already undone. `InputError` for a record without a
+        sensor's outputs, or without the rates or attitude its correction needs."""
+        order = sorted(
+            self.sensors, key=lambda s: not set(s.outputs) & {"p", "q", "r", "phi", "theta", "psi"}
+        )
+        out = []
+        for e in experiments:
+            for sensor in (s for s in order if s.name not in e.sensors):
+                e = _undone(e, sensor, self.source or "config")
+            out.append(e)
+        return out
+
     def fitted(self, experiments: Sequence[Experiment]) -> list[Experiment]:
-        """The experiments reduced to the config's outputs (all of them without `outputs`).
-        Each record keeps the outputs it measures; `InputError` for an output that no record
-        measures, or a record that measures none."""
+        """The experiments, the config's sensors undone (`readings`), reduced to the config's
+        outputs (all of them without `outputs`). Each record keeps the outputs it measures;
+        `InputError` for an output that no record measures, or a record that measures none."""
+        experiments = self.readings(experiments)
         if self.outputs is None:
             return list(experiments)
         measured = {s for e in experiments for s in e.measured}
@@ -177,6 +206,27 @@ class ModelConfig:
             return self
         merged = {**(self.noise_std or {}), **check_noise_std(values, where)}
         return replace(self, noise_std={s: merged[s] for s in STATES if s in merged})
+
+
+def _undone(e: Experiment, sensor: Sensor, source: str) -> Experiment:
+    """`e` with `sensor`'s readings turned into the states they measure (`ModelConfig.readings`)."""
+    where = f"{e.source or e.name}: {source}'s sensors.{sensor.name}"
+    missing = [o for o in sensor.outputs if o not in e.measured]
+    if missing:
+        raise InputError(f"{where} outputs {', '.join(missing)}, which the record has no column for")
+    wants = needs(sensor)
+    given = []
+    for need, names in zip(wants, (("p", "q", "r"), ("phi", "theta", "psi"))):
+        lacking = [n for n in names if n not in e.measured]
+        if need and lacking:
+            raise InputError(f"{where} needs {', '.join(names)} to be undone; the record has no {lacking[0]}")
+        given.append(np.column_stack([e.column(n) for n in names]) if need else None)
+    y = np.asarray(e.y, dtype=float).copy()
+    cols = [e.measured.index(o) for o in sensor.outputs]
+    states = states_from(sensor, np.asarray(e.t, float), y[:, cols], *given)
+    for o, k in zip(sensor.outputs, cols):
+        y[:, k] = states[o]
+    return replace(e, y=y, sensors=e.sensors + (sensor.name,))
 
 
 def read_text(path: str | Path, expected: str) -> str:
@@ -588,8 +638,30 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     per_record = ident.get("per_record", []) if isinstance(ident, dict) else []
     if not isinstance(per_record, list) or not all(isinstance(n, str) for n in per_record):
         raise InputError(f"{source}: [identify] per_record must be a list of names from free")
+    tables = doc.get("sensors", {})
+    if not isinstance(tables, Mapping):
+        raise InputError(f"{source}: [sensors] must hold [sensors.NAME] tables")
+    sensors = tuple(parse_sensor(k, v, f"{source}: sensors.{k}") for k, v in tables.items())
+    for sensor in sensors:
+        if set(sensor.outputs) - set(STATES):
+            raise InputError(
+                f"{source}: sensors.{sensor.name}.outputs {list(sensor.outputs)}; expected states "
+                f"({', '.join(STATES)}): the model has no specific force"
+            )
+    seen = [o for s_ in sensors for o in s_.outputs]
+    twice = sorted({o for o in seen if seen.count(o) > 1})
+    if twice:
+        raise InputError(f"{source}: [sensors] read {twice[0]} twice; expected each state from one sensor")
     config = ModelConfig(
-        Vehicle(**values), coefficients, tuple(free), source, outputs, noise, screen, tuple(per_record)
+        Vehicle(**values),
+        coefficients,
+        tuple(free),
+        source,
+        outputs,
+        noise,
+        screen,
+        tuple(per_record),
+        sensors=sensors,
     )
     check_config(config)
     return config
@@ -644,6 +716,59 @@ def check_noise_std(noise, where: str) -> dict[str, float]:
                 f"{where}: {name} = {v:g}; expected a σ from {MIN_NOISE_STD:g} to {MAX_DATA:g} (SI)"
             )
     return {s: float(noise[s]) for s in STATES if s in noise}
+
+
+def parse_sensor(name: str, doc, where: str, keys: Sequence[str] = CONFIG_SENSOR_KEYS) -> Sensor:
+    """The `Sensor` of a `[sensors.NAME]` table with the keys `keys` (`where`: the file and
+    table, for messages)."""
+    check_name(name, f"{where}: sensor name")
+    if not isinstance(doc, Mapping):
+        raise InputError(f"{where}: expected a table")
+    unknown = sorted(set(doc) - set(keys))
+    if unknown:
+        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected {', '.join(keys)}")
+    outs = doc.get("outputs")
+    if not isinstance(outs, list) or not all(isinstance(o, str) for o in outs):
+        raise InputError(f"{where}.outputs = {outs!r}; expected a list of {', '.join(OUTPUTS)}")
+    kw = {"outputs": tuple(outs)}
+    for key in ("position", "misalignment"):
+        if key in doc:
+            v = doc[key]
+            if not isinstance(v, list) or len(v) != 3:
+                raise InputError(f"{where}.{key} = {v!r}; expected a list of three numbers")
+            kw[key] = tuple(number(a, f"{where}.{key}") for a in v)
+    if "frame" in doc:
+        kw["frame"] = doc["frame"]
+    for key in ("delay", "rate"):
+        if key in doc:
+            kw[key] = number(doc[key], f"{where}.{key}")
+    for key in ("bias", "scale", "noise_std"):
+        table = doc.get(key, {})
+        if not isinstance(table, Mapping):
+            raise InputError(f"{where}.{key}: expected a table of output = value")
+        kw[key] = {o: number(v, f"{where}.{key}.{o}") for o, v in table.items()}
+    try:
+        return Sensor(name=name, **kw)
+    except InputError as exc:
+        raise InputError(f"{where.rsplit(': ', 1)[0]}: {exc}") from None
+
+
+def sensor_table(s: Sensor) -> dict:
+    """The `[sensors.NAME]` table of a sensor (`parse_sensor` reads it back to an equal one)."""
+    out = {
+        "outputs": list(s.outputs),
+        "position": list(s.position),
+        "misalignment": list(s.misalignment),
+        "frame": s.frame,
+        "bias": dict(s.bias),
+        "scale": dict(s.scale),
+        "delay": s.delay,
+    }
+    if s.rate is not None:
+        out["rate"] = s.rate
+    if s.noise_std:
+        out["noise_std"] = dict(s.noise_std)
+    return out
 
 
 def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
@@ -728,7 +853,27 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         note = f"  # {comments['noise_std']}" if "noise_std" in comments else ""
         pairs = ", ".join(f"{s} = {float(v)!r}" for s, v in config.noise_std.items())
         lines.append(f"noise_std = {{{pairs}}}{note}")
+    for sensor in config.sensors:
+        lines += ["", f"[sensors.{json.dumps(sensor.name)}]"]
+        lines += [f"{k} = {toml_value(v)}" for k, v in sensor_table(sensor).items()]
     return "\n".join(lines + [""])
+
+
+def toml_value(v) -> str:
+    """A TOML value: strings, exact floats (repr round-trips), ints, lists and inline tables."""
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, Mapping):
+        return "{" + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"no TOML form for {v!r}")
 
 
 def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:

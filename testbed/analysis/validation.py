@@ -166,6 +166,7 @@ def validate(
     a fit may reach a mode faster than the data show; the caller checks the user's config. A
     channel's metrics are over its samples present, its residuals taken in sequence (a missing
     sample skipped, a slower sensor's at its own rate)."""
+    experiments = config.readings(experiments)  # compared in the states, the config's sensors undone
     yhat = predict(experiments, config, initial, resolve=False)
     base = predict(experiments, analytic) if analytic is not None else [None] * len(experiments)
     out = {}

@@ -311,6 +311,7 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
     """Check the experiments and the config (`check_inputs`, `resolve` as there) and set up the
     output-error problem."""
     check_inputs(experiments, config, resolve)
+    experiments = config.readings(experiments)  # the config's known sensors undone (once)
     where = config.source or "config"
     theta = theta_vector(config.coefficients)
     channels = tuple(s for s in STATES if any(s in e.measured for e in experiments))

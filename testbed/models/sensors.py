@@ -47,10 +47,13 @@ __all__ = [
     "OUTPUTS",
     "Sensor",
     "euler",
+    "late",
     "linearize",
+    "needs",
     "outputs",
     "recover",
     "rotation",
+    "states_from",
 ]
 
 ACCELERATIONS = ("ax", "ay", "az")  # specific force, body (sensor) axes, m/s²
@@ -266,6 +269,39 @@ def recover(sensor: Sensor, y, rates, attitude, current=_ZERO3) -> dict:
     if "z" in read:
         out["z"] = read["z"] - _apply(C, r)[..., 2]
     return {s: out[s] for s in STATES if s in out}
+
+
+def late(t: np.ndarray, y: np.ndarray, delay: float) -> np.ndarray:
+    """A channel read `delay` s late put back on time: y(t + delay) on the grid `t`, linearly
+    interpolated between its samples present (finite), missing (NaN) where t + delay passes
+    its last one."""
+    there = np.isfinite(y)
+    if not delay or not there.any():
+        return y
+    s = t + delay
+    out = np.interp(s, t[there], y[there])
+    out[s > t[there][-1]] = np.nan
+    return out
+
+
+def needs(sensor: Sensor) -> tuple[bool, bool]:
+    """Whether undoing `sensor` needs the body rates (a velocity sensor away from the CG) and
+    the attitude (a velocity sensor in earth axes, a depth sensor away from the CG)."""
+    moved = any(sensor.position)
+    velocity = bool({"u", "v", "w"} & set(sensor.outputs))
+    return velocity and moved, (velocity and sensor.frame == "earth") or ("z" in sensor.outputs and moved)
+
+
+def states_from(sensor: Sensor, t: np.ndarray, readings: np.ndarray, rates=None, attitude=None) -> dict:
+    """The CG's body-axis states (state -> (N,)) that a sensor's `readings` (N, len(outputs)),
+    sampled at `t` and read `delay` s late, measure for its known parameters (`recover`, after
+    `late`); `rates` and `attitude` (N, 3) where `needs` says so (else zeros). A sample whose
+    correction needs a missing one is missing."""
+    y = np.column_stack([late(t, readings[:, k], sensor.delay) for k in range(readings.shape[1])])
+    zeros = np.zeros((len(t), 3))
+    rates = zeros if rates is None else np.asarray(rates, float)
+    attitude = zeros if attitude is None else np.asarray(attitude, float)
+    return recover(sensor, y, rates, attitude)
 
 
 # -- the linearisation at trim -------------------------------------------------------------------

@@ -54,7 +54,6 @@ as `scenario.toml`, which `testbed simulate --scenario` runs again.
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from dataclasses import dataclass, field, replace
@@ -64,13 +63,13 @@ from typing import Callable, Mapping
 import numpy as np
 
 from testbed.simulation.autopilot import Autopilot
-from testbed.data import MIN_ROWS, check_name, number, read_toml
+from testbed.data import MIN_ROWS, check_name, number, read_toml, sensor_table, toml_value
 from testbed.errors import InputError, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector, tilde
 from testbed.models.sensors import Sensor
 from testbed.simulation.imperfect import TrialFlight
-from testbed.simulation.sensing import check_sensors, columns, parse_sensor, sensor_table
+from testbed.simulation.sensing import check_sensors, columns, parse_sensor
 from testbed.simulation.trial import Trial, parse_trial, trial_table
 from testbed.simulation.linear_plant import LinearPlant
 from testbed.simulation.plant import Plant
@@ -375,54 +374,37 @@ def _experiment(doc: Mapping, where: str) -> ExperimentSpec:
 
 def scenario_text(s: Scenario) -> str:
     """The scenario file of `s` (`parse_scenario` reads it back to an equal scenario)."""
-    lines = [f"name = {_toml(s.name)}"]
+    lines = [f"name = {toml_value(s.name)}"]
     if s.description:
-        lines.append(f"description = {_toml(s.description)}")
-    lines += [f"duration = {_toml(s.duration)}", f"depth = {_toml(s.depth)}"]
+        lines.append(f"description = {toml_value(s.description)}")
+    lines += [f"duration = {toml_value(s.duration)}", f"depth = {toml_value(s.depth)}"]
     if s.speed is not None:
-        lines.append(f"speed = {_toml(s.speed)}")
+        lines.append(f"speed = {toml_value(s.speed)}")
     lines += [
-        f"control_rate = {_toml(s.control_rate)}",
+        f"control_rate = {toml_value(s.control_rate)}",
         "",
         "[sensors]",
-        f"rate = {_toml(s.sensors.rate)}",
-        f"fin_std = {_toml(s.sensors.fin_std)}",
-        f"noise_std = {_toml(dict(s.sensors.noise_std))}",
-        f"measured = {_toml(list(s.measured))}",
+        f"rate = {toml_value(s.sensors.rate)}",
+        f"fin_std = {toml_value(s.sensors.fin_std)}",
+        f"noise_std = {toml_value(dict(s.sensors.noise_std))}",
+        f"measured = {toml_value(list(s.measured))}",
     ]
     for sensor in s.named_sensors:
-        key = sensor.name if re.fullmatch(r"[A-Za-z0-9_-]+", sensor.name) else _toml(sensor.name)
+        key = sensor.name if re.fullmatch(r"[A-Za-z0-9_-]+", sensor.name) else toml_value(sensor.name)
         lines += ["", f"[sensors.{key}]"]
-        lines += [f"{k} = {_toml(v)}" for k, v in sensor_table(sensor).items()]
+        lines += [f"{k} = {toml_value(v)}" for k, v in sensor_table(sensor).items()]
     if not s.trial.is_perfect:
-        lines += ["", "[trial]", *[f"{k} = {_toml(v)}" for k, v in trial_table(s.trial).items()]]
+        lines += ["", "[trial]", *[f"{k} = {toml_value(v)}" for k, v in trial_table(s.trial).items()]]
     for e in s.experiments:
-        lines += ["", "[[experiment]]", f"name = {_toml(e.name)}"]
+        lines += ["", "[[experiment]]", f"name = {toml_value(e.name)}"]
         if e.duration is not None:
-            lines.append(f"duration = {_toml(e.duration)}")
-        lines += [f"{c} = {_toml(signal_table(sig))}" for c, sig in e.fins.items()]
+            lines.append(f"duration = {toml_value(e.duration)}")
+        lines += [f"{c} = {toml_value(signal_table(sig))}" for c, sig in e.fins.items()]
         if e.autopilot:
-            lines.append(f"autopilot = {_toml({k: signal_table(v) for k, v in e.autopilot.items()})}")
+            lines.append(f"autopilot = {toml_value({k: signal_table(v) for k, v in e.autopilot.items()})}")
         if e.hold_depth is not None:
-            lines.append(f"hold = {_toml({'depth': signal_table(e.hold_depth)})}")
+            lines.append(f"hold = {toml_value({'depth': signal_table(e.hold_depth)})}")
     return "\n".join(lines) + "\n"
-
-
-def _toml(v) -> str:
-    """A TOML value: strings, exact floats (repr round-trips), ints, lists and inline tables."""
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return repr(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml(x) for x in v) + "]"
-    if isinstance(v, Mapping):
-        return "{" + ", ".join(f"{k} = {_toml(x)}" for k, x in v.items()) + "}"
-    raise TypeError(f"no TOML form for {v!r}")
 
 
 # -- the experiments: command programs -----------------------------------------------------------

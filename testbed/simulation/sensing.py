@@ -28,11 +28,13 @@ from __future__ import annotations
 
 import io
 import math
-from typing import Mapping, Sequence
+from dataclasses import replace
+from typing import Sequence
 
 import numpy as np
 
-from testbed.data import check_name, csv_text, number
+from testbed.data import csv_text
+from testbed.data import parse_sensor as data_parse_sensor
 from testbed.errors import InputError
 from testbed.models.linear import INPUTS
 from testbed.models.sensors import ACCELERATIONS, OUTPUTS, Sensor, outputs
@@ -47,7 +49,6 @@ __all__ = [
     "gapped_csv_text",
     "parse_sensor",
     "sample",
-    "sensor_table",
 ]
 
 ACCELERATION_STD = 0.01  # m/s², a navigation-grade MEMS accelerometer's white noise at 50 Hz
@@ -60,55 +61,11 @@ def _default_std(output: str) -> float:
 
 
 def parse_sensor(name: str, doc, where: str) -> Sensor:
-    """The `Sensor` of a `[sensors.NAME]` table (`where`: the file and table, for messages)."""
-    check_name(name, f"{where}: sensor name")
-    if not isinstance(doc, Mapping):
-        raise InputError(f"{where}: expected a table")
-    unknown = sorted(set(doc) - set(SENSOR_KEYS))
-    if unknown:
-        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected {', '.join(SENSOR_KEYS)}")
-    outs = doc.get("outputs")
-    if not isinstance(outs, list) or not all(isinstance(o, str) for o in outs):
-        raise InputError(f"{where}.outputs = {outs!r}; expected a list of {', '.join(OUTPUTS)}")
-    kw = {"outputs": tuple(outs)}
-    for key in ("position", "misalignment"):
-        if key in doc:
-            v = doc[key]
-            if not isinstance(v, list) or len(v) != 3:
-                raise InputError(f"{where}.{key} = {v!r}; expected a list of three numbers")
-            kw[key] = tuple(number(a, f"{where}.{key}") for a in v)
-    if "frame" in doc:
-        kw["frame"] = doc["frame"]
-    for key in ("delay", "rate"):
-        if key in doc:
-            kw[key] = number(doc[key], f"{where}.{key}")
-    for key in ("bias", "scale", "noise_std"):
-        table = doc.get(key, {})
-        if not isinstance(table, Mapping):
-            raise InputError(f"{where}.{key}: expected a table of output = value")
-        kw[key] = {o: number(v, f"{where}.{key}.{o}") for o, v in table.items()}
-    kw["noise_std"] = {**{o: _default_std(o) for o in kw["outputs"] if o in OUTPUTS}, **kw["noise_std"]}
-    try:
-        return Sensor(name=name, **kw)
-    except InputError as exc:
-        raise InputError(f"{where.rsplit(': ', 1)[0]}: {exc}") from None
-
-
-def sensor_table(s: Sensor) -> dict:
-    """The `[sensors.NAME]` table of a sensor (`parse_sensor` reads it back to an equal one)."""
-    out = {
-        "outputs": list(s.outputs),
-        "position": list(s.position),
-        "misalignment": list(s.misalignment),
-        "frame": s.frame,
-        "bias": dict(s.bias),
-        "scale": dict(s.scale),
-        "delay": s.delay,
-    }
-    if s.rate is not None:
-        out["rate"] = s.rate
-    out["noise_std"] = dict(s.noise_std)
-    return out
+    """The `Sensor` of a scenario's `[sensors.NAME]` table (`where`: the file and table, for
+    messages; `data.parse_sensor`), its outputs' noise defaulting to today's sensors'."""
+    sensor = data_parse_sensor(name, doc, where, SENSOR_KEYS)
+    noise = {**{o: _default_std(o) for o in sensor.outputs}, **sensor.noise_std}
+    return replace(sensor, noise_std=noise)
 
 
 def check_sensors(sensors: Sequence[Sensor], rate: float, where: str) -> None:
