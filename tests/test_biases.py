@@ -119,3 +119,16 @@ def test_the_coloured_residual_bound_is_not_shrunk_by_missing_samples():
         est = identify(gappy, config, method="ml-gn")
         ratios.append(np.median(est.crlb_corrected_std / est.std))
     assert abs(ratios[1] - ratios[0]) < 0.1, ratios
+
+
+def test_a_velocity_bias_and_the_offsets_that_hold_that_velocity_trade_exactly():
+    """Y_0 and N_0 can hold a steady sway with no yaw rate; from an initial state at that sway it
+    reads as b_v: with all three free the Fisher information is singular along that direction,
+    with two of them it is not."""
+    from testbed.analysis.identifiability import identifiability
+
+    data = _biased(_turns((FIN_OFFSET, -FIN_OFFSET), duration=20.0), BIASES)
+    all_three = identifiability(data, _start(LATERAL + ("Y_0", "N_0", "b_v")))
+    assert not np.isfinite(all_three.crlb_std[-3:]).any()
+    two = identifiability(data, _start(LATERAL + ("Y_0", "N_0")))
+    assert np.isfinite(two.crlb_std).all()
