@@ -122,3 +122,18 @@ def test_validation_compares_the_states_behind_the_readings():
             assert result[e.name][state]["fit_percent"] > 99.9, (e.name, state)
     raw = validate(read, replace(config, sensors=())).to_dict()
     assert min(raw[e.name]["u"]["fit_percent"] for e in truth) < 99.0
+
+
+def test_a_slower_sensor_keeps_its_own_samples():
+    """A 10 Hz log in a 20 Hz record, 0.1 s late: put back on time, its samples move back by two
+    rows and the rows between stay missing (never interpolated in)."""
+    from testbed.models.sensors import late
+
+    t = np.arange(0.0, 3.0, 0.05)
+    y = np.sin(t)
+    y[1::2] = np.nan  # a sample every other row
+    back = late(t, y, 0.1)
+    np.testing.assert_allclose(
+        back[: len(t) - 2], np.where(np.isnan(y[2:]), np.nan, np.sin(t[2:])), equal_nan=True
+    )
+    assert np.isnan(back[-2:]).all()

@@ -272,15 +272,17 @@ def recover(sensor: Sensor, y, rates, attitude, current=_ZERO3) -> dict:
 
 
 def late(t: np.ndarray, y: np.ndarray, delay: float) -> np.ndarray:
-    """A channel read `delay` s late put back on time: y(t + delay) on the grid `t`, linearly
-    interpolated between its samples present (finite), missing (NaN) where t + delay passes
-    its last one."""
+    """A channel read `delay` s late put back on time: y(t + delay) on the uniform grid `t`,
+    linearly interpolated between its samples present (finite), and present only where the
+    sample nearest t + delay is (a slower sensor keeps its own samples, moved back by the
+    delay, never filled in); missing where t + delay passes its last one."""
     there = np.isfinite(y)
     if not delay or not there.any():
         return y
     s = t + delay
     out = np.interp(s, t[there], y[there])
-    out[s > t[there][-1]] = np.nan
+    nearest = np.clip(np.rint((s - t[0]) / (t[1] - t[0])).astype(int), 0, len(t) - 1)
+    out[~there[nearest] | (s > t[there][-1])] = np.nan
     return out
 
 
