@@ -23,6 +23,21 @@ def assert_sensitivities_match_complex_step(prob, p: np.ndarray) -> list[np.ndar
     return sens
 
 
+def assert_curvature_matches_complex_step(prob, p: np.ndarray, weights) -> None:
+    """`recursions.curvature(prob, p, weights)` against the complex-step derivatives of the
+    weighted first-order sensitivities, and symmetric."""
+    H = recursions.curvature(prob, p, weights)
+    ref = np.zeros_like(H)
+    h = 1e-30
+    for j in range(prob.n_params):
+        pc = p.astype(complex)
+        pc[j] += 1j * h
+        for r, w, S in zip(prob.records, weights, recursions.sensitivities(prob, pc)):
+            ref[prob.columns(r), j] += np.einsum("nk,nkp->p", w, S.imag / h)
+    np.testing.assert_allclose(H, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
+    np.testing.assert_allclose(H, H.T, atol=1e-12 * np.abs(H).max())
+
+
 def qr_cost(prob, values: np.ndarray, R: np.ndarray) -> float:
     """J_M at the free `values` with R held, the initial states from `likelihood.fit_initial_states`
     (QR factors): what the simplex's concentrated cost must equal."""

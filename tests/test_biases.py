@@ -91,8 +91,8 @@ def test_the_filters_and_ml_fem_refuse_a_free_bias_and_the_screen_fixes_a_headin
             identify(data, _start(LATERAL + ("b_r",)), method=method)
         assert "\n" not in str(exc.value)
     for config, words in (
-        (_start(LATERAL + ("b_r",)), r"frees b_r; ml-fem"),
-        (_start(LATERAL + ("N_0",), ("N_0",)), r"frees N_0 per record; ml-fem"),
+        (_start(LATERAL + ("b_r",)), r"free lists b_r; ml-fem takes .* expected them fixed"),
+        (_start(LATERAL + ("N_0",), ("N_0",)), r"per_record lists N_0; ml-fem runs one model"),
     ):
         with pytest.raises(InputError, match=words) as exc:
             identify(data, config, method="ml-fem")

@@ -5,11 +5,11 @@ import pytest
 
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed.identification import concentrated, likelihood, recursions
+from testbed.identification import concentrated, likelihood
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE
 from testbed.identification.problem import problem, shifted
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector
-from references import assert_sensitivities_match_complex_step, qr_cost
+from references import assert_curvature_matches_complex_step, assert_sensitivities_match_complex_step, qr_cost
 
 from test_offsets import LATERAL, _start  # noqa: F401  (shared data)
 
@@ -71,15 +71,7 @@ def test_second_order_sensitivities_with_a_delay_match_complex_step():
     prob = problem(data, _start(LATERAL + ("input_delay",)).with_coefficients({"input_delay": 0.03}))
     p = likelihood.initial_states(prob, prob.start)
     weights = [np.random.default_rng(3).normal(size=r.y.shape) for r in prob.records]
-    H = recursions.curvature(prob, p, weights)
-    ref = np.zeros_like(H)
-    h = 1e-30
-    for j in range(prob.n_params):
-        pc = p.astype(complex)
-        pc[j] += 1j * h
-        for r, w, S in zip(prob.records, weights, recursions.sensitivities(prob, pc)):
-            ref[prob.columns(r), j] += np.einsum("nk,nkp->p", w, S.imag / h)
-    np.testing.assert_allclose(H, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
+    assert_curvature_matches_complex_step(prob, p, weights)
 
 
 def test_the_simplex_cost_with_a_delay_is_the_qr_likelihood():
@@ -106,7 +98,7 @@ def test_the_delay_is_recovered_where_a_model_without_it_is_biased():
 def test_the_filters_refuse_a_free_delay():
     data = _late(duration=5.0)
     config = _start(LATERAL + ("input_delay",))
-    for method, words in (("mekf", "inputs' delay"), ("ekf", "inputs' delay"), ("ml-fem", "input delay")):
+    for method, words in (("mekf", "inputs' delay"), ("ekf", "inputs' delay"), ("ml-fem", "inputs' delay")):
         with pytest.raises(InputError, match=words) as exc:
             identify(data, config, method=method)
         assert "\n" not in str(exc.value)

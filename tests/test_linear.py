@@ -21,7 +21,7 @@ from testbed.estimators import equation_error
 from testbed.identification import likelihood, prediction, recursions, scan
 from testbed.identification.problem import problem
 from testbed.models.linear import IX, NX, continuous
-from references import assert_sensitivities_match_complex_step
+from references import assert_curvature_matches_complex_step, assert_sensitivities_match_complex_step
 
 VERTICAL_SUBSET = ("u", "w", "q", "theta", "z", "p", "phi")
 
@@ -49,17 +49,8 @@ def test_second_order_sensitivities_match_complex_step():
     random = [rng.normal(size=r.y.shape) for r in prob.records]
     one_hot = [np.zeros(r.y.shape) for r in prob.records]
     one_hot[1][25, VERTICAL_SUBSET.index("q")] = 1.0  # ∂²q[25]/∂p∂p of the second experiment
-    h = 1e-30
     for weights in (random, one_hot):
-        H = recursions.curvature(prob, p, weights)
-        ref = np.zeros_like(H)
-        for j in range(prob.n_params):
-            pc = p.astype(complex)
-            pc[j] += 1j * h
-            for r, w, S in zip(prob.records, weights, recursions.sensitivities(prob, pc)):
-                ref[prob.columns(r), j] += np.einsum("nk,nkp->p", w, S.imag / h)
-        np.testing.assert_allclose(H, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
-        np.testing.assert_allclose(H, H.T, atol=1e-12 * np.abs(H).max())
+        assert_curvature_matches_complex_step(prob, p, weights)
 
 
 def test_zero_order_hold_model_matches_fine_rk4_with_singular_A():

@@ -137,3 +137,12 @@ def test_a_slower_sensor_keeps_its_own_samples():
         back[: len(t) - 2], np.where(np.isnan(y[2:]), np.nan, np.sin(t[2:])), equal_nan=True
     )
     assert np.isnan(back[-2:]).all()
+
+
+def test_the_filters_take_the_states_behind_the_readings():
+    from testbed.identification.problem import one_model
+
+    truth = experiments(seed=0, duration=10.0, noise=None)[0]
+    (states,), config = one_model([_as_read(truth)], _config(), "mekf")
+    np.testing.assert_allclose(states.y[:-LATE], truth.y[:-LATE], atol=1e-10)
+    assert config.sensors == (DVL, DEPTH)  # applied once: the record says so

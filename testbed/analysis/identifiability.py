@@ -21,8 +21,7 @@ from testbed.identification.problem import base_name, check_fit, expanded
 from testbed.identification.bounds import crlb, fisher
 from testbed.simulation.measurements import noise_from_data
 from testbed.models.linear import (
-    DELAY,
-    OUTPUT_TERMS,
+    OUTSIDE_EQUATIONS,
     ITHETA,
     IX,
     NX,
@@ -230,7 +229,7 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
     # the output terms and the inputs' delay are no part of the equations' structure: no row
     # operation moves them
-    dynamic = tuple(n for n in config.free if n not in OUTPUT_TERMS + (DELAY,))
+    dynamic = tuple(n for n in config.free if n not in OUTSIDE_EQUATIONS)
     struct = _copied(structural(structure(config.vehicle), theta, dynamic, measured), free)
     bounds = crlb(F)
     std, corr = bounds.std.copy(), bounds.correlation.copy()

@@ -59,9 +59,9 @@ from testbed.estimators.base import (
     unphysical,
 )
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
-from testbed.identification.problem import Problem, check_shared, problem, unbiased
+from testbed.identification.problem import Problem, one_model, problem
 from testbed.identification.innovations import BODY
-from testbed.models.linear import DELAY, IX, NX, OUTPUT_TERMS, STATES
+from testbed.models.linear import IX, NX, STATES
 
 __all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
 
@@ -295,15 +295,6 @@ def _fit(
     opts: FilterErrorOptions,
     callback: Callback | None,
 ) -> Estimate:
-    refused = list(config.per_record) + [n for n in config.free if n in OUTPUT_TERMS + (DELAY,)]
-    if refused:
-        raise InputError(
-            f"{config.source or 'config'}: [identify] frees {refused[0]}"
-            f"{' per record' if refused[0] in config.per_record else ''}; ml-fem filters every "
-            "record with one model, the outputs as the states and the inputs as given: expected "
-            "no per_record and the biases, the current and the input delay fixed, or an "
-            "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
-        )
     gaps = next((e for e in experiments if np.isnan(np.asarray(e.y, dtype=float)).any()), None)
     if gaps is not None:
         raise InputError(
@@ -311,8 +302,7 @@ def _fit(
             "ml-fem runs the steady-state filter over every sample: expected complete records, "
             "or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm) or mekf"
         )
-    experiments, config = unbiased(experiments, config)
-    check_shared(config, "ml-fem")
+    experiments, config = one_model(experiments, config, "ml-fem")
     with recursions.counting() as tally, scan.compiled():
         t0 = time.perf_counter()
         prob = problem(experiments, config)

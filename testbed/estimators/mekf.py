@@ -182,12 +182,10 @@ from testbed.estimators.base import (
     option,
     unphysical,
 )
-from testbed.identification.problem import check_shared, unbiased
+from testbed.identification.problem import one_model
 from testbed.identification.recursions import simulated
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
 from testbed.models.linear import (
-    DELAY,
-    OUTPUT_TERMS,
     IX,
     ITHETA,
     NX,
@@ -857,21 +855,7 @@ def run_filter(
     docstring, "Fixed-interval iterations"). `modified`: centre the Jacobian on a parallel KF
     (square-root only); otherwise on the filter's own estimate."""
     t_start = time.perf_counter()
-    if config.per_record:
-        raise InputError(
-            f"{config.source or 'config'}: [identify] per_record lists {', '.join(config.per_record)}; "
-            f"{method} estimates one value per name over the records in sequence: expected no "
-            "per_record, or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm) or equation-error"
-        )
-    terms = [n for n in config.free if n in OUTPUT_TERMS + (DELAY,)]
-    if terms:
-        raise InputError(
-            f"{config.source or 'config'}: [identify] free lists {terms[0]}; {method} takes the "
-            "outputs' biases, the current and the inputs' delay as the config gives them: expected them fixed, or an "
-            "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
-        )
-    experiments, config = unbiased(experiments, config)
-    check_shared(config, method)
+    experiments, config = one_model(experiments, config, method)
     if options.state_noise is None:
         options = replace(options, state_noise=0.0 if square_root else CONVENTIONAL_FLOOR)
     s = structure(config.vehicle)

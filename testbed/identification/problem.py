@@ -25,8 +25,7 @@ from testbed.data import Experiment, ModelConfig, check_config, check_experiment
 from testbed.errors import InputError
 from testbed.models.linear import (
     CURRENT,
-    DELAY,
-    OUTPUT_TERMS,
+    OUTSIDE_EQUATIONS,
     IBIAS,
     ICURRENT,
     IDELAY,
@@ -49,13 +48,12 @@ __all__ = [
     "Record",
     "base_name",
     "check_fit",
-    "check_shared",
     "check_inputs",
     "expanded",
     "free_values",
+    "one_model",
     "problem",
     "shifted",
-    "unbiased",
 ]
 
 
@@ -316,9 +314,8 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
     theta = theta_vector(config.coefficients)
     channels = tuple(s for s in STATES if any(s in e.measured for e in experiments))
     free, owner = expanded(config, [e.name for e in experiments])
-    current = any(base_name(n) in CURRENT for n in free) or any(
-        theta_vector(config.record_coefficients(e.name))[ICURRENT].any() for e in experiments
-    )
+    own = [theta_vector(config.record_coefficients(e.name)) for e in experiments]  # each record's θ
+    current = any(base_name(n) in CURRENT for n in free) or any(theta[ICURRENT].any() for theta in own)
     for e in experiments:
         if current and "psi" not in e.measured and {"u", "v"} & set(e.measured):
             raise InputError(
@@ -351,12 +348,7 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
         )
         offset += len(measured)
     index = np.array([ITHETA[base_name(n)] for n in free], dtype=int)
-    own = [e.name in config.record_values for e in experiments]
-    thetas = (
-        np.array([theta_vector(config.record_coefficients(e.name)) for e in experiments])
-        if any(own)
-        else None
-    )
+    thetas = np.array(own) if any(e.name in config.record_values for e in experiments) else None
     return Problem(
         structure(config.vehicle),
         theta,
@@ -372,35 +364,48 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
     )
 
 
-def unbiased(experiments: Sequence[Experiment], config: ModelConfig) -> tuple[list[Experiment], ModelConfig]:
-    """The experiments with the config's output terms (biases, the current) taken off their
-    measured states and its input delay applied to their inputs (each record's own,
-    `ModelConfig.record_coefficients`), and the config without them: for the methods that take
-    the outputs as the states and the inputs as recorded (the filters)."""
-    out = []
-    zero = dict.fromkeys(OUTPUT_TERMS + (DELAY,), 0.0)
-    for e in experiments:
-        prob = problem([e], replace(config, free=(), per_record=()), resolve=False)
-        r, none = prob.records[0], np.zeros(0)
+def one_model(
+    experiments: Sequence[Experiment], config: ModelConfig, method: str
+) -> tuple[list[Experiment], ModelConfig]:
+    """For a `method` that runs one model over every record, with the outputs taken as the states
+    and the inputs as recorded (the filters): the experiments with the config's sensors undone
+    (`ModelConfig.readings`), its output terms (biases, the current) taken off their measured
+    states and its input delay applied to their inputs (each record's own), and the config
+    without them. `InputError` where the config names values per record, frees an output term
+    or the delay, or gives a record its own coefficient or offset."""
+    source = config.source or "config"
+    if config.per_record:
+        raise InputError(
+            f"{source}: [identify] per_record lists {', '.join(config.per_record)}; {method} runs "
+            "one model over every record: expected no per_record, or an output-error method "
+            "(ml-gn, ml-lm, ml-nr, ml-nm) or equation-error"
+        )
+    terms = [n for n in config.free if n in OUTSIDE_EQUATIONS]
+    if terms:
+        raise InputError(
+            f"{source}: [identify] free lists {terms[0]}; {method} takes the outputs' biases, the "
+            "current and the inputs' delay as the config gives them: expected them fixed, or an "
+            "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
+        )
+    experiments = config.readings(experiments)
+    prob = problem(experiments, replace(config, free=()), resolve=False)
+    out, none = [], np.zeros(0)
+    for e, r in zip(experiments, prob.records):
         terms = prob.output_terms(r, none)
         if np.any(terms):
             e = replace(e, y=np.asarray(e.y, dtype=float) - terms)
         out.append(replace(e, inputs=prob.inputs(r, none)) if prob.delayed else e)
+    zero = dict.fromkeys(OUTSIDE_EQUATIONS, 0.0)
     records = {name: {**values, **zero} for name, values in config.record_values.items()}
-    return out, replace(config, coefficients={**config.coefficients, **zero}, record_values=records)
-
-
-def check_shared(config: ModelConfig, method: str) -> None:
-    """`InputError` where `config` gives some record its own coefficient or offset (an
-    estimate's per-record values, `ModelConfig.record_values`): `method` runs one model over
-    every record."""
+    config = replace(config, coefficients={**config.coefficients, **zero}, record_values=records)
     own = {e: n for e, values in config.record_values.items() for n, v in values.items() if v}
     if own:
         record, name = next(iter(own.items()))
         raise InputError(
-            f"{config.source or 'config'}: record {record!r} has its own {name}; {method} runs one "
-            "model over every record: expected shared values, or an output-error method"
+            f"{source}: record {record!r} has its own {name}; {method} runs one model over every "
+            "record: expected shared values, or an output-error method"
         )
+    return out, config
 
 
 def expanded(config: ModelConfig, names: Sequence[str]) -> tuple[tuple[str, ...], np.ndarray]:

@@ -34,6 +34,7 @@ __all__ = [
     "NX",
     "OFFSETS",
     "OUTPUT_TERMS",
+    "OUTSIDE_EQUATIONS",
     "PARAMETERS",
     "STATES",
     "Structure",
@@ -106,6 +107,7 @@ OUTPUT_TERMS = BIASES + CURRENT  # the parameters that act on the outputs alone
 # t + input_delay (an encoder or a logger late by that much).
 DELAY = "input_delay"
 PARAMETERS = COEFFICIENTS + OFFSETS + OUTPUT_TERMS + (DELAY,)  # the model's parameter vector θ, in this order
+OUTSIDE_EQUATIONS = OUTPUT_TERMS + (DELAY,)  # the parameters no matrix of the equations holds
 NX, NU, NTHETA = len(STATES), len(INPUTS), len(PARAMETERS)
 MIN_SPEED = 1e-3  # m/s: trim speeds below it are absurd (and near 1e-150 the fluid terms are 0/0)
 # m/s: Mach 0.3 in water (sound: ~1500 m/s); beyond it no incompressible fluid model (MuJoCo's,
