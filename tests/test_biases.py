@@ -132,3 +132,11 @@ def test_a_velocity_bias_and_the_offsets_that_hold_that_velocity_trade_exactly()
     assert not np.isfinite(all_three.crlb_std[-3:]).any()
     two = identifiability(data, _start(LATERAL + ("Y_0", "N_0")))
     assert np.isfinite(two.crlb_std).all()
+
+
+def test_the_simplex_cost_with_given_biases_current_and_delay_is_the_qr_likelihood():
+    data = _biased(_turns((FIN_OFFSET, -FIN_OFFSET), duration=10.0), BIASES)
+    given = {"b_r": 0.002, "b_v": 0.01, "c_N": 0.05, "input_delay": 0.03}
+    prob = problem(data, _start(LATERAL).with_coefficients(given))
+    R = np.full(len(prob.channels), 1e-4)
+    assert concentrated.Cost(prob)(prob.start, R) == pytest.approx(qr_cost(prob, prob.start, R), rel=1e-9)

@@ -12,7 +12,8 @@ The outputs are linear in the measured components x0 of the initial state,
 
 the adjoint recursion run backwards. A record with missing samples weights each sample by
 W P[k], P[k] 1 for a channel's sample present and 0 for one missing: its Gramian is summed
-sample by sample (`kernels.masked_gramian`), its adjoint and residuals take P[k] in. A ≥ W (its k = 0 term): positive definite. The cost is
+sample by sample (`kernels.masked_gramian`), its adjoint and residuals take P[k] in.
+A ≥ W (its k = 0 term): positive definite. The cost is
 then summed from the residuals of the trajectory simulated from that x0, never from
 `vᵀWv − bᵀx0`, whose cancellation would cost digits: x0's rounding error (the normal
 equations square the condition number) enters the cost only to second order. This is the
@@ -29,7 +30,7 @@ import numpy as np
 from testbed.identification.likelihood import EXPLODE, exploded, fit_initial_states
 from testbed.identification.problem import Problem
 from testbed.identification.recursions import discrete_models, simulated
-from testbed.models.linear import NU, NX
+from testbed.models.linear import IBIAS, ICURRENT, IDELAY, NU, NX
 
 __all__ = ["CONDITION", "Cost", "cost"]
 
@@ -40,11 +41,16 @@ CONDITION = 1e10
 
 class Cost:
     """`J_M(θ)` of `prob` at the free values with R held, prepared once (the records stacked per
-    model they share, `Problem.key`) for the thousands of calls of a simplex search; each call is one compiled
-    pass per sampling interval (`kernels.concentrated_sse`)."""
+    model they share, `Problem.key`; given output terms taken off and a given delay applied)
+    for the thousands of calls of a simplex search; each call is one compiled pass per model
+    (`kernels.concentrated_sse`)."""
 
     def __init__(self, prob: Problem):
         self.prob, self.groups = prob, []
+        # what moves with the free values, done per call; what is given, once here
+        self.moving_inputs = prob.delayed and bool(np.isin(prob.index, IDELAY).any())
+        self.moving_terms = prob.biased and bool(np.isin(prob.index, np.r_[IBIAS, ICURRENT]).any())
+        start = prob.start
         for key in dict.fromkeys(prob.key(r) for r in prob.records):
             records = [r for r in prob.records if prob.key(r) == key]
             starts = np.cumsum([0] + [len(r.y) for r in records])
@@ -53,10 +59,15 @@ class Cost:
             for k, r in enumerate(records):
                 measured[k, : len(r.measured)] = r.measured
                 y[starts[k] : starts[k + 1], : len(r.measured)] = r.y
+                if prob.biased and not self.moving_terms:
+                    y[starts[k] : starts[k + 1], : len(r.measured)] -= prob.output_terms(r, start)
                 if r.present is not None:
                     present[starts[k] : starts[k + 1], : len(r.measured)] = r.present
+            y[present == 0] = 0.0  # a missing sample stays 0
             complete = np.array([r.present is None for r in records])
-            inputs = np.ascontiguousarray(np.concatenate([r.inputs for r in records]), dtype=float)
+            inputs = np.ascontiguousarray(
+                np.concatenate([prob.inputs(r, start) for r in records]), dtype=float
+            )
             counts = np.array([len(r.measured) for r in records], dtype=np.int64)
             self.groups.append((key, records, starts, measured, counts, y, present, complete, inputs))
 
@@ -75,11 +86,11 @@ class Cost:
                 models = discrete_models(prob, values, 0)
                 for key, records, starts, measured, counts, y, present, complete, inputs in self.groups:
                     E = models[key].E
-                    if prob.delayed:  # the fins' angles: the recorded ones advanced by the delay
+                    if self.moving_inputs:  # the fins' angles: the recorded ones advanced by the delay
                         inputs = np.ascontiguousarray(
                             np.concatenate([prob.inputs(r, values) for r in records])
                         )
-                    if prob.biased:  # the measured states: the data less their output terms
+                    if self.moving_terms:  # the measured states: the data less their output terms
                         y = y.copy()
                         for k, r in enumerate(records):
                             y[starts[k] : starts[k + 1], : len(r.measured)] -= prob.output_terms(r, values)
