@@ -3,8 +3,8 @@
 Scenario II flown on the linear truth (the analytic model of the bundled torpedo, so the
 coefficients the data come from are known exactly) with the truth's turbulence, body-axis force
 and moment disturbances as first-order Gauss-Markov processes ([trial.turbulence],
-docs/files.md), at `--scale` times the sizes of `II-trial` (a 0.01 m/s velocity fluctuation at
-scale 1) and correlation time `--time`. Every seed's run is fitted by `ml-gn` and `ml-fem` from
+docs/files.md), at `--scale` times the loads of a 0.01 m/s velocity fluctuation (`II-trial`'s
+at scale 0.1) and correlation time `--time`. Every seed's run is fitted by `ml-gn` and `ml-fem` from
 the same guess, the run's free coefficients × exp(0.3 N(0, 1)). Per coefficient the table gives
 each method's mean error over its mean σ (unbiased: |·| < 0.5) and its mean σ over the scatter
 of its estimates (honest bounds: 0.7–1.4).
@@ -31,12 +31,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script,
 from studies.seeds import fit_seeds, scatter  # noqa: E402
 
 METHODS = ("ml-gn", "ml-fem")
-FORCE_STD = (2.7, 21.0, 21.0)  # N: II-trial's turbulence at scale 1
+FORCE_STD = (2.7, 21.0, 21.0)  # N: a 0.01 m/s fluctuation's loads, ten times II-trial's
 MOMENT_STD = (0.3, 6.3, 6.3)  # N m
 
 
 def scenario_file(out: Path, scale: float, time: float, duration: float | None) -> Path:
-    """Scenario II with the turbulence at `scale` of II-trial's, correlation `time` s."""
+    """Scenario II with the turbulence at `scale` of a 0.01 m/s fluctuation's, correlation `time` s."""
     text = scenario_text(scenario("II"))
     force = ", ".join(f"{scale * f:g}" for f in FORCE_STD)
     moment = ", ".join(f"{scale * m:g}" for m in MOMENT_STD)
@@ -82,14 +82,19 @@ def study(seeds: int, scale: float, time: float, out: Path, duration: float | No
         ]
         table.write(f"{n},{truth[i]:.6g}," + ",".join(cells) + "\n")
     used = ", ".join(f"{m} {spread[m].used}/{seeds} converged" for m in METHODS)
-    table.write(f"# {used}; turbulence {scale:g} × II-trial's, correlation {time:g} s\n")
+    table.write(f"# {used}; turbulence {scale:g} × a 0.01 m/s fluctuation's, correlation {time:g} s\n")
     return table.getvalue()
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--scale", type=float, default=0.1, help="the turbulence's size, × II-trial's")
+    ap.add_argument(
+        "--scale",
+        type=float,
+        default=0.1,
+        help="the turbulence's size, × a 0.01 m/s fluctuation's loads (II-trial: 0.1)",
+    )
     ap.add_argument("--time", type=float, default=0.5, help="its correlation time, s")
     ap.add_argument("--duration", type=float, default=None, help="s per experiment (default: II's)")
     ap.add_argument("--out", type=Path, default=Path("runs/turbulence"))

@@ -1,0 +1,55 @@
+"""`II-trial` fitted as `studies/trial.py` fits it: with the sensors' known geometry and the
+trial's parameters free, what the scenario injected comes back, and the coefficients with it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from studies.trial import MAX_ITER, TRIAL, injected, known, misses
+from testbed.data import load_data
+from testbed.estimators import identify
+from testbed.models.linear import structure, theta_vector, tilde
+from testbed.simulation.runs import simulate
+from testbed.simulation.scenario import scenario
+
+
+def test_the_injected_offsets_are_the_loads_less_the_fin_offsets_and_velocity_biases(tmp_path):
+    """The K and N rows by hand: propeller torque, the weight's moment about the displaced CG,
+    the recorded fins' offsets through the control derivatives (δ_true = δ_rec − offset), the
+    DVL's biases through the velocity derivatives."""
+    s = scenario("II-trial")
+    run = simulate(s, seed=1, out=tmp_path / "run", truth="linear", duration=1.0)
+    config = load_data([run])[1]
+    c, trial, W = dict(config.coefficients), s.trial, config.vehicle.weight
+    _, At, _, _ = tilde(structure(config.vehicle), theta_vector(config.coefficients))
+    dvl = next(x for x in s.named_sensors if "v" in x.outputs)
+    expected = (
+        trial.roll_moment
+        + trial.cg_offset[1] * (W + trial.weight_excess)
+        - c["K_der"] * trial.offsets[1]
+        + c["K_del"] * trial.offsets[2]
+        - c.get("K_dr", 0.0) * trial.offsets[0]
+        - c["K_v"] * dvl.bias["v"]
+        - At[3, 2] * dvl.bias["w"]
+    )
+    got = injected(s, config, W)
+    assert np.isclose(got["K_0"], expected, rtol=1e-12)
+    assert np.isclose(
+        got["N_0"],
+        -c["N_dr"] * trial.offsets[0] - At[5, 1] * dvl.bias["v"] - At[5, 2] * dvl.bias["w"],
+        rtol=1e-12,
+    )
+    assert got["input_delay"] == trial.fin_log_delay and got["c_N"] == trial.current[0]
+
+
+def test_ii_trial_gives_back_its_biases_offsets_current_and_delay(tmp_path):
+    s = scenario("II-trial")
+    run = simulate(s, seed=1, out=tmp_path / "run", truth="linear")
+    experiments, config = load_data([run])
+    with_trial = replace(config, free=config.free + TRIAL, sensors=known(s), screen=False)
+    est = identify(experiments, with_trial, method="ml-gn", max_iter=MAX_ITER)
+    assert est.converged
+    assert misses(est, injected(s, config, config.vehicle.weight)) == []
+    assert misses(est, {n: config.coefficients[n] for n in config.free}) == []
