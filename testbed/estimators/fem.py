@@ -26,6 +26,11 @@ F is estimated through f² (the spectral densities), bounded below by 0: the lik
 f at f = 0 (it depends on f²), so Gauss-Newton in f never reaches a row without process noise,
 where in f² it stops on the bound (an active bound: held at 0 while the gradient points below).
 
+A free input delay moves the recorded fins by linear interpolation (`Problem.inputs`), so the
+likelihood has a kink at each whole sample of delay; the differences in τ stay on one side of it,
+and where the delay sits at a whole sample with the likelihood rising on both sides (the fins
+logged a whole number of samples late: its minimum over τ) it is held there like f² on its bound.
+
 Converged when the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (over the parameters off
 their bound) and the update of 𝒮 changed no variance by more than `r_tol` (relative). The Cramér-Rao
 bounds are those of the information `Σ (∂ν/∂p)ᵀ 𝒮⁻¹ (∂ν/∂p)` at the estimate, the initial states
@@ -38,6 +43,7 @@ residual variance (the config's `noise_std` where it gives a channel's): the fit
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, replace
 from typing import Sequence
@@ -61,7 +67,7 @@ from testbed.estimators.base import (
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
 from testbed.identification.problem import Problem, one_model, problem
 from testbed.identification.innovations import BODY
-from testbed.models.linear import IX, NX, STATES
+from testbed.models.linear import DELAY, IX, NX, STATES
 
 __all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
 
@@ -131,9 +137,18 @@ def noise_rows(prob: Problem, spec: str) -> np.ndarray:
     return np.array([BODY.index(n) for n in names], dtype=int)
 
 
-def _group(r) -> tuple:
-    """The group of a record: its sampling interval and measured states, which set its filter."""
-    return (r.dt, tuple(r.measured))
+def _key(r) -> tuple:
+    """The group of a record: its sampling interval, measured states and sampling cycle, which
+    set its filter."""
+    phases = innovations.cycle(r.present, len(r.measured))
+    return (r.dt, tuple(r.measured), phases.tobytes(), phases.shape)
+
+
+def _by_phase(v: np.ndarray, on: np.ndarray):
+    """(j, phase j's samples of `v` (·, k, …) over the channels it has) for each phase of `on` (P, k)."""
+    P = len(on)
+    for j, m in enumerate(on):
+        yield j, v[j::P][:, m]
 
 
 class _Likelihood:
@@ -143,13 +158,16 @@ class _Likelihood:
         self.prob, self.rows, self.nf = prob, rows, prob.n_free
         self.nx = prob.n_params - prob.n_free
         self.noisy = len(rows) > 0
-        self.states = {}
-        for r in prob.records:
+        self.kink = False  # set by `terms`
+        self.keys = [_key(r) for r in prob.records]
+        self.states, self.phases = {}, {}
+        for r, key in zip(prob.records, self.keys):
             d = recursions.discrete(prob, theta0, r.dt, order=1)
             coupled = d.E[:, :NX] != 0
             if d.dE is not None:
                 coupled = coupled | (d.dE[:, :, :NX] != 0).any(axis=0)
-            self.states[(r.dt, tuple(r.measured))] = innovations.observed(coupled, r.measured)
+            self.states[key] = innovations.observed(coupled, r.measured)
+            self.phases[key] = np.frombuffer(key[2], dtype=bool).reshape(key[3])
         self.groups = sorted(self.states)
 
     def q(self, p: np.ndarray) -> np.ndarray:
@@ -158,81 +176,126 @@ class _Likelihood:
         q[self.rows] = p[self.nf + self.nx :]
         return q
 
+    def outputs(self, p: np.ndarray) -> list[np.ndarray]:
+        """Each record's measured states with the output terms at p taken off (0 where missing)."""
+        prob, values = self.prob, p[: self.nf]
+        if not prob.biased:
+            return [r.y for r in prob.records]
+        return [r.residual(prob.output_terms(r, values)) for r in prob.records]
+
     def run(self, p: np.ndarray, S: dict):
         """(filters, innovations per record) at p with the innovations' covariances `S` (per
-        group), or None where the filter cannot be built or its innovations are not finite."""
-        prob = self.prob
+        group and phase), or None where the filter cannot be built or its innovations are not
+        finite."""
+        prob, values = self.prob, p[: self.nf]
+        ys = self.outputs(p)
         try:
             with np.errstate(over="ignore", invalid="ignore"):
-                flt = innovations.filters(prob, p[: self.nf], self.q(p), S, self.states)
-                nus = [innovations.innovations(r, flt[_group(r)], prob.x0(r, p)) for r in prob.records]
+                flt = innovations.filters(prob, values, self.q(p), S, self.states, self.phases)
+                nus = [
+                    innovations.innovations(r, flt[key], prob.x0(r, p), y, prob.inputs(r, values))
+                    for r, key, y in zip(prob.records, self.keys, ys)
+                ]
         except np.linalg.LinAlgError:
             return None
         if not all(np.all(np.isfinite(v)) for v in nus) or likelihood.exploded(
-            prob, [r.y - v for r, v in zip(prob.records, nus)]
+            prob, [y - v for y, v in zip(ys, nus)]
         ):
             return None
         return flt, nus
 
     def covariances(self, nus) -> dict:
-        """𝒮 per group in closed form: 1/N Σ ννᵀ; with no process noise the pooled diagonal
-        residual variance of output error (`likelihood.noise_variance`)."""
-        prob = self.prob
+        """𝒮 per group and phase in closed form, 1/N Σ ννᵀ over the phase's samples and
+        channels; with no process noise the pooled diagonal residual variance of output error
+        (`likelihood.noise_variance`)."""
         if not self.noisy:
-            R = likelihood.noise_variance(prob, nus)
-            return {r_key: np.diag(R[self.channels(r_key)]) for r_key in self.groups}
-        sums = {g: 0.0 for g in self.groups}
-        counts = {g: 0 for g in self.groups}
-        for r, v in zip(prob.records, nus):
-            sums[_group(r)] = sums[_group(r)] + v.T @ v
-            counts[_group(r)] += len(v)
-        return {g: sums[g] / counts[g] for g in self.groups}
+            R = likelihood.noise_variance(self.prob, nus)
+            return {g: [np.diag(R[self.channels(g)][m]) for m in self.phases[g]] for g in self.groups}
+        sums = {g: [0.0] * len(self.phases[g]) for g in self.groups}
+        counts = {g: [0] * len(self.phases[g]) for g in self.groups}
+        for key, v in zip(self.keys, nus):
+            for j, vj in _by_phase(v, self.phases[key]):
+                sums[key][j] = sums[key][j] + vj.T @ vj
+                counts[key][j] += len(vj)
+        return {g: [a / n for a, n in zip(sums[g], counts[g])] for g in self.groups}
 
     def channels(self, key) -> np.ndarray:
         """The channels (indexes into `prob.channels`) of a group's records."""
-        return next(r.channels for r in self.prob.records if _group(r) == key)
+        return next(r.channels for r, k in zip(self.prob.records, self.keys) if k == key)
 
     def weighted(self, nus, S) -> float:
         """½ Σ νᵀ 𝒮⁻¹ ν (𝒮 held: the relaxation's cost)."""
         return 0.5 * sum(
-            float(np.sum(v * np.linalg.solve(S[_group(r)], v.T).T)) for r, v in zip(self.prob.records, nus)
+            float(np.sum(vj * np.linalg.solve(S[key][j], vj.T).T))
+            for key, v in zip(self.keys, nus)
+            for j, vj in _by_phase(v, self.phases[key])
         )
 
     def negative_log_likelihood(self, nus) -> float:
-        """L with 𝒮 in closed form: Σ_groups (N/2)(k + ln det 2π𝒮) (output error's with none)."""
+        """L with 𝒮 in closed form: Σ over groups and phases (N_j/2)(k_j + ln det 2π𝒮_j) (output
+        error's with none)."""
         if not self.noisy:
             return likelihood.negative_log_likelihood(self.prob, nus)
         S = self.covariances(nus)
-        n = {g: 0 for g in self.groups}
-        for r in self.prob.records:
-            n[_group(r)] += len(r.y)
+        n = {g: np.zeros(len(self.phases[g])) for g in self.groups}
+        for r, key in zip(self.prob.records, self.keys):
+            P = len(self.phases[key])
+            n[key] += [len(r.y[j::P]) for j in range(P)]
         return float(
-            sum(0.5 * n[g] * (len(S[g]) + np.linalg.slogdet(2 * np.pi * S[g])[1]) for g in self.groups)
+            sum(
+                0.5 * n[g][j] * (len(Sj) + np.linalg.slogdet(2 * np.pi * Sj)[1])
+                for g in self.groups
+                for j, Sj in enumerate(S[g])
+            )
         )
 
     def terms(self, p, flt, nus, S, scale):
         """g = Σ Jᵀ𝒮⁻¹ν and M = Σ Jᵀ𝒮⁻¹J at p, J = ∂ν/∂p (central differences in θ and f²,
-        exact in x0). `scale`: each parameter's typical size (the step's reference)."""
+        exact in x0). `scale`: each parameter's typical size (the step's reference). Sets `kink`:
+        whether a free input delay sits at a whole sample where ½Σνᵀ𝒮⁻¹ν rises on both sides
+        (its minimum over τ there; ∂ν/∂τ is then the slope above it)."""
         prob, nf, n = self.prob, self.nf, len(p)
         cols = list(range(nf)) + list(range(nf + self.nx, n))
+        delay = prob.free.index(DELAY) if DELAY in prob.free else -1
+        self.kink = False
+        dt = min(r.dt for r in prob.records)
         plus, minus, steps = {}, {}, {}
         for i in cols:
             h = _STEP * max(abs(p[i]), scale[i])
             up, down = p.copy(), p.copy()
             up[i] += h
             down[i] -= h
+            h2 = 2 * h
             if i >= nf + self.nx and down[i] < 0:  # f² at its bound: a forward difference
                 down, h2 = p, h
-            else:
-                h2 = 2 * h
+            elif i == delay:
+                # ν has a kink at each whole sample of delay (the recorded inputs are interpolated
+                # linearly): the difference stays on one side of it, on τ's own interval [m, m + 1)
+                # samples as the output-error sensitivity (`Problem.input_rates`) does
+                m = round(p[i] / dt)
+                if abs(p[i] - m * dt) < h:  # at a whole sample: its slope on either side
+                    at = p.copy()
+                    at[i] = m * dt
+                    up, down = at.copy(), at.copy()
+                    up[i] += h
+                    down[i] -= h
+                    a, b, c = self.run(up, S), self.run(down, S), self.run(at, S)
+                    if a is None or b is None or c is None:
+                        raise np.linalg.LinAlgError("the filter fails next to the estimate")
+                    cost = [self.weighted(x[1], S) for x in (a, b, c)]
+                    self.kink = cost[0] >= cost[2] and cost[1] >= cost[2]
+                    plus[i], minus[i], steps[i] = a[1], c[1], h
+                    continue
+                if up[i] / dt >= math.floor(p[i] / dt) + 1:
+                    up, h2 = p, h
+                elif down[i] / dt < math.floor(p[i] / dt):
+                    down, h2 = p, h
             a, b = self.run(up, S), self.run(down, S)
             if a is None or b is None:
                 raise np.linalg.LinAlgError("the filter fails next to the estimate")
             plus[i], minus[i], steps[i] = a[1], b[1], h2
         g, M = np.zeros(n), np.zeros((n, n))
-        for k, (r, v) in enumerate(zip(prob.records, nus)):
-            key = _group(r)
-            W = np.linalg.inv(np.linalg.cholesky(S[key]))  # whitening: W ν has unit covariance
+        for k, (r, key, v) in enumerate(zip(prob.records, self.keys, nus)):
             own = cols + list(range(r.offset, r.offset + len(r.measured)))
             J = np.zeros((len(v), len(r.measured), len(own)))
             for c, i in enumerate(cols):
@@ -242,27 +305,33 @@ class _Likelihood:
                 e = np.zeros(len(f.states))
                 e[np.searchsorted(f.states, m)] = 1.0
                 recursions.simulated(len(v))
-                x = scan.propagate(f.Phi_c, e, np.zeros((len(v) - 1, len(e))))
+                x = innovations.propagate(f.Phi_c, e, np.zeros((len(v) - 1, len(e))))
                 J[:, :, len(cols) + c] = -x[:, f.rows]
-            Jw = np.einsum("ab,nbq->naq", W, J).reshape(-1, len(own))
-            vw = (v @ W.T).ravel()
-            g[own] -= Jw.T @ vw  # −∂(½Σνᵀ𝒮⁻¹ν)/∂p
-            M[np.ix_(own, own)] += Jw.T @ Jw
+            if r.present is not None:
+                J[~r.present] = 0.0
+            for (j, Jj), (_, vj) in zip(_by_phase(J, self.phases[key]), _by_phase(v, self.phases[key])):
+                W = np.linalg.inv(np.linalg.cholesky(S[key][j]))  # whitening: W ν has unit covariance
+                Jw = np.einsum("ab,nbq->naq", W, Jj).reshape(-1, len(own))
+                vw = (vj @ W.T).ravel()
+                g[own] -= Jw.T @ vw  # −∂(½Σνᵀ𝒮⁻¹ν)/∂p
+                M[np.ix_(own, own)] += Jw.T @ Jw
         return g, M
 
     def compatible(self, S, flt, p):
-        """R = diag(𝒮 − C P Cᵀ) pooled per channel, floored at `R_FLOOR` 𝒮, and p with f²
-        scaled down where the floor binds (Jategaonkar's correction of F: every row by the
-        square of the least ratio of (1 − R_ROOM) 𝒮 to C P Cᵀ, P growing about as √f²), with
-        whether it was."""
+        """R = diag(𝒮 − C P Cᵀ) pooled per channel over the groups and phases that have it,
+        floored at `R_FLOOR` 𝒮, and p with f² scaled down where the floor binds (Jategaonkar's
+        correction of F: every row by the square of the least ratio of (1 − R_ROOM) 𝒮 to C P Cᵀ,
+        P growing about as √f²), with whether it was."""
         prob = self.prob
         nc = len(prob.channels)
         room, cpc, n = np.zeros(nc), np.zeros(nc), np.zeros(nc)
-        for r in prob.records:
-            key = _group(r)
-            room[r.channels] += len(r.y) * np.diag(S[key])
-            cpc[r.channels] += len(r.y) * np.diag(flt[key].CPC)
-            n[r.channels] += len(r.y)
+        for r, key in zip(prob.records, self.keys):
+            on, CPC = self.phases[key], flt[key].CPC
+            for j, m in enumerate(on):
+                count = len(r.y[j :: len(on)])
+                room[r.channels[m]] += count * np.diag(S[key][j])
+                cpc[r.channels[m]] += count * np.diag(CPC[j])[m]
+                n[r.channels[m]] += count
         room, cpc = room / n, cpc / n
         R = np.maximum(room - cpc, R_FLOOR * room)
         binding = room - cpc < R_FLOOR * room
@@ -273,20 +342,22 @@ class _Likelihood:
 
 
 def _start_noise(lik: _Likelihood) -> tuple[dict, np.ndarray]:
-    """𝒮 and f² to start from, from each channel's first differences, whose variance is about
-    2R + f²Δ (+ the motion's, small at the sampling rates of the data): 𝒮 half of it, f²Δ
-    `START_SHARE` of it on the rows with process noise (a small gain: the Riccati equation's
-    first-order form holds for gains small per step)."""
+    """𝒮 and f² to start from, from each channel's first differences (between the samples it
+    has), whose variance is about 2R + f²Δ (+ the motion's, small at the sampling rates of the
+    data): 𝒮 half of it, f²Δ `START_SHARE` of it on the rows with process noise (a small gain:
+    the Riccati equation's first-order form holds for gains small per step)."""
     prob = lik.prob
     ss, n, q = np.zeros(len(prob.channels)), np.zeros(len(prob.channels)), np.zeros(len(lik.rows))
     for r in prob.records:
-        ss[r.channels] += np.sum(np.diff(r.y, axis=0) ** 2, axis=0)
-        n[r.channels] += len(r.y) - 1
-    d2 = np.maximum(ss / n, 1e-30)
+        for c, channel in enumerate(r.channels):
+            y = r.y[:, c] if r.present is None else r.y[r.present[:, c], c]
+            ss[channel] += np.sum(np.diff(y) ** 2)
+            n[channel] += len(y) - 1
+    d2 = np.maximum(ss / np.maximum(n, 1), 1e-30)
     dt = min(r.dt for r in prob.records)
     for k, j in enumerate(lik.rows):
         q[k] = START_SHARE * d2[prob.channels.index(BODY[j])] / dt
-    return {g: np.diag(d2[lik.channels(g)] / 2) for g in lik.groups}, q
+    return {g: [np.diag(d2[lik.channels(g)][m] / 2) for m in lik.phases[g]] for g in lik.groups}, q
 
 
 def _fit(
@@ -295,17 +366,11 @@ def _fit(
     opts: FilterErrorOptions,
     callback: Callback | None,
 ) -> Estimate:
-    gaps = next((e for e in experiments if np.isnan(np.asarray(e.y, dtype=float)).any()), None)
-    if gaps is not None:
-        raise InputError(
-            f"{gaps.source or gaps.name}: missing samples (NaN, or a sensor at a lower rate); "
-            "ml-fem runs the steady-state filter over every sample: expected complete records, "
-            "or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm) or mekf"
-        )
-    experiments, config = one_model(experiments, config, "ml-fem")
+    experiments, config = one_model(experiments, config, "ml-fem", terms=True)
     with recursions.counting() as tally, scan.compiled():
         t0 = time.perf_counter()
         prob = problem(experiments, config)
+        _check_cycles(prob)
         rows = noise_rows(prob, opts.process_noise)
         theta0 = starts.named(prob, experiments, config, opts.start)
         lik = _Likelihood(prob, rows, theta0)
@@ -328,6 +393,18 @@ def _fit(
         est = _estimate(lik, p, S, status, done + it, np.vstack([history, steps]), why, scale)
         # the simulations of the whole data set (`recursions.counting`), rounded up
         return replace(est, evaluations=-(-tally[0] // prob.n_samples), wall_time_s=time.perf_counter() - t0)
+
+
+def _check_cycles(prob: Problem) -> None:
+    """`InputError` for a record whose missing samples recur at no fixed period (`innovations.cycle`)."""
+    for r in prob.records:
+        if innovations.cycle(r.present, len(r.measured)) is None:
+            raise InputError(
+                f"experiment {r.name!r}: missing samples at no fixed period (dropouts); ml-fem runs the "
+                f"periodic steady-state filter: expected each channel's samples to recur every at most "
+                f"{innovations.MAX_CYCLE} samples (a sensor at its own rate), or an output-error method "
+                "(ml-gn, ml-lm, ml-nr, ml-nm)"
+            )
 
 
 def _settle(lik: _Likelihood, p: np.ndarray, S: dict, trials: int):
@@ -390,6 +467,8 @@ def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
         q = p[nf + nx :]
         bound = np.zeros(len(p), dtype=bool)
         bound[nf + nx :] = (q <= 0) & (g[nf + nx :] <= 0)
+        if lik.kink:  # a delay at its kink's minimum: held there, as f² on its bound
+            bound[lik.prob.free.index(DELAY)] = True
         free = np.flatnonzero(~bound)
         Mf, gf = M[np.ix_(free, free)], g[free]
         cov = bounds.crlb(Mf).covariance
@@ -411,7 +490,11 @@ def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
             break
         # the relaxation: 𝒮 in closed form, then F corrected where R = 𝒮 − CPCᵀ would not be positive
         S_new = lik.covariances(nus)
-        changed = max(float(np.max(np.abs(np.diag(S_new[g]) / np.diag(S[g]) - 1))) for g in lik.groups)
+        changed = max(
+            float(np.max(np.abs(np.diag(a) / np.diag(b) - 1), initial=0.0))
+            for g in lik.groups
+            for a, b in zip(S_new[g], S[g])
+        )
         S = S_new
         q = p[nf + nx :].copy()
         p, now = _settle(lik, p, S, opts.max_trials)

@@ -33,6 +33,15 @@ From the prediction x̃[0] = x0, with the exact transition,
 one linear recursion `x̃[k+1] = Φ(I − KC) x̃[k] + Φ K y[k] + Γ δ[k] + s` (`scan.propagate`).
 The filter runs on the states the measured ones depend on (`observed`); the others feed no
 output. With no process noise (F = 0) K = 0 and the innovations are the output-error residuals.
+
+Sensors at their own rates: where a record's samples of each channel recur with a fixed period
+of P samples (a 10 Hz DVL in a 50 Hz record: P = 5; `cycle`), the filter is the periodic steady
+state, one gain per phase j of the cycle, on the channels that phase has (C_j): the innovations'
+covariance 𝒮_j per phase, and P_j from the cycle of predictions
+
+    P_{j+1} = Φ (P_j − P_j C_jᵀ 𝒮_j⁻¹ C_j P_j) Φᵀ + Q,   P_P = P_0,   K_j = P_j C_jᵀ 𝒮_j⁻¹,
+
+solved by Newton's method on the cycle (`periodic_gain`); P = 1 is the steady state above.
 """
 
 from __future__ import annotations
@@ -49,11 +58,15 @@ from testbed.models.linear import IX, NU, NX, STATES, continuous
 __all__ = [
     "BODY",
     "BODY_ROWS",
+    "MAX_CYCLE",
     "Filter",
+    "cycle",
     "filters",
     "innovations",
     "observed",
+    "periodic_gain",
     "process_covariance",
+    "propagate",
     "steady_gain",
 ]
 
@@ -61,6 +74,22 @@ BODY = STATES[:6]  # u v w p q r: the rows process noise enters
 BODY_ROWS = np.array([IX[s] for s in BODY])
 _REGULAR = 1e-10  # process noise on every state, relative, where the Riccati equation needs it
 _NEWTON = 30  # Newton steps on the discrete Riccati equation, at most
+_SETTLING = 200  # cycles of the recursion that make Newton's method's other start
+_HALVINGS = 20  # halvings of a Newton step that does not reduce the equation's mismatch, at most
+MAX_CYCLE = 100  # samples: the longest period of a record's sampling the periodic filter takes
+
+
+def cycle(present: np.ndarray | None, k: int) -> np.ndarray | None:
+    """The channels each phase of a record's sampling cycle has, (P, k) bool, for the shortest
+    period P (at most `MAX_CYCLE` samples) with `present[i] = phases[i mod P]` at every sample;
+    None where there is none (dropouts). `present` (N, k) or None (every sample there: P = 1)."""
+    if present is None or present.all():
+        return np.ones((1, k), dtype=bool)
+    for P in range(1, min(MAX_CYCLE, len(present)) + 1):
+        phases = present[:P]
+        if all((present[j::P] == phases[j]).all() for j in range(P)):
+            return phases if phases.any(axis=0).all() else None
+    return None
 
 
 def observed(coupled: np.ndarray, measured: np.ndarray) -> np.ndarray:
@@ -96,90 +125,180 @@ def _full_covariance(A: np.ndarray, W: np.ndarray, dt: float) -> np.ndarray:
 def steady_gain(A: np.ndarray, Phi: np.ndarray, C: np.ndarray, W: np.ndarray, S: np.ndarray, dt: float):
     """`(K, P)`: the steady-state gain and predicted covariance of the filter in 𝒮 (`S`, (k, k))
     for the continuous `A`, its transition `Phi` over `dt`, `C` (k, n) and `W` = F Fᵀ; K = 0
-    where W = 0.
+    where W = 0: `periodic_gain` with one phase."""
+    Ks, Ps = periodic_gain(A, Phi, [C], W, [S], dt)
+    return Ks[0], Ps[0]
 
-    P solves the discrete Riccati equation with 𝒮 held, `G(P) = Φ(P − P Cᵀ𝒮⁻¹C P)Φᵀ + Q − P = 0`
-    (Q of `process_covariance`), by Newton's method from the solution of its first-order
-    (continuous) form `A P + P Aᵀ − (1/Δ) P Cᵀ 𝒮⁻¹ C P + W = 0` (scipy's `solve_continuous_are`):
-    the step solves `Φ_c dP Φ_cᵀ − (ΦKC) dP (ΦKC)ᵀ − dP = −G(P)`, Φ_c = Φ(I − KC), as one
-    n² × n² linear system. Where scipy refuses the first-order form (a mode on the imaginary axis
-    that the process noise does not reach: an integrator), every state gets a process noise
-    10⁻¹⁰ of the largest there. `LinAlgError` where Newton's method does not settle: no
-    solution with this 𝒮 (the process noise claims more than 𝒮 holds)."""
-    n, k = len(A), len(S)
+
+def _covariance(P: np.ndarray) -> bool:
+    """Whether P is finite, symmetric and positive semi-definite (to rounding)."""
+    if not np.all(np.isfinite(P)):
+        return False
+    top = np.max(np.abs(P))
+    return np.allclose(P, P.T, atol=1e-9 * top) and np.linalg.eigvalsh((P + P.T) / 2)[0] >= -1e-9 * top
+
+
+def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: float):
+    """`(Ks, Ps)`: per phase j of the cycle, the gain K_j (n, k_j) and predicted covariance P_j of
+    the filter in 𝒮_j (`Ss[j]`, (k_j, k_j)) with the phase's measurement matrix `Cs[j]` (k_j, n),
+    for the continuous `A`, its transition `Phi` over `dt` and `W` = F Fᵀ; K = 0 where W = 0.
+
+    P_0 solves the cycle `G(P_0) = f_{P−1}(… f_0(P_0)) − P_0 = 0`, f_j(P) = Φ(P − P C_jᵀ𝒮_j⁻¹C_j P)Φᵀ + Q
+    (Q of `process_covariance`), by Newton's method: f_j's derivative is `dP ↦ Φ_c dP Φ_cᵀ −
+    (ΦK_jC_j) dP (ΦK_jC_j)ᵀ`, Φ_c = Φ(I − K_jC_j), and the step solves the product of theirs over
+    the cycle, less the identity, as one n² × n² linear system (least squares where a mode the
+    noise does not reach leaves it singular), halved until it reduces the largest |G|. It starts
+    from whichever is nearer closing the cycle: the solution of the first-order (continuous)
+    form with the cycle's mean information, `A P + P Aᵀ − P (1/(PΔ) Σ C_jᵀ𝒮_j⁻¹C_j) P + W = 0`
+    (scipy's `solve_continuous_are`; where scipy refuses it or returns no covariance, a mode on
+    the imaginary axis that the process noise does not reach, every state with a process noise
+    10⁻¹⁰ of the largest there), or `_SETTLING` cycles of the recursion itself from P = Q.
+    `LinAlgError` where Newton's method does not settle: no solution with these 𝒮 (the process
+    noise claims more than they hold)."""
+    n = len(A)
     if not W.any():
-        return np.zeros((n, k)), np.zeros((n, n))
-    from scipy.linalg import solve_continuous_are
+        return [np.zeros((n, len(S))) for S in Ss], [np.zeros((n, n)) for _ in Ss]
+    from scipy.linalg import block_diag, solve_continuous_are
 
-    try:
-        P = solve_continuous_are(A.T, C.T, W, S * dt)
-    except (np.linalg.LinAlgError, ValueError):
-        try:
-            P = solve_continuous_are(A.T, C.T, W + _REGULAR * np.max(W) * np.eye(n), S * dt)
-        except ValueError as exc:
-            raise np.linalg.LinAlgError(str(exc)) from exc
+    # the first-order form's b r⁻¹ bᵀ = (1/(PΔ)) Σ C_jᵀ 𝒮_j⁻¹ C_j
     Q = _full_covariance(A, W, dt)
-    Sinv_C = np.linalg.solve(S, C)
-    for _ in range(_NEWTON):
-        P = (P + P.T) / 2
-        K = P @ Sinv_C.T
-        G = Phi @ (P - K @ C @ P) @ Phi.T + Q - P
-        if not np.all(np.isfinite(G)):
+    Sinv_C = [np.linalg.solve(S, C) for S, C in zip(Ss, Cs)]
+    b, r = np.vstack(Cs).T, block_diag(*Ss) * dt * len(Cs)
+    starts = []
+    for noise in (W, W + _REGULAR * np.max(W) * np.eye(n)):
+        try:
+            P = solve_continuous_are(A.T, b, noise, r)
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+        if _covariance(P):  # scipy may return a non-stabilising solution instead of refusing
+            starts.append(P)
             break
-        if np.max(np.abs(G)) <= 1e-12 * np.max(np.abs(P)):
-            return K, P
-        Fc, H = Phi - Phi @ K @ C, Phi @ K @ C
-        L = np.kron(Fc, Fc) - np.kron(H, H) - np.eye(n * n)
-        P = P + np.linalg.solve(L, -G.ravel()).reshape(n, n)
+    P = Q  # and the recursion itself from P = Q, as a filter started with no uncertainty
+    with np.errstate(over="ignore", invalid="ignore"):
+        for _ in range(_SETTLING):
+            for C, SC in zip(Cs, Sinv_C):
+                P = Phi @ (P - P @ SC.T @ C @ P) @ Phi.T + Q
+    starts.append(P)
+
+    def around(P):
+        """The cycle from P_0 = P: (K_j, P_j per phase, G(P), the cycle's derivative less I)."""
+        Ks, Ps, L, Pj = [], [], np.eye(n * n), (P + P.T) / 2
+        for C, SC in zip(Cs, Sinv_C):
+            K = Pj @ SC.T
+            Ks.append(K)
+            Ps.append(Pj)
+            Fc, H = Phi - Phi @ K @ C, Phi @ K @ C
+            L = (np.kron(Fc, Fc) - np.kron(H, H)) @ L
+            Pj = Phi @ (Pj - K @ C @ Pj) @ Phi.T + Q
+        return Ks, Ps, Pj - Ps[0], L - np.eye(n * n)
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        # from the start whose cycle is nearer closing
+        Ks, Ps, G, L = min(
+            (around(P) for P in starts), key=lambda c: np.nan_to_num(np.max(np.abs(c[2])), nan=np.inf)
+        )
+        for _ in range(_NEWTON):
+            size = np.max(np.abs(G))
+            if not np.isfinite(size):
+                break
+            if size <= 1e-12 * np.max(np.abs(Ps[0])):
+                return Ks, Ps
+            try:
+                step = np.linalg.solve(L, -G.ravel()).reshape(n, n)
+            except np.linalg.LinAlgError:  # a mode the noise does not reach: its P stays put
+                step = np.linalg.lstsq(L, -G.ravel(), rcond=None)[0].reshape(n, n)
+            # the Newton step, halved while it does not reduce the cycle's mismatch
+            for _ in range(_HALVINGS):
+                trial = around(Ps[0] + step)
+                if np.max(np.abs(trial[2])) < size:
+                    break
+                step = step / 2
+            else:
+                break
+            Ks, Ps, G, L = trial
     raise np.linalg.LinAlgError("the Riccati equation in 𝒮 has no solution here")
 
 
 @dataclass(frozen=True)
 class Filter:
-    """The steady-state filter of one group of records (one Δ, one measured set), on the states
-    `states` only: `x̃[k+1] = Phi_c x̃[k] + (Phi K) y[k] + Gamma δ[k] + s`."""
+    """The periodic steady-state filter of one group of records (one Δ, one measured set, one
+    sampling cycle), on the states `states` only: `x̃[i+1] = Phi_c[j] x̃[i] + PhiK[j] y[i] + Gamma δ[i]
+    + s` at phase j = i mod P, the columns of PhiK[j] and K[j] zero where phase j has no sample."""
 
     states: np.ndarray  # indexes into the 10 states
     rows: np.ndarray  # the measured states' positions in `states`
-    Phi_c: np.ndarray  # Φ(I − KC)
-    PhiK: np.ndarray  # Φ K
+    phases: np.ndarray  # (P, k) bool: the channels each phase has
+    Phi_c: np.ndarray  # (P, n, n) Φ(I − K_j C_j)
+    PhiK: np.ndarray  # (P, n, k) Φ K_j
     Gamma: np.ndarray  # (len(states), 3)
     s: np.ndarray
-    K: np.ndarray
-    P: np.ndarray  # the predicted covariance (len(states), len(states))
+    K: np.ndarray  # (P, n, k)
+    P: np.ndarray  # (P, n, n): the predicted covariance at each phase
 
     @property
     def CPC(self) -> np.ndarray:
-        """C P Cᵀ: the part of the innovations' covariance the state's uncertainty makes."""
-        return self.P[np.ix_(self.rows, self.rows)]
+        """(P, k, k) C P_j Cᵀ: the part of the innovations' covariance the state's uncertainty makes."""
+        return self.P[:, self.rows][:, :, self.rows]
 
 
-def filters(prob: Problem, values: np.ndarray, q: np.ndarray, S: dict, states: dict) -> dict:
-    """The filter of each group of records, keyed by (Δ, measured states): coefficients
-    `values`, spectral densities `q` = f² (6,), `S[key]` the group's innovations' covariance and
-    `states[key]` the states it runs on (`observed`). `LinAlgError` as `steady_gain`."""
+def filters(prob: Problem, values: np.ndarray, q: np.ndarray, S: dict, states: dict, phases: dict) -> dict:
+    """The filter of each group of records, keyed as `S`: coefficients `values`, spectral
+    densities `q` = f² (6,), `S[key]` the group's innovations' covariance per phase (over the
+    phase's channels), `states[key]` the states it runs on (`observed`) and `phases[key]` its
+    cycle (`cycle`); a key is (Δ, measured states, cycle). `LinAlgError` as `periodic_gain`."""
     models = discrete_models(prob, values, 0)
     A = continuous(prob.structure, prob.coefficients(values))[0]
     W = np.zeros((NX, NX))
     W[BODY_ROWS, BODY_ROWS] = q
     out = {}
-    for r in prob.records:
-        key = (r.dt, tuple(r.measured))
-        if key in out:
-            continue
-        o = states[key]
-        E = models[r.dt].E[o]
+    for key, o in states.items():
+        dt, measured = key[0], np.array(key[1])
+        E = models[dt].E[o]
         Phi = E[:, o]
-        rows = np.searchsorted(o, r.measured)
+        rows = np.searchsorted(o, measured)
         C = np.eye(len(o))[rows]
-        K, P = steady_gain(A[np.ix_(o, o)], Phi, C, W[np.ix_(o, o)], S[key], r.dt)
-        out[key] = Filter(o, rows, Phi - Phi @ K @ C, Phi @ K, E[:, NX : NX + NU], E[:, -1], K, P)
+        on = phases[key]
+        Cs = [C[m] for m in on]
+        Ks, Ps = periodic_gain(A[np.ix_(o, o)], Phi, Cs, W[np.ix_(o, o)], S[key], dt)
+        K = np.zeros((len(on), len(o), len(rows)))
+        for j, m in enumerate(on):
+            K[j][:, m] = Ks[j]
+        PhiK = Phi @ K
+        Phi_c = Phi - PhiK @ C
+        out[key] = Filter(o, rows, on, Phi_c, PhiK, E[:, NX : NX + NU], E[:, -1], K, np.array(Ps))
     return out
 
 
-def innovations(record: Record, f: Filter, x0: np.ndarray) -> np.ndarray:
-    """ν (N, k) of one record from the predicted initial state `x0` (10,)."""
-    simulated(len(record.y))
-    forcing = record.y[:-1] @ f.PhiK.T + record.inputs[:-1] @ f.Gamma.T + f.s
-    x = scan.propagate(f.Phi_c, x0[f.states], forcing)
-    return record.y - x[:, f.rows]
+def propagate(Phi_c: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.ndarray:
+    """`x[i+1] = Phi_c[i mod P] x[i] + forcing[i]` from x0 (n,); returns (len(forcing) + 1, n).
+    With P > 1 as one recursion over whole cycles, `z[m+1] = T z[m] + g[m]` with T the cycle's
+    product of transitions (`scan.propagate`), and each phase's states from the cycle's first."""
+    P, n = len(Phi_c), len(x0)
+    if P == 1:
+        return scan.propagate(Phi_c[0], x0, forcing)
+    N = len(forcing) + 1
+    M = -(-len(forcing) // P)
+    F = np.zeros((M * P, n), dtype=np.result_type(Phi_c, x0, forcing))
+    F[: len(forcing)] = forcing
+    F = F.reshape(M, P, n)
+    U = [np.eye(n)]  # x[mP + j] = U_j z[m] + h[m, j]
+    h = [np.zeros((M, n), dtype=F.dtype)]
+    for j in range(P):
+        U.append(Phi_c[j] @ U[j])
+        h.append(h[j] @ Phi_c[j].T + F[:, j])
+    z = scan.propagate(U[P], x0, h[P][:-1])
+    x = np.stack([z @ U[j].T + h[j] for j in range(P)], axis=1).reshape(M * P, n)
+    return np.vstack([x, z[-1:] @ U[P].T + h[P][-1:]])[:N]
+
+
+def innovations(record: Record, f: Filter, x0: np.ndarray, y: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """ν (N, k) of one record from the predicted initial state `x0` (10,), its outputs `y` (its
+    measured states, output terms taken off; 0 where missing) and `inputs`; 0 where missing."""
+    simulated(len(y))
+    P = len(f.phases)
+    forcing = inputs[:-1] @ f.Gamma.T + f.s
+    for j in range(P):
+        forcing[j::P] += y[:-1][j::P] @ f.PhiK[j].T
+    x = propagate(f.Phi_c, x0[f.states], forcing)
+    nu = y - x[:, f.rows]
+    return nu if record.present is None else np.where(record.present, nu, 0.0)

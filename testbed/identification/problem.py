@@ -365,14 +365,14 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
 
 
 def one_model(
-    experiments: Sequence[Experiment], config: ModelConfig, method: str
+    experiments: Sequence[Experiment], config: ModelConfig, method: str, terms: bool = False
 ) -> tuple[list[Experiment], ModelConfig]:
-    """For a `method` that runs one model over every record, with the outputs taken as the states
-    and the inputs as recorded (the filters): the experiments with the config's sensors undone
-    (`ModelConfig.readings`), its output terms (biases, the current) taken off their measured
-    states and its input delay applied to their inputs (each record's own), and the config
-    without them. `InputError` where the config names values per record, frees an output term
-    or the delay, or gives a record its own coefficient or offset."""
+    """For a `method` that runs one model over every record (the filters): the experiments with
+    the config's sensors undone (`ModelConfig.readings`), its given output terms (biases, the
+    current) taken off their measured states and its given input delay applied to their inputs
+    (each record's own), and the config without them. `InputError` where the config names values
+    per record, gives a record its own coefficient or offset, or (unless `terms`: a method that
+    fits them) frees an output term or the delay."""
     source = config.source or "config"
     if config.per_record:
         raise InputError(
@@ -380,22 +380,23 @@ def one_model(
             "one model over every record: expected no per_record, or an output-error method "
             "(ml-gn, ml-lm, ml-nr, ml-nm) or equation-error"
         )
-    terms = [n for n in config.free if n in OUTSIDE_EQUATIONS]
-    if terms:
+    free = [n for n in config.free if n in OUTSIDE_EQUATIONS]
+    if free and not terms:
         raise InputError(
-            f"{source}: [identify] free lists {terms[0]}; {method} takes the outputs' biases, the "
-            "current and the inputs' delay as the config gives them: expected them fixed, or an "
-            "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
+            f"{source}: [identify] free lists {free[0]}; {method} takes the outputs' biases, the "
+            "current and the inputs' delay as the config gives them: expected them fixed, or "
+            "ml-fem or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
     experiments = config.readings(experiments)
-    prob = problem(experiments, replace(config, free=()), resolve=False)
+    given = replace(config, coefficients={**config.coefficients, **dict.fromkeys(free, 0.0)}, free=())
+    prob = problem(experiments, given, resolve=False)
     out, none = [], np.zeros(0)
     for e, r in zip(experiments, prob.records):
-        terms = prob.output_terms(r, none)
-        if np.any(terms):
-            e = replace(e, y=np.asarray(e.y, dtype=float) - terms)
+        taken = prob.output_terms(r, none)
+        if np.any(taken):
+            e = replace(e, y=np.asarray(e.y, dtype=float) - taken)
         out.append(replace(e, inputs=prob.inputs(r, none)) if prob.delayed else e)
-    zero = dict.fromkeys(OUTSIDE_EQUATIONS, 0.0)
+    zero = {n: 0.0 for n in OUTSIDE_EQUATIONS if n not in free}
     records = {name: {**values, **zero} for name, values in config.record_values.items()}
     config = replace(config, coefficients={**config.coefficients, **zero}, record_values=records)
     own = {e: n for e, values in config.record_values.items() for n, v in values.items() if v}
