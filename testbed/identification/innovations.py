@@ -75,6 +75,7 @@ BODY_ROWS = np.array([IX[s] for s in BODY])
 _REGULAR = 1e-10  # process noise on every state, relative, where the Riccati equation needs it
 _NEWTON = 30  # Newton steps on the discrete Riccati equation, at most
 _SETTLING = 200  # cycles of the recursion that make Newton's method's other start
+_CLOSE = 0.1  # a first-order start whose cycle closes to this (relative) needs no other
 _HALVINGS = 20  # halvings of a Newton step that does not reduce the equation's mismatch, at most
 MAX_CYCLE = 100  # samples: the longest period of a record's sampling the periodic filter takes
 
@@ -152,7 +153,8 @@ def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: flo
     form with the cycle's mean information, `A P + P Aᵀ − P (1/(PΔ) Σ C_jᵀ𝒮_j⁻¹C_j) P + W = 0`
     (scipy's `solve_continuous_are`; where scipy refuses it or returns no covariance, a mode on
     the imaginary axis that the process noise does not reach, every state with a process noise
-    10⁻¹⁰ of the largest there), or `_SETTLING` cycles of the recursion itself from P = Q.
+    10⁻¹⁰ of the largest there), or, where that one's cycle misses by more than `_CLOSE` of P,
+    `_SETTLING` cycles of the recursion itself from P = Q.
     `LinAlgError` where Newton's method does not settle: no solution with these 𝒮 (the process
     noise claims more than they hold)."""
     n = len(A)
@@ -164,21 +166,15 @@ def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: flo
     Q = _full_covariance(A, W, dt)
     Sinv_C = [np.linalg.solve(S, C) for S, C in zip(Ss, Cs)]
     b, r = np.vstack(Cs).T, block_diag(*Ss) * dt * len(Cs)
-    starts = []
+    first = None
     for noise in (W, W + _REGULAR * np.max(W) * np.eye(n)):
         try:
             P = solve_continuous_are(A.T, b, noise, r)
         except (np.linalg.LinAlgError, ValueError):
             continue
         if _covariance(P):  # scipy may return a non-stabilising solution instead of refusing
-            starts.append(P)
+            first = P
             break
-    P = Q  # and the recursion itself from P = Q, as a filter started with no uncertainty
-    with np.errstate(over="ignore", invalid="ignore"):
-        for _ in range(_SETTLING):
-            for C, SC in zip(Cs, Sinv_C):
-                P = Phi @ (P - P @ SC.T @ C @ P) @ Phi.T + Q
-    starts.append(P)
 
     def around(P):
         """The cycle from P_0 = P: (K_j, P_j per phase, G(P), the cycle's derivative less I)."""
@@ -192,11 +188,19 @@ def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: flo
             Pj = Phi @ (Pj - K @ C @ Pj) @ Phi.T + Q
         return Ks, Ps, Pj - Ps[0], L - np.eye(n * n)
 
+    def mismatch(c) -> float:
+        """The largest |G| of a cycle, relative to its P_0 (inf where not finite)."""
+        return float(np.nan_to_num(np.max(np.abs(c[2])) / np.max(np.abs(c[1][0])), nan=np.inf))
+
     with np.errstate(over="ignore", invalid="ignore"):
-        # from the start whose cycle is nearer closing
-        Ks, Ps, G, L = min(
-            (around(P) for P in starts), key=lambda c: np.nan_to_num(np.max(np.abs(c[2])), nan=np.inf)
-        )
+        cycles = [] if first is None else [around(first)]
+        if not cycles or mismatch(cycles[0]) > _CLOSE:
+            P = Q  # the recursion itself from P = Q, as a filter started with no uncertainty
+            for _ in range(_SETTLING):
+                for C, SC in zip(Cs, Sinv_C):
+                    P = Phi @ (P - P @ SC.T @ C @ P) @ Phi.T + Q
+            cycles.append(around(P))
+        Ks, Ps, G, L = min(cycles, key=mismatch)  # from the start whose cycle is nearer closing
         for _ in range(_NEWTON):
             size = np.max(np.abs(G))
             if not np.isfinite(size):
