@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -25,15 +25,20 @@ def counted(method: str) -> str:
 
 
 def fit_seeds(
-    seeds: int, data: Callable[[int], Sequence[Experiment]], config: ModelConfig, methods: Sequence[str]
+    seeds: int,
+    data: Callable[[int], Sequence[Experiment]],
+    config: ModelConfig,
+    methods: Sequence[str],
+    options: Mapping[str, Mapping] | None = None,
 ) -> dict[str, list[Estimate]]:
-    """Every method on the experiments `data(seed)` of every seed, from `config`."""
+    """Every method on the experiments `data(seed)` of every seed, from `config`, each with its
+    `options` (by method name)."""
     fits = {m: [] for m in methods}
     for seed in range(seeds):
         experiments = data(seed)
         for m in methods:
             t0 = time.perf_counter()
-            est = identify(experiments, config, method=m)
+            est = identify(experiments, config, method=m, **(options or {}).get(m, {}))
             fits[m].append(est)
             print(
                 f"seed {seed:3d} {m:6s} {est.status.name:14s} {est.iterations:5d} it "

@@ -117,6 +117,14 @@ class FilterErrorOptions(Options):
         "error), or a list of body states",
     )
     max_trials: int = count_option(30, 1, "damped steps tried per iteration before STALLED")
+    correlation_time: float = option(
+        0.0,
+        lambda v: is_number(v) and 0 <= v <= 1e3,
+        "a number of seconds from 0 to 1000",
+        "the process noise's correlation time τ: 0, white; τ > 0, each row's noise through a "
+        "first-order lag of time constant τ (turbulence of that correlation time), f² its "
+        "low-frequency density",
+    )
 
 
 def noise_rows(prob: Problem, spec: str) -> np.ndarray:
@@ -154,8 +162,8 @@ def _by_phase(v: np.ndarray, on: np.ndarray):
 class _Likelihood:
     """The innovations, their covariances and sensitivities of one problem, p = (θ, x0s, f²)."""
 
-    def __init__(self, prob: Problem, rows: np.ndarray, theta0: np.ndarray):
-        self.prob, self.rows, self.nf = prob, rows, prob.n_free
+    def __init__(self, prob: Problem, rows: np.ndarray, theta0: np.ndarray, tau: float = 0.0):
+        self.prob, self.rows, self.nf, self.tau = prob, rows, prob.n_free, tau
         self.nx = prob.n_params - prob.n_free
         self.noisy = len(rows) > 0
         self.kink = False  # set by `terms`
@@ -191,7 +199,7 @@ class _Likelihood:
         ys = self.outputs(p)
         try:
             with np.errstate(over="ignore", invalid="ignore"):
-                flt = innovations.filters(prob, values, self.q(p), S, self.states, self.phases)
+                flt = innovations.filters(prob, values, self.q(p), S, self.states, self.phases, self.tau)
                 nus = [
                     innovations.innovations(r, flt[key], prob.x0(r, p), y, prob.inputs(r, values))
                     for r, key, y in zip(prob.records, self.keys, ys)
@@ -302,7 +310,7 @@ class _Likelihood:
                 J[:, :, c] = (plus[i][k] - minus[i][k]) / steps[i]
             f = flt[key]
             for c, m in enumerate(r.measured):
-                e = np.zeros(len(f.states))
+                e = np.zeros(len(f.Phi_c[0]))  # the filter's states, the coloured noise's after them
                 e[np.searchsorted(f.states, m)] = 1.0
                 recursions.simulated(len(v))
                 x = innovations.propagate(f.Phi_c, e, np.zeros((len(v) - 1, len(e))))
@@ -373,7 +381,7 @@ def _fit(
         _check_cycles(prob)
         rows = noise_rows(prob, opts.process_noise)
         theta0 = starts.named(prob, experiments, config, opts.start)
-        lik = _Likelihood(prob, rows, theta0)
+        lik = _Likelihood(prob, rows, theta0, opts.correlation_time)
         S, q0 = _start_noise(lik)
         p = likelihood.initial_states(prob, theta0)
         scale = np.concatenate([np.where(theta0 != 0, np.abs(theta0), 1.0), np.ones(lik.nx), q0])

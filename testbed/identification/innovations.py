@@ -42,6 +42,10 @@ covariance 𝒮_j per phase, and P_j from the cycle of predictions
     P_{j+1} = Φ (P_j − P_j C_jᵀ 𝒮_j⁻¹ C_j P_j) Φᵀ + Q,   P_P = P_0,   K_j = P_j C_jᵀ 𝒮_j⁻¹,
 
 solved by Newton's method on the cycle (`periodic_gain`); P = 1 is the steady state above.
+
+Coloured process noise (a correlation time τ > 0): each noisy row's noise passes through a
+first-order lag, `η̇ = −η/τ + ξ/τ` (`coloured`), η a state of the filter beside the vehicle's,
+its spectral density f²/(1 + ω²τ²): the white noise's at low frequency, rolled off above 1/τ.
 """
 
 from __future__ import annotations
@@ -60,6 +64,7 @@ __all__ = [
     "BODY_ROWS",
     "MAX_CYCLE",
     "Filter",
+    "coloured",
     "cycle",
     "filters",
     "innovations",
@@ -67,6 +72,7 @@ __all__ = [
     "periodic_gain",
     "process_covariance",
     "propagate",
+    "start",
     "steady_gain",
 ]
 
@@ -229,7 +235,9 @@ class Filter:
     sampling cycle), on the states `states` only: `x̃[i+1] = Phi_c[j] x̃[i] + PhiK[j] y[i] + Gamma δ[i]
     + s` at phase j = i mod P, the columns of PhiK[j] and K[j] zero where phase j has no sample."""
 
-    states: np.ndarray  # indexes into the 10 states
+    states: (
+        np.ndarray
+    )  # indexes into the 10 states (the filter's first len(states); any after: coloured noise's)
     rows: np.ndarray  # the measured states' positions in `states`
     phases: np.ndarray  # (P, k) bool: the channels each phase has
     Phi_c: np.ndarray  # (P, n, n) Φ(I − K_j C_j)
@@ -245,11 +253,14 @@ class Filter:
         return self.P[:, self.rows][:, :, self.rows]
 
 
-def filters(prob: Problem, values: np.ndarray, q: np.ndarray, S: dict, states: dict, phases: dict) -> dict:
+def filters(
+    prob: Problem, values: np.ndarray, q: np.ndarray, S: dict, states: dict, phases: dict, tau: float = 0.0
+) -> dict:
     """The filter of each group of records, keyed as `S`: coefficients `values`, spectral
     densities `q` = f² (6,), `S[key]` the group's innovations' covariance per phase (over the
     phase's channels), `states[key]` the states it runs on (`observed`) and `phases[key]` its
-    cycle (`cycle`); a key is (Δ, measured states, cycle). `LinAlgError` as `periodic_gain`."""
+    cycle (`cycle`); a key is (Δ, measured states, cycle). With a correlation time `tau` > 0 the
+    process noise is coloured (`coloured`). `LinAlgError` as `periodic_gain`."""
     models = discrete_models(prob, values, 0)
     A = continuous(prob.structure, prob.coefficients(values))[0]
     W = np.zeros((NX, NX))
@@ -258,19 +269,47 @@ def filters(prob: Problem, values: np.ndarray, q: np.ndarray, S: dict, states: d
     for key, o in states.items():
         dt, measured = key[0], np.array(key[1])
         E = models[dt].E[o]
-        Phi = E[:, o]
+        Phi, Ao, Wo = E[:, o], A[np.ix_(o, o)], W[np.ix_(o, o)]
+        extra = 0
+        if tau > 0:
+            Ao, Wo, Phi = coloured(Ao, Wo, tau, dt)
+            extra = len(Ao) - len(o)
         rows = np.searchsorted(o, measured)
-        C = np.eye(len(o))[rows]
+        C = np.eye(len(Ao))[rows]
         on = phases[key]
         Cs = [C[m] for m in on]
-        Ks, Ps = periodic_gain(A[np.ix_(o, o)], Phi, Cs, W[np.ix_(o, o)], S[key], dt)
-        K = np.zeros((len(on), len(o), len(rows)))
+        Ks, Ps = periodic_gain(Ao, Phi, Cs, Wo, S[key], dt)
+        K = np.zeros((len(on), len(Ao), len(rows)))
         for j, m in enumerate(on):
             K[j][:, m] = Ks[j]
         PhiK = Phi @ K
         Phi_c = Phi - PhiK @ C
-        out[key] = Filter(o, rows, on, Phi_c, PhiK, E[:, NX : NX + NU], E[:, -1], K, np.array(Ps))
+        Gamma = np.vstack([E[:, NX : NX + NU], np.zeros((extra, NU))])
+        s = np.concatenate([E[:, -1], np.zeros(extra)])
+        out[key] = Filter(o, rows, on, Phi_c, PhiK, Gamma, s, K, np.array(Ps))
     return out
+
+
+def coloured(A: np.ndarray, W: np.ndarray, tau: float, dt: float):
+    """`(A, W, Φ)` of the states with their process noise coloured: each row j with noise
+    (W_jj > 0) driven by a state η_j through a first-order lag of time constant τ,
+
+        ẋ_j = … + η_j,   η̇_j = −η_j/τ + ξ_j/τ,   ξ_j white of intensity W_jj,
+
+    so that η_j's spectral density is W_jj/(1 + ω²τ²): W_jj at low frequency, as the white
+    noise's, rolled off above 1/τ (a first-order Gauss-Markov disturbance of correlation time τ).
+    The η_j follow the states; Φ = e^{AΔ} of the whole."""
+    from scipy.linalg import expm
+
+    noisy = np.flatnonzero(np.diag(W) > 0)
+    n, m = len(A), len(noisy)
+    Aa = np.zeros((n + m, n + m))
+    Aa[:n, :n] = A
+    Aa[noisy, n + np.arange(m)] = 1.0
+    Aa[n:, n:] = -np.eye(m) / tau
+    Wa = np.zeros((n + m, n + m))
+    Wa[n:, n:] = np.diag(np.diag(W)[noisy]) / tau**2
+    return Aa, Wa, expm(Aa * dt)
 
 
 def propagate(Phi_c: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.ndarray:
@@ -295,6 +334,14 @@ def propagate(Phi_c: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.ndar
     return np.vstack([x, z[-1:] @ U[P].T + h[P][-1:]])[:N]
 
 
+def start(f: Filter, x0: np.ndarray) -> np.ndarray:
+    """The filter's initial prediction from the states' `x0` (10,): its states', and 0 for the
+    coloured noise's (its mean)."""
+    out = np.zeros(len(f.Phi_c[0]), dtype=x0.dtype)
+    out[: len(f.states)] = x0[f.states]
+    return out
+
+
 def innovations(record: Record, f: Filter, x0: np.ndarray, y: np.ndarray, inputs: np.ndarray) -> np.ndarray:
     """ν (N, k) of one record from the predicted initial state `x0` (10,), its outputs `y` (its
     measured states, output terms taken off; 0 where missing) and `inputs`; 0 where missing."""
@@ -303,6 +350,6 @@ def innovations(record: Record, f: Filter, x0: np.ndarray, y: np.ndarray, inputs
     forcing = inputs[:-1] @ f.Gamma.T + f.s
     for j in range(P):
         forcing[j::P] += y[:-1][j::P] @ f.PhiK[j].T
-    x = propagate(f.Phi_c, x0[f.states], forcing)
+    x = propagate(f.Phi_c, start(f, x0), forcing)
     nu = y - x[:, f.rows]
     return nu if record.present is None else np.where(record.present, nu, 0.0)
