@@ -93,7 +93,7 @@ def misses(est: Estimate, reference: dict[str, float], relative: float = 0.03) -
         if name not in reference:
             continue
         a = reference[name]
-        if abs(v - a) > max(3 * sd, relative * abs(a)):
+        if not abs(v - a) <= max(3 * sd, relative * abs(a)):  # a σ that is not finite bounds nothing
             out.append(f"{name} {(v - a) / sd:+.1f}σ")
     return out
 

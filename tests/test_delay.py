@@ -16,9 +16,9 @@ from test_offsets import LATERAL, _start  # noqa: F401  (shared data)
 DELAY = 0.075  # s: a logger 1.5 samples late at 20 Hz
 
 
-def _late(duration=40.0, noise=True):
-    """Rudder PRBS records flown with the fins' true angles, recorded `DELAY` late: the record's
-    angle at t is the fin's at t − DELAY. Simulated on a grid 10× finer than the record's by
+def _late(duration=40.0, noise=True, delay=DELAY):
+    """Rudder PRBS records flown with the fins' true angles, recorded `delay` late: the record's
+    angle at t is the fin's at t − delay. Simulated on a grid 10× finer than the record's by
     scipy (its own zero-order hold), so the delay falls between the fine steps exactly."""
     from scipy import signal
 
@@ -40,8 +40,8 @@ def _late(duration=40.0, noise=True):
         x = np.zeros((n, NX))
         for k in range(n - 1):
             x[k + 1] = Ad @ x[k] + Bd @ np.r_[true[k], 1.0]
-        lag = int(round(DELAY / h))
-        recorded = np.vstack([np.repeat(true[:1], lag, axis=0), true[:-lag]])  # late by DELAY
+        lag = int(round(delay / h))
+        recorded = np.vstack([np.repeat(true[:1], lag, axis=0), true[:-lag]])  # late by `delay`
         # each record interval's mean angle, as the testbed records it
         u_rec = recorded.reshape(len(t), fine, 3).mean(axis=1)
         xs = x[::fine].copy()
@@ -114,3 +114,27 @@ def test_the_screen_keeps_a_delay_the_data_determine():
 
     s = screening(_late(duration=20.0), _start(LATERAL + ("input_delay",)))
     assert "input_delay" not in s.fixed and "input_delay" in s.config.free
+
+
+def test_ml_fem_holds_a_delay_of_whole_samples_at_its_kink():
+    """Fins that step at the record's instants, logged exactly one sample late, no noise: the
+    record moved back one sample is the fins, any fraction of a sample more or less mixes two
+    angles, so ml-fem's likelihood is least at τ = Δ with a kink there (the recorded inputs are
+    interpolated linearly): `terms` finds it and holds τ; a sample and a quarter is no kink."""
+    from testbed.estimators import fem
+
+    data = _late(duration=10.0, noise=False, delay=0.05)
+    dt = float(data[0].t[1] - data[0].t[0])
+    assert dt == pytest.approx(0.05)
+    config = _start(LATERAL + ("input_delay",)).with_coefficients(EXAMPLE_COEFFICIENTS | {"input_delay": dt})
+    prob = problem(data, config)
+    lik = fem._Likelihood(prob, fem.noise_rows(prob, "v,r"), prob.start)
+    S = {g: [np.diag([NOISE[STATES[i]] ** 2 for i in g[1]])] for g in lik.groups}
+    scale = np.ones(prob.n_params + len(lik.rows))
+    for tau, kink in ((dt, True), (1.25 * dt, False)):
+        theta = prob.start.copy()
+        theta[prob.free.index("input_delay")] = tau
+        p = np.concatenate([likelihood.initial_states(prob, theta), np.full(len(lik.rows), 1e-8)])
+        flt, nus = lik.run(p, S)
+        lik.terms(p, flt, nus, S, scale)
+        assert lik.kink is kink, tau

@@ -56,16 +56,9 @@ def turbulent(config, seed: int, coloured: float = 0.0) -> list[Experiment]:
     W = np.zeros((NX, NX))
     for name, f in F.items():
         W[IX[name], IX[name]] = f**2
-    rows = [IX[n] for n in F]
-    if coloured:  # η' = −η/τ + w/τ per row: the states (x, η), x driven by η
-        n = NX + len(rows)
-        Ab = np.zeros((n, n))
-        Ab[:NX, :NX] = A
-        Ab[rows, NX + np.arange(len(rows))] = 1.0
-        Ab[NX:, NX:] = -np.eye(len(rows)) / coloured
-        Wb = np.zeros((n, n))
-        Wb[NX:, NX:] = np.diag([F[k] ** 2 for k in F]) / coloured**2
-        Phi_b, Q = expm(Ab * DT), _van_loan(Ab, Wb, DT)
+    if coloured:
+        Ab, Wb = _lagged(A, coloured)
+        n, Phi_b, Q = len(Ab), expm(Ab * DT), _van_loan(Ab, Wb, DT)
     else:
         n, Phi_b, Q = NX, Phi, _van_loan(A, W, DT)
     lam, V = np.linalg.eigh(Q)
@@ -80,6 +73,20 @@ def turbulent(config, seed: int, coloured: float = 0.0) -> list[Experiment]:
         forced[:NX] = Gamma @ u[k] + s
         x = (Phi_b @ x if coloured else Phi @ x) + forced + L @ rng.normal(size=n)
     return [Experiment("rudder", t, MEASURED, y, u)]
+
+
+def _lagged(A: np.ndarray, tau: float):
+    """The states (x, η) and their noise intensity where the process noise of each row of `F`
+    passes through a first-order lag, η' = −η/τ + w/τ, x driven by η: what `turbulent` simulates."""
+    rows = [IX[n] for n in F]
+    n = NX + len(rows)
+    Ab = np.zeros((n, n))
+    Ab[:NX, :NX] = A
+    Ab[rows, NX + np.arange(len(rows))] = 1.0
+    Ab[NX:, NX:] = -np.eye(len(rows)) / tau
+    Wb = np.zeros((n, n))
+    Wb[NX:, NX:] = np.diag([F[k] ** 2 for k in F]) / tau**2
+    return Ab, Wb
 
 
 def _start(config, seed: int):
@@ -274,6 +281,9 @@ def test_a_record_s_cycle_is_its_sampling_period_and_dropouts_have_none():
     never = np.ones((50, 2), dtype=bool)
     never[:, 1] = False  # a channel with no sample at all
     assert innovations.cycle(never, 2) is None
+    # random dropouts in a short record: no cycle (one of its own length would leave one sample
+    # per phase for each phase's covariance)
+    assert innovations.cycle(np.random.default_rng(0).random((90, 5)) > 0.1, 5) is None
 
 
 def test_the_periodic_gain_is_the_time_varying_kalman_filters_cycle(config):
@@ -332,22 +342,18 @@ def test_with_a_slow_sensor_and_turbulence_it_fits_within_its_bounds(config):
 
 
 def test_coloured_noise_is_a_first_order_lag_on_each_noisy_row(config):
-    # the augmented model against the one `turbulent` simulates (η' = −η/τ + w/τ driving x)
+    # the augmented model is the one `turbulent` simulates its coloured data from; a lag faster
+    # than a fifth of the interval is left white (its Van Loan Q would lose every digit)
     A = continuous(structure(config.vehicle), theta_vector(config.coefficients))[0]
     W = np.zeros((NX, NX))
     W[IX["v"], IX["v"]], W[IX["r"], IX["r"]] = F["v"] ** 2, F["r"] ** 2
-    tau = 0.3
-    Aa, Wa, Phi = innovations.coloured(A, W, tau, DT)
-    rows = [IX["v"], IX["r"]]
-    Ab = np.zeros((NX + 2, NX + 2))
-    Ab[:NX, :NX] = A
-    Ab[rows, [NX, NX + 1]] = 1.0
-    Ab[NX:, NX:] = -np.eye(2) / tau
-    Wb = np.zeros((NX + 2, NX + 2))
-    Wb[NX:, NX:] = np.diag([F["v"] ** 2, F["r"] ** 2]) / tau**2
+    Ab, Wb = _lagged(A, 0.3)
+    Aa, Wa, Phi = innovations.coloured(A, W, 0.3, DT)
     np.testing.assert_array_equal(Aa, Ab)
     np.testing.assert_array_equal(Wa, Wb)
     np.testing.assert_allclose(Phi, expm(Ab * DT), rtol=1e-12, atol=1e-15)
+    Aw, Ww, Phi_w = innovations.coloured(A, W, 0.001, DT)
+    assert Aw is A and Ww is W and np.allclose(Phi_w, expm(A * DT), rtol=1e-12, atol=1e-15)
 
 
 def test_with_coloured_turbulence_and_its_correlation_time_it_is_unbiased(config):

@@ -7,12 +7,15 @@ spectral density f_j² on each chosen body row j (Jategaonkar's diagonal distrib
 diag(f), continuous time, discretised exactly), measurement noise R diagonal. The negative
 log-likelihood of the innovations ν, with 𝒮 their covariance,
 
-    L = ½ Σ_k νᵀ 𝒮⁻¹ ν + (N/2) ln det 2π𝒮,
+    L = ½ Σ_k νᵀ 𝒮⁻¹ ν + (N/2) ln det 2π𝒮
 
-is minimised by relaxation (Maine & Iliff), from output error's optimum (the same iterations with
-F = 0: from a poor θ the filter would take the model's error for process noise), each iteration:
+(per group of records with one Δ, one measured set and one sampling cycle, and per phase j of the
+cycle over the channels it has: Σ_j [½ Σ_{k in j} ν_kᵀ 𝒮_j⁻¹ ν_k + (N_j/2) ln det 2π𝒮_j];
+`innovations`), is minimised by relaxation (Maine & Iliff), from output error's optimum (the same
+iterations with F = 0: from a poor θ the filter would take the model's error for process noise),
+each iteration:
 
-1. 𝒮 in closed form, `1/N Σ ν νᵀ` per group of records with one Δ and one measured set;
+1. 𝒮 in closed form, `1/N Σ ν νᵀ` per group and phase;
 2. one Gauss-Newton step (Levenberg-Marquardt damped, accepted only where ½Σνᵀ𝒮⁻¹ν falls) on
    p = (θ_free, each record's initial prediction in its measured states, f²) with 𝒮 and R fixed;
    the innovations' sensitivities by central differences in θ and f² (each a new filter: its
@@ -123,7 +126,7 @@ class FilterErrorOptions(Options):
         "a number of seconds from 0 to 1000",
         "the process noise's correlation time τ: 0, white; τ > 0, each row's noise through a "
         "first-order lag of time constant τ (turbulence of that correlation time), f² its "
-        "low-frequency density",
+        "low-frequency density; below a fifth of the sampling interval, white",
     )
 
 
@@ -264,9 +267,12 @@ class _Likelihood:
         (its minimum over τ there; ∂ν/∂τ is then the slope above it)."""
         prob, nf, n = self.prob, self.nf, len(p)
         cols = list(range(nf)) + list(range(nf + self.nx, n))
-        delay = prob.free.index(DELAY) if DELAY in prob.free else -1
+        dts = {r.dt for r in prob.records}
+        delay = (
+            prob.free.index(DELAY) if DELAY in prob.free and len(dts) == 1 else -1
+        )  # one Δ: one set of kinks
         self.kink = False
-        dt = min(r.dt for r in prob.records)
+        dt = dts.pop()
         plus, minus, steps = {}, {}, {}
         for i in cols:
             h = _STEP * max(abs(p[i]), scale[i])
@@ -410,8 +416,8 @@ def _check_cycles(prob: Problem) -> None:
             raise InputError(
                 f"experiment {r.name!r}: missing samples at no fixed period (dropouts); ml-fem runs the "
                 f"periodic steady-state filter: expected each channel's samples to recur every at most "
-                f"{innovations.MAX_CYCLE} samples (a sensor at its own rate), or an output-error method "
-                "(ml-gn, ml-lm, ml-nr, ml-nm)"
+                f"{innovations.MAX_CYCLE} samples (a sensor at its own rate) over more cycles than the "
+                "record has channels, or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
             )
 
 

@@ -62,6 +62,7 @@ from testbed.models.linear import IX, NU, NX, STATES, continuous
 __all__ = [
     "BODY",
     "BODY_ROWS",
+    "FASTEST_LAG",
     "MAX_CYCLE",
     "Filter",
     "coloured",
@@ -84,15 +85,18 @@ _SETTLING = 200  # cycles of the recursion that make Newton's method's other sta
 _CLOSE = 0.1  # a first-order start whose cycle closes to this (relative) needs no other
 _HALVINGS = 20  # halvings of a Newton step that does not reduce the equation's mismatch, at most
 MAX_CYCLE = 100  # samples: the longest period of a record's sampling the periodic filter takes
+FASTEST_LAG = 0.2  # of the sampling interval: a coloured noise's shortest correlation time
 
 
 def cycle(present: np.ndarray | None, k: int) -> np.ndarray | None:
     """The channels each phase of a record's sampling cycle has, (P, k) bool, for the shortest
-    period P (at most `MAX_CYCLE` samples) with `present[i] = phases[i mod P]` at every sample;
-    None where there is none (dropouts). `present` (N, k) or None (every sample there: P = 1)."""
+    period P (at most `MAX_CYCLE` samples) with `present[i] = phases[i mod P]` at every sample
+    and more whole cycles than channels (each phase's innovations' covariance is estimated from
+    its samples); None where there is none (dropouts, or a record too short for its cycle).
+    `present` (N, k) or None (every sample there: P = 1)."""
     if present is None or present.all():
         return np.ones((1, k), dtype=bool)
-    for P in range(1, min(MAX_CYCLE, len(present)) + 1):
+    for P in range(1, min(MAX_CYCLE, len(present) // (k + 1)) + 1):
         phases = present[:P]
         if all((present[j::P] == phases[j]).all() for j in range(P)):
             return phases if phases.any(axis=0).all() else None
@@ -242,7 +246,7 @@ class Filter:
     phases: np.ndarray  # (P, k) bool: the channels each phase has
     Phi_c: np.ndarray  # (P, n, n) Φ(I − K_j C_j)
     PhiK: np.ndarray  # (P, n, k) Φ K_j
-    Gamma: np.ndarray  # (len(states), 3)
+    Gamma: np.ndarray  # (the filter's states, 3): the coloured noise's rows 0
     s: np.ndarray
     K: np.ndarray  # (P, n, k)
     P: np.ndarray  # (P, n, n): the predicted covariance at each phase
@@ -298,9 +302,13 @@ def coloured(A: np.ndarray, W: np.ndarray, tau: float, dt: float):
 
     so that η_j's spectral density is W_jj/(1 + ω²τ²): W_jj at low frequency, as the white
     noise's, rolled off above 1/τ (a first-order Gauss-Markov disturbance of correlation time τ).
-    The η_j follow the states; Φ = e^{AΔ} of the whole."""
+    The η_j follow the states; Φ = e^{AΔ} of the whole. A lag faster than `FASTEST_LAG` of the
+    interval Δ rolls off beyond what the samples resolve, and its Q (Van Loan's, through e^{Δ/τ})
+    would lose every digit: the noise is then the white one, `(A, W, e^{AΔ})`."""
     from scipy.linalg import expm
 
+    if tau < FASTEST_LAG * dt:
+        return A, W, expm(A * dt)
     noisy = np.flatnonzero(np.diag(W) > 0)
     n, m = len(A), len(noisy)
     Aa = np.zeros((n + m, n + m))
