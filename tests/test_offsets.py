@@ -179,7 +179,7 @@ def test_identify_command_reports_and_validates_each_record_with_its_own_offsets
     assert config.record_coefficients("other")["N_0"] == 0.0
 
 
-def test_per_record_estimates_keep_the_truth_fit_and_one_model_methods_refuse_their_values():
+def test_per_record_estimates_keep_the_truth_fit_and_the_one_model_filter_refuses_their_values():
     from testbed.jobs import truth_comparison
 
     offsets = (FIN_OFFSET, -FIN_OFFSET)
@@ -189,8 +189,5 @@ def test_per_record_estimates_keep_the_truth_fit_and_one_model_methods_refuse_th
     comparison = truth_comparison(est, example_config(LATERAL), clean)
     assert comparison.note == "" and comparison.truth_fit is not None
     own = _start().with_coefficients(dict(zip(est.free, est.values)))
-    for method in ("mekf", "ml-fem"):
-        with pytest.raises(
-            InputError, match=r"record 'turn-0' has its own [YN]_0; .* expected shared values"
-        ):
-            identify(data, own, method=method)
+    with pytest.raises(InputError, match=r"record 'turn-0' has its own [YN]_0; .* expected shared values"):
+        identify(data, own, method="mekf")

@@ -148,11 +148,11 @@ def noise_rows(prob: Problem, spec: str) -> np.ndarray:
     return np.array([BODY.index(n) for n in names], dtype=int)
 
 
-def _key(r) -> tuple:
-    """The group of a record: its sampling interval, measured states and sampling cycle, which
-    set its filter."""
+def _key(prob: Problem, r) -> tuple:
+    """The group of a record: its model (`Problem.key`: its sampling interval, and its record
+    group where values are per record), measured states and sampling cycle, which set its filter."""
     phases = innovations.cycle(r.present, len(r.measured))
-    return (r.dt, tuple(r.measured), phases.tobytes(), phases.shape)
+    return (prob.key(r), tuple(r.measured), phases.tobytes(), phases.shape)
 
 
 def _by_phase(v: np.ndarray, on: np.ndarray):
@@ -170,7 +170,7 @@ class _Likelihood:
         self.nx = prob.n_params - prob.n_free
         self.noisy = len(rows) > 0
         self.kink = False  # set by `terms`
-        self.keys = [_key(r) for r in prob.records]
+        self.keys = [_key(prob, r) for r in prob.records]
         self.states, self.phases = {}, {}
         for r, key in zip(prob.records, self.keys):
             d = recursions.discrete(prob, theta0, r.dt, order=1)

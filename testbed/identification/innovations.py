@@ -263,17 +263,20 @@ def filters(
     """The filter of each group of records, keyed as `S`: coefficients `values`, spectral
     densities `q` = f² (6,), `S[key]` the group's innovations' covariance per phase (over the
     phase's channels), `states[key]` the states it runs on (`observed`) and `phases[key]` its
-    cycle (`cycle`); a key is (Δ, measured states, cycle). With a correlation time `tau` > 0 the
+    cycle (`cycle`); a key is (the records' model, `Problem.key`: Δ, or Δ and the record group
+    where values are per record; measured states; cycle). With a correlation time `tau` > 0 the
     process noise is coloured (`coloured`). `LinAlgError` as `periodic_gain`."""
     models = discrete_models(prob, values, 0)
-    A = continuous(prob.structure, prob.coefficients(values))[0]
     W = np.zeros((NX, NX))
     W[BODY_ROWS, BODY_ROWS] = q
-    out = {}
+    out, As = {}, {}
     for key, o in states.items():
-        dt, measured = key[0], np.array(key[1])
-        E = models[dt].E[o]
-        Phi, Ao, Wo = E[:, o], A[np.ix_(o, o)], W[np.ix_(o, o)]
+        model, measured = key[0], np.array(key[1])
+        dt, group = model if isinstance(model, tuple) else (model, None)
+        if group not in As:
+            As[group] = continuous(prob.structure, prob.coefficients(values, group))[0]
+        E = models[model].E[o]
+        Phi, Ao, Wo = E[:, o], As[group][np.ix_(o, o)], W[np.ix_(o, o)]
         extra = 0
         if tau > 0:
             Ao, Wo, Phi = coloured(Ao, Wo, tau, dt)

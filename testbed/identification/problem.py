@@ -367,14 +367,14 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: boo
 def one_model(
     experiments: Sequence[Experiment], config: ModelConfig, method: str, terms: bool = False
 ) -> tuple[list[Experiment], ModelConfig]:
-    """For a `method` that runs one model over every record (the filters): the experiments with
-    the config's sensors undone (`ModelConfig.readings`), its given output terms (biases, the
-    current) taken off their measured states and its given input delay applied to their inputs
-    (each record's own), and the config without them. `InputError` where the config names values
-    per record, gives a record its own coefficient or offset, or (unless `terms`: a method that
-    fits them) frees an output term or the delay."""
+    """For a filter: the experiments with the config's sensors undone (`ModelConfig.readings`),
+    its given output terms (biases, the current) taken off their measured states and its given
+    input delay applied to their inputs (each record's own), and the config without them.
+    `InputError` for what a filter that runs one model over every record (`method`: mekf, ekf)
+    cannot take: values per record, a record's own coefficient or offset, a free output term or
+    delay; `terms` (ml-fem, a filter per record group) takes them all."""
     source = config.source or "config"
-    if config.per_record:
+    if config.per_record and not terms:
         raise InputError(
             f"{source}: [identify] per_record lists {', '.join(config.per_record)}; {method} runs "
             "one model over every record: expected no per_record, or an output-error method "
@@ -388,7 +388,14 @@ def one_model(
             "ml-fem or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
     experiments = config.readings(experiments)
-    given = replace(config, coefficients={**config.coefficients, **dict.fromkeys(free, 0.0)}, free=())
+    unfree = dict.fromkeys(free, 0.0)  # a free one is fitted, not taken off the data
+    given = replace(
+        config,
+        coefficients={**config.coefficients, **unfree},
+        record_values={name: {**values, **unfree} for name, values in config.record_values.items()},
+        free=(),
+        per_record=(),
+    )
     prob = problem(experiments, given, resolve=False)
     out, none = [], np.zeros(0)
     for e, r in zip(experiments, prob.records):
@@ -400,7 +407,7 @@ def one_model(
     records = {name: {**values, **zero} for name, values in config.record_values.items()}
     config = replace(config, coefficients={**config.coefficients, **zero}, record_values=records)
     own = {e: n for e, values in config.record_values.items() for n, v in values.items() if v}
-    if own:
+    if own and not terms:
         record, name = next(iter(own.items()))
         raise InputError(
             f"{source}: record {record!r} has its own {name}; {method} runs one model over every "
