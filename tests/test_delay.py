@@ -128,7 +128,7 @@ def test_ml_fem_holds_a_delay_of_whole_samples_at_its_kink():
     assert dt == pytest.approx(0.05)
     config = _start(LATERAL + ("input_delay",)).with_coefficients(EXAMPLE_COEFFICIENTS | {"input_delay": dt})
     prob = problem(data, config)
-    lik = fem._Likelihood(prob, fem.noise_rows(prob, "v,r"), prob.start)
+    lik = fem.Likelihood(prob, fem.noise_rows(prob, "v,r"), prob.start)
     S = {g: [np.diag([NOISE[STATES[i]] ** 2 for i in g[1]])] for g in lik.groups}
     scale = np.ones(prob.n_params + len(lik.rows))
     for tau, kink in ((dt, True), (1.25 * dt, False)):

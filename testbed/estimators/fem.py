@@ -72,7 +72,7 @@ from testbed.identification.problem import Problem, one_model, problem
 from testbed.identification.innovations import BODY
 from testbed.models.linear import DELAY, IX, NX, STATES
 
-__all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
+__all__ = ["FilterErrorOptions", "Likelihood", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
 
 START_SHARE = 0.05  # f²Δ to start from, as a share of the channel's first differences' variance
 R_FLOOR = 1e-3  # R is kept above this fraction of the innovations' variance per channel
@@ -162,7 +162,7 @@ def _by_phase(v: np.ndarray, on: np.ndarray):
         yield j, v[j::P][:, m]
 
 
-class _Likelihood:
+class Likelihood:
     """The innovations, their covariances and sensitivities of one problem, p = (θ, x0s, f²)."""
 
     def __init__(self, prob: Problem, rows: np.ndarray, theta0: np.ndarray, tau: float = 0.0):
@@ -355,7 +355,7 @@ class _Likelihood:
         return R, p, bool(binding.any())
 
 
-def _start_noise(lik: _Likelihood) -> tuple[dict, np.ndarray]:
+def _start_noise(lik: Likelihood) -> tuple[dict, np.ndarray]:
     """𝒮 and f² to start from, from each channel's first differences (between the samples it
     has), whose variance is about 2R + f²Δ (+ the motion's, small at the sampling rates of the
     data): 𝒮 half of it, f²Δ `START_SHARE` of it on the rows with process noise (a small gain:
@@ -387,14 +387,14 @@ def _fit(
         _check_cycles(prob)
         rows = noise_rows(prob, opts.process_noise)
         theta0 = starts.named(prob, experiments, config, opts.start)
-        lik = _Likelihood(prob, rows, theta0, opts.correlation_time)
+        lik = Likelihood(prob, rows, theta0, opts.correlation_time)
         S, q0 = _start_noise(lik)
         p = likelihood.initial_states(prob, theta0)
         scale = np.concatenate([np.where(theta0 != 0, np.abs(theta0), 1.0), np.ones(lik.nx), q0])
         done, history = 0, np.zeros((0, prob.n_free))
         if lik.noisy:
             # output error first: from a poor θ the filter takes the model's error for process noise
-            first = _Likelihood(prob, rows[:0], theta0)
+            first = Likelihood(prob, rows[:0], theta0)
             out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, callback)
             if out[2] is not Status.DIVERGED:
                 p, done, history = out[0], out[3], out[4][:-1]
@@ -421,7 +421,7 @@ def _check_cycles(prob: Problem) -> None:
             )
 
 
-def _settle(lik: _Likelihood, p: np.ndarray, S: dict, trials: int):
+def _settle(lik: Likelihood, p: np.ndarray, S: dict, trials: int):
     """(p, the filter and innovations there) with 𝒮 = `S`, F reduced until the filter runs
     (halved where the gain overshoots: Φ(I − KC) unstable) and R = 𝒮 − C P Cᵀ is positive
     (`compatible`); None in place of the filter where that takes more than `trials` steps."""
@@ -460,7 +460,7 @@ def _projected_step(p, M, g, bound, lam, first) -> np.ndarray:
         p[below] = 0.0
 
 
-def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
+def _iterate(lik: Likelihood, p, S, scale, opts, callback):
     """The relaxation's iterations from p and 𝒮: (p, 𝒮, status, iterations, history, reason)."""
     nf, nx = lik.nf, lik.nx
     history = [p[:nf].copy()]
@@ -523,7 +523,7 @@ def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
     return p, S, status, it, np.array(history), ""
 
 
-def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale) -> Estimate:
+def _estimate(lik: Likelihood, p, S, status, it, history, why, scale) -> Estimate:
     """The estimate at p with its Cramér-Rao bounds; DIVERGED (with the reason) where the fit
     failed, left the physical region or its bounds are not finite."""
     prob, nf, nx = lik.prob, lik.nf, lik.nx
