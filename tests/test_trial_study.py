@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from studies.trial import MAX_ITER, TRIAL, injected, known, misses
 from testbed.data import load_data
@@ -51,5 +52,21 @@ def test_ii_trial_gives_back_its_biases_offsets_current_and_delay(tmp_path):
     with_trial = replace(config, free=config.free + TRIAL, sensors=known(s), screen=False)
     est = identify(experiments, with_trial, method="ml-gn", max_iter=MAX_ITER)
     assert est.converged
+    assert misses(est, injected(s, config, config.vehicle.weight), relative=0.0) == []
+    assert misses(est, {n: config.coefficients[n] for n in config.free}) == []
+
+
+@pytest.mark.slow
+def test_ii_trial_by_the_filter_error_method_with_its_sensors_at_their_own_rates(tmp_path):
+    """The same with `ml-fem`: its periodic filter (DVL and depth at 10 Hz in the IMU's 50 Hz),
+    the turbulence's correlation time; about 30 s."""
+    s = scenario("II-trial")
+    run = simulate(s, seed=1, out=tmp_path / "run", truth="linear")
+    experiments, config = load_data([run])
+    with_trial = replace(config, free=config.free + TRIAL, sensors=known(s), screen=False)
+    est = identify(
+        experiments, with_trial, method="ml-fem", max_iter=MAX_ITER, correlation_time=s.trial.turbulence.time
+    )
+    assert est.converged, est.message
     assert misses(est, injected(s, config, config.vehicle.weight), relative=0.0) == []
     assert misses(est, {n: config.coefficients[n] for n in config.free}) == []
