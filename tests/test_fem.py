@@ -128,7 +128,7 @@ def test_the_gain_is_the_discrete_kalman_filters(config):
     (P,), after = _reference_filter(Phi, [C], Q, [R], Q, 20_000)
     assert np.max(np.abs(after - P)) < 1e-12 * np.max(np.abs(P))  # settled
     S = C @ P @ C.T + R
-    K, P_fem = innovations.steady_gain(A[np.ix_(o, o)], Phi, C, W[np.ix_(o, o)], S, DT)
+    (K,), (P_fem,) = innovations.periodic_gain(A[np.ix_(o, o)], Phi, [C], W[np.ix_(o, o)], [S], DT)
     assert np.max(np.abs(P_fem - P)) < 1e-9 * np.max(np.abs(P))
     assert np.max(np.abs(K - P @ C.T @ np.linalg.inv(S))) < 1e-9 * np.max(np.abs(K))
     assert np.allclose(np.diag(S - C @ P_fem @ C.T), np.diag(R), rtol=1e-8)

@@ -24,7 +24,7 @@ discrete algebraic Riccati equation with 𝒮 held,
 
 which has no standard form (scipy's `solve_discrete_are` holds R, not 𝒮): it is solved by
 Newton's method from its first-order (continuous) form, Jategaonkar's
-`A P + P Aᵀ − (1/Δ) P Cᵀ 𝒮⁻¹ C P + F Fᵀ = 0` (`steady_gain`). The measurement noise is what 𝒮
+`A P + P Aᵀ − (1/Δ) P Cᵀ 𝒮⁻¹ C P + F Fᵀ = 0` (`periodic_gain` with one phase). The measurement noise is what 𝒮
 leaves, `R = 𝒮 − C P Cᵀ`; with that R, P is the ordinary Kalman filter's (`solve_discrete_are`).
 From the prediction x̃[0] = x0, with the exact transition,
 
@@ -74,7 +74,6 @@ __all__ = [
     "process_covariance",
     "propagate",
     "start",
-    "steady_gain",
 ]
 
 BODY = STATES[:6]  # u v w p q r: the rows process noise enters
@@ -131,14 +130,6 @@ def _full_covariance(A: np.ndarray, W: np.ndarray, dt: float) -> np.ndarray:
     G = expm(np.block([[-A, W], [np.zeros((n, n)), A.T]]) * dt)
     Q = G[n:, n:].T @ G[:n, n:]
     return (Q + Q.T) / 2
-
-
-def steady_gain(A: np.ndarray, Phi: np.ndarray, C: np.ndarray, W: np.ndarray, S: np.ndarray, dt: float):
-    """`(K, P)`: the steady-state gain and predicted covariance of the filter in 𝒮 (`S`, (k, k))
-    for the continuous `A`, its transition `Phi` over `dt`, `C` (k, n) and `W` = F Fᵀ; K = 0
-    where W = 0: `periodic_gain` with one phase."""
-    Ks, Ps = periodic_gain(A, Phi, [C], W, [S], dt)
-    return Ks[0], Ps[0]
 
 
 def _covariance(P: np.ndarray) -> bool:
