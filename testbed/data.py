@@ -22,7 +22,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.errors import InputError, atomic_write_text
+from testbed.errors import InputError, atomic_write_text, check_keys
 from testbed.models.linear import (
     COEFFICIENTS,
     DELAY,
@@ -724,9 +724,7 @@ def parse_sensor(name: str, doc, where: str, keys: Sequence[str] = CONFIG_SENSOR
     check_name(name, f"{where}: sensor name")
     if not isinstance(doc, Mapping):
         raise InputError(f"{where}: expected a table")
-    unknown = sorted(set(doc) - set(keys))
-    if unknown:
-        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected {', '.join(keys)}")
+    check_keys(doc, keys, where)
     outs = doc.get("outputs")
     if not isinstance(outs, list) or not all(isinstance(o, str) for o in outs):
         raise InputError(f"{where}.outputs = {outs!r}; expected a list of {', '.join(OUTPUTS)}")

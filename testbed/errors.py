@@ -29,6 +29,7 @@ __all__ = [
     "atomic_write_text",
     "check_output_directory",
     "check_output_file",
+    "check_keys",
     "check_outputs",
     "is_number",
     "is_stream",
@@ -49,6 +50,13 @@ class InputError(ValueError):
 def one_line(exc: BaseException) -> str:
     """`Type: message` of an exception on one line, for a result that records why it failed."""
     return f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+
+
+def check_keys(table: Mapping, keys: Sequence[str], where: str) -> None:
+    """`InputError` naming the first (sorted) key of a file's `table` that is not one of `keys`."""
+    unknown = sorted(set(table) - set(keys))
+    if unknown:
+        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected {', '.join(keys)}")
 
 
 def is_number(v) -> bool:

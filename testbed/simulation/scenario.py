@@ -64,7 +64,7 @@ import numpy as np
 
 from testbed.simulation.autopilot import Autopilot
 from testbed.data import MIN_ROWS, check_name, number, read_toml, sensor_table, toml_value
-from testbed.errors import InputError, is_number
+from testbed.errors import InputError, check_keys, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector, tilde
 from testbed.models.sensors import Sensor
@@ -290,9 +290,7 @@ _EXPERIMENT = ("name", "duration", "autopilot", "hold", *CHANNELS)
 
 def parse_scenario(doc: Mapping, source: str = "<scenario>") -> Scenario:
     """A `Scenario` from a parsed scenario file."""
-    unknown = sorted(set(doc) - set(_TOP))
-    if unknown:
-        raise InputError(f"{source}: unknown key {unknown[0]!r}; expected {', '.join(_TOP)}")
+    check_keys(doc, _TOP, source)
     top = lambda key, default: number(doc.get(key, default), f"{source}: {key}")  # noqa: E731
     experiments = doc.get("experiment", [])
     if not isinstance(experiments, list) or not all(isinstance(e, Mapping) for e in experiments):
@@ -351,9 +349,7 @@ def _experiment(doc: Mapping, where: str) -> ExperimentSpec:
     if not isinstance(name, str):
         raise InputError(f"{where}: name {name!r}; expected a string")
     where = f"{where.rsplit(': ', 1)[0]}: experiment {name!r}"
-    unknown = sorted(set(doc) - set(_EXPERIMENT))
-    if unknown:
-        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected {', '.join(_EXPERIMENT)}")
+    check_keys(doc, _EXPERIMENT, where)
     autopilot, hold = doc.get("autopilot", {}), doc.get("hold", {})
     for key, table, allowed in (("autopilot", autopilot, tuple(LOOPS)), ("hold", hold, ("depth",))):
         if not isinstance(table, Mapping):

@@ -37,7 +37,7 @@ from typing import Mapping
 import numpy as np
 
 from testbed.data import number
-from testbed.errors import InputError, is_number
+from testbed.errors import InputError, check_keys, is_number
 from testbed.models.linear import INPUTS
 from testbed.models.sensors import rotation
 
@@ -191,9 +191,7 @@ def parse_trial(doc, where: str) -> Trial:
     """The `Trial` of a scenario file's `[trial]` table (`where`: the file and table, for messages)."""
     if not isinstance(doc, Mapping):
         raise InputError(f"{where}: expected a table")
-    unknown = sorted(set(doc) - set(TRIAL_KEYS))
-    if unknown:
-        raise InputError(f"{where}: unknown key {unknown[0]!r}; expected {', '.join(TRIAL_KEYS)}")
+    check_keys(doc, TRIAL_KEYS, where)
     kw = {}
     for key in ("fin_log_delay", "actuator_delay", "backlash", "roll_moment", "weight_excess"):
         if key in doc:
@@ -210,11 +208,7 @@ def parse_trial(doc, where: str) -> Trial:
         t = doc["turbulence"]
         if not isinstance(t, Mapping):
             raise InputError(f"{where}.turbulence: expected a table of {', '.join(_TURBULENCE_KEYS)}")
-        bad = sorted(set(t) - set(_TURBULENCE_KEYS))
-        if bad:
-            raise InputError(
-                f"{where}.turbulence: unknown key {bad[0]!r}; expected {', '.join(_TURBULENCE_KEYS)}"
-            )
+        check_keys(t, _TURBULENCE_KEYS, f"{where}.turbulence")
         tk = {k: _triple(t[k], f"{where}.turbulence.{k}") for k in ("force_std", "moment_std") if k in t}
         if "time" in t:
             tk["time"] = number(t["time"], f"{where}.turbulence.time")
