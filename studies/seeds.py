@@ -5,12 +5,25 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
+from testbed.errors import check_output_directory, check_output_file
 from testbed.estimators import Estimate, Status, identify
+
+
+def check_out(out: Path, seeds: int, files: Sequence[str]) -> None:
+    """`InputError` unless a study of `seeds` seeds can write into `out` before it runs: each
+    seed's run directory `seed<k>` new, or a run directory it replaces (never a folder of
+    someone's files), and its own `files`."""
+    for k in range(1, seeds + 1):
+        check_output_directory(out / f"seed{k}", force=True)
+    if out.is_dir():
+        for name in files:
+            check_output_file(out / name)
 
 
 def usable(est: Estimate) -> bool:

@@ -38,12 +38,15 @@ from pathlib import Path
 import numpy as np
 
 from testbed.data import ModelConfig, load_data
-from testbed.errors import atomic_write_text
+from testbed.errors import InputError, atomic_write_text
 from testbed.estimators import Estimate, identify
 from testbed.models.linear import IX, OFFSETS, STATES, structure, theta_vector, tilde
 from testbed.models.sensors import Sensor
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import Scenario, scenario
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
+from studies.seeds import check_out  # noqa: E402
 
 TRIAL = ("Y_0", "Z_0", "K_0", "M_0", "N_0", "b_u", "b_p", "b_q", "b_r", "c_N", "c_E", "input_delay")
 SPECIFIC_FORCE = ("ax", "ay", "az")  # outputs the linear model does not fit
@@ -135,15 +138,21 @@ def study(seeds: int, out: Path) -> str:
     return table.getvalue()
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--out", type=Path, default=Path("runs/trial"))
     a = ap.parse_args(argv)
+    try:
+        check_out(a.out, a.seeds, ("trial.csv",))
+    except InputError as exc:
+        print(f"trial.py: {exc}", file=sys.stderr)
+        return 2
     text = study(a.seeds, a.out)
     atomic_write_text(a.out / "trial.csv", text)
     print(text, end="")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

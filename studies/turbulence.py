@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from testbed.data import load_data
-from testbed.errors import atomic_write_text
+from testbed.errors import InputError, atomic_write_text
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
-from studies.seeds import fit_seeds, scatter  # noqa: E402
+from studies.seeds import check_out, fit_seeds, scatter  # noqa: E402
 
 METHODS = ("ml-gn", "ml-fem")
 FORCE_STD = (2.7, 21.0, 21.0)  # N: a 0.01 m/s fluctuation's loads, ten times II-trial's
@@ -118,6 +118,11 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--out", type=Path, default=Path("runs/turbulence"))
     args = ap.parse_args(argv)
+    try:
+        check_out(args.out, args.seeds, ("turbulence.csv", "II-turbulence.toml"))
+    except InputError as exc:
+        print(f"turbulence.py: {exc}", file=sys.stderr)
+        return 2
     text = study(args.seeds, args.scale, args.time, args.out, args.duration, args.fem_time)
     atomic_write_text(args.out / "turbulence.csv", text)
     print(text, end="")

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from studies.trial import MAX_ITER, TRIAL, injected, known, misses
+from studies.trial import MAX_ITER, TRIAL, injected, known, main, misses
 from testbed.data import load_data
 from testbed.estimators import identify
 from testbed.models.linear import structure, theta_vector, tilde
@@ -70,3 +70,14 @@ def test_ii_trial_by_the_filter_error_method_with_its_sensors_at_their_own_rates
     assert est.converged, est.message
     assert misses(est, injected(s, config, config.vehicle.weight), relative=0.0) == []
     assert misses(est, {n: config.coefficients[n] for n in config.free}) == []
+
+
+def test_the_study_refuses_a_folder_of_someone_s_notes_before_it_runs(tmp_path, capsys):
+    notes = tmp_path / "notes"
+    (notes / "seed1").mkdir(parents=True)
+    (notes / "seed1" / "plan.txt").write_text("mine")
+    assert main(["--seeds", "1", "--out", str(notes)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "seed1: is a folder without manifest.json" in err
+    assert sorted(p.name for p in notes.rglob("*")) == ["plan.txt", "seed1"]
+    assert (notes / "seed1" / "plan.txt").read_text() == "mine"
