@@ -252,8 +252,8 @@ def trust_region(
     Gauss-Newton step is then below `NEAR` σ), or the model diverges over the whole record from
     `p`, multiple shooting from `p` again, with half the iterations left: stages of `segments`,
     `segments`/`SHRINK`, … pieces per record, then the whole record. Where that does not converge
-    either and ends above the point the whole record's fit had reached, that fit goes on from
-    there. `max_iter` bounds the iterations of all of them together.
+    either, the whole record's fit goes on with the iterations left from the lower of the two
+    points they reached. `max_iter` bounds the iterations of all of them together.
 
     `follow`: earlier fits' optima `(θ, σ)` on the same problem (`Outcome.optimum`); a fit that
     steps into one's basin stops there (`Outcome.joined`: which one)."""
@@ -285,15 +285,15 @@ def trust_region(
         direct = _stages(prob, [], direct.point.p, min(left(), DIRECT), tol, radius, escapes, follow, report)
     out = direct
     if direct.status is not Status.CONVERGED and stages:
-        # multiple shooting gets half of what is left; the whole record's fit the rest where it
-        # was on its way to a better point than the segments led to
+        # multiple shooting gets half of what is left; the rest goes on from the lower of the
+        # points the two reached on the whole record (no budget is left unused)
         out = _stages(prob, stages, p, left() // 2, tol, radius, escapes, follow, report)
-        if (
-            out.status is not Status.CONVERGED
-            and direct.point is not None
-            and (out.point is None or direct.point.J < out.point.J)
-        ):
-            out = _stages(prob, [], direct.point.p, left(), tol, radius, escapes, follow, report)
+        if out.status is not Status.CONVERGED:
+            lower = min(
+                (d for d in (direct, out) if d.point is not None), key=lambda d: d.point.J, default=None
+            )
+            if lower is not None and left() > 0:
+                out = _stages(prob, [], lower.point.p, left(), tol, radius, escapes, follow, report)
     if out.point is None:
         return Outcome(p, Status.DIVERGED, len(history) - 1, np.array(history))
     optimum = ()
