@@ -56,6 +56,7 @@ LAYERS = [
         "testbed.analysis.validation",
         "testbed.analysis.identifiability",
         "testbed.analysis.kinematics",
+        "testbed.analysis.profile",
     ),
     ("testbed.analysis.regime", "testbed.analysis.compatibility"),
     ("testbed.analysis.design",),

@@ -105,7 +105,9 @@ def test_a_fit_that_stops_at_its_limit_has_used_the_whole_limit():
     config = example_config()
     for seed, converges in ((2, True), (10, False)):
         rng = np.random.default_rng(seed)
-        guess = config.with_coefficients({n: config.coefficients[n] * np.exp(0.7 * rng.normal()) for n in config.free})
+        guess = config.with_coefficients(
+            {n: config.coefficients[n] * np.exp(0.7 * rng.normal()) for n in config.free}
+        )
         prob = problem(data, guess)
         out = trust_region.trust_region(prob, prob.start.copy(), max_iter=24)
         assert (out.status is Status.CONVERGED) is converges
