@@ -140,6 +140,18 @@ def _covariance(P: np.ndarray) -> bool:
     return np.allclose(P, P.T, atol=1e-9 * top) and np.linalg.eigvalsh((P + P.T) / 2)[0] >= -1e-9 * top
 
 
+def _reached(A: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """The states the process noise reaches (n,) bool: those with noise (W's nonzero rows) and
+    every state that a reached one drives through A (A[i, j] ≠ 0), the least set A maps into
+    itself (A is block triangular on it and the others: e^{AΔ} is too)."""
+    reach = np.any(W != 0, axis=1)
+    while True:
+        more = reach | np.any(A[:, reach] != 0, axis=1)
+        if np.array_equal(more, reach):
+            return reach
+        reach = more
+
+
 def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: float):
     """`(Ks, Ps)`: per phase j of the cycle, the gain K_j (n, k_j) and predicted covariance P_j of
     the filter in 𝒮_j (`Ss[j]`, (k_j, k_j)) with the phase's measurement matrix `Cs[j]` (k_j, n),
@@ -156,11 +168,28 @@ def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: flo
     the imaginary axis that the process noise does not reach, every state with a process noise
     10⁻¹⁰ of the largest there), or, where that one's cycle misses by more than `_CLOSE` of P,
     `_SETTLING` cycles of the recursion itself from P = Q.
+    On the states the noise does not reach (`_reached`) P is 0 and K's rows are 0 (the recursion
+    from P = Q never leaves them); the equation is solved on the others alone, where its solution
+    is unique (on all states Newton's steps would leave P's part on those wherever its start put
+    it, and the start depends on the values: the gain would jump between them).
     `LinAlgError` where Newton's method does not settle: no solution with these 𝒮 (the process
     noise claims more than they hold)."""
     n = len(A)
     if not W.any():
         return [np.zeros((n, len(S))) for S in Ss], [np.zeros((n, n)) for _ in Ss]
+    reached = _reached(A, W)
+    if not reached.all():
+        # P is 0 on the states the noise does not reach (P = Q starts there, and the recursion
+        # keeps it there): the equation on the others alone, whose solution is then unique
+        on = np.flatnonzero(reached)
+        Ks_on, Ps_on = periodic_gain(
+            A[np.ix_(on, on)], Phi[np.ix_(on, on)], [C[:, on] for C in Cs], W[np.ix_(on, on)], Ss, dt
+        )
+        Ks, Ps = [np.zeros((n, len(S))) for S in Ss], [np.zeros((n, n)) for _ in Ss]
+        for K, P, K_on, P_on in zip(Ks, Ps, Ks_on, Ps_on):
+            K[on] = K_on
+            P[np.ix_(on, on)] = P_on
+        return Ks, Ps
     from scipy.linalg import block_diag, solve_continuous_are
 
     # the first-order form's b r⁻¹ bᵀ = (1/(PΔ)) Σ C_jᵀ 𝒮_j⁻¹ C_j
