@@ -51,12 +51,22 @@ def _late(duration=40.0, noise=True, delay=DELAY):
     return out
 
 
-def test_shifted_interpolates_and_holds_at_the_ends():
-    u = np.arange(5.0)[:, None] ** 2
-    value, slope = shifted(u, 1.25)
-    np.testing.assert_allclose(value[:, 0], [1.75, 5.25, 10.75, 16, 16])  # u[3.25] = 9 + 0.25·(16 − 9)
-    np.testing.assert_allclose(slope[:, 0], [3, 5, 7, 0, 0])
-    np.testing.assert_allclose(shifted(u, -0.5)[0][:, 0], [0, 0.5, 2.5, 6.5, 12.5])
+def test_shifted_is_exact_on_quadratics_smooth_across_samples_and_held_at_the_ends():
+    u = np.arange(8.0)[:, None] ** 2
+    value, first, second = shifted(u, 1.25)
+    s = np.arange(5) + 1.25  # where all four samples it convolves lie in the record
+    np.testing.assert_allclose(value[:5, 0], s**2)  # cubic convolution reproduces quadratics
+    np.testing.assert_allclose(first[:5, 0], 2 * s)
+    np.testing.assert_allclose(second[:5, 0], 2.0)
+    np.testing.assert_allclose(value[6:, 0], 49.0)  # beyond the end: the last sample, held
+    np.testing.assert_allclose(first[6:, 0], 0.0)
+    assert shifted(u, -0.5)[0][0, 0] == 0.0 and shifted(u, -0.5)[1][0, 0] == 0.0
+    # C¹ in the shift across a whole sample (where linear interpolation has a kink)
+    w = np.random.default_rng(5).normal(size=(50, 3))
+    below, at = shifted(w, 3.0 - 1e-9), shifted(w, 3.0)
+    np.testing.assert_allclose(below[0][:40], at[0][:40], atol=1e-8)
+    np.testing.assert_allclose(below[1][:40], at[1][:40], atol=1e-7)
+    np.testing.assert_allclose(at[0][:40], w[3:43])  # at a whole sample: the samples themselves
 
 
 def test_sensitivities_to_the_delay_match_complex_step():
@@ -116,25 +126,21 @@ def test_the_screen_keeps_a_delay_the_data_determine():
     assert "input_delay" not in s.fixed and "input_delay" in s.config.free
 
 
-def test_ml_fem_holds_a_delay_of_whole_samples_at_its_kink():
-    """Fins that step at the record's instants, logged exactly one sample late, no noise: the
-    record moved back one sample is the fins, any fraction of a sample more or less mixes two
-    angles, so ml-fem's likelihood is least at τ = Δ with a kink there (the recorded inputs are
-    interpolated linearly): `terms` finds it and holds τ; a sample and a quarter is no kink."""
-    from testbed.estimators import fem
-
-    data = _late(duration=10.0, noise=False, delay=0.05)
+def test_the_likelihood_is_smooth_in_the_delay_across_whole_samples():
+    """Fins that step at the record's instants, logged one sample late: the cost's slope in τ on
+    either side of a whole sample is the same (with linear interpolation of the record it
+    jumps there, a kink every estimator would have to step around)."""
+    data = _late(duration=10.0, delay=0.05)
     dt = float(data[0].t[1] - data[0].t[0])
-    assert dt == pytest.approx(0.05)
-    config = _start(LATERAL + ("input_delay",)).with_coefficients(EXAMPLE_COEFFICIENTS | {"input_delay": dt})
-    prob = problem(data, config)
-    lik = fem.Likelihood(prob, fem.noise_rows(prob, "v,r"), prob.start)
-    S = {g: [np.diag([NOISE[STATES[i]] ** 2 for i in g[1]])] for g in lik.groups}
-    scale = np.ones(prob.n_params + len(lik.rows))
-    for tau, kink in ((dt, True), (1.25 * dt, False)):
-        theta = prob.start.copy()
-        theta[prob.free.index("input_delay")] = tau
-        p = np.concatenate([likelihood.initial_states(prob, theta), np.full(len(lik.rows), 1e-8)])
-        flt, nus = lik.run(p, S)
-        lik.terms(p, flt, nus, S, scale)
-        assert lik.kink is kink, tau
+    prob = problem(data, _start(LATERAL + ("input_delay",)).with_coefficients(EXAMPLE_COEFFICIENTS))
+    R = np.array([NOISE[STATES[c]] ** 2 for c in range(NX)])[: len(prob.channels)]
+    cost = concentrated.Cost(prob)
+    h = 1e-6 * dt
+    for m in (1, 2, 3):
+        at = prob.start.copy()
+        slopes = []
+        for side in (-1, 1):
+            values = [at.copy(), at.copy()]
+            values[0][-1], values[1][-1] = m * dt, m * dt + side * h
+            slopes.append(side * (cost(values[1], R) - cost(values[0], R)) / h)
+        assert abs(slopes[1] - slopes[0]) <= 1e-3 * abs(slopes[1]), (m, slopes)

@@ -29,11 +29,6 @@ F is estimated through f² (the spectral densities), bounded below by 0: the lik
 f at f = 0 (it depends on f²), so Gauss-Newton in f never reaches a row without process noise,
 where in f² it stops on the bound (an active bound: held at 0 while the gradient points below).
 
-A free input delay moves the recorded fins by linear interpolation (`Problem.inputs`), so the
-likelihood has a kink at each whole sample of delay; the differences in τ stay on one side of it,
-and where the delay sits at a whole sample with the likelihood rising on both sides (the fins
-logged a whole number of samples late: its minimum over τ) it is held there like f² on its bound.
-
 Converged when the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (over the parameters off
 their bound) and the update of 𝒮 changed no variance by more than `r_tol` (relative). The Cramér-Rao
 bounds are those of the information `Σ (∂ν/∂p)ᵀ 𝒮⁻¹ (∂ν/∂p)` at the estimate, the initial states
@@ -46,7 +41,6 @@ residual variance (the config's `noise_std` where it gives a channel's): the fit
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, replace
 from typing import Sequence
@@ -70,7 +64,7 @@ from testbed.estimators.base import (
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
 from testbed.identification.problem import Problem, one_model, problem
 from testbed.identification.innovations import BODY
-from testbed.models.linear import DELAY, IX, NX, STATES
+from testbed.models.linear import IX, NX, STATES
 
 __all__ = ["FilterErrorOptions", "Likelihood", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
 
@@ -169,7 +163,6 @@ class Likelihood:
         self.prob, self.rows, self.nf, self.tau = prob, rows, prob.n_free, tau
         self.nx = prob.n_params - prob.n_free
         self.noisy = len(rows) > 0
-        self.kink = False  # set by `terms`
         self.keys = [_key(prob, r) for r in prob.records]
         self.states, self.phases = {}, {}
         for r, key in zip(prob.records, self.keys):
@@ -262,17 +255,9 @@ class Likelihood:
 
     def terms(self, p, flt, nus, S, scale):
         """g = Σ Jᵀ𝒮⁻¹ν and M = Σ Jᵀ𝒮⁻¹J at p, J = ∂ν/∂p (central differences in θ and f²,
-        exact in x0). `scale`: each parameter's typical size (the step's reference). Sets `kink`:
-        whether a free input delay sits at a whole sample where ½Σνᵀ𝒮⁻¹ν rises on both sides
-        (its minimum over τ there; ∂ν/∂τ is then the slope above it)."""
+        exact in x0). `scale`: each parameter's typical size (the step's reference)."""
         prob, nf, n = self.prob, self.nf, len(p)
         cols = list(range(nf)) + list(range(nf + self.nx, n))
-        dts = {r.dt for r in prob.records}
-        delay = (
-            prob.free.index(DELAY) if DELAY in prob.free and len(dts) == 1 else -1
-        )  # one Δ: one set of kinks
-        self.kink = False
-        dt = dts.pop()
         plus, minus, steps = {}, {}, {}
         for i in cols:
             h = _STEP * max(abs(p[i]), scale[i])
@@ -282,28 +267,6 @@ class Likelihood:
             h2 = 2 * h
             if i >= nf + self.nx and down[i] < 0:  # f² at its bound: a forward difference
                 down, h2 = p, h
-            elif i == delay:
-                # ν has a kink at each whole sample of delay (the recorded inputs are interpolated
-                # linearly): the difference stays on one side of it, on τ's own interval [m, m + 1)
-                # samples as the output-error sensitivity (`Problem.input_rates`) does
-                m = round(p[i] / dt)
-                if abs(p[i] - m * dt) < h:  # at a whole sample: its slope on either side
-                    at = p.copy()
-                    at[i] = m * dt
-                    up, down = at.copy(), at.copy()
-                    up[i] += h
-                    down[i] -= h
-                    a, b, c = self.run(up, S), self.run(down, S), self.run(at, S)
-                    if a is None or b is None or c is None:
-                        raise np.linalg.LinAlgError("the filter fails next to the estimate")
-                    cost = [self.weighted(x[1], S) for x in (a, b, c)]
-                    self.kink = cost[0] >= cost[2] and cost[1] >= cost[2]
-                    plus[i], minus[i], steps[i] = a[1], c[1], h
-                    continue
-                if up[i] / dt >= math.floor(p[i] / dt) + 1:
-                    up, h2 = p, h
-                elif down[i] / dt < math.floor(p[i] / dt):
-                    down, h2 = p, h
             a, b = self.run(up, S), self.run(down, S)
             if a is None or b is None:
                 raise np.linalg.LinAlgError("the filter fails next to the estimate")
@@ -481,8 +444,6 @@ def _iterate(lik: Likelihood, p, S, scale, opts, callback):
         q = p[nf + nx :]
         bound = np.zeros(len(p), dtype=bool)
         bound[nf + nx :] = (q <= 0) & (g[nf + nx :] <= 0)
-        if lik.kink:  # a delay at its kink's minimum: held there, as f² on its bound
-            bound[lik.prob.free.index(DELAY)] = True
         free = np.flatnonzero(~bound)
         Mf, gf = M[np.ix_(free, free)], g[free]
         cov = bounds.crlb(Mf).covariance

@@ -191,16 +191,22 @@ class Problem:
 
     def inputs(self, record: Record, values: np.ndarray) -> np.ndarray:
         """The fins' angles (N, 3) at the free `values`: the recorded ones advanced by the input
-        delay τ, δ(t_k) = δ_rec(t_k + τ), between samples by linear interpolation and held
-        beyond the record's ends (`shifted`)."""
+        delay τ, δ(t_k) = δ_rec(t_k + τ), between samples by cubic convolution and held beyond
+        the record's ends (`shifted`)."""
         if not self.delayed:
             return record.inputs
-        return shifted(record.inputs, self.coefficients(values, record.group)[IDELAY] / record.dt)[0]
+        return self._shifted(record, values)[0]
 
     def input_rates(self, record: Record, values: np.ndarray) -> np.ndarray:
-        """∂δ/∂τ (N, 3) of `inputs`: the recorded angles' slope between the samples it interpolates."""
-        delay = self.coefficients(values, record.group)[IDELAY]
-        return shifted(record.inputs, delay / record.dt)[1] / record.dt
+        """∂δ/∂τ (N, 3) of `inputs`."""
+        return self._shifted(record, values)[1] / record.dt
+
+    def input_curvatures(self, record: Record, values: np.ndarray) -> np.ndarray:
+        """∂²δ/∂τ² (N, 3) of `inputs`."""
+        return self._shifted(record, values)[2] / record.dt**2
+
+    def _shifted(self, record: Record, values: np.ndarray):
+        return shifted(record.inputs, self.coefficients(values, record.group)[IDELAY] / record.dt)
 
     def outputs(self, record: Record, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         """The record's model outputs (N, k) from its states `x` (N, 10) at the free `values`:
@@ -225,16 +231,31 @@ def _heading(e: Experiment) -> np.ndarray | None:
     return psi if there.all() else np.interp(k, k[there], psi[there])
 
 
-def shifted(u: np.ndarray, steps) -> tuple[np.ndarray, np.ndarray]:
-    """`u` (N, m) advanced by `steps` samples (real, or complex under a complex step):
-    u[k + steps] by linear interpolation, held beyond the ends, and the slope
-    u[k + m + 1] − u[k + m] it interpolates along (m = ⌊steps⌋)."""
-    m = math.floor(float(np.real(steps)))
-    f = steps - m
-    k = np.arange(len(u))
-    lo, hi = np.clip(k + m, 0, len(u) - 1), np.clip(k + m + 1, 0, len(u) - 1)
-    slope = u[hi] - u[lo]
-    return u[lo] + f * slope, slope
+def shifted(u: np.ndarray, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`u` (N, m) advanced by `steps` samples (real, or complex under a complex step),
+    u(k + steps), with its first and second derivatives in `steps`: between samples the cubic
+    convolution of Keys (a = −½, Catmull-Rom), which passes through the samples and is C¹ in the
+    shift across them (linear interpolation would put a kink in the likelihood at every whole
+    sample of delay), the first and last samples held beyond the ends. On s = m + f,
+    f ∈ [0, 1]:
+
+        u(s) = w₋₁(f) u[m−1] + w₀(f) u[m] + w₁(f) u[m+1] + w₂(f) u[m+2],
+        w = ½ (−f³ + 2f² − f,  3f³ − 5f² + 2,  −3f³ + 4f² + f,  f³ − f²),
+
+    the samples beyond the ends taken as the end ones."""
+    n = len(u)
+    pos = np.arange(n) + steps
+    inside = (np.real(pos) >= 0) & (np.real(pos) <= n - 1)
+    pos = np.where(inside, pos, np.clip(np.real(pos), 0, n - 1))
+    m = np.minimum(np.floor(np.real(pos)).astype(int), max(n - 2, 0))
+    f = (pos - m)[:, None]
+    at = [u[np.clip(m + j, 0, n - 1)] for j in (-1, 0, 1, 2)]
+    w = (-(f**3) + 2 * f**2 - f, 3 * f**3 - 5 * f**2 + 2, -3 * f**3 + 4 * f**2 + f, f**3 - f**2)
+    dw = (-3 * f**2 + 4 * f - 1, 9 * f**2 - 10 * f, -9 * f**2 + 8 * f + 1, 3 * f**2 - 2 * f)
+    d2w = (-6 * f + 4, 18 * f - 10, -18 * f + 8, 6 * f - 2)
+    value, first, second = (0.5 * sum(c * a for c, a in zip(ws, at)) for ws in (w, dw, d2w))
+    held = ~inside[:, None]  # beyond the ends the shift moves nothing
+    return value, np.where(held, 0.0, first), np.where(held, 0.0, second)
 
 
 COARSEST = math.log(2.0**53)  # ρΔ beyond which the fastest mode decays below rounding in one step

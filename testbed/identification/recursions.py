@@ -328,7 +328,7 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
     The second-order sensitivities of the paper's Eq. 3, discretised exactly, obey
       ∂²x[k+1]/∂p_i∂p_j = Φ ∂²x[k] + ∂Φ_i ∂x[k]/∂p_j + ∂Φ_j ∂x[k]/∂p_i + ∂²E_ij w[k],  ∂²x[0] = 0
     (only coefficients move Φ and E: the initial-state entries of ∂Φ, ∂²E are zero; the input
-    delay's forcing Γ ∂δ/∂τ adds ∂Γ_i ∂δ/∂τ to its pairs with θ_i). Their
+    delay's forcing Γ ∂δ/∂τ adds ∂Γ_i ∂δ/∂τ to its pairs with θ_i, and Γ ∂²δ/∂τ² to its own). Their
     weighted sum is taken by the adjoint recursion `μ[k] = Cᵀweights[k] + Φᵀ μ[k+1]`:
     `Σ_k aₖᵀ ∂²x[k] = Σ_k μ[k+1]ᵀ (forcing at k)`, exact, with no N·n_params² array. A one-hot
     weight gives the second-order sensitivity of one output sample.
@@ -354,11 +354,12 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
         if nf:
             Hr[:nf, :nf] += np.tensordot(d.d2E, mu[1:].T @ w[:-1], axes=([2, 3], [0, 1]))
         for j in np.flatnonzero((prob.index == IDELAY) & prob.acting(r.group)):
-            # the delay's forcing Γ ∂δ[k]/∂τ moves with θ_i by ∂Γ_i ∂δ[k]/∂τ (∂²δ/∂τ² = 0)
+            # the delay's forcing Γ ∂δ[k]/∂τ moves with θ_i by ∂Γ_i ∂δ[k]/∂τ, and with τ by Γ ∂²δ[k]/∂τ²
             rates = prob.input_rates(r, p[:nf])
             cross = np.tensordot(d.dE[:, :, NX : NX + NU], mu[1:].T @ rates[:-1], axes=([1, 2], [0, 1]))
             Hr[:nf, j] += cross
             Hr[j, :nf] += cross
+            Hr[j, j] += np.sum(d.E[:, NX : NX + NU] * (mu[1:].T @ prob.input_curvatures(r, p[:nf])[:-1]))
         cols = prob.columns(r)
         H[np.ix_(cols, cols)] += Hr
     return H
