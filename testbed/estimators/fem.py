@@ -28,6 +28,9 @@ each iteration:
 F is estimated through f² (the spectral densities), bounded below by 0: the likelihood is flat in
 f at f = 0 (it depends on f²), so Gauss-Newton in f never reaches a row without process noise,
 where in f² it stops on the bound (an active bound: held at 0 while the gradient points below).
+f² = 0 is a local optimum of its own wherever a little process noise costs more than it explains
+(the gain grows as a root of f²), so the rows that end there start again once from their first
+guess, and the lower likelihood is kept.
 
 Converged when the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (over the parameters off
 their bound) and the update of 𝒮 changed no variance by more than `r_tol` (relative). The Cramér-Rao
@@ -361,15 +364,34 @@ def _fit(
             out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, callback)
             if out[2] is not Status.DIVERGED:
                 p, done, history = out[0], out[3], out[4][:-1]
-        more = (
-            None
-            if callback is None
-            else (lambda step: callback(replace(step, iteration=done + step.iteration)))
-        )
-        p, S, status, it, steps, why = _iterate(lik, np.concatenate([p, q0]), S, scale, opts, more)
-        est = _estimate(lik, p, S, status, done + it, np.vstack([history, steps]), why, scale)
+
+        def more(offset):
+            if callback is None:
+                return None
+            return lambda step: callback(replace(step, iteration=offset + step.iteration))
+
+        p, S, status, it, steps, why = _iterate(lik, np.concatenate([p, q0]), S, scale, opts, more(done))
+        trail = [history, steps]
+        zero = p[len(p) - len(q0) :] == 0
+        if status is Status.CONVERGED and zero.any():
+            # f² = 0 is a local minimum of its own wherever a little process noise costs more
+            # than it explains (the gain grows as a root of f²): the rows held there start again
+            # from their first guess, and the lower likelihood is kept
+            again = p.copy()
+            again[len(p) - len(q0) :][zero] = q0[zero]
+            other = _iterate(lik, again, S, scale, opts, more(done + it))
+            it += other[3]
+            trail.append(other[4][1:])
+            if other[2] is Status.CONVERGED and _cost(lik, other) < _cost(lik, (p, S)):
+                p, S, _, _, _, why = other
+        est = _estimate(lik, p, S, status, done + it, np.vstack(trail), why, scale)
         # the simulations of the whole data set (`recursions.counting`), rounded up
         return replace(est, evaluations=-(-tally[0] // prob.n_samples), wall_time_s=time.perf_counter() - t0)
+
+
+def _cost(lik: Likelihood, fit) -> float:
+    """The negative log-likelihood at a fit's p (`fit[0]`) with its 𝒮 (`fit[1]`)."""
+    return lik.negative_log_likelihood(lik.run(fit[0], fit[1])[1])
 
 
 def _check_cycles(prob: Problem) -> None:
