@@ -292,8 +292,12 @@ def trust_region(
             lower = min(
                 (d for d in (direct, out) if d.point is not None), key=lambda d: d.point.J, default=None
             )
-            if lower is not None and left() > 0:
-                out = _stages(prob, [], lower.point.p, left(), tol, radius, escapes, follow, report)
+            if lower is not None:
+                out = (
+                    _stages(prob, [], lower.point.p, left(), tol, radius, escapes, follow, report)
+                    if left()
+                    else lower
+                )
     if out.point is None:
         return Outcome(p, Status.DIVERGED, len(history) - 1, np.array(history))
     optimum = ()
