@@ -124,12 +124,18 @@ def by_likelihood(
 ) -> tuple[str, list[str]]:
     """Each of `beyond`'s names with its distance by the likelihood ratio too (`profile`: the fit
     again with it held at the reference, estimate − reference in σ), as text; and those beyond
-    3 σ by it as well."""
+    3 σ by it as well, or not measured by it: a held fit that did not converge, or one below the
+    estimate (which was then short of its optimum)."""
     text, still = [], []
     for name, z in beyond(est, reference, relative):
-        lr = -profile(experiments, config, est, name, reference[name], max_iter=MAX_ITER, **options).sigmas
-        text.append(f"{name} {z:+.1f}σ (likelihood ratio {lr:+.1f}σ)")
-        if abs(lr) > 3:
+        p = profile(experiments, config, est, name, reference[name], max_iter=MAX_ITER, **options)
+        if not p.held.converged or p.statistic < 0:
+            why = "did not converge" if not p.held.converged else f"{-p.statistic:.2g} below the estimate"
+            text.append(f"{name} {z:+.1f}σ (the fit held at the reference {why})")
+            still.append(name)
+            continue
+        text.append(f"{name} {z:+.1f}σ (likelihood ratio {-p.sigmas:+.1f}σ)")
+        if abs(p.sigmas) > 3:
             still.append(name)
     return " ".join(text) or "-", still
 

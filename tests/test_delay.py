@@ -67,6 +67,9 @@ def test_shifted_is_exact_on_quadratics_smooth_across_samples_and_held_at_the_en
     np.testing.assert_allclose(below[0][:40], at[0][:40], atol=1e-8)
     np.testing.assert_allclose(below[1][:40], at[1][:40], atol=1e-7)
     np.testing.assert_allclose(at[0][:40], w[3:43])  # at a whole sample: the samples themselves
+    # and at the ends, where the hold begins: the slope reaching the last sample is the hold's, 0
+    np.testing.assert_allclose(shifted(w, 3.0 - 1e-9)[1][46], 0.0, atol=1e-6)
+    np.testing.assert_allclose(shifted(w, -3.0 + 1e-9)[1][3], 0.0, atol=1e-6)
 
 
 def test_sensitivities_to_the_delay_match_complex_step():

@@ -16,7 +16,7 @@ from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.identification import innovations
 from testbed.identification.problem import problem
-from testbed.models.linear import INPUTS, IX, NX, continuous, discretize, structure, theta_vector
+from testbed.models.linear import INPUTS, IX, NX, STATES, continuous, discretize, structure, theta_vector
 from testbed.simulation.analytic import analytic_config
 from testbed.simulation.measurements import NOISE_STD
 
@@ -300,6 +300,22 @@ def test_the_periodic_gain_is_the_time_varying_kalman_filters_cycle(config):
     for C, Pj, Sj, Kj, Pf in zip(Cs, Ps, Ss, Ks, Ps_fem):
         assert np.max(np.abs(Pf - Pj)) < 1e-9 * np.max(np.abs(Pj))
         assert np.max(np.abs(Kj - Pj @ C.T @ np.linalg.inv(Sj))) < 1e-9 * np.max(np.abs(Kj))
+
+
+def test_states_the_noise_does_not_reach_have_no_covariance_and_no_gain(config):
+    # noise on v and r of all ten states, every state measured: the textbook filter from P = Q
+    # never gives u, w, q, θ or z a covariance; the gain in 𝒮 must be its gain, 0 on those
+    A, _, _, W, _, _ = _sway_yaw(config)
+    Phi, Q, C = expm(A * DT), _van_loan(A, W, DT), np.eye(NX)
+    R = np.diag([NOISE_STD.get(s, 0.01) ** 2 for s in STATES])
+    (P,), after = _reference_filter(Phi, [C], Q, [R], Q, 20_000)
+    assert np.max(np.abs(after - P)) < 1e-12 * np.max(np.abs(P))
+    S = C @ P @ C.T + R
+    (K,), (P_fem,) = innovations.periodic_gain(A, Phi, [C], W, [S], DT)
+    quiet = [IX[s] for s in ("u", "w", "q", "theta", "z")]
+    assert not P_fem[quiet].any() and not K[quiet].any()
+    assert np.max(np.abs(P_fem - P)) < 1e-9 * np.max(np.abs(P))
+    assert np.max(np.abs(K - P @ C.T @ np.linalg.inv(S))) < 1e-9 * np.max(np.abs(K))
 
 
 def test_the_periodic_innovations_are_the_filters_steps(config):

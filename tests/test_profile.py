@@ -2,6 +2,8 @@
 example's vertical plane over a 60 s record: Λ(θ̂ + kσ) = k², the profile's curvature at θ̂
 being the Schur complement of the information)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -45,3 +47,16 @@ def test_what_cannot_be_profiled_is_refused_in_one_line(fit):
         with pytest.raises(InputError, match=match) as e:
             profile(data, config, est, name, value)
         assert "\n" not in str(e.value)
+
+
+def test_a_value_per_record_is_refused_and_the_others_keep_theirs(fit):
+    data, config, _ = fit
+    config = replace(config, per_record=("M_de",))
+    est = identify(data, config, method="ml-gn", start="config")
+    each = [n for n in est.free if n.startswith("M_de[")]
+    assert len(each) == len(data)
+    with pytest.raises(InputError, match="fitted per record") as e:
+        profile(data, config, est, each[0], est.coefficients[each[0]])
+    assert "\n" not in str(e.value)
+    p = profile(data, config, est, "M_q", float(est.coefficients["M_q"]))
+    assert sorted(p.held.free) == sorted(n for n in est.free if n != "M_q") and abs(p.statistic) < 1e-3

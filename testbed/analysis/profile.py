@@ -25,6 +25,7 @@ from typing import Sequence
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Estimate, identify, lookup
+from testbed.identification.problem import base_name
 
 __all__ = ["Profile", "profile"]
 
@@ -63,16 +64,17 @@ def profile(
     """The likelihood ratio of `estimate` (fitted to `experiments` with `config`) at `name` =
     `value`: the same method refitted from the estimate with `name` held at `value` (`options`:
     the method's, as for the estimate; `start` is the estimate where the method has starts)."""
+    if base_name(name) in config.per_record:
+        raise InputError(f"profile: {name!r} is fitted per record; expected a value shared by the records")
     if name not in estimate.free:
         raise InputError(
             f"profile: {name!r} is not a free value of the estimate; expected one of {', '.join(estimate.free)}"
         )
-    if name in config.per_record:
-        raise InputError(f"profile: {name!r} is fitted per record; expected a value shared by the records")
     if not math.isfinite(value):
         raise InputError(f"profile: {name} = {value!r}; expected a finite number")
     # the estimate's free values less `name` (a screened estimate's: the ones the screen kept)
-    free = tuple(n for n in config.free if n != name and (n in estimate.free or n in config.per_record))
+    fitted = {base_name(n) for n in estimate.free}
+    free = tuple(n for n in config.free if n != name and n in fitted)
     held_config = replace(
         config.with_coefficients(estimate.coefficients | {name: float(value)}), free=free, screen=False
     )

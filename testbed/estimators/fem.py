@@ -373,17 +373,20 @@ def _fit(
         p, S, status, it, steps, why = _iterate(lik, np.concatenate([p, q0]), S, scale, opts, more(done))
         trail = [history, steps]
         zero = p[len(p) - len(q0) :] == 0
-        if status is Status.CONVERGED and zero.any():
+        if status is Status.CONVERGED and zero.any() and opts.max_iter > it:
             # f² = 0 is a local minimum of its own wherever a little process noise costs more
             # than it explains (the gain grows as a root of f²): the rows held there start again
-            # from their first guess, and the lower likelihood is kept
+            # from their first guess with the iterations left, and the lower likelihood is kept
+            # (the estimate's history and iterations are the path to it; `evaluations` counts both)
             again = p.copy()
             again[len(p) - len(q0) :][zero] = q0[zero]
-            other = _iterate(lik, again, S, scale, opts, more(done + it))
-            it += other[3]
-            trail.append(other[4][1:])
+            other = _iterate(
+                lik, again, S, scale, replace(opts, max_iter=opts.max_iter - it), more(done + it)
+            )
             if other[2] is Status.CONVERGED and _cost(lik, other) < _cost(lik, (p, S)):
                 p, S, _, _, _, why = other
+                it += other[3]
+                trail.append(other[4][1:])
         est = _estimate(lik, p, S, status, done + it, np.vstack(trail), why, scale)
         # the simulations of the whole data set (`recursions.counting`), rounded up
         return replace(est, evaluations=-(-tally[0] // prob.n_samples), wall_time_s=time.perf_counter() - t0)

@@ -169,9 +169,10 @@ def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: flo
     10⁻¹⁰ of the largest there), or, where that one's cycle misses by more than `_CLOSE` of P,
     `_SETTLING` cycles of the recursion itself from P = Q.
     On the states the noise does not reach (`_reached`) P is 0 and K's rows are 0 (the recursion
-    from P = Q never leaves them); the equation is solved on the others alone, where its solution
-    is unique (on all states Newton's steps would leave P's part on those wherever its start put
-    it, and the start depends on the values: the gain would jump between them).
+    from P = Q never leaves them); the equation is solved on the others alone (on all states
+    Newton's steps, singular there, would leave P's part on those wherever its start put it, and
+    the start depends on the values: the gain would jump between them). A mode of the reached
+    states that the noise still does not excite keeps the least-squares step.
     `LinAlgError` where Newton's method does not settle: no solution with these 𝒮 (the process
     noise claims more than they hold)."""
     n = len(A)
@@ -180,7 +181,7 @@ def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: flo
     reached = _reached(A, W)
     if not reached.all():
         # P is 0 on the states the noise does not reach (P = Q starts there, and the recursion
-        # keeps it there): the equation on the others alone, whose solution is then unique
+        # keeps it there): the equation on the others alone
         on = np.flatnonzero(reached)
         Ks_on, Ps_on = periodic_gain(
             A[np.ix_(on, on)], Phi[np.ix_(on, on)], [C[:, on] for C in Cs], W[np.ix_(on, on)], Ss, dt

@@ -242,14 +242,16 @@ def shifted(u: np.ndarray, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         u(s) = w₋₁(f) u[m−1] + w₀(f) u[m] + w₁(f) u[m+1] + w₂(f) u[m+2],
         w = ½ (−f³ + 2f² − f,  3f³ − 5f² + 2,  −3f³ + 4f² + f,  f³ − f²),
 
-    the samples beyond the ends taken as the end ones."""
+    the samples beyond the ends mirrored about the end ones (u[−1] = u[1], u[N] = u[N−2]), so
+    the interpolant's slope is 0 at the ends, as the hold's beyond them: C¹ there too."""
     n = len(u)
     pos = np.arange(n) + steps
     inside = (np.real(pos) >= 0) & (np.real(pos) <= n - 1)
     pos = np.where(inside, pos, np.clip(np.real(pos), 0, n - 1))
     m = np.minimum(np.floor(np.real(pos)).astype(int), max(n - 2, 0))
     f = (pos - m)[:, None]
-    at = [u[np.clip(m + j, 0, n - 1)] for j in (-1, 0, 1, 2)]
+    mirrored = [np.abs(m + j) for j in (-1, 0, 1, 2)]  # about the first sample,
+    at = [u[np.clip(n - 1 - np.abs(n - 1 - i), 0, n - 1)] for i in mirrored]  # and about the last
     w = (-(f**3) + 2 * f**2 - f, 3 * f**3 - 5 * f**2 + 2, -3 * f**3 + 4 * f**2 + f, f**3 - f**2)
     dw = (-3 * f**2 + 4 * f - 1, 9 * f**2 - 10 * f, -9 * f**2 + 8 * f + 1, 3 * f**2 - 2 * f)
     d2w = (-6 * f + 4, 18 * f - 10, -18 * f + 8, 6 * f - 2)
