@@ -162,7 +162,13 @@ def _cmd_identify(args) -> int:
 
     out = _to_stdout(args.out)
     _check_recording(args.rrd)
-    given = {"start": args.start, "max_iter": args.max_iter, "max_samples": args.max_samples}
+    given = {
+        "start": args.start,
+        "max_iter": args.max_iter,
+        "max_samples": args.max_samples,
+        "process_noise": args.process_noise,
+        "correlation_time": args.correlation_time,
+    }
     options = {k: v for k, v in given.items() if v is not None}
     live = sys.stderr.isatty() and lookup(args.method).iterative  # a progress line (ml-nm runs for minutes)
 
@@ -413,6 +419,21 @@ def parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--max-iter", type=int, default=None, help="iteration limit (ml-* methods)")
     s.add_argument("--max-samples", type=int, default=None, help="stop after this many samples (mekf, ekf)")
+    s.add_argument(
+        "--process-noise",
+        default=None,
+        metavar="ROWS",
+        help="ml-fem only: the body rows with process noise: measured (default), none (output "
+        "error), or body states such as v,r",
+    )
+    s.add_argument(
+        "--correlation-time",
+        type=float,
+        default=None,
+        metavar="S",
+        help="ml-fem only: the process noise's correlation time (s; default 0, white), e.g. the "
+        "turbulence's eddy length over the speed",
+    )
     s.add_argument(
         "--perturb",
         type=_positive,

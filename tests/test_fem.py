@@ -247,6 +247,23 @@ def test_the_command_line_fits_with_it(config, tmp_path, capsys):
     assert abs(doc["process_noise_std"]["r"]["value"] - F["r"]) < 3 * doc["process_noise_std"]["r"]["std"]
     assert main(["identify", str(data), "--config", str(model), "--method", "ml-fem", "--start", "auto"]) == 2
     assert "ml-fem: option --start 'auto'; expected config or equation-error" in capsys.readouterr().err
+    # its options from the command line: the rows with process noise, and its colour
+    out = tmp_path / "fem-r.json"
+    given = ["--method", "ml-fem", "--process-noise", "r", "--correlation-time", "0.3", "--out", str(out)]
+    assert main(["identify", str(data), "--config", str(model), *given]) == 0
+    capsys.readouterr()
+    doc = read_json(out, "estimates")
+    assert doc["converged"] and set(doc["process_noise_std"]) == {"r"}
+    white = identify([e], _start(config, 4), method="ml-fem", process_noise="r", correlation_time=0.3)
+    assert doc["cost"] == pytest.approx(white.cost, rel=1e-9)
+    for bad, message in (
+        (["--method", "ml-gn", "--correlation-time", "0.3"], "ml-gn: option --correlation-time"),
+        (["--method", "ml-fem", "--correlation-time", "-1"], "ml-fem: option --correlation-time -1.0"),
+        (["--method", "ml-fem", "--process-noise", "x"], "ml-fem: option --process-noise 'x'"),
+    ):
+        assert main(["identify", str(data), "--config", str(model), *bad]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
 
 
 # sensors at their own rates: v every 5th sample (phase 0), ψ every 5th (phase 2), the rest at
