@@ -6,7 +6,10 @@ and moment disturbances as first-order Gauss-Markov processes ([trial.turbulence
 docs/files.md), at `--scale` times the loads of a 0.01 m/s velocity fluctuation (`II-trial`'s
 at scale 0.1) and correlation time `--time`. Every seed's run is fitted by `ml-gn` and `ml-fem` from
 the same guess, the run's free coefficients × exp(0.3 N(0, 1)); `ml-fem` models the process
-noise as coloured with the turbulence's correlation time (`--fem-time`: another; 0, white). Per coefficient the table gives
+noise as coloured with the turbulence's correlation time (`--fem-time`: another; 0, white).
+`--open-loop` fits each seed's records flown again without their autopilots, driven by their
+recorded fins through the same dynamics and turbulence (`flown_open_loop`): a prediction-error
+method is consistent in closed loop only with the right noise model. Per coefficient the table gives
 each method's mean error over its mean σ (unbiased: |·| < 0.5) and its mean σ over the scatter
 of its estimates (honest bounds: 0.7–1.4).
 
@@ -23,7 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.data import load_data
+from testbed.data import Experiment, load_data
+from testbed.models.linear import IX, NX, STATES, continuous, discretize, structure, theta_vector, tilde
+from testbed.simulation.measurements import NOISE_STD
+from testbed.simulation.trial import gauss_markov
 from testbed.errors import InputError, atomic_write_text
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text
@@ -52,6 +58,30 @@ def scenario_file(out: Path, scale: float, time: float, duration: float | None) 
     return path
 
 
+def flown_open_loop(experiments, config, scale: float, time: float, rng) -> list[Experiment]:
+    """The records flown again without their autopilots: the linear truth (the analytic model,
+    exact zero-order hold at the record's step) driven by the recorded fins, with turbulence of the
+    same spectrum (body-axis loads through Mt⁻¹, each a Gauss-Markov process held over the step,
+    as the truth's) and the same sensor noise, drawn from `rng`."""
+    st, theta = structure(config.vehicle), theta_vector(config.coefficients)
+    Mt = tilde(st, theta)[0]
+    A, B, S = continuous(st, theta)
+    W = np.linalg.solve(Mt, np.eye(NX)[:, :6])  # the state derivative per unit load
+    std = scale * np.array(FORCE_STD + MOMENT_STD)
+    noise = np.array([NOISE_STD[s] for s in STATES])
+    out = []
+    for e in experiments:
+        dt = float(e.t[1] - e.t[0])
+        Phi, Gamma, s = discretize(A, np.hstack([B, W]), S, dt)
+        loads = gauss_markov(std, time, dt, len(e.t), rng)
+        x = np.zeros((len(e.t), NX))
+        for k in range(len(e.t) - 1):
+            x[k + 1] = Phi @ x[k] + Gamma @ np.r_[e.inputs[k], loads[k]] + s
+        x[:, IX["u"]] += config.vehicle.speed
+        out.append(replace(e, measured=STATES, y=x + rng.normal(size=x.shape) * noise))
+    return out
+
+
 def study(
     seeds: int,
     scale: float,
@@ -59,9 +89,11 @@ def study(
     out: Path,
     duration: float | None = None,
     fem_time: float | None = None,
+    open_loop: bool = False,
 ) -> str:
     """Run the study; return the table as CSV text. `fem_time`: the correlation time `ml-fem`
-    models the process noise with (None: the turbulence's, `time`; 0: white)."""
+    models the process noise with (None: the turbulence's, `time`; 0: white); `open_loop`: each
+    seed's records flown again open loop with their recorded fins (`flown_open_loop`)."""
     out.mkdir(parents=True, exist_ok=True)
     file = scenario_file(out, scale, time, duration)
     runs = [
@@ -72,7 +104,10 @@ def study(
     truth = np.array([config.coefficients[n] for n in config.free])
 
     def data(seed: int):
-        return load_data([runs[seed]])[0]
+        experiments = load_data([runs[seed]])[0]
+        if not open_loop:
+            return experiments
+        return flown_open_loop(experiments, config, scale, time, np.random.default_rng(10_000 + seed))
 
     rng = np.random.default_rng(1000)
     guess = config.with_coefficients(
@@ -116,6 +151,11 @@ def main(argv=None) -> int:
         default=None,
         help="the correlation time ml-fem models the process noise with, s (default: --time; 0: white)",
     )
+    ap.add_argument(
+        "--open-loop",
+        action="store_true",
+        help="fit each seed's records flown again open loop, driven by their recorded fins",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/turbulence"))
     args = ap.parse_args(argv)
     try:
@@ -123,7 +163,7 @@ def main(argv=None) -> int:
     except InputError as exc:
         print(f"turbulence.py: {exc}", file=sys.stderr)
         return 2
-    text = study(args.seeds, args.scale, args.time, args.out, args.duration, args.fem_time)
+    text = study(args.seeds, args.scale, args.time, args.out, args.duration, args.fem_time, args.open_loop)
     atomic_write_text(args.out / "turbulence.csv", text)
     print(text, end="")
     return 0
