@@ -102,16 +102,22 @@ def cycle(present: np.ndarray | None, k: int) -> np.ndarray | None:
     return None
 
 
+def _closure(taken: np.ndarray, links: np.ndarray) -> np.ndarray:
+    """`taken` (n,) bool and, again and again, every state l that `links[a, l]` ties to a state a
+    already taken, until none is added."""
+    while True:
+        wider = taken | links[taken].any(axis=0)
+        if (wider == taken).all():
+            return taken
+        taken = wider
+
+
 def observed(coupled: np.ndarray, measured: np.ndarray) -> np.ndarray:
     """The states the measured ones depend on (sorted indexes): the measured states and, again
     and again, every state that feeds one already taken (`coupled[a, l]`: state l feeds state a)."""
     taken = np.zeros(len(coupled), dtype=bool)
     taken[measured] = True
-    while True:
-        wider = taken | coupled[taken].any(axis=0)
-        if (wider == taken).all():
-            return np.flatnonzero(taken)
-        taken = wider
+    return np.flatnonzero(_closure(taken, coupled))
 
 
 def process_covariance(A: np.ndarray, q: np.ndarray, dt: float) -> np.ndarray:
@@ -144,12 +150,7 @@ def _reached(A: np.ndarray, W: np.ndarray) -> np.ndarray:
     """The states the process noise reaches (n,) bool: those with noise (W's nonzero rows) and
     every state that a reached one drives through A (A[i, j] ≠ 0), the least set A maps into
     itself (A is block triangular on it and the others: e^{AΔ} is too)."""
-    reach = np.any(W != 0, axis=1)
-    while True:
-        more = reach | np.any(A[:, reach] != 0, axis=1)
-        if np.array_equal(more, reach):
-            return reach
-        reach = more
+    return _closure(np.any(W != 0, axis=1), (A != 0).T)
 
 
 def periodic_gain(A: np.ndarray, Phi: np.ndarray, Cs, W: np.ndarray, Ss, dt: float):
