@@ -69,7 +69,7 @@ from testbed.identification.problem import Problem, one_model, problem
 from testbed.identification.innovations import BODY
 from testbed.models.linear import IX, NX, STATES
 
-__all__ = ["FilterErrorOptions", "Likelihood", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
+__all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
 
 START_SHARE = 0.05  # f²Δ to start from, as a share of the channel's first differences' variance
 R_FLOOR = 1e-3  # R is kept above this fraction of the innovations' variance per channel
@@ -145,10 +145,10 @@ def noise_rows(prob: Problem, spec: str) -> np.ndarray:
     return np.array([BODY.index(n) for n in names], dtype=int)
 
 
-def _key(prob: Problem, r) -> tuple:
+def _key(prob: Problem, r, phases: np.ndarray) -> tuple:
     """The group of a record: its model (`Problem.key`: its sampling interval, and its record
-    group where values are per record), measured states and sampling cycle, which set its filter."""
-    phases = innovations.cycle(r.present, len(r.measured))
+    group where values are per record), measured states and sampling cycle `phases`, which set
+    its filter."""
     return (prob.key(r), tuple(r.measured), phases.tobytes(), phases.shape)
 
 
@@ -159,22 +159,23 @@ def _by_phase(v: np.ndarray, on: np.ndarray):
         yield j, v[j::P][:, m]
 
 
-class Likelihood:
+class _Likelihood:
     """The innovations, their covariances and sensitivities of one problem, p = (θ, x0s, f²)."""
 
-    def __init__(self, prob: Problem, rows: np.ndarray, theta0: np.ndarray, tau: float = 0.0):
+    def __init__(self, prob: Problem, rows: np.ndarray, theta0: np.ndarray, cycles, tau: float = 0.0):
+        """`cycles`: each record's sampling cycle (`_cycles`)."""
         self.prob, self.rows, self.nf, self.tau = prob, rows, prob.n_free, tau
         self.nx = prob.n_params - prob.n_free
         self.noisy = len(rows) > 0
-        self.keys = [_key(prob, r) for r in prob.records]
+        self.keys = [_key(prob, r, on) for r, on in zip(prob.records, cycles)]
         self.states, self.phases = {}, {}
-        for r, key in zip(prob.records, self.keys):
+        for r, key, on in zip(prob.records, self.keys, cycles):
             d = recursions.discrete(prob, theta0, r.dt, order=1)
             coupled = d.E[:, :NX] != 0
             if d.dE is not None:
                 coupled = coupled | (d.dE[:, :, :NX] != 0).any(axis=0)
             self.states[key] = innovations.observed(coupled, r.measured)
-            self.phases[key] = np.frombuffer(key[2], dtype=bool).reshape(key[3])
+            self.phases[key] = on
         self.groups = sorted(self.states)
 
     def q(self, p: np.ndarray) -> np.ndarray:
@@ -321,7 +322,7 @@ class Likelihood:
         return R, p, bool(binding.any())
 
 
-def _start_noise(lik: Likelihood) -> tuple[dict, np.ndarray]:
+def _start_noise(lik: _Likelihood) -> tuple[dict, np.ndarray]:
     """𝒮 and f² to start from, from each channel's first differences (between the samples it
     has), whose variance is about 2R + f²Δ (+ the motion's, small at the sampling rates of the
     data): 𝒮 half of it, f²Δ `START_SHARE` of it on the rows with process noise (a small gain:
@@ -350,17 +351,17 @@ def _fit(
     with recursions.counting() as tally, scan.compiled():
         t0 = time.perf_counter()
         prob = problem(experiments, config)
-        _check_cycles(prob)
+        cycles = _cycles(prob)
         rows = noise_rows(prob, opts.process_noise)
         theta0 = starts.named(prob, experiments, config, opts.start)
-        lik = Likelihood(prob, rows, theta0, opts.correlation_time)
+        lik = _Likelihood(prob, rows, theta0, cycles, opts.correlation_time)
         S, q0 = _start_noise(lik)
         p = likelihood.initial_states(prob, theta0)
         scale = np.concatenate([np.where(theta0 != 0, np.abs(theta0), 1.0), np.ones(lik.nx), q0])
         done, history = 0, np.zeros((0, prob.n_free))
         if lik.noisy:
             # output error first: from a poor θ the filter takes the model's error for process noise
-            first = Likelihood(prob, rows[:0], theta0)
+            first = _Likelihood(prob, rows[:0], theta0, cycles)
             out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, callback)
             if out[2] is not Status.DIVERGED:
                 p, done, history = out[0], out[3], out[4][:-1]
@@ -392,24 +393,28 @@ def _fit(
         return replace(est, evaluations=-(-tally[0] // prob.n_samples), wall_time_s=time.perf_counter() - t0)
 
 
-def _cost(lik: Likelihood, fit) -> float:
+def _cost(lik: _Likelihood, fit) -> float:
     """The negative log-likelihood at a fit's p (`fit[0]`) with its 𝒮 (`fit[1]`)."""
     return lik.negative_log_likelihood(lik.run(fit[0], fit[1])[1])
 
 
-def _check_cycles(prob: Problem) -> None:
-    """`InputError` for a record whose missing samples recur at no fixed period (`innovations.cycle`)."""
+def _cycles(prob: Problem) -> list[np.ndarray]:
+    """Each record's sampling cycle (`innovations.cycle`); `InputError` for a record whose missing
+    samples recur at no fixed period."""
+    out = []
     for r in prob.records:
-        if innovations.cycle(r.present, len(r.measured)) is None:
+        out.append(innovations.cycle(r.present, len(r.measured)))
+        if out[-1] is None:
             raise InputError(
                 f"experiment {r.name!r}: missing samples at no fixed period (dropouts); ml-fem runs the "
                 f"periodic steady-state filter: expected each channel's samples to recur every at most "
                 f"{innovations.MAX_CYCLE} samples (a sensor at its own rate) over more cycles than the "
                 "record has channels, or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
             )
+    return out
 
 
-def _settle(lik: Likelihood, p: np.ndarray, S: dict, trials: int):
+def _settle(lik: _Likelihood, p: np.ndarray, S: dict, trials: int):
     """(p, the filter and innovations there) with 𝒮 = `S`, F reduced until the filter runs
     (halved where the gain overshoots: Φ(I − KC) unstable) and R = 𝒮 − C P Cᵀ is positive
     (`compatible`); None in place of the filter where that takes more than `trials` steps."""
@@ -448,7 +453,7 @@ def _projected_step(p, M, g, bound, lam, first) -> np.ndarray:
         p[below] = 0.0
 
 
-def _iterate(lik: Likelihood, p, S, scale, opts, callback):
+def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
     """The relaxation's iterations from p and 𝒮: (p, 𝒮, status, iterations, history, reason)."""
     nf, nx = lik.nf, lik.nx
     history = [p[:nf].copy()]
@@ -509,7 +514,7 @@ def _iterate(lik: Likelihood, p, S, scale, opts, callback):
     return p, S, status, it, np.array(history), ""
 
 
-def _estimate(lik: Likelihood, p, S, status, it, history, why, scale) -> Estimate:
+def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale) -> Estimate:
     """The estimate at p with its Cramér-Rao bounds; DIVERGED (with the reason) where the fit
     failed, left the physical region or its bounds are not finite."""
     prob, nf, nx = lik.prob, lik.nf, lik.nx
