@@ -26,6 +26,15 @@ def check_out(out: Path, seeds: int, files: Sequence[str]) -> None:
             check_output_file(out / name)
 
 
+def guess(config: ModelConfig, rng: np.random.Generator) -> ModelConfig:
+    """Where a study's fit starts: the config's free coefficients × exp(0.3 N(0, 1)), drawn from
+    `rng` in the order of `config.free` (a run's model is the linear truth's own, so starting from
+    it would start from the answer)."""
+    return config.with_coefficients(
+        {n: config.coefficients[n] * float(np.exp(0.3 * rng.normal())) for n in config.free}
+    )
+
+
 def usable(est: Estimate) -> bool:
     """An ML fit counts when it converged; a filter, which has no iteration to converge, when it
     did not diverge."""

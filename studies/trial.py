@@ -52,6 +52,7 @@ from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import Scenario, scenario
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
+from studies import seeds  # noqa: E402
 from studies.seeds import check_out  # noqa: E402
 
 TRIAL = ("Y_0", "Z_0", "K_0", "M_0", "N_0", "b_u", "b_p", "b_q", "b_r", "c_N", "c_E", "input_delay")
@@ -88,12 +89,8 @@ def injected(s: Scenario, config: ModelConfig, weight: float) -> dict[str, float
 
 
 def guess(config: ModelConfig, seed: int) -> ModelConfig:
-    """Where a fit starts: the run's free coefficients × exp(0.3 N(0, 1)) (the run's model is the
-    linear truth's own, so starting from it would start from the answer)."""
-    rng = np.random.default_rng(1000 + seed)
-    return config.with_coefficients(
-        {n: config.coefficients[n] * float(np.exp(0.3 * rng.normal())) for n in config.free}
-    )
+    """Where seed `seed`'s fits start (`seeds.guess`, its own draw)."""
+    return seeds.guess(config, np.random.default_rng(1000 + seed))
 
 
 def sigma(est: Estimate) -> np.ndarray:

@@ -35,7 +35,7 @@ from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
-from studies.seeds import check_out, fit_seeds, scatter  # noqa: E402
+from studies.seeds import check_out, fit_seeds, guess, scatter  # noqa: E402
 
 METHODS = ("ml-gn", "ml-fem")
 FORCE_STD = (2.7, 21.0, 21.0)  # N: a 0.01 m/s fluctuation's loads, ten times II-trial's
@@ -109,12 +109,9 @@ def study(
             return experiments
         return flown_open_loop(experiments, config, scale, time, np.random.default_rng(10_000 + seed))
 
-    rng = np.random.default_rng(1000)
-    guess = config.with_coefficients(
-        {n: config.coefficients[n] * float(np.exp(0.3 * rng.normal())) for n in config.free}
-    )
+    start = guess(config, np.random.default_rng(1000))
     fem_time = time if fem_time is None else fem_time
-    fits = fit_seeds(seeds, data, guess, METHODS, {"ml-fem": {"correlation_time": fem_time}})
+    fits = fit_seeds(seeds, data, start, METHODS, {"ml-fem": {"correlation_time": fem_time}})
     spread = {m: scatter(fits[m], truth) for m in METHODS}
     table = io.StringIO()
     table.write(
