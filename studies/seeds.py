@@ -83,6 +83,9 @@ class Scatter:
 
 def scatter(fits: Sequence[Estimate], reference: np.ndarray) -> Scatter:
     good = [e for e in fits if usable(e)]
+    if not good:  # nothing to take a mean of: every column NaN, as the table prints it
+        none = np.full(len(reference), np.nan)
+        return Scatter(0, none, none, none, none)
     values = np.array([e.values for e in good])
     corrected = [
         e.crlb_corrected_std if e.crlb_corrected_std is not None else np.full(len(e.free), np.nan)

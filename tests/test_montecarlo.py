@@ -69,3 +69,15 @@ def test_reduced_scenario_ii_study(tmp_path):
     for m in scenario_ii.METHODS:
         assert all(np.isfinite(float(r[f"{m}_mean_err_sigma"])) for r in rows), m
     assert "ml-gn: 6 of 6 seeds converged" in out.read_text()
+
+
+def test_a_method_with_no_usable_fit_has_a_scatter_of_nan():
+    from testbed.estimators import Estimate, Status
+
+    failed = Estimate(
+        "ml-gn", Status.DIVERGED, ("Y_v", "N_r"), np.full(2, np.nan), np.full(2, np.nan), np.nan, 0, 0.0, {}
+    )
+    s = scatter([failed, failed], np.array([1.0, 2.0]))
+    assert s.used == 0
+    for column in (s.bias, s.std, s.reported, s.corrected):
+        assert column.shape == (2,) and np.isnan(column).all()
