@@ -702,6 +702,9 @@ def input_cases(root: Path) -> list[Case]:
         "scenario duration 1e7": {"duration = 0.5": "duration = 10000000.0"},
         "experiment duration 1e7": {'name = "roll"': 'name = "roll"\nduration = 1e7'},
         "scenario speed 1e-6": {"duration = 0.5": "duration = 0.5\nspeed = 1e-6"},
+        "scenario feedback 'sensors'": {"duration = 0.5": 'duration = 0.5\nfeedback = "sensors"'},
+        "scenario feedback 1": {"duration = 0.5": "duration = 0.5\nfeedback = 1"},
+        "scenario feedback a table": {"duration = 0.5": "duration = 0.5\nfeedback = {measured = true}"},
     }
     cases = [
         Case(

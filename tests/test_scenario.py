@@ -21,6 +21,8 @@ from testbed.errors import InputError
 from testbed.simulation.measurements import rng_for
 from testbed.models.linear import IX
 from testbed.simulation.analytic import analytic_model
+from testbed.simulation.autopilot import Autopilot
+from testbed.simulation.trial import parse_trial
 from testbed.simulation.vehicle import load_model
 
 
@@ -353,6 +355,12 @@ def test_input_factorial_is_scenario_ii_with_another_signal(name):
         ("[[experiment]]\nname = 'x'\nhold = {depth = 0.0}", "hold needs an elevators signal"),
         ("[[experiment]]\nname = 'x'\n[[experiment]]\nname = 'x'", "expected distinct names"),
         ("wind = 3\n[[experiment]]\nname = 'x'", "unknown key 'wind'"),
+        ("feedback = 'sensors'\n[[experiment]]\nname = 'x'", "feedback = 'sensors'; expected one of"),
+        ("feedback = 1\n[[experiment]]\nname = 'x'", "feedback = 1; expected one of"),
+        (
+            "feedback = 'measured'\n[sensors.dvl]\noutputs = ['u']\n[[experiment]]\nname = 'x'",
+            "feedback = 'measured' with named sensors (dvl)",
+        ),
         ("[sensors]\nrate = 30.0\n[[experiment]]\nname = 'x'", "expected the sample rate to divide"),
         ("[sensors]\nmeasured = ['depth']\n[[experiment]]\nname = 'x'", "measured ['depth']"),
         ("name = ", "not valid TOML"),
@@ -366,6 +374,39 @@ def test_bad_scenario_files_are_one_line_errors(tmp_path, capsys, text, message)
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err and "bad.toml" in err, err
     assert not (tmp_path / "run").exists()
+
+
+TRIALS = {
+    "perfect": {},
+    "current and turbulence": {
+        "current": [0.3, -0.2, 0.0],
+        "turbulence": {"force_std": [1.0, 10.0, 10.0], "moment_std": [0.1, 3.0, 3.0], "time": 0.5},
+    },
+}
+
+
+@pytest.mark.parametrize("trial", sorted(TRIALS))
+@pytest.mark.parametrize("feedback", sc.FEEDBACKS)
+def test_the_autopilots_read_the_true_states_or_the_records_readings(feedback, trial):
+    """Replayed on the record's rows (the true states, or the measured ones for measured
+    feedback: over the ground in a current), the same autopilots and programs give the fin
+    commands flown, and the measured states keep the documented noise either way."""
+    s = replace(_short("II", 6.0), feedback=feedback, trial=parse_trial(TRIALS[trial], "trial"))
+    flights, lin = sc.fly_scenario(s, seed=3, truth="linear")
+    for k, (e, f) in enumerate(zip(s.experiments, flights)):
+        autopilot = Autopilot.designed(lin.A_full, lin.B_full, lin.vehicle.speed, 1 / s.control_rate, lin.fins.angle)
+        program = sc.program(s, e, seed=3, index=k)
+        rows = f.truth if feedback == "true" else f.measured
+        flown = np.column_stack([f.commands[c] for c in sc.FIN_COMMANDS])
+        replayed = np.array([autopilot.step(x, **program(t, x))[0] for t, x in zip(f.t, rows)])
+        assert np.abs(replayed - flown).max() < 1e-12, e.name
+        other = f.measured if feedback == "true" else f.truth
+        autopilot.reset()
+        replayed = np.array([autopilot.step(x, **program(t, x))[0] for t, x in zip(f.t, other)])
+        assert np.abs(replayed - flown).max() > 1e-4, e.name  # the autopilots did read `rows`
+        if trial == "perfect":
+            for name, std in s.sensors.noise_std.items():
+                assert np.std(f.measured[:, IX[name]] - f.truth[:, IX[name]]) == pytest.approx(std, rel=0.15)
 
 
 def test_noise_is_the_documented_noise(tmp_path):

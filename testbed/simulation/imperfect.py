@@ -79,17 +79,17 @@ class TrialFlight:
         out[-1] = (self.integral[step + 1] - self.integral[step]) / self.h if step >= 0 else 0.0
         return out
 
-    def measure(self, sensors: Sensors, named: Sequence[Sensor], columns, t, truth, fins, rng, streams):
+    def measure(self, sensors: Sensors, named: Sequence[Sensor], columns, t, truth, fins, rng, streams, noise=None):
         """The measured states (N, 10; NaN where no sensor samples), recorded fins (N, 3) and
-        specific force (N, 3, or None): the default sensor's noise and the encoders' from `rng`
-        (as a perfect flight's), named sensor k's from random stream SENSOR_STREAM + k;
-        `columns`: the record's outputs."""
+        specific force (N, 3, or None): the default sensor's noise (`noise`, where the flight drew
+        it already) and the encoders' from `rng` (as a perfect flight's), named sensor k's from
+        random stream SENSOR_STREAM + k; `columns`: the record's outputs."""
         current = self.trial.current
         fine_t = np.arange(len(self.x)) * self.h
         fine_x = self.x.copy()
         fine_x[:, IX["psi"]] = np.unwrap(fine_x[:, IX["psi"]])
         at_cg = outputs(Sensor(), truth, current=current) if any(current) else truth
-        measured, fins_measured = measure(at_cg, self.fin_means(t, sensors.rate, fins), sensors, rng)
+        measured, fins_measured = measure(at_cg, self.fin_means(t, sensors.rate, fins), sensors, rng, noise)
         fins_measured = fins_measured + self.trial.offsets
         measured[:, [IX[n] for n in STATES if n not in columns]] = np.nan
         specific_force = None

@@ -93,11 +93,18 @@ def rng_for(seed: int, experiment: int, stream: int = 0) -> np.random.Generator:
 
 
 def measure(
-    truth: np.ndarray, fins: np.ndarray, sensors: Sensors, rng: np.random.Generator
+    truth: np.ndarray,
+    fins: np.ndarray,
+    sensors: Sensors,
+    rng: np.random.Generator,
+    noise: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Noisy copies of the true states (N, 10) and fin angles (N, 3)."""
-    std = np.array([sensors.noise_std.get(s, 0.0) for s in STATES])
-    states = truth + rng.standard_normal(truth.shape) * std
+    """Noisy copies of the true states (N, 10) and fin angles (N, 3); `noise`: the states' noise
+    where it was drawn already (the readings an autopilot flew on), else drawn from `rng`."""
+    if noise is None:
+        std = np.array([sensors.noise_std.get(s, 0.0) for s in STATES])
+        noise = rng.standard_normal(truth.shape) * std
+    states = truth + noise
     angles = fins + rng.standard_normal(fins.shape) * sensors.fin_std
     return states, angles
 

@@ -11,6 +11,7 @@ duration = 60.0      # s, each experiment unless it sets its own
 depth = 100.0        # m, initial depth
 # speed = 20.0       # m/s, trim speed (default: the vehicle's cruise speed)
 control_rate = 50.0  # Hz, autopilots and fin commands
+feedback = "measured"  # the autopilots read the sensors (default "true": the true states)
 
 [sensors]
 rate = 50.0          # Hz; divides the control rate
@@ -67,7 +68,7 @@ from testbed.data import MIN_ROWS, check_name, number, read_toml, sensor_table, 
 from testbed.errors import InputError, check_keys, is_number
 from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector, tilde
-from testbed.models.sensors import Sensor
+from testbed.models.sensors import Sensor, outputs
 from testbed.simulation.imperfect import TrialFlight
 from testbed.simulation.sensing import check_sensors, columns, parse_sensor
 from testbed.simulation.trial import Trial, parse_trial, trial_table
@@ -80,6 +81,7 @@ from testbed.simulation.vehicle import MAX_SPEED, MIN_SPEED, cruise_speed
 __all__ = [
     "BUILTIN",
     "CHANNELS",
+    "FEEDBACKS",
     "FIN_COMMANDS",
     "LOOPS",
     "SAMPLES",
@@ -114,6 +116,8 @@ SAMPLES = (MIN_ROWS, 10**6)  # the samples an experiment may have (MIN_ROWS: the
 LOOPS = {"yaw_rate": "rudder", "depth": "elevators", "roll": "differential"}  # loop -> its channel
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 TRUTHS = ("plant", "linear")  # what a scenario can be flown on: the MuJoCo plant, the analytic model
+# What the autopilots and the fin programs read: the true state, or the default sensors' readings
+FEEDBACKS = ("true", "measured")
 BUILTIN = tuple(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
 
 
@@ -159,6 +163,7 @@ class Scenario:
     speed: float | None = None  # trim speed, m/s (None: the vehicle's cruise speed)
     depth: float = 100.0  # initial depth, m
     control_rate: float = 50.0  # Hz
+    feedback: str = "true"  # what the autopilots read: FEEDBACKS
     sensors: Sensors = field(default_factory=Sensors)
     measured: tuple[str, ...] = STATES  # the states the default sensor reads (those no named sensor outputs)
     named_sensors: tuple[Sensor, ...] = ()  # the [sensors.NAME] tables
@@ -182,6 +187,16 @@ class Scenario:
                 raise InputError(
                     f"{self.described(**{name: repr(getattr(self, name))})}; expected {expected}"
                 )
+        if self.feedback not in FEEDBACKS:
+            raise InputError(
+                f"{self.where}: feedback = {self.feedback!r}; expected one of {', '.join(map(repr, FEEDBACKS))}"
+            )
+        if self.feedback == "measured" and self.named_sensors:
+            raise InputError(
+                f"{self.where}: feedback = 'measured' with named sensors "
+                f"({', '.join(s.name for s in self.named_sensors)}); expected 'true': the autopilots "
+                "read the default sensors only"
+            )
         if not self.experiments:
             raise InputError(f"{self.where}: no [[experiment]]; expected at least one")
         names = [check_name(e.name, f"{self.where}: experiment name") for e in self.experiments]
@@ -283,7 +298,18 @@ def read_scenario(path: str | Path) -> Scenario:
     return parse_scenario(read_toml(path, "a scenario file (.toml)"), str(path))
 
 
-_TOP = ("name", "description", "duration", "speed", "depth", "control_rate", "sensors", "trial", "experiment")
+_TOP = (
+    "name",
+    "description",
+    "duration",
+    "speed",
+    "depth",
+    "control_rate",
+    "feedback",
+    "sensors",
+    "trial",
+    "experiment",
+)
 _SENSORS = ("rate", "fin_std", "noise_std", "measured")
 _EXPERIMENT = ("name", "duration", "autopilot", "hold", *CHANNELS)
 
@@ -302,6 +328,7 @@ def parse_scenario(doc: Mapping, source: str = "<scenario>") -> Scenario:
         speed=None if doc.get("speed") is None else top("speed", None),
         depth=top("depth", 100.0),
         control_rate=top("control_rate", 50.0),
+        feedback=doc.get("feedback", "true"),
         sensors=_sensors(doc.get("sensors", {}), f"{source}: sensors"),
         measured=_measured(doc.get("sensors", {}), f"{source}: sensors"),
         named_sensors=tuple(
@@ -376,8 +403,10 @@ def scenario_text(s: Scenario) -> str:
     lines += [f"duration = {toml_value(s.duration)}", f"depth = {toml_value(s.depth)}"]
     if s.speed is not None:
         lines.append(f"speed = {toml_value(s.speed)}")
+    lines.append(f"control_rate = {toml_value(s.control_rate)}")
+    if s.feedback != "true":
+        lines.append(f"feedback = {toml_value(s.feedback)}")
     lines += [
-        f"control_rate = {toml_value(s.control_rate)}",
         "",
         "[sensors]",
         f"rate = {toml_value(s.sensors.rate)}",
@@ -486,14 +515,28 @@ def fly(
     fine = None
     if not s.is_perfect:
         fine = TrialFlight(plant, s.trial, (n_samples - 1) * controls_per_sample * steps + 1, streams, weight)
+    # Read back by measured feedback: each state as the default sensor reads it (over the ground
+    # in a current) plus its white noise, drawn at every control instant; the record's samples
+    # are the readings at the sample instants, so the fins are a function of the record.
+    std = noise = None
+    if s.feedback == "measured":
+        std = np.array([s.sensors.noise_std.get(n, 0.0) for n in STATES])
+        noise = np.empty((n_samples, NX))
+    current = s.trial.current if any(s.trial.current) else None
     # The per-step work is Python around a ~0.15 ms plant step: keep it to what is needed.
     for k in range((n_samples - 1) * controls_per_sample + 1):
         x = plant.state()
-        kw = program(k * control_dt, x)
-        command, theta_cmd = autopilot.step(x, **kw)
+        read = x
+        if std is not None:
+            drawn = rng.standard_normal(NX) * std
+            read = (x if current is None else outputs(Sensor(), x, current=current)) + drawn
+        kw = program(k * control_dt, read)
+        command, theta_cmd = autopilot.step(read, **kw)
         i, rest = divmod(k, controls_per_sample)
         if not rest:
             truth[i], fins[i], pos[i], fin_cmds[i] = x, plant.fin_angles(), plant.position(), command
+            if noise is not None:
+                noise[i] = drawn
             fin_integral[i] = plant.fin_integral()
             pitch[i] = np.nan if theta_cmd is None else theta_cmd
             keywords.append(kw)
@@ -516,10 +559,10 @@ def fly(
     t = np.arange(n_samples) / s.sensors.rate
     specific_force = None
     if fine is None:
-        measured, fins_measured = measure(truth, fins, s.sensors, rng)
+        measured, fins_measured = measure(truth, fins, s.sensors, rng, noise)
     else:
         measured, fins_measured, specific_force = fine.measure(
-            s.sensors, s.named_sensors, s.columns, t, truth, fins, rng, streams
+            s.sensors, s.named_sensors, s.columns, t, truth, fins, rng, streams, noise
         )
         pos += np.outer(t, s.trial.current)
     commands = {

@@ -2,8 +2,8 @@
 
 Each signal is a frozen dataclass built by keyword from its TOML table (`parse_signal`) and
 written back by `signal_table`; `Signal.program(rng)` gives the function `(t, x) → value` that
-the experiment calls at every control step (`x` the true state in `STATES` order; only `zigzag`
-reads it). The signals:
+the experiment calls at every control step (`x` the state the autopilots read, in `STATES` order:
+the true one or the sensors' reading, the scenario's `feedback`; only `zigzag` reads it). The signals:
 
 | signal | parameters | value |
 |---|---|---|
