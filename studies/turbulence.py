@@ -4,12 +4,14 @@ Scenario II flown on the linear truth (the analytic model of the bundled torpedo
 coefficients the data come from are known exactly) with the truth's turbulence, body-axis force
 and moment disturbances as first-order Gauss-Markov processes ([trial.turbulence],
 docs/files.md), at `--scale` times the loads of a 0.01 m/s velocity fluctuation (`II-trial`'s
-at scale 0.1) and correlation time `--time`. Every seed's run is fitted by `ml-gn` and `ml-fem` from
+at scale 0.1) and correlation time `--time`, its autopilots reading the sensors, as a real
+vehicle's do (`--feedback true`: the true states, which the record does not hold). Every seed's run is fitted by `ml-gn` and `ml-fem` from
 the same guess, the run's free coefficients × exp(0.3 N(0, 1)); `ml-fem` models the process
 noise as coloured with the turbulence's correlation time (`--fem-time`: another; 0, white).
 `--open-loop` fits each seed's records flown again without their autopilots, driven by their
-recorded fins through the same dynamics and turbulence (`flown_open_loop`): a prediction-error
-method is consistent in closed loop only with the right noise model. Per coefficient the table gives
+recorded fins through the same dynamics and turbulence (`flown_open_loop`). A prediction-error
+method is consistent in closed loop when the fins are a function of the record: autopilots that
+read the true states make the fins carry what the record does not, and bias it. Per coefficient the table gives
 each method's mean error over its mean σ (unbiased: |·| < 0.5) and its mean σ over the scatter
 of its estimates (honest bounds: 0.7–1.4).
 
@@ -32,7 +34,7 @@ from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.trial import gauss_markov
 from testbed.errors import InputError, atomic_write_text
 from testbed.simulation.runs import simulate
-from testbed.simulation.scenario import scenario, scenario_text
+from testbed.simulation.scenario import FEEDBACKS, scenario, scenario_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
 from studies.seeds import check_out, fit_seeds, guess, scatter  # noqa: E402
@@ -42,9 +44,10 @@ FORCE_STD = (2.7, 21.0, 21.0)  # N: a 0.01 m/s fluctuation's loads, ten times II
 MOMENT_STD = (0.3, 6.3, 6.3)  # N m
 
 
-def scenario_file(out: Path, scale: float, time: float, duration: float | None) -> Path:
-    """Scenario II with the turbulence at `scale` of a 0.01 m/s fluctuation's, correlation `time` s."""
-    text = scenario_text(scenario("II"))
+def scenario_file(out: Path, scale: float, time: float, duration: float | None, feedback: str) -> Path:
+    """Scenario II with the turbulence at `scale` of a 0.01 m/s fluctuation's, correlation `time`
+    s, its autopilots reading `feedback` (FEEDBACKS)."""
+    text = scenario_text(replace(scenario("II"), feedback=feedback))
     force = ", ".join(f"{scale * f:g}" for f in FORCE_STD)
     moment = ", ".join(f"{scale * m:g}" for m in MOMENT_STD)
     table = f"[trial.turbulence]\nforce_std = [{force}]\nmoment_std = [{moment}]\ntime = {time:g}\n\n"
@@ -90,12 +93,14 @@ def study(
     duration: float | None = None,
     fem_time: float | None = None,
     open_loop: bool = False,
+    feedback: str = "measured",
 ) -> str:
     """Run the study; return the table as CSV text. `fem_time`: the correlation time `ml-fem`
     models the process noise with (None: the turbulence's, `time`; 0: white); `open_loop`: each
-    seed's records flown again open loop with their recorded fins (`flown_open_loop`)."""
+    seed's records flown again open loop with their recorded fins (`flown_open_loop`);
+    `feedback`: what the autopilots read (FEEDBACKS)."""
     out.mkdir(parents=True, exist_ok=True)
-    file = scenario_file(out, scale, time, duration)
+    file = scenario_file(out, scale, time, duration, feedback)
     runs = [
         simulate(str(file), seed=s + 1, out=out / f"seed{s + 1}", force=True, truth="linear")
         for s in range(seeds)
@@ -126,7 +131,8 @@ def study(
     used = ", ".join(f"{m} {spread[m].used}/{seeds} converged" for m in METHODS)
     table.write(
         f"# {used}; turbulence {scale:g} × a 0.01 m/s fluctuation's, correlation {time:g} s; "
-        f"ml-fem's process noise correlation {fem_time:g} s\n"
+        f"ml-fem's process noise correlation {fem_time:g} s; autopilots reading the "
+        f"{'true states' if feedback == 'true' else 'sensors'}{', flown again open loop' if open_loop else ''}\n"
     )
     return table.getvalue()
 
@@ -153,6 +159,12 @@ def main(argv=None) -> int:
         action="store_true",
         help="fit each seed's records flown again open loop, driven by their recorded fins",
     )
+    ap.add_argument(
+        "--feedback",
+        choices=FEEDBACKS,
+        default="measured",
+        help="what the autopilots read: the sensors (measured, default) or the true states",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/turbulence"))
     args = ap.parse_args(argv)
     try:
@@ -160,7 +172,9 @@ def main(argv=None) -> int:
     except InputError as exc:
         print(f"turbulence.py: {exc}", file=sys.stderr)
         return 2
-    text = study(args.seeds, args.scale, args.time, args.out, args.duration, args.fem_time, args.open_loop)
+    text = study(
+        args.seeds, args.scale, args.time, args.out, args.duration, args.fem_time, args.open_loop, args.feedback
+    )
     atomic_write_text(args.out / "turbulence.csv", text)
     print(text, end="")
     return 0
