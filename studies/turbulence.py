@@ -173,7 +173,14 @@ def main(argv=None) -> int:
         print(f"turbulence.py: {exc}", file=sys.stderr)
         return 2
     text = study(
-        args.seeds, args.scale, args.time, args.out, args.duration, args.fem_time, args.open_loop, args.feedback
+        args.seeds,
+        args.scale,
+        args.time,
+        args.out,
+        args.duration,
+        args.fem_time,
+        args.open_loop,
+        args.feedback,
     )
     atomic_write_text(args.out / "turbulence.csv", text)
     print(text, end="")

@@ -394,7 +394,9 @@ def test_the_autopilots_read_the_true_states_or_the_records_readings(feedback, t
     s = replace(_short("II", 6.0), feedback=feedback, trial=parse_trial(TRIALS[trial], "trial"))
     flights, lin = sc.fly_scenario(s, seed=3, truth="linear")
     for k, (e, f) in enumerate(zip(s.experiments, flights)):
-        autopilot = Autopilot.designed(lin.A_full, lin.B_full, lin.vehicle.speed, 1 / s.control_rate, lin.fins.angle)
+        autopilot = Autopilot.designed(
+            lin.A_full, lin.B_full, lin.vehicle.speed, 1 / s.control_rate, lin.fins.angle
+        )
         program = sc.program(s, e, seed=3, index=k)
         rows = f.truth if feedback == "true" else f.measured
         flown = np.column_stack([f.commands[c] for c in sc.FIN_COMMANDS])

@@ -79,7 +79,9 @@ class TrialFlight:
         out[-1] = (self.integral[step + 1] - self.integral[step]) / self.h if step >= 0 else 0.0
         return out
 
-    def measure(self, sensors: Sensors, named: Sequence[Sensor], columns, t, truth, fins, rng, streams, noise=None):
+    def measure(
+        self, sensors: Sensors, named: Sequence[Sensor], columns, t, truth, fins, rng, streams, noise=None
+    ):
         """The measured states (N, 10; NaN where no sensor samples), recorded fins (N, 3) and
         specific force (N, 3, or None): the default sensor's noise (`noise`, where the flight drew
         it already) and the encoders' from `rng` (as a perfect flight's), named sensor k's from
