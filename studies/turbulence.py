@@ -4,16 +4,15 @@ Scenario II flown on the linear truth (the analytic model of the bundled torpedo
 coefficients the data come from are known exactly) with the truth's turbulence, body-axis force
 and moment disturbances as first-order Gauss-Markov processes ([trial.turbulence],
 docs/files.md), at `--scale` times the loads of a 0.01 m/s velocity fluctuation (`II-trial`'s
-at scale 0.1) and correlation time `--time`, its autopilots reading the sensors, as a real
-vehicle's do (`--feedback true`: the true states, which the record does not hold). Every seed's run is fitted by `ml-gn` and `ml-fem` from
-the same guess, the run's free coefficients × exp(0.3 N(0, 1)); `ml-fem` models the process
-noise as coloured with the turbulence's correlation time (`--fem-time`: another; 0, white).
-`--open-loop` fits each seed's records flown again without their autopilots, driven by their
-recorded fins through the same dynamics and turbulence (`flown_open_loop`). A prediction-error
-method is consistent in closed loop when the fins are a function of the record: autopilots that
-read the true states make the fins carry what the record does not, and bias it. Per coefficient the table gives
-each method's mean error over its mean σ (unbiased: |·| < 0.5) and its mean σ over the scatter
-of its estimates (honest bounds: 0.7–1.4).
+at scale 0.1) and correlation time `--time`, its autopilots reading the sensors
+(`feedback = "measured"`; `--feedback true`: the true states, and then in the horizontal and roll
+records the elevators move only against the turbulence). Every seed's run is fitted by `ml-gn`
+and `ml-fem` from the same guess, the run's free coefficients × exp(0.3 N(0, 1)); `ml-fem` models
+the process noise as coloured with the turbulence's correlation time (`--fem-time`: another; 0,
+white). `--open-loop` fits each seed's records flown again without their autopilots, driven by
+their recorded fins through the same dynamics and turbulence (`flown_open_loop`). Per coefficient
+the table gives each method's mean error over its mean σ (unbiased: |·| < 0.5) and its mean σ
+over the scatter of its estimates (honest bounds: 0.7–1.4).
 
     python studies/turbulence.py --seeds 20 --out runs/turbulence
 """
@@ -129,10 +128,11 @@ def study(
         ]
         table.write(f"{n},{truth[i]:.6g}," + ",".join(cells) + "\n")
     used = ", ".join(f"{m} {spread[m].used}/{seeds} converged" for m in METHODS)
+    read = "true states" if feedback == "true" else "sensors"
+    again = ", flown again open loop" if open_loop else ""
     table.write(
         f"# {used}; turbulence {scale:g} × a 0.01 m/s fluctuation's, correlation {time:g} s; "
-        f"ml-fem's process noise correlation {fem_time:g} s; autopilots reading the "
-        f"{'true states' if feedback == 'true' else 'sensors'}{', flown again open loop' if open_loop else ''}\n"
+        f"ml-fem's process noise correlation {fem_time:g} s; autopilots reading the {read}{again}\n"
     )
     return table.getvalue()
 

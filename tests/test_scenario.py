@@ -411,6 +411,33 @@ def test_the_autopilots_read_the_true_states_or_the_records_readings(feedback, t
                 assert np.std(f.measured[:, IX[name]] - f.truth[:, IX[name]]) == pytest.approx(std, rel=0.15)
 
 
+@pytest.mark.parametrize("truth", sc.TRUTHS)
+def test_with_two_control_steps_a_sample_the_record_holds_every_other_reading(truth, monkeypatch):
+    """At a control rate twice the sample rate the autopilots read at every control instant and
+    the record keeps the readings at the sample instants (ψ unwrapped there), on both truths, and
+    a scenario with measured feedback round-trips through its file."""
+    read = []
+    step = Autopilot.step
+
+    def logged(self, x, **kw):
+        read.append(np.array(x))
+        return step(self, x, **kw)
+
+    monkeypatch.setattr(Autopilot, "step", logged)
+    s = replace(_short("II", 2.0), feedback="measured", control_rate=100.0)
+    assert sc.parse_scenario(tomllib.loads(sc.scenario_text(s)), s.source) == s
+    flights, _ = sc.fly_scenario(s, seed=5, truth=truth)
+    for f in flights:
+        readings, read[:] = np.array(read[: 2 * len(f.t) - 1]), read[2 * len(f.t) - 1 :]
+        at_samples = readings[::2]
+        assert len(at_samples) == len(f.t)
+        assert np.array_equal(np.delete(at_samples, IX["psi"], 1), np.delete(f.measured, IX["psi"], 1))
+        assert np.allclose(np.unwrap(at_samples[:, IX["psi"]]), f.measured[:, IX["psi"]], atol=0.1)
+        between = readings[1::2] - f.truth[:-1]  # the readings no sample keeps: noisy all the same
+        assert np.std(between[:, IX["q"]]) > 0.5 * s.sensors.noise_std["q"]
+    assert not read
+
+
 def test_noise_is_the_documented_noise(tmp_path):
     s = _short("I", 20.0)
     f = sc.fly_scenario(s, seed=2)[0][0]

@@ -78,6 +78,11 @@ class Sensors:
         if not 0 <= self.fin_std < math.inf:
             raise InputError(f"fin noise {self.fin_std}; expected a finite number >= 0 (rad)")
 
+    @property
+    def std(self) -> np.ndarray:
+        """The noise's standard deviation per state, in `STATES` order (0 where none is given)."""
+        return np.array([self.noise_std.get(s, 0.0) for s in STATES])
+
 
 def check_seed(seed) -> int:
     """`seed` as an int; InputError unless it is a non-negative integer (numpy's seeds are)."""
@@ -102,8 +107,7 @@ def measure(
     """Noisy copies of the true states (N, 10) and fin angles (N, 3); `noise`: the states' noise
     where it was drawn already (the readings an autopilot flew on), else drawn from `rng`."""
     if noise is None:
-        std = np.array([sensors.noise_std.get(s, 0.0) for s in STATES])
-        noise = rng.standard_normal(truth.shape) * std
+        noise = rng.standard_normal(truth.shape) * sensors.std
     states = truth + noise
     angles = fins + rng.standard_normal(fins.shape) * sensors.fin_std
     return states, angles

@@ -189,7 +189,8 @@ class Scenario:
                 )
         if self.feedback not in FEEDBACKS:
             raise InputError(
-                f"{self.where}: feedback = {self.feedback!r}; expected one of {', '.join(map(repr, FEEDBACKS))}"
+                f"{self.where}: feedback = {self.feedback!r}; expected one of "
+                f"{', '.join(map(repr, FEEDBACKS))} (a string)"
             )
         if self.feedback == "measured" and self.named_sensors:
             raise InputError(
@@ -517,19 +518,19 @@ def fly(
         fine = TrialFlight(plant, s.trial, (n_samples - 1) * controls_per_sample * steps + 1, streams, weight)
     # Read back by measured feedback: each state as the default sensor reads it (over the ground
     # in a current) plus its white noise, drawn at every control instant; the record's samples
-    # are the readings at the sample instants, so the fins are a function of the record.
+    # are the readings at the sample instants (ψ unwrapped there). The fins are a function of the
+    # record when every control instant is a sample and the record keeps every state read.
     std = noise = None
     if s.feedback == "measured":
-        std = np.array([s.sensors.noise_std.get(n, 0.0) for n in STATES])
-        noise = np.empty((n_samples, NX))
-    current = s.trial.current if any(s.trial.current) else None
+        std, noise = s.sensors.std, np.empty((n_samples, NX))
+    reader = Sensor() if any(s.trial.current) else None
     # The per-step work is Python around a ~0.15 ms plant step: keep it to what is needed.
     for k in range((n_samples - 1) * controls_per_sample + 1):
         x = plant.state()
         read = x
         if std is not None:
             drawn = rng.standard_normal(NX) * std
-            read = (x if current is None else outputs(Sensor(), x, current=current)) + drawn
+            read = (x if reader is None else outputs(reader, x, current=s.trial.current)) + drawn
         kw = program(k * control_dt, read)
         command, theta_cmd = autopilot.step(read, **kw)
         i, rest = divmod(k, controls_per_sample)
