@@ -183,7 +183,7 @@ def test_torpedo_sweeps_slopes_are_the_analytic_derivatives():
         for x, column, reference in checks:
             slope = torpedo_slope(run, x, column)
             assert slope == pytest.approx(reference, rel=0.01, abs=1e-6 * abs(c["Y_dr"])), (run.test, column)
-    # the sweeps reach beyond the linear regime: Y(v) at 3 m/s is 3 % off the slope's line
+    # the sweeps reach beyond the linear regime: Y(v) at 3 m/s is 3.6 % off the slope's line
     drift = next(r for r in runs if r.test == "drift" and r.speed == 20.0)
     Y_v = analytic_model(model, 20.0).coefficients["Y_v"]
     assert abs(drift.wrench[-1, 1] / (3.0 * Y_v) - 1) > 0.02
@@ -191,7 +191,8 @@ def test_torpedo_sweeps_slopes_are_the_analytic_derivatives():
 
 def test_torpedo_pmm_gives_the_added_mass_and_the_damping():
     """Small-amplitude PMM on the torpedo: quadrature parts are −M_A (the vehicle's added mass at
-    fins 0), in-phase parts the analytic model's damping derivatives within 1 %."""
+    fins 0), in-phase parts the analytic model's damping derivatives within 0.1 % (the angular
+    drag κ|ω|ω, not smooth at 0, adds (8/3π) κ a to the in-phase part: 0.04 % of M_q here)."""
     model = load_model()
     c = analytic_model(model, 20.0).coefficients
     M_A = added_mass(model)
@@ -200,11 +201,11 @@ def test_torpedo_pmm_gives_the_added_mass_and_the_damping():
         for x, a in (("v", 0.02), ("w", 0.02), ("p", 0.005), ("q", 0.005), ("r", 0.005))
     ]
     damping = {
-        "v": ("Y_v", "N_v"),
+        "v": ("Y_v", "K_v", "N_v"),
         "w": ("Z_w", "M_w"),
-        "p": ("K_p",),
+        "p": ("Y_p", "K_p", "N_p"),
         "q": ("Z_q", "M_q"),
-        "r": ("Y_r", "N_r"),
+        "r": ("Y_r", "K_r", "N_r"),
     }
     for test, run in zip(tests, captive_tests(model, tests)):
         found = pmm_coefficients(test, run)
@@ -212,7 +213,7 @@ def test_torpedo_pmm_gives_the_added_mass_and_the_damping():
         quadrature = np.array([found[f"{row}_{test.variable}dot"] for row in "XYZKMN"])
         assert np.allclose(quadrature, -M_A[:, k], rtol=1e-9, atol=1e-9 * np.abs(M_A).max()), test.name
         for name in damping[test.variable]:
-            assert found[name] == pytest.approx(c[name], rel=0.01), name
+            assert found[name] == pytest.approx(c[name], rel=1e-3), name
 
 
 def test_torpedo_fluid_force_is_the_sum_over_its_geoms():
