@@ -43,7 +43,7 @@ def hydrodynamic_wrench(vehicle, nu, fins=None, nu_dot=None) -> np.ndarray:
     several); `fins` are (delta_r, delta_er, delta_el), the angles of its hinges `rudder`,
     `elevator_right`, `elevator_left` (a body without one of them takes 0 for it). Each argument
     is one row or rows of them (n, ·); rows broadcast; the result has the rows' shape (6,) or
-    (n, 6).
+    (n, 6). A plant's own state is left as it is.
     """
     model = vehicle.model if isinstance(vehicle, Plant) else vehicle
     if not isinstance(model, mujoco.MjModel):
