@@ -1,8 +1,9 @@
 """The simulation, in the order a run is made: sensor noise (`measurements`), the MJCF vehicle
-(`vehicle`), its completed plant (`plant`) and analytic linear model (`analytic`), autopilots and
-input signals (`autopilot`, `signals`), scenarios (`scenario`), Rerun recordings of runs
-(`recording`) and run directories (`runs`). The bundled torpedo (`mjcf/torpedo.xml`) and the
-built-in scenarios (`scenarios/*.toml`) are package data.
+(`vehicle`), its completed plant (`plant`) and analytic linear model (`analytic`), the water's
+force on the vehicle held in a prescribed motion (`wrench`), autopilots and input signals
+(`autopilot`, `signals`), virtual captive tests (`captive`), scenarios (`scenario`), Rerun
+recordings of runs (`recording`) and run directories (`runs`). The bundled torpedo
+(`mjcf/torpedo.xml`) and the built-in scenarios (`scenarios/*.toml`) are package data.
 """
 
 __all__: list[str] = []
