@@ -356,6 +356,7 @@ BUILTIN_SCENARIOS = (
     "inputs-multisine",
     "inputs-square",
     "turn",
+    "turning-circle",
     "zigzag",
     "zigzag-vertical",
 )  # testbed/simulation/scenarios/*.toml

@@ -518,7 +518,7 @@ def test_library_checks_its_inputs(tmp_path):
     assert rng_for(np.int64(3), 0).integers(1 << 30) == rng_for(3, 0).integers(1 << 30)
     with pytest.raises(
         InputError,
-        match="unknown; expected one of I, II, II-trial, inputs-3211, inputs-multisine, inputs-square, turn, zigzag, zigzag-vertical",
+        match="unknown; expected one of I, II, II-trial, inputs-3211, inputs-multisine, inputs-square, turn, turning-circle, zigzag, zigzag-vertical",
     ):
         sc.scenario("III")
 

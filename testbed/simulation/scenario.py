@@ -43,7 +43,8 @@ band; `depth` again relative to the initial depth). A channel neither driven nor
 The built-in scenarios: `I` (the paper's sea-trial scenario: depth steps of 20 m every 5 s,
 course rate ±20 °/s every 1.5 s, roll held at zero), `II` (PRBS experiments in the linear
 regime, see its file), `II-trial` (Scenario II with a real trial's imperfections: `testbed.simulation.trial`,
-`testbed.simulation.sensing`), `turn`, `zigzag` and `zigzag-vertical` (validation manoeuvres).
+`testbed.simulation.sensing`), `turn`, `turning-circle`, `zigzag` and `zigzag-vertical` (validation
+manoeuvres; `testbed.analysis.manoeuvres` measures them).
 
 A scenario flies on the MuJoCo plant or, as the linear-truth arm, on the analytic linear model
 itself (`fly_scenario(..., truth="linear")`): the same autopilots, fin range and rate, signals
