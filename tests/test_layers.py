@@ -20,10 +20,13 @@ LAYERS = [
     ("testbed.errors", "testbed.memory", "testbed.threads"),
     ("testbed.models", "testbed.models.linear"),
     ("testbed.models.sensors",),
+    ("testbed.models.regressors", "testbed.models.mechanics"),
+    ("testbed.models.nonlinear",),
     ("testbed.data",),
     ("testbed.simulation", "testbed.simulation.measurements"),
     ("testbed.simulation.vehicle",),
     ("testbed.simulation.plant", "testbed.simulation.linear_plant"),
+    ("testbed.simulation.states", "testbed.simulation.nonlinear_reference"),
     ("testbed.simulation.analytic",),
     (
         "testbed.simulation.autopilot",
