@@ -5,6 +5,8 @@ forces, rotation matrices, Newton-Euler; and the term-set fit on data it must re
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -301,3 +303,11 @@ def test_the_fit_recovers_the_coefficients_of_data_the_model_made():
     assert np.abs(fitted - truth).max() < 1e-8 * np.abs(truth).max()
     assert min(quality.force_fit.values()) > 100 - 1e-8
     assert min(quality.acceleration_fit.values()) > 100 - 1e-8
+
+
+def test_the_model_page_lists_the_default_terms_in_order():
+    text = (Path(__file__).resolve().parents[1] / "docs" / "model.md").read_text(encoding="utf-8")
+    nonlinear = text[text.index("# The nonlinear model") :]
+    listed = re.search(r"```\n(X_uu .*?)```", nonlinear, re.S).group(1).split()
+    assert listed == list(TERMS)
+    assert f"default set, {len(TERMS)} terms" in nonlinear
