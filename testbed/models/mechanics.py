@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["coriolis", "cross", "kinematics", "restoring", "skew"]
+__all__ = ["coriolis", "cross", "kinematics", "kirchhoff", "restoring", "skew"]
 
 
 def cross(a, b):
@@ -40,11 +40,18 @@ def skew(a):
     )
 
 
+def kirchhoff(h, nu):
+    """−(ω × h_v, ω × h_ω + v × h_v) (…, 6): the velocity forces of the momentum h = M ν (…, 6)
+    at ν (…, 6), stacked alike (or broadcast)."""
+    v, w, hv, hw = nu[..., :3], nu[..., 3:], h[..., :3], h[..., 3:]
+    return -np.concatenate([cross(w, hv), cross(w, hw) + cross(v, hv)], axis=-1)
+
+
 def coriolis(M: np.ndarray, nu):
     """(F (n, 6), ∂F/∂ν (n, 6, 6)): the Kirchhoff velocity forces of inertia M at ν (n, 6)."""
     h = nu @ M.T
     v, w, hv, hw = nu[:, :3], nu[:, 3:], h[:, :3], h[:, 3:]
-    F = -np.concatenate([cross(w, hv), cross(w, hw) + cross(v, hv)], axis=1)
+    F = kirchhoff(h, nu)
     # d(a × b) = [a]× db − [b]× da, with dh = M dν
     Sw, Sv, Shv, Shw = skew(w), skew(v), skew(hv), skew(hw)
     J = np.zeros(nu.shape[:1] + (6, 6), dtype=F.dtype)

@@ -28,7 +28,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.models import linear
-from testbed.models.mechanics import coriolis, kinematics, restoring
+from testbed.models.mechanics import coriolis, kinematics, kirchhoff, restoring
 from testbed.models.regressors import ROWS, Term, gradients, parse_term, regressors
 
 __all__ = [
@@ -136,6 +136,7 @@ class NonlinearModel:
     terms: tuple[Term, ...]
     M_RB: np.ndarray  # 6 × 6: the vehicle's mass and inertias about its CG
     dM: np.ndarray  # (14, 6, 6): ∂M/∂θ_k of each INERTIA coefficient
+    surge: np.ndarray  # over θ: the X terms' regressors at trim, −∂T/∂θ (0 elsewhere)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -164,7 +165,9 @@ def nonlinear_model(vehicle: linear.Vehicle, terms=TERMS) -> NonlinearModel:
         raise InputError(f"term {clash[0]!r} is a linear model's name; expected a nonlinear term")
     s = linear.structure(vehicle)
     dM = np.array([s.dMt[linear.ITHETA[n]][_BODY, _BODY] for n in INERTIA])
-    return NonlinearModel(vehicle=vehicle, terms=parsed, M_RB=s.Mt0[_BODY, _BODY].copy(), dM=dM)
+    trim = regressors(parsed, np.array([[vehicle.speed, 0, 0, 0, 0, 0.0]]), np.zeros((1, linear.NU)))[0]
+    surge = np.concatenate([np.zeros(len(INERTIA)), np.where([t.row == 0 for t in parsed], trim, 0.0)])
+    return NonlinearModel(vehicle=vehicle, terms=parsed, M_RB=s.Mt0[_BODY, _BODY].copy(), dM=dM, surge=surge)
 
 
 def theta_vector(model: NonlinearModel, coefficients: Mapping[str, float]) -> np.ndarray:
@@ -175,22 +178,9 @@ def theta_vector(model: NonlinearModel, coefficients: Mapping[str, float]) -> np
     return np.array([float(coefficients.get(n, 0.0)) for n in model.names])
 
 
-def _trim(model: NonlinearModel):
-    """(ν, δ) of straight and level flight at the vehicle's speed, one sample."""
-    return np.array([[model.vehicle.speed, 0, 0, 0, 0, 0.0]]), np.zeros((1, linear.NU))
-
-
-def _surge_terms(model: NonlinearModel) -> np.ndarray:
-    """−∂T/∂θ over θ: the X-row terms' regressors at trim (0 elsewhere)."""
-    phi = regressors(model.terms, *_trim(model))[0]
-    out = np.zeros(len(model.names))
-    out[len(INERTIA) :] = np.where([t.row == 0 for t in model.terms], phi, 0.0)
-    return out
-
-
 def thrust(model: NonlinearModel, theta) -> float:
     """T: the propulsor's thrust, which balances the X-row terms in straight flight at trim."""
-    return -(_surge_terms(model) @ np.asarray(theta))
+    return -(model.surge @ np.asarray(theta))
 
 
 def _forces(model: NonlinearModel, theta, x, delta, derivatives: bool):
@@ -211,7 +201,7 @@ def _forces(model: NonlinearModel, theta, x, delta, derivatives: bool):
     if not derivatives:
         return F, M
     dphi = gradients(model.terms, nu, delta)  # (n, K, 9)
-    dF = np.einsum("nkz,k,kr->nrz", dphi, c, place)
+    dF = place.T @ (dphi * c[:, None])  # (n, 6, 9): each row's terms summed
     Jx = np.zeros(x.shape[:1] + (6, linear.NX), dtype=F.dtype)
     Jx[:, :, _BODY] = JC + dF[:, :, :6]
     Jx[:, :, 6:8] += JG
@@ -236,7 +226,7 @@ def force_regressors(model: NonlinearModel, x, delta) -> np.ndarray:
     phi = regressors(model.terms, x[:, _BODY], delta)
     out = np.zeros((len(x), 6, len(model.terms)), dtype=phi.dtype)
     out[:, [t.row for t in model.terms], np.arange(len(model.terms))] = phi
-    out[:, 0, :] -= _surge_terms(model)[len(INERTIA) :]
+    out[:, 0, :] -= model.surge[len(INERTIA) :]
     return out
 
 
@@ -270,8 +260,9 @@ def sensitivities(model: NonlinearModel, theta, x, delta) -> np.ndarray:
     nudot = F @ Minv.T
     n = len(x)
     dF = np.zeros((n, 6, len(model.names)), dtype=F.dtype)
-    for k, dM in enumerate(model.dM):
-        dF[:, :, k] = coriolis(dM, x[:, _BODY])[0] - nudot @ dM.T
+    # per inertia coefficient k: its momentum ∂M/∂θ_k ν and its share ∂M/∂θ_k ν̇ (n, 14, 6)
+    h, hdot = (np.einsum("kij,nj->nki", model.dM, a) for a in (x[:, _BODY], nudot))
+    dF[:, :, : len(INERTIA)] = (kirchhoff(h, x[:, None, _BODY]) - hdot).transpose(0, 2, 1)
     dF[:, :, len(INERTIA) :] = force_regressors(model, x, delta)
     out = np.concatenate([Minv @ dF, np.zeros((n, 4, len(model.names)), dtype=dF.dtype)], axis=1)
     return out[0] if single else out
@@ -305,8 +296,8 @@ def linearise(model: NonlinearModel, theta) -> Linearisation:
     Y_dr = U² Y_uudr, Y_r = U (Y_ur + X_udot), M_w = U (M_uw + X_udot − Z_wdot), … (docs/model.md).
     The offsets X_0 … N_0 take what F leaves at trim beyond the restoring terms."""
     theta = np.asarray(theta, float)
-    nu0, d0 = _trim(model)
-    x0 = np.concatenate([nu0, np.zeros((1, 4))], axis=1)
+    x0, d0 = np.zeros((1, linear.NX)), np.zeros((1, linear.NU))
+    x0[0, 0] = model.vehicle.speed
     F, M, Jx, Jd = _forces(model, theta, x0, d0, True)
     F, Jx, Jd = F[0], Jx[0], Jd[0]
     Mt, At, Bt = np.eye(linear.NX), np.zeros((linear.NX, linear.NX)), np.zeros((linear.NX, linear.NU))

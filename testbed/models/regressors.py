@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -66,41 +67,49 @@ def magnitude(x):
     return np.where(np.real(x) >= 0, x, -x)
 
 
+_WEIGHTS = np.array(list(_LINEAR.values())).T  # (9, 9): z ↦ the linear atoms' values
+
+
+@lru_cache(maxsize=64)
+def _table(terms: tuple[Term, ...]) -> np.ndarray:
+    """(K, F): each term's factors as indices into `ATOMS`, padded with len(ATOMS), the constant 1."""
+    width = max((len(t.factors) for t in terms), default=1)
+    table = np.full((len(terms), width), len(ATOMS), dtype=int)
+    for k, t in enumerate(terms):
+        table[k, : len(t.factors)] = [ATOMS.index(a) for a in t.factors]
+    return table
+
+
+# each atom's gradient with respect to z, up to the sign of a magnitude; the constant 1's is 0
+_GRADIENTS = np.concatenate([_WEIGHTS.T, _WEIGHTS.T, np.zeros((1, 9))])
+
+
 def _atoms(nu, delta):
-    """Each atom's value (n,) and gradient with respect to z = (ν, δ) (n, 9)."""
-    z = np.concatenate([nu, delta], axis=1)
-    out = {}
-    for a, weights in _LINEAR.items():
-        value = z @ weights
-        out[a] = (value, np.broadcast_to(weights, z.shape))
-        # |x|'s gradient sign(x), 0 at x = 0: the mean of its one-sided slopes, so that an even
-        # term (u|v|) has no linear part at v = 0, as its central differences say
-        sign = np.sign(np.real(value))
-        out[f"|{a}|"] = (magnitude(value), sign[:, None] * weights)
-    return out
+    """Each atom's value (n, A + 1), the last atom being the constant 1, and the sign its
+    gradient has (n, A + 1): `_GRADIENTS` times it is the gradient with respect to z = (ν, δ)."""
+    z = np.concatenate([np.atleast_2d(nu), np.atleast_2d(delta)], axis=1)
+    value = z @ _WEIGHTS
+    # |x|'s gradient sign(x), 0 at x = 0: the mean of its one-sided slopes, so that an even
+    # term (u|v|) has no linear part at v = 0, as its central differences say
+    one = np.ones((len(z), 1))
+    values = np.concatenate([value, magnitude(value), one.astype(value.dtype)], axis=1)
+    signs = np.concatenate([np.ones_like(value, dtype=float), np.sign(np.real(value)), one], axis=1)
+    return values, signs
 
 
 def regressors(terms, nu, delta) -> np.ndarray:
     """φ (n, K): each term's product at the samples ν (n, 6) and δ (n, 3)."""
-    atoms = _atoms(np.atleast_2d(nu), np.atleast_2d(delta))
-    n = len(np.atleast_2d(nu))
-    out = np.ones((n, len(terms)), dtype=np.result_type(nu, delta, float))
-    for k, term in enumerate(terms):
-        for a in term.factors:
-            out[:, k] = out[:, k] * atoms[a][0]
-    return out
+    values = _atoms(nu, delta)[0]
+    return np.prod(values[:, _table(tuple(terms))], axis=2)
 
 
 def gradients(terms, nu, delta) -> np.ndarray:
     """∂φ/∂z (n, K, 9), z = (u v w p q r δr δer δel): the product rule over each term's factors."""
-    atoms = _atoms(np.atleast_2d(nu), np.atleast_2d(delta))
-    n = len(np.atleast_2d(nu))
-    out = np.zeros((n, len(terms), 9), dtype=np.result_type(nu, delta, float))
-    for k, term in enumerate(terms):
-        for i, a in enumerate(term.factors):
-            others = np.ones(n, dtype=out.dtype)
-            for j, b in enumerate(term.factors):
-                if j != i:
-                    others = others * atoms[b][0]
-            out[:, k] += others[:, None] * atoms[a][1]
+    values, signs = _atoms(nu, delta)
+    table = _table(tuple(terms))
+    factors = values[:, table]  # (n, K, F)
+    out = np.zeros(factors.shape[:2] + (9,), dtype=factors.dtype)
+    for i in range(table.shape[1]):
+        others = np.prod(np.delete(factors, i, axis=2), axis=2) * signs[:, table[:, i]]
+        out += others[:, :, None] * _GRADIENTS[table[:, i]]
     return out
