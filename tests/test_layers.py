@@ -26,7 +26,8 @@ LAYERS = [
     ("testbed.simulation", "testbed.simulation.measurements"),
     ("testbed.simulation.vehicle",),
     ("testbed.simulation.plant", "testbed.simulation.linear_plant"),
-    ("testbed.simulation.states", "testbed.simulation.nonlinear_reference"),
+    ("testbed.simulation.states",),
+    ("testbed.simulation.nonlinear_reference",),
     ("testbed.simulation.analytic",),
     (
         "testbed.simulation.autopilot",

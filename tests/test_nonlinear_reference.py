@@ -10,7 +10,7 @@ import pytest
 
 from testbed.models.nonlinear import INERTIA, linearise, nonlinear_model, theta_vector
 from testbed.simulation.analytic import analytic
-from testbed.simulation.nonlinear_reference import Box, fit_terms, sample_box
+from testbed.simulation.nonlinear_reference import Box, fit_plant, sample_box
 from testbed.simulation.plant import Plant
 from testbed.simulation.states import plant_rates
 from testbed.simulation.vehicle import rigid_body_mass
@@ -50,11 +50,9 @@ def test_the_terms_fitted_near_trim_linearise_to_the_analytic_model():
     lin = analytic()
     inertia = {n: lin.coefficients[n] for n in INERTIA}
     model = nonlinear_model(lin.vehicle)
-    plant = Plant()
-    plant.reset(20.0)
     near = Box(speed=(19.98, 20.02), velocity=0.01, rate=0.004, angle=0.3, fin=0.001)
     x, delta = sample_box(near, 2000, seed=5)
-    quality = fit_terms(model, inertia, x, delta, plant_rates(plant, x, delta))
+    quality = fit_plant(Plant(), model, inertia, x, delta)
     linear = linearise(model, theta_vector(model, {**inertia, **quality.coefficients}))
     assert linear.outside == ()
     for name, value in lin.coefficients.items():

@@ -184,7 +184,7 @@ def thrust(model: NonlinearModel, theta) -> float:
 
 
 def _forces(model: NonlinearModel, theta, x, delta, derivatives: bool):
-    """F (n, 6), and with `derivatives` ∂F/∂x (n, 6, 10), ∂F/∂δ (n, 6, 3) and φ (n, K)."""
+    """(F (n, 6), M), and with `derivatives` also ∂F/∂x (n, 6, 10) and ∂F/∂δ (n, 6, 3)."""
     theta = np.asarray(theta)
     c = theta[len(INERTIA) :]
     nu = x[:, _BODY]

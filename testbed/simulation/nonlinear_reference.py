@@ -1,8 +1,8 @@
 """How well a nonlinear model's term set can represent the plant: a least-squares fit of the
 plant's own forces at sampled states.
 
-At each sample (state x, fin angles δ, drawn uniformly in a box) the completed plant gives its
-body accelerations ν̇ (`states.plant_rates`, fins held). The model says M ν̇ = F₀(x) +
+At each sample (state x, fin angles δ: drawn uniformly in a box, or a flight's) the completed
+plant gives its body accelerations ν̇ (`states.plant_rates`, fins held; `fit_plant`). The model says M ν̇ = F₀(x) +
 R(x, δ) c, with F₀ the forces it knows exactly (Kirchhoff's velocity forces of M, weight and
 buoyancy) and R the terms' regressors (`nonlinear.force_regressors`, the thrust's share
 included), so each body row is a linear least-squares problem for its terms' coefficients c:
@@ -23,8 +23,10 @@ import numpy as np
 from testbed.models import nonlinear
 from testbed.models.linear import NU, NX
 from testbed.models.regressors import ROWS
+from testbed.simulation.plant import Plant
+from testbed.simulation.states import plant_rates
 
-__all__ = ["Box", "FitQuality", "SCENARIO_I", "fit_terms", "sample_box"]
+__all__ = ["Box", "FitQuality", "SCENARIO_I", "fit_plant", "fit_terms", "sample_box"]
 
 
 @dataclass(frozen=True)
@@ -39,7 +41,8 @@ class Box:
     fin: float
 
 
-SCENARIO_I = Box(speed=(16.0, 20.0), velocity=2.0, rate=1.7, angle=0.6, fin=0.4)  # its flight's range
+# Scenario I's nominal ranges, every extreme at once (its flight stays well inside them)
+SCENARIO_I = Box(speed=(16.0, 20.0), velocity=2.0, rate=1.7, angle=0.6, fin=0.4)
 
 
 def sample_box(box: Box, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -86,6 +89,17 @@ def fit_terms(model: nonlinear.NonlinearModel, inertia: dict[str, float], x, del
         force_rms={ROWS[r]: float(np.sqrt(np.mean(residual[:, r] ** 2))) for r in range(6)},
         samples=len(x),
     )
+
+
+def fit_plant(
+    plant: Plant, model: nonlinear.NonlinearModel, inertia: dict[str, float], x, delta
+) -> FitQuality:
+    """`fit_terms` against `plant`'s own accelerations at `x`, `delta`, its propulsor set for the
+    model's trim speed (`Plant.reset`, as after it)."""
+    plant.reset(model.vehicle.speed)
+    nudot = plant_rates(plant, x, delta)
+    plant.reset(model.vehicle.speed)
+    return fit_terms(model, inertia, x, delta, nudot)
 
 
 def _fit(y, residual) -> float:
