@@ -26,7 +26,7 @@ from testbed.models.nonlinear import (
     theta_vector,
     thrust,
 )
-from testbed.models.regressors import parse_term
+from testbed.models.regressors import parse_term, regressors
 from testbed.simulation.nonlinear_reference import SCENARIO_I, fit_terms, sample_box
 
 # A torpedo-like body (SI): CB 2 cm above the CG, slightly heavy, off-diagonal added mass.
@@ -276,6 +276,27 @@ def test_coriolis_is_newton_euler_for_a_rigid_body_and_does_no_work():
     Mfull = model.inertia(theta)
     F = coriolis((Mfull + Mfull.T) / 2, nu)[0]
     assert np.abs(np.einsum("ni,ni->n", F, nu)).max() < 1e-12 * np.abs(F).max() * np.abs(nu).max()
+
+
+def test_regressors_are_the_named_products():
+    u, v, w, p, q, r = 18.0, -1.5, 0.7, 0.2, -0.4, 0.9
+    dr, der, del_ = 0.3, -0.1, 0.25
+    de, da = (der + del_) / 2, (der - del_) / 2
+    names = ("Y_v|v|", "K_uuda", "Z_uude|da|", "X_|v||w|", "N_ur|dr|", "K_p|q|", "M_uwdede", "X_uu")
+    expected = [
+        v * abs(v),
+        u * u * da,
+        u * u * de * abs(da),
+        abs(v) * abs(w),
+        u * r * abs(dr),
+        p * abs(q),
+        u * w * de**2,
+        u * u,
+    ]
+    got = regressors(
+        tuple(parse_term(n) for n in names), np.array([[u, v, w, p, q, r]]), np.array([[dr, der, del_]])
+    )
+    assert got[0] == pytest.approx(expected, rel=1e-15)
 
 
 def test_terms_are_parsed_by_their_names_and_bad_ones_refused():
