@@ -44,7 +44,9 @@ from testbed.models.linear import (
     theta_vector,
     tilde,
 )
+from testbed.models.mechanics import kinematics
 from testbed.simulation.plant import Plant
+from testbed.simulation.states import plant_rates
 from testbed.simulation.vehicle import (
     FINS,
     FLIP,
@@ -391,26 +393,13 @@ def numerical_model(plant_or_model, speed: float) -> tuple[np.ndarray, np.ndarra
     plant = plant_or_model if isinstance(plant_or_model, Plant) else Plant(model=plant_or_model)
     plant.reset(speed)
     m, U = plant.model, float(speed)
-    qadr = m.jnt_qposadr[m.joint("hull").id]
-    vadr = m.jnt_dofadr[m.joint("hull").id]
-    fins = [m.jnt_qposadr[m.joint(f).id] for f in FINS]
-    fin_dofs = [m.jnt_dofadr[m.joint(f).id] for f in FINS]
-    qpos0, depth = plant.data.qpos.copy(), float(-plant.data.qpos[qadr + 2])
+    depth = float(-plant.data.qpos[m.jnt_qposadr[m.joint("hull").id] + 2])
+    trim = np.zeros(NX)
+    trim[IX["u"]] = U
 
     def rates(x, delta):
-        qpos, qvel = qpos0.copy(), np.zeros(m.nv)
-        phi, theta, psi = x[6:9]
-        R = FLIP @ _euler(phi, theta, psi) @ FLIP  # MuJoCo world from hull
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, R.ravel())
-        qpos[qadr + 2] = -(depth + x[9])
-        qpos[qadr + 3 : qadr + 7] = quat
-        qpos[fins] = delta
-        qvel[vadr : vadr + 3] = R @ FLIP @ (x[:3] + [U, 0.0, 0.0])
-        qvel[vadr + 3 : vadr + 6] = FLIP @ x[3:6]
-        qvel[fin_dofs] = 0.0
-        plant.set_state(qpos, qvel)
-        return np.concatenate([plant.body_accelerations(), _kinematics(x, U)])
+        x = x + trim  # absolute u
+        return np.concatenate([plant_rates(plant, x, delta, depth)[0], kinematics(x[None])[0][0]])
 
     # Angular drag is ρ κ |ω| ω: odd and not smooth at ω = 0, so a central difference errs by
     # κ h; the rate steps are small for that reason.
@@ -421,29 +410,6 @@ def numerical_model(plant_or_model, speed: float) -> tuple[np.ndarray, np.ndarra
     B = np.column_stack([(rates(x0, e) - rates(x0, -e)) / (2 * hd) for e in np.eye(NU) * hd])
     plant.reset(speed)
     return A, B
-
-
-def _euler(phi, theta, psi) -> np.ndarray:
-    """NED from FRD body axes: Rz(ψ) Ry(θ) Rx(φ)."""
-    c, s = np.cos([phi, theta, psi]), np.sin([phi, theta, psi])
-    Rx = np.array([[1, 0, 0], [0, c[0], -s[0]], [0, s[0], c[0]]])
-    Ry = np.array([[c[1], 0, s[1]], [0, 1, 0], [-s[1], 0, c[1]]])
-    Rz = np.array([[c[2], -s[2], 0], [s[2], c[2], 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx
-
-
-def _kinematics(x, U) -> np.ndarray:
-    """(φ̇, θ̇, ψ̇, ż) from the Euler-angle kinematics, absolute surge U + u."""
-    u, v, w, p, q, r, phi, theta = x[:8]
-    sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
-    return np.array(
-        [
-            p + (q * sf + r * cf) * st / ct,
-            q * cf - r * sf,
-            (q * sf + r * cf) / ct,
-            -(U + u) * st + v * ct * sf + w * ct * cf,
-        ]
-    )
 
 
 # -- the model config --------------------------------------------------------------------------

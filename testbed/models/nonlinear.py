@@ -1,0 +1,333 @@
+"""The nonlinear 6-DOF manoeuvring model (docs/model.md): `M ν̇ = F(ν, η, δ; θ)` and the
+Euler-angle kinematics, over the states `u v w p q r phi theta psi z` with u the absolute speed.
+
+    F = −C(ν) ν + g(η) + T e_x + Σ_k θ_k φ_k(ν, δ)
+
+- M = M_RB + M_A: the vehicle's mass and inertias and the added mass the linear model holds (its
+  `*dot` coefficients, `INERTIA`), the linear model's Mt body block (`linear.structure`).
+- C(ν) ν: the Kirchhoff velocity forces of M (`mechanics.coriolis`): rigid-body Coriolis and
+  centripetal forces, and the added mass's Coriolis and Munk terms, exact.
+- g(η): weight and buoyancy at any attitude (`mechanics.restoring`).
+- T: the propulsor's constant thrust, the drag of straight flight at the trim speed U (as the
+  plant's propulsor is set): T = −Σ_{X terms} θ_k φ_k(U e_x, 0), so the model trims at U.
+- Σ θ_k φ_k: the hydrodynamic terms (`regressors`), linear in their coefficients.
+
+θ is `INERTIA` then the terms' coefficients (`NonlinearModel.names`). `rates` gives ẋ = f(x, δ, θ),
+`jacobians` its exact ∂f/∂x and ∂f/∂δ, `sensitivities` ∂f/∂θ: M⁻¹ (φ_k + ∂T/∂θ_k e_x) for a term,
+M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇) for an inertia coefficient (C is linear in M). All take samples stacked
+along the first axis (or one sample) and complex arrays. `linearise` gives the linear model at
+straight and level trim as the linear model's coefficients.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from testbed.errors import InputError
+from testbed.models import linear
+from testbed.models.mechanics import coriolis, kinematics, kirchhoff, restoring
+from testbed.models.regressors import ROWS, Term, gradients, parse_term, regressors
+
+__all__ = [
+    "INERTIA",
+    "TERMS",
+    "Linearisation",
+    "NonlinearModel",
+    "OutsideEntry",
+    "jacobians",
+    "linearise",
+    "nonlinear_model",
+    "force_regressors",
+    "forces",
+    "rates",
+    "sensitivities",
+    "theta_vector",
+    "thrust",
+]
+
+INERTIA = tuple(n for n in linear.COEFFICIENTS if n.endswith("dot"))  # M_A (and Ixz), as the linear model
+# The default hydrodynamic terms: what MuJoCo's ellipsoid model gives the bundled torpedo in
+# Scenario I's range (docs/model.md gives each term's reason).
+TERMS = (
+    "X_uu",
+    "X_u|v|",
+    "X_u|w|",
+    "X_vv",
+    "X_ww",
+    "X_vv|v|",
+    "X_ww|w|",
+    "X_|v||w|",
+    "X_vr",
+    "X_wq",
+    "X_rr",
+    "X_qq",
+    "X_uvdr",
+    "X_urdr",
+    "X_uwde",
+    "X_uqde",
+    "X_uudrdr",
+    "X_uudede",
+    "X_uudada",
+    "Y_uv",
+    "Y_ur",
+    "Y_up",
+    "Y_v|v|",
+    "Y_r|r|",
+    "Y_uudr",
+    "Y_uudrdrdr",
+    "Y_uv|dr|",
+    "Y_ur|dr|",
+    "Z_uw",
+    "Z_uq",
+    "Z_w|w|",
+    "Z_q|q|",
+    "Z_uude",
+    "Z_uudedede",
+    "Z_uwdede",
+    "Z_uqdede",
+    "Z_uwdada",
+    "Z_uqdada",
+    "Z_uude|da|",
+    "K_uv",
+    "K_ur",
+    "K_up",
+    "K_p|p|",
+    "K_p|q|",
+    "K_p|r|",
+    "K_uuda",
+    "K_uqdr",
+    "K_urde",
+    "M_uw",
+    "M_uq",
+    "M_u|v|",
+    "M_u|w|",
+    "M_w|w|",
+    "M_q|q|",
+    "M_q|r|",
+    "M_uude",
+    "M_uudedede",
+    "M_uwdede",
+    "M_uqdede",
+    "M_uwdada",
+    "M_uqdada",
+    "M_uude|da|",
+    "N_uv",
+    "N_ur",
+    "N_up",
+    "N_v|v|",
+    "N_r|r|",
+    "N_r|q|",
+    "N_uudr",
+    "N_uudrdrdr",
+    "N_uv|dr|",
+    "N_ur|dr|",
+)
+_BODY = slice(0, 6)
+
+
+@dataclass(frozen=True)
+class NonlinearModel:
+    """One vehicle's nonlinear model over a term set (`nonlinear_model` builds and checks it)."""
+
+    vehicle: linear.Vehicle
+    terms: tuple[Term, ...]
+    M_RB: np.ndarray  # 6 × 6: the vehicle's mass and inertias about its CG
+    dM: np.ndarray  # (14, 6, 6): ∂M/∂θ_k of each INERTIA coefficient
+    surge: np.ndarray  # over θ: the X terms' regressors at trim, −∂T/∂θ (0 elsewhere)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """θ's names in order: `INERTIA`, then the terms."""
+        return INERTIA + tuple(t.name for t in self.terms)
+
+    def inertia(self, theta) -> np.ndarray:
+        """M = M_RB + M_A at θ (6 × 6)."""
+        return self.M_RB + np.tensordot(np.asarray(theta)[: len(INERTIA)], self.dM, 1)
+
+
+def nonlinear_model(vehicle: linear.Vehicle, terms=TERMS) -> NonlinearModel:
+    """The model of `vehicle` (a submerged body: no GM, GM_L; Iy and zB given) over `terms`."""
+    if vehicle.GM is not None or vehicle.GM_L is not None or vehicle.omitted():
+        raise InputError(
+            "the nonlinear model is a submerged body's: expected Iy and zB given and no GM, GM_L "
+            "(the restoring forces are those of weight at the CG and buoyancy at the CB)"
+        )
+    parsed = tuple(parse_term(t) for t in terms)
+    names = [t.name for t in parsed]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(f"term {twice[0]!r} is named twice; expected each term once")
+    clash = sorted(set(names) & set(linear.PARAMETERS))
+    if clash:
+        raise InputError(f"term {clash[0]!r} is a linear model's name; expected a nonlinear term")
+    s = linear.structure(vehicle)
+    dM = np.array([s.dMt[linear.ITHETA[n]][_BODY, _BODY] for n in INERTIA])
+    trim = regressors(parsed, np.array([[vehicle.speed, 0, 0, 0, 0, 0.0]]), np.zeros((1, linear.NU)))[0]
+    surge = np.concatenate([np.zeros(len(INERTIA)), np.where([t.row == 0 for t in parsed], trim, 0.0)])
+    return NonlinearModel(vehicle=vehicle, terms=parsed, M_RB=s.Mt0[_BODY, _BODY].copy(), dM=dM, surge=surge)
+
+
+def theta_vector(model: NonlinearModel, coefficients: Mapping[str, float]) -> np.ndarray:
+    """θ in `model.names` order; a missing name is 0, an unknown one `InputError`."""
+    unknown = sorted(set(coefficients) - set(model.names))
+    if unknown:
+        raise InputError(f"coefficient {unknown[0]!r} is not in the model; expected one of {model.names}")
+    return np.array([float(coefficients.get(n, 0.0)) for n in model.names])
+
+
+def thrust(model: NonlinearModel, theta) -> float:
+    """T: the propulsor's thrust, which balances the X-row terms in straight flight at trim."""
+    return -(model.surge @ np.asarray(theta))
+
+
+def _forces(model: NonlinearModel, theta, x, delta, derivatives: bool):
+    """(F (n, 6), M), and with `derivatives` also ∂F/∂x (n, 6, 10) and ∂F/∂δ (n, 6, 3)."""
+    theta = np.asarray(theta)
+    c = theta[len(INERTIA) :]
+    nu = x[:, _BODY]
+    M = model.inertia(theta)
+    rows = np.array([t.row for t in model.terms], dtype=int)
+    place = np.zeros((len(model.terms), 6))
+    place[np.arange(len(model.terms)), rows] = 1.0  # term k → its row
+    phi = regressors(model.terms, nu, delta)
+    FC, JC = coriolis(M, nu)
+    v = model.vehicle
+    FG, JG = restoring(v.weight, v.buoyancy, (v.xB, v.yB, v.zB), x[:, 6], x[:, 7])
+    F = FC + FG + (phi * c) @ place
+    F[:, 0] = F[:, 0] + thrust(model, theta)
+    if not derivatives:
+        return F, M
+    dphi = gradients(model.terms, nu, delta)  # (n, K, 9)
+    dF = place.T @ (dphi * c[:, None])  # (n, 6, 9): each row's terms summed
+    Jx = np.zeros(x.shape[:1] + (6, linear.NX), dtype=F.dtype)
+    Jx[:, :, _BODY] = JC + dF[:, :, :6]
+    Jx[:, :, 6:8] += JG
+    return F, M, Jx, dF[:, :, 6:]
+
+
+def _prepare(x, delta):
+    x, delta = np.asarray(x), np.asarray(delta)
+    single = x.ndim == 1
+    return np.atleast_2d(x), np.atleast_2d(delta), single
+
+
+def forces(model: NonlinearModel, theta, x, delta) -> np.ndarray:
+    """F (n, 6) at the states x (n, 10) and fin angles δ (n, 3): `M ν̇ = F`."""
+    return _forces(model, theta, np.atleast_2d(x), np.atleast_2d(delta), False)[0]
+
+
+def force_regressors(model: NonlinearModel, x, delta) -> np.ndarray:
+    """∂F/∂c (n, 6, K) for the terms' coefficients c: φ_k in term k's row, and in surge the
+    thrust's share −φ_k(U e_x, 0) of each X term. F is affine in c: F = F|_{c=0} + (∂F/∂c) c."""
+    x, delta = np.atleast_2d(x), np.atleast_2d(delta)
+    phi = regressors(model.terms, x[:, _BODY], delta)
+    out = np.zeros((len(x), 6, len(model.terms)), dtype=phi.dtype)
+    out[:, [t.row for t in model.terms], np.arange(len(model.terms))] = phi
+    out[:, 0, :] -= model.surge[len(INERTIA) :]
+    return out
+
+
+def rates(model: NonlinearModel, theta, x, delta) -> np.ndarray:
+    """ẋ = f(x, δ, θ) at the states x (n, 10) and fin angles δ (n, 3) (or one of each)."""
+    x, delta, single = _prepare(x, delta)
+    F, M = _forces(model, theta, x, delta, False)
+    out = np.concatenate([np.linalg.solve(M, F.T).T, kinematics(x)[0]], axis=1)
+    return out[0] if single else out
+
+
+def jacobians(model: NonlinearModel, theta, x, delta):
+    """(ẋ, ∂f/∂x (n, 10, 10), ∂f/∂δ (n, 10, 3)), exact: M⁻¹ times the forces' Jacobians in the body
+    rows, the kinematics' in the others."""
+    x, delta, single = _prepare(x, delta)
+    F, M, Jx, Jd = _forces(model, theta, x, delta, True)
+    Minv = np.linalg.inv(M)
+    kin, Jk = kinematics(x)
+    f = np.concatenate([F @ Minv.T, kin], axis=1)
+    A = np.concatenate([Minv @ Jx, Jk], axis=1)
+    B = np.concatenate([Minv @ Jd, np.zeros((len(x), 4, linear.NU), dtype=Jd.dtype)], axis=1)
+    return (f[0], A[0], B[0]) if single else (f, A, B)
+
+
+def sensitivities(model: NonlinearModel, theta, x, delta) -> np.ndarray:
+    """∂f/∂θ (n, 10, len(θ)): for a term M⁻¹ (φ_k e_row + ∂T/∂θ_k e_x), for an inertia
+    coefficient M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇) with C_k the Kirchhoff forces of ∂M/∂θ_k."""
+    x, delta, single = _prepare(x, delta)
+    F, M = _forces(model, theta, x, delta, False)
+    Minv = np.linalg.inv(M)
+    nudot = F @ Minv.T
+    n = len(x)
+    dF = np.zeros((n, 6, len(model.names)), dtype=F.dtype)
+    # per inertia coefficient k: its momentum ∂M/∂θ_k ν and its share ∂M/∂θ_k ν̇ (n, 14, 6)
+    h, hdot = (np.einsum("kij,nj->nki", model.dM, a) for a in (x[:, _BODY], nudot))
+    dF[:, :, : len(INERTIA)] = (kirchhoff(h, x[:, None, _BODY]) - hdot).transpose(0, 2, 1)
+    dF[:, :, len(INERTIA) :] = force_regressors(model, x, delta)
+    out = np.concatenate([Minv @ dF, np.zeros((n, 4, len(model.names)), dtype=dF.dtype)], axis=1)
+    return out[0] if single else out
+
+
+@dataclass(frozen=True)
+class OutsideEntry:
+    """An entry of the model's linearisation that the linear model's table has no place for."""
+
+    name: str  # e.g. M_u (At), X_qdot (Mt), X_der (Bt)
+    matrix: str  # Mt, At or Bt
+    value: float
+
+
+@dataclass(frozen=True)
+class Linearisation:
+    """The model linearised at straight and level trim at the vehicle's speed U, in the linear
+    model's form `Mt ẋ = At x + Bt δ + St` (its states, u the perturbation u − U)."""
+
+    coefficients: dict[str, float]  # the linear model's 35 coefficients and 6 offsets
+    Mt: np.ndarray
+    At: np.ndarray
+    Bt: np.ndarray
+    St: np.ndarray
+    outside: tuple[OutsideEntry, ...]  # entries the linear table lacks (above rounding)
+
+
+def linearise(model: NonlinearModel, theta) -> Linearisation:
+    """The linear model at trim: the exact Jacobians of F and of the kinematics at (U e_x, 0),
+    read off at the linear model's places (`linear.structure`): Y_v = U Y_uv, X_u = 2 U X_uu,
+    Y_dr = U² Y_uudr, Y_r = U (Y_ur + X_udot), M_w = U (M_uw + X_udot − Z_wdot), … (docs/model.md).
+    The offsets X_0 … N_0 take what F leaves at trim beyond the restoring terms."""
+    theta = np.asarray(theta, float)
+    x0, d0 = np.zeros((1, linear.NX)), np.zeros((1, linear.NU))
+    x0[0, 0] = model.vehicle.speed
+    F, M, Jx, Jd = _forces(model, theta, x0, d0, True)
+    F, Jx, Jd = F[0], Jx[0], Jd[0]
+    Mt, At, Bt = np.eye(linear.NX), np.zeros((linear.NX, linear.NX)), np.zeros((linear.NX, linear.NU))
+    Mt[_BODY, _BODY], At[_BODY], Bt[_BODY] = M, Jx, Jd
+    At[6:] = kinematics(x0)[1][0]
+    St = np.concatenate([F, np.zeros(4)])
+    s = linear.structure(model.vehicle)
+    full = {"Mt": Mt, "At": At, "Bt": Bt, "St": St}
+    out = {}
+    for name in linear.COEFFICIENTS + linear.OFFSETS:
+        k = linear.ITHETA[name]
+        for matrix, D, D0 in (
+            ("Mt", s.dMt[k], s.Mt0),
+            ("At", s.dAt[k], s.At0),
+            ("Bt", s.dBt[k], s.Bt0),
+            ("St", s.dSt[k], s.St0),
+        ):
+            if D.any():  # the coefficient's places (factor f): Σ f (full − constant part) / Σ f²
+                out[name] = float(np.sum(D * (full[matrix] - D0)) / np.sum(D * D))
+    projected = dict(zip(("Mt", "At", "Bt"), linear.tilde(s, linear.theta_vector(out))[:3]))
+    outside = []
+    short = {"delta_r": "dr", "delta_er": "der", "delta_el": "del"}
+    for matrix, cols in (
+        ("Mt", [f"{c}dot" for c in linear.STATES]),
+        ("At", linear.STATES),
+        ("Bt", [short[i] for i in linear.INPUTS]),
+    ):
+        gap = full[matrix] - projected[matrix]
+        scale = np.abs(full[matrix][_BODY]).max(axis=1)
+        for r, c in zip(*np.nonzero(np.abs(gap[_BODY]) > 1e-10 * np.maximum(scale, 1e-300)[:, None])):
+            value = float(-gap[r, c] if matrix == "Mt" else gap[r, c])
+            outside.append(OutsideEntry(f"{ROWS[r]}_{cols[c]}", matrix, value))
+    return Linearisation(out, Mt, At, Bt, St, tuple(outside))

@@ -1,0 +1,334 @@
+"""The nonlinear model against independent references: complex-step derivatives, finite
+differences, the linear model's own matrices, hand-derived linearisations, closed-form restoring
+forces, rotation matrices, Newton-Euler; and the term-set fit on data it must reproduce."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from testbed.errors import InputError
+from testbed.models import linear
+from testbed.models.mechanics import coriolis, kinematics
+from testbed.models.nonlinear import (
+    INERTIA,
+    TERMS,
+    forces,
+    jacobians,
+    linearise,
+    nonlinear_model,
+    rates,
+    sensitivities,
+    theta_vector,
+    thrust,
+)
+from testbed.models.regressors import parse_term, regressors
+from testbed.simulation.nonlinear_reference import SCENARIO_I, fit_terms, sample_box
+
+# A torpedo-like body (SI): CB 2 cm above the CG, slightly heavy, off-diagonal added mass.
+VEHICLE = linear.Vehicle(
+    mass=170.0,
+    Ix=2.2,
+    Iy=67.0,
+    Iz=67.5,
+    weight=1700.0,
+    buoyancy=1675.0,
+    xB=0.01,
+    yB=0.002,
+    zB=-0.02,
+    speed=20.0,
+)
+DOTS = {
+    "X_udot": -8.0,
+    "Y_vdot": -158.0,
+    "Y_pdot": -3.0,
+    "Y_rdot": -2.3,
+    "Z_wdot": -159.0,
+    "Z_qdot": 2.4,
+    "K_vdot": -3.0,
+    "K_pdot": -0.4,
+    "K_rdot": -0.4,
+    "M_wdot": 2.4,
+    "M_qdot": -55.0,
+    "N_vdot": -2.3,
+    "N_pdot": -0.4,
+    "N_rdot": -56.0,
+}
+
+
+def model_and_theta(seed=0):
+    model = nonlinear_model(VEHICLE)
+    rng = np.random.default_rng(seed)
+    coefficients = dict(DOTS)
+    coefficients.update({t.name: rng.normal() * 50.0 for t in model.terms})
+    return model, theta_vector(model, coefficients), coefficients
+
+
+def samples(n=6, seed=1):
+    """States at large angles and rates (not at any kink of |x|), fins beyond Scenario I's."""
+    rng = np.random.default_rng(seed)
+    x = np.column_stack(
+        [
+            rng.uniform(5, 25, n),
+            rng.uniform(-3, 3, (n, 2)),
+            rng.uniform(-2, 2, (n, 3)),
+            rng.uniform(-1.3, 1.3, (n, 2)),
+            rng.uniform(-3, 3, n),
+            rng.uniform(0, 100, n),
+        ]
+    )
+    return x, rng.uniform(-0.5, 0.5, (n, 3))
+
+
+def complex_step(f, z, h=1e-30):
+    """∂f/∂z by complex step (exact to rounding): columns stacked last."""
+    return np.stack([f(z + 1j * h * e).imag / h for e in np.eye(z.shape[-1])], axis=-1)
+
+
+def close(a, b, rtol):
+    """Agreement relative to the larger array's magnitude."""
+    return np.abs(a - b).max() <= rtol * max(np.abs(a).max(), np.abs(b).max())
+
+
+def test_jacobians_match_complex_step():
+    model, theta, _ = model_and_theta()
+    x, delta = samples()
+    f, A, B = jacobians(model, theta, x, delta)
+    assert close(f, rates(model, theta, x, delta), 1e-14)
+    assert close(A, complex_step(lambda z: rates(model, theta, z, delta), x.astype(complex)), 1e-13)
+    assert close(B, complex_step(lambda z: rates(model, theta, x, z), delta.astype(complex)), 1e-13)
+    one = jacobians(model, theta, x[0], delta[0])  # one sample: unstacked
+    assert one[1].shape == (10, 10) and np.allclose(one[1], A[0], rtol=0, atol=0)
+
+
+def test_sensitivities_match_complex_step():
+    model, theta, _ = model_and_theta()
+    x, delta = samples()
+    S = sensitivities(model, theta, x, delta)
+    reference = complex_step(lambda t: rates(model, t, x, delta), theta.astype(complex))
+    assert S.shape == (len(x), 10, len(INERTIA) + len(TERMS))
+    assert close(S, reference, 1e-13)
+
+
+def test_linearisation_matches_finite_differences_of_f():
+    model, theta, _ = model_and_theta()
+    lin = linearise(model, theta)
+    A = np.linalg.solve(lin.Mt, lin.At)
+    B = np.linalg.solve(lin.Mt, lin.Bt)
+    x0, d0 = np.zeros(10), np.zeros(3)
+    x0[0] = VEHICLE.speed
+    hx = np.array([1e-4] + [1e-7] * 9)
+    hd = 1e-6
+    Afd = np.column_stack(
+        [
+            (rates(model, theta, x0 + e, d0) - rates(model, theta, x0 - e, d0)) / (2 * e.sum())
+            for e in np.diag(hx)
+        ]
+    )
+    Bfd = np.column_stack(
+        [(rates(model, theta, x0, e) - rates(model, theta, x0, -e)) / (2 * hd) for e in np.eye(3) * hd]
+    )
+    # central differences: error O(h²) times third derivatives, O(h) times the coefficient for the
+    # x|x| terms (their second derivative jumps at 0): far below 1e-6 of the entries at these steps
+    assert close(A, Afd, 1e-6) and close(B, Bfd, 1e-6)
+    # the thrust holds the speed; what is left at trim is the restoring (this body is heavy, its CB off)
+    assert rates(model, theta, x0, d0) == pytest.approx(np.linalg.solve(lin.Mt, lin.St), rel=1e-12, abs=1e-15)
+    assert rates(model, theta, x0, d0)[0] == 0.0
+
+
+def test_linearisation_is_the_linear_model_with_its_coefficients():
+    model, theta, c = model_and_theta()
+    lin = linearise(model, theta)
+    assert lin.outside == ()  # the default terms give nothing the linear table lacks
+    s = linear.structure(VEHICLE)
+    full = linear.theta_vector(lin.coefficients)
+    Mt, At, Bt, St = linear.tilde(s, full)
+    scale = np.abs(lin.At).max()
+    assert close(Mt, lin.Mt, 1e-14) and np.abs(At - lin.At).max() < 1e-13 * scale and close(Bt, lin.Bt, 1e-14)
+    A, B, _ = linear.continuous(s, full)
+    assert close(A, np.linalg.solve(lin.Mt, lin.At), 1e-12) and close(
+        B, np.linalg.solve(lin.Mt, lin.Bt), 1e-12
+    )
+    # the mapping by hand: regressor slopes at (U, 0) and Kirchhoff's linear part (docs/model.md)
+    U, k = VEHICLE.speed, lin.coefficients
+    expected = {
+        "X_u": 2 * U * c["X_uu"],
+        "Y_v": U * c["Y_uv"],
+        "Y_p": U * c["Y_up"],
+        "Y_r": U * (c["Y_ur"] + c["X_udot"]),
+        "Y_dr": U**2 * c["Y_uudr"],
+        "Z_w": U * c["Z_uw"],
+        "Z_q": U * (c["Z_uq"] - c["X_udot"]),
+        "Z_de": U**2 * c["Z_uude"],
+        "K_v": U * c["K_uv"],
+        "K_p": U * c["K_up"],
+        "K_r": U * c["K_ur"],
+        "K_der": U**2 * c["K_uuda"] / 2,
+        "K_del": U**2 * c["K_uuda"] / 2,
+        "M_w": U * (c["M_uw"] + c["X_udot"] - c["Z_wdot"]),
+        "M_q": U * (c["M_uq"] - c["Z_qdot"]),
+        "M_de": U**2 * c["M_uude"],
+        "N_v": U * (c["N_uv"] + c["Y_vdot"] - c["X_udot"]),
+        "N_p": U * (c["N_up"] + c["Y_pdot"]),
+        "N_r": U * (c["N_ur"] + c["Y_rdot"]),
+        "N_dr": U**2 * c["N_uudr"],
+        "K_dr": 0.0,
+        **{n: c[n] for n in INERTIA},
+        **{n: 0.0 for n in linear.OFFSETS},
+    }
+    assert set(expected) == set(k)
+    for name, value in expected.items():
+        assert k[name] == pytest.approx(value, rel=1e-12, abs=1e-9), name
+
+
+def test_a_term_outside_the_linear_table_is_named():
+    model = nonlinear_model(VEHICLE, ("X_uu", "M_uu", "Z_uw", "X_uw"))
+    theta = theta_vector(model, {**DOTS, "X_uu": -6.0, "M_uu": 0.5, "Z_uw": -60.0, "X_uw": 3.0})
+    lin = linearise(model, theta)
+    U = VEHICLE.speed
+    assert {(e.name, e.matrix): e.value for e in lin.outside} == pytest.approx(
+        {("M_u", "At"): 2 * U * 0.5, ("X_w", "At"): U * 3.0}
+    )
+    assert lin.coefficients["M_0"] == pytest.approx(0.5 * U**2)  # a constant moment at trim
+    assert thrust(model, theta) == pytest.approx(6.0 * U**2)
+
+
+def rotation(phi, theta, psi):
+    """NED from body, built from elementary rotations: Rz(ψ) Ry(θ) Rx(φ)."""
+    c, s = np.cos([phi, theta, psi]), np.sin([phi, theta, psi])
+    Rx = np.array([[1, 0, 0], [0, c[0], -s[0]], [0, s[0], c[0]]])
+    Ry = np.array([[c[1], 0, s[1]], [0, 1, 0], [-s[1], 0, c[1]]])
+    Rz = np.array([[c[2], -s[2], 0], [s[2], c[2], 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def angles(R):
+    return np.array([math.atan2(R[2, 1], R[2, 2]), -math.asin(R[2, 0]), math.atan2(R[1, 0], R[0, 0])])
+
+
+def test_restoring_at_sixty_degrees_of_roll_is_the_closed_form():
+    """CB h above the CG, W = B, at rest at φ = 60°: the roll moment −B h sin φ, nothing else."""
+    h, B = 0.05, 2000.0
+    body = linear.Vehicle(
+        mass=B / 9.81, Ix=3.0, Iy=50.0, Iz=50.0, weight=B, buoyancy=B, xB=0, yB=0, zB=-h, speed=10.0
+    )
+    model = nonlinear_model(body, ())
+    theta = theta_vector(model, {})
+    x = np.zeros(10)
+    x[6] = math.radians(60)
+    F = forces(model, theta, x, np.zeros(3))[0]
+    assert F == pytest.approx([0, 0, 0, -B * h * math.sin(math.radians(60)), 0, 0], abs=1e-9)
+    assert rates(model, theta, x, np.zeros(3))[3] == pytest.approx(-B * h * math.sqrt(3) / 2 / 3.0)
+
+
+def test_restoring_at_any_attitude_is_weight_and_buoyancy_turned_by_the_rotation():
+    model, _, _ = model_and_theta()
+    theta = theta_vector(model, DOTS)  # no hydrodynamic terms: at rest only the restoring is left
+    rB = np.array([VEHICLE.xB, VEHICLE.yB, VEHICLE.zB])
+    for phi, th, psi in ((1.0, -0.9, 2.0), (-2.5, 1.2, -0.3), (math.pi / 2, 0.4, 1.0)):
+        x = np.array([0, 0, 0, 0, 0, 0, phi, th, psi, 7.0])
+        down = rotation(phi, th, psi).T @ np.array([0, 0, 1.0])  # gravity in body axes
+        expected = np.concatenate(
+            [(VEHICLE.weight - VEHICLE.buoyancy) * down, np.cross(rB, -VEHICLE.buoyancy * down)]
+        )
+        F = forces(model, theta, x, np.zeros(3))[0]
+        # at rest the Kirchhoff forces vanish; the thrust is the trim drag (0: no terms)
+        assert F == pytest.approx(expected, abs=1e-9)
+
+
+def test_kinematics_at_large_angles_follow_the_rotation_matrix():
+    """Euler rates and ż against R(t + h) = R(t) exp([ω]× h), angles read back from R."""
+    rng = np.random.default_rng(4)
+    for phi, th, psi in ((1.2, 1.1, -2.8), (-2.9, -1.3, 0.5), (0.3, 0.2, 3.0)):
+        nu = rng.uniform(-2, 2, 6)
+        R = rotation(phi, th, psi)
+        w, h = nu[3:], 1e-6
+        W = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+        a = np.linalg.norm(w)
+
+        def turned(t):
+            K = W / a
+            return R @ (np.eye(3) + math.sin(a * t) * K + (1 - math.cos(a * t)) * K @ K)  # Rodrigues
+
+        d = (angles(turned(h)) - angles(turned(-h))) / (2 * h)
+        d[2] = (d[2] + math.pi / h) % (2 * math.pi / h) - math.pi / h  # ψ across ±π
+        x = np.concatenate([nu, [phi, th, psi, 3.0]])
+        f = kinematics(x[None])[0][0]
+        assert f[:3] == pytest.approx(d, rel=1e-7, abs=1e-7)
+        assert f[3] == pytest.approx((R @ nu[:3])[2], rel=1e-13, abs=1e-13)
+
+
+def test_coriolis_is_newton_euler_for_a_rigid_body_and_does_no_work():
+    rng = np.random.default_rng(5)
+    m, I = 150.0, np.diag([2.0, 60.0, 61.0])
+    M = np.zeros((6, 6))
+    M[:3, :3], M[3:, 3:] = m * np.eye(3), I
+    nu = rng.normal(size=(4, 6))
+    F, _ = coriolis(M, nu)
+    v, w = nu[:, :3], nu[:, 3:]
+    assert np.allclose(F[:, :3], -m * np.cross(w, v), rtol=1e-14, atol=1e-12)
+    assert np.allclose(F[:, 3:], -np.cross(w, w @ I), rtol=1e-14, atol=1e-12)
+    model, theta, _ = model_and_theta()
+    Mfull = model.inertia(theta)
+    F = coriolis((Mfull + Mfull.T) / 2, nu)[0]
+    assert np.abs(np.einsum("ni,ni->n", F, nu)).max() < 1e-12 * np.abs(F).max() * np.abs(nu).max()
+
+
+def test_regressors_are_the_named_products():
+    u, v, w, p, q, r = 18.0, -1.5, 0.7, 0.2, -0.4, 0.9
+    dr, der, del_ = 0.3, -0.1, 0.25
+    de, da = (der + del_) / 2, (der - del_) / 2
+    names = ("Y_v|v|", "K_uuda", "Z_uude|da|", "X_|v||w|", "N_ur|dr|", "K_p|q|", "M_uwdede", "X_uu")
+    expected = [
+        v * abs(v),
+        u * u * da,
+        u * u * de * abs(da),
+        abs(v) * abs(w),
+        u * r * abs(dr),
+        p * abs(q),
+        u * w * de**2,
+        u * u,
+    ]
+    got = regressors(
+        tuple(parse_term(n) for n in names), np.array([[u, v, w, p, q, r]]), np.array([[dr, der, del_]])
+    )
+    assert got[0] == pytest.approx(expected, rel=1e-15)
+
+
+def test_terms_are_parsed_by_their_names_and_bad_ones_refused():
+    t = parse_term("N_v|v|")
+    assert (t.row, t.factors) == (5, ("v", "|v|"))
+    assert parse_term("K_uuda").factors == ("u", "u", "da")
+    for bad in ("Q_uv", "Y_", "Y_uvx", "Yuv", "Y_|uv|"):
+        with pytest.raises(InputError):
+            parse_term(bad)
+    with pytest.raises(InputError, match="twice"):
+        nonlinear_model(VEHICLE, ("Y_uv", "Y_uv"))
+    with pytest.raises(InputError, match="linear model"):
+        nonlinear_model(VEHICLE, ("Y_v",))
+    with pytest.raises(InputError, match="GM"):
+        nonlinear_model(linear.Vehicle(**{**VEHICLE.__dict__, "GM": 0.1}))
+
+
+def test_the_fit_recovers_the_coefficients_of_data_the_model_made():
+    model, theta, coefficients = model_and_theta(seed=7)
+    x, delta = sample_box(SCENARIO_I, 800, seed=2)
+    nudot = rates(model, theta, x, delta)[:, :6]
+    quality = fit_terms(model, DOTS, x, delta, nudot)
+    fitted = np.array([quality.coefficients[t.name] for t in model.terms])
+    truth = np.array([coefficients[t.name] for t in model.terms])
+    assert np.abs(fitted - truth).max() < 1e-8 * np.abs(truth).max()
+    assert min(quality.force_fit.values()) > 100 - 1e-8
+    assert min(quality.acceleration_fit.values()) > 100 - 1e-8
+
+
+def test_the_model_page_lists_the_default_terms_in_order():
+    text = (Path(__file__).resolve().parents[1] / "docs" / "model.md").read_text(encoding="utf-8")
+    nonlinear = text[text.index("# The nonlinear model") :]
+    listed = re.search(r"```\n(X_uu .*?)```", nonlinear, re.S).group(1).split()
+    assert listed == list(TERMS)
+    assert f"default set, {len(TERMS)} terms" in nonlinear
