@@ -11,8 +11,8 @@ u at each of its `speeds` and varies the rest:
   differential) and any other grid of the `VARIABLES`;
 - an oscillatory test (`Oscillation`, a planar motion mechanism) varies one body velocity as
   a sin(ω t) over one period in body axes (pure sway v, heave w, roll p, yaw r, pitch q: the
-  others held, u included), sampled at `samples` instants; `pmm_coefficients` splits the force
-  into its in-phase and quadrature parts.
+  others held, u included; pure surge: u about the held speed), sampled at `samples` instants;
+  `pmm_coefficients` splits the force into its in-phase and quadrature parts.
 
 The plant's fluid model has no memory (its forces depend on the instantaneous ν, ν̇, δ), so an
 oscillatory test reads the same forces a static one would at those states, plus −M_A ν̇.
@@ -49,6 +49,7 @@ __all__ = [
 # (delta_r, delta_er, delta_el): a fin alone, the elevators together (delta_e: δer = δel, pitch)
 # or differentially (delta_d: δer = −δel, roll).
 _RATES = {"v": 1, "w": 2, "p": 3, "q": 4, "r": 5}
+_OSCILLATING = {"u": 0, **_RATES}  # an oscillation may also vary the surge speed about the held one
 _FINS = {
     "delta_r": (1.0, 0.0, 0.0),
     "delta_er": (0.0, 1.0, 0.0),
@@ -118,7 +119,8 @@ class Sweep:
 class Oscillation:
     """An oscillatory (PMM) test: ν_k = `amplitude` sin(ω t), ω = 2π/`period`, for `variable`
     (one of v w p q r; m/s or rad/s), sampled at t = i·period/`samples`, i = 0 … samples − 1,
-    the rest of ν and the fins at 0, u held at each of `speeds`."""
+    the rest of ν and the fins at 0, u held at each of `speeds`; for `variable` u (pure surge)
+    u = speed + `amplitude` sin(ω t)."""
 
     name: str
     variable: str
@@ -129,8 +131,10 @@ class Oscillation:
 
     def __post_init__(self):
         where = f"captive test {self.name!r}"
-        if self.variable not in _RATES:
-            raise InputError(f"{where}: variable {self.variable!r}; expected one of {', '.join(_RATES)}")
+        if self.variable not in _OSCILLATING:
+            raise InputError(
+                f"{where}: variable {self.variable!r}; expected one of {', '.join(_OSCILLATING)}"
+            )
         if not 0 < self.amplitude < math.inf:
             raise InputError(f"{where}: amplitude={self.amplitude!r}; expected a finite amplitude > 0")
         if not 0 < self.period < math.inf:
@@ -149,8 +153,8 @@ class Oscillation:
         phase = self.omega * self.period * np.arange(self.samples) / self.samples
         nu, nu_dot = np.zeros((self.samples, 6)), np.zeros((self.samples, 6))
         nu[:, 0] = speed
-        k = _RATES[self.variable]
-        nu[:, k] = self.amplitude * np.sin(phase)
+        k = _OSCILLATING[self.variable]
+        nu[:, k] += self.amplitude * np.sin(phase)
         nu_dot[:, k] = self.amplitude * self.omega * np.cos(phase)
         return nu, nu_dot, np.zeros((self.samples, len(INPUTS)))
 
@@ -183,6 +187,7 @@ SWEEPS = (
     Sweep(name="incidence_elevator", vary=("w", "delta_e"), extent=(3.0, 0.4), points=(13, 9)),
 )
 OSCILLATIONS = (
+    Oscillation(name="pure_surge", variable="u", amplitude=2.0),
     Oscillation(name="pure_sway", variable="v", amplitude=2.0),
     Oscillation(name="pure_heave", variable="w", amplitude=2.0),
     Oscillation(name="pure_roll", variable="p", amplitude=1.5),
@@ -220,12 +225,12 @@ def pmm_coefficients(test: Oscillation, measurement: Measurement) -> dict[str, f
     Any function of x alone has no quadrature part, so the latter is exact at any amplitude.
     """
     x = test.variable
-    nu = measurement.nu[:, _RATES[x]]
-    if measurement.test != test.name or len(nu) != test.samples:
+    k = _OSCILLATING[x]
+    if measurement.test != test.name or len(measurement.nu) != test.samples:
         raise InputError(f"measurement of {measurement.test!r}; expected one of test {test.name!r}")
     a, n = test.amplitude, test.samples
-    sin = nu / a
-    cos = measurement.nu_dot[:, _RATES[x]] / (a * test.omega)
+    sin = (measurement.nu[:, k] - (measurement.speed if k == 0 else 0.0)) / a
+    cos = measurement.nu_dot[:, k] / (a * test.omega)
     out = {}
     for row, F in zip(_ROWS, measurement.wrench.T):
         out[f"{row}_{x}"] = float(2 / n * F @ sin / a)

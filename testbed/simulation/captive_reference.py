@@ -1,0 +1,99 @@
+"""The captive reference: the nonlinear model fitted to captive tests of the plant, in two stages.
+
+1. **At trim**: the terms with a slope at trim (`slope_terms`: every factor u but one, which is
+   no magnitude, and X_uu; they alone make the linearisation, docs/model.md) are fitted to the
+   same tests at 1/1000 of their extents, at the trim speed U alone: there the other terms'
+   share of the forces is a millionth of theirs, so these coefficients are the plant's slopes at
+   trim, as a towing tank reads linear derivatives from small-amplitude tests.
+2. **Over the manoeuvre**: the other terms, those held, fitted to the tests over the region a
+   manoeuvre flies (`reference_tests`).
+
+The region is Scenario I's (the torpedo at 20 m/s flies |v| ≤ 0.5 m/s, |w| ≤ 1.5 m/s,
+|p|, |r| ≤ 0.36 rad/s, |q| ≤ 1.65 rad/s, δr ≤ 0.04, δe ≤ 0.15 rad, down to 16.4 m/s) with a
+margin (`ENVELOPE`), scaled to another trim speed U by U/20 (velocities and rates; fin angles as
+they are): at 0.8 U, 0.9 U and U, a sweep of each variable to its extent, a 7 × 7 grid of every
+pair of variables to half their extents (the pairs carry the couplings, the flight's states lie
+mostly well inside the envelope) and an oscillation of each velocity (u by 0.1 U) for the
+inertia coefficients. Fitted over the plain default captive tests (extents ±3 m/s, ±2 rad/s, fins
+±0.4 rad) the polynomial terms bend to extremes the manoeuvre never reaches (docs/captive.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import mujoco
+import numpy as np
+
+from testbed.errors import InputError
+from testbed.models.nonlinear import TERMS
+from testbed.models.regressors import parse_term
+from testbed.simulation.captive import Oscillation, Sweep, captive_tests
+from testbed.simulation.captive_fit import CaptiveFit, fit_captive
+from testbed.simulation.vehicle import constants
+from testbed.simulation.wrench import hydrodynamic_wrench
+
+__all__ = ["ENVELOPE", "NEAR", "captive_reference", "near_tests", "reference_tests", "slope_terms"]
+
+# The extents at 20 m/s: m/s for v w, rad/s for p q r, rad for the fins (delta_d differential)
+ENVELOPE = {"v": 0.75, "w": 1.6, "p": 0.5, "q": 1.7, "r": 0.5, "delta_r": 0.1, "delta_e": 0.2, "delta_d": 0.1}
+NEAR = 1e-3  # the trim stage's tests, as a fraction of the extents
+_FINS = ("delta_r", "delta_e", "delta_d")
+
+
+def reference_tests(speed: float) -> tuple:
+    """The captive tests over the manoeuvre's region at trim speed `speed` (module doc)."""
+    if not 0 < speed < np.inf:
+        raise InputError(f"speed={speed!r}; expected a finite trim speed > 0 m/s")
+    scale = speed / 20.0
+    extent = {k: e if k in _FINS else e * scale for k, e in ENVELOPE.items()}
+    speeds = (0.8 * speed, 0.9 * speed, speed)
+    sweeps = tuple(
+        Sweep(name=k, vary=(k,), extent=(e,), points=(13,), speeds=speeds) for k, e in extent.items()
+    )
+    pairs = tuple(
+        Sweep(
+            name=f"{a}_{b}", vary=(a, b), extent=(extent[a] / 2, extent[b] / 2), points=(7, 7), speeds=speeds
+        )
+        for a, b in itertools.combinations(extent, 2)
+    )
+    amplitude = {"u": 0.1 * speed, **{k: extent[k] for k in "vwpqr"}}
+    oscillations = tuple(
+        Oscillation(name=f"pure_{k}", variable=k, amplitude=a, speeds=speeds) for k, a in amplitude.items()
+    )
+    return sweeps + pairs + oscillations
+
+
+def near_tests(tests, speed: float, fraction: float = NEAR) -> tuple:
+    """`tests` at `fraction` of their extents and amplitudes, at `speed` alone."""
+    out = []
+    for t in tests:
+        if isinstance(t, Sweep):
+            out.append(dataclasses.replace(t, extent=tuple(e * fraction for e in t.extent), speeds=(speed,)))
+        else:
+            out.append(dataclasses.replace(t, amplitude=t.amplitude * fraction, speeds=(speed,)))
+    return tuple(out)
+
+
+def slope_terms(terms=TERMS) -> tuple[str, ...]:
+    """The terms with a slope at trim: each factor u but one, not a magnitude (`Y_uv`,
+    `Z_uude`), and the pure-u terms (`X_uu`)."""
+    out = []
+    for name in terms:
+        rest = [a for a in parse_term(name).factors if a != "u"]
+        if not rest or (len(rest) == 1 and not rest[0].startswith("|")):
+            out.append(name)
+    return tuple(out)
+
+
+def captive_reference(model: mujoco.MjModel, speed: float, terms=TERMS) -> CaptiveFit:
+    """The captive reference of the vehicle `model` at trim speed `speed` (module doc)."""
+    tests = reference_tests(speed)
+    vehicle = constants(model, speed)
+    thrust = -float(hydrodynamic_wrench(model, [speed, 0, 0, 0, 0, 0])[0])  # the drag at trim
+    near = near_tests(tests, speed)
+    at_trim = slope_terms(terms)
+    first = fit_captive(vehicle, near, captive_tests(model, near), thrust, terms=at_trim)
+    held = {n: first.coefficients[n] for n in at_trim}
+    return fit_captive(vehicle, tests, captive_tests(model, tests), thrust, terms=terms, fixed=held)
