@@ -530,6 +530,29 @@ def corpus(root: Path) -> list[Case]:
                     f"config noise_std {label} ({method})", argv, (("bad.toml", toml_text(broken).encode()),)
                 )
             )
+    inertia = {k: v for k, v in doc["coefficients"].items() if k.endswith("dot")}
+    for label, terms, free in (
+        ("good", {"Y_uv": -100.0, "N_v|v|": -12.0}, []),
+        ("not a table", 1.0, []),
+        ("unknown term", {"Y_q|": 1.0}, []),
+        ("no factor", {"Y_": 1.0}, []),
+        ("bad row", {"Q_uv": 1.0}, []),
+        ("linear name", {"Y_v": 1.0}, []),
+        ("nan", {"Y_uv": float("nan")}, []),
+        ("huge", {"Y_uv": 1e300}, []),
+        ("text", {"Y_uv": "1"}, []),
+        ("bool", {"Y_uv": True}, []),
+        ("free unknown", {"Y_uv": 1.0}, ["N_uv"]),
+        ("free twice", {"Y_uv": 1.0}, ["Y_uv", "Y_uv"]),
+        ("free linear", {"Y_uv": 1.0}, ["Y_v"]),
+        ("linear coefficient", {"Y_uv": 1.0}, None),
+    ):
+        broken = json.loads(json.dumps(doc))
+        broken["coefficients"] = inertia if free is not None else inertia | {"Y_v": -2.0}
+        broken["terms"] = terms
+        broken["identify"] = {"free": free or []}
+        argv = ("analyze", "data", "--config", "bad.toml")
+        cases.append(Case(f"config terms {label}", argv, (("bad.toml", toml_text(broken).encode()),)))
     text = (root / "cfg.toml").read_bytes()
     for label, blob in (
         ("empty", b""),

@@ -35,6 +35,7 @@ from testbed.models.linear import (
     STATES,
     Vehicle,
 )
+from testbed.models.nonlinear import INERTIA, nonlinear_model
 from testbed.models.sensors import OUTPUTS, Sensor, needs, states_from
 
 __all__ = [
@@ -131,7 +132,9 @@ class Experiment:
 @dataclass(frozen=True)
 class ModelConfig:
     """A model config: the vehicle, the model's parameters (the 35 coefficients, the offsets,
-    the output biases, the current, the inputs' delay), and the free ones."""
+    the output biases, the current, the inputs' delay), and the free ones. With `terms` it is a
+    nonlinear model config: the nonlinear model over the terms named (their coefficients), its
+    inertia coefficients the `…dot` ones of `coefficients` (the others 0)."""
 
     vehicle: Vehicle
     coefficients: Mapping[str, float]  # every name in PARAMETERS
@@ -147,6 +150,7 @@ class ModelConfig:
     # (an estimate's per-record values, `with_coefficients`)
     record_values: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     sensors: tuple[Sensor, ...] = ()  # [sensors.NAME]: the sensors whose geometry and errors are known
+    terms: Mapping[str, float] | None = None  # [terms]: the nonlinear model's terms, in order; None: linear
 
     def __post_init__(self):  # a name a config leaves out is 0 (and fixed)
         object.__setattr__(self, "coefficients", dict.fromkeys(PARAMETERS, 0.0) | dict(self.coefficients))
@@ -652,6 +656,11 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     twice = sorted({o for o in seen if seen.count(o) > 1})
     if twice:
         raise InputError(f"{source}: [sensors] read {twice[0]} twice; expected each state from one sensor")
+    terms = doc.get("terms")
+    if terms is not None:
+        if not isinstance(terms, dict):
+            raise InputError(f"{source}: [terms] must be a table of term names and their values")
+        terms = {k: number(v, f"{source}: [terms] {json.dumps(k)}") for k, v in terms.items()}
     config = ModelConfig(
         Vehicle(**values),
         coefficients,
@@ -662,6 +671,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
         screen,
         tuple(per_record),
         sensors=sensors,
+        terms=terms,
     )
     check_config(config)
     return config
@@ -687,7 +697,10 @@ def check_config(config: ModelConfig) -> None:
                 f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current or input_delay (docs/model.md)"
             )
         number(v, f"{source}: [coefficients] {key}")
-    check_free(config.free, f"{source}: [identify] free")
+    if config.terms is not None:
+        _check_terms(config, source)
+    else:
+        check_free(config.free, f"{source}: [identify] free")
     check_per_record(config.per_record, config.free, f"{source}: [identify] per_record")
     if config.outputs is not None and (not config.outputs or any(s not in STATES for s in config.outputs)):
         raise InputError(
@@ -798,6 +811,33 @@ def check_per_record(per_record: Sequence[str], free: Sequence[str], where: str)
     return tuple(per_record)
 
 
+def _check_terms(config: ModelConfig, source: str) -> None:
+    """`InputError` unless a nonlinear model config's terms make a nonlinear model of its vehicle
+    (`models.nonlinear.nonlinear_model`: term names, each once, a submerged body), with finite
+    values, its linear parameters but the inertia coefficients 0, and `free` among its names."""
+    try:
+        model = nonlinear_model(config.vehicle, tuple(config.terms))
+    except InputError as exc:
+        raise InputError(f"{source}: [terms] {exc}") from None
+    for key, v in config.terms.items():
+        number(v, f"{source}: [terms] {json.dumps(key)}")
+    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA]
+    if extra:
+        raise InputError(
+            f"{source}: [coefficients] {extra[0]} in a nonlinear model config (one with [terms]); "
+            f"expected only the inertia coefficients ({', '.join(INERTIA)}), the rest in [terms]"
+        )
+    seen = set()
+    for n in config.free:
+        if n not in model.names or n in seen:
+            raise InputError(
+                f"{source}: [identify] free names {n[:40]!r}"
+                + (" twice" if n in seen else ", not an inertia coefficient or one of [terms]")
+                + "; expected each of the model's names once"
+            )
+        seen.add(n)
+
+
 def number(v, where: str) -> float:
     """`v` as a float; `InputError` unless it is a finite number within ±`MAX_CONSTANT`."""
     if isinstance(v, bool) or not isinstance(v, numbers.Real):
@@ -832,12 +872,19 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
     lines = ["[vehicle]"] + [
         line(k, getattr(config.vehicle, k)) for k in Vehicle.names() if getattr(config.vehicle, k) is not None
     ]
-    lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
-    lines += [
-        line(k, config.coefficients.get(k, 0.0))
-        for k in OFFSETS + OUTPUT_TERMS + (DELAY,)
-        if config.coefficients.get(k, 0.0) != 0.0 or k in config.free
-    ]
+    if config.terms is None:
+        lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in COEFFICIENTS]
+        lines += [
+            line(k, config.coefficients.get(k, 0.0))
+            for k in OFFSETS + OUTPUT_TERMS + (DELAY,)
+            if config.coefficients.get(k, 0.0) != 0.0 or k in config.free
+        ]
+    else:  # a nonlinear model config: its inertia coefficients, then its terms (names quoted: `|`)
+        lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in INERTIA]
+        lines += ["", "[terms]"] + [
+            f"{json.dumps(k)} = {float(v)!r}" + (f"  # {comments[k]}" if k in comments else "")
+            for k, v in config.terms.items()
+        ]
     lines += ["", "[identify]"]
     if config.screen:
         lines += [f"# {_SCREEN_NOTE}", "screen = true"]

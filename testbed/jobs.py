@@ -59,6 +59,11 @@ def inputs(data: Sequence[str | os.PathLike], config: str | os.PathLike | None =
     used = read_config(config) if config else run_config
     if used is None:
         raise InputError("no model config: expected config=TOML, or a run directory with model.toml")
+    if used.terms is not None:
+        raise InputError(
+            f"{used.source or 'config'}: a nonlinear model config ([terms]); expected a linear model's "
+            "config (identify, analyze and validate fit and check the linear model)"
+        )
     read = [Path(e.source) for e in experiments] + [Path(used.source)]
     read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]
     return experiments, used, run_config, read
