@@ -130,6 +130,17 @@ def _cmd_analytic(args) -> int:
     return 0
 
 
+def _cmd_captive(args) -> int:
+    from testbed.simulation.captive_config import captive_config_text
+
+    _quiet_mujoco()
+    out = _to_stdout(args.out)
+    text, fit = captive_config_text(args.mjcf, args.speed, out)
+    _emit(out, text)
+    print(fit.table(), file=sys.stderr if out is None else sys.stdout)
+    return 0
+
+
 def _cmd_simulate(args) -> int:
     from testbed.simulation.runs import simulate
     from testbed.simulation.scenario import TRUTHS
@@ -374,6 +385,14 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--speed", type=_positive, default=None, help="trim speed U, m/s (default: cruise)")
     s.add_argument("--out", type=Path, help="output TOML (default or -: stdout)")
     s.set_defaults(func=_cmd_analytic)
+
+    s = sub.add_parser(
+        "captive", help="fit the nonlinear model to virtual captive tests of an MJCF body (TOML)"
+    )
+    s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
+    s.add_argument("--speed", type=_positive, default=None, help="trim speed U, m/s (default: cruise)")
+    s.add_argument("--out", type=Path, help="output TOML (default or -: stdout; the fit table on stderr)")
+    s.set_defaults(func=_cmd_captive)
 
     s = sub.add_parser("simulate", help="generate a scenario run directory")
     s.add_argument(

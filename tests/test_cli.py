@@ -7,7 +7,7 @@ import pytest
 
 from testbed.cli import main
 
-COMMANDS = ["analytic", "simulate", "identify", "analyze", "check", "replay"]
+COMMANDS = ["analytic", "captive", "simulate", "identify", "analyze", "check", "replay"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)

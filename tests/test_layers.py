@@ -39,6 +39,7 @@ LAYERS = [
     ),
     ("testbed.simulation.captive_fit",),
     ("testbed.simulation.captive_reference",),
+    ("testbed.simulation.captive_config",),
     ("testbed.simulation.imperfect",),
     ("testbed.simulation.scenario",),
     ("testbed.simulation.recording",),

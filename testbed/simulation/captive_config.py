@@ -1,0 +1,46 @@
+"""The captive reference of an MJCF body as a nonlinear model config (`testbed captive`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from testbed.data import ModelConfig, config_text
+from testbed.errors import atomic_write_text, check_outputs
+from testbed.simulation.captive_fit import CaptiveFit
+from testbed.simulation.captive_reference import captive_reference, slope_terms
+from testbed.simulation.vehicle import constants, cruise_speed, load_model, trim_speed
+
+__all__ = ["captive_config", "captive_config_text"]
+
+
+def captive_config(
+    mjcf: str | Path | None = None, speed: float | None = None
+) -> tuple[ModelConfig, dict[str, str], CaptiveFit]:
+    """`(ModelConfig, comments, fit)`: the captive reference of `mjcf` (default: the bundled
+    torpedo) at trim speed `speed` (default: its cruise speed), a nonlinear model config with
+    the inertia coefficients and every term, none free; the comments say where each came from."""
+    model = load_model(mjcf)
+    U = cruise_speed(model) if speed is None else trim_speed(speed)
+    fit = captive_reference(model, U)
+    inertia = {n: v for n, v in fit.coefficients.items() if n not in fit.terms}
+    terms = {n: fit.coefficients[n] for n in fit.terms}
+    vehicle = constants(model, U)
+    config = ModelConfig(vehicle, inertia, (), str(mjcf or ""), terms=terms)
+    where = Path(mjcf).name if mjcf else "the bundled torpedo"
+    at_trim = set(slope_terms(fit.terms))
+    comments = {"speed": f"U, trim speed; captive reference of {where}"}
+    comments |= {n: "the PMM tests' quadrature part" for n in inertia}
+    comments |= {n: "slope at trim" if n in at_trim else "over the manoeuvre" for n in terms}
+    return config, comments, fit
+
+
+def captive_config_text(
+    mjcf: str | Path | None = None, speed: float | None = None, out=None
+) -> tuple[str, CaptiveFit]:
+    """`(TOML text, fit)` of `captive_config`, the text also written to `out` when given."""
+    check_outputs([mjcf] if mjcf else [], {"out": out})
+    config, comments, fit = captive_config(mjcf, speed)
+    text = config_text(config, comments)
+    if out is not None:
+        atomic_write_text(out, text)
+    return text, fit

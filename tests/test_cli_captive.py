@@ -1,0 +1,78 @@
+"""`testbed captive`: the captive reference written as a nonlinear model config, its fit table
+printed; bad input refused in one line with status 2 and nothing written."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+from testbed.cli import main
+from testbed.data import read_config
+from testbed.models.nonlinear import INERTIA, TERMS
+from testbed.simulation.captive_reference import reference_tests
+from testbed.simulation.vehicle import default_mjcf
+
+
+def cli(capsys, *argv):
+    """(exit status, stdout, stderr) of `testbed argv` run in this process."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:
+        code = exc.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_captive_writes_the_reference_and_prints_every_surface(tmp_path, capsys):
+    out = tmp_path / "captive.toml"
+    start = time.process_time()
+    code, printed, err = cli(capsys, "captive", "--speed", "20", "--out", out)
+    took = time.process_time() - start
+    assert code == 0, err
+    config = read_config(out)
+    assert list(config.terms) == list(TERMS) and config.vehicle.speed == 20.0
+    assert {n for n, v in config.coefficients.items() if v} == set(INERTIA)
+    assert config.free == ()
+    lines = printed.splitlines()
+    assert lines[0] == str(out)
+    tests = reference_tests(20.0)
+    assert len(lines) == 1 + 2 + sum(len(t.speeds) for t in tests)  # path, header, surfaces, all
+    assert lines[1].split() == ["test", "u", "m/s", "X", "Y", "Z", "K", "M", "N"]
+    assert lines[-1].split()[0] == "all"
+    assert took < 30  # the issue's budget, on one core (the CLI runs single-threaded BLAS)
+
+
+def test_captive_to_standard_output_keeps_the_table_on_stderr(capsys):
+    code, printed, err = cli(capsys, "captive", "--out", "-")
+    assert code == 0
+    assert printed.startswith("[vehicle]") and "[terms]" in printed and "all" not in printed
+    assert err.splitlines()[-1].split()[0] == "all"
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["--speed", "0"], ["--speed", "0 must be a finite number > 0"]),
+        (["--speed", "1e300"], ["speed", "450"]),
+        (["--mjcf", "missing.xml"], ["missing.xml"]),
+        (["--out", "no/such/folder/c.toml"], ["no/such/folder"]),
+    ],
+)
+def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch, argv, words):
+    monkeypatch.chdir(tmp_path)
+    argv = argv if "--out" in argv else argv + ["--out", "c.toml"]
+    code, printed, err = cli(capsys, "captive", *argv)
+    assert code == 2 and err.count("\n") == 1, err
+    for w in words:
+        assert w in err, err
+    assert os.listdir(tmp_path) == []
+
+
+def test_the_mjcf_read_is_not_an_output(tmp_path, capsys):
+    mjcf = tmp_path / "body.xml"
+    mjcf.write_bytes(default_mjcf().read_bytes())
+    code, _, err = cli(capsys, "captive", "--mjcf", mjcf, "--out", mjcf)
+    assert code == 2 and "is the input" in err and err.count("\n") == 1
+    assert mjcf.read_bytes() == default_mjcf().read_bytes()
