@@ -41,7 +41,7 @@ def test_captive_writes_the_reference_and_prints_every_surface(tmp_path, capsys)
     assert len(lines) == 1 + 2 + sum(len(t.speeds) for t in tests)  # path, header, surfaces, all
     assert lines[1].split() == ["test", "u", "m/s", "X", "Y", "Z", "K", "M", "N"]
     assert lines[-1].split()[0] == "all"
-    assert took < 30  # the budget, on one core (the CLI runs single-threaded BLAS)
+    assert took < 30  # the budget for a captive fit, on one core (the CLI runs single-threaded BLAS)
 
 
 def test_captive_to_standard_output_keeps_the_table_on_stderr(capsys):

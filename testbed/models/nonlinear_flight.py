@@ -1,8 +1,10 @@
 """The nonlinear model flown open loop: its states from a first one, driven by recorded fin angles.
 
 `fly` integrates ẋ = f(x, δ, θ) (`nonlinear.rates`) by the classical fourth-order Runge-Kutta
-method, `substeps` steps per sample interval, the fin angles interpolated linearly between their
-samples (the fins are servo-driven: they move continuously between the samples that record them).
+method, `substeps` steps per sample interval, each sample's fin angles held until the next: a
+run's records give at each sample the fins' mean over the interval that follows it, which held
+over that interval moves the body as the fins did to first order (the linear model's predictions
+take the inputs so too).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ __all__ = ["fly"]
 
 def fly(model: NonlinearModel, theta, t, x0, fins, substeps: int = 4) -> np.ndarray:
     """The states (N, 10), absolute u, at the times `t` (N,) from `x0` (10,) at t[0], the fin
-    angles `fins` (N, 3) (rad) given at the same times."""
+    angles `fins` (N, 3) (rad) given at the same times, each held until the next."""
     t, x0, fins = np.asarray(t, float), np.asarray(x0, float), np.asarray(fins, float)
     if t.ndim != 1 or len(t) < 2 or not np.all(np.diff(t) > 0):
         raise InputError(f"t: {t.shape} times; expected two or more increasing times")
@@ -29,15 +31,12 @@ def fly(model: NonlinearModel, theta, t, x0, fins, substeps: int = 4) -> np.ndar
     out = np.empty((len(t), NX))
     out[0] = x = x0
     for k in range(len(t) - 1):
-        h = (t[k + 1] - t[k]) / substeps
-        slope = (fins[k + 1] - fins[k]) / (t[k + 1] - t[k])
-        for s in range(substeps):
-            d0 = fins[k] + slope * (s * h)
-            dm, d1 = d0 + slope * (h / 2), d0 + slope * h
-            k1 = rates(model, theta, x, d0)
-            k2 = rates(model, theta, x + h / 2 * k1, dm)
-            k3 = rates(model, theta, x + h / 2 * k2, dm)
-            k4 = rates(model, theta, x + h * k3, d1)
+        h, d = (t[k + 1] - t[k]) / substeps, fins[k]
+        for _ in range(substeps):
+            k1 = rates(model, theta, x, d)
+            k2 = rates(model, theta, x + h / 2 * k1, d)
+            k3 = rates(model, theta, x + h / 2 * k2, d)
+            k4 = rates(model, theta, x + h * k3, d)
             x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         out[k + 1] = x
     return out
