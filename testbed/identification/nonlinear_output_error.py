@@ -1,0 +1,215 @@
+"""Output-error maximum likelihood for the nonlinear model: chosen coefficients and each record's
+initial state fitted to measured states by a damped Gauss-Newton (Levenberg-Marquardt) iteration.
+
+The outputs are the measured states of the simulated trajectory (`nonlinear_sensitivities.flight`),
+the noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
+records. As for the linear model (`likelihood`), the likelihood is minimised by relaxation: R is
+set to the residuals' mean square per channel (or held where `noise_std` gives it), then held
+while the parameters step on `½ Σ eᵀ R⁻¹ e`. The step solves the Gauss-Newton normal equations
+`(H + λ diag H) Δ = g`, `H = Σ Jᵀ R⁻¹ J`, `g = Σ Jᵀ R⁻¹ e`, J the outputs' exact sensitivities;
+λ falls after a step that lowers the cost and grows until one does. The fit has converged when
+every parameter's step is below `tolerance` × its Cramér-Rao σ. The bounds are those of the
+Fisher information H at the last linearisation, with the initial states (when free) among the
+parameters.
+
+A record's initial state starts from its first sample in the measured channels and from straight
+flight at the vehicle's speed in the others; free, only the measured channels' components move.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from testbed.errors import InputError
+from testbed.identification.bounds import crlb
+from testbed.identification.nonlinear_sensitivities import flight
+from testbed.models.linear import NU, NX, STATES
+from testbed.models.nonlinear import NonlinearModel
+from testbed.models.nonlinear_flight import fly
+
+__all__ = ["DAMPING", "NonlinearFit", "Record", "fit_output_error"]
+
+DAMPING = (1e-3, 10.0, 1e10)  # λ: its start, its factor down after a success and up after a failure, its cap
+
+
+@dataclass(frozen=True)
+class Record:
+    """One record: sample times (N,), fin angles (N, 3) held per sample, and the measured
+    states (N, C) in the fit's channels' order."""
+
+    t: np.ndarray
+    fins: np.ndarray
+    y: np.ndarray
+
+
+@dataclass(frozen=True)
+class NonlinearFit:
+    """The result of `fit_output_error`."""
+
+    theta: np.ndarray  # all of θ in `model.names` order, the free coefficients fitted
+    estimates: dict[str, float]  # the free coefficients
+    std: dict[str, float]  # their Cramér-Rao σ
+    initial_states: np.ndarray  # (records, 10)
+    noise_std: dict[str, float]  # √R per channel
+    cost: float  # −ln p(Z | θ, R): ½ Σ_c N_c ln 2π R_c + ½ Σ eᵀR⁻¹e
+    iterations: int
+    status: str  # "converged", "iteration limit" or "stalled" (no step lowers the cost)
+
+
+def _check(model, records, channels, free, noise_std):
+    unknown = [n for n in free if n not in model.names]
+    if unknown:
+        raise InputError(
+            f"free coefficient {unknown[0]!r} is not in the model; expected one of {model.names}"
+        )
+    if len(set(free)) != len(free) or not free:
+        raise InputError(f"free={tuple(free)!r}; expected one or more distinct coefficient names")
+    bad = [c for c in channels if c not in STATES]
+    if bad or len(set(channels)) != len(channels) or not channels:
+        raise InputError(f"channels={tuple(channels)!r}; expected distinct states among {STATES}")
+    extra = sorted(set(noise_std) - set(channels))
+    if extra:
+        raise InputError(f"noise_std names {extra[0]!r}; expected a measured channel {tuple(channels)}")
+    if any(not (s > 0 and np.isfinite(s)) for s in noise_std.values()):
+        raise InputError(f"noise_std={dict(noise_std)!r}; expected finite standard deviations > 0")
+    if not records:
+        raise InputError("records: none given; expected one or more")
+    for i, r in enumerate(records):
+        n = len(r.t)
+        if r.fins.shape != (n, NU) or r.y.shape != (n, len(channels)) or not np.all(np.isfinite(r.y)):
+            raise InputError(
+                f"record {i}: fins {r.fins.shape}, y {r.y.shape}; expected ({n}, {NU}) and "
+                f"({n}, {len(channels)}) finite measurements"
+            )
+
+
+def _simulate(model, theta, x0, records, ch, substeps):
+    """Each record's flown states (N, 10) and residuals (N, C); (None, None) where a flight does
+    not stay finite."""
+    flown, res = [], []
+    with np.errstate(all="ignore"):
+        for r, x in zip(records, x0):
+            states = fly(model, theta, r.t, x, r.fins, substeps)
+            e = r.y - states[:, ch]
+            if not np.all(np.isfinite(e)):
+                return None, None
+            flown.append(states)
+            res.append(e)
+    return flown, res
+
+
+def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
+    """Each record's output sensitivities to θ[free] (N, C, p) and to the measured channels'
+    initial states (N, C, C), along its flown states."""
+    out = []
+    for r, x, states in zip(records, x0, flown):
+        f = flight(model, theta, r.t, x, r.fins, free, substeps, states)
+        out.append((f.dx_dtheta[:, ch], f.dx_dx0[:, ch][:, :, ch]))
+    return out
+
+
+def fit_output_error(
+    model: NonlinearModel,
+    theta,
+    records: Sequence[Record],
+    channels: Sequence[str],
+    free: Sequence[str],
+    *,
+    free_initial: bool = True,
+    noise_std: Mapping[str, float] | None = None,
+    substeps: int = 4,
+    tolerance: float = 0.01,
+    max_iterations: int = 50,
+) -> NonlinearFit:
+    """Fit θ's `free` coefficients (names from `model.names`), started from `theta`, and each
+    record's initial state (`free_initial`) to the `records`' measured `channels`, each record
+    flown by RK4 with `substeps` steps per sample interval (module doc)."""
+    channels, free, noise_std = tuple(channels), tuple(free), dict(noise_std or {})
+    _check(model, records, channels, free, noise_std)
+    ch = [STATES.index(c) for c in channels]
+    idx = np.array([model.names.index(n) for n in free])
+    p = len(idx)
+    theta = np.array(theta, float)
+    x0 = np.zeros((len(records), NX))
+    x0[:, 0] = model.vehicle.speed
+    x0[:, ch] = [r.y[0] for r in records]
+    held = np.array([noise_std.get(c, np.nan) ** 2 for c in channels])
+    counts = sum(len(r.t) for r in records)
+
+    def unpack(q):
+        th, x = theta.copy(), x0.copy()
+        th[idx] = q[:p]
+        if free_initial:
+            x[:, ch] = q[p:].reshape(len(records), len(ch))
+        return th, x
+
+    def noise(res):
+        R = sum(np.sum(e**2, axis=0) for e in res) / counts
+        return np.where(np.isnan(held), np.maximum(R, 1e-30), held)
+
+    def weighted(res, R):
+        return 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
+
+    q = np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []])
+    flown, res = _simulate(model, *unpack(q), records, ch, substeps)
+    if res is None:
+        raise InputError(
+            "the model's flight from the start values does not stay finite; expected a stable start"
+        )
+    R = noise(res)
+    lam, down, cap = DAMPING[0], DAMPING[1], DAMPING[2]
+    status, iterations = "iteration limit", 0
+    for iterations in range(1, max_iterations + 1):
+        sens = _sensitivities(model, *unpack(q), records, flown, ch, idx, substeps)
+        H, g = _normal_equations(res, sens, R, free_initial)
+        std = crlb(H).std
+        cost = weighted(res, R)
+        while lam <= cap:
+            D = np.diag(H)
+            step = np.linalg.solve(H + lam * np.diag(np.where(D > 0, D, 1.0)), g)
+            trial_flown, trial = _simulate(model, *unpack(q + step), records, ch, substeps)
+            if trial is not None and weighted(trial, R) < cost:
+                break
+            lam *= down
+        else:
+            status = "stalled"
+            break
+        q, flown, res, lam = q + step, trial_flown, trial, lam / down
+        R = noise(res)
+        if np.all(np.abs(step) <= tolerance * std):
+            status = "converged"
+            break
+    H, _ = _normal_equations(res, sens, R, free_initial)
+    std = crlb(H).std
+    th, x = unpack(q)
+    nll = 0.5 * float(counts * np.sum(np.log(2 * np.pi * R))) + weighted(res, R)
+    return NonlinearFit(
+        theta=th,
+        estimates={n: float(v) for n, v in zip(free, q[:p])},
+        std={n: float(s) for n, s in zip(free, std[:p])},
+        initial_states=x,
+        noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
+        cost=nll,
+        iterations=iterations,
+        status=status,
+    )
+
+
+def _normal_equations(res, sens, R, free_initial):
+    """H = Σ Jᵀ R⁻¹ J and g = Σ Jᵀ R⁻¹ e over the records, the columns [θ[free] | each record's
+    measured initial states] (the latter only when free)."""
+    p, c = sens[0][0].shape[2], len(R)
+    P = p + (len(res) * c if free_initial else 0)
+    H, g = np.zeros((P, P)), np.zeros(P)
+    for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
+        J = np.zeros(e.shape + (P,))
+        J[:, :, :p] = St
+        if free_initial:
+            J[:, :, p + i * c : p + (i + 1) * c] = Sx
+        W = J / R[:, None]
+        H += np.einsum("nci,ncj->ij", W, J)
+        g += np.einsum("nci,nc->i", W, e)
+    return H, g
