@@ -100,7 +100,7 @@ def test_a_fit_from_a_perturbed_start_returns_the_truth_within_three_sigma(truth
     model, theta = truth
     record, start = noisy(model, theta, seed=1)
     fit = fit_output_error(model, start, [record], STATES, FREE)
-    assert fit.status == "converged" and fit.iterations < 20
+    assert fit.status == "converged"
     for n in FREE:
         true = theta[model.names.index(n)]
         assert abs(fit.estimates[n] - true) <= 3 * fit.std[n], (n, fit.estimates[n], true, fit.std[n])
@@ -112,6 +112,17 @@ def test_a_fit_from_a_perturbed_start_returns_the_truth_within_three_sigma(truth
     # the noise estimated is the noise added (1000 samples: its standard deviation to ~2 %)
     assert np.allclose([fit.noise_std[s] for s in STATES], SIGMA, rtol=0.08)
     assert np.all(np.abs(fit.initial_states - record.y[0]) <= 3 * SIGMA)
+
+
+def test_a_start_whose_flight_overflows_is_fitted_from_the_records_first_halves(truth):
+    model, theta = truth
+    record, start = noisy(model, theta, seed=25, seconds=3.0)
+    with np.errstate(all="ignore"):
+        assert not np.all(np.isfinite(fly(model, start, record.t, record.y[0], record.fins)))
+    fit = fit_output_error(model, start, [record], STATES, FREE)
+    assert fit.status == "converged"
+    for n in FREE:
+        assert abs(fit.estimates[n] - theta[model.names.index(n)]) <= 3 * fit.std[n], n
 
 
 def test_held_noise_and_held_initial_states_are_kept(truth):
@@ -133,6 +144,7 @@ def test_bad_names_are_one_line_input_errors(truth):
         dict(channels=STATES, free=FREE, noise_std={"x": 1.0}),
         dict(channels=STATES, free=FREE, noise_std={"u": -1.0}),
         dict(channels=STATES[:3], free=FREE),  # y has 10 columns
+        dict(channels=STATES, free=FREE, max_iterations=0),
     ]
     for kwargs in cases:
         with pytest.raises(InputError) as err:
@@ -143,12 +155,16 @@ def test_bad_names_are_one_line_input_errors(truth):
 @pytest.mark.slow
 def test_the_cramer_rao_bounds_match_the_scatter_over_seeds(truth):
     """Over 8 noise seeds the errors normalised by their σ have mean square ≈ 1 (80 of them:
-    χ²₈₀/80 lies in [0.5, 1.6] with probability > 0.999)."""
+    χ²₈₀/80 lies in [0.5, 1.6] with probability > 0.999), with the continuation in record length:
+    without it seed 13 ends in a local optimum. Half the starts fly the manoeuvre to overflow."""
     model, theta = truth
-    z = []
+    z, diverged = [], 0
     for seed in range(10, 18):
         record, start = noisy(model, theta, seed=seed, seconds=6.0)
-        fit = fit_output_error(model, start, [record], STATES, FREE)
+        with np.errstate(all="ignore"):
+            diverged += not np.all(np.isfinite(fly(model, start, record.t, record.y[0], record.fins)))
+        fit = fit_output_error(model, start, [record], STATES, FREE, continuation=True)
         assert fit.status == "converged"
         z += [(fit.estimates[n] - theta[model.names.index(n)]) / fit.std[n] for n in FREE]
+    assert diverged >= 2
     assert 0.5 <= np.mean(np.square(z)) <= 1.6, np.round(z, 2)

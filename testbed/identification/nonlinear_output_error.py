@@ -14,11 +14,18 @@ parameters.
 
 A record's initial state starts from its first sample in the measured channels and from straight
 flight at the vehicle's speed in the others; free, only the measured channels' components move.
+A continuation in record length (`continuation`) widens the basin, which output error's shrinks
+as the record grows: the records' first halves are fitted first (recursively, down to `FIRST`
+samples or more) and the whole records from that fit; it costs two to three times the direct
+fit's time. Without it the first halves are fitted first only where the flight from the start
+leaves every finite number (a start off the truth can make a nearly unstable vehicle diverge
+within seconds of a large manoeuvre), halved again as needed down to `SHORTEST` samples. The
+iterations reported count every stage's.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -30,15 +37,17 @@ from testbed.models.linear import NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
-__all__ = ["DAMPING", "NonlinearFit", "Record", "fit_output_error"]
+__all__ = ["DAMPING", "FIRST", "SHORTEST", "NonlinearFit", "Record", "fit_output_error"]
 
 DAMPING = (1e-3, 10.0, 1e10)  # λ: its start, its factor down after a success and up after a failure, its cap
+FIRST = 150  # samples: the continuation's first records are no shorter (module doc)
+SHORTEST = 25  # samples: records the start's flight overflows are halved down to no shorter
 
 
 @dataclass(frozen=True)
 class Record:
     """One record: sample times (N,), fin angles (N, 3) held per sample, and the measured
-    states (N, C) in the fit's channels' order."""
+    states (N, C) in the fit's channels' order, every sample present."""
 
     t: np.ndarray
     fins: np.ndarray
@@ -59,7 +68,12 @@ class NonlinearFit:
     status: str  # "converged", "iteration limit" or "stalled" (no step lowers the cost)
 
 
-def _check(model, records, channels, free, noise_std):
+def _check(model, records, channels, free, noise_std, tolerance, max_iterations):
+    if not (isinstance(max_iterations, int) and max_iterations >= 1 and tolerance > 0):
+        raise InputError(
+            f"tolerance={tolerance!r}, max_iterations={max_iterations!r}; expected a tolerance > 0 "
+            "and a whole number of iterations >= 1"
+        )
     unknown = [n for n in free if n not in model.names]
     if unknown:
         raise InputError(
@@ -123,20 +137,59 @@ def fit_output_error(
     substeps: int = 4,
     tolerance: float = 0.01,
     max_iterations: int = 50,
+    continuation: bool = False,
 ) -> NonlinearFit:
     """Fit θ's `free` coefficients (names from `model.names`), started from `theta`, and each
     record's initial state (`free_initial`) to the `records`' measured `channels`, each record
     flown by RK4 with `substeps` steps per sample interval (module doc)."""
     channels, free, noise_std = tuple(channels), tuple(free), dict(noise_std or {})
-    _check(model, records, channels, free, noise_std)
+    _check(model, records, channels, free, noise_std, tolerance, max_iterations)
     ch = [STATES.index(c) for c in channels]
-    idx = np.array([model.names.index(n) for n in free])
-    p = len(idx)
-    theta = np.array(theta, float)
     x0 = np.zeros((len(records), NX))
     x0[:, 0] = model.vehicle.speed
     x0[:, ch] = [r.y[0] for r in records]
     held = np.array([noise_std.get(c, np.nan) ** 2 for c in channels])
+    settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations)
+    options = dict(
+        free_initial=free_initial,
+        noise_std=noise_std,
+        substeps=substeps,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+    )
+    n = min(len(r.t) for r in records)
+    theta, stage = np.array(theta, float), None
+    if continuation and n >= 2 * FIRST:
+        stage = fit_output_error(model, theta, _halves(records), channels, free, continuation=True, **options)
+        theta, x0 = stage.theta, stage.initial_states
+    fit = _fit(model, theta, x0, records, settings)
+    if fit is None and stage is None and n >= 2 * SHORTEST:
+        stage = fit_output_error(
+            model, theta, _halves(records), channels, free, continuation=False, **options
+        )
+        fit = _fit(model, stage.theta, stage.initial_states, records, settings)
+    if fit is None:
+        raise InputError(
+            f"the model's flight from the start values does not stay finite over the records ({n} samples "
+            "or fewer); expected a start whose flight does"
+        )
+    return fit if stage is None else replace(fit, iterations=fit.iterations + stage.iterations)
+
+
+def _halves(records):
+    """The records' first halves."""
+    return [
+        Record(t=r.t[: len(r.t) // 2], fins=r.fins[: len(r.t) // 2], y=r.y[: len(r.t) // 2]) for r in records
+    ]
+
+
+def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
+    """`fit_output_error` from θ and the initial states x0 (records, 10); None where the flight
+    from them does not stay finite."""
+    channels, free, free_initial, held, substeps, tolerance, max_iterations = settings
+    ch = [STATES.index(c) for c in channels]
+    idx = np.array([model.names.index(n) for n in free])
+    p = len(idx)
     counts = sum(len(r.t) for r in records)
 
     def unpack(q):
@@ -156,9 +209,7 @@ def fit_output_error(
     q = np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []])
     flown, res = _simulate(model, *unpack(q), records, ch, substeps)
     if res is None:
-        raise InputError(
-            "the model's flight from the start values does not stay finite; expected a stable start"
-        )
+        return None
     R = noise(res)
     lam, down, cap = DAMPING[0], DAMPING[1], DAMPING[2]
     status, iterations = "iteration limit", 0
