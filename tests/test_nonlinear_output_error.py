@@ -50,21 +50,6 @@ def manoeuvre(seconds=10.0):
     return t, fins, x0
 
 
-def rk4(model, theta, t, x0, fins, substeps=4):
-    """The classical RK4 flight, each sample's fins held, in whatever dtype θ and x0 carry."""
-    x, out = x0, [x0]
-    for k in range(len(t) - 1):
-        h, d = (t[k + 1] - t[k]) / substeps, fins[k]
-        for _ in range(substeps):
-            k1 = rates(model, theta, x, d)
-            k2 = rates(model, theta, x + h / 2 * k1, d)
-            k3 = rates(model, theta, x + h / 2 * k2, d)
-            k4 = rates(model, theta, x + h * k3, d)
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        out.append(x)
-    return np.array(out)
-
-
 def test_the_trajectory_sensitivities_are_the_complex_step_derivatives_of_the_flight(truth):
     model, theta = truth
     t, fins, x0 = manoeuvre(2.0)
@@ -77,12 +62,12 @@ def test_the_trajectory_sensitivities_are_the_complex_step_derivatives_of_the_fl
         step = 1e-30 * abs(theta[i])
         tc = theta.astype(complex)
         tc[i] += 1j * step
-        want = rk4(model, tc, t, x0.astype(complex), fins).imag / step
+        want = fly(model, tc, t, x0.astype(complex), fins).imag / step
         assert np.abs(got.dx_dtheta[:, :, j] - want).max() <= 1e-10 * np.abs(want).max(), names[j]
     for i in range(10):
         xc = x0.astype(complex)
         xc[i] += 1e-30j
-        want = rk4(model, theta, t, xc, fins).imag / 1e-30
+        want = fly(model, theta, t, xc, fins).imag / 1e-30
         assert np.abs(got.dx_dx0[:, :, i] - want).max() <= 1e-10 * np.abs(want).max(), STATES[i]
 
 

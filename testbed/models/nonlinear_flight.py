@@ -20,15 +20,17 @@ __all__ = ["fly"]
 
 def fly(model: NonlinearModel, theta, t, x0, fins, substeps: int = 4) -> np.ndarray:
     """The states (N, 10), absolute u, at the times `t` (N,) from `x0` (10,) at t[0], the fin
-    angles `fins` (N, 3) (rad) given at the same times, each held until the next."""
-    t, x0, fins = np.asarray(t, float), np.asarray(x0, float), np.asarray(fins, float)
+    angles `fins` (N, 3) (rad) given at the same times, each held until the next; complex where
+    `theta` or `x0` is (a complex-step derivative of the flight)."""
+    dtype = np.result_type(np.asarray(theta), np.asarray(x0), float)
+    t, x0, fins = np.asarray(t, float), np.asarray(x0, dtype), np.asarray(fins, float)
     if t.ndim != 1 or len(t) < 2 or not np.all(np.diff(t) > 0):
         raise InputError(f"t: {t.shape} times; expected two or more increasing times")
     if x0.shape != (NX,) or fins.shape != (len(t), NU):
         raise InputError(f"x0 {x0.shape}, fins {fins.shape}; expected ({NX},) and ({len(t)}, {NU})")
     if not isinstance(substeps, int) or substeps < 1:
         raise InputError(f"substeps={substeps!r}; expected a whole number >= 1")
-    out = np.empty((len(t), NX))
+    out = np.empty((len(t), NX), dtype)
     out[0] = x = x0
     for k in range(len(t) - 1):
         h, d = (t[k + 1] - t[k]) / substeps, fins[k]
