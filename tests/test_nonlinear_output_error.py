@@ -11,7 +11,7 @@ from testbed.errors import InputError
 from testbed.identification.nonlinear_output_error import Record, fit_output_error
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import STATES
-from testbed.models.nonlinear import nonlinear_model, rates, theta_vector
+from testbed.models.nonlinear import nonlinear_model, theta_vector
 from testbed.models.nonlinear_flight import fly
 from testbed.simulation.captive_reference import captive_reference
 from testbed.simulation.measurements import NOISE_STD
