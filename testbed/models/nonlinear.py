@@ -43,6 +43,7 @@ __all__ = [
     "force_regressors",
     "forces",
     "rates",
+    "row_least_squares",
     "sensitivities",
     "theta_vector",
     "thrust",
@@ -228,6 +229,19 @@ def force_regressors(model: NonlinearModel, x, delta) -> np.ndarray:
     out[:, [t.row for t in model.terms], np.arange(len(model.terms))] = phi
     out[:, 0, :] -= model.surge[len(INERTIA) :]
     return out
+
+
+def row_least_squares(model: NonlinearModel, R, y, weights=None, held=()) -> np.ndarray:
+    """The terms' coefficients c (K,) that minimise Σ_n w_n (y_nr − R_nr c)² in each body row r
+    (R: `force_regressors` (n, 6, K), y (n, 6), w: `weights` (n,), default 1): each row's own
+    terms fitted to it, the terms named in `held` left at 0."""
+    w = np.ones(len(y)) if weights is None else np.sqrt(np.asarray(weights, float))
+    c = np.zeros(len(model.terms))
+    for row in range(6):
+        cols = [k for k, term in enumerate(model.terms) if term.row == row and term.name not in held]
+        if cols:
+            c[cols] = np.linalg.lstsq(w[:, None] * R[:, row, cols], w * y[:, row], rcond=None)[0]
+    return c
 
 
 def rates(model: NonlinearModel, theta, x, delta) -> np.ndarray:

@@ -136,12 +136,8 @@ def fit_captive(
     y += np.concatenate([m.nu_dot for m in measurements]) @ M_A.T
     y[:, 0] += thrust
     y -= np.einsum("nrk,k->nr", R, held)
-    w = np.sqrt(np.concatenate([np.full(len(m.nu), weights.get(m.test, 1.0)) for m in measurements]))
-    c = np.zeros(len(names))
-    for row in range(6):
-        cols = [k for k, t in enumerate(model.terms) if t.row == row and t.name not in fixed]
-        if cols:
-            c[cols] = np.linalg.lstsq(w[:, None] * R[:, row, cols], w * y[:, row], rcond=None)[0]
+    w = np.concatenate([np.full(len(m.nu), weights.get(m.test, 1.0)) for m in measurements])
+    c = nonlinear.row_least_squares(model, R, y, w, held=fixed)
     residual = y - np.einsum("nrk,k->nr", R, c)
     tau = np.concatenate([m.wrench for m in measurements])
     return CaptiveFit(

@@ -74,11 +74,7 @@ def fit_terms(model: nonlinear.NonlinearModel, inertia: dict[str, float], x, del
     M = model.inertia(theta0)
     y = nudot @ M.T - nonlinear.forces(model, theta0, x, delta)  # what the terms must give
     R = nonlinear.force_regressors(model, x, delta)
-    c = np.zeros(len(model.terms))
-    for row in range(6):
-        cols = [k for k, t in enumerate(model.terms) if R[:, row, k].any()]
-        if cols:
-            c[cols] = np.linalg.lstsq(R[:, row, cols], y[:, row], rcond=None)[0]
+    c = nonlinear.row_least_squares(model, R, y)
     theta = theta0 + np.concatenate([np.zeros(len(nonlinear.INERTIA)), c])
     residual = y - np.einsum("nrk,k->nr", R, c)
     predicted = nonlinear.rates(model, theta, x, delta)[:, :6]
