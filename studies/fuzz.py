@@ -13,7 +13,8 @@ fresh copy of the workspace; the tally counts:
 - crashes: any other failure: a traceback, a status other than 0, 1 or 2, a second stderr line
   (a numpy warning is made an error here, so it counts), an unnamed one-line error, or one
   that blames a flag the command line did not give (a value read from a file, named as a flag);
-- partial outputs: anything written on failure, or an input changed, whatever the status.
+- partial outputs: anything written on failure, an input changed, or a user's file replaced
+  without --force, whatever the status.
 
     python studies/fuzz.py              # in this process (fd-level output captured)
     python studies/fuzz.py --subprocess # each case a real `python -m testbed` (slower)
@@ -59,7 +60,8 @@ FREE = ("Y_v", "Y_r", "N_v", "N_r", "Z_w", "M_q")  # observed from both experime
 def workspace(root: Path) -> Path:
     """Valid inputs in `root`: data/h.csv and data/v.csv (2 s at 20 Hz, noisy), cfg.toml (FREE,
     30 % off the example's coefficients), run/ (a run directory: the two CSVs, their noise-free .truth.csv,
-    model.toml at the example's coefficients and manifest.json), keep.txt (a user's file) and an empty out/."""
+    model.toml at the example's coefficients and manifest.json), keep.txt (a user's file),
+    link.txt (a symbolic link to it) and an empty out/."""
     rng = np.random.default_rng(7)
     example = ModelConfig(VEHICLE, dict(EXAMPLE_COEFFICIENTS), FREE, "example")
     for folder in ("data", "run", "out"):
@@ -79,6 +81,7 @@ def workspace(root: Path) -> Path:
     manifest = {"scenario": "fuzz", "experiments": ["horizontal", "vertical"]}
     (root / "run" / "manifest.json").write_text(json.dumps(manifest))
     (root / "keep.txt").write_text("a user's file\n")
+    (root / "link.txt").symlink_to("keep.txt")
     return root
 
 
@@ -599,7 +602,7 @@ def corpus(root: Path) -> list[Case]:
             "--start": ["nope", ""],
             "--perturb": ["0", "-1", "nan", "inf", "1e400", "x"],
             "--seed": ["-1", "x", "1.5", str(2**70)],
-            "--rrd": ["out", "-", "out/no/f.rrd", "keep.txt/f.rrd", "data/h.csv"],
+            "--rrd": ["out", "-", "out/no/f.rrd", "keep.txt/f.rrd", "data/h.csv", "keep.txt"],
             "--noise-std": ["r=-1", "yaw=1", "r", "", ",", "r=nan", "r=1e-300", "r=1,r=2", "r=0.002"],
         },
         "analytic": {
@@ -650,6 +653,8 @@ def corpus(root: Path) -> list[Case]:
             ("analytic",),
         ):
             cases.append(Case(f"{argv[0]} {' '.join(argv[2:4])} --out {target}", (*argv, "--out", target)))
+    cases.append(Case("analytic --out link.txt", ("analytic", "--out", "link.txt")))
+    cases.append(Case("analytic --out keep.txt --force", ("analytic", "--out", "keep.txt", "--force")))
     for target in ("out", "keep.txt", "keep.txt/run", "-", "data", "run", "out/new/run"):
         for force in ((), ("--force",)):
             cases.append(
@@ -886,11 +891,19 @@ def _is_output(path: str, argv) -> bool:
     return any(path == t or path.startswith(t.rstrip("/") + "/") or t.startswith(path + "/") for t in targets)
 
 
+def _was_file(kind: str | None) -> bool:
+    """Whether a `snapshot` entry is a regular file's (its hash)."""
+    return kind is not None and kind != "dir" and not kind.startswith(("link:", "node:"))
+
+
 def judge(argv, code, out, err, before: dict, after: dict) -> tuple[str, str]:
     """(kind, partial) of one run: see the module docstring."""
     changed = sorted(p for p in set(before) | set(after) if before.get(p) != after.get(p))
     failed = code not in (0, 1)
-    partial = [p for p in changed if failed or not _is_output(p, argv)]
+    replaced = "--force" not in argv  # a file that was there is replaced only when asked for
+    partial = [
+        p for p in changed if failed or not _is_output(p, argv) or (replaced and _was_file(before.get(p)))
+    ]
     named = [a for a in argv if a] + [Path(a).name for a in argv if a]
     blamed = re.match(r"testbed \S+: error: (--[\w-]+)", err)  # the flag the error starts with
     if code in (0, 1) and "Traceback" not in err + out:

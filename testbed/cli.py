@@ -126,7 +126,7 @@ def _cmd_analytic(args) -> int:
 
     _quiet_mujoco()
     out = _to_stdout(args.out)
-    _emit(out, analytic_config_text(args.mjcf, args.speed, out))
+    _emit(out, analytic_config_text(args.mjcf, args.speed, out, args.force))
     return 0
 
 
@@ -135,7 +135,7 @@ def _cmd_captive(args) -> int:
 
     _quiet_mujoco()
     out = _to_stdout(args.out)
-    text, fit = captive_config_text(args.mjcf, args.speed, out)
+    text, fit = captive_config_text(args.mjcf, args.speed, out, args.force)
     _emit(out, text)
     print(fit.table(), file=sys.stderr if out is None else sys.stdout)
     return 0
@@ -204,6 +204,7 @@ def _cmd_identify(args) -> int:
         noise_std=args.noise_std,
         progress=progress if live else None,
         corrections=args.corrections,
+        force=args.force,
     )
     estimate = done.estimate
     if live and estimate.iterations:
@@ -238,7 +239,7 @@ def _cmd_analyze(args) -> int:
     from testbed.jobs import analyze_data
 
     out = _to_stdout(args.out)
-    result = analyze_data(args.data, config=args.config, out=out, noise_std=args.noise_std)
+    result = analyze_data(args.data, config=args.config, out=out, noise_std=args.noise_std, force=args.force)
     _emit(out, result.to_json())
     for line in result.summary:
         print(line, file=sys.stderr)
@@ -249,7 +250,7 @@ def _cmd_check(args) -> int:
     from testbed.jobs import check_data
 
     out = _to_stdout(args.out)
-    result = check_data(args.data, out=out)
+    result = check_data(args.data, out=out, force=args.force)
     if args.out == STDOUT:
         sys.stdout.write(result.to_json())
         print(result.table(), end="", file=sys.stderr)
@@ -264,7 +265,7 @@ def _cmd_validate(args) -> int:
     from testbed.jobs import validate_data
 
     out = _to_stdout(args.out)
-    validation, text = validate_data(args.data, args.estimates, config=args.config, out=out)
+    validation, text = validate_data(args.data, args.estimates, config=args.config, out=out, force=args.force)
     _emit(out, text)
     print(validation.table(), file=sys.stderr)
     return 0
@@ -279,7 +280,15 @@ def _cmd_design(args) -> int:
     _quiet_mujoco()
     free = [n.strip() for n in args.free.split(",") if n.strip()] if args.free else None
     result = write_design(
-        args.out, args.duration, args.criterion, free, args.mjcf, args.speed, args.start_from, args.rrd
+        args.out,
+        args.duration,
+        args.criterion,
+        free,
+        args.mjcf,
+        args.speed,
+        args.start_from,
+        args.rrd,
+        args.force,
     )
     print(table(result), file=sys.stderr)
     print(args.out)
@@ -359,6 +368,8 @@ NOISE_STD_HELP = (
     "the sensors' noise σ per state, SI, e.g. r=0.002,psi=0.01 (for data whose noise cannot be "
     "read off them: low-pass filtered); replaces the config's [identify] noise_std entry by entry"
 )
+WRITES_FILES = ("analytic", "captive", "identify", "analyze", "check", "validate", "design")
+FORCE_HELP = "replace an existing file at an output path (default: refused, exit 2)"
 BUILTIN_SCENARIOS = (
     "I",
     "II",
@@ -597,6 +608,8 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("run", type=Path, help="run directory or .rrd file")
     s.set_defaults(func=_cmd_replay)
     for name, command in sub.choices.items():
+        if name in WRITES_FILES:
+            command.add_argument("--force", action="store_true", help=FORCE_HELP)
         command.set_defaults(flags=_flags(command))
     return p
 

@@ -570,8 +570,11 @@ def csv_text(t: np.ndarray, states: np.ndarray, inputs: np.ndarray, measured: Se
     return out.getvalue()
 
 
-def write_csv(path: str | Path, t, states, inputs, measured: Sequence[str] = STATES) -> Path:
-    return atomic_write_text(path, csv_text(t, states, inputs, measured))
+def write_csv(
+    path: str | Path, t, states, inputs, measured: Sequence[str] = STATES, force: bool = False
+) -> Path:
+    """A measurement CSV at `path` (`csv_text`); an existing file is refused unless `force`."""
+    return atomic_write_text(path, csv_text(t, states, inputs, measured), force)
 
 
 def read_config(path: str | Path) -> ModelConfig:
@@ -921,8 +924,9 @@ def toml_value(v) -> str:
     raise TypeError(f"no TOML form for {v!r}")
 
 
-def write_config(path: str | Path, config: ModelConfig, comments=None) -> Path:
-    return atomic_write_text(path, config_text(config, comments))
+def write_config(path: str | Path, config: ModelConfig, comments=None, force: bool = False) -> Path:
+    """A model config at `path` (`config_text`); an existing file is refused unless `force`."""
+    return atomic_write_text(path, config_text(config, comments), force)
 
 
 def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:

@@ -4,7 +4,9 @@ Every user-facing failure is an `InputError` (a `ValueError`) whose message is o
 file, field or value and what was expected; the command line turns it into exit status 2.
 
 Regular files and run directories are written to a temporary sibling and renamed, so nothing is
-ever half-written. A character device (the null device, a terminal) or a FIFO named as an output
+ever half-written. A user's file is never replaced unless asked for: an existing regular file (or
+a symbolic link to one) named as an output is refused unless `force`, and an existing folder
+unless `force` and it is a run directory or empty. A character device (the null device, a terminal) or a FIFO named as an output
 is written into, never replaced: its content is built in a private temporary file first and
 copied into it once complete. Block devices and sockets are refused.
 """
@@ -97,9 +99,10 @@ def is_stream(path: str | os.PathLike) -> bool:
     return st is not None and (stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode))
 
 
-def check_output_file(path: str | os.PathLike, label: str | None = None) -> None:
-    """`InputError` unless an output file can be written at `path`: a regular file (new or
-    replaced), a character device or a FIFO. `label` starts the message (default: the path)."""
+def check_output_file(path: str | os.PathLike, label: str | None = None, force: bool = False) -> None:
+    """`InputError` unless an output file can be written at `path`: a new regular file, an
+    existing one (or a symbolic link to one) only with `force` (replaced), a character device or a
+    FIFO (written into). `label` starts the message (default: the path)."""
     path = Path(path)
     label = label or str(path)
     st = _node(path)
@@ -112,6 +115,12 @@ def check_output_file(path: str | os.PathLike, label: str | None = None) -> None
     elif stat.S_ISBLK(st.st_mode) or stat.S_ISSOCK(st.st_mode):
         kind = "a block device" if stat.S_ISBLK(st.st_mode) else "a socket"
         raise InputError(f"{label}: is {kind}; expected a regular file, a character device or a FIFO")
+    elif stat.S_ISREG(st.st_mode) and not force:
+        _refuse_existing(label)
+
+
+def _refuse_existing(label: str) -> None:
+    raise InputError(f"{label}: exists; expected a new file name, or force=True to replace it")
 
 
 def check_output_directory(
@@ -142,28 +151,32 @@ def check_output_directory(
         )
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write `text` to `path` through a temporary file in the same folder and a rename."""
-    return atomic_write_bytes(path, text.encode())
+def atomic_write_text(path: str | os.PathLike, text: str, force: bool = False) -> Path:
+    """Write `text` to `path` through a temporary file in the same folder and a rename
+    (`atomic_file`: an existing file is replaced only with `force`)."""
+    return atomic_write_bytes(path, text.encode(), force)
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write `data` to `path` through a temporary file in the same folder and a rename."""
-    with atomic_file(path) as tmp:
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, force: bool = False) -> Path:
+    """Write `data` to `path` through a temporary file in the same folder and a rename
+    (`atomic_file`: an existing file is replaced only with `force`)."""
+    with atomic_file(path, force) as tmp:
         tmp.write_bytes(data)
     return Path(path)
 
 
 @contextlib.contextmanager
-def atomic_file(path: str | os.PathLike):
+def atomic_file(path: str | os.PathLike, force: bool = False):
     """Yield a unique temporary file whose content becomes `path` only if the block finishes;
     on any exception (Ctrl-C included) it is removed and `path` is untouched.
 
-    A regular file (or a new one) is replaced by renaming a temporary sibling over it (through a
-    symbolic link: its target); a character device or a FIFO is written into at the end.
+    A new file is made by renaming a temporary sibling to it. An existing regular file (or the
+    target of a symbolic link to one) is an `InputError` unless `force`, checked on entry and
+    again before the rename (a file made meanwhile is not replaced either); with `force` the
+    rename replaces it. A character device or a FIFO is written into at the end.
     """
     path = Path(path)
-    check_output_file(path)
+    check_output_file(path, force=force)
     if is_stream(path):
         with _private_temporary(path) as tmp:
             yield tmp
@@ -178,6 +191,8 @@ def atomic_file(path: str | os.PathLike):
         os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes it private; an output is not
         os.close(fd)
         yield Path(tmp)
+        if not force and os.path.lexists(target):
+            _refuse_existing(str(path))
         try:
             os.replace(tmp, target)
         except OSError as exc:
@@ -251,21 +266,26 @@ def atomic_directory(path: str | os.PathLike, force: bool = False, marker: str =
         raise
 
 
-def check_outputs(read: Sequence[str | os.PathLike], outputs: Mapping[str, str | os.PathLike | None]) -> None:
+def check_outputs(
+    read: Sequence[str | os.PathLike], outputs: Mapping[str, str | os.PathLike | None], force: bool = False
+) -> None:
     """Fail before the work, not after it, when an output cannot be written: `outputs` maps a
     label (the parameter) to its path or None; `read` are the files read. No output may be an
-    input (it would be clobbered) or another output, save devices and FIFOs (written into)."""
+    input (it would be clobbered) or another output, save devices and FIFOs (written into); an
+    existing file is refused unless `force` (`check_output_file`)."""
     seen = {}
     for label, path in outputs.items():
         if path is None:
             continue
-        check_output_file(path, f"{label}={str(path)!r}")
+        named = f"{label}={str(path)!r}"
+        check_output_file(path, named, force=True)  # its kind; whether it may be replaced comes last
         if is_stream(path):
             continue
         key = os.path.realpath(path)  # links resolved: two names of one file are one file
         for source in read:
             if os.path.realpath(source) == key:
-                raise InputError(f"{label}={str(path)!r}: is the input {source}; expected a new file name")
+                raise InputError(f"{named}: is the input {source}; expected a new file name")
         if key in seen:
-            raise InputError(f"{label}={str(path)!r}: is also the {seen[key]} output; expected another name")
+            raise InputError(f"{named}: is also the {seen[key]} output; expected another name")
         seen[key] = label
+        check_output_file(path, named, force)

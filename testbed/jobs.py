@@ -45,10 +45,11 @@ __all__ = [
 ]
 
 
-def write_text(out: str | os.PathLike | None, text: str) -> None:
-    """Write `text` to `out` atomically (nothing when `out` is None)."""
+def write_text(out: str | os.PathLike | None, text: str, force: bool = False) -> None:
+    """Write `text` to `out` atomically (nothing when `out` is None; an existing file only with
+    `force`)."""
     if out is not None:
-        atomic_write_text(out, text)
+        atomic_write_text(out, text, force)
 
 
 def inputs(data: Sequence[str | os.PathLike], config: str | os.PathLike | None = None):
@@ -146,6 +147,7 @@ def identify_data(
     noise_std: Mapping[str, float] | None = None,
     progress: Callable[[Progress], None] | None = None,
     corrections: str | os.PathLike | None = None,
+    force: bool = False,
 ) -> Identified:
     """Identify the coefficients of `data` (run directories or CSVs) and write the estimates JSON
     to `out`, a filter's estimate and ±σ histories beside it (`.history.csv`), and a Rerun
@@ -159,7 +161,8 @@ def identify_data(
     sensors' noise σ per state, replacing the config's `[identify] noise_std` entry by entry;
     `corrections`: a check JSON (`check_data`) whose sensor corrections are applied to the data
     before the fit (`analysis.compatibility.corrected`). A diverged fit is an `InputError` and writes nothing; a fit that ran but did not converge is
-    written (`Identified.estimate.converged` says so).
+    written (`Identified.estimate.converged` says so). An existing file at `out`, its history
+    CSV or `rrd` is refused before the fit (`InputError`) unless `force` (then replaced).
     """
     m = lookup(method)
     opts = m.options.build(m.name, options or {})
@@ -177,7 +180,7 @@ def identify_data(
     history = (
         Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
     )
-    check_outputs(read, {"out": out, "history": history, "rrd": rrd})
+    check_outputs(read, {"out": out, "history": history, "rrd": rrd}, force)
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
     iterations = []  # (iteration, values, cost) of the iterative methods, for the recording
@@ -219,11 +222,13 @@ def identify_data(
     if history is not None:
         files = {history: estimate.history_csv(), **files}
     with contextlib.ExitStack() as stack:  # every output, or none of them
-        temporary = {path: stack.enter_context(atomic_file(path)) for path in files}
+        temporary = {path: stack.enter_context(atomic_file(path, force)) for path in files}
         if rrd is not None:
             from testbed.presentation.report import log_fit  # Rerun and MuJoCo load only for a recording
 
-            log_fit(rrd, experiments, cfg, estimate, iterations, comparison, validation=validation)
+            log_fit(
+                rrd, experiments, cfg, estimate, iterations, comparison, validation=validation, force=force
+            )
         for path, content in files.items():
             temporary[path].write_text(content)
     written = tuple(files) + ((Path(rrd),) if rrd is not None else ())
@@ -238,32 +243,36 @@ def analyze_data(
     config: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
     noise_std: Mapping[str, float] | None = None,
+    force: bool = False,
 ) -> Identifiability:
     """Identifiability of the config's free coefficients from `data` (Fisher information,
-    Cramér-Rao bounds, correlations, drift groups), written as JSON to `out`; `noise_std` as
-    for `identify_data`."""
+    Cramér-Rao bounds, correlations, drift groups), written as JSON to `out`; `noise_std` and
+    `force` as for `identify_data`."""
     experiments, cfg, _, read = inputs(data, config)
     cfg = cfg.with_noise_std(noise_std)
-    check_outputs(read, {"out": out})
+    check_outputs(read, {"out": out}, force)
     if not cfg.free:
         raise InputError(f"{cfg.source or 'config'}: [identify] free is empty; nothing to analyse")
     result = identifiability(experiments, cfg)
-    write_text(out, result.to_json())
+    write_text(out, result.to_json(), force)
     return result
 
 
-def check_data(data: Sequence[str | os.PathLike], *, out: str | os.PathLike | None = None):
+def check_data(
+    data: Sequence[str | os.PathLike], *, out: str | os.PathLike | None = None, force: bool = False
+):
     """The data-compatibility check of `data` (run directories or measurement CSVs): the
     kinematics reconstructed, the sensor biases, scale factors and delays estimated with their
-    bounds, written as JSON to `out`; the `analysis.compatibility.Compatibility`."""
+    bounds, written as JSON to `out` (`force` as for `identify_data`); the
+    `analysis.compatibility.Compatibility`."""
     from testbed.analysis.compatibility import compatibility  # numba and scipy: only here
 
     experiments, _ = load_data(data)
     read = [Path(e.source) for e in experiments]
     read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]
-    check_outputs(read, {"out": out})
+    check_outputs(read, {"out": out}, force)
     result = compatibility(experiments)
-    write_text(out, result.to_json())
+    write_text(out, result.to_json(), force)
     return result
 
 
@@ -273,11 +282,12 @@ def validate_data(
     *,
     config: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
+    force: bool = False,
 ) -> tuple[Validation, str]:
     """Fit % and residual whiteness on `data` of the coefficients in the `estimates` JSON;
-    the validation JSON (also written to `out`) with them."""
+    the validation JSON (also written to `out`; `force` as for `identify_data`) with them."""
     experiments, cfg, run_config, read = inputs(data, config)
-    check_outputs(read + [estimates], {"out": out})
+    check_outputs(read + [estimates], {"out": out}, force)
     check_inputs(experiments, cfg)  # the user's data against the user's model (validate checks no step)
     coefficients = read_estimates(estimates)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
@@ -289,5 +299,5 @@ def validate_data(
         )
         + "\n"
     )
-    write_text(out, text)
+    write_text(out, text, force)
     return validation, text

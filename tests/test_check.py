@@ -309,13 +309,13 @@ def test_identify_applies_the_corrections_before_the_fit(run, truth, tmp_path, c
     bad = tmp_path / "bad"
     shutil.copytree(run, bad)
     e = sensed(truth, seed=6)
-    write_csv(bad / "scenario-I.csv", e.t, e.y, e.inputs, e.measured)
+    write_csv(bad / "scenario-I.csv", e.t, e.y, e.inputs, e.measured, force=True)
     good = tmp_path / "good"
     shutil.copytree(run, good)
     for folder in (bad, good):  # no truth comparison: an ml-gn fit each, beside the point here
         (folder / "scenario-I.truth.csv").unlink()
     fixed = corrected([read_csv(bad / "scenario-I.csv")], INJECTED)[0]
-    write_csv(good / "scenario-I.csv", fixed.t, fixed.y, fixed.inputs, fixed.measured)
+    write_csv(good / "scenario-I.csv", fixed.t, fixed.y, fixed.inputs, fixed.measured, force=True)
     corrections = tmp_path / "corrections.json"
     corrections.write_text(json.dumps({"corrections": INJECTED}))
 
@@ -353,7 +353,7 @@ def trial(run, tmp_path_factory):
     folder = tmp_path_factory.mktemp("t") / "trial"
     shutil.copytree(run, folder)
     e = sensed(read_csv(run / "scenario-I.truth.csv", "scenario-I"), seed=7)
-    write_csv(folder / "scenario-I.csv", e.t, e.y, e.inputs, e.measured)
+    write_csv(folder / "scenario-I.csv", e.t, e.y, e.inputs, e.measured, force=True)
     return folder
 
 

@@ -256,7 +256,9 @@ def test_a_valid_config_reads_back_exactly_and_round_trips(tmp_path, profile):
                 want.free,
                 want.noise_std,
             )
-            back = read_config(write_config(tmp_path / "w.toml", cfg))
+            back = read_config(
+                write_config(tmp_path / "w.toml", cfg, force=True)
+            )  # the last example's replaced
             assert (back.vehicle, dict(back.coefficients), back.free, back.noise_std) == (
                 cfg.vehicle,
                 dict(cfg.coefficients),
@@ -396,6 +398,7 @@ OUTS = st.sampled_from(
         "cfg.toml",
         "keep.txt/e.json",
         "keep.txt",
+        "link.txt",
         "run/model.toml",
         "run/e.json",
         "null",
@@ -480,7 +483,7 @@ def command_line(draw) -> Case:
                 st.sampled_from(["out/run", "out/a/b", "out", "keep.txt", "keep.txt/run", "-", "data", "run"])
             ),
         ]
-        argv += ["--force"] if draw(st.booleans()) else []
+    argv += ["--force"] if draw(st.booleans()) else []  # a file or run directory there replaced
     return Case(" ".join(argv), tuple(argv), tuple(files))
 
 

@@ -367,8 +367,11 @@ def test_an_exception_leaves_the_old_recording_and_no_temporary_file(tmp_path, m
             raise KeyboardInterrupt
 
     monkeypatch.setattr(recording, "series", interrupted)
+    with pytest.raises(InputError, match="recording.rrd: exists; expected a new file name, or force=True"):
+        recording.log_run(path, flights)  # a recording there is replaced only when asked for
+    assert calls == [] and os.listdir(tmp_path) == ["recording.rrd"] and path.read_bytes() == b"old"
     with pytest.raises(KeyboardInterrupt):
-        recording.log_run(path, flights)
+        recording.log_run(path, flights, force=True)
     assert os.listdir(tmp_path) == ["recording.rrd"] and path.read_bytes() == b"old"
     monkeypatch.undo()
 
@@ -377,7 +380,7 @@ def test_an_exception_leaves_the_old_recording_and_no_temporary_file(tmp_path, m
 
     monkeypatch.setattr(recording.os, "replace", failing_replace)
     with pytest.raises(InputError, match="recording.rrd: cannot write .disk full"):  # one line, exit 2
-        recording.log_run(path, flights)
+        recording.log_run(path, flights, force=True)
     assert os.listdir(tmp_path) == ["recording.rrd"] and path.read_bytes() == b"old"
     monkeypatch.undo()
     with pytest.raises(InputError, match="does not exist"):
@@ -519,8 +522,8 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
     monkeypatch.undo()
     # without them (or with some missing) the model outputs come from best-fitting ones
     partial = dataclasses.replace(est, initial_states={name: {"psi": x0["psi"] + 1.0}})
-    for e in (dataclasses.replace(est, initial_states=None), partial):
-        path = report.log_fit(tmp_path / "fit2.rrd", data, start, e, [])
+    for k, e in enumerate((dataclasses.replace(est, initial_states=None), partial)):
+        path = report.log_fit(tmp_path / f"fit{k + 2}.rrd", data, start, e, [])
         expected = prediction.predict(data, start.with_coefficients(est.coefficients), e.initial_states)[0]
         assert np.allclose(_scalars(path, f"/outputs/{name}/psi")[:, 1], expected[:, 2])
 

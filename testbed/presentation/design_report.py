@@ -151,16 +151,16 @@ MOVED = 1e-9  # a flight's channel spanning less than this (rad, m/s, m) is not 
 FLIGHTS_KEY = "the designed experiment as the design model flies it (the linear model with its autopilots)"
 
 
-def log_design(path: str | Path, d: Design) -> Path:
+def log_design(path: str | Path, d: Design, force: bool = False) -> Path:
     """A Rerun recording of a design: the `bounds` tab (per free coefficient the predicted
     relative Cramér-Rao bound of the design beside Scenario II's at the same flight time, as
     paired bars, with the table), then per designed experiment its fin angles and states as
-    the design model flies it."""
+    the design model flies it. An existing file at `path` is an `InputError` unless `force`."""
     title = "testbed design"
     rel = {"design": d.relative(d.crlb), "scenario_II": d.relative(d.crlb_base)}
     k = np.arange(len(d.free), dtype=float)
     tabs = []
-    with recording(path, title, data_id(title, text(d))) as rec:
+    with recording(path, title, data_id(title, text(d)), force) as rec:
         for (label, r), offset, role in zip(rel.items(), (-0.2, 0.2), ("estimate", "measured")):
             bars = rr.BarChart(
                 np.nan_to_num(100 * r), color=STYLE[role][0], abscissa=k + offset, widths=np.full(len(k), 0.4)
@@ -234,11 +234,13 @@ def write_design(
     speed: float | None = None,
     start_from: str | Path | None = None,
     rrd: str | Path | None = None,
+    force: bool = False,
 ) -> Design:
     """`design` at the analytic model of `mjcf`, or at the estimates JSON `start_from` (its
     coefficients and noise: the sequential design), written as a scenario file to `out`, and
-    with `rrd` logged to that Rerun recording (`log_design`)."""
-    check_outputs([start_from] if start_from else [], {"out": out, "rrd": rrd})
+    with `rrd` logged to that Rerun recording (`log_design`). Existing files at `out` and `rrd`
+    are refused before the work (`InputError`) unless `force` (then replaced)."""
+    check_outputs([start_from] if start_from else [], {"out": out, "rrd": rrd}, force)
     estimates, noise = read_estimates(start_from) if start_from else (None, None)
     result = design(
         duration,
@@ -250,7 +252,7 @@ def write_design(
         noise,
         estimates_source=str(start_from or "estimates"),
     )
-    atomic_write_text(out, text(result))
+    atomic_write_text(out, text(result), force)
     if rrd is not None:
-        log_design(rrd, result)
+        log_design(rrd, result, force)
     return result

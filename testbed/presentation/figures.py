@@ -45,7 +45,7 @@ def colors(arms) -> dict[str, str]:
 
 
 def _save(fig, path: Path) -> str:
-    with atomic_file(path) as tmp:
+    with atomic_file(path, force=True) as tmp:  # the campaign's own folder: its figures are redrawn
         fig.savefig(tmp, format="png", dpi=110)
     plt.close(fig)
     return path.name
@@ -244,7 +244,7 @@ def write_report(
         if name:
             figures.append((f"Iteration histories, Scenario {s}", name))
     atomic_write_text(
-        out / "report.html", report_html(verdicts, summary, regime, drift, figures, missing, docs)
+        out / "report.html", report_html(verdicts, summary, regime, drift, figures, missing, docs), force=True
     )
     write_rrd(out / "report.rrd", docs)
     return out / "report.html"
@@ -396,7 +396,7 @@ def write_rrd(path: Path, docs: list[dict]) -> Path:
     seeds (timeline `seed`), and the first seed's histories (timelines `iteration` and `time`)."""
     title = "testbed reproduce"
     keys = sorted(d["key"] for d in docs)
-    with recording(path, title, data_id(title, *keys)) as rec:
+    with recording(path, title, data_id(title, *keys), force=True) as rec:
         series: dict[str, list] = {}
         for d in docs:
             c = d["cell"]

@@ -218,6 +218,7 @@ def log_fit(
     comparison=None,
     recording_id: str | None = None,
     validation=None,
+    force: bool = False,
 ) -> Path:
     """A recording of a fit: the parameters tab (each coefficient's estimate per iteration, or
     over time for the filters, with ±σ, the analytic value and the truth fit; the cost), the
@@ -227,7 +228,8 @@ def log_fit(
 
     The model outputs start from the estimate's `initial_states` when it has them (the
     output-error methods), else from best-fitting initial states. `recording_id` defaults to one
-    derived from the method, the data and the estimate.
+    derived from the method, the data and the estimate. An existing file at `path` is an
+    `InputError` unless `force` (then replaced).
     """
     title = f"testbed fit ({estimate.method})"
     history_t = estimate.history_t if isinstance(estimate, FilterEstimate) else None
@@ -245,7 +247,7 @@ def log_fit(
     except (InputError, np.linalg.LinAlgError, ValueError):
         outputs = [None] * len(experiments)  # a model that cannot be simulated: log the rest
     tabs = []
-    with recording(path, title, recording_id) as rec:
+    with recording(path, title, recording_id, force) as rec:
         parameters, timeline = _parameters(rec, estimate, iterations, comparison)
         if parameters is not None:
             tabs.append(parameters)

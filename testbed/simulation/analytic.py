@@ -432,13 +432,16 @@ def analytic_config(mjcf: str | Path | None = None, speed: float | None = None):
     return model_config(analytic(mjcf, speed), mjcf)
 
 
-def analytic_config_text(mjcf: str | Path | None = None, speed: float | None = None, out=None) -> str:
+def analytic_config_text(
+    mjcf: str | Path | None = None, speed: float | None = None, out=None, force: bool = False
+) -> str:
     """The analytic model of `mjcf` at `speed` as a model config (TOML text, with each
-    coefficient's make-up in comments), also written to `out` when given."""
-    check_outputs([mjcf] if mjcf else [], {"out": out})
+    coefficient's make-up in comments), also written to `out` when given (an existing file
+    there is refused unless `force`)."""
+    check_outputs([mjcf] if mjcf else [], {"out": out}, force)
     text = config_text(*analytic_config(mjcf, speed))
     if out is not None:
-        atomic_write_text(out, text)
+        atomic_write_text(out, text, force)
     return text
 
 

@@ -35,12 +35,13 @@ def captive_config(
 
 
 def captive_config_text(
-    mjcf: str | Path | None = None, speed: float | None = None, out=None
+    mjcf: str | Path | None = None, speed: float | None = None, out=None, force: bool = False
 ) -> tuple[str, CaptiveFit]:
-    """`(TOML text, fit)` of `captive_config`, the text also written to `out` when given."""
-    check_outputs([mjcf] if mjcf else [], {"out": out})
+    """`(TOML text, fit)` of `captive_config`, the text also written to `out` when given (an
+    existing file there is refused unless `force`)."""
+    check_outputs([mjcf] if mjcf else [], {"out": out}, force)
     config, comments, fit = captive_config(mjcf, speed)
     text = config_text(config, comments)
     if out is not None:
-        atomic_write_text(out, text)
+        atomic_write_text(out, text, force)
     return text, fit

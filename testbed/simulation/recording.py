@@ -145,15 +145,16 @@ def data_id(title: str, *parts) -> str:
 
 
 @contextlib.contextmanager
-def recording(path: str | os.PathLike, title: str, recording_id: str):
+def recording(path: str | os.PathLike, title: str, recording_id: str, force: bool = False):
     """Yield a recording stream saving to a unique temporary sibling of `path` (send the
     blueprint last, inside the block), renamed to `path` when the block finishes; on any
     exception (Ctrl-C included) the temporary file is removed, so a recording is whole or absent
-    (`testbed.errors.atomic_file`; the file sink writes while we log).
+    (`testbed.errors.atomic_file`; the file sink writes while we log). An existing file at `path`
+    is an `InputError` unless `force` (then replaced).
 
     No wall-clock start time is sent: the same data give the same decoded contents.
     """
-    with atomic_file(path) as tmp:
+    with atomic_file(path, force) as tmp:
         rec = rr.RecordingStream("testbed", recording_id=recording_id, send_properties=False)
         try:
             rec.save(str(tmp))
@@ -336,8 +337,11 @@ def _held(a: np.ndarray) -> np.ndarray:
     return a[rows, np.arange(a.shape[1])]
 
 
-def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: str | None = None) -> Path:
-    """A recording of the flights of a run: 3D replay with fin deflections, trails, time series.
+def log_run(
+    path, flights, mjcf=None, title: str = "testbed run", recording_id: str | None = None, force: bool = False
+) -> Path:
+    """A recording of the flights of a run: 3D replay with fin deflections, trails, time series;
+    an existing file at `path` is an `InputError` unless `force` (then replaced).
 
     `recording_id` defaults to one derived from the title and the flights, so the same run
     always gets the same id (see `data_id`).
@@ -346,7 +350,7 @@ def log_run(path, flights, mjcf=None, title: str = "testbed run", recording_id: 
         recording_id = data_id(title, *[part for f in flights for part in _flight_parts(f)])
     hull, fins = _geometry(mjcf)
     tabs = []
-    with recording(path, title, recording_id) as rec:
+    with recording(path, title, recording_id, force) as rec:
         rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_DOWN, static=True)  # north, east, down
         rec.log("/key", rr.TextDocument(RUN_KEY, media_type=rr.MediaType.MARKDOWN), static=True)
         for flight in flights:

@@ -204,7 +204,7 @@ def reproduce(
                     "values": {},
                 }
             failed += doc["status"] == "failed"
-            atomic_write_text(cells_dir / f"{cell.key}.json", json.dumps(doc, indent=1) + "\n")
+            atomic_write_text(cells_dir / f"{cell.key}.json", json.dumps(doc, indent=1) + "\n", force=True)
             done += 1
             if progress is not None:
                 progress(
@@ -392,15 +392,15 @@ def write_outputs(out: Path, docs: list[dict], cells: list[Cell]) -> None:
     """results.csv, summary.csv, regime.json, drift.json, conclusions.json, the figures,
     report.html and report.rrd from the cells and the runs."""
     rows = results_rows(docs)
-    atomic_write_text(out / "results.csv", results_csv(rows))
+    atomic_write_text(out / "results.csv", results_csv(rows), force=True)  # a resumed campaign's, redone
     rows = read_results(out / "results.csv")  # the verdicts are computed from the file itself
     found_regime, found_drift = regime(out, cells), drift(out, docs, cells)
-    atomic_write_text(out / "regime.json", json.dumps(found_regime, indent=2) + "\n")
-    atomic_write_text(out / "drift.json", json.dumps(found_drift, indent=2) + "\n")
+    atomic_write_text(out / "regime.json", json.dumps(found_regime, indent=2) + "\n", force=True)
+    atomic_write_text(out / "drift.json", json.dumps(found_drift, indent=2) + "\n", force=True)
     verdicts = conclusions(rows, found_regime, found_drift)
-    atomic_write_text(out / "conclusions.json", json.dumps(verdicts, indent=2) + "\n")
+    atomic_write_text(out / "conclusions.json", json.dumps(verdicts, indent=2) + "\n", force=True)
     summary = summary_table(rows)
-    atomic_write_text(out / "summary.csv", results_csv(summary, SUMMARY_COLUMNS))
+    atomic_write_text(out / "summary.csv", results_csv(summary, SUMMARY_COLUMNS), force=True)
     inputs = {}
     for s in dict.fromkeys(c.scenario for c in cells):
         first = next(c for c in cells if c.scenario == s)
