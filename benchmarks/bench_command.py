@@ -53,11 +53,12 @@ GOAL = 30.0
 
 
 def write_inputs(folder: Path) -> tuple[list[Path], Path]:
-    """The two experiments' CSVs and the a-priori model config, written into `folder`."""
+    """The two experiments' CSVs and the a-priori model config, written into `folder` (the
+    benchmark's own: a kept folder's are replaced)."""
     csvs = []
     for e in experiments(seed=0, duration=DURATION_S):
-        csvs.append(write_csv(folder / f"{e.name}.csv", e.t, e.y, e.inputs, e.measured))
-    config = write_config(folder / "cfg.toml", prior_config(FREE + EXTRA, error=START_ERROR))
+        csvs.append(write_csv(folder / f"{e.name}.csv", e.t, e.y, e.inputs, e.measured, force=True))
+    config = write_config(folder / "cfg.toml", prior_config(FREE + EXTRA, error=START_ERROR), force=True)
     return csvs, config
 
 
@@ -98,7 +99,7 @@ def main() -> int:
         csvs, config = write_inputs(folder)
         files = [str(f) for f in csvs] + ["--config", str(config), "--out"]
         commands = {
-            "testbed identify": [str(script), "identify", *files, str(folder / "est.json")],
+            "testbed identify": [str(script), "identify", *files, str(folder / "est.json"), "--force"],
             "scipy reference": [
                 python,
                 str(ROOT / "benchmarks" / "scipy_reference.py"),

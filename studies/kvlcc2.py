@@ -257,10 +257,11 @@ def convert(raw_dir: Path, data_dir: Path) -> list[str]:
         t, x, s = record(path)
         measured = [n for n in ("u", "v", "p", "r", "phi", "psi") if n in x]
         inputs = np.column_stack([x["delta_r"], np.zeros_like(t), np.zeros_like(t)])
-        write_csv(data_dir / f"{name}.csv", t, np.column_stack([x[n] for n in measured]), inputs, measured)
+        y = np.column_stack([x[n] for n in measured])  # converted again on every run: replaced
+        write_csv(data_dir / f"{name}.csv", t, y, inputs, measured, force=True)
         U = float(np.mean(x["u"][:5]))  # the approach speed
-        write_config(data_dir / f"{name}.toml", model_config(s, U, roll=False))
-        write_config(data_dir / f"{name}-roll.toml", model_config(s, U, True, measured))
+        write_config(data_dir / f"{name}.toml", model_config(s, U, roll=False), force=True)
+        write_config(data_dir / f"{name}-roll.toml", model_config(s, U, True, measured), force=True)
         names.append(name)
     return names
 
@@ -470,9 +471,10 @@ def main(argv=None) -> int:
     for name in a.records or names:
         print(f"fitting {name} ...", file=sys.stderr)
         rows += study_record(data, name, [o for o in names if o != name], a.out / "estimates", variant)
-    atomic_write_text(a.out / "study.json", json.dumps(rows, indent=1, default=float) + "\n")
+    # the study's own folder, run again in place
+    atomic_write_text(a.out / "study.json", json.dumps(rows, indent=1, default=float) + "\n", force=True)
     text = tables(rows, fit)
-    atomic_write_text(a.out / "study.md", text)
+    atomic_write_text(a.out / "study.md", text, force=True)
     print(text)
     return 0
 

@@ -18,12 +18,13 @@ from testbed.estimators import Estimate, Status, identify
 def check_out(out: Path, seeds: int, files: Sequence[str]) -> None:
     """`InputError` unless a study of `seeds` seeds can write into `out` before it runs: each
     seed's run directory `seed<k>` new, or a run directory it replaces (never a folder of
-    someone's files), and its own `files`."""
+    someone's files), and its own `files` (new, or the last run's, replaced: the study's folder
+    is its own, run again in place)."""
     for k in range(1, seeds + 1):
         check_output_directory(out / f"seed{k}", force=True)
     if out.is_dir():
         for name in files:
-            check_output_file(out / name)
+            check_output_file(out / name, force=True)
 
 
 def guess(config: ModelConfig, rng: np.random.Generator) -> ModelConfig:

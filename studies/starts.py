@@ -321,7 +321,7 @@ def main(argv=None) -> int:
         experiments, analytic, args.methods, args.starts, args.spread, args.start_seed, FREE, args.jobs
     )
     if args.out:
-        atomic_write_text(args.out, result.csv_text())
+        atomic_write_text(args.out, result.csv_text(), force=True)  # the study's table, written again
     print(result.table(), end="")
     return 0
 

@@ -187,7 +187,7 @@ def main(argv=None) -> int:
         print(f"trial.py: {exc}", file=sys.stderr)
         return 2
     text = study(a.seeds, a.out)
-    atomic_write_text(a.out / "trial.csv", text)
+    atomic_write_text(a.out / "trial.csv", text, force=True)  # the study's own folder (`check_out`)
     print(text, end="")
     return 0
 

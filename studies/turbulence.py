@@ -56,7 +56,7 @@ def scenario_file(out: Path, scale: float, time: float, duration: float | None, 
     if duration is not None:
         text = text.replace("duration = 60.0", f"duration = {duration:g}", 1)
     path = out / "II-turbulence.toml"
-    atomic_write_text(path, text)
+    atomic_write_text(path, text, force=True)  # the study's own folder (`check_out`)
     return path
 
 
@@ -182,7 +182,7 @@ def main(argv=None) -> int:
         args.open_loop,
         args.feedback,
     )
-    atomic_write_text(args.out / "turbulence.csv", text)
+    atomic_write_text(args.out / "turbulence.csv", text, force=True)
     print(text, end="")
     return 0
 
