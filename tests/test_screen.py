@@ -41,12 +41,14 @@ def flights(simulated, seed=3):
     return out
 
 
-def write(tmp, data, config, name):
-    """The experiments as measurement CSVs and `config` as a TOML file in `tmp`."""
+def write(tmp, data, configs):
+    """The experiments as measurement CSVs and each of `configs` (name → config) as a TOML file
+    in `tmp`."""
     csvs = [write_csv(tmp / f"{e.name}.csv", e.t, e.y, e.inputs, e.measured) for e in data]
-    path = tmp / f"{name}.toml"
-    path.write_text(config_text(config))
-    return csvs, path
+    paths = [tmp / f"{name}.toml" for name in configs]
+    for path, config in zip(paths, configs.values()):
+        path.write_text(config_text(config))
+    return csvs, *paths
 
 
 @pytest.fixture(scope="module")
@@ -61,8 +63,8 @@ def foreign(tmp_path_factory):
     prior = analytic.with_coefficients(dict.fromkeys(ZERO, 0.0))
     tmp = tmp_path_factory.mktemp("foreign")
     data = flights(simulated)
-    csvs, candidates = write(tmp, data, replace(prior, screen=True), "candidates")
-    explicit = write(tmp, data, replace(prior, screen=False), "explicit")[1]
+    lists = {"candidates": replace(prior, screen=True), "explicit": replace(prior, screen=False)}
+    csvs, candidates, explicit = write(tmp, data, lists)
     return data, simulated, csvs, candidates, explicit
 
 
