@@ -6,9 +6,10 @@ file, field or value and what was expected; the command line turns it into exit 
 Regular files and run directories are written to a temporary sibling and renamed, so nothing is
 ever half-written. A user's file is never replaced unless asked for: an existing regular file (or
 a symbolic link to one) named as an output is refused unless `force`, and an existing folder
-unless `force` and it is a run directory or empty. A character device (the null device, a terminal) or a FIFO named as an output
-is written into, never replaced: its content is built in a private temporary file first and
-copied into it once complete. Block devices and sockets are refused.
+unless `force` and it is a run directory or empty. A character device (the null device, a
+terminal) or a FIFO named as an output is written into, never replaced: its content is built in a
+private temporary file first and copied into it once complete. Block devices and sockets are
+refused.
 """
 
 from __future__ import annotations
