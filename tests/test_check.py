@@ -277,7 +277,8 @@ def test_corrected_undoes_the_injected_errors(truth):
         ({"b_x": 1.0}, "'b_x' is not a sensor parameter"),
         ({"tau_gyro": 1.5}, "tau_gyro = 1.5; expected a number within ±1"),
         ({"k_p": -0.9}, "k_p = -0.9; expected a number within ±0.5"),
-        ({"b_p": "0.1"}, "b_p = 0.1; expected a number"),
+        ({"b_p": "0.1"}, "b_p = '0.1'; expected a number"),
+        ({"b_p": "0\n1"}, "b_p = '0\\\\n1'; expected a number"),  # a value's newline stays escaped: one line
         ({"b_p": True}, "b_p = True; expected a number"),
         ({"b_p": math.nan}, "b_p = nan"),
         ({"b_p": math.inf}, "b_p = inf"),

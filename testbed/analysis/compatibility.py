@@ -723,7 +723,7 @@ def check_corrections(values, where: str) -> dict[str, float]:
             )
         limit = MAX_DELAY if n.startswith("tau_") else MAX_SCALE if n.startswith("k_") else MAX_DATA
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= limit:
-            raise InputError(f"{where}: {n} = {str(v)[:40]}; expected a number within ±{limit:g}")
+            raise InputError(f"{where}: {n} = {repr(v)[:40]}; expected a number within ±{limit:g}")
         out[n] = float(v)
     return out
 

@@ -245,13 +245,16 @@ def fit_initial_states(
         sums = []
         for r, T, y in zip(prob.records, factors, ys):
             k = len(r.measured)
-            if T is None:
+            if T is not None:
+                w = variance(r) ** -0.5
+                A, z = (T[:, :k, :k] * w[:, None, None]).reshape(-1, k), (T[:, :k, k] * w[:, None]).ravel()
+            if T is None or not (np.all(np.isfinite(A)) and np.all(np.isfinite(z))):
                 p[r.offset : r.offset + k] = y[0]
                 sums.append(np.full(k, np.inf))
                 continue
-            w = variance(r) ** -0.5
-            A, z = (T[:, :k, :k] * w[:, None, None]).reshape(-1, k), (T[:, :k, k] * w[:, None]).ravel()
-            D = np.linalg.norm(A, axis=0)  # columns scaled to unit length: x0's units do not count
+            # columns scaled to a unit largest entry (a norm's squares can overflow): x0's units
+            # do not count
+            D = np.max(np.abs(A), axis=0)
             D = np.where(D > 0, D, 1.0)
             x0 = np.linalg.lstsq(A / D, z, rcond=None)[0] / D
             p[r.offset : r.offset + k] = x0
