@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import rerun.chunk
 
+from test_report import _blueprint, _logged, _matches, _tabs, _views  # noqa: F401  (the recording's readers)
 from testbed.cli import main
 from testbed.models import linear, nonlinear
 from testbed.models.mechanics import coriolis
@@ -201,6 +202,19 @@ def test_the_recording_holds_every_panels_points_and_curves(tmp_path, captive):
             x, y = series[f"{sweep_entity(p)}/{kind}"]
             assert np.array_equal(x, milli(drawn[0].x))  # distinct thousandths at these extents
             assert np.array_equal(y, np.column_stack([s.y for s in drawn]))
+    # a tab per test after the fit's, opening on the first test and on the `sweep` timeline; a
+    # plot per panel, showing its plant and model, named with its fit %
+    bp = _blueprint(path)
+    tabs, active = _tabs(bp)
+    assert list(tabs) == ["fit"] + list(dict.fromkeys(p.test for p in panels)) and active == tabs["v"]
+    assert bp["/time_panel"]["timeline"] == TIMELINE
+    plots = {v["origin"]: v for v in _views(bp).values() if v["kind"] == "TimeSeries"}
+    assert len(plots) == len(panels)
+    logged = _logged(path)
+    for p in panels:
+        view = plots[sweep_entity(p)]
+        assert _matches(view, logged) == {f"{sweep_entity(p)}/plant", f"{sweep_entity(p)}/model"}
+        assert view["name"].endswith(f"fit {p.fit:.2f} %")
 
 
 def cli(capsys, *argv):
@@ -223,7 +237,7 @@ def test_captive_writes_the_recording_beside_the_config(tmp_path, capsys):
     assert any(e.startswith("/captive/pure_q/") for e in _recorded(rrd))
 
 
-@pytest.mark.slow  # about 25 s: two folders of 42 figures
+@pytest.mark.slow  # about 50 s on one core: two folders of 42 figures
 def test_captive_writes_a_folder_of_figures_and_force_replaces_only_its_own(tmp_path, capsys):
     figures, out = tmp_path / "figures", tmp_path / "c.toml"
     code, printed, err = cli(capsys, "captive", "--speed", SPEED, "--out", out, "--figures", figures)
