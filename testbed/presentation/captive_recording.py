@@ -18,10 +18,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from testbed.presentation.captive_sweeps import UNITS, Series, SweepPanel, series_colours
+from testbed.presentation.captive_sweeps import UNITS, Series, SweepPanel, by_test, series_colours
 from testbed.simulation.recording import axis_range, data_id, recording
 
-__all__ = ["KEY", "TIMELINE", "log_captive", "milli", "sweep_entity"]
+__all__ = ["KEY", "MILLI", "TIMELINE", "log_captive", "milli", "sweep_entity"]
 
 TIMELINE = "sweep"
 KEY = (
@@ -30,6 +30,9 @@ KEY = (
     "`sweep`, the swept variable in thousandths of its unit (mm/s, mrad/s, mrad), an oscillation's "
     "time in ms"
 )
+
+
+MILLI = {"m/s": "mm/s", "rad/s": "mrad/s", "rad": "mrad", "s": "ms"}  # the abscissa's unit on `sweep`
 
 
 def milli(x) -> np.ndarray:
@@ -59,7 +62,7 @@ def _view(p: SweepPanel) -> rrb.TimeSeriesView:
     at = rrb.TimeRangeBoundary.absolute
     return rrb.TimeSeriesView(
         origin=sweep_entity(p),
-        name=f"{p.row} ({UNITS[p.row]}) against {p.x} (1/1000 {UNITS[p.x]}) at {p.speed:g} m/s: fit {p.fit:.2f} %",
+        name=f"{p.row} ({UNITS[p.row]}) against {p.x} ({MILLI[UNITS[p.x]]}) at {p.speed:g} m/s: fit {p.fit:.2f} %",
         axis_x=rrb.TimeAxis(view_range=rr.TimeRange(start=at(seq=int(x.min())), end=at(seq=int(x.max())))),
         axis_y=rrb.ScalarAxis(range=axis_range(y, 6)),
         plot_legend=rrb.PlotLegend(visible=False),
@@ -77,14 +80,11 @@ def log_captive(path: str | Path, panels: Sequence[SweepPanel], table: str, text
     """Write the recording of `panels` to `path`: `table` the fit of every force surface (`CaptiveFit.table`),
     `text` the model config written (the recording's id is derived from it)."""
     title = "testbed captive"
-    tests: dict[str, list[SweepPanel]] = {}
-    for p in panels:
-        tests.setdefault(p.test, []).append(p)
     with recording(path, title, data_id(title, text)) as rec:
         rec.log("/key", rr.TextDocument(KEY, media_type=rr.MediaType.MARKDOWN), static=True)
         rec.log("/fit", rr.TextDocument(f"```\n{table}\n```", media_type=rr.MediaType.MARKDOWN), static=True)
         tabs = [rrb.TextDocumentView(origin="/fit", name="fit")]
-        for test, own in tests.items():
+        for test, own in by_test(panels).items():
             for p in own:
                 dots, lines = zip(*series_colours(len(p.plant)))
                 points = rr.SeriesPoints(
@@ -96,21 +96,15 @@ def log_captive(path: str | Path, panels: Sequence[SweepPanel], table: str, text
                 _log(rec, f"{sweep_entity(p)}/plant", p.plant, points)
                 curve = rr.SeriesLines(colors=lines, names=[s.label or "model" for s in p.model])
                 _log(rec, f"{sweep_entity(p)}/model", p.model, curve)
-            rows = len({p.row for p in own})
-            body = [rrb.Grid(*map(_view, own), grid_columns=rows)]
-            if any(p.parts for p in own):
-                rec.log(
-                    f"/parts/{test}",
-                    rr.TextDocument(_parts_table(own), media_type=rr.MediaType.MARKDOWN),
-                    static=True,
+            body = rrb.Grid(*map(_view, own), grid_columns=len({p.row for p in own}))
+            if any(p.parts for p in own):  # an oscillation: its in-phase and quadrature parts beside
+                table_md = rr.TextDocument(_parts_table(own), media_type=rr.MediaType.MARKDOWN)
+                rec.log(f"/parts/{test}", table_md, static=True)
+                body = rrb.Horizontal(
+                    body, rrb.TextDocumentView(origin=f"/parts/{test}"), column_shares=[5, 1]
                 )
-                body = [
-                    rrb.Horizontal(
-                        body[0], rrb.TextDocumentView(origin=f"/parts/{test}"), column_shares=[5, 1]
-                    )
-                ]
             key = rrb.TextDocumentView(origin="/key", name="key", titlebar=False)  # a view has one parent
-            tabs.append(rrb.Vertical(*body, key, row_shares=[24, 1], name=test))
+            tabs.append(rrb.Vertical(body, key, row_shares=[24, 1], name=test))
         rec.send_blueprint(
             rrb.Blueprint(
                 rrb.Tabs(*tabs, active_tab=1),

@@ -19,7 +19,7 @@ from testbed.errors import (
 )
 from testbed.presentation.captive_figures import figure_name, sweep_figure
 from testbed.presentation.captive_recording import log_captive
-from testbed.presentation.captive_sweeps import sweep_panels
+from testbed.presentation.captive_sweeps import by_test, sweep_panels
 from testbed.simulation.captive_config import captive_config_text
 from testbed.simulation.captive_fit import CaptiveFit
 from testbed.simulation.vehicle import load_model
@@ -65,10 +65,7 @@ def write_captive(
     with contextlib.ExitStack() as stack:  # the figures' folder appears last, when all is done
         if figures is not None:
             tmp = stack.enter_context(atomic_directory(figures, force, MARKER))
-            tests: dict[str, list] = {}
-            for p in panels:
-                tests.setdefault(p.test, []).append(p)
-            for test, own in tests.items():
+            for test, own in by_test(panels).items():
                 sweep_figure(tmp / figure_name(test), own)
             (tmp / MARKER).write_text(f"testbed captive: the fit of every force surface (%)\n{fit.table()}\n")
             written.append(Path(figures))

@@ -30,7 +30,16 @@ from testbed.simulation.captive_reference import reference_tests
 from testbed.simulation.recording import STYLE
 from testbed.simulation.vehicle import constants
 
-__all__ = ["DENSE", "NEGLIGIBLE", "UNITS", "Series", "SweepPanel", "series_colours", "sweep_panels"]
+__all__ = [
+    "DENSE",
+    "NEGLIGIBLE",
+    "UNITS",
+    "Series",
+    "SweepPanel",
+    "by_test",
+    "series_colours",
+    "sweep_panels",
+]
 
 NEGLIGIBLE = 1e-6  # a PMM part whose harmonic is below this share of its row's range is not shown
 DENSE = 81  # the model's curve: values of the swept variable from −extent to +extent, or instants a period
@@ -161,4 +170,12 @@ def _parts(test: Oscillation, F, row: str, plant: dict, model: dict) -> dict[str
         n = f"{row}_{test.variable}{kind}"
         if max(abs(plant[n]), abs(model[n])) * a > NEGLIGIBLE * np.ptp(F):
             out[n] = (plant[n], model[n])
+    return out
+
+
+def by_test(panels) -> dict[str, list[SweepPanel]]:
+    """The panels grouped by test, in their order."""
+    out: dict[str, list[SweepPanel]] = {}
+    for p in panels:
+        out.setdefault(p.test, []).append(p)
     return out
