@@ -131,13 +131,23 @@ def _cmd_analytic(args) -> int:
 
 
 def _cmd_captive(args) -> int:
-    from testbed.simulation.captive_config import captive_config_text
-
     _quiet_mujoco()
     out = _to_stdout(args.out)
-    text, fit = captive_config_text(args.mjcf, args.speed, out, args.force)
+    _check_recording(args.rrd)
+    written = []
+    if args.figures is None and args.rrd is None:  # no figures: matplotlib and Rerun not loaded
+        from testbed.simulation.captive_config import captive_config_text
+
+        text, fit = captive_config_text(args.mjcf, args.speed, out, args.force)
+    else:
+        from testbed.presentation.captive_report import write_captive
+
+        text, fit, written = write_captive(args.mjcf, args.speed, out, args.figures, args.rrd, args.force)
     _emit(out, text)
-    print(fit.table(), file=sys.stderr if out is None else sys.stdout)
+    stream = sys.stderr if out is None else sys.stdout  # standard output may carry the TOML
+    print(fit.table(), file=stream)
+    for path in written:
+        print(path, file=stream)
     return 0
 
 
@@ -403,6 +413,8 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--mjcf", type=Path, default=None, help="MJCF file (default: the bundled torpedo)")
     s.add_argument("--speed", type=_positive, default=None, help="trim speed U, m/s (default: cruise)")
     s.add_argument("--out", type=Path, help="output TOML (default or -: stdout; the fit table on stderr)")
+    s.add_argument("--figures", type=Path, help="also draw each test's figure as a PNG in this new folder")
+    s.add_argument("--rrd", type=Path, help="also log each test's figure to this Rerun recording")
     s.set_defaults(func=_cmd_captive)
 
     s = sub.add_parser("simulate", help="generate a scenario run directory")

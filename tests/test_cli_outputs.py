@@ -73,6 +73,12 @@ CASES = {
         "testbed.simulation.captive_config.captive_config",
         _toml,
     ),
+    "captive --rrd": (
+        ["captive", "--out", "{new}", "--rrd", "{user}"],
+        "--rrd",
+        "testbed.simulation.captive_config.captive_config",
+        _rrd,
+    ),
     "identify --out": (
         ["identify", "{run}", "--max-iter", "1", "--out", "{user}"],
         "--out",

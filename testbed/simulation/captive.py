@@ -101,10 +101,15 @@ class Sweep:
             raise InputError(f"{where}: points={self.points!r}; expected whole numbers >= 1")
         object.__setattr__(self, "speeds", _check_speeds(where, self.speeds))
 
+    def axes(self) -> tuple[np.ndarray, ...]:
+        """Each variable's values on the grid, from −extent to +extent (0 alone for one point)."""
+        return tuple(
+            np.linspace(-e, e, n) if n > 1 else np.zeros(1) for e, n in zip(self.extent, self.points)
+        )
+
     def states(self, speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ν, ν̇, δ) of every grid point at `speed`, row by row (the last variable fastest)."""
-        axes = [np.linspace(-e, e, n) if n > 1 else np.zeros(1) for e, n in zip(self.extent, self.points)]
-        grid = np.array(list(itertools.product(*axes))).reshape(-1, len(self.vary))
+        grid = np.array(list(itertools.product(*self.axes()))).reshape(-1, len(self.vary))
         nu, fins = np.zeros((len(grid), 6)), np.zeros((len(grid), len(INPUTS)))
         nu[:, 0] = speed
         for k, v in enumerate(self.vary):
@@ -148,9 +153,13 @@ class Oscillation:
         """ω, rad/s."""
         return 2 * math.pi / self.period
 
+    def times(self) -> np.ndarray:
+        """The sample instants t (s) over one period."""
+        return self.period * np.arange(self.samples) / self.samples
+
     def states(self, speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ν, ν̇, δ) at the sample instants at `speed`."""
-        phase = self.omega * self.period * np.arange(self.samples) / self.samples
+        phase = self.omega * self.times()
         nu, nu_dot = np.zeros((self.samples, 6)), np.zeros((self.samples, 6))
         nu[:, 0] = speed
         k = _OSCILLATING[self.variable]

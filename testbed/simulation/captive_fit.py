@@ -35,7 +35,7 @@ from testbed.models.mechanics import coriolis
 from testbed.models.regressors import ROWS
 from testbed.simulation.captive import Measurement, Oscillation, pmm_coefficients
 
-__all__ = ["CaptiveFit", "SurfaceFit", "fit_captive", "pmm_inertia"]
+__all__ = ["CaptiveFit", "SurfaceFit", "fit_captive", "fitted_wrench", "pmm_inertia"]
 
 
 @dataclass(frozen=True)
@@ -148,6 +148,25 @@ def fit_captive(
         surfaces=_surfaces(measurements, residual, np.abs(tau).max(axis=0)),
         rows={ROWS[r]: _fit(tau[:, r], residual[:, r], np.abs(tau[:, r]).max()) for r in range(6)},
     )
+
+
+def fitted_wrench(vehicle: linear.Vehicle, fit: CaptiveFit, nu, fins, nu_dot) -> np.ndarray:
+    """The wrench (n, 6) a captive test of the fitted model reads at the states ν (n, 6), fins δ
+    (n, 3) and rates ν̇ (n, 6), as the fit compares it with the plant's: the model's forces less
+    the rigid body's (what the equation of motion adds to the water's), less M_A ν̇, and in surge
+    the model's thrust exchanged for the plant's (`fit.thrust`). `vehicle` is the one fitted."""
+    if vehicle.speed != fit.speed:
+        raise InputError(
+            f"vehicle at speed={vehicle.speed!r} m/s; expected the fit's trim speed {fit.speed!r}"
+        )
+    model = nonlinear.nonlinear_model(vehicle, fit.terms)
+    theta = nonlinear.theta_vector(model, fit.coefficients)
+    nu, nu_dot = np.atleast_2d(nu), np.atleast_2d(nu_dot)
+    x = np.concatenate([nu, np.zeros((len(nu), linear.NX - 6))], axis=1)
+    rigid = nonlinear.forces(model, np.zeros_like(theta), x, fins)  # −C_RB ν and the restoring forces
+    tau = nonlinear.forces(model, theta, x, fins) - rigid - nu_dot @ (model.inertia(theta) - model.M_RB).T
+    tau[:, 0] -= fit.thrust
+    return tau
 
 
 def _surfaces(measurements, residual, scale) -> tuple[SurfaceFit, ...]:
