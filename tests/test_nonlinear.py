@@ -105,6 +105,63 @@ def test_jacobians_match_complex_step():
     assert one[1].shape == (10, 10) and np.allclose(one[1], A[0], rtol=0, atol=0)
 
 
+def test_rates_are_the_equation_assembled_from_independent_parts():
+    """ẋ against M⁻¹ (−C(ν)ν + g(η) + T e_x + Σ c_k φ_k) built here from np.cross, the rotation
+    matrix and the regressors' named products, and the Euler rates from the rotation's."""
+    model, theta, c = model_and_theta()
+    x, delta = samples()
+    M = model.inertia(theta)
+    rB = np.array([VEHICLE.xB, VEHICLE.yB, VEHICLE.zB])
+    phi = regressors(model.terms, x[:, :6], delta)
+    got = rates(model, theta, x, delta)
+    for n in range(len(x)):
+        nu, h = x[n, :6], M @ x[n, :6]
+        F = -np.concatenate([np.cross(nu[3:], h[:3]), np.cross(nu[3:], h[3:]) + np.cross(nu[:3], h[:3])])
+        down = rotation(*x[n, 6:9]).T @ np.array([0, 0, 1.0])
+        F += np.concatenate(
+            [(VEHICLE.weight - VEHICLE.buoyancy) * down, np.cross(rB, -VEHICLE.buoyancy * down)]
+        )
+        F[0] += thrust(model, theta)
+        for k, term in enumerate(model.terms):
+            F[term.row] += c[term.name] * phi[n, k]
+        sf, cf, tt = math.sin(x[n, 6]), math.cos(x[n, 6]), math.tan(x[n, 7])
+        p, q, r = nu[3:]
+        euler = [p + (q * sf + r * cf) * tt, q * cf - r * sf, (q * sf + r * cf) / math.cos(x[n, 7])]
+        depth = (rotation(*x[n, 6:9]) @ nu[:3])[2]
+        assert close(got[n], np.concatenate([np.linalg.solve(M, F), euler, [depth]]), 1e-14)
+
+
+def test_any_term_set_is_evaluated_from_its_factor_table():
+    """Terms of up to six factors over every atom and magnitude: the named products, and the
+    Jacobians and sensitivities by complex step of the same compiled code."""
+    names = ("X_uvwpqr", "Y_|u||v||w||p||q||r|", "Z_drdedada", "K_|dr||de||da|", "M_u|de|", "N_vdr|r|")
+    model = nonlinear_model(VEHICLE, names)
+    rng = np.random.default_rng(3)
+    theta = theta_vector(model, {**DOTS, **{n: rng.normal() * 10 for n in names}})
+    x, delta = samples(seed=9)
+    u, v, w, p, q, r = x[:, :6].T
+    dr, de, da = delta[:, 0], (delta[:, 1] + delta[:, 2]) / 2, (delta[:, 1] - delta[:, 2]) / 2
+    want = np.column_stack(
+        [
+            u * v * w * p * q * r,
+            abs(u * v * w * p * q * r),
+            dr * de * da * da,
+            abs(dr * de * da),
+            u * abs(de),
+            v * dr * abs(r),
+        ]
+    )
+    F = forces(model, theta, x, delta)
+    F0 = forces(model, theta_vector(model, DOTS), x, delta)
+    # one term per row, X..N; X_uvwpqr is 0 in straight flight, so the thrust holds none of it
+    assert close(F - F0, want * theta[len(INERTIA) :], 1e-14)
+    f, A, B = jacobians(model, theta, x, delta)
+    assert close(A, complex_step(lambda z: rates(model, theta, z, delta), x.astype(complex)), 1e-13)
+    assert close(B, complex_step(lambda z: rates(model, theta, x, z), delta.astype(complex)), 1e-13)
+    S = sensitivities(model, theta, x, delta)
+    assert close(S, complex_step(lambda t: rates(model, t, x, delta), theta.astype(complex)), 1e-13)
+
+
 def test_sensitivities_match_complex_step():
     model, theta, _ = model_and_theta()
     x, delta = samples()
