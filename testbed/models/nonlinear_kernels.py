@@ -28,8 +28,6 @@ from testbed.models.mechanics import coriolis_state, kinematics_state, kirchhoff
 
 __all__ = ["flight", "fly", "forces", "jacobians", "rates", "sensitivities"]
 
-_NI = 14  # inertia coefficients lead θ (`nonlinear.INERTIA`)
-
 
 @numba.njit(cache=True)
 def _atoms(weights, z, atoms, signs):
@@ -135,12 +133,13 @@ def _theta_columns(m, x, f, phi, columns, G):
     M⁻¹ (φ_k e_row − s_k e_x) (s_k the thrust's share), for an inertia coefficient
     M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇), C_k the Kirchhoff forces of ∂M/∂θ_k (C is linear in M)."""
     rows, Minv, dM, surge = m[2], m[6], m[7], m[8]
+    inertia = dM.shape[0]  # the inertia coefficients lead θ (`nonlinear.INERTIA`)
     g = np.empty(6, dtype=f.dtype)
     h = np.empty(6, dtype=f.dtype)
     G[6:, :] = 0.0
     for j in range(len(columns)):
         col = columns[j]
-        if col < _NI:
+        if col < inertia:
             for i in range(6):
                 h[i] = 0.0
                 g[i] = 0.0
@@ -154,7 +153,7 @@ def _theta_columns(m, x, f, phi, columns, G):
                     acc += Minv[i, l] * g[l]
                 G[i, j] = acc
         else:
-            k = col - _NI
+            k = col - inertia
             for i in range(6):
                 G[i, j] = Minv[i, rows[k]] * phi[k] - Minv[i, 0] * surge[k]
 
