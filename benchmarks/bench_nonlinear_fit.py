@@ -9,9 +9,10 @@ captive reference's terms (`testbed captive`'s at 20 m/s), its 19 terms with a s
 free (`identification.nonlinear_output_error.fit_output_error`, RK4 with 4 steps per sample).
 The reference measured in the same run is `ml-gn` fitting the linear model to the same record
 from the analytic model (the run's model.toml, its default free set). Each is timed as the best
-of `--rounds` calls, alternating, with single-threaded BLAS and numba. The model's compiled code
-is loaded from numba's cache before the clock starts; the first call's time in this process
-(the cache read) and a compilation from an empty cache (in a fresh process) are printed apart.
+of `--rounds` calls, alternating, with single-threaded BLAS and numba, in wall and CPU time (the
+machine may be shared). The model's compiled code is loaded from numba's cache before the clock
+starts; the first call's time in this process (the cache read) and a compilation from an empty
+cache (in a fresh process) are printed apart.
 """
 
 from __future__ import annotations
@@ -64,15 +65,16 @@ print(time.perf_counter() - t0)
 
 
 def _best(runs, rounds):
-    """Per run: the shortest wall time of `rounds` calls and the last call's result; the runs
-    alternate, so a slow spell of a shared machine hits both alike."""
-    times, out = [[] for _ in runs], [None] * len(runs)
+    """Per run: the shortest wall time and the shortest CPU time of `rounds` calls, and the last
+    call's result; the runs alternate, so a slow spell of a shared machine hits both alike."""
+    wall, cpu, out = [[] for _ in runs], [[] for _ in runs], [None] * len(runs)
     for _ in range(rounds):
         for i, run in enumerate(runs):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             out[i] = run()
-            times[i].append(time.perf_counter() - t0)
-    return [(min(t), o) for t, o in zip(times, out)]
+            wall[i].append(time.perf_counter() - t0)
+            cpu[i].append(time.process_time() - c0)
+    return [(min(w), min(c), o) for w, c, o in zip(wall, cpu, out)]
 
 
 def main(argv=None) -> int:
@@ -108,11 +110,11 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     flight(model, theta, r.t[:2], x0, r.fins[:2], idx)  # the compiled code, read from numba's cache
     first = time.perf_counter() - t0
-    (t_fly, _), (t_flight, _) = _best(
+    (t_fly, _, _), (t_flight, _, _) = _best(
         [lambda: fly(model, theta, r.t, x0, r.fins), lambda: flight(model, theta, r.t, x0, r.fins, idx)],
         args.rounds,
     )
-    (t_nl, fit), (t_lin, lin) = _best(
+    (t_nl, c_nl, fit), (t_lin, c_lin, lin) = _best(
         [
             lambda: fit_output_error(model, theta, records, channels, free),
             lambda: identify(experiments, analytic, method="ml-gn", start="config"),
@@ -127,15 +129,15 @@ def main(argv=None) -> int:
         f"{len(free)} coefficients free from the captive values, best of {args.rounds}"
     )
     print(
-        f"compiled code: first call in this process {first:.2f} s (numba's cache), "
+        f"compiled code: first call in this process {first:.2f} s (read from numba's cache; compiled if stale), "
         f"compiling from an empty cache {cold:.1f} s (a fresh process)"
     )
     print(
         f"one flight (RK4, 4 steps per sample): {1e3 * t_fly:.1f} ms; flight and sensitivities: {1e3 * t_flight:.1f} ms"
     )
-    print(f"nonlinear ml-gn: {t_nl:7.2f} s, {fit.status}, {fit.iterations} iterations")
+    print(f"nonlinear ml-gn: {t_nl:7.2f} s ({c_nl:.2f} s CPU), {fit.status}, {fit.iterations} iterations")
     print(
-        f"linear ml-gn   : {t_lin:7.2f} s, {lin.status.name}, {lin.iterations} iterations (analytic start, {len(analytic.free)} free)"
+        f"linear ml-gn   : {t_lin:7.2f} s ({c_lin:.2f} s CPU), {lin.status.name}, {lin.iterations} iterations (analytic start, {len(analytic.free)} free)"
     )
     print(
         f"nonlinear / goal ({GOAL:g} s): {t_nl / GOAL:.3f}; nonlinear / linear: {t_nl / t_lin:.1f}x; "
