@@ -21,12 +21,14 @@ from testbed.models.nonlinear import (
     jacobians,
     linearise,
     nonlinear_model,
+    packed,
     rates,
     sensitivities,
     theta_vector,
     thrust,
 )
-from testbed.models.regressors import parse_term, regressors
+from testbed.models import nonlinear_kernels
+from testbed.models.regressors import WEIGHTS, parse_term, regressors
 from testbed.simulation.nonlinear_reference import SCENARIO_I, fit_terms, sample_box
 
 # A torpedo-like body (SI): CB 2 cm above the CG, slightly heavy, off-diagonal added mass.
@@ -160,6 +162,48 @@ def test_any_term_set_is_evaluated_from_its_factor_table():
     assert close(B, complex_step(lambda z: rates(model, theta, x, z), delta.astype(complex)), 1e-13)
     S = sensitivities(model, theta, x, delta)
     assert close(S, complex_step(lambda t: rates(model, t, x, delta), theta.astype(complex)), 1e-13)
+
+
+def test_a_pair_magnitude_atom_is_evaluated_with_its_exact_gradient():
+    """Atoms √(z_i² + z_j²) of pairs of z = (ν, δ) (`regressors.PAIRS`' form), given to the compiled
+    model directly: the terms' forces against the formula, the Jacobians against complex steps of
+    the same compiled rates, and no slope at a pair's zero (the mean of its one-sided slopes)."""
+    model = nonlinear_model(VEHICLE, ())
+    L = WEIGHTS.shape[1]
+    c = np.array([3.0, -2.0, 5.0])
+
+    def kernel_model(dtype, coefficients):
+        m = list(packed(model, theta_vector(model, DOTS), dtype))
+        m[1] = np.array([[1, 2 * L], [2 * L + 1, 2 * L + 1], [2 * L, L]])  # v|vw|, |qδr|², |vw|·|u|
+        m[2], m[3], m[8] = np.array([1, 5, 2]), coefficients.astype(dtype), np.zeros(3)
+        m[12] = np.array([[1, 2], [4, 6]])
+        return tuple(m)
+
+    def rates_of(x, d, coefficients=c):
+        out = np.empty(x.shape, x.dtype)
+        nonlinear_kernels.rates(kernel_model(x.dtype.type, coefficients), x, d, out)
+        return out
+
+    x, delta = samples(seed=11)
+    F, F0, JF = np.empty((len(x), 6)), np.empty((len(x), 6)), np.empty((len(x), 6, 13))
+    nonlinear_kernels.forces(kernel_model(float, c), x, delta, F, JF, False)
+    nonlinear_kernels.forces(kernel_model(float, 0 * c), x, delta, F0, JF, False)
+    u, v, w, q = x[:, 0], x[:, 1], x[:, 2], x[:, 4]
+    want = np.zeros((len(x), 6))
+    want[:, 1] = c[0] * v * np.hypot(v, w)
+    want[:, 5] = c[1] * (q**2 + delta[:, 0] ** 2)
+    want[:, 2] = c[2] * np.hypot(v, w) * np.abs(u)
+    assert close(F - F0, want, 1e-14)
+    f, A, B = (np.empty(s) for s in ((len(x), 10), (len(x), 10, 10), (len(x), 10, 3)))
+    nonlinear_kernels.jacobians(kernel_model(float, c), x, delta, f, A, B)
+    assert close(f, rates_of(x, delta), 0)
+    assert close(A, complex_step(lambda z: rates_of(z, delta.astype(complex)), x.astype(complex)), 1e-13)
+    assert close(B, complex_step(lambda z: rates_of(x.astype(complex), z), delta.astype(complex)), 1e-13)
+    x[:, 1:3] = 0.0  # v = w = 0: |vw| has no slope there, and |vw|·|u| none along u
+    A0 = np.empty_like(A)
+    nonlinear_kernels.jacobians(kernel_model(float, np.zeros(3)), x, delta, f, A0, B)
+    nonlinear_kernels.jacobians(kernel_model(float, np.array([0.0, 0.0, 1.0])), x, delta, f, A, B)
+    assert np.array_equal(A, A0)
 
 
 def test_sensitivities_match_complex_step():

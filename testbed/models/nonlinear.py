@@ -30,7 +30,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.models import linear
-from testbed.models.regressors import ROWS, WEIGHTS, Term, factor_table, parse_term, regressors
+from testbed.models.regressors import PAIRS, ROWS, WEIGHTS, Term, factor_table, parse_term, regressors
 
 __all__ = [
     "INERTIA",
@@ -190,7 +190,7 @@ def packed(model: NonlinearModel, theta, dtype=float) -> tuple:
     """The model at θ as the compiled kernels take it (`nonlinear_kernels`), its θ-dependent
     parts (coefficients, thrust, M and M⁻¹) of `dtype` (complex for a complex step in θ or in the
     state): (W, factor table, rows, c, T, M, M⁻¹, ∂M/∂θ_inertia, thrust shares, weight, buoyancy,
-    r_B)."""
+    r_B, pairs)."""
     theta = np.asarray(theta).astype(dtype)
     M = model.inertia(theta)
     v = model.vehicle
@@ -207,6 +207,7 @@ def packed(model: NonlinearModel, theta, dtype=float) -> tuple:
         float(v.weight),
         float(v.buoyancy),
         np.array([v.xB, v.yB, v.zB], dtype=float),
+        PAIRS,
     )
 
 

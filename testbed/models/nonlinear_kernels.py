@@ -8,8 +8,9 @@ constant matrices at one θ) and real or complex arrays alike: numba compiles a 
 specialisation beside the float64 one, so a complex step differentiates this code itself.
 
 The terms are data: each term's factors are indices into the atoms, the atoms' values being
-z W (z = (ν, δ), W the linear atoms' weights, `regressors.WEIGHTS`), their magnitudes, and the
-constant 1 (`regressors.factor_table`), so any term set the names describe is evaluated here,
+z W (z = (ν, δ), W the linear atoms' weights, `regressors.WEIGHTS`), their magnitudes, the
+magnitudes √(z_i² + z_j²) of pairs of z's entries (`regressors.PAIRS`) and the constant 1
+(`regressors.factor_table`), so any term set the names describe is evaluated here,
 with the gradient of each product by the product rule (summed per force row and atom, then
 taken through W once).
 
@@ -30,10 +31,13 @@ __all__ = ["flight", "fly", "forces", "jacobians", "rates", "sensitivities"]
 
 
 @numba.njit(cache=True)
-def _atoms(weights, z, atoms, signs):
-    """The atoms' values at z (9,) = (ν, δ): z W (W (9, L) the linear atoms' weights), their
-    magnitudes, and 1, into atoms (2L + 1,); `signs` (2L + 1,): each one's gradient is its sign
-    times its weights (0 for the constant)."""
+def _atoms(weights, pairs, z, atoms, signs, scales):
+    """The atoms' values at z (9,) = (ν, δ) into atoms (2L + P + 1,): z W (W (9, L) the linear
+    atoms' weights), their magnitudes, the pairs' magnitudes √(z_i² + z_j²) (`pairs` (P, 2)),
+    and 1. The gradients: a linear atom's or magnitude's is its sign (`signs`) times its weights,
+    a pair's (z_i, z_j) times its `scales` entry 1/√(z_i² + z_j²) (both 0 where the atom has none:
+    the constant, a magnitude or a pair at 0, the mean of its one-sided slopes, so that an even
+    term such as u|v| has no linear part at v = 0)."""
     L = weights.shape[1]
     for a in range(L):
         value = 0.0 * z[0]
@@ -41,12 +45,16 @@ def _atoms(weights, z, atoms, signs):
             value += z[i] * weights[i, a]
         atoms[a] = value
         signs[a] = 1.0
-        # |x| as x or −x by the sign of x's real part; its gradient sign(x), 0 at x = 0 (the mean
-        # of its one-sided slopes: an even term such as u|v| has no linear part at v = 0)
+        # |x| as x or −x by the sign of x's real part (a complex step sees through it)
         atoms[L + a] = value if value.real >= 0 else -value
         signs[L + a] = np.sign(value.real)
-    atoms[2 * L] = 1.0
-    signs[2 * L] = 0.0
+    for k in range(pairs.shape[0]):
+        norm = np.sqrt(z[pairs[k, 0]] ** 2 + z[pairs[k, 1]] ** 2)  # the principal root
+        atoms[2 * L + k] = norm
+        signs[2 * L + k] = 0.0 if norm.real == 0 else 1.0
+        scales[k] = 0.0 if norm.real == 0 else 1.0 / norm
+    atoms[2 * L + pairs.shape[0]] = 1.0
+    signs[2 * L + pairs.shape[0]] = 0.0
 
 
 @numba.njit(cache=True)
@@ -56,12 +64,12 @@ def _forces(m, x, d, work, jacobian):
     ∂F/∂(x, δ), the terms' part by the product rule summed per row and atom first. F, JF and φ
     are the first three of the `work` arrays."""
     weights, table, rows, c, thrust, M = m[0], m[1], m[2], m[3], m[4], m[5]
-    weight, buoyancy, rB = m[9], m[10], m[11]
-    F, JF, phi, z, atoms, signs, slopes = work
+    weight, buoyancy, rB, pairs = m[9], m[10], m[11], m[12]
+    F, JF, phi, z, atoms, signs, slopes, scales = work
     L = weights.shape[1]
     z[:6] = x[:6]
     z[6:] = d
-    _atoms(weights, z, atoms, signs)
+    _atoms(weights, pairs, z, atoms, signs, scales)
     F[:] = 0.0
     if jacobian:
         JF[:, :] = 0.0
@@ -98,6 +106,10 @@ def _forces(m, x, d, work, jacobian):
                 w = weights[i, atom % L]
                 if w != 0:
                     JF[r, i if i < 6 else i + 4] += slope * w
+        for k in range(pairs.shape[0]):
+            slope = slopes[r, 2 * L + k] * scales[k]
+            for i in pairs[k]:
+                JF[r, i if i < 6 else i + 4] += slope * z[i]
 
 
 @numba.njit(cache=True)
@@ -160,9 +172,9 @@ def _theta_columns(m, x, f, phi, columns, G):
 
 @numba.njit(cache=True)
 def _work(m, like):
-    """Scratch arrays of `like`'s dtype for `_forces`: F, JF, φ, z, the atoms, their signs and the
-    rows' slopes along the atoms."""
-    K, atoms = len(m[2]), 2 * m[0].shape[1] + 1
+    """Scratch arrays of `like`'s dtype for `_forces`: F, JF, φ, z, the atoms, their signs, the
+    rows' slopes along the atoms and the pairs' scales."""
+    K, atoms = len(m[2]), 2 * m[0].shape[1] + m[12].shape[0] + 1
     dtype = like.dtype
     return (
         np.zeros(6, dtype=dtype),
@@ -172,6 +184,7 @@ def _work(m, like):
         np.zeros(atoms, dtype=dtype),
         np.zeros(atoms),
         np.zeros((6, atoms), dtype=dtype),
+        np.zeros(m[12].shape[0], dtype=dtype),
     )
 
 

@@ -29,7 +29,17 @@ import numpy as np
 
 from testbed.errors import InputError
 
-__all__ = ["ATOMS", "ROWS", "WEIGHTS", "Term", "factor_table", "magnitude", "parse_term", "regressors"]
+__all__ = [
+    "ATOMS",
+    "PAIRS",
+    "ROWS",
+    "WEIGHTS",
+    "Term",
+    "factor_table",
+    "magnitude",
+    "parse_term",
+    "regressors",
+]
 
 ROWS = "XYZKMN"  # force/moment letter of the body rows u v w p q r
 # The factors a term multiplies, each a linear combination of z = (u v w p q r δr δer δel), or
@@ -71,12 +81,15 @@ def magnitude(x):
 
 
 WEIGHTS = np.array(list(_LINEAR.values())).T  # (9, L): z = (u v w p q r δr δer δel) ↦ the linear atoms
+# (P, 2): the entries of z whose magnitude √(z_i² + z_j²) is an atom, after the linear atoms'
+# magnitudes in `ATOMS` (a pair's atom for the compiled model and `regressors`; none named yet)
+PAIRS = np.zeros((0, 2), dtype=np.int64)
 
 
 @lru_cache(maxsize=64)
 def factor_table(terms: tuple[Term, ...]) -> np.ndarray:
-    """(K, F): each term's factors as indices into `ATOMS` (the L linear atoms, then their
-    magnitudes), padded with len(ATOMS), the constant 1."""
+    """(K, F): each term's factors as indices into `ATOMS` (the L linear atoms, their magnitudes,
+    the pairs' magnitudes), padded with len(ATOMS), the constant 1."""
     width = max((len(t.factors) for t in terms), default=1)
     table = np.full((len(terms), width), len(ATOMS), dtype=np.int64)
     for k, t in enumerate(terms):
@@ -88,5 +101,6 @@ def regressors(terms, nu, delta) -> np.ndarray:
     """φ (n, K): each term's product at the samples ν (n, 6) and δ (n, 3)."""
     z = np.concatenate([np.atleast_2d(nu), np.atleast_2d(delta)], axis=1)
     value = z @ WEIGHTS
-    atoms = np.concatenate([value, magnitude(value), np.ones((len(z), 1), dtype=value.dtype)], axis=1)
+    pairs = np.sqrt(z[:, PAIRS[:, 0]] ** 2 + z[:, PAIRS[:, 1]] ** 2)
+    atoms = np.concatenate([value, magnitude(value), pairs, np.ones((len(z), 1), dtype=value.dtype)], axis=1)
     return np.prod(atoms[:, factor_table(tuple(terms))], axis=2)
