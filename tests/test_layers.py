@@ -21,6 +21,7 @@ LAYERS = [
     ("testbed.models", "testbed.models.linear"),
     ("testbed.models.sensors",),
     ("testbed.models.regressors", "testbed.models.mechanics"),
+    ("testbed.models.nonlinear_kernels",),
     ("testbed.models.nonlinear",),
     ("testbed.models.nonlinear_flight",),
     ("testbed.data",),

@@ -21,12 +21,14 @@ from testbed.models.nonlinear import (
     jacobians,
     linearise,
     nonlinear_model,
+    packed,
     rates,
     sensitivities,
     theta_vector,
     thrust,
 )
-from testbed.models.regressors import parse_term, regressors
+from testbed.models import nonlinear_kernels
+from testbed.models.regressors import WEIGHTS, parse_term, regressors
 from testbed.simulation.nonlinear_reference import SCENARIO_I, fit_terms, sample_box
 
 # A torpedo-like body (SI): CB 2 cm above the CG, slightly heavy, off-diagonal added mass.
@@ -103,6 +105,105 @@ def test_jacobians_match_complex_step():
     assert close(B, complex_step(lambda z: rates(model, theta, x, z), delta.astype(complex)), 1e-13)
     one = jacobians(model, theta, x[0], delta[0])  # one sample: unstacked
     assert one[1].shape == (10, 10) and np.allclose(one[1], A[0], rtol=0, atol=0)
+
+
+def test_rates_are_the_equation_assembled_from_independent_parts():
+    """ẋ against M⁻¹ (−C(ν)ν + g(η) + T e_x + Σ c_k φ_k) built here from np.cross, the rotation
+    matrix and the regressors' named products, and the Euler rates from the rotation's."""
+    model, theta, c = model_and_theta()
+    x, delta = samples()
+    M = model.inertia(theta)
+    rB = np.array([VEHICLE.xB, VEHICLE.yB, VEHICLE.zB])
+    phi = regressors(model.terms, x[:, :6], delta)
+    got = rates(model, theta, x, delta)
+    for n in range(len(x)):
+        nu, h = x[n, :6], M @ x[n, :6]
+        F = -np.concatenate([np.cross(nu[3:], h[:3]), np.cross(nu[3:], h[3:]) + np.cross(nu[:3], h[:3])])
+        down = rotation(*x[n, 6:9]).T @ np.array([0, 0, 1.0])
+        F += np.concatenate(
+            [(VEHICLE.weight - VEHICLE.buoyancy) * down, np.cross(rB, -VEHICLE.buoyancy * down)]
+        )
+        F[0] += thrust(model, theta)
+        for k, term in enumerate(model.terms):
+            F[term.row] += c[term.name] * phi[n, k]
+        sf, cf, tt = math.sin(x[n, 6]), math.cos(x[n, 6]), math.tan(x[n, 7])
+        p, q, r = nu[3:]
+        euler = [p + (q * sf + r * cf) * tt, q * cf - r * sf, (q * sf + r * cf) / math.cos(x[n, 7])]
+        depth = (rotation(*x[n, 6:9]) @ nu[:3])[2]
+        assert close(got[n], np.concatenate([np.linalg.solve(M, F), euler, [depth]]), 1e-14)
+
+
+def test_any_term_set_is_evaluated_from_its_factor_table():
+    """Terms of up to six factors over every atom and magnitude: the named products, and the
+    Jacobians and sensitivities by complex step of the same compiled code."""
+    names = ("X_uvwpqr", "Y_|u||v||w||p||q||r|", "Z_drdedada", "K_|dr||de||da|", "M_u|de|", "N_vdr|r|")
+    model = nonlinear_model(VEHICLE, names)
+    rng = np.random.default_rng(3)
+    theta = theta_vector(model, {**DOTS, **{n: rng.normal() * 10 for n in names}})
+    x, delta = samples(seed=9)
+    u, v, w, p, q, r = x[:, :6].T
+    dr, de, da = delta[:, 0], (delta[:, 1] + delta[:, 2]) / 2, (delta[:, 1] - delta[:, 2]) / 2
+    want = np.column_stack(
+        [
+            u * v * w * p * q * r,
+            abs(u * v * w * p * q * r),
+            dr * de * da * da,
+            abs(dr * de * da),
+            u * abs(de),
+            v * dr * abs(r),
+        ]
+    )
+    F = forces(model, theta, x, delta)
+    F0 = forces(model, theta_vector(model, DOTS), x, delta)
+    # one term per row, X..N; X_uvwpqr is 0 in straight flight, so the thrust holds none of it
+    assert close(F - F0, want * theta[len(INERTIA) :], 1e-14)
+    f, A, B = jacobians(model, theta, x, delta)
+    assert close(A, complex_step(lambda z: rates(model, theta, z, delta), x.astype(complex)), 1e-13)
+    assert close(B, complex_step(lambda z: rates(model, theta, x, z), delta.astype(complex)), 1e-13)
+    S = sensitivities(model, theta, x, delta)
+    assert close(S, complex_step(lambda t: rates(model, t, x, delta), theta.astype(complex)), 1e-13)
+
+
+def test_a_pair_magnitude_atom_is_evaluated_with_its_exact_gradient():
+    """Atoms √(z_i² + z_j²) of pairs of z = (ν, δ) (`regressors.PAIRS`' form), given to the compiled
+    model directly: the terms' forces against the formula, the Jacobians against complex steps of
+    the same compiled rates, and no slope at a pair's zero (the mean of its one-sided slopes)."""
+    model = nonlinear_model(VEHICLE, ())
+    L = WEIGHTS.shape[1]
+    c = np.array([3.0, -2.0, 5.0])
+
+    def kernel_model(dtype, coefficients):
+        m = list(packed(model, theta_vector(model, DOTS), dtype))
+        m[1] = np.array([[1, 2 * L], [2 * L + 1, 2 * L + 1], [2 * L, L]])  # v|vw|, |qδr|², |vw|·|u|
+        m[2], m[3], m[8] = np.array([1, 5, 2]), coefficients.astype(dtype), np.zeros(3)
+        m[12] = np.array([[1, 2], [4, 6]])
+        return tuple(m)
+
+    def rates_of(x, d, coefficients=c):
+        out = np.empty(x.shape, x.dtype)
+        nonlinear_kernels.rates(kernel_model(x.dtype.type, coefficients), x, d, out)
+        return out
+
+    x, delta = samples(seed=11)
+    F, F0, JF = np.empty((len(x), 6)), np.empty((len(x), 6)), np.empty((len(x), 6, 13))
+    nonlinear_kernels.forces(kernel_model(float, c), x, delta, F, JF, False)
+    nonlinear_kernels.forces(kernel_model(float, 0 * c), x, delta, F0, JF, False)
+    u, v, w, q = x[:, 0], x[:, 1], x[:, 2], x[:, 4]
+    want = np.zeros((len(x), 6))
+    want[:, 1] = c[0] * v * np.hypot(v, w)
+    want[:, 5] = c[1] * (q**2 + delta[:, 0] ** 2)
+    want[:, 2] = c[2] * np.hypot(v, w) * np.abs(u)
+    assert close(F - F0, want, 1e-14)
+    f, A, B = (np.empty(s) for s in ((len(x), 10), (len(x), 10, 10), (len(x), 10, 3)))
+    nonlinear_kernels.jacobians(kernel_model(float, c), x, delta, f, A, B)
+    assert close(f, rates_of(x, delta), 0)
+    assert close(A, complex_step(lambda z: rates_of(z, delta.astype(complex)), x.astype(complex)), 1e-13)
+    assert close(B, complex_step(lambda z: rates_of(x.astype(complex), z), delta.astype(complex)), 1e-13)
+    x[:, 1:3] = 0.0  # v = w = 0: |vw| has no slope there, and |vw|·|u| none along u
+    A0 = np.empty_like(A)
+    nonlinear_kernels.jacobians(kernel_model(float, np.zeros(3)), x, delta, f, A0, B)
+    nonlinear_kernels.jacobians(kernel_model(float, np.array([0.0, 0.0, 1.0])), x, delta, f, A, B)
+    assert np.array_equal(A, A0)
 
 
 def test_sensitivities_match_complex_step():

@@ -7,7 +7,7 @@ Euler-angle kinematics, over the states `u v w p q r phi theta psi z` with u the
   `*dot` coefficients, `INERTIA`), the linear model's Mt body block (`linear.structure`).
 - C(ν) ν: the Kirchhoff velocity forces of M (`mechanics.coriolis`): rigid-body Coriolis and
   centripetal forces, and the added mass's Coriolis and Munk terms, exact.
-- g(η): weight and buoyancy at any attitude (`mechanics.restoring`).
+- g(η): weight and buoyancy at any attitude (`mechanics.restoring_state`).
 - T: the propulsor's constant thrust, the drag of straight flight at the trim speed U (as the
   plant's propulsor is set): T = −Σ_{X terms} θ_k φ_k(U e_x, 0), so the model trims at U.
 - Σ θ_k φ_k: the hydrodynamic terms (`regressors`), linear in their coefficients.
@@ -15,7 +15,9 @@ Euler-angle kinematics, over the states `u v w p q r phi theta psi z` with u the
 θ is `INERTIA` then the terms' coefficients (`NonlinearModel.names`). `rates` gives ẋ = f(x, δ, θ),
 `jacobians` its exact ∂f/∂x and ∂f/∂δ, `sensitivities` ∂f/∂θ: M⁻¹ (φ_k + ∂T/∂θ_k e_x) for a term,
 M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇) for an inertia coefficient (C is linear in M). All take samples stacked
-along the first axis (or one sample) and complex arrays. `linearise` gives the linear model at
+along the first axis (or one sample) and complex arrays, and evaluate the compiled model
+(`nonlinear_kernels`, given the model at θ by `packed`; the compiler is loaded when the model is
+first evaluated, not when a config naming it is read). `linearise` gives the linear model at
 straight and level trim as the linear model's coefficients.
 """
 
@@ -28,8 +30,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.models import linear
-from testbed.models.mechanics import coriolis, kinematics, kirchhoff, restoring
-from testbed.models.regressors import ROWS, Term, gradients, parse_term, regressors
+from testbed.models.regressors import PAIRS, ROWS, WEIGHTS, Term, factor_table, parse_term, regressors
 
 __all__ = [
     "INERTIA",
@@ -42,6 +43,7 @@ __all__ = [
     "nonlinear_model",
     "force_regressors",
     "forces",
+    "packed",
     "rates",
     "row_least_squares",
     "sensitivities",
@@ -184,40 +186,55 @@ def thrust(model: NonlinearModel, theta) -> float:
     return -(model.surge @ np.asarray(theta))
 
 
-def _forces(model: NonlinearModel, theta, x, delta, derivatives: bool):
-    """(F (n, 6), M), and with `derivatives` also ∂F/∂x (n, 6, 10) and ∂F/∂δ (n, 6, 3)."""
-    theta = np.asarray(theta)
-    c = theta[len(INERTIA) :]
-    nu = x[:, _BODY]
+def packed(model: NonlinearModel, theta, dtype=float) -> tuple:
+    """The model at θ as the compiled kernels take it (`nonlinear_kernels`), its θ-dependent
+    parts (coefficients, thrust, M and M⁻¹) of `dtype` (complex for a complex step in θ or in the
+    state): (W, factor table, rows, c, T, M, M⁻¹, ∂M/∂θ_inertia, thrust shares, weight, buoyancy,
+    r_B, pairs)."""
+    theta = np.asarray(theta).astype(dtype)
     M = model.inertia(theta)
-    rows = np.array([t.row for t in model.terms], dtype=int)
-    place = np.zeros((len(model.terms), 6))
-    place[np.arange(len(model.terms)), rows] = 1.0  # term k → its row
-    phi = regressors(model.terms, nu, delta)
-    FC, JC = coriolis(M, nu)
     v = model.vehicle
-    FG, JG = restoring(v.weight, v.buoyancy, (v.xB, v.yB, v.zB), x[:, 6], x[:, 7])
-    F = FC + FG + (phi * c) @ place
-    F[:, 0] = F[:, 0] + thrust(model, theta)
-    if not derivatives:
-        return F, M
-    dphi = gradients(model.terms, nu, delta)  # (n, K, 9)
-    dF = place.T @ (dphi * c[:, None])  # (n, 6, 9): each row's terms summed
-    Jx = np.zeros(x.shape[:1] + (6, linear.NX), dtype=F.dtype)
-    Jx[:, :, _BODY] = JC + dF[:, :, :6]
-    Jx[:, :, 6:8] += JG
-    return F, M, Jx, dF[:, :, 6:]
+    return (
+        WEIGHTS,
+        factor_table(model.terms),
+        np.array([t.row for t in model.terms], dtype=np.int64),
+        np.ascontiguousarray(theta[len(INERTIA) :]),
+        dtype(thrust(model, theta)),
+        np.ascontiguousarray(M),
+        np.ascontiguousarray(np.linalg.inv(M)),
+        model.dM,
+        np.ascontiguousarray(model.surge[len(INERTIA) :]),
+        float(v.weight),
+        float(v.buoyancy),
+        np.array([v.xB, v.yB, v.zB], dtype=float),
+        PAIRS,
+    )
 
 
-def _prepare(x, delta):
+def _evaluate(model, theta, x, delta):
+    """The compiled kernels, the model packed at θ and the samples x (n, 10), δ (n, 3), all of one
+    dtype (complex where any is), and whether one sample was given."""
+    from testbed.models import nonlinear_kernels  # numba: only when the model is evaluated
+
     x, delta = np.asarray(x), np.asarray(delta)
     single = x.ndim == 1
-    return np.atleast_2d(x), np.atleast_2d(delta), single
+    dtype = complex if np.iscomplexobj(theta) or np.iscomplexobj(x) or np.iscomplexobj(delta) else float
+    x = np.ascontiguousarray(np.atleast_2d(x), dtype)
+    delta = np.ascontiguousarray(np.atleast_2d(delta), dtype)
+    return nonlinear_kernels, packed(model, theta, dtype), x, delta, single
+
+
+def _forces(model: NonlinearModel, theta, x, delta, derivatives: bool):
+    """F (n, 6), and with `derivatives` also ∂F/∂x (n, 6, 10) and ∂F/∂δ (n, 6, 3)."""
+    kernels, m, x, delta, _ = _evaluate(model, theta, x, delta)
+    F, JF = np.zeros((len(x), 6), x.dtype), np.zeros((len(x), 6, linear.NX + linear.NU), x.dtype)
+    kernels.forces(m, x, delta, F, JF, derivatives)
+    return (F, JF[:, :, : linear.NX], JF[:, :, linear.NX :]) if derivatives else F
 
 
 def forces(model: NonlinearModel, theta, x, delta) -> np.ndarray:
     """F (n, 6) at the states x (n, 10) and fin angles δ (n, 3): `M ν̇ = F`."""
-    return _forces(model, theta, np.atleast_2d(x), np.atleast_2d(delta), False)[0]
+    return _forces(model, theta, x, delta, False)
 
 
 def force_regressors(model: NonlinearModel, x, delta) -> np.ndarray:
@@ -246,39 +263,30 @@ def row_least_squares(model: NonlinearModel, R, y, weights=None, held=()) -> np.
 
 def rates(model: NonlinearModel, theta, x, delta) -> np.ndarray:
     """ẋ = f(x, δ, θ) at the states x (n, 10) and fin angles δ (n, 3) (or one of each)."""
-    x, delta, single = _prepare(x, delta)
-    F, M = _forces(model, theta, x, delta, False)
-    out = np.concatenate([np.linalg.solve(M, F.T).T, kinematics(x)[0]], axis=1)
+    kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
+    out = np.empty((len(x), linear.NX), x.dtype)
+    kernels.rates(m, x, delta, out)
     return out[0] if single else out
 
 
 def jacobians(model: NonlinearModel, theta, x, delta):
     """(ẋ, ∂f/∂x (n, 10, 10), ∂f/∂δ (n, 10, 3)), exact: M⁻¹ times the forces' Jacobians in the body
     rows, the kinematics' in the others."""
-    x, delta, single = _prepare(x, delta)
-    F, M, Jx, Jd = _forces(model, theta, x, delta, True)
-    Minv = np.linalg.inv(M)
-    kin, Jk = kinematics(x)
-    f = np.concatenate([F @ Minv.T, kin], axis=1)
-    A = np.concatenate([Minv @ Jx, Jk], axis=1)
-    B = np.concatenate([Minv @ Jd, np.zeros((len(x), 4, linear.NU), dtype=Jd.dtype)], axis=1)
+    kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
+    n = len(x)
+    f, A, B = (
+        np.empty(s, x.dtype) for s in ((n, linear.NX), (n, linear.NX, linear.NX), (n, linear.NX, linear.NU))
+    )
+    kernels.jacobians(m, x, delta, f, A, B)
     return (f[0], A[0], B[0]) if single else (f, A, B)
 
 
 def sensitivities(model: NonlinearModel, theta, x, delta) -> np.ndarray:
     """∂f/∂θ (n, 10, len(θ)): for a term M⁻¹ (φ_k e_row + ∂T/∂θ_k e_x), for an inertia
     coefficient M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇) with C_k the Kirchhoff forces of ∂M/∂θ_k."""
-    x, delta, single = _prepare(x, delta)
-    F, M = _forces(model, theta, x, delta, False)
-    Minv = np.linalg.inv(M)
-    nudot = F @ Minv.T
-    n = len(x)
-    dF = np.zeros((n, 6, len(model.names)), dtype=F.dtype)
-    # per inertia coefficient k: its momentum ∂M/∂θ_k ν and its share ∂M/∂θ_k ν̇ (n, 14, 6)
-    h, hdot = (np.einsum("kij,nj->nki", model.dM, a) for a in (x[:, _BODY], nudot))
-    dF[:, :, : len(INERTIA)] = (kirchhoff(h, x[:, None, _BODY]) - hdot).transpose(0, 2, 1)
-    dF[:, :, len(INERTIA) :] = force_regressors(model, x, delta)
-    out = np.concatenate([Minv @ dF, np.zeros((n, 4, len(model.names)), dtype=dF.dtype)], axis=1)
+    kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
+    out = np.empty((len(x), linear.NX, len(model.names)), x.dtype)
+    kernels.sensitivities(m, x, delta, out)
     return out[0] if single else out
 
 
@@ -312,11 +320,10 @@ def linearise(model: NonlinearModel, theta) -> Linearisation:
     theta = np.asarray(theta, float)
     x0, d0 = np.zeros((1, linear.NX)), np.zeros((1, linear.NU))
     x0[0, 0] = model.vehicle.speed
-    F, M, Jx, Jd = _forces(model, theta, x0, d0, True)
-    F, Jx, Jd = F[0], Jx[0], Jd[0]
+    F, Jx, Jd = (a[0] for a in _forces(model, theta, x0, d0, True))
     Mt, At, Bt = np.eye(linear.NX), np.zeros((linear.NX, linear.NX)), np.zeros((linear.NX, linear.NU))
-    Mt[_BODY, _BODY], At[_BODY], Bt[_BODY] = M, Jx, Jd
-    At[6:] = kinematics(x0)[1][0]
+    Mt[_BODY, _BODY], At[_BODY], Bt[_BODY] = model.inertia(theta), Jx, Jd
+    At[6:] = jacobians(model, theta, x0[0], d0[0])[1][6:]
     St = np.concatenate([F, np.zeros(4)])
     s = linear.structure(model.vehicle)
     full = {"Mt": Mt, "At": At, "Bt": Bt, "St": St}

@@ -11,9 +11,12 @@ heave, roll, pitch, yaw); after it, the factors, each one of
     |x|              the magnitude of any of those (x|x| is the usual cross-flow form)
 
 The model is linear in the terms' coefficients: its forces are Σ θ_k φ_k(ν, δ) with the regressor
-φ_k the term's product (`regressors`), whose gradient with respect to (ν, δ) (`gradients`) is
-exact by the product rule. Both take complex arrays for complex-step derivatives: |x| is x or −x
-by the sign of x's real part, so its derivative is sign(x), as for real x (taken as 0 at x = 0).
+φ_k the term's product (`regressors`, over stacked samples, for least-squares fits of the
+coefficients). The atoms are data: `WEIGHTS` gives each linear atom from z = (ν, δ) and
+`factor_table` each term's factors as indices into (linear atoms, their magnitudes, 1), from which
+the compiled model (`nonlinear_kernels`) evaluates any term set and its gradients. Complex arrays
+are taken for complex-step derivatives: |x| is x or −x by the sign of x's real part, so its
+derivative is sign(x), as for real x (taken as 0 at x = 0).
 """
 
 from __future__ import annotations
@@ -26,7 +29,17 @@ import numpy as np
 
 from testbed.errors import InputError
 
-__all__ = ["ATOMS", "ROWS", "Term", "gradients", "magnitude", "parse_term", "regressors"]
+__all__ = [
+    "ATOMS",
+    "PAIRS",
+    "ROWS",
+    "WEIGHTS",
+    "Term",
+    "factor_table",
+    "magnitude",
+    "parse_term",
+    "regressors",
+]
 
 ROWS = "XYZKMN"  # force/moment letter of the body rows u v w p q r
 # The factors a term multiplies, each a linear combination of z = (u v w p q r δr δer δel), or
@@ -67,49 +80,27 @@ def magnitude(x):
     return np.where(np.real(x) >= 0, x, -x)
 
 
-_WEIGHTS = np.array(list(_LINEAR.values())).T  # (9, 9): z ↦ the linear atoms' values
+WEIGHTS = np.array(list(_LINEAR.values())).T  # (9, L): z = (u v w p q r δr δer δel) ↦ the linear atoms
+# (P, 2): the entries of z whose magnitude √(z_i² + z_j²) is an atom, after the linear atoms'
+# magnitudes in `ATOMS` (a pair's atom for the compiled model and `regressors`; none named yet)
+PAIRS = np.zeros((0, 2), dtype=np.int64)
 
 
 @lru_cache(maxsize=64)
-def _table(terms: tuple[Term, ...]) -> np.ndarray:
-    """(K, F): each term's factors as indices into `ATOMS`, padded with len(ATOMS), the constant 1."""
+def factor_table(terms: tuple[Term, ...]) -> np.ndarray:
+    """(K, F): each term's factors as indices into `ATOMS` (the L linear atoms, their magnitudes,
+    the pairs' magnitudes), padded with len(ATOMS), the constant 1."""
     width = max((len(t.factors) for t in terms), default=1)
-    table = np.full((len(terms), width), len(ATOMS), dtype=int)
+    table = np.full((len(terms), width), len(ATOMS), dtype=np.int64)
     for k, t in enumerate(terms):
         table[k, : len(t.factors)] = [ATOMS.index(a) for a in t.factors]
     return table
 
 
-# each atom's gradient with respect to z, up to the sign of a magnitude; the constant 1's is 0
-_GRADIENTS = np.concatenate([_WEIGHTS.T, _WEIGHTS.T, np.zeros((1, 9))])
-
-
-def _atoms(nu, delta):
-    """Each atom's value (n, A + 1), the last atom being the constant 1, and the sign its
-    gradient has (n, A + 1): `_GRADIENTS` times it is the gradient with respect to z = (ν, δ)."""
-    z = np.concatenate([np.atleast_2d(nu), np.atleast_2d(delta)], axis=1)
-    value = z @ _WEIGHTS
-    # |x|'s gradient sign(x), 0 at x = 0: the mean of its one-sided slopes, so that an even
-    # term (u|v|) has no linear part at v = 0, as its central differences say
-    one = np.ones((len(z), 1))
-    values = np.concatenate([value, magnitude(value), one.astype(value.dtype)], axis=1)
-    signs = np.concatenate([np.ones_like(value, dtype=float), np.sign(np.real(value)), one], axis=1)
-    return values, signs
-
-
 def regressors(terms, nu, delta) -> np.ndarray:
     """φ (n, K): each term's product at the samples ν (n, 6) and δ (n, 3)."""
-    values = _atoms(nu, delta)[0]
-    return np.prod(values[:, _table(tuple(terms))], axis=2)
-
-
-def gradients(terms, nu, delta) -> np.ndarray:
-    """∂φ/∂z (n, K, 9), z = (u v w p q r δr δer δel): the product rule over each term's factors."""
-    values, signs = _atoms(nu, delta)
-    table = _table(tuple(terms))
-    factors = values[:, table]  # (n, K, F)
-    out = np.zeros(factors.shape[:2] + (9,), dtype=factors.dtype)
-    for i in range(table.shape[1]):
-        others = np.prod(np.delete(factors, i, axis=2), axis=2) * signs[:, table[:, i]]
-        out += others[:, :, None] * _GRADIENTS[table[:, i]]
-    return out
+    z = np.concatenate([np.atleast_2d(nu), np.atleast_2d(delta)], axis=1)
+    value = z @ WEIGHTS
+    pairs = np.sqrt(z[:, PAIRS[:, 0]] ** 2 + z[:, PAIRS[:, 1]] ** 2)
+    atoms = np.concatenate([value, magnitude(value), pairs, np.ones((len(z), 1), dtype=value.dtype)], axis=1)
+    return np.prod(atoms[:, factor_table(tuple(terms))], axis=2)

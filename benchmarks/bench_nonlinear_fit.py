@@ -1,0 +1,150 @@
+"""Benchmark: one nonlinear output-error fit of Scenario I (goal ≤ 30 s on one core).
+
+    python benchmarks/bench_nonlinear_fit.py [--seed 1] [--rounds 3]
+
+The data: `testbed simulate --scenario I --seed 1` (the plant's noisy record: 60 s at 50 Hz, 3001
+samples, every state measured) in a temporary folder. The fit: the nonlinear model over the
+captive reference's terms (`testbed captive`'s at 20 m/s), its 19 terms with a slope at trim and
+`N_r|r|` free (20 coefficients), started from the captive values, every record's initial state
+free (`identification.nonlinear_output_error.fit_output_error`, RK4 with 4 steps per sample).
+The reference measured in the same run is `ml-gn` fitting the linear model to the same record
+from the analytic model (the run's model.toml, its default free set). Each is timed as the best
+of `--rounds` calls, alternating, with single-threaded BLAS and numba, in wall and CPU time (the
+machine may be shared). The model's compiled code is loaded from numba's cache before the clock
+starts; the first call's time in this process (the cache read) and a compilation from an empty
+cache (in a fresh process) are printed apart.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from testbed.threads import one_blas_thread
+
+one_blas_thread()  # as the command line does, before numpy loads
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from testbed.data import load_data  # noqa: E402
+from testbed.estimators import identify  # noqa: E402
+from testbed.identification.nonlinear_output_error import Record, fit_output_error  # noqa: E402
+from testbed.identification.nonlinear_sensitivities import flight  # noqa: E402
+from testbed.models.linear import STATES  # noqa: E402
+from testbed.models.nonlinear import nonlinear_model, theta_vector  # noqa: E402
+from testbed.models.nonlinear_flight import fly  # noqa: E402
+from testbed.simulation.captive_reference import captive_reference, slope_terms  # noqa: E402
+from testbed.simulation.runs import simulate  # noqa: E402
+from testbed.simulation.vehicle import constants, load_model  # noqa: E402
+
+GOAL = 30.0  # s, one fit on one core
+SPEED = 20.0
+EXTRA = ("N_r|r|",)  # freed beside the slope terms: 20 coefficients
+# a fresh process compiling the model's flight and its sensitivities from an empty cache
+COLD = """
+import time, numpy as np
+t0 = time.perf_counter()
+from testbed.models.nonlinear import TERMS, nonlinear_model
+from testbed.models.nonlinear_flight import fly
+from testbed.identification.nonlinear_sensitivities import flight
+from testbed.simulation.vehicle import constants, load_model
+model = nonlinear_model(constants(load_model(), 20.0), TERMS)
+theta = np.zeros(len(model.names))
+x0 = np.zeros(10); x0[0] = 20.0
+t0 = time.perf_counter()
+flight(model, theta, np.array([0.0, 0.02]), x0, np.zeros((2, 3)), [20])
+print(time.perf_counter() - t0)
+"""
+
+
+def _best(runs, rounds):
+    """Per run: the shortest wall time and the shortest CPU time of `rounds` calls, and the last
+    call's result; the runs alternate, so a slow spell of a shared machine hits both alike."""
+    wall, cpu, out = [[] for _ in runs], [[] for _ in runs], [None] * len(runs)
+    for _ in range(rounds):
+        for i, run in enumerate(runs):
+            t0, c0 = time.perf_counter(), time.process_time()
+            out[i] = run()
+            wall[i].append(time.perf_counter() - t0)
+            cpu[i].append(time.process_time() - c0)
+    return [(min(w), min(c), o) for w, c, o in zip(wall, cpu, out)]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seed", type=int, default=1, help="the run's noise seed")
+    ap.add_argument("--rounds", type=int, default=3, help="timed calls of each fit (best taken)")
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        run = Path(tmp) / "run"
+        simulate("I", seed=args.seed, out=run)
+        experiments, analytic = load_data([run])
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+        cold = float(
+            subprocess.run(
+                [sys.executable, "-c", COLD], env=env, check=True, capture_output=True, text=True
+            ).stdout
+        )
+    mjcf = load_model()
+    reference = captive_reference(mjcf, SPEED)
+    model = nonlinear_model(constants(mjcf, SPEED), reference.terms)
+    theta = theta_vector(model, reference.coefficients)
+    free = slope_terms(reference.terms) + EXTRA
+    channels = tuple(s for s in experiments[0].measured if s in STATES)
+    records = [
+        Record(t=e.t, fins=e.inputs, y=e.y[:, [e.measured.index(c) for c in channels]]) for e in experiments
+    ]
+    r = records[0]
+    x0 = np.zeros(10)
+    x0[0] = SPEED
+    x0[[STATES.index(c) for c in channels]] = r.y[0]
+    idx = [model.names.index(n) for n in free]
+
+    t0 = time.perf_counter()
+    flight(model, theta, r.t[:2], x0, r.fins[:2], idx)  # the compiled code, read from numba's cache
+    first = time.perf_counter() - t0
+    (t_fly, _, _), (t_flight, _, _) = _best(
+        [lambda: fly(model, theta, r.t, x0, r.fins), lambda: flight(model, theta, r.t, x0, r.fins, idx)],
+        args.rounds,
+    )
+    (t_nl, c_nl, fit), (t_lin, c_lin, lin) = _best(
+        [
+            lambda: fit_output_error(model, theta, records, channels, free),
+            lambda: identify(experiments, analytic, method="ml-gn", start="config"),
+        ],
+        args.rounds,
+    )
+    samples = sum(len(x.t) for x in records)
+    z = [(fit.estimates[n] - reference.coefficients[n]) / fit.std[n] for n in free]
+    print(
+        f"BLAS threads: {os.environ['OPENBLAS_NUM_THREADS']}, numba threads: {os.environ['NUMBA_NUM_THREADS']}; "
+        f"data: Scenario I seed {args.seed}, {len(records)} record, {samples} samples, channels {' '.join(channels)}; "
+        f"{len(free)} coefficients free from the captive values, best of {args.rounds}"
+    )
+    print(
+        f"compiled code: first call in this process {first:.2f} s (read from numba's cache; compiled if stale), "
+        f"compiling from an empty cache {cold:.1f} s (a fresh process)"
+    )
+    print(
+        f"one flight (RK4, 4 steps per sample): {1e3 * t_fly:.1f} ms; flight and sensitivities: {1e3 * t_flight:.1f} ms"
+    )
+    print(f"nonlinear ml-gn: {t_nl:7.2f} s ({c_nl:.2f} s CPU), {fit.status}, {fit.iterations} iterations")
+    print(
+        f"linear ml-gn   : {t_lin:7.2f} s ({c_lin:.2f} s CPU), {lin.status.name}, {lin.iterations} iterations (analytic start, {len(analytic.free)} free)"
+    )
+    print(
+        f"nonlinear / goal ({GOAL:g} s): {t_nl / GOAL:.3f}; nonlinear / linear: {t_nl / t_lin:.1f}x; "
+        f"estimates from the captive values: max {np.max(np.abs(z)):.1f} σ ({free[int(np.argmax(np.abs(z)))]})"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
