@@ -32,7 +32,7 @@ from testbed.identification import bounds, concentrated, likelihood, recursions,
 from testbed.identification.problem import Problem, problem
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
-from testbed.estimators import starts, trust_region
+from testbed.estimators import nonlinear, starts, trust_region
 from testbed.estimators.base import (
     Callback,
     Estimate,
@@ -734,11 +734,11 @@ class SimplexOptions(Options):
     seed: int = _SEED
 
 
-def _method(name: str, optimiser, options: type[Options], summary: str) -> Method:
+def _method(name: str, optimiser, options: type[Options], summary: str, on_nonlinear=None) -> Method:
     def fit(experiments, config, opts, callback):
         return _fit(name, optimiser, experiments, config, opts, callback)
 
-    return Method(name=name, fit=fit, options=options, summary=summary)
+    return Method(name=name, fit=fit, options=options, summary=summary, nonlinear=on_nonlinear)
 
 
 ML_GN = _method(
@@ -746,6 +746,7 @@ ML_GN = _method(
     trust_region.trust_region,
     TrustRegionOptions,
     "maximum likelihood output error by scaled trust-region Gauss-Newton with multiple shooting",
+    nonlinear.gauss_newton,
 )
 ML_LM = _method(
     "ml-lm",

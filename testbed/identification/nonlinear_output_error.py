@@ -26,10 +26,11 @@ iterations reported count every stage's.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from testbed.data import Experiment
 from testbed.errors import InputError
 from testbed.identification.bounds import crlb
 from testbed.identification.nonlinear_sensitivities import flight
@@ -37,7 +38,7 @@ from testbed.models.linear import NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
-__all__ = ["DAMPING", "FIRST", "SHORTEST", "NonlinearFit", "Record", "fit_output_error"]
+__all__ = ["DAMPING", "FIRST", "SHORTEST", "NonlinearFit", "Record", "fit_output_error", "records"]
 
 DAMPING = (1e-3, 10.0, 1e10)  # λ: its start, its factor down after a success and up after a failure, its cap
 FIRST = 150  # samples: the continuation's first records are no shorter (module doc)
@@ -66,6 +67,30 @@ class NonlinearFit:
     cost: float  # −ln p(Z | θ, R): ½ Σ_c N_c ln 2π R_c + ½ Σ eᵀR⁻¹e
     iterations: int
     status: str  # "converged", "iteration limit" or "stalled" (no step lowers the cost)
+
+
+def records(
+    experiments: Sequence[Experiment], fit: str = "the nonlinear fit"
+) -> tuple[tuple[str, ...], list[Record]]:
+    """The measured channels (every record's, the same) and the `Record` of each experiment;
+    `InputError` naming the record and the `fit` that needs them for records measuring different
+    states or with a sample missing."""
+    channels = experiments[0].measured
+    for e in experiments:
+        where = e.source or e.name
+        if e.measured != channels:
+            raise InputError(
+                f"{where}: measures {', '.join(e.measured)}, {experiments[0].source or experiments[0].name} "
+                f"{', '.join(channels)}; {fit} takes records measuring the same states"
+            )
+        gaps = np.argwhere(np.isnan(e.y))
+        if len(gaps):
+            row, column = gaps[0]
+            raise InputError(
+                f"{where}: {e.measured[column]} is missing at t = {e.t[row]:g} s; {fit} takes records "
+                "with every sample present"
+            )
+    return channels, [Record(t=e.t, fins=e.inputs, y=e.y) for e in experiments]
 
 
 def _check(model, records, channels, free, noise_std, tolerance, max_iterations):
@@ -138,10 +163,12 @@ def fit_output_error(
     tolerance: float = 0.01,
     max_iterations: int = 50,
     continuation: bool = False,
+    callback: Callable[[np.ndarray, float], None] | None = None,
 ) -> NonlinearFit:
     """Fit θ's `free` coefficients (names from `model.names`), started from `theta`, and each
     record's initial state (`free_initial`) to the `records`' measured `channels`, each record
-    flown by RK4 with `substeps` steps per sample interval (module doc)."""
+    flown by RK4 with `substeps` steps per sample interval (module doc). `callback(values, cost)`
+    after every step taken, any stage's: the free coefficients and the negative log-likelihood."""
     channels, free, noise_std = tuple(channels), tuple(free), dict(noise_std or {})
     _check(model, records, channels, free, noise_std, tolerance, max_iterations)
     ch = [STATES.index(c) for c in channels]
@@ -149,13 +176,14 @@ def fit_output_error(
     x0[:, 0] = model.vehicle.speed
     x0[:, ch] = [r.y[0] for r in records]
     held = np.array([noise_std.get(c, np.nan) ** 2 for c in channels])
-    settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations)
+    settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations, callback)
     options = dict(
         free_initial=free_initial,
         noise_std=noise_std,
         substeps=substeps,
         tolerance=tolerance,
         max_iterations=max_iterations,
+        callback=callback,
     )
     n = min(len(r.t) for r in records)
     theta, stage = np.array(theta, float), None
@@ -186,7 +214,7 @@ def _halves(records):
 def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
     """`fit_output_error` from θ and the initial states x0 (records, 10); None where the flight
     from them does not stay finite."""
-    channels, free, free_initial, held, substeps, tolerance, max_iterations = settings
+    channels, free, free_initial, held, substeps, tolerance, max_iterations, callback = settings
     ch = [STATES.index(c) for c in channels]
     idx = np.array([model.names.index(n) for n in free])
     p = len(idx)
@@ -205,6 +233,9 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
 
     def weighted(res, R):
         return 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
+
+    def nll(res, R):
+        return 0.5 * float(counts * np.sum(np.log(2 * np.pi * R))) + weighted(res, R)
 
     q = np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []])
     flown, res = _simulate(model, *unpack(q), records, ch, substeps)
@@ -230,20 +261,21 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
             break
         q, flown, res, lam = q + step, trial_flown, trial, lam / down
         R = noise(res)
+        if callback is not None:
+            callback(q[:p].copy(), nll(res, R))
         if np.all(np.abs(step) <= tolerance * std):
             status = "converged"
             break
     H, _ = _normal_equations(res, sens, R, free_initial)
     std = crlb(H).std
     th, x = unpack(q)
-    nll = 0.5 * float(counts * np.sum(np.log(2 * np.pi * R))) + weighted(res, R)
     return NonlinearFit(
         theta=th,
         estimates={n: float(v) for n, v in zip(free, q[:p])},
         std={n: float(s) for n, s in zip(free, std[:p])},
         initial_states=x,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
-        cost=nll,
+        cost=nll(res, R),
         iterations=iterations,
         status=status,
     )

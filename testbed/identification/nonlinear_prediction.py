@@ -1,0 +1,104 @@
+"""What a nonlinear model config predicts on measured experiments: its model flown open loop
+(`nonlinear_flight.fly`) with each record's fin angles, for validation.
+
+Each record is flown from its initial state: the given one (an estimate's `initial_states`) where
+given, else the best-fitting one, as the linear model's predictions take it. The best fit starts
+from the record's first sample in its measured states (straight flight at the vehicle's speed in
+the others and where the first sample is missing) and moves the measured states' components by
+damped Gauss-Newton on the output-error likelihood with the noise relaxed (R the residuals' mean
+square per channel, then held for the step), the flight's exact sensitivities to its initial
+state (`nonlinear_sensitivities.flight`), until every step is below `TOLERANCE` of its
+Cramér-Rao σ or `ITERATIONS` have run. Missing samples are left out of the fit.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError
+from testbed.identification.nonlinear_sensitivities import flight
+from testbed.models.linear import NX, STATES
+from testbed.models.nonlinear_flight import fly
+
+__all__ = ["ITERATIONS", "TOLERANCE", "predict"]
+
+ITERATIONS = 20  # Gauss-Newton steps of an initial state's fit, at most
+TOLERANCE = 0.01  # converged when every component's step is below this many of its Cramér-Rao σ
+
+
+def predict(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
+    substeps: int = 4,
+) -> list[np.ndarray]:
+    """The nonlinear model's outputs (N, k) per experiment in its measured columns, absolute u,
+    flown by RK4 with `substeps` steps per sample interval from the initial states `initial`
+    (experiment → state → x0) gives and the best-fitting ones it does not (module doc);
+    `InputError` naming the record where a flight leaves the finite numbers."""
+    model, theta = config.nonlinear()
+    out = []
+    for e in experiments:
+        ch = [STATES.index(c) for c in e.measured]
+        given = (initial or {}).get(e.name, {})
+        x0 = np.zeros(NX)
+        x0[0] = model.vehicle.speed
+        first = np.asarray(e.y[0], float)
+        x0[ch] = np.where(np.isfinite(first), first, x0[ch])
+        for c, v in given.items():
+            x0[STATES.index(c)] = v
+        moved = [j for j, c in enumerate(e.measured) if c not in given]
+        with np.errstate(all="ignore"):
+            states = fly(model, theta, e.t, x0, e.inputs, substeps)
+        bad = np.argwhere(~np.isfinite(states))
+        if len(bad):
+            raise InputError(
+                f"{e.source or e.name}: {config.source or 'the config'}'s model flown from the record's "
+                f"first sample leaves the finite numbers at t = {e.t[bad[0][0]]:g} s; expected a model "
+                "whose flight stays bounded"
+            )
+        if moved:
+            with np.errstate(all="ignore"):
+                states = _best_start(model, theta, e, x0, states, ch, moved, substeps)
+        out.append(states[:, ch])
+    return out
+
+
+def _best_start(model, theta, e, x0, states, ch, moved, substeps) -> np.ndarray:
+    """The flight from the best-fitting initial state (module doc), its measured components
+    `moved` (indices into `ch`) fitted."""
+    y = np.asarray(e.y, float)
+    present = np.isfinite(y)
+    cols = [ch[j] for j in moved]
+
+    def residual(x):
+        return np.where(present, y - x[:, ch], 0.0)
+
+    res = residual(states)
+    lam = 1e-3
+    for _ in range(ITERATIONS):
+        R = np.maximum(np.sum(res**2, axis=0) / np.maximum(present.sum(axis=0), 1), 1e-30)
+        J = flight(model, theta, e.t, x0, e.inputs, (), substeps, states).dx_dx0[:, ch][:, :, cols]
+        J = np.where(present[:, :, None], J, 0.0)
+        W = J / R[:, None]
+        H = np.einsum("nci,ncj->ij", W, J)
+        g = np.einsum("nci,nc->i", W, res)
+        cost = float(np.sum(res**2 / R))
+        while lam <= 1e10:
+            step = np.linalg.solve(H + lam * np.diag(np.where(np.diag(H) > 0, np.diag(H), 1.0)), g)
+            trial_x0 = x0.copy()
+            trial_x0[cols] += step
+            trial = fly(model, theta, e.t, trial_x0, e.inputs, substeps)
+            if np.all(np.isfinite(trial)) and float(np.sum(residual(trial) ** 2 / R)) < cost:
+                break
+            lam *= 10
+        else:
+            return states
+        x0, states, res, lam = trial_x0, trial, residual(trial), lam / 10
+        std = np.sqrt(np.abs(np.diag(np.linalg.pinv(H))))
+        if np.all(np.abs(step) <= TOLERANCE * std):
+            break
+    return states
