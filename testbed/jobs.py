@@ -38,6 +38,7 @@ from testbed.data import (
 )
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, identify, lookup
+from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
 from testbed.analysis.validation import Validation, validate
 from testbed.identification.problem import base_name, check_inputs
 
@@ -269,14 +270,18 @@ def analyze_data(
     noise_std: Mapping[str, float] | None = None,
 ) -> Identifiability:
     """Identifiability of the config's free coefficients from `data` (Fisher information,
-    Cramér-Rao bounds, correlations, drift groups), written as JSON to `out`; `noise_std` as
-    for `identify_data`."""
+    Cramér-Rao bounds, correlations, drift groups; a nonlinear model config's by
+    `analysis.nonlinear_identifiability`), written as JSON to `out`; `noise_std` as for
+    `identify_data`."""
     experiments, cfg, _, read = inputs(data, config)
     cfg = cfg.with_noise_std(noise_std)
     check_outputs(read, {"out": out})
     if not cfg.free:
         raise InputError(f"{cfg.source or 'config'}: [identify] free is empty; nothing to analyse")
-    result = identifiability(experiments, cfg)
+    if cfg.terms is not None:
+        result = nonlinear_identifiability(experiments, cfg)
+    else:
+        result = identifiability(experiments, cfg)
     write_text(out, result.to_json())
     return result
 

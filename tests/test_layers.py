@@ -68,7 +68,11 @@ LAYERS = [
         "testbed.analysis.kinematics",
         "testbed.analysis.profile",
     ),
-    ("testbed.analysis.regime", "testbed.analysis.compatibility"),
+    (
+        "testbed.analysis.regime",
+        "testbed.analysis.compatibility",
+        "testbed.analysis.nonlinear_identifiability",
+    ),
     ("testbed.analysis.design",),
     ("testbed.analysis.drift",),
     ("testbed.analysis.instants", "testbed.analysis.track"),

@@ -23,7 +23,7 @@ from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import NX, STATES
 from testbed.models.nonlinear_flight import fly
 
-__all__ = ["ITERATIONS", "TOLERANCE", "predict"]
+__all__ = ["ITERATIONS", "TOLERANCE", "flights", "predict"]
 
 ITERATIONS = 20  # Gauss-Newton steps of an initial state's fit, at most
 TOLERANCE = 0.01  # converged when every component's step is below this many of its Cramér-Rao σ
@@ -39,6 +39,17 @@ def predict(
     flown by RK4 with `substeps` steps per sample interval from the initial states `initial`
     (experiment → state → x0) gives and the best-fitting ones it does not (module doc);
     `InputError` naming the record where a flight leaves the finite numbers."""
+    flown = flights(experiments, config, initial, substeps)
+    return [x[:, [STATES.index(c) for c in e.measured]] for e, x in zip(experiments, flown)]
+
+
+def flights(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
+    substeps: int = 4,
+) -> list[np.ndarray]:
+    """`predict`'s flights: every state (N, 10) of each experiment, absolute u."""
     model, theta = config.nonlinear()
     out = []
     for e in experiments:
@@ -63,7 +74,7 @@ def predict(
         if moved:
             with np.errstate(all="ignore"):
                 states = _best_start(model, theta, e, x0, states, ch, moved, substeps)
-        out.append(states[:, ch])
+        out.append(states)
     return out
 
 
