@@ -7,8 +7,9 @@ from the record's first sample in its measured states (straight flight at the ve
 the others and where the first sample is missing) and moves the measured states' components by
 damped Gauss-Newton on the output-error likelihood with the noise relaxed (R the residuals' mean
 square per channel, then held for the step), the flight's exact sensitivities to its initial
-state (`nonlinear_sensitivities.flight`), until every step is below `TOLERANCE` of its
-Cramér-Rao σ or `ITERATIONS` have run. Missing samples are left out of the fit.
+state (`nonlinear_sensitivities.flight`), until the undamped Gauss-Newton step is below
+`TOLERANCE` of its Cramér-Rao σ in every component or `ITERATIONS` have run. Missing samples are
+left out of the fit.
 """
 
 from __future__ import annotations
@@ -98,6 +99,11 @@ def _best_start(model, theta, e, x0, states, ch, moved, substeps) -> np.ndarray:
         H = np.einsum("nci,ncj->ij", W, J)
         g = np.einsum("nci,nc->i", W, res)
         cost = float(np.sum(res**2 / R))
+        if np.all(
+            np.abs(np.linalg.lstsq(H, g, rcond=None)[0])
+            <= TOLERANCE * np.sqrt(np.abs(np.diag(np.linalg.pinv(H))))
+        ):
+            break  # the Gauss-Newton step is within the tolerance: converged
         while lam <= 1e10:
             step = np.linalg.solve(H + lam * np.diag(np.where(np.diag(H) > 0, np.diag(H), 1.0)), g)
             trial_x0 = x0.copy()
@@ -109,7 +115,4 @@ def _best_start(model, theta, e, x0, states, ch, moved, substeps) -> np.ndarray:
         else:
             return states
         x0, states, res, lam = trial_x0, trial, residual(trial), lam / 10
-        std = np.sqrt(np.abs(np.diag(np.linalg.pinv(H))))
-        if np.all(np.abs(step) <= TOLERANCE * std):
-            break
     return states
