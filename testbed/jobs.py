@@ -341,10 +341,19 @@ def validate_data(
             )
         coefficients = read_estimates(estimates, cfg.nonlinear()[0].names)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
-    doc = {"config": cfg.source}
-    if estimates is not None:
-        doc |= {"estimates": str(estimates), "coefficients": coefficients}
-    text = json.dumps(doc | {"validation": validation.to_dict()}, indent=2, allow_nan=False) + "\n"
+    given = estimates is not None
+    text = (
+        json.dumps(
+            {
+                "config": cfg.source,
+                **({"estimates": str(estimates), "coefficients": coefficients} if given else {}),
+                "validation": validation.to_dict(),
+            },
+            indent=2,
+            allow_nan=False,
+        )
+        + "\n"
+    )
     write_text(out, text)
     return validation, text
 
