@@ -28,6 +28,7 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status
 from testbed.identification.nonlinear_output_error import fit_output_error, records
+from testbed.identification.recursions import counting
 from testbed.models.linear import STATES
 
 __all__ = ["STARTS", "gauss_newton"]
@@ -77,9 +78,10 @@ def gauss_newton(
         if callback is not None:
             callback(Progress(len(history) - 1, values.copy(), cost))
 
-    fit = fit_output_error(
-        model, theta, recs, channels, config.free, noise_std=noise, callback=step, **settings
-    )
+    with counting() as tally:
+        fit = fit_output_error(
+            model, theta, recs, channels, config.free, noise_std=noise, callback=step, **settings
+        )
     return Estimate(
         method=name,
         status=_STATUS[fit.status],
@@ -90,6 +92,7 @@ def gauss_newton(
         iterations=fit.iterations,
         wall_time_s=time.perf_counter() - t0,
         noise_std=dict(fit.noise_std),
+        evaluations=-(-tally[0] // sum(len(r.t) for r in recs)),
         history=np.array(history),
         initial_states={
             e.name: {c: float(x[STATES.index(c)]) for c in channels}

@@ -34,6 +34,7 @@ from testbed.data import Experiment
 from testbed.errors import InputError
 from testbed.identification.bounds import crlb
 from testbed.identification.nonlinear_sensitivities import flight
+from testbed.identification.recursions import simulated
 from testbed.models.linear import NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
@@ -127,11 +128,12 @@ def _check(model, records, channels, free, noise_std, tolerance, max_iterations)
 
 def _simulate(model, theta, x0, records, ch, substeps):
     """Each record's flown states (N, 10) and residuals (N, C); (None, None) where a flight does
-    not stay finite."""
+    not stay finite. Tallied as simulated samples (`recursions.counting`)."""
     flown, res = [], []
     with np.errstate(all="ignore"):
         for r, x in zip(records, x0):
             states = fly(model, theta, r.t, x, r.fins, substeps)
+            simulated(len(r.t))
             e = r.y - states[:, ch]
             if not np.all(np.isfinite(e)):
                 return None, None
@@ -142,10 +144,12 @@ def _simulate(model, theta, x0, records, ch, substeps):
 
 def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     """Each record's output sensitivities to θ[free] (N, C, p) and to the measured channels'
-    initial states (N, C, C), along its flown states."""
+    initial states (N, C, C), along its flown states; tallied (`recursions.counting`) as 1 + p
+    columns a sample (the pass evaluates the model at every RK4 stage again)."""
     out = []
     for r, x, states in zip(records, x0, flown):
         f = flight(model, theta, r.t, x, r.fins, free, substeps, states)
+        simulated(len(r.t) * (1 + len(free)))
         out.append((f.dx_dtheta[:, ch], f.dx_dx0[:, ch][:, :, ch]))
     return out
 
