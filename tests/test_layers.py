@@ -56,7 +56,7 @@ LAYERS = [
         "testbed.identification.innovations",
     ),
     ("testbed.identification.examples", "testbed.identification.nonlinear_output_error"),
-    ("testbed.estimators.base",),
+    ("testbed.estimators.base", "testbed.estimators.simplex"),
     ("testbed.estimators.mekf", "testbed.estimators.equation_error", "testbed.estimators.nonlinear"),
     ("testbed.estimators.trust_region", "testbed.estimators.starts"),
     ("testbed.estimators.ml", "testbed.estimators.fem"),

@@ -39,7 +39,16 @@ from testbed.models.linear import NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
-__all__ = ["DAMPING", "FIRST", "SHORTEST", "NonlinearFit", "Record", "fit_output_error", "records"]
+__all__ = [
+    "DAMPING",
+    "FIRST",
+    "SHORTEST",
+    "NonlinearFit",
+    "Record",
+    "fit_output_error",
+    "information",
+    "records",
+]
 
 DAMPING = (1e-3, 10.0, 1e10)  # λ: its start, its factor down after a success and up after a failure, its cap
 FIRST = 150  # samples: the continuation's first records are no shorter (module doc)
@@ -283,6 +292,28 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
         iterations=iterations,
         status=status,
     )
+
+
+def information(
+    model: NonlinearModel,
+    theta,
+    x0: np.ndarray,
+    records: Sequence[Record],
+    channels: Sequence[str],
+    free: Sequence[str],
+    R: np.ndarray,
+    substeps: int = 4,
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [θ's `free` coefficients | each
+    record's measured initial states] with the noise variances `R` per channel, each record flown
+    from its row of `x0` (records, 10), and the residuals along the flights."""
+    ch = [STATES.index(c) for c in channels]
+    idx = np.array([model.names.index(n) for n in free])
+    flown, res = _simulate(model, theta, x0, records, ch, substeps)
+    if res is None:
+        raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
+    sens = _sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
+    return _normal_equations(res, sens, np.asarray(R, float), True)[0], res
 
 
 def _normal_equations(res, sens, R, free_initial):

@@ -22,9 +22,10 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import NX, STATES
+from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
-__all__ = ["ITERATIONS", "TOLERANCE", "flights", "predict"]
+__all__ = ["ITERATIONS", "TOLERANCE", "flights", "initial_state", "predict"]
 
 ITERATIONS = 20  # Gauss-Newton steps of an initial state's fit, at most
 TOLERANCE = 0.01  # converged when every component's step is below this many of its Cramér-Rao σ
@@ -72,33 +73,48 @@ def flights(
                 f"first sample leaves the finite numbers at t = {e.t[bad[0][0]]:g} s; expected a model "
                 "whose flight stays bounded"
             )
-        if moved:
-            with np.errstate(all="ignore"):
-                states = _best_start(model, theta, e, x0, states, ch, moved, substeps)
-        out.append(states)
+        with np.errstate(all="ignore"):
+            out.append(
+                initial_state(model, theta, e.t, e.inputs, e.y, ch, moved, x0, None, substeps, states)[1]
+            )
     return out
 
 
-def _best_start(model, theta, e, x0, states, ch, moved, substeps) -> np.ndarray:
-    """The flight from the best-fitting initial state (module doc), its measured components
-    `moved` (indices into `ch`) fitted."""
-    y = np.asarray(e.y, float)
+def initial_state(
+    model: NonlinearModel,
+    theta,
+    t: np.ndarray,
+    fins: np.ndarray,
+    y: np.ndarray,
+    ch: Sequence[int],
+    moved: Sequence[int],
+    x0: np.ndarray,
+    R: np.ndarray | None = None,
+    substeps: int = 4,
+    states: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`(x0, states)`: the best-fitting initial state (module doc) of a record with times `t`,
+    fins and measurements `y` (N, k) of the states `ch` (NaN where missing), started from `x0`,
+    its components `moved` (indices into `ch`) fitted, and the flight from it; the noise
+    variances `R` (k,) held where given, else relaxed. The flight from `x0` (`states` where
+    already flown) must stay finite."""
+    y = np.asarray(y, float)
     present = np.isfinite(y)
     cols = [ch[j] for j in moved]
 
     def residual(x):
         return np.where(present, y - x[:, ch], 0.0)
 
-    res = residual(states)
-    lam = 1e-3
-    for _ in range(ITERATIONS):
-        R = np.maximum(np.sum(res**2, axis=0) / np.maximum(present.sum(axis=0), 1), 1e-30)
-        J = flight(model, theta, e.t, x0, e.inputs, (), substeps, states).dx_dx0[:, ch][:, :, cols]
+    states = fly(model, theta, t, x0, fins, substeps) if states is None else states
+    res, lam = residual(states), 1e-3
+    for _ in range(ITERATIONS if moved else 0):
+        V = np.maximum(np.sum(res**2, axis=0) / np.maximum(present.sum(axis=0), 1), 1e-30) if R is None else R
+        J = flight(model, theta, t, x0, fins, (), substeps, states).dx_dx0[:, ch][:, :, cols]
         J = np.where(present[:, :, None], J, 0.0)
-        W = J / R[:, None]
+        W = J / V[:, None]
         H = np.einsum("nci,ncj->ij", W, J)
         g = np.einsum("nci,nc->i", W, res)
-        cost = float(np.sum(res**2 / R))
+        cost = float(np.sum(res**2 / V))
         if np.all(
             np.abs(np.linalg.lstsq(H, g, rcond=None)[0])
             <= TOLERANCE * np.sqrt(np.abs(np.diag(np.linalg.pinv(H))))
@@ -108,11 +124,11 @@ def _best_start(model, theta, e, x0, states, ch, moved, substeps) -> np.ndarray:
             step = np.linalg.solve(H + lam * np.diag(np.where(np.diag(H) > 0, np.diag(H), 1.0)), g)
             trial_x0 = x0.copy()
             trial_x0[cols] += step
-            trial = fly(model, theta, e.t, trial_x0, e.inputs, substeps)
-            if np.all(np.isfinite(trial)) and float(np.sum(residual(trial) ** 2 / R)) < cost:
+            trial = fly(model, theta, t, trial_x0, fins, substeps)
+            if np.all(np.isfinite(trial)) and float(np.sum(residual(trial) ** 2 / V)) < cost:
                 break
             lam *= 10
         else:
-            return states
+            break
         x0, states, res, lam = trial_x0, trial, residual(trial), lam / 10
-    return states
+    return x0, states
