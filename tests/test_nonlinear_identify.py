@@ -108,14 +108,47 @@ def test_the_options_the_nonlinear_fit_cannot_honour_are_refused(truth):
     assert limited.iterations == 1 and not limited.converged
 
 
-@pytest.mark.parametrize("method", ["ml-lm", "ml-nr", "ml-nm", "ml-fem", "mekf", "ekf", "equation-error"])
+@pytest.mark.parametrize("method", ["ml-lm", "ml-nr", "ml-fem", "mekf", "ekf", "equation-error"])
 def test_the_linear_methods_refuse_a_nonlinear_config(truth, method):
     config, noisy, _ = truth
     with pytest.raises(
-        InputError, match=rf"method='{method}' fits the linear model only.*ml-gn for \[terms\]"
+        InputError, match=rf"method='{method}' fits the linear model only.*ml-gn, ml-nm for \[terms\]"
     ) as e:
         identify([noisy], config, method)
     assert "\n" not in str(e.value)
+
+
+def _first(experiment, n):
+    return replace(experiment, t=experiment.t[:n], y=experiment.y[:n], inputs=experiment.inputs[:n])
+
+
+def test_ml_nm_reports_through_the_contract_and_refuses_what_it_cannot_honour(truth):
+    config, noisy, _ = truth
+    start = replace(_start(config), free=FREE[:2])
+    steps = []
+    est = identify([_first(noisy, 40)], start, "ml-nm", max_iter=3, callback=steps.append)
+    assert est.method == "ml-nm" and est.status.name == "MAX_ITERATIONS" and est.iterations == 3
+    assert [p.iteration for p in steps] == [1, 2, 3] and est.history.shape == (4, 2)
+    assert np.all(np.isfinite(est.std)) and np.all(est.std > 0) and est.evaluations > 3
+    assert set(est.initial_states["doublets"]) == set(STATES)
+    for options, name in (({"restarts": False}, "restarts"), ({"first_length": 1.0}, "first_length")):
+        with pytest.raises(OptionError) as e:
+            identify([noisy], start, "ml-nm", options)
+        assert e.value.option == name
+
+
+@pytest.mark.slow
+def test_ml_nm_ends_at_ml_gns_optimum(truth):
+    """The simplex on the same likelihood, one free term, the first second of the record (about
+    2 minutes: every cost evaluation is a flight)."""
+    config, noisy, _ = truth
+    start = replace(config.with_coefficients({"Y_uv": 0.8 * config.terms["Y_uv"]}), free=("Y_uv",))
+    data = [_first(noisy, 50)]
+    nm, gn = identify(data, start, "ml-nm"), identify(data, start, "ml-gn")
+    assert nm.converged and gn.converged
+    assert abs(nm.values[0] - gn.values[0]) <= 0.05 * gn.std[0], (nm.values, gn.values, gn.std)
+    assert nm.std[0] == pytest.approx(gn.std[0], rel=0.01) and nm.cost == pytest.approx(gn.cost, abs=0.01)
+    assert abs(nm.values[0] - config.terms["Y_uv"]) <= 3 * nm.std[0]
 
 
 def test_records_the_fit_cannot_take_are_refused(truth):

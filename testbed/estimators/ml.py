@@ -692,5 +692,9 @@ ML_NR = _method(
     "maximum likelihood output error by the paper's modified Newton-Raphson (Eq. 10)",
 )
 ML_NM = _method(
-    "ml-nm", nelder_mead, SimplexOptions, "maximum likelihood output error by the paper's Nelder-Mead simplex"
+    "ml-nm",
+    nelder_mead,
+    SimplexOptions,
+    "maximum likelihood output error by the paper's Nelder-Mead simplex",
+    nonlinear.simplex,
 )

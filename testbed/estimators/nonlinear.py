@@ -1,16 +1,31 @@
-"""The output-error methods on a nonlinear model config (one with `[terms]`): `ml-gn` by
-`nonlinear_output_error.fit_output_error` (damped Gauss-Newton with the flight's exact
-sensitivities, R estimated by relaxation, each record's measured initial states free), behind
-the same contract and `Estimate` as the linear model's methods.
+"""The output-error methods on a nonlinear model config (one with `[terms]`), behind the same
+contract and `Estimate` as the linear model's methods:
+
+- `ml-gn`: `nonlinear_output_error.fit_output_error`, damped Gauss-Newton with the flight's exact
+  sensitivities, R estimated by relaxation, each record's measured initial states free;
+- `ml-nm`: the paper's Nelder-Mead simplex (`simplex`) on the same likelihood,
+  `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients in coordinates scaled by the start
+  (θᵢ/|θᵢ,start|), with R and each record's initial state held during a simplex run and relaxed
+  at its best corner between runs (the initial state by Gauss-Newton on its measured components,
+  `nonlinear_prediction.initial_state`, as the linear `ml-nm` solves it by least squares); every
+  later run a fresh simplex at the best corner (`restart_step`). Converged when a run stops by its
+  rule, improves J_M by no more than ε = `eps`/N, and the relaxation that follows changes no
+  variance by more than `r_tol`; stalled after `max_relaxations` runs. No record-length
+  continuation. The bounds are the Fisher information's at the estimate, the initial states
+  among the parameters (`nonlinear_output_error.information`).
 
 What a linear method's option means here:
 
-- `max_iter`: the iteration limit (every stage of the fit's record-length halving counted);
-- `tol`: converged when every parameter's step is below `tol` × its Cramér-Rao σ;
+- `max_iter`: the iteration limit (`ml-gn`: every stage of the fit's record-length halving
+  counted, at least 1; `ml-nm`: simplex iterations, default 500 per free coefficient);
+- `tol` (`ml-gn`): converged when every parameter's step is below `tol` × its Cramér-Rao σ;
+- `eps`, `step`, `restart_step`, `r_tol`, `max_relaxations`, `coefficients` (`ml-nm`): as for
+  the linear model;
 - `start`: `config` (the config's values); `auto` is `config` too, the only start the nonlinear
   model has (no equation-error or MEKF start for it);
-- any other option (`segments`, the global start's `samples` …) has no meaning for it: given a
-  value other than its default, an `OptionError` names it.
+- any other option (`segments`, the global start's `samples`, `ml-nm`'s `restarts`,
+  `first_length` …) has no meaning here: given a value other than its default, an
+  `OptionError` names it.
 
 The records must measure the same states with every sample present (`nonlinear_output_error.records`);
 no value is estimated per record.
@@ -27,39 +42,36 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status
-from testbed.identification.nonlinear_output_error import fit_output_error, records
-from testbed.identification.recursions import counting
-from testbed.models.linear import STATES
+from testbed.estimators.simplex import fresh_simplex, simplex_coefficients, simplex_run
+from testbed.identification.bounds import crlb
+from testbed.identification.nonlinear_output_error import fit_output_error, information, records
+from testbed.identification.nonlinear_prediction import initial_state
+from testbed.identification.recursions import counting, simulated
+from testbed.models.linear import NX, STATES
+from testbed.models.nonlinear_flight import fly
 
-__all__ = ["STARTS", "gauss_newton"]
+__all__ = ["STARTS", "gauss_newton", "simplex"]
 
 STARTS = ("auto", "config")  # the starts a nonlinear model has: its config's values
-_MEANT = ("max_iter", "tol", "start")  # the options the nonlinear fit honours
 _STATUS = {"converged": Status.CONVERGED, "iteration limit": Status.MAX_ITERATIONS, "stalled": Status.STALLED}
+_GN = ("max_iter", "tol", "start")  # the options each method honours on a nonlinear model config
+_NM = ("max_iter", "start", "eps", "step", "restart_step", "r_tol", "max_relaxations", "coefficients")
 
 
-def _settings(method: str, options: Options) -> dict:
-    """The fit's settings from the method's options; `OptionError` for one it cannot honour."""
+def _checked(method: str, options: Options, meant: Sequence[str]) -> None:
+    """`OptionError` for an option the nonlinear fit cannot honour (module doc)."""
     for f in fields(options):
         value = getattr(options, f.name)
-        if f.name not in _MEANT and value != f.default:
+        if f.name not in meant and value != f.default:
             raise OptionError(
                 method, f.name, value, "its default: the nonlinear model's fit has no such option"
             )
     if options.start not in STARTS:
         raise OptionError(method, "start", options.start, "auto or config for a nonlinear model config")
-    if options.max_iter < 1:
-        raise OptionError(method, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
-    return dict(tolerance=float(options.tol), max_iterations=int(options.max_iter))
 
 
-def gauss_newton(
-    experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
-) -> Estimate:
-    """`ml-gn` on a nonlinear model config (module doc)."""
-    t0 = time.perf_counter()
-    name = "ml-gn"
-    settings = _settings(name, options)
+def _problem(method: str, experiments, config: ModelConfig):
+    """`(channels, records, model, θ, free indices)`; `InputError` for what the fit cannot take."""
     source = config.source or "config"
     if not config.free:
         raise InputError(f"{source}: [identify] free is empty; expected the coefficients to estimate")
@@ -68,10 +80,56 @@ def gauss_newton(
             f"{source}: [identify] per_record {config.per_record[0]!r}; the nonlinear model's fit "
             "estimates every value once for all records"
         )
-    channels, recs = records(experiments, f"{name} on a nonlinear model config")
+    channels, recs = records(experiments, f"{method} on a nonlinear model config")
     model, theta = config.nonlinear()
+    return channels, recs, model, theta, [model.names.index(n) for n in config.free]
+
+
+def _estimate(
+    method,
+    config,
+    experiments,
+    channels,
+    values,
+    std,
+    cost,
+    iterations,
+    status,
+    t0,
+    tally,
+    noise,
+    x0,
+    history,
+):
+    return Estimate(
+        method=method,
+        status=status,
+        free=tuple(config.free),
+        values=np.asarray(values, float),
+        std=np.asarray(std, float),
+        cost=float(cost),
+        iterations=int(iterations),
+        wall_time_s=time.perf_counter() - t0,
+        noise_std=noise,
+        evaluations=-(-tally // sum(len(e.t) for e in experiments)),
+        history=np.array(history),
+        initial_states={
+            e.name: {c: float(x[STATES.index(c)]) for c in channels} for e, x in zip(experiments, x0)
+        },
+    )
+
+
+def gauss_newton(
+    experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
+) -> Estimate:
+    """`ml-gn` on a nonlinear model config (module doc)."""
+    t0, name = time.perf_counter(), "ml-gn"
+    _checked(name, options, _GN)
+    if options.max_iter < 1:
+        raise OptionError(name, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
+    channels, recs, model, theta, idx = _problem(name, experiments, config)
     noise = {c: s for c, s in (config.noise_std or {}).items() if c in channels}
-    history = [theta[[model.names.index(n) for n in config.free]]]
+    history = [theta[idx]]
 
     def step(values: np.ndarray, cost: float) -> None:
         history.append(values)
@@ -80,22 +138,132 @@ def gauss_newton(
 
     with counting() as tally:
         fit = fit_output_error(
-            model, theta, recs, channels, config.free, noise_std=noise, callback=step, **settings
+            model,
+            theta,
+            recs,
+            channels,
+            config.free,
+            noise_std=noise,
+            callback=step,
+            tolerance=float(options.tol),
+            max_iterations=int(options.max_iter),
         )
-    return Estimate(
-        method=name,
-        status=_STATUS[fit.status],
-        free=tuple(config.free),
-        values=np.array([fit.estimates[n] for n in config.free]),
-        std=np.array([fit.std[n] for n in config.free]),
-        cost=fit.cost,
-        iterations=fit.iterations,
-        wall_time_s=time.perf_counter() - t0,
-        noise_std=dict(fit.noise_std),
-        evaluations=-(-tally[0] // sum(len(r.t) for r in recs)),
-        history=np.array(history),
-        initial_states={
-            e.name: {c: float(x[STATES.index(c)]) for c in channels}
-            for e, x in zip(experiments, fit.initial_states)
-        },
+    return _estimate(
+        name,
+        config,
+        experiments,
+        channels,
+        [fit.estimates[n] for n in config.free],
+        [fit.std[n] for n in config.free],
+        fit.cost,
+        fit.iterations,
+        _STATUS[fit.status],
+        t0,
+        tally[0],
+        dict(fit.noise_std),
+        fit.initial_states,
+        history,
+    )
+
+
+def simplex(
+    experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
+) -> Estimate:
+    """`ml-nm` on a nonlinear model config (module doc)."""
+    t0, name = time.perf_counter(), "ml-nm"
+    _checked(name, options, _NM)
+    channels, recs, model, theta, idx = _problem(name, experiments, config)
+    ch = [STATES.index(c) for c in channels]
+    given = config.noise_std or {}
+    held = np.array([given.get(c, np.nan) ** 2 for c in channels])
+    nf, N = len(idx), sum(len(r.t) for r in recs)
+    max_iter = 500 * nf if options.max_iter is None else options.max_iter
+    scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # θ[free] = scale·x
+    history = [theta[idx].copy()]
+
+    def coefficients(x):
+        th = theta.copy()
+        th[idx] = scale * x
+        return th
+
+    def residuals(th, x0):
+        out = []
+        with np.errstate(all="ignore"):
+            for r, x in zip(recs, x0):
+                e = r.y - fly(model, th, r.t, x, r.fins)[:, ch]
+                simulated(len(r.t))
+                if not np.all(np.isfinite(e)):
+                    return None
+                out.append(e)
+        return out
+
+    def noise(res):
+        R = sum(np.sum(e**2, axis=0) for e in res) / N
+        return np.where(np.isnan(held), np.maximum(R, 1e-30), held)
+
+    def relaxed(th, x0, R):
+        """Each record's initial state fitted at θ with R held, then R at them."""
+        fitted = []
+        for r, x in zip(recs, x0):
+            fitted.append(initial_state(model, th, r.t, r.fins, r.y, ch, range(len(ch)), x, R)[0])
+        return np.array(fitted)
+
+    with counting() as tally:
+        x0 = np.zeros((len(recs), NX))
+        x0[:, 0] = model.vehicle.speed
+        x0[:, ch] = [r.y[0] for r in recs]
+        start = residuals(theta, x0)
+        if start is None:
+            raise InputError(
+                f"{config.source or 'config'}: the model's flight from the start values does not stay "
+                "finite over the records; expected a start whose flight does (or ml-gn, which halves them)"
+            )
+        x0 = relaxed(theta, x0, None)
+        R = noise(residuals(theta, x0))
+
+        def J(v: np.ndarray) -> float:
+            res = residuals(coefficients(v), x0)
+            return np.inf if res is None else sum(float(np.sum(e**2 / R)) for e in res) / N
+
+        def report(i: int, best: np.ndarray, cost: float) -> None:
+            history.append(scale * best)
+            if callback is not None:
+                callback(Progress(i, scale * best, cost))
+
+        coef = simplex_coefficients(options.coefficients, nf)
+        tol = options.eps / N
+        x, size, it, status = theta[idx] / scale, options.step, 0, Status.STALLED
+        for _ in range(options.max_relaxations):
+            J_start = J(x)
+            corners, J_i, it, stopped = simplex_run(
+                J, fresh_simplex(x, size), coef, tol, it, max_iter, report
+            )
+            x, J_best, size = corners[0], J_i[0], options.restart_step
+            if not stopped:
+                status = Status.MAX_ITERATIONS
+                break
+            # the relaxation at the best corner: the initial states, then R
+            x0 = relaxed(coefficients(x), x0, R)
+            R, R_old = noise(residuals(coefficients(x), x0)), R
+            if J_start - J_best <= tol and np.max(np.abs(R / R_old - 1)) < options.r_tol:
+                status = Status.CONVERGED
+                break
+    th = coefficients(x)
+    H, res = information(model, th, x0, recs, channels, config.free, R)
+    cost = 0.5 * float(N * np.sum(np.log(2 * np.pi * R))) + 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
+    return _estimate(
+        name,
+        config,
+        experiments,
+        channels,
+        th[idx],
+        crlb(H).std[:nf],
+        cost,
+        it,
+        status,
+        t0,
+        tally[0],
+        {c: float(np.sqrt(v)) for c, v in zip(channels, R)},
+        x0,
+        history,
     )

@@ -21,6 +21,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.identification.nonlinear_sensitivities import flight
+from testbed.identification.recursions import simulated
 from testbed.models.linear import NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
@@ -97,7 +98,8 @@ def initial_state(
     fins and measurements `y` (N, k) of the states `ch` (NaN where missing), started from `x0`,
     its components `moved` (indices into `ch`) fitted, and the flight from it; the noise
     variances `R` (k,) held where given, else relaxed. The flight from `x0` (`states` where
-    already flown) must stay finite."""
+    already flown) must stay finite. Its flights count 1 a sample and its sensitivity passes
+    1 + the components moved (`recursions.counting`)."""
     y = np.asarray(y, float)
     present = np.isfinite(y)
     cols = [ch[j] for j in moved]
@@ -105,11 +107,14 @@ def initial_state(
     def residual(x):
         return np.where(present, y - x[:, ch], 0.0)
 
-    states = fly(model, theta, t, x0, fins, substeps) if states is None else states
+    if states is None:
+        states = fly(model, theta, t, x0, fins, substeps)
+        simulated(len(t))
     res, lam = residual(states), 1e-3
     for _ in range(ITERATIONS if moved else 0):
         V = np.maximum(np.sum(res**2, axis=0) / np.maximum(present.sum(axis=0), 1), 1e-30) if R is None else R
         J = flight(model, theta, t, x0, fins, (), substeps, states).dx_dx0[:, ch][:, :, cols]
+        simulated(len(t) * (1 + len(cols)))
         J = np.where(present[:, :, None], J, 0.0)
         W = J / V[:, None]
         H = np.einsum("nci,ncj->ij", W, J)
@@ -125,6 +130,7 @@ def initial_state(
             trial_x0 = x0.copy()
             trial_x0[cols] += step
             trial = fly(model, theta, t, trial_x0, fins, substeps)
+            simulated(len(t))
             if np.all(np.isfinite(trial)) and float(np.sum(residual(trial) ** 2 / V)) < cost:
                 break
             lam *= 10
