@@ -5,10 +5,13 @@ contract and `Estimate` as the linear model's methods:
   sensitivities, R estimated by relaxation, each record's measured initial states free;
 - `ml-nm`: the paper's Nelder-Mead simplex (`simplex`) on the same likelihood,
   `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients in coordinates scaled by the start
-  (θᵢ/|θᵢ,start|), with R and each record's initial state held during a simplex run and relaxed
-  at its best corner between runs (the initial state by Gauss-Newton on its measured components,
-  `nonlinear_prediction.initial_state`, as the linear `ml-nm` solves it by least squares); every
-  later run a fresh simplex at the best corner (`restart_step`). Converged when a run stops by its
+  (θᵢ/|θᵢ,start|). Each record's initial state is concentrated out at every θ to first order:
+  the residual less its weighted least-squares fit by the outputs' sensitivities to the measured
+  initial states, taken at the run's reference state (the linear `ml-nm` concentrates it
+  exactly, its outputs being linear in it). R and that reference are held during a simplex run
+  and relaxed at its best corner between runs (the initial state by Gauss-Newton,
+  `nonlinear_prediction.initial_state`, its sensitivities there; R the residuals' mean square);
+  every later run a fresh simplex at the best corner (`restart_step`). Converged when a run stops by its
   rule, improves J_M by no more than ε = `eps`/N, and the relaxation that follows changes no
   variance by more than `r_tol`; stalled after `max_relaxations` runs. No record-length
   continuation. The bounds are the Fisher information's at the estimate, the initial states
@@ -45,6 +48,7 @@ from testbed.estimators.base import Callback, Estimate, OptionError, Options, Pr
 from testbed.estimators.simplex import fresh_simplex, simplex_coefficients, simplex_run
 from testbed.identification.bounds import crlb
 from testbed.identification.nonlinear_output_error import fit_output_error, information, records
+from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.nonlinear_prediction import initial_state
 from testbed.identification.recursions import counting, simulated
 from testbed.models.linear import NX, STATES
@@ -85,37 +89,18 @@ def _problem(method: str, experiments, config: ModelConfig):
     return channels, recs, model, theta, [model.names.index(n) for n in config.free]
 
 
-def _estimate(
-    method,
-    config,
-    experiments,
-    channels,
-    values,
-    std,
-    cost,
-    iterations,
-    status,
-    t0,
-    tally,
-    noise,
-    x0,
-    history,
-):
+def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields) -> Estimate:
+    """The `Estimate` of a fit of `config.free` to `experiments` (its other `fields` given), with
+    its wall time from `t0`, its evaluations from the samples simulated `tally` and each record's
+    fitted initial state `x0` (records, 10) in the measured `channels`."""
     return Estimate(
-        method=method,
-        status=status,
         free=tuple(config.free),
-        values=np.asarray(values, float),
-        std=np.asarray(std, float),
-        cost=float(cost),
-        iterations=int(iterations),
         wall_time_s=time.perf_counter() - t0,
-        noise_std=noise,
         evaluations=-(-tally // sum(len(e.t) for e in experiments)),
-        history=np.array(history),
         initial_states={
             e.name: {c: float(x[STATES.index(c)]) for c in channels} for e, x in zip(experiments, x0)
         },
+        **fields,
     )
 
 
@@ -149,20 +134,20 @@ def gauss_newton(
             max_iterations=int(options.max_iter),
         )
     return _estimate(
-        name,
         config,
         experiments,
         channels,
-        [fit.estimates[n] for n in config.free],
-        [fit.std[n] for n in config.free],
-        fit.cost,
-        fit.iterations,
-        _STATUS[fit.status],
+        fit.initial_states,
         t0,
         tally[0],
-        dict(fit.noise_std),
-        fit.initial_states,
-        history,
+        method=name,
+        status=_STATUS[fit.status],
+        values=np.array([fit.estimates[n] for n in config.free]),
+        std=np.array([fit.std[n] for n in config.free]),
+        cost=fit.cost,
+        iterations=fit.iterations,
+        noise_std=dict(fit.noise_std),
+        history=np.array(history),
     )
 
 
@@ -202,28 +187,42 @@ def simplex(
         return np.where(np.isnan(held), np.maximum(R, 1e-30), held)
 
     def relaxed(th, x0, R):
-        """Each record's initial state fitted at θ with R held, then R at them."""
-        fitted = []
+        """Each record's initial state fitted at θ (R held where given) and its outputs'
+        sensitivities to the measured initial states there (N, k, k)."""
+        fitted, sens = [], []
         for r, x in zip(recs, x0):
-            fitted.append(initial_state(model, th, r.t, r.fins, r.y, ch, range(len(ch)), x, R)[0])
-        return np.array(fitted)
+            x, states = initial_state(model, th, r.t, r.fins, r.y, ch, range(len(ch)), x, R)
+            fitted.append(x)
+            sens.append(flight(model, th, r.t, x, r.fins, (), 4, states).dx_dx0[:, ch][:, :, ch])
+            simulated(len(r.t) * (1 + len(ch)))
+        return np.array(fitted), sens
 
     with counting() as tally:
         x0 = np.zeros((len(recs), NX))
         x0[:, 0] = model.vehicle.speed
         x0[:, ch] = [r.y[0] for r in recs]
-        start = residuals(theta, x0)
-        if start is None:
+        if residuals(theta, x0) is None:
             raise InputError(
                 f"{config.source or 'config'}: the model's flight from the start values does not stay "
                 "finite over the records; expected a start whose flight does (or ml-gn, which halves them)"
             )
-        x0 = relaxed(theta, x0, None)
+        x0, sens = relaxed(theta, x0, None)
         R = noise(residuals(theta, x0))
 
         def J(v: np.ndarray) -> float:
+            """J_M at θ(v), each record's initial state concentrated out to first order: the
+            residual less its weighted least-squares fit by the initial-state sensitivities."""
             res = residuals(coefficients(v), x0)
-            return np.inf if res is None else sum(float(np.sum(e**2 / R)) for e in res) / N
+            if res is None:
+                return np.inf
+            total = 0.0
+            for e, S in zip(res, sens):
+                W = S / R[:, None]
+                d = np.linalg.lstsq(np.einsum("nci,ncj->ij", W, S), np.einsum("nci,nc->i", W, e), rcond=None)[
+                    0
+                ]
+                total += float(np.sum((e - S @ d) ** 2 / R))
+            return total / N
 
         def report(i: int, best: np.ndarray, cost: float) -> None:
             history.append(scale * best)
@@ -242,8 +241,8 @@ def simplex(
             if not stopped:
                 status = Status.MAX_ITERATIONS
                 break
-            # the relaxation at the best corner: the initial states, then R
-            x0 = relaxed(coefficients(x), x0, R)
+            # the relaxation at the best corner: the initial states and their sensitivities, then R
+            x0, sens = relaxed(coefficients(x), x0, R)
             R, R_old = noise(residuals(coefficients(x), x0)), R
             if J_start - J_best <= tol and np.max(np.abs(R / R_old - 1)) < options.r_tol:
                 status = Status.CONVERGED
@@ -252,18 +251,18 @@ def simplex(
     H, res = information(model, th, x0, recs, channels, config.free, R)
     cost = 0.5 * float(N * np.sum(np.log(2 * np.pi * R))) + 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
     return _estimate(
-        name,
         config,
         experiments,
         channels,
-        th[idx],
-        crlb(H).std[:nf],
-        cost,
-        it,
-        status,
+        x0,
         t0,
         tally[0],
-        {c: float(np.sqrt(v)) for c, v in zip(channels, R)},
-        x0,
-        history,
+        method=name,
+        status=status,
+        values=th[idx],
+        std=crlb(H).std[:nf],
+        cost=cost,
+        iterations=it,
+        noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
+        history=np.array(history),
     )
