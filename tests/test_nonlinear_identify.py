@@ -17,6 +17,7 @@ from testbed.data import Experiment, read_config, write_config, write_csv
 from testbed.errors import InputError
 from testbed.estimators import OptionError, identify
 from testbed.identification.likelihood import reduced
+from testbed.jobs import perturbed
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
 from testbed.simulation.captive_config import captive_config
@@ -317,3 +318,31 @@ def test_validate_refuses_estimates_of_another_model(files, capsys, tmp_path):
         err = capsys.readouterr().err
         assert code == 2 and err.strip().count("\n") == 0 and not out.exists(), err
         assert re.search(words, err), err
+
+
+def test_perturb_moves_the_free_terms(truth):
+    config = truth[0]
+    moved = perturbed(config, 0.1, seed=3)
+    for n in FREE:
+        assert moved.terms[n] == pytest.approx(config.terms[n] * 1.1) or moved.terms[n] == pytest.approx(
+            config.terms[n] * 0.9
+        )
+    assert {n: v for n, v in moved.terms.items() if n not in FREE} == {
+        n: v for n, v in config.terms.items() if n not in FREE
+    }
+    assert moved.coefficients == config.coefficients
+
+
+@pytest.mark.parametrize("command", ["identify", "analyze"])
+def test_a_record_with_a_gap_is_refused_on_the_command_line(files, capsys, tmp_path, command):
+    lines = (files / "doublets.csv").read_text().splitlines()
+    cells = lines[30].split(",")
+    cells[4] = ""  # p missing at one sample
+    lines[30] = ",".join(cells)
+    gap = tmp_path / "gap.csv"
+    gap.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out.json"
+    code = main([command, str(gap), "--config", str(files / "truth.toml"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "p is missing at t = 0.58 s" in err and err.strip().count("\n") == 0, err
+    assert not out.exists()

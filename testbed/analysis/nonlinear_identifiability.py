@@ -21,9 +21,8 @@ import numpy as np
 
 from testbed.analysis.identifiability import Identifiability, Structural, assessed
 from testbed.data import Experiment, ModelConfig
-from testbed.errors import InputError
 from testbed.identification.likelihood import reduced
-from testbed.identification.nonlinear_output_error import information, records
+from testbed.identification.nonlinear_output_error import information, setup
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
 
@@ -35,17 +34,8 @@ def nonlinear_identifiability(
 ) -> Identifiability:
     """The identifiability of `config.free` (a nonlinear model config's) from `experiments` at
     the config's values (module doc)."""
-    source = config.source or "config"
-    if not config.free:
-        raise InputError(f"{source}: [identify] free is empty; nothing to analyse")
-    if config.per_record:
-        raise InputError(
-            f"{source}: [identify] per_record {config.per_record[0]!r}; the nonlinear model's analysis "
-            "takes every value once for all records"
-        )
     experiments = config.fitted(experiments)
-    channels, recs = records(experiments, "analyze on a nonlinear model config")
-    model, theta = config.nonlinear()
+    channels, recs, model, theta, idx = setup(experiments, config, "analyze on a nonlinear model config")
     free = tuple(config.free)
     ch = [STATES.index(c) for c in channels]
     flown = flights(experiments, config, substeps=substeps)
@@ -60,4 +50,4 @@ def nonlinear_identifiability(
     struct = Structural(
         free, np.eye(len(free))[[free.index(n) for n in blind]], tuple((n,) for n in blind), blind
     )
-    return assessed(free, theta[[model.names.index(n) for n in free]], F, struct)
+    return assessed(free, theta[idx], F, struct)

@@ -47,7 +47,7 @@ from testbed.errors import InputError
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status
 from testbed.estimators.simplex import fresh_simplex, simplex_coefficients, simplex_run
 from testbed.identification.bounds import crlb
-from testbed.identification.nonlinear_output_error import fit_output_error, information, records
+from testbed.identification.nonlinear_output_error import fit_output_error, information, setup
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.nonlinear_prediction import initial_state
 from testbed.identification.recursions import counting, simulated
@@ -74,21 +74,6 @@ def _checked(method: str, options: Options, meant: Sequence[str]) -> None:
         raise OptionError(method, "start", options.start, "auto or config for a nonlinear model config")
 
 
-def _problem(method: str, experiments, config: ModelConfig):
-    """`(channels, records, model, θ, free indices)`; `InputError` for what the fit cannot take."""
-    source = config.source or "config"
-    if not config.free:
-        raise InputError(f"{source}: [identify] free is empty; expected the coefficients to estimate")
-    if config.per_record:
-        raise InputError(
-            f"{source}: [identify] per_record {config.per_record[0]!r}; the nonlinear model's fit "
-            "estimates every value once for all records"
-        )
-    channels, recs = records(experiments, f"{method} on a nonlinear model config")
-    model, theta = config.nonlinear()
-    return channels, recs, model, theta, [model.names.index(n) for n in config.free]
-
-
 def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields) -> Estimate:
     """The `Estimate` of a fit of `config.free` to `experiments` (its other `fields` given), with
     its wall time from `t0`, its evaluations from the samples simulated `tally` and each record's
@@ -112,7 +97,7 @@ def gauss_newton(
     _checked(name, options, _GN)
     if options.max_iter < 1:
         raise OptionError(name, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
-    channels, recs, model, theta, idx = _problem(name, experiments, config)
+    channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     noise = {c: s for c, s in (config.noise_std or {}).items() if c in channels}
     history = [theta[idx]]
 
@@ -157,7 +142,7 @@ def simplex(
     """`ml-nm` on a nonlinear model config (module doc)."""
     t0, name = time.perf_counter(), "ml-nm"
     _checked(name, options, _NM)
-    channels, recs, model, theta, idx = _problem(name, experiments, config)
+    channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     ch = [STATES.index(c) for c in channels]
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])

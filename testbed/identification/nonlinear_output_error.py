@@ -30,7 +30,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment
+from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.identification.bounds import crlb
 from testbed.identification.nonlinear_sensitivities import flight
@@ -48,6 +48,7 @@ __all__ = [
     "fit_output_error",
     "information",
     "records",
+    "setup",
 ]
 
 DAMPING = (1e-3, 10.0, 1e10)  # λ: its start, its factor down after a success and up after a failure, its cap
@@ -101,6 +102,25 @@ def records(
                 "with every sample present"
             )
     return channels, [Record(t=e.t, fins=e.inputs, y=e.y) for e in experiments]
+
+
+def setup(
+    experiments: Sequence[Experiment], config: ModelConfig, fit: str
+) -> tuple[tuple[str, ...], list[Record], NonlinearModel, np.ndarray, list[int]]:
+    """`(channels, records, model, θ, free indices)` of a nonlinear model config's `free` on the
+    experiments (`records`); `InputError` naming the `fit` for what it cannot take: nothing
+    free, or values per record."""
+    source = config.source or "config"
+    if not config.free:
+        raise InputError(f"{source}: [identify] free is empty; expected the coefficients {fit} is to take")
+    if config.per_record:
+        raise InputError(
+            f"{source}: [identify] per_record {config.per_record[0]!r}; {fit} takes every value once "
+            "for all records"
+        )
+    channels, recs = records(experiments, fit)
+    model, theta = config.nonlinear()
+    return channels, recs, model, theta, [model.names.index(n) for n in config.free]
 
 
 def _check(model, records, channels, free, noise_std, tolerance, max_iterations):
