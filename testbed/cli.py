@@ -419,9 +419,12 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--method",
         default="ml-gn",
-        help="ml-gn (default), ml-lm, ml-nr, ml-nm, ml-fem, mekf, ekf, equation-error",
+        help="ml-gn (default), ml-lm, ml-nr, ml-nm, ml-fem, mekf, ekf, equation-error; a nonlinear "
+        "model config ([terms]): ml-gn or ml-nm",
     )
-    s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
+    s.add_argument(
+        "--config", type=Path, help="model config TOML, linear or nonlinear (default: the run's model.toml)"
+    )
     s.add_argument(
         "--out",
         type=Path,
