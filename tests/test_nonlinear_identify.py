@@ -17,6 +17,7 @@ from testbed.data import Experiment, read_config, write_config, write_csv
 from testbed.errors import InputError
 from testbed.estimators import OptionError, identify
 from testbed.identification.likelihood import reduced
+from testbed.identification.nonlinear_sensitivities import flight
 from testbed.jobs import perturbed
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
@@ -83,6 +84,39 @@ def test_ml_gn_returns_the_truth_within_three_sigma_from_a_perturbed_start(truth
     assert est.history.shape == (len(steps) + 1, len(FREE))
     assert np.array_equal(est.history[-1], est.values)
     assert steps[-1].cost == pytest.approx(est.cost)
+    # white residuals: the coloured-residual bound near the plain one, within the lag-window
+    # estimate's sampling error on one 201-sample record, about √(K/N) for K ≥ 10 lags (≥ 0.22)
+    assert np.all(np.abs(est.crlb_corrected_std / est.std - 1) < 0.35), est.crlb_corrected_std / est.std
+
+
+def test_the_coloured_residual_bound_follows_the_sandwich_covariance_of_ar1_noise(truth):
+    """AR(1) sensor noise (ρ = 0.8, the sensors' σ): the estimate's covariance is the sandwich
+    C Jᵀ Σ⁻¹ T Σ⁻¹ J C, T(i, j) = ρ^|i−j| per channel, C the white bound, J the sensitivities at
+    the truth (free terms and initial state); the coloured bound read off the residuals of one
+    record follows its ratio to the plain bound."""
+    config, _, clean = truth
+    rng = np.random.default_rng(5)
+    rho, n = 0.8, len(clean.t)
+    w = rng.normal(size=(n, 10)) * SIGMA * np.sqrt(1 - rho**2)
+    noise = np.zeros_like(w)
+    noise[0] = rng.normal(size=10) * SIGMA
+    for k in range(1, n):
+        noise[k] = rho * noise[k - 1] + w[k]
+    est = identify([replace(clean, y=clean.y + noise)], _start(config), "ml-gn")
+    assert est.converged
+    model, theta = config.nonlinear()
+    f = flight(model, theta, clean.t, clean.y[0], clean.inputs, [model.names.index(m) for m in FREE])
+    J = np.concatenate([f.dx_dtheta, f.dx_dx0], axis=2)  # (n, 10, 14)
+    W = J / SIGMA[:, None] ** 2
+    C = np.linalg.inv(np.einsum("nci,ncj->ij", W, J))
+    T = rho ** np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    middle = np.einsum("nci,nm,mcj,c->ij", W, T, W, SIGMA**2)
+    sandwich = np.sqrt(np.diag(C @ middle @ C)[: len(FREE)])
+    white = np.sqrt(np.diag(C)[: len(FREE)])
+    want, got = sandwich / white, est.crlb_corrected_std / est.std
+    assert np.all(want > 1.5), want
+    # one record's lag-window estimate: its sampling error about √(K/N), K the lags kept
+    assert np.all(np.abs(got / want - 1) < 0.35), (got, want)
 
 
 def test_evaluations_count_the_flights_and_sensitivity_passes(truth):

@@ -14,8 +14,11 @@ contract and `Estimate` as the linear model's methods:
   every later run a fresh simplex at the best corner (`restart_step`). Converged when a run stops by its
   rule, improves J_M by no more than ε = `eps`/N, and the relaxation that follows changes no
   variance by more than `r_tol`; stalled after `max_relaxations` runs. No record-length
-  continuation. The bounds are the Fisher information's at the estimate, the initial states
-  among the parameters (`nonlinear_output_error.information`).
+  continuation.
+
+Both report the Cramér-Rao bounds with the initial states among the parameters and the
+coloured-residual bounds at the estimate (`nonlinear_output_error.coloured_bounds`; not counted
+in `evaluations`, as for the linear model).
 
 What a linear method's option means here:
 
@@ -46,8 +49,7 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status
 from testbed.estimators.simplex import fresh_simplex, simplex_coefficients, simplex_run
-from testbed.identification.bounds import crlb
-from testbed.identification.nonlinear_output_error import fit_output_error, information, setup
+from testbed.identification.nonlinear_output_error import coloured_bounds, fit_output_error, setup
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.nonlinear_prediction import initial_state
 from testbed.identification.recursions import counting, simulated
@@ -118,6 +120,8 @@ def gauss_newton(
             tolerance=float(options.tol),
             max_iterations=int(options.max_iter),
         )
+    R = np.array([fit.noise_std[c] ** 2 for c in channels])
+    coloured = coloured_bounds(model, fit.theta, fit.initial_states, recs, channels, config.free, R)[1]
     return _estimate(
         config,
         experiments,
@@ -133,6 +137,7 @@ def gauss_newton(
         iterations=fit.iterations,
         noise_std=dict(fit.noise_std),
         history=np.array(history),
+        crlb_corrected_std=coloured,
     )
 
 
@@ -233,7 +238,7 @@ def simplex(
                 status = Status.CONVERGED
                 break
     th = coefficients(x)
-    H, res = information(model, th, x0, recs, channels, config.free, R)
+    std, coloured, res = coloured_bounds(model, th, x0, recs, channels, config.free, R)
     cost = 0.5 * float(N * np.sum(np.log(2 * np.pi * R))) + 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
     return _estimate(
         config,
@@ -245,9 +250,10 @@ def simplex(
         method=name,
         status=status,
         values=th[idx],
-        std=crlb(H).std[:nf],
+        std=std,
         cost=cost,
         iterations=it,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
         history=np.array(history),
+        crlb_corrected_std=coloured,
     )

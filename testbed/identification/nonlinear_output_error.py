@@ -32,7 +32,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.identification.bounds import crlb
+from testbed.identification.bounds import colored_term, crlb
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.recursions import simulated
 from testbed.models.linear import NU, NX, STATES
@@ -45,6 +45,7 @@ __all__ = [
     "SHORTEST",
     "NonlinearFit",
     "Record",
+    "coloured_bounds",
     "fit_output_error",
     "information",
     "records",
@@ -339,15 +340,59 @@ def information(
 def _normal_equations(res, sens, R, free_initial):
     """H = Σ Jᵀ R⁻¹ J and g = Σ Jᵀ R⁻¹ e over the records, the columns [θ[free] | each record's
     measured initial states] (the latter only when free)."""
-    p, c = sens[0][0].shape[2], len(R)
-    P = p + (len(res) * c if free_initial else 0)
+    P = _columns(res, sens, free_initial)
     H, g = np.zeros((P, P)), np.zeros(P)
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
-        J = np.zeros(e.shape + (P,))
-        J[:, :, :p] = St
-        if free_initial:
-            J[:, :, p + i * c : p + (i + 1) * c] = Sx
+        J = _jacobian(i, St, Sx, P, free_initial)
         W = J / R[:, None]
         H += np.einsum("nci,ncj->ij", W, J)
         g += np.einsum("nci,nc->i", W, e)
     return H, g
+
+
+def _columns(res, sens, free_initial) -> int:
+    """The parameters: θ[free], and each record's measured initial states when free."""
+    return sens[0][0].shape[2] + (len(res) * sens[0][1].shape[2] if free_initial else 0)
+
+
+def _jacobian(i, St, Sx, P, free_initial) -> np.ndarray:
+    """Record i's output sensitivities (N, C, P) to [θ[free] | each record's measured initial
+    states] from its sensitivities to θ[free] `St` and to its own initial states `Sx`."""
+    p, c = St.shape[2], Sx.shape[2]
+    J = np.zeros(St.shape[:2] + (P,))
+    J[:, :, :p] = St
+    if free_initial:
+        J[:, :, p + i * c : p + (i + 1) * c] = Sx
+    return J
+
+
+def coloured_bounds(
+    model: NonlinearModel,
+    theta,
+    x0: np.ndarray,
+    records: Sequence[Record],
+    channels: Sequence[str],
+    free: Sequence[str],
+    R: np.ndarray,
+    substeps: int = 4,
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """`(σ, σ_coloured, residuals)` at θ and the initial states `x0` (records, 10) with the noise
+    variances `R`: the Cramér-Rao σ of θ's `free` coefficients (the initial states among the
+    parameters, as the fit's), Morelli & Klein's σ for coloured residuals
+    (`bounds.colored_covariance`, its per-record sum `bounds.colored_term`), and the residuals."""
+    ch = [STATES.index(c) for c in channels]
+    idx = np.array([model.names.index(n) for n in free])
+    flown, res = _simulate(model, theta, x0, records, ch, substeps)
+    if res is None:
+        raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
+    sens = _sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
+    R = np.asarray(R, float)
+    H, _ = _normal_equations(res, sens, R, True)
+    cov, std, _ = crlb(H)
+    p, P, scale = len(idx), len(H), np.sqrt(R)
+    total = np.zeros((p, p))
+    for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
+        Z = (_jacobian(i, St, Sx, P, True) / scale[:, None]) @ cov[:p].T
+        total += colored_term(Z, e / scale)
+    coloured = np.where(np.isinf(std[:p]), np.inf, np.sqrt(np.maximum(np.diag(total), 0.0)))
+    return std[:p], coloured, res
