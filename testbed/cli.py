@@ -442,9 +442,12 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--method",
         default="ml-gn",
-        help="ml-gn (default), ml-lm, ml-nr, ml-nm, ml-fem, mekf, ekf, equation-error",
+        help="ml-gn (default), ml-lm, ml-nr, ml-nm, ml-fem, mekf, ekf, equation-error; a nonlinear "
+        "model config ([terms]): ml-gn or ml-nm",
     )
-    s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
+    s.add_argument(
+        "--config", type=Path, help="model config TOML, linear or nonlinear (default: the run's model.toml)"
+    )
     s.add_argument(
         "--out",
         type=Path,
@@ -527,11 +530,21 @@ def parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_check)
 
     s = sub.add_parser(
-        "validate", help="fit %% and residual whiteness of identified coefficients on (held-out) data"
+        "validate",
+        help="fit %% and residual whiteness of identified coefficients or a model config on (held-out) data",
     )
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
-    s.add_argument("--estimates", type=Path, required=True, help="estimates JSON from `testbed identify`")
-    s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
+    s.add_argument(
+        "--estimates",
+        type=Path,
+        help="estimates JSON from `testbed identify`, applied to the config (without it: the config as it stands)",
+    )
+    s.add_argument(
+        "--config",
+        type=Path,
+        help="model config TOML, linear or nonlinear (default: the run's model.toml, or the "
+        "config a nonlinear fit's estimates name)",
+    )
     s.add_argument("--out", type=Path, help="validation JSON (default: stdout)")
     s.set_defaults(func=_cmd_validate)
 

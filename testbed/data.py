@@ -35,7 +35,7 @@ from testbed.models.linear import (
     STATES,
     Vehicle,
 )
-from testbed.models.nonlinear import INERTIA, nonlinear_model
+from testbed.models.nonlinear import INERTIA, NonlinearModel, nonlinear_model, theta_vector
 from testbed.models.sensors import OUTPUTS, Sensor, needs, states_from
 
 __all__ = [
@@ -193,15 +193,32 @@ class ModelConfig:
         return [e.only(self.outputs) for e in experiments]
 
     def with_coefficients(self, values: Mapping[str, float]) -> "ModelConfig":
-        """The config with `values` set: coefficients and offsets by name, and a record's own
-        value as `name[experiment]` (an estimate's per-record values)."""
+        """The config with `values` set: coefficients and offsets by name (a nonlinear model
+        config's terms among them), and a record's own value as `name[experiment]` (an
+        estimate's per-record values)."""
+        terms = self.terms
+        if terms is not None:
+            terms = {n: values.get(n, v) for n, v in terms.items()}
+            values = {n: v for n, v in values.items() if n not in terms}
         shared = {n: v for n, v in values.items() if not n.endswith("]")}
         records = {e: dict(v) for e, v in self.record_values.items()}
         for n, v in values.items():
             if n.endswith("]"):
                 name, experiment = n[:-1].split("[", 1)
                 records.setdefault(experiment, {})[name] = v
-        return replace(self, coefficients={**self.coefficients, **shared}, record_values=records)
+        return replace(self, coefficients={**self.coefficients, **shared}, record_values=records, terms=terms)
+
+    @property
+    def values(self) -> dict[str, float]:
+        """Every parameter's value by name: the coefficients and offsets, and a nonlinear model
+        config's terms."""
+        return {**self.coefficients, **(self.terms or {})}
+
+    def nonlinear(self) -> tuple[NonlinearModel, np.ndarray]:
+        """A nonlinear model config's model and its θ (`models.nonlinear`: the inertia
+        coefficients, then the terms)."""
+        model = nonlinear_model(self.vehicle, tuple(self.terms))
+        return model, theta_vector(model, {**{n: self.coefficients[n] for n in INERTIA}, **self.terms})
 
     def with_noise_std(self, values: Mapping[str, float] | None, where: str = "noise_std") -> "ModelConfig":
         """The config with `values` (state → σ, checked as `where`) replacing its `noise_std`
@@ -929,10 +946,13 @@ def write_config(path: str | Path, config: ModelConfig, comments=None, force: bo
     return atomic_write_text(path, config_text(config, comments), force)
 
 
-def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
+def read_estimates(
+    path: str | Path, names: Sequence[str] | None = None
+) -> tuple[dict[str, float], dict[str, float] | None]:
     """The coefficients and offsets (name → value) of an estimates JSON, without the values
     estimated per record, and its `noise_std` (state → σ) when it has one of positive numbers,
-    else None; InputError naming the file."""
+    else None; InputError naming the file. `names`: a nonlinear model's names (its inertia
+    coefficients and terms), which its coefficients must be among instead of the linear model's."""
     expected = "an estimates JSON with coefficients {name: {value: ...}}"
     doc = read_json(path, expected)
     try:
@@ -942,7 +962,12 @@ def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float]
     # a value estimated per record (`name[experiment]`) belongs to that record, not to the vehicle
     values = {n: v for n, v in values.items() if not (n.endswith("]") and n.split("[")[0] in PARAMETERS)}
     for n, v in values.items():
-        if n not in PARAMETERS:
+        if names is not None and n not in names:
+            raise InputError(
+                f"{path}: coefficient {n[:40]!r} is not one of the nonlinear model config's names; "
+                "expected its inertia coefficients or [terms]"
+            )
+        if names is None and n not in PARAMETERS:
             raise InputError(
                 f"{path}: coefficient {n[:40]!r} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current or input_delay (docs/model.md)"
             )

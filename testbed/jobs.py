@@ -21,13 +21,24 @@ import numpy as np
 from testbed.analysis.identifiability import (
     Comparison,
     Identifiability,
+    Screened,
     compare,
     identifiability,
     identify_screened,
 )
-from testbed.data import Experiment, ModelConfig, load_data, read_config, read_csv, read_estimates, run_csvs
+from testbed.data import (
+    Experiment,
+    ModelConfig,
+    load_data,
+    read_config,
+    read_csv,
+    read_estimates,
+    read_json,
+    run_csvs,
+)
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, identify, lookup
+from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
 from testbed.analysis.validation import Validation, validate
 from testbed.identification.problem import base_name, check_inputs
 
@@ -60,11 +71,6 @@ def inputs(data: Sequence[str | os.PathLike], config: str | os.PathLike | None =
     used = read_config(config) if config else run_config
     if used is None:
         raise InputError("no model config: expected config=TOML, or a run directory with model.toml")
-    if used.terms is not None:
-        raise InputError(
-            f"{used.source or 'config'}: a nonlinear model config ([terms]); expected a linear model's "
-            "config (identify, analyze and validate fit and check the linear model)"
-        )
     read = [Path(e.source) for e in experiments] + [Path(used.source)]
     read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]
     return experiments, used, run_config, read
@@ -73,9 +79,8 @@ def inputs(data: Sequence[str | os.PathLike], config: str | os.PathLike | None =
 def perturbed(config: ModelConfig, fraction: float, seed: int) -> ModelConfig:
     """The config with every free coefficient's start moved by ±fraction (signs from `seed`)."""
     signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(config.free))
-    moved = config.with_coefficients(
-        {n: config.coefficients[n] * (1 + s * fraction) for n, s in zip(config.free, signs)}
-    )
+    values = config.values
+    moved = config.with_coefficients({n: values[n] * (1 + s * fraction) for n, s in zip(config.free, signs)})
     return replace(moved, source=f"{config.source or 'config'} with its start moved by perturb={fraction:g}")
 
 
@@ -175,12 +180,14 @@ def identify_data(
         applied = read_corrections(corrections)
         experiments = corrected(experiments, applied)
         read.append(Path(corrections))
-    truth = truth_data(data) if run_config is not None else None
+    truth = truth_data(data) if run_config is not None and cfg.terms is None else None
     read += [Path(e.source) for e in truth or ()]
     history = (
         Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
     )
     check_outputs(read, {"out": out, "history": history, "rrd": rrd}, force)
+    if cfg.terms is not None:
+        _nonlinear_refusals(cfg, m.name, rrd, screen)
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
     iterations = []  # (iteration, values, cost) of the iterative methods, for the recording
@@ -191,7 +198,11 @@ def identify_data(
         if progress is not None:
             progress(step)
 
-    screened = identify_screened(experiments, cfg, m.name, opts, callback, apply=screen)
+    if cfg.terms is None:
+        screened = identify_screened(experiments, cfg, m.name, opts, callback, apply=screen)
+    else:  # the screen is the linear model's: a nonlinear config's free list is fitted as written
+        fit = identify(experiments, cfg, m.name, opts, callback)
+        screened = Screened(cfg, fit, {}, True)
     cfg, estimate = screened.config, screened.estimate
     if estimate.status is Status.DIVERGED:
         expected = f" (expected {'another start or ' if m.starts else ''}a better a-priori config)"
@@ -212,10 +223,17 @@ def identify_data(
     if not screened.applied:
         doc["screen"] = dict(screened.screen)
     comparison = None
-    if run_config is not None:
+    if cfg.terms is not None:
+        doc["nonlinear_model"] = {"config": str(config), "terms": list(cfg.terms)}
+    elif run_config is not None:
         comparison = truth_comparison(estimate, run_config, truth)
         doc["comparison"] = {"analytic_model": run_config.source, **comparison.to_dict()}
-    validation = validate(experiments, cfg.with_coefficients(estimate.coefficients), run_config)
+    validation = validate(
+        experiments,
+        cfg.with_coefficients(estimate.coefficients),
+        run_config,
+        estimate.initial_states if cfg.terms is not None else None,
+    )
     doc["validation"] = validation.to_dict()
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     files = {Path(out): text} if out is not None else {}
@@ -237,6 +255,18 @@ def identify_data(
     )
 
 
+def _nonlinear_refusals(cfg: ModelConfig, method: str, rrd, screen: bool | None) -> None:
+    """`InputError` for what `identify_data` does for the linear model only."""
+    where = f"{cfg.source or 'config'}: a nonlinear model config ([terms])"
+    if screen or (screen is None and cfg.screen):
+        raise InputError(
+            f"{where}: the screen is the linear model's; expected its free list estimated as written "
+            "(--free-all, or screen = false)"
+        )
+    if rrd is not None:
+        raise InputError(f"{where}: --rrd logs the linear model's fit only; expected no recording")
+
+
 def analyze_data(
     data: Sequence[str | os.PathLike],
     *,
@@ -246,14 +276,18 @@ def analyze_data(
     force: bool = False,
 ) -> Identifiability:
     """Identifiability of the config's free coefficients from `data` (Fisher information,
-    Cramér-Rao bounds, correlations, drift groups), written as JSON to `out`; `noise_std` and
-    `force` as for `identify_data`."""
+    Cramér-Rao bounds, correlations, drift groups; a nonlinear model config's by
+    `analysis.nonlinear_identifiability`), written as JSON to `out`; `noise_std` and `force` as
+    for `identify_data`."""
     experiments, cfg, _, read = inputs(data, config)
     cfg = cfg.with_noise_std(noise_std)
     check_outputs(read, {"out": out}, force)
     if not cfg.free:
         raise InputError(f"{cfg.source or 'config'}: [identify] free is empty; nothing to analyse")
-    result = identifiability(experiments, cfg)
+    if cfg.terms is not None:
+        result = nonlinear_identifiability(experiments, cfg)
+    else:
+        result = identifiability(experiments, cfg)
     write_text(out, result.to_json(), force)
     return result
 
@@ -278,22 +312,53 @@ def check_data(
 
 def validate_data(
     data: Sequence[str | os.PathLike],
-    estimates: str | os.PathLike,
+    estimates: str | os.PathLike | None = None,
     *,
     config: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
     force: bool = False,
 ) -> tuple[Validation, str]:
-    """Fit % and residual whiteness on `data` of the coefficients in the `estimates` JSON;
-    the validation JSON (also written to `out`; `force` as for `identify_data`) with them."""
+    """Fit % and residual whiteness on `data` of a model config (`config`, default: the run's
+    model.toml, or a nonlinear fit's config named in `estimates`) with the coefficients of the
+    `estimates` JSON applied, or as it stands without `estimates`; the validation JSON (also
+    written to `out`; `force` as for `identify_data`) with them. A nonlinear model config is flown open loop
+    (`analysis.validate`)."""
+    model = _nonlinear_estimates(estimates) if estimates is not None else None
+    if config is None and model is not None:
+        config = model["config"]
     experiments, cfg, run_config, read = inputs(data, config)
-    check_outputs(read + [estimates], {"out": out}, force)
-    check_inputs(experiments, cfg)  # the user's data against the user's model (validate checks no step)
-    coefficients = read_estimates(estimates)[0]
+    check_outputs(read + ([estimates] if estimates is not None else []), {"out": out}, force)
+    coefficients = {}
+    if cfg.terms is None:
+        if model is not None:
+            raise InputError(
+                f"{estimates}: a nonlinear model's fit ([terms] of {model['config']}); {cfg.source} is a "
+                "linear model config; expected the config the estimates were fitted with"
+            )
+        check_inputs(experiments, cfg)  # the user's data against the user's model (validate checks no step)
+        if estimates is not None:
+            coefficients = read_estimates(estimates)[0]
+    elif estimates is not None:
+        if model is None:
+            raise InputError(
+                f"{estimates}: a linear model's fit; {cfg.source} is a nonlinear model config ([terms]); "
+                "expected the config the estimates were fitted with"
+            )
+        if model["terms"] != list(cfg.terms):
+            raise InputError(
+                f"{estimates}: fitted the nonlinear model over {model['config']}'s terms; {cfg.source} has "
+                "other terms; expected the config the estimates were fitted with"
+            )
+        coefficients = read_estimates(estimates, cfg.nonlinear()[0].names)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
+    given = estimates is not None
     text = (
         json.dumps(
-            {"estimates": str(estimates), "coefficients": coefficients, "validation": validation.to_dict()},
+            {
+                "config": cfg.source,
+                **({"estimates": str(estimates), "coefficients": coefficients} if given else {}),
+                "validation": validation.to_dict(),
+            },
             indent=2,
             allow_nan=False,
         )
@@ -301,3 +366,19 @@ def validate_data(
     )
     write_text(out, text, force)
     return validation, text
+
+
+def _nonlinear_estimates(path) -> dict | None:
+    """An estimates JSON's `nonlinear_model` (`config`, `terms`) when it is a nonlinear fit's."""
+    doc = read_json(path, "an estimates JSON")
+    model = doc.get("nonlinear_model") if isinstance(doc, dict) else None
+    if model is None:
+        return None
+    if not (
+        isinstance(model, dict)
+        and isinstance(model.get("config"), str)
+        and isinstance(model.get("terms"), list)
+        and all(isinstance(t, str) for t in model["terms"])
+    ):
+        raise InputError(f"{path}: nonlinear_model; expected {{config: a path, terms: a list of term names}}")
+    return model

@@ -82,6 +82,14 @@ def test_validate_on_a_held_out_run(tmp_path, capsys):
     assert {"max_autocorrelation", "bound", "lags_outside", "ljung_box_p", "white"} <= set(
         val["r"]["whiteness"]
     )
+    # without estimates the run's own model.toml (the analytic model) is validated as it stands:
+    # its fit % is the analytic column's
+    own = tmp_path / "val-config.json"
+    assert main(["validate", str(tmp_path / "turn"), "--out", str(own)]) == 0
+    doc = json.loads(own.read_text())
+    assert "estimates" not in doc and doc["config"].endswith("model.toml")
+    for c, m in doc["validation"]["turn"].items():
+        assert m["fit_percent"] == pytest.approx(m["fit_percent_analytic"], abs=1e-9), c
     assert "Ljung-Box" in err and "turn" in err
 
 

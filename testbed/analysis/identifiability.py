@@ -38,6 +38,7 @@ __all__ = [
     "SIGNIFICANT",
     "Screen",
     "Screened",
+    "assessed",
     "Structural",
     "UNCERTAIN",
     "compare",
@@ -231,13 +232,19 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     # operation moves them
     dynamic = tuple(n for n in config.free if n not in OUTSIDE_EQUATIONS)
     struct = _copied(structural(structure(config.vehicle), theta, dynamic, measured), free)
+    return assessed(free, theta[[ITHETA[base_name(n)] for n in free]], F, struct)
+
+
+def assessed(free: tuple[str, ...], values: np.ndarray, F: np.ndarray, struct: Structural) -> Identifiability:
+    """The identifiability of the coefficients `free` at `values` from their Fisher information
+    `F` and their exactly unidentifiable directions `struct`: the bounds (infinite in a drift
+    group), correlations, practical drift groups, the practically unknown, the summary."""
     bounds = crlb(F)
     std, corr = bounds.std.copy(), bounds.correlation.copy()
     # a structural drift group has no information at all: infinite bounds, undefined correlations
     drifting = np.array([n in {m for g in struct.drift_groups for m in g} for n in free])
     std[drifting] = np.inf
     corr[drifting, :] = corr[:, drifting] = np.nan
-    values = theta[[ITHETA[base_name(n)] for n in free]]
     pairs = np.argwhere(np.triu(np.abs(corr) > CORRELATED, 1))
     practical = (
         _groups(free, np.array([np.eye(len(free))[i] + np.eye(len(free))[j] for i, j in pairs]))

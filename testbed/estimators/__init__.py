@@ -85,10 +85,20 @@ def identify(
 
     `options`: the method's `Options` (or a mapping of them; keywords in `more` are added);
     `callback(Progress)` after every iteration or sample. Everything is checked before the fit
-    starts: the options (`OptionError`), the data and the config (`problem.check_fit`).
+    starts: the options (`OptionError`), the data and the config (`problem.check_fit`). A
+    nonlinear model config (`config.terms`) goes to the method's `nonlinear` fit; a method
+    without one refuses it (`InputError`).
     """
     m = lookup(method)
     opts = m.options.build(m.name, options, **more)
+    if config.terms is not None:
+        if m.nonlinear is None:
+            takes = ", ".join(n for n, k in METHODS.items() if k.nonlinear is not None)
+            raise InputError(
+                f"method={m.name!r} fits the linear model only; {config.source or 'the config'} is a "
+                f"nonlinear model config ([terms]); expected a linear model config, or {takes} for [terms]"
+            )
+        return m.nonlinear(config.fitted(experiments), config, opts, callback)
     experiments = config.fitted(experiments)
     check_fit(experiments, config)
     return m.fit(experiments, config, opts, callback)

@@ -277,6 +277,8 @@ class Method:
         starts: options have `start`.
         online: a one-pass recursive filter; options have `max_samples`; returns a
             `FilterEstimate`.
+        nonlinear: `nonlinear(experiments, config, options, callback) -> Estimate` for a
+            nonlinear model config (one with `terms`); None: the method fits the linear model only.
     """
 
     name: str
@@ -286,6 +288,7 @@ class Method:
     iterative: bool = True
     starts: bool = True
     online: bool = False
+    nonlinear: Callable[[Sequence[Experiment], ModelConfig, Options, Callback | None], Estimate] | None = None
 
     def __post_init__(self):
         names = {f.name for f in fields(self.options)}

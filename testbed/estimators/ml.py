@@ -32,7 +32,8 @@ from testbed.identification import bounds, concentrated, likelihood, recursions,
 from testbed.identification.problem import Problem, problem
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
-from testbed.estimators import starts, trust_region
+from testbed.estimators import nonlinear, starts, trust_region
+from testbed.estimators.simplex import fresh_simplex, simplex_coefficients, simplex_run
 from testbed.estimators.base import (
     Callback,
     Estimate,
@@ -182,78 +183,6 @@ def _stages(prob: Problem, first_length: float) -> list[Problem]:
     ] + [prob]
 
 
-def _coefficients(kind: str, m: int) -> tuple[float, float, float, float]:
-    """Reflection, expansion, contraction and shrink coefficients in m dimensions: the paper's
-    (1, 2, ½, ½), or Gao & Han's dimension-adaptive (1, 1 + 2/m, ¾ − 1/(2m), 1 − 1/m), which
-    equal the paper's for m = 2."""
-    if kind == "paper" or m < 2:
-        return 1.0, 2.0, 0.5, 0.5
-    return 1.0, 1.0 + 2.0 / m, 0.75 - 0.5 / m, 1.0 - 1.0 / m
-
-
-def fresh_simplex(x: np.ndarray, size: float) -> np.ndarray:
-    """A fresh simplex (m + 1, m): `x` and `x + size·e_i` for each axis i."""
-    return np.vstack([x, x + size * np.eye(len(x))])
-
-
-def _simplex(
-    J, simplex: np.ndarray, coefficients, tol: float, it: int, max_iter: int, report
-) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """One run of the paper's eight steps from the corners `simplex` (m + 1, m), their J
-    evaluated first.
-
-    Returns the corners where it stopped (the lowest first), their J, the iteration count
-    (continued from `it`) and whether the stopping rule (step 3, spread ≤ `tol`) stopped it
-    rather than `max_iter`.
-    """
-    alpha, gamma, beta, delta = coefficients
-    m = simplex.shape[1]
-    simplex = simplex.copy()
-    J_i = np.array([J(v) for v in simplex])
-    stopped = False
-    while it < max_iter:
-        # 1. the highest and lowest corners
-        hi, lo = int(np.argmax(J_i)), int(np.argmin(J_i))
-        # 2. the centroid of all corners but the highest
-        b = (simplex.sum(0) - simplex[hi]) / m
-        # 3. stopping rule: {1/(m+1) Σ (J_i − J_b)²}^½ ≤ ε (a diverged corner, J = ∞, makes it
-        #    ∞ or NaN: not stopped). The spread is at least the corners' own standard deviation
-        #    (its minimum over J_b, at their mean): J_b is computed only where that does not
-        #    already decide, which leaves the rule as it is at one simulation less per iteration
-        with np.errstate(over="ignore", invalid="ignore"):
-            if np.std(J_i) <= tol and np.sqrt(np.mean((J_i - J(b)) ** 2)) <= tol:
-                stopped = True
-                break
-        it += 1
-        # 4. reflection: θ_r = θ_b + α(θ_b − θ_h)
-        r = b + alpha * (b - simplex[hi])
-        J_r = J(r)
-        if J_r < J_i[lo]:
-            # 5. expansion: θ_e = θ_b + γ(θ_r − θ_b)
-            e = b + gamma * (r - b)
-            J_e = J(e)
-            simplex[hi], J_i[hi] = (e, J_e) if J_e < J_i[lo] else (r, J_r)
-        elif not np.all(J_r >= np.delete(J_i, hi)):
-            # 6. better than some corner other than the highest
-            simplex[hi], J_i[hi] = r, J_r
-        else:
-            # 7. contraction, on the reflected side if it beats the highest:
-            #    θ_c = θ_b + β(θ_r − θ_b), else θ_c = θ_b + β(θ_h − θ_b)
-            c = b + beta * ((r if J_r < J_i[hi] else simplex[hi]) - b)
-            J_c = J(c)
-            if J_c < J_i[hi]:
-                # 8. accept the contraction ...
-                simplex[hi], J_i[hi] = c, J_c
-            else:
-                # ... or shrink towards the lowest corner: θ_i = θ_l + δ(θ_i − θ_l)
-                simplex = simplex[lo] + delta * (simplex - simplex[lo])
-                J_i = np.array([J_i[lo] if i == lo else J(v) for i, v in enumerate(simplex)])
-        lo = int(np.argmin(J_i))
-        report(it, simplex[lo], float(J_i[lo]))
-    order = np.argsort(J_i, kind="stable")
-    return simplex[order], J_i[order], it, stopped
-
-
 @scan.compiled()  # thousands of simulations: the compiler pays off
 def nelder_mead(
     prob: Problem,
@@ -308,7 +237,7 @@ def nelder_mead(
     """
     nf = prob.n_free
     max_iter = 500 * nf if max_iter is None else max_iter
-    coef = _coefficients(coefficients, nf)
+    coef = simplex_coefficients(coefficients, nf)
     scale = np.where(p[:nf] != 0, np.abs(p[:nf]), 1.0)  # θ = scale·x
     history, it, x = [p[:nf].copy()], 0, p[:nf] / scale
 
@@ -334,7 +263,9 @@ def nelder_mead(
                 return cost(scale * v, R)
 
             J_start = J(x)
-            corners, J_i, it, stopped = _simplex(J, fresh_simplex(x, size), coef, tol, it, max_iter, report)
+            corners, J_i, it, stopped = simplex_run(
+                J, fresh_simplex(x, size), coef, tol, it, max_iter, report
+            )
             x, J_best, size = corners[0], J_i[0], restart_step
             if not stopped:
                 return Outcome(
@@ -370,7 +301,7 @@ def _one_simplex(
         def J(v: np.ndarray, R=R) -> float:
             return cost(scale * v, R)
 
-        corners, _, it, stopped = _simplex(J, corners, coef, tol, it, max_iter, report)
+        corners, _, it, stopped = simplex_run(J, corners, coef, tol, it, max_iter, report)
         if not stopped:
             status = Status.MAX_ITERATIONS
             break
@@ -734,11 +665,11 @@ class SimplexOptions(Options):
     seed: int = _SEED
 
 
-def _method(name: str, optimiser, options: type[Options], summary: str) -> Method:
+def _method(name: str, optimiser, options: type[Options], summary: str, on_nonlinear=None) -> Method:
     def fit(experiments, config, opts, callback):
         return _fit(name, optimiser, experiments, config, opts, callback)
 
-    return Method(name=name, fit=fit, options=options, summary=summary)
+    return Method(name=name, fit=fit, options=options, summary=summary, nonlinear=on_nonlinear)
 
 
 ML_GN = _method(
@@ -746,6 +677,7 @@ ML_GN = _method(
     trust_region.trust_region,
     TrustRegionOptions,
     "maximum likelihood output error by scaled trust-region Gauss-Newton with multiple shooting",
+    nonlinear.gauss_newton,
 )
 ML_LM = _method(
     "ml-lm",
@@ -760,5 +692,9 @@ ML_NR = _method(
     "maximum likelihood output error by the paper's modified Newton-Raphson (Eq. 10)",
 )
 ML_NM = _method(
-    "ml-nm", nelder_mead, SimplexOptions, "maximum likelihood output error by the paper's Nelder-Mead simplex"
+    "ml-nm",
+    nelder_mead,
+    SimplexOptions,
+    "maximum likelihood output error by the paper's Nelder-Mead simplex",
+    nonlinear.simplex,
 )

@@ -35,6 +35,7 @@ __all__ = [
     "Information",
     "assess",
     "colored_covariance",
+    "colored_term",
     "crlb",
     "fft_length",
     "fisher",
@@ -180,38 +181,45 @@ def colored_covariance(
         ):
             for samples, S in pieces:
                 Zr[np.ix_(np.arange(n)[samples], channels)] = (S @ C[params]).transpose(1, 0, 2)
-        v = e / np.sqrt(R[r.channels])  # R^-½ v
-        # per channel Σ_m v(m) v(m+τ), τ = 0 … n/4 (an FFT grid with no wrap-around at those lags)
-        V = np.fft.rfft(v, fft_length(n + n // 4 + 2), axis=0)
-        auto = np.fft.irfft(V.real**2 + V.imag**2, axis=0)[: n // 4 + 2]
-        K = lag_window(auto[1 : n // 4 + 1] / np.maximum(auto[0], 1e-300), n)
-        L = fft_length(n + K + 1)  # lags up to K without wrap-around
-        # G(τ) = w(τ) R_vv(τ), 0 < τ ≤ K
-        G = np.empty((K, k * k))
-        # with missing samples (v = 0 there) each lag's sum has fewer pairs: scaled by
-        # (n − τ)/pairs, which leaves a complete record's estimate as it is
-        P = None if r.present is None else r.present.astype(float)
-        for tau in range(1, K + 1):
-            fewer = 1.0 if P is None else (n - tau) / np.maximum(P[: n - tau].T @ P[tau:], 1.0)
-            G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[: n - tau].T @ v[tau:]) * fewer).ravel()
-        # Φ(f) = R_vv(0) + Σ_τ>0 (G(τ) e^{+iωτ} + G(τ)ᵀ e^{−iωτ}) (as R_vv(−τ) = R_vv(τ)ᵀ)
-        #      = R_vv(0) + Gc + Gcᵀ + i (Gs − Gsᵀ), Gc = Σ_τ G(τ) cos ωτ, Gs = Σ_τ G(τ) sin ωτ
-        omega_tau = 2 * np.pi / L * np.outer(np.arange(L // 2 + 1), np.arange(1, K + 1))
-        Gc, Gs = (np.cos(omega_tau) @ G).reshape(-1, k, k), (np.sin(omega_tau) @ G).reshape(-1, k, k)
-        Phi = np.empty(Gc.shape, complex)
-        np.add(Gc, Gc.transpose(0, 2, 1), out=Phi.real)
-        Phi.real += v.T @ v / (n if P is None else np.maximum(P.T @ P, 1.0))
-        np.subtract(Gs, Gs.transpose(0, 2, 1), out=Phi.imag)
-        Zf = np.fft.rfft(Zr, L, axis=0)  # (frequencies, k, n_free)
-        PhiZ = Phi @ Zf
-        Zf[0] *= 0.5  # DC and Nyquist appear once in the full spectrum, the others twice
-        if L % 2 == 0:
-            Zf[-1] *= 0.5
-        # 1/L Σ_f Z(f)ᴴ Φ(f) Z(f), real part: Re(aᴴb) = aᵣᵀbᵣ + aᵢᵀbᵢ, one real product of the
-        # arrays viewed as (re, im) pairs
-        RI = np.ascontiguousarray(Zf).reshape(-1, nf).view(float).T @ PhiZ.reshape(-1, nf).view(float)
-        out += (RI[0::2, 0::2] + RI[1::2, 1::2]) * (2.0 / L)
+        out += colored_term(Zr, e / np.sqrt(R[r.channels]), r.present)
     return out
+
+
+def colored_term(Z: np.ndarray, v: np.ndarray, present: np.ndarray | None = None) -> np.ndarray:
+    """One record's `1/L Σ_f Z(f)ᴴ Φ(f) Z(f)` of `colored_covariance`: `Z` (N, k, n_free) its
+    sensitivities R^-½ S Cᵀ, `v` (N, k) its residuals R^-½ v (0 where missing), `present` (N, k)
+    where the samples are (None: all)."""
+    n, k, nf = Z.shape
+    # per channel Σ_m v(m) v(m+τ), τ = 0 … n/4 (an FFT grid with no wrap-around at those lags)
+    V = np.fft.rfft(v, fft_length(n + n // 4 + 2), axis=0)
+    auto = np.fft.irfft(V.real**2 + V.imag**2, axis=0)[: n // 4 + 2]
+    K = lag_window(auto[1 : n // 4 + 1] / np.maximum(auto[0], 1e-300), n)
+    L = fft_length(n + K + 1)  # lags up to K without wrap-around
+    # G(τ) = w(τ) R_vv(τ), 0 < τ ≤ K
+    G = np.empty((K, k * k))
+    # with missing samples (v = 0 there) each lag's sum has fewer pairs: scaled by
+    # (n − τ)/pairs, which leaves a complete record's estimate as it is
+    P = None if present is None else present.astype(float)
+    for tau in range(1, K + 1):
+        fewer = 1.0 if P is None else (n - tau) / np.maximum(P[: n - tau].T @ P[tau:], 1.0)
+        G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[: n - tau].T @ v[tau:]) * fewer).ravel()
+    # Φ(f) = R_vv(0) + Σ_τ>0 (G(τ) e^{+iωτ} + G(τ)ᵀ e^{−iωτ}) (as R_vv(−τ) = R_vv(τ)ᵀ)
+    #      = R_vv(0) + Gc + Gcᵀ + i (Gs − Gsᵀ), Gc = Σ_τ G(τ) cos ωτ, Gs = Σ_τ G(τ) sin ωτ
+    omega_tau = 2 * np.pi / L * np.outer(np.arange(L // 2 + 1), np.arange(1, K + 1))
+    Gc, Gs = (np.cos(omega_tau) @ G).reshape(-1, k, k), (np.sin(omega_tau) @ G).reshape(-1, k, k)
+    Phi = np.empty(Gc.shape, complex)
+    np.add(Gc, Gc.transpose(0, 2, 1), out=Phi.real)
+    Phi.real += v.T @ v / (n if P is None else np.maximum(P.T @ P, 1.0))
+    np.subtract(Gs, Gs.transpose(0, 2, 1), out=Phi.imag)
+    Zf = np.fft.rfft(Z, L, axis=0)  # (frequencies, k, n_free)
+    PhiZ = Phi @ Zf
+    Zf[0] *= 0.5  # DC and Nyquist appear once in the full spectrum, the others twice
+    if L % 2 == 0:
+        Zf[-1] *= 0.5
+    # 1/L Σ_f Z(f)ᴴ Φ(f) Z(f), real part: Re(aᴴb) = aᵣᵀbᵣ + aᵢᵀbᵢ, one real product of the
+    # arrays viewed as (re, im) pairs
+    RI = np.ascontiguousarray(Zf).reshape(-1, nf).view(float).T @ PhiZ.reshape(-1, nf).view(float)
+    return (RI[0::2, 0::2] + RI[1::2, 1::2]) * (2.0 / L)
 
 
 @dataclass(frozen=True)

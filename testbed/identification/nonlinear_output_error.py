@@ -26,18 +26,31 @@ iterations reported count every stage's.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.identification.bounds import crlb
+from testbed.identification.bounds import colored_term, crlb
 from testbed.identification.nonlinear_sensitivities import flight
+from testbed.identification.recursions import simulated
 from testbed.models.linear import NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
-__all__ = ["DAMPING", "FIRST", "SHORTEST", "NonlinearFit", "Record", "fit_output_error"]
+__all__ = [
+    "DAMPING",
+    "FIRST",
+    "SHORTEST",
+    "NonlinearFit",
+    "Record",
+    "coloured_bounds",
+    "fit_output_error",
+    "information",
+    "records",
+    "setup",
+]
 
 DAMPING = (1e-3, 10.0, 1e10)  # λ: its start, its factor down after a success and up after a failure, its cap
 FIRST = 150  # samples: the continuation's first records are no shorter (module doc)
@@ -66,6 +79,49 @@ class NonlinearFit:
     cost: float  # −ln p(Z | θ, R): ½ Σ_c N_c ln 2π R_c + ½ Σ eᵀR⁻¹e
     iterations: int
     status: str  # "converged", "iteration limit" or "stalled" (no step lowers the cost)
+
+
+def records(
+    experiments: Sequence[Experiment], fit: str = "the nonlinear fit"
+) -> tuple[tuple[str, ...], list[Record]]:
+    """The measured channels (every record's, the same) and the `Record` of each experiment;
+    `InputError` naming the record and the `fit` that needs them for records measuring different
+    states or with a sample missing."""
+    channels = experiments[0].measured
+    for e in experiments:
+        where = e.source or e.name
+        if e.measured != channels:
+            raise InputError(
+                f"{where}: measures {', '.join(e.measured)}, {experiments[0].source or experiments[0].name} "
+                f"{', '.join(channels)}; {fit} takes records measuring the same states"
+            )
+        gaps = np.argwhere(np.isnan(e.y))
+        if len(gaps):
+            row, column = gaps[0]
+            raise InputError(
+                f"{where}: {e.measured[column]} is missing at t = {e.t[row]:g} s; {fit} takes records "
+                "with every sample present"
+            )
+    return channels, [Record(t=e.t, fins=e.inputs, y=e.y) for e in experiments]
+
+
+def setup(
+    experiments: Sequence[Experiment], config: ModelConfig, fit: str
+) -> tuple[tuple[str, ...], list[Record], NonlinearModel, np.ndarray, list[int]]:
+    """`(channels, records, model, θ, free indices)` of a nonlinear model config's `free` on the
+    experiments (`records`); `InputError` naming the `fit` for what it cannot take: nothing
+    free, or values per record."""
+    source = config.source or "config"
+    if not config.free:
+        raise InputError(f"{source}: [identify] free is empty; expected the coefficients {fit} is to take")
+    if config.per_record:
+        raise InputError(
+            f"{source}: [identify] per_record {config.per_record[0]!r}; {fit} takes every value once "
+            "for all records"
+        )
+    channels, recs = records(experiments, fit)
+    model, theta = config.nonlinear()
+    return channels, recs, model, theta, [model.names.index(n) for n in config.free]
 
 
 def _check(model, records, channels, free, noise_std, tolerance, max_iterations):
@@ -102,11 +158,12 @@ def _check(model, records, channels, free, noise_std, tolerance, max_iterations)
 
 def _simulate(model, theta, x0, records, ch, substeps):
     """Each record's flown states (N, 10) and residuals (N, C); (None, None) where a flight does
-    not stay finite."""
+    not stay finite. Tallied as simulated samples (`recursions.counting`)."""
     flown, res = [], []
     with np.errstate(all="ignore"):
         for r, x in zip(records, x0):
             states = fly(model, theta, r.t, x, r.fins, substeps)
+            simulated(len(r.t))
             e = r.y - states[:, ch]
             if not np.all(np.isfinite(e)):
                 return None, None
@@ -117,10 +174,12 @@ def _simulate(model, theta, x0, records, ch, substeps):
 
 def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     """Each record's output sensitivities to θ[free] (N, C, p) and to the measured channels'
-    initial states (N, C, C), along its flown states."""
+    initial states (N, C, C), along its flown states; tallied (`recursions.counting`) as 1 + p
+    columns a sample (the pass evaluates the model at every RK4 stage again)."""
     out = []
     for r, x, states in zip(records, x0, flown):
         f = flight(model, theta, r.t, x, r.fins, free, substeps, states)
+        simulated(len(r.t) * (1 + len(free)))
         out.append((f.dx_dtheta[:, ch], f.dx_dx0[:, ch][:, :, ch]))
     return out
 
@@ -138,10 +197,12 @@ def fit_output_error(
     tolerance: float = 0.01,
     max_iterations: int = 50,
     continuation: bool = False,
+    callback: Callable[[np.ndarray, float], None] | None = None,
 ) -> NonlinearFit:
     """Fit θ's `free` coefficients (names from `model.names`), started from `theta`, and each
     record's initial state (`free_initial`) to the `records`' measured `channels`, each record
-    flown by RK4 with `substeps` steps per sample interval (module doc)."""
+    flown by RK4 with `substeps` steps per sample interval (module doc). `callback(values, cost)`
+    after every step taken, any stage's: the free coefficients and the negative log-likelihood."""
     channels, free, noise_std = tuple(channels), tuple(free), dict(noise_std or {})
     _check(model, records, channels, free, noise_std, tolerance, max_iterations)
     ch = [STATES.index(c) for c in channels]
@@ -149,13 +210,14 @@ def fit_output_error(
     x0[:, 0] = model.vehicle.speed
     x0[:, ch] = [r.y[0] for r in records]
     held = np.array([noise_std.get(c, np.nan) ** 2 for c in channels])
-    settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations)
+    settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations, callback)
     options = dict(
         free_initial=free_initial,
         noise_std=noise_std,
         substeps=substeps,
         tolerance=tolerance,
         max_iterations=max_iterations,
+        callback=callback,
     )
     n = min(len(r.t) for r in records)
     theta, stage = np.array(theta, float), None
@@ -186,7 +248,7 @@ def _halves(records):
 def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
     """`fit_output_error` from θ and the initial states x0 (records, 10); None where the flight
     from them does not stay finite."""
-    channels, free, free_initial, held, substeps, tolerance, max_iterations = settings
+    channels, free, free_initial, held, substeps, tolerance, max_iterations, callback = settings
     ch = [STATES.index(c) for c in channels]
     idx = np.array([model.names.index(n) for n in free])
     p = len(idx)
@@ -205,6 +267,9 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
 
     def weighted(res, R):
         return 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
+
+    def nll(res, R):
+        return 0.5 * float(counts * np.sum(np.log(2 * np.pi * R))) + weighted(res, R)
 
     q = np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []])
     flown, res = _simulate(model, *unpack(q), records, ch, substeps)
@@ -230,37 +295,104 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
             break
         q, flown, res, lam = q + step, trial_flown, trial, lam / down
         R = noise(res)
+        if callback is not None:
+            callback(q[:p].copy(), nll(res, R))
         if np.all(np.abs(step) <= tolerance * std):
             status = "converged"
             break
     H, _ = _normal_equations(res, sens, R, free_initial)
     std = crlb(H).std
     th, x = unpack(q)
-    nll = 0.5 * float(counts * np.sum(np.log(2 * np.pi * R))) + weighted(res, R)
     return NonlinearFit(
         theta=th,
         estimates={n: float(v) for n, v in zip(free, q[:p])},
         std={n: float(s) for n, s in zip(free, std[:p])},
         initial_states=x,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
-        cost=nll,
+        cost=nll(res, R),
         iterations=iterations,
         status=status,
     )
 
 
+def information(
+    model: NonlinearModel,
+    theta,
+    x0: np.ndarray,
+    records: Sequence[Record],
+    channels: Sequence[str],
+    free: Sequence[str],
+    R: np.ndarray,
+    substeps: int = 4,
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [θ's `free` coefficients | each
+    record's measured initial states] with the noise variances `R` per channel, each record flown
+    from its row of `x0` (records, 10), and the residuals along the flights."""
+    ch = [STATES.index(c) for c in channels]
+    idx = np.array([model.names.index(n) for n in free])
+    flown, res = _simulate(model, theta, x0, records, ch, substeps)
+    if res is None:
+        raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
+    sens = _sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
+    return _normal_equations(res, sens, np.asarray(R, float), True)[0], res
+
+
 def _normal_equations(res, sens, R, free_initial):
     """H = Σ Jᵀ R⁻¹ J and g = Σ Jᵀ R⁻¹ e over the records, the columns [θ[free] | each record's
     measured initial states] (the latter only when free)."""
-    p, c = sens[0][0].shape[2], len(R)
-    P = p + (len(res) * c if free_initial else 0)
+    P = _columns(res, sens, free_initial)
     H, g = np.zeros((P, P)), np.zeros(P)
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
-        J = np.zeros(e.shape + (P,))
-        J[:, :, :p] = St
-        if free_initial:
-            J[:, :, p + i * c : p + (i + 1) * c] = Sx
+        J = _jacobian(i, St, Sx, P, free_initial)
         W = J / R[:, None]
         H += np.einsum("nci,ncj->ij", W, J)
         g += np.einsum("nci,nc->i", W, e)
     return H, g
+
+
+def _columns(res, sens, free_initial) -> int:
+    """The parameters: θ[free], and each record's measured initial states when free."""
+    return sens[0][0].shape[2] + (len(res) * sens[0][1].shape[2] if free_initial else 0)
+
+
+def _jacobian(i, St, Sx, P, free_initial) -> np.ndarray:
+    """Record i's output sensitivities (N, C, P) to [θ[free] | each record's measured initial
+    states] from its sensitivities to θ[free] `St` and to its own initial states `Sx`."""
+    p, c = St.shape[2], Sx.shape[2]
+    J = np.zeros(St.shape[:2] + (P,))
+    J[:, :, :p] = St
+    if free_initial:
+        J[:, :, p + i * c : p + (i + 1) * c] = Sx
+    return J
+
+
+def coloured_bounds(
+    model: NonlinearModel,
+    theta,
+    x0: np.ndarray,
+    records: Sequence[Record],
+    channels: Sequence[str],
+    free: Sequence[str],
+    R: np.ndarray,
+    substeps: int = 4,
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """`(σ, σ_coloured, residuals)` at θ and the initial states `x0` (records, 10) with the noise
+    variances `R`: the Cramér-Rao σ of θ's `free` coefficients (the initial states among the
+    parameters, as the fit's), Morelli & Klein's σ for coloured residuals
+    (`bounds.colored_covariance`, its per-record sum `bounds.colored_term`), and the residuals."""
+    ch = [STATES.index(c) for c in channels]
+    idx = np.array([model.names.index(n) for n in free])
+    flown, res = _simulate(model, theta, x0, records, ch, substeps)
+    if res is None:
+        raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
+    sens = _sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
+    R = np.asarray(R, float)
+    H, _ = _normal_equations(res, sens, R, True)
+    cov, std, _ = crlb(H)
+    p, P, scale = len(idx), len(H), np.sqrt(R)
+    total = np.zeros((p, p))
+    for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
+        Z = (_jacobian(i, St, Sx, P, True) / scale[:, None]) @ cov[:p].T
+        total += colored_term(Z, e / scale)
+    coloured = np.where(np.isinf(std[:p]), np.inf, np.sqrt(np.maximum(np.diag(total), 0.0)))
+    return std[:p], coloured, res

@@ -1,0 +1,140 @@
+"""What a nonlinear model config predicts on measured experiments: its model flown open loop
+(`nonlinear_flight.fly`) with each record's fin angles, for validation.
+
+Each record is flown from its initial state: the given one (an estimate's `initial_states`) where
+given, else the best-fitting one, as the linear model's predictions take it. The best fit starts
+from the record's first sample in its measured states (straight flight at the vehicle's speed in
+the others and where the first sample is missing) and moves the measured states' components by
+damped Gauss-Newton on the output-error likelihood with the noise relaxed (R the residuals' mean
+square per channel, then held for the step), the flight's exact sensitivities to its initial
+state (`nonlinear_sensitivities.flight`), until the undamped Gauss-Newton step is below
+`TOLERANCE` of its Cramér-Rao σ in every component or `ITERATIONS` have run. Missing samples are
+left out of the fit.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError
+from testbed.identification.nonlinear_sensitivities import flight
+from testbed.identification.recursions import simulated
+from testbed.models.linear import NX, STATES
+from testbed.models.nonlinear import NonlinearModel
+from testbed.models.nonlinear_flight import fly
+
+__all__ = ["ITERATIONS", "TOLERANCE", "flights", "initial_state", "predict"]
+
+ITERATIONS = 20  # Gauss-Newton steps of an initial state's fit, at most
+TOLERANCE = 0.01  # converged when every component's step is below this many of its Cramér-Rao σ
+
+
+def predict(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
+    substeps: int = 4,
+) -> list[np.ndarray]:
+    """The nonlinear model's outputs (N, k) per experiment in its measured columns, absolute u,
+    flown by RK4 with `substeps` steps per sample interval from the initial states `initial`
+    (experiment → state → x0) gives and the best-fitting ones it does not (module doc);
+    `InputError` naming the record where a flight leaves the finite numbers."""
+    flown = flights(experiments, config, initial, substeps)
+    return [x[:, [STATES.index(c) for c in e.measured]] for e, x in zip(experiments, flown)]
+
+
+def flights(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
+    substeps: int = 4,
+) -> list[np.ndarray]:
+    """`predict`'s flights: every state (N, 10) of each experiment, absolute u."""
+    model, theta = config.nonlinear()
+    out = []
+    for e in experiments:
+        ch = [STATES.index(c) for c in e.measured]
+        given = (initial or {}).get(e.name, {})
+        x0 = np.zeros(NX)
+        x0[0] = model.vehicle.speed
+        first = np.asarray(e.y[0], float)
+        x0[ch] = np.where(np.isfinite(first), first, x0[ch])
+        for c, v in given.items():
+            x0[STATES.index(c)] = v
+        moved = [j for j, c in enumerate(e.measured) if c not in given]
+        with np.errstate(all="ignore"):
+            states = fly(model, theta, e.t, x0, e.inputs, substeps)
+        bad = np.argwhere(~np.isfinite(states))
+        if len(bad):
+            raise InputError(
+                f"{e.source or e.name}: {config.source or 'the config'}'s model flown from the record's "
+                f"first sample leaves the finite numbers at t = {e.t[bad[0][0]]:g} s; expected a model "
+                "whose flight stays bounded"
+            )
+        with np.errstate(all="ignore"):
+            out.append(
+                initial_state(model, theta, e.t, e.inputs, e.y, ch, moved, x0, None, substeps, states)[1]
+            )
+    return out
+
+
+def initial_state(
+    model: NonlinearModel,
+    theta,
+    t: np.ndarray,
+    fins: np.ndarray,
+    y: np.ndarray,
+    ch: Sequence[int],
+    moved: Sequence[int],
+    x0: np.ndarray,
+    R: np.ndarray | None = None,
+    substeps: int = 4,
+    states: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`(x0, states)`: the best-fitting initial state (module doc) of a record with times `t`,
+    fins and measurements `y` (N, k) of the states `ch` (NaN where missing), started from `x0`,
+    its components `moved` (indices into `ch`) fitted, and the flight from it; the noise
+    variances `R` (k,) held where given, else relaxed. The flight from `x0` (`states` where
+    already flown) must stay finite. Its flights count 1 a sample and its sensitivity passes
+    1 + the components moved (`recursions.counting`)."""
+    y = np.asarray(y, float)
+    present = np.isfinite(y)
+    cols = [ch[j] for j in moved]
+
+    def residual(x):
+        return np.where(present, y - x[:, ch], 0.0)
+
+    if states is None:
+        states = fly(model, theta, t, x0, fins, substeps)
+        simulated(len(t))
+    res, lam = residual(states), 1e-3
+    for _ in range(ITERATIONS if moved else 0):
+        V = np.maximum(np.sum(res**2, axis=0) / np.maximum(present.sum(axis=0), 1), 1e-30) if R is None else R
+        J = flight(model, theta, t, x0, fins, (), substeps, states).dx_dx0[:, ch][:, :, cols]
+        simulated(len(t) * (1 + len(cols)))
+        J = np.where(present[:, :, None], J, 0.0)
+        W = J / V[:, None]
+        H = np.einsum("nci,ncj->ij", W, J)
+        g = np.einsum("nci,nc->i", W, res)
+        cost = float(np.sum(res**2 / V))
+        if np.all(
+            np.abs(np.linalg.lstsq(H, g, rcond=None)[0])
+            <= TOLERANCE * np.sqrt(np.abs(np.diag(np.linalg.pinv(H))))
+        ):
+            break  # the Gauss-Newton step is within the tolerance: converged
+        while lam <= 1e10:
+            step = np.linalg.solve(H + lam * np.diag(np.where(np.diag(H) > 0, np.diag(H), 1.0)), g)
+            trial_x0 = x0.copy()
+            trial_x0[cols] += step
+            trial = fly(model, theta, t, trial_x0, fins, substeps)
+            simulated(len(t))
+            if np.all(np.isfinite(trial)) and float(np.sum(residual(trial) ** 2 / V)) < cost:
+                break
+            lam *= 10
+        else:
+            break
+        x0, states, res, lam = trial_x0, trial, residual(trial), lam / 10
+    return x0, states

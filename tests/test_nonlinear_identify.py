@@ -1,0 +1,382 @@
+"""A nonlinear model config behind `identify`, `validate` and `analyze`: the library's front door
+and the command line, on short records the captive model itself flew (with the testbed's sensor
+noise), against the truth, finite-difference Fisher information and one-line refusals."""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
+from testbed.cli import main
+from testbed.data import Experiment, read_config, write_config, write_csv
+from testbed.errors import InputError
+from testbed.estimators import OptionError, identify
+from testbed.identification.likelihood import reduced
+from testbed.identification.nonlinear_sensitivities import flight
+from testbed.jobs import perturbed
+from testbed.models.linear import STATES
+from testbed.models.nonlinear_flight import fly
+from testbed.simulation.captive_config import captive_config
+from testbed.simulation.measurements import NOISE_STD
+
+FREE = ("Y_uv", "N_uv", "Z_uw", "M_uw")
+SIGMA = np.array([NOISE_STD[s] for s in STATES])
+
+
+def doublet(t, start, half, amplitude):
+    return amplitude * (
+        ((t >= start) & (t < start + half)) * 1.0 - ((t >= start + half) & (t < start + 2 * half))
+    )
+
+
+@pytest.fixture(scope="module")
+def truth():
+    """The captive model with FREE free, and a 4 s record it flew from near straight flight at
+    20 m/s (off the |·| terms' kinks at 0) through rudder, elevator and aileron doublets:
+    noise-free and with the sensors' noise."""
+    config = replace(captive_config()[0], free=FREE)
+    model, theta = config.nonlinear()
+    t = np.arange(201) * 0.02
+    a = np.radians(3.0)
+    fins = np.column_stack(
+        [doublet(t, 0.2, 0.8, a), doublet(t, 1.5, 0.8, a), doublet(t, 3.0, 0.4, np.radians(0.3))]
+    )
+    x0 = np.array([config.vehicle.speed, 0.1, -0.1, 0.01, 0.02, -0.01, 0.02, -0.01, 0.3, 1.0])
+    x = fly(model, theta, t, x0, fins)
+    noisy = x + np.random.default_rng(1).normal(size=x.shape) * SIGMA
+    return config, Experiment("doublets", t, STATES, noisy, fins), Experiment("clean", t, STATES, x, fins)
+
+
+def _start(config):
+    """The config with the free terms moved 20 % off (signs mixed): a start that is not the truth."""
+    return config.with_coefficients(
+        {n: config.terms[n] * (1.2 if k % 2 else 0.8) for k, n in enumerate(FREE)}
+    )
+
+
+@pytest.fixture(scope="module")
+def files(truth, tmp_path_factory):
+    config, noisy, clean = truth
+    root = tmp_path_factory.mktemp("nl")
+    write_csv(root / "doublets.csv", noisy.t, noisy.y, noisy.inputs)
+    write_csv(root / "clean.csv", clean.t, clean.y, clean.inputs)
+    write_config(root / "truth.toml", config)
+    write_config(root / "start.toml", _start(config))
+    return root
+
+
+def test_ml_gn_returns_the_truth_within_three_sigma_from_a_perturbed_start(truth):
+    config, noisy, _ = truth
+    steps = []
+    est = identify([noisy], _start(config), "ml-gn", callback=steps.append, start="config")
+    assert est.converged and est.method == "ml-gn" and est.free == FREE
+    for n, v, s in zip(est.free, est.values, est.std):
+        assert abs(v - config.terms[n]) <= 3 * s, (n, v, config.terms[n], s)
+    # the noise estimated is the noise added (201 samples: its σ to ~10 %)
+    assert np.allclose([est.noise_std[s] for s in STATES], SIGMA, rtol=0.25)
+    assert set(est.initial_states) == {"doublets"} and set(est.initial_states["doublets"]) == set(STATES)
+    assert [p.iteration for p in steps] == list(range(1, len(steps) + 1)) and len(steps) >= 2
+    assert est.history.shape == (len(steps) + 1, len(FREE))
+    assert np.array_equal(est.history[-1], est.values)
+    assert steps[-1].cost == pytest.approx(est.cost)
+    # white residuals: the coloured-residual bound near the plain one, within the lag-window
+    # estimate's sampling error on one 201-sample record, about √(K/N) for K ≥ 10 lags (≥ 0.22)
+    assert np.all(np.abs(est.crlb_corrected_std / est.std - 1) < 0.35), est.crlb_corrected_std / est.std
+
+
+def test_the_coloured_residual_bound_follows_the_sandwich_covariance_of_ar1_noise(truth):
+    """AR(1) sensor noise (ρ = 0.8, the sensors' σ): the estimate's covariance is the sandwich
+    C Jᵀ Σ⁻¹ T Σ⁻¹ J C, T(i, j) = ρ^|i−j| per channel, C the white bound, J the sensitivities at
+    the truth (free terms and initial state); the coloured bound read off the residuals of one
+    record follows its ratio to the plain bound."""
+    config, _, clean = truth
+    rng = np.random.default_rng(5)
+    rho, n = 0.8, len(clean.t)
+    w = rng.normal(size=(n, 10)) * SIGMA * np.sqrt(1 - rho**2)
+    noise = np.zeros_like(w)
+    noise[0] = rng.normal(size=10) * SIGMA
+    for k in range(1, n):
+        noise[k] = rho * noise[k - 1] + w[k]
+    est = identify([replace(clean, y=clean.y + noise)], _start(config), "ml-gn")
+    assert est.converged
+    model, theta = config.nonlinear()
+    f = flight(model, theta, clean.t, clean.y[0], clean.inputs, [model.names.index(m) for m in FREE])
+    J = np.concatenate([f.dx_dtheta, f.dx_dx0], axis=2)  # (n, 10, 14)
+    W = J / SIGMA[:, None] ** 2
+    C = np.linalg.inv(np.einsum("nci,ncj->ij", W, J))
+    T = rho ** np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    middle = np.einsum("nci,nm,mcj,c->ij", W, T, W, SIGMA**2)
+    sandwich = np.sqrt(np.diag(C @ middle @ C)[: len(FREE)])
+    white = np.sqrt(np.diag(C)[: len(FREE)])
+    want, got = sandwich / white, est.crlb_corrected_std / est.std
+    assert np.all(want > 1.5), want
+    # one record's lag-window estimate: its sampling error about √(K/N), K the lags kept
+    assert np.all(np.abs(got / want - 1) < 0.35), (got, want)
+
+
+def test_evaluations_count_the_flights_and_sensitivity_passes(truth):
+    """One iteration: the start's flight (1), a sensitivity pass (1 + n_free) and the trial
+    flights of the damped step (at least one)."""
+    config, noisy, _ = truth
+    est = identify([noisy], _start(config), "ml-gn", max_iter=1)
+    assert est.iterations == 1 and 2 + len(FREE) <= est.evaluations <= 2 + len(FREE) + 5
+
+
+def test_the_options_the_nonlinear_fit_cannot_honour_are_refused(truth):
+    config, noisy, _ = truth
+    for options, name in (
+        ({"start": "mekf"}, "start"),
+        ({"start": "global"}, "start"),
+        ({"segments": 2}, "segments"),
+        ({"samples": 10}, "samples"),
+        ({"max_iter": 0}, "max_iter"),
+    ):
+        with pytest.raises(OptionError) as e:
+            identify([noisy], config, "ml-gn", options)
+        assert e.value.option == name and "\n" not in str(e.value)
+    limited = identify([noisy], _start(config), "ml-gn", max_iter=1)
+    assert limited.iterations == 1 and not limited.converged
+
+
+@pytest.mark.parametrize("method", ["ml-lm", "ml-nr", "ml-fem", "mekf", "ekf", "equation-error"])
+def test_the_linear_methods_refuse_a_nonlinear_config(truth, method):
+    config, noisy, _ = truth
+    with pytest.raises(
+        InputError, match=rf"method='{method}' fits the linear model only.*ml-gn, ml-nm for \[terms\]"
+    ) as e:
+        identify([noisy], config, method)
+    assert "\n" not in str(e.value)
+
+
+def _first(experiment, n):
+    return replace(experiment, t=experiment.t[:n], y=experiment.y[:n], inputs=experiment.inputs[:n])
+
+
+def test_ml_nm_reports_through_the_contract_and_refuses_what_it_cannot_honour(truth):
+    config, noisy, _ = truth
+    start = replace(_start(config), free=FREE[:2])
+    steps = []
+    est = identify([_first(noisy, 40)], start, "ml-nm", max_iter=3, callback=steps.append)
+    assert est.method == "ml-nm" and est.status.name == "MAX_ITERATIONS" and est.iterations == 3
+    assert [p.iteration for p in steps] == [1, 2, 3] and est.history.shape == (4, 2)
+    assert np.all(np.isfinite(est.std)) and np.all(est.std > 0) and est.evaluations > 3
+    assert set(est.initial_states["doublets"]) == set(STATES)
+    for options, name in (({"restarts": False}, "restarts"), ({"first_length": 1.0}, "first_length")):
+        with pytest.raises(OptionError) as e:
+            identify([noisy], start, "ml-nm", options)
+        assert e.value.option == name
+
+
+@pytest.mark.slow
+def test_ml_nm_ends_at_ml_gns_optimum(truth):
+    """The simplex on the same likelihood, one free term, the first second of the record (about
+    2 minutes: every cost evaluation is a flight)."""
+    config, noisy, _ = truth
+    start = replace(config.with_coefficients({"Y_uv": 0.8 * config.terms["Y_uv"]}), free=("Y_uv",))
+    data = [_first(noisy, 50)]
+    nm, gn = identify(data, start, "ml-nm"), identify(data, start, "ml-gn")
+    assert nm.converged and gn.converged
+    assert abs(nm.values[0] - gn.values[0]) <= 0.05 * gn.std[0], (nm.values, gn.values, gn.std)
+    assert nm.std[0] == pytest.approx(gn.std[0], rel=0.01) and nm.cost == pytest.approx(gn.cost, abs=0.01)
+    assert abs(nm.values[0] - config.terms["Y_uv"]) <= 3 * nm.std[0]
+
+
+def test_records_the_fit_cannot_take_are_refused(truth):
+    config, noisy, _ = truth
+    gap = noisy.y.copy()
+    gap[50, 3] = np.nan
+    fewer = noisy.only(STATES[:6])
+    for experiments, words in (
+        (
+            [replace(noisy, y=gap)],
+            "p is missing at t = 1 s; ml-gn on a nonlinear model config takes records with every sample",
+        ),
+        ([noisy, replace(fewer, name="other")], "takes records measuring the same states"),
+    ):
+        with pytest.raises(InputError, match=words) as e:
+            identify(experiments, config, "ml-gn")
+        assert "\n" not in str(e.value)
+    with pytest.raises(InputError, match="per_record"):
+        identify([noisy], replace(config, per_record=("Y_uv",)), "ml-gn")
+
+
+def test_the_bounds_of_analyze_are_those_of_the_complex_step_fisher_information(truth):
+    """The Cramér-Rao bounds at the truth from complex-step derivatives of the flight (over the
+    free terms and the initial state), the initial state eliminated, with the noise held at the
+    sensors' σ, against the analysis from the exact sensitivities, on the record's first 1.6 s."""
+    config, _, clean = truth
+    n = 80
+    clean = replace(clean, t=clean.t[:n], y=clean.y[:n], inputs=clean.inputs[:n])
+    config = replace(config, noise_std=dict(zip(STATES, SIGMA)))
+    got = nonlinear_identifiability([clean], config)
+    model, theta = config.nonlinear()
+    x0 = clean.y[0].astype(complex)
+    columns = []
+    for name in FREE:
+        d = np.zeros(len(theta), complex)
+        d[model.names.index(name)] = 1e-30j
+        columns.append(fly(model, theta + d, clean.t, x0, clean.inputs).imag.ravel() / 1e-30)
+    for i in range(10):
+        d = np.zeros(10, complex)
+        d[i] = 1e-30j
+        columns.append(fly(model, theta.astype(complex), clean.t, x0 + d, clean.inputs).imag.ravel() / 1e-30)
+    J = np.column_stack(columns)
+    W = np.tile(1 / SIGMA**2, n)
+    F = reduced(J.T @ (W[:, None] * J), np.zeros(len(FREE) + 10), len(FREE))[0]
+    want = np.sqrt(np.diag(np.linalg.inv(F)))
+    assert np.allclose(got.crlb_std, want, rtol=1e-8), (got.crlb_std, want)
+    assert got.free == FREE and not got.structural.unobserved
+
+
+def _ok(capsys, argv):
+    code = main([str(a) for a in argv])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    return printed
+
+
+def test_identify_then_validate_on_the_command_line(files, truth, capsys, tmp_path):
+    config = truth[0]
+    est = tmp_path / "est.json"
+    _ok(capsys, ["identify", files / "doublets.csv", "--config", files / "start.toml", "--out", est])
+    doc = json.loads(est.read_text())
+    assert doc["method"] == "ml-gn" and doc["converged"] and list(doc["coefficients"]) == list(FREE)
+    assert doc["nonlinear_model"] == {"config": str(files / "start.toml"), "terms": list(config.terms)}
+    for n, c in doc["coefficients"].items():
+        assert abs(c["value"] - config.terms[n]) <= 3 * c["std"], n
+    assert set(doc["validation"]["doublets"]) == set(STATES)
+    # validate rebuilds the model from the config the estimates name, the estimates applied
+    out = tmp_path / "v.json"
+    _ok(capsys, ["validate", files / "doublets.csv", "--estimates", est, "--out", out])
+    v = json.loads(out.read_text())
+    assert v["coefficients"] == {n: c["value"] for n, c in doc["coefficients"].items()}
+    assert v["config"] == str(files / "start.toml")
+    for s in STATES:  # its initial state fitted, not the fit's: the same model within noise
+        assert v["validation"]["doublets"][s]["fit_percent"] == pytest.approx(
+            doc["validation"]["doublets"][s]["fit_percent"], abs=0.5
+        )
+
+
+def test_validate_the_config_that_flew_the_data_fits_them_exactly(files, capsys, tmp_path):
+    out = tmp_path / "v.json"
+    printed = _ok(capsys, ["validate", files / "clean.csv", "--config", files / "truth.toml", "--out", out])
+    doc = json.loads(out.read_text())
+    assert "estimates" not in doc and doc["config"] == str(files / "truth.toml")
+    fits = {s: m["fit_percent"] for s, m in doc["validation"]["clean"].items()}
+    assert set(fits) == set(STATES) and min(fits.values()) > 99.99, fits
+    assert "fit %" in printed.err
+    # the start, 20 % off on four terms, flies visibly worse on the channels they drive
+    _ok(
+        capsys,
+        ["validate", files / "clean.csv", "--config", files / "start.toml", "--out", tmp_path / "s.json"],
+    )
+    off = json.loads((tmp_path / "s.json").read_text())["validation"]["clean"]
+    assert min(off[s]["fit_percent"] for s in ("v", "w", "r", "q")) < 99.0
+
+
+def test_analyze_on_the_command_line(files, capsys, tmp_path):
+    out = tmp_path / "a.json"
+    _ok(capsys, ["analyze", files / "doublets.csv", "--config", files / "truth.toml", "--out", out])
+    doc = json.loads(out.read_text())
+    assert doc["free"] == list(FREE) and all(doc["crlb_std"][n] > 0 for n in FREE)
+    assert np.shape(doc["correlation"]) == (4, 4) and doc["null_directions"] == 0
+
+
+@pytest.mark.parametrize(
+    "extra, words",
+    [
+        (["--method", "ml-fem"], "--method 'ml-fem' fits the linear model only"),
+        (["--method", "mekf"], "--method 'mekf' fits the linear model only"),
+        (["--start", "equation-error"], "option --start 'equation-error'; expected auto or config"),
+        (["--max-iter", "0"], "option --max-iter 0; expected an integer ≥ 1"),
+        (["--rrd", "{tmp}/fit.rrd"], "--rrd logs the linear model's fit only"),
+        (["--screen"], "the screen is the linear model's"),
+    ],
+)
+def test_identify_refusals_are_one_line_and_write_nothing(files, capsys, tmp_path, extra, words):
+    out = tmp_path / "est.json"
+    argv = ["identify", files / "doublets.csv", "--config", files / "start.toml", "--out", out]
+    code = main([str(a) for a in argv] + [a.format(tmp=tmp_path) for a in extra])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and err.strip().count("\n") == 0, err
+    assert not any(tmp_path.iterdir())
+
+
+def test_validate_refuses_estimates_of_another_model(files, capsys, tmp_path):
+    linear = tmp_path / "linear.json"
+    linear.write_text(json.dumps({"coefficients": {"Y_v": {"value": -40.0}}}))
+    nonlinear = tmp_path / "nonlinear.json"
+    nonlinear.write_text(
+        json.dumps(
+            {
+                "coefficients": {"Y_uv": {"value": -100.0}},
+                "nonlinear_model": {"config": str(files / "start.toml"), "terms": ["Y_uv"]},
+            }
+        )
+    )
+    bad_name = tmp_path / "bad.json"
+    bad_name.write_text(
+        json.dumps(
+            {
+                "coefficients": {"Y_v": {"value": -40.0}},
+                "nonlinear_model": {
+                    "config": str(files / "start.toml"),
+                    "terms": list(read_config(files / "start.toml").terms),
+                },
+            }
+        )
+    )
+    for estimates, words in (
+        (linear, "a linear model's fit; .*start.toml is a nonlinear model config"),
+        (nonlinear, "fitted the nonlinear model over .*start.toml's terms; .* has other terms"),
+        (bad_name, "coefficient 'Y_v' is not one of the nonlinear model config's names"),
+    ):
+        out = tmp_path / "v.json"
+        code = main(
+            [
+                "validate",
+                str(files / "clean.csv"),
+                "--config",
+                str(files / "start.toml"),
+                "--estimates",
+                str(estimates),
+                "--out",
+                str(out),
+            ]
+        )
+        err = capsys.readouterr().err
+        assert code == 2 and err.strip().count("\n") == 0 and not out.exists(), err
+        assert re.search(words, err), err
+
+
+def test_perturb_moves_the_free_terms(truth):
+    config = truth[0]
+    moved = perturbed(config, 0.1, seed=3)
+    for n in FREE:
+        assert moved.terms[n] == pytest.approx(config.terms[n] * 1.1) or moved.terms[n] == pytest.approx(
+            config.terms[n] * 0.9
+        )
+    assert {n: v for n, v in moved.terms.items() if n not in FREE} == {
+        n: v for n, v in config.terms.items() if n not in FREE
+    }
+    assert moved.coefficients == config.coefficients
+
+
+@pytest.mark.parametrize("command", ["identify", "analyze"])
+def test_a_record_with_a_gap_is_refused_on_the_command_line(files, capsys, tmp_path, command):
+    lines = (files / "doublets.csv").read_text().splitlines()
+    cells = lines[30].split(",")
+    cells[4] = ""  # p missing at one sample
+    lines[30] = ",".join(cells)
+    gap = tmp_path / "gap.csv"
+    gap.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out.json"
+    code = main([command, str(gap), "--config", str(files / "truth.toml"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "p is missing at t = 0.58 s" in err and err.strip().count("\n") == 0, err
+    assert not out.exists()
