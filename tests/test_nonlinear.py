@@ -26,7 +26,7 @@ from testbed.models.nonlinear import (
     theta_vector,
     thrust,
 )
-from testbed.models.regressors import parse_term, regressors
+from testbed.models.regressors import gradients, parse_term, regressors
 from testbed.simulation.nonlinear_reference import SCENARIO_I, fit_terms, sample_box
 
 # A torpedo-like body (SI): CB 2 cm above the CG, slightly heavy, off-diagonal added mass.
@@ -283,6 +283,7 @@ def test_regressors_are_the_named_products():
     dr, der, del_ = 0.3, -0.1, 0.25
     de, da = (der + del_) / 2, (der - del_) / 2
     names = ("Y_v|v|", "K_uuda", "Z_uude|da|", "X_|v||w|", "N_ur|dr|", "K_p|q|", "M_uwdede", "X_uu")
+    names += ("Y_v|vw|", "K_p|qr|", "K_dawq")
     expected = [
         v * abs(v),
         u * u * da,
@@ -292,6 +293,9 @@ def test_regressors_are_the_named_products():
         p * abs(q),
         u * w * de**2,
         u * u,
+        v * math.hypot(v, w),
+        p * math.hypot(q, r),
+        da * w * q,
     ]
     got = regressors(
         tuple(parse_term(n) for n in names), np.array([[u, v, w, p, q, r]]), np.array([[dr, der, del_]])
@@ -299,11 +303,29 @@ def test_regressors_are_the_named_products():
     assert got[0] == pytest.approx(expected, rel=1e-15)
 
 
+def test_the_cross_flow_magnitudes_have_the_complex_step_gradient():
+    """√(v² + w²) and √(q² + r²) in products: their gradients against complex-step derivatives,
+    and 0 where the pair is 0 (the mean of the one-sided slopes, as for |x|)."""
+    terms = tuple(parse_term(n) for n in ("X_u|vw|", "Y_v|vw|", "K_p|qr|", "N_r|qr|", "M_|vw||qr|"))
+    z = np.array(
+        [[18.0, -1.5, 0.7, 0.2, -0.4, 0.9, 0.1, -0.2, 0.05], [18.0, 0.0, 0.0, 0.2, 0.0, 0.0, 0, 0, 0]]
+    )
+    got = gradients(terms, z[:, :6], z[:, 6:])
+    h = 1e-30
+    for i in range(9):
+        step = z.astype(complex)
+        step[:, i] += 1j * h
+        want = regressors(terms, step[:, :6], step[:, 6:]).imag / h
+        assert got[0, :, i] == pytest.approx(want[0], rel=1e-13, abs=1e-13), i
+    assert np.all(got[1, :, 1:3] == 0) and np.all(got[1, :, 4:6] == 0)
+
+
 def test_terms_are_parsed_by_their_names_and_bad_ones_refused():
     t = parse_term("N_v|v|")
     assert (t.row, t.factors) == (5, ("v", "|v|"))
     assert parse_term("K_uuda").factors == ("u", "u", "da")
-    for bad in ("Q_uv", "Y_", "Y_uvx", "Yuv", "Y_|uv|"):
+    assert parse_term("K_p|qr|").factors == ("p", "|qr|")
+    for bad in ("Q_uv", "Y_", "Y_uvx", "Yuv", "Y_|uv|", "Y_|vr|", "Y_|vw"):
         with pytest.raises(InputError):
             parse_term(bad)
     with pytest.raises(InputError, match="twice"):

@@ -9,11 +9,16 @@ heave, roll, pitch, yaw); after it, the factors, each one of
     dr de da         the rudder δr, the elevators' mean δe = (δer + δel)/2 and half their
                      difference δa = (δer − δel)/2 (the ailerons' action in roll)
     |x|              the magnitude of any of those (x|x| is the usual cross-flow form)
+    |vw| |qr|        the magnitudes of the cross flow, √(v² + w²), and of the cross-flow turn
+                     rate, √(q² + r²): a body of revolution's drag acts along the whole cross
+                     flow, so its sway force is v·√(v² + w²), not v·|v| + v·|w|
 
 The model is linear in the terms' coefficients: its forces are Σ θ_k φ_k(ν, δ) with the regressor
 φ_k the term's product (`regressors`), whose gradient with respect to (ν, δ) (`gradients`) is
 exact by the product rule. Both take complex arrays for complex-step derivatives: |x| is x or −x
-by the sign of x's real part, so its derivative is sign(x), as for real x (taken as 0 at x = 0).
+by the sign of x's real part, so its derivative is sign(x), as for real x (taken as 0 at x = 0);
+√(a² + b²) is the principal square root, analytic off a = b = 0, its derivative (a, b)/√(a² + b²)
+(taken as 0 at a = b = 0).
 """
 
 from __future__ import annotations
@@ -37,8 +42,10 @@ _LINEAR = {
     "de": 0.5 * (np.eye(9)[7] + np.eye(9)[8]),
     "da": 0.5 * (np.eye(9)[7] - np.eye(9)[8]),
 }
-ATOMS = tuple(_LINEAR) + tuple(f"|{a}|" for a in _LINEAR)
-_TOKEN = re.compile(r"\|(?:d[rea]|[uvwpqr])\||d[rea]|[uvwpqr]")
+# The magnitudes of pairs of body velocities: the atom and the indices of its pair in z
+_PAIRS = {"|vw|": (1, 2), "|qr|": (4, 5)}
+ATOMS = tuple(_LINEAR) + tuple(f"|{a}|" for a in _LINEAR) + tuple(_PAIRS)
+_TOKEN = re.compile(r"\|(?:vw|qr|d[rea]|[uvwpqr])\||d[rea]|[uvwpqr]")
 
 
 @dataclass(frozen=True)
@@ -80,21 +87,27 @@ def _table(terms: tuple[Term, ...]) -> np.ndarray:
     return table
 
 
-# each atom's gradient with respect to z, up to the sign of a magnitude; the constant 1's is 0
-_GRADIENTS = np.concatenate([_WEIGHTS.T, _WEIGHTS.T, np.zeros((1, 9))])
-
-
 def _atoms(nu, delta):
-    """Each atom's value (n, A + 1), the last atom being the constant 1, and the sign its
-    gradient has (n, A + 1): `_GRADIENTS` times it is the gradient with respect to z = (ν, δ)."""
+    """Each atom's value (n, A + 1), the last atom being the constant 1, and its gradient with
+    respect to z = (ν, δ) (n, A + 1, 9)."""
     z = np.concatenate([np.atleast_2d(nu), np.atleast_2d(delta)], axis=1)
+    n = len(z)
     value = z @ _WEIGHTS
     # |x|'s gradient sign(x), 0 at x = 0: the mean of its one-sided slopes, so that an even
     # term (u|v|) has no linear part at v = 0, as its central differences say
-    one = np.ones((len(z), 1))
-    values = np.concatenate([value, magnitude(value), one.astype(value.dtype)], axis=1)
-    signs = np.concatenate([np.ones_like(value, dtype=float), np.sign(np.real(value)), one], axis=1)
-    return values, signs
+    sign = np.sign(np.real(value))
+    pairs = [np.sqrt(z[:, i] ** 2 + z[:, j] ** 2) for i, j in _PAIRS.values()]
+    one = np.ones((n, 1), dtype=value.dtype)
+    values = np.concatenate([value, magnitude(value), np.stack(pairs, axis=1).reshape(n, -1), one], axis=1)
+    grads = np.zeros((n, len(ATOMS) + 1, 9), dtype=values.dtype)
+    grads[:, : len(_LINEAR)] = _WEIGHTS.T
+    grads[:, len(_LINEAR) : 2 * len(_LINEAR)] = sign[:, :, None] * _WEIGHTS.T
+    for k, ((i, j), norm) in enumerate(zip(_PAIRS.values(), pairs)):
+        zero = np.real(norm) == 0
+        scale = np.where(zero, 0.0, 1.0 / np.where(zero, 1.0, norm))
+        grads[:, 2 * len(_LINEAR) + k, i] = z[:, i] * scale
+        grads[:, 2 * len(_LINEAR) + k, j] = z[:, j] * scale
+    return values, grads
 
 
 def regressors(terms, nu, delta) -> np.ndarray:
@@ -105,11 +118,11 @@ def regressors(terms, nu, delta) -> np.ndarray:
 
 def gradients(terms, nu, delta) -> np.ndarray:
     """∂φ/∂z (n, K, 9), z = (u v w p q r δr δer δel): the product rule over each term's factors."""
-    values, signs = _atoms(nu, delta)
+    values, grads = _atoms(nu, delta)
     table = _table(tuple(terms))
     factors = values[:, table]  # (n, K, F)
     out = np.zeros(factors.shape[:2] + (9,), dtype=factors.dtype)
     for i in range(table.shape[1]):
-        others = np.prod(np.delete(factors, i, axis=2), axis=2) * signs[:, table[:, i]]
-        out += others[:, :, None] * _GRADIENTS[table[:, i]]
+        others = np.prod(np.delete(factors, i, axis=2), axis=2)
+        out += others[:, :, None] * grads[:, table[:, i]]
     return out

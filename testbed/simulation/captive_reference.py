@@ -34,7 +34,15 @@ from testbed.simulation.captive_fit import CaptiveFit, fit_captive
 from testbed.simulation.vehicle import constants
 from testbed.simulation.wrench import hydrodynamic_wrench
 
-__all__ = ["ENVELOPE", "NEAR", "captive_reference", "near_tests", "reference_tests", "slope_terms"]
+__all__ = [
+    "ENVELOPE",
+    "NEAR",
+    "captive_reference",
+    "couplings",
+    "near_tests",
+    "reference_tests",
+    "slope_terms",
+]
 
 # The extents at 20 m/s: m/s for v w, rad/s for p q r, rad for the fins (delta_d differential)
 ENVELOPE = {"v": 0.75, "w": 1.6, "p": 0.5, "q": 1.7, "r": 0.5, "delta_r": 0.1, "delta_e": 0.2, "delta_d": 0.1}
@@ -42,8 +50,35 @@ NEAR = 1e-3  # the trim stage's tests, as a fraction of the extents
 _FINS = ("delta_r", "delta_e", "delta_d")
 
 
-def reference_tests(speed: float) -> tuple:
-    """The captive tests over the manoeuvre's region at trim speed `speed` (module doc)."""
+# Each term factor's captive-test variable (u is held at each speed; |vw| and |qr| vary a pair)
+_VARIABLE = {
+    **{k: (k,) for k in "vwpqr"},
+    **{f"|{k}|": (k,) for k in "vwpqr"},
+    "dr": ("delta_r",),
+    "de": ("delta_e",),
+    "da": ("delta_d",),
+    **{f"|d{k}|": (f"delta_{n}",) for k, n in (("r", "r"), ("e", "e"), ("a", "d"))},
+    "|vw|": ("v", "w"),
+    "|qr|": ("q", "r"),
+    "u": (),
+}
+
+
+def couplings(terms=TERMS) -> tuple[tuple[str, ...], ...]:
+    """The sets of three or more test variables that a term multiplies together (`K_pwq`: p, w,
+    q), in `ENVELOPE`'s order: a grid of them is the only test that moves such a term."""
+    order = list(ENVELOPE)
+    found = set()
+    for name in terms:
+        varied = {v for a in parse_term(name).factors for v in _VARIABLE[a]}
+        if len(varied) >= 3:
+            found.add(tuple(sorted(varied, key=order.index)))
+    return tuple(sorted(found, key=lambda c: [order.index(v) for v in c]))
+
+
+def reference_tests(speed: float, terms=TERMS) -> tuple:
+    """The captive tests over the manoeuvre's region at trim speed `speed` (module doc), with a
+    grid of each set of variables that one of `terms` couples (`couplings`)."""
     if not 0 < speed < np.inf:
         raise InputError(f"speed={speed!r}; expected a finite trim speed > 0 m/s")
     scale = speed / 20.0
@@ -58,11 +93,21 @@ def reference_tests(speed: float) -> tuple:
         )
         for a, b in itertools.combinations(extent, 2)
     )
+    combined = tuple(
+        Sweep(
+            name="_".join(c),
+            vary=c,
+            extent=tuple(extent[k] / 2 for k in c),
+            points=(5,) * len(c),
+            speeds=speeds,
+        )
+        for c in couplings(terms)
+    )
     amplitude = {"u": 0.1 * speed, **{k: extent[k] for k in "vwpqr"}}
     oscillations = tuple(
         Oscillation(name=f"pure_{k}", variable=k, amplitude=a, speeds=speeds) for k, a in amplitude.items()
     )
-    return sweeps + pairs + oscillations
+    return sweeps + pairs + combined + oscillations
 
 
 def near_tests(tests, speed: float, fraction: float = NEAR) -> tuple:
@@ -89,7 +134,7 @@ def slope_terms(terms=TERMS) -> tuple[str, ...]:
 
 def captive_reference(model: mujoco.MjModel, speed: float, terms=TERMS) -> CaptiveFit:
     """The captive reference of the vehicle `model` at trim speed `speed` (module doc)."""
-    tests = reference_tests(speed)
+    tests = reference_tests(speed, terms)
     vehicle = constants(model, speed)
     thrust = -float(hydrodynamic_wrench(model, [speed, 0, 0, 0, 0, 0])[0])  # the drag at trim
     near = near_tests(tests, speed)
