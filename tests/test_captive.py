@@ -295,6 +295,33 @@ def test_the_plant_obeys_its_equations_with_the_captive_wrench():
     assert np.abs(tau).max() > 1e3 and np.abs(nu_dot).max() > 1  # a real state, far from trim
 
 
+def test_a_sweep_follows_its_lines():
+    """`follow` offsets a variable by a ratio times its leader: the grid about a line."""
+    sweep = Sweep(
+        name="turn",
+        vary=("r", "v", "delta_r"),
+        extent=(0.5, 0.2, 0.02),
+        points=(3, 3, 2),
+        speeds=(20.0,),
+        follow=(("v", "r", -1.4), ("delta_r", "r", -0.04)),
+    )
+    nu, nu_dot, fins = sweep.states(20.0)
+    plain = Sweep(name="plain", vary=sweep.vary, extent=sweep.extent, points=sweep.points, speeds=(20.0,))
+    nu0, _, fins0 = plain.states(20.0)
+    assert np.array_equal(nu[:, 5], nu0[:, 5]) and not nu_dot.any()
+    assert nu[:, 1] == pytest.approx(nu0[:, 1] - 1.4 * nu0[:, 5], abs=1e-15)
+    assert fins[:, 0] == pytest.approx(fins0[:, 0] - 0.04 * nu0[:, 5], abs=1e-15)
+    for follow, match in (
+        ((("w", "r", 1.0),), "follow"),
+        ((("v", "v", 1.0),), "follow"),
+        ((("v", "r", math.nan),), "follow"),
+        ((("v", "r", 1.0), ("r", "delta_r", 1.0)), "leader"),
+    ):
+        with pytest.raises(InputError, match=match) as e:
+            Sweep(name="bad", vary=("r", "v", "delta_r"), extent=(1, 1, 1), points=(3, 3, 3), follow=follow)
+        assert "\n" not in str(e.value)
+
+
 def test_bad_input_is_one_line():
     model = load_model()
     ellipsoid = ellipsoid_model()

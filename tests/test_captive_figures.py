@@ -6,6 +6,7 @@ nothing written."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from collections import defaultdict
@@ -26,7 +27,7 @@ from testbed.presentation.captive_report import MARKER
 from testbed.presentation.captive_sweeps import DENSE, sweep_panels
 from testbed.simulation.captive import Oscillation
 from testbed.simulation.captive_config import captive_config_text
-from testbed.simulation.captive_reference import reference_tests
+from testbed.simulation.captive_reference import region_tests
 from testbed.simulation.vehicle import constants, load_model
 from testbed.simulation.wrench import hydrodynamic_wrench
 
@@ -92,7 +93,7 @@ def _fit(y, model) -> float:
 
 def test_a_sweeps_points_are_the_plants_wrench_and_its_curves_the_fitted_models(captive, fitted):
     model, _, fit, panels = captive
-    tests = {t.name: t for t in reference_tests(SPEED)}
+    tests = {t.name: t for t in region_tests(model, SPEED)}
     by = defaultdict(list)
     for p in panels:
         if isinstance(tests[p.test], Oscillation):
@@ -100,14 +101,20 @@ def test_a_sweeps_points_are_the_plants_wrench_and_its_curves_the_fitted_models(
         by[p.test, p.speed].append(p)
     for (name, speed), own in by.items():
         test = tests[name]
-        rest = test.axes()[1] if len(test.vary) == 2 else [None]
+        # a slice per value of the other variables (their grid's points), the first swept along
+        rest = list(
+            itertools.product(*(np.linspace(-e, e, n) for e, n in zip(test.extent[1:], test.points[1:])))
+        )
         first = np.linspace(-test.extent[0], test.extent[0], test.points[0])
         dense = np.linspace(-test.extent[0], test.extent[0], DENSE)
         points, curves = [], []  # per slice: (ν, δ) of its points and of its curve
         for value in rest:
-            others = {} if value is None else {test.vary[1]: value}
-            points.append(_states(speed, {test.vary[0]: first, **others}, len(first)))
-            curves.append(_states(speed, {test.vary[0]: dense, **others}, len(dense)))
+            for along, out in ((first, points), (dense, curves)):
+                lead = {test.vary[0]: along, **dict(zip(test.vary[1:], value))}
+                values = dict(lead)
+                for a, b, k in test.follow:  # a variable on a line: offset by a ratio times its leader
+                    values[a] = values[a] + k * np.asarray(lead[b])
+                out.append(_states(speed, values, len(along)))
         plant = [hydrodynamic_wrench(model, nu, fins) for nu, fins in points]
         at_points = [fitted(nu, fins, np.zeros_like(nu)) for nu, fins in points]
         curve = [fitted(nu, fins, np.zeros_like(nu)) for nu, fins in curves]
@@ -127,7 +134,7 @@ def test_a_sweeps_points_are_the_plants_wrench_and_its_curves_the_fitted_models(
 
 def test_an_oscillations_panels_hold_its_harmonics_of_what_they_draw(captive, fitted):
     model, _, fit, panels = captive
-    tests = {t.name: t for t in reference_tests(SPEED)}
+    tests = {t.name: t for t in region_tests(model, SPEED)}
     seen = set()
     for p in panels:
         test = tests[p.test]
@@ -244,7 +251,7 @@ def test_captive_writes_a_folder_of_figures_and_force_replaces_only_its_own(tmp_
     assert code == 0, err
     assert printed.splitlines()[-1] == str(figures)
     names = sorted(os.listdir(figures))
-    assert names == sorted([MARKER] + [figure_name(t.name) for t in reference_tests(SPEED)])
+    assert names == sorted([MARKER] + [figure_name(t.name) for t in region_tests(load_model(None), SPEED)])
     assert "all" in (figures / MARKER).read_text()
     # again: refused without --force; with it the folder is replaced (it holds the marker)
     code, _, err = cli(capsys, "captive", "--out", tmp_path / "d.toml", "--figures", figures)

@@ -11,7 +11,7 @@ import pytest
 from testbed.cli import main
 from testbed.data import read_config
 from testbed.models.nonlinear import INERTIA, TERMS
-from testbed.simulation.captive_reference import reference_tests
+from testbed.simulation.captive_reference import Turns, reference_tests
 from testbed.simulation.vehicle import default_mjcf
 
 
@@ -37,7 +37,7 @@ def test_captive_writes_the_reference_and_prints_every_surface(tmp_path, capsys)
     assert config.free == ()
     lines = printed.splitlines()
     assert lines[0] == str(out)
-    tests = reference_tests(20.0)
+    tests = reference_tests(20.0, turns=Turns(incidence=1.0, elevator=0.0, drift=-1.0, rudder=0.0))
     assert len(lines) == 1 + 2 + sum(len(t.speeds) for t in tests)  # path, header, surfaces, all
     assert lines[1].split() == ["test", "u", "m/s", "X", "Y", "Z", "K", "M", "N"]
     assert lines[-1].split()[0] == "all"

@@ -384,6 +384,7 @@ def test_regressors_are_the_named_products():
     dr, der, del_ = 0.3, -0.1, 0.25
     de, da = (der + del_) / 2, (der - del_) / 2
     names = ("Y_v|v|", "K_uuda", "Z_uude|da|", "X_|v||w|", "N_ur|dr|", "K_p|q|", "M_uwdede", "X_uu")
+    names += ("Y_v|vw|", "K_p|qr|", "K_dawq")
     expected = [
         v * abs(v),
         u * u * da,
@@ -393,6 +394,9 @@ def test_regressors_are_the_named_products():
         p * abs(q),
         u * w * de**2,
         u * u,
+        v * math.hypot(v, w),
+        p * math.hypot(q, r),
+        da * w * q,
     ]
     got = regressors(
         tuple(parse_term(n) for n in names), np.array([[u, v, w, p, q, r]]), np.array([[dr, der, del_]])
@@ -400,11 +404,33 @@ def test_regressors_are_the_named_products():
     assert got[0] == pytest.approx(expected, rel=1e-15)
 
 
+def test_the_cross_flow_magnitudes_are_their_closed_forms_with_no_slope_where_their_pair_is_zero():
+    """√(v² + w²) and √(q² + r²) in products: the regressors are the closed forms, and where the
+    pair is 0 the model's Jacobian has no part from them (the mean of the one-sided slopes, as for
+    |x|). Elsewhere `test_jacobians_match_complex_step` checks their slopes: the default terms hold
+    both."""
+    names = ("X_u|vw|", "Y_v|vw|", "K_p|qr|", "N_r|qr|", "M_|vw||qr|")
+    z = np.array([[18.0, -1.5, 0.7, 0.2, -0.4, 0.9, 0.1, -0.2, 0.05]])
+    vw, qr = math.hypot(-1.5, 0.7), math.hypot(-0.4, 0.9)
+    got = regressors(tuple(parse_term(n) for n in names), z[:, :6], z[:, 6:])[0]
+    assert got == pytest.approx([18.0 * vw, -1.5 * vw, 0.2 * qr, 0.9 * qr, vw * qr], rel=1e-15)
+    model, theta, _ = model_and_theta()
+    pairs = [k for k, n in enumerate(model.names) if "|vw|" in n or "|qr|" in n]
+    assert len(pairs) >= 5
+    held = theta.copy()
+    held[pairs] = 0.0
+    x, delta = np.array([18.0, 0, 0, 0.2, 0, 0, 0.1, 0.2, 0.3, 50.0]), np.array([0.1, -0.05, 0.02])
+    assert close(jacobians(model, theta, x, delta)[1], jacobians(model, held, x, delta)[1], 1e-14)
+    x[1] = 0.3  # off the kink the pair terms do act
+    assert not close(jacobians(model, theta, x, delta)[1], jacobians(model, held, x, delta)[1], 1e-3)
+
+
 def test_terms_are_parsed_by_their_names_and_bad_ones_refused():
     t = parse_term("N_v|v|")
     assert (t.row, t.factors) == (5, ("v", "|v|"))
     assert parse_term("K_uuda").factors == ("u", "u", "da")
-    for bad in ("Q_uv", "Y_", "Y_uvx", "Yuv", "Y_|uv|"):
+    assert parse_term("K_p|qr|").factors == ("p", "|qr|")
+    for bad in ("Q_uv", "Y_", "Y_uvx", "Yuv", "Y_|uv|", "Y_|vr|", "Y_|vw"):
         with pytest.raises(InputError):
             parse_term(bad)
     with pytest.raises(InputError, match="twice"):

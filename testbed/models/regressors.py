@@ -9,6 +9,9 @@ heave, roll, pitch, yaw); after it, the factors, each one of
     dr de da         the rudder δr, the elevators' mean δe = (δer + δel)/2 and half their
                      difference δa = (δer − δel)/2 (the ailerons' action in roll)
     |x|              the magnitude of any of those (x|x| is the usual cross-flow form)
+    |vw| |qr|        the magnitudes of the cross flow, √(v² + w²), and of the cross-flow turn
+                     rate, √(q² + r²): a body of revolution's drag acts along the whole cross
+                     flow, so its sway force is v·√(v² + w²), not v·|v| + v·|w|
 
 The model is linear in the terms' coefficients: its forces are Σ θ_k φ_k(ν, δ) with the regressor
 φ_k the term's product (`regressors`, over stacked samples, for least-squares fits of the
@@ -16,7 +19,8 @@ coefficients). The atoms are data: `WEIGHTS` gives each linear atom from z = (ν
 `factor_table` each term's factors as indices into (linear atoms, their magnitudes, 1), from which
 the compiled model (`nonlinear_kernels`) evaluates any term set and its gradients. Complex arrays
 are taken for complex-step derivatives: |x| is x or −x by the sign of x's real part, so its
-derivative is sign(x), as for real x (taken as 0 at x = 0).
+derivative is sign(x), as for real x (taken as 0 at x = 0); √(a² + b²) is the principal square
+root, analytic off a = b = 0, its derivative (a, b)/√(a² + b²) (taken as 0 at a = b = 0).
 """
 
 from __future__ import annotations
@@ -50,8 +54,10 @@ _LINEAR = {
     "de": 0.5 * (np.eye(9)[7] + np.eye(9)[8]),
     "da": 0.5 * (np.eye(9)[7] - np.eye(9)[8]),
 }
-ATOMS = tuple(_LINEAR) + tuple(f"|{a}|" for a in _LINEAR)
-_TOKEN = re.compile(r"\|(?:d[rea]|[uvwpqr])\||d[rea]|[uvwpqr]")
+# The magnitudes of pairs of body velocities: the atom and the indices of its pair in z
+_PAIRS = {"|vw|": (1, 2), "|qr|": (4, 5)}
+ATOMS = tuple(_LINEAR) + tuple(f"|{a}|" for a in _LINEAR) + tuple(_PAIRS)
+_TOKEN = re.compile(r"\|(?:vw|qr|d[rea]|[uvwpqr])\||d[rea]|[uvwpqr]")
 
 
 @dataclass(frozen=True)
@@ -82,8 +88,8 @@ def magnitude(x):
 
 WEIGHTS = np.array(list(_LINEAR.values())).T  # (9, L): z = (u v w p q r δr δer δel) ↦ the linear atoms
 # (P, 2): the entries of z whose magnitude √(z_i² + z_j²) is an atom, after the linear atoms'
-# magnitudes in `ATOMS` (a pair's atom for the compiled model and `regressors`; none named yet)
-PAIRS = np.zeros((0, 2), dtype=np.int64)
+# magnitudes in `ATOMS` (a pair's atom for the compiled model and `regressors`)
+PAIRS = np.array(list(_PAIRS.values()), dtype=np.int64).reshape(-1, 2)
 
 
 @lru_cache(maxsize=64)

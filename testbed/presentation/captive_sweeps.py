@@ -26,7 +26,7 @@ import numpy as np
 from testbed.models.regressors import ROWS
 from testbed.simulation.captive import Measurement, Oscillation, captive_tests, pmm_coefficients
 from testbed.simulation.captive_fit import CaptiveFit, fitted_wrench
-from testbed.simulation.captive_reference import reference_tests
+from testbed.simulation.captive_reference import region_tests
 from testbed.simulation.recording import STYLE
 from testbed.simulation.vehicle import constants
 
@@ -96,15 +96,15 @@ class SweepPanel:
 
 def sweep_panels(model: mujoco.MjModel, fit: CaptiveFit) -> tuple[SweepPanel, ...]:
     """The panels of `fit`, the captive reference of the vehicle `model` (`captive_reference`):
-    its tests (`reference_tests` at the fit's trim speed) run on the plant again, and the model
+    its second stage's tests (`region_tests` at the fit's trim speed) run on the plant again, and the model
     evaluated with `captive_fit.fitted_wrench`, in the fit's order of tests, speeds and rows."""
     vehicle = constants(model, fit.speed)
-    tests = {t.name: t for t in reference_tests(fit.speed)}
+    tests = {t.name: t for t in region_tests(model, fit.speed, fit.terms)}
     measurements = captive_tests(model, tuple(tests.values()))
     rated = {(s.test, s.speed, s.row): s.fit for s in fit.surfaces}
     if [(m.test, m.speed) for m in measurements] != list(dict.fromkeys(k[:2] for k in rated)):
         raise RuntimeError(
-            "the captive fit's surfaces are not those of reference_tests: their figures would lie"
+            "the captive fit's surfaces are not those of region_tests: their figures would lie"
         )
     out = []
     for m in measurements:

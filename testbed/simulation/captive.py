@@ -8,7 +8,9 @@ u at each of its `speeds` and varies the rest:
 - a static test (`Sweep`) holds each point of a grid of body velocities and fin angles, at zero
   acceleration: static drift (v), incidence (w), the rotating arm (p, q, r), combined drift and
   yaw (v × r) or incidence and pitch (w × q), fin sweeps (rudder, elevators together or
-  differential) and any other grid of the `VARIABLES`;
+  differential) and any other grid of the `VARIABLES`; a grid may follow a line (`follow`), a
+  variable offset by a ratio times another: a turn, the drift and the rudder of a steady turn at
+  each rate and the grid around them, as a rotating arm with drift angles bracketing the turn's;
 - an oscillatory test (`Oscillation`, a planar motion mechanism) varies one body velocity as
   a sin(ω t) over one period in body axes (pure sway v, heave w, roll p, yaw r, pitch q: the
   others held, u included; pure surge: u about the held speed), sampled at `samples` instants;
@@ -76,13 +78,16 @@ def _check_speeds(name: str, speeds) -> tuple[float, ...]:
 class Sweep:
     """A static captive test: the grid of `vary` (names from `VARIABLES`), each from −extent to
     +extent in `points` steps (m/s, rad/s or rad as the variable), at each of `speeds` (u, m/s),
-    the rest of ν and the fins at 0, ν̇ = 0."""
+    the rest of ν and the fins at 0, ν̇ = 0. `follow` offsets the grid along lines: each
+    (variable, leader, ratio), both in `vary`, adds ratio × the leader's value to the variable's
+    (a turn: `("v", "r", -1.4)` holds v = −1.4 r + the grid's v)."""
 
     name: str
     vary: tuple[str, ...]
     extent: tuple[float, ...]
     points: tuple[int, ...]
     speeds: tuple[float, ...] = SPEEDS
+    follow: tuple[tuple[str, str, float], ...] = ()
 
     def __post_init__(self):
         where = f"captive test {self.name!r}"
@@ -100,6 +105,20 @@ class Sweep:
         if not all(isinstance(n, int) and n >= 1 for n in self.points):
             raise InputError(f"{where}: points={self.points!r}; expected whole numbers >= 1")
         object.__setattr__(self, "speeds", _check_speeds(where, self.speeds))
+        follow = tuple((str(a), str(b), float(k)) for a, b, k in self.follow)
+        for a, b, k in follow:
+            if a not in self.vary or b not in self.vary or a == b or not math.isfinite(k):
+                raise InputError(
+                    f"{where}: follow ({a!r}, {b!r}, {k!r}); expected two different varied names "
+                    "and a finite ratio"
+                )
+        if len({a for a, _, _ in follow}) != len(follow) or {a for a, _, _ in follow} & {
+            b for _, b, _ in follow
+        }:
+            raise InputError(
+                f"{where}: follow={follow!r}; expected each variable to follow one leader that follows none"
+            )
+        object.__setattr__(self, "follow", follow)
 
     def axes(self) -> tuple[np.ndarray, ...]:
         """Each variable's values on the grid, from −extent to +extent (0 alone for one point)."""
@@ -110,6 +129,9 @@ class Sweep:
     def states(self, speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ν, ν̇, δ) of every grid point at `speed`, row by row (the last variable fastest)."""
         grid = np.array(list(itertools.product(*self.axes()))).reshape(-1, len(self.vary))
+        lead = grid.copy()
+        for a, b, k in self.follow:
+            grid[:, self.vary.index(a)] += k * lead[:, self.vary.index(b)]
         nu, fins = np.zeros((len(grid), 6)), np.zeros((len(grid), len(INPUTS)))
         nu[:, 0] = speed
         for k, v in enumerate(self.vary):

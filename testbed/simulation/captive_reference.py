@@ -22,28 +22,133 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from testbed.errors import InputError
-from testbed.models.nonlinear import TERMS
+from testbed.models.nonlinear import TERMS, NonlinearModel, linearise, nonlinear_model, theta_vector
 from testbed.models.regressors import parse_term
 from testbed.simulation.captive import Oscillation, Sweep, captive_tests
 from testbed.simulation.captive_fit import CaptiveFit, fit_captive
 from testbed.simulation.vehicle import constants
 from testbed.simulation.wrench import hydrodynamic_wrench
 
-__all__ = ["ENVELOPE", "NEAR", "captive_reference", "near_tests", "reference_tests", "slope_terms"]
+__all__ = [
+    "BAND",
+    "ENVELOPE",
+    "NEAR",
+    "Turns",
+    "captive_reference",
+    "couplings",
+    "near_tests",
+    "reference_tests",
+    "region_tests",
+    "slope_terms",
+    "steady_turns",
+    "turn_tests",
+]
 
 # The extents at 20 m/s: m/s for v w, rad/s for p q r, rad for the fins (delta_d differential)
 ENVELOPE = {"v": 0.75, "w": 1.6, "p": 0.5, "q": 1.7, "r": 0.5, "delta_r": 0.1, "delta_e": 0.2, "delta_d": 0.1}
+# The turn tests' band about a steady turn at 20 m/s: m/s for v w, rad for the fins
+BAND = {"w": 0.3, "v": 0.2, "delta_e": 0.03, "delta_r": 0.02}
 NEAR = 1e-3  # the trim stage's tests, as a fraction of the extents
 _FINS = ("delta_r", "delta_e", "delta_d")
 
 
-def reference_tests(speed: float) -> tuple:
-    """The captive tests over the manoeuvre's region at trim speed `speed` (module doc)."""
+# Each term factor's captive-test variable (u is held at each speed; |vw| and |qr| vary a pair)
+_VARIABLE = {
+    **{k: (k,) for k in "vwpqr"},
+    **{f"|{k}|": (k,) for k in "vwpqr"},
+    "dr": ("delta_r",),
+    "de": ("delta_e",),
+    "da": ("delta_d",),
+    **{f"|d{k}|": (f"delta_{n}",) for k, n in (("r", "r"), ("e", "e"), ("a", "d"))},
+    "|vw|": ("v", "w"),
+    "|qr|": ("q", "r"),
+    "u": (),
+}
+
+
+def couplings(terms=TERMS) -> tuple[tuple[str, ...], ...]:
+    """The sets of three or more test variables that a term multiplies together (`K_pwq`: p, w,
+    q), in `ENVELOPE`'s order: a grid of them is the only test that moves such a term."""
+    order = list(ENVELOPE)
+    found = set()
+    for name in terms:
+        varied = {v for a in parse_term(name).factors for v in _VARIABLE[a]}
+        if len(varied) >= 3:
+            found.add(tuple(sorted(varied, key=order.index)))
+    return tuple(sorted(found, key=lambda c: [order.index(v) for v in c]))
+
+
+@dataclass(frozen=True)
+class Turns:
+    """A steady turn's drift and fin per unit turn rate (the model's at trim): in pitch
+    w = `incidence` q and δe = `elevator` q, in yaw v = `drift` r and δr = `rudder` r."""
+
+    incidence: float  # m per rad (w/q)
+    elevator: float  # s (δe/q)
+    drift: float  # m per rad (v/r)
+    rudder: float  # s (δr/r)
+
+
+def steady_turns(model: NonlinearModel, theta) -> Turns:
+    """The steady turns of `model` at `theta` linearised at trim: the heave and pitch rows with
+    ẇ = q̇ = 0 solved for w and δe at q = 1 rad/s (weight and buoyancy left out: a rotating arm
+    holds the attitude), the sway and yaw rows for v and δr at r = 1 rad/s."""
+    lin = linearise(model, theta)
+    A, B = lin.At, lin.Bt
+    de = B[:, 1] + B[:, 2]
+    w, e = np.linalg.solve([[A[2, 2], de[2]], [A[4, 2], de[4]]], [-A[2, 4], -A[4, 4]])
+    v, r = np.linalg.solve([[A[1, 1], B[1, 0]], [A[5, 1], B[5, 0]]], [-A[1, 5], -A[5, 5]])
+    return Turns(incidence=float(w), elevator=float(e), drift=float(v), rudder=float(r))
+
+
+def turn_tests(speed: float, turns: Turns) -> tuple:
+    """Rotating-arm tests along the steady turns at 0.8 U, 0.9 U and U: the pitch rate over
+    its extent (13 points), the incidence and the elevators about the turn's by ±`BAND` (3 × 3);
+    the same in yaw; and both turns at once (7 × 7 rates)."""
+    scale = speed / 20.0
+    speeds = (0.8 * speed, 0.9 * speed, speed)
+    q, r = ENVELOPE["q"] * scale, ENVELOPE["r"] * scale
+    band = {k: e if k in _FINS else e * scale for k, e in BAND.items()}
+    pitch = (("w", "q", turns.incidence), ("delta_e", "q", turns.elevator))
+    yaw = (("v", "r", turns.drift), ("delta_r", "r", turns.rudder))
+    return (
+        Sweep(
+            name="turn_pitch",
+            vary=("q", "w", "delta_e"),
+            extent=(q, band["w"], band["delta_e"]),
+            points=(13, 3, 3),
+            speeds=speeds,
+            follow=pitch,
+        ),
+        Sweep(
+            name="turn_yaw",
+            vary=("r", "v", "delta_r"),
+            extent=(r, band["v"], band["delta_r"]),
+            points=(13, 3, 3),
+            speeds=speeds,
+            follow=yaw,
+        ),
+        Sweep(
+            name="turn_both",
+            vary=("q", "r", "w", "v", "delta_e", "delta_r"),
+            extent=(q, r, 0.0, 0.0, 0.0, 0.0),
+            points=(7, 7, 1, 1, 1, 1),
+            speeds=speeds,
+            follow=pitch + yaw,
+        ),
+    )
+
+
+def reference_tests(speed: float, terms=TERMS, turns: Turns | None = None) -> tuple:
+    """The captive tests over the manoeuvre's region at trim speed `speed` (module doc), with a
+    grid of each set of variables that one of `terms` couples (`couplings`), and with `turns`
+    the rotating-arm tests along them (`turn_tests`)."""
     if not 0 < speed < np.inf:
         raise InputError(f"speed={speed!r}; expected a finite trim speed > 0 m/s")
     scale = speed / 20.0
@@ -58,11 +163,21 @@ def reference_tests(speed: float) -> tuple:
         )
         for a, b in itertools.combinations(extent, 2)
     )
+    combined = tuple(
+        Sweep(
+            name="_".join(c),
+            vary=c,
+            extent=tuple(extent[k] / 2 for k in c),
+            points=(5,) * len(c),
+            speeds=speeds,
+        )
+        for c in couplings(terms)
+    )
     amplitude = {"u": 0.1 * speed, **{k: extent[k] for k in "vwpqr"}}
     oscillations = tuple(
         Oscillation(name=f"pure_{k}", variable=k, amplitude=a, speeds=speeds) for k, a in amplitude.items()
     )
-    return sweeps + pairs + oscillations
+    return sweeps + pairs + combined + oscillations + (turn_tests(speed, turns) if turns else ())
 
 
 def near_tests(tests, speed: float, fraction: float = NEAR) -> tuple:
@@ -87,13 +202,31 @@ def slope_terms(terms=TERMS) -> tuple[str, ...]:
     return tuple(out)
 
 
-def captive_reference(model: mujoco.MjModel, speed: float, terms=TERMS) -> CaptiveFit:
-    """The captive reference of the vehicle `model` at trim speed `speed` (module doc)."""
-    tests = reference_tests(speed)
+def _trim_stage(model: mujoco.MjModel, speed: float, terms):
+    """(vehicle, thrust, the trim stage's fit of the slope terms) at trim speed `speed`."""
     vehicle = constants(model, speed)
     thrust = -float(hydrodynamic_wrench(model, [speed, 0, 0, 0, 0, 0])[0])  # the drag at trim
-    near = near_tests(tests, speed)
-    at_trim = slope_terms(terms)
-    first = fit_captive(vehicle, near, captive_tests(model, near), thrust, terms=at_trim)
-    held = {n: first.coefficients[n] for n in at_trim}
+    near = near_tests(reference_tests(speed, terms), speed)
+    first = fit_captive(vehicle, near, captive_tests(model, near), thrust, terms=slope_terms(terms))
+    return vehicle, thrust, first
+
+
+def _region_tests(speed: float, terms, vehicle, first) -> tuple:
+    """The second stage's tests: the region's, with rotating-arm tests along the steady turns of
+    the trim stage's model."""
+    linear = nonlinear_model(vehicle, slope_terms(terms))
+    return reference_tests(speed, terms, steady_turns(linear, theta_vector(linear, first.coefficients)))
+
+
+def region_tests(model: mujoco.MjModel, speed: float, terms=TERMS) -> tuple:
+    """The tests `captive_reference` fits its second stage to (the ones its fit table lists)."""
+    vehicle, _, first = _trim_stage(model, speed, terms)
+    return _region_tests(speed, terms, vehicle, first)
+
+
+def captive_reference(model: mujoco.MjModel, speed: float, terms=TERMS) -> CaptiveFit:
+    """The captive reference of the vehicle `model` at trim speed `speed` (module doc)."""
+    vehicle, thrust, first = _trim_stage(model, speed, terms)
+    held = {n: first.coefficients[n] for n in slope_terms(terms)}
+    tests = _region_tests(speed, terms, vehicle, first)
     return fit_captive(vehicle, tests, captive_tests(model, tests), thrust, terms=terms, fixed=held)
