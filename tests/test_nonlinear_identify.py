@@ -295,7 +295,6 @@ def test_analyze_on_the_command_line(files, capsys, tmp_path):
         (["--start", "equation-error"], "option --start 'equation-error'; expected auto or config"),
         (["--max-iter", "0"], "option --max-iter 0; expected an integer ≥ 1"),
         (["--rrd", "{tmp}/fit.rrd"], "--rrd logs the linear model's fit only"),
-        (["--screen"], "the screen is the linear model's"),
     ],
 )
 def test_identify_refusals_are_one_line_and_write_nothing(files, capsys, tmp_path, extra, words):

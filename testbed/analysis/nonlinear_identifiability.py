@@ -10,35 +10,67 @@ information (the Schur complement, `likelihood.reduced`). The noise is the confi
 measure the same states, every sample present, as for the fit. The structural part is only the free coefficients no measured state
 depends on (their sensitivities are 0 along every record): the linear model's exact drift
 analysis (a row operation on its equations) has no counterpart here, so `structural_drift_groups`
-holds only those.
+holds only those. A direction along which the information is numerically singular (`rank_tolerance`)
+gives its coefficients infinite bounds.
+
+The screen of a nonlinear model config (`NONLINEAR`, for `identifiability.screening`) takes its
+stage 1 from this analysis at the a-priori values and its stage 2 from it at the `ml-gn` estimate,
+each record flown from the fit's initial state.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.identifiability import Identifiability, Structural, assessed
+from testbed.analysis.identifiability import Identifiability, ScreenModel, Structural, assessed
 from testbed.data import Experiment, ModelConfig
+from testbed.estimators import Estimate
 from testbed.identification.likelihood import reduced
 from testbed.identification.nonlinear_output_error import information, setup
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
 
-__all__ = ["nonlinear_identifiability"]
+__all__ = ["NONLINEAR", "nonlinear_identifiability", "rank_tolerance"]
+
+
+def rank_tolerance(H: np.ndarray, F: np.ndarray, samples: int, channels: int, substeps: int) -> float:
+    """The eigenvalue of the unit-diagonal information `F` (the coefficients' block of `H` with
+    the initial states eliminated), relative to its largest, at or below which a direction cannot
+    be told from a null one by its rounding alone: `n κ γ`.
+
+    `γ = ε (N C + 2 K)` bounds the relative error of an entry of H, in units of
+    √(H_ii H_jj): the sum over the N samples' C channels of products of sensitivities rounds by at
+    most N C ε of Σ|a b| ≤ √(H_ii H_jj) (Cauchy-Schwarz), and each sensitivity, carried by a
+    recursion through K = N × `substeps` RK4 steps, by at most K ε relative, twice in a product.
+    `κ = max H_ii / F_ii` (over the informed coefficients) carries that error to F's own scale:
+    eliminating the initial states subtracts from H, and its error stays H's. The scaled error
+    matrix's norm is then at most n κ γ (n entries a row), and by Weyl an eigenvalue no larger is
+    within the rounding of 0; the largest eigenvalue is at least 1 (the trace is n), so the
+    relative rule covers it. The eliminations' own rounding (about ε × the initial states' block
+    condition) is left out: a record's few initial states are well determined."""
+    h, f = np.diag(H)[: len(F)], np.diag(F)
+    informed = (h > 0) & (f > 0)
+    kappa = float(np.max(h[informed] / f[informed], initial=1.0))
+    gamma = np.finfo(float).eps * (samples * channels + 2 * samples * substeps)
+    return len(F) * kappa * gamma
 
 
 def nonlinear_identifiability(
-    experiments: Sequence[Experiment], config: ModelConfig, substeps: int = 4
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    substeps: int = 4,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
 ) -> Identifiability:
     """The identifiability of `config.free` (a nonlinear model config's) from `experiments` at
-    the config's values (module doc)."""
+    the config's values (module doc); `initial`: each record's initial state by record name
+    (an estimate's `initial_states`, held), else its best fit at the config's values."""
     experiments = config.fitted(experiments)
     channels, recs, model, theta, idx = setup(experiments, config, "analyze on a nonlinear model config")
     free = tuple(config.free)
     ch = [STATES.index(c) for c in channels]
-    flown = flights(experiments, config, substeps=substeps)
+    flown = flights(experiments, config, initial, substeps=substeps)
     res = np.concatenate([r.y - x[:, ch] for r, x in zip(recs, flown)])
     given = config.noise_std or {}
     R = np.array(
@@ -50,4 +82,24 @@ def nonlinear_identifiability(
     struct = Structural(
         free, np.eye(len(free))[[free.index(n) for n in blind]], tuple((n,) for n in blind), blind
     )
-    return assessed(free, theta[idx], F, struct)
+    null = rank_tolerance(H, F, sum(len(r.t) for r in recs), len(channels), substeps)
+    return assessed(free, theta[idx], F, struct, null)
+
+
+def _check(experiments: Sequence[Experiment], config: ModelConfig) -> None:
+    """`InputError` for what the nonlinear fit cannot take (`nonlinear_output_error.setup`)."""
+    setup(config.fitted(experiments), config, "the screen of a nonlinear model config")
+
+
+def _assess(experiments, config: ModelConfig, noise_std: Mapping[str, float]) -> Identifiability:
+    """Stage 1: the analysis at the config's values with the noise σ `noise_std`."""
+    return nonlinear_identifiability(experiments, config.with_noise_std(noise_std))
+
+
+def _information(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:
+    """Stage 2: the information at the estimate `fit`, its noise and initial states."""
+    at = candidates.with_coefficients(fit.coefficients).with_noise_std(fit.noise_std)
+    return nonlinear_identifiability(experiments, at, initial=fit.initial_states).fisher
+
+
+NONLINEAR = ScreenModel(check=_check, assess=_assess, information=_information)
