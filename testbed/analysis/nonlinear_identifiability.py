@@ -10,8 +10,8 @@ information (the Schur complement, `likelihood.reduced`). The noise is the confi
 measure the same states, every sample present, as for the fit. The structural part is only the free coefficients no measured state
 depends on (their sensitivities are 0 along every record): the linear model's exact drift
 analysis (a row operation on its equations) has no counterpart here, so `structural_drift_groups`
-holds only those. A direction along which the information is numerically singular (`rank_tolerance`)
-gives its coefficients infinite bounds.
+holds only those. A direction along which the information is numerically singular
+(an eigenvalue within its own rounding: `rank_tolerance`) gives its coefficients infinite bounds.
 
 The screen of a nonlinear model config (`NONLINEAR`, for `identifiability.screening`) takes its
 stage 1 from this analysis at the a-priori values and its stage 2 from it at the `ml-gn` estimate,
@@ -27,6 +27,7 @@ import numpy as np
 from testbed.analysis.identifiability import Identifiability, ScreenModel, Structural, assessed
 from testbed.data import Experiment, ModelConfig
 from testbed.estimators import Estimate
+from testbed.identification.bounds import NULL
 from testbed.identification.likelihood import reduced
 from testbed.identification.nonlinear_output_error import information, setup
 from testbed.identification.nonlinear_prediction import flights
@@ -36,25 +37,30 @@ __all__ = ["NONLINEAR", "nonlinear_identifiability", "rank_tolerance"]
 
 
 def rank_tolerance(H: np.ndarray, F: np.ndarray, samples: int, channels: int, substeps: int) -> float:
-    """The eigenvalue of the unit-diagonal information `F` (the coefficients' block of `H` with
-    the initial states eliminated), relative to its largest, at or below which a direction cannot
-    be told from a null one by its rounding alone: `n κ γ`.
+    """The null tolerance of `bounds.crlb` for the information `F` (the coefficients' block of
+    `H` with the initial states eliminated): the largest eigenvalue of the unit-diagonal F,
+    relative to the largest, that lies within its own rounding (at least `bounds.NULL`).
 
-    `γ = ε (N C + 2 K)` bounds the relative error of an entry of H, in units of
-    √(H_ii H_jj): the sum over the N samples' C channels of products of sensitivities rounds by at
-    most N C ε of Σ|a b| ≤ √(H_ii H_jj) (Cauchy-Schwarz), and each sensitivity, carried by a
-    recursion through K = N × `substeps` RK4 steps, by at most K ε relative, twice in a product.
-    `κ = max H_ii / F_ii` (over the informed coefficients) carries that error to F's own scale:
-    eliminating the initial states subtracts from H, and its error stays H's. The scaled error
-    matrix's norm is then at most n κ γ (n entries a row), and by Weyl an eigenvalue no larger is
-    within the rounding of 0; the largest eigenvalue is at least 1 (the trace is n), so the
-    relative rule covers it. The eliminations' own rounding (about ε × the initial states' block
-    condition) is left out: a record's few initial states are well determined."""
+    An entry of H is rounded by at most `γ √(H_ii H_jj)`, `γ = ε (N C + 2 K)`: the sum over the N
+    samples' C channels of products of sensitivities rounds by at most N C ε of Σ|a b| ≤
+    √(H_ii H_jj) (Cauchy-Schwarz), and each sensitivity, carried by a recursion through
+    K = N × `substeps` RK4 steps, by at most K ε relative, twice in a product. Eliminating the
+    initial states subtracts from H, so F's error stays on H's scale: on F's unit diagonal an
+    entry's error is at most `γ k_i k_j`, `k_i = √(H_ii / F_ii)`. To first order an eigenvalue
+    moves by `vᵀ E v` along its unit eigenvector v, at most `γ (Σ |v_i| k_i)²`: an eigenvalue no
+    larger cannot be told from 0. (Weyl's bound for all directions at once, `γ Σ k_i²`, lets the
+    worst-scaled coefficient blur every direction.) The eliminations' own rounding (about ε ×
+    the initial states' block condition) is left out: a record's few initial states are well
+    determined."""
     h, f = np.diag(H)[: len(F)], np.diag(F)
     informed = (h > 0) & (f > 0)
-    kappa = float(np.max(h[informed] / f[informed], initial=1.0))
-    gamma = np.finfo(float).eps * (samples * channels + 2 * samples * substeps)
-    return len(F) * kappa * gamma
+    k = np.sqrt(np.where(informed, h / np.where(informed, f, 1.0), 0.0))
+    d = np.where(informed, np.sqrt(np.where(informed, f, 1.0)), 1.0)
+    lam, V = np.linalg.eigh(F / np.outer(d, d))
+    gamma = np.finfo(float).eps * samples * (channels + 2 * substeps)
+    within = lam <= gamma * (np.abs(V).T @ k) ** 2
+    top = max(lam.max(initial=0.0), 1e-300)
+    return float(max(NULL, np.max(lam[within], initial=0.0) / top))
 
 
 def nonlinear_identifiability(
