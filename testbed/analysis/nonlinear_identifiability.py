@@ -20,6 +20,7 @@ each record flown from the fit's initial state.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -99,13 +100,19 @@ def _check(experiments: Sequence[Experiment], config: ModelConfig) -> None:
 
 def _assess(experiments, config: ModelConfig, noise_std: Mapping[str, float]) -> Identifiability:
     """Stage 1: the analysis at the config's values with the noise σ `noise_std`."""
-    return nonlinear_identifiability(experiments, config.with_noise_std(noise_std))
+    return nonlinear_identifiability(experiments, _noise(config, noise_std))
 
 
 def _information(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:
     """Stage 2: the information at the estimate `fit`, its noise and initial states."""
-    at = candidates.with_coefficients(fit.coefficients).with_noise_std(fit.noise_std)
+    at = _noise(candidates.with_coefficients(fit.coefficients), fit.noise_std)
     return nonlinear_identifiability(experiments, at, initial=fit.initial_states).fisher
+
+
+def _noise(config: ModelConfig, noise_std: Mapping[str, float]) -> ModelConfig:
+    """`config` with the noise σ `noise_std` where positive (noise-free data read 0: their
+    channels' variance is then the residuals' mean square)."""
+    return replace(config, noise_std={c: s for c, s in noise_std.items() if s > 0})
 
 
 NONLINEAR = ScreenModel(check=_check, assess=_assess, information=_information)
