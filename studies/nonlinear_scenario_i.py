@@ -26,7 +26,8 @@ linear model fly open loop from the truth's first state with its fin angles
 diameter, steady turn rate, first and second overshoots) are compared with the plant's.
 
 Outputs in `--out`: one run directory per seed (`seed<k>`), `turn` and `zigzag` (the held-out
-runs), `coefficients.csv`, `residuals.csv`, `manoeuvres.csv`. An existing output is refused
+runs), `coefficients.csv`, `residuals.csv`, `manoeuvres.csv` and `summary.md` (`summary`: the
+tables of docs/studies.md). An existing output is refused
 unless `--force` (then only the study's own run directories and tables are replaced).
 
     python studies/nonlinear_scenario_i.py --seeds 5 --out runs/nonlinear-scenario-i
@@ -35,6 +36,7 @@ unless `--force` (then only the study's own run directories and tables are repla
 from __future__ import annotations
 
 import argparse
+import csv
 import io
 import math
 import sys
@@ -62,7 +64,7 @@ from testbed.simulation.scenario import read_scenario
 
 RELATIVE = 0.10  # the bullet's relative band about the captive value
 SIGMAS = 3.0
-TABLES = ("coefficients.csv", "residuals.csv", "manoeuvres.csv")
+TABLES = ("coefficients.csv", "residuals.csv", "manoeuvres.csv", "summary.md")
 HELD_OUT = ("turn", "zigzag")
 METRICS = {
     "turn": ("tactical_diameter", "steady_turn_rate"),
@@ -219,7 +221,51 @@ def study(
             for m, v in values.items():
                 pct = 100 * (v[metric] - reference) / abs(reference)
                 manoeuvres.write(f"{name},{metric},{m},{v[metric]:.6g},{pct:+.2f}\n")
-    return coefficients.getvalue(), residuals.getvalue(), manoeuvres.getvalue()
+    tables = coefficients.getvalue(), residuals.getvalue(), manoeuvres.getvalue()
+    return *tables, summary(tables[0], tables[2])
+
+
+def _span(values, fmt: str) -> str:
+    low, high = fmt.format(min(values)), fmt.format(max(values))
+    return low if low == high else f"{low} to {high}"
+
+
+def summary(coefficients: str, manoeuvres: str) -> str:
+    """The study's two tables in Markdown (docs/studies.md): per coefficient the seeds' range of
+    estimates and errors, how many are within, and the noise-free fit's error; per manoeuvre
+    metric the plant's value and each model's % from it (the seeds as a range)."""
+    rows = list(csv.DictReader(io.StringIO(coefficients)))
+    seeds = [label for label in dict.fromkeys(r["fit"] for r in rows) if label.startswith("seed")]
+    out = io.StringIO()
+    n = len(seeds)
+    out.write(
+        f"| coefficient | captive | seeds 1–{n}: estimate | error % | error / σ | within | noise-free: error % |\n"
+        "|---|---|---|---|---|---|---|\n"
+    )
+    for name in dict.fromkeys(r["coefficient"] for r in rows):
+        of = {r["fit"]: r for r in rows if r["coefficient"] == name}
+        cells = [
+            _span([float(of[s][k]) for s in seeds], fmt)
+            for k, fmt in (("estimate", "{:.4g}"), ("error_percent", "{:+.0f}"), ("error_sigmas", "{:+.1f}"))
+        ]
+        within = sum(of[s]["within"] == "yes" for s in seeds)
+        out.write(
+            f"| {name.replace('|', '&#124;')} | {float(of[seeds[0]]['captive']):.4g} | {' | '.join(cells)} | "
+            f"{within}/{n} | {float(of['noise-free']['error_percent']):+.0f} |\n"
+        )
+    misses = [sum(r["within"] == "no" for r in rows if r["fit"] == s) for s in seeds]
+    out.write(f"\nMisses per seed: {', '.join(map(str, misses))} of {len(rows) // (n + 1)}.\n\n")
+    rows = list(csv.DictReader(io.StringIO(manoeuvres)))
+    out.write(f"| metric | plant | identified (seeds 1–{n}) | noise-free fit | captive | analytic linear |\n")
+    out.write("|---|---|---|---|---|---|\n")
+    for key in dict.fromkeys((r["manoeuvre"], r["metric"]) for r in rows):
+        of = {r["model"]: r for r in rows if (r["manoeuvre"], r["metric"]) == key}
+        pct = {m: float(r["percent_from_plant"]) for m, r in of.items()}
+        cells = [_span([pct[s] for s in seeds], "{:+.2f} %")] + [
+            f"{pct[m]:+.2f} %" for m in ("noise-free", "captive", "linear")
+        ]
+        out.write(f"| {key[0]}: {key[1]} | {float(of['plant']['value']):.6g} | {' | '.join(cells)} |\n")
+    return out.getvalue()
 
 
 def main(argv=None) -> int:
