@@ -62,6 +62,9 @@ from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import read_scenario
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
+from studies.trial import sigma  # noqa: E402  (the coloured-residual σ where the fit gives it)
+
 RELATIVE = 0.10  # the bullet's relative band about the captive value
 SIGMAS = 3.0
 TABLES = ("coefficients.csv", "residuals.csv", "manoeuvres.csv", "summary.md")
@@ -118,11 +121,6 @@ def scenario_files(out: Path, rudder: float, switch: float) -> dict[str, Path]:
 
 def fitted(config: ModelConfig, est: Estimate) -> ModelConfig:
     return config.with_coefficients(dict(zip(est.free, est.values)))
-
-
-def sigma(est: Estimate) -> np.ndarray:
-    """The coloured-residual σ where the fit gives it, else the Cramér-Rao σ."""
-    return est.std if est.crlb_corrected_std is None else est.crlb_corrected_std
 
 
 def ratios(experiments, config: ModelConfig, initial=None) -> str:
