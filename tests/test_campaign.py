@@ -18,7 +18,7 @@ from testbed.errors import InputError
 from testbed.study import campaign, cells, hashing
 from testbed.study.arms import ARMS, DEFAULT_ARMS, FACTORIAL_ARMS
 from testbed.study.campaign import plan
-from testbed.study.cells import OPTIMUM, Cell
+from testbed.study.cells import NONLINEAR, OPTIMUM, Cell
 from testbed.study.results import (
     SUMMARY_COLUMNS,
     judgements,
@@ -82,6 +82,8 @@ def test_plan_pairs_every_arm_with_the_optimum_per_data_set_seed_and_spread():
         for a in (OPTIMUM, *DEFAULT_ARMS)
         for k in (1, 2)
     }
+    # Scenario I on the plant: the nonlinear model, judged against the captive reference
+    expected |= {("I", "plant", sp, NONLINEAR, k) for sp in (0.2, 0.4) for k in (1, 2)}
     expected |= {
         (s, t, sp, a, k)
         for s, t in factorial
@@ -96,7 +98,8 @@ def test_plan_pairs_every_arm_with_the_optimum_per_data_set_seed_and_spread():
     assert Cell("I", "ml-gn", 1).key != Cell("I", "ml-gn", 1, truth="linear").key
     assert Cell("I", "ml-gn", 1).key != Cell("I", "ml-gn", 1, spread=0.4).key
     assert all(c.duration == campaign.QUICK_DURATION for c in plan(1, quick=True))
-    assert {c.arm for c in plan(1, arms=("all",))} == {OPTIMUM, *ARMS}
+    assert {c.arm for c in plan(1, arms=("all",))} == {OPTIMUM, NONLINEAR, *ARMS}
+    assert not any(c.arm == NONLINEAR for c in plan(1, scenarios=("II",), factorial=()))
     # without Scenario II among the scenarios its PRBS level is still fitted by conclusion 3's arm
     alone = plan(1, scenarios=("I",), spreads=(0.4,))
     assert {c.arm for c in alone if c.scenario == "II"} == {OPTIMUM, "ml-nm-paper", "ml-gn"}

@@ -252,9 +252,12 @@ def fit_initial_states(
                 p[r.offset : r.offset + k] = y[0]
                 sums.append(np.full(k, np.inf))
                 continue
-            # columns scaled to a unit largest entry (a norm's squares can overflow): x0's units
-            # do not count
-            D = np.max(np.abs(A), axis=0)
+            # columns scaled to unit length: x0's units do not count
+            with np.errstate(over="ignore"):
+                D = np.linalg.norm(A, axis=0)
+            if not np.all(np.isfinite(D)):  # a square overflowed: the norm over the largest entry
+                top = np.max(np.abs(A), axis=0)
+                D = top * np.linalg.norm(A / np.where(top > 0, top, 1.0), axis=0)
             D = np.where(D > 0, D, 1.0)
             x0 = np.linalg.lstsq(A / D, z, rcond=None)[0] / D
             p[r.offset : r.offset + k] = x0

@@ -214,9 +214,11 @@ def write_report(
     regime: dict,
     drift: dict,
     arms,
+    captive=None,
 ) -> Path:
     """The figures, report.html and report.rrd in `out`: `summary` per data set, spread and arm,
-    `regime` and `drift` per data set, `arms` in the order the figures show them."""
+    `regime` and `drift` per data set, `arms` in the order the figures show them, `captive` per
+    spread and coefficient of the nonlinear cells (`results.captive_table`)."""
     arms = [a for a in arms if any(d["cell"]["arm"] == a for d in docs)]
     palette = colors(arms)
     figures, missing = [], []
@@ -244,7 +246,9 @@ def write_report(
         if name:
             figures.append((f"Iteration histories, Scenario {s}", name))
     atomic_write_text(
-        out / "report.html", report_html(verdicts, summary, regime, drift, figures, missing, docs), force=True
+        out / "report.html",
+        report_html(verdicts, summary, regime, drift, figures, missing, docs, captive),
+        force=True,
     )
     write_rrd(out / "report.rrd", docs)
     return out / "report.html"
@@ -277,7 +281,7 @@ def _fit(v) -> str:
 
 
 def report_html(
-    verdicts: dict, summary: list[dict], regime: dict, drift: dict, figures, missing, docs
+    verdicts: dict, summary: list[dict], regime: dict, drift: dict, figures, missing, docs, captive=None
 ) -> str:
     e = html.escape
     seeds = sorted({d["cell"]["seed"] for d in docs})
@@ -368,6 +372,7 @@ def report_html(
             f"<td>{r['median_wall_time_s']:.1f}</td></tr>"
         )
     parts.append("</table>")
+    parts += captive_html(captive)
     failures = [d for d in docs if d["status"] != "converged"]
     if failures:
         parts.append(f"<h2>Cells that did not converge ({len(failures)})</h2><ul>")
@@ -391,9 +396,50 @@ def report_html(
     return "\n".join(parts)
 
 
+def captive_html(captive: dict | None) -> list[str]:
+    """The section "Scenario I against the captive reference" of the nonlinear cells (`captive`,
+    `results.captive_table`): per spread and coefficient, then per cell its fit and open-loop
+    fit % per channel; nothing without nonlinear cells."""
+    if not captive or not captive["cells"]:
+        return []
+    e = html.escape
+    parts = [
+        "<h2>Scenario I against the captive reference</h2><p>ml-gn fitting the nonlinear model "
+        "(the captive reference of the plant's body: <code>testbed captive</code>) with its terms "
+        "that have a slope at trim free, from the captive values perturbed as the linear arms' "
+        "a-priori model is; each estimate against the captive value, in its Cramér-Rao σ "
+        "(corrected for coloured residuals) and in %. Within: the cells whose estimate is within "
+        "max(3 σ, 10 %) of the captive value.</p><table><tr><th>spread</th><th>coefficient</th>"
+        "<th>captive</th><th>median estimate</th><th>median error (σ)</th><th>median error</th>"
+        "<th>within</th></tr>"
+    ]
+    for r in captive["coefficients"]:
+        parts.append(
+            f"<tr><td>{r['spread']:g}</td><td>{e(r['coefficient'])}</td><td>{r['captive']:.4g}</td>"
+            f"<td>{r['median_estimate']:.4g}</td><td>{r['median_error_sigmas']:+.2f}</td>"
+            f"<td>{r['median_error_percent']:+.2f} %</td><td>{r['within']}/{r['cells']}</td></tr>"
+        )
+    parts.append(
+        "</table><table><tr><th>seed</th><th>spread</th><th>status</th><th>iterations</th>"
+        "<th>wall time (s)</th><th>open-loop fit per channel</th></tr>"
+    )
+    for d in captive["cells"]:
+        fits = "; ".join(
+            f"{x}: " + ", ".join(f"{ch} {_fit(v)}" for ch, v in ch_fits.items())
+            for x, ch_fits in d["fit"].items()
+        )
+        parts.append(
+            f"<tr><td>{d['seed']}</td><td>{d['spread']:g}</td><td>{e(d['status'])}</td>"
+            f"<td>{d['iterations']}</td><td>{d['wall_time_s']:.1f}</td><td>{e(fits) or '–'}</td></tr>"
+        )
+    parts.append("</table>")
+    return parts
+
+
 def write_rrd(path: Path, docs: list[dict]) -> Path:
-    """report.rrd: per data set, spread, coefficient and arm the estimate / analytic over the
-    seeds (timeline `seed`), and the first seed's histories (timelines `iteration` and `time`)."""
+    """report.rrd: per data set, spread, coefficient and arm the estimate / analytic (the
+    nonlinear cells': / captive) over the seeds (timeline `seed`), and the first seed's histories
+    (timelines `iteration` and `time`)."""
     title = "testbed reproduce"
     keys = sorted(d["key"] for d in docs)
     with recording(path, title, data_id(title, *keys), force=True) as rec:
@@ -401,8 +447,9 @@ def write_rrd(path: Path, docs: list[dict]) -> Path:
         for d in docs:
             c = d["cell"]
             where = f"{c['scenario']}/{c['truth']}/s{c['spread']:g}"
+            reference = d.get("captive") or d.get("analytic", {})
             for n, v in d.get("values", {}).items():
-                a = d["analytic"][n]
+                a = reference[n]
                 if a:
                     series.setdefault(f"coefficients/{where}/{n}/{c['arm']}", []).append((c["seed"], v / a))
         for entity, points in series.items():

@@ -5,7 +5,8 @@ and on the analytic linear model flown as the plant (where the linear reference 
 the input factorial (`FACTORIAL`: Scenario II's layout with PRBS, square, 3-2-1-1 and multisine
 inputs) on the plant. Per data set, seed and spread one a-priori model, screened at itself
 (`cells.start`), is where every arm (`arms.ARMS`) starts; the `OPTIMUM` cell looks for the data's
-best-likelihood optimum, against which each arm is judged (`results`). The verdicts on the
+best-likelihood optimum, against which each arm is judged (`results`); on Scenario I on the
+plant the `NONLINEAR` cell fits the nonlinear model, judged against the captive reference. The verdicts on the
 paper's conclusions are `rules.conclusions` of results.csv, of the analytic model's open-loop
 fit per data set (`regime.json`) and of the drift measured per data set (`drift.json`).
 
@@ -44,8 +45,15 @@ from testbed.memory import keep_freed_memory
 from testbed.presentation.figures import write_report
 from testbed.simulation.scenario import TRUTHS
 from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS, arms as checked_arms
-from testbed.study.cells import OPTIMUM, Cell, load_run, run_cell, start
-from testbed.study.results import SUMMARY_COLUMNS, read_results, results_csv, results_rows, summary_table
+from testbed.study.cells import NONLINEAR, OPTIMUM, Cell, load_run, run_cell, start
+from testbed.study.results import (
+    SUMMARY_COLUMNS,
+    captive_table,
+    read_results,
+    results_csv,
+    results_rows,
+    summary_table,
+)
 from testbed.study.rules import FACTORIAL, NM_ARM, conclusions
 
 __all__ = [
@@ -85,8 +93,9 @@ def plan(
 ) -> list[Cell]:
     """The campaign's cells, seed by seed, spread by spread, data set by data set: the `OPTIMUM`
     cell, then `arms` (`all`: every arm); the input factorial's data sets with `FACTORIAL_ARMS`
-    among them only, the drift arms on `scenarios` only. Seeds 1..N; `quick`: experiments of
-    `QUICK_DURATION` s (unless `duration` says otherwise)."""
+    among them only, the drift arms on `scenarios` only; on Scenario I on the plant (with some
+    arm) the `NONLINEAR` cell after them. Seeds 1..N; `quick`: experiments of `QUICK_DURATION` s
+    (unless `duration` says otherwise)."""
     if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEEDS:
         raise InputError(f"seeds={seeds!r}; expected an integer from 1 to {MAX_SEEDS}")
     arms = checked_arms(arms)
@@ -112,8 +121,14 @@ def plan(
         for seed in range(1, seeds + 1)
         for sp in spreads
         for s, t, chosen in sets
-        for a in ((OPTIMUM, *chosen) if chosen else ())
+        for a in ((OPTIMUM, *chosen, *_nonlinear(s, t)) if chosen else ())
     ]
+
+
+def _nonlinear(scenario: str, truth: str) -> tuple[str, ...]:
+    """The nonlinear cell where a data set has one: Scenario I on the plant (the captive
+    reference is the plant's; the linear truth has no nonlinear reference)."""
+    return (NONLINEAR,) if (scenario, truth) == ("I", "plant") else ()
 
 
 # -- the campaign (runs on the client) -------------------------------------------------------------
@@ -408,4 +423,15 @@ def write_outputs(out: Path, docs: list[dict], cells: list[Cell]) -> None:
             inputs[s] = load_data([out / "runs" / first.run_name])[0]
         except (InputError, OSError):
             inputs[s] = None  # the report says which figure is missing
-    write_report(out, docs, rows, verdicts, inputs, summary, found_regime, found_drift, tuple(ARMS))
+    write_report(
+        out,
+        docs,
+        rows,
+        verdicts,
+        inputs,
+        summary,
+        found_regime,
+        found_drift,
+        tuple(ARMS),
+        captive_table(rows, docs),
+    )

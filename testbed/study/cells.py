@@ -10,6 +10,15 @@ the data's best-likelihood optimum: `ml-gn` from the analytic values of the free
 (the fixed ones at the prior's, as every arm has them). Every cell records the output-error
 negative log-likelihood at its estimate (`likelihood_at`), one measure for every method, which
 the judge compares (`testbed.study.results`).
+
+On Scenario I flown on the plant one more fit per seed and spread, the `NONLINEAR` cell: `ml-gn`
+fitting the nonlinear model of the captive reference (`captive_config`, the plant's body at the
+run's trim speed) with its terms that have a slope at trim free (`captive_reference.slope_terms`),
+started from the captive values perturbed as the linear arms' a-priori model is
+(`priors.term_prior`). It is judged against the captive values: per coefficient the error in
+its Cramér-Rao σ (corrected for coloured residuals) and in % of the captive value, with the
+fitted model's open-loop fit % per measured channel (`validation.validate`, its fitted initial
+states).
 """
 
 from __future__ import annotations
@@ -28,6 +37,7 @@ import numpy as np
 
 from testbed.analysis.drift import normalised
 from testbed.analysis.identifiability import screening
+from testbed.analysis.validation import validate
 from testbed.data import load_data
 from testbed.errors import InputError, one_line
 from testbed.estimators import FilterEstimate, identify, lookup
@@ -35,19 +45,23 @@ from testbed.identification import likelihood, recursions, scan
 from testbed.identification.bounds import fisher
 from testbed.identification.problem import problem
 from testbed.models.linear import COEFFICIENTS
+from testbed.simulation.captive_config import captive_config
+from testbed.simulation.captive_reference import slope_terms
 from testbed.simulation.measurements import noise_from_data
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text
 from testbed.study.arms import ARMS
 from testbed.study.hashing import code_hash
-from testbed.study.priors import prior
+from testbed.study.priors import prior, term_prior
 
 __all__ = [
     "Cell",
     "FORMAT",
     "HISTORY_POINTS",
+    "NONLINEAR",
     "OPTIMUM",
     "Start",
+    "captive_start",
     "likelihood_at",
     "load_run",
     "run_cell",
@@ -57,6 +71,7 @@ __all__ = [
 
 FORMAT = 3  # version of the cell file: part of every key, so a new format recomputes
 OPTIMUM = "optimum"  # the cell that looks for the data's best-likelihood optimum (not an arm)
+NONLINEAR = "ml-gn-nonlinear"  # ml-gn on the nonlinear model, judged against the captive reference
 HISTORY_POINTS = 400  # the MEKF's per-sample history, thinned to this many points per cell
 
 
@@ -81,7 +96,7 @@ class Cell:
 
     @property
     def method(self) -> str:
-        return "ml-gn" if self.arm == OPTIMUM else ARMS[self.arm].method
+        return "ml-gn" if self.arm in (OPTIMUM, NONLINEAR) else ARMS[self.arm].method
 
     @functools.cached_property  # reads the scenario file: once per cell
     def key(self) -> str:
@@ -196,6 +211,64 @@ def _fitted_config(cell: Cell, data, begin: Start):
     return replace(analytic, free=free).with_coefficients({n: begin.prior.coefficients[n] for n in free})
 
 
+@functools.lru_cache(maxsize=4)  # one per trim speed and worker: every seed's cell shares it
+def _captive(speed: float):
+    config, _, fit = captive_config(speed=speed)
+    return config, slope_terms(fit.terms)
+
+
+def captive_start(speed: float, spread: float, seed: int):
+    """(the captive reference at trim speed `speed` with its slope terms free, it started from
+    their a-priori values of `spread` and `seed`): what the `NONLINEAR` cell is judged against,
+    and where it starts."""
+    captive, free = _captive(float(speed))
+    captive = replace(captive, free=free)
+    return captive, term_prior(captive, free, spread, seed)
+
+
+def _nonlinear_fit(doc: dict, cell: Cell, experiments, speed: float) -> None:
+    """The `NONLINEAR` cell's fit and its errors against the captive values, into `doc`."""
+    captive, config = captive_start(speed, cell.spread, cell.seed)
+    costs = []
+    est = identify(
+        experiments,
+        config,
+        method="ml-gn",
+        options={"start": "config"},
+        callback=lambda step: costs.append(float(step.cost)),
+    )
+    std = est.crlb_corrected_std if est.crlb_corrected_std is not None else est.std
+    reference = {n: float(captive.terms[n]) for n in est.free}
+    values = {n: float(v) for n, v in zip(est.free, est.values)}
+    sigma = {n: _number(s) for n, s in zip(est.free, std)}
+    fits = validate(experiments, config.with_coefficients(values), initial=est.initial_states)
+    doc.update(
+        _status(est),
+        free=list(est.free),
+        start={n: float(config.terms[n]) for n in est.free},
+        captive=reference,
+        values=values,
+        std=sigma,
+        error_sigmas={
+            n: _number((values[n] - reference[n]) / sigma[n]) if sigma[n] else None for n in values
+        },
+        error_percent={n: 100 * (values[n] - reference[n]) / reference[n] for n in values},
+        fit={x: {c: _number(m.fit_percent) for c, m in ch.items()} for x, ch in fits.experiments.items()},
+        history=_history(est, np.array([reference[n] for n in est.free]), costs),
+    )
+
+
+def _status(est) -> dict:
+    return dict(
+        status=est.status.name.lower().replace("_", " "),
+        reason=_reason(est),
+        converged=bool(est.converged),
+        iterations=int(est.iterations),
+        evaluations=int(est.evaluations),
+        wall_time_s=float(est.wall_time_s),
+    )
+
+
 @scan.compiled()
 def run_cell(cell: Cell, data, begin: Start) -> dict:
     """Fit one cell and measure it; never raises: a failure is returned as a result with
@@ -203,6 +276,9 @@ def run_cell(cell: Cell, data, begin: Start) -> dict:
     t0 = time.perf_counter()
     doc = {"key": cell.key, "cell": asdict(cell), "start_note": begin.note}
     try:
+        if cell.arm == NONLINEAR:
+            _nonlinear_fit(doc, cell, data[0], data[1].vehicle.speed)
+            return doc
         experiments, analytic = data
         config = _fitted_config(cell, data, begin)
         method = lookup(cell.method)
@@ -213,12 +289,7 @@ def run_cell(cell: Cell, data, begin: Start) -> dict:
         values = est.coefficients
         std = est.crlb_corrected_std if est.crlb_corrected_std is not None else est.std
         doc.update(
-            status=est.status.name.lower().replace("_", " "),
-            reason=_reason(est),
-            converged=bool(est.converged),
-            iterations=int(est.iterations),
-            evaluations=int(est.evaluations),
-            wall_time_s=float(est.wall_time_s),
+            _status(est),
             free=list(est.free),
             fixed={
                 n: {"value": float(config.coefficients[n]), "reason": why} for n, why in begin.fixed.items()

@@ -28,6 +28,7 @@ from testbed.data import ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators.base import Estimate, Status
 from testbed.models.linear import COEFFICIENTS
+from testbed.models.regressors import parse_term
 from testbed.simulation.measurements import check_seed
 
 __all__ = [
@@ -36,9 +37,12 @@ __all__ = [
     "SPREAD",
     "ZERO_SIGMAS",
     "PRIOR_STREAM",
+    "TERM_STREAM",
     "SIGMAS",
     "LEVEL",
     "prior",
+    "term_class",
+    "term_prior",
     "Outcome",
     "Judgement",
     "cost_bound",
@@ -70,6 +74,8 @@ ZERO_SIGMAS = 10.0
 # The prior's stream: SeedSequence(seed, spawn_key=(PRIOR_STREAM,)), apart from the noise's
 # streams (spawn keys (experiment, stream)) of the same seed.
 PRIOR_STREAM = 0x7072696F
+# A nonlinear model's terms draw from SeedSequence(seed, spawn_key=(PRIOR_STREAM, TERM_STREAM))
+TERM_STREAM = 1
 
 SIGMAS = 0.1  # success: every free coefficient within SIGMAS · σ of the optimum
 LEVEL = 0.95  # success: ΔJ ≤ χ²_LEVEL(p)/2, the likelihood-ratio confidence region at LEVEL
@@ -102,6 +108,35 @@ def prior(
         theta, s_c = float(config.coefficients[n]), SPREAD[CLASSES[n]] * spread
         values[n] = theta * math.exp(s_c * zn) if theta != 0 else ZERO_SIGMAS * s_c * float(std[n]) * zn
     return config.with_coefficients(values)
+
+
+def term_class(name: str) -> str:
+    """The class of the nonlinear model's term `name`: its linear counterpart's, the term less its
+    u factors (`Y_uv` → `Y_v`, `Z_uude` → `Z_de`, `X_uu` → `X_u`); without one (`K_uuda`, the
+    fins' differential) control for a term of a fin, damping otherwise."""
+    rest = [a for a in parse_term(name).factors if a != "u"]
+    counterpart = f"{name[0]}_{''.join(rest) or 'u'}"
+    if counterpart in CLASSES:
+        return CLASSES[counterpart]
+    return CONTROL if any(a.strip("|").startswith("d") for a in rest) else DAMPING
+
+
+def term_prior(config: ModelConfig, names, spread: float, seed: int) -> ModelConfig:
+    """The a-priori values of a nonlinear model config's terms `names` (the rest kept): each term
+    θ ≠ 0 by the log-normal factor exp(s_c·z) of `prior`, s_c = `SPREAD[term_class]` · `spread`,
+    one z per name in order from the terms' own stream of `seed` (`TERM_STREAM`); a term at 0
+    has no scale to be wrong by and stays 0. s = 0 returns `config` itself."""
+    if not (is_number(spread) and spread >= 0):
+        raise InputError(f"start spread {spread!r}: expected a finite number ≥ 0")
+    seed = check_seed(seed)
+    if spread == 0:
+        return config
+    names = tuple(names)
+    stream = np.random.SeedSequence(seed, spawn_key=(PRIOR_STREAM, TERM_STREAM))
+    z = np.random.default_rng(stream).standard_normal(len(names))
+    return config.with_coefficients(
+        {n: config.terms[n] * math.exp(SPREAD[term_class(n)] * spread * zn) for n, zn in zip(names, z)}
+    )
 
 
 class Outcome(enum.Enum):

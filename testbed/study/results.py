@@ -7,7 +7,10 @@ its judged arms' cells: the optimum search from the analytic values, or an arm w
 lower. Its σ are the `OPTIMUM` cell's Cramér-Rao σ (corrected for coloured residuals), the
 lowest cell's own where those are not finite. Each judged cell is then judged by
 `priors.judge`: success, diverged, stalled at the limit or converged elsewhere; a cell whose fit
-failed is "failed"; the drift arms are not judged (their outcome is empty).
+failed is "failed"; the drift arms are not judged (their outcome is empty). The `NONLINEAR`
+cells are judged against the captive reference instead: their rows carry the captive value in
+the `analytic` column (the reference of `rules.accurate` and `rules.relative_error` in the
+summary) and the largest |θ − θ_captive|/σ in `sigmas`; their outcome is empty.
 """
 
 from __future__ import annotations
@@ -21,14 +24,15 @@ import numpy as np
 
 from testbed.estimators.base import Status
 from testbed.study.arms import ARMS
-from testbed.study.cells import OPTIMUM
+from testbed.study.cells import NONLINEAR, OPTIMUM, Cell
 from testbed.study.priors import Judgement, judge
-from testbed.study.rules import accurate, cells, relative_error, wilson
+from testbed.study.rules import accurate, cells, coefficient_ok, relative_error, wilson
 
 __all__ = [
     "COLUMNS",
     "SUMMARY_COLUMNS",
     "Point",
+    "captive_table",
     "judgements",
     "read_results",
     "results_csv",
@@ -149,17 +153,21 @@ def results_rows(docs: list[dict]) -> list[dict]:
         )
         if judged and outcome == "" and d["status"] != "failed":
             outcome = "unjudged"
+        reference = d.get("captive") if c["arm"] == NONLINEAR else d.get("analytic")
+        sigmas = verdict[0].sigmas if verdict else math.nan
+        if c["arm"] == NONLINEAR and d.get("error_sigmas"):
+            sigmas = max(abs(v) if v is not None else math.inf for v in d["error_sigmas"].values())
         base = {
             "scenario": c["scenario"],
             "truth": c["truth"],
             "spread": c["spread"],
             "arm": c["arm"],
-            "method": ARMS[c["arm"]].method if c["arm"] in ARMS else "",
+            "method": Cell(**c).method if c["arm"] in (*ARMS, NONLINEAR) else "",
             "seed": c["seed"],
             "converged": d["converged"],
             "status": d["status"],
             "outcome": outcome,
-            "sigmas": verdict[0].sigmas if verdict else math.nan,
+            "sigmas": sigmas,
             "delta_cost": verdict[0].delta_cost if verdict else math.nan,
             "iterations": d["iterations"],
             "evaluations": d.get("evaluations", 0),
@@ -173,7 +181,7 @@ def results_rows(docs: list[dict]) -> list[dict]:
                 {
                     **base,
                     "coefficient": n,
-                    "analytic": d["analytic"][n] if n else math.nan,
+                    "analytic": reference[n] if n else math.nan,
                     "optimum": optimum.get(n, math.nan),
                     "estimate": d["values"][n] if n else math.nan,
                     "std": _std(d, n),
@@ -249,3 +257,43 @@ def summary_table(rows: list[dict]) -> list[dict]:
             }
         )
     return out
+
+
+def captive_table(rows: list[dict], docs: list[dict]) -> dict[str, list[dict]]:
+    """The `NONLINEAR` cells against the captive reference: "coefficients", per spread and
+    coefficient (results.csv's rows, the captive value in `analytic`), the captive value, the
+    cells, the median estimate, the median error in σ ((θ − θ_captive)/σ) and in % of the
+    captive value, and the cells within `rules.coefficient_ok` (max(3 σ, 10 %) of the captive
+    value); "cells", per cell (`docs`) its seed, spread, status, iterations, wall time and
+    open-loop fit % per experiment and channel."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        if r["arm"] == NONLINEAR and r["coefficient"]:
+            groups.setdefault((r["spread"], r["coefficient"]), []).append(r)
+    out = []
+    for (sp, n), rs in groups.items():
+        sigmas = [(r["estimate"] - r["analytic"]) / r["std"] for r in rs]
+        out.append(
+            {
+                "spread": sp,
+                "coefficient": n,
+                "captive": rs[0]["analytic"],
+                "cells": len(rs),
+                "median_estimate": float(np.median([r["estimate"] for r in rs])),
+                "median_error_sigmas": float(np.median(sigmas)),
+                "median_error_percent": float(
+                    np.median([100 * (r["estimate"] - r["analytic"]) / r["analytic"] for r in rs])
+                ),
+                "within": sum(map(coefficient_ok, rs)),
+            }
+        )
+    fits = [
+        {
+            **{k: d["cell"][k] for k in ("seed", "spread")},
+            **{k: d[k] for k in ("status", "iterations", "wall_time_s")},
+            "fit": d.get("fit", {}),
+        }
+        for d in docs
+        if d and d["cell"]["arm"] == NONLINEAR
+    ]
+    return {"coefficients": out, "cells": fits}

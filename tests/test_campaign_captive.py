@@ -1,0 +1,99 @@
+"""The campaign's nonlinear cell: ml-gn fitting the nonlinear model to a short Scenario I on the
+plant, from the captive values perturbed as the linear arms' prior is, judged against the captive
+reference (`testbed captive`'s config, read here on its own), its rows in results.csv and the
+summary, and its table in the report."""
+
+import math
+
+import numpy as np
+import pytest
+
+from testbed.presentation.figures import write_report
+from testbed.simulation.captive_config import captive_config
+from testbed.simulation.captive_reference import slope_terms
+from testbed.study.cells import NONLINEAR, Cell, Start, load_run, run_cell
+from testbed.study.priors import SPREAD, term_class
+from testbed.study.results import captive_table, read_results, results_csv, results_rows, summary_table
+
+DURATION = 15.0  # s: a short Scenario I (its quick runs are 30 s)
+SPREAD_S = 0.4
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    out = tmp_path_factory.mktemp("campaign")
+    data = load_run(str(out), "I", "plant", 1, DURATION)
+    c = Cell("I", NONLINEAR, 1, SPREAD_S, "plant", DURATION)
+    doc = run_cell(c, data, Start(None, None, {}, ""))  # the linear start is not the nonlinear cell's
+    return doc, data
+
+
+def test_a_term_takes_its_linear_counterparts_class():
+    assert [term_class(n) for n in ("X_uu", "Y_uv", "Y_up", "Z_uude", "K_uuda", "N_r|r|", "M_uq")] == [
+        "damping",
+        "damping",
+        "cross-coupling",
+        "control",
+        "control",
+        "damping",
+        "damping",
+    ]
+
+
+def test_the_nonlinear_cell_is_judged_against_the_captive_values(cell):
+    doc, data = cell
+    assert doc["status"] != "failed", doc.get("traceback")
+    captive, _, fit = captive_config(speed=data[1].vehicle.speed)
+    free = slope_terms(fit.terms)
+    assert tuple(doc["free"]) == free and len(free) == 19
+    assert doc["captive"] == {n: captive.terms[n] for n in free}
+    # started from a guess: every term off the captive value by a log-normal factor of its class
+    for n in free:
+        ratio = doc["start"][n] / captive.terms[n]
+        assert ratio != 1.0 and abs(math.log(ratio)) <= 5 * SPREAD[term_class(n)] * SPREAD_S, n
+    for n in free:
+        err = doc["values"][n] - captive.terms[n]
+        assert doc["error_sigmas"][n] == pytest.approx(err / doc["std"][n], rel=1e-12)
+        assert doc["error_percent"][n] == pytest.approx(100 * err / captive.terms[n], rel=1e-12)
+        assert doc["std"][n] > 0
+    # the open-loop fit of every measured channel of the record
+    ((name, fits),) = doc["fit"].items()
+    assert name == data[0][0].name and set(fits) == set(data[0][0].measured)
+    assert all(v <= 100 for v in fits.values())
+    assert doc["converged"] and doc["iterations"] >= 1 and doc["wall_time_s"] > 0
+
+
+def test_its_rows_summary_and_report_table_carry_the_captive_judgement(cell, tmp_path):
+    doc, data = cell
+    (tmp_path / "results.csv").write_text(results_csv(results_rows([doc])))
+    rows = read_results(tmp_path / "results.csv")
+    assert {r["arm"] for r in rows} == {NONLINEAR} and {r["method"] for r in rows} == {"ml-gn"}
+    captive = captive_config(speed=data[1].vehicle.speed)[0].terms
+    sigmas = {r["coefficient"]: (r["estimate"] - captive[r["coefficient"]]) / r["std"] for r in rows}
+    assert {r["coefficient"]: r["analytic"] for r in rows} == pytest.approx(
+        {n: captive[n] for n in sigmas}, rel=1e-9
+    )
+    assert rows[0]["sigmas"] == pytest.approx(max(map(abs, sigmas.values())), rel=1e-6)
+    assert {r["outcome"] for r in rows} == {""}  # not judged against the linear optimum
+    # within max(3 σ, 10 %) of the captive value, counted here
+    within = {
+        n: abs(s) <= 3 or abs(s) * r["std"] <= 0.1 * abs(captive[n])
+        for (n, s), r in zip(sigmas.items(), rows)
+    }
+    (summary,) = summary_table(rows)
+    assert summary["accurate"] == int(all(within.values())) and summary["judged"] == 0
+    table = captive_table(rows, [doc])
+    assert {r["coefficient"]: r["within"] for r in table["coefficients"]} == {
+        n: int(w) for n, w in within.items()
+    }
+    assert {r["coefficient"]: r["median_error_sigmas"] for r in table["coefficients"]} == pytest.approx(
+        sigmas, rel=1e-6
+    )
+    write_report(tmp_path, [doc], rows, {}, {}, [summary], {}, {}, (), table)
+    html = (tmp_path / "report.html").read_text()
+    assert "<h2>Scenario I against the captive reference</h2>" in html
+    for n, s in sigmas.items():
+        assert f"<td>{n}</td><td>{captive[n]:.4g}</td>" in html
+        assert f"<td>{s:+.2f}</td>" in html
+    assert f"u {doc['fit'][data[0][0].name]['u']:.2f} %" in html
+    assert np.isfinite(list(sigmas.values())).all()
