@@ -272,12 +272,17 @@ def _cmd_check(args) -> int:
 
 
 def _cmd_validate(args) -> int:
+    from testbed.analysis.manoeuvres import compared_table
     from testbed.jobs import validate_data
 
     out = _to_stdout(args.out)
-    validation, text = validate_data(args.data, args.estimates, config=args.config, out=out, force=args.force)
+    validation, text, manoeuvres = validate_data(
+        args.data, args.estimates, config=args.config, out=out, force=args.force
+    )
     _emit(out, text)
     print(validation.table(), file=sys.stderr)
+    if manoeuvres:
+        print(compared_table(manoeuvres), file=sys.stderr)
     return 0
 
 

@@ -310,16 +310,20 @@ def validate_data(
     config: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
     force: bool = False,
-) -> tuple[Validation, str]:
+) -> tuple[Validation, str, dict]:
     """Fit % and residual whiteness on `data` of a model config (`config`, default: the run's
     model.toml, or a nonlinear fit's config named in `estimates`) with the coefficients of the
     `estimates` JSON applied, or as it stands without `estimates`; the validation JSON (also
-    written to `out`; `force` as for `identify_data`) with them. A nonlinear model config is flown open loop
+    written to `out`; `force` as for `identify_data`) with them, and experiment name → the
+    manoeuvre metrics of the record and of the model's open-loop prediction for each manoeuvre a
+    run directory of `data` flies (`analysis.manoeuvres.compared`: `Compared`). A nonlinear model config is flown open loop
     (`analysis.validate`)."""
     model = _nonlinear_estimates(estimates) if estimates is not None else None
     if config is None and model is not None:
         config = model["config"]
     experiments, cfg, run_config, read = inputs(data, config)
+    runs = [Path(p) for p in data if (Path(p) / "scenario.toml").is_file()]  # their manoeuvres compared
+    read += [f for run in runs for f in (run / "scenario.toml", *run.glob("*.truth.csv"))]
     check_outputs(read + ([estimates] if estimates is not None else []), {"out": out}, force)
     coefficients = {}
     if cfg.terms is None:
@@ -344,6 +348,11 @@ def validate_data(
             )
         coefficients = read_estimates(estimates, cfg.nonlinear()[0].names)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
+    manoeuvres = {}
+    if runs:
+        from testbed.analysis.manoeuvres import compared  # mujoco (the scenarios): only for runs
+
+        manoeuvres = {name: c for run in runs for name, c in compared(run, validation.predictions).items()}
     given = estimates is not None
     text = (
         json.dumps(
@@ -351,6 +360,7 @@ def validate_data(
                 "config": cfg.source,
                 **({"estimates": str(estimates), "coefficients": coefficients} if given else {}),
                 "validation": validation.to_dict(),
+                **({"manoeuvres": {n: c.to_dict() for n, c in manoeuvres.items()}} if manoeuvres else {}),
             },
             indent=2,
             allow_nan=False,
@@ -358,7 +368,7 @@ def validate_data(
         + "\n"
     )
     write_text(out, text, force)
-    return validation, text
+    return validation, text, manoeuvres
 
 
 def _nonlinear_estimates(path) -> dict | None:

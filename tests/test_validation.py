@@ -1,12 +1,19 @@
 """Validation metrics: fit % and residual whiteness against closed forms, and `testbed validate`."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from testbed.cli import main
+from testbed.analysis.manoeuvres import compared, experiment_metrics, metric_values, run_metrics
+from testbed.analysis.track import record_track
 from testbed.analysis.validation import CONFIDENCE, chi2_sf, fit_percent, whiteness
+from testbed.data import load_data
+from testbed.identification.prediction import predict
+from testbed.simulation import runs
+from testbed.simulation.scenario import read_scenario
 
 
 def test_fit_percent_is_one_minus_the_relative_error_norm():
@@ -90,7 +97,62 @@ def test_validate_on_a_held_out_run(tmp_path, capsys):
     assert "estimates" not in doc and doc["config"].endswith("model.toml")
     for c, m in doc["validation"]["turn"].items():
         assert m["fit_percent"] == pytest.approx(m["fit_percent_analytic"], abs=1e-9), c
+    assert "manoeuvres" not in doc  # the turn's rudder is held from the start: no manoeuvre
     assert "Ljung-Box" in err and "turn" in err
+
+
+SMALL_TURN = """name = "small-turn"
+duration = 30.0
+depth = 100.0
+control_rate = 50.0
+
+[[experiment]]
+name = "circle"
+rudder = {signal = "step", amplitude = 0.01, start = 1.0}
+autopilot = {depth = 0.0, roll = 0.0}
+"""
+
+
+def test_validate_compares_the_manoeuvre_of_record_and_model(tmp_path, capsys):
+    """A run flying a turning circle on a 0.01 rad rudder step: the record's metrics are the
+    run's own (its .truth.csv), the model's are those of the track its open-loop prediction makes
+    (built here from the analytic model's prediction), and each difference is 100 (model −
+    record) / |record|."""
+    (tmp_path / "small-turn.toml").write_text(SMALL_TURN)
+    spec = read_scenario(tmp_path / "small-turn.toml")
+    run = runs.simulate(spec, out=tmp_path / "run")
+    out = tmp_path / "val.json"
+    capsys.readouterr()
+    assert main(["validate", str(run), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    doc = json.loads(out.read_text())["manoeuvres"]["circle"]
+    assert doc["manoeuvre"] == "turning circle" and doc["source"] == str(run / "circle.truth.csv")
+    assert doc["record"] == metric_values(run_metrics(run)["circle"])
+    experiments, config = load_data([run])
+    (yhat,) = predict(experiments, config)
+    track = record_track(replace(experiments[0], y=yhat))
+    model = metric_values(experiment_metrics(spec.experiments[0], track))
+    assert doc["model"] == pytest.approx(model, rel=1e-12)
+    # the prediction's circle is kinematic: the steady diameter is 2 U / |r| over the steady turn
+    assert model["steady_diameter"] == pytest.approx(
+        2 * model["steady_speed"] / abs(model["steady_turn_rate"]), rel=0.01
+    )
+    for k, v in doc["record"].items():
+        if isinstance(v, float):
+            assert doc["difference_percent"][k] == pytest.approx(100 * (model[k] - v) / abs(v), rel=1e-9), k
+    assert set(doc["difference_percent"]) >= {
+        "advance",
+        "transfer",
+        "tactical_diameter",
+        "steady_turn_rate",
+        "speed_ratio",
+    }
+    assert "tactical_diameter" in err and "diff %" in err
+    # a prediction without u has no track: the model's side is left out, the reason given
+    partial = {"circle": replace(experiments[0], y=yhat).only(["v", "w", "r", "phi", "theta", "psi"])}
+    (c,) = compared(run, partial).values()
+    assert c.model is None and c.differences() == {} and c.record == run_metrics(run)["circle"]
+    assert c.note.startswith("no model metrics: ") and "u not measured" in c.note
 
 
 @pytest.mark.parametrize(

@@ -18,7 +18,7 @@ a-priori config) and, when given, for the analytic model on the same data.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -125,9 +125,11 @@ def _finite(v: float) -> float | None:
 
 @dataclass(frozen=True)
 class Validation:
-    """experiment → channel → metrics."""
+    """experiment → channel → metrics; `predictions`: experiment → the validated model's
+    open-loop prediction as a record (the experiment with ŷ in its measured channels)."""
 
     experiments: Mapping[str, Mapping[str, ChannelMetrics]]
+    predictions: Mapping[str, Experiment] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {e: {c: m.to_dict() for c, m in ch.items()} for e, ch in self.experiments.items()}
@@ -174,8 +176,9 @@ def validate(
     else:
         yhat = nonlinear_prediction.predict(experiments, config, initial)
     base = predict(experiments, analytic) if analytic is not None else [None] * len(experiments)
-    out = {}
+    out, predictions = {}, {}
     for e, y_model, y_base in zip(experiments, yhat, base):
+        predictions[e.name] = replace(e, y=y_model, source=f"the model's prediction of {e.source or e.name}")
         out[e.name] = {}
         for k, c in enumerate(e.measured):
             at = ~np.isnan(e.y[:, k])  # the samples present; their residuals in sequence
@@ -185,4 +188,4 @@ def validate(
                 whiteness(y - y_model[at, k]),
                 None if y_base is None else fit_percent(y, y_base[at, k]),
             )
-    return Validation(out)
+    return Validation(experiments=out, predictions=predictions)
