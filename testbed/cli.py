@@ -227,7 +227,7 @@ def _cmd_identify(args) -> int:
     if done.comparison is not None:
         print(done.comparison.table(), file=sys.stderr)
     for n, why in done.fixed.items():
-        print(f"{n:<12}fixed at {done.config.coefficients[n]:.4g}: {why}", file=sys.stderr)
+        print(f"{n:<12}fixed at {done.config.values[n]:.4g}: {why}", file=sys.stderr)
     if done.screen and not done.fixed:
         print(
             f"testbed identify: estimated as listed; the screen would fix {', '.join(done.screen)} "

@@ -21,7 +21,7 @@ import numpy as np
 from testbed.analysis.identifiability import (
     Comparison,
     Identifiability,
-    Screened,
+    LINEAR,
     compare,
     identifiability,
     identify_screened,
@@ -37,8 +37,8 @@ from testbed.data import (
     run_csvs,
 )
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
-from testbed.estimators import Estimate, Progress, Status, identify, lookup
-from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
+from testbed.estimators import Estimate, Progress, Status, check_method, identify, lookup
+from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_identifiability
 from testbed.analysis.validation import Validation, validate
 from testbed.identification.problem import base_name, check_inputs
 
@@ -187,7 +187,8 @@ def identify_data(
     )
     check_outputs(read, {"out": out, "history": history, "rrd": rrd}, force)
     if cfg.terms is not None:
-        _nonlinear_refusals(cfg, m.name, rrd, screen)
+        check_method(m.name, cfg)  # before the screen's fit
+        _nonlinear_refusals(cfg, rrd)
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
     iterations = []  # (iteration, values, cost) of the iterative methods, for the recording
@@ -198,11 +199,8 @@ def identify_data(
         if progress is not None:
             progress(step)
 
-    if cfg.terms is None:
-        screened = identify_screened(experiments, cfg, m.name, opts, callback, apply=screen)
-    else:  # the screen is the linear model's: a nonlinear config's free list is fitted as written
-        fit = identify(experiments, cfg, m.name, opts, callback)
-        screened = Screened(cfg, fit, {}, True)
+    model = LINEAR if cfg.terms is None else NONLINEAR
+    screened = identify_screened(experiments, cfg, m.name, opts, callback, apply=screen, model=model)
     cfg, estimate = screened.config, screened.estimate
     if estimate.status is Status.DIVERGED:
         expected = f" (expected {'another start or ' if m.starts else ''}a better a-priori config)"
@@ -218,7 +216,7 @@ def identify_data(
         doc["corrections"] = {"file": str(corrections), "values": applied}
     if screened.fixed:
         doc["fixed"] = {
-            n: {"value": float(cfg.coefficients[n]), "reason": why} for n, why in screened.fixed.items()
+            n: {"value": float(cfg.values[n]), "reason": why} for n, why in screened.fixed.items()
         }
     if not screened.applied:
         doc["screen"] = dict(screened.screen)
@@ -255,14 +253,9 @@ def identify_data(
     )
 
 
-def _nonlinear_refusals(cfg: ModelConfig, method: str, rrd, screen: bool | None) -> None:
+def _nonlinear_refusals(cfg: ModelConfig, rrd) -> None:
     """`InputError` for what `identify_data` does for the linear model only."""
     where = f"{cfg.source or 'config'}: a nonlinear model config ([terms])"
-    if screen or (screen is None and cfg.screen):
-        raise InputError(
-            f"{where}: the screen is the linear model's; expected its free list estimated as written "
-            "(--free-all, or screen = false)"
-        )
     if rrd is not None:
         raise InputError(f"{where}: --rrd logs the linear model's fit only; expected no recording")
 

@@ -102,6 +102,7 @@ def test_mekf_on_the_command_line(files, truth, capsys, tmp_path):
     _ok(capsys, argv + ["--out", est])
     doc = json.loads(est.read_text())
     assert doc["method"] == "mekf" and doc["converged"] and doc["filter"] == "square-root MEKF"
+    assert list(doc["coefficients"]) == list(FREE)
     assert doc["nonlinear_model"] == {"config": str(files / "start.toml"), "terms": list(config.terms)}
     for n, c in doc["coefficients"].items():
         assert abs(c["value"] - config.terms[n]) <= 3 * c["std"], n

@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, replace
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import ModelConfig
+from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
-from testbed.identification.bounds import crlb, fisher
+from testbed.identification.bounds import NULL, crlb, fisher
 from testbed.simulation.measurements import noise_from_data
 from testbed.models.linear import (
     OUTSIDE_EQUATIONS,
@@ -35,8 +36,10 @@ from testbed.models.linear import (
 __all__ = [
     "Comparison",
     "Identifiability",
+    "LINEAR",
     "SIGNIFICANT",
     "Screen",
+    "ScreenModel",
     "Screened",
     "assessed",
     "Structural",
@@ -235,11 +238,14 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     return assessed(free, theta[[ITHETA[base_name(n)] for n in free]], F, struct)
 
 
-def assessed(free: tuple[str, ...], values: np.ndarray, F: np.ndarray, struct: Structural) -> Identifiability:
+def assessed(
+    free: tuple[str, ...], values: np.ndarray, F: np.ndarray, struct: Structural, null: float = NULL
+) -> Identifiability:
     """The identifiability of the coefficients `free` at `values` from their Fisher information
     `F` and their exactly unidentifiable directions `struct`: the bounds (infinite in a drift
-    group), correlations, practical drift groups, the practically unknown, the summary."""
-    bounds = crlb(F)
+    group, or along a direction of F whose eigenvalue is at most `null` of the largest:
+    `bounds.crlb`), correlations, practical drift groups, the practically unknown, the summary."""
+    bounds = crlb(F, null)
     std, corr = bounds.std.copy(), bounds.correlation.copy()
     # a structural drift group has no information at all: infinite bounds, undefined correlations
     drifting = np.array([n in {m for g in struct.drift_groups for m in g} for n in free])
@@ -350,22 +356,54 @@ def insignificant(free, estimate, information: np.ndarray, prior) -> dict[str, s
     return fixed
 
 
-def screening(experiments, config, options=None, callback=None) -> Screen:
+@dataclass(frozen=True)
+class ScreenModel:
+    """What the screen needs of a model; the rest (`screening`) is the same mathematics for every
+    model: an information matrix and an estimate.
+
+    Attributes:
+        check: `(experiments, config)` → None; `InputError` for what no screen can mend.
+        assess: `(experiments, config, noise_std)` → the `Identifiability` of `config.free` at
+            the config's values with the measurement noise σ per state `noise_std` (stage 1).
+        information: `(experiments, candidates, fit)` → the Fisher information of
+            `candidates.free` at the `ml-gn` estimate `fit` (stage 2).
+    """
+
+    check: Callable[[Sequence[Experiment], ModelConfig], None]
+    assess: Callable[[Sequence[Experiment], ModelConfig, Mapping[str, float]], Identifiability]
+    information: Callable[[Sequence[Experiment], ModelConfig, Estimate], np.ndarray]
+
+
+def _information(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:
+    """The linear model's information at the estimate, the problem checked against the a-priori
+    candidates: the step check (`problem.check_inputs`) is about the user's model, not a model the
+    fit reached (the simulation is exact at any step; a mode too fast for it only makes the data
+    blind to it)."""
+    return fisher(
+        candidates.fitted(experiments), candidates, values=fit.coefficients, noise_std=fit.noise_std
+    )
+
+
+LINEAR = ScreenModel(check=check_fit, assess=identifiability, information=_information)
+
+
+def screening(experiments, config, options=None, callback=None, model: ScreenModel = LINEAR) -> Screen:
     """The screen of the candidate list `config.free`: which candidates these data determine.
 
     Nothing is fixed for its a-priori magnitude, nor for being 0. Stage 1, at the a-priori
     coefficients with the measurement noise read off the data (third differences,
     `noise_from_data`) where the config's `noise_std` does not give it: the structurally
-    unidentifiable candidates are fixed (`structurally_unidentified`). Stage 2: the rest are
-    fitted with `ml-gn` (`options`, its options; `callback`, its progress), and those the
-    estimate does not make significant are fixed by backward elimination (`insignificant`). A
-    fixed candidate stays at its a-priori value. When the `ml-gn` fit diverges, stage 2 fixes
-    nothing. What no screen can mend (bad data, a candidate no fitted state depends on) is an
-    `InputError` first (`check_fit`).
+    unidentifiable candidates are fixed (`structurally_unidentified` of `model.assess`). Stage 2:
+    the rest are fitted with `ml-gn` (`options`, its options; `callback`, its progress), and
+    those the estimate does not make significant are fixed by backward elimination
+    (`insignificant`, with `model.information` at the estimate). A fixed candidate stays at its
+    a-priori value. When the `ml-gn` fit diverges, stage 2 fixes nothing. What no screen can mend
+    (bad data, a candidate no fitted state depends on) is an `InputError` first (`model.check`).
+    `model`: the linear model's (`LINEAR`) or another's (`ScreenModel`).
     """
-    check_fit(experiments, config)
+    model.check(experiments, config)
     noise = noise_from_data(config.fitted(experiments), config.noise_std)
-    result = identifiability(experiments, config, noise)
+    result = model.assess(experiments, config, noise)
     fixed = {
         n: f"not determined by these data: {why}"
         for n, why in _by_name(result.free, structurally_unidentified(result)).items()
@@ -376,13 +414,8 @@ def screening(experiments, config, options=None, callback=None) -> Screen:
     fit = identify(experiments, candidates, method="ml-gn", options=options, callback=callback)
     if fit.status is Status.DIVERGED:
         return Screen(candidates, fixed, fit)
-    # the information at the estimate, the problem checked against the a-priori candidates: the
-    # step check (`problem.check_inputs`) is about the user's model, not a model the fit reached
-    # (the simulation is exact at any step; a mode too fast for it only makes the data blind to it)
-    information = fisher(
-        candidates.fitted(experiments), candidates, values=fit.coefficients, noise_std=fit.noise_std
-    )
-    prior = [config.coefficients[base_name(n)] for n in fit.free]
+    information = model.information(experiments, candidates, fit)
+    prior = [config.values[base_name(n)] for n in fit.free]
     for n, why in _by_name(fit.free, insignificant(fit.free, fit.values, information, prior)).items():
         fixed[n] = f"not determined by these data: {why}"
     return Screen(_without(config, fixed), fixed, fit)
@@ -419,10 +452,16 @@ def screen(experiments, config):
 
 
 def identify_screened(
-    experiments, config, method: str = "ml-gn", options=None, callback=None, apply: bool | None = None
+    experiments,
+    config,
+    method: str = "ml-gn",
+    options=None,
+    callback=None,
+    apply: bool | None = None,
+    model: ScreenModel = LINEAR,
 ) -> Screened:
-    """Screen `config.free` (`screening`) and fit with `method` (`options`, `callback` as for
-    `identify`).
+    """Screen `config.free` (`screening`, for `model`) and fit with `method` (`options`,
+    `callback` as for `identify`).
 
     `apply`: fit only the candidates the screen leaves free (default: `config.screen`, the
     config's `[identify] screen`); otherwise fit `config.free` as written, the screen only
@@ -433,7 +472,7 @@ def identify_screened(
     apply = config.screen if apply is None else apply
     same = lookup(method).name == "ml-gn"
     steps = []
-    s = screening(experiments, config, options if same else None, steps.append if same else None)
+    s = screening(experiments, config, options if same else None, steps.append if same else None, model)
     fitted = s.config if apply else config
     if not fitted.free:
         first = next(iter(s.fixed))

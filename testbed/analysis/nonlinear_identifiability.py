@@ -10,35 +10,74 @@ information (the Schur complement, `likelihood.reduced`). The noise is the confi
 measure the same states, every sample present, as for the fit. The structural part is only the free coefficients no measured state
 depends on (their sensitivities are 0 along every record): the linear model's exact drift
 analysis (a row operation on its equations) has no counterpart here, so `structural_drift_groups`
-holds only those.
+holds only those. A direction along which the information is numerically singular
+(an eigenvalue within its own rounding: `rank_tolerance`) gives its coefficients infinite bounds.
+
+The screen of a nonlinear model config (`NONLINEAR`, for `identifiability.screening`) takes its
+stage 1 from this analysis at the a-priori values and its stage 2 from it at the `ml-gn` estimate,
+each record flown from the fit's initial state.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from dataclasses import replace
+from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.identifiability import Identifiability, Structural, assessed
+from testbed.analysis.identifiability import Identifiability, ScreenModel, Structural, assessed
 from testbed.data import Experiment, ModelConfig
+from testbed.estimators import Estimate
+from testbed.identification.bounds import NULL
 from testbed.identification.likelihood import reduced
 from testbed.identification.nonlinear_output_error import information, setup
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
 
-__all__ = ["nonlinear_identifiability"]
+__all__ = ["NONLINEAR", "nonlinear_identifiability", "rank_tolerance"]
+
+
+def rank_tolerance(H: np.ndarray, F: np.ndarray, samples: int, channels: int, substeps: int) -> float:
+    """The null tolerance of `bounds.crlb` for the information `F` (the coefficients' block of
+    `H` with the initial states eliminated): the largest eigenvalue of the unit-diagonal F,
+    relative to the largest, that lies within its own rounding (at least `bounds.NULL`).
+
+    An entry of H is rounded by at most `γ √(H_ii H_jj)`, `γ = ε (N C + 2 K)`: the sum over the N
+    samples' C channels of products of sensitivities rounds by at most N C ε of Σ|a b| ≤
+    √(H_ii H_jj) (Cauchy-Schwarz), and each sensitivity, carried by a recursion through
+    K = N × `substeps` RK4 steps, by at most K ε relative, twice in a product. Eliminating the
+    initial states subtracts from H, so F's error stays on H's scale: on F's unit diagonal an
+    entry's error is at most `γ k_i k_j`, `k_i = √(H_ii / F_ii)`. To first order an eigenvalue
+    moves by `vᵀ E v` along its unit eigenvector v, at most `γ (Σ |v_i| k_i)²`: an eigenvalue no
+    larger cannot be told from 0. (Weyl's bound for all directions at once, `γ Σ k_i²`, lets the
+    worst-scaled coefficient blur every direction.) The eliminations' own rounding (about ε ×
+    the initial states' block condition) is left out: a record's few initial states are well
+    determined."""
+    h, f = np.diag(H)[: len(F)], np.diag(F)
+    informed = (h > 0) & (f > 0)
+    k = np.sqrt(np.where(informed, h / np.where(informed, f, 1.0), 0.0))
+    d = np.where(informed, np.sqrt(np.where(informed, f, 1.0)), 1.0)
+    lam, V = np.linalg.eigh(F / np.outer(d, d))
+    gamma = np.finfo(float).eps * samples * (channels + 2 * substeps)
+    within = lam <= gamma * (np.abs(V).T @ k) ** 2
+    top = max(lam.max(initial=0.0), 1e-300)
+    return float(max(NULL, np.max(lam[within], initial=0.0) / top))
 
 
 def nonlinear_identifiability(
-    experiments: Sequence[Experiment], config: ModelConfig, substeps: int = 4
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    substeps: int = 4,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
 ) -> Identifiability:
     """The identifiability of `config.free` (a nonlinear model config's) from `experiments` at
-    the config's values (module doc)."""
+    the config's values (module doc); `initial`: each record's initial state by record name
+    (an estimate's `initial_states`, held), else its best fit at the config's values."""
     experiments = config.fitted(experiments)
     channels, recs, model, theta, idx = setup(experiments, config, "analyze on a nonlinear model config")
     free = tuple(config.free)
     ch = [STATES.index(c) for c in channels]
-    flown = flights(experiments, config, substeps=substeps)
+    flown = flights(experiments, config, initial, substeps=substeps)
     res = np.concatenate([r.y - x[:, ch] for r, x in zip(recs, flown)])
     given = config.noise_std or {}
     R = np.array(
@@ -50,4 +89,30 @@ def nonlinear_identifiability(
     struct = Structural(
         free, np.eye(len(free))[[free.index(n) for n in blind]], tuple((n,) for n in blind), blind
     )
-    return assessed(free, theta[idx], F, struct)
+    null = rank_tolerance(H, F, sum(len(r.t) for r in recs), len(channels), substeps)
+    return assessed(free, theta[idx], F, struct, null)
+
+
+def _check(experiments: Sequence[Experiment], config: ModelConfig) -> None:
+    """`InputError` for what the nonlinear fit cannot take (`nonlinear_output_error.setup`)."""
+    setup(config.fitted(experiments), config, "the screen of a nonlinear model config")
+
+
+def _assess(experiments, config: ModelConfig, noise_std: Mapping[str, float]) -> Identifiability:
+    """Stage 1: the analysis at the config's values with the noise σ `noise_std`."""
+    return nonlinear_identifiability(experiments, _noise(config, noise_std))
+
+
+def _information(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:
+    """Stage 2: the information at the estimate `fit`, its noise and initial states."""
+    at = _noise(candidates.with_coefficients(fit.coefficients), fit.noise_std)
+    return nonlinear_identifiability(experiments, at, initial=fit.initial_states).fisher
+
+
+def _noise(config: ModelConfig, noise_std: Mapping[str, float]) -> ModelConfig:
+    """`config` with the noise σ `noise_std` where positive (noise-free data read 0: their
+    channels' variance is then the residuals' mean square)."""
+    return replace(config, noise_std={c: s for c, s in noise_std.items() if s > 0})
+
+
+NONLINEAR = ScreenModel(check=_check, assess=_assess, information=_information)

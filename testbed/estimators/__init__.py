@@ -40,6 +40,7 @@ __all__ = [
     "Options",
     "Progress",
     "Status",
+    "check_method",
     "identify",
     "lookup",
     "register",
@@ -73,6 +74,18 @@ def lookup(name: str) -> Method:
     return METHODS[name]
 
 
+def check_method(method: str, config: ModelConfig) -> None:
+    """`InputError` unless the named method fits the model of `config`: a method without a
+    `nonlinear` fit refuses a nonlinear model config (`config.terms`)."""
+    m = lookup(method)
+    if config.terms is not None and m.nonlinear is None:
+        takes = ", ".join(n for n, k in METHODS.items() if k.nonlinear is not None)
+        raise InputError(
+            f"method={m.name!r} fits the linear model only; {config.source or 'the config'} is a "
+            f"nonlinear model config ([terms]); expected a linear model config, or {takes} for [terms]"
+        )
+
+
 def identify(
     experiments: Sequence[Experiment],
     config: ModelConfig,
@@ -91,13 +104,8 @@ def identify(
     """
     m = lookup(method)
     opts = m.options.build(m.name, options, **more)
+    check_method(m.name, config)
     if config.terms is not None:
-        if m.nonlinear is None:
-            takes = ", ".join(n for n, k in METHODS.items() if k.nonlinear is not None)
-            raise InputError(
-                f"method={m.name!r} fits the linear model only; {config.source or 'the config'} is a "
-                f"nonlinear model config ([terms]); expected a linear model config, or {takes} for [terms]"
-            )
         return m.nonlinear(config.fitted(experiments), config, opts, callback)
     experiments = config.fitted(experiments)
     check_fit(experiments, config)

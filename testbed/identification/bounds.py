@@ -55,15 +55,15 @@ class Bounds(NamedTuple):
 NULL = 1e-12  # eigenvalue of the scaled Fisher matrix, relative to its largest, that counts as 0
 
 
-def crlb(M: np.ndarray) -> Bounds:
+def crlb(M: np.ndarray, null: float = NULL) -> Bounds:
     """Cramér-Rao bounds of the Fisher information `M`: covariance, standard deviations and
     correlations, with one rule for a singular or nearly singular M.
 
     M is scaled to unit diagonal (`Mₛ = D⁻¹ M D⁻¹`, D = √diag M, so the rule does not depend on
-    the parameters' units) and Mₛ = V Λ Vᵀ; eigenvalues at or below `NULL` × the largest are null
-    directions. `covariance = D⁻¹ V₊ Λ₊⁻¹ V₊ᵀ D⁻¹` over the other eigenvalues, a generalised
+    the parameters' units) and Mₛ = V Λ Vᵀ; eigenvalues at or below `null` (default `NULL`) × the
+    largest are null directions. `covariance = D⁻¹ V₊ Λ₊⁻¹ V₊ᵀ D⁻¹` over the other eigenvalues, a generalised
     inverse of M. A parameter whose unit vector lies in the range of M has the bound
-    `σ_i² = (M⁻)_ii`, the same for every generalised inverse; one with a component above √NULL
+    `σ_i² = (M⁻)_ii`, the same for every generalised inverse; one with a component above √null
     along the null directions (or no information at all, M_ii = 0) is unidentifiable: no unbiased
     estimator has a finite variance, so σ_i = inf (a truncated pseudo-inverse would report a
     small, wrong bound) and its correlations are NaN.
@@ -73,9 +73,9 @@ def crlb(M: np.ndarray) -> Bounds:
     informed = D > 0
     D = np.where(informed, D, 1.0)
     lam, V = np.linalg.eigh(M / np.outer(D, D))
-    null = lam <= NULL * max(lam.max(initial=0.0), 1e-300)
-    cov = (V[:, ~null] / lam[~null]) @ V[:, ~null].T / np.outer(D, D)
-    unidentifiable = ~informed | (np.linalg.norm(V[:, null], axis=1) > np.sqrt(NULL))
+    zero = lam <= null * max(lam.max(initial=0.0), 1e-300)
+    cov = (V[:, ~zero] / lam[~zero]) @ V[:, ~zero].T / np.outer(D, D)
+    unidentifiable = ~informed | (np.linalg.norm(V[:, zero], axis=1) > np.sqrt(null))
     std = np.where(unidentifiable, np.inf, np.sqrt(np.maximum(np.diag(cov), 0.0)))
     s = np.where(unidentifiable, np.nan, std)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -18,14 +18,20 @@ def captive_config(
 ) -> tuple[ModelConfig, dict[str, str], CaptiveFit]:
     """`(ModelConfig, comments, fit)`: the captive reference of `mjcf` (default: the bundled
     torpedo) at trim speed `speed` (default: its cruise speed), a nonlinear model config with
-    the inertia coefficients and every term, none free; the comments say where each came from."""
+    the inertia coefficients and every term, the terms a candidate list for the screen
+    (`[identify] screen = true`); the comments say where each came from.
+
+    The inertia coefficients are no candidates: the PMM tests measure them directly, while in a
+    free-running record they share regressors with terms (the added mass's Munk moment and
+    Coriolis forces, (Z_wdot − X_udot)·u·w in the pitch row beside M_uw, …), so that with them
+    free the information is singular along directions that hold most terms."""
     model = load_model(mjcf)
     U = cruise_speed(model) if speed is None else trim_speed(speed)
     fit = captive_reference(model, U)
     inertia = {n: v for n, v in fit.coefficients.items() if n not in fit.terms}
     terms = {n: fit.coefficients[n] for n in fit.terms}
     vehicle = constants(model, U)
-    config = ModelConfig(vehicle, inertia, (), str(mjcf or ""), terms=terms)
+    config = ModelConfig(vehicle, inertia, tuple(terms), str(mjcf or ""), screen=True, terms=terms)
     where = Path(mjcf).name if mjcf else "the bundled torpedo"
     at_trim = set(slope_terms(fit.terms))
     comments = {"speed": f"U, trim speed; captive reference of {where}"}
