@@ -53,6 +53,7 @@ LAYERS = [
         "testbed.identification.bounds",
         "testbed.identification.prediction",
         "testbed.identification.nonlinear_prediction",
+        "testbed.identification.nonlinear_transition",
         "testbed.identification.concentrated",
         "testbed.identification.innovations",
     ),

@@ -57,6 +57,16 @@ recomputed only when a coefficient moved more than `refresh_tol` of its σ since
 and in between E is carried to first order, `E(θ̂) ≈ E(θₘ) + ∂E·(θ̂ − θₘ)` (one product), so the
 prediction's error is second order in that move; D is ∂E at θₘ.
 
+The nonlinear model (a config with `[terms]`). The same filters with the
+model's own one-sample transition (`NonlinearTransition`): the RK4 flight over the sample
+interval with the fins held, Φ and D that map's exact sensitivities to the state and the free
+coefficients at the KF's state, the EKF's prediction its own flight (the model's one interface
+to the filters: `begin` an experiment, `step` one sample, `(Φ, D, xk⁺, x⁺)`). The states carry u
+as the perturbation here too (the flight adds the vehicle's speed). One pass: the options
+`NONLINEAR_REFUSED` (the fixed-interval iterations and the exponential's refresh, which the
+exact flight has no use for) are an `OptionError` at any value but their default; the records as
+`ml-gn` takes them (`nonlinear_output_error.setup`: complete, measuring the same states).
+
 The conventional EKF (`ekf`) is the textbook filter on the same augmented model: linearised
 about its own estimate, `P = F P Fᵀ + Q`, `P = P − K C P` (no symmetrisation, no Joseph form),
 so rounding shows up as asymmetry and lost definiteness; both are checked every sample.
@@ -164,7 +174,7 @@ import io
 import math
 import time
 from functools import lru_cache
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -174,6 +184,7 @@ from testbed.errors import InputError, is_number
 from testbed.estimators.base import (
     Estimate,
     Method,
+    OptionError,
     Options,
     Progress,
     Status,
@@ -182,6 +193,8 @@ from testbed.estimators.base import (
     option,
     unphysical,
 )
+from testbed.identification.nonlinear_output_error import setup
+from testbed.identification.nonlinear_transition import NonlinearTransition
 from testbed.identification.problem import one_model
 from testbed.identification.recursions import simulated
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
@@ -203,6 +216,7 @@ __all__ = [
     "FilterEstimate",
     "FilterOptions",
     "MEKF",
+    "NONLINEAR_REFUSED",
     "PAPER_OPTIONS",
     "run_filter",
     "sqrt_update",
@@ -297,6 +311,19 @@ class DiscreteModel:
         """A new experiment (sample interval `dt`): its first `linearised` is exact."""
         self.dt, self.tol2, self.th_model = dt, refresh_tol**2, None
 
+    def begin(self, e: Experiment, refresh_tol: float) -> None:
+        """A new experiment `e` (`restart`): its inputs, each with the 1 of the constant term."""
+        self.restart(e.dt, refresh_tol)
+        self.inputs = np.hstack([e.inputs, np.ones((len(e.t), 1))])
+
+    def step(self, k: int, th: np.ndarray, var: np.ndarray, xk: np.ndarray, x: np.ndarray | None = None):
+        """`(Φ, D, xk⁺, x⁺)` of the time update from sample k at `th` (`linearised`, centred on
+        `xk`): the states one sample on from `xk` and (if given) from `x` (None otherwise)."""
+        xi = np.concatenate((xk, self.inputs[k]))
+        E, D = self.linearised(th, var, xi)
+        ahead = None if x is None else E @ np.concatenate((x, self.inputs[k]))
+        return E[:, : len(E)], D, E @ xi, ahead
+
     def linearised(self, th: np.ndarray, var: np.ndarray, xi: np.ndarray):
         """`(E, D)` for the time update at `th` (coefficient variances `var`): `E = [Φ Γ s]` and
         `D = ∂(E ξ)/∂θ` (n, p) at `xi = [x; δ; 1]` (the linearisation centre). E is exact if a
@@ -317,6 +344,8 @@ class DiscreteModel:
 # ---------------------------------------------------------------- options and result
 
 CONVENTIONAL_FLOOR = 0.01  # the conventional EKF's default `state_noise` (module docstring)
+# the options the filter on a nonlinear model config has no use for (module docstring)
+NONLINEAR_REFUSED = ("passes", "pass_tol", "refresh_tol")
 
 # The paper's MEKF (§5): its model of the data has measurement noise R alone (§4's likelihood),
 # and its square-root algorithm propagates J_{k,k−1} from the model with no process-noise term:
@@ -622,7 +651,7 @@ class _Books:
 def _sqrt_pass(
     e: Experiment,
     st: _State,
-    model: DiscreteModel,
+    model: DiscreteModel | NonlinearTransition,
     o: FilterOptions,
     sigma_r,
     U: float,
@@ -649,13 +678,12 @@ def _sqrt_pass(
     ja[n:, n:N] = st.Jth
     sel = m + rows  # rows of C J⁻ within the arrays
     Ftop = np.zeros((n, N))  # [Φ D], the top rows of F = [[Φ, D], [0, I]]
-    inputs = np.hstack([e.inputs, np.ones((len(e.t), 1))])
     xk = x.copy()  # the Kalman filter's estimate: the MEKF's linearisation centre
     th, ref = st.th, st.ref
     books = _Books(st, o, m, callback)
     error = _ModelError(qx, e.measured, rows, y, present, st, o)
     qa, qk = N + error.rows, n + N + error.rows  # the matched σ's columns in the roots' Q½ blocks
-    model.restart(e.dt, o.refresh_tol)
+    model.begin(e, o.refresh_tol)
     t0, last, Ja = e.t[0] - st.t_offset, len(e.t) - 1, None
     try:
         for k in range(len(e.t)):
@@ -700,17 +728,15 @@ def _sqrt_pass(
                 ja[:, N:] = np.diag(np.concatenate([error.q, st.qth]))
                 jk[:, n + N :] = np.diag(error.q)
             # --- time update, linearised at the KF's estimate (and the reference θ_r, if any)
-            xi = np.concatenate((xk, inputs[k]))
-            E, D = model.linearised(th if ref is None else ref, var, xi)
-            Ftop[:, :n], Ftop[:, n:] = E[:, :n], D
+            Phi, D, xk, ahead = model.step(k, th if ref is None else ref, var, xk, x if modified else None)
+            Ftop[:, :n], Ftop[:, n:] = Phi, D
             if modified:
-                xk = E @ xi
-                x = E @ np.concatenate((x, inputs[k]))
-                jk[:, :n] = E[:, :n] @ Jx
+                x = ahead
+                jk[:, :n] = Phi @ Jx
                 if ref is None:  # θ̂'s uncertainty enters the KF as noise; θ_r is given
                     jk[:, n : N + n] = D @ Ja[n:]
             else:
-                x = xk = E @ xi
+                x = xk
             if ref is not None:  # x⁻ = Φ_r x + Γ_r δ + s_r + D (θ̂ − θ_r): linear in [x; θ]
                 x = x + D @ (th - ref)
             ja[:n, :N] = Ftop @ Ja
@@ -725,7 +751,7 @@ def _sqrt_pass(
 def _conventional_pass(
     e: Experiment,
     st: _State,
-    model: DiscreteModel,
+    model: DiscreteModel | NonlinearTransition,
     o: FilterOptions,
     sigma_r,
     U: float,
@@ -740,11 +766,10 @@ def _conventional_pass(
     P[:n, :n] = np.diag(sx0**2)
     P[n:, n:] = st.Jth @ st.Jth.T
     F = np.eye(n + p)
-    inputs = np.hstack([e.inputs, np.ones((len(e.t), 1))])
     th, ref = st.th, st.ref
     books = _Books(st, o, m, callback, signed=True)
     error = _ModelError(qx, e.measured, rows, y, present, st, o)
-    model.restart(e.dt, o.refresh_tol)
+    model.begin(e, o.refresh_tol)
     t0, last = e.t[0] - st.t_offset, len(e.t) - 1
     try:
         for k in range(len(e.t)):
@@ -778,10 +803,8 @@ def _conventional_pass(
             books.sample(k, x, th, var, float(w @ w), ldiag, int(ok.sum()))
             if k == last:
                 break
-            xi = np.concatenate((x, inputs[k]))
-            E, D = model.linearised(th if ref is None else ref, var, xi)  # at its own estimate
-            F[:n, :n], F[:n, n:] = E[:, :n], D
-            x = E @ xi
+            Phi, D, x, _ = model.step(k, th if ref is None else ref, var, x)  # at its own estimate
+            F[:n, :n], F[:n, n:] = Phi, D
             if ref is not None:  # x⁻ = Φ_r x + Γ_r δ + s_r + D (θ̂ − θ_r)
                 x = x + D @ (th - ref)
             P = F @ P @ F.T + Q
@@ -794,9 +817,7 @@ def _conventional_pass(
 def _pass(
     experiments: Sequence[Experiment],
     st: _State,
-    s,
-    theta: np.ndarray,
-    idx: np.ndarray,
+    transition: Callable[[], DiscreteModel | NonlinearTransition],
     o: FilterOptions,
     sigma_r,
     U: float,
@@ -811,7 +832,7 @@ def _pass(
         # an overflow or 0/0 makes a state, coefficient or variance non-finite, which `_Books`
         # reports as the divergence it is (numpy's warnings would only repeat it)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            model = DiscreteModel(s, theta, idx)
+            model = transition()
             for e in experiments:
                 if st.count >= st.total:
                     break
@@ -841,6 +862,46 @@ def _covariance(st: _State, square_root: bool):
     return Ja @ Ja.T, Ja
 
 
+def _linear(experiments: Sequence[Experiment], config: ModelConfig, method: str, options: FilterOptions):
+    """`run_filter`'s linear model: the experiments and config as the filter takes them
+    (`one_model`), θ (all 35) with `idx` free, the model's one-sample transition (a factory: one
+    per pass) and why values reached for the free coefficients are unphysical (None if not)."""
+    experiments, config = one_model(experiments, config, method)
+    s = structure(config.vehicle)
+    theta = theta_vector(config.coefficients)
+    idx = np.array([ITHETA[n] for n in config.free])
+
+    def why(values: np.ndarray) -> str | None:
+        reached = theta.copy()
+        reached[idx] = values
+        return unphysical(s, reached)
+
+    return experiments, config, theta, idx, lambda: DiscreteModel(s, theta, idx), why
+
+
+def _nonlinear(experiments: Sequence[Experiment], config: ModelConfig, method: str, options: FilterOptions):
+    """`_linear` for a nonlinear model config: its θ (`model.names` order), its transition the
+    model's RK4 flight (`NonlinearTransition`), nothing unphysical; `OptionError` for an option
+    it has no use for (`NONLINEAR_REFUSED`) given a value other than its default."""
+    defaults = {f.name: f.default for f in fields(FilterOptions)}
+    for name in NONLINEAR_REFUSED:
+        value = getattr(options, name)
+        if value != defaults[name]:
+            raise OptionError(
+                method, name, value, "its default: the filter on a nonlinear model config has no such option"
+            )
+    model, theta, idx = setup(experiments, config, f"{method} on a nonlinear model config")[2:]
+    idx = np.array(idx)
+    return (
+        experiments,
+        config,
+        theta,
+        idx,
+        lambda: NonlinearTransition(model, theta, idx),
+        lambda values: None,
+    )
+
+
 def run_filter(
     experiments: Sequence[Experiment],
     config: ModelConfig,
@@ -853,15 +914,15 @@ def run_filter(
 ) -> FilterEstimate:
     """The filter over the experiments in sequence, `options.passes` times at most (module
     docstring, "Fixed-interval iterations"). `modified`: centre the Jacobian on a parallel KF
-    (square-root only); otherwise on the filter's own estimate."""
+    (square-root only); otherwise on the filter's own estimate. A nonlinear model config
+    (`config.terms`) is filtered with its own transition (module docstring, "The nonlinear
+    model")."""
     t_start = time.perf_counter()
-    experiments, config = one_model(experiments, config, method)
+    prepare = _linear if config.terms is None else _nonlinear
+    experiments, config, theta, idx, transition, unphysical_at = prepare(experiments, config, method, options)
     if options.state_noise is None:
         options = replace(options, state_noise=0.0 if square_root else CONVENTIONAL_FLOOR)
-    s = structure(config.vehicle)
     U = config.vehicle.speed
-    theta = theta_vector(config.coefficients)
-    idx = np.array([ITHETA[n] for n in config.free])
     p, n = len(idx), NX
     th0 = theta[idx].copy()
     floor = options.prior_floor or 1e-3 * (np.abs(theta).max() or 1.0)
@@ -903,7 +964,7 @@ def run_filter(
             matched=frozenset(sigma_r) - quiet,
             ref=ref,
         )
-        diverged = _pass(experiments, st, s, theta, idx, options, sigma_r, U, modified, square_root, callback)
+        diverged = _pass(experiments, st, transition, options, sigma_r, U, modified, square_root, callback)
         processed += st.count
         simulated(st.count * (1 + p))  # the state and its p parameter columns propagated
         P, Ja = _covariance(st, square_root)
@@ -920,9 +981,7 @@ def run_filter(
     values = st.th.copy()
     hist, hist_std = st.hist[:count], np.sqrt(np.maximum(st.hist_var[:count], 0.0))
     cost = st.cost + float(np.log(np.abs(st.ldiag[:count])).sum())
-    reached = theta.copy()
-    reached[idx] = values
-    why = None if diverged else unphysical(s, reached)
+    why = None if diverged else unphysical_at(values)
     if why:
         diverged = {"reason": why, "sample": None, "t": None}
     if diverged:
@@ -1015,7 +1074,14 @@ def _method(name: str, modified: bool, square_root: bool, summary: str) -> Metho
         )
 
     return Method(
-        name=name, fit=fit, options=FilterOptions, summary=summary, iterative=False, starts=False, online=True
+        name=name,
+        fit=fit,
+        options=FilterOptions,
+        summary=summary,
+        iterative=False,
+        starts=False,
+        online=True,
+        nonlinear=fit,
     )
 
 
