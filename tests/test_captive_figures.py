@@ -17,7 +17,7 @@ import pytest
 import rerun.chunk
 
 from test_report import _blueprint, _logged, _matches, _tabs, _views  # noqa: F401  (the recording's readers)
-from testbed.cli import main
+from test_bad_input import cli
 from testbed.models import linear, nonlinear
 from testbed.models.mechanics import coriolis
 from testbed.models.regressors import ROWS
@@ -222,16 +222,6 @@ def test_the_recording_holds_every_panels_points_and_curves(tmp_path, captive):
         view = plots[sweep_entity(p)]
         assert _matches(view, logged) == {f"{sweep_entity(p)}/plant", f"{sweep_entity(p)}/model"}
         assert view["name"].endswith(f"fit {p.fit:.2f} %")
-
-
-def cli(capsys, *argv):
-    """(exit status, stdout, stderr) of `testbed argv` run in this process."""
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_captive_writes_the_recording_beside_the_config(tmp_path, capsys):

@@ -8,21 +8,11 @@ import time
 
 import pytest
 
-from testbed.cli import main
+from test_bad_input import cli
 from testbed.data import read_config
 from testbed.models.nonlinear import INERTIA, TERMS
 from testbed.simulation.captive_reference import Turns, reference_tests
 from testbed.simulation.vehicle import default_mjcf
-
-
-def cli(capsys, *argv):
-    """(exit status, stdout, stderr) of `testbed argv` run in this process."""
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_captive_writes_the_reference_and_prints_every_surface(tmp_path, capsys):

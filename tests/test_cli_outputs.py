@@ -10,7 +10,7 @@ import tomllib
 
 import pytest
 
-from testbed.cli import main
+from test_bad_input import cli
 from testbed.data import read_config, write_config, write_csv
 from testbed.errors import InputError, atomic_file, atomic_write_text
 from testbed.jobs import analyze_data, check_data, identify_data, validate_data
@@ -30,16 +30,6 @@ def estimates(run, tmp_path_factory):
     path = tmp_path_factory.mktemp("e") / "estimates.json"
     identify_data([run], out=path, options={"max_iter": 1})
     return path
-
-
-def cli(capsys, *argv):
-    """(exit status, stdout, stderr) of `testbed argv` run in this process."""
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def _listing(folder):
