@@ -328,13 +328,19 @@ def information(
     """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [θ's `free` coefficients | each
     record's measured initial states] with the noise variances `R` per channel, each record flown
     from its row of `x0` (records, 10), and the residuals along the flights."""
+    res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
+    return _normal_equations(res, sens, np.asarray(R, float), True)[0], res
+
+
+def _linearisation(model, theta, x0, records, channels, free, substeps):
+    """Each record's residuals along its flight from its row of `x0`, and its output
+    sensitivities to θ's `free` coefficients and to its measured initial states."""
     ch = [STATES.index(c) for c in channels]
     idx = np.array([model.names.index(n) for n in free])
     flown, res = _simulate(model, theta, x0, records, ch, substeps)
     if res is None:
         raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
-    sens = _sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
-    return _normal_equations(res, sens, np.asarray(R, float), True)[0], res
+    return res, _sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
 
 
 def _normal_equations(res, sens, R, free_initial):
@@ -380,16 +386,11 @@ def coloured_bounds(
     variances `R`: the Cramér-Rao σ of θ's `free` coefficients (the initial states among the
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
     (`bounds.colored_covariance`, its per-record sum `bounds.colored_term`), and the residuals."""
-    ch = [STATES.index(c) for c in channels]
-    idx = np.array([model.names.index(n) for n in free])
-    flown, res = _simulate(model, theta, x0, records, ch, substeps)
-    if res is None:
-        raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
-    sens = _sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
+    res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
     R = np.asarray(R, float)
     H, _ = _normal_equations(res, sens, R, True)
     cov, std, _ = crlb(H)
-    p, P, scale = len(idx), len(H), np.sqrt(R)
+    p, P, scale = len(free), len(H), np.sqrt(R)
     total = np.zeros((p, p))
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
         Z = (_jacobian(i, St, Sx, P, True) / scale[:, None]) @ cov[:p].T
