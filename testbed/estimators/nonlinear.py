@@ -49,12 +49,19 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status
 from testbed.estimators.simplex import fresh_simplex, simplex_coefficients, simplex_run
-from testbed.identification.nonlinear_output_error import coloured_bounds, fit_output_error, setup
+from testbed.identification.nonlinear_output_error import (
+    coloured_bounds,
+    fit_output_error,
+    neg_log_likelihood,
+    pooled_noise,
+    residuals,
+    setup,
+    start_states,
+)
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.nonlinear_prediction import initial_state
 from testbed.identification.recursions import counting, simulated
-from testbed.models.linear import NX, STATES
-from testbed.models.nonlinear_flight import fly
+from testbed.models.linear import STATES
 
 __all__ = ["STARTS", "gauss_newton", "simplex"]
 
@@ -161,20 +168,8 @@ def simplex(
         th[idx] = scale * x
         return th
 
-    def residuals(th, x0):
-        out = []
-        with np.errstate(all="ignore"):
-            for r, x in zip(recs, x0):
-                e = r.y - fly(model, th, r.t, x, r.fins)[:, ch]
-                simulated(len(r.t))
-                if not np.all(np.isfinite(e)):
-                    return None
-                out.append(e)
-        return out
-
-    def noise(res):
-        R = sum(np.sum(e**2, axis=0) for e in res) / N
-        return np.where(np.isnan(held), np.maximum(R, 1e-30), held)
+    def flown(th, x0):
+        return residuals(model, th, x0, recs, ch)
 
     def relaxed(th, x0, R):
         """Each record's initial state fitted at θ (R held where given) and its outputs'
@@ -188,21 +183,19 @@ def simplex(
         return np.array(fitted), sens
 
     with counting() as tally:
-        x0 = np.zeros((len(recs), NX))
-        x0[:, 0] = model.vehicle.speed
-        x0[:, ch] = [r.y[0] for r in recs]
-        if residuals(theta, x0) is None:
+        x0 = start_states(model, recs, ch)
+        if flown(theta, x0) is None:
             raise InputError(
                 f"{config.source or 'config'}: the model's flight from the start values does not stay "
                 "finite over the records; expected a start whose flight does (or ml-gn, which halves them)"
             )
         x0, sens = relaxed(theta, x0, None)
-        R = noise(residuals(theta, x0))
+        R = pooled_noise(flown(theta, x0), held)
 
         def J(v: np.ndarray) -> float:
             """J_M at θ(v), each record's initial state concentrated out to first order: the
             residual less its weighted least-squares fit by the initial-state sensitivities."""
-            res = residuals(coefficients(v), x0)
+            res = flown(coefficients(v), x0)
             if res is None:
                 return np.inf
             total = 0.0
@@ -233,13 +226,12 @@ def simplex(
                 break
             # the relaxation at the best corner: the initial states and their sensitivities, then R
             x0, sens = relaxed(coefficients(x), x0, R)
-            R, R_old = noise(residuals(coefficients(x), x0)), R
+            R, R_old = pooled_noise(flown(coefficients(x), x0), held), R
             if J_start - J_best <= tol and np.max(np.abs(R / R_old - 1)) < options.r_tol:
                 status = Status.CONVERGED
                 break
     th = coefficients(x)
     std, coloured, res = coloured_bounds(model, th, x0, recs, channels, config.free, R)
-    cost = 0.5 * float(N * np.sum(np.log(2 * np.pi * R))) + 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
     return _estimate(
         config,
         experiments,
@@ -251,7 +243,7 @@ def simplex(
         status=status,
         values=th[idx],
         std=std,
-        cost=cost,
+        cost=neg_log_likelihood(res, R),
         iterations=it,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
         history=np.array(history),

@@ -48,8 +48,12 @@ __all__ = [
     "coloured_bounds",
     "fit_output_error",
     "information",
+    "neg_log_likelihood",
+    "pooled_noise",
     "records",
+    "residuals",
     "setup",
+    "start_states",
 ]
 
 DAMPING = (1e-3, 10.0, 1e10)  # λ: its start, its factor down after a success and up after a failure, its cap
@@ -172,6 +176,36 @@ def _simulate(model, theta, x0, records, ch, substeps):
     return flown, res
 
 
+def residuals(model: NonlinearModel, theta, x0: np.ndarray, records: Sequence[Record], ch, substeps: int = 4):
+    """Each record's residuals (N, C) in the state columns `ch`, flown from its row of `x0`
+    (records, 10); None where a flight does not stay finite. Tallied as `_simulate`'s."""
+    return _simulate(model, theta, x0, records, ch, substeps)[1]
+
+
+def start_states(model: NonlinearModel, records: Sequence[Record], ch) -> np.ndarray:
+    """(records, 10): each record's first sample in its measured state columns `ch`, straight
+    flight at the vehicle's speed in the others."""
+    x0 = np.zeros((len(records), NX))
+    x0[:, 0] = model.vehicle.speed
+    x0[:, ch] = [r.y[0] for r in records]
+    return x0
+
+
+def pooled_noise(res: Sequence[np.ndarray], held: np.ndarray) -> np.ndarray:
+    """R per channel: the residuals' mean square over every record's samples, or `held` where it
+    is not NaN (a given noise variance)."""
+    R = sum(np.sum(e**2, axis=0) for e in res) / sum(len(e) for e in res)
+    return np.where(np.isnan(held), np.maximum(R, 1e-30), held)
+
+
+def neg_log_likelihood(res: Sequence[np.ndarray], R: np.ndarray) -> float:
+    """−ln p(Z | θ, R) = ½ Σ_c N_c ln 2π R_c + ½ Σ eᵀR⁻¹e over the records' residuals."""
+    counts = sum(len(e) for e in res)
+    return 0.5 * float(counts * np.sum(np.log(2 * np.pi * R))) + 0.5 * sum(
+        float(np.sum(e**2 / R)) for e in res
+    )
+
+
 def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     """Each record's output sensitivities to θ[free] (N, C, p) and to the measured channels'
     initial states (N, C, C), along its flown states; tallied (`recursions.counting`) as 1 + p
@@ -206,9 +240,7 @@ def fit_output_error(
     channels, free, noise_std = tuple(channels), tuple(free), dict(noise_std or {})
     _check(model, records, channels, free, noise_std, tolerance, max_iterations)
     ch = [STATES.index(c) for c in channels]
-    x0 = np.zeros((len(records), NX))
-    x0[:, 0] = model.vehicle.speed
-    x0[:, ch] = [r.y[0] for r in records]
+    x0 = start_states(model, records, ch)
     held = np.array([noise_std.get(c, np.nan) ** 2 for c in channels])
     settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations, callback)
     options = dict(
@@ -252,7 +284,6 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
     ch = [STATES.index(c) for c in channels]
     idx = np.array([model.names.index(n) for n in free])
     p = len(idx)
-    counts = sum(len(r.t) for r in records)
 
     def unpack(q):
         th, x = theta.copy(), x0.copy()
@@ -261,21 +292,14 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
             x[:, ch] = q[p:].reshape(len(records), len(ch))
         return th, x
 
-    def noise(res):
-        R = sum(np.sum(e**2, axis=0) for e in res) / counts
-        return np.where(np.isnan(held), np.maximum(R, 1e-30), held)
-
     def weighted(res, R):
         return 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
-
-    def nll(res, R):
-        return 0.5 * float(counts * np.sum(np.log(2 * np.pi * R))) + weighted(res, R)
 
     q = np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []])
     flown, res = _simulate(model, *unpack(q), records, ch, substeps)
     if res is None:
         return None
-    R = noise(res)
+    R = pooled_noise(res, held)
     lam, down, cap = DAMPING[0], DAMPING[1], DAMPING[2]
     status, iterations = "iteration limit", 0
     for iterations in range(1, max_iterations + 1):
@@ -294,9 +318,9 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
             status = "stalled"
             break
         q, flown, res, lam = q + step, trial_flown, trial, lam / down
-        R = noise(res)
+        R = pooled_noise(res, held)
         if callback is not None:
-            callback(q[:p].copy(), nll(res, R))
+            callback(q[:p].copy(), neg_log_likelihood(res, R))
         if np.all(np.abs(step) <= tolerance * std):
             status = "converged"
             break
@@ -309,7 +333,7 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
         std={n: float(s) for n, s in zip(free, std[:p])},
         initial_states=x,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
-        cost=nll(res, R),
+        cost=neg_log_likelihood(res, R),
         iterations=iterations,
         status=status,
     )
