@@ -30,7 +30,7 @@ from testbed.data import Experiment, ModelConfig
 from testbed.estimators import Estimate
 from testbed.identification.bounds import NULL
 from testbed.identification.likelihood import reduced
-from testbed.identification.nonlinear_output_error import information, setup
+from testbed.identification.nonlinear_output_error import information, pooled_noise, setup
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
 
@@ -78,11 +78,9 @@ def nonlinear_identifiability(
     free = tuple(config.free)
     ch = [STATES.index(c) for c in channels]
     flown = flights(experiments, config, initial, substeps=substeps)
-    res = np.concatenate([r.y - x[:, ch] for r, x in zip(recs, flown)])
     given = config.noise_std or {}
-    R = np.array(
-        [given[c] ** 2 if c in given else max(np.mean(res[:, k] ** 2), 1e-30) for k, c in enumerate(channels)]
-    )
+    held = np.array([given.get(c, np.nan) ** 2 for c in channels])
+    R = pooled_noise([r.y - x[:, ch] for r, x in zip(recs, flown)], held)
     H = information(model, theta, np.array([x[0] for x in flown]), recs, channels, free, R, substeps)[0]
     F = reduced(H, np.zeros(len(H)), len(free))[0]
     blind = tuple(n for k, n in enumerate(free) if H[k, k] == 0.0)
