@@ -20,6 +20,8 @@ LAYERS = [
     ("testbed.errors", "testbed.memory", "testbed.threads"),
     ("testbed.models", "testbed.models.linear"),
     ("testbed.models.sensors",),
+    ("testbed.models.component_kernels",),
+    ("testbed.models.components",),
     ("testbed.models.regressors", "testbed.models.mechanics"),
     ("testbed.models.nonlinear_kernels",),
     ("testbed.models.nonlinear",),
@@ -30,7 +32,7 @@ LAYERS = [
     ("testbed.simulation.plant", "testbed.simulation.linear_plant"),
     ("testbed.simulation.states",),
     ("testbed.simulation.nonlinear_reference",),
-    ("testbed.simulation.analytic", "testbed.simulation.wrench"),
+    ("testbed.simulation.analytic", "testbed.simulation.wrench", "testbed.simulation.fluid_components"),
     (
         "testbed.simulation.autopilot",
         "testbed.simulation.signals",

@@ -177,6 +177,7 @@ def test_a_pair_magnitude_atom_is_evaluated_with_its_exact_gradient():
         m[1] = np.array([[1, 2 * L], [2 * L + 1, 2 * L + 1], [2 * L, L]])  # v|vw|, |qδr|², |vw|·|u|
         m[2], m[3], m[8] = np.array([1, 5, 2]), coefficients.astype(dtype), np.zeros(3)
         m[12] = np.array([[1, 2], [4, 6]])
+        m[13], m[14] = np.full(3, -1), np.full(3, -1)  # no component terms
         return tuple(m)
 
     def rates_of(x, d, coefficients=c):

@@ -30,7 +30,17 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.models import linear
-from testbed.models.regressors import PAIRS, ROWS, WEIGHTS, Term, factor_table, parse_term, regressors
+from testbed.models.components import packed_components
+from testbed.models.regressors import (
+    PAIRS,
+    ROWS,
+    WEIGHTS,
+    Term,
+    factor_table,
+    parse_term,
+    regressors,
+    term_components,
+)
 
 __all__ = [
     "INERTIA",
@@ -181,14 +191,15 @@ class NonlinearModel:
         return self.M_RB + np.tensordot(np.asarray(theta)[: len(INERTIA)], self.dM, 1)
 
 
-def nonlinear_model(vehicle: linear.Vehicle, terms=TERMS) -> NonlinearModel:
-    """The model of `vehicle` (a submerged body: no GM, GM_L; Iy and zB given) over `terms`."""
+def nonlinear_model(vehicle: linear.Vehicle, terms=TERMS, components=()) -> NonlinearModel:
+    """The model of `vehicle` (a submerged body: no GM, GM_L; Iy and zB given) over `terms`, whose
+    component terms name `components` (`Component`s)."""
     if vehicle.GM is not None or vehicle.GM_L is not None or vehicle.omitted():
         raise InputError(
             "the nonlinear model is a submerged body's: expected Iy and zB given and no GM, GM_L "
             "(the restoring forces are those of weight at the CG and buoyancy at the CB)"
         )
-    parsed = tuple(parse_term(t) for t in terms)
+    parsed = tuple(t if isinstance(t, Term) else parse_term(t, components) for t in terms)
     names = [t.name for t in parsed]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -220,9 +231,12 @@ def packed(model: NonlinearModel, theta, dtype=float) -> tuple:
     """The model at θ as the compiled kernels take it (`nonlinear_kernels`), its θ-dependent
     parts (coefficients, thrust, M and M⁻¹) of `dtype` (complex for a complex step in θ or in the
     state): (W, factor table, rows, c, T, M, M⁻¹, ∂M/∂θ_inertia, thrust shares, weight, buoyancy,
-    r_B, pairs)."""
+    r_B, pairs, each term's component (−1: none) and kind, the components' geometry and fins
+    (`components.packed_components`))."""
     theta = np.asarray(theta).astype(dtype)
     M = model.inertia(theta)
+    parts = term_components(model.terms)
+    geometry, fins = packed_components(parts)
     v = model.vehicle
     return (
         WEIGHTS,
@@ -238,6 +252,12 @@ def packed(model: NonlinearModel, theta, dtype=float) -> tuple:
         float(v.buoyancy),
         np.array([v.xB, v.yB, v.zB], dtype=float),
         PAIRS,
+        np.array(
+            [-1 if t.component is None else parts.index(t.component) for t in model.terms], dtype=np.int64
+        ),
+        np.array([t.kind for t in model.terms], dtype=np.int64),
+        geometry,
+        fins,
     )
 
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from testbed.models.component_kernels import wrenches
 from testbed.models.mechanics import coriolis_state, kinematics_state, kirchhoff, restoring_state
 
 __all__ = ["flight", "fly", "forces", "jacobians", "rates", "sensitivities"]
@@ -65,7 +66,8 @@ def _forces(m, x, d, work, jacobian):
     are the first three of the `work` arrays."""
     weights, table, rows, c, thrust, M = m[0], m[1], m[2], m[3], m[4], m[5]
     weight, buoyancy, rB, pairs = m[9], m[10], m[11], m[12]
-    F, JF, phi, z, atoms, signs, slopes, scales = work
+    part, kind, geometry, fins = m[13], m[14], m[15], m[16]
+    F, JF, phi, z, atoms, signs, slopes, scales, CW, CJ = work
     L = weights.shape[1]
     z[:6] = x[:6]
     z[6:] = d
@@ -77,8 +79,17 @@ def _forces(m, x, d, work, jacobian):
     coriolis_state(M, x[:6], F, JF, jacobian)
     restoring_state(weight, buoyancy, rB, x[6], x[7], F, JF[:, 6:8], jacobian)
     F[0] += thrust
+    for p in range(geometry.shape[0]):  # each component's wrenches per unit coefficient
+        wrenches(geometry[p], fins[p], z, CW[p], CJ[p], jacobian)
     width = table.shape[1]
     for k in range(len(rows)):
+        if part[k] >= 0:  # a component term: its component's wrench of its kind, in its row
+            phi[k] = CW[part[k], kind[k], rows[k]]
+            F[rows[k]] += c[k] * phi[k]
+            if jacobian:
+                for i in range(9):
+                    JF[rows[k], i if i < 6 else i + 4] += c[k] * CJ[part[k], kind[k], rows[k], i]
+            continue
         product = atoms[table[k, 0]]
         for f in range(1, width):
             product *= atoms[table[k, f]]
@@ -173,8 +184,9 @@ def _theta_columns(m, x, f, phi, columns, G):
 @numba.njit(cache=True)
 def _work(m, like):
     """Scratch arrays of `like`'s dtype for `_forces`: F, JF, φ, z, the atoms, their signs, the
-    rows' slopes along the atoms and the pairs' scales."""
-    K, atoms = len(m[2]), 2 * m[0].shape[1] + m[12].shape[0] + 1
+    rows' slopes along the atoms, the pairs' scales, and the components' wrenches per kind and
+    their gradients along z."""
+    K, atoms, C = len(m[2]), 2 * m[0].shape[1] + m[12].shape[0] + 1, m[15].shape[0]
     dtype = like.dtype
     return (
         np.zeros(6, dtype=dtype),
@@ -185,6 +197,8 @@ def _work(m, like):
         np.zeros(atoms),
         np.zeros((6, atoms), dtype=dtype),
         np.zeros(m[12].shape[0], dtype=dtype),
+        np.zeros((C, 6, 6), dtype=dtype),
+        np.zeros((C, 6, 6, 9), dtype=dtype),
     )
 
 

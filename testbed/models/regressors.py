@@ -13,6 +13,10 @@ heave, roll, pitch, yaw); after it, the factors, each one of
                      rate, √(q² + r²): a body of revolution's drag acts along the whole cross
                      flow, so its sway force is v·√(v² + w²), not v·|v| + v·|w|
 
+A component term names a force of one of the vehicle's components instead of a product: `N_lift@rudder_upper`
+is the yaw moment of the Kutta lift on the component `rudder_upper` per unit lift coefficient,
+`X_blunt@hull` the hull's blunt drag along x (`components`: the kinds, the components' geometry).
+
 The model is linear in the terms' coefficients: its forces are Σ θ_k φ_k(ν, δ) with the regressor
 φ_k the term's product (`regressors`, over stacked samples, for least-squares fits of the
 coefficients). The atoms are data: `WEIGHTS` gives each linear atom from z = (ν, δ) and
@@ -32,6 +36,7 @@ from functools import lru_cache
 import numpy as np
 
 from testbed.errors import InputError
+from testbed.models.components import KINDS, Component, component_wrenches
 
 __all__ = [
     "ATOMS",
@@ -43,6 +48,7 @@ __all__ = [
     "magnitude",
     "parse_term",
     "regressors",
+    "term_components",
 ]
 
 ROWS = "XYZKMN"  # force/moment letter of the body rows u v w p q r
@@ -57,26 +63,42 @@ _LINEAR = {
 # The magnitudes of pairs of body velocities: the atom and the indices of its pair in z
 _PAIRS = {"|vw|": (1, 2), "|qr|": (4, 5)}
 ATOMS = tuple(_LINEAR) + tuple(f"|{a}|" for a in _LINEAR) + tuple(_PAIRS)
+_COMPONENT = re.compile(r"([XYZKMN])_(" + "|".join(KINDS) + r")@([A-Za-z][A-Za-z0-9_]*)")
 _TOKEN = re.compile(r"\|(?:vw|qr|d[rea]|[uvwpqr])\||d[rea]|[uvwpqr]")
 
 
 @dataclass(frozen=True)
 class Term:
-    """One hydrodynamic term: its name, its body row (0..5: X..N) and its factors (`ATOMS`)."""
+    """One hydrodynamic term: its name, its body row (0..5: X..N) and its factors (`ATOMS`), or
+    for a component term no factors, its component and the index of its kind in `KINDS`."""
 
     name: str
     row: int
     factors: tuple[str, ...]
+    component: Component | None = None
+    kind: int = -1
 
 
-def parse_term(name: str) -> Term:
-    """The term named `name` (e.g. `Y_uv`, `N_v|v|`, `M_uude`); `InputError` if it is not one."""
+def parse_term(name: str, components=()) -> Term:
+    """The term named `name` (e.g. `Y_uv`, `N_v|v|`, `M_uude`, `Y_lift@rudder_upper` of one of
+    `components`); `InputError` if it is not one."""
+    match = _COMPONENT.fullmatch(str(name))
+    if match:
+        row, kind, which = match.groups()
+        named = {c.name: c for c in components}
+        if which not in named:
+            raise InputError(
+                f"term {name!r}: no component {which!r}; expected one of [components]: "
+                f"{', '.join(named) or 'none given'}"
+            )
+        return Term(str(name), ROWS.index(row), (), named[which], KINDS.index(kind))
     row, _, rest = str(name).partition("_")
     tokens = _TOKEN.findall(rest)
     if len(row) != 1 or row not in ROWS or not tokens or "".join(tokens) != rest:
         raise InputError(
             f"term {name!r}: expected a row letter ({' '.join(ROWS)}), '_' and a product of "
-            f"factors among {' '.join(ATOMS)} (e.g. Y_uv, N_v|v|, Z_uude)"
+            f"factors among {' '.join(ATOMS)} (e.g. Y_uv, N_v|v|, Z_uude), or a kind "
+            f"({' '.join(KINDS)}) '@' a component (e.g. N_lift@rudder_upper)"
         )
     return Term(name=str(name), row=ROWS.index(row), factors=tuple(tokens))
 
@@ -103,10 +125,23 @@ def factor_table(terms: tuple[Term, ...]) -> np.ndarray:
     return table
 
 
+def term_components(terms) -> tuple[Component, ...]:
+    """The distinct components of `terms`' component terms, in order of first use."""
+    return tuple(dict.fromkeys(t.component for t in terms if t.component is not None))
+
+
 def regressors(terms, nu, delta) -> np.ndarray:
-    """φ (n, K): each term's product at the samples ν (n, 6) and δ (n, 3)."""
+    """φ (n, K): each term's product, or its component's wrench row, at the samples ν (n, 6) and
+    δ (n, 3)."""
     z = np.concatenate([np.atleast_2d(nu), np.atleast_2d(delta)], axis=1)
     value = z @ WEIGHTS
     pairs = np.sqrt(z[:, PAIRS[:, 0]] ** 2 + z[:, PAIRS[:, 1]] ** 2)
     atoms = np.concatenate([value, magnitude(value), pairs, np.ones((len(z), 1), dtype=value.dtype)], axis=1)
-    return np.prod(atoms[:, factor_table(tuple(terms))], axis=2)
+    phi = np.prod(atoms[:, factor_table(tuple(terms))], axis=2)
+    parts = term_components(terms)
+    if parts:
+        W = component_wrenches(parts, nu, delta)
+        for k, t in enumerate(terms):
+            if t.component is not None:
+                phi[:, k] = W[:, parts.index(t.component), t.kind, t.row]
+    return phi
