@@ -60,6 +60,7 @@ class CaptiveFit:
     thrust: float  # N: the plant's drag at U, the surge row is fitted against
     surfaces: tuple[SurfaceFit, ...]  # per test, speed and row, in the measurements' order
     rows: dict[str, float]  # % per row over every measurement
+    components: tuple = ()  # the `Component`s the component terms name
 
     def table(self) -> str:
         """The fit of every force surface: one line per test and speed, % per row (RMS residual
@@ -106,10 +107,12 @@ def fit_captive(
     terms: Sequence[str] = nonlinear.TERMS,
     weights: Mapping[str, float] | None = None,
     fixed: Mapping[str, float] | None = None,
+    components=(),
 ) -> CaptiveFit:
     """Fit `terms` of `vehicle`'s nonlinear model (trim speed `vehicle.speed`) to `measurements`
     of `tests` (`captive.captive_tests`), the plant's thrust at trim being `thrust` (N); the
-    terms in `fixed` are held at their values there, the rest fitted."""
+    terms in `fixed` are held at their values there, the rest fitted; the component terms name
+    `components`."""
     weights, fixed = dict(weights or {}), dict(fixed or {})
     unknown = sorted(set(weights) - {m.test for m in measurements})
     if unknown:
@@ -119,7 +122,7 @@ def fit_captive(
         raise InputError(f"captive fit: weight {bad[0]}={weights[bad[0]]!r}; expected a finite weight >= 0")
     if not math.isfinite(thrust):
         raise InputError(f"captive fit: thrust={thrust!r}; expected a finite force (N)")
-    model = nonlinear.nonlinear_model(vehicle, terms)
+    model = nonlinear.nonlinear_model(vehicle, terms, components)
     names = [t.name for t in model.terms]
     stray = sorted(set(fixed) - set(names))
     if stray:
@@ -147,6 +150,7 @@ def fit_captive(
         thrust=float(thrust),
         surfaces=_surfaces(measurements, residual, np.abs(tau).max(axis=0)),
         rows={ROWS[r]: _fit(tau[:, r], residual[:, r], np.abs(tau[:, r]).max()) for r in range(6)},
+        components=tuple(components),
     )
 
 
@@ -159,7 +163,7 @@ def fitted_wrench(vehicle: linear.Vehicle, fit: CaptiveFit, nu, fins, nu_dot) ->
         raise InputError(
             f"vehicle at speed={vehicle.speed!r} m/s; expected the fit's trim speed {fit.speed!r}"
         )
-    model = nonlinear.nonlinear_model(vehicle, fit.terms)
+    model = nonlinear.nonlinear_model(vehicle, fit.terms, fit.components)
     theta = nonlinear.theta_vector(model, fit.coefficients)
     nu, nu_dot = np.atleast_2d(nu), np.atleast_2d(nu_dot)
     x = np.concatenate([nu, np.zeros((len(nu), linear.NX - 6))], axis=1)

@@ -31,7 +31,8 @@ from testbed.errors import InputError
 from testbed.models.nonlinear import TERMS, NonlinearModel, linearise, nonlinear_model, theta_vector
 from testbed.models.regressors import parse_term
 from testbed.simulation.captive import Oscillation, Sweep, captive_tests
-from testbed.simulation.captive_fit import CaptiveFit, fit_captive
+from testbed.simulation.captive_fit import CaptiveFit, fit_captive, pmm_inertia
+from testbed.simulation.fluid_components import component_terms, inertia_terms, mjcf_components, rigid_inertia
 from testbed.simulation.vehicle import constants
 from testbed.simulation.wrench import hydrodynamic_wrench
 
@@ -41,6 +42,7 @@ __all__ = [
     "NEAR",
     "Turns",
     "captive_reference",
+    "component_reference",
     "couplings",
     "near_tests",
     "reference_tests",
@@ -229,4 +231,29 @@ def captive_reference(model: mujoco.MjModel, speed: float, terms=TERMS) -> Capti
     vehicle, thrust, first = _trim_stage(model, speed, terms)
     held = {n: first.coefficients[n] for n in slope_terms(terms)}
     tests = _region_tests(speed, terms, vehicle, first)
-    return fit_captive(vehicle, tests, captive_tests(model, tests), thrust, terms=terms, fixed=held)
+    fit = fit_captive(vehicle, tests, captive_tests(model, tests), thrust, terms=terms, fixed=held)
+    return _with_rigid(fit, rigid_inertia(model, speed))
+
+
+def component_reference(model: mujoco.MjModel, speed: float) -> CaptiveFit:
+    """The captive reference of the vehicle `model` at trim speed `speed` with the component
+    model (docs/model.md, "Component terms"): the terms of its fluid components
+    (`fluid_components.component_terms`, their names; their values fitted) and the Kirchhoff
+    terms of the inertia the PMM-measured coefficients leave out, fitted in one stage to the
+    region's tests with the rotating-arm tests along the steady turns of the trim stage's
+    model: the component terms have the plant's own shapes, so no stage must keep the slopes."""
+    vehicle, thrust, first = _trim_stage(model, speed, TERMS)
+    tests = _region_tests(speed, TERMS, vehicle, first)
+    measured = captive_tests(model, tests)
+    rigid = rigid_inertia(model, speed)
+    inertia = {n: v + rigid.get(n, 0.0) for n, v in pmm_inertia(tests, measured).items()}
+    terms = tuple(component_terms(model, speed)) + tuple(inertia_terms(model, speed, inertia))
+    fit = fit_captive(vehicle, tests, measured, thrust, terms=terms, components=mjcf_components(model))
+    return _with_rigid(fit, rigid)
+
+
+def _with_rigid(fit: CaptiveFit, rigid: dict[str, float]) -> CaptiveFit:
+    """`fit` with the rigid body's share of the inertia coefficients added to the PMM tests'
+    added mass (`fluid_components.rigid_inertia`): the model's M is the whole vehicle's."""
+    coefficients = {n: v + rigid.get(n, 0.0) for n, v in fit.coefficients.items()}
+    return dataclasses.replace(fit, coefficients=coefficients)

@@ -30,7 +30,7 @@ from testbed.simulation.vehicle import (
     semi_axes,
 )
 
-__all__ = ["component_terms", "inertia_terms", "mjcf_components"]
+__all__ = ["component_terms", "inertia_terms", "mjcf_components", "rigid_inertia"]
 
 _COEF = {"blunt": 0, "slender": 1, "lift": 3, "magnus": 4}  # the kind's fluidcoef entry
 
@@ -127,3 +127,16 @@ def inertia_terms(model: mujoco.MjModel, speed: float, inertia: dict[str, float]
                 if F[row] != 0.0:
                     terms[f"{ROWS[row]}_{'uvwpqr'[i]}{'uvwpqr'[j]}"] = float(F[row])
     return terms
+
+
+def rigid_inertia(model: mujoco.MjModel, speed: float) -> dict[str, float]:
+    """What the inertia coefficients must add to the added mass for M to be the whole vehicle's:
+    the rigid body's entries that the vehicle constants leave out (its products of inertia such
+    as I_xz, which the model's rigid-body matrix lacks), projected on the coefficients' entries
+    of M (K_rdot and N_pdot hold −I_xz)."""
+    bare = nonlinear.nonlinear_model(constants(model, speed), ())
+    gap = rigid_body_mass(model) - bare.M_RB
+    # M = M_RB + Σ θ_k ∂M/∂θ_k: the θ whose entries make up the gap, by least squares
+    basis = bare.dM.reshape(len(nonlinear.INERTIA), 36).T
+    theta = np.linalg.lstsq(basis, gap.ravel(), rcond=None)[0]
+    return {n: float(v) for n, v in zip(nonlinear.INERTIA, theta) if abs(v) > 1e-12 * np.abs(gap).max()}
