@@ -138,11 +138,13 @@ def _cmd_captive(args) -> int:
     if args.figures is None and args.rrd is None:  # no figures: matplotlib and Rerun not loaded
         from testbed.simulation.captive_config import captive_config_text
 
-        text, fit = captive_config_text(args.mjcf, args.speed, out, args.force)
+        text, fit = captive_config_text(args.mjcf, args.speed, out, args.force, args.model)
     else:
         from testbed.presentation.captive_report import write_captive
 
-        text, fit, written = write_captive(args.mjcf, args.speed, out, args.figures, args.rrd, args.force)
+        text, fit, written = write_captive(
+            args.mjcf, args.speed, out, args.figures, args.rrd, args.force, args.model
+        )
     _emit(out, text)
     stream = sys.stderr if out is None else sys.stdout  # standard output may carry the TOML
     print(fit.table(), file=stream)
@@ -420,6 +422,13 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, help="output TOML (default or -: stdout; the fit table on stderr)")
     s.add_argument("--figures", type=Path, help="also draw each test's figure as a PNG in this new folder")
     s.add_argument("--rrd", type=Path, help="also log each test's figure to this Rerun recording")
+    s.add_argument(
+        "--model",
+        choices=("components", "polynomial"),
+        default="components",
+        help="the nonlinear model fitted: the fluid forces of the hull and each fin blade at its own "
+        "flow (default), or the polynomial Gertler-Hagen-style terms",
+    )
     s.set_defaults(func=_cmd_captive)
 
     s = sub.add_parser("simulate", help="generate a scenario run directory")

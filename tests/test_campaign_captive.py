@@ -43,7 +43,7 @@ def test_a_term_takes_its_linear_counterparts_class():
 def test_the_nonlinear_cell_is_judged_against_the_captive_values(cell):
     doc, data = cell
     assert doc["status"] != "failed", doc.get("traceback")
-    captive, _, fit = captive_config(speed=data[1].vehicle.speed)
+    captive, _, fit = captive_config(speed=data[1].vehicle.speed, model="polynomial")
     free = slope_terms(fit.terms)
     assert tuple(doc["free"]) == free and len(free) == 19
     assert doc["captive"] == {n: captive.terms[n] for n in free}
@@ -68,7 +68,7 @@ def test_its_rows_summary_and_report_table_carry_the_captive_judgement(cell, tmp
     (tmp_path / "results.csv").write_text(results_csv(results_rows([doc])))
     rows = read_results(tmp_path / "results.csv")
     assert {r["arm"] for r in rows} == {NONLINEAR} and {r["method"] for r in rows} == {"ml-gn"}
-    captive = captive_config(speed=data[1].vehicle.speed)[0].terms
+    captive = captive_config(speed=data[1].vehicle.speed, model="polynomial")[0].terms
     sigmas = {r["coefficient"]: (r["estimate"] - captive[r["coefficient"]]) / r["std"] for r in rows}
     assert {r["coefficient"]: r["analytic"] for r in rows} == pytest.approx(
         {n: captive[n] for n in sigmas}, rel=1e-9

@@ -41,7 +41,7 @@ _FINS = {"delta_r": (1, 0, 0), "delta_e": (0, 1, 1), "delta_d": (0, 1, -1)}
 def captive():
     """(MjModel, TOML text, fit, panels) of the bundled torpedo at 20 m/s."""
     model = load_model(None)
-    text, fit = captive_config_text(None, SPEED)
+    text, fit = captive_config_text(None, SPEED, model="polynomial")
     return model, text, fit, sweep_panels(model, fit)
 
 

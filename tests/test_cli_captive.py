@@ -12,13 +12,34 @@ from test_bad_input import cli
 from testbed.data import read_config
 from testbed.models.nonlinear import INERTIA, TERMS
 from testbed.simulation.captive_reference import Turns, reference_tests
-from testbed.simulation.vehicle import default_mjcf
+from testbed.simulation.fluid_components import component_terms, mjcf_components
+from testbed.simulation.vehicle import default_mjcf, load_model
 
 
-def test_captive_writes_the_reference_and_prints_every_surface(tmp_path, capsys):
+def test_captive_fits_the_component_model_to_the_mjcfs_own_coefficients(tmp_path, capsys):
+    """The component terms have the plant's shapes: fitted to the captive tests, they come out as
+    the MJCF's fluidcoef (1 for the angular drag and the blades' Munk terms), the inertia as
+    the added mass read by the PMM tests plus the rigid body's I_xz."""
+    out = tmp_path / "captive.toml"
+    code, printed, err = cli(capsys, "captive", "--speed", "20", "--out", out)
+    assert code == 0, err
+    config = read_config(out)
+    body = load_model()
+    mjcf = component_terms(body, 20.0)
+    assert config.components == mjcf_components(body)
+    assert set(mjcf) <= set(config.terms)
+    for name, value in mjcf.items():
+        assert config.terms[name] == pytest.approx(value, rel=1e-6), name
+    others = set(config.terms) - set(mjcf)  # the Kirchhoff terms of the inertia M leaves out
+    assert others == {"Y_qr", "Z_qq", "K_ur", "M_wq", "N_up", "N_vq"}
+    assert config.free == tuple(config.terms) and config.screen
+    assert printed.splitlines()[-1].split()[0] == "all"
+
+
+def test_captive_writes_the_polynomial_reference_and_prints_every_surface(tmp_path, capsys):
     out = tmp_path / "captive.toml"
     start = time.process_time()
-    code, printed, err = cli(capsys, "captive", "--speed", "20", "--out", out)
+    code, printed, err = cli(capsys, "captive", "--speed", "20", "--model", "polynomial", "--out", out)
     took = time.process_time() - start
     assert code == 0, err
     config = read_config(out)
@@ -47,6 +68,7 @@ def test_captive_to_standard_output_keeps_the_table_on_stderr(capsys):
         (["--speed", "0"], ["--speed", "0 must be a finite number > 0"]),
         (["--speed", "1e300"], ["speed", "450"]),
         (["--mjcf", "missing.xml"], ["missing.xml"]),
+        (["--model", "cubic"], ["--model", "cubic", "components"]),
         (["--out", "no/such/folder/c.toml"], ["no/such/folder"]),
     ],
 )

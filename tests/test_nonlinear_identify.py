@@ -39,7 +39,7 @@ def truth():
     """The captive model with FREE free (as written: no screen), and a 4 s record it flew from near straight flight at
     20 m/s (off the |·| terms' kinks at 0) through rudder, elevator and aileron doublets:
     noise-free and with the sensors' noise."""
-    config = replace(captive_config()[0], free=FREE, screen=False)
+    config = replace(captive_config(model="polynomial")[0], free=FREE, screen=False)
     model, theta = config.nonlinear()
     t = np.arange(201) * 0.02
     a = np.radians(3.0)

@@ -35,7 +35,7 @@ def truth():
     """The captive model (ZERO set to 0) with the CANDIDATES as a candidate list, and a 4 s
     record it flew from near straight flight at 20 m/s through a 3° doublet of rudder and
     both elevators together (δe = δr, δa = 0), the sensors' noise added."""
-    base = captive_config()[0]
+    base = captive_config(model="polynomial")[0]
     config = replace(base, free=CANDIDATES, screen=True).with_coefficients({ZERO: 0.0})
     model, theta = config.nonlinear()
     t = np.arange(201) * 0.02
@@ -137,7 +137,7 @@ def test_on_scenario_i_flown_by_the_captive_model_every_freed_term_is_within_3_s
     list (every term) at the captive values: the estimate of each term the screen frees is within
     3 Cramér-Rao σ of the value that flew the record, and the screen frees some and fixes some
     (60 s of a large manoeuvre do not determine all 102 terms)."""
-    config = captive_config()[0]
+    config = captive_config(model="polynomial")[0]
     run = runs.simulate("I", seed=1, out=tmp_path / "I")
     truth = read_csv(run / "scenario-I.truth.csv")
     model, theta = config.nonlinear()

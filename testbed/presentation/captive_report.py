@@ -51,16 +51,17 @@ def write_captive(
     figures: str | Path | None = None,
     rrd: str | Path | None = None,
     force: bool = False,
+    model: str = "components",
 ) -> tuple[str, CaptiveFit, list[Path]]:
-    """`(TOML text, fit, the figures written)`: the captive reference of `mjcf` at `speed`
-    (`captive_config_text`), its text written to `out` when given, each test's figure to the new
+    """`(TOML text, fit, the figures written)`: the captive reference of `mjcf` at `speed` with
+    the nonlinear `model` (`captive_config_text`), its text written to `out` when given, each test's figure to the new
     folder `figures` (one PNG per test, and `MARKER`) and to the Rerun recording `rrd`, when
     given. An existing file at `out` or `rrd` is refused unless `force`, and an existing folder at
     `figures` unless `force` and it holds `MARKER` or nothing."""
     check_outputs([mjcf] if mjcf else [], {"out": out, "rrd": rrd}, force)
     if figures is not None:
         _check_figures(figures, force, {"out": out, "rrd": rrd, "mjcf": mjcf})
-    text, fit = captive_config_text(mjcf, speed)
+    text, fit = captive_config_text(mjcf, speed, model=model)
     panels = sweep_panels(load_model(mjcf), fit)
     written = []
     with contextlib.ExitStack() as stack:  # the figures' folder appears last, when all is done

@@ -204,8 +204,15 @@ def slope_terms(terms=TERMS) -> tuple[str, ...]:
     return tuple(out)
 
 
+def _design(terms) -> tuple[str, ...]:
+    """The terms the tests are designed for: `terms`, or for a component model (any term of a
+    component) the default `TERMS`, whose region and couplings the component terms share."""
+    return TERMS if any("@" in t for t in terms) else tuple(terms)
+
+
 def _trim_stage(model: mujoco.MjModel, speed: float, terms):
     """(vehicle, thrust, the trim stage's fit of the slope terms) at trim speed `speed`."""
+    terms = _design(terms)
     vehicle = constants(model, speed)
     thrust = -float(hydrodynamic_wrench(model, [speed, 0, 0, 0, 0, 0])[0])  # the drag at trim
     near = near_tests(reference_tests(speed, terms), speed)
@@ -216,12 +223,14 @@ def _trim_stage(model: mujoco.MjModel, speed: float, terms):
 def _region_tests(speed: float, terms, vehicle, first) -> tuple:
     """The second stage's tests: the region's, with rotating-arm tests along the steady turns of
     the trim stage's model."""
+    terms = _design(terms)
     linear = nonlinear_model(vehicle, slope_terms(terms))
     return reference_tests(speed, terms, steady_turns(linear, theta_vector(linear, first.coefficients)))
 
 
 def region_tests(model: mujoco.MjModel, speed: float, terms=TERMS) -> tuple:
-    """The tests `captive_reference` fits its second stage to (the ones its fit table lists)."""
+    """The tests `captive_reference` fits its second stage to (the ones its fit table lists), and
+    `component_reference` its one stage (`terms` naming a component)."""
     vehicle, _, first = _trim_stage(model, speed, terms)
     return _region_tests(speed, terms, vehicle, first)
 

@@ -213,7 +213,7 @@ def _fitted_config(cell: Cell, data, begin: Start):
 
 @functools.lru_cache(maxsize=4)  # one per trim speed and worker: every seed's cell shares it
 def _captive(speed: float):
-    config, _, fit = captive_config(speed=speed)
+    config, _, fit = captive_config(speed=speed, model="polynomial")
     return config, slope_terms(fit.terms)
 
 

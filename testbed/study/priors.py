@@ -113,7 +113,10 @@ def prior(
 def term_class(name: str) -> str:
     """The class of the nonlinear model's term `name`: its linear counterpart's, the term less its
     u factors (`Y_uv` → `Y_v`, `Z_uude` → `Z_de`, `X_uu` → `X_u`); without one (`K_uuda`, the
-    fins' differential) control for a term of a fin, damping otherwise."""
+    fins' differential) control for a term of a fin, damping otherwise; a component term's
+    control for a blade's lift or Munk term, damping otherwise."""
+    if "@" in name:
+        return CONTROL if name.split("@")[0].endswith(("_lift", "_munk")) else DAMPING
     rest = [a for a in parse_term(name).factors if a != "u"]
     counterpart = f"{name[0]}_{''.join(rest) or 'u'}"
     if counterpart in CLASSES:
