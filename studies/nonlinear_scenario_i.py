@@ -56,7 +56,7 @@ from testbed.estimators import Estimate, identify
 from testbed.identification.nonlinear_prediction import predict
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
-from testbed.simulation.captive_config import captive_config
+from testbed.simulation.captive_config import MODELS, captive_config
 from testbed.simulation.captive_reference import slope_terms
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.runs import simulate
@@ -89,7 +89,7 @@ def default_free(config: ModelConfig, record: Experiment, level: float) -> tuple
     """The slope terms and the other terms whose Cramér-Rao bound with all terms free, at the
     config's values on `record`, is below `level` × |value| (module doc)."""
     terms = tuple(config.terms)
-    slopes = slope_terms(terms)
+    slopes = slope_terms(t for t in terms if "@" not in t)  # a component term has no slope form
     idf = nonlinear_identifiability([record], replace(config, free=terms))
     relative = idf.crlb_std / np.abs(idf.values)
     ranked = sorted((r, n) for n, r in zip(idf.free, relative) if n not in slopes and r < level)
@@ -161,9 +161,10 @@ def study(
     rudder: float,
     switch: float,
     force: bool,
+    model: str = "components",
 ):
     out.mkdir(parents=True, exist_ok=True)
-    captive, *_ = captive_config()
+    captive, *_ = captive_config(model=model)
     runs = [simulate("I", seed=k, out=out / f"seed{k}", force=force) for k in range(1, seeds + 1)]
     truth = read_csv(runs[0] / "scenario-I.truth.csv", "scenario-I")
     if free is None:
@@ -284,19 +285,25 @@ def main(argv=None) -> int:
     ap.add_argument("--rudder", type=float, default=0.015, help="the held-out manoeuvres' rudder, rad")
     ap.add_argument("--switch", type=float, default=15.0, help="the zigzag's switching heading, degrees")
     ap.add_argument("--force", action="store_true", help="replace the study's own outputs in --out")
+    ap.add_argument(
+        "--model",
+        choices=MODELS,
+        default="components",
+        help="the captive reference's nonlinear model (default: components)",
+    )
     a = ap.parse_args(argv)
     free = tuple(n.strip() for n in a.free.split(",") if n.strip()) if a.free else None
     try:
         if a.seeds < 1:
             raise InputError(f"--seeds {a.seeds}; expected 1 or more")
         check_out(a.out, a.seeds, a.force)
-        unknown = [n for n in free or () if n not in captive_config()[0].terms]
+        unknown = [n for n in free or () if n not in captive_config(model=a.model)[0].terms]
         if unknown:
             raise InputError(f"--free: {unknown[0]!r} is not a term of the captive model")
     except InputError as exc:
         print(f"nonlinear_scenario_i.py: {exc}", file=sys.stderr)
         return 2
-    tables = study(a.seeds, a.out, free, a.level, a.rudder, a.switch, a.force)
+    tables = study(a.seeds, a.out, free, a.level, a.rudder, a.switch, a.force, a.model)
     for name, text in zip(TABLES, tables):
         atomic_write_text(a.out / name, text, force=True)  # checked before the work (`check_out`)
         print(text)
