@@ -25,7 +25,7 @@ def test_captive_fits_the_component_model_to_the_mjcfs_own_coefficients(tmp_path
     assert code == 0, err
     config = read_config(out)
     body = load_model()
-    mjcf = component_terms(body, 20.0)
+    mjcf = component_terms(body)
     assert config.components == mjcf_components(body)
     assert set(mjcf) <= set(config.terms)
     for name, value in mjcf.items():

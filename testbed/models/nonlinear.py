@@ -38,8 +38,8 @@ from testbed.models.regressors import (
     Term,
     factor_table,
     parse_term,
-    regressors,
     term_components,
+    term_wrenches,
 )
 
 __all__ = [
@@ -209,8 +209,8 @@ def nonlinear_model(vehicle: linear.Vehicle, terms=TERMS, components=()) -> Nonl
         raise InputError(f"term {clash[0]!r} is a linear model's name; expected a nonlinear term")
     s = linear.structure(vehicle)
     dM = np.array([s.dMt[linear.ITHETA[n]][_BODY, _BODY] for n in INERTIA])
-    trim = regressors(parsed, np.array([[vehicle.speed, 0, 0, 0, 0, 0.0]]), np.zeros((1, linear.NU)))[0]
-    surge = np.concatenate([np.zeros(len(INERTIA)), np.where([t.row == 0 for t in parsed], trim, 0.0)])
+    trim = term_wrenches(parsed, np.array([[vehicle.speed, 0, 0, 0, 0, 0.0]]), np.zeros((1, linear.NU)))[0]
+    surge = np.concatenate([np.zeros(len(INERTIA)), trim[0]])  # each term's surge force at trim
     return NonlinearModel(vehicle=vehicle, terms=parsed, M_RB=s.Mt0[_BODY, _BODY].copy(), dM=dM, surge=surge)
 
 
@@ -288,12 +288,11 @@ def forces(model: NonlinearModel, theta, x, delta) -> np.ndarray:
 
 
 def force_regressors(model: NonlinearModel, x, delta) -> np.ndarray:
-    """∂F/∂c (n, 6, K) for the terms' coefficients c: φ_k in term k's row, and in surge the
-    thrust's share −φ_k(U e_x, 0) of each X term. F is affine in c: F = F|_{c=0} + (∂F/∂c) c."""
+    """∂F/∂c (n, 6, K) for the terms' coefficients c: φ_k in term k's row (a component term's
+    wrench in every row), and in surge the thrust's share −φ_k(U e_x, 0) of each term's surge
+    force. F is affine in c: F = F|_{c=0} + (∂F/∂c) c."""
     x, delta = np.atleast_2d(x), np.atleast_2d(delta)
-    phi = regressors(model.terms, x[:, _BODY], delta)
-    out = np.zeros((len(x), 6, len(model.terms)), dtype=phi.dtype)
-    out[:, [t.row for t in model.terms], np.arange(len(model.terms))] = phi
+    out = term_wrenches(model.terms, x[:, _BODY], delta)
     out[:, 0, :] -= model.surge[len(INERTIA) :]
     return out
 
@@ -301,9 +300,18 @@ def force_regressors(model: NonlinearModel, x, delta) -> np.ndarray:
 def row_least_squares(model: NonlinearModel, R, y, weights=None, held=()) -> np.ndarray:
     """The terms' coefficients c (K,) that minimise Σ_n w_n (y_nr − R_nr c)² in each body row r
     (R: `force_regressors` (n, 6, K), y (n, 6), w: `weights` (n,), default 1): each row's own
-    terms fitted to it, the terms named in `held` left at 0."""
+    terms fitted to it, the terms named in `held` left at 0. With component terms, which act in
+    every row, all rows at once: Σ_r Σ_n w_n (y_nr − R_nr c)² / s_r², s_r the RMS of y's row r
+    about its mean, so that forces and moments weigh alike."""
     w = np.ones(len(y)) if weights is None else np.sqrt(np.asarray(weights, float))
     c = np.zeros(len(model.terms))
+    cols = [k for k, term in enumerate(model.terms) if term.name not in held]
+    if any(model.terms[k].row < 0 for k in cols):
+        spread = np.sqrt(np.mean((y - y.mean(axis=0)) ** 2, axis=0))
+        scale = np.where(spread > 0, 1.0 / np.where(spread > 0, spread, 1.0), 0.0)
+        A = (w[:, None, None] * scale[None, :, None] * R[:, :, cols]).reshape(-1, len(cols))
+        c[cols] = np.linalg.lstsq(A, (w[:, None] * scale * y).ravel(), rcond=None)[0]
+        return c
     for row in range(6):
         cols = [k for k, term in enumerate(model.terms) if term.row == row and term.name not in held]
         if cols:

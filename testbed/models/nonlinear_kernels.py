@@ -83,12 +83,13 @@ def _forces(m, x, d, work, jacobian):
         wrenches(geometry[p], fins[p], z, CW[p], CJ[p], jacobian)
     width = table.shape[1]
     for k in range(len(rows)):
-        if part[k] >= 0:  # a component term: its component's wrench of its kind, in its row
-            phi[k] = CW[part[k], kind[k], rows[k]]
-            F[rows[k]] += c[k] * phi[k]
-            if jacobian:
-                for i in range(9):
-                    JF[rows[k], i if i < 6 else i + 4] += c[k] * CJ[part[k], kind[k], rows[k], i]
+        if part[k] >= 0:  # a component term: its component's wrench of its kind, in every row
+            phi[k] = 1.0
+            for r in range(6):
+                F[r] += c[k] * CW[part[k], kind[k], r]
+                if jacobian:
+                    for i in range(9):
+                        JF[r, i if i < 6 else i + 4] += c[k] * CJ[part[k], kind[k], r, i]
             continue
         product = atoms[table[k, 0]]
         for f in range(1, width):
@@ -151,11 +152,14 @@ def _state(m, x, d, f, A, B, work, jacobian):
 
 
 @numba.njit(cache=True)
-def _theta_columns(m, x, f, phi, columns, G):
-    """G[:, j] (10,) = ∂f/∂θ_columns[j] at the state x whose ẋ is f and terms φ: for a term
-    M⁻¹ (φ_k e_row − s_k e_x) (s_k the thrust's share), for an inertia coefficient
-    M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇), C_k the Kirchhoff forces of ∂M/∂θ_k (C is linear in M)."""
-    rows, Minv, dM, surge = m[2], m[6], m[7], m[8]
+def _theta_columns(m, x, f, work, columns, G):
+    """G[:, j] (10,) = ∂f/∂θ_columns[j] at the state x whose ẋ is f, the terms' φ and the
+    components' wrenches in `work` (`_forces`' at x): for a term M⁻¹ (φ_k e_row − s_k e_x) (s_k
+    the thrust's share; a component term's wrench in place of φ_k e_row), for an inertia
+    coefficient M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇), C_k the Kirchhoff forces of ∂M/∂θ_k (C is linear
+    in M)."""
+    rows, Minv, dM, surge, part, kind = m[2], m[6], m[7], m[8], m[13], m[14]
+    phi, CW = work[2], work[8]
     inertia = dM.shape[0]  # the inertia coefficients lead θ (`nonlinear.INERTIA`)
     g = np.empty(6, dtype=f.dtype)
     h = np.empty(6, dtype=f.dtype)
@@ -178,7 +182,13 @@ def _theta_columns(m, x, f, phi, columns, G):
         else:
             k = col - inertia
             for i in range(6):
-                G[i, j] = Minv[i, rows[k]] * phi[k] - Minv[i, 0] * surge[k]
+                if part[k] >= 0:
+                    acc = -Minv[i, 0] * surge[k]
+                    for r in range(6):
+                        acc += Minv[i, r] * CW[part[k], kind[k], r]
+                    G[i, j] = acc
+                else:
+                    G[i, j] = Minv[i, rows[k]] * phi[k] - Minv[i, 0] * surge[k]
 
 
 @numba.njit(cache=True)
@@ -239,7 +249,7 @@ def sensitivities(m, x, d, G):
     columns = np.arange(G.shape[2])
     for n in range(x.shape[0]):
         _state(m, x[n], d[n], f, A, B, work, False)
-        _theta_columns(m, x[n], f, work[2], columns, G[n])
+        _theta_columns(m, x[n], f, work, columns, G[n])
 
 
 @numba.njit(cache=True)
@@ -285,7 +295,7 @@ def flight(m, t, x, fins, columns, substeps, S):
                     for c in range(width):
                         dX[j, c] = T[j, c] if i == 0 else T[j, c] + a * h * dks[i - 1, j, c]
                 _state(m, X, fins[k], ks[i], A, B, work, True)
-                _theta_columns(m, X, ks[i], work[2], columns, G)
+                _theta_columns(m, X, ks[i], work, columns, G)
                 for j in range(10):  # ∂k_i = A_i ∂X_i + [G_i 0]
                     for c in range(width):
                         dks[i, j, c] = G[j, c] if c < p else 0.0

@@ -13,9 +13,11 @@ heave, roll, pitch, yaw); after it, the factors, each one of
                      rate, √(q² + r²): a body of revolution's drag acts along the whole cross
                      flow, so its sway force is v·√(v² + w²), not v·|v| + v·|w|
 
-A component term names a force of one of the vehicle's components instead of a product: `N_lift@rudder_upper`
-is the yaw moment of the Kutta lift on the component `rudder_upper` per unit lift coefficient,
-`X_blunt@hull` the hull's blunt drag along x (`components`: the kinds, the components' geometry).
+A component term names a force of one of the vehicle's components instead of a product:
+`lift@rudder_upper` is the Kutta lift on the component `rudder_upper` per unit lift coefficient,
+its force and its moment about the CG in every body row at once, `blunt@hull` the hull's blunt
+drag (`components`: the kinds, the components' geometry); one coefficient scales the whole
+wrench, as the fluid's own coefficient does.
 
 The model is linear in the terms' coefficients: its forces are Σ θ_k φ_k(ν, δ) with the regressor
 φ_k the term's product (`regressors`, over stacked samples, for least-squares fits of the
@@ -49,6 +51,7 @@ __all__ = [
     "parse_term",
     "regressors",
     "term_components",
+    "term_wrenches",
 ]
 
 ROWS = "XYZKMN"  # force/moment letter of the body rows u v w p q r
@@ -63,14 +66,15 @@ _LINEAR = {
 # The magnitudes of pairs of body velocities: the atom and the indices of its pair in z
 _PAIRS = {"|vw|": (1, 2), "|qr|": (4, 5)}
 ATOMS = tuple(_LINEAR) + tuple(f"|{a}|" for a in _LINEAR) + tuple(_PAIRS)
-_COMPONENT = re.compile(r"([XYZKMN])_(" + "|".join(KINDS) + r")@([A-Za-z][A-Za-z0-9_]*)")
+_COMPONENT = re.compile(r"(" + "|".join(KINDS) + r")@([A-Za-z][A-Za-z0-9_]*)")
 _TOKEN = re.compile(r"\|(?:vw|qr|d[rea]|[uvwpqr])\||d[rea]|[uvwpqr]")
 
 
 @dataclass(frozen=True)
 class Term:
     """One hydrodynamic term: its name, its body row (0..5: X..N) and its factors (`ATOMS`), or
-    for a component term no factors, its component and the index of its kind in `KINDS`."""
+    for a component term row −1 (every row), no factors, its component and the index of its kind
+    in `KINDS`."""
 
     name: str
     row: int
@@ -80,25 +84,25 @@ class Term:
 
 
 def parse_term(name: str, components=()) -> Term:
-    """The term named `name` (e.g. `Y_uv`, `N_v|v|`, `M_uude`, `Y_lift@rudder_upper` of one of
+    """The term named `name` (e.g. `Y_uv`, `N_v|v|`, `M_uude`, `lift@rudder_upper` of one of
     `components`); `InputError` if it is not one."""
     match = _COMPONENT.fullmatch(str(name))
     if match:
-        row, kind, which = match.groups()
+        kind, which = match.groups()
         named = {c.name: c for c in components}
         if which not in named:
             raise InputError(
                 f"term {name!r}: no component {which!r}; expected one of [components]: "
                 f"{', '.join(named) or 'none given'}"
             )
-        return Term(str(name), ROWS.index(row), (), named[which], KINDS.index(kind))
+        return Term(str(name), -1, (), named[which], KINDS.index(kind))
     row, _, rest = str(name).partition("_")
     tokens = _TOKEN.findall(rest)
     if len(row) != 1 or row not in ROWS or not tokens or "".join(tokens) != rest:
         raise InputError(
             f"term {name!r}: expected a row letter ({' '.join(ROWS)}), '_' and a product of "
             f"factors among {' '.join(ATOMS)} (e.g. Y_uv, N_v|v|, Z_uude), or a kind "
-            f"({' '.join(KINDS)}) '@' a component (e.g. N_lift@rudder_upper)"
+            f"({' '.join(KINDS)}) '@' a component (e.g. lift@rudder_upper)"
         )
     return Term(name=str(name), row=ROWS.index(row), factors=tuple(tokens))
 
@@ -131,17 +135,27 @@ def term_components(terms) -> tuple[Component, ...]:
 
 
 def regressors(terms, nu, delta) -> np.ndarray:
-    """φ (n, K): each term's product, or its component's wrench row, at the samples ν (n, 6) and
-    δ (n, 3)."""
+    """φ (n, K): each term's product at the samples ν (n, 6) and δ (n, 3) (1 for a component term,
+    whose regressor is its wrench: `term_wrenches`)."""
     z = np.concatenate([np.atleast_2d(nu), np.atleast_2d(delta)], axis=1)
     value = z @ WEIGHTS
     pairs = np.sqrt(z[:, PAIRS[:, 0]] ** 2 + z[:, PAIRS[:, 1]] ** 2)
     atoms = np.concatenate([value, magnitude(value), pairs, np.ones((len(z), 1), dtype=value.dtype)], axis=1)
-    phi = np.prod(atoms[:, factor_table(tuple(terms))], axis=2)
+    return np.prod(atoms[:, factor_table(tuple(terms))], axis=2)
+
+
+def term_wrenches(terms, nu, delta) -> np.ndarray:
+    """(n, 6, K): each term's force and moment per unit coefficient in the body rows at the
+    samples ν (n, 6) and δ (n, 3): a product term's φ in its row, a component term's wrench."""
+    terms = tuple(terms)
+    phi = regressors(terms, nu, delta)
+    out = np.zeros((len(phi), 6, len(terms)), dtype=phi.dtype)
+    rows = [k for k, t in enumerate(terms) if t.component is None]
+    out[:, [terms[k].row for k in rows], rows] = phi[:, rows]
     parts = term_components(terms)
     if parts:
         W = component_wrenches(parts, nu, delta)
         for k, t in enumerate(terms):
             if t.component is not None:
-                phi[:, k] = W[:, parts.index(t.component), t.kind, t.row]
-    return phi
+                out[:, :, k] = W[:, parts.index(t.component), t.kind]
+    return out

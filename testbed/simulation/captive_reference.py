@@ -256,7 +256,7 @@ def component_reference(model: mujoco.MjModel, speed: float) -> CaptiveFit:
     measured = captive_tests(model, tests)
     rigid = rigid_inertia(model, speed)
     inertia = {n: v + rigid.get(n, 0.0) for n, v in pmm_inertia(tests, measured).items()}
-    terms = tuple(component_terms(model, speed)) + tuple(inertia_terms(model, speed, inertia))
+    terms = tuple(component_terms(model)) + tuple(inertia_terms(model, speed, inertia))
     fit = fit_captive(vehicle, tests, measured, thrust, terms=terms, components=mjcf_components(model))
     return _with_rigid(fit, rigid)
 

@@ -3,9 +3,9 @@
 Each fluid geom (`fluidshape="ellipsoid"`) is a component: its equivalent ellipsoid, its pose in
 body axes (FRD, from the CG) with the fins at 0, and for a blade its fin's hinge. Its terms are
 the kinds of force its fluidcoef turns on (blunt and slender drag, Kutta lift, Magnus lift;
-angular drag, whose moments κ carry the angular and slender coefficients) in every body row the
-kind reaches, each with the MJCF's coefficient; and each blade's `munk` terms, the change of its
-added-mass velocity forces with its fin angle. Together with the model's inertia and Kirchhoff
+angular drag, whose moments κ carry the angular and slender coefficients), each with the MJCF's
+coefficient; and each blade's `munk` term, the change of its added-mass velocity forces with its
+fin angle. Together with the model's inertia and Kirchhoff
 forces (the added mass at δ = 0) they are MuJoCo's fluid wrench.
 """
 
@@ -16,7 +16,7 @@ import numpy as np
 
 from testbed.models import nonlinear
 from testbed.models.components import FINS as FIN_INPUTS
-from testbed.models.components import KINDS, Component, component_wrenches
+from testbed.models.components import KINDS, Component
 from testbed.models.mechanics import coriolis
 from testbed.models.regressors import ROWS
 from testbed.simulation.vehicle import (
@@ -82,28 +82,18 @@ def mjcf_components(model: mujoco.MjModel) -> tuple[Component, ...]:
     return tuple(out)
 
 
-def component_terms(model: mujoco.MjModel, speed: float) -> dict[str, float]:
-    """Each component's terms, named `ROW_kind@component`, with the MJCF's coefficients: the
-    kinds its fluidcoef turns on (angular drag where its moments are not 0), in the rows where
-    the kind's wrench is not 0 over motions and fin angles around trim at `speed`."""
-    parts = mjcf_components(model)
-    rng = np.random.default_rng(0)
-    nu = rng.normal(size=(64, 6)) * np.array([0.3, 0.3, 0.3, 0.5, 0.5, 0.5]) * speed / 10
-    nu[:, 0] += speed
-    delta = rng.uniform(-0.3, 0.3, size=(64, 3))
-    W = np.abs(component_wrenches(parts, nu, delta)).max(axis=0)  # (C, 6, 6)
+def component_terms(model: mujoco.MjModel) -> dict[str, float]:
+    """Each component's terms, named `kind@component`, with the MJCF's coefficients: the kinds
+    its fluidcoef turns on, the angular drag where its moments are not 0, and a blade's Munk
+    term where it has added mass (coefficient 1: the shapes carry the MJCF's values)."""
     terms = {}
-    for c, (part, g) in enumerate(zip(parts, fluid_geoms(model))):
+    for part, g in zip(mjcf_components(model), fluid_geoms(model)):
         coef = model.geom_fluid[g, 1:6]
-        for k, kind in enumerate(KINDS):
+        for kind in KINDS:
             value = float(coef[_COEF[kind]]) if kind in _COEF else 1.0
             off = {"angular": not any(part.moments), "munk": part.fin is None or not any(part.added_mass)}
-            if value == 0.0 or off.get(kind, False):
-                continue
-            reach = W[c, k].max()
-            for row in range(6):
-                if W[c, k, row] > 1e-9 * reach:
-                    terms[f"{ROWS[row]}_{kind}@{part.name}"] = value
+            if value != 0.0 and not off.get(kind, False):
+                terms[f"{kind}@{part.name}"] = value
     return terms
 
 

@@ -116,7 +116,7 @@ def term_class(name: str) -> str:
     fins' differential) control for a term of a fin, damping otherwise; a component term's
     control for a blade's lift or Munk term, damping otherwise."""
     if "@" in name:
-        return CONTROL if name.split("@")[0].endswith(("_lift", "_munk")) else DAMPING
+        return CONTROL if name.split("@")[0] in ("lift", "munk") else DAMPING
     rest = [a for a in parse_term(name).factors if a != "u"]
     counterpart = f"{name[0]}_{''.join(rest) or 'u'}"
     if counterpart in CLASSES:
