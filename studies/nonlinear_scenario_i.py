@@ -53,6 +53,8 @@ from testbed.analysis.track import record_track
 from testbed.data import Experiment, ModelConfig, load_data, read_csv
 from testbed.errors import InputError, atomic_write_text, check_output_directory, check_output_file
 from testbed.estimators import Estimate, identify
+from testbed.identification.bounds import crlb
+from testbed.identification.nonlinear_output_error import information, records, start_states
 from testbed.identification.nonlinear_prediction import predict
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
@@ -86,16 +88,48 @@ def check_out(out: Path, seeds: int, force: bool) -> None:
 
 
 def default_free(config: ModelConfig, record: Experiment, level: float) -> tuple[str, ...]:
-    """The slope terms and the other terms whose Cramér-Rao bound with all terms free, at the
-    config's values on `record`, is below `level` × |value| (module doc)."""
+    """The free list (module doc): for the polynomial terms, the slope terms and the other terms
+    whose Cramér-Rao bound with all terms free, at the config's values on `record`, is below
+    `level` × |value|; for the component model, `forward_free`."""
     terms = tuple(config.terms)
-    slopes = slope_terms(t for t in terms if "@" not in t)  # a component term has no slope form
+    if config.components:
+        return forward_free(config, record, level)
+    slopes = slope_terms(terms)
     idf = nonlinear_identifiability([record], replace(config, free=terms))
     relative = idf.crlb_std / np.abs(idf.values)
     ranked = sorted((r, n) for n, r in zip(idf.free, relative) if n not in slopes and r < level)
     for r, n in ranked:
         print(f"  {n:12s} relative Cramér-Rao bound {r:.3f}", file=sys.stderr)
     return slopes + tuple(n for _, n in ranked)
+
+
+def forward_free(config: ModelConfig, record: Experiment, level: float) -> tuple[str, ...]:
+    """The component model's candidates (`config.free`) chosen one at a time, the best determined
+    alone first: each is kept while every chosen term's Cramér-Rao bound, with the chosen ones
+    and the record's initial state free at the config's values and the sensors' noise, stays
+    below `level` × |value|. The candidates come in near-copies (the two rudder blades, blunt
+    and slender drag of one blade) that no record tells apart, where the bound with all of them
+    free is infinite for every one: this keeps one of each such set."""
+    channels, recs = records([record])
+    model, theta = config.nonlinear()
+    ch = [STATES.index(c) for c in channels]
+    R = np.array([NOISE_STD[c] ** 2 for c in channels])
+    candidates = list(config.free)
+    H, _ = information(model, theta, start_states(model, recs, ch), recs, channels, candidates, R)
+    values = np.abs([config.terms[n] for n in candidates])
+    states = list(range(len(candidates), len(H)))
+
+    def relative(chosen):
+        idx = chosen + states
+        return crlb(H[np.ix_(idx, idx)]).std[: len(chosen)] / values[chosen]
+
+    chosen = []
+    for i in sorted(range(len(candidates)), key=lambda i: relative([i])[0]):
+        if np.all(relative(chosen + [i]) < level):
+            chosen.append(i)
+    for i, r in zip(chosen, relative(chosen)):
+        print(f"  {candidates[i]:24s} relative Cramér-Rao bound {r:.3f}", file=sys.stderr)
+    return tuple(candidates[i] for i in chosen)
 
 
 def scenario_files(out: Path, rudder: float, switch: float) -> dict[str, Path]:
