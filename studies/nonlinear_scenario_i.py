@@ -59,6 +59,7 @@ from testbed.identification.nonlinear_prediction import predict
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
 from testbed.simulation.captive_config import MODELS, captive_config
+from testbed.study.priors import term_prior
 from testbed.simulation.captive_reference import slope_terms
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.runs import simulate
@@ -196,6 +197,7 @@ def study(
     switch: float,
     force: bool,
     model: str = "components",
+    spread: float = 0.4,
 ):
     out.mkdir(parents=True, exist_ok=True)
     captive, *_ = captive_config(model=model)
@@ -204,11 +206,12 @@ def study(
     if free is None:
         free = default_free(captive, load_data([runs[0]])[0][0], level)
     print(f"free ({len(free)}): {' '.join(free)}", file=sys.stderr)
-    start = replace(captive, free=free)
     data = {f"seed {k}": load_data([run])[0] for k, run in enumerate(runs, 1)}
     sensors = {s: NOISE_STD[s] for s in STATES}
     fits, experiments_of = {}, {"noise-free": [truth]} | data
-    for label, experiments in experiments_of.items():
+    for k, (label, experiments) in enumerate(experiments_of.items()):
+        # each seed's own a-priori start (the noise-free fit seed 1's), as a user's guess
+        start = term_prior(replace(captive, free=free), free, spread, max(k, 1))
         config = start.with_noise_std(sensors) if label == "noise-free" else start
         t0 = time.perf_counter()
         fits[label] = identify(experiments, config, "ml-gn")
@@ -318,6 +321,12 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--rudder", type=float, default=0.015, help="the held-out manoeuvres' rudder, rad")
     ap.add_argument("--switch", type=float, default=15.0, help="the zigzag's switching heading, degrees")
+    ap.add_argument(
+        "--spread",
+        type=float,
+        default=0.4,
+        help="the start's spread about the captive values (the campaign's a-priori rule; 0: the captive values)",
+    )
     ap.add_argument("--force", action="store_true", help="replace the study's own outputs in --out")
     ap.add_argument(
         "--model",
@@ -337,7 +346,7 @@ def main(argv=None) -> int:
     except InputError as exc:
         print(f"nonlinear_scenario_i.py: {exc}", file=sys.stderr)
         return 2
-    tables = study(a.seeds, a.out, free, a.level, a.rudder, a.switch, a.force, a.model)
+    tables = study(a.seeds, a.out, free, a.level, a.rudder, a.switch, a.force, a.model, a.spread)
     for name, text in zip(TABLES, tables):
         atomic_write_text(a.out / name, text, force=True)  # checked before the work (`check_out`)
         print(text)
