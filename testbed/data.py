@@ -35,6 +35,7 @@ from testbed.models.linear import (
     STATES,
     Vehicle,
 )
+from testbed.models.components import Component
 from testbed.models.nonlinear import INERTIA, NonlinearModel, nonlinear_model, theta_vector
 from testbed.models.sensors import OUTPUTS, Sensor, needs, states_from
 
@@ -151,6 +152,7 @@ class ModelConfig:
     record_values: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     sensors: tuple[Sensor, ...] = ()  # [sensors.NAME]: the sensors whose geometry and errors are known
     terms: Mapping[str, float] | None = None  # [terms]: the nonlinear model's terms, in order; None: linear
+    components: tuple[Component, ...] = ()  # [components.NAME]: what the component terms name
 
     def __post_init__(self):  # a name a config leaves out is 0 (and fixed)
         object.__setattr__(self, "coefficients", dict.fromkeys(PARAMETERS, 0.0) | dict(self.coefficients))
@@ -217,7 +219,7 @@ class ModelConfig:
     def nonlinear(self) -> tuple[NonlinearModel, np.ndarray]:
         """A nonlinear model config's model and its θ (`models.nonlinear`: the inertia
         coefficients, then the terms)."""
-        model = nonlinear_model(self.vehicle, tuple(self.terms))
+        model = nonlinear_model(self.vehicle, tuple(self.terms), self.components)
         return model, theta_vector(model, {**{n: self.coefficients[n] for n in INERTIA}, **self.terms})
 
     def with_noise_std(self, values: Mapping[str, float] | None, where: str = "noise_std") -> "ModelConfig":
@@ -681,6 +683,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
         if not isinstance(terms, dict):
             raise InputError(f"{source}: [terms] must be a table of term names and their values")
         terms = {k: number(v, f"{source}: [terms] {json.dumps(k)}") for k, v in terms.items()}
+    components = _components(doc.get("components"), terms, source)
     config = ModelConfig(
         Vehicle(**values),
         coefficients,
@@ -692,9 +695,55 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
         tuple(per_record),
         sensors=sensors,
         terms=terms,
+        components=components,
     )
     check_config(config)
     return config
+
+
+# a [components.NAME] table's keys: the required, then the optional (a fin blade's hinge)
+_COMPONENT_KEYS = ("axes", "centre", "frame", "moments", "density", "added_mass")
+_BLADE_KEYS = ("fin", "hinge", "hinge_axis")
+
+
+def _components(tables, terms, source: str) -> tuple[Component, ...]:
+    """The [components.NAME] tables as `Component`s; `InputError` naming the table and key."""
+    if tables is None:
+        return ()
+    if terms is None:
+        raise InputError(
+            f"{source}: [components] in a linear model config; expected them only beside [terms] "
+            "(the nonlinear model's component terms name them)"
+        )
+    if not isinstance(tables, Mapping) or not all(isinstance(t, Mapping) for t in tables.values()):
+        raise InputError(f"{source}: [components] must hold [components.NAME] tables")
+    out = []
+    for name, table in tables.items():
+        where = f"{source}: [components.{name}]"
+        check_keys(table, _COMPONENT_KEYS + _BLADE_KEYS, where)
+        missing = [k for k in _COMPONENT_KEYS if k not in table]
+        if missing:
+            raise InputError(f"{where} {missing[0]} missing; expected {', '.join(_COMPONENT_KEYS)}")
+        values = {k: table[k] for k in _COMPONENT_KEYS + _BLADE_KEYS if k in table}
+        for k, v in values.items():
+            if k == "fin":
+                continue
+            if k == "density":
+                values[k] = number(v, f"{where} density")
+            elif isinstance(v, list):
+                rows = v if k == "frame" else [v]
+                for row in rows:
+                    if not isinstance(row, list):
+                        raise InputError(f"{where} {k} = {v!r}; expected rows of numbers")
+                    for x in row:
+                        number(x, f"{where} {k}")
+            else:
+                raise InputError(f"{where} {k} = {v!r}; expected a list of numbers")
+        try:
+            out.append(Component(name=name, **values))
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
+    return tuple(out)
 
 
 def check_config(config: ModelConfig) -> None:
@@ -836,7 +885,7 @@ def _check_terms(config: ModelConfig, source: str) -> None:
     (`models.nonlinear.nonlinear_model`: term names, each once, a submerged body), with finite
     values, its linear parameters but the inertia coefficients 0, and `free` among its names."""
     try:
-        model = nonlinear_model(config.vehicle, tuple(config.terms))
+        model = nonlinear_model(config.vehicle, tuple(config.terms), config.components)
     except InputError as exc:
         raise InputError(f"{source}: [terms] {exc}") from None
     for key, v in config.terms.items():
@@ -921,6 +970,11 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
     for sensor in config.sensors:
         lines += ["", f"[sensors.{json.dumps(sensor.name)}]"]
         lines += [f"{k} = {toml_value(v)}" for k, v in sensor_table(sensor).items()]
+    for c in config.components:
+        lines += ["", f"[components.{c.name}]"]
+        lines += [f"{k} = {toml_value(getattr(c, k))}" for k in _COMPONENT_KEYS]
+        if c.fin is not None:
+            lines += [f"{k} = {toml_value(getattr(c, k))}" for k in _BLADE_KEYS]
     return "\n".join(lines + [""])
 
 
