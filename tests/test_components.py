@@ -62,7 +62,7 @@ def one(component, z, jacobian=False):
     geometry, fins = packed_components([component])
     W = np.zeros((len(KINDS), 6), dtype=np.asarray(z).dtype)
     J = np.zeros((len(KINDS), 6, 9), dtype=W.dtype)
-    wrenches(geometry[0], fins[0], np.asarray(z), W, J, jacobian)
+    wrenches(geometry[0], fins[0], np.asarray(z), W, J, jacobian, np.ones(len(KINDS), dtype=bool))
     return W, J
 
 

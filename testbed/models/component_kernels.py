@@ -88,10 +88,11 @@ def _local(geometry, fin, z):
 
 
 @numba.njit(cache=True)
-def _kinds(r, kappa, rho, added, v, w, f, J):
-    """Each kind's wrench (f (6, 6): force, torque) in the component's axes at its local (v, ω),
-    per unit coefficient, and J (6, 6, 6): its derivatives along (v, ω); the last kind the whole
-    added-mass velocity wrench (`wrenches` takes its change with the fin angle)."""
+def _kinds(r, kappa, rho, added, v, w, f, J, used):
+    """Each `used` kind's wrench (f (6, 6): force, torque) in the component's axes at its local
+    (v, ω), per unit coefficient, and J (6, 6, 6): its derivatives along (v, ω) (0 for the
+    others); the last kind the whole added-mass velocity wrench (`wrenches` takes its change with
+    the fin angle)."""
     f[:, :] = 0.0
     J[:, :, :] = 0.0
     b = np.empty(3)
@@ -100,7 +101,7 @@ def _kinds(r, kappa, rho, added, v, w, f, J):
     D = b[0] ** 2 * v[0] ** 2 + b[1] ** 2 * v[1] ** 2 + b[2] ** 2 * v[2] ** 2
     rs = np.sort(r)
     A_max = np.pi * rs[2] * rs[1]
-    if N.real > 0:
+    if N.real > 0 and (used[0] or used[1] or used[2]):
         speed = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
         A_p = np.pi * np.sqrt(D / N)
         # ∇A_p = π²/A_p · v ∘ (b² N − b D) / N²
@@ -151,20 +152,22 @@ def _kinds(r, kappa, rho, added, v, w, f, J):
     Sv2 = np.empty((3, 3), dtype=v.dtype)
     _skew(w, Sw)
     _skew(v, Sv2)
-    for i in range(3):
+    for i in range(3 if used[3] else 0):
         f[3, i] = rho * V * m[i]
         for j in range(3):
             J[3, i, j] = rho * V * Sw[i, j]
             J[3, i, 3 + j] = -rho * V * Sv2[i, j]
     # angular drag −ρ ‖κ∘ω‖ ω: ∂/∂ω = −ρ (‖κ∘ω‖ I + ω (κ²∘ω)ᵀ / ‖κ∘ω‖)
     norm = np.sqrt((kappa[0] * w[0]) ** 2 + (kappa[1] * w[1]) ** 2 + (kappa[2] * w[2]) ** 2)
-    if norm.real > 0:
+    if norm.real > 0 and used[4]:
         for i in range(3):
             f[4, 3 + i] = -rho * norm * w[i]
             for j in range(3):
                 J[4, 3 + i, 3 + j] = -rho * ((norm if i == j else 0.0) + w[i] * kappa[j] ** 2 * w[j] / norm)
     # added mass: f = P × ω, g = P × v + H × ω (P = m_A∘v, H = I_A∘ω);
     # ∂f/∂v = −[ω]× diag(m_A), ∂f/∂ω = [P]×, ∂g/∂v = [P]× − [v]× diag(m_A), ∂g/∂ω = [H]× − [ω]× diag(I_A)
+    if not used[5]:
+        return
     P = np.empty(3, dtype=v.dtype)
     H = np.empty(3, dtype=v.dtype)
     for i in range(3):
@@ -191,18 +194,20 @@ def _kinds(r, kappa, rho, added, v, w, f, J):
 
 
 @numba.njit(cache=True)
-def wrenches(geometry, fin, z, W, JW, jacobian):
-    """W (6, 6): each kind's wrench on the vehicle (force, moment about the CG, body axes) per
-    unit coefficient at z (9,) = (ν, δ) for one component (`packed_components`' row and fin);
-    with `jacobian` JW (6, 6, 9) = ∂W/∂z."""
-    _posed(geometry, fin, z, W, JW, jacobian)
-    if fin < 0:
+def wrenches(geometry, fin, z, W, JW, jacobian, used):
+    """W (6, 6): each `used` kind's wrench on the vehicle (force, moment about the CG, body axes)
+    per unit coefficient at z (9,) = (ν, δ) for one component (`packed_components`' row and fin),
+    0 for the others; with `jacobian` JW (6, 6, 9) = ∂W/∂z."""
+    _posed(geometry, fin, z, W, JW, jacobian, used)
+    if fin < 0 or not used[5]:
         W[5, :] = 0.0
         JW[5, :, :] = 0.0
         return
     W0 = np.empty((6, 6), dtype=z.dtype)
     J0 = np.zeros((6, 6, 9), dtype=z.dtype)
-    _posed(geometry, -1, z, W0, J0, jacobian)  # the blade at δ = 0
+    munk = np.zeros(6, dtype=np.bool_)
+    munk[5] = True
+    _posed(geometry, -1, z, W0, J0, jacobian, munk)  # the blade at δ = 0: its added mass alone
     for i in range(6):
         W[5, i] -= W0[5, i]
         if jacobian:
@@ -211,7 +216,7 @@ def wrenches(geometry, fin, z, W, JW, jacobian):
 
 
 @numba.njit(cache=True)
-def _posed(geometry, fin, z, W, JW, jacobian):
+def _posed(geometry, fin, z, W, JW, jacobian, used):
     """`wrenches`' kinds, the last the whole added-mass velocity wrench, the component posed at
     its fin's angle (at 0 for fin −1)."""
     Q, p, dQ, dp = _local(geometry, fin, z)
@@ -226,10 +231,13 @@ def _posed(geometry, fin, z, W, JW, jacobian):
     w = _mv(Q, nu_w, True)
     f = np.empty((6, 6), dtype=z.dtype)
     J = np.empty((6, 6, 6), dtype=z.dtype)
-    _kinds(r, kappa, rho, added, v, w, f, J)
+    _kinds(r, kappa, rho, added, v, w, f, J, used)
     P = np.empty((3, 3), dtype=z.dtype)
     _skew(p, P)
+    W[:, :] = 0.0
     for k in range(6):
+        if not used[k]:
+            continue
         F = _mv(Q, f[k, :3])
         G = _mv(Q, f[k, 3:])
         M = np.empty(3, dtype=z.dtype)
@@ -255,7 +263,10 @@ def _posed(geometry, fin, z, W, JW, jacobian):
         for i in range(3):
             L[i, 6 + fin] = a[i]
             L[3 + i, 6 + fin] = b[i]
+    JW[:, :, :] = 0.0
     for k in range(6):
+        if not used[k]:
+            continue
         Jz = np.zeros((6, 9), dtype=z.dtype)  # ∂(f, g)_local/∂z
         for i in range(6):
             for j in range(9):

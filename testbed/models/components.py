@@ -141,7 +141,8 @@ def component_wrenches(components, nu, delta) -> np.ndarray:
     geometry, fins = packed_components(components)
     out = np.zeros((len(z), len(components), 6, 6), dtype=dtype)
     scratch = np.zeros((6, 6, 9), dtype=dtype)
+    every = np.ones(len(KINDS), dtype=bool)
     for n in range(len(z)):
         for c in range(len(components)):
-            wrenches(geometry[c], fins[c], z[n], out[n, c], scratch, False)
+            wrenches(geometry[c], fins[c], z[n], out[n, c], scratch, False, every)
     return out

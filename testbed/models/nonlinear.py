@@ -30,7 +30,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.models import linear
-from testbed.models.components import packed_components
+from testbed.models.components import KINDS, packed_components
 from testbed.models.regressors import (
     PAIRS,
     ROWS,
@@ -232,11 +232,15 @@ def packed(model: NonlinearModel, theta, dtype=float) -> tuple:
     parts (coefficients, thrust, M and M⁻¹) of `dtype` (complex for a complex step in θ or in the
     state): (W, factor table, rows, c, T, M, M⁻¹, ∂M/∂θ_inertia, thrust shares, weight, buoyancy,
     r_B, pairs, each term's component (−1: none) and kind, the components' geometry and fins
-    (`components.packed_components`))."""
+    (`components.packed_components`) and the kinds the terms take of each)."""
     theta = np.asarray(theta).astype(dtype)
     M = model.inertia(theta)
     parts = term_components(model.terms)
     geometry, fins = packed_components(parts)
+    used = np.zeros((len(parts), len(KINDS)), dtype=bool)  # the kinds the terms take of each
+    for t in model.terms:
+        if t.component is not None:
+            used[parts.index(t.component), t.kind] = True
     v = model.vehicle
     return (
         WEIGHTS,
@@ -258,6 +262,7 @@ def packed(model: NonlinearModel, theta, dtype=float) -> tuple:
         np.array([t.kind for t in model.terms], dtype=np.int64),
         geometry,
         fins,
+        used,
     )
 
 

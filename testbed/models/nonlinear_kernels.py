@@ -66,7 +66,7 @@ def _forces(m, x, d, work, jacobian):
     are the first three of the `work` arrays."""
     weights, table, rows, c, thrust, M = m[0], m[1], m[2], m[3], m[4], m[5]
     weight, buoyancy, rB, pairs = m[9], m[10], m[11], m[12]
-    part, kind, geometry, fins = m[13], m[14], m[15], m[16]
+    part, kind, geometry, fins, used = m[13], m[14], m[15], m[16], m[17]
     F, JF, phi, z, atoms, signs, slopes, scales, CW, CJ = work
     L = weights.shape[1]
     z[:6] = x[:6]
@@ -80,7 +80,7 @@ def _forces(m, x, d, work, jacobian):
     restoring_state(weight, buoyancy, rB, x[6], x[7], F, JF[:, 6:8], jacobian)
     F[0] += thrust
     for p in range(geometry.shape[0]):  # each component's wrenches per unit coefficient
-        wrenches(geometry[p], fins[p], z, CW[p], CJ[p], jacobian)
+        wrenches(geometry[p], fins[p], z, CW[p], CJ[p], jacobian, used[p])
     width = table.shape[1]
     for k in range(len(rows)):
         if part[k] >= 0:  # a component term: its component's wrench of its kind, in every row
