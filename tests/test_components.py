@@ -13,7 +13,7 @@ import pytest
 from testbed.analysis.validation import fit_percent
 from testbed.data import read_csv
 from testbed.errors import InputError
-from testbed.models.component_kernels import wrenches
+from testbed.models.component_kernels import SCRATCH, wrenches
 from testbed.models.components import KINDS, Component, component_wrenches, packed_components
 from testbed.models.mechanics import coriolis
 from testbed.models.nonlinear import (
@@ -62,7 +62,8 @@ def one(component, z, jacobian=False):
     geometry, fins = packed_components([component])
     W = np.zeros((len(KINDS), 6), dtype=np.asarray(z).dtype)
     J = np.zeros((len(KINDS), 6, 9), dtype=W.dtype)
-    wrenches(geometry[0], fins[0], np.asarray(z), W, J, jacobian, np.ones(len(KINDS), dtype=bool))
+    every, S = np.ones(len(KINDS), dtype=bool), np.zeros(SCRATCH, dtype=W.dtype)
+    wrenches(geometry[0], fins[0], np.asarray(z), W, J, jacobian, every, S)
     return W, J
 
 

@@ -1,5 +1,9 @@
 """The components' forces per unit coefficient and their exact derivatives, compiled (numba) one
 state and one component at a time, for real and complex arguments (the formulas: `components`).
+
+Every intermediate lives in one scratch array the caller gives (`SCRATCH` entries of z's dtype),
+at fixed places: a flight evaluates the components some forty thousand times, and allocating the
+few dozen 3-vectors and 3 × 3 matrices of each evaluation would cost more than the arithmetic.
 """
 
 from __future__ import annotations
@@ -7,7 +11,20 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["wrenches"]
+__all__ = ["SCRATCH", "wrenches"]
+
+SCRATCH = 1040  # the scratch entries `wrenches` needs
+_MUNK = np.array([False, False, False, False, False, True])  # a blade at δ = 0: its added mass alone
+
+
+@numba.njit(cache=True)
+def _vec(S, at):
+    return S[at : at + 3]
+
+
+@numba.njit(cache=True)
+def _mat(S, at):
+    return S[at : at + 9].reshape((3, 3))
 
 
 @numba.njit(cache=True)
@@ -18,25 +35,24 @@ def _cross(a, b, out):
 
 
 @numba.njit(cache=True)
-def _mm(A, B, transpose=False):
-    """A B, or Aᵀ B with `transpose` (A (3, 3), B (3, k)), by loops: BLAS on 3 × 3 costs more
-    than the arithmetic."""
-    out = np.zeros((3, B.shape[1]), dtype=B.dtype)
+def _mm(A, B, out, transpose=False):
+    """out = A B, or Aᵀ B with `transpose` (A (3, 3), B (3, k))."""
     for i in range(3):
         for j in range(B.shape[1]):
+            acc = 0.0 * B[0, 0]
             for k in range(3):
-                out[i, j] += (A[k, i] if transpose else A[i, k]) * B[k, j]
-    return out
+                acc += (A[k, i] if transpose else A[i, k]) * B[k, j]
+            out[i, j] = acc
 
 
 @numba.njit(cache=True)
-def _mv(A, x, transpose=False):
-    """A x, or Aᵀ x with `transpose` (A (3, 3), x (3,))."""
-    out = np.zeros(3, dtype=x.dtype)
+def _mv(A, x, out, transpose=False):
+    """out = A x, or Aᵀ x with `transpose` (A (3, 3), x (3,))."""
     for i in range(3):
+        acc = 0.0 * x[0]
         for k in range(3):
-            out[i] += (A[k, i] if transpose else A[i, k]) * x[k]
-    return out
+            acc += (A[k, i] if transpose else A[i, k]) * x[k]
+        out[i] = acc
 
 
 @numba.njit(cache=True)
@@ -48,64 +64,59 @@ def _skew(a, out):
 
 
 @numba.njit(cache=True)
-def _local(geometry, fin, z):
-    """The component's local flow and pose at z = (ν, δ): (v, ω) in its axes, Q (body from
-    component), p, and their derivatives along its fin's angle (zero off a fin)."""
-    a = geometry[22:25]
-    h = geometry[19:22]
-    Q0 = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            Q0[i, j] = geometry[6 + 3 * i + j]
+def _local(geometry, fin, z, S):
+    """The component's pose at z = (ν, δ) into S: Q (body from component) at 0, p at 18, and
+    their derivatives along its fin's angle dQ at 9, dp at 21 (zero off a fin)."""
+    Q, dQ, p, dp = _mat(S, 0), _mat(S, 9), _vec(S, 18), _vec(S, 21)
+    R, dR, K, K2 = _mat(S, 24), _mat(S, 33), _mat(S, 42), _mat(S, 51)
+    a, h = geometry[22:25], geometry[19:22]
     d = z[6 + fin] if fin >= 0 else 0.0 * z[0]
     # R(a, δ) = I + sin δ [a]× + (1 − cos δ) [a]×², dR/dδ = cos δ [a]× + sin δ [a]×²
-    K = np.empty((3, 3))
     _skew(a, K)
-    K2 = _mm(K, K)
+    _mm(K, K, K2)
     s, c = np.sin(d), np.cos(d)
-    R = np.empty((3, 3), dtype=z.dtype)
-    dR = np.empty((3, 3), dtype=z.dtype)
     for i in range(3):
         for j in range(3):
             R[i, j] = (1.0 if i == j else 0.0) + s * K[i, j] + (1.0 - c) * K2[i, j]
             dR[i, j] = c * K[i, j] + s * K2[i, j]
-    Q = np.zeros((3, 3), dtype=z.dtype)
-    dQ = np.zeros((3, 3), dtype=z.dtype)
-    p = np.zeros(3, dtype=z.dtype)
-    dp = np.zeros(3, dtype=z.dtype)
     for i in range(3):
         p[i] = h[i]
+        dp[i] = 0.0
         for j in range(3):
             p[i] += R[i, j] * (geometry[3 + j] - h[j])
             dp[i] += dR[i, j] * (geometry[3 + j] - h[j])
+            Q[i, j] = 0.0
+            dQ[i, j] = 0.0
             for k in range(3):
-                Q[i, j] += R[i, k] * Q0[k, j]
-                dQ[i, j] += dR[i, k] * Q0[k, j]
+                Q[i, j] += R[i, k] * geometry[6 + 3 * k + j]
+                dQ[i, j] += dR[i, k] * geometry[6 + 3 * k + j]
     if fin < 0:
         dQ[:, :] = 0.0
         dp[:] = 0.0
-    return Q, p, dQ, dp
 
 
 @numba.njit(cache=True)
-def _kinds(r, kappa, rho, added, v, w, f, J, used):
+def _kinds(r, kappa, rho, added, v, w, f, J, used, S):
     """Each `used` kind's wrench (f (6, 6): force, torque) in the component's axes at its local
     (v, ω), per unit coefficient, and J (6, 6, 6): its derivatives along (v, ω) (0 for the
     others); the last kind the whole added-mass velocity wrench (`wrenches` takes its change with
-    the fin angle)."""
+    the fin angle). Scratch from S[69:180]."""
     f[:, :] = 0.0
     J[:, :, :] = 0.0
-    b = np.empty(3)
+    b, gA, n, nv, wl = _vec(S, 69), _vec(S, 72), _vec(S, 75), _vec(S, 78), _vec(S, 81)
+    Sv, Sn, Snv, dw, tmp = _mat(S, 84), _mat(S, 93), _mat(S, 102), _mat(S, 111), _mat(S, 120)
+    m, Sw, Sv2 = _vec(S, 129), _mat(S, 132), _mat(S, 141)
+    P, H, t1, t2, SP, SH = _vec(S, 150), _vec(S, 153), _vec(S, 156), _vec(S, 159), _mat(S, 162), _mat(S, 171)
     b[0], b[1], b[2] = (r[1] * r[2]) ** 2, (r[2] * r[0]) ** 2, (r[0] * r[1]) ** 2
     N = b[0] * v[0] ** 2 + b[1] * v[1] ** 2 + b[2] * v[2] ** 2
     D = b[0] ** 2 * v[0] ** 2 + b[1] ** 2 * v[1] ** 2 + b[2] ** 2 * v[2] ** 2
-    rs = np.sort(r)
-    A_max = np.pi * rs[2] * rs[1]
+    r_max = max(r[0], r[1], r[2])
+    r_mid = r[0] + r[1] + r[2] - r_max - min(r[0], r[1], r[2])
+    A_max = np.pi * r_max * r_mid
     if N.real > 0 and (used[0] or used[1] or used[2]):
         speed = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
         A_p = np.pi * np.sqrt(D / N)
         # ∇A_p = π²/A_p · v ∘ (b² N − b D) / N²
-        gA = np.empty(3, dtype=v.dtype)
         for i in range(3):
             gA[i] = np.pi**2 / A_p * v[i] * (b[i] ** 2 * N - b[i] * D) / N**2
         # drag −ρ a ‖v‖ v: ∂/∂v = −ρ [a (‖v‖ I + v vᵀ/‖v‖) + ‖v‖ v ∇aᵀ], a = A_p or A_max − A_p
@@ -119,25 +130,19 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used):
                     )
         # Kutta lift σ w, σ = ρ π √(N/D)/‖v‖, w = (n × v) × v, n = b∘v:
         # ∂/∂v = w ∇σᵀ + σ ([v]×[v]× diag(b) − [v]×[n]× + [n × v]×)
-        n = np.empty(3, dtype=v.dtype)
         for i in range(3):
             n[i] = b[i] * v[i]
-        nv = np.empty(3, dtype=v.dtype)
         _cross(n, v, nv)
-        wl = np.empty(3, dtype=v.dtype)
         _cross(nv, v, wl)
         sigma = rho * np.pi * np.sqrt(N / D) / speed
-        Sv = np.empty((3, 3), dtype=v.dtype)
-        Sn = np.empty((3, 3), dtype=v.dtype)
-        Snv = np.empty((3, 3), dtype=v.dtype)
         _skew(v, Sv)
         _skew(n, Sn)
         _skew(nv, Snv)
-        dw = _mm(Sv, Sv)
-        for j in range(3):
-            for i in range(3):
-                dw[i, j] *= b[j]
-        dw += Snv - _mm(Sv, Sn)
+        _mm(Sv, Sv, dw)
+        _mm(Sv, Sn, tmp)
+        for i in range(3):
+            for j in range(3):
+                dw[i, j] = dw[i, j] * b[j] + Snv[i, j] - tmp[i, j]
         for i in range(3):
             f[2, i] = sigma * wl[i]
         for j in range(3):
@@ -146,17 +151,15 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used):
                 J[2, i, j] = wl[i] * g_sigma + sigma * dw[i, j]
     # Magnus ρ V ω × v: ∂/∂v = ρ V [ω]×, ∂/∂ω = −ρ V [v]×
     V = 4.0 / 3.0 * np.pi * r[0] * r[1] * r[2]
-    m = np.empty(3, dtype=v.dtype)
     _cross(w, v, m)
-    Sw = np.empty((3, 3), dtype=v.dtype)
-    Sv2 = np.empty((3, 3), dtype=v.dtype)
     _skew(w, Sw)
     _skew(v, Sv2)
-    for i in range(3 if used[3] else 0):
-        f[3, i] = rho * V * m[i]
-        for j in range(3):
-            J[3, i, j] = rho * V * Sw[i, j]
-            J[3, i, 3 + j] = -rho * V * Sv2[i, j]
+    if used[3]:
+        for i in range(3):
+            f[3, i] = rho * V * m[i]
+            for j in range(3):
+                J[3, i, j] = rho * V * Sw[i, j]
+                J[3, i, 3 + j] = -rho * V * Sv2[i, j]
     # angular drag −ρ ‖κ∘ω‖ ω: ∂/∂ω = −ρ (‖κ∘ω‖ I + ω (κ²∘ω)ᵀ / ‖κ∘ω‖)
     norm = np.sqrt((kappa[0] * w[0]) ** 2 + (kappa[1] * w[1]) ** 2 + (kappa[2] * w[2]) ** 2)
     if norm.real > 0 and used[4]:
@@ -164,25 +167,20 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used):
             f[4, 3 + i] = -rho * norm * w[i]
             for j in range(3):
                 J[4, 3 + i, 3 + j] = -rho * ((norm if i == j else 0.0) + w[i] * kappa[j] ** 2 * w[j] / norm)
-    # added mass: f = P × ω, g = P × v + H × ω (P = m_A∘v, H = I_A∘ω);
-    # ∂f/∂v = −[ω]× diag(m_A), ∂f/∂ω = [P]×, ∂g/∂v = [P]× − [v]× diag(m_A), ∂g/∂ω = [H]× − [ω]× diag(I_A)
     if not used[5]:
         return
-    P = np.empty(3, dtype=v.dtype)
-    H = np.empty(3, dtype=v.dtype)
+    # added mass: f = P × ω, g = P × v + H × ω (P = m_A∘v, H = I_A∘ω);
+    # ∂f/∂v = −[ω]× diag(m_A), ∂f/∂ω = [P]×, ∂g/∂v = [P]× − [v]× diag(m_A), ∂g/∂ω = [H]× − [ω]× diag(I_A)
     for i in range(3):
         P[i] = added[i] * v[i]
         H[i] = added[3 + i] * w[i]
-    t1 = np.empty(3, dtype=v.dtype)
-    t2 = np.empty(3, dtype=v.dtype)
     _cross(P, w, t1)
-    f[5, :3] = t1
+    for i in range(3):
+        f[5, i] = t1[i]
     _cross(P, v, t1)
     _cross(H, w, t2)
     for i in range(3):
         f[5, 3 + i] = t1[i] + t2[i]
-    SP = np.empty((3, 3), dtype=v.dtype)
-    SH = np.empty((3, 3), dtype=v.dtype)
     _skew(P, SP)
     _skew(H, SH)
     for i in range(3):
@@ -194,20 +192,18 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used):
 
 
 @numba.njit(cache=True)
-def wrenches(geometry, fin, z, W, JW, jacobian, used):
+def wrenches(geometry, fin, z, W, JW, jacobian, used, S):
     """W (6, 6): each `used` kind's wrench on the vehicle (force, moment about the CG, body axes)
     per unit coefficient at z (9,) = (ν, δ) for one component (`packed_components`' row and fin),
-    0 for the others; with `jacobian` JW (6, 6, 9) = ∂W/∂z."""
-    _posed(geometry, fin, z, W, JW, jacobian, used)
+    0 for the others; with `jacobian` JW (6, 6, 9) = ∂W/∂z. S: scratch (`SCRATCH`,) of z's dtype."""
+    _posed(geometry, fin, z, W, JW, jacobian, used, S)
     if fin < 0 or not used[5]:
         W[5, :] = 0.0
         JW[5, :, :] = 0.0
         return
-    W0 = np.empty((6, 6), dtype=z.dtype)
-    J0 = np.zeros((6, 6, 9), dtype=z.dtype)
-    munk = np.zeros(6, dtype=np.bool_)
-    munk[5] = True
-    _posed(geometry, -1, z, W0, J0, jacobian, munk)  # the blade at δ = 0: its added mass alone
+    W0 = S[678:714].reshape((6, 6))
+    J0 = S[714:1038].reshape((6, 6, 9))
+    _posed(geometry, -1, z, W0, J0, jacobian, _MUNK, S)  # the blade at δ = 0: its added mass alone
     for i in range(6):
         W[5, i] -= W0[5, i]
         if jacobian:
@@ -216,75 +212,79 @@ def wrenches(geometry, fin, z, W, JW, jacobian, used):
 
 
 @numba.njit(cache=True)
-def _posed(geometry, fin, z, W, JW, jacobian, used):
+def _posed(geometry, fin, z, W, JW, jacobian, used, S):
     """`wrenches`' kinds, the last the whole added-mass velocity wrench, the component posed at
-    its fin's angle (at 0 for fin −1)."""
-    Q, p, dQ, dp = _local(geometry, fin, z)
+    its fin's angle (at 0 for fin −1). Scratch from S[0:678]."""
+    _local(geometry, fin, z, S)
+    Q, dQ, p, dp = _mat(S, 0), _mat(S, 9), _vec(S, 18), _vec(S, 21)
     r, kappa, rho, added = geometry[0:3], geometry[15:18], geometry[18], geometry[25:31]
     nu_v, nu_w = z[0:3], z[3:6]
+    vp, v, w = _vec(S, 180), _vec(S, 183), _vec(S, 186)
+    f = S[189:225].reshape((6, 6))
+    J = S[225:441].reshape((6, 6, 6))
+    P, F, G, M = _mat(S, 441), _vec(S, 450), _vec(S, 453), _vec(S, 456)
     # the centre's velocity v + ω × p, in the component's axes with ω
-    vp = np.empty(3, dtype=z.dtype)
     _cross(nu_w, p, vp)
     for i in range(3):
         vp[i] += nu_v[i]
-    v = _mv(Q, vp, True)
-    w = _mv(Q, nu_w, True)
-    f = np.empty((6, 6), dtype=z.dtype)
-    J = np.empty((6, 6, 6), dtype=z.dtype)
-    _kinds(r, kappa, rho, added, v, w, f, J, used)
-    P = np.empty((3, 3), dtype=z.dtype)
+    _mv(Q, vp, v, True)
+    _mv(Q, nu_w, w, True)
+    _kinds(r, kappa, rho, added, v, w, f, J, used, S)
     _skew(p, P)
     W[:, :] = 0.0
     for k in range(6):
         if not used[k]:
             continue
-        F = _mv(Q, f[k, :3])
-        G = _mv(Q, f[k, 3:])
-        M = np.empty(3, dtype=z.dtype)
+        _mv(Q, f[k, :3], F)
+        _mv(Q, f[k, 3:], G)
         _cross(p, F, M)
         for i in range(3):
             W[k, i] = F[i]
             W[k, 3 + i] = M[i] + G[i]
     if not jacobian:
         return
+    L = S[459:513].reshape((6, 9))
+    QtP, wdp, a, b = _mat(S, 513), _vec(S, 522), _vec(S, 525), _vec(S, 528)
+    Jz = S[531:585].reshape((6, 9))
+    dF, dG, dM = S[585:612].reshape((3, 9)), S[612:639].reshape((3, 9)), S[639:666].reshape((3, 9))
+    dQf, dQg, t1, t2 = _vec(S, 666), _vec(S, 669), _vec(S, 672), _vec(S, 675)
     # ∂(v, ω)_local/∂ν: v = Qᵀ(v_b − [p]× ω_b), ω = Qᵀ ω_b
-    L = np.zeros((6, 9), dtype=z.dtype)
-    QtP = _mm(Q, P, True)
+    L[:, :] = 0.0
+    _mm(Q, P, QtP, True)
     for i in range(3):
         for j in range(3):
             L[i, j] = Q[j, i]
             L[i, 3 + j] = -QtP[i, j]
             L[3 + i, 3 + j] = Q[j, i]
     if fin >= 0:  # along δ: dQᵀ (v_b + ω_b × p) + Qᵀ (ω_b × dp), dQᵀ ω_b
-        wdp = np.empty(3, dtype=z.dtype)
         _cross(nu_w, dp, wdp)
-        a = _mv(dQ, vp, True) + _mv(Q, wdp, True)
-        b = _mv(dQ, nu_w, True)
+        _mv(dQ, vp, a, True)
+        _mv(Q, wdp, t1, True)
+        _mv(dQ, nu_w, b, True)
         for i in range(3):
-            L[i, 6 + fin] = a[i]
+            L[i, 6 + fin] = a[i] + t1[i]
             L[3 + i, 6 + fin] = b[i]
     JW[:, :, :] = 0.0
     for k in range(6):
         if not used[k]:
             continue
-        Jz = np.zeros((6, 9), dtype=z.dtype)  # ∂(f, g)_local/∂z
-        for i in range(6):
+        for i in range(6):  # ∂(f, g)_local/∂z
             for j in range(9):
+                acc = 0.0 * z[0]
                 for l in range(6):
-                    Jz[i, j] += J[k, i, l] * L[l, j]
-        dF = _mm(Q, Jz[:3])
-        dG = _mm(Q, Jz[3:])
-        dM = _mm(P, dF)
+                    acc += J[k, i, l] * L[l, j]
+                Jz[i, j] = acc
+        _mm(Q, Jz[:3], dF)
+        _mm(Q, Jz[3:], dG)
+        _mm(P, dF, dM)
         for i in range(3):
             for j in range(9):
                 JW[k, i, j] = dF[i, j]
                 JW[k, 3 + i, j] = dM[i, j] + dG[i, j]
         if fin >= 0:  # the pose's own turn: dQ f, dp × F + p × dQ f + dQ g
-            F = _mv(Q, f[k, :3])
-            dQf = _mv(dQ, f[k, :3])
-            dQg = _mv(dQ, f[k, 3:])
-            t1 = np.empty(3, dtype=z.dtype)
-            t2 = np.empty(3, dtype=z.dtype)
+            _mv(Q, f[k, :3], F)
+            _mv(dQ, f[k, :3], dQf)
+            _mv(dQ, f[k, 3:], dQg)
             _cross(dp, F, t1)
             _cross(p, dQf, t2)
             for i in range(3):

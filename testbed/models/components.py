@@ -133,16 +133,16 @@ def packed_components(components) -> tuple:
 def component_wrenches(components, nu, delta) -> np.ndarray:
     """W (n, C, 6, 6): each component's wrench of each kind (`KINDS`) per unit coefficient at
     the body velocities ν (n, 6) and fin angles δ (n, 3), real or complex."""
-    from testbed.models.component_kernels import wrenches  # numba: only when evaluated
+    from testbed.models.component_kernels import SCRATCH, wrenches  # numba: only when evaluated
 
     nu, delta = np.atleast_2d(nu), np.atleast_2d(delta)
     dtype = complex if np.iscomplexobj(nu) or np.iscomplexobj(delta) else float
     z = np.ascontiguousarray(np.concatenate([nu, delta], axis=1), dtype=dtype)
     geometry, fins = packed_components(components)
     out = np.zeros((len(z), len(components), 6, 6), dtype=dtype)
-    scratch = np.zeros((6, 6, 9), dtype=dtype)
+    J, S = np.zeros((6, 6, 9), dtype=dtype), np.zeros(SCRATCH, dtype=dtype)
     every = np.ones(len(KINDS), dtype=bool)
     for n in range(len(z)):
         for c in range(len(components)):
-            wrenches(geometry[c], fins[c], z[n], out[n, c], scratch, False, every)
+            wrenches(geometry[c], fins[c], z[n], out[n, c], J, False, every, S)
     return out

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from testbed.models.component_kernels import wrenches
+from testbed.models.component_kernels import SCRATCH, wrenches
 from testbed.models.mechanics import coriolis_state, kinematics_state, kirchhoff, restoring_state
 
 __all__ = ["flight", "fly", "forces", "jacobians", "rates", "sensitivities"]
@@ -67,7 +67,7 @@ def _forces(m, x, d, work, jacobian):
     weights, table, rows, c, thrust, M = m[0], m[1], m[2], m[3], m[4], m[5]
     weight, buoyancy, rB, pairs = m[9], m[10], m[11], m[12]
     part, kind, geometry, fins, used = m[13], m[14], m[15], m[16], m[17]
-    F, JF, phi, z, atoms, signs, slopes, scales, CW, CJ = work
+    F, JF, phi, z, atoms, signs, slopes, scales, CW, CJ, CS = work
     L = weights.shape[1]
     z[:6] = x[:6]
     z[6:] = d
@@ -80,7 +80,7 @@ def _forces(m, x, d, work, jacobian):
     restoring_state(weight, buoyancy, rB, x[6], x[7], F, JF[:, 6:8], jacobian)
     F[0] += thrust
     for p in range(geometry.shape[0]):  # each component's wrenches per unit coefficient
-        wrenches(geometry[p], fins[p], z, CW[p], CJ[p], jacobian, used[p])
+        wrenches(geometry[p], fins[p], z, CW[p], CJ[p], jacobian, used[p], CS)
     width = table.shape[1]
     for k in range(len(rows)):
         if part[k] >= 0:  # a component term: its component's wrench of its kind, in every row
@@ -194,8 +194,8 @@ def _theta_columns(m, x, f, work, columns, G):
 @numba.njit(cache=True)
 def _work(m, like):
     """Scratch arrays of `like`'s dtype for `_forces`: F, JF, φ, z, the atoms, their signs, the
-    rows' slopes along the atoms, the pairs' scales, and the components' wrenches per kind and
-    their gradients along z."""
+    rows' slopes along the atoms, the pairs' scales, the components' wrenches per kind and
+    their gradients along z, and the components' scratch."""
     K, atoms, C = len(m[2]), 2 * m[0].shape[1] + m[12].shape[0] + 1, m[15].shape[0]
     dtype = like.dtype
     return (
@@ -209,6 +209,7 @@ def _work(m, like):
         np.zeros(m[12].shape[0], dtype=dtype),
         np.zeros((C, 6, 6), dtype=dtype),
         np.zeros((C, 6, 6, 9), dtype=dtype),
+        np.zeros(SCRATCH, dtype=dtype),
     )
 
 
