@@ -1,0 +1,149 @@
+"""A component model config: its [components.NAME] tables read, checked and written back exactly,
+bad tables refused in one line naming the table and key, and the config behind `identify` and
+`validate` on a record the component model flew."""
+
+from __future__ import annotations
+
+import json
+import os
+import tomllib
+
+import numpy as np
+import pytest
+
+from test_bad_input import cli
+from testbed.data import Experiment, ModelConfig, config_text, parse_config, write_config, write_csv
+from testbed.errors import InputError
+from testbed.models.linear import STATES
+from testbed.models.nonlinear import INERTIA
+from testbed.models.nonlinear_flight import fly
+from testbed.simulation.analytic import analytic, analytic_config
+from testbed.simulation.fluid_components import component_terms, mjcf_components
+from testbed.simulation.measurements import NOISE_STD
+from testbed.simulation.vehicle import load_model
+
+FREE = ("lift@rudder_upper", "lift@elevator_right", "blunt@hull")
+
+
+@pytest.fixture(scope="module")
+def config():
+    """The torpedo's component model at the MJCF's coefficients, FREE free."""
+    mjcf, lin = load_model(), analytic()
+    return ModelConfig(
+        vehicle=lin.vehicle,
+        coefficients={n: lin.coefficients[n] for n in INERTIA},
+        free=FREE,
+        terms=component_terms(mjcf),
+        components=mjcf_components(mjcf),
+    )
+
+
+def read_config_text(text, source="c.toml"):
+    return parse_config(tomllib.loads(text), source)
+
+
+def test_the_tables_round_trip_exactly(config):
+    text = config_text(config)
+    again = read_config_text(text)
+    assert again.components == config.components and dict(again.terms) == dict(config.terms)
+    assert config_text(again) == text
+    assert "[components.rudder_upper]" in text and 'fin = "dr"' in text
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda t: t.replace("density = 1025.0\n", "", 1), ["[components.hull]", "density missing"]),
+        (
+            lambda t: t.replace("[components.hull]\n", "[components.hull]\ncolour = 1\n", 1),
+            ["unknown key 'colour'"],
+        ),
+        (
+            lambda t: t.replace('fin = "dr"', 'fin = "aileron"', 1),
+            ["[components.rudder_upper]", "fin 'aileron'"],
+        ),
+        (lambda t: t.replace("axes = [", "axes = [0.2, ", 1), ["[components.hull]", "axes must be 3"]),
+        (lambda t: t.replace("axes = [", 'axes = ["x", ', 1), ["[components.hull] axes"]),
+        (lambda t: t.replace('"blunt@hull"', '"blunt@keel"', 1), ["blunt@keel", "no component 'keel'"]),
+    ],
+)
+def test_bad_tables_are_one_line_errors(config, edit, words):
+    text = edit(config_text(config))
+    with pytest.raises(InputError) as e:
+        read_config_text(text)
+    message = str(e.value)
+    assert "\n" not in message and message.startswith("c.toml")
+    for w in words:
+        assert w in message, message
+
+
+def test_components_in_a_linear_config_are_refused():
+    linear = config_text(analytic_config()[0])
+    with pytest.raises(InputError, match=r"\[components\] in a linear model config"):
+        read_config_text(linear + "\n[components.hull]\naxes = [1.0, 1.0, 1.0]\n")
+
+
+@pytest.fixture(scope="module")
+def files(config, tmp_path_factory):
+    """A 6 s record the component model flew through 1° rudder and elevator doublets, with the
+    sensors' noise; the config that flew it and a start with FREE moved 20 %."""
+    model, theta = config.nonlinear()
+    t = np.arange(301) * 0.02
+    a = np.radians(1.0)
+    fins = np.zeros((len(t), 3))
+    fins[(t >= 0.5) & (t < 1.0), 0], fins[(t >= 1.0) & (t < 1.5), 0] = a, -a
+    fins[(t >= 3.0) & (t < 3.5), 1:], fins[(t >= 3.5) & (t < 4.0), 1:] = a, -a
+    x0 = np.array([config.vehicle.speed, 0.1, -0.1, 0.01, 0.02, -0.01, 0.02, -0.01, 0.3, 1.0])
+    x = fly(model, theta, t, x0, fins)
+    noisy = x + np.random.default_rng(2).normal(size=x.shape) * np.array([NOISE_STD[s] for s in STATES])
+    root = tmp_path_factory.mktemp("components")
+    write_csv(root / "doublets.csv", t, noisy, fins)
+    write_config(root / "truth.toml", config)
+    start = config.with_coefficients(
+        {n: config.terms[n] * (1.2 if k % 2 else 0.8) for k, n in enumerate(FREE)}
+    )
+    write_config(root / "start.toml", start)
+    return root, Experiment("doublets", t, STATES, noisy, fins)
+
+
+def test_identify_and_validate_a_component_config_on_the_command_line(config, files, capsys, tmp_path):
+    root, _ = files
+    out = tmp_path / "e.json"
+    code, _, err = cli(
+        capsys,
+        "identify",
+        root / "doublets.csv",
+        "--config",
+        root / "start.toml",
+        "--method",
+        "ml-gn",
+        "--out",
+        out,
+    )
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    for n in FREE:  # the truth within 3 σ from 20 % off
+        c = doc["coefficients"][n]
+        assert abs(c["value"] - config.terms[n]) <= 3 * c["std"], (n, c, config.terms[n])
+    fits = {}
+    for which in ("truth", "start"):
+        out = tmp_path / f"{which}.json"
+        code, _, err = cli(
+            capsys, "validate", root / "doublets.csv", "--config", root / f"{which}.toml", "--out", out
+        )
+        assert code == 0, err
+        fits[which] = json.loads(out.read_text())["validation"]["doublets"]
+    for s in ("v", "r", "w", "q"):  # the config that flew the record predicts it better than the start
+        assert fits["truth"][s]["fit_percent"] > fits["start"][s]["fit_percent"], s
+
+
+def test_a_bad_component_table_through_the_command_line_writes_nothing(files, capsys, tmp_path):
+    root, _ = files
+    bad = tmp_path / "bad.toml"
+    bad.write_text((root / "truth.toml").read_text().replace('fin = "der"', 'fin = "flap"', 1))
+    out = tmp_path / "e.json"
+    code, _, err = cli(
+        capsys, "identify", root / "doublets.csv", "--config", bad, "--method", "ml-gn", "--out", out
+    )
+    assert code == 2 and err.count("\n") == 1 and "fin 'flap'" in err and "bad.toml" in err, err
+    assert os.listdir(tmp_path) == ["bad.toml"]
