@@ -61,11 +61,12 @@ def _states(speed, values: dict, n: int):
 def fitted(captive):
     """The fitted model's wrench at (ν, δ, ν̇) by the fit's own route: the terms' regressors
     (surge relative to trim) times their coefficients, with the added mass's Kirchhoff forces
-    −C_A(ν) ν (`coriolis`), less M_A ν̇ and the plant's thrust."""
+    −C_A(ν) ν (`coriolis`; M_A the inertia coefficients' less the rigid body's share), less M_A ν̇
+    and the plant's thrust."""
     vehicle, _, fit, _ = captive
     model = nonlinear.nonlinear_model(constants(vehicle, fit.speed), fit.terms)
     theta = nonlinear.theta_vector(model, fit.coefficients)
-    M_A = model.inertia(theta) - model.M_RB
+    M_A = model.inertia(theta) - model.inertia(nonlinear.theta_vector(model, fit.rigid))  # the water's
     c = theta[len(nonlinear.INERTIA) :]
 
     def wrench(nu, fins, nu_dot):

@@ -23,6 +23,7 @@ residual's RMS, the fit being undefined (nan) where the measured row does not va
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Mapping, Sequence
@@ -61,6 +62,9 @@ class CaptiveFit:
     surfaces: tuple[SurfaceFit, ...]  # per test, speed and row, in the measurements' order
     rows: dict[str, float]  # % per row over every measurement
     components: tuple = ()  # the `Component`s the component terms name
+    # the rigid body's share of the inertia coefficients (its products of inertia, which the
+    # vehicle constants lack), in `coefficients` but not in the water's wrench
+    rigid: dict[str, float] = dataclasses.field(default_factory=dict)
 
     def table(self) -> str:
         """The fit of every force surface: one line per test and speed, % per row (RMS residual
@@ -165,10 +169,12 @@ def fitted_wrench(vehicle: linear.Vehicle, fit: CaptiveFit, nu, fins, nu_dot) ->
         )
     model = nonlinear.nonlinear_model(vehicle, fit.terms, fit.components)
     theta = nonlinear.theta_vector(model, fit.coefficients)
+    body = nonlinear.theta_vector(model, fit.rigid)  # the rigid body's share alone
     nu, nu_dot = np.atleast_2d(nu), np.atleast_2d(nu_dot)
     x = np.concatenate([nu, np.zeros((len(nu), linear.NX - 6))], axis=1)
-    rigid = nonlinear.forces(model, np.zeros_like(theta), x, fins)  # −C_RB ν and the restoring forces
-    tau = nonlinear.forces(model, theta, x, fins) - rigid - nu_dot @ (model.inertia(theta) - model.M_RB).T
+    rigid = nonlinear.forces(model, body, x, fins)  # −C_RB ν and the restoring forces
+    M_A = model.inertia(theta) - model.inertia(body)
+    tau = nonlinear.forces(model, theta, x, fins) - rigid - nu_dot @ M_A.T
     tau[:, 0] -= fit.thrust
     return tau
 

@@ -265,4 +265,4 @@ def _with_rigid(fit: CaptiveFit, rigid: dict[str, float]) -> CaptiveFit:
     """`fit` with the rigid body's share of the inertia coefficients added to the PMM tests'
     added mass (`fluid_components.rigid_inertia`): the model's M is the whole vehicle's."""
     coefficients = {n: v + rigid.get(n, 0.0) for n, v in fit.coefficients.items()}
-    return dataclasses.replace(fit, coefficients=coefficients)
+    return dataclasses.replace(fit, coefficients=coefficients, rigid=dict(rigid))
