@@ -1,20 +1,27 @@
 """`ml-gn` with the nonlinear model on noisy Scenario I, against the captive reference, and the
 identified model's prediction of held-out manoeuvres inside Scenario I's region.
 
-The captive reference of the bundled torpedo (`captive_config`: 102 terms, the inertia from the
-PMM tests) is the start and the reference. The plant flies Scenario I for seeds 1..N (the same
-noise-free truth every seed, the sensors' noise drawn per seed); `ml-gn` fits each seed's record
-through the front door (`estimators.identify`) from the captive values with `--free` free, and
-the record's noise-free truth too (`noise-free`: the noise σ given as the sensors', so its bounds
-are a noisy record's) — where the fits would scatter about if the noise alone moved them.
-Per coefficient: the estimate, its Cramér-Rao σ and coloured-residual σ, the error in the
-coloured σ (the honest one for residuals that are not white) and in % of the captive value, and
-whether it is within max(3 σ, 10 %) of it; per channel the residual rms over the sensor's σ.
+The captive reference of the bundled torpedo (`captive_config`, `--model`: by default the
+component model, 23 terms of the hull's and the four fin blades' forces at their own flow and the
+six Kirchhoff terms of the inertia M leaves out; `polynomial`: the 102 polynomial terms; the
+inertia from the PMM tests) is the reference, and each fit starts from its own a-priori values
+about it (`priors.term_prior` at `--spread`, the campaign's rule: each free term moved by
+exp(s_c z), z drawn per seed). The plant flies Scenario I for seeds 1..N (the same noise-free
+truth every seed, the sensors' noise drawn per seed); `ml-gn` fits each seed's record through
+the front door (`estimators.identify`, converged when every step is below 0.01 σ) with `--free`
+free, and the record's noise-free truth too (`noise-free`: the noise σ given as the sensors',
+so its bounds are a noisy record's) — where the fits would scatter about if the noise alone
+moved them. Per coefficient: the estimate, its Cramér-Rao σ and coloured-residual σ, the error
+in the coloured σ (the honest one for residuals that are not white) and in % of the captive
+value, and whether it is within max(3 σ, 10 %) of it; per channel the residual rms over the
+sensor's σ.
 
-Default free list: the 19 slope terms (`slope_terms`) and the cross-flow terms whose Cramér-Rao
-bound, with all 102 terms free at the captive values on seed 1's record
-(`nonlinear_identifiability`), is below `--level` (default 0.15) of the value: the terms Scenario
-I excites most.
+Default free list, on seed 1's record at the captive values: for the component model, its
+component terms chosen one at a time, the best determined first, each kept while every chosen
+term's relative Cramér-Rao bound stays below `--level` (default 0.15; `forward_free`: the blades
+come in near-copies no record tells apart, and with all 23 free every bound is infinite); for
+the polynomial terms, the 19 slope terms (`slope_terms`) and the cross-flow terms whose bound
+with all 102 free is below `--level`.
 
 Held-out manoeuvres inside Scenario I's region (±20 °/s of yaw rate, sway within ±0.5 m/s):
 a turning circle, the rudder stepped to `--rudder` rad (default 0.015: an 18.9 °/s, 112 m turn)
