@@ -238,7 +238,10 @@ def study(
     for label, est in fits.items():
         for n, v, s, sc in zip(est.free, est.values, est.std, sigma(est)):
             ref = captive.terms[n]
-            within = abs(v - ref) <= max(SIGMAS * sc, RELATIVE * abs(ref))
+            # a fit that did not converge, or whose bound is infinite, tells nothing
+            within = (
+                est.converged and math.isfinite(sc) and abs(v - ref) <= max(SIGMAS * sc, RELATIVE * abs(ref))
+            )
             coefficients.write(
                 f"{label},{n},{v:.6g},{s:.3g},{sc:.3g},{ref:.6g},{(v - ref) / sc:+.2f},"
                 f"{100 * (v - ref) / abs(ref):+.2f},{'yes' if within else 'no'}\n"
