@@ -48,7 +48,6 @@ from testbed.models.mechanics import kinematics
 from testbed.simulation.plant import Plant
 from testbed.simulation.states import plant_rates
 from testbed.simulation.vehicle import (
-    FINS,
     FLIP,
     FinLimits,
     added_mass,
@@ -57,11 +56,11 @@ from testbed.simulation.vehicle import (
     constants,
     cruise_speed,
     fin_limits,
+    fluid_frames,
     fluid_geoms,
     load_model,
     motion_transform,
     rigid_body_mass,
-    rotation,
     semi_axes,
     skew,
     trim_speed,
@@ -206,27 +205,16 @@ def _motion_rate(Q, p, dQ, dp) -> np.ndarray:
 
 
 def _geom_frames(model: mujoco.MjModel):
-    """Per fluid geom: (g, fin index or None, Q, p, Q', p') in MuJoCo hull axes at δ = 0.
-
-    Q is hull-from-geom, p the geom centre; ' is d/dδ of its fin's hinge angle (zero on the hull).
-    Fluid geoms are on the hull or a fin (`check_model`).
-    """
-    hull = model.body("hull").id
-    fin_of = {int(model.joint(f).bodyid[0]): k for k, f in enumerate(FINS)}
+    """Per fluid geom: (g, fin index or None, Q, p, Q', p') in MuJoCo hull axes at δ = 0
+    (`vehicle.fluid_frames`); ' is d/dδ of its fin's hinge angle, [a]× Q and [a]× (p − h) for a
+    turn about the hinge line through h along a (zero on the hull)."""
     frames = []
-    for g in fluid_geoms(model):
-        b = int(model.geom_bodyid[g])
-        Ql, pl = rotation(model.geom_quat[g]), model.geom_pos[g]
-        if b == hull:
-            frames.append((g, None, Ql, pl, np.zeros((3, 3)), np.zeros(3)))
-            continue
-        j = model.joint(FINS[fin_of[b]]).id
-        a = model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j])
-        Q0, A = rotation(model.body_quat[b]), skew(a)
-        anchor = model.jnt_pos[j]  # the hinge turns the fin body about its anchor
-        frames.append(
-            (g, fin_of[b], Q0 @ Ql, model.body_pos[b] + Q0 @ pl, Q0 @ A @ Ql, Q0 @ A @ (pl - anchor))
-        )
+    for g, fin, Q, p, hinge, axis in fluid_frames(model):
+        if fin is None:
+            frames.append((g, None, Q, p, np.zeros((3, 3)), np.zeros(3)))
+        else:
+            A = skew(axis)
+            frames.append((g, fin, Q, p, A @ Q, A @ (p - hinge)))
     return frames
 
 

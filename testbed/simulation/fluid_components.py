@@ -20,13 +20,12 @@ from testbed.models.components import KINDS, Component
 from testbed.models.mechanics import coriolis
 from testbed.models.regressors import ROWS
 from testbed.simulation.vehicle import (
-    FINS,
     FLIP,
     added_mass,
     constants,
+    fluid_frames,
     fluid_geoms,
     rigid_body_mass,
-    rotation,
     semi_axes,
 )
 
@@ -47,26 +46,14 @@ def _moments(r: np.ndarray, coef: np.ndarray) -> np.ndarray:
 def mjcf_components(model: mujoco.MjModel) -> tuple[Component, ...]:
     """The fluid geoms of `model` as components, in body axes (FRD) about the hull's origin (the
     CG), named by their geoms (or `geom<i>`)."""
-    hull = model.body("hull").id
-    fin_of = {int(model.joint(f).bodyid[0]): k for k, f in enumerate(FINS)}
     out = []
-    for g in fluid_geoms(model):
-        b = int(model.geom_bodyid[g])
-        Ql, pl = rotation(model.geom_quat[g]), model.geom_pos[g]
+    for g, fin, Q, p, hinge, axis in fluid_frames(model):
         r = semi_axes(model, g)
-        kw = {}
-        if b == hull:
-            Q, p = Ql, pl
-        else:
-            j = model.joint(FINS[fin_of[b]]).id
-            Q0 = rotation(model.body_quat[b])
-            Q, p = Q0 @ Ql, model.body_pos[b] + Q0 @ pl
-            axis = Q0 @ model.jnt_axis[j]
-            kw = dict(
-                fin=FIN_INPUTS[fin_of[b]],
-                hinge=tuple(FLIP @ (model.body_pos[b] + Q0 @ model.jnt_pos[j])),
-                hinge_axis=tuple(FLIP @ axis / np.linalg.norm(axis)),
-            )
+        blade = (
+            {}
+            if fin is None
+            else dict(fin=FIN_INPUTS[fin], hinge=tuple(FLIP @ hinge), hinge_axis=tuple(FLIP @ axis))
+        )
         out.append(
             Component(
                 name=model.geom(g).name or f"geom{g}",
@@ -74,9 +61,9 @@ def mjcf_components(model: mujoco.MjModel) -> tuple[Component, ...]:
                 centre=tuple(FLIP @ p),
                 frame=tuple(map(tuple, FLIP @ Q)),
                 moments=tuple(_moments(r, model.geom_fluid[g, 1:6])),
-                added_mass=tuple(model.opt.density * model.geom_fluid[g, 6:12]),
                 density=float(model.opt.density),
-                **kw,
+                added_mass=tuple(model.opt.density * model.geom_fluid[g, 6:12]),
+                **blade,
             )
         )
     return tuple(out)

@@ -36,6 +36,7 @@ __all__ = [
     "default_mjcf",
     "fin_limits",
     "fin_rate_limit",
+    "fluid_frames",
     "fluid_geoms",
     "hydrostatics",
     "load_model",
@@ -195,6 +196,28 @@ def _geom_on(model, body):
 def fluid_geoms(model: mujoco.MjModel) -> np.ndarray:
     """Indices of the geoms with `fluidshape="ellipsoid"` (geom_fluid[:, 0] is its switch)."""
     return np.flatnonzero(model.geom_fluid[:, 0] > 0)
+
+
+def fluid_frames(model: mujoco.MjModel) -> list[tuple]:
+    """Per fluid geom, in MuJoCo hull axes with the fins at 0: (g, fin index or None, Q, p,
+    hinge point, hinge axis (unit)), Q hull-from-geom and p the geom's centre; the hinge the line
+    its fin's joint turns it about (None, None on the hull). Fluid geoms are on the hull or a fin
+    (`check_model`)."""
+    hull = model.body("hull").id
+    fin_of = {int(model.joint(f).bodyid[0]): k for k, f in enumerate(FINS)}
+    out = []
+    for g in fluid_geoms(model):
+        b = int(model.geom_bodyid[g])
+        Ql, pl = rotation(model.geom_quat[g]), model.geom_pos[g]
+        if b == hull:
+            out.append((g, None, Ql, pl, None, None))
+            continue
+        j = model.joint(FINS[fin_of[b]]).id
+        Q0 = rotation(model.body_quat[b])
+        axis = Q0 @ (model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j]))
+        hinge = model.body_pos[b] + Q0 @ model.jnt_pos[j]  # the joint turns the fin about its anchor
+        out.append((g, fin_of[b], Q0 @ Ql, model.body_pos[b] + Q0 @ pl, hinge, axis))
+    return out
 
 
 def semi_axes(model: mujoco.MjModel, g: int) -> np.ndarray:
