@@ -11,9 +11,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["SCRATCH", "wrenches"]
+__all__ = ["SCRATCH", "turned_mass", "wrenches"]
 
-SCRATCH = 1040  # the scratch entries `wrenches` needs
+SCRATCH = 1150  # the scratch entries `wrenches` and `turned_mass` need
 _MUNK = np.array([False, False, False, False, False, True])  # a blade at δ = 0: its added mass alone
 
 
@@ -290,3 +290,59 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, S):
             for i in range(3):
                 JW[k, i, 6 + fin] += dQf[i]
                 JW[k, 3 + i, 6 + fin] += t1[i] + t2[i] + dQg[i]
+
+
+@numba.njit(cache=True)
+def _transform(S, X):
+    """X (6, 6): the motion transform from the body's velocities to the component's own at its
+    pose in S (`_local`): [[Qᵀ, −Qᵀ [p]×], [0, Qᵀ]]."""
+    Q, p = _mat(S, 0), _vec(S, 18)
+    X[:, :] = 0.0
+    for i in range(3):
+        for j in range(3):
+            X[i, j] = Q[j, i]
+            X[3 + i, 3 + j] = Q[j, i]
+            acc = 0.0 * p[0]
+            for k in range(3):  # (Qᵀ [p]×)_ij = Σ_k Q_ki [p]×_kj
+                pk = (0.0, -p[2], p[1]) if k == 0 else ((p[2], 0.0, -p[0]) if k == 1 else (-p[1], p[0], 0.0))
+                acc += Q[k, i] * pk[j]
+            X[i, 3 + j] = -acc
+
+
+@numba.njit(cache=True)
+def turned_mass(geometry, fin, z, DM, dDM, S):
+    """DM (6, 6): how a blade's added mass about the CG in body axes, Xᵀ diag(m_A, I_A) X, changes
+    as it turns with its fin from 0 to z's angle; dDM (6, 6) its derivative along that angle
+    (X `_transform`, dX/dδ from the pose's). Scratch S[0:60] and S[1040:1148]."""
+    added = geometry[25:31]
+    X, dX, X0 = S[1040:1076].reshape((6, 6)), S[1076:1112].reshape((6, 6)), S[1112:1148].reshape((6, 6))
+    _local(geometry, -1, z, S)
+    _transform(S, X0)
+    _local(geometry, fin, z, S)
+    _transform(S, X)
+    dQ, p, dp, Q = _mat(S, 9), _vec(S, 18), _vec(S, 21), _mat(S, 0)
+    # dX = [[dQᵀ, −dQᵀ [p]× − Qᵀ [dp]×], [0, dQᵀ]]
+    dX[:, :] = 0.0
+    for i in range(3):
+        for j in range(3):
+            dX[i, j] = dQ[j, i]
+            dX[3 + i, 3 + j] = dQ[j, i]
+            acc = 0.0 * p[0]
+            for k in range(3):
+                pk = (0.0, -p[2], p[1]) if k == 0 else ((p[2], 0.0, -p[0]) if k == 1 else (-p[1], p[0], 0.0))
+                dk = (
+                    (0.0, -dp[2], dp[1])
+                    if k == 0
+                    else ((dp[2], 0.0, -dp[0]) if k == 1 else (-dp[1], dp[0], 0.0))
+                )
+                acc += dQ[k, i] * pk[j] + Q[k, i] * dk[j]
+            dX[i, 3 + j] = -acc
+    for i in range(6):
+        for j in range(6):
+            m, m0, dm = 0.0 * z[0], 0.0 * z[0], 0.0 * z[0]
+            for k in range(6):
+                m += X[k, i] * added[k] * X[k, j]
+                m0 += X0[k, i] * added[k] * X0[k, j]
+                dm += dX[k, i] * added[k] * X[k, j] + X[k, i] * added[k] * dX[k, j]
+            DM[i, j] = m - m0
+            dDM[i, j] = dm

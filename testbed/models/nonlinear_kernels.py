@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from testbed.models.component_kernels import SCRATCH, wrenches
+from testbed.models.component_kernels import SCRATCH, turned_mass, wrenches
 from testbed.models.mechanics import coriolis_state, kinematics_state, kirchhoff, restoring_state
 
 __all__ = ["flight", "fly", "forces", "jacobians", "rates", "sensitivities"]
@@ -67,7 +67,7 @@ def _forces(m, x, d, work, jacobian):
     weights, table, rows, c, thrust, M = m[0], m[1], m[2], m[3], m[4], m[5]
     weight, buoyancy, rB, pairs = m[9], m[10], m[11], m[12]
     part, kind, geometry, fins, used = m[13], m[14], m[15], m[16], m[17]
-    F, JF, phi, z, atoms, signs, slopes, scales, CW, CJ, CS = work
+    F, JF, phi, z, atoms, signs, slopes, scales, CW, CJ, CS, CM, CdM = work[:13]
     L = weights.shape[1]
     z[:6] = x[:6]
     z[6:] = d
@@ -81,6 +81,8 @@ def _forces(m, x, d, work, jacobian):
     F[0] += thrust
     for p in range(geometry.shape[0]):  # each component's wrenches per unit coefficient
         wrenches(geometry[p], fins[p], z, CW[p], CJ[p], jacobian, used[p], CS)
+        if used[p, 5] and fins[p] >= 0:  # a blade's added mass turned with its fin (`_inertia`)
+            turned_mass(geometry[p], fins[p], z, CM[p], CdM[p], CS)
     width = table.shape[1]
     for k in range(len(rows)):
         if part[k] >= 0:  # a component term: its component's wrench of its kind, in every row
@@ -125,12 +127,33 @@ def _forces(m, x, d, work, jacobian):
 
 
 @numba.njit(cache=True)
+def _inertia(m, work):
+    """M⁻¹ at the state `_forces` last evaluated, into work[13]: the model's, or with `munk` terms
+    M + Σ c_k ΔM_b(δ), each blade's added mass turned with its fin scaled by its Munk term's
+    coefficient (the blade's added mass is one quantity, in its Kirchhoff forces and in M)."""
+    c, M, part, kind = m[3], m[5], m[13], m[14]
+    CM, MI = work[11], work[13]
+    turned = False
+    for k in range(len(part)):
+        turned = turned or (part[k] >= 0 and kind[k] == 5)
+    if not turned:
+        MI[:, :] = m[6]
+        return
+    Mt = M.copy()
+    for k in range(len(part)):
+        if part[k] >= 0 and kind[k] == 5:
+            Mt += c[k] * CM[part[k]]
+    MI[:, :] = np.linalg.inv(Mt)
+
+
+@numba.njit(cache=True)
 def _state(m, x, d, f, A, B, work, jacobian):
     """f (10,) = ẋ at x (10,), δ (3,); with `jacobian` A (10, 10) = ∂f/∂x and B (10, 3) = ∂f/∂δ:
-    M⁻¹ times the forces' in the body rows, the kinematics' in the others."""
-    Minv = m[6]
-    F, JF = work[0], work[1]
+    M⁻¹ times the forces' in the body rows (M with the blades' added mass turned, `_inertia`;
+    its turn's −M⁻¹ ∂M/∂δ ν̇ in B), the kinematics' in the others."""
+    F, JF, Minv = work[0], work[1], work[13]
     _forces(m, x, d, work, jacobian)
+    _inertia(m, work)
     for i in range(6):
         acc = 0.0 * F[0]
         for j in range(6):
@@ -149,6 +172,15 @@ def _state(m, x, d, f, A, B, work, jacobian):
             else:
                 B[i, j - 10] = acc
     B[6:, :] = 0.0
+    c, part, kind, fins, CdM = m[3], m[13], m[14], m[16], work[12]
+    for k in range(len(part)):
+        if part[k] >= 0 and kind[k] == 5 and fins[part[k]] >= 0:
+            for i in range(6):
+                acc = 0.0 * F[0]
+                for l in range(6):
+                    for n in range(6):
+                        acc += Minv[i, l] * CdM[part[k], l, n] * f[n]
+                B[i, fins[part[k]]] -= c[k] * acc
 
 
 @numba.njit(cache=True)
@@ -158,8 +190,8 @@ def _theta_columns(m, x, f, work, columns, G):
     the thrust's share; a component term's wrench in place of φ_k e_row), for an inertia
     coefficient M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇), C_k the Kirchhoff forces of ∂M/∂θ_k (C is linear
     in M)."""
-    rows, Minv, dM, surge, part, kind = m[2], m[6], m[7], m[8], m[13], m[14]
-    phi, CW = work[2], work[8]
+    rows, dM, surge, part, kind = m[2], m[7], m[8], m[13], m[14]
+    phi, CW, CM, Minv = work[2], work[8], work[11], work[13]
     inertia = dM.shape[0]  # the inertia coefficients lead θ (`nonlinear.INERTIA`)
     g = np.empty(6, dtype=f.dtype)
     h = np.empty(6, dtype=f.dtype)
@@ -186,6 +218,9 @@ def _theta_columns(m, x, f, work, columns, G):
                     acc = -Minv[i, 0] * surge[k]
                     for r in range(6):
                         acc += Minv[i, r] * CW[part[k], kind[k], r]
+                        if kind[k] == 5:  # its turned added mass in M: −M⁻¹ ΔM_b ν̇
+                            for n in range(6):
+                                acc -= Minv[i, r] * CM[part[k], r, n] * f[n]
                     G[i, j] = acc
                 else:
                     G[i, j] = Minv[i, rows[k]] * phi[k] - Minv[i, 0] * surge[k]
@@ -195,7 +230,8 @@ def _theta_columns(m, x, f, work, columns, G):
 def _work(m, like):
     """Scratch arrays of `like`'s dtype for `_forces`: F, JF, φ, z, the atoms, their signs, the
     rows' slopes along the atoms, the pairs' scales, the components' wrenches per kind and
-    their gradients along z, and the components' scratch."""
+    their gradients along z, the components' scratch, the blades' turned added mass and its
+    derivative along their fins, and M⁻¹ at the state."""
     K, atoms, C = len(m[2]), 2 * m[0].shape[1] + m[12].shape[0] + 1, m[15].shape[0]
     dtype = like.dtype
     return (
@@ -210,6 +246,9 @@ def _work(m, like):
         np.zeros((C, 6, 6), dtype=dtype),
         np.zeros((C, 6, 6, 9), dtype=dtype),
         np.zeros(SCRATCH, dtype=dtype),
+        np.zeros((C, 6, 6), dtype=dtype),
+        np.zeros((C, 6, 6), dtype=dtype),
+        np.zeros((6, 6), dtype=dtype),
     )
 
 
