@@ -9,10 +9,12 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from testbed.analysis.validation import fit_percent
 from testbed.data import read_csv
 from testbed.errors import InputError
+from testbed.models import linear
 from testbed.models.component_kernels import SCRATCH, wrenches
 from testbed.models.components import KINDS, Component, component_wrenches, packed_components
 from testbed.models.mechanics import coriolis
@@ -31,7 +33,7 @@ from testbed.simulation import runs
 from testbed.simulation.analytic import analytic
 from testbed.simulation.captive_reference import component_reference
 from testbed.simulation.fluid_components import component_terms, inertia_terms, mjcf_components
-from testbed.simulation.vehicle import added_mass, load_model
+from testbed.simulation.vehicle import added_mass, load_model, rigid_body_mass
 from testbed.simulation.wrench import hydrodynamic_wrench
 
 RHO = 1025.0
@@ -256,3 +258,66 @@ def test_bad_components_are_one_line_errors():
         parse_term("lift@fin9", [Component(**good)])
     W = component_wrenches([Component(**good)], np.zeros((1, 6)), np.zeros((1, 3)))
     assert not W.any()  # at rest: no force, no division by the zero speed
+
+
+def test_a_turned_blade_is_the_blade_posed_where_its_hinge_turns_it():
+    """At fin angle δ a blade feels, in every force kind and the angular drag, what a component
+    with no fin feels at the pose its hinge gives it: frame R Q₀, centre h + R (p₀ − h), R the
+    turn by δ about the hinge axis (scipy's rotation)."""
+    rng = np.random.default_rng(9)
+    nu = rng.uniform(-2, 2, (5, 6)) + [18, 0, 0, 0, 0, 0]
+    delta = rng.uniform(-0.35, 0.35, (5, 3))
+    a, h, p0 = (np.array(v) for v in (BLADE.hinge_axis, BLADE.hinge, BLADE.centre))
+    kinds = [BLUNT, SLENDER, LIFT, MAGNUS, ANGULAR]
+    for n in range(len(nu)):
+        R = Rotation.from_rotvec(delta[n, 1] * a).as_matrix()  # the blade turns with δer
+        posed = Component(
+            name="posed",
+            axes=BLADE.axes,
+            centre=h + R @ (p0 - h),
+            frame=R @ np.array(BLADE.frame),
+            moments=BLADE.moments,
+            density=RHO,
+        )
+        got, want = (component_wrenches([c], nu[n], delta[n])[0, 0, kinds] for c in (BLADE, posed))
+        assert np.abs(got - want).max() <= 1e-13 * np.abs(want).max()
+
+
+def test_without_added_mass_the_terms_but_munk_are_mujocos_fluid_wrench():
+    """With the geoms' virtual masses 0, MuJoCo applies no added-mass forces: the same component
+    terms but `munk`, with the same coefficients, alone are its fluid wrench."""
+    mjcf, bare = load_model(), load_model()
+    bare.geom_fluid[:, 6:12] = 0.0
+    terms = component_terms(bare)
+    assert terms == {n: c for n, c in component_terms(mjcf).items() if not n.startswith("munk@")}
+    rng = np.random.default_rng(11)
+    nu = rng.normal(size=(40, 6)) * [2, 2, 2, 1, 1, 1] + [18, 0, 0, 0, 0, 0]
+    delta = rng.uniform(-0.35, 0.35, size=(40, 3))
+    parsed = [parse_term(n, mjcf_components(bare)) for n in terms]
+    got = term_wrenches(parsed, nu, delta) @ np.array(list(terms.values()))
+    want = hydrodynamic_wrench(bare, nu, delta)
+    assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+
+
+def test_the_component_model_is_the_analytic_model_at_trim_to_1e_6(torpedo):
+    """With the MJCF's coefficients every damping and control derivative within 1e-6 of the
+    analytic model's (relative; of K_p where it is 0), once the analytic model's rigid body, taken
+    about the CG (−m ω × v, −ω × I ω), gets the Kirchhoff forces of the 7e-9 m by which the
+    MJCF's rounded inertial offsets miss the body's origin: U m z_G r in K (1e-5 of K_r), which
+    the component model's inertia terms carry, as MuJoCo's rigid body does."""
+    model, theta, lin = torpedo
+    got = linearise(model, theta).coefficients
+    M_RB = rigid_body_mass(load_model())
+    about_cg = M_RB.copy()
+    about_cg[:3, 3:] = about_cg[3:, :3] = 0.0
+    trim = np.array([lin.vehicle.speed, 0, 0, 0, 0, 0])
+    offset = np.zeros((linear.NX, linear.NX))
+    offset[:6, :6] = coriolis(M_RB, trim)[1][0] - coriolis(about_cg, trim)[1][0]
+    s = linear.structure(lin.vehicle)
+    for name in linear.COEFFICIENTS:
+        if name.endswith("dot"):
+            continue
+        D = s.dAt[linear.ITHETA[name]]
+        want = lin.coefficients[name] + (np.sum(D * offset) / np.sum(D * D) if D.any() else 0.0)
+        scale = abs(want) if want else abs(lin.coefficients["K_p"])
+        assert abs(got[name] - want) <= 1e-6 * scale, (name, got[name], want)
