@@ -13,6 +13,7 @@ import json
 import math
 import numbers
 import os
+import re
 import reprlib
 import stat
 import tomllib
@@ -719,11 +720,20 @@ def _components(tables, terms, source: str) -> tuple[Component, ...]:
         raise InputError(f"{source}: [components] must hold [components.NAME] tables")
     out = []
     for name, table in tables.items():
+        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):
+            raise InputError(
+                f"{source}: [components] {json.dumps(name)}: expected a name of letters, digits and '_'"
+            )
         where = f"{source}: [components.{name}]"
         check_keys(table, _COMPONENT_KEYS + _BLADE_KEYS, where)
         missing = [k for k in _COMPONENT_KEYS if k not in table]
         if missing:
             raise InputError(f"{where} {missing[0]} missing; expected {', '.join(_COMPONENT_KEYS)}")
+        stray = [k for k in _BLADE_KEYS if k in table and "fin" not in table]
+        if stray:
+            raise InputError(
+                f"{where} {stray[0]} without fin; expected a blade's hinge with its fin (dr, der, del)"
+            )
         values = {k: table[k] for k in _COMPONENT_KEYS + _BLADE_KEYS if k in table}
         for k, v in values.items():
             if k == "fin":
@@ -884,6 +894,10 @@ def _check_terms(config: ModelConfig, source: str) -> None:
     """`InputError` unless a nonlinear model config's terms make a nonlinear model of its vehicle
     (`models.nonlinear.nonlinear_model`: term names, each once, a submerged body), with finite
     values, its linear parameters but the inertia coefficients 0, and `free` among its names."""
+    names = [c.name for c in config.components]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(f"{source}: [components.{twice[0]}] given twice; expected each component once")
     try:
         model = nonlinear_model(config.vehicle, tuple(config.terms), config.components)
     except InputError as exc:

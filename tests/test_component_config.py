@@ -7,12 +7,21 @@ from __future__ import annotations
 import json
 import os
 import tomllib
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from test_bad_input import cli
-from testbed.data import Experiment, ModelConfig, config_text, parse_config, write_config, write_csv
+from testbed.data import (
+    Experiment,
+    ModelConfig,
+    check_config,
+    config_text,
+    parse_config,
+    write_config,
+    write_csv,
+)
 from testbed.errors import InputError
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import INERTIA
@@ -65,6 +74,11 @@ def test_the_tables_round_trip_exactly(config):
         (lambda t: t.replace("axes = [", "axes = [0.2, ", 1), ["[components.hull]", "axes must be 3"]),
         (lambda t: t.replace("axes = [", 'axes = ["x", ', 1), ["[components.hull] axes"]),
         (lambda t: t.replace('"blunt@hull"', '"blunt@keel"', 1), ["blunt@keel", "no component 'keel'"]),
+        (
+            lambda t: t.replace("[components.hull]\n", "[components.hull]\nhinge = [0.0, 0.0, 0.0]\n", 1),
+            ["hinge without fin"],
+        ),
+        (lambda t: t.replace("[components.hull]", '[components."hull\\nx"]', 1), ["letters, digits"]),
     ],
 )
 def test_bad_tables_are_one_line_errors(config, edit, words):
@@ -75,6 +89,12 @@ def test_bad_tables_are_one_line_errors(config, edit, words):
     assert "\n" not in message and message.startswith("c.toml")
     for w in words:
         assert w in message, message
+
+
+def test_a_component_given_twice_is_refused(config):
+    twice = replace(config, components=config.components + config.components[:1])
+    with pytest.raises(InputError, match=r"\[components.hull\] given twice"):
+        check_config(twice)
 
 
 def test_components_in_a_linear_config_are_refused():
