@@ -79,10 +79,18 @@ def _forces(m, x, d, work, jacobian):
     coriolis_state(M, x[:6], F, JF, jacobian)
     restoring_state(weight, buoyancy, rB, x[6], x[7], F, JF[:, 6:8], jacobian)
     F[0] += thrust
+    # the blades' added mass turned with their fins (`_inertia`) depends on δ alone, which a flight
+    # holds over each sample interval: evaluated when δ changes (work[14] the last δ, work[15][0]
+    # 1 until M⁻¹ follows it)
+    last, stale = work[14], work[15]
+    turned = not (d[0] == last[0] and d[1] == last[1] and d[2] == last[2])
     for p in range(geometry.shape[0]):  # each component's wrenches per unit coefficient
         wrenches(geometry[p], fins[p], z, CW[p], CJ[p], jacobian, used[p], CS)
-        if used[p, 5] and fins[p] >= 0:  # a blade's added mass turned with its fin (`_inertia`)
+        if turned and used[p, 5] and fins[p] >= 0:
             turned_mass(geometry[p], fins[p], z, CM[p], CdM[p], CS)
+    if turned:
+        last[:] = d
+        stale[0] = 1.0
     width = table.shape[1]
     for k in range(len(rows)):
         if part[k] >= 0:  # a component term: its component's wrench of its kind, in every row
@@ -132,7 +140,10 @@ def _inertia(m, work):
     M + Σ c_k ΔM_b(δ), each blade's added mass turned with its fin scaled by its Munk term's
     coefficient (the blade's added mass is one quantity, in its Kirchhoff forces and in M)."""
     c, M, part, kind = m[3], m[5], m[13], m[14]
-    CM, MI = work[11], work[13]
+    CM, MI, stale = work[11], work[13], work[15]
+    if stale[0] == 0.0:
+        return
+    stale[0] = 0.0
     turned = False
     for k in range(len(part)):
         turned = turned or (part[k] >= 0 and kind[k] == 5)
@@ -231,7 +242,8 @@ def _work(m, like):
     """Scratch arrays of `like`'s dtype for `_forces`: F, JF, φ, z, the atoms, their signs, the
     rows' slopes along the atoms, the pairs' scales, the components' wrenches per kind and
     their gradients along z, the components' scratch, the blades' turned added mass and its
-    derivative along their fins, and M⁻¹ at the state."""
+    derivative along their fins, M⁻¹ at the state, the δ they were evaluated at and whether M⁻¹
+    is to follow."""
     K, atoms, C = len(m[2]), 2 * m[0].shape[1] + m[12].shape[0] + 1, m[15].shape[0]
     dtype = like.dtype
     return (
@@ -249,6 +261,8 @@ def _work(m, like):
         np.zeros((C, 6, 6), dtype=dtype),
         np.zeros((C, 6, 6), dtype=dtype),
         np.zeros((6, 6), dtype=dtype),
+        np.full(3, np.nan, dtype=dtype),
+        np.ones(1),
     )
 
 
