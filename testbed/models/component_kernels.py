@@ -293,20 +293,24 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, S):
 
 
 @numba.njit(cache=True)
-def _transform(S, X):
-    """X (6, 6): the motion transform from the body's velocities to the component's own at its
-    pose in S (`_local`): [[Qᵀ, −Qᵀ [p]×], [0, Qᵀ]]."""
-    Q, p = _mat(S, 0), _vec(S, 18)
+def _skewed(A, p, i, j):
+    """(Aᵀ [p]×)_ij = Σ_k A_ki ([p]×)_kj, the j-th column of [p]× being (0, p₂, −p₁), (−p₂, 0, p₀)
+    or (p₁, −p₀, 0)."""
+    zero = 0.0 * p[0]
+    col = (zero, p[2], -p[1]) if j == 0 else ((-p[2], zero, p[0]) if j == 1 else (p[1], -p[0], zero))
+    return A[0, i] * col[0] + A[1, i] * col[1] + A[2, i] * col[2]
+
+
+@numba.njit(cache=True)
+def _transform(A, p, X):
+    """X (6, 6) = [[Aᵀ, −Aᵀ [p]×], [0, Aᵀ]]: with A = Q the motion transform from the body's
+    velocities to the component's own at its pose (Q, p)."""
     X[:, :] = 0.0
     for i in range(3):
         for j in range(3):
-            X[i, j] = Q[j, i]
-            X[3 + i, 3 + j] = Q[j, i]
-            acc = 0.0 * p[0]
-            for k in range(3):  # (Qᵀ [p]×)_ij = Σ_k Q_ki [p]×_kj
-                pk = (0.0, -p[2], p[1]) if k == 0 else ((p[2], 0.0, -p[0]) if k == 1 else (-p[1], p[0], 0.0))
-                acc += Q[k, i] * pk[j]
-            X[i, 3 + j] = -acc
+            X[i, j] = A[j, i]
+            X[3 + i, 3 + j] = A[j, i]
+            X[i, 3 + j] = -_skewed(A, p, i, j)
 
 
 @numba.njit(cache=True)
@@ -317,26 +321,15 @@ def turned_mass(geometry, fin, z, DM, dDM, S):
     added = geometry[25:31]
     X, dX, X0 = S[1040:1076].reshape((6, 6)), S[1076:1112].reshape((6, 6)), S[1112:1148].reshape((6, 6))
     _local(geometry, -1, z, S)
-    _transform(S, X0)
+    _transform(_mat(S, 0), _vec(S, 18), X0)
     _local(geometry, fin, z, S)
-    _transform(S, X)
-    dQ, p, dp, Q = _mat(S, 9), _vec(S, 18), _vec(S, 21), _mat(S, 0)
+    Q, dQ, p, dp = _mat(S, 0), _mat(S, 9), _vec(S, 18), _vec(S, 21)
+    _transform(Q, p, X)
     # dX = [[dQᵀ, −dQᵀ [p]× − Qᵀ [dp]×], [0, dQᵀ]]
-    dX[:, :] = 0.0
+    _transform(dQ, p, dX)
     for i in range(3):
         for j in range(3):
-            dX[i, j] = dQ[j, i]
-            dX[3 + i, 3 + j] = dQ[j, i]
-            acc = 0.0 * p[0]
-            for k in range(3):
-                pk = (0.0, -p[2], p[1]) if k == 0 else ((p[2], 0.0, -p[0]) if k == 1 else (-p[1], p[0], 0.0))
-                dk = (
-                    (0.0, -dp[2], dp[1])
-                    if k == 0
-                    else ((dp[2], 0.0, -dp[0]) if k == 1 else (-dp[1], dp[0], 0.0))
-                )
-                acc += dQ[k, i] * pk[j] + Q[k, i] * dk[j]
-            dX[i, 3 + j] = -acc
+            dX[i, 3 + j] -= _skewed(Q, dp, i, j)
     for i in range(6):
         for j in range(6):
             m, m0, dm = 0.0 * z[0], 0.0 * z[0], 0.0 * z[0]
