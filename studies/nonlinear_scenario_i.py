@@ -322,13 +322,13 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--free",
         default=None,
-        help="comma-separated terms to free (default: the slope terms and those below --level)",
+        help="comma-separated terms to free (default: the study's rule for the model, module doc)",
     )
     ap.add_argument(
         "--level",
         type=float,
         default=0.15,
-        help="the relative Cramér-Rao bound below which a cross-flow term is freed (default free list)",
+        help="the relative Cramér-Rao bound below which the default free list takes a term (module doc)",
     )
     ap.add_argument("--rudder", type=float, default=0.015, help="the held-out manoeuvres' rudder, rad")
     ap.add_argument("--switch", type=float, default=15.0, help="the zigzag's switching heading, degrees")

@@ -16,7 +16,8 @@ fluid model, the plant's; computation/fluid.rst of MuJoCo's documentation):
 A_p is the ellipsoid's area projected along v, A_max = π r_max r_mid its largest. `munk` is how
 a blade's added-mass velocity forces (its Munk moment among them; m_A, I_A its added masses and
 inertias in its own axes) change as its fin turns: at δ = 0 they are part of the whole vehicle's
-Kirchhoff forces, which the model's inertia M carries. Each is a
+Kirchhoff forces, which the model's inertia M carries; the same coefficient scales the blade's
+added mass turned in M (`component_kernels.turned_mass`). Each is a
 force (f) or a torque (g) per unit coefficient, the coefficient being the component's drag, lift
 or Magnus coefficient; the angular drag's moments κ (m⁵) carry MuJoCo's weighting of the swept
 moments by the angular and slender coefficients, so its coefficient is 1 at the MJCF's values.

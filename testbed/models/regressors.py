@@ -46,6 +46,7 @@ __all__ = [
     "ROWS",
     "WEIGHTS",
     "Term",
+    "component_kind",
     "factor_table",
     "magnitude",
     "parse_term",
@@ -81,6 +82,13 @@ class Term:
     factors: tuple[str, ...]
     component: Component | None = None
     kind: int = -1
+
+
+def component_kind(name: str) -> str | None:
+    """The kind (one of `KINDS`) a component term's name `kind@component` names; None for any
+    other name."""
+    match = _COMPONENT.fullmatch(str(name))
+    return match.group(1) if match else None
 
 
 def parse_term(name: str, components=()) -> Term:

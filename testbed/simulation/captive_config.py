@@ -6,6 +6,7 @@ from pathlib import Path
 
 from testbed.data import ModelConfig, config_text
 from testbed.errors import InputError, atomic_write_text, check_outputs
+from testbed.models.regressors import component_kind
 from testbed.simulation.captive_fit import CaptiveFit
 from testbed.simulation.captive_reference import captive_reference, component_reference, slope_terms
 from testbed.simulation.vehicle import constants, cruise_speed, load_model, trim_speed
@@ -42,7 +43,7 @@ def captive_config(
     vehicle = constants(body, U)
     # the candidates: the terms, but for the component model the Kirchhoff terms of the inertia
     # M leaves out, which the PMM tests measure as they measure the inertia coefficients
-    free = tuple(n for n in terms if model == "polynomial" or "@" in n)
+    free = tuple(n for n in terms if model == "polynomial" or component_kind(n))
     config = ModelConfig(
         vehicle, inertia, free, str(mjcf or ""), screen=True, terms=terms, components=fit.components
     )
@@ -50,7 +51,7 @@ def captive_config(
     comments = {"speed": f"U, trim speed; captive reference of {where} ({model} model)"}
     comments |= {n: "the PMM tests' quadrature part and the rigid body's I_xz" for n in inertia}
     if model == "components":
-        comments |= {n: "over the manoeuvre" if "@" in n else "inertia M leaves out" for n in terms}
+        comments |= {n: "over the manoeuvre" if component_kind(n) else "inertia M leaves out" for n in terms}
     else:
         at_trim = set(slope_terms(fit.terms))
         comments |= {n: "slope at trim" if n in at_trim else "over the manoeuvre" for n in terms}

@@ -29,7 +29,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.models.nonlinear import TERMS, NonlinearModel, linearise, nonlinear_model, theta_vector
-from testbed.models.regressors import parse_term
+from testbed.models.regressors import component_kind, parse_term
 from testbed.simulation.captive import Oscillation, Sweep, captive_tests
 from testbed.simulation.captive_fit import CaptiveFit, fit_captive, pmm_inertia
 from testbed.simulation.fluid_components import component_terms, inertia_terms, mjcf_components, rigid_inertia
@@ -207,7 +207,7 @@ def slope_terms(terms=TERMS) -> tuple[str, ...]:
 def _design(terms) -> tuple[str, ...]:
     """The terms the tests are designed for: `terms`, or for a component model (any term of a
     component) the default `TERMS`, whose region and couplings the component terms share."""
-    return TERMS if any("@" in t for t in terms) else tuple(terms)
+    return TERMS if any(component_kind(t) for t in terms) else tuple(terms)
 
 
 def _trim_stage(model: mujoco.MjModel, speed: float, terms):

@@ -28,7 +28,7 @@ from testbed.data import ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators.base import Estimate, Status
 from testbed.models.linear import COEFFICIENTS
-from testbed.models.regressors import parse_term
+from testbed.models.regressors import component_kind, parse_term
 from testbed.simulation.measurements import check_seed
 
 __all__ = [
@@ -115,8 +115,9 @@ def term_class(name: str) -> str:
     u factors (`Y_uv` → `Y_v`, `Z_uude` → `Z_de`, `X_uu` → `X_u`); without one (`K_uuda`, the
     fins' differential) control for a term of a fin, damping otherwise; a component term's
     control for a blade's lift or Munk term, damping otherwise."""
-    if "@" in name:
-        return CONTROL if name.split("@")[0] in ("lift", "munk") else DAMPING
+    kind = component_kind(name)
+    if kind is not None:
+        return CONTROL if kind in ("lift", "munk") else DAMPING
     rest = [a for a in parse_term(name).factors if a != "u"]
     counterpart = f"{name[0]}_{''.join(rest) or 'u'}"
     if counterpart in CLASSES:
