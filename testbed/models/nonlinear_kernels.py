@@ -144,17 +144,12 @@ def _inertia(m, work):
     if stale[0] == 0.0:
         return
     stale[0] = 0.0
-    turned = False
-    for k in range(len(part)):
-        turned = turned or (part[k] >= 0 and kind[k] == 5)
-    if not turned:
-        MI[:, :] = m[6]
-        return
-    Mt = M.copy()
+    Mt, turned = M.copy(), False
     for k in range(len(part)):
         if part[k] >= 0 and kind[k] == 5:
             Mt += c[k] * CM[part[k]]
-    MI[:, :] = np.linalg.inv(Mt)
+            turned = True
+    MI[:, :] = np.linalg.inv(Mt) if turned else m[6]
 
 
 @numba.njit(cache=True)
