@@ -13,7 +13,6 @@ import json
 import math
 import numbers
 import os
-import re
 import reprlib
 import stat
 import tomllib
@@ -36,7 +35,7 @@ from testbed.models.linear import (
     STATES,
     Vehicle,
 )
-from testbed.models.components import Component
+from testbed.models.components import Component, check_component_name
 from testbed.models.nonlinear import INERTIA, NonlinearModel, nonlinear_model, theta_vector
 from testbed.models.sensors import OUTPUTS, Sensor, needs, states_from
 
@@ -720,10 +719,7 @@ def _components(tables, terms, source: str) -> tuple[Component, ...]:
         raise InputError(f"{source}: [components] must hold [components.NAME] tables")
     out = []
     for name, table in tables.items():
-        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):
-            raise InputError(
-                f"{source}: [components] {json.dumps(name)}: expected a name of letters, digits and '_'"
-            )
+        check_component_name(name, f"{source}: [components]")
         where = f"{source}: [components.{name}]"
         check_keys(table, _COMPONENT_KEYS + _BLADE_KEYS, where)
         missing = [k for k in _COMPONENT_KEYS if k not in table]

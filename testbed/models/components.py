@@ -33,6 +33,7 @@ zero).
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import dataclass
 
@@ -40,11 +41,19 @@ import numpy as np
 
 from testbed.errors import InputError
 
-__all__ = ["FINS", "KINDS", "Component", "component_wrenches", "packed_components"]
+__all__ = [
+    "FINS",
+    "KINDS",
+    "NAME",
+    "Component",
+    "check_component_name",
+    "component_wrenches",
+    "packed_components",
+]
 
 KINDS = ("blunt", "slender", "lift", "magnus", "angular", "munk")  # the forces of a component, in order
 FINS = ("dr", "der", "del")  # the fin angles a blade can turn with, in δ's order
-_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+NAME = r"[A-Za-z][A-Za-z0-9_]*"  # a component's name: what `kind@name` and [components.name] take
 
 
 @dataclass(frozen=True)
@@ -76,8 +85,7 @@ class Component:
 
     def _check(self) -> None:
         where = f"component {self.name!r}"
-        if not isinstance(self.name, str) or not _NAME.fullmatch(self.name):
-            raise InputError(f"component {self.name!r}: expected a name of letters, digits and '_'")
+        check_component_name(self.name, "component")
         sizes = (
             ("axes", 3),
             ("centre", 3),
@@ -106,6 +114,13 @@ class Component:
             raise InputError(f"{where}: fin {self.fin!r}; expected one of {', '.join(FINS)} or none")
         if self.fin is not None and abs(np.linalg.norm(np.asarray(self.hinge_axis, float)) - 1) > 1e-9:
             raise InputError(f"{where}: hinge_axis must be a unit vector")
+
+
+def check_component_name(name, where: str) -> str:
+    """`name` if it is a component's name (`NAME`); else `InputError` naming `where` and it."""
+    if not isinstance(name, str) or not re.fullmatch(NAME, name):
+        raise InputError(f"{where} {json.dumps(name)}: expected a name of letters, digits and '_'")
+    return name
 
 
 def _numbers(value) -> bool:

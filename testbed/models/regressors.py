@@ -38,7 +38,7 @@ from functools import lru_cache
 import numpy as np
 
 from testbed.errors import InputError
-from testbed.models.components import KINDS, Component, component_wrenches
+from testbed.models.components import KINDS, NAME, Component, component_wrenches
 
 __all__ = [
     "ATOMS",
@@ -67,7 +67,7 @@ _LINEAR = {
 # The magnitudes of pairs of body velocities: the atom and the indices of its pair in z
 _PAIRS = {"|vw|": (1, 2), "|qr|": (4, 5)}
 ATOMS = tuple(_LINEAR) + tuple(f"|{a}|" for a in _LINEAR) + tuple(_PAIRS)
-_COMPONENT = re.compile(r"(" + "|".join(KINDS) + r")@([A-Za-z][A-Za-z0-9_]*)")
+_COMPONENT = re.compile(r"(" + "|".join(KINDS) + r")@(" + NAME + ")")
 _TOKEN = re.compile(r"\|(?:vw|qr|d[rea]|[uvwpqr])\||d[rea]|[uvwpqr]")
 
 
