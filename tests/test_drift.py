@@ -12,7 +12,7 @@ import pytest
 from testbed.analysis import drift
 from testbed.analysis.identifiability import structural
 from testbed.errors import InputError
-from testbed.identification.bounds import fisher
+from testbed.identification.bounds import crlb, eliminated, fisher
 from testbed.identification.examples import NOISE, example_config, inputs
 from testbed.identification.prediction import synthetic
 from testbed.models.linear import ITHETA, NX, STATES, structure, theta_vector
@@ -74,6 +74,22 @@ def _hand_form(values, relative_information):
     config = example_config(tuple(values))
     s = np.abs(np.array([config.coefficients[n] for n in values]))
     return drift.form(relative_information / np.outer(s, s), config)
+
+
+def test_a_copy_of_an_initial_state_keeps_no_information_and_an_infinite_bound():
+    """Sensitivities J = [a, b, c, c]: the third parameter is the initial state (the last column)
+    again. Eliminated, its information is rounding, zeroed; the others' bounds are those of the
+    closed form with the initial state alone beside them."""
+    rng = np.random.default_rng(3)
+    a, b, c = rng.normal(size=(3, 500)) * [[1.0], [1e3], [1e-2]]
+    J = np.column_stack([a, b, c, c])
+    F = eliminated(J.T @ J, 3)
+    assert np.all(F[2] == 0.0) and np.all(F[:, 2] == 0.0)
+    bounds = crlb(F)
+    assert np.isinf(bounds.std[2])
+    K = np.column_stack([a, b, c])
+    exact = np.sqrt(np.diag(np.linalg.inv(K.T @ K))[:2])
+    np.testing.assert_allclose(bounds.std[:2], exact, rtol=1e-9)
 
 
 def test_condition_correlation_and_worst_direction_of_a_hand_built_ill_conditioned_case():

@@ -37,6 +37,7 @@ __all__ = [
     "colored_covariance",
     "colored_term",
     "crlb",
+    "eliminated",
     "fft_length",
     "fisher",
     "information",
@@ -260,7 +261,7 @@ def assess(
     # the bounds of θ from its information with the initial states eliminated, which stays well
     # conditioned where M itself does not (an unstable model's); the colored bound needs the θ
     # rows of M⁻¹ too: [F⁻¹, −F⁻¹ M_θx M_xx⁻¹] (the inverse of a 2 × 2 block matrix)
-    F = reduced(M, np.zeros(len(M)), nf)[0]
+    F = eliminated(M, nf)
     cov, std, corr = crlb(F)
     rows = np.hstack([cov, -cov @ eliminate(M, nf, M[nf:, :nf]).T]) if len(M) > nf else cov
     corrected = colored_covariance(prob, p, xs, res, R, rows)
@@ -310,7 +311,21 @@ def fisher(
     xs = states(prob, p)
     res = [r.residual(prob.outputs(r, x, p[: prob.n_free])) for r, x in zip(prob.records, xs)]
     M = gauss_newton_terms(prob, p, xs, res, noise_variance(prob, res) if R is None else R)[1]
-    return reduced(M, np.zeros(len(M)), prob.n_free)[0]
+    return eliminated(M, prob.n_free)
+
+
+def eliminated(M: np.ndarray, nf: int) -> np.ndarray:
+    """The information of the first `nf` parameters of `M` with the others (the initial states)
+    eliminated (`likelihood.reduced`). A parameter left with at most `NULL` of its own
+    information M_ii (a copy of an initial state, such as a heading bias beside the initial
+    heading: the Schur complement leaves rounding, 4e-15 of M_ii, which scaled to unit diagonal
+    looks like an independent parameter with a finite bound) has none: its row and column are 0,
+    so `crlb` bounds it infinite."""
+    F = reduced(M, np.zeros(len(M)), nf)[0]
+    lost = np.diag(F) <= NULL * np.diag(M)[:nf]
+    F[lost, :] = 0.0
+    F[:, lost] = 0.0
+    return F
 
 
 def _analysed(experiments, config, values, noise_std) -> tuple[Problem, np.ndarray, np.ndarray | None]:
