@@ -61,7 +61,12 @@ LAYERS = [
     ),
     ("testbed.identification.examples", "testbed.identification.nonlinear_output_error"),
     ("testbed.estimators.base", "testbed.estimators.simplex"),
-    ("testbed.estimators.mekf", "testbed.estimators.equation_error", "testbed.estimators.nonlinear"),
+    (
+        "testbed.estimators.mekf",
+        "testbed.estimators.equation_error",
+        "testbed.estimators.nonlinear_regression",
+    ),
+    ("testbed.estimators.nonlinear",),
     ("testbed.estimators.trust_region", "testbed.estimators.starts"),
     ("testbed.estimators.ml", "testbed.estimators.fem"),
     ("testbed.estimators",),

@@ -16,7 +16,9 @@ from testbed.cli import main
 from testbed.data import Experiment, read_config, write_config, write_csv
 from testbed.errors import InputError
 from testbed.estimators import OptionError, identify
+from testbed.estimators.nonlinear_regression import equation_error
 from testbed.identification.likelihood import reduced
+from testbed.identification.nonlinear_output_error import records
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.jobs import perturbed
 from testbed.models.linear import STATES
@@ -123,7 +125,7 @@ def test_evaluations_count_the_flights_and_sensitivity_passes(truth):
     """One iteration: the start's flight (1), a sensitivity pass (1 + n_free) and the trial
     flights of the damped step (at least one)."""
     config, noisy, _ = truth
-    est = identify([noisy], _start(config), "ml-gn", max_iter=1)
+    est = identify([noisy], _start(config), "ml-gn", max_iter=1, start="config")
     assert est.iterations == 1 and 2 + len(FREE) <= est.evaluations <= 2 + len(FREE) + 5
 
 
@@ -292,7 +294,7 @@ def test_analyze_on_the_command_line(files, capsys, tmp_path):
     "extra, words",
     [
         (["--method", "ml-fem"], "--method 'ml-fem' fits the linear model only"),
-        (["--start", "equation-error"], "option --start 'equation-error'; expected auto or config"),
+        (["--start", "mekf"], "option --start 'mekf'; expected auto, config or equation-error"),
         (["--max-iter", "0"], "option --max-iter 0; expected an integer ≥ 1"),
         (["--rrd", "{tmp}/fit.rrd"], "--rrd logs the linear model's fit only"),
     ],
@@ -379,3 +381,41 @@ def test_a_record_with_a_gap_is_refused_on_the_command_line(files, capsys, tmp_p
     err = capsys.readouterr().err
     assert code == 2 and "p is missing at t = 0.58 s" in err and err.strip().count("\n") == 0, err
     assert not out.exists()
+
+
+def test_the_equation_error_start_regresses_the_model_that_flew_the_data(truth):
+    """From 20 % off, the rows fitted to the records' difference quotients: on the noise-free
+    record within the midpoint rule's O(Δt²) error (well under 1 %), on the noisy one within a
+    quarter of the start's error."""
+    config, noisy, clean = truth
+    model, start = _start(config).nonlinear()
+    for record, within in ((clean, 0.01), (noisy, 0.05)):
+        channels, recs = records([record])
+        theta = equation_error(model, start, recs, channels, FREE)
+        for n in FREE:
+            assert abs(theta[model.names.index(n)] / config.terms[n] - 1) < within, (record.name, n)
+
+
+def test_auto_starts_from_the_better_flying_start_and_ends_at_the_same_optimum(truth):
+    config, noisy, _ = truth
+    far = config.with_coefficients(
+        {n: config.terms[n] * (3.0 if k % 2 else 1 / 3) for k, n in enumerate(FREE)}
+    )
+    from_config = identify([noisy], far, "ml-gn", start="config")
+    auto = identify([noisy], far, "ml-gn")
+    assert from_config.start == "config" and auto.start == "equation-error"
+    assert from_config.converged and auto.converged and auto.iterations < from_config.iterations
+    assert np.all(np.abs(auto.values - from_config.values) < 0.1 * auto.std)
+    # at the values that flew the data the config's flight fits better than the regression's
+    assert identify([noisy], config, "ml-gn").start == "config"
+    assert identify([noisy], far, "ml-nm", max_iter=1).start == "equation-error"
+
+
+def test_the_equation_error_start_needs_the_states_the_rows_involve(truth):
+    config, noisy, _ = truth
+    keep = [STATES.index(s) for s in STATES if s != "phi"]
+    partial = replace(noisy, measured=tuple(STATES[k] for k in keep), y=noisy.y[:, keep])
+    with pytest.raises(InputError, match=r"equation-error start: the records do not measure phi") as e:
+        identify([partial], config, "ml-gn", start="equation-error")
+    assert "\n" not in str(e.value)
+    assert identify([partial], config, "ml-gn", max_iter=1).start == "config"

@@ -27,8 +27,13 @@ What a linear method's option means here:
 - `tol` (`ml-gn`): converged when every parameter's step is below `tol` × its Cramér-Rao σ;
 - `eps`, `step`, `restart_step`, `r_tol`, `max_relaxations`, `coefficients` (`ml-nm`): as for
   the linear model;
-- `start`: `config` (the config's values); `auto` is `config` too, the only start the nonlinear
-  model has (no equation-error or MEKF start for it);
+- `start`: `config` (the config's values), `equation-error` (the dynamics rows fitted to the
+  measured states' difference quotients from the config's values, `nonlinear_regression`: no
+  flight, so no basin; it needs u v w p q r φ θ measured), or `auto` (the default): of those
+  two the one whose flight fits the records better (the likelihood with R the residuals' mean
+  square, the measured first samples as initial states; two flights, counted in
+  `evaluations`), `config` where the records cannot give the second. `Estimate.start` names
+  the start taken. No MEKF start;
 - any other option (`segments`, the global start's `samples`, `ml-nm`'s `restarts`,
   `first_length` …) has no meaning here: given a value other than its default, an
   `OptionError` names it.
@@ -48,6 +53,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status
+from testbed.estimators.nonlinear_regression import equation_error
 from testbed.estimators.simplex import fresh_simplex, simplex_coefficients, simplex_run
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
@@ -65,7 +71,7 @@ from testbed.models.linear import STATES
 
 __all__ = ["STARTS", "gauss_newton", "simplex"]
 
-STARTS = ("auto", "config")  # the starts a nonlinear model has: its config's values
+STARTS = ("auto", "config", "equation-error")  # the starts a nonlinear model has (module doc)
 _STATUS = {"converged": Status.CONVERGED, "iteration limit": Status.MAX_ITERATIONS, "stalled": Status.STALLED}
 _GN = ("max_iter", "tol", "start")  # the options each method honours on a nonlinear model config
 _NM = ("max_iter", "start", "eps", "step", "restart_step", "r_tol", "max_relaxations", "coefficients")
@@ -80,7 +86,9 @@ def _checked(method: str, options: Options, meant: Sequence[str]) -> None:
                 method, f.name, value, "its default: the nonlinear model's fit has no such option"
             )
     if options.start not in STARTS:
-        raise OptionError(method, "start", options.start, "auto or config for a nonlinear model config")
+        raise OptionError(
+            method, "start", options.start, "auto, config or equation-error for a nonlinear model config"
+        )
 
 
 def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields) -> Estimate:
@@ -98,6 +106,29 @@ def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields
     )
 
 
+def _start(start: str, model, theta, recs, channels, free, held) -> tuple[str, np.ndarray]:
+    """The start `start` names as (name, θ), for `auto` the better-flying one (module doc);
+    `InputError` where the equation-error start is named and the records cannot give it."""
+    if start == "config":
+        return "config", theta
+    try:
+        regressed = equation_error(model, theta, recs, channels, free)
+    except InputError:
+        if start == "equation-error":
+            raise
+        return "config", theta
+    if start == "equation-error":
+        return "equation-error", regressed
+    ch = [STATES.index(c) for c in channels]
+    x0 = start_states(model, recs, ch)
+
+    def cost(th):
+        res = residuals(model, th, x0, recs, ch)
+        return np.inf if res is None else neg_log_likelihood(res, pooled_noise(res, held))
+
+    return min((("config", theta), ("equation-error", regressed)), key=lambda s: cost(s[1]))
+
+
 def gauss_newton(
     experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
 ) -> Estimate:
@@ -108,6 +139,7 @@ def gauss_newton(
         raise OptionError(name, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     noise = {c: s for c, s in (config.noise_std or {}).items() if c in channels}
+    held = np.array([noise.get(c, np.nan) ** 2 for c in channels])
     history = [theta[idx]]
 
     def step(values: np.ndarray, cost: float) -> None:
@@ -116,9 +148,11 @@ def gauss_newton(
             callback(Progress(len(history) - 1, values.copy(), cost))
 
     with counting() as tally:
+        label, start = _start(options.start, model, theta, recs, channels, config.free, held)
+        history[0] = start[idx]
         fit = fit_output_error(
             model,
-            theta,
+            start,
             recs,
             channels,
             config.free,
@@ -143,6 +177,7 @@ def gauss_newton(
         cost=fit.cost,
         iterations=fit.iterations,
         noise_std=dict(fit.noise_std),
+        start=label,
         history=np.array(history),
         crlb_corrected_std=coloured,
     )
@@ -158,6 +193,8 @@ def simplex(
     ch = [STATES.index(c) for c in channels]
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
+    with counting() as ranked:  # the starts' flights, counted with the fit's
+        label, theta = _start(options.start, model, theta, recs, channels, config.free, held)
     nf, N = len(idx), sum(len(r.t) for r in recs)
     max_iter = 500 * nf if options.max_iter is None else options.max_iter
     scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # θ[free] = scale·x
@@ -238,7 +275,7 @@ def simplex(
         channels,
         x0,
         t0,
-        tally[0],
+        tally[0] + ranked[0],
         method=name,
         status=status,
         values=th[idx],
@@ -246,6 +283,7 @@ def simplex(
         cost=neg_log_likelihood(res, R),
         iterations=it,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
+        start=label,
         history=np.array(history),
         crlb_corrected_std=coloured,
     )
