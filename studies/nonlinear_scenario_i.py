@@ -7,9 +7,10 @@ six Kirchhoff terms of the inertia M leaves out; `polynomial`: the 102 polynomia
 inertia from the PMM tests) is the reference, and each fit starts from its own a-priori values
 about it (`priors.term_prior` at `--spread`, the campaign's rule: each free term moved by
 exp(s_c z), z drawn per seed). The plant flies Scenario I for seeds 1..N (the same noise-free
-truth every seed, the sensors' noise drawn per seed); `ml-gn` fits each seed's record through
-the front door (`estimators.identify`, converged when every step is below 0.01 σ) with `--free`
-free, and the record's noise-free truth too (`noise-free`: the noise σ given as the sensors',
+truth every seed, the sensors' noise drawn per seed; `--rate 100`: its autopilots and record at
+the plant's physics rate, where the fins are held over every sample interval); `ml-gn` fits each
+seed's record through the front door (`estimators.identify`, its `auto` start, converged when
+every step is below 0.01 σ) with `--free` free, and the record's noise-free truth too (`noise-free`: the noise σ given as the sensors',
 so its bounds are a noisy record's) — where the fits would scatter about if the noise alone
 moved them. Per coefficient: the estimate, its Cramér-Rao σ and coloured-residual σ, the error
 in the coloured σ (the honest one for residuals that are not white) and in % of the captive
@@ -70,7 +71,7 @@ from testbed.study.priors import term_prior
 from testbed.simulation.captive_reference import slope_terms
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.runs import simulate
-from testbed.simulation.scenario import read_scenario
+from testbed.simulation.scenario import read_scenario, scenario
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
 from studies.trial import sigma  # noqa: E402  (the coloured-residual σ where the fit gives it)
@@ -84,6 +85,12 @@ METRICS = {
     "turn": ("tactical_diameter", "steady_turn_rate"),
     "zigzag": ("first_overshoot", "second_overshoot"),
 }
+
+
+def scenario_i(rate: float):
+    """Scenario I with its autopilots and its record at `rate` Hz."""
+    s = scenario("I")
+    return replace(s, control_rate=rate, sensors=replace(s.sensors, rate=rate))
 
 
 def check_out(out: Path, seeds: int, force: bool) -> None:
@@ -206,10 +213,13 @@ def study(
     force: bool,
     model: str = "components",
     spread: float = 0.4,
+    rate: float = 50.0,
 ):
     out.mkdir(parents=True, exist_ok=True)
     captive, *_ = captive_config(model=model)
-    runs = [simulate("I", seed=k, out=out / f"seed{k}", force=force) for k in range(1, seeds + 1)]
+    runs = [
+        simulate(scenario_i(rate), seed=k, out=out / f"seed{k}", force=force) for k in range(1, seeds + 1)
+    ]
     truth = read_csv(runs[0] / "scenario-I.truth.csv", "scenario-I")
     if free is None:
         free = default_free(captive, load_data([runs[0]])[0][0], level)
@@ -225,7 +235,7 @@ def study(
         fits[label] = identify(experiments, config, "ml-gn", options={"tol": TOL})
         est = fits[label]
         print(
-            f"{label:10s} {est.status.name} {est.iterations} it {time.perf_counter() - t0:.1f} s",
+            f"{label:10s} {est.status.name} from {est.start}, {est.iterations} it {time.perf_counter() - t0:.1f} s",
             file=sys.stderr,
         )
 
@@ -338,6 +348,14 @@ def main(argv=None) -> int:
         default=0.4,
         help="the start's spread about the captive values (the campaign's a-priori rule; 0: the captive values)",
     )
+    ap.add_argument(
+        "--rate",
+        type=float,
+        choices=(50.0, 100.0),
+        default=50.0,
+        help="Scenario I's control and sample rate, Hz: its own 50 (default), or 100, the plant's physics "
+        "rate, where the fins are held over every sample interval",
+    )
     ap.add_argument("--force", action="store_true", help="replace the study's own outputs in --out")
     ap.add_argument(
         "--model",
@@ -357,7 +375,7 @@ def main(argv=None) -> int:
     except InputError as exc:
         print(f"nonlinear_scenario_i.py: {exc}", file=sys.stderr)
         return 2
-    tables = study(a.seeds, a.out, free, a.level, a.rudder, a.switch, a.force, a.model, a.spread)
+    tables = study(a.seeds, a.out, free, a.level, a.rudder, a.switch, a.force, a.model, a.spread, a.rate)
     for name, text in zip(TABLES, tables):
         atomic_write_text(a.out / name, text, force=True)  # checked before the work (`check_out`)
         print(text)
