@@ -1,8 +1,8 @@
 """The screen of a nonlinear model config: on a short record the captive model flew (the sensors'
-noise added) with the elevator moving as the rudder and the ailerons held, stage 1 fixes a term
-whose factor never moves and a pair of terms whose factors are one and the same, stage 2 a term
-whose true value is 0, and the rest are recovered from a perturbed start; through the library and
-on the command line."""
+noise added) with the elevator moving as the rudder and the ailerons held, the screen fixes a term
+whose factor never moves, one of a pair of terms whose factors are one and the same (the other
+kept: it is the pair's one determined combination) and a term whose true value is 0, and the rest
+are recovered from a perturbed start; through the library and on the command line."""
 
 from __future__ import annotations
 
@@ -12,8 +12,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.analysis.identifiability import identify_screened, screening
-from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_identifiability, rank_tolerance
+from testbed.analysis.identifiability import Structural, assessed, identify_screened, screening
+from testbed.analysis.nonlinear_identifiability import (
+    NONLINEAR,
+    forward,
+    nonlinear_identifiability,
+    rank_tolerance,
+)
 from testbed.cli import main
 from testbed.data import Experiment, read_config, read_csv, write_config, write_csv
 from testbed.models.linear import STATES
@@ -47,6 +52,13 @@ def truth():
     return config, Experiment("doublet", t, STATES, noisy, fins)
 
 
+def _twins(config):
+    """(fixed, kept): of the twins, one regressor for both, the one more significant a priori
+    (the larger |value|) is kept and the other fixed."""
+    kept = max(TWINS, key=lambda n: abs(config.terms[n]))
+    return next(n for n in TWINS if n != kept), kept
+
+
 def _start(config):
     """The a-priori config: the DETERMINED terms 20 % off (signs mixed), the others as in the truth."""
     return config.with_coefficients(
@@ -69,28 +81,54 @@ def test_the_rank_tolerance_separates_one_regressor_twice_from_a_distinct_one(tr
     assert np.all(np.isinf(twins.crlb_std[-2:])) and np.all(np.isfinite(apart.crlb_std))
 
 
-def test_the_screen_fixes_the_blind_the_twins_and_the_zero_and_recovers_the_rest(truth):
+def test_forward_keeps_one_of_a_copy_and_what_stays_significant_a_priori():
+    """Sensitivities with unit noise: A strong, B and its copy B2 (a smaller value, so tried
+    later), C moderate, W whose value is 0.5 of its bound (below 2 σ), Z blind. Closed form:
+    with A, B, C kept each stays far above 2 σ; B2 makes the information singular with B."""
+    rng = np.random.default_rng(2)
+    a, b, c, w = rng.normal(size=(4, 400))
+    J = np.column_stack([a, b, b, c, w, np.zeros(400)])
+    free = ("A", "B", "B2", "C", "W", "Z")
+    values = np.array([1.0, 0.5, 0.2, 0.3, 0.5 / np.linalg.norm(w), 1.0])
+    struct = Structural(free, np.eye(6)[[5]], (("Z",),), ("Z",))
+    fixed = forward(assessed(free, values, J.T @ J, struct))
+    assert list(fixed) == ["Z", "B2", "W"], fixed
+    assert "singular along it and B, kept before it" in fixed["B2"]
+    assert "its a-priori value is 0.5 σ from 0" in fixed["W"]
+
+
+def test_the_screen_fixes_the_blind_one_twin_and_the_zero_and_recovers_the_rest(truth):
     config, record = truth
+    fixed_twin, kept_twin = _twins(config)
     s = screening([record], _start(config), model=NONLINEAR)
-    assert list(s.fixed) == [BLIND, *TWINS, ZERO], s.fixed
+    assert list(s.fixed) == [BLIND, fixed_twin, ZERO], s.fixed
     assert "no fitted state depends on it" in s.fixed[BLIND]
-    assert all("singular along it" in s.fixed[n] for n in TWINS)
+    assert f"singular along it and {kept_twin}" in s.fixed[fixed_twin]
     assert "σ from 0" in s.fixed[ZERO]
-    assert s.config.free == DETERMINED and s.fit.converged
+    assert s.config.free == (*DETERMINED, kept_twin) and s.fit.converged
     # the a-priori values stay, the fixed ones at the truth
-    assert all(s.config.terms[n] == config.terms[n] for n in (BLIND, *TWINS, ZERO))
-    # the screen's fit is of the candidates stage 1 left; the rest recovered within 3 σ
-    assert s.fit.free == (*DETERMINED, ZERO)
+    assert all(s.config.terms[n] == config.terms[n] for n in (BLIND, fixed_twin, ZERO))
+    # the rest recovered within 3 σ: the kept twin its own value, the other held at its truth
     for n, v, sd in zip(s.fit.free, s.fit.values, s.fit.std):
         assert abs(v - config.terms[n]) <= 3 * sd, (n, v, config.terms[n], sd)
 
 
-def test_identify_screened_fits_the_screened_list_with_ml_gn_anew(truth):
-    """Stage 2 fixed a candidate, so the fit of what the screen left is a fit of its own."""
+def test_stage_1_keeps_a_candidate_0_a_priori_that_is_determined(truth):
+    """Nothing is fixed for being 0: a determined term whose a-priori value is 0 (the elevators'
+    heave force, δe moving) passes the first stage and is freed at its estimate, near its truth."""
     config, record = truth
+    candidates = replace(_start(config), free=(*DETERMINED, "Z_uude")).with_coefficients({"Z_uude": 0.0})
+    s = screening([record], candidates, model=NONLINEAR)
+    assert s.fixed == {} and s.fit.free == (*DETERMINED, "Z_uude")
+    assert abs(s.fit.values[-1] - config.terms["Z_uude"]) <= 3 * s.fit.std[-1]
+
+
+def test_identify_screened_fits_the_screened_list(truth):
+    config, record = truth
+    fixed_twin, kept_twin = _twins(config)
     screened = identify_screened([record], _start(config), model=NONLINEAR)
-    assert screened.applied and screened.estimate.free == DETERMINED
-    assert set(screened.fixed) == {BLIND, *TWINS, ZERO}
+    assert screened.applied and screened.estimate.free == (*DETERMINED, kept_twin)
+    assert set(screened.fixed) == {BLIND, fixed_twin, ZERO}
     for n, v, sd in zip(screened.estimate.free, screened.estimate.values, screened.estimate.std):
         assert abs(v - config.terms[n]) <= 3 * sd, (n, v, config.terms[n], sd)
 
@@ -109,8 +147,9 @@ def test_screen_on_the_command_line(truth, tmp_path, capsys, flag):
     err = capsys.readouterr().err
     assert code == 0, err
     doc = json.loads(out.read_text())
-    assert list(doc["coefficients"]) == list(DETERMINED) and "screen" not in doc
-    assert list(doc["fixed"]) == [BLIND, *TWINS, ZERO]
+    fixed_twin, kept_twin = _twins(config)
+    assert list(doc["coefficients"]) == [*DETERMINED, kept_twin] and "screen" not in doc
+    assert list(doc["fixed"]) == [BLIND, fixed_twin, ZERO]
     for n, f in doc["fixed"].items():
         assert f["value"] == config.terms[n] and f["reason"].startswith("not determined by these data")
     for n, c in doc["coefficients"].items():

@@ -189,6 +189,7 @@ class Identifiability:
     practical_groups: tuple[tuple[str, ...], ...]
     uncertain: tuple[str, ...]  # relative bound > UNCERTAIN
     summary: tuple[str, ...]
+    null: float = NULL  # the eigenvalue of the scaled information, relative to the largest, taken as 0
 
     @property
     def drift_groups(self) -> tuple[tuple[str, ...], ...]:
@@ -263,7 +264,7 @@ def assessed(
         n for n, r, s in zip(free, rel, std) if np.isfinite(s) and np.isfinite(r) and r > UNCERTAIN
     )
     summary = _summary(free, struct, practical, uncertain, corr, rel, std)
-    return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary)
+    return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary, null)
 
 
 # -- the screen ------------------------------------------------------------------------------------
@@ -367,11 +368,14 @@ class ScreenModel:
             the config's values with the measurement noise σ per state `noise_std` (stage 1).
         information: `(experiments, candidates, fit)` → the Fisher information of
             `candidates.free` at the `ml-gn` estimate `fit` (stage 2).
+        unidentified: `assess`'s result → the candidates stage 1 fixes, name → why
+            (default `structurally_unidentified`).
     """
 
     check: Callable[[Sequence[Experiment], ModelConfig], None]
     assess: Callable[[Sequence[Experiment], ModelConfig, Mapping[str, float]], Identifiability]
     information: Callable[[Sequence[Experiment], ModelConfig, Estimate], np.ndarray]
+    unidentified: Callable[[Identifiability], dict[str, str]] = structurally_unidentified
 
 
 def _information(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:
@@ -390,10 +394,11 @@ LINEAR = ScreenModel(check=check_fit, assess=identifiability, information=_infor
 def screening(experiments, config, options=None, callback=None, model: ScreenModel = LINEAR) -> Screen:
     """The screen of the candidate list `config.free`: which candidates these data determine.
 
-    Nothing is fixed for its a-priori magnitude, nor for being 0. Stage 1, at the a-priori
-    coefficients with the measurement noise read off the data (third differences,
-    `noise_from_data`) where the config's `noise_std` does not give it: the structurally
-    unidentifiable candidates are fixed (`structurally_unidentified` of `model.assess`). Stage 2:
+    Nothing is fixed for being 0. Stage 1, at the a-priori coefficients with the measurement noise
+    read off the data (third differences, `noise_from_data`) where the config's `noise_std` does
+    not give it: `model.unidentified` of `model.assess` fixes what these data cannot determine
+    (the linear model's: the structurally unidentifiable candidates, `structurally_unidentified`,
+    whatever their magnitude). Stage 2:
     the rest are fitted with `ml-gn` (`options`, its options; `callback`, its progress), and
     those the estimate does not make significant are fixed by backward elimination
     (`insignificant`, with `model.information` at the estimate). A fixed candidate stays at its
@@ -406,7 +411,7 @@ def screening(experiments, config, options=None, callback=None, model: ScreenMod
     result = model.assess(experiments, config, noise)
     fixed = {
         n: f"not determined by these data: {why}"
-        for n, why in _by_name(result.free, structurally_unidentified(result)).items()
+        for n, why in _by_name(result.free, model.unidentified(result)).items()
     }
     candidates = _without(config, fixed)
     if not candidates.free:

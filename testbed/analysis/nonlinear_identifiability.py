@@ -14,8 +14,17 @@ holds only those. A direction along which the information is numerically singula
 (an eigenvalue within its own rounding: `rank_tolerance`) gives its coefficients infinite bounds.
 
 The screen of a nonlinear model config (`NONLINEAR`, for `identifiability.screening`) takes its
-stage 1 from this analysis at the a-priori values and its stage 2 from it at the `ml-gn` estimate,
-each record flown from the fit's initial state.
+stage 1 from this analysis at the a-priori values (`forward`) and its stage 2 from it at the
+`ml-gn` estimate, each record flown from the fit's initial state. Stage 1 cannot fix every
+candidate along a singular direction, as the linear model's fixes every member of a drift group:
+a nonlinear term set comes with near-copies (one regressor twice; the two blades of a rudder,
+each blade's blunt and slender drag), along which the information is singular or nearly so, and
+fixing all of them would leave little to fit (of the captive component model's 23 candidates on
+Scenario I, one). `forward` keeps one of each instead: it takes the candidates one at a time, the
+most significant alone first, and keeps each while the information stays regular and every
+candidate kept is significant at its a-priori value (|θ₀| ≥ 2 σ: `identifiability.SIGNIFICANT`),
+the rule stage 2 applies at the estimate. A candidate 0 a priori is kept where its own bound is
+finite and the others stay significant, so none is fixed for being 0.
 """
 
 from __future__ import annotations
@@ -25,16 +34,16 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.identifiability import Identifiability, ScreenModel, Structural, assessed
+from testbed.analysis.identifiability import SIGNIFICANT, Identifiability, ScreenModel, Structural, assessed
 from testbed.data import Experiment, ModelConfig
 from testbed.estimators import Estimate
-from testbed.identification.bounds import NULL
+from testbed.identification.bounds import NULL, crlb
 from testbed.identification.likelihood import reduced
 from testbed.identification.nonlinear_output_error import information, pooled_noise, setup
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
 
-__all__ = ["NONLINEAR", "nonlinear_identifiability", "rank_tolerance"]
+__all__ = ["NONLINEAR", "forward", "nonlinear_identifiability", "rank_tolerance"]
 
 
 def rank_tolerance(H: np.ndarray, F: np.ndarray, samples: int, channels: int, substeps: int) -> float:
@@ -91,6 +100,45 @@ def nonlinear_identifiability(
     return assessed(free, theta[idx], F, struct, null)
 
 
+def forward(result: Identifiability) -> dict[str, str]:
+    """Stage 1 of a nonlinear model config's screen, name → why (module doc): the candidates no
+    measured state depends on, then those not kept by the forward selection over `result`'s
+    information (regular at `result.null`, every kept candidate ≠ 0 at least `SIGNIFICANT` σ
+    from 0 at its a-priori value), tried in order of |θ₀|/σ alone, those 0 a priori last."""
+    F, values, free = result.fisher, np.asarray(result.values, float), result.free
+    fixed = {n: "no fitted state depends on it" for n in result.structural.unobserved}
+    alone = np.abs(values) * np.sqrt(np.maximum(np.diag(F), 0.0))  # |θ₀| / σ with it alone free
+    order = sorted(
+        (i for i, n in enumerate(free) if n not in fixed), key=lambda i: (values[i] == 0, -alone[i])
+    )
+    kept: list[int] = []
+    for i in order:
+        chosen = kept + [i]
+        std = crlb(F[np.ix_(chosen, chosen)], result.null).std
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(np.isfinite(std), np.abs(values[chosen]) / std, 0.0)
+        weak = [k for k, j in enumerate(chosen) if values[j] != 0 and z[k] < SIGNIFICANT]
+        if np.all(np.isfinite(std)) and not weak:
+            kept.append(i)
+            continue
+        if not np.all(np.isfinite(std)):
+            with_it = [free[j] for j, sd in zip(kept, std) if not np.isfinite(sd)]
+            along = f"it and {', '.join(with_it)}, kept before it" if with_it else "it"
+            fixed[free[i]] = f"the Fisher information of these data is singular along {along}"
+        elif weak[-1] == len(kept):
+            fixed[free[i]] = (
+                f"its a-priori value is {z[-1]:.2g} σ from 0 with the candidates kept before it "
+                f"(below {SIGNIFICANT:g} σ)"
+            )
+        else:
+            other = free[chosen[weak[0]]]
+            fixed[free[i]] = (
+                f"with it {other}, kept before it, would be {z[weak[0]]:.2g} σ from 0 at its a-priori "
+                f"value (below {SIGNIFICANT:g} σ)"
+            )
+    return fixed
+
+
 def _check(experiments: Sequence[Experiment], config: ModelConfig) -> None:
     """`InputError` for what the nonlinear fit cannot take (`nonlinear_output_error.setup`)."""
     setup(config.fitted(experiments), config, "the screen of a nonlinear model config")
@@ -113,4 +161,4 @@ def _noise(config: ModelConfig, noise_std: Mapping[str, float]) -> ModelConfig:
     return replace(config, noise_std={c: s for c, s in noise_std.items() if s > 0})
 
 
-NONLINEAR = ScreenModel(check=_check, assess=_assess, information=_information)
+NONLINEAR = ScreenModel(check=_check, assess=_assess, information=_information, unidentified=forward)
