@@ -17,12 +17,10 @@ in the coloured σ (the honest one for residuals that are not white) and in % of
 value, and whether it is within max(3 σ, 10 %) of it; per channel the residual rms over the
 sensor's σ.
 
-Default free list, on seed 1's record at the captive values: for the component model, its
-component terms chosen one at a time, the best determined first, each kept while every chosen
-term's relative Cramér-Rao bound stays below `--level` (default 0.15; `forward_free`: the blades
-come in near-copies no record tells apart, and with all 23 free every bound is infinite); for
-the polynomial terms, the 19 slope terms (`slope_terms`) and the cross-flow terms whose bound
-with all 102 free is below `--level`.
+Default free list, on seed 1's record at the captive values: for the component model, what the
+screen (`identifiability.screening` with `NONLINEAR`, as `testbed identify --config` runs it)
+frees of its 23 component terms; for the polynomial terms, the 19 slope terms (`slope_terms`)
+and the cross-flow terms whose bound with all 102 free is below `--level`.
 
 Held-out manoeuvres inside Scenario I's region (±20 °/s of yaw rate, sway within ±0.5 m/s):
 a turning circle, the rudder stepped to `--rudder` rad (default 0.015: an 18.9 °/s, 112 m turn)
@@ -55,14 +53,13 @@ from pathlib import Path
 import numpy as np
 
 from testbed.analysis.manoeuvres import experiment_metrics
-from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
+from testbed.analysis.identifiability import screening
+from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_identifiability
 from testbed.analysis.regime import open_loop
 from testbed.analysis.track import record_track
 from testbed.data import Experiment, ModelConfig, load_data, read_csv
 from testbed.errors import InputError, atomic_write_text, check_output_directory, check_output_file
 from testbed.estimators import Estimate, identify
-from testbed.identification.bounds import crlb
-from testbed.identification.nonlinear_output_error import information, records, start_states
 from testbed.identification.nonlinear_prediction import predict
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
@@ -104,12 +101,16 @@ def check_out(out: Path, seeds: int, force: bool) -> None:
 
 
 def default_free(config: ModelConfig, record: Experiment, level: float) -> tuple[str, ...]:
-    """The free list (module doc): for the polynomial terms, the slope terms and the other terms
-    whose Cramér-Rao bound with all terms free, at the config's values on `record`, is below
-    `level` × |value|; for the component model, `forward_free`."""
+    """The free list (module doc): for the component model, what the screen frees of its
+    candidates on `record` at the config's values; for the polynomial terms, the slope terms and
+    the other terms whose Cramér-Rao bound with all terms free, at the config's values on
+    `record`, is below `level` × |value|."""
     terms = tuple(config.terms)
     if config.components:
-        return forward_free(config, record, level)
+        screen = screening([record], config, model=NONLINEAR)
+        for n, why in screen.fixed.items():
+            print(f"  screen fixes {n:24s} {why}", file=sys.stderr)
+        return screen.config.free
     slopes = slope_terms(terms)
     idf = nonlinear_identifiability([record], replace(config, free=terms))
     relative = idf.crlb_std / np.abs(idf.values)
@@ -117,35 +118,6 @@ def default_free(config: ModelConfig, record: Experiment, level: float) -> tuple
     for r, n in ranked:
         print(f"  {n:12s} relative Cramér-Rao bound {r:.3f}", file=sys.stderr)
     return slopes + tuple(n for _, n in ranked)
-
-
-def forward_free(config: ModelConfig, record: Experiment, level: float) -> tuple[str, ...]:
-    """The component model's candidates (`config.free`) chosen one at a time, the best determined
-    alone first: each is kept while every chosen term's Cramér-Rao bound, with the chosen ones
-    and the record's initial state free at the config's values and the sensors' noise, stays
-    below `level` × |value|. The candidates come in near-copies (the two rudder blades, blunt
-    and slender drag of one blade) that no record tells apart, where the bound with all of them
-    free is infinite for every one: this keeps one of each such set."""
-    channels, recs = records([record])
-    model, theta = config.nonlinear()
-    ch = [STATES.index(c) for c in channels]
-    R = np.array([NOISE_STD[c] ** 2 for c in channels])
-    candidates = list(config.free)
-    H, _ = information(model, theta, start_states(model, recs, ch), recs, channels, candidates, R)
-    values = np.abs([config.terms[n] for n in candidates])
-    states = list(range(len(candidates), len(H)))
-
-    def relative(chosen):
-        idx = chosen + states
-        return crlb(H[np.ix_(idx, idx)]).std[: len(chosen)] / values[chosen]
-
-    chosen = []
-    for i in sorted(range(len(candidates)), key=lambda i: relative([i])[0]):
-        if np.all(relative(chosen + [i]) < level):
-            chosen.append(i)
-    for i, r in zip(chosen, relative(chosen)):
-        print(f"  {candidates[i]:24s} relative Cramér-Rao bound {r:.3f}", file=sys.stderr)
-    return tuple(candidates[i] for i in chosen)
 
 
 def scenario_files(out: Path, rudder: float, switch: float) -> dict[str, Path]:
@@ -338,7 +310,8 @@ def main(argv=None) -> int:
         "--level",
         type=float,
         default=0.15,
-        help="the relative Cramér-Rao bound below which the default free list takes a term (module doc)",
+        help="the polynomial model's default free list: the relative Cramér-Rao bound below which it "
+        "takes a cross-flow term (module doc)",
     )
     ap.add_argument("--rudder", type=float, default=0.015, help="the held-out manoeuvres' rudder, rad")
     ap.add_argument("--switch", type=float, default=15.0, help="the zigzag's switching heading, degrees")
