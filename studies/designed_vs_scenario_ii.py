@@ -28,7 +28,7 @@ from testbed.jobs import identify_data
 from testbed.identification.prediction import predict
 from testbed.models.linear import STATES
 from testbed.simulation.runs import simulate
-from testbed.analysis.validation import fit_percent
+from testbed.fit_percent import fit_percent
 
 
 def lowest_fit(run: Path) -> tuple[str, float]:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from testbed.analysis.validation import fit_percent
+from testbed.fit_percent import fit_percent
 from testbed.data import read_csv
 from testbed.errors import InputError
 from testbed.models.nonlinear import (

@@ -17,7 +17,7 @@ from pathlib import Path
 import testbed
 
 LAYERS = [
-    ("testbed.errors", "testbed.memory", "testbed.threads"),
+    ("testbed.errors", "testbed.memory", "testbed.threads", "testbed.fit_percent"),
     ("testbed.models", "testbed.models.linear"),
     ("testbed.models.sensors",),
     ("testbed.models.component_kernels",),

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from testbed.analysis.validation import fit_percent
+from testbed.fit_percent import fit_percent
 from testbed.data import read_csv
 from testbed.models.nonlinear import INERTIA, linearise, nonlinear_model, theta_vector
 from testbed.models.nonlinear_flight import fly

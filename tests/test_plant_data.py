@@ -12,7 +12,7 @@ from testbed.estimators import identify
 from testbed.identification.prediction import predict
 from testbed.models.linear import STATES
 from testbed.simulation.runs import simulate
-from testbed.analysis.validation import fit_percent
+from testbed.fit_percent import fit_percent
 
 # The channels each experiment is designed to excite.
 EXCITED = {"horizontal": ("v", "r", "psi"), "vertical": ("w", "q", "theta", "z"), "roll": ("p", "phi")}

@@ -61,6 +61,7 @@ from scipy.optimize import least_squares
 from testbed.analysis.kinematics import attitude_filter, attitudes, depth_filter
 from testbed.data import MAX_DATA, Experiment, read_json
 from testbed.errors import InputError
+from testbed.fit_percent import fit_percent
 from testbed.simulation.measurements import noise_from_data
 
 __all__ = [
@@ -626,12 +627,11 @@ def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
     innovations = np.concatenate([e for e, *_ in fit._parts(x, free, jac=False)])
     quality = {}
     for j, c in enumerate(check.outputs):
-        spread = np.linalg.norm(y[:, j] - y[:, j].mean())
         error = np.linalg.norm(y[:, j] - yhat[:, j])
         quality[c] = {
             "noise_std": float(math.sqrt(records[0].R[j])),
             "residual_std": float(error / math.sqrt(len(y))),
-            "fit_percent": float(100 * (1 - error / spread)) if spread > 0 else None,
+            "fit_percent": None if math.isnan(fit := fit_percent(y[:, j], yhat[:, j])) else fit,
             "innovation_rms": float(np.sqrt(np.mean(innovations[:, j] ** 2))),
         }
     return Reconstruction(

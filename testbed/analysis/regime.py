@@ -17,7 +17,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.validation import fit_percent
+from testbed.fit_percent import fit_percent
 from testbed.data import MIN_NOISE_STD, Experiment, ModelConfig, read_config, read_csv, run_csvs
 from testbed.errors import InputError
 from testbed.identification.prediction import predict

@@ -24,29 +24,15 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
+from testbed.fit_percent import fit_percent
 from testbed.identification import nonlinear_prediction
 from testbed.identification.prediction import predict
 
-__all__ = [
-    "CONFIDENCE",
-    "ChannelMetrics",
-    "Validation",
-    "Whiteness",
-    "chi2_sf",
-    "fit_percent",
-    "validate",
-    "whiteness",
-]
+__all__ = ["CONFIDENCE", "ChannelMetrics", "Validation", "Whiteness", "chi2_sf", "validate", "whiteness"]
 
 LAGS = 25  # autocorrelation lags tested (0.5 s at 50 Hz: beyond the torpedo's fast modes)
 CONFIDENCE = 2.576  # 99 % two-sided normal quantile
 WHITE_P = 0.01  # Ljung-Box p-value at or above which a residual counts as white
-
-
-def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
-    """`100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖)`; NaN for a channel that does not vary."""
-    spread = float(np.linalg.norm(y - y.mean()))
-    return 100.0 * (1.0 - float(np.linalg.norm(y - yhat)) / spread) if spread > 0 else float("nan")
 
 
 @dataclass(frozen=True)

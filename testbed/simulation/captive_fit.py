@@ -31,6 +31,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.errors import InputError
+from testbed.fit_percent import fit_percent
 from testbed.models import linear, nonlinear
 from testbed.models.mechanics import coriolis
 from testbed.models.regressors import ROWS
@@ -200,8 +201,5 @@ def _surfaces(measurements, residual, scale) -> tuple[SurfaceFit, ...]:
 
 
 def _fit(y, residual, scale: float) -> float:
-    """100 (1 − ‖residual‖/‖y − ȳ‖); nan where y varies by no more than rounding of `scale`."""
-    spread = float(np.linalg.norm(y - y.mean()))
-    if spread <= 1e-9 * scale * math.sqrt(len(y)):
-        return math.nan
-    return 100.0 * (1.0 - float(np.linalg.norm(residual)) / spread)
+    """`fit_percent` of y and y − residual; NaN where y varies by no more than rounding of `scale`."""
+    return fit_percent(y, y - residual, 1e-9 * scale * math.sqrt(len(y)))

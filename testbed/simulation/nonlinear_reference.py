@@ -15,11 +15,11 @@ accelerations the fitted model predicts against the plant's, the same measure pe
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from testbed.fit_percent import fit_percent
 from testbed.models import nonlinear
 from testbed.models.linear import NU, NX
 from testbed.models.regressors import ROWS
@@ -80,8 +80,8 @@ def fit_terms(model: nonlinear.NonlinearModel, inertia: dict[str, float], x, del
     predicted = nonlinear.rates(model, theta, x, delta)[:, :6]
     return FitQuality(
         coefficients={t.name: float(v) for t, v in zip(model.terms, c)},
-        force_fit={ROWS[r]: _fit(y[:, r], residual[:, r]) for r in range(6)},
-        acceleration_fit={ROWS[r]: _fit(nudot[:, r], nudot[:, r] - predicted[:, r]) for r in range(6)},
+        force_fit={ROWS[r]: fit_percent(y[:, r], y[:, r] - residual[:, r]) for r in range(6)},
+        acceleration_fit={ROWS[r]: fit_percent(nudot[:, r], predicted[:, r]) for r in range(6)},
         force_rms={ROWS[r]: float(np.sqrt(np.mean(residual[:, r] ** 2))) for r in range(6)},
         samples=len(x),
     )
@@ -96,8 +96,3 @@ def fit_plant(
     nudot = plant_rates(plant, x, delta)
     plant.reset(model.vehicle.speed)
     return fit_terms(model, inertia, x, delta, nudot)
-
-
-def _fit(y, residual) -> float:
-    spread = float(np.linalg.norm(y - y.mean()))
-    return 100.0 * (1.0 - float(np.linalg.norm(residual)) / spread) if spread > 0 else math.nan
