@@ -8,9 +8,9 @@ captive reference's terms (`testbed captive`'s at 20 m/s), its 19 terms with a s
 `N_r|r|` free (20 coefficients), started from the captive values, every record's initial state
 free (`identification.nonlinear_output_error.fit_output_error`, RK4 with 4 steps per sample).
 The component model (`testbed captive`'s default: the hull's and fin blades' forces at their own
-flow) is fitted the same way, its 14 terms the study frees (`studies/nonlinear_scenario_i.py`:
-the four blades' lift and blunt drag, the hull's blunt, slender and angular drag, three blades'
-Munk terms) free, from the captive values each moved by exp(±0.2) (alternating), with
+flow) is fitted the same way, 14 of its terms free (the stricter list of docs/studies.md, whose
+relative Cramér-Rao bounds stay below 15 %: the four blades' lift and blunt drag, the hull's
+blunt, slender and angular drag, three blades' Munk terms), from the captive values each moved by exp(±0.2) (alternating), with
 `fit_output_error`'s default tolerance. The reference measured in the same run is `ml-gn`
 fitting the linear model to the same record from the analytic model (the run's model.toml, its
 default free set). Each is timed as the best
@@ -52,7 +52,7 @@ from testbed.simulation.vehicle import constants, load_model  # noqa: E402
 GOAL = 30.0  # s, one fit on one core
 SPEED = 20.0
 EXTRA = ("N_r|r|",)  # freed beside the slope terms: 20 coefficients
-# the component model's terms the study frees on Scenario I (14)
+# 14 of the component model's terms, each determined on Scenario I within 15 % (docs/studies.md)
 COMPONENT_FREE = tuple(
     f"{kind}@{part}"
     for kind, parts in (
