@@ -190,7 +190,7 @@ def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identif
     from testbed.data import load_data, read_config
     from testbed.identification.prediction import predict
     from testbed.models.linear import STATES
-    from testbed.analysis.validation import fit_percent
+    from testbed.fit_percent import fit_percent
 
     designed = tmp_path / "designed.toml"
     assert main(["design", "--out", str(designed), "--rrd", str(tmp_path / "design.rrd")]) == 0
