@@ -556,6 +556,61 @@ def corpus(root: Path) -> list[Case]:
         broken["identify"] = {"free": free or []}
         argv = ("analyze", "data", "--config", "bad.toml")
         cases.append(Case(f"config terms {label}", argv, (("bad.toml", toml_text(broken).encode()),)))
+    blade = {
+        "axes": [0.1, 0.11, 0.05],
+        "centre": [-1.15, 0.0, -0.17],
+        "frame": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]],
+        "moments": [3.7e-05, 2.8e-05, 1.9e-05],
+        "density": 1025.0,
+        "added_mass": [0.76, 0.65, 2.77, 0.0029, 0.0021, 4.0e-05],
+        "fin": "dr",
+        "hinge": [-1.15, 0.0, 0.0],
+        "hinge_axis": [0.0, 0.0, 1.0],
+    }
+    for label, field, value in (
+        ("good", None, None),
+        ("axes short", "axes", [0.1, 0.11]),
+        ("axes negative", "axes", [0.1, -0.11, 0.05]),
+        ("axes text", "axes", ["a", 0.11, 0.05]),
+        ("centre nan", "centre", [float("nan"), 0.0, 0.0]),
+        ("frame not a rotation", "frame", [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 1.0]]),
+        ("frame 2 rows", "frame", [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+        ("moments negative", "moments", [-1.0, 0.0, 0.0]),
+        ("density 0", "density", 0.0),
+        ("added mass short", "added_mass", [1.0, 1.0]),
+        ("fin unknown", "fin", "dx"),
+        ("hinge axis 0", "hinge_axis", [0.0, 0.0, 0.0]),
+        ("unknown field", "colour", "red"),
+        ("not a table", "", 1.0),
+    ):
+        component = dict(blade) if field is None else blade | {field: value}
+        if field == "":
+            component = value
+        for terms, name in (
+            ({"lift@blade": 1.0, "blunt@blade": 0.04}, "blade"),
+            ({"drag@blade": 1.0}, "blade"),
+            ({"lift@nope": 1.0}, "blade"),
+            ({"lift@blade": 1.0}, ".blade"),
+        ):
+            if label != "good" and terms != {"lift@blade": 1.0, "blunt@blade": 0.04}:
+                continue
+            broken = json.loads(json.dumps(doc))
+            broken["coefficients"] = inertia
+            broken["terms"] = terms
+            broken["components"] = {name: component}
+            broken["identify"] = {"free": list(terms)}
+            which = f"{label}, {', '.join(terms)} on {name}"
+            for argv in (
+                ("analyze", "data", "--config", "bad.toml"),
+                ("identify", "data", "--config", "bad.toml", "--out", "out/e.json", *fit),
+            ):
+                cases.append(
+                    Case(
+                        f"config components {which} ({argv[0]})",
+                        argv,
+                        (("bad.toml", toml_text(broken).encode()),),
+                    )
+                )
     text = (root / "cfg.toml").read_bytes()
     for label, blob in (
         ("empty", b""),
