@@ -45,12 +45,12 @@ STEP_TOL = 1e-6  # stop when every step is below this fraction of its coefficien
 def _intervals(records: Sequence[Record], channels: Sequence[str]):
     """(ν̇, x̄, δ) over every record's sample intervals: the measured states' difference quotient,
     their midpoint (the states the rows do not involve at 0) and the held fins."""
-    ch = [STATES.index(c) for c in channels]
+    to = [STATES.index(c) for c in NEEDED]
+    source = [list(channels).index(c) for c in NEEDED]
     nudot, xbar, fins = [], [], []
     for r in records:
         x = np.zeros((len(r.t), len(STATES)))
-        x[:, ch] = r.y
-        x[:, [STATES.index(c) for c in STATES if c not in NEEDED]] = 0.0
+        x[:, to] = r.y[:, source]
         nudot.append(np.diff(x[:, :ROWS], axis=0) / np.diff(r.t)[:, None])
         xbar.append(0.5 * (x[1:] + x[:-1]))
         fins.append(r.fins[:-1])
@@ -60,8 +60,8 @@ def _intervals(records: Sequence[Record], channels: Sequence[str]):
 def equation_error(
     model: NonlinearModel, theta, records: Sequence[Record], channels: Sequence[str], free: Sequence[str]
 ) -> np.ndarray:
-    """θ with its `free` coefficients (names from `model.names`) fitted to the records' smoothed
-    derivatives from `theta` (module doc); `InputError` naming the states the rows need that the
+    """θ with its `free` coefficients (names from `model.names`) fitted to the records' difference
+    quotients from `theta` (module doc); `InputError` naming the states the rows need that the
     records do not measure."""
     missing = [c for c in NEEDED if c not in channels]
     if missing:
