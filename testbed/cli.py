@@ -228,9 +228,9 @@ def _cmd_identify(args) -> int:
         )
     if done.comparison is not None:
         print(done.comparison.table(), file=sys.stderr)
-    width = max(map(len, done.fixed), default=0)
+    width = max([11, *map(len, done.fixed)])
     for n, why in done.fixed.items():
-        print(f"{n:<{max(width, 11)}} fixed at {done.config.values[n]:.4g}: {why}", file=sys.stderr)
+        print(f"{n:<{width}} fixed at {done.config.values[n]:.4g}: {why}", file=sys.stderr)
     if done.screen and not done.fixed:
         print(
             f"testbed identify: estimated as listed; the screen would fix {', '.join(done.screen)} "
