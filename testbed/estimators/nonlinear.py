@@ -60,6 +60,7 @@ from testbed.identification.nonlinear_output_error import (
     fit_output_error,
     neg_log_likelihood,
     pooled_noise,
+    present_only,
     residuals,
     setup,
     start_states,
@@ -195,7 +196,7 @@ def simplex(
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
     with counting() as ranked:  # the starts' flights, counted with the fit's
         label, theta = _start(options.start, model, theta, recs, channels, config.free, held)
-    nf, N = len(idx), sum(len(r.t) for r in recs)
+    nf, N = len(idx), int(sum(np.sum(~np.isnan(r.y).all(axis=1)) for r in recs))  # the samples
     max_iter = 500 * nf if options.max_iter is None else options.max_iter
     scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # θ[free] = scale·x
     history = [theta[idx].copy()]
@@ -237,6 +238,7 @@ def simplex(
                 return np.inf
             total = 0.0
             for e, S in zip(res, sens):
+                e, S = present_only(e, S)
                 W = S / R[:, None]
                 d = np.linalg.lstsq(np.einsum("nci,ncj->ij", W, S), np.einsum("nci,nc->i", W, e), rcond=None)[
                     0

@@ -4,7 +4,8 @@ difference quotients, with no flight, so no basin of attraction and no divergenc
 Every row of `M ν̇ = F(ν, η, δ; θ)` is linear in the terms' coefficients, and only M's inertia
 coefficients and the Munk terms enter through M⁻¹. Over each sample interval, where the fin
 angles are held, the measured states' difference quotient ν̇ ≈ Δν/Δt is compared with the
-model's rates at the interval's midpoint x̄:
+model's rates at the interval's midpoint x̄ (over a missing sample, the interval runs between
+the samples present either side, with the fins' mean over it):
 
     e(θ) = Δν/Δt − f_ν(x̄, δ; θ)
 
@@ -43,17 +44,23 @@ STEP_TOL = 1e-6  # stop when every step is below this fraction of its coefficien
 
 
 def _intervals(records: Sequence[Record], channels: Sequence[str]):
-    """(ν̇, x̄, δ) over every record's sample intervals: the measured states' difference quotient,
-    their midpoint (the states the rows do not involve at 0) and the held fins."""
+    """(ν̇, x̄, δ) over every record's intervals between consecutive samples where the rows'
+    states are all present: the measured states' difference quotient, their midpoint (the states
+    the rows do not involve at 0) and the fins' mean over the interval (the fins held at each
+    row, so the rows' fins where every sample is present)."""
     to = [STATES.index(c) for c in NEEDED]
     source = [list(channels).index(c) for c in NEEDED]
     nudot, xbar, fins = [], [], []
     for r in records:
-        x = np.zeros((len(r.t), len(STATES)))
-        x[:, to] = r.y[:, source]
-        nudot.append(np.diff(x[:, :ROWS], axis=0) / np.diff(r.t)[:, None])
+        rows = np.flatnonzero(~np.isnan(r.y[:, source]).any(axis=1))
+        x = np.zeros((len(rows), len(STATES)))
+        x[:, to] = r.y[rows][:, source]
+        span = np.diff(r.t[rows])
+        nudot.append(np.diff(x[:, :ROWS], axis=0) / span[:, None])
         xbar.append(0.5 * (x[1:] + x[:-1]))
-        fins.append(r.fins[:-1])
+        # ∫ δ dt from the first row to each row: the held fins times the rows' steps
+        integral = np.concatenate([np.zeros((1, 3)), np.cumsum(r.fins[:-1] * np.diff(r.t)[:, None], axis=0)])
+        fins.append(np.diff(integral[rows], axis=0) / span[:, None])
     return np.concatenate(nudot), np.concatenate(xbar), np.concatenate(fins)
 
 

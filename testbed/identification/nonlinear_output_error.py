@@ -3,7 +3,9 @@ initial state fitted to measured states by a damped Gauss-Newton (Levenberg-Marq
 
 The outputs are the measured states of the simulated trajectory (`nonlinear_sensitivities.flight`),
 the noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
-records. As for the linear model (`likelihood`), the likelihood is minimised by relaxation: R is
+records. A missing sample (NaN: a sensor slower than the fins are logged, a dropout) is left
+out of every sum, its residual NaN and its rows of J zero; the flight goes through it with the
+fins of every row, so fins logged faster than the states move the model as they moved the body. As for the linear model (`likelihood`), the likelihood is minimised by relaxation: R is
 set to the residuals' mean square per channel (or held where `noise_std` gives it), then held
 while the parameters step on `½ Σ eᵀ R⁻¹ e`. The step solves the Gauss-Newton normal equations
 `(H + λ diag H) Δ = g`, `H = Σ Jᵀ R⁻¹ J`, `g = Σ Jᵀ R⁻¹ e`, J the outputs' exact sensitivities;
@@ -50,6 +52,7 @@ __all__ = [
     "information",
     "neg_log_likelihood",
     "pooled_noise",
+    "present_only",
     "records",
     "residuals",
     "setup",
@@ -64,7 +67,8 @@ SHORTEST = 25  # samples: records the start's flight overflows are halved down t
 @dataclass(frozen=True)
 class Record:
     """One record: sample times (N,), fin angles (N, 3) held per sample, and the measured
-    states (N, C) in the fit's channels' order, every sample present."""
+    states (N, C) in the fit's channels' order, NaN where a sample is missing (a sensor slower
+    than the fins are logged, a dropout)."""
 
     t: np.ndarray
     fins: np.ndarray
@@ -90,7 +94,7 @@ def records(
 ) -> tuple[tuple[str, ...], list[Record]]:
     """The measured channels (every record's, the same) and the `Record` of each experiment;
     `InputError` naming the record and the `fit` that needs them for records measuring different
-    states or with a sample missing."""
+    states."""
     channels = experiments[0].measured
     for e in experiments:
         where = e.source or e.name
@@ -98,13 +102,6 @@ def records(
             raise InputError(
                 f"{where}: measures {', '.join(e.measured)}, {experiments[0].source or experiments[0].name} "
                 f"{', '.join(channels)}; {fit} takes records measuring the same states"
-            )
-        gaps = np.argwhere(np.isnan(e.y))
-        if len(gaps):
-            row, column = gaps[0]
-            raise InputError(
-                f"{where}: {e.measured[column]} is missing at t = {e.t[row]:g} s; {fit} takes records "
-                "with every sample present"
             )
     return channels, [Record(t=e.t, fins=e.inputs, y=e.y) for e in experiments]
 
@@ -153,56 +150,70 @@ def _check(model, records, channels, free, noise_std, tolerance, max_iterations)
         raise InputError("records: none given; expected one or more")
     for i, r in enumerate(records):
         n = len(r.t)
-        if r.fins.shape != (n, NU) or r.y.shape != (n, len(channels)) or not np.all(np.isfinite(r.y)):
+        if r.fins.shape != (n, NU) or r.y.shape != (n, len(channels)) or np.any(np.isinf(r.y)):
             raise InputError(
                 f"record {i}: fins {r.fins.shape}, y {r.y.shape}; expected ({n}, {NU}) and "
-                f"({n}, {len(channels)}) finite measurements"
+                f"({n}, {len(channels)}) finite measurements (NaN where missing)"
             )
 
 
 def _simulate(model, theta, x0, records, ch, substeps):
-    """Each record's flown states (N, 10) and residuals (N, C); (None, None) where a flight does
-    not stay finite. Tallied as simulated samples (`recursions.counting`)."""
+    """Each record's flown states (N, 10) and residuals (N, C), NaN where the sample is missing;
+    (None, None) where a flight does not stay finite. Tallied as simulated samples
+    (`recursions.counting`)."""
     flown, res = [], []
     with np.errstate(all="ignore"):
         for r, x in zip(records, x0):
             states = fly(model, theta, r.t, x, r.fins, substeps)
             simulated(len(r.t))
-            e = r.y - states[:, ch]
-            if not np.all(np.isfinite(e)):
+            if not np.all(np.isfinite(states[:, ch])):
                 return None, None
             flown.append(states)
-            res.append(e)
+            res.append(r.y - states[:, ch])
     return flown, res
 
 
 def residuals(model: NonlinearModel, theta, x0: np.ndarray, records: Sequence[Record], ch, substeps: int = 4):
-    """Each record's residuals (N, C) in the state columns `ch`, flown from its row of `x0`
-    (records, 10); None where a flight does not stay finite. Tallied as `_simulate`'s."""
+    """Each record's residuals (N, C) in the state columns `ch` (NaN where the sample is
+    missing), flown from its row of `x0` (records, 10); None where a flight does not stay finite.
+    Tallied as `_simulate`'s."""
     return _simulate(model, theta, x0, records, ch, substeps)[1]
 
 
 def start_states(model: NonlinearModel, records: Sequence[Record], ch) -> np.ndarray:
     """(records, 10): each record's first sample in its measured state columns `ch`, straight
-    flight at the vehicle's speed in the others."""
+    flight at the vehicle's speed in the others and where the first sample is missing."""
     x0 = np.zeros((len(records), NX))
     x0[:, 0] = model.vehicle.speed
-    x0[:, ch] = [r.y[0] for r in records]
+    first = np.array([r.y[0] for r in records])
+    x0[:, ch] = np.where(np.isnan(first), x0[:, ch], first)
     return x0
 
 
 def pooled_noise(res: Sequence[np.ndarray], held: np.ndarray) -> np.ndarray:
-    """R per channel: the residuals' mean square over every record's samples, or `held` where it
-    is not NaN (a given noise variance)."""
-    R = sum(np.sum(e**2, axis=0) for e in res) / sum(len(e) for e in res)
+    """R per channel: the residuals' mean square over every record's samples present, or `held`
+    where it is not NaN (a given noise variance)."""
+    R = sum(np.nansum(e**2, axis=0) for e in res) / np.maximum(_counts(res), 1)
     return np.where(np.isnan(held), np.maximum(R, 1e-30), held)
 
 
+def _counts(res: Sequence[np.ndarray]) -> np.ndarray:
+    """N_c: the samples present per channel over the records' residuals (NaN where missing)."""
+    return sum(np.sum(~np.isnan(e), axis=0) for e in res)
+
+
+def present_only(e: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals `e` (N, C) and sensitivities `S` (N, C, p) with every missing sample's (NaN in
+    `e`) set to 0: sums over them then take the samples present only."""
+    missing = np.isnan(e)
+    return np.where(missing, 0.0, e), np.where(missing[:, :, None], 0.0, S)
+
+
 def neg_log_likelihood(res: Sequence[np.ndarray], R: np.ndarray) -> float:
-    """−ln p(Z | θ, R) = ½ Σ_c N_c ln 2π R_c + ½ Σ eᵀR⁻¹e over the records' residuals."""
-    counts = sum(len(e) for e in res)
-    return 0.5 * float(counts * np.sum(np.log(2 * np.pi * R))) + 0.5 * sum(
-        float(np.sum(e**2 / R)) for e in res
+    """−ln p(Z | θ, R) = ½ Σ_c N_c ln 2π R_c + ½ Σ eᵀR⁻¹e over the records' residuals present
+    (NaN where missing)."""
+    return 0.5 * float(np.sum(_counts(res) * np.log(2 * np.pi * R))) + 0.5 * sum(
+        float(np.nansum(e**2 / R)) for e in res
     )
 
 
@@ -293,7 +304,7 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
         return th, x
 
     def weighted(res, R):
-        return 0.5 * sum(float(np.sum(e**2 / R)) for e in res)
+        return 0.5 * sum(float(np.nansum(e**2 / R)) for e in res)
 
     q = np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []])
     flown, res = _simulate(model, *unpack(q), records, ch, substeps)
@@ -368,12 +379,12 @@ def _linearisation(model, theta, x0, records, channels, free, substeps):
 
 
 def _normal_equations(res, sens, R, free_initial):
-    """H = Σ Jᵀ R⁻¹ J and g = Σ Jᵀ R⁻¹ e over the records, the columns [θ[free] | each record's
-    measured initial states] (the latter only when free)."""
+    """H = Σ Jᵀ R⁻¹ J and g = Σ Jᵀ R⁻¹ e over the records' samples present, the columns
+    [θ[free] | each record's measured initial states] (the latter only when free)."""
     P = _columns(res, sens, free_initial)
     H, g = np.zeros((P, P)), np.zeros(P)
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
-        J = _jacobian(i, St, Sx, P, free_initial)
+        e, J = present_only(e, _jacobian(i, St, Sx, P, free_initial))
         W = J / R[:, None]
         H += np.einsum("nci,ncj->ij", W, J)
         g += np.einsum("nci,nc->i", W, e)
@@ -417,7 +428,12 @@ def coloured_bounds(
     p, P, scale = len(free), len(H), np.sqrt(R)
     total = np.zeros((p, p))
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
-        Z = (_jacobian(i, St, Sx, P, True) / scale[:, None]) @ cov[:p].T
-        total += colored_term(Z, e / scale)
+        # the rows with no sample (fins logged between the samples) left out: the residuals'
+        # autocorrelation is over the samples, its lags counted in them
+        rows = ~np.isnan(e).all(axis=1)
+        missing = np.isnan(e[rows])
+        e, J = present_only(e[rows], _jacobian(i, St[rows], Sx[rows], P, True))
+        Z = (J / scale[:, None]) @ cov[:p].T
+        total += colored_term(Z, e / scale, ~missing if missing.any() else None)
     coloured = np.where(np.isinf(std[:p]), np.inf, np.sqrt(np.maximum(np.diag(total), 0.0)))
     return std[:p], coloured, res
