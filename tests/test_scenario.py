@@ -23,7 +23,7 @@ from testbed.models.linear import IX
 from testbed.simulation.analytic import analytic_model
 from testbed.simulation.autopilot import Autopilot
 from testbed.simulation.trial import parse_trial
-from testbed.simulation.vehicle import load_model
+from testbed.simulation.vehicle import fin_limits, fin_rate_limit, load_model
 
 
 def _short(name, duration):
@@ -531,3 +531,69 @@ def test_kill_leaves_nothing(tmp_path, monkeypatch):
     monkeypatch.setattr(sc, "fly", killed)
     assert main(["simulate", "--scenario", "II", "--quiet", "--out", str(tmp_path / "run")]) == 130
     assert list(tmp_path.iterdir()) == []  # no run directory, no temporary one
+
+
+def test_fins_logged_at_the_physics_rate_are_the_servos_steps_between_the_samples(tmp_path):
+    """Scenario I with `[sensors] fin_rate = 100`: the same flight and sensor noise as at its
+    50 Hz; the truth's fins at every 10 ms the servo's staircase replayed from the autopilots'
+    commands (each physics step toward the clipped command by at most the rate limit × 10 ms),
+    each pair's mean the 50 Hz record's interval mean; the run's CSV a row every 10 ms, the
+    states empty between the samples, read back as missing."""
+    s = _short("I", 3.0)
+    fine = replace(s, sensors=replace(s.sensors, fin_rate=100.0))
+    assert sc.parse_scenario(tomllib.loads(sc.scenario_text(fine)), fine.source) == fine
+    (f,), _ = sc.fly_scenario(s, seed=3)
+    (g,), _ = sc.fly_scenario(fine, seed=3)
+    assert f.fin_log is None and np.array_equal(g.measured, f.measured) and np.array_equal(g.truth, f.truth)
+    log = g.fin_log
+    assert len(log.t) == 2 * len(f.t) - 1 and np.allclose(log.t[::2], f.t)
+    np.testing.assert_allclose(log.truth[::2], f.truth, atol=1e-9)
+    np.testing.assert_allclose(0.5 * (log.fins[:-1:2] + log.fins[1::2]), f.fins[:-1], atol=1e-12)
+    model = load_model()
+    limits, slew = fin_limits(model).angle, fin_rate_limit(model) * model.opt.timestep
+    commands = np.column_stack([g.commands[k] for k in sc.FIN_COMMANDS])
+    reference, replayed = np.zeros(3), []
+    for command in commands[:-1]:
+        for _ in range(2):
+            gap = np.clip(command, -limits, limits) - reference
+            reference = reference + np.clip(gap, -slew, slew)
+            replayed.append(reference)
+    np.testing.assert_allclose(log.fins[:-1], replayed, atol=1e-12)
+    assert np.abs(log.fins[1:-1:2] - log.fins[:-1:2]).max() > 0.5 * slew  # the servo slewed within samples
+    run = runs.simulate(fine, seed=3, out=tmp_path / "run")
+    (e,), _ = load_data([run])
+    assert np.allclose(e.t, log.t)
+    np.testing.assert_allclose(e.inputs, log.measured, rtol=1e-9, atol=1e-15)
+    assert np.isnan(e.y[1::2]).all() and not np.isnan(e.y[::2]).any()
+    truth = np.loadtxt(run / "scenario-I.truth.csv", delimiter=",", skiprows=1)
+    assert len(truth) == len(log.t) and not np.isnan(truth).any()
+
+
+@pytest.mark.parametrize(
+    "sensors, words",
+    [
+        ({"fin_rate": 75.0}, "sensors.fin_rate = 75 Hz; expected a whole multiple of the control rate 50 Hz"),
+        ({"fin_rate": 150.0}, "sensors.fin_rate = 150 Hz; expected it to divide the physics rate 100 Hz"),
+        ({"fin_rate": -1.0}, "fin_rate -1.0; expected a finite number > 0 (Hz)"),
+    ],
+)
+def test_a_fin_rate_the_plant_cannot_log_is_a_one_line_error(tmp_path, capsys, sensors, words):
+    path = tmp_path / "bad.toml"
+    path.write_text(
+        "[sensors]\n" + "".join(f"{k} = {v}\n" for k, v in sensors.items()) + "[[experiment]]\nname = 'x'\n"
+    )
+    assert main(["simulate", "--scenario", str(path), "--quiet", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and words in err and "bad.toml" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_fin_rate_with_a_trial_is_refused():
+    with pytest.raises(InputError, match=r"sensors.fin_rate with named sensors or a \[trial\]") as e:
+        sc.parse_scenario(
+            tomllib.loads(
+                "[sensors]\nfin_rate = 100.0\n[trial]\ncurrent = [0.1, 0.0, 0.0]\n[[experiment]]\nname = 'x'\n"
+            ),
+            "t.toml",
+        )
+    assert "\n" not in str(e.value)

@@ -61,15 +61,18 @@ FIN_NOISE_STD = 2e-5
 
 @dataclass(frozen=True)
 class Sensors:
-    """Sample rate and per-channel noise (standard deviations, SI)."""
+    """Sample rate, per-channel noise (standard deviations, SI) and the fins' log rate."""
 
     rate: float = 50.0  # Hz
     noise_std: Mapping[str, float] = field(default_factory=lambda: dict(NOISE_STD))
     fin_std: float = FIN_NOISE_STD
+    fin_rate: float | None = None  # Hz: the fin angles logged this often (None: at `rate`)
 
     def __post_init__(self):
         if not 0 < self.rate < math.inf:
             raise InputError(f"sample rate {self.rate}; expected a finite number > 0 (Hz)")
+        if self.fin_rate is not None and not 0 < self.fin_rate < math.inf:
+            raise InputError(f"fin_rate {self.fin_rate}; expected a finite number > 0 (Hz)")
         for name, s in self.noise_std.items():
             if name not in STATES:
                 raise InputError(f"noise for {name!r}: not a state; expected one of {', '.join(STATES)}")

@@ -2,7 +2,9 @@
 
 `simulate` flies a scenario (on the MuJoCo plant, or with `truth="linear"` on the analytic
 linear model itself) and writes `runs/<scenario>-seed<N>/`: one measurement CSV and one
-noise-free `.truth.csv` per experiment, `model.toml` (the analytic linear model at the run's
+noise-free `.truth.csv` per experiment (both at the fin log's rate where the scenario logs the
+fins faster than its samples, `[sensors] fin_rate`: the measurement CSV's states then missing
+between the samples, the truth's present at every row), `model.toml` (the analytic linear model at the run's
 trim, with every coefficient), `scenario.toml` (the scenario as flown), `recording.rrd` (Rerun)
 and `manifest.json` (scenario, seed, truth, settings, the MJCF file and its SHA-256, package versions,
 the command that regenerates the run, start and end times). The directory is built under a
@@ -72,10 +74,9 @@ def simulate(
     with atomic_directory(out, force) as tmp:
         flights, lin = fly_scenario(s, seed, mjcf_path, report, truth)
         for f in flights:
-            (tmp / f"{f.name}.csv").write_text(
-                gapped_csv_text(f.t, _outputs(f, s.columns), f.fins_measured, s.columns)
-            )
-            (tmp / f"{f.name}.truth.csv").write_text(csv_text(f.t, f.truth, f.fins, STATES))
+            (tmp / f"{f.name}.csv").write_text(gapped_csv_text(*_logged(f, s.columns), s.columns))
+            fine = f.fin_log or f  # the truth at the fin log's instants where the fins are logged faster
+            (tmp / f"{f.name}.truth.csv").write_text(csv_text(fine.t, fine.truth, fine.fins, STATES))
         config, comments = model_config(lin, mjcf_path)
         config = replace(config, outputs=tuple(c for c in s.columns if c in STATES and c != "z"))
         comments["outputs"] = UNFITTED_DEPTH
@@ -100,6 +101,17 @@ def simulate(
         }
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
     return out
+
+
+def _logged(f, names) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A flight's measurement CSV as (t, outputs, fins): at the sample rate, or at the fin log's
+    rate with the outputs at the sample instants and missing (NaN) between."""
+    if f.fin_log is None:
+        return f.t, _outputs(f, names), f.fins_measured
+    every = (len(f.fin_log.t) - 1) // (len(f.t) - 1)
+    outputs = np.full((len(f.fin_log.t), len(names)), np.nan)
+    outputs[::every] = _outputs(f, names)
+    return f.fin_log.t, outputs, f.fin_log.measured
 
 
 def _outputs(f, names) -> np.ndarray:

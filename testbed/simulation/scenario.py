@@ -16,6 +16,8 @@ feedback = "measured"  # the autopilots read the sensors (default "true": the tr
 [sensors]
 rate = 50.0          # Hz; divides the control rate
 fin_std = 2e-5       # rad, fin encoders
+# fin_rate = 100.0   # Hz; the fin angles logged this often: a multiple of the control rate
+#                    # dividing the physics rate; the CSV rows between samples hold fins only
 noise_std = {u = 0.05, v = 0.02, ...}   # per state, SI
 measured = ["u", "v", ...]               # the state columns of the measurement CSVs
 
@@ -84,6 +86,7 @@ __all__ = [
     "CHANNELS",
     "FEEDBACKS",
     "FIN_COMMANDS",
+    "FinLog",
     "LOOPS",
     "SAMPLES",
     "SCENARIO_DIR",
@@ -217,6 +220,18 @@ class Scenario:
                 f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate"
             )
         check_sensors(self.named_sensors, self.sensors.rate, self.where)
+        if self.sensors.fin_rate is not None:
+            ratio = self.sensors.fin_rate / self.control_rate
+            if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+                raise InputError(
+                    f"{self.where}: sensors.fin_rate = {self.sensors.fin_rate:g} Hz; expected a whole "
+                    f"multiple of the control rate {self.control_rate:g} Hz"
+                )
+            if not self.is_perfect:
+                raise InputError(
+                    f"{self.where}: sensors.fin_rate with named sensors or a [trial]; expected the "
+                    "fins logged at the sample rate there (no fin_rate)"
+                )
         for e in self.experiments:
             held = {"hold.depth": e.hold_depth} if e.hold_depth is not None else {}
             loops = {f"autopilot.{k}": v for k, v in e.autopilot.items()}
@@ -312,7 +327,7 @@ _TOP = (
     "trial",
     "experiment",
 )
-_SENSORS = ("rate", "fin_std", "noise_std", "measured")
+_SENSORS = ("rate", "fin_std", "fin_rate", "noise_std", "measured")
 _EXPERIMENT = ("name", "duration", "autopilot", "hold", *CHANNELS)
 
 
@@ -361,6 +376,7 @@ def _sensors(doc, where: str) -> Sensors:
             rate=number(doc.get("rate", 50.0), f"{where}: rate"),
             noise_std={**NOISE_STD, **noise},
             fin_std=number(doc.get("fin_std", Sensors().fin_std), f"{where}: fin_std"),
+            fin_rate=None if doc.get("fin_rate") is None else number(doc["fin_rate"], f"{where}: fin_rate"),
         )
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
@@ -413,6 +429,7 @@ def scenario_text(s: Scenario) -> str:
         "[sensors]",
         f"rate = {toml_value(s.sensors.rate)}",
         f"fin_std = {toml_value(s.sensors.fin_std)}",
+        *([f"fin_rate = {toml_value(s.sensors.fin_rate)}"] if s.sensors.fin_rate is not None else []),
         f"noise_std = {toml_value(dict(s.sensors.noise_std))}",
         f"measured = {toml_value(list(s.measured))}",
     ]
@@ -480,6 +497,19 @@ class Flight:
     # NaN where absent), the autopilot's pitch command, the fin commands fin_r, fin_er, fin_el
     commands: dict
     specific_force: np.ndarray | None = None  # (N, 3) ax ay az where a sensor reads them
+    fin_log: FinLog | None = None  # the fins logged faster than the samples (`Sensors.fin_rate`)
+
+
+@dataclass(frozen=True)
+class FinLog:
+    """A flight at its fin log's instants (M = (N − 1)·fin_rate/rate + 1 of them): the true
+    states (M, 10), the fins' true mean angle over each log interval (the last: the angle) and
+    that angle as the encoders read it (M, 3)."""
+
+    t: np.ndarray
+    truth: np.ndarray
+    fins: np.ndarray
+    measured: np.ndarray
 
 
 def fly(
@@ -508,7 +538,16 @@ def fly(
             f"control rate {s.control_rate} Hz; expected it to divide the physics rate "
             f"{1 / plant.timestep:g} Hz"
         )
+    # the fins logged `chunks` times a control interval: the plant stepped in as many parts
+    chunks = 1 if s.sensors.fin_rate is None else round(s.sensors.fin_rate / s.control_rate)
+    if steps % chunks:
+        raise InputError(
+            f"{s.where}: sensors.fin_rate = {s.sensors.fin_rate:g} Hz; expected it to divide the physics rate "
+            f"{1 / plant.timestep:g} Hz"
+        )
     n_samples = int(math.floor(duration * s.sensors.rate + 1e-9)) + 1
+    logged = None if s.sensors.fin_rate is None else (n_samples - 1) * controls_per_sample * chunks + 1
+    fin_log, fine_truth = (None, None) if logged is None else (np.empty((logged, 3)), np.empty((logged, NX)))
     truth, fins, pos = np.empty((n_samples, NX)), np.empty((n_samples, 3)), np.empty((n_samples, 3))
     fin_cmds, pitch, keywords = np.empty((n_samples, 3)), np.empty(n_samples), []
     fin_integral = np.empty((n_samples, 3))
@@ -548,7 +587,11 @@ def fly(
                 if fine is not None:
                     fine.record(x)
                 break
-        if fine is None:
+        if fin_log is not None:
+            for c in range(chunks):
+                fine_truth[k * chunks + c], fin_log[k * chunks + c] = plant.state(), plant.fin_integral()
+                plant.step(command, n=steps // chunks)
+        elif fine is None:
             plant.step(command, n=steps)
         else:
             fine.advance(x, command, steps)
@@ -558,6 +601,11 @@ def fly(
     # step), as an integrating encoder would; the last sample has no interval after it and
     # keeps the angle itself.
     fins[:-1] = np.diff(fin_integral, axis=0) * s.sensors.rate
+    if fin_log is not None:
+        fine_truth[-1], fin_log[-1] = truth[-1], fin_integral[-1]
+        fine_truth[:, IX["psi"]] = np.unwrap(fine_truth[:, IX["psi"]])
+        fin_log[:-1] = np.diff(fin_log, axis=0) * s.sensors.fin_rate
+        fin_log[-1] = fins[-1]
     t = np.arange(n_samples) / s.sensors.rate
     specific_force = None
     if fine is None:
@@ -574,7 +622,10 @@ def fly(
     commands.update(zip(FIN_COMMANDS, fin_cmds.T))
     if not np.isnan(pitch).all():
         commands["pitch"] = pitch
-    return Flight(name, t, truth, measured, fins, fins_measured, pos, commands, specific_force)
+    if fin_log is not None:  # the encoders' noise at every logged angle
+        read = fin_log + rng.standard_normal(fin_log.shape) * s.sensors.fin_std
+        fin_log = FinLog(np.arange(len(read)) / s.sensors.fin_rate, fine_truth, fin_log, read)
+    return Flight(name, t, truth, measured, fins, fins_measured, pos, commands, specific_force, fin_log)
 
 
 def fly_scenario(
