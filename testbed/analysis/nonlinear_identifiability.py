@@ -42,6 +42,7 @@ from testbed.identification.likelihood import reduced
 from testbed.identification.nonlinear_output_error import information, pooled_noise, setup
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
+from testbed.models.nonlinear_flight import substeps_for
 
 __all__ = ["NONLINEAR", "forward", "nonlinear_identifiability", "rank_tolerance"]
 
@@ -76,7 +77,7 @@ def rank_tolerance(H: np.ndarray, F: np.ndarray, samples: int, channels: int, su
 def nonlinear_identifiability(
     experiments: Sequence[Experiment],
     config: ModelConfig,
-    substeps: int = 4,
+    substeps: int | None = None,
     initial: Mapping[str, Mapping[str, float]] | None = None,
 ) -> Identifiability:
     """The identifiability of `config.free` (a nonlinear model config's) from `experiments` at
@@ -96,7 +97,8 @@ def nonlinear_identifiability(
     struct = Structural(
         free, np.eye(len(free))[[free.index(n) for n in blind]], tuple((n,) for n in blind), blind
     )
-    null = rank_tolerance(H, F, sum(len(r.t) for r in recs), len(channels), substeps)
+    steps = substeps_for(recs[0].t) if substeps is None else substeps
+    null = rank_tolerance(H, F, sum(len(r.t) for r in recs), len(channels), steps)
     return assessed(free, theta[idx], F, struct, null)
 
 

@@ -216,7 +216,7 @@ def simplex(
         for r, x in zip(recs, x0):
             x, states = initial_state(model, th, r.t, r.fins, r.y, ch, range(len(ch)), x, R)
             fitted.append(x)
-            sens.append(flight(model, th, r.t, x, r.fins, (), 4, states).dx_dx0[:, ch][:, :, ch])
+            sens.append(flight(model, th, r.t, x, r.fins, (), None, states).dx_dx0[:, ch][:, :, ch])
             simulated(len(r.t) * (1 + len(ch)))
         return np.array(fitted), sens
 

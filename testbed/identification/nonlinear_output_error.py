@@ -173,7 +173,9 @@ def _simulate(model, theta, x0, records, ch, substeps):
     return flown, res
 
 
-def residuals(model: NonlinearModel, theta, x0: np.ndarray, records: Sequence[Record], ch, substeps: int = 4):
+def residuals(
+    model: NonlinearModel, theta, x0: np.ndarray, records: Sequence[Record], ch, substeps: int | None = None
+):
     """Each record's residuals (N, C) in the state columns `ch` (NaN where the sample is
     missing), flown from its row of `x0` (records, 10); None where a flight does not stay finite.
     Tallied as `_simulate`'s."""
@@ -238,7 +240,7 @@ def fit_output_error(
     *,
     free_initial: bool = True,
     noise_std: Mapping[str, float] | None = None,
-    substeps: int = 4,
+    substeps: int | None = None,
     tolerance: float = 0.01,
     max_iterations: int = 50,
     continuation: bool = False,
@@ -358,7 +360,7 @@ def information(
     channels: Sequence[str],
     free: Sequence[str],
     R: np.ndarray,
-    substeps: int = 4,
+    substeps: int | None = None,
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [θ's `free` coefficients | each
     record's measured initial states] with the noise variances `R` per channel, each record flown
@@ -415,7 +417,7 @@ def coloured_bounds(
     channels: Sequence[str],
     free: Sequence[str],
     R: np.ndarray,
-    substeps: int = 4,
+    substeps: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """`(σ, σ_coloured, residuals)` at θ and the initial states `x0` (records, 10) with the noise
     variances `R`: the Cramér-Rao σ of θ's `free` coefficients (the initial states among the

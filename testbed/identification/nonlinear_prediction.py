@@ -36,7 +36,7 @@ def predict(
     experiments: Sequence[Experiment],
     config: ModelConfig,
     initial: Mapping[str, Mapping[str, float]] | None = None,
-    substeps: int = 4,
+    substeps: int | None = None,
 ) -> list[np.ndarray]:
     """The nonlinear model's outputs (N, k) per experiment in its measured columns, absolute u,
     flown by RK4 with `substeps` steps per sample interval from the initial states `initial`
@@ -50,7 +50,7 @@ def flights(
     experiments: Sequence[Experiment],
     config: ModelConfig,
     initial: Mapping[str, Mapping[str, float]] | None = None,
-    substeps: int = 4,
+    substeps: int | None = None,
 ) -> list[np.ndarray]:
     """`predict`'s flights: every state (N, 10) of each experiment, absolute u."""
     model, theta = config.nonlinear()
@@ -91,7 +91,7 @@ def initial_state(
     moved: Sequence[int],
     x0: np.ndarray,
     R: np.ndarray | None = None,
-    substeps: int = 4,
+    substeps: int | None = None,
     states: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`(x0, states)`: the best-fitting initial state (module doc) of a record with times `t`,

@@ -18,7 +18,7 @@ import numpy as np
 
 from testbed.models.linear import NX
 from testbed.models.nonlinear import NonlinearModel, packed
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly, substeps_for
 
 __all__ = ["Flight", "flight"]
 
@@ -32,12 +32,15 @@ class Flight:
     dx_dx0: np.ndarray  # (N, 10, 10) ∂x/∂x0
 
 
-def flight(model: NonlinearModel, theta, t, x0, fins, free=(), substeps: int = 4, states=None) -> Flight:
+def flight(
+    model: NonlinearModel, theta, t, x0, fins, free=(), substeps: int | None = None, states=None
+) -> Flight:
     """`fly`'s states at the times `t` (N,) from `x0` (10,) with the fins (N, 3) held per sample,
     and their exact sensitivities to θ[free] (indices into `model.names`) and to x0. `states`:
     the same call's `fly` states when already flown (not flown again)."""
     from testbed.models import nonlinear_kernels  # numba: only when a model is flown
 
+    substeps = substeps_for(t) if substeps is None else substeps
     x = fly(model, theta, t, x0, fins, substeps) if states is None else np.asarray(states, float)
     free = np.asarray(free, dtype=np.int64).reshape(-1)
     p = len(free)

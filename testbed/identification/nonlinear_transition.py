@@ -26,7 +26,7 @@ class NonlinearTransition:
     """The nonlinear model at θ (all of it, `model.names` order) with the coefficients `idx` free,
     stepped one sample at a time over an experiment (`begin`, then `step`)."""
 
-    def __init__(self, model: NonlinearModel, theta: np.ndarray, idx, substeps: int = 4):
+    def __init__(self, model: NonlinearModel, theta: np.ndarray, idx, substeps: int | None = None):
         self.model, self.theta, self.idx = model, np.asarray(theta, float).copy(), np.asarray(idx)
         self.substeps = substeps
         self.trim = np.zeros(len(IX))

@@ -1,7 +1,8 @@
 """The nonlinear model flown open loop: its states from a first one, driven by recorded fin angles.
 
 `fly` integrates ẋ = f(x, δ, θ) (`nonlinear.rates`) by the classical fourth-order Runge-Kutta
-method, `substeps` steps per sample interval, each sample's fin angles held until the next: a
+method, `substeps` steps per sample interval (by default steps of about 5 ms, `substeps_for`:
+4 a 20 ms interval, 2 a 10 ms one), each sample's fin angles held until the next: a
 run's records give at each sample the fins' mean over the interval that follows it, which held
 over that interval moves the body as the fins did to first order (the linear model's predictions
 take the inputs so too). The flight is compiled (`nonlinear_kernels.fly`), real or complex.
@@ -15,7 +16,16 @@ from testbed.errors import InputError
 from testbed.models.linear import NU, NX
 from testbed.models.nonlinear import NonlinearModel, packed
 
-__all__ = ["fly"]
+__all__ = ["STEP", "fly", "substeps_for"]
+
+
+STEP = 0.005  # s: the RK4 step a flight takes unless told (4 steps a 20 ms sample interval)
+
+
+def substeps_for(t) -> int:
+    """The RK4 steps per sample interval of the times `t` that make each about `STEP` s: the
+    median interval over `STEP`, rounded, at least 1."""
+    return max(1, int(round(float(np.median(np.diff(np.asarray(t, float)))) / STEP)))
 
 
 def _check(t, x0, fins, substeps) -> None:
@@ -27,14 +37,16 @@ def _check(t, x0, fins, substeps) -> None:
         raise InputError(f"substeps={substeps!r}; expected a whole number >= 1")
 
 
-def fly(model: NonlinearModel, theta, t, x0, fins, substeps: int = 4) -> np.ndarray:
+def fly(model: NonlinearModel, theta, t, x0, fins, substeps: int | None = None) -> np.ndarray:
     """The states (N, 10), absolute u, at the times `t` (N,) from `x0` (10,) at t[0], the fin
-    angles `fins` (N, 3) (rad) given at the same times, each held until the next; complex where
+    angles `fins` (N, 3) (rad) given at the same times, each held until the next, `substeps` RK4
+    steps an interval (None: `substeps_for(t)`); complex where
     `theta` or `x0` is (a complex-step derivative of the flight)."""
     from testbed.models import nonlinear_kernels  # numba: only when a model is flown
 
     dtype = complex if np.iscomplexobj(theta) or np.iscomplexobj(x0) else float
     t, x0, fins = np.asarray(t, float), np.asarray(x0, dtype), np.asarray(fins, float)
+    substeps = substeps_for(t) if substeps is None and len(t) > 1 else substeps
     _check(t, x0, fins, substeps)
     out = np.empty((len(t), NX), dtype)
     out[0] = x0
