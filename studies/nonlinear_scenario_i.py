@@ -8,7 +8,9 @@ inertia from the PMM tests) is the reference, and each fit starts from its own a
 about it (`priors.term_prior` at `--spread`, the campaign's rule: each free term moved by
 exp(s_c z), z drawn per seed). The plant flies Scenario I for seeds 1..N (the same noise-free
 truth every seed, the sensors' noise drawn per seed; `--rate 100`: its autopilots and record at
-the plant's physics rate, where the fins are held over every sample interval); `ml-gn` fits each
+the plant's physics rate, where the fins are held over every sample interval; `--fin-rate 100`:
+its fins logged at the physics rate, the servos' steps, its states still at 50 Hz, missing in
+between); `ml-gn` fits each
 seed's record through the front door (`estimators.identify`, its `auto` start, converged when
 every step is below 0.01 σ) with `--free` free, and the record's noise-free truth too (`noise-free`: the noise σ given as the sensors',
 so its bounds are a noisy record's) — where the fits would scatter about if the noise alone
@@ -84,10 +86,11 @@ METRICS = {
 }
 
 
-def scenario_i(rate: float):
-    """Scenario I with its autopilots and its record at `rate` Hz."""
+def scenario_i(rate: float, fin_rate: float | None = None):
+    """Scenario I with its autopilots and its record at `rate` Hz, its fins logged at `fin_rate`
+    Hz (None: at `rate`)."""
     s = scenario("I")
-    return replace(s, control_rate=rate, sensors=replace(s.sensors, rate=rate))
+    return replace(s, control_rate=rate, sensors=replace(s.sensors, rate=rate, fin_rate=fin_rate))
 
 
 def check_out(out: Path, seeds: int, force: bool) -> None:
@@ -147,10 +150,11 @@ def fitted(config: ModelConfig, est: Estimate) -> ModelConfig:
 
 def ratios(experiments, config: ModelConfig, initial=None) -> str:
     """The residual rms per state of `config`'s model on `experiments` (flown from `initial`,
-    else the best-fitting initial states) over the sensor's noise σ, as CSV cells."""
+    else the best-fitting initial states) over the sensor's noise σ, over the samples present,
+    as CSV cells."""
     y = np.concatenate([e.y for e in experiments])
     yhat = np.concatenate(predict(experiments, config, initial))
-    rms = np.sqrt(np.mean((y - yhat) ** 2, axis=0))
+    rms = np.sqrt(np.nanmean((y - yhat) ** 2, axis=0))
     by = dict(zip(experiments[0].measured, rms))
     return ",".join(f"{by[s] / NOISE_STD[s]:.3f}" if s in by else "" for s in STATES)
 
@@ -186,17 +190,21 @@ def study(
     model: str = "components",
     spread: float = 0.4,
     rate: float = 50.0,
+    fin_rate: float | None = None,
 ):
     out.mkdir(parents=True, exist_ok=True)
     captive, *_ = captive_config(model=model)
     runs = [
-        simulate(scenario_i(rate), seed=k, out=out / f"seed{k}", force=force) for k in range(1, seeds + 1)
+        simulate(scenario_i(rate, fin_rate), seed=k, out=out / f"seed{k}", force=force)
+        for k in range(1, seeds + 1)
     ]
     truth = read_csv(runs[0] / "scenario-I.truth.csv", "scenario-I")
     if free is None:
         free = default_free(captive, load_data([runs[0]])[0][0], level)
     print(f"free ({len(free)}): {' '.join(free)}", file=sys.stderr)
     data = {f"seed {k}": load_data([run])[0] for k, run in enumerate(runs, 1)}
+    # the truth with the noisy records' samples only (the states between them missing)
+    truth = replace(truth, y=np.where(np.isnan(data["seed 1"][0].y), np.nan, truth.y))
     sensors = {s: NOISE_STD[s] for s in STATES}
     fits, experiments_of = {}, {"noise-free": [truth]} | data
     for k, (label, experiments) in enumerate(experiments_of.items()):
@@ -329,6 +337,13 @@ def main(argv=None) -> int:
         help="Scenario I's control and sample rate, Hz: its own 50 (default), or 100, the plant's physics "
         "rate, where the fins are held over every sample interval",
     )
+    ap.add_argument(
+        "--fin-rate",
+        type=float,
+        default=None,
+        help="Hz: Scenario I's fins logged this often (`[sensors] fin_rate`; 100: every step of the "
+        "plant's servos), its states still at --rate (default: the fins at --rate)",
+    )
     ap.add_argument("--force", action="store_true", help="replace the study's own outputs in --out")
     ap.add_argument(
         "--model",
@@ -342,13 +357,16 @@ def main(argv=None) -> int:
         if a.seeds < 1:
             raise InputError(f"--seeds {a.seeds}; expected 1 or more")
         check_out(a.out, a.seeds, a.force)
+        scenario_i(a.rate, a.fin_rate)
         unknown = [n for n in free or () if n not in captive_config(model=a.model)[0].terms]
         if unknown:
             raise InputError(f"--free: {unknown[0]!r} is not a term of the captive model")
     except InputError as exc:
         print(f"nonlinear_scenario_i.py: {exc}", file=sys.stderr)
         return 2
-    tables = study(a.seeds, a.out, free, a.level, a.rudder, a.switch, a.force, a.model, a.spread, a.rate)
+    tables = study(
+        a.seeds, a.out, free, a.level, a.rudder, a.switch, a.force, a.model, a.spread, a.rate, a.fin_rate
+    )
     for name, text in zip(TABLES, tables):
         atomic_write_text(a.out / name, text, force=True)  # checked before the work (`check_out`)
         print(text)
