@@ -5,8 +5,9 @@ The outputs are the measured states of the simulated trajectory (`nonlinear_sens
 the noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
 records. A missing sample (NaN: a sensor slower than the fins are logged, a dropout) is left
 out of every sum, its residual NaN and its rows of J zero; the flight goes through it with the
-fins of every row, so fins logged faster than the states move the model as they moved the body. As for the linear model (`likelihood`), the likelihood is minimised by relaxation: R is
-set to the residuals' mean square per channel (or held where `noise_std` gives it), then held
+fins of every row, so fins logged faster than the states move the model as they moved the body.
+As for the linear model (`likelihood`), the likelihood is minimised by relaxation: R is set to
+the residuals' mean square per channel (or held where `noise_std` gives it), then held
 while the parameters step on `½ Σ eᵀ R⁻¹ e`. The step solves the Gauss-Newton normal equations
 `(H + λ diag H) Δ = g`, `H = Σ Jᵀ R⁻¹ J`, `g = Σ Jᵀ R⁻¹ e`, J the outputs' exact sensitivities;
 λ falls after a step that lowers the cost and grows until one does. The fit has converged when
