@@ -7,8 +7,8 @@ Each record is flown from its best-fitting initial state (`nonlinear_prediction.
 measured initial states are parameters of the likelihood as in the fit, eliminated from the
 information (the Schur complement, `likelihood.reduced`). The noise is the config's
 `noise_std` where it gives a channel, else the residuals' mean square there. The records must
-measure the same states, every sample present, as for the fit. The structural part is only the free coefficients no measured state
-depends on (their sensitivities are 0 along every record): the linear model's exact drift
+measure the same states, as for the fit, a missing sample left out. The structural part is only
+the free coefficients no measured state depends on (their sensitivities are 0 along every record): the linear model's exact drift
 analysis (a row operation on its equations) has no counterpart here, so `structural_drift_groups`
 holds only those. A direction along which the information is numerically singular
 (an eigenvalue within its own rounding: `rank_tolerance`) gives its coefficients infinite bounds.

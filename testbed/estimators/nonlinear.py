@@ -38,8 +38,8 @@ What a linear method's option means here:
   `first_length` …) has no meaning here: given a value other than its default, an
   `OptionError` names it.
 
-The records must measure the same states with every sample present (`nonlinear_output_error.records`);
-no value is estimated per record.
+The records must measure the same states (`nonlinear_output_error.records`); a missing sample
+is left out of every sum, the flight going through it; no value is estimated per record.
 """
 
 from __future__ import annotations
