@@ -217,7 +217,8 @@ def _halved(record):
 def test_rows_without_states_are_left_out_of_every_sum(truth):
     """The record with a row of fins and no states inserted in every interval (the fins held as
     before), flown with half the RK4 steps per row (the same steps), fits as the record itself:
-    the same estimates, bounds, coloured bounds, noise, likelihood and Fisher information."""
+    the same estimates, bounds, coloured bounds, noise, likelihood and Fisher information; through
+    the front door (5 ms steps at any rate) `ml-gn` and `ml-nm` take the same steps."""
     config, noisy, _ = truth
     model, start = _start(config).nonlinear()
     (channels, whole), (_, halved) = records([noisy]), records([_halved(noisy)])
@@ -244,6 +245,13 @@ def test_rows_without_states_are_left_out_of_every_sum(truth):
         for r, n in ((whole, 4), (halved, 2))
     ]
     np.testing.assert_allclose(H[1], H[0], rtol=1e-8)
+    for method, options in (("ml-gn", {}), ("ml-nm", {"max_iter": 60})):  # the front door, 5 ms steps both
+        a, b = (
+            identify([r], _start(config), method, start="config", **options) for r in (noisy, _halved(noisy))
+        )
+        assert b.iterations == a.iterations and np.all(np.abs(b.values - a.values) < 1e-9 * a.std), method
+        np.testing.assert_allclose(b.std, a.std, rtol=1e-9)
+        assert b.cost == pytest.approx(a.cost, abs=1e-8)
 
 
 def _regressed(config, clean, noisy):
