@@ -7,11 +7,15 @@ examples. Select `slow` for every property with `HYPOTHESIS_PROFILE=slow` (or hy
 
 import os
 
-import numpy as np
-import pytest
-from hypothesis import HealthCheck, settings
+from testbed.threads import one_blas_thread
 
-from testbed.simulation.scenario import Flight
+one_blas_thread()  # before numpy loads: the workers share the cores (as the command line does)
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+from testbed.simulation.scenario import Flight  # noqa: E402
 
 _COMMON = dict(
     deadline=None,
