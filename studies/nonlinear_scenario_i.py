@@ -10,10 +10,10 @@ exp(s_c z), z drawn per seed). The plant flies Scenario I for seeds 1..N (the sa
 truth every seed, the sensors' noise drawn per seed; `--rate 100`: its autopilots and record at
 the plant's physics rate, where the fins are held over every sample interval; `--fin-rate 100`:
 its fins logged at the physics rate, the servos' steps, its states still at 50 Hz, missing in
-between); `ml-gn` fits each
-seed's record through the front door (`estimators.identify`, its `auto` start, converged when
-every step is below 0.01 σ) with `--free` free, and the record's noise-free truth too (`noise-free`: the noise σ given as the sensors',
-so its bounds are a noisy record's) — where the fits would scatter about if the noise alone
+between); `ml-gn` fits each seed's record through the front door (`estimators.identify`, its
+`auto` start, converged when every step is below 0.01 σ) with `--free` free, and the record's
+noise-free truth too (`noise-free`: the noise σ given as the sensors', so its bounds are a noisy
+record's) — where the fits would scatter about if the noise alone
 moved them. Per coefficient: the estimate, its Cramér-Rao σ and coloured-residual σ, the error
 in the coloured σ (the honest one for residuals that are not white) and in % of the captive
 value, and whether it is within max(3 σ, 10 %) of it; per channel the residual rms over the
@@ -199,10 +199,10 @@ def study(
         for k in range(1, seeds + 1)
     ]
     truth = read_csv(runs[0] / "scenario-I.truth.csv", "scenario-I")
-    if free is None:
-        free = default_free(captive, load_data([runs[0]])[0][0], level)
-    print(f"free ({len(free)}): {' '.join(free)}", file=sys.stderr)
     data = {f"seed {k}": load_data([run])[0] for k, run in enumerate(runs, 1)}
+    if free is None:
+        free = default_free(captive, data["seed 1"][0], level)
+    print(f"free ({len(free)}): {' '.join(free)}", file=sys.stderr)
     # the truth with the noisy records' samples only (the states between them missing)
     truth = replace(truth, y=np.where(np.isnan(data["seed 1"][0].y), np.nan, truth.y))
     sensors = {s: NOISE_STD[s] for s in STATES}

@@ -8,10 +8,11 @@ measured initial states are parameters of the likelihood as in the fit, eliminat
 information (the Schur complement, `likelihood.reduced`). The noise is the config's
 `noise_std` where it gives a channel, else the residuals' mean square there. The records must
 measure the same states, as for the fit, a missing sample left out. The structural part is only
-the free coefficients no measured state depends on (their sensitivities are 0 along every record): the linear model's exact drift
-analysis (a row operation on its equations) has no counterpart here, so `structural_drift_groups`
-holds only those. A direction along which the information is numerically singular
-(an eigenvalue within its own rounding: `rank_tolerance`) gives its coefficients infinite bounds.
+the free coefficients no measured state depends on (their sensitivities are 0 along every
+record): the linear model's exact drift analysis (a row operation on its equations) has no
+counterpart here, so `structural_drift_groups` holds only those. A direction along which the
+information is numerically singular (an eigenvalue within its own rounding: `rank_tolerance`)
+gives its coefficients infinite bounds.
 
 The screen of a nonlinear model config (`NONLINEAR`, for `identifiability.screening`) takes its
 stage 1 from this analysis at the a-priori values (`forward`) and its stage 2 from it at the

@@ -4,8 +4,8 @@
 linear model itself) and writes `runs/<scenario>-seed<N>/`: one measurement CSV and one
 noise-free `.truth.csv` per experiment (both at the fin log's rate where the scenario logs the
 fins faster than its samples, `[sensors] fin_rate`: the measurement CSV's states then missing
-between the samples, the truth's present at every row), `model.toml` (the analytic linear model at the run's
-trim, with every coefficient), `scenario.toml` (the scenario as flown), `recording.rrd` (Rerun)
+between the samples, the truth's present at every row), `model.toml` (the analytic linear model
+at the run's trim, with every coefficient), `scenario.toml` (the scenario as flown), `recording.rrd` (Rerun)
 and `manifest.json` (scenario, seed, truth, settings, the MJCF file and its SHA-256, package versions,
 the command that regenerates the run, start and end times). The directory is built under a
 temporary name and renamed: it appears whole or not at all.
@@ -75,7 +75,7 @@ def simulate(
         flights, lin = fly_scenario(s, seed, mjcf_path, report, truth)
         for f in flights:
             (tmp / f"{f.name}.csv").write_text(gapped_csv_text(*_logged(f, s.columns), s.columns))
-            fine = f.fin_log or f  # the truth at the fin log's instants where the fins are logged faster
+            fine = f if f.fin_log is None else f.fin_log  # the truth at every logged fin angle's instant
             (tmp / f"{f.name}.truth.csv").write_text(csv_text(fine.t, fine.truth, fine.fins, STATES))
         config, comments = model_config(lin, mjcf_path)
         config = replace(config, outputs=tuple(c for c in s.columns if c in STATES and c != "z"))
