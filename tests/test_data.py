@@ -106,7 +106,7 @@ def test_csv_subset_and_extra_columns(tmp_path):
         ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0,1,0,0,0\n0,1,0,0,0\n", "t never increases"),
         (
             "t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n1e-6,1,0,0,0\n2e-6,1,0,0,0\n3e-6,1,0,0,0\n10,1,0,0,0\n",
-            "grid of 10000001 samples",
+            "a grid of 80000001 samples; expected at most 1000000",
         ),
         ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,x,0,0,0\n0.2,1,0,0,0\n", "'x' is not a number"),
         ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0\n0.2,1,0,0,0\n", "line 3 has 4 fields"),
@@ -350,70 +350,78 @@ def test_uniform_times_are_read_bit_for_bit(tmp_path):
     np.testing.assert_array_equal(e.y, y)
 
 
-def test_jittered_and_repeated_stamps_go_to_their_grid_points(tmp_path):
-    """Stamps jittered by up to ±20 % of Δ land on their own grid points; a repeated stamp's rows
-    are merged (the mean of each state present, the last row's inputs); a grid point without a
-    row has every state missing and the inputs held; the grid is t0 + jΔ, Δ the median step."""
+def _rows_at(e, t):
+    """The index of each stamp of `t` among the record's times (each within 1e-9 s of one)."""
+    k = np.searchsorted(e.t, t - 1e-9)
+    np.testing.assert_allclose(e.t[k], t, rtol=0, atol=1e-9)
+    return k
+
+
+def test_stamps_on_a_millisecond_clock_are_kept_exactly(tmp_path):
+    """A 50 Hz log stamped in milliseconds with ±20 % jitter: the record's clock is 1 ms, every
+    row sits at its own stamp, the other points have every state missing and the inputs of the
+    row before them held; a repeated stamp's rows are merged (the mean of each state present,
+    the last row's inputs)."""
     dt, n = 0.02, 40
     rng = np.random.default_rng(3)
-    grid = 5.0 + dt * np.arange(n)
-    t = grid + rng.uniform(-0.2, 0.2, n) * dt
-    t[0] = grid[0]
+    t = np.round(5.0 + dt * np.arange(n) + rng.uniform(-0.2, 0.2, n) * dt, 3)
+    t[0] = 5.0
     y = np.column_stack([np.arange(n, dtype=float), 10.0 + np.arange(n)])
     d = np.column_stack([np.arange(n) * 0.01, np.zeros(n), np.zeros(n)])
     keep = np.ones(n, dtype=bool)
-    keep[[7, 8, 20]] = False  # no row for these grid points
+    keep[[7, 8, 20]] = False  # dropped rows
     rows_t, rows_y, rows_d = list(t[keep]), list(y[keep]), list(d[keep])
     at = list(np.flatnonzero(keep)).index(12)
-    rows_t.insert(at + 1, rows_t[at])  # a repeated stamp: a second row for grid point 12
+    rows_t.insert(at + 1, rows_t[at])  # a repeated stamp: a second sample of row 12's instant
     rows_y.insert(at + 1, np.array([np.nan, 30.0]))
     rows_d.insert(at + 1, np.array([0.5, 0.0, 0.0]))
     e = read_csv(_log(tmp_path, np.array(rows_t), np.array(rows_y), np.array(rows_d)))
-    on = np.flatnonzero(keep)
-    on = np.insert(on, list(on).index(12) + 1, 12)  # the rows' grid points
-    step, start = np.polyfit(on, rows_t, 1)  # the least-squares line through the stamps
-    np.testing.assert_allclose(e.t, start + step * np.arange(n), rtol=0, atol=1e-9)
-    assert abs(step - dt) < 0.01 * dt
-    want_y = y.copy()
-    want_y[~keep] = np.nan
-    want_y[12] = [12.0, (22.0 + 30.0) / 2]
-    np.testing.assert_array_equal(e.y, want_y)
-    want_d = d.copy()
-    want_d[12, 0] = 0.5
-    want_d[[7, 8]] = want_d[6]
-    want_d[13:20] = d[13:20]
-    want_d[20] = want_d[19]
-    np.testing.assert_array_equal(e.inputs, want_d)
+    np.testing.assert_allclose(np.diff(e.t), 0.001, rtol=0, atol=1e-12)
+    assert abs(e.t[0] - 5.0) < 1e-9
+    k = _rows_at(e, t[keep])
+    want = y[keep]
+    want[list(np.flatnonzero(keep)).index(12)] = [12.0, (22.0 + 30.0) / 2]
+    np.testing.assert_array_equal(e.y[k], want)
+    between = np.ones(len(e.t), dtype=bool)
+    between[k] = False
+    assert np.isnan(e.y[between]).all()
+    fins = d[keep].copy()
+    fins[list(np.flatnonzero(keep)).index(12), 0] = 0.5
+    held = np.searchsorted(k, np.arange(len(e.t)), side="right") - 1  # the row each point holds
+    np.testing.assert_array_equal(e.inputs, fins[held])
 
 
-def test_a_log_fits_as_its_grid(tmp_path):
-    """A log with dropouts, a slower channel and jittered stamps reads as the clean record with
-    those samples missing: the same experiment as a NaN-marked record on the grid."""
-    from testbed.data import check_experiment
+def test_alternating_stamps_keep_their_instants(tmp_path):
+    """Rows 0.4 s and 0.6 s apart alternately are ticks of a 0.2 s clock: each row at its own
+    stamp, a point without a row between them, never a row moved."""
+    steps = np.tile([0.4, 0.6], 15)
+    t = 2.0 + np.r_[0.0, np.cumsum(steps)]
+    y = np.random.default_rng(2).normal(size=(len(t), 2))
+    d = np.random.default_rng(3).normal(size=(len(t), 3)) * 0.1
+    e = read_csv(_log(tmp_path, t, y, d))
+    np.testing.assert_allclose(np.diff(e.t), 0.2, rtol=0, atol=1e-12)
+    k = _rows_at(e, t)
+    np.testing.assert_array_equal(e.y[k], y)
+    assert np.isnan(np.delete(e.y, k, axis=0)).all()
+    np.testing.assert_array_equal(e.inputs[k], d)
+    np.testing.assert_array_equal(e.inputs[k[:-1] + 1], d[:-1])  # held until the next row
 
-    t = 0.1 * np.arange(30)
-    y = np.column_stack([np.sin(t), np.cos(t)])
-    y[::3, 0] = np.nan
-    y[1::2, 1] = np.nan
-    jittered = t + 0.015 * np.sin(7 * t)
-    e = read_csv(_log(tmp_path, jittered, y, np.zeros((30, 3))))
-    check_experiment(e)
-    step, start = np.polyfit(np.arange(30), jittered, 1)
-    np.testing.assert_allclose(e.t, start + step * np.arange(30), atol=1e-9)
-    np.testing.assert_array_equal(e.y, y)
 
-
-def test_a_long_jittered_log_keeps_every_row_on_its_own_point(tmp_path):
-    """±20 % of Δ jitter over 3000 rows: no row leaves its grid point (the median step alone
-    would drift by several samples over the record)."""
+def test_stamps_with_no_clock_go_to_the_nearest_eighth_of_a_step(tmp_path):
+    """Stamps jittered as floats share no clock: each row goes to the nearest point of the grid
+    at an eighth of the median step (at most a sixteenth of a step from its stamp), a point of
+    its own (the grid is the least-squares line through the stamps, which the median step alone
+    would drift from by several samples over 3000 rows)."""
     n, dt = 3000, 0.02
     rng = np.random.default_rng(5)
     t = dt * np.arange(n) + rng.uniform(-0.2, 0.2, n) * dt
     y = rng.normal(size=(n, 2))
     e = read_csv(_log(tmp_path, t, y, np.zeros((n, 3))))
-    assert len(e.t) == n and not np.isnan(e.y).any()
-    np.testing.assert_array_equal(e.y, y)
-    assert np.max(np.abs(e.t - t)) < 0.25 * dt
+    present = np.flatnonzero(~np.isnan(e.y[:, 0]))
+    assert len(present) == n
+    np.testing.assert_array_equal(e.y[present], y)
+    assert np.max(np.abs(e.t[present] - t)) <= dt / 16 * 1.01
+    assert abs(np.median(np.diff(e.t)) - dt / 8) < 1e-3 * dt
 
 
 def test_a_stale_stamp_takes_the_free_point_after_it_and_a_row_logged_twice_counts_once(tmp_path):
