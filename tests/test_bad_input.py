@@ -778,3 +778,21 @@ def test_a_config_made_in_python_is_checked_like_a_file(run):
     bad = ModelConfig(replace(cfg.vehicle, speed=1e-9), cfg.coefficients, cfg.free, "mine")
     with pytest.raises(InputError, match=r"mine: \[vehicle\] speed = 1e-09"):
         identify([e], bad)
+
+
+def test_a_file_name_holding_a_line_break_is_named_on_one_line(tmp_path, capsys, run):
+    """Every message naming a file escapes its control characters: a CSV, a config, a missing
+    input and an output whose names hold a line break are each refused on one line."""
+    broken = tmp_path / "two\nlines.csv"
+    broken.write_text("t,u\n0,1\n")
+    config = tmp_path / "model\r\n.toml"
+    config.write_text("[vehicle]\n")
+    taken = tmp_path / "taken\n.json"
+    taken.write_text("a user's file\n")
+    for argv, shown in (
+        (("analyze", broken, "--config", run / "model.toml"), "two\\nlines.csv: column 'delta_r' missing"),
+        (("identify", tmp_path / "no\u2028such.csv", "--config", run / "model.toml"), "no\\u2028such.csv"),
+        (("validate", run, "--config", config), "model\\r\\n.toml: table [coefficients] missing"),
+        (("identify", run, "--max-iter", "1", "--out", taken), "taken\\n.json"),
+    ):
+        refused(capsys, *argv, words=(shown,))
