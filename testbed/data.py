@@ -13,6 +13,7 @@ import json
 import math
 import numbers
 import os
+import re
 import reprlib
 import stat
 import tomllib
@@ -325,6 +326,9 @@ def _too_large(values: np.ndarray) -> tuple[int, int] | None:
 
 
 _TOO_LARGE = f"beyond ±{MAX_DATA:g}; expected a plausible SI value (m, m/s, rad, rad/s)"
+# A NaN as loggers write it, any case: `nan`, C's printf `-nan` and `+nan`, C99's `nan(chars)`
+# and MSVC's `-nan(ind)`, `NaN(0x7ff8)`: a missing sample
+_NAN = re.compile(r"[+-]?nan(\([0-9a-z_]*\))?", re.IGNORECASE)
 
 
 def read_csv(path: str | Path, name: str | None = None) -> Experiment:
@@ -499,7 +503,7 @@ def _plain_table(body: str, columns: int) -> np.ndarray | None:
 def _rows(path: Path, header: list[str], wanted: list[int], reader) -> np.ndarray:
     """The columns `wanted` (t first) of the data rows still in `reader`, checked value by value:
     `InputError` naming the line and column of the first that is not a finite number within
-    ±`MAX_DATA`. A state or input may be missing (an empty field or NaN): NaN."""
+    ±`MAX_DATA`. A state or input may be missing (an empty field or a NaN, `_NAN`): NaN."""
     rows = []
     try:
         rows.extend(reader)
@@ -514,7 +518,7 @@ def _rows(path: Path, header: list[str], wanted: list[int], reader) -> np.ndarra
             raise InputError(f"{path}: line {k} has {len(row)} fields; the header has {len(header)}")
         for j, col in enumerate(wanted):
             field = row[col].strip()
-            if j and (not field or field.lower() == "nan"):  # a missing sample
+            if j and (not field or _NAN.fullmatch(field)):  # a missing sample
                 values[i, j] = math.nan
                 continue
             try:
