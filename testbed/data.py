@@ -52,6 +52,7 @@ __all__ = [
     "ModelConfig",
     "WRAPPING",
     "check_config",
+    "check_excited",
     "check_experiment",
     "check_free",
     "check_per_record",
@@ -583,6 +584,25 @@ def check_experiment(e: Experiment) -> None:
         raise InputError(
             f"{name}: t is not uniformly sampled (at t = {t[off + 1]:g} s); expected a constant step"
         )
+
+
+def check_excited(experiments: Sequence[Experiment]) -> None:
+    """`InputError` unless some record moves: a state that takes two values over its samples
+    present, or a fin two angles. Records in which every state and fin holds one value show the
+    vehicle at rest (or at trim) and no noise: no coefficient changes what they show, and no
+    noise can be read off them, so there is nothing to identify."""
+    for e in experiments:
+        y, inputs = np.asarray(e.y, dtype=float), np.asarray(e.inputs, dtype=float)
+        first = np.array([column[~np.isnan(column)][:1] for column in y.T]).ravel()
+        if np.any((y != first) & ~np.isnan(y)) or np.any(inputs != inputs[:1]):
+            return
+    names = [e.source or e.name for e in experiments]
+    where = names[0] if len(names) == 1 else f"{names[0]} and the {len(names) - 1} other records"
+    raise InputError(
+        f"{where}: no excitation: every state and fin holds one value throughout (the vehicle at "
+        "rest or at trim, no noise), so no coefficient changes what the data show; nothing to "
+        "identify; expected records in which the fins or the states move"
+    )
 
 
 def csv_text(t: np.ndarray, states: np.ndarray, inputs: np.ndarray, measured: Sequence[str] = STATES) -> str:

@@ -21,7 +21,7 @@ import pytest
 import testbed.estimators
 from testbed.cli import main
 from testbed.analysis.identifiability import identifiability, structurally_unidentified
-from testbed.data import ModelConfig, config_text, load_data, read_config, read_csv, write_config
+from testbed.data import ModelConfig, config_text, csv_text, load_data, read_config, read_csv, write_config
 from testbed.errors import InputError, atomic_file
 from testbed.estimators import Estimate, Status, identify
 from testbed.models.linear import COEFFICIENTS
@@ -796,3 +796,25 @@ def test_a_file_name_holding_a_line_break_is_named_on_one_line(tmp_path, capsys,
         (("identify", run, "--max-iter", "1", "--out", taken), "taken\\n.json"),
     ):
         refused(capsys, *argv, words=(shown,))
+
+
+def test_data_without_excitation_are_refused_for_what_they_are(run, capsys, tmp_path):
+    """States at trim and fins at 0 throughout: no coefficient changes what the record shows, and
+    the refusal says so of the data, not of the config whose values a fit would have carried off."""
+    config = read_config(run / "model.toml")
+    e = read_csv(run / "horizontal.csv")
+    y = np.zeros_like(e.y)
+    y[:, 0] = config.vehicle.speed
+    y[:, -1] = e.y[0, -1]  # z: the depth held
+    flat = tmp_path / "flat.csv"
+    flat.write_text(csv_text(e.t, y, np.zeros_like(e.inputs)))
+    for argv in (
+        ("identify", flat, "--config", run / "model.toml"),
+        ("identify", flat, "--config", run / "model.toml", "--method", "mekf"),
+        ("identify", flat, "--config", run / "model.toml", "--start", "config"),
+        ("analyze", flat, "--config", run / "model.toml"),
+    ):
+        err = refused(capsys, *argv, words=("flat.csv: no excitation", "nothing to identify"))
+        assert "model.toml" not in err, err
+    # a moving record beside a flat one is data to fit
+    assert identify([e, replace(e, y=y, inputs=0 * e.inputs, name="flat")], config, max_iter=1).free
