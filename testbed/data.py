@@ -44,6 +44,7 @@ __all__ = [
     "CONFIG_SENSOR_KEYS",
     "CSV_COLUMNS",
     "Experiment",
+    "MAX_CONSTANT",
     "MAX_DATA",
     "MAX_NAME",
     "MAX_SAMPLES",

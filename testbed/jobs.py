@@ -27,6 +27,7 @@ from testbed.analysis.identifiability import (
     identify_screened,
 )
 from testbed.data import (
+    MAX_CONSTANT,
     Experiment,
     ModelConfig,
     load_data,
@@ -215,6 +216,15 @@ def identify_data(
             f"method={m.name!r}: {estimate.status.message}"
             f"{f' ({estimate.message})' if estimate.message else ''} on "
             f"{', '.join(map(str, data))}; no estimate written{expected}"
+        )
+    # a value the fit carried beyond what a config may hold is the fit's, not the config's: the
+    # model validated below would be refused as a config
+    beyond = [(n, v) for n, v in zip(estimate.free, estimate.values) if not abs(v) <= MAX_CONSTANT]
+    if beyond:
+        raise InputError(
+            f"method={m.name!r}: the fit carried {beyond[0][0]} to {beyond[0][1]:.3g}, beyond "
+            f"±{MAX_CONSTANT:g} (SI) on {', '.join(map(str, data))}: these data do not determine it; "
+            "no estimate written (expected data that excite it, or it fixed)"
         )
     doc = estimate.json_fields()
     if applied is not None:

@@ -818,3 +818,31 @@ def test_data_without_excitation_are_refused_for_what_they_are(run, capsys, tmp_
         assert "model.toml" not in err, err
     # a moving record beside a flat one is data to fit
     assert identify([e, replace(e, y=y, inputs=0 * e.inputs, name="flat")], config, max_iter=1).free
+
+
+def test_a_value_the_fit_carried_off_is_reported_as_the_fits(run, capsys, monkeypatch, tmp_path):
+    """A fit that ends with a coefficient beyond what a config may hold (±1e15) is refused as
+    the fit's outcome on the data, never as a value of the config the fit started from."""
+    import testbed.jobs
+
+    real = testbed.jobs.identify_screened
+
+    def carried_off(*args, **kwargs):
+        done = real(*args, **kwargs)
+        values = done.estimate.values.copy()
+        values[0] = -1e18
+        return replace(done, estimate=replace(done.estimate, values=values))
+
+    monkeypatch.setattr(testbed.jobs, "identify_screened", carried_off)
+    out = tmp_path / "e.json"
+    err = refused(
+        capsys,
+        "identify",
+        run,
+        "--max-iter",
+        "1",
+        "--out",
+        out,
+        words=("--method 'ml-gn': the fit carried Y_v to -1e+18",),
+    )
+    assert "-1e+18" in err and "model.toml" not in err and not out.exists(), err
