@@ -34,7 +34,7 @@ from testbed.fit_percent import fit_percent
 def lowest_fit(run: Path) -> tuple[str, float]:
     """The lowest fit % over each designed experiment's excited channels, and where."""
     config = read_config(run / "model.toml")
-    truth, _ = load_data(sorted(run.glob("*.truth.csv")))
+    truth, _ = load_data(sorted(run.glob("*.truth.csv")), keep_repeats=True)
     start = {e.name: dict(zip(STATES, e.y[0])) for e in truth}
     fits = {}
     for e, yhat in zip(truth, predict(truth, config, start)):

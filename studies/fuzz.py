@@ -1,12 +1,13 @@
 """Bad input tried against the command line as a user's files and arguments would be, tallied.
 
-A corpus of about five hundred cases over a workspace of valid inputs (two small measurement
+A corpus of about seven hundred cases over a workspace of valid inputs (two small measurement
 CSVs simulated from the linear model, a model config, a run directory with truth files): the
 CSVs broken in every way `CSV_MUTATIONS` knows, the config's every vehicle constant, some
 coefficients and its noise_std given impossible values, the manifest's every broken form, every flag given bad
 values, every kind of output target (a folder, a file in the way, an input, standard output, a
-missing folder), the cases of the bad-input issue one by one, and `input_cases`: scenario
-files, estimates, names and `reproduce`. Each case runs `testbed` on a
+missing folder), the cases of the bad-input issue one by one, `input_cases`: scenario
+files, estimates, names and `reproduce`, and `time_cases`: bad time and gaps as loggers write
+them, and priors a fit or a flight cannot take for granted. Each case runs `testbed` on a
 fresh copy of the workspace; the tally counts:
 
 - errors: exit status 2 with exactly one stderr line naming a file, flag or value;
@@ -317,9 +318,89 @@ CSV_MUTATIONS: dict[str, Callable] = {
 }
 
 
+NAN_SPELLINGS = ("nan", "-nan", "+NaN", "NAN", "nan(ind)", "-nan(ind)", "NaN(0x7ff8)")
+
+
+def _decreasing_once(rows, where):
+    r = min(_at(rows, where)[0], len(rows) - 2)  # a stamp swapped with the next row's
+    rows[r][0], rows[r + 1][0] = rows[r + 1][0], rows[r][0]
+    return rows
+
+
+def _duplicated_rows(rows, where):
+    every = 2 + where % 4
+    out = rows[:1]
+    for k, row in enumerate(rows[1:]):
+        out += [row, list(row)] if k % every == 0 else [row]
+    return out
+
+
+def _gap(seconds, isolated=False):
+    """Every stamp from a row on moved `seconds` later; `isolated`: a gap before and after every
+    sixth row, each a segment of one row."""
+
+    def mutate(rows, where):
+        shift, first = 0.0, _at(rows, where)[0]
+        for k, row in enumerate(rows[1:], start=1):
+            if (k % 6 in (0, 1) and k > 1) if isolated else k == first:
+                shift += seconds
+            row[0] = repr(float(row[0]) + shift)
+        return rows
+
+    return mutate
+
+
+def _nan_channels(rows, where):
+    """Every cell of a third of the state columns a NaN, spelled as loggers write it."""
+    states = [c for c, n in enumerate(rows[0]) if n in STATES]
+    for c in states[where % 3 :: 3]:
+        for k, row in enumerate(rows[1:]):
+            row[c] = NAN_SPELLINGS[(k + where) % len(NAN_SPELLINGS)]
+    return rows
+
+
+def _nan_spellings(rows, where):
+    """A fifth of the state and fin cells after the first row NaNs, spelled as loggers write it."""
+    rng = random.Random(where)
+    for c, name in enumerate(rows[0]):
+        if name in STATES + INPUTS:
+            for row in rows[2:]:
+                if rng.random() < 0.2:
+                    row[c] = rng.choice(NAN_SPELLINGS)
+    return rows
+
+
+def _stale(columns):
+    """The named state columns (None: every state) repeating the row before in every other row."""
+
+    def mutate(rows, where):
+        cs = [c for c, n in enumerate(rows[0]) if n in (columns or STATES)]
+        for k in range(2 + where % 2, len(rows), 2):
+            for c in cs:
+                rows[k][c] = rows[k - 1][c]
+        return rows
+
+    return mutate
+
+
+# Bad time and gaps, as loggers write them: name → (rows, where) → rows
+TIME_MUTATIONS: dict[str, Callable] = {
+    "decreasing stamp": _decreasing_once,
+    "repeated stamps": _repeated_time,
+    "duplicated rows": _duplicated_rows,
+    "huge gap": _gap(1e6),
+    "gap of 1e300 s": _gap(1e300),
+    "single-row segments": _gap(10.0, isolated=True),
+    "all-NaN channels": _nan_channels,
+    "NaN spellings": _nan_spellings,
+    "stale DVL": _stale(("u", "v", "w")),
+    "stale rows": _stale(None),
+}
+
+
 def apply_csv_mutation(data: bytes, name: str, where: int) -> bytes:
     """`data` (a valid measurement CSV) broken by the mutation `name` at position `where`."""
-    mutate = CSV_MUTATIONS[name]
+    mutate = CSV_MUTATIONS.get(name) or TIME_MUTATIONS[name]
     try:
         return mutate(data, where) if name.endswith("bytes") else _text(mutate(_rows(data), where))
     except (IndexError, ValueError, ZeroDivisionError, UnicodeDecodeError, csv.Error):  # too broken for it
@@ -758,6 +839,55 @@ def corpus(root: Path) -> list[Case]:
     return cases + input_cases(root)
 
 
+def time_cases(root: Path) -> list[Case]:
+    """Bad time and gaps (`TIME_MUTATIONS`) through the commands that read data, and priors a fit
+    or a flight cannot take for granted: a course-unstable linear model (N_r positive and large),
+    coefficients at the largest magnitude a config may hold (1e15), for the linear and the
+    nonlinear model, and a nonlinear term whose product overflows."""
+    fit = ("--max-iter", "2")
+    commands = {
+        "ml-gn": ("identify", "bad.csv", "--config", "cfg.toml", "--out", "out/e.json", *fit),
+        "mekf": ("identify", "bad.csv", "--config", "cfg.toml", "--method", "mekf", "--out", "out/e.json"),
+        "analyze": ("analyze", "bad.csv", "--config", "cfg.toml", "--out", "out/a.json"),
+        "validate": ("validate", "bad.csv", "--config", "cfg.toml", "--out", "out/v.json"),
+    }
+    cases = []
+    for name in TIME_MUTATIONS:
+        for where, (label, argv) in enumerate(commands.items()):
+            files = (("bad.csv", ("data/h.csv", ((name, where),))),)
+            cases.append(Case(f"time: {name} ({label})", argv, files))
+    doc = _config_doc(root)
+    inertia = {k: v for k, v in doc["coefficients"].items() if k.endswith("dot")}
+    priors = {}
+    unstable = json.loads(json.dumps(doc))
+    unstable["coefficients"]["N_r"] = 50 * abs(doc["coefficients"]["N_r"])
+    priors["unstable linear prior (N_r > 0)"] = unstable
+    huge = json.loads(json.dumps(doc))
+    for k, n in enumerate(FREE):
+        huge["coefficients"][n] = (-1) ** k * 1e15
+    priors["linear prior at 1e15"] = huge
+    for label, terms in (
+        ("nonlinear prior at 1e15", {"Y_uv": 1e15, "N_uv": -1e15, "Y_ur": 1e15, "N_ur": -1e15}),
+        ("nonlinear term of 3000 factors", {"Y_uv": -100.0, "N_" + "u" * 3000: 0.0}),
+    ):
+        nonlinear = json.loads(json.dumps(doc))
+        nonlinear["coefficients"] = inertia
+        nonlinear["terms"] = terms
+        nonlinear["identify"] = {"free": list(terms)[:2]}
+        priors[label] = nonlinear
+    for label, broken in priors.items():
+        files = (("bad.toml", toml_text(broken).encode()),)
+        for command in (
+            ("identify", "data", "--config", "bad.toml", "--out", "out/e.json", *fit),
+            ("identify", "data", "--config", "bad.toml", "--method", "mekf", "--out", "out/e.json"),
+            ("analyze", "data", "--config", "bad.toml", "--out", "out/a.json"),
+            ("validate", "data", "--config", "bad.toml", "--out", "out/v.json"),
+        ):
+            method = "mekf" if "mekf" in command else command[0]
+            cases.append(Case(f"prior: {label} ({method})", command, files))
+    return cases
+
+
 def input_cases(root: Path) -> list[Case]:
     """The bad input of the scenario files, estimates, names and campaigns: deep nesting in every
     reader, names that cannot be file names, values a scenario file gives, a fit with all 35
@@ -1006,7 +1136,7 @@ def main(argv=None) -> int:
     runner = run_subprocess if args.subprocess else run_in_process
     with tempfile.TemporaryDirectory() as tmp:
         ws = workspace(Path(tmp))
-        cases = corpus(ws)[:: args.every]
+        cases = (corpus(ws) + time_cases(ws))[:: args.every]
         outcomes = []
         for case in cases:
             o = run_case(ws, case, runner)

@@ -198,7 +198,7 @@ def study(
         simulate(scenario_i(rate, fin_rate), seed=k, out=out / f"seed{k}", force=force)
         for k in range(1, seeds + 1)
     ]
-    truth = read_csv(runs[0] / "scenario-I.truth.csv", "scenario-I")
+    truth = read_csv(runs[0] / "scenario-I.truth.csv", "scenario-I", keep_repeats=True)
     data = {f"seed {k}": load_data([run])[0] for k, run in enumerate(runs, 1)}
     if free is None:
         free = default_free(captive, data["seed 1"][0], level)
@@ -247,7 +247,7 @@ def study(
     for name, file in scenario_files(out, rudder, switch).items():
         run = simulate(str(file), seed=1, out=out / name, force=force)
         spec = read_scenario(run / "scenario.toml").experiments[0]
-        plant = read_csv(run / f"{name}.truth.csv", name)
+        plant = read_csv(run / f"{name}.truth.csv", name, keep_repeats=True)
         linear = load_data([run])[1]
         models = {"plant": plant, "captive": flown(captive, plant)}
         models["linear"] = replace(plant, measured=STATES, y=open_loop([plant], linear)[0])

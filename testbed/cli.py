@@ -216,6 +216,7 @@ def _cmd_identify(args) -> int:
         noise_std=args.noise_std,
         progress=progress if live else None,
         corrections=args.corrections,
+        keep_repeats=args.keep_repeats,
         force=args.force,
     )
     estimate = done.estimate
@@ -252,7 +253,14 @@ def _cmd_analyze(args) -> int:
     from testbed.jobs import analyze_data
 
     out = _to_stdout(args.out)
-    result = analyze_data(args.data, config=args.config, out=out, noise_std=args.noise_std, force=args.force)
+    result = analyze_data(
+        args.data,
+        config=args.config,
+        out=out,
+        noise_std=args.noise_std,
+        keep_repeats=args.keep_repeats,
+        force=args.force,
+    )
     _emit(out, result.to_json())
     for line in result.summary:
         print(line, file=sys.stderr)
@@ -263,7 +271,7 @@ def _cmd_check(args) -> int:
     from testbed.jobs import check_data
 
     out = _to_stdout(args.out)
-    result = check_data(args.data, out=out, force=args.force)
+    result = check_data(args.data, out=out, keep_repeats=args.keep_repeats, force=args.force)
     if args.out == STDOUT:
         sys.stdout.write(result.to_json())
         print(result.table(), end="", file=sys.stderr)
@@ -280,7 +288,12 @@ def _cmd_validate(args) -> int:
 
     out = _to_stdout(args.out)
     validation, text, manoeuvres = validate_data(
-        args.data, args.estimates, config=args.config, out=out, force=args.force
+        args.data,
+        args.estimates,
+        config=args.config,
+        out=out,
+        keep_repeats=args.keep_repeats,
+        force=args.force,
     )
     _emit(out, text)
     print(validation.table(), file=sys.stderr)
@@ -382,6 +395,10 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
+KEEP_REPEATS_HELP = (
+    "read a state that repeats its previous value while other states change as a sample "
+    "(default: a slower sensor's stale repeat, missing; docs/files.md#measurement-csv)"
+)
 NOISE_STD_HELP = (
     "the sensors' noise σ per state, SI, e.g. r=0.002,psi=0.01 (for data whose noise cannot be "
     "read off them: low-pass filtered); replaces the config's [identify] noise_std entry by entry"
@@ -528,6 +545,7 @@ def parser() -> argparse.ArgumentParser:
         help="a JSON of `testbed check`: correct the rates and velocities by its sensor biases, "
         "scale factors and delays before the fit",
     )
+    s.add_argument("--keep-repeats", action="store_true", help=KEEP_REPEATS_HELP)
     s.set_defaults(func=_cmd_identify)
 
     s = sub.add_parser("analyze", help="identifiability: Fisher information, CRLB, drift groups")
@@ -535,6 +553,7 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument("--out", type=Path, help="identifiability JSON (default or -: stdout)")
     s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
+    s.add_argument("--keep-repeats", action="store_true", help=KEEP_REPEATS_HELP)
     s.set_defaults(func=_cmd_analyze)
 
     s = sub.add_parser(
@@ -542,6 +561,7 @@ def parser() -> argparse.ArgumentParser:
     )
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--out", type=Path, help="check JSON (default: none, the table only; -: stdout)")
+    s.add_argument("--keep-repeats", action="store_true", help=KEEP_REPEATS_HELP)
     s.set_defaults(func=_cmd_check)
 
     s = sub.add_parser(
@@ -561,6 +581,7 @@ def parser() -> argparse.ArgumentParser:
         "config a nonlinear fit's estimates name)",
     )
     s.add_argument("--out", type=Path, help="validation JSON (default: stdout)")
+    s.add_argument("--keep-repeats", action="store_true", help=KEEP_REPEATS_HELP)
     s.set_defaults(func=_cmd_validate)
 
     s = sub.add_parser("design", help="design experiments from Fisher information (a scenario file)")

@@ -13,6 +13,7 @@ import json
 import math
 import numbers
 import os
+import re
 import reprlib
 import stat
 import tomllib
@@ -45,14 +46,17 @@ __all__ = [
     "CONFIG_SENSOR_KEYS",
     "CSV_COLUMNS",
     "Experiment",
+    "MAX_CONSTANT",
     "MAX_DATA",
     "MAX_NAME",
     "MAX_SAMPLES",
     "MIN_NOISE_STD",
     "MIN_ROWS",
     "ModelConfig",
+    "SLOWER",
     "WRAPPING",
     "check_config",
+    "check_excited",
     "check_experiment",
     "check_free",
     "check_per_record",
@@ -73,6 +77,7 @@ __all__ = [
     "read_toml",
     "run_csvs",
     "sensor_table",
+    "stale",
     "toml_value",
     "write_config",
     "write_csv",
@@ -99,6 +104,9 @@ MIN_NOISE_STD = 1e-9
 # What a model config's `[sensors.NAME]` says of a sensor: what it reads and its known errors
 # (its rate and noise are the data's own)
 CONFIG_SENSOR_KEYS = ("outputs", "position", "misalignment", "frame", "bias", "scale", "delay")
+# The least share of a state column's values, in rows with a fresh sample, that repeat its
+# previous one for the column to be read as a sensor slower than the log (`stale`)
+SLOWER = 0.25
 # Angles that wrap at ±π in a log (`read_csv` unwraps them): roll and heading. Pitch stays
 # within ±π/2.
 WRAPPING = ("phi", "psi")
@@ -333,15 +341,18 @@ def _too_large(values: np.ndarray) -> tuple[int, int] | None:
 
 
 _TOO_LARGE = f"beyond ±{MAX_DATA:g}; expected a plausible SI value (m, m/s, rad, rad/s)"
+# A NaN as loggers write it, any case: `nan`, C's printf `-nan` and `+nan`, C99's `nan(chars)`
+# and MSVC's `-nan(ind)`, `NaN(0x7ff8)`: a missing sample
+_NAN = re.compile(r"[+-]?nan(\([0-9a-z_]*\))?", re.IGNORECASE)
 
 
-def read_csv(path: str | Path, name: str | None = None) -> Experiment:
+def read_csv(path: str | Path, name: str | None = None, keep_repeats: bool = False) -> Experiment:
     """Read and validate one measurement CSV.
 
     A plain table of numbers (what the testbed and spreadsheets write) is parsed in one pass
     (numpy's reader, which gives the same floats as Python's); anything it does not take, or any
     value that fails a check, is read again row by row, which names the line and column at
-    fault."""
+    fault. A state's stale repeats are missing samples (`stale`) unless `keep_repeats`."""
     path = Path(path)
     text = read_text(path, "a measurement CSV file")
     # newline="": lines end at \n, \r\n or a lone \r (old spreadsheet exports), as csv expects
@@ -370,6 +381,8 @@ def read_csv(path: str | Path, name: str | None = None) -> Experiment:
     if values is None or len(values) < MIN_ROWS or _too_large(values[:, 1:]):
         values = _rows(path, header, wanted, reader)
     n = len(measured)
+    if not keep_repeats:
+        values[:, 1 : 1 + n][stale(values[:, 1 : 1 + n])] = math.nan
     values = _on_grid(path, _held(path, values, n))
     for j, state in enumerate(measured):
         if np.isnan(values[:, 1 + j]).all():
@@ -382,6 +395,33 @@ def read_csv(path: str | Path, name: str | None = None) -> Experiment:
         values[:, 1 + n :],
         str(path),
     )
+
+
+def stale(states: np.ndarray) -> np.ndarray:
+    """Which of the `states` (rows as logged, a column per state, NaN where missing) are stale
+    repeats, a sensor slower than its logger's rows writing its last sample again: a value equal
+    to its column's previous value present, in a row where some state's value differs from its
+    own column's previous one (the row has a fresh sample), in a column where such repeats are
+    at least `SLOWER` of its values in those rows (a sensor at most 3/4 of the rows' rate: at
+    half of it, every other value is a repeat). Not stale: the repeats of a row in which no state
+    changes (no sensor shows an update, and it cannot be told from a body holding still at its
+    sensors' resolution), a column's occasional repeats (a quantised reading standing still at a
+    turn of the signal: 3-digit headings repeat in a tenth of the rows of a zigzag), and a column
+    that holds one value over the whole record (a state held exactly: its repeats are its
+    samples)."""
+    states = np.asarray(states, dtype=float)
+    present = ~np.isnan(states)
+    repeat = np.zeros(states.shape, dtype=bool)
+    for j, column in enumerate(states.T):
+        at = np.flatnonzero(present[:, j])
+        repeat[at[1:], j] = column[at[1:]] == column[at[:-1]]
+    fresh = np.any(present & ~repeat, axis=1)  # a row with a state that changed
+    first = present & (np.cumsum(present, axis=0) == 1)  # each column's first value: no repeat
+    counted = present & fresh[:, None] & ~first
+    candidates = repeat & fresh[:, None]
+    share = candidates.sum(axis=0) / np.maximum(counted.sum(axis=0), 1)
+    changes = (present & ~repeat & ~first).any(axis=0)  # a column that holds one value: never stale
+    return candidates & ((share >= SLOWER) & changes)[None, :]
 
 
 def _held(path: Path, values: np.ndarray, n: int) -> np.ndarray:
@@ -542,7 +582,7 @@ def _plain_table(body: str, columns: int) -> np.ndarray | None:
 def _rows(path: Path, header: list[str], wanted: list[int], reader) -> np.ndarray:
     """The columns `wanted` (t first) of the data rows still in `reader`, checked value by value:
     `InputError` naming the line and column of the first that is not a finite number within
-    ±`MAX_DATA`. A state or input may be missing (an empty field or NaN): NaN."""
+    ±`MAX_DATA`. A state or input may be missing (an empty field or a NaN, `_NAN`): NaN."""
     rows = []
     try:
         rows.extend(reader)
@@ -557,7 +597,7 @@ def _rows(path: Path, header: list[str], wanted: list[int], reader) -> np.ndarra
             raise InputError(f"{path}: line {k} has {len(row)} fields; the header has {len(header)}")
         for j, col in enumerate(wanted):
             field = row[col].strip()
-            if j and (not field or field.lower() == "nan"):  # a missing sample
+            if j and (not field or _NAN.fullmatch(field)):  # a missing sample
                 values[i, j] = math.nan
                 continue
             try:
@@ -622,6 +662,25 @@ def check_experiment(e: Experiment) -> None:
         raise InputError(
             f"{name}: t is not uniformly sampled (at t = {t[off + 1]:g} s); expected a constant step"
         )
+
+
+def check_excited(experiments: Sequence[Experiment]) -> None:
+    """`InputError` unless some record moves: a state that takes two values over its samples
+    present, or a fin two angles. Records in which every state and fin holds one value show the
+    vehicle at rest (or at trim) and no noise: no coefficient changes what they show, and no
+    noise can be read off them, so there is nothing to identify."""
+    for e in experiments:
+        y, inputs = np.asarray(e.y, dtype=float), np.asarray(e.inputs, dtype=float)
+        first = np.array([column[~np.isnan(column)][:1] for column in y.T]).ravel()
+        if np.any((y != first) & ~np.isnan(y)) or np.any(inputs != inputs[:1]):
+            return
+    names = [e.source or e.name for e in experiments]
+    where = names[0] if len(names) == 1 else f"{names[0]} and the {len(names) - 1} other records"
+    raise InputError(
+        f"{where}: no excitation: every state and fin holds one value throughout (the vehicle at "
+        "rest or at trim, no noise), so no coefficient changes what the data show; nothing to "
+        "identify; expected records in which the fins or the states move"
+    )
 
 
 def csv_text(t: np.ndarray, states: np.ndarray, inputs: np.ndarray, measured: Sequence[str] = STATES) -> str:
@@ -1148,8 +1207,11 @@ def _manifest_experiments(manifest: Path) -> list[str]:
     return names
 
 
-def load_data(paths: Iterable[str | Path]) -> tuple[list[Experiment], ModelConfig | None]:
-    """Experiments from run directories and/or CSVs, and the run's `model.toml` if there is one.
+def load_data(
+    paths: Iterable[str | Path], keep_repeats: bool = False
+) -> tuple[list[Experiment], ModelConfig | None]:
+    """Experiments from run directories and/or CSVs, and the run's `model.toml` if there is one;
+    `keep_repeats` as for `read_csv`.
 
     A run directory contributes the experiments its `manifest.json` lists, or without a manifest
     every `<experiment>.csv` but the `.truth.csv` files (so outputs written beside them, such as
@@ -1160,11 +1222,11 @@ def load_data(paths: Iterable[str | Path]) -> tuple[list[Experiment], ModelConfi
     config = None
     for p in map(Path, paths):
         if p.is_dir():
-            experiments += [read_csv(f) for f in run_csvs(p)]
+            experiments += [read_csv(f, keep_repeats=keep_repeats) for f in run_csvs(p)]
             if config is None and os.path.lexists(p / "model.toml"):
                 config = read_config(p / "model.toml")
         elif os.path.lexists(p):
-            experiments.append(read_csv(p))
+            experiments.append(read_csv(p, keep_repeats=keep_repeats))
         else:
             raise InputError(f"{p}: no such file or run directory")
     if not experiments:

@@ -21,6 +21,7 @@ import os
 import shutil
 import stat
 import tempfile
+import unicodedata
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -37,6 +38,7 @@ __all__ = [
     "is_number",
     "is_stream",
     "one_line",
+    "printable",
 ]
 
 
@@ -46,8 +48,22 @@ def _umask() -> int:
     return umask
 
 
+def printable(text: str) -> str:
+    """`text` with each control character and line or paragraph separator escaped as a Python
+    string literal writes it (`\\n`, `\\x00`, `\\u2028`): a file name or a cell holding a line
+    break stays on the line of the message that names it."""
+    return "".join(
+        c.encode("unicode_escape").decode("ascii") if unicodedata.category(c) in ("Cc", "Zl", "Zp") else c
+        for c in text
+    )
+
+
 class InputError(ValueError):
-    """Bad input from a user: the message is one line, fit to print as it is."""
+    """Bad input from a user: the message is one line, fit to print as it is (`printable`: a
+    name holding a line break is escaped where any message names it)."""
+
+    def __init__(self, message: str = ""):
+        super().__init__(printable(str(message)))
 
 
 def one_line(exc: BaseException) -> str:

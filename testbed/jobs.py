@@ -27,6 +27,7 @@ from testbed.analysis.identifiability import (
     identify_screened,
 )
 from testbed.data import (
+    MAX_CONSTANT,
     Experiment,
     ModelConfig,
     load_data,
@@ -63,11 +64,14 @@ def write_text(out: str | os.PathLike | None, text: str, force: bool = False) ->
         atomic_write_text(out, text, force)
 
 
-def inputs(data: Sequence[str | os.PathLike], config: str | os.PathLike | None = None):
+def inputs(
+    data: Sequence[str | os.PathLike], config: str | os.PathLike | None = None, keep_repeats: bool = False
+):
     """`(experiments, config, run_config, read)`: the experiments of `data` (run directories or
-    measurement CSVs), the model config to use (`config`, else the run's model.toml), the run's
+    measurement CSVs; a state's stale repeats read as missing unless `keep_repeats`,
+    `data.stale`), the model config to use (`config`, else the run's model.toml), the run's
     analytic model (None for CSVs) and every file read (outputs must not clobber them)."""
-    experiments, run_config = load_data(data)
+    experiments, run_config = load_data(data, keep_repeats)
     used = read_config(config) if config else run_config
     if used is None:
         raise InputError("no model config: expected config=TOML, or a run directory with model.toml")
@@ -92,7 +96,7 @@ def truth_data(paths: Sequence[str | os.PathLike]) -> list[Experiment] | None:
     truth = [f.with_suffix(".truth.csv") for p in runs for f in run_csvs(p)]
     if not truth or not all(f.exists() for f in truth):
         return None
-    return [read_csv(f, f.name.removesuffix(".truth.csv")) for f in truth]
+    return [read_csv(f, f.name.removesuffix(".truth.csv"), keep_repeats=True) for f in truth]
 
 
 def truth_comparison(estimate: Estimate, analytic: ModelConfig, truth: list[Experiment] | None) -> Comparison:
@@ -152,6 +156,7 @@ def identify_data(
     noise_std: Mapping[str, float] | None = None,
     progress: Callable[[Progress], None] | None = None,
     corrections: str | os.PathLike | None = None,
+    keep_repeats: bool = False,
     force: bool = False,
 ) -> Identified:
     """Identify the coefficients of `data` (run directories or CSVs) and write the estimates JSON
@@ -165,13 +170,14 @@ def identify_data(
     the JSON's `screen`; default: as the config's `[identify] screen` says; `noise_std`: the
     sensors' noise σ per state, replacing the config's `[identify] noise_std` entry by entry;
     `corrections`: a check JSON (`check_data`) whose sensor corrections are applied to the data
-    before the fit (`analysis.compatibility.corrected`). A diverged fit is an `InputError` and writes nothing; a fit that ran but did not converge is
+    before the fit (`analysis.compatibility.corrected`); `keep_repeats`: read a state's stale
+    repeats as samples (`data.stale`: missing by default). A diverged fit is an `InputError` and writes nothing; a fit that ran but did not converge is
     written (`Identified.estimate.converged` says so). An existing file at `out`, its history
     CSV or `rrd` is refused before the fit (`InputError`) unless `force` (then replaced).
     """
     m = lookup(method)
     opts = m.options.build(m.name, options or {})
-    experiments, cfg, run_config, read = inputs(data, config)
+    experiments, cfg, run_config, read = inputs(data, config, keep_repeats)
     cfg = cfg.with_noise_std(noise_std)
     applied = None
     if corrections is not None:  # the check's module loads numba and scipy: only when asked for
@@ -210,6 +216,15 @@ def identify_data(
             f"method={m.name!r}: {estimate.status.message}"
             f"{f' ({estimate.message})' if estimate.message else ''} on "
             f"{', '.join(map(str, data))}; no estimate written{expected}"
+        )
+    # a value the fit carried beyond what a config may hold is the fit's, not the config's: the
+    # model validated below would be refused as a config
+    beyond = [(n, v) for n, v in zip(estimate.free, estimate.values) if not abs(v) <= MAX_CONSTANT]
+    if beyond:
+        raise InputError(
+            f"method={m.name!r}: the fit carried {beyond[0][0]} to {beyond[0][1]:.3g}, beyond "
+            f"±{MAX_CONSTANT:g} (SI) on {', '.join(map(str, data))}: these data do not determine it; "
+            "no estimate written (expected data that excite it, or it fixed)"
         )
     doc = estimate.json_fields()
     if applied is not None:
@@ -266,13 +281,14 @@ def analyze_data(
     config: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
     noise_std: Mapping[str, float] | None = None,
+    keep_repeats: bool = False,
     force: bool = False,
 ) -> Identifiability:
     """Identifiability of the config's free coefficients from `data` (Fisher information,
     Cramér-Rao bounds, correlations, drift groups; a nonlinear model config's by
-    `analysis.nonlinear_identifiability`), written as JSON to `out`; `noise_std` and `force` as
-    for `identify_data`."""
-    experiments, cfg, _, read = inputs(data, config)
+    `analysis.nonlinear_identifiability`), written as JSON to `out`; `noise_std`, `keep_repeats`
+    and `force` as for `identify_data`."""
+    experiments, cfg, _, read = inputs(data, config, keep_repeats)
     cfg = cfg.with_noise_std(noise_std)
     check_outputs(read, {"out": out}, force)
     if not cfg.free:
@@ -286,15 +302,19 @@ def analyze_data(
 
 
 def check_data(
-    data: Sequence[str | os.PathLike], *, out: str | os.PathLike | None = None, force: bool = False
+    data: Sequence[str | os.PathLike],
+    *,
+    out: str | os.PathLike | None = None,
+    keep_repeats: bool = False,
+    force: bool = False,
 ):
     """The data-compatibility check of `data` (run directories or measurement CSVs): the
     kinematics reconstructed, the sensor biases, scale factors and delays estimated with their
-    bounds, written as JSON to `out` (`force` as for `identify_data`); the
+    bounds, written as JSON to `out` (`keep_repeats` and `force` as for `identify_data`); the
     `analysis.compatibility.Compatibility`."""
     from testbed.analysis.compatibility import compatibility  # numba and scipy: only here
 
-    experiments, _ = load_data(data)
+    experiments, _ = load_data(data, keep_repeats)
     read = [Path(e.source) for e in experiments]
     read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]
     check_outputs(read, {"out": out}, force)
@@ -309,19 +329,21 @@ def validate_data(
     *,
     config: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
+    keep_repeats: bool = False,
     force: bool = False,
 ) -> tuple[Validation, str, dict]:
     """Fit % and residual whiteness on `data` of a model config (`config`, default: the run's
     model.toml, or a nonlinear fit's config named in `estimates`) with the coefficients of the
     `estimates` JSON applied, or as it stands without `estimates`; the validation JSON (also
-    written to `out`; `force` as for `identify_data`) with them, and experiment name → the
+    written to `out`; `keep_repeats` and `force` as for `identify_data`) with them, and
+    experiment name → the
     manoeuvre metrics of the record and of the model's open-loop prediction for each manoeuvre a
     run directory of `data` flies (`analysis.manoeuvres.compared`: `Compared`). A nonlinear model config is flown open loop
     (`analysis.validate`)."""
     model = _nonlinear_estimates(estimates) if estimates is not None else None
     if config is None and model is not None:
         config = model["config"]
-    experiments, cfg, run_config, read = inputs(data, config)
+    experiments, cfg, run_config, read = inputs(data, config, keep_repeats)
     runs = [Path(p) for p in data if (Path(p) / "scenario.toml").is_file()]  # their manoeuvres compared
     read += [f for run in runs for f in (run / "scenario.toml", *run.glob("*.truth.csv"))]
     check_outputs(read + ([estimates] if estimates is not None else []), {"out": out}, force)

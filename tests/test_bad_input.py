@@ -21,7 +21,7 @@ import pytest
 import testbed.estimators
 from testbed.cli import main
 from testbed.analysis.identifiability import identifiability, structurally_unidentified
-from testbed.data import ModelConfig, config_text, load_data, read_config, read_csv, write_config
+from testbed.data import ModelConfig, config_text, csv_text, load_data, read_config, read_csv, write_config
 from testbed.errors import InputError, atomic_file
 from testbed.estimators import Estimate, Status, identify
 from testbed.models.linear import COEFFICIENTS
@@ -778,3 +778,71 @@ def test_a_config_made_in_python_is_checked_like_a_file(run):
     bad = ModelConfig(replace(cfg.vehicle, speed=1e-9), cfg.coefficients, cfg.free, "mine")
     with pytest.raises(InputError, match=r"mine: \[vehicle\] speed = 1e-09"):
         identify([e], bad)
+
+
+def test_a_file_name_holding_a_line_break_is_named_on_one_line(tmp_path, capsys, run):
+    """Every message naming a file escapes its control characters: a CSV, a config, a missing
+    input and an output whose names hold a line break are each refused on one line."""
+    broken = tmp_path / "two\nlines.csv"
+    broken.write_text("t,u\n0,1\n")
+    config = tmp_path / "model\r\n.toml"
+    config.write_text("[vehicle]\n")
+    taken = tmp_path / "taken\n.json"
+    taken.write_text("a user's file\n")
+    for argv, shown in (
+        (("analyze", broken, "--config", run / "model.toml"), "two\\nlines.csv: column 'delta_r' missing"),
+        (("identify", tmp_path / "no\u2028such.csv", "--config", run / "model.toml"), "no\\u2028such.csv"),
+        (("validate", run, "--config", config), "model\\r\\n.toml: table [coefficients] missing"),
+        (("identify", run, "--max-iter", "1", "--out", taken), "taken\\n.json"),
+    ):
+        refused(capsys, *argv, words=(shown,))
+
+
+def test_data_without_excitation_are_refused_for_what_they_are(run, capsys, tmp_path):
+    """States at trim and fins at 0 throughout: no coefficient changes what the record shows, and
+    the refusal says so of the data, not of the config whose values a fit would have carried off."""
+    config = read_config(run / "model.toml")
+    e = read_csv(run / "horizontal.csv")
+    y = np.zeros_like(e.y)
+    y[:, 0] = config.vehicle.speed
+    y[:, -1] = e.y[0, -1]  # z: the depth held
+    flat = tmp_path / "flat.csv"
+    flat.write_text(csv_text(e.t, y, np.zeros_like(e.inputs)))
+    for argv in (
+        ("identify", flat, "--config", run / "model.toml"),
+        ("identify", flat, "--config", run / "model.toml", "--method", "mekf"),
+        ("identify", flat, "--config", run / "model.toml", "--start", "config"),
+        ("analyze", flat, "--config", run / "model.toml"),
+    ):
+        err = refused(capsys, *argv, words=("flat.csv: no excitation", "nothing to identify"))
+        assert "model.toml" not in err, err
+    # a moving record beside a flat one is data to fit
+    assert identify([e, replace(e, y=y, inputs=0 * e.inputs, name="flat")], config, max_iter=1).free
+
+
+def test_a_value_the_fit_carried_off_is_reported_as_the_fits(run, capsys, monkeypatch, tmp_path):
+    """A fit that ends with a coefficient beyond what a config may hold (±1e15) is refused as
+    the fit's outcome on the data, never as a value of the config the fit started from."""
+    import testbed.jobs
+
+    real = testbed.jobs.identify_screened
+
+    def carried_off(*args, **kwargs):
+        done = real(*args, **kwargs)
+        values = done.estimate.values.copy()
+        values[0] = -1e18
+        return replace(done, estimate=replace(done.estimate, values=values))
+
+    monkeypatch.setattr(testbed.jobs, "identify_screened", carried_off)
+    out = tmp_path / "e.json"
+    err = refused(
+        capsys,
+        "identify",
+        run,
+        "--max-iter",
+        "1",
+        "--out",
+        out,
+        words=("--method 'ml-gn': the fit carried Y_v to -1e+18",),
+    )
+    assert "-1e+18" in err and "model.toml" not in err and not out.exists(), err

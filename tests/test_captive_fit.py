@@ -224,7 +224,7 @@ def test_the_reference_flies_scenario_i_better_than_the_linear_model(tmp_path, r
     recorded fin angles: the captive reference beats the analytic linear model's fits measured
     there (v 83, w 87, q 81, r 82, ψ 79, θ 42 %) on each of those channels."""
     run = runs.simulate("I", seed=3, out=tmp_path / "I")
-    truth = read_csv(run / "scenario-I.truth.csv")
+    truth = read_csv(run / "scenario-I.truth.csv", keep_repeats=True)
     mjcf = load_model()
     model = nonlinear_model(constants(mjcf, 20.0))
     flown = fly(model, theta_vector(model, reference.coefficients), truth.t, truth.y[0], truth.inputs)

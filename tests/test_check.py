@@ -46,7 +46,7 @@ def run(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def truth(run):
-    return read_csv(run / "scenario-I.truth.csv", "scenario-I")
+    return read_csv(run / "scenario-I.truth.csv", "scenario-I", keep_repeats=True)
 
 
 def sensed(truth: Experiment, seed: int, injected=INJECTED, noise=1.0) -> Experiment:
@@ -353,7 +353,7 @@ def trial(run, tmp_path_factory):
     """The Scenario I run with sensors that have the injected errors."""
     folder = tmp_path_factory.mktemp("t") / "trial"
     shutil.copytree(run, folder)
-    e = sensed(read_csv(run / "scenario-I.truth.csv", "scenario-I"), seed=7)
+    e = sensed(read_csv(run / "scenario-I.truth.csv", "scenario-I", keep_repeats=True), seed=7)
     write_csv(folder / "scenario-I.csv", e.t, e.y, e.inputs, e.measured, force=True)
     return folder
 

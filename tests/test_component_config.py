@@ -167,3 +167,23 @@ def test_a_bad_component_table_through_the_command_line_writes_nothing(files, ca
     )
     assert code == 2 and err.count("\n") == 1 and "fin 'flap'" in err and "bad.toml" in err, err
     assert os.listdir(tmp_path) == ["bad.toml"]
+
+
+def test_a_config_whose_flight_overflows_is_a_one_line_error_in_every_command(files, capsys, tmp_path):
+    """A hull drag of 1e15 throws the flight out of the floating-point range within a step, where
+    the mass matrix with the blades' Munk terms has no inverse: each command that flies the model
+    says so in one line naming the config, and writes nothing."""
+    root, _ = files
+    huge = tmp_path / "huge.toml"
+    huge.write_text(
+        "\n".join(
+            '"blunt@hull" = 1e15' if line.startswith('"blunt@hull" =') else line
+            for line in (root / "truth.toml").read_text().splitlines()
+        )
+    )
+    out = tmp_path / "out.json"
+    for command in ("validate", "analyze", "identify"):
+        code, _, err = cli(capsys, command, root / "doublets.csv", "--config", huge, "--out", out)
+        assert code == 2 and err.count("\n") == 1, err
+        assert "huge.toml's model flown" in err and "expected a model whose flight stays bounded" in err, err
+    assert os.listdir(tmp_path) == ["huge.toml"]

@@ -228,7 +228,7 @@ def test_the_component_reference_flies_scenario_i_to_98_percent(tmp_path, refere
     """Scenario I (seed 3) flown open loop from its first noise-free truth sample with its
     recorded fin angles: ≥ 98 % on every channel Scenario I excites, the depth included."""
     run = runs.simulate("I", seed=3, out=tmp_path / "I")
-    truth = read_csv(run / "scenario-I.truth.csv")
+    truth = read_csv(run / "scenario-I.truth.csv", keep_repeats=True)
     model = nonlinear_model(analytic().vehicle, reference.terms, reference.components)
     flown = fly(model, theta_vector(model, reference.coefficients), truth.t, truth.y[0], truth.inputs)
     for i, c in enumerate(truth.measured):

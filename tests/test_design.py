@@ -210,7 +210,7 @@ def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identif
 
     # linear: the analytic model open loop from the first noise-free sample, the flown inputs
     config = read_config(runs["designed"] / "model.toml")
-    truth, _ = load_data(sorted(runs["designed"].glob("*.truth.csv")))
+    truth, _ = load_data(sorted(runs["designed"].glob("*.truth.csv")), keep_repeats=True)
     start = {e.name: dict(zip(STATES, e.y[0])) for e in truth}
     for e, yhat in zip(truth, predict(truth, config, start)):
         excited = D.TEMPLATES[e.name.split("-")[0].split(".")[0]]["excited"]

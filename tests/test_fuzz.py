@@ -3,7 +3,7 @@ real `python -m testbed` processes (where a traceback or a C library's message w
 
 import pytest
 
-from studies.fuzz import corpus, run_case, run_subprocess, tally, workspace
+from studies.fuzz import corpus, run_case, run_subprocess, tally, time_cases, workspace
 
 
 @pytest.fixture(scope="module")
@@ -39,3 +39,18 @@ def test_real_processes_print_one_line_and_no_traceback(ws):
     ]
     counts = _check(ws, cases, run_subprocess)
     assert counts["errors"] >= 8
+
+
+def test_bad_time_gaps_and_priors_end_in_one_line_or_a_fit(ws):
+    """Each time-and-gap mutation through `analyze`, and every prior case: decreasing, repeated and
+    duplicated stamps, huge gaps, single-row segments, all-NaN channels, NaN spellings, stale
+    repeats, a course-unstable linear prior and overflowing priors of both models."""
+    cases = [c for c in time_cases(ws) if c.label.startswith("prior:") or c.label.endswith("(analyze)")]
+    counts = _check(ws, cases)
+    assert counts["errors"] > counts["ok"] > 0
+
+
+@pytest.mark.slow
+def test_every_time_and_prior_case_in_real_processes(ws):
+    counts = _check(ws, time_cases(ws), run_subprocess)
+    assert counts["cases"] > 50

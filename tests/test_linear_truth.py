@@ -33,7 +33,7 @@ def _open_loop(run, name):
     """The run's model.toml simulated open loop from the first truth sample with the recorded
     fin angles, by its own exact zero-order hold (scipy's expm of the augmented matrix)."""
     config = read_config(run / "model.toml")
-    truth = read_csv(run / f"{name}.truth.csv")
+    truth = read_csv(run / f"{name}.truth.csv", keep_repeats=True)
     A, B, S = continuous(structure(config.vehicle), theta_vector(config.coefficients))
     M = np.zeros((NX + NU + 1, NX + NU + 1))
     M[:NX, :NX], M[:NX, NX : NX + NU], M[:NX, -1] = A, B, S
@@ -83,7 +83,7 @@ def test_linear_truth_has_the_plants_sensors_noise_and_files(pair):
     for name in m_linear["experiments"]:
         a, b = read_csv(plant / f"{name}.csv"), read_csv(linear / f"{name}.csv")
         assert a.measured == b.measured and a.y.shape == b.y.shape
-        ta, tb = read_csv(plant / f"{name}.truth.csv"), read_csv(linear / f"{name}.truth.csv")
+        ta, tb = (read_csv(r / f"{name}.truth.csv", keep_repeats=True) for r in (plant, linear))
         assert not np.allclose(ta.y, tb.y)  # another plant flew
         cols = [ta.measured.index(c) for c in a.measured]
         # the same noise streams: measured minus truth is the same draw on both plants (to the
@@ -99,7 +99,7 @@ def test_linear_truths_fins_keep_the_servos_range_and_rate(tmp_path):
     # at the servos' rate (each sample holds the mean angle of its interval)
     run = runs.simulate("I", seed=SEED, out=tmp_path / "I", duration=DURATION, truth="linear")
     limits = fin_limits(load_model())
-    fins = read_csv(run / "scenario-I.truth.csv").inputs
+    fins = read_csv(run / "scenario-I.truth.csv", keep_repeats=True).inputs
     assert np.abs(fins).max() <= limits.angle + 1e-12
     assert np.abs(np.diff(fins, axis=0)).max() <= limits.rate * 0.02 * (1 + 1e-9)
     assert np.abs(np.diff(fins, axis=0)).max() > 0.9 * limits.rate * 0.02  # it does reach the rate

@@ -83,3 +83,12 @@ def test_the_fuzz_corpus_terms_cases_end_in_one_line_errors(tmp_path):
         outcome = run_case(root, case)
         assert outcome.kind == "error" and not outcome.partial, (case.label, outcome.err)
         assert outcome.code == 2 and outcome.err.strip().count("\n") == 0, (case.label, outcome.err)
+
+
+def test_a_term_beyond_the_floating_point_range_at_trim_is_refused(config):
+    doc = _doc(config)
+    doc["terms"]["N_" + "u" * 3000] = 0.0  # U³⁰⁰⁰ overflows, whatever its coefficient
+    with pytest.raises(
+        InputError, match=r"m.toml: \[terms\] term 'N_uu.*' \(3000 factors\) is beyond the float"
+    ):
+        parse_config(doc, "m.toml")

@@ -15,7 +15,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
@@ -226,8 +226,10 @@ class Identifiability:
 def identifiability(experiments, config, noise_std=None) -> Identifiability:
     """Fisher information, Cramér-Rao bounds, correlations, structural and practical drift groups
     of `config.free` at the config's coefficients, for the given experiments. `noise_std`: the
-    measurement noise per channel (default: the residual at the config's coefficients)."""
+    measurement noise per channel (default: the residual at the config's coefficients).
+    `InputError` for records that do not move (`data.check_excited`)."""
     experiments = config.fitted(experiments)
+    check_excited(experiments)
     F = fisher(experiments, config, noise_std=noise_std)
     free = expanded(config, [e.name for e in experiments])[0]
     theta = theta_vector(config.coefficients)

@@ -223,7 +223,7 @@ def open_loop_fit(run: str | Path) -> OpenLoopFit:
     config = read_config(run / "model.toml")
     sigma = read_scenario(run / "scenario.toml").sensors.noise_std
     data = [read_csv(f) for f in run_csvs(run)]
-    truth = [read_csv(run / f"{e.name}.truth.csv") for e in data]
+    truth = [read_csv(run / f"{e.name}.truth.csv", keep_repeats=True) for e in data]
     for e in truth:
         if e.measured != STATES:
             raise InputError(

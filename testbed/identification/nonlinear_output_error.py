@@ -33,7 +33,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.identification.bounds import colored_term, crlb
 from testbed.identification.nonlinear_sensitivities import flight
@@ -112,7 +112,7 @@ def setup(
 ) -> tuple[tuple[str, ...], list[Record], NonlinearModel, np.ndarray, list[int]]:
     """`(channels, records, model, θ, free indices)` of a nonlinear model config's `free` on the
     experiments (`records`); `InputError` naming the `fit` for what it cannot take: nothing
-    free, or values per record."""
+    free, values per record, or records that do not move (`data.check_excited`)."""
     source = config.source or "config"
     if not config.free:
         raise InputError(f"{source}: [identify] free is empty; expected the coefficients {fit} is to take")
@@ -122,6 +122,7 @@ def setup(
             "for all records"
         )
     channels, recs = records(experiments, fit)
+    check_excited(experiments)
     model, theta = config.nonlinear()
     return channels, recs, model, theta, [model.names.index(n) for n in config.free]
 

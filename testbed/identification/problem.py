@@ -21,7 +21,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, ModelConfig, check_config, check_experiment
+from testbed.data import Experiment, ModelConfig, check_config, check_excited, check_experiment
 from testbed.errors import InputError
 from testbed.models.linear import (
     CURRENT,
@@ -265,12 +265,13 @@ COARSEST = math.log(2.0**53)  # ρΔ beyond which the fastest mode decays below 
 
 def check_fit(experiments: Sequence[Experiment], config: ModelConfig) -> None:
     """`InputError` unless `config.free` can be fitted to the experiments' fitted outputs: the
-    inputs check out (`check_inputs`) and every free coefficient is seen in the measured states
-    (`model.unobserved`)."""
+    inputs check out (`check_inputs`), the records move (`data.check_excited`) and every free
+    coefficient is seen in the measured states (`model.unobserved`)."""
     if not config.free:
         raise InputError(f"{config.source or 'config'}: [identify] free is empty; nothing to estimate")
     experiments = config.fitted(experiments)
     check_inputs(experiments, config)
+    check_excited(experiments)
     measured = {s for e in experiments for s in e.measured}
     blind = unobserved(structure(config.vehicle), theta_vector(config.coefficients), config.free, measured)
     if blind:

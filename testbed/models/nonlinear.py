@@ -23,6 +23,7 @@ straight and level trim as the linear model's coefficients.
 
 from __future__ import annotations
 
+import reprlib
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -209,7 +210,17 @@ def nonlinear_model(vehicle: linear.Vehicle, terms=TERMS, components=()) -> Nonl
         raise InputError(f"term {clash[0]!r} is a linear model's name; expected a nonlinear term")
     s = linear.structure(vehicle)
     dM = np.array([s.dMt[linear.ITHETA[n]][_BODY, _BODY] for n in INERTIA])
-    trim = term_wrenches(parsed, np.array([[vehicle.speed, 0, 0, 0, 0, 0.0]]), np.zeros((1, linear.NU)))[0]
+    with np.errstate(over="ignore", invalid="ignore"):  # a product of many factors: checked below
+        trim = term_wrenches(parsed, np.array([[vehicle.speed, 0, 0, 0, 0, 0.0]]), np.zeros((1, linear.NU)))[
+            0
+        ]
+    lost = [t for k, t in enumerate(parsed) if not np.all(np.isfinite(trim[:, k]))]
+    if lost:
+        raise InputError(
+            f"term {reprlib.repr(lost[0].name)} ({len(lost[0].factors)} factors) is beyond the "
+            f"floating-point range at the trim speed {vehicle.speed:g} m/s; expected a product of "
+            "factors that stays finite"
+        )
     surge = np.concatenate([np.zeros(len(INERTIA)), trim[0]])  # each term's surge force at trim
     return NonlinearModel(vehicle=vehicle, terms=parsed, M_RB=s.Mt0[_BODY, _BODY].copy(), dM=dM, surge=surge)
 

@@ -138,7 +138,10 @@ def _forces(m, x, d, work, jacobian):
 def _inertia(m, work):
     """M⁻¹ at the state `_forces` last evaluated, into work[13]: the model's, or with `munk` terms
     M + Σ c_k ΔM_b(δ), each blade's added mass turned with its fin scaled by its Munk term's
-    coefficient (the blade's added mass is one quantity, in its Kirchhoff forces and in M)."""
+    coefficient (the blade's added mass is one quantity, in its Kirchhoff forces and in M). An
+    M that has no inverse (not finite: the state has left the finite numbers, or singular: Munk
+    coefficients cancelling the mass) gives NaN, rates that a flight's caller reports as its
+    leaving the finite numbers."""
     c, M, part, kind = m[3], m[5], m[13], m[14]
     CM, MI, stale = work[11], work[13], work[15]
     if stale[0] == 0.0:
@@ -149,7 +152,13 @@ def _inertia(m, work):
         if part[k] >= 0 and kind[k] == 5:
             Mt += c[k] * CM[part[k]]
             turned = True
-    MI[:, :] = np.linalg.inv(Mt) if turned else m[6]
+    if not turned:
+        MI[:, :] = m[6]
+        return
+    try:
+        MI[:, :] = np.linalg.inv(Mt)
+    except Exception:  # numba's LinAlgError: a matrix not finite or singular
+        MI[:, :] = np.nan
 
 
 @numba.njit(cache=True)
