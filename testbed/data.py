@@ -472,8 +472,13 @@ def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
         steps = np.diff(t)
         positive = steps[steps > 0]
         dt = median(positive) if positive.size else math.nan
-        if not dt > 0 or not math.isfinite((t[-1] - t[0]) / dt):
+        if not dt > 0:
             raise InputError(f"{path}: t never increases; expected times in seconds")
+        if not (t[-1] - t[0]) / dt < MAX_SAMPLES:  # the coarsest clock the stamps can have
+            raise InputError(
+                f"{path}: t spans {t[-1] - t[0]:.10g} s at a median step of {dt:.10g} s, more than "
+                f"{MAX_SAMPLES} samples; expected at most {MAX_SAMPLES}"
+            )
     start, h, j = clock(t, dt)
     if j[-1] + 1 > MAX_SAMPLES:
         raise InputError(

@@ -106,7 +106,11 @@ def test_csv_subset_and_extra_columns(tmp_path):
         ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0,1,0,0,0\n0,1,0,0,0\n", "t never increases"),
         (
             "t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n1e-6,1,0,0,0\n2e-6,1,0,0,0\n3e-6,1,0,0,0\n10,1,0,0,0\n",
-            "a grid of 80000001 samples; expected at most 1000000",
+            "t spans 10 s at a median step of 1e-06 s, more than 1000000 samples",
+        ),
+        (
+            "t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0,0\n0.2,1,0,0,0\n1e300,1,0,0,0\n",
+            "t spans 1e\\+300 s at a median step of 0.1 s, more than 1000000 samples",
         ),
         ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,x,0,0,0\n0.2,1,0,0,0\n", "'x' is not a number"),
         ("t,u,delta_r,delta_er,delta_el\n0,1,0,0,0\n0.1,1,0,0\n0.2,1,0,0,0\n", "line 3 has 4 fields"),
