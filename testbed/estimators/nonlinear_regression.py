@@ -65,7 +65,7 @@ def equation_error(
 ) -> np.ndarray:
     """θ with its `free` coefficients (names from `model.names`) fitted to the records' difference
     quotients from `theta` (module doc); `InputError` naming the states the rows need that the
-    records do not measure."""
+    records do not measure, or where no interval has them all present."""
     missing = [c for c in NEEDED if c not in channels]
     if missing:
         raise InputError(
@@ -73,6 +73,12 @@ def equation_error(
             f"involve {' '.join(NEEDED)}: expected records measuring them, or start config"
         )
     nudot, x, fins = _intervals(records, channels)
+    if not len(nudot):
+        raise InputError(
+            "equation-error start: no interval between samples where every state the dynamics rows "
+            f"involve ({' '.join(NEEDED)}) is present; expected records with rows measuring them all, "
+            "or start config"
+        )
     idx = np.array([model.names.index(n) for n in free])
     theta = np.array(theta, float)
     for _ in range(STEPS):
