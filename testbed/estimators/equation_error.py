@@ -61,13 +61,13 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
         # the measured states: the data less their output terms (at the a-priori values)
         y = r.y - prob.output_terms(r, prob.start)
         present = np.ones(y.shape, bool) if r.present is None else r.present
-        for c, state in enumerate(r.measured):
-            # a channel sampled at a fraction f of the rows: a window wide enough to hold
-            # SMOOTHABLE of its samples
-            f = present[:, c].mean()
-            wide = min(max(win, int(np.ceil(SMOOTHABLE / f)) | 1), odd) if f else odd
-            if f and wide >= SMOOTHABLE:
-                xs[wide // 2 : n - wide // 2, state] = smoothed(y[:, [c]], wide, present[:, [c]])[:, 0]
+        # a channel sampled at a fraction f of the rows: a window wide enough to hold SMOOTHABLE
+        # of its samples
+        f = present.mean(axis=0)
+        wide = [min(max(win, int(np.ceil(SMOOTHABLE / fc)) | 1), odd) if fc else 0 for fc in f]
+        for w in set(wide) - {0}:  # the channels of one window width smoothed together
+            c = [k for k, wk in enumerate(wide) if wk == w]
+            xs[w // 2 : n - w // 2, r.measured[c]] = smoothed(y[:, c], w, present[:, c])
         # the inputs (the a-priori input delay) smoothed as the states of every sample are
         us = prob.inputs(r, prob.start).copy()
         us[win // 2 : n - win // 2] = smoothed(us, win)

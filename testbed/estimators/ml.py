@@ -438,8 +438,8 @@ def _summary(fits: list[Fit], notes: dict[str, dict]) -> str:
         + ")"
         for f in fits
     ] + [f"{k}: {NOT_COMPUTED} ({note['reason']})" for k, note in notes.items() if "reason" in note]
-    plural = "s" if len(fits) > 1 else ""
-    return f"the least cost of {len(fits)} start{plural} ({'; '.join(parts)})" if len(parts) > 1 else ""
+    kept = f"the least cost of {len(fits)} starts" if len(fits) > 1 else "the only start computed"
+    return f"{kept} ({'; '.join(parts)})" if len(parts) > 1 else ""
 
 
 def _fit(
