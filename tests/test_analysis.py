@@ -82,3 +82,44 @@ def test_offset_centre_of_buoyancy_pins_the_yaw_row():
 def test_well_posed_case_has_no_null_direction():
     free = ("X_u", "Y_v", "Y_r", "Y_dr", "Z_w", "Z_q", "K_p", "M_q", "M_de", "N_v", "N_r", "N_dr")
     assert structural(structure(VEHICLE), _theta(1), free, STATES).null_directions == 0
+
+
+def test_a_singular_information_shows_as_named_null_directions():
+    """F = JᵀJ with b's column twice a's (J (1, −½, 0, 0) = 0) and no information on d: two null
+    directions beyond the structure's, named, exactly the coefficients with infinite bounds."""
+    from testbed.analysis.identifiability import Structural, assessed
+
+    free = ("a", "b", "c", "d")
+    rng = np.random.default_rng(3)
+    col = rng.normal(size=(50, 2))
+    J = np.column_stack([col[:, 0] * 1e3, 2e3 * col[:, 0], col[:, 1], np.zeros(50)])
+    F = J.T @ J
+    result = assessed(free, np.array([1.0, 2.0, 3.0, 4.0]), F, Structural(free, np.zeros((0, 4)), ()))
+    assert result.null_directions == 2
+    np.testing.assert_allclose(result.singular, [[1.0, -0.5, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]], atol=1e-9)
+    np.testing.assert_allclose(J @ result.singular.T, 0.0, atol=1e-9 * np.abs(J).max())
+    assert set(result.singular_groups) == {("a", "b"), ("d",)} and set(result.drift_groups) >= {
+        ("a", "b"),
+        ("d",),
+    }
+    assert [n for n, s in zip(free, result.crlb_std) if np.isinf(s)] == ["a", "b", "d"]
+    doc = __import__("json").loads(result.to_json())
+    assert doc["null_directions"] == 2 and len(doc["null_basis"]) == 2
+    assert any("singular along 2 directions" in line and "da - 0.5 db" in line for line in result.summary)
+
+
+def test_analyze_and_the_screen_name_an_unexcited_row_as_null_directions():
+    """Dives with the rudder at 0 and sway fitted, no yaw rate: the rudder's yaw moment has no
+    information. analyze reports it as a null direction (not 0 beside an infinite bound), and
+    the screen's first stage fixes it naming the direction analyze lists."""
+    from testbed.analysis.identifiability import identifiability, structurally_unidentified
+    from testbed.identification.examples import example_config, experiments
+
+    vertical = experiments(seed=0, duration=20.0)[1].only(("v", "psi"))
+    config = example_config(free=("N_v", "N_r", "N_dr"))
+    result = identifiability([vertical], config)
+    unbounded = {n for n, s in zip(result.free, result.crlb_std) if not np.isfinite(s)}
+    assert unbounded == {"N_dr"}
+    assert result.null_directions == 1 and {n for g in result.drift_groups for n in g} >= unbounded
+    fixed = structurally_unidentified(result)
+    assert set(fixed) == unbounded and "singular along dN_dr " in fixed["N_dr"]

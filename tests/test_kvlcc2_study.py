@@ -3,15 +3,22 @@ formats: a steady turn with a known drift, its heading through ±180°, a rudder
 
 from __future__ import annotations
 
+import csv
+import json
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from studies import kvlcc2
+from testbed import METHODS
+from testbed.cli import main
 from testbed.identification import recursions
+from testbed.identification.prediction import synthetic
 from testbed.identification.problem import problem
-from testbed.data import read_config, read_csv
+from testbed.data import read_config, read_csv, write_config, write_csv
 
 SHIP = """# model scale, as in the repository
 T: 0.46
@@ -147,3 +154,71 @@ def test_a_positive_rudder_turns_the_written_model_to_port_as_the_data_do(tmp_pa
     prob = problem([step], config)
     r = recursions.outputs(prob, np.r_[prob.start, 0.0])[0][:, 0]
     assert r[-1] < 0  # positive δ steers to port (SIMMAN), as on testbed's torpedo (N_dr < 0)
+
+
+def degraded(src: Path, dst: Path, rng: np.random.Generator, course_deg: float = 175.0) -> None:
+    """The converted CSV `src` as a logger gives it, written to `dst`: 10 % of its rows (not the
+    ends) dropped at random and the heading, turned by `course_deg`, wrapped into (−180°, 180°]."""
+    with open(src) as f:
+        rows = list(csv.reader(f))
+    head, data = rows[0], np.array(rows[1:], float)
+    data = np.delete(data, rng.choice(np.arange(1, len(data) - 1), len(data) // 10, replace=False), axis=0)
+    k = head.index("psi")
+    data[:, k] = (data[:, k] + math.radians(course_deg) + math.pi) % (2 * math.pi) - math.pi
+    with open(dst, "w", newline="") as f:
+        csv.writer(f).writerows([head, *([repr(float(x)) for x in row] for row in data)])
+
+
+def every_method(csv_path: Path, toml: Path, out: Path, capsys) -> dict[str, tuple[int, str]]:
+    """`testbed identify` with every method on one record: method → (exit status, last line)."""
+    done = {}
+    for method in sorted(METHODS):
+        limit = {"ml-nr": ["--max-iter", "5"], "ml-nm": ["--max-iter", "60"]}.get(method, [])
+        fit = out / f"{method}.json"
+        argv = [str(csv_path), "--config", str(toml), "--method", method, "--out", str(fit), *limit]
+        code = main(["identify", *argv])
+        err = capsys.readouterr().err.strip().splitlines()
+        done[method] = (code, err[-1] if err else "")
+        if code in (0, 1):
+            doc = json.loads(fit.read_text())
+            assert set(doc["coefficients"]) == set(kvlcc2.SWAY_YAW_FREE), method
+            assert all(np.isfinite(c["value"]) for c in doc["coefficients"].values()), method
+    return done
+
+
+def test_a_zigzag_record_with_rows_dropped_runs_end_to_end_with_every_method(tmp_path, capsys):
+    """The sway-yaw model of the full-scale tanker flown through rudder steps every 30 s, logged
+    at 1 s as the converted MARIN records are, 10 % of its rows dropped and the heading wrapped:
+    every method fits (exit 0, or 1 where its iteration limit stops it) but `ml-fem`, whose
+    steady-state filter refuses dropouts with a one-line reason. None exits 70 (the smoothing
+    window of 5 samples at 1 s holds too few samples present at a gap: no singular cubic)."""
+    (tmp_path / "ship_data.yml").write_text(SHIP)
+    config = kvlcc2.model_config(kvlcc2.ship(tmp_path, "MARIN"), 8.0, roll=False)
+    t = np.arange(0.0, 600.0, 1.0)
+    rudder = np.radians(10.0) * np.where((t // 30) % 2 == 0, 1.0, -1.0)
+    inputs = np.column_stack([rudder, np.zeros_like(t), np.zeros_like(t)])
+    noise = {"v": 0.01, "r": 2e-4, "psi": 1e-3}
+    record = synthetic(config, t, inputs, noise, ("v", "r", "psi"), np.random.default_rng(1), name="zz")
+    write_csv(tmp_path / "clean.csv", record.t, record.y, record.inputs, record.measured)
+    toml = write_config(tmp_path / "zz.toml", config)
+    degraded(tmp_path / "clean.csv", tmp_path / "zz.csv", np.random.default_rng(2))
+    done = every_method(tmp_path / "zz.csv", toml, tmp_path, capsys)
+    assert all(code in (0, 1) for m, (code, _) in done.items() if m != "ml-fem"), done
+    assert done["ml-fem"][0] == 2 and "dropouts" in done["ml-fem"][1]
+
+
+MARIN = os.environ.get("TESTBED_KVLCC2_RAW", "")  # a folder with the MARIN .dat records and ship_data.yml
+
+
+@pytest.mark.skipif(not MARIN, reason="TESTBED_KVLCC2_RAW names no folder of the MARIN records")
+@pytest.mark.parametrize("name", ["zz_10", "zz_-10", "zz_20", "zz_-20"])
+def test_the_marin_zigzags_with_rows_dropped_run_end_to_end_with_every_method(tmp_path, capsys, name):
+    """The public MARIN zigzags (SIMMAN 2008, the KVLCC2 at full scale), converted, with 10 % of
+    their rows dropped and the heading wrapped: every method fits (exit 0, or 1 where its
+    iteration limit stops it) but `ml-fem`, which refuses the dropouts with a one-line reason."""
+    names = kvlcc2.convert(Path(MARIN), tmp_path / "data")
+    assert name in names
+    degraded(tmp_path / "data" / f"{name}.csv", tmp_path / f"{name}.csv", np.random.default_rng(1))
+    done = every_method(tmp_path / f"{name}.csv", tmp_path / "data" / f"{name}.toml", tmp_path, capsys)
+    assert all(code in (0, 1) for m, (code, _) in done.items() if m != "ml-fem"), done
+    assert done["ml-fem"][0] == 2 and "dropouts" in done["ml-fem"][1]

@@ -60,7 +60,7 @@ LAYERS = [
         "testbed.identification.innovations",
     ),
     ("testbed.identification.examples", "testbed.identification.nonlinear_output_error"),
-    ("testbed.estimators.base", "testbed.estimators.simplex"),
+    ("testbed.estimators.base", "testbed.estimators.simplex", "testbed.estimators.intervals"),
     (
         "testbed.estimators.mekf",
         "testbed.estimators.equation_error",

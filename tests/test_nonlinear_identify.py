@@ -507,3 +507,17 @@ def test_the_equation_error_start_needs_the_states_the_rows_involve(truth):
         identify([partial], config, "ml-gn", start="equation-error")
     assert "\n" not in str(e.value)
     assert identify([partial], config, "ml-gn", max_iter=1).start == "config"
+
+
+def test_the_equation_error_start_needs_an_interval_with_every_state_present(truth):
+    """Roll and pitch logged on alternate rows: no interval has every state the rows involve, so
+    the start cannot be computed (a one-line reason) and auto flies from the config's values."""
+    config, noisy, _ = truth
+    y = noisy.y.copy()
+    y[::2, STATES.index("phi")] = np.nan
+    y[1::2, STATES.index("theta")] = np.nan
+    alternate = replace(noisy, y=y)
+    with pytest.raises(InputError, match=r"equation-error start: no interval between samples") as e:
+        identify([alternate], config, "ml-gn", start="equation-error")
+    assert "\n" not in str(e.value)
+    assert identify([alternate], config, "ml-gn", max_iter=1).start == "config"

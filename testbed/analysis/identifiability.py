@@ -50,6 +50,7 @@ __all__ = [
     "insignificant",
     "screen",
     "screening",
+    "singular",
     "structural",
     "structurally_unidentified",
     "unidentified",
@@ -192,11 +193,30 @@ class Identifiability:
     null: float = NULL  # the eigenvalue of the scaled information, relative to the largest, taken as 0
 
     @property
+    def singular(self) -> np.ndarray:
+        """The directions along which these data's Fisher information is singular beyond the
+        structure's (`singular`), k × len(free) in coefficient units: each coefficient with
+        an infinite bound for want of information (`bounds.crlb`) lies on one."""
+        return singular(self.fisher, self.structural.basis, self.null)
+
+    @property
+    def singular_groups(self) -> tuple[tuple[str, ...], ...]:
+        """The coefficients sharing a direction of `singular`."""
+        return _groups(self.free, self.singular)
+
+    @property
+    def null_directions(self) -> int:
+        """The unidentifiable directions: the structure's and these data's (`singular`)."""
+        return self.structural.null_directions + len(self.singular)
+
+    @property
     def drift_groups(self) -> tuple[tuple[str, ...], ...]:
-        """Structural groups first, then the practical ones not already inside one."""
-        seen = [set(g) for g in self.structural.drift_groups]
+        """Structural groups first, then those of the data's singular directions, then the
+        practical ones not already inside one."""
+        groups = self.structural.drift_groups + self.singular_groups
+        seen = [set(g) for g in groups]
         extra = tuple(g for g in self.practical_groups if not any(set(g) <= s for s in seen))
-        return self.structural.drift_groups + extra
+        return groups + extra
 
     def to_json(self) -> str:
 
@@ -207,11 +227,14 @@ class Identifiability:
             "free": list(self.free),
             "crlb_std": {n: num(s) for n, s in zip(self.free, self.crlb_std)},
             "correlation": [[num(round(float(c), 6)) for c in row] for row in self.correlation],
-            "null_directions": self.structural.null_directions,
+            "null_directions": self.null_directions,
             "drift_groups": [list(g) for g in self.drift_groups],
             "structural_drift_groups": [list(g) for g in self.structural.drift_groups],
+            "singular_drift_groups": [list(g) for g in self.singular_groups],
             "practical_drift_groups": [list(g) for g in self.practical_groups],
-            "null_basis": [[float(v) for v in row] for row in self.structural.basis],
+            "null_basis": [
+                [float(v) for v in row] for row in np.vstack([self.structural.basis, self.singular])
+            ],
             "unobserved": list(self.structural.unobserved),
             "relative_crlb": {
                 n: num(s / abs(v)) if v else None for n, s, v in zip(self.free, self.crlb_std, self.values)
@@ -265,8 +288,36 @@ def assessed(
     uncertain = tuple(
         n for n, r, s in zip(free, rel, std) if np.isfinite(s) and np.isfinite(r) and r > UNCERTAIN
     )
-    summary = _summary(free, struct, practical, uncertain, corr, rel, std)
+    summary = _summary(free, struct, practical, uncertain, corr, rel, std, singular(F, struct.basis, null))
     return Identifiability(free, values, F, std, corr, struct, practical, uncertain, summary, null)
+
+
+def singular(F: np.ndarray, basis: np.ndarray, null: float = NULL) -> np.ndarray:
+    """The directions along which the Fisher information `F` is singular (an eigenvalue of the
+    scaled information at most `null` of the largest, as `bounds.crlb` takes them) that the
+    exactly unidentifiable `basis` (k × n, coefficient units) does not span, in reduced row
+    echelon form in coefficient units. A coefficient's component is kept only where `crlb`
+    gives it an infinite bound (above √null along the null directions, or no information), so
+    the directions name exactly the coefficients the data leave unbounded."""
+    M = (F + F.T) / 2
+    D = np.sqrt(np.maximum(np.diag(M), 0.0))
+    D = np.where(D > 0, D, 1.0)
+    lam, V = np.linalg.eigh(M / np.outer(D, D))
+    zero = lam <= null * max(lam.max(initial=0.0), 1e-300)
+    N = V[:, zero]  # the null directions, scaled coordinates D dθ
+    unbounded = (np.linalg.norm(N, axis=1) > np.sqrt(null)) | (np.diag(M) <= 0)
+    N[~unbounded] = 0.0
+    if len(basis):  # less the structure's directions (null directions of F too)
+        Q = np.linalg.qr((basis * D).T)[0]
+        N -= Q @ (Q.T @ N)
+        N[~unbounded] = 0.0
+    if not N.size:
+        return np.zeros((0, len(F)))
+    u, sv, _ = np.linalg.svd(N, full_matrices=False)
+    directions = u[:, sv > 1e-6].T / D  # coefficient units
+    if not len(directions):
+        return np.zeros((0, len(F)))
+    return _rref(directions / np.abs(directions).max(axis=1, keepdims=True))
 
 
 # -- the screen ------------------------------------------------------------------------------------
@@ -308,8 +359,9 @@ class Screened:
 
 def structurally_unidentified(result: Identifiability) -> dict[str, str]:
     """The screen's first stage, name → why, whatever the coefficients' values: the free
-    coefficients in an exactly unidentifiable drift group (`structural`) and those along which
-    the Fisher information of these data is singular (an infinite Cramér-Rao bound)."""
+    coefficients in an exactly unidentifiable drift group (`structural`) and those on a
+    direction along which the Fisher information of these data is singular (an infinite
+    Cramér-Rao bound: `Identifiability.singular`, the direction named)."""
     fixed = {}
     for group in result.structural.drift_groups:
         for n in group:
@@ -317,6 +369,13 @@ def structurally_unidentified(result: Identifiability) -> dict[str, str]:
                 "no fitted state depends on it"
                 if n in result.structural.unobserved
                 else f"in the exactly unidentifiable drift group {', '.join(group)}"
+            )
+    for d in result.singular:
+        for n in np.asarray(result.free)[d != 0]:
+            fixed.setdefault(
+                str(n),
+                f"the Fisher information of these data is singular along {_direction(result.free, d)} "
+                "(an infinite bound)",
             )
     for n, std in zip(result.free, result.crlb_std):
         if n not in fixed and not np.isfinite(std):
@@ -513,7 +572,7 @@ def unidentified(experiments, config, noise_std=None) -> dict[str, str]:
     return fixed
 
 
-def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, ...]:
+def _summary(free, struct, practical, uncertain, corr, rel, std, directions) -> tuple[str, ...]:
     """Plain sentences: what cannot be identified, and what to fix or measure."""
     lines = []
     if struct.unobserved:
@@ -533,10 +592,12 @@ def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, .
     structural_ = set(struct.unobserved) | {n for g in struct.drift_groups for n in g}
     singular = [n for n in free if np.isinf(std[index[n]]) and n not in structural_]
     if singular:
+        k = len(directions)
         lines.append(
             f"Unidentifiable in these data: {', '.join(singular)} (the Fisher information is "
-            "singular along them: infinite Cramér-Rao bounds); add a manoeuvre that excites "
-            "them or fix them."
+            f"singular along {k} direction{'s' if k > 1 else ''} of them, "
+            f"{'; '.join(_direction(free, d) for d in directions)}: infinite Cramér-Rao bounds); "
+            "add a manoeuvre that excites them or fix them."
         )
     for g in practical:
         worst = max(abs(corr[index[a], index[b]]) for a in g for b in g if a != b)
@@ -562,6 +623,14 @@ def _summary(free, struct, practical, uncertain, corr, rel, std) -> tuple[str, .
             f"bound is {100 * np.nanmax(rel):.2g} %."
         )
     return tuple(lines)
+
+
+def _direction(free, d: np.ndarray) -> str:
+    """A null direction in words, its coefficients' components: `dN_v + 0.25 dN_r`."""
+    terms = [
+        f"{'-' if v < 0 else '+'} {'' if abs(v) == 1 else f'{abs(v):.3g} '}d{n}" for n, v in zip(free, d) if v
+    ]
+    return " ".join(terms).removeprefix("+ ")
 
 
 # -- comparison with the analytic model -----------------------------------------------------------

@@ -81,7 +81,9 @@ class Estimate:
         message: what went wrong, where the status alone does not say (a divergence's reason).
         start_reason: why the fit started from `start` rather than the a-priori values.
         starts: every start tried (`start` auto or global): its name, the cost it reached, its
-            status and iterations; the estimate is the one of least cost.
+            status and iterations (and `left`: the coefficients it left at their a-priori
+            values, name → why), then every start that could not be computed, with its
+            `reason`; the estimate is the one of least cost.
         crlb_corrected_std: (n_free,) the bounds corrected for coloured residuals
             (output-error methods; None otherwise).
         initial_states: experiment → state → fitted initial value (absolute u), for the

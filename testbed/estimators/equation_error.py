@@ -15,6 +15,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators.base import Callback, Estimate, Method, Options, Progress, Status, option
+from testbed.estimators.intervals import between_present
 from testbed.identification.bounds import assess
 from testbed.identification.likelihood import divergence, initial_states
 from testbed.identification.problem import Problem, problem
@@ -26,41 +27,51 @@ WINDOW_S = 0.5  # the smoothing window's default width, seconds
 SMOOTHABLE = 5  # the shortest window a cubic is smoothed over: a record needs as many samples
 
 
-def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, dict[str, tuple[str, ...]]]:
+def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, dict[str, str]]:
     """The free coefficients (n_free,) from a least-squares fit of the linear model's rows, and
-    those left at their a-priori values for want of data: name → the states their row involves.
+    those left at their a-priori values for want of data: name → why.
 
     Each dynamics row `Mt ẋ = At x + Bt δ + St` is linear in its coefficients. The measured states
-    are smoothed (Savitzky-Golay, cubic, `window_s` wide) and the row is averaged over each
-    sample interval, where the input is held: ẋ ≈ Δx/Δt, x ≈ the interval's midpoint; the row's
-    free coefficients are then a linear regression. Missing samples: the cubic of each window is
-    fitted to the samples present (`smoothed`), and an interval where a state the row involves
-    has too few of them is left out of that row's regression. A row is used only on experiments that
-    measure every state it involves (and are long enough to smooth); the free coefficients of a
-    row that no experiment supports, and directions the data do not excite, keep their a-priori
-    values (minimum-norm correction).
+    are smoothed (Savitzky-Golay, cubic, `window_s` wide and at least `SMOOTHABLE` samples) and
+    the row is averaged over each interval between consecutive smoothed samples of the states it
+    involves (`intervals.between_present`), where the input is held: ẋ ≈ Δx/Δt, x ≈ the
+    interval's midpoint, δ its mean over the interval; the row's free coefficients are then a
+    linear regression. Missing samples: the cubic of each window is fitted to the samples present
+    (`smoothed`), a window with too few of them gives no smoothed sample, and the interval runs
+    on to the next one there is. A row is used only on experiments that measure every state it
+    involves; the free coefficients of a row that no experiment supports (none measures those
+    states, or none has enough of their samples present to smooth), and directions the data do
+    not excite, keep their a-priori values (minimum-norm correction).
     """
     s = prob.structure
     # each record's known part: constants and fixed coefficients (a record may have its own)
     known = [tilde(s, prob.coefficients(np.zeros(prob.n_free), r.group)) for r in prob.records]
     values, left = prob.start, {}
-    intervals = []  # per record: (ẋ, x, δ) over its sample intervals, or None if too short to smooth
+    records = []  # per record: (t, smoothed states (NaN: none), inputs), or None if too short
     for r in prob.records:
         n = len(r.y)
-        win = min(max(SMOOTHABLE, int(round(window_s / r.dt)) | 1), n - (1 - n % 2))
+        odd = n - (1 - n % 2)  # the longest window within the record
+        win = min(max(SMOOTHABLE, int(round(window_s / r.dt)) | 1), odd)
         if win < SMOOTHABLE:
-            intervals.append(None)
+            records.append(None)
             continue
-        # only intervals whose smoothing window lies within the record: the ends would be
+        # only samples whose smoothing window lies within the record: the ends would be
         # extrapolated
-        xs = np.zeros((n - win + 1, NX))
+        xs = np.full((n, NX), np.nan)
         # the measured states: the data less their output terms (at the a-priori values)
-        xs[:, r.measured] = smoothed(r.y - prob.output_terms(r, prob.start), win, r.present)
-        us = smoothed(prob.inputs(r, prob.start), win)  # the a-priori input delay
-        # over each sample interval the input is held: the row equation averaged over it
-        # has ẋ = Δx/Δt, x at the midpoint and δ exactly, with no derivative across a step;
-        # the same (linear) smoothing of states and inputs keeps that equation consistent
-        intervals.append((np.diff(xs, axis=0) / r.dt, (xs[1:] + xs[:-1]) / 2, us[:-1]))
+        y = r.y - prob.output_terms(r, prob.start)
+        present = np.ones(y.shape, bool) if r.present is None else r.present
+        # a channel sampled at a fraction f of the rows: a window wide enough to hold SMOOTHABLE
+        # of its samples
+        f = present.mean(axis=0)
+        wide = [min(max(win, int(np.ceil(SMOOTHABLE / fc)) | 1), odd) if fc else 0 for fc in f]
+        for w in set(wide) - {0}:  # the channels of one window width smoothed together
+            c = [k for k, wk in enumerate(wide) if wk == w]
+            xs[w // 2 : n - w // 2, r.measured[c]] = smoothed(y[:, c], w, present[:, c])
+        # the inputs (the a-priori input delay) smoothed as the states of every sample are
+        us = prob.inputs(r, prob.start).copy()
+        us[win // 2 : n - win // 2] = smoothed(us, win)
+        records.append((r.dt * np.arange(n), xs, us))
     for row in range(6):  # u v w p q r
         cols = [
             j
@@ -73,13 +84,17 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
         involved = np.any([(Mf[row] != 0) | (Af[row] != 0) for Mf, Af, _, _ in known], axis=0)
         involved |= (s.dMt[idx, row] != 0).any(0) | (s.dAt[idx, row] != 0).any(0)
         involved[row] = True
-        X, Y = [], []
-        for r, record, (Mf, Af, Bf, Sf) in zip(prob.records, intervals, known):
-            if record is None or not set(np.flatnonzero(involved)) <= set(r.measured):
+        at = np.flatnonzero(involved)  # the states the row involves: the others may be missing
+        X, Y, measuring = [], [], 0
+        for r, record, (Mf, Af, Bf, Sf) in zip(prob.records, records, known):
+            if not set(at) <= set(r.measured):
                 continue
-            xdot, x, u = record
-            at = np.flatnonzero(involved)  # the states the row involves: the others may be missing
-            xdot, x = xdot[:, at], x[:, at]
+            measuring += 1
+            if record is None:
+                continue
+            # over each interval between smoothed samples of every state the row involves
+            t, xs, us = record
+            xdot, x, u = between_present(t, xs[:, at], us)
             # Σ_free θ_i (∂Mt_i ẋ − ∂At_i x − ∂Bt_i δ − ∂St_i)_row = (At_f x + Bt_f δ + St_f − Mt_f ẋ)_row,
             # each record's own values (per record) acting on its rows alone
             Xr = (
@@ -89,12 +104,23 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
                 - s.dSt[idx, row]
             ) * prob.acting(r.group)[cols]
             Yr = x @ Af[row, at] + u @ Bf[row] + Sf[row] - xdot @ Mf[row, at]
-            keep = np.isfinite(Yr)  # an interval whose smoothed states are missing: left out
+            keep = np.isfinite(Yr) & np.isfinite(Xr).all(axis=1)
             X.append(Xr[keep])
             Y.append(Yr[keep])
-        if not X:
-            needs = tuple(STATES[i] for i in np.flatnonzero(involved))
-            left |= {prob.free[j]: needs for j in cols}
+        if not sum(map(len, Y)):
+            needs = ", ".join(STATES[i] for i in at)
+            if measuring:
+                why = (
+                    f"the row involves {needs}; no experiment has enough of their samples present to "
+                    f"smooth (a cubic over {window_s:g} s and at least {SMOOTHABLE} samples, half of "
+                    "them present)"
+                )
+            else:
+                unmeasured = [STATES[i] for i in at if not any(i in r.measured for r in prob.records)]
+                why = f"the row involves {needs}; no experiment measures " + (
+                    ", ".join(unmeasured) if unmeasured else "them all"
+                )
+            left |= {prob.free[j]: why for j in cols}
             continue
         X, Y = np.vstack(X), np.concatenate(Y)
         prior = values[cols]
@@ -110,7 +136,10 @@ def smoothed(y: np.ndarray, win: int, present: np.ndarray | None = None) -> np.n
     whose window lies within the record (N − win + 1 of them), the value there of the cubic
     fitted to the window by least squares, a fixed weighted sum of the window. With `present`
     (N, k; None: every sample) the cubic is fitted to the samples present in the window alone,
-    and the value is NaN where fewer than half of the window's samples are present."""
+    and the value is NaN where fewer than half of the samples the channel's rate puts in the
+    window (its fraction present over the record times `win`), or fewer than `SMOOTHABLE`, are
+    present: a gap is not bridged, and a cubic's four coefficients are fitted to at least five
+    distinct samples, never a singular system."""
     h = win // 2
     n = len(y) - 2 * h
     if present is None or present.all():
@@ -121,6 +150,7 @@ def smoothed(y: np.ndarray, win: int, present: np.ndarray | None = None) -> np.n
     # per window and channel the normal equations of the cubic in s = o − h, weighted by presence:
     # Σ P s^(a+b) (a, b ≤ 3) and Σ P s^a y, summed over the window's offsets o
     w = present.astype(float)
+    y = np.where(present, y, 0.0)
     s = (np.arange(win) - h) / max(h, 1)  # scaled to [−1, 1]: the 4 × 4 systems stay conditioned
     powers = s[:, None] ** np.arange(7)  # (win, 7)
     A, b = np.zeros((n, y.shape[1], 7)), np.zeros((n, y.shape[1], 4))
@@ -129,7 +159,7 @@ def smoothed(y: np.ndarray, win: int, present: np.ndarray | None = None) -> np.n
         A += wo * powers[o]
         b += (y[o : o + n] * w[o : o + n])[:, :, None] * powers[o, :4]
     normal = A[:, :, np.add.outer(np.arange(4), np.arange(4))]  # (n, k, 4, 4) Hankel
-    enough = A[:, :, 0] >= win / 2
+    enough = A[:, :, 0] >= np.maximum(w.mean(axis=0) * win / 2, SMOOTHABLE)
     normal[~enough] = np.eye(4)
     out = np.linalg.solve(normal, b[..., None])[..., 0, 0]
     return np.where(enough, out, np.nan)
@@ -171,14 +201,11 @@ def _fit(
     prob = problem(experiments, config)
     values, left = regression(prob, options.window_s)
     if left:
-        rows = {needs: [n for n in left if left[n] == needs] for needs in left.values()}
+        rows = {why: [n for n in left if left[n] == why] for why in left.values()}
         raise InputError(
             f"{prob.source}: method='equation-error' cannot estimate "
-            + "; ".join(
-                f"{', '.join(names)} (their row involves {', '.join(needs)})" for needs, names in rows.items()
-            )
-            + f": no experiment of at least {SMOOTHABLE} samples measures all those states; expected "
-            "experiments that do, or another method"
+            + "; ".join(f"{', '.join(names)} ({why})" for why, names in rows.items())
+            + ": expected experiments that measure those states, or another method"
         )
     history = np.vstack([prob.start, values])
     why = None if np.all(np.isfinite(values)) else "the regression's estimate is not finite"

@@ -353,7 +353,7 @@ def _fit(
         prob = problem(experiments, config)
         cycles = _cycles(prob)
         rows = noise_rows(prob, opts.process_noise)
-        theta0 = starts.named(prob, experiments, config, opts.start)
+        theta0 = starts.named(prob, experiments, config, opts.start)[0]
         lik = _Likelihood(prob, rows, theta0, cycles, opts.correlation_time)
         S, q0 = _start_noise(lik)
         p = likelihood.initial_states(prob, theta0)

@@ -316,11 +316,14 @@ def _one_simplex(
     return Outcome(likelihood.initial_states(prob, scale * corners[0], R), status, it, np.array(history))
 
 
-def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit], evaluations: int) -> Estimate:
+def _estimate(
+    name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit], evaluations: int, notes: dict[str, dict]
+) -> Estimate:
     """The `Estimate` where the optimiser stopped from `fit`'s start, with its Cramér-Rao analysis
-    and every start's result (`fits`) and the fit's `evaluations`; a DIVERGED one (the reason
-    in its `message`) where that analysis breaks down or is not finite."""
-    out, start, start_reason = fit.outcome, fit.start, _summary(fits)
+    and every start's result (`fits`; `notes`, start → the coefficients it left at their
+    a-priori values, or why it was not computed) and the fit's `evaluations`; a DIVERGED one (the
+    reason in its `message`) where that analysis breaks down or is not finite."""
+    out, start, start_reason = fit.outcome, fit.start, _summary(fits, notes)
     tried = tuple(
         {
             "start": f.start,
@@ -329,7 +332,12 @@ def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit], ev
             "iterations": f.outcome.iterations,
         }
         | ({"joined": f.joined} if f.joined else {})
+        | notes.get(f.start, {})
         for f in fits
+    ) + tuple(
+        {"start": k, "cost": np.nan, "status": NOT_COMPUTED, "iterations": 0} | note
+        for k, note in notes.items()
+        if "reason" in note
     )
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -414,15 +422,24 @@ def best_fit(fits: list[Fit]) -> Fit:
     return min(converged or fits, key=lambda f: f.cost)
 
 
-def _summary(fits: list[Fit]) -> str:
-    """What every start reached, for the estimate's `start_reason`."""
+NOT_COMPUTED = "not computed"  # a start's status in `starts` where it could not be computed
+
+
+def _summary(fits: list[Fit], notes: dict[str, dict]) -> str:
+    """What every start reached, or why it was not computed, for the estimate's `start_reason`."""
     parts = [
         f"{f.start}: cost {f.cost:.6g} ({f.outcome.status.message}"
         + (f", on the {f.joined} start's path" if f.joined else "")
+        + (
+            f"; {', '.join(notes[f.start]['left'])} left at their a-priori values"
+            if "left" in notes.get(f.start, {})
+            else ""
+        )
         + ")"
         for f in fits
-    ]
-    return f"the least cost of {len(fits)} starts ({'; '.join(parts)})" if len(fits) > 1 else ""
+    ] + [f"{k}: {NOT_COMPUTED} ({note['reason']})" for k, note in notes.items() if "reason" in note]
+    kept = f"the least cost of {len(fits)} starts" if len(fits) > 1 else "the only start computed"
+    return f"{kept} ({'; '.join(parts)})" if len(parts) > 1 else ""
 
 
 def _fit(
@@ -490,33 +507,46 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
             out = replace(out, status=Status.WORSE)
         return Fit(label, out, J, J0)
 
+    notes: dict[str, dict] = {}  # start → what it left out ("left") or why it was not computed ("reason")
+
+    def computed(label: str) -> np.ndarray | None:
+        """The start `label`'s coefficients (`starts.named`), None where it cannot be computed."""
+        try:
+            theta, left = starts.named(prob, experiments, config, label)
+        except InputError as exc:  # the filter refused the data or diverged; no row to regress
+            notes[label] = {"reason": str(exc)}
+            return None
+        if left:
+            notes[label] = {"left": left}
+        return theta
+
     if start in ("config", "equation-error", "mekf"):
-        fit = run(start, *begin(starts.named(prob, experiments, config, start)))
+        theta, left = starts.named(prob, experiments, config, start)
+        notes = {start: {"left": left}} if left else {}
+        fit = run(start, *begin(theta))
         if start == "config" and fit.outcome.status is Status.DIVERGED and not np.isfinite(fit.start_cost):
             raise InputError(
                 f"{prob.source}: the a-priori model diverges ({likelihood.divergence(prob, fit.outcome.p)}); "
                 "expected coefficients giving a bounded response, or start auto or global"
             )
-        return _estimate(name, prob, fit, t0, [fit], _evaluations(prob, tally))
+        return _estimate(name, prob, fit, t0, [fit], _evaluations(prob, tally), notes)
 
-    named = {
-        "config": prob.start,
-        "equation-error": starts.named(prob, experiments, config, "equation-error"),
-    }
-    first = {k: begin(v) for k, v in named.items()}
-    for k in sorted(named, key=lambda k: (first[k][1], k != "config")):
+    named = {"config": prob.start, "equation-error": computed("equation-error")}
+    first = {k: begin(v) for k, v in named.items() if v is not None}
+    for k in sorted(first, key=lambda k: (first[k][1], k != "config")):
         fits.append(run(k, *first[k], fits))
     if start == "global":
         for k, theta in enumerate(_polish_starts(prob, options)):
             fits.append(run(f"box-{k + 1}", *begin(theta), fits))
-    elif abs(fits[0].cost - fits[1].cost) > DELTA_J or any(
-        f.outcome.status is not Status.CONVERGED for f in fits
+    elif (
+        len(fits) < 2
+        or abs(fits[0].cost - fits[1].cost) > DELTA_J
+        or any(f.outcome.status is not Status.CONVERGED for f in fits)
     ):
-        try:
-            fits.append(run("mekf", *begin(starts.named(prob, experiments, config, "mekf")), fits))
-        except InputError:  # the filter refused the data or diverged: no third start
-            pass
-    return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally))
+        theta = computed("mekf")
+        if theta is not None:
+            fits.append(run("mekf", *begin(theta), fits))
+    return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally), notes)
 
 
 def _polish_starts(prob: Problem, options: Options) -> list[np.ndarray]:

@@ -31,6 +31,7 @@ from typing import Sequence
 import numpy as np
 
 from testbed.errors import InputError
+from testbed.estimators.intervals import between_present
 from testbed.identification.nonlinear_output_error import Record
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import NonlinearModel, rates, sensitivities
@@ -45,22 +46,17 @@ STEP_TOL = 1e-6  # stop when every step is below this fraction of its coefficien
 
 def _intervals(records: Sequence[Record], channels: Sequence[str]):
     """(ν̇, x̄, δ) over every record's intervals between consecutive samples where the rows'
-    states are all present: the measured states' difference quotient, their midpoint (the states
-    the rows do not involve at 0) and the fins' mean over the interval (the fins held at each
-    row, so the rows' fins where every sample is present)."""
+    states are all present (`intervals.between_present`), the states the rows do not involve at 0."""
     to = [STATES.index(c) for c in NEEDED]
     source = [list(channels).index(c) for c in NEEDED]
     nudot, xbar, fins = [], [], []
     for r in records:
-        rows = np.flatnonzero(~np.isnan(r.y[:, source]).any(axis=1))
-        x = np.zeros((len(rows), len(STATES)))
-        x[:, to] = r.y[rows][:, source]
-        span = np.diff(r.t[rows])
-        nudot.append(np.diff(x[:, :ROWS], axis=0) / span[:, None])
-        xbar.append(0.5 * (x[1:] + x[:-1]))
-        # ∫ δ dt from the first row to each row: the held fins times the rows' steps
-        integral = np.concatenate([np.zeros((1, 3)), np.cumsum(r.fins[:-1] * np.diff(r.t)[:, None], axis=0)])
-        fins.append(np.diff(integral[rows], axis=0) / span[:, None])
+        quotient, mid, mean = between_present(r.t, r.y[:, source], r.fins)
+        x = np.zeros((len(mid), len(STATES)))
+        x[:, to] = mid
+        nudot.append(quotient[:, :ROWS])
+        xbar.append(x)
+        fins.append(mean)
     return np.concatenate(nudot), np.concatenate(xbar), np.concatenate(fins)
 
 
@@ -69,7 +65,7 @@ def equation_error(
 ) -> np.ndarray:
     """θ with its `free` coefficients (names from `model.names`) fitted to the records' difference
     quotients from `theta` (module doc); `InputError` naming the states the rows need that the
-    records do not measure."""
+    records do not measure, or where no interval has them all present."""
     missing = [c for c in NEEDED if c not in channels]
     if missing:
         raise InputError(
@@ -77,6 +73,12 @@ def equation_error(
             f"involve {' '.join(NEEDED)}: expected records measuring them, or start config"
         )
     nudot, x, fins = _intervals(records, channels)
+    if not len(nudot):
+        raise InputError(
+            "equation-error start: no interval between samples where every state the dynamics rows "
+            f"involve ({' '.join(NEEDED)}) is present; expected records with rows measuring them all, "
+            "or start config"
+        )
     idx = np.array([model.names.index(n) for n in free])
     theta = np.array(theta, float)
     for _ in range(STEPS):

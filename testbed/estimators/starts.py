@@ -31,20 +31,31 @@ __all__ = ["BOX_BOUNDS", "box", "named"]
 BOX_BOUNDS = 3.0  # a coefficient analysed at 0 is searched within ± this many Cramér-Rao bounds
 
 
-def named(prob: Problem, experiments: Sequence[Experiment], config: ModelConfig, start: str) -> np.ndarray:
-    """The free coefficients of the start `start` (config, equation-error or mekf); InputError
-    where the MEKF diverges or refuses the data (the reason named)."""
+def named(
+    prob: Problem, experiments: Sequence[Experiment], config: ModelConfig, start: str
+) -> tuple[np.ndarray, dict[str, str]]:
+    """The free coefficients of the start `start` (config, equation-error or mekf), and those it
+    leaves at their a-priori values, name → why (equation error's rows that no experiment
+    supports: `equation_error.regression`). InputError where the start cannot be computed, the
+    reason named: the MEKF diverges or refuses the data, or equation error supports no row."""
     if start == "config":
-        return prob.start
+        return prob.start, {}
     if start == "equation-error":
-        return equation_error.regression(prob)[0]
+        values, left = equation_error.regression(prob)
+        if len(left) == prob.n_free:
+            why = "; ".join(dict.fromkeys(left.values()))
+            raise InputError(
+                f"{prob.source}: start='equation-error': no free coefficient's row can be regressed on "
+                f"these data ({why}); expected records measuring those states, or start config or mekf"
+            )
+        return values, left
     est = mekf.MEKF.fit(experiments, config, mekf.FilterOptions(), None)
     if est.status is Status.DIVERGED:
         raise InputError(
             f"{prob.source}: start='mekf': the MEKF diverged ({est.message}); expected "
             "a filter that converges, or start auto or equation-error"
         )
-    return np.array([est.coefficients[n] for n in prob.free])
+    return np.array([est.coefficients[n] for n in prob.free]), {}
 
 
 def box(prob: Problem, count: int, spread: float, rng: np.random.Generator) -> np.ndarray:
