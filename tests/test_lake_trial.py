@@ -217,3 +217,38 @@ def test_the_full_lake_trial(tmp_path):
         assert 20.0 <= e.duration <= 26.0 and header == COLUMNS
         assert float(rows[-1][0]) <= e.duration < float(rows[-1][0]) + 0.6
     assert (out / "prior.toml").exists()
+
+
+STEPPED = """name = "stepped"
+duration = 6.0
+speed = 2.0
+control_rate = 10.0
+[sensors]
+steps = [0.4, 0.6]
+fin_std = 0.0
+{trial}
+[[experiment]]
+name = "x"
+autopilot = {{depth = 0.0, roll = 0.0, yaw_rate = {{signal = "square", amplitude = 0.03, half_period = 1.3}}}}
+"""
+
+
+@pytest.mark.parametrize("trial, delay", [("", 0), ("[trial]\nfin_log_delay = 0.1", 1)])
+def test_stepped_fins_are_each_rows_interval_mean_logged_late_by_the_trials_delay(trial, delay):
+    """Without named sensors (the default sensor's path) and with a [trial]'s fin log delay of one
+    control period: row i's recorded fin is the fins' mean over [t_i − d, t_i+1 − d), from the
+    same flight logged uniformly at 10 Hz (before the start the fins were at 0)."""
+    import tomllib
+
+    from testbed.simulation.scenario import parse_scenario
+
+    s = parse_scenario(tomllib.loads(STEPPED.format(trial=trial)), "stepped.toml")
+    (f,), _ = fly_scenario(s, 2, truth="linear")
+    (g,), _ = fly_scenario(replace(s, sensors=replace(s.sensors, steps=None, rate=10.0)), 2, truth="linear")
+    at = np.round(f.t * 10).astype(int)
+    assert at.tolist()[:5] == [0, 4, 10, 14, 20] and f.t[-1] == 6.0
+    np.testing.assert_array_equal(f.truth, g.truth[at])
+    late = np.vstack([np.zeros((delay, 3)), g.fins])  # the uniform log's interval means, d late
+    means = [late[a:b].mean(axis=0) for a, b in zip(at[:-1], at[1:])]
+    np.testing.assert_allclose(f.fins_measured[:-1], means, rtol=1e-9, atol=1e-15)
+    assert np.abs(f.fins_measured[:-1]).max() > 1e-3  # the rudder moved
