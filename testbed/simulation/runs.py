@@ -162,20 +162,15 @@ def _versions() -> dict[str, str]:
 
 def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path, truth: str) -> str:
     """The command that regenerates the run: the built-in scenario by name where the run flew it
-    as built but for the command line's --duration and --speed, else the run's scenario.toml."""
+    as built but for the command line's --duration (left out where the built-in's experiments
+    keep their own durations) and --speed, else the run's scenario.toml."""
     parts = ["testbed", "simulate", "--seed", str(seed)]
-    as_built = None
-    if s.source == "built-in":
-        as_built = replace(scenario(s.name).with_overrides(flown.duration, flown.speed), source="")
-    if as_built is not None and scenario_text(as_built) == scenario_text(flown):
-        parts += [
-            "--scenario",
-            s.name,
-            "--duration",
-            repr(float(flown.duration)),
-            "--speed",
-            repr(float(flown.speed)),
-        ]
+    built = scenario(s.name) if s.source == "built-in" else None
+    speed = ["--speed", repr(float(flown.speed))]
+    if built is not None and _same(built.with_overrides(flown.duration, flown.speed), flown):
+        parts += ["--scenario", s.name, "--duration", repr(float(flown.duration)), *speed]
+    elif built is not None and _same(built.with_overrides(None, flown.speed), flown):
+        parts += ["--scenario", s.name, *speed]
     else:
         parts += ["--scenario", str(out.resolve() / "scenario.toml")]
     if mjcf is not None:
@@ -183,3 +178,8 @@ def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path, truth: st
     if truth != "plant":
         parts += ["--truth", truth]
     return shlex.join(parts)
+
+
+def _same(a: Scenario, b: Scenario) -> bool:
+    """Whether two scenarios fly the same: the same scenario file but for where it was read."""
+    return scenario_text(replace(a, source="")) == scenario_text(replace(b, source=""))
