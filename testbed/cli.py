@@ -412,6 +412,7 @@ BUILTIN_SCENARIOS = (
     "inputs-3211",
     "inputs-multisine",
     "inputs-square",
+    "lake",
     "turn",
     "turning-circle",
     "zigzag",

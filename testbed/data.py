@@ -935,7 +935,9 @@ def parse_sensor(name: str, doc, where: str, keys: Sequence[str] = CONFIG_SENSOR
     for key in ("delay", "rate"):
         if key in doc:
             kw[key] = number(doc[key], f"{where}.{key}")
-    for key in ("bias", "scale", "noise_std"):
+    if "hold" in doc:
+        kw["hold"] = doc["hold"]
+    for key in ("bias", "scale", "noise_std", "resolution"):
         table = doc.get(key, {})
         if not isinstance(table, Mapping):
             raise InputError(f"{where}.{key}: expected a table of output = value")
@@ -961,6 +963,10 @@ def sensor_table(s: Sensor) -> dict:
         out["rate"] = s.rate
     if s.noise_std:
         out["noise_std"] = dict(s.noise_std)
+    if s.resolution:
+        out["resolution"] = dict(s.resolution)
+    if s.hold:
+        out["hold"] = True
     return out
 
 

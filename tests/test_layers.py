@@ -38,6 +38,7 @@ LAYERS = [
         "testbed.simulation.signals",
         "testbed.simulation.sensing",
         "testbed.simulation.trial",
+        "testbed.simulation.prior",
         "testbed.simulation.captive",
     ),
     ("testbed.simulation.captive_fit",),

@@ -518,7 +518,7 @@ def test_library_checks_its_inputs(tmp_path):
     assert rng_for(np.int64(3), 0).integers(1 << 30) == rng_for(3, 0).integers(1 << 30)
     with pytest.raises(
         InputError,
-        match="unknown; expected one of I, II, II-trial, inputs-3211, inputs-multisine, inputs-square, turn, turning-circle, zigzag, zigzag-vertical",
+        match="unknown; expected one of I, II, II-trial, inputs-3211, inputs-multisine, inputs-square, lake, turn, turning-circle, zigzag, zigzag-vertical",
     ):
         sc.scenario("III")
 
@@ -589,7 +589,7 @@ def test_a_fin_rate_the_plant_cannot_log_is_a_one_line_error(tmp_path, capsys, s
 
 
 def test_a_fin_rate_with_a_trial_is_refused():
-    with pytest.raises(InputError, match=r"sensors.fin_rate with named sensors or a \[trial\]") as e:
+    with pytest.raises(InputError, match=r"sensors.fin_rate with named sensors, a \[trial\] or steps") as e:
         sc.parse_scenario(
             tomllib.loads(
                 "[sensors]\nfin_rate = 100.0\n[trial]\ncurrent = [0.1, 0.0, 0.0]\n[[experiment]]\nname = 'x'\n"

@@ -262,9 +262,9 @@ def test_ii_trial_round_trips_through_its_scenario_text():
     assert not s.is_perfect and s.columns[-3:] == ("ax", "ay", "az")
     dotted = replace(flown, named_sensors=(replace(flown.named_sensors[0], name="dvl 2.b"),))
     assert parse_scenario(tomllib.loads(scenario_text(dotted)), "") == dotted
-    # every other built-in stays perfect: its scenario.toml has no new table
+    # every other built-in but the lake trial's logger stays perfect: its scenario.toml has no new table
     for p in SCENARIO_DIR.glob("*.toml"):
-        if p.stem != "II-trial":
+        if p.stem not in ("II-trial", "lake"):
             other = scenario(p.stem)
             assert other.is_perfect and "[trial]" not in scenario_text(other)
 

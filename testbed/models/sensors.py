@@ -19,8 +19,9 @@ v and ω are the body-axis velocity through the water and angular velocity at th
 model's states); the accelerometers need v̇ and ω̇ (a steady current adds nothing to them: the
 ground velocity's inertial rate is v̇ + ω × v either way). Each output is then
 `(1 + scale) · reading + bias`. A sensor's `delay` (its output at t is the reading at t − delay),
-`rate` and `noise_std` say how it is sampled, which is the simulation's business
-(`testbed.simulation.sensing`). The default sensor reads every state at the CG, unbiased: the
+`rate`, `noise_std`, `resolution` (its outputs' quantisation step) and `hold` (its last sample
+repeated in the rows between its own samples) say how it is sampled and logged, which is the
+simulation's business (`testbed.simulation.sensing`). The default sensor reads every state at the CG, unbiased: the
 sensors of a run without imperfections.
 
 `outputs` is the exact map, analytic in the state (so complex-step differentiable);
@@ -84,6 +85,8 @@ class Sensor:
     delay: float = 0.0  # s
     rate: float | None = None  # Hz; None: the record's sample rate
     noise_std: Mapping[str, float] = field(default_factory=dict)  # per output, white, its unit
+    resolution: Mapping[str, float] = field(default_factory=dict)  # per output, its quantisation step
+    hold: bool = False  # its last sample logged again in the rows between its own samples
 
     def __post_init__(self):
         where = f"sensor {self.name!r}"
@@ -120,6 +123,7 @@ class Sensor:
             "bias": (is_number, "a finite number"),
             "scale": (lambda s: is_number(s) and s > -1, "a finite number > -1 (fraction)"),
             "noise_std": (lambda s: is_number(s) and s >= 0, "a finite number >= 0"),
+            "resolution": (lambda s: is_number(s) and s > 0, "a finite number > 0 (its unit)"),
         }
         for key, (ok, expected) in checks.items():
             table = getattr(self, key)
@@ -134,6 +138,8 @@ class Sensor:
             raise InputError(f"{where}: delay {self.delay!r}; expected a finite number 0 to 10 (s)")
         if self.rate is not None and not (is_number(self.rate) and self.rate > 0):
             raise InputError(f"{where}: rate {self.rate!r}; expected a finite number > 0 (Hz)")
+        if not isinstance(self.hold, bool):
+            raise InputError(f"{where}: hold {self.hold!r}; expected true or false")
 
 
 # -- rotations -----------------------------------------------------------------------------------

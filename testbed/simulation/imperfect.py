@@ -19,7 +19,7 @@ import numpy as np
 
 from testbed.models.linear import IX, NX, STATES
 from testbed.models.sensors import Sensor, outputs
-from testbed.simulation.measurements import Sensors, measure
+from testbed.simulation.measurements import Sensors, interval_means, measure
 from testbed.simulation.sensing import SENSOR_STREAM, sample
 from testbed.simulation.trial import TURBULENCE_STREAM, Backlash, Trial, gauss_markov
 
@@ -63,9 +63,10 @@ class TrialFlight:
         if trial.has_loads and self.j == len(self.x) - 1:
             plant.wrench = np.zeros(6)  # the plant is reused: no load carries into the next flight
 
-    def fin_means(self, t: np.ndarray, rate: float, fins: np.ndarray) -> np.ndarray:
+    def fin_means(self, t: np.ndarray, rate: float | None, fins: np.ndarray) -> np.ndarray:
         """The recorded fins: each sample interval's mean angle `fin_log_delay` s earlier (the
-        integral is piecewise linear: interpolation is exact; before the start the fins were at 0)."""
+        integral is piecewise linear: interpolation is exact; before the start the fins were at 0);
+        `rate`: the record's uniform sample rate, None for stamps at unequal steps."""
         d = self.trial.fin_log_delay
         if not d:
             return fins
@@ -74,7 +75,7 @@ class TrialFlight:
             [np.interp(t - d, fine_t, self.integral[:, j], left=0.0) for j in range(3)]
         )
         out = fins.copy()
-        out[:-1] = np.diff(integral, axis=0) * rate
+        out[:-1] = interval_means(integral, t, rate)
         step = min(int(math.floor((t[-1] - d) / self.h + 1e-9)), len(self.x) - 2)  # the last: the angle then
         out[-1] = (self.integral[step + 1] - self.integral[step]) / self.h if step >= 0 else 0.0
         return out
@@ -91,12 +92,13 @@ class TrialFlight:
         fine_x = self.x.copy()
         fine_x[:, IX["psi"]] = np.unwrap(fine_x[:, IX["psi"]])
         at_cg = outputs(Sensor(), truth, current=current) if any(current) else truth
-        measured, fins_measured = measure(at_cg, self.fin_means(t, sensors.rate, fins), sensors, rng, noise)
+        rate = None if sensors.steps else sensors.rate
+        measured, fins_measured = measure(at_cg, self.fin_means(t, rate, fins), sensors, rng, noise)
         fins_measured = fins_measured + self.trial.offsets
         measured[:, [IX[n] for n in STATES if n not in columns]] = np.nan
         specific_force = None
         for k, sensor in enumerate(named):
-            y = sample(sensor, t, sensors.rate, fine_t, fine_x, current, streams(SENSOR_STREAM + k))
+            y = sample(sensor, t, fine_t, fine_x, current, streams(SENSOR_STREAM + k))
             for j, o in enumerate(sensor.outputs):
                 if o in IX:
                     measured[:, IX[o]] = y[:, j]

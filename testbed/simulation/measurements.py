@@ -38,6 +38,7 @@ __all__ = [
     "NOISE_STD",
     "Sensors",
     "check_seed",
+    "interval_means",
     "measure",
     "noise_free_channels",
     "noise_from_data",
@@ -61,12 +62,15 @@ FIN_NOISE_STD = 2e-5
 
 @dataclass(frozen=True)
 class Sensors:
-    """Sample rate, per-channel noise (standard deviations, SI) and the fins' log rate."""
+    """Sample rate (or the logger's repeating steps), per-channel noise (standard deviations,
+    SI) and the fins' log rate."""
 
-    rate: float = 50.0  # Hz
+    rate: float = 50.0  # Hz; with `steps`, the mean rate len(steps) / sum(steps)
     noise_std: Mapping[str, float] = field(default_factory=lambda: dict(NOISE_STD))
     fin_std: float = FIN_NOISE_STD
     fin_rate: float | None = None  # Hz: the fin angles logged this often (None: at `rate`)
+    # s: the steps between the record's rows, repeated from t = 0 (None: uniform at `rate`)
+    steps: tuple[float, ...] | None = None
 
     def __post_init__(self):
         if not 0 < self.rate < math.inf:
@@ -80,6 +84,13 @@ class Sensors:
                 raise InputError(f"noise for {name!r} = {s}; expected a finite number >= 0")
         if not 0 <= self.fin_std < math.inf:
             raise InputError(f"fin noise {self.fin_std}; expected a finite number >= 0 (rad)")
+        if self.steps is not None:
+            if not self.steps or not all(isinstance(d, float) and 0 < d < math.inf for d in self.steps):
+                raise InputError(
+                    f"steps {list(self.steps)!r}; expected a non-empty list of finite numbers > 0 (s)"
+                )
+            # the mean rate: that of a uniform log with as many rows
+            object.__setattr__(self, "rate", len(self.steps) / math.fsum(self.steps))
 
     @property
     def std(self) -> np.ndarray:
@@ -98,6 +109,14 @@ def rng_for(seed: int, experiment: int, stream: int = 0) -> np.random.Generator:
     """The generator of one experiment's random stream (0: sensor noise, 1: input sequences)."""
     seed = check_seed(seed)
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(experiment, stream)))
+
+
+def interval_means(integral: np.ndarray, t: np.ndarray, rate: float | None = None) -> np.ndarray:
+    """Each interval's mean of a quantity from its running integral at the instants t (N, k):
+    (I_k+1 − I_k) / (t_k+1 − t_k), (N − 1, k); `rate`: the instants' rate where they are
+    uniform, 1 / (t_k+1 − t_k) without its rounding."""
+    d = np.diff(integral, axis=0)
+    return d * rate if rate is not None else d / np.diff(t)[:, None]
 
 
 def measure(

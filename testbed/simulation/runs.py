@@ -5,7 +5,8 @@ linear model itself) and writes `runs/<scenario>-seed<N>/`: one measurement CSV 
 noise-free `.truth.csv` per experiment (both at the fin log's rate where the scenario logs the
 fins faster than its samples, `[sensors] fin_rate`: the measurement CSV's states then missing
 between the samples, the truth's present at every row), `model.toml` (the analytic linear model
-at the run's trim, with every coefficient), `scenario.toml` (the scenario as flown), `recording.rrd` (Rerun)
+at the run's trim, with every coefficient), with a `[prior]` in the scenario `prior.toml` (its a-priori
+model: `testbed.simulation.prior`), `scenario.toml` (the scenario as flown), `recording.rrd` (Rerun)
 and `manifest.json` (scenario, seed, truth, settings, the MJCF file and its SHA-256, package versions,
 the command that regenerates the run, start and end times). The directory is built under a
 temporary name and renamed: it appears whole or not at all.
@@ -43,9 +44,17 @@ from testbed.simulation.scenario import (
     scenario_text,
 )
 from testbed.simulation.analytic import model_config
+from testbed.simulation.prior import prior_config
 from testbed.simulation.vehicle import default_mjcf
 
-__all__ = ["simulate"]
+__all__ = ["PRIOR_NOTE", "simulate"]
+
+# The head of a run's prior.toml: what it is, and what it is not.
+PRIOR_NOTE = (
+    "# The a-priori model of this run (its scenario's [prior]): model.toml, the analytic model of\n"
+    "# the body flown, with the coefficients commented below scaled, as a published coefficient set\n"
+    "# of a similar vehicle would differ from it; a start for identify, not the truth.\n"
+)
 
 
 def simulate(
@@ -81,6 +90,9 @@ def simulate(
         config = replace(config, outputs=tuple(c for c in s.columns if c in STATES and c != "z"))
         comments["outputs"] = UNFITTED_DEPTH
         (tmp / "model.toml").write_text(config_text(config, comments))
+        if s.prior is not None:
+            prior, notes = prior_config(config, s.prior)
+            (tmp / "prior.toml").write_text(PRIOR_NOTE + config_text(prior, {**comments, **notes}))
         flown = replace(s, speed=lin.vehicle.speed, source="")
         (tmp / "scenario.toml").write_text(scenario_text(flown))
         title = f"testbed {s.name} seed {seed}" + (f" ({truth} truth)" if truth != "plant" else "")
@@ -150,20 +162,15 @@ def _versions() -> dict[str, str]:
 
 def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path, truth: str) -> str:
     """The command that regenerates the run: the built-in scenario by name where the run flew it
-    as built but for the command line's --duration and --speed, else the run's scenario.toml."""
+    as built but for the command line's --duration (left out where the built-in's experiments
+    keep their own durations) and --speed, else the run's scenario.toml."""
     parts = ["testbed", "simulate", "--seed", str(seed)]
-    as_built = None
-    if s.source == "built-in":
-        as_built = replace(scenario(s.name).with_overrides(flown.duration, flown.speed), source="")
-    if as_built is not None and scenario_text(as_built) == scenario_text(flown):
-        parts += [
-            "--scenario",
-            s.name,
-            "--duration",
-            repr(float(flown.duration)),
-            "--speed",
-            repr(float(flown.speed)),
-        ]
+    built = scenario(s.name) if s.source == "built-in" else None
+    speed = ["--speed", repr(float(flown.speed))]
+    if built is not None and _same(built.with_overrides(flown.duration, flown.speed), flown):
+        parts += ["--scenario", s.name, "--duration", repr(float(flown.duration)), *speed]
+    elif built is not None and _same(built.with_overrides(None, flown.speed), flown):
+        parts += ["--scenario", s.name, *speed]
     else:
         parts += ["--scenario", str(out.resolve() / "scenario.toml")]
     if mjcf is not None:
@@ -171,3 +178,8 @@ def _command(s: Scenario, seed: int, flown: Scenario, mjcf, out: Path, truth: st
     if truth != "plant":
         parts += ["--truth", truth]
     return shlex.join(parts)
+
+
+def _same(a: Scenario, b: Scenario) -> bool:
+    """Whether two scenarios fly the same: the same scenario file but for where it was read."""
+    return scenario_text(replace(a, source="")) == scenario_text(replace(b, source=""))

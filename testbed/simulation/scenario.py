@@ -15,6 +15,7 @@ feedback = "measured"  # the autopilots read the sensors (default "true": the tr
 
 [sensors]
 rate = 50.0          # Hz; divides the control rate
+# steps = [0.4, 0.6] # s, instead of rate: the rows' steps, repeated from t = 0 (a logger's stamps)
 fin_std = 2e-5       # rad, fin encoders
 # fin_rate = 100.0   # Hz; the fin angles logged this often: a multiple of the control rate
 #                    # dividing the physics rate; the CSV rows between samples hold fins only
@@ -27,6 +28,9 @@ position = [0.3, 0.0, 0.15]
 
 [trial]              # a trial's imperfections: `testbed.simulation.trial`
 current = [0.25, 0.15, 0.0]
+
+[prior]              # the runs' a-priori model, prior.toml: `testbed.simulation.prior`
+scale = {N_r = 0.25}
 
 [[experiment]]
 name = "horizontal"
@@ -45,8 +49,10 @@ band; `depth` again relative to the initial depth). A channel neither driven nor
 The built-in scenarios: `I` (the paper's sea-trial scenario: depth steps of 20 m every 5 s,
 course rate ±20 °/s every 1.5 s, roll held at zero), `II` (PRBS experiments in the linear
 regime, see its file), `II-trial` (Scenario II with a real trial's imperfections: `testbed.simulation.trial`,
-`testbed.simulation.sensing`), `turn`, `turning-circle`, `zigzag` and `zigzag-vertical` (validation
-manoeuvres; `testbed.analysis.manoeuvres` measures them).
+`testbed.simulation.sensing`), `lake` (a small vehicle's lake trial as its logger writes it:
+rows at alternating steps, a slow DVL holding its value, no gyros, attitude offsets, short
+closed-loop dives, and a course-unstable a-priori model), `turn`, `turning-circle`, `zigzag` and
+`zigzag-vertical` (validation manoeuvres; `testbed.analysis.manoeuvres` measures them).
 
 A scenario flies on the MuJoCo plant or, as the linear-truth arm, on the analytic linear model
 itself (`fly_scenario(..., truth="linear")`): the same autopilots, fin range and rate, signals
@@ -69,10 +75,11 @@ import numpy as np
 from testbed.simulation.autopilot import Autopilot
 from testbed.data import MIN_ROWS, check_name, number, read_toml, sensor_table, toml_value
 from testbed.errors import InputError, check_keys, is_number
-from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, measure, rng_for
+from testbed.simulation.measurements import NOISE_STD, Sensors, check_seed, interval_means, measure, rng_for
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector, tilde
 from testbed.models.sensors import Sensor, outputs
 from testbed.simulation.imperfect import TrialFlight
+from testbed.simulation.prior import Prior, parse_prior, prior_table
 from testbed.simulation.sensing import check_sensors, columns, parse_sensor
 from testbed.simulation.trial import Trial, parse_trial, trial_table
 from testbed.simulation.linear_plant import LinearPlant
@@ -172,6 +179,7 @@ class Scenario:
     measured: tuple[str, ...] = STATES  # the states the default sensor reads (those no named sensor outputs)
     named_sensors: tuple[Sensor, ...] = ()  # the [sensors.NAME] tables
     trial: Trial = field(default_factory=Trial)  # the [trial] table
+    prior: Prior | None = None  # the [prior] table: the runs' a-priori model (None: none written)
     source: str = ""  # the file it was read from, or "built-in"
     given: frozenset[str] = field(default=frozenset(), compare=False)  # fields set by `with_overrides`
 
@@ -213,13 +221,25 @@ class Scenario:
                 f"{self.where}: measured {list(self.measured)}; expected a "
                 f"non-empty list of {', '.join(STATES)}"
             )
-        ratio = self.control_rate / self.sensors.rate
-        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise InputError(
-                f"{self.where}: control rate {self.control_rate} Hz and sample "
-                f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate"
-            )
-        check_sensors(self.named_sensors, self.sensors.rate, self.where)
+        steps = self.sensors.steps
+        if steps is None:
+            ratio = self.control_rate / self.sensors.rate
+            if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+                raise InputError(
+                    f"{self.where}: control rate {self.control_rate} Hz and sample "
+                    f"rate {self.sensors.rate} Hz; expected the sample rate to divide the control rate"
+                )
+            check_sensors(self.named_sensors, self.sensors.rate, self.where)
+        else:
+            for d in steps:
+                periods = d * self.control_rate
+                if abs(periods - round(periods)) > 1e-9 or round(periods) < 1:
+                    raise InputError(
+                        f"{self.where}: sensors.steps = {list(steps)}: {d:g} s; expected whole "
+                        f"numbers of control periods (1/{self.control_rate:g} s)"
+                    )
+            cycle = 1.0 / math.fsum(steps)
+            check_sensors(self.named_sensors, cycle, self.where, "the rate the steps repeat at")
         if self.sensors.fin_rate is not None:
             ratio = self.sensors.fin_rate / self.control_rate
             if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
@@ -227,10 +247,10 @@ class Scenario:
                     f"{self.where}: sensors.fin_rate = {self.sensors.fin_rate:g} Hz; expected a whole "
                     f"multiple of the control rate {self.control_rate:g} Hz"
                 )
-            if not self.is_perfect:
+            if not self.is_perfect or steps is not None:
                 raise InputError(
-                    f"{self.where}: sensors.fin_rate with named sensors or a [trial]; expected the "
-                    "fins logged at the sample rate there (no fin_rate)"
+                    f"{self.where}: sensors.fin_rate with named sensors, a [trial] or steps; expected "
+                    "the fins logged at the sample rate there (no fin_rate)"
                 )
         for e in self.experiments:
             held = {"hold.depth": e.hold_depth} if e.hold_depth is not None else {}
@@ -290,6 +310,30 @@ class Scenario:
     def duration_of(self, e: ExperimentSpec) -> float:
         return e.duration if e.duration is not None else self.duration
 
+    def sample_count(self, duration: float) -> int:
+        """How many rows a record of `duration` s has: its stamps from 0 to `duration`."""
+        steps = self.sensors.steps
+        if steps is None:
+            return int(math.floor(duration * self.sensors.rate + 1e-9)) + 1
+        cycle, starts = math.fsum(steps), np.cumsum((0.0, *steps[:-1]))
+        return sum(int(math.floor((duration - a) / cycle + 1e-9)) + 1 for a in starts if a <= duration + 1e-9)
+
+    def stamps(self, duration: float) -> tuple[np.ndarray, np.ndarray]:
+        """A record's stamps t (s) from 0 to `duration` and the control step each falls on: at
+        the sample rate, or at `[sensors] steps` repeated from t = 0 (each stamp a whole number
+        of control periods, t = that number / `control_rate`: 1.4, not 0.4 + 0.6 + 0.4)."""
+        n = self.sample_count(duration)
+        steps = self.sensors.steps
+        if steps is None:
+            return np.arange(n) / self.sensors.rate, np.arange(n) * round(
+                self.control_rate / self.sensors.rate
+            )
+        periods = np.array([round(d * self.control_rate) for d in steps])
+        starts = np.concatenate(([0], np.cumsum(periods)[:-1]))
+        k = np.arange(n)
+        at = (k // len(steps)) * int(periods.sum()) + starts[k % len(steps)]
+        return at / self.control_rate, at
+
 
 # -- scenario files ------------------------------------------------------------------------------
 
@@ -325,9 +369,10 @@ _TOP = (
     "feedback",
     "sensors",
     "trial",
+    "prior",
     "experiment",
 )
-_SENSORS = ("rate", "fin_std", "fin_rate", "noise_std", "measured")
+_SENSORS = ("rate", "steps", "fin_std", "fin_rate", "noise_std", "measured")
 _EXPERIMENT = ("name", "duration", "autopilot", "hold", *CHANNELS)
 
 
@@ -354,6 +399,7 @@ def parse_scenario(doc: Mapping, source: str = "<scenario>") -> Scenario:
             if k not in _SENSORS
         ),
         trial=parse_trial(doc.get("trial", {}), f"{source}: trial"),
+        prior=parse_prior(doc.get("prior"), f"{source}: prior"),
         experiments=tuple(_experiment(e, f"{source}: experiment {k + 1}") for k, e in enumerate(experiments)),
         source=source,
     )
@@ -371,12 +417,20 @@ def _sensors(doc, where: str) -> Sensors:
     if not isinstance(noise, Mapping):
         raise InputError(f"{where}: noise_std must be a table of state = std")
     noise = {k: number(v, f"{where}: noise_std.{k}") for k, v in noise.items()}
+    steps = doc.get("steps")
+    if steps is not None:
+        if "rate" in doc:
+            raise InputError(f"{where}: rate and steps; expected one of them (steps: the rows' steps, s)")
+        if not isinstance(steps, list) or not steps or len(steps) > 1000:
+            raise InputError(f"{where}: steps = {steps!r}; expected a list of 1 to 1000 steps (s)")
+        steps = tuple(float(number(d, f"{where}: steps")) for d in steps)
     try:
         return Sensors(
             rate=number(doc.get("rate", 50.0), f"{where}: rate"),
             noise_std={**NOISE_STD, **noise},
             fin_std=number(doc.get("fin_std", Sensors().fin_std), f"{where}: fin_std"),
             fin_rate=None if doc.get("fin_rate") is None else number(doc["fin_rate"], f"{where}: fin_rate"),
+            steps=steps,
         )
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
@@ -427,7 +481,11 @@ def scenario_text(s: Scenario) -> str:
     lines += [
         "",
         "[sensors]",
-        f"rate = {toml_value(s.sensors.rate)}",
+        (
+            f"rate = {toml_value(s.sensors.rate)}"
+            if s.sensors.steps is None
+            else f"steps = {toml_value(list(s.sensors.steps))}"
+        ),
         f"fin_std = {toml_value(s.sensors.fin_std)}",
         *([f"fin_rate = {toml_value(s.sensors.fin_rate)}"] if s.sensors.fin_rate is not None else []),
         f"noise_std = {toml_value(dict(s.sensors.noise_std))}",
@@ -439,6 +497,8 @@ def scenario_text(s: Scenario) -> str:
         lines += [f"{k} = {toml_value(v)}" for k, v in sensor_table(sensor).items()]
     if not s.trial.is_perfect:
         lines += ["", "[trial]", *[f"{k} = {toml_value(v)}" for k, v in trial_table(s.trial).items()]]
+    if s.prior is not None:
+        lines += ["", "[prior]", *[f"{k} = {toml_value(v)}" for k, v in prior_table(s.prior).items()]]
     for e in s.experiments:
         lines += ["", "[[experiment]]", f"name = {toml_value(e.name)}"]
         if e.duration is not None:
@@ -532,7 +592,6 @@ def fly(
     plant.reset(speed=speed, depth=s.depth)
     per_control = plant.timestep * s.control_rate
     steps = round(1.0 / per_control)
-    controls_per_sample = round(s.control_rate / s.sensors.rate)
     if abs(1.0 / per_control - steps) > 1e-9:
         raise InputError(
             f"control rate {s.control_rate} Hz; expected it to divide the physics rate "
@@ -545,8 +604,9 @@ def fly(
             f"{s.where}: sensors.fin_rate = {s.sensors.fin_rate:g} Hz; expected it to divide the physics rate "
             f"{1 / plant.timestep:g} Hz"
         )
-    n_samples = int(math.floor(duration * s.sensors.rate + 1e-9)) + 1
-    logged = None if s.sensors.fin_rate is None else (n_samples - 1) * controls_per_sample * chunks + 1
+    t, at = s.stamps(duration)  # the samples' instants and control steps
+    n_samples = len(t)
+    logged = None if s.sensors.fin_rate is None else int(at[-1]) * chunks + 1
     fin_log, fine_truth = (None, None) if logged is None else (np.empty((logged, 3)), np.empty((logged, NX)))
     truth, fins, pos = np.empty((n_samples, NX)), np.empty((n_samples, 3)), np.empty((n_samples, 3))
     fin_cmds, pitch, keywords = np.empty((n_samples, 3)), np.empty(n_samples), []
@@ -555,7 +615,7 @@ def fly(
     control_dt = 1.0 / s.control_rate
     fine = None
     if not s.is_perfect:
-        fine = TrialFlight(plant, s.trial, (n_samples - 1) * controls_per_sample * steps + 1, streams, weight)
+        fine = TrialFlight(plant, s.trial, int(at[-1]) * steps + 1, streams, weight)
     # Read back by measured feedback: each state as the default sensor reads it (over the ground
     # in a current) plus its white noise, drawn at every control instant; the record's samples
     # are the readings at the sample instants (ψ unwrapped there). The fins are a function of the
@@ -565,7 +625,8 @@ def fly(
         std, noise = s.sensors.std, np.empty((n_samples, NX))
     reader = Sensor() if any(s.trial.current) else None
     # The per-step work is Python around a ~0.15 ms plant step: keep it to what is needed.
-    for k in range((n_samples - 1) * controls_per_sample + 1):
+    i = 0  # the next sample
+    for k in range(int(at[-1]) + 1):
         x = plant.state()
         read = x
         if std is not None:
@@ -573,8 +634,7 @@ def fly(
             read = (x if reader is None else outputs(reader, x, current=s.trial.current)) + drawn
         kw = program(k * control_dt, read)
         command, theta_cmd = autopilot.step(read, **kw)
-        i, rest = divmod(k, controls_per_sample)
-        if not rest:
+        if k == at[i]:
             truth[i], fins[i], pos[i], fin_cmds[i] = x, plant.fin_angles(), plant.position(), command
             if noise is not None:
                 noise[i] = drawn
@@ -587,6 +647,7 @@ def fly(
                 if fine is not None:
                     fine.record(x)
                 break
+            i += 1
         if fin_log is not None:
             for c in range(chunks):
                 fine_truth[k * chunks + c], fin_log[k * chunks + c] = plant.state(), plant.fin_integral()
@@ -600,13 +661,12 @@ def fly(
     # fin angle's mean over that interval (exact: the plant holds the fins over each physics
     # step), as an integrating encoder would; the last sample has no interval after it and
     # keeps the angle itself.
-    fins[:-1] = np.diff(fin_integral, axis=0) * s.sensors.rate
+    fins[:-1] = interval_means(fin_integral, t, None if s.sensors.steps else s.sensors.rate)
     if fin_log is not None:
         fine_truth[-1], fin_log[-1] = truth[-1], fin_integral[-1]
         fine_truth[:, IX["psi"]] = np.unwrap(fine_truth[:, IX["psi"]])
         fin_log[:-1] = np.diff(fin_log, axis=0) * s.sensors.fin_rate
         fin_log[-1] = fins[-1]
-    t = np.arange(n_samples) / s.sensors.rate
     specific_force = None
     if fine is None:
         measured, fins_measured = measure(truth, fins, s.sensors, rng, noise)
@@ -703,13 +763,14 @@ def check_flyable(s: Scenario) -> None:
     rate, (low, high) = s.sensors.rate, SAMPLES
     for e in s.experiments:
         duration = s.duration_of(e)
-        if not low <= math.floor(duration * rate + 1e-9) + 1 <= high:
+        if not low <= s.sample_count(duration) <= high:
             where = (
                 f"{s.where}: experiment {e.name!r}: duration = {duration!r}"
                 if e.duration is not None
                 else f"{s.described(duration=repr(duration))} (experiment {e.name!r})"
             )
-            raise InputError(
-                f"{where}; expected {(low - 1) / rate:g} to "
-                f"{(high - 1) / rate:g} s ({low} to {high} samples at {rate:g} Hz)"
-            )
+            if s.sensors.steps is None:
+                expected = f"{(low - 1) / rate:g} to {(high - 1) / rate:g} s ({low} to {high} samples at {rate:g} Hz)"
+            else:
+                expected = f"{low} to {high} samples at steps {list(s.sensors.steps)} s"
+            raise InputError(f"{where}; expected {expected}")
