@@ -533,7 +533,7 @@ def clock(t: np.ndarray, dt: float) -> tuple[float, float, np.ndarray]:
     while (t[-1] - t[0]) * k / least < most:
         start, h, j = _line(t, least / k)
         if np.max(np.abs(t - start - j * h)) <= tol:
-            return start, h, j
+            return float(t[0]), h, j  # the first stamp as logged: the line's start is within tol of it
         k += 1
     return _line(t, dt / CLOCK_DIVISIONS)
 
