@@ -23,13 +23,12 @@ attitude, which takes the φ and θ offsets in. The reconstruction is compared w
 parameters are fitted by the filter-error method (maximum likelihood of a Kalman filter's
 innovations; Maine & Iliff, Jategaonkar): the noise of the rates and velocities is integrated
 by the kinematics, so it is process noise, and output error would be biased and its bounds
-2–6 times too small. The noise is read off the data (robust third differences over the samples present): the
-outputs' σ is the filter's measurement noise R, the driving channels' (and, in ż, the
-attitude's times the velocities) its process noise, a random walk of h H σ² per step h, H the
-interval between the channel's samples (h² σ² where every row is a sample; a channel sampled
-more sparsely than the filter's rows carries, where more than its noise, the error of its
-cubic between samples: `_spread`). The attitude filter is
-extended (linearised at each step), its gain held at each iteration's (Maine & Iliff); the
+2–6 times too small. The noise is read off the data (robust third differences over the
+samples present): the outputs' σ is the filter's measurement noise R, the driving channels'
+(and, in ż, the attitude's times the velocities) its process noise, a random walk of h H σ²
+per step h, H the interval between the channel's samples around it (h² σ² where every row is
+a sample; a spline through samples H apart carries each sample's error over H). The attitude
+filter is extended (linearised at each step), its gain held at each iteration's (Maine & Iliff); the
 depth filter's process noise depends on the corrected velocities, so its gain and the
 likelihood's ln det S follow the parameters. The fit is Gauss-Newton (trust region, `scipy.
 optimize.least_squares`) on the residuals whose sum of squares is the negative
@@ -324,26 +323,6 @@ def _samples(e: Experiment, c: str) -> tuple[np.ndarray, np.ndarray]:
     return e.t[present], y[present]
 
 
-# The cubic through a channel's samples i − 2, i − 1, i + 1, i + 2 at sample i: its weights, and
-# the variance of its error e_i = y_i − ŷ_i from white noise alone, (1 + 2/36 + 2 · 4/9) σ².
-LEFT_OUT = np.array([-1.0, 4.0, 0.0, 4.0, -1.0]) / 6
-LEFT_OUT_VAR = 1 + 2 / 36 + 2 * 4 / 9
-
-
-def _spread(e: Experiment, c: str, sigma: float, step: float) -> float:
-    """The σ of channel `c`'s error between its samples, as its spline carries it: its noise
-    σ; where the channel is sampled more sparsely than the filter's rows (its median interval
-    over 1.5 times their median `step`) and more, the error of each sample predicted by the
-    cubic through its four neighbours (RMS over `LEFT_OUT_VAR`): a channel sampled too slowly
-    for its motion (a 1 Hz log on a vehicle whose modes are 2–3 1/s) misses it between
-    samples, an error that is integrated as its noise is."""
-    ts, ys = _samples(e, c)
-    if len(ys) < len(LEFT_OUT) or np.median(np.diff(ts)) <= 1.5 * step:
-        return sigma
-    err = ys[2:-2] - np.convolve(ys, LEFT_OUT[::-1], "valid")
-    return max(sigma, math.sqrt(float(np.mean(err**2)) / LEFT_OUT_VAR))
-
-
 class _Record:
     """One record, or one stretch of it between two unbridged gaps, ready for a check: the rows
     where every output is present (`t`, the filter's steps between them), the fine grid
@@ -388,8 +367,7 @@ class _Record:
         self.used = {c: self.splines[c](fine) for c in check.uses}
         self.y = y[rows]
         self.R = np.array([noise[c] ** 2 for c in check.outputs])
-        step = float(np.median(self.h))
-        self.noise = dict(noise) | {c: _spread(e, c, noise[c], step) for c in check.drives + check.uses}
+        self.noise = dict(noise)
         self.interval = interval
         # the drives' process noise per step over h²: σ² H / h (h H σ² in all)
         self.Sw = np.column_stack([self.noise[c] ** 2 * interval[c] / self.h for c in check.drives])
