@@ -565,8 +565,19 @@ def test_no_gyros_and_a_dvl_every_other_row_is_checked_for_depth(lake):
     y[(e.t > 8.5) & (e.t < 13.5), : len(DVL)] = np.nan
     result = compatibility([replace(e, y=y)])
     why = result.unchecked["dive-07"]["depth"]
-    assert "over 8–14 s, u has no sample for 6 s" in why and "is not bridged" in why, why
+    assert "over 8–14 s, u, v, w have no sample for 6 s" in why and "is not bridged" in why, why
     assert result.pooled["depth"].records == ("dive-07 0–8 s", "dive-07 14–23 s")
+    # gaps of different channels overlapping: nothing inside their union is checked, nor a
+    # stretch between gaps with under 4 rows
+    y[(e.t > 3.5) & (e.t < 6.5), 1] = np.nan  # v: 3-7 s
+    y[(e.t > 16.5) & (e.t < 19.5), 2] = np.nan  # w: 16-20 s
+    y[(e.t > 3.5) & (e.t < 5.9), 3] = np.nan  # phi: 3.4-6 s, within v's gap
+    result = compatibility([replace(e, y=y)])
+    assert result.pooled["depth"].records == ("dive-07 0–3 s", "dive-07 14–16 s", "dive-07 20–23 s")
+    why = result.unchecked["dive-07"]["depth"]
+    assert "over 7–8 s, between gaps, only 3 rows of the outputs (under 4)" in why, why
+    assert "over 3–7 s, v has no sample for 4 s" in why and "over 16–20 s, w has no sample" in why, why
+    assert "over 3.4–6 s, phi has no sample for 2.6 s" in why, why
 
 
 def test_corrected_takes_the_attitude_offsets_off_the_attitude():

@@ -807,30 +807,39 @@ def _stretches(e: Experiment, check: Check) -> tuple[list[tuple[float, float]], 
     out_t = e.t[rows]
     if not len(out_t):
         return [], [f"no row has every one of {', '.join(check.outputs)}"]
-    cuts, why = [], []  # cuts: (start, end) of the spans not bridged
+    gaps: dict[tuple[float, float], list[str]] = {}  # (start, end) of a gap not bridged → channels
+    limits = {}
     a, b = -math.inf, math.inf
     for c in check.drives + check.uses:
         ts, _ = _samples(e, c)
         a, b = max(a, ts[0]), min(b, ts[-1])
         d = np.diff(ts)
-        limit = MAX_GAP * float(np.median(d))
-        for i in np.flatnonzero(d > limit):
-            cuts.append((float(ts[i]), float(ts[i + 1])))
-            why.append(
-                f"over {ts[i]:.4g}–{ts[i + 1]:.4g} s, {c} has no sample for {d[i]:.3g} s (a gap over "
-                f"{limit:.3g} s, {MAX_GAP:g} times its median interval, is not bridged)"
-            )
+        limits[c] = MAX_GAP * float(np.median(d))
+        for i in np.flatnonzero(d > limits[c]):
+            gaps.setdefault((float(ts[i]), float(ts[i + 1])), []).append(c)
+    why = []
+    channels = ", ".join(check.drives + check.uses)
     if out_t[0] < a:
-        why.insert(
-            0, f"before {a:.4g} s, not every one of {', '.join(check.drives + check.uses)} has a sample"
+        why.append(f"before {a:.4g} s, not every one of {channels} has a sample")
+    for (g0, g1), cs in sorted(gaps.items()):
+        limit = " or ".join(f"{v:.3g} s" for v in sorted({limits[c] for c in cs}))
+        why.append(
+            f"over {g0:.4g}–{g1:.4g} s, {', '.join(cs)} {'has' if len(cs) == 1 else 'have'} no sample "
+            f"for {g1 - g0:.3g} s (a gap over {MAX_GAP:g} times the channel's median interval, {limit}, "
+            "is not bridged)"
         )
     if out_t[-1] > b:
-        why.append(f"after {b:.4g} s, not every one of {', '.join(check.drives + check.uses)} has a sample")
-    bounds = sorted([(a, a)] + cuts + [(b, b)])
+        why.append(f"after {b:.4g} s, not every one of {channels} has a sample")
+    merged: list[list[float]] = []  # the union of what is not checked, in time order
+    for g0, g1 in sorted(list(gaps) + [(-math.inf, a), (b, math.inf)]):
+        if merged and g0 <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], g1)
+        else:
+            merged.append([g0, g1])
     stretches = []
-    for (_, s0), (s1, _) in zip(bounds[:-1], bounds[1:]):
+    for (_, s0), (s1, _) in zip(merged[:-1], merged[1:]):
         n = int(np.sum((out_t >= s0) & (out_t <= s1)))
-        if s1 <= s0 or n == 0:
+        if n == 0:
             continue
         if n < MIN_ROWS:
             why.append(
