@@ -589,3 +589,39 @@ def test_corrected_takes_the_attitude_offsets_off_the_attitude():
     np.testing.assert_allclose(back.column("u"), 2.0)
     with pytest.raises(InputError, match="b_theta = 4; expected a number within ±3.14159"):
         check_corrections({"b_theta": 4}, "f.json: corrections")
+
+
+def test_a_dvls_misalignment_about_z_recovered_where_the_vehicle_rolls_and_about_y_held():
+    # the speed 1.2-2.8 m/s, rolling ±0.3 rad and pitching ±0.1: the DVL, turned by 0.05 rad
+    # about z, reads Rz(−0.05) v; ż integrated independently (solve_ivp). Turned about z it puts
+    # az u into v, seen through v sin φ: at a constant speed it would be a v bias; the speed
+    # varying tells them apart. Turned about y it is a pitch offset: held for b_theta.
+    t = np.arange(0.0, 60.0, 0.1)
+    rng = np.random.default_rng(3)
+
+    def body(s):
+        phi, theta = 0.3 * np.sin(0.3 * s), 0.1 * np.sin(0.2 * s + 1)
+        return (
+            np.array([2.0 + 0.8 * np.sin(0.15 * s), 0.05 * np.sin(0.5 * s), 0.02 * np.cos(0.4 * s)]),
+            phi,
+            theta,
+        )
+
+    def zdot(s, z):
+        (u, v, w), phi, theta = body(s)
+        return -u * np.sin(theta) + (v * np.sin(phi) + w * np.cos(phi)) * np.cos(theta)
+
+    z = solve_ivp(zdot, (0, t[-1]), [5.0], t_eval=t, rtol=1e-10, atol=1e-12).y[0]
+    (u, v, w), phi, theta = body(t)
+    az = 0.05
+    read = np.column_stack([np.cos(az) * u + np.sin(az) * v, -np.sin(az) * u + np.cos(az) * v, w])
+    noise = {"u": 0.005, "v": 0.005, "w": 0.005, "phi": 0.003, "theta": 0.003, "z": 0.02}
+    channels = dict(zip(DVL, read.T)) | {"phi": phi, "theta": theta, "z": z}
+    e = record(t, **{c: y + rng.normal(0.0, noise[c], len(t)) for c, y in channels.items()})
+    depth = compatibility([e]).pooled["depth"]
+    p = depth.parameters["m_dvl_z"]
+    assert p.estimated and abs(p.value - az) < 3 * p.std and p.std < az / 5, p
+    assert depth.parameters["m_dvl_y"].reason.startswith("not separable from b_theta"), depth.parameters
+    back = corrected([e], {"m_dvl_z": az})[0]  # the reading turned back into the body's axes
+    np.testing.assert_allclose(back.column("v"), v, atol=0.03)
+    np.testing.assert_allclose(back.column("u"), u, atol=0.03)

@@ -11,27 +11,27 @@ and the depth from the Doppler velocity log with the measured attitude,
     ż = −u sin θ + v cos θ sin φ + w cos θ cos φ,
 
 each driving channel c corrected by its sensor's bias b_c, scale factor k_c and its group's
-delay τ (the true value at time t is `(c_measured(t + τ) − b_c) / (1 + k_c)`; a sensor that lags
-by τ has τ > 0), and the measured φ, θ the depth uses by their constant offsets `b_phi`,
+delay τ (the true value at time t is `(c_measured(t + τ) − b_c) / (1 + k_c)`; a sensor that
+lags by τ has τ > 0), and the measured φ, θ the depth uses by their constant offsets `b_phi`,
 `b_theta` (an AHRS mounted off its axes: the true angle is `c_measured − b_c`, the names of the
 model's output biases). θ's offset turns the log's u into a sink rate −u sin θ, strongly seen
 in depth over a dive; φ's through v and w, seen where v is. A heading offset enters neither
-check's kinematics (ψ is the attitude check's output only, one more constant beside its
-initial heading) and is not a check parameter; the attitude check integrates from its initial
-attitude, which takes the φ and θ offsets in. The reconstruction is compared with the measured φ, θ, ψ (the attitude check,
-`ATTITUDE`) and z (the depth check, `DEPTH`), and the initial attitude or depth and the sensor
-parameters are fitted by the filter-error method (maximum likelihood of a Kalman filter's
-innovations; Maine & Iliff, Jategaonkar): the noise of the rates and velocities is integrated
-by the kinematics, so it is process noise, and output error would be biased and its bounds
-2–6 times too small. The noise is read off the data (robust third differences over the
-samples present): the outputs' σ is the filter's measurement noise R, the driving channels'
-(and, in ż, the attitude's times the velocities) its process noise, a random walk of h H σ²
-per step h, H the interval between the channel's samples around it (h² σ² where every row is
-a sample; a spline through samples H apart carries each sample's error over H). The attitude
-filter is extended (linearised at each step), its gain held at each iteration's (Maine & Iliff); the
-depth filter's process noise depends on the corrected velocities, so its gain and the
-likelihood's ln det S follow the parameters. The fit is Gauss-Newton (trust region, `scipy.
-optimize.least_squares`) on the residuals whose sum of squares is the negative
+check's kinematics (ψ is the attitude check's output only, one more constant beside its initial
+heading) and is not a check parameter; the attitude check integrates from its initial attitude,
+which takes the φ and θ offsets in. The reconstruction is compared with the measured φ, θ, ψ
+(the attitude check, `ATTITUDE`) and z (the depth check, `DEPTH`), and the initial attitude or
+depth and the sensor parameters are fitted by the filter-error method (maximum likelihood of a
+Kalman filter's innovations; Maine & Iliff, Jategaonkar): the noise of the rates and velocities
+is integrated by the kinematics, so it is process noise, and output error would be biased and
+its bounds 2–6 times too small. The noise is read off the data (robust third differences over
+the samples present): the outputs' σ is the filter's measurement noise R, the driving channels'
+(and, in ż, the attitude's times the velocities) its process noise, a random walk of h H σ² per
+step h, H the interval between the channel's samples around it (h² σ² where every row is a
+sample; a spline through samples H apart carries each sample's error over H). The attitude
+filter is extended (linearised at each step), its gain held at each iteration's (Maine &
+Iliff); the depth filter's process noise depends on the corrected velocities, so its gain and
+the likelihood's ln det S follow the parameters. The fit is Gauss-Newton (trust region,
+`scipy.optimize.least_squares`) on the residuals whose sum of squares is the negative
 log-likelihood; its derivatives are exact: the complex step, the measured signals
 interpolated by cubic splines (a fractional delay is a shift along the spline, so a 40 ms
 delay at 50 Hz is as smooth a parameter as any other). The standard deviations are the
@@ -49,10 +49,13 @@ parameter within 2 σ of 0 is held at 0 (`HELD_FIRST`: scale factors, delays, th
 others updated for it held there), and those left are fitted again until none is. The initial
 states are always fitted.
 
-A parameter correlated beyond 0.99 with an attitude offset in these data is held, not
-separable (`_inseparable`): a log's w bias makes the sink rate of a pitch offset wherever u is
-near constant, and the offset, the commoner error, is kept. Among the insignificant, the
-offsets are held last.
+The depth check's log may be turned from the body's axes by `m_dvl_y`, `m_dvl_z` (its reading
+Mᵀ v, M = Rz(m_dvl_z) Ry(m_dvl_y), a scenario sensor's `misalignment`). A parameter correlated
+beyond 0.99 with an attitude offset in these data is held, not separable (`_inseparable`): a
+log's w bias makes the sink rate of a pitch offset wherever u is near constant, its
+misalignment about y is one with it; the offset, the commoner error, is kept. About z the
+misalignment turns u into v: seen through v sin φ where the vehicle rolls, and told from a v
+bias only where the speed varies. Among the insignificant, the offsets are held last.
 
 Missing samples: each channel's samples present are its data. The filter steps from row to row
 of those where every output of the check is present (the others' outputs are left out); the
@@ -92,8 +95,10 @@ __all__ = [
     "DEPTH",
     "MAX_DELAY",
     "MAX_GAP",
+    "MAX_MISALIGNMENT",
     "MAX_OFFSET",
     "MAX_SCALE",
+    "MISALIGNMENTS",
     "OFFSETS",
     "SENSOR_PARAMETERS",
     "Check",
@@ -109,14 +114,15 @@ __all__ = [
 
 MAX_DELAY = 1.0  # s: the largest sensor delay fitted or applied, either sign
 MAX_SCALE = 0.5  # the largest |k| of a scale factor fitted or applied (1 + k within 0.5-1.5)
+MAX_MISALIGNMENT = 0.5  # rad: the largest misalignment fitted or applied (a scenario's limit)
 SIGNIFICANCE = 2.0  # a parameter within this many σ of 0 is held at 0 (the coefficients' screen)
 SINGULAR = 1e-10  # an eigenvalue of the scaled Fisher information below this × the largest: singular
 # Of the parameters within SIGNIFICANCE σ of 0, scale factors are held first, then delays, then
 # biases: a constant velocity makes its bias and scale factor nearly one parameter (u ≈ 20 m/s),
 # and a bias is the commoner error, present whether the channel varies or not.
-# (The attitude offsets are biases: with u near constant the log's w bias and the pitch offset
-# make nearly the same sink rate, and which of the two is held is the data's least significant.)
-HELD_FIRST = ("k_", "tau_", "b_")
+# The attitude offsets come last (`_rank`): with u near constant the log's w bias makes nearly
+# the sink rate of a pitch offset, and an AHRS mounted off its axes is the commoner error.
+HELD_FIRST = ("k_", "m_", "tau_", "b_")
 STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
 # A scale factor multiplies its channel, a delay its channel's rate of change, the log's u and v
 # biases sin θ and sin φ: a parameter whose regressor is mostly the noise of a measured channel
@@ -136,6 +142,7 @@ REGRESSORS = {
     "k_w": (("w",),),
     "tau_dvl": (("w",), ("u", "theta"), ("v", "phi")),
     "b_phi": (("v",), ("w",)),
+    "m_dvl_z": (("phi",),),
 }
 MIN_SIGNAL = 3.0
 MAX_PITCH = 1.5  # rad (86°): beyond, the attitude check is not run (tan θ, 1 / cos θ near ±π/2)
@@ -161,16 +168,19 @@ class Check:
     outputs: tuple[str, ...]
     initial: tuple[str, ...]
     delay: str
+    axes: tuple[str, ...] = ()  # the body axes about which the driving sensor may be turned
 
     @property
     def sensor(self) -> tuple[str, ...]:
         """The sensor parameters: each driving channel's bias and scale factor, the delay, each
-        used channel's offset."""
+        used channel's offset, the driving sensor's misalignment about each of `axes`."""
+        group = self.delay.removeprefix("tau_")
         return (
             tuple(f"b_{c}" for c in self.drives)
             + tuple(f"k_{c}" for c in self.drives)
             + (self.delay,)
             + tuple(f"b_{c}" for c in self.uses)
+            + tuple(f"m_{group}_{a}" for a in self.axes)
         )
 
     @property
@@ -193,10 +203,12 @@ DEPTH = Check(
     outputs=("z",),
     initial=("z0",),
     delay="tau_dvl",
+    axes=("y", "z"),
 )
 CHECKS = (ATTITUDE, DEPTH)
 SENSOR_PARAMETERS = ATTITUDE.sensor + DEPTH.sensor
 OFFSETS = tuple(f"b_{c}" for check in CHECKS for c in check.uses)  # the attitude offsets
+MISALIGNMENTS = tuple(n for check in CHECKS for n in check.sensor if n.startswith("m_"))
 
 
 @dataclass(frozen=True)
@@ -316,6 +328,15 @@ def _cell(p: Parameter) -> str:
     return f"{p.value:.4g} ± {p.std:.2g}"
 
 
+def _turned(v: np.ndarray, ay, az) -> np.ndarray:
+    """The velocities `v` (..., 3) in a sensor's axes turned into the body's: Rz(az) Ry(ay) v,
+    a sensor misaligned by ay about y and az about z (its reading Mᵀ v, as a scenario's
+    `misalignment`)."""
+    cy, sy, cz, sz = np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    u1, w1 = cy * v[..., 0] + sy * v[..., 2], -sy * v[..., 0] + cy * v[..., 2]
+    return np.stack([cz * u1 - sz * v[..., 1], sz * u1 + cz * v[..., 1], w1], axis=-1)
+
+
 def _samples(e: Experiment, c: str) -> tuple[np.ndarray, np.ndarray]:
     """Channel `c`'s samples present in `e`: their times and values."""
     y = e.column(c)
@@ -420,9 +441,13 @@ class _Record:
         x0 = x[:, : len(check.initial)]
         sensor = x[:, len(check.initial) :]
         b, k, tau = sensor[:, :n], sensor[:, n : 2 * n], sensor[:, 2 * n]
-        offsets = sensor[:, 2 * n + 1 :]
+        offsets = sensor[:, 2 * n + 1 : 2 * n + 1 + len(check.uses)]
+        turns = sensor[:, 2 * n + 1 + len(check.uses) :]
         used = {c: self.used[c][None, :] - offsets[:, [i]] for i, c in enumerate(check.uses)}
-        return np.ascontiguousarray(x0), (self.drives(tau) - b[:, None, :]) / (1 + k[:, None, :]), used
+        w = (self.drives(tau) - b[:, None, :]) / (1 + k[:, None, :])
+        if check.axes:
+            w = _turned(w, turns[:, 0, None], turns[:, 1, None])
+        return np.ascontiguousarray(x0), w, used
 
     def _depth_steps(self, w: np.ndarray, phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """The depth's change over each step (B, N − 1): Simpson's rule on ż."""
@@ -486,7 +511,8 @@ def reconstruct(
 ) -> dict[str, np.ndarray]:
     """The outputs of `check` reconstructed from record `e`: output name → (N,) array, at the
     parameters `values` (initial states and sensor parameters by name; an initial state left
-    out starts at the mean of the output's first five samples, a sensor parameter at 0)."""
+    out starts at the mean of the output's first five samples, a sensor parameter at 0); the
+    driving and used channels are the splines through their samples present."""
     _need(e, check)
     record = _Record(e, check, {c: 1.0 for c in e.measured}, every_row=True)
     values = dict(values or {})
@@ -573,7 +599,14 @@ class _Fit:
 
     def bounds(self, free):
         limit = [
-            MAX_DELAY if n == self.check.delay else MAX_SCALE if n.startswith("k_") else np.inf for n in free
+            MAX_DELAY
+            if n == self.check.delay
+            else MAX_SCALE
+            if n.startswith("k_")
+            else MAX_MISALIGNMENT
+            if n in MISALIGNMENTS
+            else np.inf
+            for n in free
         ]
         hi = np.array(limit + [np.inf] * self.ni * len(self.records))
         return -hi, hi
@@ -627,25 +660,32 @@ def _singular(M: np.ndarray, names: Sequence[str]) -> list[str]:
 
 def _inseparable(M: np.ndarray, names: Sequence[str], held: Mapping[str, str]) -> dict[str, str]:
     """The sensor parameters (of the first len(names) rows of the Fisher information M, those of
-    `held` aside) correlated with an attitude offset beyond `MAX_CORRELATION`, with the reason:
+    `held` aside) correlated with an attitude offset beyond `MAX_CORRELATION`, with the reason,
+    held one at a time, the most correlated first, the correlations computed again without it:
     the data tell them from the offset by little more than their noise (a log's w bias makes
-    the sink rate −u sin θ of a pitch offset wherever u is near constant); the offset, the
-    commoner error, is kept."""
-    keep = [i for i in range(len(M)) if i >= len(names) or names[i] not in held]
-    d = np.sqrt(np.diag(M)[keep])
-    P = np.linalg.pinv(M[np.ix_(keep, keep)] / np.outer(d, d), hermitian=True)
-    s = np.sqrt(np.abs(np.diag(P)))
-    index = {names[i]: j for j, i in enumerate(keep) if i < len(names)}
-    out = {}
-    for o in (n for n in OFFSETS if n in index):
-        for n, j in index.items():
-            rho = abs(P[j, index[o]]) / (s[j] * s[index[o]]) if n not in OFFSETS else 0.0
-            if rho > MAX_CORRELATION and n not in out:
-                out[n] = (
-                    f"not separable from {o}: correlated {rho:.4f} with it in these data (the "
-                    f"offset, the commoner error, is kept)"
-                )
-    return out
+    the sink rate −u sin θ of a pitch offset wherever u is near constant; its misalignment about
+    y turns its u into the same); the offset, the commoner error, is kept."""
+    out: dict[str, str] = {}
+    while True:
+        keep = [i for i in range(len(M)) if i >= len(names) or (names[i] not in held and names[i] not in out)]
+        d = np.sqrt(np.diag(M)[keep])
+        P = np.linalg.pinv(M[np.ix_(keep, keep)] / np.outer(d, d), hermitian=True)
+        s = np.sqrt(np.abs(np.diag(P)))
+        index = {names[i]: j for j, i in enumerate(keep) if i < len(names)}
+        pairs = [
+            (abs(P[j, index[o]]) / (s[j] * s[index[o]]), n, o)
+            for o in OFFSETS
+            if o in index
+            for n, j in index.items()
+            if n not in OFFSETS
+        ]
+        rho, n, o = max(pairs, default=(0.0, "", ""))
+        if rho <= MAX_CORRELATION:
+            return out
+        out[n] = (
+            f"not separable from {o}: correlated {rho:.4f} with it in these data (the offset, the "
+            "commoner error, is kept)"
+        )
 
 
 def _conditional(x: np.ndarray, P: np.ndarray, i) -> np.ndarray:
@@ -911,7 +951,7 @@ def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
 def check_corrections(values, where: str) -> dict[str, float]:
     """`values` (sensor parameter → number) checked: known names, finite numbers, biases within
     ±`MAX_DATA`, attitude offsets within ±`MAX_OFFSET` rad, scale factors within ±`MAX_SCALE`,
-    delays within ±`MAX_DELAY` s."""
+    misalignments within ±`MAX_MISALIGNMENT` rad, delays within ±`MAX_DELAY` s."""
     if not isinstance(values, Mapping):
         raise InputError(f'{where}: expected an object of sensor parameters, e.g. {{"b_r": 0.002}}')
     out = {}
@@ -925,6 +965,8 @@ def check_corrections(values, where: str) -> dict[str, float]:
             if n.startswith("tau_")
             else MAX_SCALE
             if n.startswith("k_")
+            else MAX_MISALIGNMENT
+            if n in MISALIGNMENTS
             else MAX_OFFSET
             if n in OFFSETS
             else MAX_DATA
@@ -970,5 +1012,9 @@ def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float
             for c in check.uses:
                 if c in e.measured:
                     y[:, e.measured.index(c)] -= corrections.get(f"b_{c}", 0.0)
+            turns = [corrections.get(n, 0.0) for n in check.sensor if n in MISALIGNMENTS]
+            if any(turns) and all(c in e.measured for c in check.drives):
+                at = [e.measured.index(c) for c in check.drives]
+                y[:, at] = _turned(y[:, at], *turns)
         out.append(replace(e, y=y))
     return out
