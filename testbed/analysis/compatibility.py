@@ -117,9 +117,10 @@ MAX_SCALE = 0.5  # the largest |k| of a scale factor fitted or applied (1 + k wi
 MAX_MISALIGNMENT = 0.5  # rad: the largest misalignment fitted or applied (a scenario's limit)
 SIGNIFICANCE = 2.0  # a parameter within this many σ of 0 is held at 0 (the coefficients' screen)
 SINGULAR = 1e-10  # an eigenvalue of the scaled Fisher information below this × the largest: singular
-# Of the parameters within SIGNIFICANCE σ of 0, scale factors are held first, then delays, then
-# biases: a constant velocity makes its bias and scale factor nearly one parameter (u ≈ 20 m/s),
-# and a bias is the commoner error, present whether the channel varies or not.
+# Of the parameters within SIGNIFICANCE σ of 0, scale factors are held first, then
+# misalignments, delays, then biases: a constant velocity makes its bias and scale factor (or a
+# misalignment turning it into another channel) nearly one parameter (u ≈ 20 m/s), and a bias
+# is the commoner error, present whether the channel varies or not.
 # The attitude offsets come last (`_rank`): with u near constant the log's w bias makes nearly
 # the sink rate of a pitch offset, and an AHRS mounted off its axes is the commoner error.
 HELD_FIRST = ("k_", "m_", "tau_", "b_")
