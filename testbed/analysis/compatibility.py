@@ -11,19 +11,27 @@ and the depth from the Doppler velocity log with the measured attitude,
     ż = −u sin θ + v cos θ sin φ + w cos θ cos φ,
 
 each driving channel c corrected by its sensor's bias b_c, scale factor k_c and its group's
-delay τ (the true value at time t is `(c_measured(t + τ) − b_c) / (1 + k_c)`; a sensor that lags
-by τ has τ > 0). The reconstruction is compared with the measured φ, θ, ψ (the attitude check,
-`ATTITUDE`) and z (the depth check, `DEPTH`), and the initial attitude or depth and the sensor
-parameters are fitted by the filter-error method (maximum likelihood of a Kalman filter's
-innovations; Maine & Iliff, Jategaonkar): the noise of the rates and velocities is integrated
-by the kinematics, so it is process noise, and output error would be biased and its bounds
-2–6 times too small. The noise is read off the data (robust third differences): the outputs'
-σ is the filter's measurement noise R, the driving channels' (and, in ż, the attitude's times
-the velocities) its process noise, a random walk of h² σ² per step. The attitude filter is
-extended (linearised at each step), its gain held at each iteration's (Maine & Iliff); the
-depth filter's process noise depends on the corrected velocities, so its gain and the
-likelihood's ln det S follow the parameters. The fit is Gauss-Newton (trust region, `scipy.
-optimize.least_squares`) on the residuals whose sum of squares is the negative
+delay τ (the true value at time t is `(c_measured(t + τ) − b_c) / (1 + k_c)`; a sensor that
+lags by τ has τ > 0), and the measured φ, θ the depth uses by their constant offsets `b_phi`,
+`b_theta` (an AHRS mounted off its axes: the true angle is `c_measured − b_c`, the names of the
+model's output biases). θ's offset turns the log's u into a sink rate −u sin θ, strongly seen
+in depth over a dive; φ's through v and w, seen where v is. A heading offset enters neither
+check's kinematics (ψ is the attitude check's output only, one more constant beside its initial
+heading) and is not a check parameter; the attitude check integrates from its initial attitude,
+which takes the φ and θ offsets in. The reconstruction is compared with the measured φ, θ, ψ
+(the attitude check, `ATTITUDE`) and z (the depth check, `DEPTH`), and the initial attitude or
+depth and the sensor parameters are fitted by the filter-error method (maximum likelihood of a
+Kalman filter's innovations; Maine & Iliff, Jategaonkar): the noise of the rates and velocities
+is integrated by the kinematics, so it is process noise, and output error would be biased and
+its bounds 2–6 times too small. The noise is read off the data (robust third differences over
+the samples present): the outputs' σ is the filter's measurement noise R, the driving channels'
+(and, in ż, the attitude's times the velocities) its process noise, a random walk of h H σ² per
+step h, H the interval between the channel's samples around it (h² σ² where every row is a
+sample; a spline through samples H apart carries each sample's error over H). The attitude
+filter is extended (linearised at each step), its gain held at each iteration's (Maine &
+Iliff); the depth filter's process noise depends on the corrected velocities, so its gain and
+the likelihood's ln det S follow the parameters. The fit is Gauss-Newton (trust region,
+`scipy.optimize.least_squares`) on the residuals whose sum of squares is the negative
 log-likelihood; its derivatives are exact: the complex step, the measured signals
 interpolated by cubic splines (a fractional delay is a shift along the spline, so a 40 ms
 delay at 50 Hz is as smooth a parameter as any other). The standard deviations are the
@@ -41,9 +49,26 @@ parameter within 2 σ of 0 is held at 0 (`HELD_FIRST`: scale factors, delays, th
 others updated for it held there), and those left are fitted again until none is. The initial
 states are always fitted.
 
+The depth check's log may be turned from the body's axes by `m_dvl_y`, `m_dvl_z` (its reading
+Mᵀ v, M = Rz(m_dvl_z) Ry(m_dvl_y), a scenario sensor's `misalignment`). A parameter correlated
+beyond 0.99 with an attitude offset in these data is held, not separable (`_inseparable`): a
+log's w bias makes the sink rate of a pitch offset wherever u is near constant, its
+misalignment about y is one with it; the offset, the commoner error, is kept. About z the
+misalignment turns u into v: seen through v sin φ where the vehicle rolls, and told from a v
+bias only where the speed varies. Among the insignificant, the offsets are held last.
+
+Missing samples: each channel's samples present are its data. The filter steps from row to row
+of those where every output of the check is present (the others' outputs are left out); the
+driving and used channels are cubic splines through their samples present, bridging a gap up
+to `MAX_GAP` (3) times the channel's median interval (a dropped sample or two, a slower
+sensor's rate); across a longer gap the record is split, each stretch checked with its own
+initial state and named `record a–b s`, the gap named unchecked. A record missing a channel a
+check needs (not a column, or under 2 samples) is not checked for it: no gyros, no attitude
+check; the depth check runs on the log and the measured attitude. The result names what it
+could not check, wholly or over which stretch, and why (`Compatibility.unchecked`).
+
 Each record is checked alone, and all records together (`pooled`: one set of sensor
-parameters, each record its own initial states). A record missing a channel a check needs is
-not checked for it, and the result says so (`Compatibility.unchecked`).
+parameters, each record or stretch its own initial states).
 """
 
 from __future__ import annotations
@@ -69,7 +94,12 @@ __all__ = [
     "CHECKS",
     "DEPTH",
     "MAX_DELAY",
+    "MAX_GAP",
+    "MAX_MISALIGNMENT",
+    "MAX_OFFSET",
     "MAX_SCALE",
+    "MISALIGNMENTS",
+    "OFFSETS",
     "SENSOR_PARAMETERS",
     "Check",
     "Compatibility",
@@ -84,12 +114,16 @@ __all__ = [
 
 MAX_DELAY = 1.0  # s: the largest sensor delay fitted or applied, either sign
 MAX_SCALE = 0.5  # the largest |k| of a scale factor fitted or applied (1 + k within 0.5-1.5)
+MAX_MISALIGNMENT = 0.5  # rad: the largest misalignment fitted or applied (a scenario's limit)
 SIGNIFICANCE = 2.0  # a parameter within this many σ of 0 is held at 0 (the coefficients' screen)
 SINGULAR = 1e-10  # an eigenvalue of the scaled Fisher information below this × the largest: singular
-# Of the parameters within SIGNIFICANCE σ of 0, scale factors are held first, then delays, then
-# biases: a constant velocity makes its bias and scale factor nearly one parameter (u ≈ 20 m/s),
-# and a bias is the commoner error, present whether the channel varies or not.
-HELD_FIRST = ("k", "t", "b")
+# Of the parameters within SIGNIFICANCE σ of 0, scale factors are held first, then
+# misalignments, delays, then biases: a constant velocity makes its bias and scale factor (or a
+# misalignment turning it into another channel) nearly one parameter (u ≈ 20 m/s), and a bias
+# is the commoner error, present whether the channel varies or not.
+# The attitude offsets come last (`_rank`): with u near constant the log's w bias makes nearly
+# the sink rate of a pitch offset, and an AHRS mounted off its axes is the commoner error.
+HELD_FIRST = ("k_", "m_", "tau_", "b_")
 STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
 # A scale factor multiplies its channel, a delay its channel's rate of change, the log's u and v
 # biases sin θ and sin φ: a parameter whose regressor is mostly the noise of a measured channel
@@ -108,15 +142,26 @@ REGRESSORS = {
     "k_v": (("v", "phi"),),
     "k_w": (("w",),),
     "tau_dvl": (("w",), ("u", "theta"), ("v", "phi")),
+    "b_phi": (("v",), ("w",)),
+    "m_dvl_z": (("phi",),),
 }
 MIN_SIGNAL = 3.0
 MAX_PITCH = 1.5  # rad (86°): beyond, the attitude check is not run (tan θ, 1 / cos θ near ±π/2)
+# A sensor parameter correlated with an attitude offset beyond this is held (`_inseparable`).
+MAX_CORRELATION = 0.99
+MAX_OFFSET = math.pi  # rad: the largest |b| of an attitude offset applied
+# A driving or used channel's gap (between two samples present) is bridged by its cubic spline
+# when it is at most MAX_GAP times the channel's median interval in the record: a sensor's
+# dropped sample or two; a longer gap splits the record, the stretch across it left unchecked.
+MAX_GAP = 3.0
+MIN_ROWS = 4  # a stretch between gaps is checked when its outputs have at least this many rows
 
 
 @dataclass(frozen=True)
 class Check:
     """One kinematic check: the channels that drive it (corrected by their sensors' parameters),
-    the measured channels it uses as they are, the outputs it reconstructs and the parameters."""
+    the measured channels it uses (corrected by their offsets), the outputs it reconstructs and
+    the parameters."""
 
     name: str
     drives: tuple[str, ...]
@@ -124,11 +169,20 @@ class Check:
     outputs: tuple[str, ...]
     initial: tuple[str, ...]
     delay: str
+    axes: tuple[str, ...] = ()  # the body axes about which the driving sensor may be turned
 
     @property
     def sensor(self) -> tuple[str, ...]:
-        """The sensor parameters: each driving channel's bias and scale factor, the delay."""
-        return tuple(f"b_{c}" for c in self.drives) + tuple(f"k_{c}" for c in self.drives) + (self.delay,)
+        """The sensor parameters: each driving channel's bias and scale factor, the delay, each
+        used channel's offset, the driving sensor's misalignment about each of `axes`."""
+        group = self.delay.removeprefix("tau_")
+        return (
+            tuple(f"b_{c}" for c in self.drives)
+            + tuple(f"k_{c}" for c in self.drives)
+            + (self.delay,)
+            + tuple(f"b_{c}" for c in self.uses)
+            + tuple(f"m_{group}_{a}" for a in self.axes)
+        )
 
     @property
     def needs(self) -> tuple[str, ...]:
@@ -150,9 +204,12 @@ DEPTH = Check(
     outputs=("z",),
     initial=("z0",),
     delay="tau_dvl",
+    axes=("y", "z"),
 )
 CHECKS = (ATTITUDE, DEPTH)
 SENSOR_PARAMETERS = ATTITUDE.sensor + DEPTH.sensor
+OFFSETS = tuple(f"b_{c}" for check in CHECKS for c in check.uses)  # the attitude offsets
+MISALIGNMENTS = tuple(n for check in CHECKS for n in check.sensor if n.startswith("m_"))
 
 
 @dataclass(frozen=True)
@@ -214,7 +271,9 @@ class Compatibility:
     Attributes:
         records: record → check name → its reconstruction.
         pooled: check name → the reconstruction of every record that has the check's channels.
-        unchecked: record → check name → why it was not checked (missing channels).
+        unchecked: record → check name → why it was not checked, wholly (missing channels)
+            or over the stretches it names (gaps too long to bridge, rows past a channel's
+            last sample).
     """
 
     records: Mapping[str, Mapping[str, Reconstruction]]
@@ -270,72 +329,129 @@ def _cell(p: Parameter) -> str:
     return f"{p.value:.4g} ± {p.std:.2g}"
 
 
-class _Record:
-    """One record ready for a check: its splines, fine grid (samples and midpoints), outputs,
-    and the noise variances of its channels (`noise`: channel → σ)."""
+def _turned(v: np.ndarray, ay, az) -> np.ndarray:
+    """The velocities `v` (..., 3) in a sensor's axes turned into the body's: Rz(az) Ry(ay) v,
+    a sensor misaligned by ay about y and az about z (its reading Mᵀ v, as a scenario's
+    `misalignment`)."""
+    cy, sy, cz, sz = np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    u1, w1 = cy * v[..., 0] + sy * v[..., 2], -sy * v[..., 0] + cy * v[..., 2]
+    return np.stack([cz * u1 - sz * v[..., 1], sz * u1 + cz * v[..., 1], w1], axis=-1)
 
-    def __init__(self, e: Experiment, check: Check, noise: Mapping[str, float]):
-        self.name = e.name
-        self.t = np.asarray(e.t, dtype=float)
+
+def _samples(e: Experiment, c: str) -> tuple[np.ndarray, np.ndarray]:
+    """Channel `c`'s samples present in `e`: their times and values."""
+    y = e.column(c)
+    present = ~np.isnan(y)
+    return e.t[present], y[present]
+
+
+class _Record:
+    """One record, or one stretch of it between two unbridged gaps, ready for a check: the rows
+    where every output is present (`t`, the filter's steps between them), the fine grid
+    (those rows and the midpoints between them), the cubic splines through each driving and
+    used channel's samples present, the outputs, and the noise of the channels (`noise`:
+    channel → σ).
+
+    The noise of a driving or used channel is integrated as a random walk: each step h of the
+    filter adds h H σ² of it, H the interval between the channel's samples around the step
+    (h² σ² where every row is a sample; a spline through samples H apart carries each sample's
+    error over H, (H σ)² in all)."""
+
+    def __init__(
+        self,
+        e: Experiment,
+        check: Check,
+        noise: Mapping[str, float],
+        window: tuple[float, float] | None = None,
+        name: str | None = None,
+        every_row: bool = False,
+    ):
+        self.name = name or e.name
+        a, b = window or (e.t[0], e.t[-1])
+        y = np.column_stack([e.column(c) for c in check.outputs])
+        rows = (e.t >= a) & (e.t <= b) & (every_row | ~np.isnan(y).any(axis=1))
+        self.window = (float(a), float(b))
+        self.t = np.asarray(e.t[rows], dtype=float)
         self.h = np.diff(self.t)
         fine = np.empty(2 * len(self.t) - 1)
         fine[0::2], fine[1::2] = self.t, self.t[:-1] + self.h / 2
         self.fine = fine
         self.check = check
-        self.splines = {c: CubicSpline(self.t, e.column(c)) for c in check.drives}
-        self.used = {c: CubicSpline(self.t, e.column(c))(fine) for c in check.uses}
-        self.y = np.column_stack([e.column(c) for c in check.outputs])
+        self.splines, interval, self.signal = {}, {}, {}
+        for c in check.drives + check.uses:
+            ts, ys = _samples(e, c)
+            # the samples within the window and the nearest one beyond each end
+            lo, hi = max(np.searchsorted(ts, a, "right") - 1, 0), np.searchsorted(ts, b, "left") + 1
+            ts, ys = ts[lo:hi], ys[lo:hi]
+            self.splines[c] = CubicSpline(ts, ys)
+            at = np.clip(np.searchsorted(ts, fine[1::2]), 1, len(ts) - 1)
+            interval[c] = ts[at] - ts[at - 1]  # H: the interval between samples around each step
+        self.used = {c: self.splines[c](fine) for c in check.uses}
+        self.y = y[rows]
         self.R = np.array([noise[c] ** 2 for c in check.outputs])
-        self.Sw = np.array([noise[c] ** 2 for c in check.drives])
         self.noise = dict(noise)
-        self.signal = {  # channel → the standard deviation of its signal over its noise's
-            c: math.sqrt(max(float(np.var(e.column(c))) - noise[c] ** 2, 0.0)) / noise[c] for c in check.needs
-        }
+        self.interval = interval
+        # the drives' process noise per step over h²: σ² H / h (h H σ² in all)
+        self.Sw = np.column_stack([self.noise[c] ** 2 * interval[c] / self.h for c in check.drives])
+        for c in check.needs:  # channel → the standard deviation of its signal over its noise's
+            ts, ys = _samples(e, c)
+            ys = ys[(ts >= a) & (ts <= b)]
+            var = float(np.var(ys)) if len(ys) else 0.0
+            self.signal[c] = math.sqrt(max(var - noise[c] ** 2, 0.0)) / noise[c]
 
-    def _depth_noise(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    def _depth_noise(self, x: np.ndarray, w: np.ndarray, phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """The depth filter's process noise per step (B, N − 1): the variance of ż from the noise
         of the velocities (scaled as they are corrected) and of the attitude (times the
-        corrected velocities), at each step's start, integrated as a random walk (h² var)."""
+        corrected velocities), at each step's start, integrated as a random walk (h H var)."""
         n = len(self.check.drives)
         k = x[:, len(self.check.initial) + n : len(self.check.initial) + 2 * n]
         u, v, w = (w[:, 0:-1:2, i] for i in range(3))
-        phi, theta = self.used["phi"][0:-1:2], self.used["theta"][0:-1:2]
+        phi, theta = phi[:, 0:-1:2], theta[:, 0:-1:2]
         s, c, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
         su, sv, sw = (self.noise[ch] / (1 + k[:, [i]]) for i, ch in enumerate(self.check.drives))
+        H = self.interval
         var = (
-            (su * st) ** 2
-            + (sv * ct * s) ** 2
-            + (sw * ct * c) ** 2
-            + (self.noise["theta"] * (u * ct + (v * s + w * c) * st)) ** 2
-            + (self.noise["phi"] * ct * (v * c - w * s)) ** 2
+            (su * st) ** 2 * H["u"]
+            + (sv * ct * s) ** 2 * H["v"]
+            + (sw * ct * c) ** 2 * H["w"]
+            + (self.noise["theta"] * (u * ct + (v * s + w * c) * st)) ** 2 * H["theta"]
+            + (self.noise["phi"] * ct * (v * c - w * s)) ** 2 * H["phi"]
         )
-        return self.h**2 * var
+        return self.h * var
 
     def drives(self, tau: np.ndarray) -> np.ndarray:
         """The driving channels at `fine + tau` (B,) complex, (B, 2N − 1, channels): the spline
         at the real shift plus i Im(τ) times its slope (the complex step's first order, exact for
-        the derivative); beyond the record's ends the end values are held."""
+        the derivative); beyond the window's ends the end values are held."""
+        a, b = self.window
         s = self.fine + tau[0].real
-        inside = (s >= self.t[0]) & (s <= self.t[-1])
-        s = np.clip(s, self.t[0], self.t[-1])
-        out = np.empty((len(tau), len(s), len(self.splines)), dtype=complex)
-        for j, spline in enumerate(self.splines.values()):
+        inside = (s >= a) & (s <= b)
+        s = np.clip(s, a, b)
+        out = np.empty((len(tau), len(s), len(self.check.drives)), dtype=complex)
+        for j, c in enumerate(self.check.drives):
+            spline = self.splines[c]
             slope = np.where(inside, spline(s, 1), 0.0)
             out[:, :, j] = spline(s)[None, :] + 1j * tau.imag[:, None] * slope[None, :]
         return out
 
     def _corrected(self, x: np.ndarray):
-        """The initial states (B, initial) and the corrected driving channels (B, 2N − 1,
-        channels) of the parameter rows `x` (B, initial + sensor), complex."""
+        """The initial states (B, initial), the corrected driving channels (B, 2N − 1, channels)
+        and the used channels less their offsets (channel → (B, 2N − 1)) of the parameter rows
+        `x` (B, initial + sensor), complex."""
         check, n = self.check, len(self.check.drives)
         x0 = x[:, : len(check.initial)]
         sensor = x[:, len(check.initial) :]
-        b, k, tau = sensor[:, :n], sensor[:, n : 2 * n], sensor[:, -1]
-        return np.ascontiguousarray(x0), (self.drives(tau) - b[:, None, :]) / (1 + k[:, None, :])
+        b, k, tau = sensor[:, :n], sensor[:, n : 2 * n], sensor[:, 2 * n]
+        offsets = sensor[:, 2 * n + 1 : 2 * n + 1 + len(check.uses)]
+        turns = sensor[:, 2 * n + 1 + len(check.uses) :]
+        used = {c: self.used[c][None, :] - offsets[:, [i]] for i, c in enumerate(check.uses)}
+        w = (self.drives(tau) - b[:, None, :]) / (1 + k[:, None, :])
+        if check.axes:
+            w = _turned(w, turns[:, 0, None], turns[:, 1, None])
+        return np.ascontiguousarray(x0), w, used
 
-    def _depth_steps(self, w: np.ndarray) -> np.ndarray:
+    def _depth_steps(self, w: np.ndarray, phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """The depth's change over each step (B, N − 1): Simpson's rule on ż."""
-        phi, theta = self.used["phi"], self.used["theta"]
         zdot = -w[:, :, 0] * np.sin(theta) + (w[:, :, 1] * np.sin(phi) + w[:, :, 2] * np.cos(phi)) * np.cos(
             theta
         )
@@ -343,25 +459,26 @@ class _Record:
 
     def outputs(self, x: np.ndarray) -> np.ndarray:
         """The outputs reconstructed open loop (B, N, outputs) at the parameter rows `x`."""
-        x0, w = self._corrected(x)
+        x0, w, used = self._corrected(x)
         if self.check is ATTITUDE:
             out = np.empty((len(x), len(self.t), 3), dtype=complex)
             attitudes(self.h, np.ascontiguousarray(w), x0, out)
             return out
-        steps = self._depth_steps(w)
+        steps = self._depth_steps(w, used["phi"], used["theta"])
         return (np.concatenate([np.zeros((len(x), 1)), np.cumsum(steps, axis=1)], axis=1) + x0)[:, :, None]
 
     def innovations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """The filter's whitened innovations (B, N, outputs) at the parameter rows `x`, and the
         log-ratios ln(S / R) of their variances to the noise's where these depend on the
         parameters (the depth check; None for the attitude, whose gain is held)."""
-        x0, w = self._corrected(x)
+        x0, w, used = self._corrected(x)
         if self.check is ATTITUDE:
             out = np.empty((len(x), len(self.t), 3), dtype=complex)
             attitude_filter(self.h, np.ascontiguousarray(w), x0, self.y, self.R, self.Sw, out)
             return out, None
         out, logs = (np.empty((len(x), len(self.t)), dtype=complex) for _ in range(2))
-        steps, q = self._depth_steps(w), self._depth_noise(x, w)
+        phi, theta = used["phi"], used["theta"]
+        steps, q = self._depth_steps(w, phi, theta), self._depth_noise(x, w, phi, theta)
         depth_filter(
             np.ascontiguousarray(steps),
             np.ascontiguousarray(q),
@@ -375,7 +492,7 @@ class _Record:
 
     def start(self) -> np.ndarray:
         """The initial states: the mean of each output's first five samples."""
-        return self.y[:5].mean(axis=0)
+        return np.array([np.mean(y[~np.isnan(y)][:5]) for y in self.y.T])
 
     def evaluate(self, x: np.ndarray, jac: bool):
         """At `x` (real): the whitened innovations e and the log-ratios g (N, outputs; g None
@@ -395,9 +512,10 @@ def reconstruct(
 ) -> dict[str, np.ndarray]:
     """The outputs of `check` reconstructed from record `e`: output name → (N,) array, at the
     parameters `values` (initial states and sensor parameters by name; an initial state left
-    out starts at the mean of the output's first five samples, a sensor parameter at 0)."""
+    out starts at the mean of the output's first five samples, a sensor parameter at 0); the
+    driving and used channels are the splines through their samples present."""
     _need(e, check)
-    record = _Record(e, check, {c: 1.0 for c in e.measured})
+    record = _Record(e, check, {c: 1.0 for c in e.measured}, every_row=True)
     values = dict(values or {})
     unknown = set(values) - set(check.initial) - set(check.sensor)
     if unknown:
@@ -415,7 +533,7 @@ def reconstruct(
 
 
 def _need(e: Experiment, check: Check) -> None:
-    missing = [c for c in check.needs if c not in e.measured]
+    missing = _missing(e, check)
     if missing:
         raise InputError(
             f"{e.source or e.name}: the {check.name} check needs {', '.join(check.needs)}; "
@@ -482,7 +600,14 @@ class _Fit:
 
     def bounds(self, free):
         limit = [
-            MAX_DELAY if n == self.check.delay else MAX_SCALE if n.startswith("k_") else np.inf for n in free
+            MAX_DELAY
+            if n == self.check.delay
+            else MAX_SCALE
+            if n.startswith("k_")
+            else MAX_MISALIGNMENT
+            if n in MISALIGNMENTS
+            else np.inf
+            for n in free
         ]
         hi = np.array(limit + [np.inf] * self.ni * len(self.records))
         return -hi, hi
@@ -534,6 +659,36 @@ def _singular(M: np.ndarray, names: Sequence[str]) -> list[str]:
         del keep[j]
 
 
+def _inseparable(M: np.ndarray, names: Sequence[str], held: Mapping[str, str]) -> dict[str, str]:
+    """The sensor parameters (of the first len(names) rows of the Fisher information M, those of
+    `held` aside) correlated with an attitude offset beyond `MAX_CORRELATION`, with the reason,
+    held one at a time, the most correlated first, the correlations computed again without it:
+    the data tell them from the offset by little more than their noise (a log's w bias makes
+    the sink rate −u sin θ of a pitch offset wherever u is near constant; its misalignment about
+    y turns its u into the same); the offset, the commoner error, is kept."""
+    out: dict[str, str] = {}
+    while True:
+        keep = [i for i in range(len(M)) if i >= len(names) or (names[i] not in held and names[i] not in out)]
+        d = np.sqrt(np.diag(M)[keep])
+        P = np.linalg.pinv(M[np.ix_(keep, keep)] / np.outer(d, d), hermitian=True)
+        s = np.sqrt(np.abs(np.diag(P)))
+        index = {names[i]: j for j, i in enumerate(keep) if i < len(names)}
+        pairs = [
+            (abs(P[j, index[o]]) / (s[j] * s[index[o]]), n, o)
+            for o in OFFSETS
+            if o in index
+            for n, j in index.items()
+            if n not in OFFSETS
+        ]
+        rho, n, o = max(pairs, default=(0.0, "", ""))
+        if rho <= MAX_CORRELATION:
+            return out
+        out[n] = (
+            f"not separable from {o}: correlated {rho:.4f} with it in these data (the offset, the "
+            "commoner error, is kept)"
+        )
+
+
 def _conditional(x: np.ndarray, P: np.ndarray, i) -> np.ndarray:
     """The estimate `x` (covariance P) with parameter(s) i held at 0: the others moved as the
     cost's quadratic model says (the Gaussian conditioned on x[i] = 0)."""
@@ -541,6 +696,13 @@ def _conditional(x: np.ndarray, P: np.ndarray, i) -> np.ndarray:
     if not len(i):
         return x
     return x - P[:, i] @ np.linalg.solve(P[np.ix_(i, i)], x[i])
+
+
+def _rank(name: str) -> int:
+    """Where `name` comes in the order parameters are held (`HELD_FIRST`, the offsets last)."""
+    if name in OFFSETS:
+        return len(HELD_FIRST)
+    return next(i for i, prefix in enumerate(HELD_FIRST) if name.startswith(prefix))
 
 
 def _insignificant(x, P, free, stds, reasons) -> list[str]:
@@ -555,7 +717,7 @@ def _insignificant(x, P, free, stds, reasons) -> list[str]:
         z = {i: v for i, v in z.items() if v < SIGNIFICANCE}  # P[i, i] ≤ 0: determined by those held
         if not z:
             return held
-        i = min(z, key=lambda i: (HELD_FIRST.index(free[i][0]), z[i]))
+        i = min(z, key=lambda i: (_rank(free[i]), z[i]))
         stds[free[i]] = math.sqrt(P[i, i])
         reasons[free[i]] = (
             f"not significant: {x[i]:.3g} ± {stds[free[i]]:.2g} is within {SIGNIFICANCE:g} σ of 0"
@@ -595,6 +757,7 @@ def _reconstruction(check: Check, records: Sequence[_Record]) -> Reconstruction:
         n: "not identifiable: the Fisher information of these data is singular along it"
         for n in _singular(M, names_left)
     }
+    reasons |= _inseparable(M, names_left, reasons)
     stds = {n: math.inf for n in reasons}
     free = [n for n in names if n not in reasons]
     x, iterations = fit.solve(fit.start(free), free)
@@ -664,32 +827,100 @@ def _fitted(check: Check, records: Sequence[_Record]) -> Reconstruction:
     return done
 
 
+# What each missing channel prevents, by check.
+WHY_NEEDED = {
+    "attitude": "the attitude is integrated from the rate gyros and compared with the measured attitude",
+    "depth": "the depth is integrated from the log's velocities turned by the measured attitude",
+}
+
+
+def _missing(e: Experiment, check: Check) -> list[str]:
+    """The channels `check` needs that `e` does not measure, or of which it has under 2 samples."""
+    return [c for c in check.needs if c not in e.measured or np.sum(~np.isnan(e.column(c))) < 2]
+
+
+def _stretches(e: Experiment, check: Check) -> tuple[list[tuple[float, float]], list[str]]:
+    """The stretches of `e` that `check` can check: where every driving and used channel has
+    samples on both sides, split at each gap of one longer than `MAX_GAP` times its median
+    interval, and holding at least `MIN_ROWS` rows with every output; and the parts left out,
+    each with its reason."""
+    rows = ~np.isnan(np.column_stack([e.column(c) for c in check.outputs])).any(axis=1)
+    out_t = e.t[rows]
+    if not len(out_t):
+        return [], [f"no row has every one of {', '.join(check.outputs)}"]
+    gaps: dict[tuple[float, float], list[str]] = {}  # (start, end) of a gap not bridged → channels
+    limits = {}
+    a, b = -math.inf, math.inf
+    for c in check.drives + check.uses:
+        ts, _ = _samples(e, c)
+        a, b = max(a, ts[0]), min(b, ts[-1])
+        d = np.diff(ts)
+        limits[c] = MAX_GAP * float(np.median(d))
+        for i in np.flatnonzero(d > limits[c]):
+            gaps.setdefault((float(ts[i]), float(ts[i + 1])), []).append(c)
+    why = []
+    channels = ", ".join(check.drives + check.uses)
+    if out_t[0] < a:
+        why.append(f"before {a:.4g} s, not every one of {channels} has a sample")
+    for (g0, g1), cs in sorted(gaps.items()):
+        limit = " or ".join(f"{v:.3g} s" for v in sorted({limits[c] for c in cs}))
+        why.append(
+            f"over {g0:.4g}–{g1:.4g} s, {', '.join(cs)} {'has' if len(cs) == 1 else 'have'} no sample "
+            f"for {g1 - g0:.3g} s (a gap over {MAX_GAP:g} times the channel's median interval, {limit}, "
+            "is not bridged)"
+        )
+    if out_t[-1] > b:
+        why.append(f"after {b:.4g} s, not every one of {channels} has a sample")
+    merged: list[list[float]] = []  # the union of what is not checked, in time order
+    for g0, g1 in sorted(list(gaps) + [(-math.inf, a), (b, math.inf)]):
+        if merged and g0 <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], g1)
+        else:
+            merged.append([g0, g1])
+    stretches = []
+    for (_, s0), (s1, _) in zip(merged[:-1], merged[1:]):
+        n = int(np.sum((out_t >= s0) & (out_t <= s1)))
+        if n == 0:
+            continue
+        if n < MIN_ROWS:
+            why.append(
+                f"over {s0:.4g}–{s1:.4g} s, between gaps, only {n} rows of the outputs (under {MIN_ROWS})"
+            )
+        else:
+            stretches.append((float(s0), float(s1)))
+    return stretches, why
+
+
 def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
     """The data-compatibility check of `experiments`: each record alone (its channels' noise read
-    off it) and all pooled (the noise read off all), each check on the records that measure its
-    channels; `InputError` when no record has the channels of any check."""
+    off it) and all pooled (the noise read off all), each check on the stretches of the records
+    that measure its channels (`_stretches`); `InputError` when none has any."""
     unchecked: dict[str, dict[str, str]] = {e.name: {} for e in experiments}
-    ready: dict[str, list[Experiment]] = {}
+    ready: dict[str, list[tuple[Experiment, list[tuple[float, float]]]]] = {}
     for check in CHECKS:
         for e in experiments:
-            missing = [c for c in check.needs if c not in e.measured]
-            gaps = [c for c in check.needs if c in e.measured and np.isnan(e.column(c)).any()]
-            steep = float(np.nanmax(np.abs(e.column("theta")))) if "theta" in e.measured else 0.0
+            missing = _missing(e, check)
+            steep = (
+                float(np.nanmax(np.abs(e.column("theta"))))
+                if "theta" in e.measured and not np.isnan(e.column("theta")).all()
+                else 0.0
+            )
             if missing:
                 unchecked[e.name][check.name] = (
-                    f"needs {', '.join(check.needs)}; missing {', '.join(missing)}"
+                    f"needs {', '.join(check.needs)} ({WHY_NEEDED[check.name]}); missing {', '.join(missing)}"
                 )
-            elif gaps:
-                unchecked[e.name][check.name] = (
-                    f"{', '.join(gaps)} miss samples; its filter needs every sample of {', '.join(check.needs)}"
-                )
-            elif check is ATTITUDE and steep > MAX_PITCH:
+                continue
+            if check is ATTITUDE and steep > MAX_PITCH:
                 unchecked[e.name][check.name] = (
                     f"theta reaches {steep:.4g} rad, beyond ±{MAX_PITCH:g}: the Euler angles' "
                     "kinematics are singular at ±π/2 (attitude in radians expected)"
                 )
-            else:
-                ready.setdefault(check.name, []).append(e)
+                continue
+            stretches, why = _stretches(e, check)
+            if why:
+                unchecked[e.name][check.name] = "; ".join(why)
+            if stretches:
+                ready.setdefault(check.name, []).append((e, stretches))
     if not ready:
         why = "; ".join(
             f"{name}: {'; '.join(f'{c} check {w}' for c, w in v.items())}" for name, v in unchecked.items()
@@ -698,21 +929,30 @@ def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
     noise = {e.name: noise_from_data([e]) for e in experiments}
     records: dict[str, dict[str, Reconstruction]] = {e.name: {} for e in experiments}
     pooled = {}
+
+    def pieces(check, e, stretches, noise):
+        whole = len(stretches) == 1 and not unchecked[e.name].get(check.name)
+        return [
+            _Record(e, check, noise, (a, b), e.name if whole else f"{e.name} {a:.4g}–{b:.4g} s")
+            for a, b in stretches
+        ]
+
     for check in CHECKS:
         some = ready.get(check.name, [])
-        for e in some:
-            records[e.name][check.name] = _fitted(check, [_Record(e, check, noise[e.name])])
+        for e, stretches in some:
+            records[e.name][check.name] = _fitted(check, pieces(check, e, stretches, noise[e.name]))
         if len(some) == 1:
-            pooled[check.name] = records[some[0].name][check.name]
+            pooled[check.name] = records[some[0][0].name][check.name]
         elif some:
-            everyone = noise_from_data(some)
-            pooled[check.name] = _fitted(check, [_Record(e, check, everyone) for e in some])
+            everyone = noise_from_data([e for e, _ in some])
+            pooled[check.name] = _fitted(check, [r for e, s in some for r in pieces(check, e, s, everyone)])
     return Compatibility(records=records, pooled=pooled, unchecked=unchecked)
 
 
 def check_corrections(values, where: str) -> dict[str, float]:
     """`values` (sensor parameter → number) checked: known names, finite numbers, biases within
-    ±`MAX_DATA`, scale factors within ±`MAX_SCALE`, delays within ±`MAX_DELAY` s."""
+    ±`MAX_DATA`, attitude offsets within ±`MAX_OFFSET` rad, scale factors within ±`MAX_SCALE`,
+    misalignments within ±`MAX_MISALIGNMENT` rad, delays within ±`MAX_DELAY` s."""
     if not isinstance(values, Mapping):
         raise InputError(f'{where}: expected an object of sensor parameters, e.g. {{"b_r": 0.002}}')
     out = {}
@@ -721,7 +961,17 @@ def check_corrections(values, where: str) -> dict[str, float]:
             raise InputError(
                 f"{where}: {str(n)[:40]!r} is not a sensor parameter; expected {', '.join(SENSOR_PARAMETERS)}"
             )
-        limit = MAX_DELAY if n.startswith("tau_") else MAX_SCALE if n.startswith("k_") else MAX_DATA
+        limit = (
+            MAX_DELAY
+            if n.startswith("tau_")
+            else MAX_SCALE
+            if n.startswith("k_")
+            else MAX_MISALIGNMENT
+            if n in MISALIGNMENTS
+            else MAX_OFFSET
+            if n in OFFSETS
+            else MAX_DATA
+        )
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= limit:
             raise InputError(f"{where}: {n} = {repr(v)[:40]}; expected a number within ±{limit:g}")
         out[n] = float(v)
@@ -737,9 +987,11 @@ def read_corrections(path: str | Path) -> dict[str, float]:
 
 
 def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float]) -> list[Experiment]:
-    """The experiments with each measured channel corrected by its sensor's parameters: `(c(t +
-    τ) − b_c) / (1 + k_c)`, c(t + τ) from the cubic spline through the channel (the end values
-    held beyond the record); parameters not given are 0, channels not measured are skipped."""
+    """The experiments with each measured channel corrected by its sensor's parameters: a rate or
+    velocity `(c(t + τ) − b_c) / (1 + k_c)`, c(t + τ) from the cubic spline through the
+    channel's samples present (the end values held beyond them; a missing sample stays
+    missing), an attitude channel less its offset `c − b_c`; parameters not given are 0,
+    channels not measured are skipped."""
     corrections = check_corrections(corrections, "corrections")
     out = []
     for e in experiments:
@@ -751,7 +1003,19 @@ def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float
                     continue
                 j = e.measured.index(c)
                 b, k = corrections.get(f"b_{c}", 0.0), corrections.get(f"k_{c}", 0.0)
-                shifted = CubicSpline(e.t, y[:, j])(np.clip(e.t + tau, e.t[0], e.t[-1])) if tau else y[:, j]
+                ts, ys = _samples(e, c)
+                shifted = y[:, j]
+                if tau and len(ts) > 1:
+                    shifted = np.where(
+                        np.isnan(y[:, j]), np.nan, CubicSpline(ts, ys)(np.clip(e.t + tau, ts[0], ts[-1]))
+                    )
                 y[:, j] = (shifted - b) / (1 + k)
+            for c in check.uses:
+                if c in e.measured:
+                    y[:, e.measured.index(c)] -= corrections.get(f"b_{c}", 0.0)
+            turns = [corrections.get(n, 0.0) for n in check.sensor if n in MISALIGNMENTS]
+            if any(turns) and all(c in e.measured for c in check.drives):
+                at = [e.measured.index(c) for c in check.drives]
+                y[:, at] = _turned(y[:, at], *turns)
         out.append(replace(e, y=y))
     return out

@@ -61,10 +61,10 @@ def _linearised(x, w):
 def attitude_filter(h, rates, x0, y, R, Sw, out):
     """The whitened innovations `out` (B, N, 3) of the extended Kalman filter of the attitude:
     the state predicted by `_rk4` from the corrected rates, the measured φ, θ, ψ `y` (N, 3) with
-    noise variances `R`; the rates' noise (variances `Sw`) is the process noise, Q = h² G Sw Gᵀ
-    per step (a random walk of the integrated noise). The gain and the whitening are computed on
-    the first row's real part and held for every row: the complex step then differentiates the
-    innovations at a fixed gain (Maine & Iliff)."""
+    noise variances `R`; the rates' noise is the process noise, Q = h² G diag(Sw[k]) Gᵀ on step
+    k (a random walk of the integrated noise; `Sw` (N − 1, 3) each step's variances). The gain
+    and the whitening are computed on the first row's real part and held for every row: the
+    complex step then differentiates the innovations at a fixed gain (Maine & Iliff)."""
     B, N = rates.shape[0], y.shape[0]
     K = np.zeros((N, 3, 3))
     W = np.zeros((N, 3, 3))  # the inverse Cholesky factor of the innovations' covariance
@@ -81,7 +81,7 @@ def attitude_filter(h, rates, x0, y, R, Sw, out):
                 A, G = _linearised(x.real, rates[0, 2 * k].real)
                 F = np.eye(3) + h[k] * A
                 Gd = h[k] * G
-                Pp = F @ P @ F.T + Gd @ np.diag(Sw) @ Gd.T
+                Pp = F @ P @ F.T + Gd @ np.diag(Sw[k]) @ Gd.T
                 S = Pp + np.diag(R)
                 W[k + 1] = np.linalg.inv(np.linalg.cholesky(S))
                 K[k + 1] = Pp @ np.linalg.inv(S)
