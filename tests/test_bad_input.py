@@ -823,9 +823,7 @@ def test_data_without_excitation_are_refused_for_what_they_are(run, capsys, tmp_
 def test_a_value_the_fit_carried_off_is_reported_as_the_fits(run, capsys, monkeypatch, tmp_path):
     """A fit that ends with a coefficient beyond what a config may hold (±1e15) is refused as
     the fit's outcome on the data, never as a value of the config the fit started from."""
-    import testbed.jobs
-
-    real = testbed.jobs.identify_screened
+    from testbed.analysis.identifiability import identify_screened as real
 
     def carried_off(*args, **kwargs):
         done = real(*args, **kwargs)
@@ -833,7 +831,7 @@ def test_a_value_the_fit_carried_off_is_reported_as_the_fits(run, capsys, monkey
         values[0] = -1e18
         return replace(done, estimate=replace(done.estimate, values=values))
 
-    monkeypatch.setattr(testbed.jobs, "identify_screened", carried_off)
+    monkeypatch.setattr("testbed.jobs.identify_screened", carried_off)
     out = tmp_path / "e.json"
     err = refused(
         capsys,
