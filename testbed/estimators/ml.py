@@ -335,24 +335,26 @@ def _estimate(name: str, prob: Problem, fit: Fit, t0: float, fits: list[Fit], ev
         | ({"joined": f.joined} if f.joined else {})
         for f in fits
     )
-    try:
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            info = bounds.assess(prob, out.p, out.fisher)
-        # an infinite bound is an unidentifiable coefficient's (bounds.crlb); NaN is a failure
-        why = (
-            None
-            if all(np.all(np.isfinite(a)) for a in (info.values, info.cost))
-            and not np.any(np.isnan(info.crlb_std))
-            else "the estimate or its Cramér-Rao bound is not finite"
-        )
-    except np.linalg.LinAlgError as exc:
-        why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
-    why = unphysical(prob.structure, prob.coefficients(out.p[: prob.n_free])) or why
-    if out.status is Status.DIVERGED:
+    why = None
+    if out.status is Status.DIVERGED:  # where the model diverges there, no analysis to make
         with np.errstate(over="ignore", invalid="ignore"):
             diverges = likelihood.divergence(prob, out.p)
         if diverges is not None:
             why = f"the model diverges over the whole record where the fit stopped ({diverges})"
+    if why is None:
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                info = bounds.assess(prob, out.p, out.fisher)
+            # an infinite bound is an unidentifiable coefficient's (bounds.crlb); NaN is a failure
+            why = (
+                None
+                if all(np.all(np.isfinite(a)) for a in (info.values, info.cost))
+                and not np.any(np.isnan(info.crlb_std))
+                else "the estimate or its Cramér-Rao bound is not finite"
+            )
+        except np.linalg.LinAlgError as exc:
+            why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
+        why = unphysical(prob.structure, prob.coefficients(out.p[: prob.n_free])) or why
     if why is not None:
         nf = prob.n_free
         return Estimate(
@@ -535,7 +537,7 @@ def _shooting(optimiser, prob: Problem, first: tuple, tuning: dict, callback) ->
     `trust_region.STAGE_TOL` σ (`ml-nm`: by its rule with `stage_eps`): enough to start the next
     in its basin. DIVERGED where the whole record's model diverges from the last stage's
     coefficients."""
-    first, p, count = first
+    first, p, count, _ = first
     theta = p[: prob.n_free]
     stages, count = [first], count // trust_region.SHRINK
     while count > 1:

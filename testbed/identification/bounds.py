@@ -301,7 +301,7 @@ class Analysed(NamedTuple):
     p: np.ndarray
     R: np.ndarray | None
     segments: int
-    why: str = ""  # the whole record's divergence, where the records are cut
+    why: str = ""  # why the whole record is not analysed, where the records are cut
 
 
 def analysed(
@@ -318,8 +318,7 @@ def analysed(
     diverges even on the shortest segments."""
     prob = problem(experiments, config)
     theta = free_values(prob, values)
-    stage, p, _ = bounded(prob, theta)
-    why = divergence(stage, p)
+    stage, p, _, why = bounded(prob, theta)
     if why is not None:
         coarse = _coarse_step(experiments, prob, theta)
         if coarse is not None:
@@ -334,7 +333,10 @@ def analysed(
         return Analysed(prob, p, R, 0)
     with np.errstate(over="ignore", invalid="ignore"):
         whole = divergence(prob, initial_states(prob, theta))
-    return Analysed(stage, p, R, len(stage.records), whole or "")
+    if whole is None:  # bounded, but growing more than EXPLODE-fold along a record
+        ev = np.linalg.eigvals(continuous(prob.structure, prob.coefficients(theta))[0])
+        whole = f"A's largest eigenvalue real part is {np.max(ev.real):.3g} 1/s"
+    return Analysed(stage, p, R, len(stage.records), whole)
 
 
 def information(

@@ -160,15 +160,17 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
     return replace(prob, records=tuple(records))
 
 
-def bounded(prob: Problem, values: np.ndarray, least: int = LEAST_SEGMENT) -> tuple[Problem, np.ndarray, int]:
+def bounded(
+    prob: Problem, values: np.ndarray, least: int = LEAST_SEGMENT
+) -> tuple[Problem, np.ndarray, int, str | None]:
     """`prob` cut into the fewest segments per record (`segmented`: 1, 2, 4, … each of at least
     `least` samples) on which the model at the free `values` stays bounded: its outputs do not
     explode (`exploded`) and its least stable mode (rate a > 0) grows by at most `EXPLODE`
     (a·T ≤ ln EXPLODE over T s; the fitted initial state can cancel a faster growth over the
     record, but the likelihood is then no longer near-quadratic in θ, and the information's
     elimination of that initial state cannot resolve it); the parameter vector there with the
-    best-fitting initial states, and the segments asked per record (1: `prob` itself). Where even
-    the shortest segments diverge, those (`divergence` says why)."""
+    best-fitting initial states, the segments asked per record (1: `prob` itself), and None. Where
+    even the shortest segments do not stay bounded, those, and why not."""
     rate = max(
         float(np.max(np.linalg.eigvals(continuous(prob.structure, prob.coefficients(values))[0]).real)), 0.0
     )
@@ -178,9 +180,14 @@ def bounded(prob: Problem, values: np.ndarray, least: int = LEAST_SEGMENT) -> tu
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
             p = initial_states(stage, values)
             out = outputs(stage, p)
-        grows = any(rate * len(r.y) * r.dt > np.log(EXPLODE) for r in stage.records)
-        if (exploded(stage, out) is None and not grows) or len(stage.records) == pieces:
-            return stage, p, count
+        longest = max(len(r.y) * r.dt for r in stage.records)
+        why = exploded(stage, out)
+        if why is None and rate * longest > np.log(EXPLODE):
+            why = f"its response grows {np.exp(min(rate * longest, 700.0)):.3g}-fold over {longest:.3g} s"
+        if why is None or len(stage.records) == pieces:
+            if why is not None:
+                why = f"{why}; A's largest eigenvalue real part is {rate:.3g} 1/s"
+            return stage, p, count, why
         count, pieces = 2 * count, len(stage.records)
 
 
