@@ -323,7 +323,11 @@ def analysed(
         coarse = _coarse_step(experiments, prob, theta)
         if coarse is not None:
             raise InputError(coarse)
-        cut = f" even on {len(stage.records)} segments of the records" if stage is not prob else ""
+        cut = (
+            f" even on {len(stage.records)} segments of the records"
+            if len(stage.records) > len(prob.records)
+            else ""
+        )
         raise InputError(
             f"{prob.source}: the model diverges at these coefficients{cut} ({why}); expected "
             "coefficients giving a response bounded over a few seconds"
