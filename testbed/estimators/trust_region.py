@@ -45,8 +45,9 @@ from testbed.estimators.base import Outcome, Progress, Status
 
 __all__ = [
     "ACCEPT",
-    "LEAST_SEGMENT",
     "SEGMENTS",
+    "SHRINK",
+    "STAGE_TOL",
     "Point",
     "hessian",
     "point",
@@ -57,7 +58,6 @@ __all__ = [
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 SEGMENTS = 16  # multiple shooting's first stage: segments per record
-LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
 NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
@@ -267,7 +267,7 @@ def trust_region(
 
     stages, n = [], segments
     while n > 1:
-        stage = likelihood.segmented(prob, n, LEAST_SEGMENT)
+        stage = likelihood.segmented(prob, n, likelihood.LEAST_SEGMENT)
         if len(stage.records) > len(prob.records) and (
             not stages or len(stage.records) < len(stages[-1].records)
         ):
