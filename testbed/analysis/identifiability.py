@@ -475,7 +475,8 @@ def screening(experiments, config, options=None, callback=None, model: ScreenMod
     the rest are fitted with `ml-gn` (`options`, its options; `callback`, its progress), and
     those the estimate does not make significant are fixed by backward elimination
     (`insignificant`, with `model.information` at the estimate). A fixed candidate stays at its
-    a-priori value. When the `ml-gn` fit diverges, stage 2 fixes nothing. What no screen can mend
+    a-priori value. When the `ml-gn` fit diverges, or reaches a model that cannot be flown on the
+    records even in segments (a diverged fit too), stage 2 fixes nothing. What no screen can mend
     (bad data, a candidate no fitted state depends on) is an `InputError` first (`model.check`).
     `model`: the linear model's (`LINEAR`) or another's (`ScreenModel`).
     """
@@ -492,7 +493,11 @@ def screening(experiments, config, options=None, callback=None, model: ScreenMod
     fit = identify(experiments, candidates, method="ml-gn", options=options, callback=callback)
     if fit.status is Status.DIVERGED:
         return Screen(candidates, fixed, fit)
-    information = model.information(experiments, candidates, fit)
+    try:
+        information = model.information(experiments, candidates, fit)
+    except InputError:  # the model the fit reached cannot be flown on the records: it diverged
+        why = "the model it reached diverges on the records even in segments"
+        return Screen(candidates, fixed, replace(fit, status=Status.DIVERGED, message=why))
     prior = [config.values[base_name(n)] for n in fit.free]
     for n, why in _by_name(fit.free, insignificant(fit.free, fit.values, information, prior)).items():
         fixed[n] = f"not determined by these data: {why}"

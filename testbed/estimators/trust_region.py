@@ -166,6 +166,12 @@ def second_order(prob: Problem, at: Point, s: np.ndarray, M: np.ndarray | None =
     return s * V[:, 0]
 
 
+def _finite(g: np.ndarray, M: np.ndarray) -> bool:
+    """Whether the normal equations are finite numbers: weights of a channel that holds one
+    value (its R at the floor) times sensitivities of coefficients carried far off overflow."""
+    return bool(np.all(np.isfinite(g)) and np.all(np.isfinite(M)))
+
+
 @dataclass(frozen=True)
 class Descent:
     """Where a stage's descent stopped."""
@@ -199,7 +205,10 @@ def _descend(
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
                 return Descent(x, Status.CONVERGED, it, delta, None, joined=i)
-        g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked for
+            g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
+        if not _finite(g, M):  # the coefficients ran off where the data hold nothing to stop them
+            return Descent(x, Status.DIVERGED, it, delta, None)
         F, gr = likelihood.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
         step = np.sqrt(max(gr @ bounds.crlb(F).covariance @ gr, 0.0))
@@ -324,7 +333,10 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> 
                 return Descent(None, Status.DIVERGED, used, 0.0, None)
             continue
         if s is None:
-            g, M = likelihood.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
+            with np.errstate(over="ignore", invalid="ignore"):
+                g, M = likelihood.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
+            if not _finite(g, M):
+                return Descent(x if stage is prob else None, Status.DIVERGED, used, 0.0, None)
             s, delta = _scale(prob.start, theta, likelihood.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
         final = stage is prob
         tol_stage = tol if final else max(tol, STAGE_TOL)
