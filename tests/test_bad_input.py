@@ -820,6 +820,35 @@ def test_data_without_excitation_are_refused_for_what_they_are(run, capsys, tmp_
     assert identify([e, replace(e, y=y, inputs=0 * e.inputs, name="flat")], config, max_iter=1).free
 
 
+def test_a_record_whose_only_motion_is_a_channels_rounding_ends_as_a_diverged_fit(run, capsys, tmp_path):
+    """States at trim but v, which carries 1e-6 of noise, and the fins at 0: the noise is all a fit
+    can follow, the still channels' variances sit at their floor, and the coefficients run off
+    until the normal equations overflow. The fit ends as diverged, one line, exit 2, nothing
+    written; the default start and the a-priori one alike."""
+    config = read_config(run / "model.toml")
+    e = read_csv(run / "horizontal.csv")
+    y = np.zeros_like(e.y)
+    y[:, 0] = config.vehicle.speed
+    y[:, -1] = e.y[0, -1]
+    y[:, e.measured.index("v")] = 1e-6 * np.random.default_rng(0).normal(size=len(y))
+    still = tmp_path / "still.csv"
+    still.write_text(csv_text(e.t, y, np.zeros_like(e.inputs)))
+    for more in ((), ("--start", "config")):
+        out = tmp_path / "e.json"
+        refused(
+            capsys,
+            "identify",
+            still,
+            "--config",
+            run / "model.toml",
+            "--out",
+            out,
+            *more,
+            words=("diverged",),
+        )
+        assert not out.exists()
+
+
 def test_a_value_the_fit_carried_off_is_reported_as_the_fits(run, capsys, monkeypatch, tmp_path):
     """A fit that ends with a coefficient beyond what a config may hold (±1e15) is refused as
     the fit's outcome on the data, never as a value of the config the fit started from."""

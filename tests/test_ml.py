@@ -14,9 +14,12 @@ from testbed.identification.examples import (
     experiments,
     prior_config,
     example_config,
+    unstable_config,
 )
 
 from testbed.errors import InputError
+from testbed.estimators.ml import DELTA_J
+from testbed.models.linear import continuous, structure, theta_vector
 from testbed.estimators import METHODS, Status, identify
 from testbed.identification.bounds import information
 
@@ -110,7 +113,7 @@ def test_auto_from_an_a_priori_model_that_diverges_over_the_record(data, from_si
 
 def test_the_least_cost_fit_is_kept_even_unconverged():
     from testbed.estimators.base import Outcome
-    from testbed.estimators.ml import DELTA_J, Fit, best_fit
+    from testbed.estimators.ml import Fit, best_fit
 
     def fit(name, status, cost):
         return Fit(name, Outcome(np.zeros(1), status, 1, np.zeros((2, 1))), cost, cost + 5)
@@ -211,18 +214,40 @@ def test_unknown_coefficient_in_free_is_input_error(data):
         identify(data, replace(example_config(), free=("Y_v", "Y_nope")), method="ml-gn")
 
 
-def test_diverging_a_priori_model_is_input_error_unless_multiple_shooting_starts_from_it(
-    data, from_simulated
-):
-    prior = example_config().with_coefficients(
-        {"M_q": 3 * abs(EXAMPLE_COEFFICIENTS["M_q"])}
-    )  # pitch unstable
-    with pytest.raises(InputError, match="a-priori model diverges.*experiment"):
-        identify(data, prior, method="ml-lm", start="config")
-    est = identify(data, prior, method="ml-gn", start="config")  # on short segments it does not diverge
-    assert est.converged and abs(est.cost - from_simulated.cost) < 1e-6 * abs(from_simulated.cost)
+def _growth(config) -> float:
+    """The largest real part of A's eigenvalues (1/s)."""
+    A = continuous(structure(config.vehicle), theta_vector(config.coefficients))[0]
+    return float(np.max(np.linalg.eigvals(A).real))
+
+
+def test_a_course_unstable_a_priori_model_is_a_start_for_ml_gn_and_ml_lm(data, from_simulated):
+    # its response over the 60 s records grows by e^48: a start for multiple shooting (segments
+    # of 7.5 s, 4 as many, the whole record), which ends at the optimum the true model's start reaches
+    prior = unstable_config()
+    assert 0.75 < _growth(prior) < 0.85
+    for method, start in (("ml-gn", "auto"), ("ml-gn", "config"), ("ml-lm", "config")):
+        est = identify(data, prior, method=method, start=start)
+        assert est.converged and abs(est.cost - from_simulated.cost) < DELTA_J, (method, start)
+    prior = example_config().with_coefficients({"M_q": 3 * abs(EXAMPLE_COEFFICIENTS["M_q"])})  # pitch
+    est = identify(data, prior, method="ml-lm", start="config")
+    assert est.converged and abs(est.cost - from_simulated.cost) < DELTA_J
     with pytest.raises(InputError, match="start='sideways'"):
         identify(data, example_config(), method="ml-gn", start="sideways")
+
+
+def test_ml_nr_and_ml_nm_start_from_a_course_unstable_model_on_segments():
+    # 20 s records: segments of 5 s, then the whole record. ml-nm reaches ml-gn's optimum; ml-nr
+    # (SI units, its λ damping every step to about an SI unit) stops at its iteration limit: an
+    # outcome, not a refusal
+    data = experiments(seed=1, duration=20.0)
+    prior = unstable_config()
+    gn = identify(data, prior, method="ml-gn", start="config")
+    assert gn.converged
+    nm = identify(data, prior, method="ml-nm", start="config")
+    assert nm.converged and abs(nm.cost - gn.cost) < DELTA_J
+    nr = identify(data, prior, method="ml-nr", start="config", max_iter=20)
+    assert nr.status is Status.MAX_ITERATIONS and nr.iterations == 20
+    assert np.isfinite(nr.cost) and np.all(np.isfinite(nr.values)) and np.all(nr.std > 0)
 
 
 @pytest.mark.skipif(

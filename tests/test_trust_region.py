@@ -72,9 +72,9 @@ def test_hessian_is_the_second_derivative_of_the_cost_with_the_initial_states_fi
 def test_segments_cover_the_record_each_with_its_own_initial_state():
     data = experiments(seed=1, duration=60.0, noise=None)  # noise-free
     prob = problem(data, example_config())
-    seg = likelihood.segmented(prob, 16, trust_region.LEAST_SEGMENT)
+    seg = likelihood.segmented(prob, 16, likelihood.LEAST_SEGMENT)
     per_record = len(seg.records) // len(prob.records)
-    assert per_record == min(16, len(prob.records[0].y) // trust_region.LEAST_SEGMENT)
+    assert per_record == min(16, len(prob.records[0].y) // likelihood.LEAST_SEGMENT)
     for k, r in enumerate(prob.records):
         pieces = seg.records[k * per_record : (k + 1) * per_record]
         np.testing.assert_array_equal(np.vstack([q.y for q in pieces]), r.y)

@@ -19,7 +19,7 @@ def test_without_turbulence_the_open_loop_flight_is_the_model_s_response_plus_th
     run = simulate(scenario("II"), seed=1, out=tmp_path / "run", truth="linear", duration=20.0)
     experiments, config = load_data([run])
     flown = flown_open_loop(experiments, config, 0.0, 0.5, np.random.default_rng(3))
-    for e, y in zip(flown, predict(flown, config, resolve=False)):
+    for e, y in zip(flown, predict(flown, config)):
         assert e.measured == STATES and np.array_equal(
             e.inputs, next(x for x in experiments if x.name == e.name).inputs
         )

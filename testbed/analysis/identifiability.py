@@ -19,7 +19,7 @@ from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
-from testbed.identification.bounds import NULL, crlb, fisher
+from testbed.identification.bounds import NULL, analysed, crlb, fisher, fisher_at
 from testbed.simulation.measurements import noise_from_data
 from testbed.models.linear import (
     OUTSIDE_EQUATIONS,
@@ -191,6 +191,9 @@ class Identifiability:
     uncertain: tuple[str, ...]  # relative bound > UNCERTAIN
     summary: tuple[str, ...]
     null: float = NULL  # the eigenvalue of the scaled information, relative to the largest, taken as 0
+    segments: int = (
+        0  # the information of the records cut into this many segments (0: whole; `bounds.analysed`)
+    )
 
     @property
     def singular(self) -> np.ndarray:
@@ -241,6 +244,7 @@ class Identifiability:
             },
             "practically_unidentifiable": list(self.uncertain),
             "fisher_condition": num(np.linalg.cond(self.fisher)),
+            "segments": self.segments or None,
             "summary": list(self.summary),
         }
         return json.dumps(doc, indent=2, allow_nan=False) + "\n"
@@ -253,7 +257,8 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     `InputError` for records that do not move (`data.check_excited`)."""
     experiments = config.fitted(experiments)
     check_excited(experiments)
-    F = fisher(experiments, config, noise_std=noise_std)
+    at = analysed(experiments, config, noise_std=noise_std)
+    F = fisher_at(at)
     free = expanded(config, [e.name for e in experiments])[0]
     theta = theta_vector(config.coefficients)
     measured = sorted({m for e in experiments for m in e.measured}, key=list(IX).index)
@@ -261,7 +266,14 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     # operation moves them
     dynamic = tuple(n for n in config.free if n not in OUTSIDE_EQUATIONS)
     struct = _copied(structural(structure(config.vehicle), theta, dynamic, measured), free)
-    return assessed(free, theta[[ITHETA[base_name(n)] for n in free]], F, struct)
+    out = assessed(free, theta[[ITHETA[base_name(n)] for n in free]], F, struct)
+    if not at.segments:
+        return out
+    cut = (
+        f"Computed on {at.segments} segments of the records, each with its own initial state: the "
+        f"model diverges over the whole record at these coefficients ({at.why})."
+    )
+    return replace(out, summary=(cut, *out.summary), segments=at.segments)
 
 
 def assessed(
@@ -463,7 +475,8 @@ def screening(experiments, config, options=None, callback=None, model: ScreenMod
     the rest are fitted with `ml-gn` (`options`, its options; `callback`, its progress), and
     those the estimate does not make significant are fixed by backward elimination
     (`insignificant`, with `model.information` at the estimate). A fixed candidate stays at its
-    a-priori value. When the `ml-gn` fit diverges, stage 2 fixes nothing. What no screen can mend
+    a-priori value. When the `ml-gn` fit diverges, or reaches a model that cannot be flown on the
+    records even in segments (a diverged fit too), stage 2 fixes nothing. What no screen can mend
     (bad data, a candidate no fitted state depends on) is an `InputError` first (`model.check`).
     `model`: the linear model's (`LINEAR`) or another's (`ScreenModel`).
     """
@@ -480,7 +493,11 @@ def screening(experiments, config, options=None, callback=None, model: ScreenMod
     fit = identify(experiments, candidates, method="ml-gn", options=options, callback=callback)
     if fit.status is Status.DIVERGED:
         return Screen(candidates, fixed, fit)
-    information = model.information(experiments, candidates, fit)
+    try:
+        information = model.information(experiments, candidates, fit)
+    except InputError:  # the model the fit reached cannot be flown on the records: it diverged
+        why = "the model it reached diverges on the records even in segments"
+        return Screen(candidates, fixed, replace(fit, status=Status.DIVERGED, message=why))
     prior = [config.values[base_name(n)] for n in fit.free]
     for n, why in _by_name(fit.free, insignificant(fit.free, fit.values, information, prior)).items():
         fixed[n] = f"not determined by these data: {why}"

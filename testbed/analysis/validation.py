@@ -151,14 +151,12 @@ def validate(
     """Fit % and residual whiteness of `config`'s model (linear, or nonlinear flown by
     `nonlinear_prediction`) on every measured channel of the experiments (its initial states
     fitted, or taken from `initial`: experiment → state → x0),
-    and the fit % of `analytic`'s model on the same data (initial states fitted). `config` is a
-    fitted model, not checked against the sampling steps (`problem.check_inputs`, `resolve`):
-    a fit may reach a mode faster than the data show; the caller checks the user's config. A
+    and the fit % of `analytic`'s model on the same data (initial states fitted). A
     channel's metrics are over its samples present, its residuals taken in sequence (a missing
     sample skipped, a slower sensor's at its own rate)."""
     experiments = config.readings(experiments)  # compared in the states, the config's sensors undone
     if config.terms is None:
-        yhat = predict(experiments, config, initial, resolve=False)
+        yhat = predict(experiments, config, initial)
     else:
         yhat = nonlinear_prediction.predict(experiments, config, initial)
     base = predict(experiments, analytic) if analytic is not None else [None] * len(experiments)

@@ -12,8 +12,9 @@ log-likelihood of the innovations ν, with 𝒮 their covariance,
 (per group of records with one Δ, one measured set and one sampling cycle, and per phase j of the
 cycle over the channels it has: Σ_j [½ Σ_{k in j} ν_kᵀ 𝒮_j⁻¹ ν_k + (N_j/2) ln det 2π𝒮_j];
 `innovations`), is minimised by relaxation (Maine & Iliff), from output error's optimum (the same
-iterations with F = 0: from a poor θ the filter would take the model's error for process noise),
-each iteration:
+iterations with F = 0: from a poor θ the filter would take the model's error for process noise;
+from a start whose response does not stay bounded over the whole record, `ml-gn`'s fit with its
+multiple shooting first), each iteration:
 
 1. 𝒮 in closed form, `1/N Σ ν νᵀ` per group and phase;
 2. one Gauss-Newton step (Levenberg-Marquardt damped, accepted only where ½Σνᵀ𝒮⁻¹ν falls) on
@@ -52,7 +53,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
-from testbed.estimators import starts
+from testbed.estimators import starts, trust_region
 from testbed.estimators.base import (
     Callback,
     Estimate,
@@ -356,20 +357,30 @@ def _fit(
         theta0 = starts.named(prob, experiments, config, opts.start)[0]
         lik = _Likelihood(prob, rows, theta0, cycles, opts.correlation_time)
         S, q0 = _start_noise(lik)
-        p = likelihood.initial_states(prob, theta0)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is an answer here
+            p = likelihood.initial_states(prob, theta0)
+        diverges = likelihood.bounded(prob, theta0)[2] > 1
         scale = np.concatenate([np.where(theta0 != 0, np.abs(theta0), 1.0), np.ones(lik.nx), q0])
         done, history = 0, np.zeros((0, prob.n_free))
-        if lik.noisy:
-            # output error first: from a poor θ the filter takes the model's error for process noise
-            first = _Likelihood(prob, rows[:0], theta0, cycles)
-            out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, callback)
-            if out[2] is not Status.DIVERGED:
-                p, done, history = out[0], out[3], out[4][:-1]
 
         def more(offset):
             if callback is None:
                 return None
             return lambda step: callback(replace(step, iteration=offset + step.iteration))
+
+        if diverges:
+            # a start that diverges over the whole record (an unstable model, `likelihood.bounded`):
+            # output error and the filter are no near-quadratic problem from there; `ml-gn`'s
+            # multiple shooting takes it to output error's optimum first
+            out = trust_region.trust_region(prob, p, max_iter=opts.max_iter, callback=callback)
+            if out.status is not Status.DIVERGED:
+                p, done, history = out.p, out.iterations, out.history[:-1]
+        if lik.noisy:
+            # output error first: from a poor θ the filter takes the model's error for process noise
+            first = _Likelihood(prob, rows[:0], theta0, cycles)
+            out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, more(done))
+            if out[2] is not Status.DIVERGED:
+                p, done, history = out[0], done + out[3], np.vstack([history, out[4][:-1]])
 
         p, S, status, it, steps, why = _iterate(lik, np.concatenate([p, q0]), S, scale, opts, more(done))
         trail = [history, steps]

@@ -16,6 +16,10 @@ initial-state parameters (`testbed.identification`), so they compare fairly:
   `concentrated.cost`, the cost alone, without sensitivities); with restarts and a
   record-length continuation (default) or, option `restarts=False`, the paper's one simplex.
 
+From a start whose response does not stay bounded over the whole record (an unstable
+a-priori model, `likelihood.bounded`), ml-lm, ml-nr and ml-nm run on segments first (`_shooting`,
+the multiple shooting `ml-gn` has built in).
+
 Convergence (ml-lm, ml-nr): the Gauss-Newton step measured in Cramér-Rao units,
 `√(gᵀ M⁻¹ g)`, is below `tol` (default 1e-3): the estimate is within 0.001 σ of the optimum.
 """
@@ -339,19 +343,26 @@ def _estimate(
         for k, note in notes.items()
         if "reason" in note
     )
-    try:
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            info = bounds.assess(prob, out.p, out.fisher)
-        # an infinite bound is an unidentifiable coefficient's (bounds.crlb); NaN is a failure
-        why = (
-            None
-            if all(np.all(np.isfinite(a)) for a in (info.values, info.cost))
-            and not np.any(np.isnan(info.crlb_std))
-            else "the estimate or its Cramér-Rao bound is not finite"
-        )
-    except np.linalg.LinAlgError as exc:
-        why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
-    why = unphysical(prob.structure, prob.coefficients(out.p[: prob.n_free])) or why
+    why = None
+    if out.status is Status.DIVERGED:  # where the model diverges there, no analysis to make
+        with np.errstate(over="ignore", invalid="ignore"):
+            diverges = likelihood.divergence(prob, out.p)
+        if diverges is not None:
+            why = f"the model diverges over the whole record where the fit stopped ({diverges})"
+    if why is None:
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                info = bounds.assess(prob, out.p, out.fisher)
+            # an infinite bound is an unidentifiable coefficient's (bounds.crlb); NaN is a failure
+            why = (
+                None
+                if all(np.all(np.isfinite(a)) for a in (info.values, info.cost))
+                and not np.any(np.isnan(info.crlb_std))
+                else "the estimate or its Cramér-Rao bound is not finite"
+            )
+        except np.linalg.LinAlgError as exc:
+            why = f"the Cramér-Rao analysis at the estimate failed ({exc})"
+        why = unphysical(prob.structure, prob.coefficients(out.p[: prob.n_free])) or why
     if why is not None:
         nf = prob.n_free
         return Estimate(
@@ -488,16 +499,18 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
         more = {}
         if optimiser is trust_region.trust_region:
             more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
-        elif not np.isfinite(J0):
-            # only the multiple-shooting optimiser can start from a model that diverges over the
-            # whole record (an unstable a-priori model): on short segments it does not
-            return Fit(label, Outcome(p0, Status.DIVERGED, 0, p0[None, : prob.n_free]), np.inf, np.inf)
         done = sum(f.outcome.iterations for f in fits)  # the iterations count on over the starts
 
         def report(step: Progress) -> None:
             callback(replace(step, iteration=done + step.iteration))
 
-        out = optimiser(prob, p0, callback=report if callback else None, **tuning, **more)
+        first = (
+            None if optimiser is trust_region.trust_region else likelihood.bounded(prob, p0[: prob.n_free])
+        )
+        if first is None or (first[2] == 1 and np.isfinite(J0)):
+            out = optimiser(prob, p0, callback=report if callback else None, **tuning, **more)
+        else:  # a start that diverges over the whole record: on segments first
+            out = _shooting(optimiser, prob, first, tuning, report if callback else None)
         if out.joined >= 0:  # on an earlier fit's path: it ends where that one did
             twin = [f for f in earlier if f.outcome.optimum][out.joined]
             out = replace(twin.outcome, iterations=out.iterations, history=out.history, optimum=(), joined=-1)
@@ -524,11 +537,6 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
         theta, left = starts.named(prob, experiments, config, start)
         notes = {start: {"left": left}} if left else {}
         fit = run(start, *begin(theta))
-        if start == "config" and fit.outcome.status is Status.DIVERGED and not np.isfinite(fit.start_cost):
-            raise InputError(
-                f"{prob.source}: the a-priori model diverges ({likelihood.divergence(prob, fit.outcome.p)}); "
-                "expected coefficients giving a bounded response, or start auto or global"
-            )
         return _estimate(name, prob, fit, t0, [fit], _evaluations(prob, tally), notes)
 
     named = {"config": prob.start, "equation-error": computed("equation-error")}
@@ -549,12 +557,52 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
     return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally), notes)
 
 
+def _shooting(optimiser, prob: Problem, first: tuple, tuning: dict, callback) -> Outcome:
+    """`optimiser` (`tuning`: its options) from a start that diverges over the whole record
+    (`first`: `likelihood.bounded` there): multiple shooting, as `ml-gn`'s. First on the records
+    cut into the fewest segments on which that model stays bounded, then on a quarter as many
+    (`trust_region.SHRINK`), and so on, then on the whole record, each stage from the one
+    before's coefficients with the iterations left of `max_iter` (all stages together); a stage
+    on which they diverge is passed over. A stage before the last stops as `ml-gn`'s do, within
+    `trust_region.STAGE_TOL` σ (`ml-nm`: by its rule with `stage_eps`): enough to start the next
+    in its basin. DIVERGED where the whole record's model diverges from the last stage's
+    coefficients."""
+    first, p, count, _ = first
+    theta = p[: prob.n_free]
+    stages, count = [first], count // trust_region.SHRINK
+    while count > 1:
+        stages.append(likelihood.segmented(prob, count, likelihood.LEAST_SEGMENT))
+        count //= trust_region.SHRINK
+    stages.append(prob)
+    budget, used, history = tuning.get("max_iter"), 0, [theta[None, :]]
+    for stage in stages:
+        with np.errstate(over="ignore", invalid="ignore"):
+            p = likelihood.initial_states(stage, theta)
+        if not np.isfinite(_cost(stage, p)):
+            if stage is prob:
+                return Outcome(p, Status.DIVERGED, used, np.concatenate(history))
+            continue
+
+        def report(step: Progress, used=used) -> None:
+            callback(replace(step, iteration=used + step.iteration))
+
+        left = {} if budget is None else {"max_iter": budget - used}
+        if stage is not prob:  # a stage's looser convergence
+            left |= {"tol": max(tuning["tol"], trust_region.STAGE_TOL)} if "tol" in tuning else {}
+            left |= {"eps": tuning["stage_eps"]} if "stage_eps" in tuning else {}
+        out = optimiser(stage, p, callback=report if callback else None, **(tuning | left))
+        used += out.iterations
+        history.append(out.history[1:])
+        theta = out.p[: prob.n_free]
+    return replace(out, iterations=used, history=np.concatenate(history))
+
+
 def _polish_starts(prob: Problem, options: Options) -> list[np.ndarray]:
     """The best `options.polish` of `options.samples` box draws (`starts.box`), by their cost on
     the records cut into 16 segments, each with its own initial state."""
     rng = np.random.default_rng(options.seed)
     samples = starts.box(prob, options.samples, options.spread, rng)
-    stage = likelihood.segmented(prob, trust_region.SEGMENTS, trust_region.LEAST_SEGMENT)
+    stage = likelihood.segmented(prob, trust_region.SEGMENTS, likelihood.LEAST_SEGMENT)
     costs = [_cost(stage, likelihood.initial_states(stage, theta)) for theta in samples]
     return [samples[i] for i in np.argsort(costs)[: options.polish] if np.isfinite(costs[i])]
 

@@ -45,8 +45,9 @@ from testbed.estimators.base import Outcome, Progress, Status
 
 __all__ = [
     "ACCEPT",
-    "LEAST_SEGMENT",
     "SEGMENTS",
+    "SHRINK",
+    "STAGE_TOL",
     "Point",
     "hessian",
     "point",
@@ -57,7 +58,6 @@ __all__ = [
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 SEGMENTS = 16  # multiple shooting's first stage: segments per record
-LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
 NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
@@ -166,6 +166,12 @@ def second_order(prob: Problem, at: Point, s: np.ndarray, M: np.ndarray | None =
     return s * V[:, 0]
 
 
+def _finite(g: np.ndarray, M: np.ndarray) -> bool:
+    """Whether the normal equations are finite numbers: weights of a channel that holds one
+    value (its R at the floor) times sensitivities of coefficients carried far off overflow."""
+    return bool(np.all(np.isfinite(g)) and np.all(np.isfinite(M)))
+
+
 @dataclass(frozen=True)
 class Descent:
     """Where a stage's descent stopped."""
@@ -199,7 +205,10 @@ def _descend(
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
                 return Descent(x, Status.CONVERGED, it, delta, None, joined=i)
-        g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked for
+            g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
+        if not _finite(g, M):  # the coefficients ran off where the data hold nothing to stop them
+            return Descent(x, Status.DIVERGED, it, delta, None)
         F, gr = likelihood.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
         step = np.sqrt(max(gr @ bounds.crlb(F).covariance @ gr, 0.0))
@@ -267,7 +276,7 @@ def trust_region(
 
     stages, n = [], segments
     while n > 1:
-        stage = likelihood.segmented(prob, n, LEAST_SEGMENT)
+        stage = likelihood.segmented(prob, n, likelihood.LEAST_SEGMENT)
         if len(stage.records) > len(prob.records) and (
             not stages or len(stage.records) < len(stages[-1].records)
         ):
@@ -324,7 +333,10 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> 
                 return Descent(None, Status.DIVERGED, used, 0.0, None)
             continue
         if s is None:
-            g, M = likelihood.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
+            with np.errstate(over="ignore", invalid="ignore"):
+                g, M = likelihood.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
+            if not _finite(g, M):
+                return Descent(x if stage is prob else None, Status.DIVERGED, used, 0.0, None)
             s, delta = _scale(prob.start, theta, likelihood.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
         final = stage is prob
         tol_stage = tol if final else max(tol, STAGE_TOL)

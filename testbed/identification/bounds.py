@@ -5,7 +5,8 @@ for coloured residuals.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from statistics import NormalDist
 from typing import Mapping, NamedTuple, Sequence
 
@@ -14,6 +15,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.identification.likelihood import (
+    bounded,
     divergence,
     eliminate,
     gauss_newton_terms,
@@ -25,14 +27,17 @@ from testbed.identification.likelihood import (
 from testbed.identification.problem import Problem, free_values, problem
 from testbed.identification.recursions import channel_weights, discrete_models, sensitivity_parts, states
 from testbed.identification.scan import PIECE
-from testbed.models.linear import IX, NX, STATES
+from testbed.models.linear import IX, NX, STATES, continuous
 
 __all__ = [
+    "COARSEST",
     "INTEGRATED_TIMES",
     "MIN_LAGS",
     "NULL",
+    "Analysed",
     "Bounds",
     "Information",
+    "analysed",
     "assess",
     "colored_covariance",
     "colored_term",
@@ -40,6 +45,7 @@ __all__ = [
     "eliminated",
     "fft_length",
     "fisher",
+    "fisher_at",
     "information",
     "lag_window",
 ]
@@ -237,6 +243,7 @@ class Information:
     initial_states: dict[str, dict[str, float]]  # experiment → measured state → x0 (absolute u)
     cost: float  # negative log-likelihood (R at its ML value)
     p: np.ndarray  # (n_params,) the full parameter vector
+    segments: int = 0  # the records were analysed cut into this many segments in all (0: whole)
 
     @property
     def relative_std(self) -> np.ndarray:
@@ -283,6 +290,59 @@ def assess(
     )
 
 
+class Analysed(NamedTuple):
+    """What `information` and `fisher` analyse: the problem, the parameter vector at the values
+    analysed with the best-fitting initial states, and R from the config's noise σ (None: the
+    residuals'). `segments`: where the model diverges over the whole record, the records are cut
+    into this many segments in all, each with its own initial state (`likelihood.bounded`);
+    0 where they are analysed whole."""
+
+    prob: Problem
+    p: np.ndarray
+    R: np.ndarray | None
+    segments: int
+    why: str = ""  # why the whole record is not analysed, where the records are cut
+
+
+def analysed(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    values: Mapping[str, float] | np.ndarray | None = None,
+    noise_std: Mapping[str, float] | None = None,
+) -> Analysed:
+    """The problem of `config.free` on the experiments at `values` (default: the config's
+    coefficients) for `information` and `fisher`. Where the model diverges over the whole record
+    (an unstable model's response grows along it), the records are cut into the fewest segments
+    on which it stays bounded, each with its own initial state (`likelihood.bounded`): the
+    information of the multiple-shooting problem, which the fit starts from. InputError where it
+    diverges even on the shortest segments."""
+    prob = problem(experiments, config)
+    theta = free_values(prob, values)
+    stage, p, _, why = bounded(prob, theta)
+    if why is not None:
+        coarse = _coarse_step(experiments, prob, theta)
+        if coarse is not None:
+            raise InputError(coarse)
+        cut = (
+            f" even on {len(stage.records)} segments of the records"
+            if len(stage.records) > len(prob.records)
+            else ""
+        )
+        raise InputError(
+            f"{prob.source}: the model diverges at these coefficients{cut} ({why}); expected "
+            "coefficients giving a response bounded over a few seconds"
+        )
+    R = None if noise_std is None else np.array([noise_std[c] ** 2 for c in prob.channels])
+    if stage is prob:
+        return Analysed(prob, p, R, 0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        whole = divergence(prob, initial_states(prob, theta))
+    if whole is None:  # bounded, but growing more than EXPLODE-fold along a record
+        ev = np.linalg.eigvals(continuous(prob.structure, prob.coefficients(theta))[0])
+        whole = f"A's largest eigenvalue real part is {np.max(ev.real):.3g} 1/s"
+    return Analysed(stage, p, R, len(stage.records), whole)
+
+
 def information(
     experiments: Sequence[Experiment],
     config: ModelConfig,
@@ -293,10 +353,10 @@ def information(
 
     The initial states are fitted (linear least squares); R is `noise_std`² where given (per
     channel), else the residual variance there, which also holds the model's error at `values`.
-    A model that diverges on the data has no meaningful bound: InputError.
+    Where the model diverges over the whole record, on segments (`analysed`; its `segments`).
     """
-    prob, p, R = _analysed(experiments, config, values, noise_std)
-    return assess(prob, p, R=R)
+    a = analysed(experiments, config, values, noise_std)
+    return replace(assess(a.prob, a.p, R=a.R), segments=a.segments)
 
 
 def fisher(
@@ -307,10 +367,15 @@ def fisher(
 ) -> np.ndarray:
     """`information(...).fisher` alone: the Fisher information of `config.free` (n_free, n_free),
     the initial states eliminated, without the bounds (no colored-residual analysis)."""
-    prob, p, R = _analysed(experiments, config, values, noise_std)
+    return fisher_at(analysed(experiments, config, values, noise_std))
+
+
+def fisher_at(a: Analysed) -> np.ndarray:
+    """`fisher` of what `analysed` gives."""
+    prob, p = a.prob, a.p
     xs = states(prob, p)
     res = [r.residual(prob.outputs(r, x, p[: prob.n_free])) for r, x in zip(prob.records, xs)]
-    M = gauss_newton_terms(prob, p, xs, res, noise_variance(prob, res) if R is None else R)[1]
+    M = gauss_newton_terms(prob, p, xs, res, noise_variance(prob, res) if a.R is None else a.R)[1]
     return eliminated(M, prob.n_free)
 
 
@@ -328,17 +393,22 @@ def eliminated(M: np.ndarray, nf: int) -> np.ndarray:
     return F
 
 
-def _analysed(experiments, config, values, noise_std) -> tuple[Problem, np.ndarray, np.ndarray | None]:
-    """The problem, the parameter vector at `values` with the best-fitting initial states and R
-    from `noise_std` (None without) for `information` and `fisher`; InputError where the model
-    diverges on the data: it has no meaningful bound."""
-    prob = problem(experiments, config)
-    with np.errstate(over="ignore", invalid="ignore"):
-        p = initial_states(prob, free_values(prob, values))
-    why = divergence(prob, p)
-    if why is not None:
-        raise InputError(
-            f"{prob.source}: the model diverges at these coefficients ({why}); "
-            "expected coefficients giving a bounded response"
-        )
-    return prob, p, None if noise_std is None else np.array([noise_std[c] ** 2 for c in prob.channels])
+COARSEST = math.log(2.0**53)  # ρΔ beyond which a mode decays below double-precision rounding in one step
+
+
+def _coarse_step(experiments: Sequence[Experiment], prob: Problem, theta: np.ndarray) -> str | None:
+    """Where a model cannot be simulated on the records even in segments, the likelier fault
+    where a record's step Δ (its median) is so coarse that the model's fastest mode (rate ρ)
+    decays below rounding within it (ρΔ > ln 2⁵³: t in ms, say): that record and step named,
+    else None. A step so coarse is no fault by itself (the zero-order hold is exact at any step,
+    and a model that stays bounded is analysed and fitted at it)."""
+    rate = float(np.max(np.abs(np.linalg.eigvals(continuous(prob.structure, prob.coefficients(theta))[0]))))
+    for e in experiments:
+        dt = float(np.median(np.diff(e.t)))
+        if rate * dt > COARSEST:
+            return (
+                f"{e.source or e.name}: t steps {dt:g} s; the model of {prob.source} has a mode at "
+                f"{rate:.3g} 1/s, which such a step cannot show, and its response at this step is "
+                f"unbounded on the records: expected a step below {COARSEST / rate:.3g} s (t in seconds)"
+            )
+    return None

@@ -24,6 +24,7 @@ __all__ = [
     "experiments",
     "inputs",
     "prior_config",
+    "unstable_config",
 ]
 
 VEHICLE = Vehicle(
@@ -99,6 +100,13 @@ def prior_config(free=FREE, error: float = 0.3) -> ModelConfig:
     """A-priori values `error` off the example's coefficients, alternating sign (a stable starting model)."""
     off = {n: EXAMPLE_COEFFICIENTS[n] * (1 + error if i % 3 == 0 else 1 - error) for i, n in enumerate(free)}
     return example_config(free).with_coefficients(off)
+
+
+def unstable_config(free=FREE) -> ModelConfig:
+    """The example vehicle with its yaw damping N_r reversed (−0.62 × the example's): a sway-yaw
+    mode growing at +0.80 1/s, course-unstable as published linear AUV models often are; an
+    a-priori model whose response diverges over a record of more than a few seconds."""
+    return example_config(free).with_coefficients({"N_r": -0.62 * EXAMPLE_COEFFICIENTS["N_r"]})
 
 
 def _prbs(rng: np.random.Generator, n: int, hold: int, amplitude: float) -> np.ndarray:

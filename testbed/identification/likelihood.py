@@ -29,7 +29,9 @@ from testbed.models.linear import NX, STATES, continuous
 
 __all__ = [
     "EXPLODE",
+    "LEAST_SEGMENT",
     "RELAXATIONS",
+    "bounded",
     "divergence",
     "eliminate",
     "exploded",
@@ -44,6 +46,7 @@ __all__ = [
 ]
 
 EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
+LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
 RELAXATIONS = 20  # noise updates of `fit_initial_states` at most (each a k × k solve per record)
 
 
@@ -155,6 +158,37 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
             records.append(replace(r.rows(a, b), name=name, offset=offset))
             offset += len(r.measured)
     return replace(prob, records=tuple(records))
+
+
+def bounded(
+    prob: Problem, values: np.ndarray, least: int = LEAST_SEGMENT
+) -> tuple[Problem, np.ndarray, int, str | None]:
+    """`prob` cut into the fewest segments per record (`segmented`: 1, 2, 4, … each of at least
+    `least` samples) on which the model at the free `values` stays bounded: its outputs do not
+    explode (`exploded`) and its least stable mode (rate a > 0) grows by at most `EXPLODE`
+    (a·T ≤ ln EXPLODE over T s; the fitted initial state can cancel a faster growth over the
+    record, but the likelihood is then no longer near-quadratic in θ, and the information's
+    elimination of that initial state cannot resolve it); the parameter vector there with the
+    best-fitting initial states, the segments asked per record (1: `prob` itself), and None. Where
+    even the shortest segments do not stay bounded, those, and why not."""
+    rate = max(
+        float(np.max(np.linalg.eigvals(continuous(prob.structure, prob.coefficients(values))[0]).real)), 0.0
+    )
+    count, pieces = 1, 0
+    while True:
+        stage = prob if count == 1 else segmented(prob, count, least)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
+            p = initial_states(stage, values)
+            out = outputs(stage, p)
+        longest = max(len(r.y) * r.dt for r in stage.records)
+        why = exploded(stage, out)
+        if why is None and rate * longest > np.log(EXPLODE):
+            why = f"its response grows {np.exp(min(rate * longest, 700.0)):.3g}-fold over {longest:.3g} s"
+        if why is None or len(stage.records) == pieces:
+            if why is not None:
+                why = f"{why}; A's largest eigenvalue real part is {rate:.3g} 1/s"
+            return stage, p, count, why
+        count, pieces = 2 * count, len(stage.records)
 
 
 def eliminate(M: np.ndarray, nf: int, rhs: np.ndarray) -> np.ndarray:

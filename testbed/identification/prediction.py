@@ -22,16 +22,13 @@ def predict(
     experiments: Sequence[Experiment],
     config: ModelConfig,
     initial: Mapping[str, Mapping[str, float]] | None = None,
-    resolve: bool = True,
 ) -> list[np.ndarray]:
     """Model outputs (N, k) per experiment in its measured columns, absolute u, for plots.
 
     `initial`: experiment → state → x0 (absolute u, as in `Estimate.initial_states`);
     the ones it does not give are the best-fitting initial states (no fit when it gives all).
-    `resolve`: check the sampling steps against the model (`problem.check_inputs`); False for a
-    model fitted to these experiments.
     """
-    prob = problem(experiments, config, resolve)
+    prob = problem(experiments, config)
     given = initial or {}
     if all(STATES[i] in given.get(r.name, {}) for r in prob.records for i in r.measured):
         p = np.concatenate([prob.start, np.zeros(prob.n_params - prob.n_free)])

@@ -15,7 +15,6 @@ The outputs are the measured states, `u` as the perturbation u_abs − U.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
@@ -34,7 +33,6 @@ from testbed.models.linear import (
     NX,
     STATES,
     Structure,
-    fastest_rate,
     inertia_defect,
     pitch_dependents,
     structure,
@@ -43,7 +41,6 @@ from testbed.models.linear import (
 )
 
 __all__ = [
-    "COARSEST",
     "Problem",
     "Record",
     "base_name",
@@ -260,9 +257,6 @@ def shifted(u: np.ndarray, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return value, np.where(held, 0.0, first), np.where(held, 0.0, second)
 
 
-COARSEST = math.log(2.0**53)  # ρΔ beyond which the fastest mode decays below rounding in one step
-
-
 def check_fit(experiments: Sequence[Experiment], config: ModelConfig) -> None:
     """`InputError` unless `config.free` can be fitted to the experiments' fitted outputs: the
     inputs check out (`check_inputs`), the records move (`data.check_excited`) and every free
@@ -282,20 +276,19 @@ def check_fit(experiments: Sequence[Experiment], config: ModelConfig) -> None:
         )
 
 
-def check_inputs(experiments: Sequence[Experiment], config: ModelConfig, resolve: bool = True) -> None:
+def check_inputs(experiments: Sequence[Experiment], config: ModelConfig) -> None:
     """`InputError` unless the experiments and the config can be fitted together, before any work:
 
     - each record is usable (`data.check_experiment`) and the config valid (`data.check_config`);
     - a 4-DOF config's omitted pitch constants (`Vehicle.omitted`) reach no measured state
       (`model.pitch_dependents`): the model's stand-ins for them then move nothing the data give;
     - the config's Mt is the inertia of a body (`model.inertia_defect`): a singular or indefinite
-      one makes every model built on it blow up, the fault of the config, not of the data;
-    - each record's sampling interval Δ resolves the model: over one step the fastest mode
-      (rate ρ) decays by e^(−ρΔ), and beyond ρΔ = ln 2⁵³ that is below double-precision
-      rounding, so the record shows none of it. Such a step is the data's fault (t in ms, say).
-      Checked where `resolve`: for a user's model against a user's data. A model a fit reached
-      from these data (`resolve=False`) may have such a mode: the simulation is exact at any
-      step, and the data are only blind to that mode.
+      one makes every model built on it blow up, the fault of the config, not of the data.
+
+    The sampling interval is not checked against the model's modes: the zero-order hold is
+    discretised exactly at any step, a stable mode faster than the step has decayed within it
+    (the data are only blind to it) and an unstable one is a divergence, which the fit and the
+    analysis handle as such (on segments).
     """
     if not experiments:
         raise InputError("no experiments given; expected at least one measurement record")
@@ -318,21 +311,11 @@ def check_inputs(experiments: Sequence[Experiment], config: ModelConfig, resolve
     defect = inertia_defect(s, theta)
     if defect:
         raise InputError(f"{source}: the inertia matrix Mt is not a body's: {defect}")
-    rate = fastest_rate(s, theta) if resolve else 0.0
-    for e in experiments:
-        dt = float(e.t[1] - e.t[0])
-        if rate * dt > COARSEST:
-            raise InputError(
-                f"{e.source or e.name}: t steps {dt:g} s; the model of {source} has a "
-                f"mode at {rate:.3g} 1/s, which such a step cannot show: expected a step "
-                f"below {COARSEST / rate:.3g} s (t in seconds)"
-            )
 
 
-def problem(experiments: Sequence[Experiment], config: ModelConfig, resolve: bool = True) -> Problem:
-    """Check the experiments and the config (`check_inputs`, `resolve` as there) and set up the
-    output-error problem."""
-    check_inputs(experiments, config, resolve)
+def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
+    """Check the experiments and the config (`check_inputs`) and set up the output-error problem."""
+    check_inputs(experiments, config)
     experiments = config.readings(experiments)  # the config's known sensors undone (once)
     where = config.source or "config"
     theta = theta_vector(config.coefficients)
@@ -420,7 +403,7 @@ def one_model(
         free=(),
         per_record=(),
     )
-    prob = problem(experiments, given, resolve=False)
+    prob = problem(experiments, given)
     out, none = [], np.zeros(0)
     for e, r in zip(experiments, prob.records):
         taken = prob.output_terms(r, none)

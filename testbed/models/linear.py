@@ -43,7 +43,6 @@ __all__ = [
     "derivatives",
     "discretize",
     "expm_pair",
-    "fastest_rate",
     "inertia_defect",
     "pitch_dependents",
     "structure",
@@ -416,11 +415,6 @@ def inertia_defect(s: Structure, theta: np.ndarray) -> str | None:
             f"(largest {lam[-1]:.4g}); expected all > 0, a positive kinetic energy"
         )
     return None
-
-
-def fastest_rate(s: Structure, theta: np.ndarray) -> float:
-    """The largest |eigenvalue| of `A = Mt⁻¹At` (1/s): the rate of the model's fastest mode."""
-    return float(np.max(np.abs(np.linalg.eigvals(continuous(s, theta)[0]))))
 
 
 def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ...]:

@@ -243,7 +243,7 @@ def log_fit(
         )
     fitted = config.with_coefficients(estimate.coefficients)
     try:
-        outputs = predict(experiments, fitted, estimate.initial_states, resolve=False)
+        outputs = predict(experiments, fitted, estimate.initial_states)
     except (InputError, np.linalg.LinAlgError, ValueError):
         outputs = [None] * len(experiments)  # a model that cannot be simulated: log the rest
     tabs = []
