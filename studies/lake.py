@@ -300,18 +300,21 @@ def main(argv=None) -> int:
     except InputError as exc:
         print(f"lake.py: {exc}", file=sys.stderr)
         return 2
+    rows = {}
     with ProcessPoolExecutor(a.jobs) as pool:
         done = pool.map(
             one_seed, range(1, a.seeds + 1), repeat(a.out), repeat(a.methods), repeat(a.fit_dives)
         )
-        rows = {seed: row for seed, row in zip(range(1, a.seeds + 1), done)}
-    text = [seed_table(seed, row) for seed, row in rows.items()]
-    print("\n".join(text), flush=True)
-    text.append(summary(rows))
-    print(text[-1])
-    # the study's own folder, run again in place (`check_out`)
-    atomic_write_text(a.out / "study.json", json.dumps(rows, indent=1, default=float) + "\n", force=True)
-    atomic_write_text(a.out / "study.md", "\n".join(text), force=True)
+        for seed, row in zip(range(1, a.seeds + 1), done):
+            rows[seed] = row
+            print(seed_table(seed, row), flush=True)
+            # the study's own folder, run again in place (`check_out`); each seed as it ends
+            text = "\n".join([seed_table(k, r) for k, r in rows.items()] + [summary(rows)])
+            atomic_write_text(
+                a.out / "study.json", json.dumps(rows, indent=1, default=float) + "\n", force=True
+            )
+            atomic_write_text(a.out / "study.md", text, force=True)
+    print(summary(rows))
     return 0
 
 
