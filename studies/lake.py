@@ -1,7 +1,8 @@
 """The lake trial's acceptance: every method from the course-unstable prior, default `ml-gn`
 against a global search, the attitude offsets, and held-out dives.
 
-    python studies/lake.py [--seeds 10] [--out runs/lake] [--fit-dives 12] [--methods M ...]
+    python studies/lake.py [--seeds 10] [--out runs/lake] [--fit-dives 12] [--methods M ...] [--jobs N]
+    python studies/lake.py --tables runs/lake/study.json     # the tables of a study again
 
 For each seed k the built-in lake trial (docs/scenarios.md, the lake trial) is simulated as a
 user does it (`testbed simulate --scenario lake --seed k --out OUT/seed<k>`) and fitted through
