@@ -235,6 +235,8 @@ def identify_data(
         }
     if not screened.applied:
         doc["screen"] = dict(screened.screen)
+    if screened.skipped:
+        doc["screen_skipped"] = screened.skipped
     comparison = None
     if cfg.terms is not None:
         doc["nonlinear_model"] = {"config": str(config), "terms": list(cfg.terms)}

@@ -323,3 +323,26 @@ def test_every_method_from_a_course_unstable_model_ends_with_an_outcome(
         assert last.startswith("testbed identify: not converged: "), err
     else:  # a diverged filter: one line naming why, nothing written
         assert code == 0 or (code == 2 and err.count("\n") == 1 and "diverged" in err), err
+
+
+def test_a_prior_that_cannot_be_flown_even_in_segments_is_still_a_start(unstable, tmp_path, capsys):
+    """N_r reversed and tenfold (+9.6 1/s: e^24 over the shortest segment): `analyze` refuses it
+    in one line, but `identify` does not: the screen's structural step fixes nothing (a note says
+    why, the JSON's `screen_skipped`), and the default `ml-gn` fit goes on from the equation-error
+    start to the optimum the stable start reaches, within ΔJ 1."""
+    from testbed.identification import examples
+
+    data, _, truth = unstable
+    wild = tmp_path / "wild.toml"
+    n_r = examples.EXAMPLE_COEFFICIENTS["N_r"]
+    wild.write_text(config_text(examples.example_config().with_coefficients({"N_r": -10 * n_r})))
+    code = main([str(a) for a in ["analyze", *data, "--config", wild]])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "diverges" in err, err
+    _ok(capsys, ["identify", *data, "--config", truth, "--start", "config", "--out", tmp_path / "t.json"])
+    main([str(a) for a in ["identify", *data, "--config", wild, "--out", tmp_path / "w.json"]])
+    err = capsys.readouterr().err
+    assert "the screen fixed nothing for these data at the a-priori values" in err, err
+    fit, ref = (json.loads((tmp_path / n).read_text()) for n in ("w.json", "t.json"))
+    assert "diverges" in fit["screen_skipped"]
+    assert fit["status"] == "converged" and abs(fit["cost"] - ref["cost"]) < 1.0
