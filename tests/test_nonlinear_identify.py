@@ -626,3 +626,16 @@ def test_identify_on_the_command_line_writes_the_output_biases(files, truth, cap
     for s in ("phi", "theta", "psi"):
         assert v[s]["fit_percent"] == pytest.approx(doc["validation"]["biased"][s]["fit_percent"], abs=0.5)
         assert v[s]["fit_percent"] > 90, (s, v[s])
+
+
+def test_a_free_output_bias_of_a_state_not_measured_is_refused(truth):
+    config, noisy, _ = truth
+    start = replace(config, free=FREE + ("b_psi",))
+    for method in ("ml-gn", "ml-nm"):
+        with pytest.raises(
+            InputError, match=r"free names b_psi, the output bias of a state the records do not"
+        ) as e:
+            identify([noisy.only(STATES[:8])], start, method)
+        assert "\n" not in str(e.value)
+    with pytest.raises(InputError, match=r"free names b_psi, the output bias"):
+        nonlinear_identifiability([noisy.only(STATES[:8])], start)
