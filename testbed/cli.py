@@ -227,6 +227,12 @@ def _cmd_identify(args) -> int:
             f"testbed identify: kept the fit from the {estimate.start} start, {estimate.start_reason}",
             file=sys.stderr,
         )
+    if "screen_skipped" in done.document:
+        print(
+            "testbed identify: the screen fixed nothing for these data at the a-priori values: "
+            + done.document["screen_skipped"],
+            file=sys.stderr,
+        )
     if done.comparison is not None:
         print(done.comparison.table(), file=sys.stderr)
     width = max([11, *map(len, done.fixed)])

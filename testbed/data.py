@@ -25,6 +25,7 @@ import numpy as np
 
 from testbed.errors import InputError, atomic_write_text, check_keys
 from testbed.models.linear import (
+    BIASES,
     COEFFICIENTS,
     DELAY,
     INPUTS,
@@ -151,7 +152,8 @@ class ModelConfig:
     """A model config: the vehicle, the model's parameters (the 35 coefficients, the offsets,
     the output biases, the current, the inputs' delay), and the free ones. With `terms` it is a
     nonlinear model config: the nonlinear model over the terms named (their coefficients), its
-    inertia coefficients the `…dot` ones of `coefficients` (the others 0)."""
+    inertia coefficients the `…dot` ones of `coefficients` and its output biases the `b_…` ones
+    (the others 0)."""
 
     vehicle: Vehicle
     coefficients: Mapping[str, float]  # every name in PARAMETERS
@@ -237,6 +239,10 @@ class ModelConfig:
         coefficients, then the terms)."""
         model = nonlinear_model(self.vehicle, tuple(self.terms), self.components)
         return model, theta_vector(model, {**{n: self.coefficients[n] for n in INERTIA}, **self.terms})
+
+    def output_biases(self, states: Sequence[str]) -> np.ndarray:
+        """The output biases `b_<state>` of `states`, in their order: y = x + b."""
+        return np.array([self.coefficients[f"b_{s}"] for s in states], float)
 
     def with_noise_std(self, values: Mapping[str, float] | None, where: str = "noise_std") -> "ModelConfig":
         """The config with `values` (state → σ, checked as `where`) replacing its `noise_std`
@@ -1002,7 +1008,8 @@ def check_per_record(per_record: Sequence[str], free: Sequence[str], where: str)
 def _check_terms(config: ModelConfig, source: str) -> None:
     """`InputError` unless a nonlinear model config's terms make a nonlinear model of its vehicle
     (`models.nonlinear.nonlinear_model`: term names, each once, a submerged body), with finite
-    values, its linear parameters but the inertia coefficients 0, and `free` among its names."""
+    values, its linear parameters but the inertia coefficients and the output biases 0, and
+    `free` among its names and the output biases."""
     names = [c.name for c in config.components]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -1013,18 +1020,23 @@ def _check_terms(config: ModelConfig, source: str) -> None:
         raise InputError(f"{source}: [terms] {exc}") from None
     for key, v in config.terms.items():
         number(v, f"{source}: [terms] {json.dumps(key)}")
-    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA]
+    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA + BIASES]
     if extra:
         raise InputError(
             f"{source}: [coefficients] {extra[0]} in a nonlinear model config (one with [terms]); "
-            f"expected only the inertia coefficients ({', '.join(INERTIA)}), the rest in [terms]"
+            f"expected only the inertia coefficients ({', '.join(INERTIA)}) and the output biases "
+            "(b_ and a state), the rest in [terms]"
         )
     seen = set()
     for n in config.free:
-        if n not in model.names or n in seen:
+        if n not in model.names + BIASES or n in seen:
             raise InputError(
                 f"{source}: [identify] free names {n[:40]!r}"
-                + (" twice" if n in seen else ", not an inertia coefficient or one of [terms]")
+                + (
+                    " twice"
+                    if n in seen
+                    else ", not an inertia coefficient, an output bias or one of [terms]"
+                )
                 + "; expected each of the model's names once"
             )
         seen.add(n)
@@ -1073,6 +1085,11 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         ]
     else:  # a nonlinear model config: its inertia coefficients, then its terms (names quoted: `|`)
         lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in INERTIA]
+        lines += [
+            line(k, config.coefficients[k])
+            for k in BIASES
+            if config.coefficients[k] != 0.0 or k in config.free
+        ]
         lines += ["", "[terms]"] + [
             f"{json.dumps(k)} = {float(v)!r}" + (f"  # {comments[k]}" if k in comments else "")
             for k, v in config.terms.items()
@@ -1129,7 +1146,7 @@ def read_estimates(
     """The coefficients and offsets (name → value) of an estimates JSON, without the values
     estimated per record, and its `noise_std` (state → σ) when it has one of positive numbers,
     else None; InputError naming the file. `names`: a nonlinear model's names (its inertia
-    coefficients and terms), which its coefficients must be among instead of the linear model's."""
+    coefficients, terms and output biases), which its coefficients must be among instead of the linear model's."""
     expected = "an estimates JSON with coefficients {name: {value: ...}}"
     doc = read_json(path, expected)
     try:
@@ -1142,7 +1159,7 @@ def read_estimates(
         if names is not None and n not in names:
             raise InputError(
                 f"{path}: coefficient {n[:40]!r} is not one of the nonlinear model config's names; "
-                "expected its inertia coefficients or [terms]"
+                "expected its inertia coefficients, [terms] or output biases"
             )
         if names is None and n not in PARAMETERS:
             raise InputError(

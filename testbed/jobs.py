@@ -42,6 +42,7 @@ from testbed.estimators import Estimate, Progress, Status, check_method, identif
 from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_identifiability
 from testbed.analysis.validation import Validation, validate
 from testbed.identification.problem import base_name, check_inputs
+from testbed.models.linear import BIASES
 
 __all__ = [
     "Identified",
@@ -235,6 +236,8 @@ def identify_data(
         }
     if not screened.applied:
         doc["screen"] = dict(screened.screen)
+    if screened.skipped:
+        doc["screen_skipped"] = screened.skipped
     comparison = None
     if cfg.terms is not None:
         doc["nonlinear_model"] = {"config": str(config), "terms": list(cfg.terms)}
@@ -368,7 +371,7 @@ def validate_data(
                 f"{estimates}: fitted the nonlinear model over {model['config']}'s terms; {cfg.source} has "
                 "other terms; expected the config the estimates were fitted with"
             )
-        coefficients = read_estimates(estimates, cfg.nonlinear()[0].names)[0]
+        coefficients = read_estimates(estimates, cfg.nonlinear()[0].names + BIASES)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
     manoeuvres = {}
     if runs:

@@ -159,7 +159,7 @@ BAD = {
         "column 'q' has no value",
     ),
     "diverging model": (
-        lambda run, tmp: ["--config", _config(run, tmp, **{"M_q = -": "M_q = "}), "--start", "config"],
+        lambda run, tmp: ["--config", _config(run, tmp, **{"M_q = -": "M_q = 20"}), "--start", "config"],
         "diverges",
     ),
     "rrd folder missing": (lambda run, tmp: ["--rrd", tmp / "nowhere" / "fit.rrd"], "does not exist"),
@@ -323,3 +323,54 @@ def test_every_method_from_a_course_unstable_model_ends_with_an_outcome(
         assert last.startswith("testbed identify: not converged: "), err
     else:  # a diverged filter: one line naming why, nothing written
         assert code == 0 or (code == 2 and err.count("\n") == 1 and "diverged" in err), err
+
+
+def test_a_prior_that_cannot_be_flown_even_in_segments_is_still_a_start(unstable, tmp_path, capsys):
+    """N_r reversed and twentyfold (+19 1/s: e^9.6 over the shortest segment, 10 samples): `analyze` refuses it
+    in one line, but `identify` does not: the screen's structural step fixes nothing (a note says
+    why, the JSON's `screen_skipped`), and the default `ml-gn` fit goes on from the equation-error
+    start to the optimum the stable start reaches, within ΔJ 1."""
+    from testbed.identification import examples
+
+    data, _, truth = unstable
+    wild = tmp_path / "wild.toml"
+    n_r = examples.EXAMPLE_COEFFICIENTS["N_r"]
+    wild.write_text(config_text(examples.example_config().with_coefficients({"N_r": -20 * n_r})))
+    code = main([str(a) for a in ["analyze", *data, "--config", wild]])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "diverges" in err, err
+    _ok(capsys, ["identify", *data, "--config", truth, "--start", "config", "--out", tmp_path / "t.json"])
+    main([str(a) for a in ["identify", *data, "--config", wild, "--out", tmp_path / "w.json"]])
+    err = capsys.readouterr().err
+    assert "the screen fixed nothing for these data at the a-priori values" in err, err
+    fit, ref = (json.loads((tmp_path / n).read_text()) for n in ("w.json", "t.json"))
+    assert "diverges" in fit["screen_skipped"]
+    assert fit["status"] == "converged" and abs(fit["cost"] - ref["cost"]) < 1.0
+
+
+def test_a_sparse_log_from_a_course_unstable_model_is_fitted_on_shorter_segments(tmp_path, capsys):
+    """The example's 60 s records logged as a small vehicle's logger writes them: fins every
+    0.2 s, the states every 0.4 s (150 samples a record, the ticks between them empty). Segments
+    of 50 samples (20 s) let the +0.80 1/s prior grow e^16-fold, so they shorten to 10 samples
+    (4 s); counted in ticks, 50 of them (10 s) still grew e^8-fold and the prior was refused.
+    `analyze` bounds every coefficient on them, and `ml-gn` from the prior reaches the optimum
+    the model that flew reaches, within ΔJ 1."""
+    from testbed.identification import examples
+
+    data = []
+    for e in examples.experiments(seed=1, duration=60.0, dt=0.2):
+        y = e.y.copy()
+        y[1::2] = np.nan
+        data.append(write_csv(tmp_path / f"{e.name}.csv", e.t, y, e.inputs, e.measured))
+    prior, truth = tmp_path / "unstable.toml", tmp_path / "truth.toml"
+    prior.write_text(config_text(examples.unstable_config()))
+    truth.write_text(config_text(examples.example_config()))
+    _ok(capsys, ["analyze", *data, "--config", prior, "--out", tmp_path / "a.json"])
+    doc = json.loads((tmp_path / "a.json").read_text())
+    assert doc["segments"] >= 2 * 150 // 10 // 2 and all(
+        s is not None and s > 0 for s in doc["crlb_std"].values()
+    )
+    _ok(capsys, ["identify", *data, "--config", truth, "--start", "config", "--out", tmp_path / "t.json"])
+    _ok(capsys, ["identify", *data, "--config", prior, "--start", "config", "--out", tmp_path / "u.json"])
+    fit, ref = (json.loads((tmp_path / n).read_text()) for n in ("u.json", "t.json"))
+    assert fit["status"] == "converged" and abs(fit["cost"] - ref["cost"]) < 1.0

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
+from testbed.errors import InputError
 from testbed.estimators import FilterEstimate, OptionError, identify
 from testbed.identification.nonlinear_transition import NonlinearTransition
 from testbed.models.linear import IX, STATES
@@ -118,3 +119,16 @@ def test_mekf_on_the_command_line(files, truth, capsys, tmp_path):
         )
     history = est.with_suffix(".history.csv").read_text().splitlines()
     assert history[0] == "t," + ",".join(f"{n},{n}_std" for n in FREE) and len(history) == 202
+
+
+def test_the_filter_takes_fixed_output_biases_off_the_data_and_refuses_free_ones(truth):
+    """A record logged with attitude offsets and a config fixing them at their values: the
+    filter's estimate is the one on the record without them. A free offset is refused in one line."""
+    config, noisy, _ = truth
+    start = _start(config)
+    plain = identify([noisy], start, "mekf")
+    est = identify([shared._offset(noisy)], start.with_coefficients(shared.OFFSETS), "mekf")
+    assert np.allclose(est.values, plain.values, rtol=1e-6) and np.allclose(est.std, plain.std, rtol=1e-6)
+    with pytest.raises(InputError, match=r"free names b_phi; mekf on a nonlinear model config") as e:
+        identify([noisy], replace(start, free=FREE + ("b_phi",)), "mekf")
+    assert "\n" not in str(e.value)

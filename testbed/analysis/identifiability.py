@@ -19,7 +19,7 @@ from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
-from testbed.identification.bounds import NULL, analysed, crlb, fisher, fisher_at
+from testbed.identification.bounds import NULL, Unflyable, analysed, crlb, fisher, fisher_at
 from testbed.simulation.measurements import noise_from_data
 from testbed.models.linear import (
     OUTSIDE_EQUATIONS,
@@ -346,22 +346,27 @@ class Screen:
         fixed: the other candidates, name → why, in the order they were fixed.
         fit: the `ml-gn` fit of the candidates the structural stage left (None when it left
             none), whose estimate the significance stage tested.
+        skipped: why the structural stage was not taken (the a-priori model cannot be flown
+            on the records, even in segments), "" where it was.
     """
 
     config: ModelConfig
     fixed: dict[str, str]
     fit: Estimate | None
+    skipped: str = ""
 
 
 @dataclass(frozen=True)
 class Screened:
     """A fit behind the screen (`identify_screened`): `config` fitted, its `estimate`, `screen`
-    (name → why) what the screen fixes, and whether it was `applied` (else only reported)."""
+    (name → why) what the screen fixes, whether it was `applied` (else only reported), and why
+    its structural stage was `skipped` ("" where it was taken: `Screen.skipped`)."""
 
     config: ModelConfig
     estimate: Estimate
     screen: dict[str, str]
     applied: bool
+    skipped: str = ""
 
     @property
     def fixed(self) -> dict[str, str]:
@@ -475,33 +480,40 @@ def screening(experiments, config, options=None, callback=None, model: ScreenMod
     the rest are fitted with `ml-gn` (`options`, its options; `callback`, its progress), and
     those the estimate does not make significant are fixed by backward elimination
     (`insignificant`, with `model.information` at the estimate). A fixed candidate stays at its
-    a-priori value. When the `ml-gn` fit diverges, or reaches a model that cannot be flown on the
-    records even in segments (a diverged fit too), stage 2 fixes nothing. What no screen can mend
+    a-priori value. Where the a-priori model cannot be flown on the records even in segments,
+    stage 1 is skipped (`Screen.skipped` says why) and the fit starts as it can. When the
+    `ml-gn` fit diverges, or reaches a model that cannot be flown on the records even in
+    segments (a diverged fit too), stage 2 fixes nothing. What no screen can mend
     (bad data, a candidate no fitted state depends on) is an `InputError` first (`model.check`).
     `model`: the linear model's (`LINEAR`) or another's (`ScreenModel`).
     """
     model.check(experiments, config)
     noise = noise_from_data(config.fitted(experiments), config.noise_std)
-    result = model.assess(experiments, config, noise)
-    fixed = {
-        n: f"not determined by these data: {why}"
-        for n, why in _by_name(result.free, model.unidentified(result)).items()
-    }
+    fixed, skipped = {}, ""
+    try:
+        result = model.assess(experiments, config, noise)
+    except Unflyable as exc:  # no information at the a-priori values: the fit's starts may fly
+        skipped = str(exc)
+    else:
+        fixed = {
+            n: f"not determined by these data: {why}"
+            for n, why in _by_name(result.free, model.unidentified(result)).items()
+        }
     candidates = _without(config, fixed)
     if not candidates.free:
         return Screen(candidates, fixed, None)
     fit = identify(experiments, candidates, method="ml-gn", options=options, callback=callback)
     if fit.status is Status.DIVERGED:
-        return Screen(candidates, fixed, fit)
+        return Screen(candidates, fixed, fit, skipped)
     try:
         information = model.information(experiments, candidates, fit)
-    except InputError:  # the model the fit reached cannot be flown on the records: it diverged
+    except Unflyable:  # the model the fit reached cannot be flown on the records: it diverged
         why = "the model it reached diverges on the records even in segments"
-        return Screen(candidates, fixed, replace(fit, status=Status.DIVERGED, message=why))
+        return Screen(candidates, fixed, replace(fit, status=Status.DIVERGED, message=why), skipped)
     prior = [config.values[base_name(n)] for n in fit.free]
     for n, why in _by_name(fit.free, insignificant(fit.free, fit.values, information, prior)).items():
         fixed[n] = f"not determined by these data: {why}"
-    return Screen(_without(config, fixed), fixed, fit)
+    return Screen(_without(config, fixed), fixed, fit, skipped)
 
 
 def _by_name(values: tuple[str, ...], fixed: dict[str, str]) -> dict[str, str]:
@@ -570,7 +582,7 @@ def identify_screened(
         estimate = s.fit
     else:
         estimate = identify(experiments, fitted, method=method, options=options, callback=callback)
-    return Screened(fitted, estimate, s.fixed, apply)
+    return Screened(fitted, estimate, s.fixed, apply, s.skipped)
 
 
 def unidentified(experiments, config, noise_std=None) -> dict[str, str]:

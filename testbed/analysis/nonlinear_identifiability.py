@@ -1,11 +1,14 @@
-"""Identifiability of a nonlinear model config's free coefficients: the Fisher information of the
+"""Identifiability of a nonlinear model config's free coefficients and output biases
+(`nonlinear_output_error.parameter_names`): the Fisher information of the
 output-error likelihood at the config's values, from the flight's exact sensitivities
 (`nonlinear_sensitivities.flight`), with the Cramér-Rao bounds, correlations and practical drift
 groups of the linear model's analysis (`identifiability.assessed`).
 
 Each record is flown from its best-fitting initial state (`nonlinear_prediction.flights`); its
 measured initial states are parameters of the likelihood as in the fit, eliminated from the
-information (the Schur complement, `likelihood.reduced`). The noise is the config's
+information (the Schur complement, `bounds.eliminated`: a parameter left with only the rounding
+of its information, such as a heading's output bias beside the initial heading, which ψ entering
+no other state makes the same parameter, has none and an infinite bound). The noise is the config's
 `noise_std` where it gives a channel, else the residuals' mean square there. The records must
 measure the same states, as for the fit, a missing sample left out. The structural part is only
 the free coefficients no measured state depends on (their sensitivities are 0 along every
@@ -38,8 +41,7 @@ import numpy as np
 from testbed.analysis.identifiability import SIGNIFICANT, Identifiability, ScreenModel, Structural, assessed
 from testbed.data import Experiment, ModelConfig
 from testbed.estimators import Estimate
-from testbed.identification.bounds import NULL, crlb
-from testbed.identification.likelihood import reduced
+from testbed.identification.bounds import NULL, crlb, eliminated
 from testbed.identification.nonlinear_output_error import information, pooled_noise, setup
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
@@ -91,9 +93,10 @@ def nonlinear_identifiability(
     flown = flights(experiments, config, initial, substeps=substeps)
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
-    R = pooled_noise([r.y - x[:, ch] for r, x in zip(recs, flown)], held)
+    bias = theta[len(model.names) :]  # the channels' output biases: y = x + b
+    R = pooled_noise([r.y - x[:, ch] - bias for r, x in zip(recs, flown)], held)
     H = information(model, theta, np.array([x[0] for x in flown]), recs, channels, free, R, substeps)[0]
-    F = reduced(H, np.zeros(len(H)), len(free))[0]
+    F = eliminated(H, len(free))
     blind = tuple(n for k, n in enumerate(free) if H[k, k] == 0.0)
     struct = Structural(
         free, np.eye(len(free))[[free.index(n) for n in blind]], tuple((n,) for n in blind), blind

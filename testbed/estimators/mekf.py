@@ -891,7 +891,16 @@ def _nonlinear(experiments: Sequence[Experiment], config: ModelConfig, method: s
                 method, name, value, "its default: the filter on a nonlinear model config has no such option"
             )
     model, theta, idx = setup(experiments, config, f"{method} on a nonlinear model config")[2:]
-    idx = np.array(idx)
+    m = len(model.names)
+    biased = [n for n, i in zip(config.free, idx) if i >= m]
+    if biased:
+        raise InputError(
+            f"{config.source or 'config'}: [identify] free names {biased[0]}; {method} on a nonlinear model "
+            "config takes the fixed output biases off the data and estimates none: expected ml-gn or ml-nm"
+        )
+    theta, idx = theta[:m], np.array(idx)
+    # y − b: the fixed output biases taken off the measured states
+    experiments = [replace(e, y=e.y - config.output_biases(e.measured)) for e in experiments]
     return (
         experiments,
         config,

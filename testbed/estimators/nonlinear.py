@@ -45,7 +45,7 @@ is left out of every sum, the flight going through it; no value is estimated per
 from __future__ import annotations
 
 import time
-from dataclasses import fields
+from dataclasses import fields, replace
 from typing import Sequence
 
 import numpy as np
@@ -108,12 +108,15 @@ def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields
 
 
 def _start(start: str, model, theta, recs, channels, free, held) -> tuple[str, np.ndarray]:
-    """The start `start` names as (name, θ), for `auto` the better-flying one (module doc);
-    `InputError` where the equation-error start is named and the records cannot give it."""
+    """The start `start` names as (name, θ ⊕ b), for `auto` the better-flying one (module doc):
+    the equation-error start fits θ's free coefficients to the records less their biases b, which
+    it holds; `InputError` where the equation-error start is named and the records cannot give it."""
     if start == "config":
         return "config", theta
+    m, own = len(model.names), [n for n in free if n in model.names]
+    unbiased = [replace(r, y=r.y - theta[m:]) for r in recs]
     try:
-        regressed = equation_error(model, theta, recs, channels, free)
+        regressed = np.concatenate([equation_error(model, theta[:m], unbiased, channels, own), theta[m:]])
     except InputError:
         if start == "equation-error":
             raise
@@ -212,11 +215,12 @@ def simplex(
     def relaxed(th, x0, R):
         """Each record's initial state fitted at θ (R held where given) and its outputs'
         sensitivities to the measured initial states there (N, k, k)."""
-        fitted, sens = [], []
+        fitted, sens, m = [], [], len(model.names)
         for r, x in zip(recs, x0):
-            x, states = initial_state(model, th, r.t, r.fins, r.y, ch, range(len(ch)), x, R)
+            # the flight fitted to the record less its output biases b (θ ⊕ b = th)
+            x, states = initial_state(model, th[:m], r.t, r.fins, r.y - th[m:], ch, range(len(ch)), x, R)
             fitted.append(x)
-            sens.append(flight(model, th, r.t, x, r.fins, (), None, states).dx_dx0[:, ch][:, :, ch])
+            sens.append(flight(model, th[:m], r.t, x, r.fins, (), None, states).dx_dx0[:, ch][:, :, ch])
             simulated(len(r.t) * (1 + len(ch)))
         return np.array(fitted), sens
 

@@ -260,7 +260,9 @@ def trust_region(
     saddles). Where that does not converge in `DIRECT` iterations (`DIRECT` more if its
     Gauss-Newton step is then below `NEAR` σ), or the model diverges over the whole record from
     `p`, multiple shooting from `p` again, with half the iterations left: stages of `segments`,
-    `segments`/`SHRINK`, … pieces per record, then the whole record. Where that does not converge
+    `segments`/`SHRINK`, … pieces per record (of at least `likelihood.LEAST_SEGMENT` samples, or
+    `likelihood.FEWEST_SEGMENT` where the model diverges from `p`: a sparse log's records may hold
+    too few samples for the longer ones), then the whole record. Where that does not converge
     either, the whole record's fit goes on with the iterations left from the lower of the two
     points they reached. `max_iter` bounds the iterations of all of them together.
 
@@ -274,14 +276,7 @@ def trust_region(
         if callback is not None:
             callback(Progress(len(history) - 1, x.p[:nf].copy(), x.J))
 
-    stages, n = [], segments
-    while n > 1:
-        stage = likelihood.segmented(prob, n, likelihood.LEAST_SEGMENT)
-        if len(stage.records) > len(prob.records) and (
-            not stages or len(stage.records) < len(stages[-1].records)
-        ):
-            stages.append(stage)
-        n //= SHRINK
+    stages = _shooting_stages(prob, segments, likelihood.LEAST_SEGMENT)
 
     def left() -> int:
         return max_iter - (len(history) - 1)
@@ -292,6 +287,8 @@ def trust_region(
     if direct.status is Status.MAX_ITERATIONS and direct.step < NEAR and stages:
         # near a stationary point: as many iterations again before anything else
         direct = _stages(prob, [], direct.point.p, min(left(), DIRECT), tol, radius, escapes, follow, report)
+    if direct.point is None:  # the model diverges from `p`: segments as short as the records need
+        stages = _shooting_stages(prob, segments, likelihood.FEWEST_SEGMENT)
     out = direct
     if direct.status is not Status.CONVERGED and stages:
         # multiple shooting gets half of what is left; the rest goes on from the lower of the
@@ -318,6 +315,21 @@ def trust_region(
     return Outcome(
         out.point.p, out.status, len(history) - 1, np.array(history), out.fisher, optimum, out.joined
     )
+
+
+def _shooting_stages(prob: Problem, segments: int, least: int) -> list[Problem]:
+    """The multiple-shooting stages: `segments`, `segments`/`SHRINK`, … pieces per record of at
+    least `least` samples (`likelihood.segmented`), each with fewer than the one before and more
+    than the records themselves."""
+    stages, n = [], segments
+    while n > 1:
+        stage = likelihood.segmented(prob, n, least)
+        if len(stage.records) > len(prob.records) and (
+            not stages or len(stage.records) < len(stages[-1].records)
+        ):
+            stages.append(stage)
+        n //= SHRINK
+    return stages
 
 
 def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> Descent:

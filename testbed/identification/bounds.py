@@ -35,6 +35,7 @@ __all__ = [
     "MIN_LAGS",
     "NULL",
     "Analysed",
+    "Unflyable",
     "Bounds",
     "Information",
     "analysed",
@@ -49,6 +50,11 @@ __all__ = [
     "information",
     "lag_window",
 ]
+
+
+class Unflyable(InputError):
+    """The model cannot be flown on the records at these coefficients, even in segments: it has
+    no information there (an `InputError`: exit 2 where the user's config is at fault)."""
 
 
 class Bounds(NamedTuple):
@@ -314,7 +320,7 @@ def analysed(
     coefficients) for `information` and `fisher`. Where the model diverges over the whole record
     (an unstable model's response grows along it), the records are cut into the fewest segments
     on which it stays bounded, each with its own initial state (`likelihood.bounded`): the
-    information of the multiple-shooting problem, which the fit starts from. InputError where it
+    information of the multiple-shooting problem, which the fit starts from. `Unflyable` where it
     diverges even on the shortest segments."""
     prob = problem(experiments, config)
     theta = free_values(prob, values)
@@ -322,13 +328,13 @@ def analysed(
     if why is not None:
         coarse = _coarse_step(experiments, prob, theta)
         if coarse is not None:
-            raise InputError(coarse)
+            raise Unflyable(coarse)
         cut = (
             f" even on {len(stage.records)} segments of the records"
             if len(stage.records) > len(prob.records)
             else ""
         )
-        raise InputError(
+        raise Unflyable(
             f"{prob.source}: the model diverges at these coefficients{cut} ({why}); expected "
             "coefficients giving a response bounded over a few seconds"
         )

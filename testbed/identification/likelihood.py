@@ -29,6 +29,7 @@ from testbed.models.linear import NX, STATES, continuous
 
 __all__ = [
     "EXPLODE",
+    "FEWEST_SEGMENT",
     "LEAST_SEGMENT",
     "RELAXATIONS",
     "bounded",
@@ -47,6 +48,10 @@ __all__ = [
 
 EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
 LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
+# the fewest samples of a segment where a record holds too few for `LEAST_SEGMENT`-sample ones
+# (a small vehicle's 25 s dive logged at 2 Hz) and the model diverges over it: each segment's
+# initial state still has several samples of every measured channel
+FEWEST_SEGMENT = 10
 RELAXATIONS = 20  # noise updates of `fit_initial_states` at most (each a k × k solve per record)
 
 
@@ -142,17 +147,20 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
     each a record of its own with its own initial state: output error on segments, the multiple
     shooting of boundary-value problems with the continuity between segments relaxed.
 
-    A segment has at least `least` samples (a shorter record keeps fewer segments, at least one).
-    Over a segment of length T a model's error grows by at most e^(aT) for its least stable
-    rate a, where over the whole record it grows by e^(a·T_record): short segments keep the cost
-    of an unstable or poor model's error bounded. The unmeasured components of each segment's
-    initial state stay at trim, as for a whole record.
+    A segment has at least `least` samples, counting the rows with a sample of some channel (a
+    shorter record keeps fewer segments, at least one), and starts at one: the ticks of a log's
+    clock between its rows carry none. Over a segment of length T a model's error grows by at
+    most e^(aT) for its least stable rate a, where over the whole record it grows by
+    e^(a·T_record): short segments keep the cost of an unstable or poor model's error bounded.
+    The unmeasured components of each segment's initial state stay at trim, as for a whole record.
     """
     records, offset = [], prob.n_free
     for r in prob.records:
         n = len(r.y)
-        pieces = max(1, min(count, n // max(least, 1)))
-        edges = np.linspace(0, n, pieces + 1).round().astype(int)
+        rows = np.arange(n) if r.present is None else np.flatnonzero(r.present.any(axis=1))
+        pieces = max(1, min(count, len(rows) // max(least, 1)))
+        at = np.linspace(0, len(rows), pieces + 1).round().astype(int)[1:-1]
+        edges = np.r_[0, rows[at], n]
         for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
             name = r.name if pieces == 1 else f"{r.name}[{j}]"
             records.append(replace(r.rows(a, b), name=name, offset=offset))
@@ -164,7 +172,8 @@ def bounded(
     prob: Problem, values: np.ndarray, least: int = LEAST_SEGMENT
 ) -> tuple[Problem, np.ndarray, int, str | None]:
     """`prob` cut into the fewest segments per record (`segmented`: 1, 2, 4, … each of at least
-    `least` samples) on which the model at the free `values` stays bounded: its outputs do not
+    `least` samples, or `FEWEST_SEGMENT` where the records are too short to be cut further at
+    that length) on which the model at the free `values` stays bounded: its outputs do not
     explode (`exploded`) and its least stable mode (rate a > 0) grows by at most `EXPLODE`
     (a·T ≤ ln EXPLODE over T s; the fitted initial state can cancel a faster growth over the
     record, but the likelihood is then no longer near-quadratic in θ, and the information's
@@ -177,6 +186,9 @@ def bounded(
     count, pieces = 1, 0
     while True:
         stage = prob if count == 1 else segmented(prob, count, least)
+        if count > 1 and len(stage.records) == pieces and least > FEWEST_SEGMENT:
+            least = FEWEST_SEGMENT  # records too short for `least`-sample segments: shorter ones
+            stage = segmented(prob, count, least)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
             p = initial_states(stage, values)
             out = outputs(stage, p)

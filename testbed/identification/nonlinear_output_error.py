@@ -1,8 +1,11 @@
 """Output-error maximum likelihood for the nonlinear model: chosen coefficients and each record's
 initial state fitted to measured states by a damped Gauss-Newton (Levenberg-Marquardt) iteration.
 
-The outputs are the measured states of the simulated trajectory (`nonlinear_sensitivities.flight`),
-the noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
+The outputs are the measured states of the simulated trajectory (`nonlinear_sensitivities.flight`)
+plus their output biases, `y = x + b + v` (an attitude sensor's mounting offset; `b` acts on its
+own channel alone, `∂y/∂b = 1` there and 0 elsewhere, and not on the flight). The fit's
+parameters are θ ⊕ b (`parameter_names`: θ's names, then `b_<state>` of each measured channel),
+a bias free like any coefficient; the noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
 records. A missing sample (NaN: a sensor slower than the fins are logged, a dropout) is left
 out of every sum, its residual NaN and its rows of J zero; the flight goes through it with the
 fins of every row, so fins logged faster than the states move the model as they moved the body.
@@ -52,6 +55,7 @@ __all__ = [
     "fit_output_error",
     "information",
     "neg_log_likelihood",
+    "parameter_names",
     "pooled_noise",
     "present_only",
     "records",
@@ -80,7 +84,7 @@ class Record:
 class NonlinearFit:
     """The result of `fit_output_error`."""
 
-    theta: np.ndarray  # all of θ in `model.names` order, the free coefficients fitted
+    theta: np.ndarray  # all of θ ⊕ b in `parameter_names` order, the free ones fitted
     estimates: dict[str, float]  # the free coefficients
     std: dict[str, float]  # their Cramér-Rao σ
     initial_states: np.ndarray  # (records, 10)
@@ -107,12 +111,20 @@ def records(
     return channels, [Record(t=e.t, fins=e.inputs, y=e.y) for e in experiments]
 
 
+def parameter_names(model: NonlinearModel, channels: Sequence[str]) -> tuple[str, ...]:
+    """The names of the fit's parameters θ ⊕ b: θ's (`model.names`), then the output bias
+    `b_<state>` of each measured channel in `channels`."""
+    return model.names + tuple(f"b_{c}" for c in channels)
+
+
 def setup(
     experiments: Sequence[Experiment], config: ModelConfig, fit: str
 ) -> tuple[tuple[str, ...], list[Record], NonlinearModel, np.ndarray, list[int]]:
-    """`(channels, records, model, θ, free indices)` of a nonlinear model config's `free` on the
-    experiments (`records`); `InputError` naming the `fit` for what it cannot take: nothing
-    free, values per record, or records that do not move (`data.check_excited`)."""
+    """`(channels, records, model, θ ⊕ b, free indices)` of a nonlinear model config's `free`
+    (indices into `parameter_names`) on the experiments (`records`), b the config's output biases
+    of the channels; `InputError` naming the `fit` for what it cannot take: nothing free, values
+    per record, a free output bias of a state no record measures, or records that do not move
+    (`data.check_excited`)."""
     source = config.source or "config"
     if not config.free:
         raise InputError(f"{source}: [identify] free is empty; expected the coefficients {fit} is to take")
@@ -124,7 +136,15 @@ def setup(
     channels, recs = records(experiments, fit)
     check_excited(experiments)
     model, theta = config.nonlinear()
-    return channels, recs, model, theta, [model.names.index(n) for n in config.free]
+    names = parameter_names(model, channels)
+    unmeasured = [n for n in config.free if n not in names]
+    if unmeasured:
+        raise InputError(
+            f"{source}: [identify] free names {unmeasured[0]}, the output bias of a state the records do not "
+            f"measure (they measure {', '.join(channels)}); expected the biases of measured states"
+        )
+    theta = np.concatenate([theta, config.output_biases(channels)])
+    return channels, recs, model, theta, [names.index(n) for n in config.free]
 
 
 def _check(model, records, channels, free, noise_std, tolerance, max_iterations):
@@ -133,11 +153,10 @@ def _check(model, records, channels, free, noise_std, tolerance, max_iterations)
             f"tolerance={tolerance!r}, max_iterations={max_iterations!r}; expected a tolerance > 0 "
             "and a whole number of iterations >= 1"
         )
-    unknown = [n for n in free if n not in model.names]
+    names = parameter_names(model, [c for c in channels if c in STATES])
+    unknown = [n for n in free if n not in names]
     if unknown:
-        raise InputError(
-            f"free coefficient {unknown[0]!r} is not in the model; expected one of {model.names}"
-        )
+        raise InputError(f"free coefficient {unknown[0]!r} is not in the model; expected one of {names}")
     if len(set(free)) != len(free) or not free:
         raise InputError(f"free={tuple(free)!r}; expected one or more distinct coefficient names")
     bad = [c for c in channels if c not in STATES]
@@ -160,18 +179,20 @@ def _check(model, records, channels, free, noise_std, tolerance, max_iterations)
 
 
 def _simulate(model, theta, x0, records, ch, substeps):
-    """Each record's flown states (N, 10) and residuals (N, C), NaN where the sample is missing;
-    (None, None) where a flight does not stay finite. Tallied as simulated samples
-    (`recursions.counting`)."""
+    """Each record's flown states (N, 10) and residuals `e = y − (x + b)` (N, C), NaN where the
+    sample is missing, at θ ⊕ b (`theta`; b left out: 0); (None, None) where a flight does not
+    stay finite. Tallied as simulated samples (`recursions.counting`)."""
+    m = len(model.names)
+    bias = theta[m:] if len(theta) > m else np.zeros(len(ch))
     flown, res = [], []
     with np.errstate(all="ignore"):
         for r, x in zip(records, x0):
-            states = fly(model, theta, r.t, x, r.fins, substeps)
+            states = fly(model, theta[:m], r.t, x, r.fins, substeps)
             simulated(len(r.t))
             if not np.all(np.isfinite(states[:, ch])):
                 return None, None
             flown.append(states)
-            res.append(r.y - states[:, ch])
+            res.append(r.y - states[:, ch] - bias)
     return flown, res
 
 
@@ -179,8 +200,8 @@ def residuals(
     model: NonlinearModel, theta, x0: np.ndarray, records: Sequence[Record], ch, substeps: int | None = None
 ):
     """Each record's residuals (N, C) in the state columns `ch` (NaN where the sample is
-    missing), flown from its row of `x0` (records, 10); None where a flight does not stay finite.
-    Tallied as `_simulate`'s."""
+    missing) at θ ⊕ b (`theta`; b left out: 0), flown from its row of `x0` (records, 10); None
+    where a flight does not stay finite. Tallied as `_simulate`'s."""
     return _simulate(model, theta, x0, records, ch, substeps)[1]
 
 
@@ -222,14 +243,21 @@ def neg_log_likelihood(res: Sequence[np.ndarray], R: np.ndarray) -> float:
 
 
 def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
-    """Each record's output sensitivities to θ[free] (N, C, p) and to the measured channels'
-    initial states (N, C, C), along its flown states; tallied (`recursions.counting`) as 1 + p
-    columns a sample (the pass evaluates the model at every RK4 stage again)."""
+    """Each record's output sensitivities to (θ ⊕ b)[free] (N, C, p) and to the measured
+    channels' initial states (N, C, C), along its flown states; tallied
+    (`recursions.counting`) as 1 + the free coefficients of θ columns a sample (the pass
+    evaluates the model at every RK4 stage again)."""
+    m, free = len(model.names), np.asarray(free, dtype=np.int64).reshape(-1)
+    own = free < m
     out = []
     for r, x, states in zip(records, x0, flown):
-        f = flight(model, theta, r.t, x, r.fins, free, substeps, states)
-        simulated(len(r.t) * (1 + len(free)))
-        out.append((f.dx_dtheta[:, ch], f.dx_dx0[:, ch][:, :, ch]))
+        f = flight(model, theta[:m], r.t, x, r.fins, free[own], substeps, states)
+        simulated(len(r.t) * (1 + int(own.sum())))
+        St = np.zeros((len(r.t), len(ch), len(free)))
+        St[:, :, own] = f.dx_dtheta[:, ch]
+        # ∂(x + b)/∂b = 1 on the bias's own channel, 0 on the others
+        St[:, free[~own] - m, np.flatnonzero(~own)] = 1.0
+        out.append((St, f.dx_dx0[:, ch][:, :, ch]))
     return out
 
 
@@ -248,7 +276,8 @@ def fit_output_error(
     continuation: bool = False,
     callback: Callable[[np.ndarray, float], None] | None = None,
 ) -> NonlinearFit:
-    """Fit θ's `free` coefficients (names from `model.names`), started from `theta`, and each
+    """Fit the `free` parameters of θ ⊕ b (names from `parameter_names`), started from `theta`
+    (θ, or θ ⊕ b: the channels' biases, 0 where left out), and each
     record's initial state (`free_initial`) to the `records`' measured `channels`, each record
     flown by RK4 with `substeps` steps per sample interval (module doc). `callback(values, cost)`
     after every step taken, any stage's: the free coefficients and the negative log-likelihood."""
@@ -268,6 +297,8 @@ def fit_output_error(
     )
     n = min(len(r.t) for r in records)
     theta, stage = np.array(theta, float), None
+    if len(theta) == len(model.names):
+        theta = np.concatenate([theta, np.zeros(len(ch))])
     if continuation and n >= 2 * FIRST:
         stage = fit_output_error(model, theta, _halves(records), channels, free, continuation=True, **options)
         theta, x0 = stage.theta, stage.initial_states
@@ -297,7 +328,8 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
     from them does not stay finite."""
     channels, free, free_initial, held, substeps, tolerance, max_iterations, callback = settings
     ch = [STATES.index(c) for c in channels]
-    idx = np.array([model.names.index(n) for n in free])
+    names = parameter_names(model, channels)
+    idx = np.array([names.index(n) for n in free])
     p = len(idx)
 
     def unpack(q):
@@ -364,8 +396,8 @@ def information(
     R: np.ndarray,
     substeps: int | None = None,
 ) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [θ's `free` coefficients | each
-    record's measured initial states] with the noise variances `R` per channel, each record flown
+    """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [the `free` parameters of θ ⊕ b
+    (`theta`, `parameter_names`) | each record's measured initial states] with the noise variances `R` per channel, each record flown
     from its row of `x0` (records, 10), and the residuals along the flights."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
     return _normal_equations(res, sens, np.asarray(R, float), True)[0], res
@@ -375,7 +407,8 @@ def _linearisation(model, theta, x0, records, channels, free, substeps):
     """Each record's residuals along its flight from its row of `x0`, and its output
     sensitivities to θ's `free` coefficients and to its measured initial states."""
     ch = [STATES.index(c) for c in channels]
-    idx = np.array([model.names.index(n) for n in free])
+    names = parameter_names(model, channels)
+    idx = np.array([names.index(n) for n in free], dtype=np.int64)
     flown, res = _simulate(model, theta, x0, records, ch, substeps)
     if res is None:
         raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
@@ -422,7 +455,7 @@ def coloured_bounds(
     substeps: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """`(σ, σ_coloured, residuals)` at θ and the initial states `x0` (records, 10) with the noise
-    variances `R`: the Cramér-Rao σ of θ's `free` coefficients (the initial states among the
+    variances `R`: the Cramér-Rao σ of the `free` parameters of θ ⊕ b (the initial states among the
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
     (`bounds.colored_covariance`, its per-record sum `bounds.colored_term`), and the residuals."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)

@@ -1,11 +1,12 @@
 """What a nonlinear model config predicts on measured experiments: its model flown open loop
 (`nonlinear_flight.fly`) with each record's fin angles, for validation.
 
+The outputs are the flown states plus the config's output biases (`y = x + b`, `b_<state>`).
 Each record is flown from its initial state: the given one (an estimate's `initial_states`) where
 given, else the best-fitting one, as the linear model's predictions take it. The best fit starts
 from the record's first sample in its measured states (straight flight at the vehicle's speed in
 the others and where the first sample is missing) and moves the measured states' components by
-damped Gauss-Newton on the output-error likelihood with the noise relaxed (R the residuals' mean
+damped Gauss-Newton on the output-error likelihood of the record less its biases, with the noise relaxed (R the residuals' mean
 square per channel, then held for the step), the flight's exact sensitivities to its initial
 state (`nonlinear_sensitivities.flight`), until the undamped Gauss-Newton step is below
 `TOLERANCE` of its Cramér-Rao σ in every component or `ITERATIONS` have run. Missing samples are
@@ -38,12 +39,16 @@ def predict(
     initial: Mapping[str, Mapping[str, float]] | None = None,
     substeps: int | None = None,
 ) -> list[np.ndarray]:
-    """The nonlinear model's outputs (N, k) per experiment in its measured columns, absolute u,
+    """The nonlinear model's outputs (N, k) per experiment in its measured columns (the flown
+    states plus the config's output biases), absolute u,
     flown by RK4 with `substeps` steps per sample interval from the initial states `initial`
     (experiment → state → x0) gives and the best-fitting ones it does not (module doc);
     `InputError` naming the record where a flight leaves the finite numbers."""
     flown = flights(experiments, config, initial, substeps)
-    return [x[:, [STATES.index(c) for c in e.measured]] for e, x in zip(experiments, flown)]
+    return [
+        x[:, [STATES.index(c) for c in e.measured]] + config.output_biases(e.measured)
+        for e, x in zip(experiments, flown)
+    ]
 
 
 def flights(
@@ -52,15 +57,16 @@ def flights(
     initial: Mapping[str, Mapping[str, float]] | None = None,
     substeps: int | None = None,
 ) -> list[np.ndarray]:
-    """`predict`'s flights: every state (N, 10) of each experiment, absolute u."""
+    """`predict`'s flights: every state (N, 10) of each experiment, absolute u (no output bias)."""
     model, theta = config.nonlinear()
     out = []
     for e in experiments:
         ch = [STATES.index(c) for c in e.measured]
         given = (initial or {}).get(e.name, {})
+        y = e.y - config.output_biases(e.measured)  # y − b: the measured states
         x0 = np.zeros(NX)
         x0[0] = model.vehicle.speed
-        first = np.asarray(e.y[0], float)
+        first = np.asarray(y[0], float)
         x0[ch] = np.where(np.isfinite(first), first, x0[ch])
         for c, v in given.items():
             x0[STATES.index(c)] = v
@@ -76,7 +82,7 @@ def flights(
             )
         with np.errstate(all="ignore"):
             out.append(
-                initial_state(model, theta, e.t, e.inputs, e.y, ch, moved, x0, None, substeps, states)[1]
+                initial_state(model, theta, e.t, e.inputs, y, ch, moved, x0, None, substeps, states)[1]
             )
     return out
 
