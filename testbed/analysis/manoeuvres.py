@@ -105,7 +105,9 @@ def run_metrics(run: str | Path, truth: bool = True) -> dict[str, TurningCircle 
 
 
 def _record_metrics(spec: ExperimentSpec, path: Path) -> TurningCircle | Zigzag:
-    return experiment_metrics(spec, record_track(read_csv(path, spec.name)), str(path))
+    # a noise-free truth holds a steady turn's speed exactly: its repeats are samples
+    record = read_csv(path, spec.name, keep_repeats=path.name.endswith(".truth.csv"))
+    return experiment_metrics(spec, record_track(record), str(path))
 
 
 def metric_values(m: TurningCircle | Zigzag) -> dict:

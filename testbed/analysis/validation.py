@@ -24,6 +24,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
+from testbed.errors import InputError
 from testbed.fit_percent import fit_percent
 from testbed.identification import nonlinear_prediction
 from testbed.identification.prediction import predict
@@ -155,10 +156,18 @@ def validate(
     channel's metrics are over its samples present, its residuals taken in sequence (a missing
     sample skipped, a slower sensor's at its own rate)."""
     experiments = config.readings(experiments)  # compared in the states, the config's sensors undone
-    if config.terms is None:
-        yhat = predict(experiments, config, initial)
-    else:
-        yhat = nonlinear_prediction.predict(experiments, config, initial)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflowing prediction is refused below
+        if config.terms is None:
+            yhat = predict(experiments, config, initial)
+        else:
+            yhat = nonlinear_prediction.predict(experiments, config, initial)
+    for e, y_model in zip(experiments, yhat):
+        if not np.all(np.isfinite(y_model)):  # an unstable model's response overflowed: no score
+            raise InputError(
+                f"{config.source or 'config'}: the model's prediction of {e.source or e.name} leaves the "
+                "finite numbers (its response grows beyond them along the record); expected coefficients "
+                "whose response stays finite over it"
+            )
     base = predict(experiments, analytic) if analytic is not None else [None] * len(experiments)
     out, predictions = {}, {}
     for e, y_model, y_base in zip(experiments, yhat, base):

@@ -327,8 +327,8 @@ def analysed(
     stage, p, _, why = bounded(prob, theta)
     if why is not None:
         coarse = _coarse_step(experiments, prob, theta)
-        if coarse is not None:
-            raise Unflyable(coarse)
+        if coarse is not None:  # the data's clock, not the model, is at fault (t in ms, say)
+            raise InputError(coarse)
         cut = (
             f" even on {len(stage.records)} segments of the records"
             if len(stage.records) > len(prob.records)
