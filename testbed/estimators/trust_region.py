@@ -166,10 +166,13 @@ def second_order(prob: Problem, at: Point, s: np.ndarray, M: np.ndarray | None =
     return s * V[:, 0]
 
 
-def _finite(g: np.ndarray, M: np.ndarray) -> bool:
-    """Whether the normal equations are finite numbers: weights of a channel that holds one
-    value (its R at the floor) times sensitivities of coefficients carried far off overflow."""
-    return bool(np.all(np.isfinite(g)) and np.all(np.isfinite(M)))
+def _terms(prob: Problem, x: Point) -> tuple[np.ndarray, np.ndarray] | None:
+    """g and M at `x` (`likelihood.gauss_newton_terms`), None where they are not finite numbers:
+    weights of a channel that holds one value (its R at the floor) times sensitivities of
+    coefficients carried far off overflow."""
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked for
+        g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
+    return (g, M) if np.all(np.isfinite(g)) and np.all(np.isfinite(M)) else None
 
 
 @dataclass(frozen=True)
@@ -205,10 +208,10 @@ def _descend(
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
                 return Descent(x, Status.CONVERGED, it, delta, None, joined=i)
-        with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked for
-            g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
-        if not _finite(g, M):  # the coefficients ran off where the data hold nothing to stop them
+        terms = _terms(prob, x)
+        if terms is None:  # the coefficients ran off where the data hold nothing to stop them
             return Descent(x, Status.DIVERGED, it, delta, None)
+        g, M = terms
         F, gr = likelihood.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
         step = np.sqrt(max(gr @ bounds.crlb(F).covariance @ gr, 0.0))
@@ -345,10 +348,10 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> 
                 return Descent(None, Status.DIVERGED, used, 0.0, None)
             continue
         if s is None:
-            with np.errstate(over="ignore", invalid="ignore"):
-                g, M = likelihood.gauss_newton_terms(stage, x.p, x.xs, x.res, x.R)
-            if not _finite(g, M):
+            terms = _terms(stage, x)
+            if terms is None:
                 return Descent(x if stage is prob else None, Status.DIVERGED, used, 0.0, None)
+            g, M = terms
             s, delta = _scale(prob.start, theta, likelihood.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
         final = stage is prob
         tol_stage = tol if final else max(tol, STAGE_TOL)
