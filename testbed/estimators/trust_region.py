@@ -99,39 +99,63 @@ def point(prob: Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Poin
 
 
 def subproblem(F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float) -> tuple[np.ndarray, float]:
-    """The step `d` minimising `−gᵀd + ½ dᵀF d` subject to `‖d/s‖ ≤ Δ`, and its predicted
-    decrease `gᵀd − ½ dᵀF d`.
+    """The step `d` minimising `−gᵀd + ½ dᵀF d` subject to `‖d/s‖ ≤ Δ` over the directions
+    along which F is not null by the Cramér-Rao rule (`bounds.crlb`: eigenvalues of F scaled to
+    unit diagonal at or below `bounds.NULL` × the largest), and its predicted decrease
+    `gᵀd − ½ dᵀF d`. Inside the region the step is the Gauss-Newton step `C g` (C the Cramér-Rao
+    covariance), up to null directions: the step whose length in Cramér-Rao σ decides convergence.
 
-    In scaled coordinates z = d/s: F̃ = S F S = Q Λ Qᵀ, g̃ = S g, and `z(λ) = Q (Λ + λ)⁻¹ Qᵀ g̃`
-    with λ = 0 if that step lies inside the region, else the λ > 0 with ‖z(λ)‖ = Δ (the secular
-    equation, monotone in λ: solved by bisection in log λ). Null directions of F (λ_i ≈ 0) take
-    no part in the interior step, as in the pseudo-inverse.
+    Null directions are found in F's own scaling, not the region's: a coefficient whose scale `s`
+    is far from its bound would make `S F S` singular to working precision along directions the
+    data determine well. With `D F D = V Λ Vᵀ` (D = 1/√diag F), B = D V₊ and N = D V₀ (so Bᵀ F B =
+    Λ₊ and F N ≈ 0), the step is `d = B y + N k`: `k` the null part that makes ‖d/s‖ least for the
+    same model value (`S⁻¹N k` the projection of −S⁻¹B y on S⁻¹N's range, P⊥ the rest), and
+    `y = Λ₊^-½ u`. In u the model is `−bᵀu + ½‖u‖²` (b = Λ₊^-½ Bᵀg) and the region
+    `‖G u‖ ≤ Δ`, G = P⊥ S⁻¹ B Λ₊^-½ = P Σ Wᵀ (SVD). So with v = Wᵀu the minimiser is
+    `v(μ) = Wᵀb / (1 + μ σ²)`, μ = 0 where that lies inside the region, else the μ > 0 with
+    ‖Σ v(μ)‖ = Δ (the secular equation, decreasing in μ: bracketed on both sides and solved by
+    bisection in log μ; Moré & Sorensen; Nocedal & Wright §4.3). No factor is inverted.
     """
-    Ft, gt = F * np.outer(s, s), g * s
-    lam, Q = np.linalg.eigh((Ft + Ft.T) / 2)
-    c = Q.T @ gt
-    floor = 1e-12 * max(lam.max(initial=0.0), 1e-300)
+    F = (F + F.T) / 2
+    D = np.sqrt(np.maximum(np.diag(F), 0.0))
+    D = 1.0 / np.where(D > 0, D, 1.0)
+    lam, V = np.linalg.eigh(F * np.outer(D, D))
+    keep = lam > bounds.NULL * max(lam.max(initial=0.0), 1e-300)
+    if not keep.any():
+        return np.zeros_like(g), 0.0
+    B, N = D[:, None] * V[:, keep], D[:, None] * V[:, ~keep]
+    root = np.sqrt(lam[keep])
+    A = B / s[:, None]
+    if N.shape[1]:  # the region's shortest step with the same model: N's part projected out
+        Qn, Rn = np.linalg.qr(N / s[:, None])
+        A = A - Qn @ (Qn.T @ A)
+    _, sigma, Wt = np.linalg.svd(A / root, full_matrices=False)
+    b = Wt @ ((B.T @ g) / root)
 
-    def z(mu: float) -> np.ndarray:
-        denom = lam + mu
-        return Q @ np.where(denom > floor, c / np.maximum(denom, floor), 0.0)
+    def region(mu: float) -> float:  # ‖Σ v(μ)‖
+        return float(np.linalg.norm(sigma * b / (1.0 + mu * sigma**2)))
 
-    step = z(0.0)
-    if np.linalg.norm(step) > delta:
-        lo, hi = 0.0, max(np.linalg.norm(c) / delta, floor)
-        while np.linalg.norm(z(hi)) > delta:
+    mu = 0.0
+    if region(0.0) > delta:
+        hi = 1.0 / sigma.max() ** 2
+        while region(hi) > delta:
             hi *= 4
-        lo = hi / 4 if hi > floor else 0.0
-        for _ in range(60):  # ‖z(μ)‖ is decreasing in μ
-            mid = np.sqrt(lo * hi) if lo > 0 else hi / 2
-            if np.linalg.norm(z(mid)) > delta:
+        lo = hi / 4
+        while lo > 0 and region(lo) <= delta:  # region(0) > Δ: a root lies below
+            lo /= 4
+        for _ in range(200):  # region(μ) > Δ at lo, ≤ Δ at hi
+            mid = np.sqrt(lo * hi) if lo > 0 else hi / 4
+            if region(mid) > delta:
                 lo = mid
             else:
                 hi = mid
-            if hi - lo <= 1e-10 * hi:
+            if hi - lo <= 1e-12 * hi:
                 break
-        step = z(hi)
-    d = s * step
+        mu = hi
+    y = (Wt.T @ (b / (1.0 + mu * sigma**2))) / root
+    d = B @ y
+    if N.shape[1]:
+        d = d - N @ np.linalg.solve(Rn, Qn.T @ (B / s[:, None] @ y))
     return d, float(g @ d - 0.5 * d @ F @ d)
 
 
