@@ -295,3 +295,22 @@ def test_a_scenario_ii_log_as_it_comes_keeps_its_information(tmp_path):
         }
     b = identify(logged, replace(config, free=a.free), "ml-gn")
     assert a.converged and b.converged
+
+
+def test_the_screened_list_is_fitted_from_where_the_screen_s_fit_ended():
+    """When the screen fixes a candidate, `ml-gn` fits the rest from the screen's own estimate
+    (the fixed one at its a-priori value), not from the a-priori model again: in the screen fit's
+    basin, which a poor a-priori model may not lead back to."""
+    from testbed.analysis.identifiability import identify_screened, screening
+    from testbed.identification.examples import example_config, experiments
+
+    config = example_config()
+    prior = config.with_coefficients({n: 0.6 * config.coefficients[n] for n in config.free})
+    candidates = replace(prior, free=config.free + ("K_dr",), screen=True)
+    screened = identify_screened(experiments(seed=1, duration=60.0), candidates, options={"start": "config"})
+    assert list(screened.fixed) == ["K_dr"]
+    estimate = screened.estimate
+    screen = screening(experiments(seed=1, duration=60.0), candidates, options={"start": "config"}).fit
+    start = dict(zip(screen.free, screen.values))
+    assert estimate.history[0] == pytest.approx([start[n] for n in estimate.free], rel=1e-12)
+    assert estimate.converged and estimate.iterations < screen.iterations

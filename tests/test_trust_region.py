@@ -22,19 +22,28 @@ def _model(rng, n, rank=None):
 @pytest.mark.parametrize("delta", [0.05, 0.5, 50.0])
 @pytest.mark.parametrize("rank", [None, 3])
 def test_step_solves_the_trust_region_subproblem_as_scipy_does(delta, rank):
+    """Against scipy's constrained minimiser of the model in the region; for a singular F, over
+    the steps along the directions F determines (D V₊, the eigenvectors of F scaled to unit
+    diagonal with nonzero eigenvalues, D = 1/√diag F: the span of the Cramér-Rao covariance)."""
     rng = np.random.default_rng(7)
     F, g, s = _model(rng, 5, rank)
+    basis = np.eye(5)
     if rank:  # a singular F: keep g in its range, as Gauss-Newton's is (g = Sᵀ R⁻¹ e, F = Sᵀ R⁻¹ S)
         g = F @ rng.normal(size=5)
+        D = 1 / np.sqrt(np.diag(F))
+        lam, V = np.linalg.eigh(F * np.outer(D, D))
+        basis = D[:, None] * V[:, lam > 1e-9 * lam.max()]
     d, predicted = trust_region.subproblem(F, g, s, delta)
 
     def model(x):
         return -g @ x + 0.5 * x @ F @ x
 
-    inside = NonlinearConstraint(lambda x: np.sum((x / s) ** 2), 0.0, delta**2)
+    k = basis.shape[1]
+    inside = NonlinearConstraint(lambda y: np.sum((basis @ y / s) ** 2), 0.0, delta**2)
     best = min(
-        (minimize(model, x0, constraints=[inside], method="trust-constr", options={"gtol": 1e-12, "xtol": 1e-12})
-         for x0 in (np.zeros(5), 0.5 * delta * s * rng.normal(size=5) / np.sqrt(5))),
+        (minimize(lambda y: model(basis @ y), y0, constraints=[inside], method="trust-constr",
+                  options={"gtol": 1e-12, "xtol": 1e-12})
+         for y0 in (np.zeros(k), np.linalg.lstsq(basis, 0.5 * delta * s * rng.normal(size=5) / np.sqrt(5), rcond=None)[0])),
         key=lambda r: r.fun,
     )  # fmt: skip
     assert np.linalg.norm(d / s) <= delta * (1 + 1e-9)

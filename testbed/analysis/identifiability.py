@@ -580,6 +580,11 @@ def identify_screened(
         for step in steps if callback is not None else ():
             callback(step)
         estimate = s.fit
+    elif same and apply and s.fit is not None and s.fit.status is not Status.DIVERGED:
+        # the screened set from where the screen's fit ended, the fixed candidates at their
+        # a-priori values: its basin, not the a-priori model's again
+        kept = {n: v for n, v in zip(s.fit.free, s.fit.values) if base_name(n) in fitted.free}
+        estimate = identify(experiments, fitted.with_coefficients(kept), method=method, options=options, callback=callback)
     else:
         estimate = identify(experiments, fitted, method=method, options=options, callback=callback)
     return Screened(fitted, estimate, s.fixed, apply, s.skipped)

@@ -99,22 +99,22 @@ def point(prob: Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Poin
 
 
 def subproblem(F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float) -> tuple[np.ndarray, float]:
-    """The step `d` minimising `−gᵀd + ½ dᵀF d` subject to `‖d/s‖ ≤ Δ` over the directions
-    along which F is not null by the Cramér-Rao rule (`bounds.crlb`: eigenvalues of F scaled to
-    unit diagonal at or below `bounds.NULL` × the largest), and its predicted decrease
-    `gᵀd − ½ dᵀF d`. Inside the region the step is the Gauss-Newton step `C g` (C the Cramér-Rao
-    covariance), up to null directions: the step whose length in Cramér-Rao σ decides convergence.
+    """The step `d` minimising `−gᵀd + ½ dᵀF d` subject to `‖d/s‖ ≤ Δ` among the steps along
+    the directions F determines: those not null by the Cramér-Rao rule (`bounds.crlb`: with
+    `D F D = V Λ Vᵀ`, D = 1/√diag F, the eigenvectors whose eigenvalue is above `bounds.NULL` ×
+    the largest), and its predicted decrease `gᵀd − ½ dᵀF d`. Inside the region the step is the
+    Gauss-Newton step `C g`, C the Cramér-Rao covariance: the step whose length in Cramér-Rao σ
+    decides convergence. A null direction is not stepped along: the data hold nothing to say how
+    far, and a nearly null one's model is no guide.
 
-    Null directions are found in F's own scaling, not the region's: a coefficient whose scale `s`
+    The directions are found in F's own scaling, not the region's: a coefficient whose scale `s`
     is far from its bound would make `S F S` singular to working precision along directions the
-    data determine well. With `D F D = V Λ Vᵀ` (D = 1/√diag F), B = D V₊ and N = D V₀ (so Bᵀ F B =
-    Λ₊ and F N ≈ 0), the step is `d = B y + N k`: `k` the null part that makes ‖d/s‖ least for the
-    same model value (`S⁻¹N k` the projection of −S⁻¹B y on S⁻¹N's range, P⊥ the rest), and
-    `y = Λ₊^-½ u`. In u the model is `−bᵀu + ½‖u‖²` (b = Λ₊^-½ Bᵀg) and the region
-    `‖G u‖ ≤ Δ`, G = P⊥ S⁻¹ B Λ₊^-½ = P Σ Wᵀ (SVD). So with v = Wᵀu the minimiser is
-    `v(μ) = Wᵀb / (1 + μ σ²)`, μ = 0 where that lies inside the region, else the μ > 0 with
-    ‖Σ v(μ)‖ = Δ (the secular equation, decreasing in μ: bracketed on both sides and solved by
-    bisection in log μ; Moré & Sorensen; Nocedal & Wright §4.3). No factor is inverted.
+    data determine well. With B = D V₊ (Bᵀ F B = Λ₊), the step is `d = B Λ₊^-½ u`; in u the model
+    is `−bᵀu + ½‖u‖²` (b = Λ₊^-½ Bᵀg) and the region `‖G u‖ ≤ Δ`, G = S⁻¹ B Λ₊^-½ = P Σ Wᵀ (SVD).
+    With v = Wᵀu the minimiser is `v(μ) = Wᵀb / (1 + μ σ²)`: μ = 0 where that lies inside the
+    region, else the μ > 0 with ‖Σ v(μ)‖ = Δ (the secular equation, decreasing in μ: bracketed
+    on both sides and solved by bisection in log μ; Moré & Sorensen; Nocedal & Wright §4.3). No
+    factor is inverted.
     """
     F = (F + F.T) / 2
     D = np.sqrt(np.maximum(np.diag(F), 0.0))
@@ -123,14 +123,10 @@ def subproblem(F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float) -> tup
     keep = lam > bounds.NULL * max(lam.max(initial=0.0), 1e-300)
     if not keep.any():
         return np.zeros_like(g), 0.0
-    B, N = D[:, None] * V[:, keep], D[:, None] * V[:, ~keep]
     root = np.sqrt(lam[keep])
-    A = B / s[:, None]
-    if N.shape[1]:  # the region's shortest step with the same model: N's part projected out
-        Qn, Rn = np.linalg.qr(N / s[:, None])
-        A = A - Qn @ (Qn.T @ A)
-    _, sigma, Wt = np.linalg.svd(A / root, full_matrices=False)
-    b = Wt @ ((B.T @ g) / root)
+    B = D[:, None] * V[:, keep] / root
+    _, sigma, Wt = np.linalg.svd(B / s[:, None], full_matrices=False)
+    b = Wt @ (B.T @ g)
 
     def region(mu: float) -> float:  # ‖Σ v(μ)‖
         return float(np.linalg.norm(sigma * b / (1.0 + mu * sigma**2)))
@@ -152,10 +148,7 @@ def subproblem(F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float) -> tup
             if hi - lo <= 1e-12 * hi:
                 break
         mu = hi
-    y = (Wt.T @ (b / (1.0 + mu * sigma**2))) / root
-    d = B @ y
-    if N.shape[1]:
-        d = d - N @ np.linalg.solve(Rn, Qn.T @ (B / s[:, None] @ y))
+    d = B @ (Wt.T @ (b / (1.0 + mu * sigma**2)))
     return d, float(g @ d - 0.5 * d @ F @ d)
 
 
