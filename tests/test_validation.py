@@ -9,7 +9,8 @@ import pytest
 from testbed.cli import main
 from testbed.analysis.manoeuvres import compared, experiment_metrics, metric_values, run_metrics
 from testbed.analysis.track import record_track
-from testbed.analysis.validation import CONFIDENCE, chi2_sf, whiteness
+from testbed.analysis.validation import CONFIDENCE, whiteness
+from testbed.identification.bounds import chi2_sf
 from testbed.fit_percent import fit_percent
 from testbed.data import load_data
 from testbed.identification.prediction import predict

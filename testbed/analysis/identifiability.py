@@ -19,7 +19,7 @@ from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
-from testbed.identification.bounds import NULL, Unflyable, analysed, crlb, fisher, fisher_at
+from testbed.identification.bounds import NULL, Unflyable, analysed, chi2_sf, crlb, fisher, fisher_at
 from testbed.simulation.measurements import noise_from_data
 from testbed.models.linear import (
     OUTSIDE_EQUATIONS,
@@ -334,6 +334,7 @@ def singular(F: np.ndarray, basis: np.ndarray, null: float = NULL) -> np.ndarray
 
 # -- the screen ------------------------------------------------------------------------------------
 
+LIKELIHOOD_RATIO = 0.95  # the likelihood-ratio test's level for the significance stage's fixes
 SIGNIFICANT = 1 / UNCERTAIN  # |estimate| / σ below which these data cannot tell a coefficient from 0
 
 
@@ -584,7 +585,23 @@ def identify_screened(
         # the screened set from where the screen's fit ended, the fixed candidates at their
         # a-priori values: its basin, not the a-priori model's again
         kept = {n: v for n, v in zip(s.fit.free, s.fit.values) if base_name(n) in fitted.free}
-        estimate = identify(experiments, fitted.with_coefficients(kept), method=method, options=options, callback=callback)
+        start = fitted.with_coefficients(kept)
+        estimate = identify(experiments, start, method=method, options=options, callback=callback)
+        dropped = [n for n in dict.fromkeys(map(base_name, s.fit.free)) if n not in fitted.free]
+        # the likelihood-ratio test of the significance stage's fixes: fixing k coefficients the
+        # data do not contradict raises the cost by at most χ²₀.₉₅(k)/2; more, and the quadratic
+        # model that chose them did not hold (a model far from linear in them): their fit stands
+        rise = estimate.cost - s.fit.cost
+        if not (rise <= 0 or chi2_sf(2 * rise, len(dropped)) >= 1 - LIKELIHOOD_RATIO):
+            why = (
+                f"fixing {', '.join(dropped)} raised the cost by {rise:.4g}, more than the χ² "
+                f"test allows (p = {chi2_sf(2 * rise, len(dropped)):.2g})"
+            )
+            fitted = _without(config, {n: w for n, w in s.fixed.items() if n not in dropped})
+            s = replace(s, config=fitted, fixed={n: w for n, w in s.fixed.items() if n not in dropped})
+            for step in steps if callback is not None else ():
+                callback(step)
+            estimate = replace(s.fit, start_reason=f"{s.fit.start_reason}; the screen kept them: {why}")
     else:
         estimate = identify(experiments, fitted, method=method, options=options, callback=callback)
     return Screened(fitted, estimate, s.fixed, apply, s.skipped)

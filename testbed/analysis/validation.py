@@ -17,7 +17,6 @@ a-priori config) and, when given, for the analytic model on the same data.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
@@ -27,9 +26,10 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.fit_percent import fit_percent
 from testbed.identification import nonlinear_prediction
+from testbed.identification.bounds import chi2_sf
 from testbed.identification.prediction import predict
 
-__all__ = ["CONFIDENCE", "ChannelMetrics", "Validation", "Whiteness", "chi2_sf", "validate", "whiteness"]
+__all__ = ["CONFIDENCE", "ChannelMetrics", "Validation", "Whiteness", "validate", "whiteness"]
 
 LAGS = 25  # autocorrelation lags tested (0.5 s at 50 Hz: beyond the torpedo's fast modes)
 CONFIDENCE = 2.576  # 99 % two-sided normal quantile
@@ -72,25 +72,6 @@ def whiteness(e: np.ndarray, lags: int = LAGS) -> Whiteness:
     q = float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1))))
     p = chi2_sf(q, lags)
     return Whiteness(float(np.abs(r).max()), float(bound), int(np.sum(np.abs(r) > bound)), q, p, p >= WHITE_P)
-
-
-def chi2_sf(q: float, k: int) -> float:
-    """`P(χ²_k > q)`, the survival function of the χ² law with `k` (a positive integer) degrees
-    of freedom, in closed form: with x = q/2,
-      k even: e^(−x) Σ_{j<k/2} x^j / j!,
-      k odd:  erfc(√x) + e^(−x) Σ_{j=1}^{(k−1)/2} x^(j−½) / Γ(j + ½),
-    each term taken through its logarithm, so that neither e^(−x) nor x^j leaves the range of
-    double precision before their product does."""
-    x = q / 2.0
-    if x <= 0.0:
-        return 1.0
-    if k % 2 == 0:
-        return min(1.0, sum(math.exp(j * math.log(x) - x - math.lgamma(j + 1)) for j in range(k // 2)))
-    return min(
-        1.0,
-        math.erfc(math.sqrt(x))
-        + sum(math.exp((j - 0.5) * math.log(x) - x - math.lgamma(j + 0.5)) for j in range(1, (k + 1) // 2)),
-    )
 
 
 @dataclass(frozen=True)

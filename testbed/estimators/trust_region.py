@@ -23,9 +23,11 @@ projection, Golub & Pereyra).
   record, and the heading integrates it), so the method fits the records cut into `segments`
   pieces, each with its own initial state (`likelihood.segmented`), then `SHRINK` times fewer stage
   by stage to the whole record, each stage from the one before; only the last decides
-  convergence. Not first: with the continuity between segments relaxed, a model that is not
-  the data's (real data) has another optimum on segments than on the whole record, and the
-  whole record's fit from there can end in another basin than from the start.
+  convergence. Not first, unless the start's response grows beyond bound along the records (an
+  unstable a-priori model, whose whole-record sensitivities are dominated by its growing mode):
+  with the continuity between segments relaxed, a model that is not the data's (real data) has
+  another optimum on segments than on the whole record, and the whole record's fit from there
+  can end in another basin than from the start.
 - Converged: the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (`√(g_rᵀF⁻¹g_r)`), and the
   point passes the second-order check: the Hessian of the cost (second-order sensitivities
   included, `recursions.curvature`, the initial states eliminated) has no negative eigenvalue. A
@@ -277,7 +279,11 @@ def trust_region(
     """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
     are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
     scaled coordinates, with the second-order check at the end (leaving at most `escapes`
-    saddles). Where that does not converge in `DIRECT` iterations (`DIRECT` more if its
+    saddles). From a start whose response grows beyond bound along the records
+    (`likelihood.bounded` cuts them into segments), multiple shooting from the first iteration,
+    with all of `max_iter`: stages of that many pieces per record (of at least
+    `likelihood.FEWEST_SEGMENT` samples), a quarter as many, …, then the whole record. Otherwise,
+    where the whole record's fit does not converge in `DIRECT` iterations (`DIRECT` more if its
     Gauss-Newton step is then below `NEAR` σ), or the model diverges over the whole record from
     `p`, multiple shooting from `p` again, with half the iterations left: stages of `segments`,
     `segments`/`SHRINK`, … pieces per record (of at least `likelihood.LEAST_SEGMENT` samples, or
@@ -301,6 +307,14 @@ def trust_region(
     def left() -> int:
         return max_iter - (len(history) - 1)
 
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is an answer here
+        count = likelihood.bounded(prob, p[:nf], likelihood.FEWEST_SEGMENT)[2]
+    if segments > 1 and count > 1:  # the start's response grows beyond bound: segments first
+        out = _stages(
+            prob, _shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, tol, radius,
+            escapes, follow, report,
+        )  # fmt: skip
+        return _outcome(prob, p, out, history)
     direct = _stages(
         prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
     )
@@ -324,6 +338,13 @@ def trust_region(
                     if left()
                     else lower
                 )
+    return _outcome(prob, p, out, history)
+
+
+def _outcome(prob: Problem, p: np.ndarray, out: Descent, history: list) -> Outcome:
+    """The fit's `Outcome` where its last descent `out` stopped (from `p`; `history`: θ after
+    each iteration), with its optimum (θ and Cramér-Rao σ) where it converged."""
+    nf = prob.n_free
     if out.point is None:
         return Outcome(p, Status.DIVERGED, len(history) - 1, np.array(history))
     optimum = ()

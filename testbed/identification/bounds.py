@@ -30,6 +30,7 @@ from testbed.identification.scan import PIECE
 from testbed.models.linear import IX, NX, STATES, continuous
 
 __all__ = [
+    "chi2_sf",
     "COARSEST",
     "INTEGRATED_TIMES",
     "MIN_LAGS",
@@ -95,6 +96,25 @@ def crlb(M: np.ndarray, null: float = NULL) -> Bounds:
         corr = cov / np.outer(s, s)
     corr[np.diag_indices_from(corr)] = np.where(unidentifiable, np.nan, 1.0)
     return Bounds(cov, std, corr)
+
+
+def chi2_sf(q: float, k: int) -> float:
+    """`P(χ²_k > q)`, the survival function of the χ² law with `k` (a positive integer) degrees
+    of freedom, in closed form: with x = q/2,
+      k even: e^(−x) Σ_{j<k/2} x^j / j!,
+      k odd:  erfc(√x) + e^(−x) Σ_{j=1}^{(k−1)/2} x^(j−½) / Γ(j + ½),
+    each term taken through its logarithm, so that neither e^(−x) nor x^j leaves the range of
+    double precision before their product does."""
+    x = q / 2.0
+    if x <= 0.0:
+        return 1.0
+    if k % 2 == 0:
+        return min(1.0, sum(math.exp(j * math.log(x) - x - math.lgamma(j + 1)) for j in range(k // 2)))
+    return min(
+        1.0,
+        math.erfc(math.sqrt(x))
+        + sum(math.exp((j - 0.5) * math.log(x) - x - math.lgamma(j + 0.5)) for j in range(1, (k + 1) // 2)),
+    )
 
 
 MIN_LAGS = 10  # the lag window's floor (`lag_window`), samples
