@@ -591,11 +591,13 @@ def identify_screened(
         # the likelihood-ratio test of the significance stage's fixes: fixing k coefficients the
         # data do not contradict raises the cost by at most χ²₀.₉₅(k)/2; more, and the quadratic
         # model that chose them did not hold (a model far from linear in them): their fit stands
-        rise = estimate.cost - s.fit.cost
-        if not (rise <= 0 or chi2_sf(2 * rise, len(dropped)) >= 1 - LIKELIHOOD_RATIO):
+        rise = estimate.cost - s.fit.cost  # NaN where the fit of the rest diverged
+        if not (rise <= 0 or (np.isfinite(rise) and chi2_sf(2 * rise, len(dropped)) >= 1 - LIKELIHOOD_RATIO)):
             why = (
                 f"fixing {', '.join(dropped)} raised the cost by {rise:.4g}, more than the χ² "
                 f"test allows (p = {chi2_sf(2 * rise, len(dropped)):.2g})"
+                if np.isfinite(rise)
+                else f"the fit with {', '.join(dropped)} fixed diverged"
             )
             fitted = _without(config, {n: w for n, w in s.fixed.items() if n not in dropped})
             s = replace(s, config=fitted, fixed={n: w for n, w in s.fixed.items() if n not in dropped})
