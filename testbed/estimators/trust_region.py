@@ -61,6 +61,7 @@ __all__ = [
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 SEGMENTS = 16  # multiple shooting's first stage: segments per record
 NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
+PACE = 3  # a descent closes in on its stationary point when its step halves over this many iterations
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
 SHRINK = 4  # each multiple-shooting stage has this many times fewer segments than the one before
@@ -205,6 +206,7 @@ class Descent:
     fisher: np.ndarray | None  # M at the point (the full parameter vector's), with its R
     joined: int = -1  # the earlier optimum (of `follow`) whose basin it entered; -1: none
     step: float = np.inf  # the last Gauss-Newton step's length in Cramér-Rao σ
+    earlier: float = np.inf  # its length `PACE` iterations before
 
 
 def _descend(
@@ -222,7 +224,7 @@ def _descend(
     shrinks to nothing (STALLED), or a step lands within `JOIN` Cramér-Rao σ of one of the
     optima `follow` ((θ, σ) of earlier fits on the same problem): inside its quadratic basin,
     bound for the same point."""
-    nf, x, it = prob.n_free, start, 0
+    nf, x, it, steps = prob.n_free, start, 0, []
     while True:
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
@@ -234,10 +236,12 @@ def _descend(
         F, gr = likelihood.reduced(M, g, nf)
         # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
         step = np.sqrt(max(gr @ bounds.crlb(F).covariance @ gr, 0.0))
+        steps.append(step)
         if step < tol:
             return Descent(x, Status.CONVERGED, it, delta, M, step=step)
         if it >= max_iter:
-            return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step)
+            earlier = steps[-1 - PACE] if len(steps) > PACE else np.inf
+            return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step, earlier=earlier)
         while True:
             d, predicted = subproblem(F, gr, s, delta)
             trial = point(prob, x.p[:nf] + d, x.R)
@@ -284,7 +288,7 @@ def trust_region(
     with all of `max_iter`: stages of that many pieces per record (of at least
     `likelihood.FEWEST_SEGMENT` samples), a quarter as many, …, then the whole record. Otherwise,
     where the whole record's fit does not converge in `DIRECT` iterations (`DIRECT` more if its
-    Gauss-Newton step is then below `NEAR` σ), or the model diverges over the whole record from
+    Gauss-Newton step is then below `NEAR` σ and has halved over the last `PACE`), or the model diverges over the whole record from
     `p`, multiple shooting from `p` again, with half the iterations left: stages of `segments`,
     `segments`/`SHRINK`, … pieces per record (of at least `likelihood.LEAST_SEGMENT` samples, or
     `likelihood.FEWEST_SEGMENT` where the model diverges from `p`: a sparse log's records may hold
@@ -318,8 +322,9 @@ def trust_region(
     direct = _stages(
         prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
     )
-    if direct.status is Status.MAX_ITERATIONS and direct.step < NEAR and stages:
-        # near a stationary point: as many iterations again before anything else
+    if direct.status is Status.MAX_ITERATIONS and direct.step < min(NEAR, direct.earlier / 2) and stages:
+        # near a stationary point, and closing in on it: as many iterations again before anything
+        # else (a step that stays near one size is a slow crawl in a poor basin's valley)
         direct = _stages(prob, [], direct.point.p, min(left(), DIRECT), tol, radius, escapes, follow, report)
     if direct.point is None:  # the model diverges from `p`: segments as short as the records need
         stages = _shooting_stages(prob, segments, likelihood.FEWEST_SEGMENT)
