@@ -106,15 +106,15 @@ def offsets(estimate: dict, truth: dict[str, float]) -> dict[str, dict]:
             why = estimate.get("fixed", {}).get(name, {}).get("reason", "not free")
             out[name] = {"true": true, "estimated": False, "reason": why}
             continue
-        sd = corrected.get(name) or c["std"]
+        sd = corrected.get(name) or c["std"] or np.inf  # null in the JSON: an infinite bound
         o = {
             "true": true,
             "estimated": True,
             "value": c["value"],
             "std": sd,
-            "sigmas": (c["value"] - true) / sd,
+            "sigmas": (c["value"] - true) / sd if np.isfinite(sd) else None,
         }
-        if model.get(name) is not None:
+        if model.get(name) is not None and np.isfinite(sd):
             o |= {"model": model[name], "sigmas_model": (c["value"] - true - model[name]) / sd}
         out[name] = o
     return out
@@ -199,8 +199,9 @@ def seed_table(seed: int, row: dict) -> str:
     for name, o in row["offsets"].items():
         if o["estimated"]:
             model = f"{o['model']:+.5f}; {o['sigmas_model']:+.1f} σ" if "model" in o else "–"
+            error = "unbounded σ" if o["sigmas"] is None else f"{o['sigmas']:+.1f} σ"
             out.append(
-                f"| {name} | {o['true']:.5f} | {o['value']:.5f} ± {o['std']:.2g} | {o['sigmas']:+.1f} σ | {model} |"
+                f"| {name} | {o['true']:.5f} | {o['value']:.5f} ± {o['std']:.2g} | {error} | {model} |"
             )
         else:
             out.append(f"| {name} | {o['true']:.5f} | not estimated | {o['reason']} | |")
@@ -255,8 +256,8 @@ def summary(rows: dict[int, dict]) -> str:
     for name in OFFSETS:
         mine = [r["offsets"].get(name, {}) for r in rows.values()]
         estimated = sum(o.get("estimated", False) for o in mine)
-        within = sum(abs(o.get("sigmas", np.inf)) <= SIGMAS for o in mine)
-        model = sum(abs(o.get("sigmas_model", np.inf)) <= SIGMAS for o in mine)
+        within = sum(abs(o.get("sigmas") or np.inf) <= SIGMAS for o in mine)
+        model = sum(abs(o.get("sigmas_model") or np.inf) <= SIGMAS for o in mine)
         out.append(f"| {name} estimated (not fixed by the screen) | {estimated} of {n} |")
         out.append(f"| {name} within {SIGMAS:g} σ of the AHRS bias | {within} of {n} |")
         out.append(
