@@ -562,7 +562,9 @@ def identify_screened(
     `apply`: fit only the candidates the screen leaves free (default: `config.screen`, the
     config's `[identify] screen`); otherwise fit `config.free` as written, the screen only
     reported. The screen's `ml-gn` fit is the fit itself when `method` is `ml-gn` and the free set
-    is the same (then `callback` gets its steps when it ends); otherwise `method` fits anew.
+    is the same (then `callback` gets its steps when it ends); otherwise `method` fits anew
+    (`ml-gn`: from where the screen's fit ended, its fixes tested as a likelihood ratio and undone
+    where they fail it; `callback` gets the steps of the fit returned, when it ends).
     `InputError` when the screen applied leaves nothing free.
     """
     apply = config.screen if apply is None else apply
@@ -585,8 +587,8 @@ def identify_screened(
         # the screened set from where the screen's fit ended, the fixed candidates at their
         # a-priori values: its basin, not the a-priori model's again
         kept = {n: v for n, v in zip(s.fit.free, s.fit.values) if base_name(n) in fitted.free}
-        start = fitted.with_coefficients(kept)
-        estimate = identify(experiments, start, method=method, options=options, callback=callback)
+        start, rest = fitted.with_coefficients(kept), []
+        estimate = identify(experiments, start, method=method, options=options, callback=rest.append)
         dropped = [n for n in dict.fromkeys(map(base_name, s.fit.free)) if n not in fitted.free]
         # the likelihood-ratio test of the significance stage's fixes: fixing k coefficients the
         # data do not contradict raises the cost by at most χ²₀.₉₅(k)/2; more, and the quadratic
@@ -599,11 +601,15 @@ def identify_screened(
                 if np.isfinite(rise)
                 else f"the fit with {', '.join(dropped)} fixed diverged"
             )
-            fitted = _without(config, {n: w for n, w in s.fixed.items() if n not in dropped})
-            s = replace(s, config=fitted, fixed={n: w for n, w in s.fixed.items() if n not in dropped})
-            for step in steps if callback is not None else ():
-                callback(step)
-            estimate = replace(s.fit, start_reason=f"{s.fit.start_reason}; the screen kept them: {why}")
+            structural = {n: w for n, w in s.fixed.items() if n not in dropped}
+            fitted = _without(config, structural)
+            s = replace(s, config=fitted, fixed=structural)
+            estimate, rest = (
+                replace(s.fit, start_reason=f"{s.fit.start_reason}; the screen kept them: {why}"),
+                steps,
+            )
+        for step in rest if callback is not None else ():  # the steps of the fit returned
+            callback(step)
     else:
         estimate = identify(experiments, fitted, method=method, options=options, callback=callback)
     return Screened(fitted, estimate, s.fixed, apply, s.skipped)
