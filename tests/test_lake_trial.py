@@ -137,7 +137,7 @@ def test_the_prior_beside_the_run_is_course_unstable_at_0_8(run):
     assert scaled == set(LAKE.prior.scale) == {"Y_v", "N_v", "N_r", "Z_w", "M_q"}
     for k, factor in LAKE.prior.scale.items():
         assert prior.coefficients[k] == pytest.approx(factor * model.coefficients[k], rel=1e-12)
-    assert prior.free == model.free + ("b_phi", "b_theta", "b_psi") and prior.screen
+    assert prior.free == model.free + ("X_u", "b_phi", "b_theta", "b_psi") and prior.screen
     assert prior.vehicle == model.vehicle and prior.outputs == model.outputs == (
         "u",
         "v",

@@ -104,6 +104,21 @@ def test_a_start_that_cannot_be_computed_is_skipped_with_its_reason_and_the_othe
     assert est.json_fields()["starts"][-1]["cost"] is None
 
 
+def test_with_the_a_priori_start_alone_computable_the_best_box_draw_is_the_second():
+    """No rate gyro and an attitude offset free: equation error regresses no row and the MEKF
+    refuses the free offset, so `auto` would have one start; the best of `global`'s box draws is
+    run as the second, both named in `starts`, the least cost kept."""
+    data = [
+        e.only(("u", "v", "w", "phi", "theta", "psi")) for e in experiments(seed=0, duration=20.0, dt=0.1)
+    ]
+    est = identify(data, replace(prior_config(), free=FREE + ("b_phi",)), method="ml-gn")
+    tried = {s["start"]: s for s in est.starts}
+    assert [s for s in tried if tried[s]["status"] != "not computed"] == ["config", "box-1"]
+    assert {"equation-error", "mekf"} <= set(tried) and est.converged
+    assert est.cost == min(tried[s]["cost"] for s in ("config", "box-1"))
+    assert "least cost of 2 starts" in est.start_reason
+
+
 def test_rows_left_at_their_a_priori_values_are_named_in_the_starts():
     """Roll rate missing: the rows that involve p keep their a-priori values in the
     equation-error start, named with the reason in its `starts` entry."""

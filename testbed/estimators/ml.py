@@ -465,7 +465,8 @@ def _fit(
 
     `auto`: from the a-priori values and from the equation-error estimate, the better-fitting
     first; from the MEKF's estimate too when those two end apart (costs more than `DELTA_J`
-    apart) or either fails. `global`: from those two and from the best `polish` of `samples`
+    apart) or either fails; from the best box draw (as `global`'s) where that leaves one start.
+    `global`: from those two and from the best `polish` of `samples`
     coefficient vectors drawn in a box around the a-priori values (`starts.box`), ranked by
     their cost on the first multiple-shooting stage (records cut in 16: a poor model's error does
     not grow along the whole record there). Every start's result is recorded in the estimate,
@@ -546,7 +547,8 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
     if start == "global":
         for k, theta in enumerate(_polish_starts(prob, options)):
             fits.append(run(f"box-{k + 1}", *begin(theta), fits))
-    elif (
+        return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally), notes)
+    if (
         len(fits) < 2
         or abs(fits[0].cost - fits[1].cost) > DELTA_J
         or any(f.outcome.status is not Status.CONVERGED for f in fits)
@@ -554,6 +556,9 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
         theta = computed("mekf")
         if theta is not None:
             fits.append(run("mekf", *begin(theta), fits))
+    if len(fits) < 2:  # one start in effect: the best box draw stands in for a second
+        for theta in _polish_starts(prob, replace(options, polish=1)):
+            fits.append(run("box-1", *begin(theta), fits))
     return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally), notes)
 
 
@@ -614,7 +619,8 @@ _START = option(
     lambda v: v in STARTS,
     f"one of {', '.join(STARTS)}",
     "where the iterations begin: auto (the a-priori values and the equation-error estimate, "
-    "and the MEKF's when those two end apart or fail; the least cost is kept), config (the "
+    "and the MEKF's when those two end apart or fail, the best box draw where that leaves one; "
+    "the least cost is kept), config (the "
     "a-priori values only), equation-error, mekf, or global (auto's first two and the best "
     "box draws, see samples, spread and polish)",
 )

@@ -37,12 +37,13 @@ def named(
     """The free coefficients of the start `start` (config, equation-error or mekf), and those it
     leaves at their a-priori values, name → why (equation error's rows that no experiment
     supports: `equation_error.regression`). InputError where the start cannot be computed, the
-    reason named: the MEKF diverges or refuses the data, or equation error supports no row."""
+    reason named: the MEKF diverges or refuses the data, or equation error supports no row (or
+    none that moves a value from its a-priori one: the a-priori start again)."""
     if start == "config":
         return prob.start, {}
     if start == "equation-error":
         values, left = equation_error.regression(prob)
-        if len(left) == prob.n_free:
+        if len(left) == prob.n_free or (left and np.array_equal(values, prob.start)):
             why = "; ".join(dict.fromkeys(left.values()))
             raise InputError(
                 f"{prob.source}: start='equation-error': no free coefficient's row can be regressed on "
