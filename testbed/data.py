@@ -31,6 +31,7 @@ from testbed.models.linear import (
     INPUTS,
     MAX_SPEED,
     MIN_SPEED,
+    MOUNTING,
     OFFSETS,
     OUTPUT_TERMS,
     PARAMETERS,
@@ -99,6 +100,9 @@ MAX_DATA = 1e6
 # The largest magnitude of a vehicle constant or coefficient (SI): a supertanker's yaw inertia is
 # ~1e13 kg m², its dimensional coefficients ~1e12. Products of a few such numbers stay finite.
 MAX_CONSTANT = 1e15
+# A velocity log's mounting (`MOUNTING`): misalignments within ±0.5 rad (a scenario sensor's
+# limit: small angles), a position within 50 m of the CG
+MOUNTING_LIMITS = {"m_dvl_y": 0.5, "m_dvl_z": 0.5, "r_dvl_x": 50.0, "r_dvl_y": 50.0, "r_dvl_z": 50.0}
 # The least measurement-noise σ (SI): the floor that keeps a noise covariance R = σ² positive
 # definite in double precision, far below any sensor's noise (1 nrad, 1 nm/s).
 MIN_NOISE_STD = 1e-9
@@ -756,7 +760,7 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     for key, v in doc["coefficients"].items():
         if key not in coefficients:
             raise InputError(
-                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current or input_delay (docs/model.md)"
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current, the velocity log's mounting or input_delay (docs/model.md)"
             )
         coefficients[key] = number(v, f"{source}: [coefficients] {key}")
     ident = doc.get("identify", {})
@@ -882,9 +886,14 @@ def check_config(config: ModelConfig) -> None:
     for key, v in config.coefficients.items():
         if key not in PARAMETERS:
             raise InputError(
-                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current or input_delay (docs/model.md)"
+                f"{source}: [coefficients] {key} is not a coefficient name; expected one of the linear model's 35 coefficients, 6 offsets, 10 output biases, the current, the velocity log's mounting or input_delay (docs/model.md)"
             )
         number(v, f"{source}: [coefficients] {key}")
+        if key in MOUNTING and not abs(v) <= MOUNTING_LIMITS[key]:
+            unit = "rad (a small misalignment)" if key.startswith("m_") else "m from the CG"
+            raise InputError(
+                f"{source}: [coefficients] {key} = {v:g}; expected within ±{MOUNTING_LIMITS[key]:g} {unit}"
+            )
     if config.terms is not None:
         _check_terms(config, source)
     else:
@@ -984,7 +993,8 @@ def check_free(free: Sequence[str], where: str) -> tuple[str, ...]:
         if n not in PARAMETERS:
             raise InputError(
                 f"{where} names {n!r}, not a coefficient (one of {', '.join(COEFFICIENTS)}), "
-                f"an offset (one of {', '.join(OFFSETS)}), an output bias (b_ and a state), the current (c_N, c_E) or input_delay"
+                f"an offset (one of {', '.join(OFFSETS)}), an output bias (b_ and a state), the current (c_N, c_E), "
+                f"the velocity log's mounting ({', '.join(MOUNTING)}) or input_delay"
             )
         if n in seen:
             raise InputError(f"{where} names a coefficient twice ({n})")

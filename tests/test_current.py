@@ -6,11 +6,10 @@ import pytest
 
 from testbed.estimators import identify
 from testbed.identification import concentrated, likelihood
-from testbed.identification.examples import EXAMPLE_COEFFICIENTS
 from testbed.identification.problem import problem
 from references import assert_sensitivities_match_complex_step, qr_cost
 
-from test_offsets import FIN_OFFSET, LATERAL, _start, _turns  # noqa: F401  (shared data)
+from test_offsets import FIN_OFFSET, LATERAL, _start, _turns, assert_recovered_beside_the_offsets  # noqa: F401
 
 CURRENT = (0.12, -0.08)  # m/s north, east: a 0.14 m/s tidal current, a tenth of the example's speed
 
@@ -56,22 +55,8 @@ def test_the_simplex_cost_with_a_current_is_the_qr_likelihood():
 
 
 def test_the_current_is_recovered_beside_the_velocity_biases():
-    offsets = (FIN_OFFSET, -FIN_OFFSET)
-    truth = EXAMPLE_COEFFICIENTS | {"c_N": CURRENT[0], "c_E": CURRENT[1], "b_u": 0.0, "b_v": 0.0}
-    truth |= {
-        f"{n}[turn-{j}]": EXAMPLE_COEFFICIENTS[c] * d0
-        for n, c in (("Y_0", "Y_dr"), ("N_0", "N_dr"))
-        for j, d0 in enumerate(offsets)
-    }
-    data = _data()
-    free = LATERAL + ("Y_0", "N_0", "c_N", "c_E", "b_u", "b_v")
-    est = identify(data, _start(free, ("Y_0", "N_0")), method="ml-gn")
-    assert est.converged
-    sigmas = {n: (v - truth[n]) / s for n, v, s in zip(est.free, est.values, est.std)}
-    assert max(abs(v) for v in sigmas.values()) < 3.0, sigmas
-    plain = identify(data, _start(LATERAL + ("Y_0", "N_0"), ("Y_0", "N_0")), method="ml-gn")
-    worst = max(abs(v - truth[n]) / s for n, v, s in zip(plain.free, plain.values, plain.std))
-    assert worst > 5.0  # the same data, the current left out of the model
+    truth = {"c_N": CURRENT[0], "c_E": CURRENT[1], "b_u": 0.0, "b_v": 0.0}
+    assert_recovered_beside_the_offsets(_data(), ("c_N", "c_E", "b_u", "b_v"), truth)
 
 
 def test_a_current_without_the_heading_is_refused():

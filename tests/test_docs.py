@@ -92,8 +92,9 @@ def test_model_names_in_their_order():
     offsets = re.search(r"```\n(.*?)```", section(text, "Constant offsets"), re.S).group(1).split()
     biases = re.search(r"```\n(.*?)```", section(text, "Output biases"), re.S).group(1).split()
     current = re.search(r"```\n(.*?)```", section(text, "A steady current"), re.S).group(1).split()
+    mounting = re.search(r"```\n(.*?)```", section(text, "A velocity log's mounting"), re.S).group(1).split()
     delay = re.search(r"```\n(.*?)```", section(text, "The inputs' delay"), re.S).group(1).split()
-    assert names + offsets + biases + current + delay == list(PARAMETERS)
+    assert names + offsets + biases + current + mounting + delay == list(PARAMETERS)
     assert missing_tokens(text, PARAMETERS + STATES + INPUTS) == []
 
 

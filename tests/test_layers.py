@@ -20,6 +20,7 @@ LAYERS = [
     ("testbed.errors", "testbed.memory", "testbed.threads", "testbed.fit_percent"),
     ("testbed.models", "testbed.models.linear"),
     ("testbed.models.sensors",),
+    ("testbed.models.log_mounting",),
     ("testbed.models.component_kernels",),
     ("testbed.models.components",),
     ("testbed.models.regressors", "testbed.models.mechanics"),

@@ -83,6 +83,19 @@ def _truth(offsets: tuple[float, float]) -> dict[str, float]:
     }
 
 
+def assert_recovered_beside_the_offsets(data, extra: tuple[str, ...], truth: dict[str, float]) -> None:
+    """`ml-gn` from `_start` with `extra` free beside the lateral coefficients and each record's
+    Y_0, N_0 puts every value within 3 σ of `truth` (the example's coefficients and the records'
+    offsets added); the same data fitted without `extra` are biased beyond 5 σ."""
+    truth = _truth((FIN_OFFSET, -FIN_OFFSET)) | truth
+    est = identify(data, _start(LATERAL + ("Y_0", "N_0") + extra, ("Y_0", "N_0")), method="ml-gn")
+    assert est.converged
+    sigmas = _sigmas(est, truth)
+    assert max(abs(v) for v in sigmas.values()) < 3.0, sigmas
+    plain = identify(data, _start(LATERAL + ("Y_0", "N_0"), ("Y_0", "N_0")), method="ml-gn")
+    assert max(abs(v) for v in _sigmas(plain, truth).values()) > 5.0
+
+
 def _start(free=LATERAL, per_record=()):
     from dataclasses import replace
 

@@ -18,7 +18,7 @@ from testbed.estimators.base import Callback, Estimate, Method, Options, Progres
 from testbed.estimators.intervals import between_present
 from testbed.identification.bounds import assess
 from testbed.identification.likelihood import divergence, initial_states
-from testbed.identification.problem import Problem, problem
+from testbed.identification.problem import Problem, check_mounting, problem
 from testbed.models.linear import NX, OUTSIDE_EQUATIONS, STATES, tilde
 
 __all__ = ["EQUATION_ERROR", "SMOOTHABLE", "WINDOW_S", "EquationErrorOptions", "regression", "smoothed"]
@@ -189,6 +189,7 @@ def _fit(
     iteration: the regression is solved once. DIVERGED where the linear model at the estimate
     diverges on the data (the bounds are then meaningless), the reason named; InputError where the
     data leave a free coefficient out of the regression (`regression`)."""
+    check_mounting(config, "equation-error")
     terms = [n for n in config.free if n in OUTSIDE_EQUATIONS]
     if terms:
         raise InputError(

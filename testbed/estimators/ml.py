@@ -33,7 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from testbed.identification import bounds, concentrated, likelihood, recursions, scan
-from testbed.identification.problem import Problem, problem
+from testbed.identification.problem import Problem, check_mounting, problem
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators import nonlinear, starts, trust_region
@@ -484,6 +484,8 @@ def _evaluations(prob: Problem, tally: list[int]) -> int:
 def _fit_counted(name, optimiser, experiments, config, options, callback, tally) -> Estimate:
     """`_fit`, the simulations tallied in `tally`."""
     t0 = time.perf_counter()
+    if optimiser is newton_raphson:  # its second derivatives are the states' alone
+        check_mounting(config, name)
     prob = problem(experiments, config)
     start = options.start
     tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name not in START_OPTIONS}

@@ -245,43 +245,36 @@ def fit_initial_states(
     simulated(prob.n_samples)  # one simulation: the responses to x0 are linear in it
     p = np.concatenate([values, np.zeros(prob.n_params - prob.n_free)])
     factors = []  # per record: (k, k + 1, k + 1) upper-triangular factors of [G_c v_c], channel c
-    # the measured states: the data less their output terms (biases, the current)
-    ys = [r.y - prob.output_terms(r, values) if prob.biased else r.y for r in prob.records]
-    for r, y in zip(prob.records, ys):
+    # the measured states: the data less their output terms (biases, the current); where a
+    # mounted velocity log mixes the states, the data less the outputs at trim (affine in x)
+    mixed = [prob.mounted and bool(np.any(r.measured < 3)) for r in prob.records]
+    ys = [
+        r.y - prob.outputs(r, np.zeros((len(r.y), NX)), values)
+        if mix
+        else r.y - prob.output_terms(r, values)
+        if prob.biased
+        else r.y
+        for r, mix in zip(prob.records, mixed)
+    ]
+    for r, y, mix in zip(prob.records, ys, mixed):
         d, k = models[prob.key(r)], len(r.measured)
         T = np.zeros((k, k + 1, k + 1))
         u1 = np.column_stack([prob.inputs(r, values), np.ones(len(r.y))])  # [δ; 1]: [Γ s] u1 forces column 0
-        Phi, forcing = d.E[:, :NX], d.E[:, NX:]
-        # columns: 0 the forced response, 1 + i the response to x0's i-th measured component;
-        # each part of the model that evolves on its own (`uncoupled`) is propagated alone
-        acts = np.column_stack([forcing.any(axis=1), np.eye(NX, dtype=bool)[:, r.measured]])
+        pieces = _read_responses(prob, r, d, u1, values) if mix else _responses(d, r, u1)
         finite = True
-        for states, params, channels in uncoupled(Phi != 0, acts, r.measured):
-            params = np.union1d([0], params)  # a part the inputs do not force has a zero column 0
-            at = np.full(NX, -1)
-            at[states] = np.arange(len(states))
-            x0 = params[1:] - 1  # the x0 components of this part, indexes into r.measured
-            X = np.zeros((len(states), len(params)))
-            X[at[r.measured[x0]], 1 + np.arange(len(x0))] = 1.0
-            rows = at[r.measured[channels]]
-            cols = np.r_[x0, k]  # where [G v] of this part's channels sit in [G_c v_c]
-            for samples, Y in scan.pieces(
-                Phi[np.ix_(states, states)], forcing[states], u1, X, rows, np.ones(len(rows)), scan.PIECE
-            ):
-                block = np.zeros((len(channels), len(samples) + k + 1, k + 1))
-                block[:, : k + 1] = T[channels]
-                with np.errstate(over="ignore", invalid="ignore"):
-                    block[:, k + 1 :, cols] = np.concatenate(
-                        [Y[:, :, 1:], (y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
-                    )
-                    if r.present is not None:  # a missing sample's row: zero, no equation
-                        block[:, k + 1 :] *= r.present[np.ix_(samples, channels)].T[:, :, None]
-                if not np.all(np.isfinite(block)):
-                    finite = False
-                    break
-                T[channels] = np.linalg.qr(block, mode="r")[:, : k + 1]
-            if not finite:
+        for channels, cols, samples, Y in pieces:
+            block = np.zeros((len(channels), len(samples) + k + 1, k + 1))
+            block[:, : k + 1] = T[channels]
+            with np.errstate(over="ignore", invalid="ignore"):
+                block[:, k + 1 :, cols] = np.concatenate(
+                    [Y[:, :, 1:], (y[np.ix_(samples, channels)].T - Y[:, :, 0])[:, :, None]], axis=2
+                )
+                if r.present is not None:  # a missing sample's row: zero, no equation
+                    block[:, k + 1 :] *= r.present[np.ix_(samples, channels)].T[:, :, None]
+            if not np.all(np.isfinite(block)):
+                finite = False
                 break
+            T[channels] = np.linalg.qr(block, mode="r")[:, : k + 1]
         factors.append(T if finite else None)
 
     def solve(variance) -> list[np.ndarray]:
@@ -322,6 +315,40 @@ def fit_initial_states(
         solve(lambda r: R[r.channels])
     xs = [trajectory(models[prob.key(r)], prob.x0(r, p), prob.inputs(r, values)) for r in prob.records]
     return p, xs if full else [prob.outputs(r, x, values) for r, x in zip(prob.records, xs)]
+
+
+def _responses(d, r, u1: np.ndarray):
+    """The record's outputs' responses, a piece at a time: (channels, cols, samples, Y), Y
+    (len(channels), T, 1 + len(x0)) with column 0 the response forced by `u1` = [δ; 1] from
+    trim and 1 + i the response to the i-th x0 component of this part (`cols`: where these sit
+    in [G_c v_c]). Each part of the model that evolves on its own (`uncoupled`) is propagated
+    alone."""
+    k, Phi, forcing = len(r.measured), d.E[:, :NX], d.E[:, NX:]
+    acts = np.column_stack([forcing.any(axis=1), np.eye(NX, dtype=bool)[:, r.measured]])
+    for states, params, channels in uncoupled(Phi != 0, acts, r.measured):
+        params = np.union1d([0], params)  # a part the inputs do not force has a zero column 0
+        at = np.full(NX, -1)
+        at[states] = np.arange(len(states))
+        x0 = params[1:] - 1  # the x0 components of this part, indexes into r.measured
+        X = np.zeros((len(states), len(params)))
+        X[at[r.measured[x0]], 1 + np.arange(len(x0))] = 1.0
+        rows = at[r.measured[channels]]
+        cols = np.r_[x0, k]
+        for samples, Y in scan.pieces(
+            Phi[np.ix_(states, states)], forcing[states], u1, X, rows, np.ones(len(rows)), scan.PIECE
+        ):
+            yield channels, cols, samples, Y
+
+
+def _read_responses(prob: Problem, r, d, u1: np.ndarray, values: np.ndarray):
+    """`_responses` of a record whose `mounted` velocity log mixes the states: every state's
+    response propagated, the outputs' the linear part of their reading, `Problem.read_matrix`."""
+    k, Phi, forcing = len(r.measured), d.E[:, :NX], d.E[:, NX:]
+    X = np.zeros((NX, 1 + k))
+    X[r.measured, 1 + np.arange(k)] = 1.0
+    C = prob.read_matrix(r, values)
+    for samples, Y in scan.pieces(Phi, forcing, u1, X, np.arange(NX), np.ones(NX), scan.PIECE):
+        yield np.arange(k), np.r_[: k + 1], samples, np.einsum("cs,stq->ctq", C, Y)
 
 
 def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = None) -> np.ndarray:

@@ -22,13 +22,16 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig, check_config, check_excited, check_experiment
 from testbed.errors import InputError
+from testbed.models import log_mounting
 from testbed.models.linear import (
     CURRENT,
     OUTSIDE_EQUATIONS,
     IBIAS,
     ICURRENT,
     IDELAY,
+    IMOUNTING,
     ITHETA,
+    MOUNTING,
     IX,
     NX,
     STATES,
@@ -46,6 +49,7 @@ __all__ = [
     "base_name",
     "check_fit",
     "check_inputs",
+    "check_mounting",
     "expanded",
     "free_values",
     "one_model",
@@ -93,7 +97,7 @@ class Problem:
     """Experiments and model config, checked and converted once for the numerical core."""
 
     structure: Structure
-    theta: np.ndarray  # (54,) the config's parameters (free ones: the a-priori start)
+    theta: np.ndarray  # (NTHETA,) the config's parameters (free ones: the a-priori start)
     free: tuple[str, ...]  # a per-record value is named `name[experiment]`
     index: np.ndarray  # (n_free,) positions of `free` in PARAMETERS
     records: tuple[Record, ...]
@@ -103,7 +107,7 @@ class Problem:
     known: np.ndarray | None = None  # (len(channels),) R where [identify] noise_std gives it, else NaN
     # (n_free,) the record group owning each free value (`[identify] per_record`), −1 where shared
     owner: np.ndarray | None = None
-    # (n_groups, 54) each record group's own θ where the config gives some records their own
+    # (n_groups, NTHETA) each record group's own θ where the config gives some records their own
     # values (`ModelConfig.record_values`), else None: every record has `theta`
     thetas: np.ndarray | None = None
 
@@ -144,7 +148,7 @@ class Problem:
         return np.where(self.owner < 0, self.theta[self.index], self.thetas[self.owner, self.index])
 
     def coefficients(self, values: np.ndarray, group: int | None = None) -> np.ndarray:
-        """The full (54,) parameter vector θ with the free ones set to `values`: the shared ones,
+        """The full (NTHETA,) parameter vector θ with the free ones set to `values`: the shared ones,
         and the per-record ones of record group `group` (None: the shared ones only)."""
         own = self.theta if group is None or self.thetas is None else self.thetas[group]
         theta = own.astype(np.result_type(own, values))
@@ -167,18 +171,43 @@ class Problem:
     def output_terms(self, record: Record, values: np.ndarray) -> np.ndarray:
         """What the outputs add to the measured states at the free `values`, (N, k) or (1, k):
         each output's bias, and the current in the velocities over the ground,
-        u + c_N cos ψ + c_E sin ψ and v − c_N sin ψ + c_E cos ψ (ψ the record's measured heading)."""
+        u + c_N cos ψ + c_E sin ψ and v − c_N sin ψ + c_E cos ψ (ψ the record's measured heading),
+        where the velocity log is not `mounted` (a mounted one reads the current in its own axes:
+        `outputs`)."""
         theta = self.coefficients(values, record.group)
-        c_n, c_e = theta[ICURRENT]
         bias = theta[IBIAS[record.measured]]
-        if not (np.any(theta[ICURRENT]) or np.isin(self.index, ICURRENT).any()):
+        if self.mounted or not (np.any(theta[ICURRENT]) or np.isin(self.index, ICURRENT).any()):
             return bias[None, :]
+        current = self.current(record, theta)
+        out = np.zeros((len(current), len(bias)), dtype=current.dtype) + bias
+        for k in range(2):
+            out[:, record.measured == k] += current[:, k : k + 1]
+        return out
+
+    def current(self, record: Record, theta: np.ndarray) -> np.ndarray:
+        """The current (c_N, c_E of the full parameter vector `theta`) in body axes along the
+        record's measured heading ψ, (N, 3): (c_N cos ψ + c_E sin ψ, c_E cos ψ − c_N sin ψ, 0)."""
+        c_n, c_e = theta[ICURRENT]
         psi = np.zeros(len(record.y)) if record.heading is None else record.heading
         cos, sin = np.cos(psi), np.sin(psi)
-        out = np.zeros((len(psi), len(bias)), dtype=theta.dtype) + bias
-        out[:, record.measured == IX["u"]] += (c_n * cos + c_e * sin)[:, None]
-        out[:, record.measured == IX["v"]] += (c_e * cos - c_n * sin)[:, None]
-        return out
+        zero = np.zeros(len(psi), dtype=np.result_type(theta, psi))
+        return np.column_stack([c_n * cos + c_e * sin, c_e * cos - c_n * sin, zero])
+
+    @functools.cached_property
+    def mounted(self) -> bool:
+        """Whether the velocity log's mounting (`MOUNTING`) is free or nonzero: its u, v, w
+        outputs then mix the velocities and rates (`testbed.models.log_mounting`)."""
+        thetas = self.theta[None] if self.thetas is None else self.thetas
+        return bool(np.any(thetas[:, IMOUNTING]) or np.isin(self.index, IMOUNTING).any())
+
+    def readings(self, record: Record, x: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """What a `mounted` velocity log reads from the states `x` (N, 10) at the free `values`,
+        (N, 3), u as its perturbation from the trim speed (`log_mounting.reading`, the current
+        in it)."""
+        theta = self.coefficients(values, record.group)
+        trim = np.array([self.speed, 0.0, 0.0])
+        read = log_mounting.reading(theta[IMOUNTING], x[:, :3] + trim, x[:, 3:6], self.current(record, theta))
+        return read - trim
 
     @functools.cached_property
     def delayed(self) -> bool:
@@ -205,9 +234,21 @@ class Problem:
     def _shifted(self, record: Record, values: np.ndarray):
         return shifted(record.inputs, self.coefficients(values, record.group)[IDELAY] / record.dt)
 
+    def read_matrix(self, record: Record, values: np.ndarray) -> np.ndarray:
+        """∂y/∂x (k, 10): the outputs' derivative w.r.t. the state, the state's own but for the
+        u, v, w of a `mounted` velocity log, `log_mounting.matrix` on (u, v, w, p, q, r)."""
+        theta = self.coefficients(values, record.group)
+        C = np.eye(NX, dtype=theta.dtype)
+        if self.mounted:
+            C[:3, :6] = log_mounting.matrix(theta[IMOUNTING])
+        return C[record.measured]
+
     def outputs(self, record: Record, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         """The record's model outputs (N, k) from its states `x` (N, 10) at the free `values`:
-        the measured states plus their output terms (`output_terms`)."""
+        the measured states, u, v, w as a `mounted` velocity log reads them (`readings`), plus
+        their output terms (`output_terms`)."""
+        if self.mounted and np.any(record.measured < 3):
+            x = np.concatenate([self.readings(record, x, values), x[:, 3:]], axis=1)
         y = x[:, record.measured]
         return y + self.output_terms(record, values) if self.biased else y
 
@@ -371,6 +412,19 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
     )
 
 
+def check_mounting(config: ModelConfig, method: str) -> None:
+    """`InputError` where the config's velocity log is mounted (a `MOUNTING` value free or not
+    0) for `method`, which reads the velocities at the CG in the body's axes."""
+    values = [config.coefficients, *config.record_values.values()]
+    named = [n for n in MOUNTING if n in config.free or any(v.get(n, 0.0) for v in values)]
+    if named:
+        raise InputError(
+            f"{config.source or 'config'}: {named[0]} is free or not 0; {method} reads the velocities at "
+            "the CG in the body's axes: expected the velocity log's mounting 0 and fixed (with rate "
+            "gyros, a known one as [sensors.NAME] position and misalignment), or ml-gn, ml-lm or ml-nm"
+        )
+
+
 def one_model(
     experiments: Sequence[Experiment], config: ModelConfig, method: str, terms: bool = False
 ) -> tuple[list[Experiment], ModelConfig]:
@@ -387,6 +441,7 @@ def one_model(
             "one model over every record: expected no per_record, or an output-error method "
             "(ml-gn, ml-lm, ml-nr, ml-nm) or equation-error"
         )
+    check_mounting(config, method)
     free = [n for n in config.free if n in OUTSIDE_EQUATIONS]
     if free and not terms:
         raise InputError(

@@ -21,10 +21,12 @@ import numpy as np
 
 from testbed.identification import scan
 from testbed.identification.problem import Problem, Record
+from testbed.models import log_mounting
 from testbed.models.linear import (
     IBIAS,
     ICURRENT,
     IDELAY,
+    IMOUNTING,
     IX,
     NU,
     NX,
@@ -180,9 +182,13 @@ def sensitivity_parts(
     free values (the inputs' delay among them).
 
     ∂x[k+1]/∂θ_i = Φ ∂x[k]/∂θ_i + ∂E/∂θ_i w[k] (∂x[0]/∂θ = 0); ∂x[k]/∂x0 = Φᵏ; ∂y_c/∂b_c = 1;
-    for the input delay τ the forcing is Γ ∂δ[k]/∂τ.
+    for the input delay τ the forcing is Γ ∂δ[k]/∂τ. A `mounted` velocity log's outputs mix the
+    states: `_read_parts`.
     """
     nf, rows = prob.n_free, np.asarray(rows)
+    if biases and prob.mounted and np.any(rows < 3):
+        yield from _read_parts(prob, record, d, x, rows, scale, size, present, values)
+        return
     dtype = np.result_type(x, d.E)  # complex under the complex-step tests
     w, Phi = _w(x, prob.inputs(record, values)), d.E[:, :NX]
     dE = d.dE if nf else np.zeros((0, NX, NW), dtype=dtype)
@@ -217,6 +223,38 @@ def sensitivity_parts(
         if direct:
             pieces = _direct(pieces, direct, scale[channels])
         yield channels, params, pieces if present is None else _masked(pieces, present[:, channels])
+
+
+def _read_parts(prob, record, d, x, rows, scale, size, present, values) -> Iterator:
+    """`sensitivity_parts` of a record whose velocity log is `mounted`, as one part: the
+    states' sensitivities (every state, `_sensitivities`) read through the log,
+    ∂y/∂p = C ∂(v; ω)/∂p for u, v, w (`log_mounting.matrix`), the others the states'; and the
+    output terms' own, ∂y/∂(mounting) (`log_mounting.derivatives`), ∂y/∂c = Mᵀ ∂c_b/∂c, ∂y_c/∂b_c = 1."""
+    N = len(x)
+    S = _sensitivities(prob, record, d, x, np.arange(NX), np.ones(NX), values, biases=False)
+    theta = prob.coefficients(values, record.group)
+    mounting = theta[IMOUNTING]
+    S[:, :3] = np.einsum("cs,nsq->ncq", log_mounting.matrix(mounting), S[:, :6])
+    acting = prob.acting(record.group)
+    speed = np.array([prob.speed, 0.0, 0.0])
+    for i, k in enumerate(prob.index):
+        if not acting[i]:
+            continue
+        if k in IBIAS:
+            S[:, k - IBIAS[0], i] = 1.0
+        elif k in IMOUNTING:
+            at = int(np.flatnonzero(IMOUNTING == k)[0])
+            current = prob.current(record, theta)
+            S[:, :3, i] = log_mounting.derivatives(mounting, x[:, :3] + speed, x[:, 3:6], current)[at]
+        elif k in ICURRENT:
+            unit = np.zeros_like(theta)
+            unit[k] = 1.0
+            S[:, :3, i] = prob.current(record, unit) @ log_mounting.turned(mounting)
+    S = S[:, rows] * np.asarray(scale)[None, :, None]
+    if present is not None:
+        S = S * present[:, :, None]
+    pieces = ((np.arange(a, min(a + size, N)), S[a : a + size].transpose(1, 0, 2)) for a in range(0, N, size))
+    yield np.arange(len(rows)), np.arange(S.shape[2]), pieces
 
 
 def _output_terms(prob: Problem, record: Record) -> dict[int, dict[int, np.ndarray]]:

@@ -1,7 +1,7 @@
 """The paper's linear model (docs/model.md): `Mt ẋ = At x + Bt δ + St`.
 
 Every matrix is affine in the 35 coefficients and the 6 constant offsets (`PARAMETERS`, which
-also holds the outputs' 10 biases, the current and the inputs' delay), so the model is held as a constant part plus one derivative
+also holds the outputs' 10 biases, the current, the velocity log's mounting and the inputs' delay), so the model is held as a constant part plus one derivative
 matrix per parameter (`Structure`); `tilde` evaluates it, `continuous` gives
 `A = Mt⁻¹At, B = Mt⁻¹Bt, S = Mt⁻¹St`, and `discretize` gives the exact zero-order-hold model
 through the block-matrix exponential (valid for singular A: ψ and z are pure integrators);
@@ -25,10 +25,12 @@ __all__ = [
     "IBIAS",
     "ICURRENT",
     "IDELAY",
+    "IMOUNTING",
     "ITHETA",
     "IX",
     "MAX_SPEED",
     "MIN_SPEED",
+    "MOUNTING",
     "NTHETA",
     "NU",
     "NX",
@@ -101,7 +103,11 @@ BIASES = tuple(f"b_{s}" for s in STATES)
 # A steady current (m/s, north and east): the water's velocity over the ground. The states are
 # the motion through the water; a velocity log tracking the bottom reads the motion over it.
 CURRENT = ("c_N", "c_E")
-OUTPUT_TERMS = BIASES + CURRENT  # the parameters that act on the outputs alone
+# A velocity log's mounting: its axes turned from the body's about y and z (rad) and its position
+# from the CG (m, body axes). It reads the velocity of its point in its axes, mixing the
+# velocities and the rates (`testbed.models.log_mounting`); 0: at the CG, aligned.
+MOUNTING = ("m_dvl_y", "m_dvl_z", "r_dvl_x", "r_dvl_y", "r_dvl_z")
+OUTPUT_TERMS = BIASES + CURRENT + MOUNTING  # the parameters that act on the outputs alone
 # The recorded fin angles' lag behind the fins (s): the fins' angle at t is the one recorded at
 # t + input_delay (an encoder or a logger late by that much).
 DELAY = "input_delay"
@@ -117,6 +123,7 @@ ITHETA = {name: i for i, name in enumerate(PARAMETERS)}
 IBIAS = np.array([ITHETA[b] for b in BIASES])  # θ[IBIAS]: the output biases in state order
 ICURRENT = np.array([ITHETA[c] for c in CURRENT])  # θ[ICURRENT]: the current (north, east)
 IDELAY = ITHETA[DELAY]
+IMOUNTING = np.array([ITHETA[m] for m in MOUNTING])  # θ[IMOUNTING]: the velocity log's mounting
 
 # Where each coefficient sits: (matrix, row, column, factor); Mt entries carry a minus sign.
 _PLACES = {
@@ -200,10 +207,10 @@ class Structure:
     At0: np.ndarray
     Bt0: np.ndarray
     St0: np.ndarray
-    dMt: np.ndarray = field(repr=False)  # (54, 10, 10)
-    dAt: np.ndarray = field(repr=False)  # (54, 10, 10)
-    dBt: np.ndarray = field(repr=False)  # (54, 10, 3)
-    dSt: np.ndarray = field(repr=False)  # (54, 10): the offsets; the restoring terms are known
+    dMt: np.ndarray = field(repr=False)  # (NTHETA, 10, 10)
+    dAt: np.ndarray = field(repr=False)  # (NTHETA, 10, 10)
+    dBt: np.ndarray = field(repr=False)  # (NTHETA, 10, 3)
+    dSt: np.ndarray = field(repr=False)  # (NTHETA, 10): the offsets; the restoring terms are known
 
 
 def structure(vehicle: Vehicle) -> Structure:
@@ -262,7 +269,7 @@ def theta_vector(coefficients: Mapping[str, float]) -> np.ndarray:
 
 
 def tilde(s: Structure, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`Mt, At, Bt, St` at the full parameter vector `theta` (54,)."""
+    """`Mt, At, Bt, St` at the full parameter vector `theta` (NTHETA,)."""
     return (
         s.Mt0 + (theta @ s.dMt.reshape(len(s.dMt), -1)).reshape(s.Mt0.shape),
         s.At0 + (theta @ s.dAt.reshape(len(s.dAt), -1)).reshape(s.At0.shape),
@@ -419,7 +426,8 @@ def inertia_defect(s: Structure, theta: np.ndarray) -> str | None:
 
 def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ...]:
     """The coefficients among `free` on which no `measured` state depends, whatever the free
-    values (and the output biases of states not measured, the current without u or v): they
+    values (and the output biases of states not measured, the current without u or v, the
+    velocity log's mounting without u, v or w): they
     cannot be identified from these measurements at all.
 
     A coefficient enters some rows of `Mt ẋ = At x + Bt δ`; Mt⁻¹ spreads a row to the rows
@@ -430,8 +438,15 @@ def unobserved(s: Structure, theta: np.ndarray, free, measured) -> tuple[str, ..
     reach = _reach(s, theta, free)
     seen = np.zeros(NX, dtype=bool)
     seen[[IX[n] for n in measured]] = True
+    velocities = {"u", "v", "w"} & set(measured)
+    if velocities and (np.any(theta[IMOUNTING]) or set(MOUNTING) & set(free)):
+        seen[[IX[n] for n in ("p", "q", "r")]] = True  # a log away from the CG reads ω × r
     out = []
     for n, i in zip(free, idx):
+        if n in MOUNTING:  # the velocity log's mounting: seen in its velocities
+            if not velocities:
+                out.append(n)
+            continue
         if n in BIASES:  # a bias is seen in its own output alone
             if n[2:] not in measured:
                 out.append(n)

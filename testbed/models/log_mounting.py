@@ -1,0 +1,64 @@
+"""A velocity log's mounting in the linear model's outputs: a DVL (or an antenna whose velocity is
+given in body axes) away from the CG, its axes turned from the body's.
+
+It reads the velocity over the ground of its point, in its own axes (`models.sensors`' map of a
+body-frame velocity sensor):
+
+    y = Mᵀ (v + ω × r + c_b) − U e_x,   M = Rz(m_dvl_z) Ry(m_dvl_y),   r = (r_dvl_x, r_dvl_y, r_dvl_z)
+
+v the velocity through the water at the CG (absolute u), ω the body rates, c_b the current in
+body axes, the u reading reported as its perturbation from the trim speed U (as the linear
+model's u). The turn about x is left out: it mixes v and w, both small at trim, and a log's roll
+misalignment shows only where its sideslip or heave does. For a given mounting the reading is
+linear in the state, `y = C (v; ω) + Mᵀ (U e_x + c_b) − U e_x` with `C = Mᵀ [I  −[r]×]`, so the
+output-error fit simulates the states as before and reads them through C; its mounting
+parameters are fitted like the outputs' biases, with exact derivatives (`derivatives`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from testbed.models.linear import MOUNTING
+from testbed.models.sensors import rotation
+
+__all__ = ["MOUNTING", "derivatives", "matrix", "reading", "turned"]
+
+_EY = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])  # [e_y]×
+_EZ = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])  # [e_z]×
+
+
+def _skew(r: np.ndarray) -> np.ndarray:
+    """[r]×, the matrix of r × ·."""
+    return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]], dtype=r.dtype)
+
+
+def turned(mounting: np.ndarray) -> np.ndarray:
+    """M = Rz(m_dvl_z) Ry(m_dvl_y) (3, 3): the log's axes in the body's, `mounting` as `MOUNTING`."""
+    return rotation(0.0, mounting[0], mounting[1])
+
+
+def matrix(mounting: np.ndarray) -> np.ndarray:
+    """C = Mᵀ [I  −[r]×] (3, 6): the reading's derivative w.r.t. (u, v, w, p, q, r)."""
+    Mt = turned(mounting).T
+    return np.hstack([Mt, -Mt @ _skew(np.asarray(mounting[2:]))])
+
+
+def reading(mounting: np.ndarray, velocity: np.ndarray, rates: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """Mᵀ (v + ω × r + c_b) (N, 3) for the absolute body velocities `velocity`, the `rates` and the
+    current in body axes `current` (each (N, 3))."""
+    q = velocity + np.cross(rates, np.asarray(mounting[2:])) + current
+    return q @ turned(mounting)  # row k: (Mᵀ q_k)ᵀ = q_kᵀ M
+
+
+def derivatives(
+    mounting: np.ndarray, velocity: np.ndarray, rates: np.ndarray, current: np.ndarray
+) -> np.ndarray:
+    """∂y/∂(m_dvl_y, m_dvl_z, r_dvl_x, r_dvl_y, r_dvl_z) (5, N, 3) of `reading`:
+    ∂M/∂m_y = M [e_y]×, ∂M/∂m_z = [e_z]× M, and ∂(ω × r)/∂r_i = ω × e_i."""
+    M = turned(mounting)
+    q = velocity + np.cross(rates, np.asarray(mounting[2:])) + current
+    out = [q @ (M @ _EY), q @ (_EZ @ M)]
+    for e in np.eye(3):
+        out.append(np.cross(rates, e) @ M)
+    return np.stack(out)
