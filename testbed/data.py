@@ -248,6 +248,10 @@ class ModelConfig:
         """The output biases `b_<state>` of `states`, in their order: y = x + b."""
         return np.array([self.coefficients[f"b_{s}"] for s in states], float)
 
+    def mounting(self) -> np.ndarray:
+        """The velocity log's mounting (5,), `MOUNTING` order: 0 at the CG, aligned."""
+        return np.array([self.coefficients[n] for n in MOUNTING], float)
+
     def with_noise_std(self, values: Mapping[str, float] | None, where: str = "noise_std") -> "ModelConfig":
         """The config with `values` (state → σ, checked as `where`) replacing its `noise_std`
         entry by entry; the states `values` leaves out keep the config's σ."""
@@ -1030,22 +1034,22 @@ def _check_terms(config: ModelConfig, source: str) -> None:
         raise InputError(f"{source}: [terms] {exc}") from None
     for key, v in config.terms.items():
         number(v, f"{source}: [terms] {json.dumps(key)}")
-    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA + BIASES]
+    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA + BIASES + MOUNTING]
     if extra:
         raise InputError(
             f"{source}: [coefficients] {extra[0]} in a nonlinear model config (one with [terms]); "
-            f"expected only the inertia coefficients ({', '.join(INERTIA)}) and the output biases "
-            "(b_ and a state), the rest in [terms]"
+            f"expected only the inertia coefficients ({', '.join(INERTIA)}), the output biases "
+            "(b_ and a state) and the velocity log's mounting, the rest in [terms]"
         )
     seen = set()
     for n in config.free:
-        if n not in model.names + BIASES or n in seen:
+        if n not in model.names + BIASES + MOUNTING or n in seen:
             raise InputError(
                 f"{source}: [identify] free names {n[:40]!r}"
                 + (
                     " twice"
                     if n in seen
-                    else ", not an inertia coefficient, an output bias or one of [terms]"
+                    else ", not an inertia coefficient, an output bias, the velocity log's mounting or one of [terms]"
                 )
                 + "; expected each of the model's names once"
             )
@@ -1097,7 +1101,7 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in INERTIA]
         lines += [
             line(k, config.coefficients[k])
-            for k in BIASES
+            for k in BIASES + MOUNTING
             if config.coefficients[k] != 0.0 or k in config.free
         ]
         lines += ["", "[terms]"] + [

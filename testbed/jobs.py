@@ -42,7 +42,7 @@ from testbed.estimators import Estimate, Progress, Status, check_method, identif
 from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_identifiability
 from testbed.analysis.validation import Validation, validate
 from testbed.identification.problem import base_name, check_inputs
-from testbed.models.linear import BIASES
+from testbed.models.linear import BIASES, MOUNTING
 
 __all__ = [
     "Identified",
@@ -371,7 +371,7 @@ def validate_data(
                 f"{estimates}: fitted the nonlinear model over {model['config']}'s terms; {cfg.source} has "
                 "other terms; expected the config the estimates were fitted with"
             )
-        coefficients = read_estimates(estimates, cfg.nonlinear()[0].names + BIASES)[0]
+        coefficients = read_estimates(estimates, cfg.nonlinear()[0].names + BIASES + MOUNTING)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
     manoeuvres = {}
     if runs:

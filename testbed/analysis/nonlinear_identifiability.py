@@ -42,7 +42,7 @@ from testbed.analysis.identifiability import SIGNIFICANT, Identifiability, Scree
 from testbed.data import Experiment, ModelConfig
 from testbed.estimators import Estimate
 from testbed.identification.bounds import NULL, crlb, eliminated
-from testbed.identification.nonlinear_output_error import information, pooled_noise, setup
+from testbed.identification.nonlinear_output_error import information, outputs, pooled_noise, setup
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import substeps_for
@@ -93,8 +93,8 @@ def nonlinear_identifiability(
     flown = flights(experiments, config, initial, substeps=substeps)
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
-    bias = theta[len(model.names) :]  # the channels' output biases: y = x + b
-    R = pooled_noise([r.y - x[:, ch] - bias for r, x in zip(recs, flown)], held)
+    m = len(model.names)  # the outputs: the states as read plus their biases
+    R = pooled_noise([r.y - outputs(x, theta, m, ch) for r, x in zip(recs, flown)], held)
     H = information(model, theta, np.array([x[0] for x in flown]), recs, channels, free, R, substeps)[0]
     F = eliminated(H, len(free))
     blind = tuple(n for k, n in enumerate(free) if H[k, k] == 0.0)

@@ -195,7 +195,7 @@ from testbed.estimators.base import (
 )
 from testbed.identification.nonlinear_output_error import setup
 from testbed.identification.nonlinear_transition import NonlinearTransition
-from testbed.identification.problem import one_model
+from testbed.identification.problem import check_mounting, one_model
 from testbed.identification.recursions import simulated
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
 from testbed.models.linear import (
@@ -890,6 +890,7 @@ def _nonlinear(experiments: Sequence[Experiment], config: ModelConfig, method: s
             raise OptionError(
                 method, name, value, "its default: the filter on a nonlinear model config has no such option"
             )
+    check_mounting(config, f"{method} on a nonlinear model config")
     model, theta, idx = setup(experiments, config, f"{method} on a nonlinear model config")[2:]
     m = len(model.names)
     biased = [n for n, i in zip(config.free, idx) if i >= m]

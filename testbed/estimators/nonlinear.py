@@ -68,6 +68,7 @@ from testbed.identification.nonlinear_output_error import (
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.nonlinear_prediction import initial_state
 from testbed.identification.recursions import counting, simulated
+from testbed.models import log_mounting
 from testbed.models.linear import STATES
 
 __all__ = ["STARTS", "gauss_newton", "simplex"]
@@ -108,13 +109,14 @@ def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields
 
 
 def _start(start: str, model, theta, recs, channels, free, held) -> tuple[str, np.ndarray]:
-    """The start `start` names as (name, θ ⊕ b), for `auto` the better-flying one (module doc):
+    """The start `start` names as (name, θ ⊕ b ⊕ g), for `auto` the better-flying one (module doc):
     the equation-error start fits θ's free coefficients to the records less their biases b, which
     it holds; `InputError` where the equation-error start is named and the records cannot give it."""
     if start == "config":
         return "config", theta
     m, own = len(model.names), [n for n in free if n in model.names]
-    unbiased = [replace(r, y=r.y - theta[m:]) for r in recs]
+    # the records less their biases; a mounted log's velocities taken as the CG's (a start)
+    unbiased = [replace(r, y=r.y - theta[m : m + len(channels)]) for r in recs]
     try:
         regressed = np.concatenate([equation_error(model, theta[:m], unbiased, channels, own), theta[m:]])
     except InputError:
@@ -217,10 +219,14 @@ def simplex(
         sensitivities to the measured initial states there (N, k, k)."""
         fitted, sens, m = [], [], len(model.names)
         for r, x in zip(recs, x0):
-            # the flight fitted to the record less its output biases b (θ ⊕ b = th)
-            x, states = initial_state(model, th[:m], r.t, r.fins, r.y - th[m:], ch, range(len(ch)), x, R)
+            # the flight fitted to the record less its output biases b, read by the log (θ ⊕ b ⊕ g = th)
+            b, g = th[m : m + len(ch)], th[m + len(ch) :]
+            x, states = initial_state(
+                model, th[:m], r.t, r.fins, r.y - b, ch, range(len(ch)), x, R, None, None, g
+            )
             fitted.append(x)
-            sens.append(flight(model, th[:m], r.t, x, r.fins, (), None, states).dx_dx0[:, ch][:, :, ch])
+            dx0 = flight(model, th[:m], r.t, x, r.fins, (), None, states).dx_dx0
+            sens.append(np.einsum("cs,nsk->nck", log_mounting.read_matrix(g, ch), dx0)[:, :, ch])
             simulated(len(r.t) * (1 + len(ch)))
         return np.array(fitted), sens
 

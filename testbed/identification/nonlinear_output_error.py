@@ -3,9 +3,10 @@ initial state fitted to measured states by a damped Gauss-Newton (Levenberg-Marq
 
 The outputs are the measured states of the simulated trajectory (`nonlinear_sensitivities.flight`)
 plus their output biases, `y = x + b + v` (an attitude sensor's mounting offset; `b` acts on its
-own channel alone, `∂y/∂b = 1` there and 0 elsewhere, and not on the flight). The fit's
-parameters are θ ⊕ b (`parameter_names`: θ's names, then `b_<state>` of each measured channel),
-a bias free like any coefficient; the noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
+own channel alone, `∂y/∂b = 1` there and 0 elsewhere, and not on the flight), the velocities as
+a log mounted as g reads them (`log_mounting`: away from the CG, turned; 0 at the CG). The
+fit's parameters are θ ⊕ b ⊕ g (`parameter_names`: θ's names, then `b_<state>` of each
+measured channel, then the mounting), a bias or the mounting free like any coefficient; the noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
 records. A missing sample (NaN: a sensor slower than the fins are logged, a dropout) is left
 out of every sum, its residual NaN and its rows of J zero; the flight goes through it with the
 fins of every row, so fins logged faster than the states move the model as they moved the body.
@@ -41,7 +42,8 @@ from testbed.errors import InputError
 from testbed.identification.bounds import colored_term, crlb
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.recursions import simulated
-from testbed.models.linear import NU, NX, STATES
+from testbed.models import log_mounting
+from testbed.models.linear import MOUNTING, NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
@@ -55,6 +57,7 @@ __all__ = [
     "fit_output_error",
     "information",
     "neg_log_likelihood",
+    "outputs",
     "parameter_names",
     "pooled_noise",
     "present_only",
@@ -84,7 +87,7 @@ class Record:
 class NonlinearFit:
     """The result of `fit_output_error`."""
 
-    theta: np.ndarray  # all of θ ⊕ b in `parameter_names` order, the free ones fitted
+    theta: np.ndarray  # all of θ ⊕ b ⊕ g in `parameter_names` order, the free ones fitted
     estimates: dict[str, float]  # the free coefficients
     std: dict[str, float]  # their Cramér-Rao σ
     initial_states: np.ndarray  # (records, 10)
@@ -112,17 +115,25 @@ def records(
 
 
 def parameter_names(model: NonlinearModel, channels: Sequence[str]) -> tuple[str, ...]:
-    """The names of the fit's parameters θ ⊕ b: θ's (`model.names`), then the output bias
-    `b_<state>` of each measured channel in `channels`."""
-    return model.names + tuple(f"b_{c}" for c in channels)
+    """The names of the fit's parameters θ ⊕ b ⊕ g: θ's (`model.names`), the output bias
+    `b_<state>` of each measured channel in `channels`, then the velocity log's mounting g
+    (`MOUNTING`)."""
+    return model.names + tuple(f"b_{c}" for c in channels) + MOUNTING
+
+
+def outputs(states: np.ndarray, theta: np.ndarray, m: int, ch) -> np.ndarray:
+    """The outputs (N, C) of the flown `states` (N, 10) in the state columns `ch` at θ ⊕ b ⊕ g
+    (`theta`, θ's length `m`): the states as read (u, v, w by the log mounted as g,
+    `log_mounting.read`) plus their biases."""
+    return log_mounting.read(theta[m + len(ch) :], states, ch) + theta[m : m + len(ch)]
 
 
 def setup(
     experiments: Sequence[Experiment], config: ModelConfig, fit: str
 ) -> tuple[tuple[str, ...], list[Record], NonlinearModel, np.ndarray, list[int]]:
-    """`(channels, records, model, θ ⊕ b, free indices)` of a nonlinear model config's `free`
+    """`(channels, records, model, θ ⊕ b ⊕ g, free indices)` of a nonlinear model config's `free`
     (indices into `parameter_names`) on the experiments (`records`), b the config's output biases
-    of the channels; `InputError` naming the `fit` for what it cannot take: nothing free, values
+    of the channels, g its velocity log's mounting; `InputError` naming the `fit` for what it cannot take: nothing free, values
     per record, a free output bias of a state no record measures, or records that do not move
     (`data.check_excited`)."""
     source = config.source or "config"
@@ -143,7 +154,13 @@ def setup(
             f"{source}: [identify] free names {unmeasured[0]}, the output bias of a state the records do not "
             f"measure (they measure {', '.join(channels)}); expected the biases of measured states"
         )
-    theta = np.concatenate([theta, config.output_biases(channels)])
+    blind = [n for n in config.free if n in MOUNTING] if not {"u", "v", "w"} & set(channels) else []
+    if blind:
+        raise InputError(
+            f"{source}: [identify] free names {blind[0]}, the velocity log's mounting, but the records "
+            f"measure no velocity (they measure {', '.join(channels)}); expected u, v or w measured"
+        )
+    theta = np.concatenate([theta, config.output_biases(channels), config.mounting()])
     return channels, recs, model, theta, [names.index(n) for n in config.free]
 
 
@@ -179,11 +196,11 @@ def _check(model, records, channels, free, noise_std, tolerance, max_iterations)
 
 
 def _simulate(model, theta, x0, records, ch, substeps):
-    """Each record's flown states (N, 10) and residuals `e = y − (x + b)` (N, C), NaN where the
-    sample is missing, at θ ⊕ b (`theta`; b left out: 0); (None, None) where a flight does not
-    stay finite. Tallied as simulated samples (`recursions.counting`)."""
+    """Each record's flown states (N, 10) and residuals `e = y − ŷ` (N, C) (`outputs`), NaN
+    where the sample is missing, at θ ⊕ b ⊕ g (`theta`; what it leaves out: 0); (None, None)
+    where a flight does not stay finite. Tallied as simulated samples (`recursions.counting`)."""
     m = len(model.names)
-    bias = theta[m:] if len(theta) > m else np.zeros(len(ch))
+    theta = _padded(theta, m, ch)
     flown, res = [], []
     with np.errstate(all="ignore"):
         for r, x in zip(records, x0):
@@ -192,15 +209,22 @@ def _simulate(model, theta, x0, records, ch, substeps):
             if not np.all(np.isfinite(states[:, ch])):
                 return None, None
             flown.append(states)
-            res.append(r.y - states[:, ch] - bias)
+            res.append(r.y - outputs(states, theta, m, ch))
     return flown, res
+
+
+def _padded(theta, m: int, ch) -> np.ndarray:
+    """θ ⊕ b ⊕ g from θ, θ ⊕ b or θ ⊕ b ⊕ g (what is left out: 0)."""
+    theta = np.asarray(theta)
+    full = m + len(ch) + len(MOUNTING)
+    return theta if len(theta) == full else np.concatenate([theta, np.zeros(full - len(theta))])
 
 
 def residuals(
     model: NonlinearModel, theta, x0: np.ndarray, records: Sequence[Record], ch, substeps: int | None = None
 ):
     """Each record's residuals (N, C) in the state columns `ch` (NaN where the sample is
-    missing) at θ ⊕ b (`theta`; b left out: 0), flown from its row of `x0` (records, 10); None
+    missing) at θ ⊕ b ⊕ g (`theta`; what it leaves out: 0), flown from its row of `x0` (records, 10); None
     where a flight does not stay finite. Tallied as `_simulate`'s."""
     return _simulate(model, theta, x0, records, ch, substeps)[1]
 
@@ -243,21 +267,30 @@ def neg_log_likelihood(res: Sequence[np.ndarray], R: np.ndarray) -> float:
 
 
 def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
-    """Each record's output sensitivities to (θ ⊕ b)[free] (N, C, p) and to the measured
+    """Each record's output sensitivities to (θ ⊕ b ⊕ g)[free] (N, C, p) and to the measured
     channels' initial states (N, C, C), along its flown states; tallied
     (`recursions.counting`) as 1 + the free coefficients of θ columns a sample (the pass
     evaluates the model at every RK4 stage again)."""
     m, free = len(model.names), np.asarray(free, dtype=np.int64).reshape(-1)
-    own = free < m
+    theta, ch = _padded(theta, m, ch), np.asarray(ch)
+    own, bias, mounting = free < m, (free >= m) & (free < m + len(ch)), free >= m + len(ch)
+    g = theta[m + len(ch) :]
+    C = log_mounting.read_matrix(g, ch)  # ∂y/∂x: the states' own but where the log mixes them
     out = []
     for r, x, states in zip(records, x0, flown):
         f = flight(model, theta[:m], r.t, x, r.fins, free[own], substeps, states)
         simulated(len(r.t) * (1 + int(own.sum())))
         St = np.zeros((len(r.t), len(ch), len(free)))
-        St[:, :, own] = f.dx_dtheta[:, ch]
+        St[:, :, own] = np.einsum("cs,nsq->ncq", C, f.dx_dtheta) if np.any(g) else f.dx_dtheta[:, ch]
         # ∂(x + b)/∂b = 1 on the bias's own channel, 0 on the others
-        St[:, free[~own] - m, np.flatnonzero(~own)] = 1.0
-        out.append((St, f.dx_dx0[:, ch][:, :, ch]))
+        St[:, free[bias] - m, np.flatnonzero(bias)] = 1.0
+        if mounting.any():  # the log's reading moves with its mounting, on u, v, w
+            dg = log_mounting.derivatives(g, states[:, :3], states[:, 3:6], np.zeros((len(states), 3)))
+            velocity = ch < 3
+            for j in np.flatnonzero(mounting):
+                St[:, velocity, j] = dg[free[j] - m - len(ch)][:, ch[velocity]]
+        Sx = np.einsum("cs,nsk->nck", C, f.dx_dx0) if np.any(g) else f.dx_dx0[:, ch]
+        out.append((St, Sx[:, :, ch]))
     return out
 
 
@@ -276,8 +309,8 @@ def fit_output_error(
     continuation: bool = False,
     callback: Callable[[np.ndarray, float], None] | None = None,
 ) -> NonlinearFit:
-    """Fit the `free` parameters of θ ⊕ b (names from `parameter_names`), started from `theta`
-    (θ, or θ ⊕ b: the channels' biases, 0 where left out), and each
+    """Fit the `free` parameters of θ ⊕ b ⊕ g (names from `parameter_names`), started from
+    `theta` (θ, θ ⊕ b or θ ⊕ b ⊕ g: the channels' biases and the mounting, 0 where left out), and each
     record's initial state (`free_initial`) to the `records`' measured `channels`, each record
     flown by RK4 with `substeps` steps per sample interval (module doc). `callback(values, cost)`
     after every step taken, any stage's: the free coefficients and the negative log-likelihood."""
@@ -296,9 +329,7 @@ def fit_output_error(
         callback=callback,
     )
     n = min(len(r.t) for r in records)
-    theta, stage = np.array(theta, float), None
-    if len(theta) == len(model.names):
-        theta = np.concatenate([theta, np.zeros(len(ch))])
+    theta, stage = np.array(_padded(np.asarray(theta, float), len(model.names), ch), float), None
     if continuation and n >= 2 * FIRST:
         stage = fit_output_error(model, theta, _halves(records), channels, free, continuation=True, **options)
         theta, x0 = stage.theta, stage.initial_states
@@ -396,7 +427,7 @@ def information(
     R: np.ndarray,
     substeps: int | None = None,
 ) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [the `free` parameters of θ ⊕ b
+    """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [the `free` parameters of θ ⊕ b ⊕ g
     (`theta`, `parameter_names`) | each record's measured initial states] with the noise variances `R` per channel, each record flown
     from its row of `x0` (records, 10), and the residuals along the flights."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
@@ -455,7 +486,7 @@ def coloured_bounds(
     substeps: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """`(σ, σ_coloured, residuals)` at θ and the initial states `x0` (records, 10) with the noise
-    variances `R`: the Cramér-Rao σ of the `free` parameters of θ ⊕ b (the initial states among the
+    variances `R`: the Cramér-Rao σ of the `free` parameters of θ ⊕ b ⊕ g (the initial states among the
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
     (`bounds.colored_covariance`, its per-record sum `bounds.colored_term`), and the residuals."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)

@@ -1,7 +1,8 @@
 """What a nonlinear model config predicts on measured experiments: its model flown open loop
 (`nonlinear_flight.fly`) with each record's fin angles, for validation.
 
-The outputs are the flown states plus the config's output biases (`y = x + b`, `b_<state>`).
+The outputs are the flown states plus the config's output biases (`y = x + b`, `b_<state>`), the
+velocities as the config's velocity log reads them where it is mounted (`log_mounting.read`).
 Each record is flown from its initial state: the given one (an estimate's `initial_states`) where
 given, else the best-fitting one, as the linear model's predictions take it. The best fit starts
 from the record's first sample in its measured states (straight flight at the vehicle's speed in
@@ -23,7 +24,8 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.recursions import simulated
-from testbed.models.linear import NX, STATES
+from testbed.models import log_mounting
+from testbed.models.linear import MOUNTING, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
@@ -46,7 +48,8 @@ def predict(
     `InputError` naming the record where a flight leaves the finite numbers."""
     flown = flights(experiments, config, initial, substeps)
     return [
-        x[:, [STATES.index(c) for c in e.measured]] + config.output_biases(e.measured)
+        log_mounting.read(config.mounting(), x, [STATES.index(c) for c in e.measured])
+        + config.output_biases(e.measured)
         for e, x in zip(experiments, flown)
     ]
 
@@ -63,7 +66,7 @@ def flights(
     for e in experiments:
         ch = [STATES.index(c) for c in e.measured]
         given = (initial or {}).get(e.name, {})
-        y = e.y - config.output_biases(e.measured)  # y − b: the measured states
+        y = e.y - config.output_biases(e.measured)  # y − b: the states as read
         x0 = np.zeros(NX)
         x0[0] = model.vehicle.speed
         first = np.asarray(y[0], float)
@@ -82,7 +85,9 @@ def flights(
             )
         with np.errstate(all="ignore"):
             out.append(
-                initial_state(model, theta, e.t, e.inputs, y, ch, moved, x0, None, substeps, states)[1]
+                initial_state(
+                    model, theta, e.t, e.inputs, y, ch, moved, x0, None, substeps, states, config.mounting()
+                )[1]
             )
     return out
 
@@ -99,19 +104,23 @@ def initial_state(
     R: np.ndarray | None = None,
     substeps: int | None = None,
     states: np.ndarray | None = None,
+    mounting: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`(x0, states)`: the best-fitting initial state (module doc) of a record with times `t`,
-    fins and measurements `y` (N, k) of the states `ch` (NaN where missing), started from `x0`,
-    its components `moved` (indices into `ch`) fitted, and the flight from it; the noise
-    variances `R` (k,) held where given, else relaxed. The flight from `x0` (`states` where
-    already flown) must stay finite. Its flights count 1 a sample and its sensitivity passes
-    1 + the components moved (`recursions.counting`)."""
+    fins and measurements `y` (N, k) of the states `ch` as read (NaN where missing; u, v, w by a
+    velocity log mounted as `mounting`, None: at the CG), started from `x0`, its components
+    `moved` (indices into `ch`) fitted, and the flight from it; the noise variances `R` (k,) held
+    where given, else relaxed. The flight from `x0` (`states` where already flown) must stay
+    finite. Its flights count 1 a sample and its sensitivity passes 1 + the components moved
+    (`recursions.counting`)."""
     y = np.asarray(y, float)
     present = np.isfinite(y)
     cols = [ch[j] for j in moved]
+    mounting = np.zeros(len(MOUNTING)) if mounting is None else np.asarray(mounting, float)
+    C = log_mounting.read_matrix(mounting, ch)  # ∂y/∂x
 
     def residual(x):
-        return np.where(present, y - x[:, ch], 0.0)
+        return np.where(present, y - log_mounting.read(mounting, x, ch), 0.0)
 
     if states is None:
         states = fly(model, theta, t, x0, fins, substeps)
@@ -119,7 +128,9 @@ def initial_state(
     res, lam = residual(states), 1e-3
     for _ in range(ITERATIONS if moved else 0):
         V = np.maximum(np.sum(res**2, axis=0) / np.maximum(present.sum(axis=0), 1), 1e-30) if R is None else R
-        J = flight(model, theta, t, x0, fins, (), substeps, states).dx_dx0[:, ch][:, :, cols]
+        J = np.einsum("cs,nsk->nck", C, flight(model, theta, t, x0, fins, (), substeps, states).dx_dx0)[
+            :, :, cols
+        ]
         simulated(len(t) * (1 + len(cols)))
         J = np.where(present[:, :, None], J, 0.0)
         W = J / V[:, None]

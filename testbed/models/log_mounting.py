@@ -22,7 +22,7 @@ import numpy as np
 from testbed.models.linear import MOUNTING
 from testbed.models.sensors import rotation
 
-__all__ = ["MOUNTING", "derivatives", "matrix", "reading", "turned"]
+__all__ = ["MOUNTING", "derivatives", "matrix", "read", "read_matrix", "reading", "turned"]
 
 _EY = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])  # [e_y]×
 _EZ = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])  # [e_z]×
@@ -62,3 +62,26 @@ def derivatives(
     for e in np.eye(3):
         out.append(np.cross(rates, e) @ M)
     return np.stack(out)
+
+
+def read_matrix(mounting: np.ndarray, columns) -> np.ndarray:
+    """∂y/∂x (len(columns), 10) of the states `columns` (indices into the 10 states) as read:
+    u, v, w through the log (`matrix` on u, v, w, p, q, r), the others the states'."""
+    C = np.eye(10, dtype=np.result_type(mounting, float))
+    C[:3, :6] = matrix(mounting)
+    return C[np.asarray(columns)]
+
+
+def read(mounting: np.ndarray, states: np.ndarray, columns) -> np.ndarray:
+    """The states `columns` of `states` (N, 10; absolute u, no current) as read: u, v, w by the
+    log mounted as `mounting` (`reading`), the others as they are."""
+    columns = np.asarray(columns)
+    y = states[:, columns]
+    if not np.any(mounting):
+        return y
+    velocity = columns < 3
+    y = y.astype(np.result_type(y, mounting))
+    y[:, velocity] = reading(mounting, states[:, :3], states[:, 3:6], np.zeros((len(states), 3)))[
+        :, columns[velocity]
+    ]
+    return y
