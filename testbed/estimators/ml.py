@@ -465,7 +465,9 @@ def _fit(
 
     `auto`: from the a-priori values and from the equation-error estimate, the better-fitting
     first; from the MEKF's estimate too when those two end apart (costs more than `DELTA_J`
-    apart) or either fails; from the best box draw (as `global`'s) where that leaves one start.
+    apart) or either fails; from the best box draw (as `global`'s) too where neither equation
+    error (which leaves the rows the data cannot regress at their a-priori values) nor the MEKF
+    gave a whole second start.
     `global`: from those two and from the best `polish` of `samples`
     coefficient vectors drawn in a box around the a-priori values (`starts.box`), ranked by
     their cost on the first multiple-shooting stage (records cut in 16: a poor model's error does
@@ -558,7 +560,10 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
         theta = computed("mekf")
         if theta is not None:
             fits.append(run("mekf", *begin(theta), fits))
-    if len(fits) < 2:  # one start in effect: the best box draw stands in for a second
+    whole = named["equation-error"] is not None and "left" not in notes.get("equation-error", {})
+    if not whole and not any(f.start == "mekf" for f in fits):
+        # no whole second start (equation error left rows at the a-priori values, no MEKF
+        # fit): the best box draw is one
         for theta in _polish_starts(prob, replace(options, polish=1)):
             fits.append(run("box-1", *begin(theta), fits))
     return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally), notes)
@@ -621,7 +626,7 @@ _START = option(
     lambda v: v in STARTS,
     f"one of {', '.join(STARTS)}",
     "where the iterations begin: auto (the a-priori values and the equation-error estimate, "
-    "and the MEKF's when those two end apart or fail, the best box draw where that leaves one; "
+    "and the MEKF's when those two end apart or fail, the best box draw where neither gave a whole second start; "
     "the least cost is kept), config (the "
     "a-priori values only), equation-error, mekf, or global (auto's first two and the best "
     "box draws, see samples, spread and polish)",
