@@ -193,8 +193,8 @@ def identify_data(
         Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
     )
     check_outputs(read, {"out": out, "history": history, "rrd": rrd}, force)
+    check_method(m.name, cfg)  # before the screen's fit
     if cfg.terms is not None:
-        check_method(m.name, cfg)  # before the screen's fit
         _nonlinear_refusals(cfg, rrd)
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)

@@ -255,3 +255,31 @@ def test_the_screen_takes_the_information_at_an_estimate_with_a_mode_faster_than
     assert fit.experiments["vertical"]["p"].fit_percent > 80
     again = identify(data, prior.with_coefficients(s.fit.coefficients), method="ml-gn", start="config")
     assert again.converged and abs(again.cost - s.fit.cost) < 1.0  # ΔJ: the same optimum
+
+
+@pytest.mark.parametrize(
+    "method, free, words",
+    [
+        ("mekf", ("b_v",), "free lists b_v; mekf takes the outputs' biases"),
+        ("ekf", ("m_dvl_z",), "m_dvl_z is free or not 0; ekf reads the velocities"),
+        ("equation-error", ("c_N",), "free lists c_N; equation-error regresses"),
+        ("ml-nr", ("r_dvl_x",), "r_dvl_x is free or not 0; ml-nr reads the velocities"),
+        ("ml-fem", ("m_dvl_y",), "m_dvl_y is free or not 0; ml-fem reads the velocities"),
+    ],
+)
+def test_what_a_method_refuses_in_the_config_is_refused_before_the_screen_s_fit(
+    monkeypatch, method, free, words
+):
+    """A config the method cannot take, whatever the data: the one-line refusal, and no screen
+    (its `ml-gn` fit can take minutes on a real log)."""
+    from testbed.analysis import identifiability
+    from testbed.identification.examples import FREE, experiments, prior_config
+
+    def screened(*args, **kwargs):
+        raise AssertionError("the screen ran before the method's refusal")
+
+    monkeypatch.setattr(identifiability, "screening", screened)
+    config = replace(prior_config(), free=FREE + free, screen=True)
+    with pytest.raises(InputError, match=words) as exc:
+        identifiability.identify_screened(experiments(seed=0, duration=5.0), config, method)
+    assert "\n" not in str(exc.value)

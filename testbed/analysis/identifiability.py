@@ -17,7 +17,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
-from testbed.estimators import Estimate, Status, identify, lookup
+from testbed.estimators import Estimate, Status, check_method, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
 from testbed.identification.bounds import NULL, Unflyable, analysed, chi2_sf, crlb, fisher, fisher_at
 from testbed.simulation.measurements import noise_from_data
@@ -568,7 +568,10 @@ def identify_screened(
     `InputError` when the screen applied leaves nothing free.
     """
     apply = config.screen if apply is None else apply
-    same = lookup(method).name == "ml-gn"
+    m = lookup(method)
+    m.options.build(m.name, options)  # what the method refuses, before the screen's fit
+    check_method(m.name, config)
+    same = m.name == "ml-gn"
     steps = []
     s = screening(experiments, config, options if same else None, steps.append if same else None, model)
     fitted = s.config if apply else config

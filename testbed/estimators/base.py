@@ -281,6 +281,9 @@ class Method:
             `FilterEstimate`.
         nonlinear: `nonlinear(experiments, config, options, callback) -> Estimate` for a
             nonlinear model config (one with `terms`); None: the method fits the linear model only.
+        refuses: `refuses(config)` raises `InputError` for what the method cannot take in a
+            linear model config, whatever the data (a free output term, values per record): checked
+            before any fit, the screen's included. None: it takes any.
     """
 
     name: str
@@ -291,6 +294,7 @@ class Method:
     starts: bool = True
     online: bool = False
     nonlinear: Callable[[Sequence[Experiment], ModelConfig, Options, Callback | None], Estimate] | None = None
+    refuses: Callable[[ModelConfig], None] | None = None
 
     def __post_init__(self):
         names = {f.name for f in fields(self.options)}

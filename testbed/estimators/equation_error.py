@@ -189,15 +189,7 @@ def _fit(
     iteration: the regression is solved once. DIVERGED where the linear model at the estimate
     diverges on the data (the bounds are then meaningless), the reason named; InputError where the
     data leave a free coefficient out of the regression (`regression`)."""
-    check_mounting(config, "equation-error")
-    terms = [n for n in config.free if n in OUTSIDE_EQUATIONS]
-    if terms:
-        raise InputError(
-            f"{config.source or 'config'}: [identify] free lists {terms[0]}; equation-error "
-            "regresses the equations' rows, which the outputs' biases, the current and the "
-            "inputs' delay are not in: expected them fixed (their given values are applied), or an "
-            "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
-        )
+    _refuses(config)
     t0 = time.perf_counter()
     prob = problem(experiments, config)
     values, left = regression(prob, options.window_s)
@@ -249,6 +241,20 @@ def _fit(
     )
 
 
+def _refuses(config: ModelConfig) -> None:
+    """`InputError` for what the regression cannot take: a velocity log's mounting, a free
+    output term or delay (they are in no row of the equations)."""
+    check_mounting(config, "equation-error")
+    terms = [n for n in config.free if n in OUTSIDE_EQUATIONS]
+    if terms:
+        raise InputError(
+            f"{config.source or 'config'}: [identify] free lists {terms[0]}; equation-error "
+            "regresses the equations' rows, which the outputs' biases, the current and the "
+            "inputs' delay are not in: expected them fixed (their given values are applied), or an "
+            "output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
+        )
+
+
 EQUATION_ERROR = Method(
     name="equation-error",
     fit=_fit,
@@ -256,4 +262,5 @@ EQUATION_ERROR = Method(
     summary="equation error: the linear model's rows regressed on smoothed derivatives of the measured states",
     iterative=False,
     starts=False,
+    refuses=_refuses,
 )

@@ -66,7 +66,7 @@ from testbed.estimators.base import (
     unphysical,
 )
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
-from testbed.identification.problem import Problem, one_model, problem
+from testbed.identification.problem import Problem, check_one_model, one_model, problem
 from testbed.identification.innovations import BODY
 from testbed.models.linear import IX, NX, STATES
 
@@ -581,4 +581,5 @@ ML_FEM = Method(
     options=FilterErrorOptions,
     summary="maximum likelihood filter error: a steady-state Kalman filter in the likelihood, for data "
     "with process noise",
+    refuses=lambda config: check_one_model(config, "ml-fem", terms=True),
 )

@@ -195,7 +195,7 @@ from testbed.estimators.base import (
 )
 from testbed.identification.nonlinear_output_error import setup
 from testbed.identification.nonlinear_transition import NonlinearTransition
-from testbed.identification.problem import check_mounting, one_model
+from testbed.identification.problem import check_mounting, check_one_model, one_model
 from testbed.identification.recursions import simulated
 from testbed.simulation.measurements import NOISE_STD, noise_free_channels, noise_from_data
 from testbed.models.linear import (
@@ -1092,6 +1092,7 @@ def _method(name: str, modified: bool, square_root: bool, summary: str) -> Metho
         starts=False,
         online=True,
         nonlinear=fit,
+        refuses=lambda config: check_one_model(config, name),
     )
 
 

@@ -486,8 +486,6 @@ def _evaluations(prob: Problem, tally: list[int]) -> int:
 def _fit_counted(name, optimiser, experiments, config, options, callback, tally) -> Estimate:
     """`_fit`, the simulations tallied in `tally`."""
     t0 = time.perf_counter()
-    if optimiser is newton_raphson:  # its second derivatives are the states' alone
-        check_mounting(config, name)
     prob = problem(experiments, config)
     start = options.start
     tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name not in START_OPTIONS}
@@ -756,11 +754,15 @@ class SimplexOptions(Options):
     seed: int = _SEED
 
 
-def _method(name: str, optimiser, options: type[Options], summary: str, on_nonlinear=None) -> Method:
+def _method(
+    name: str, optimiser, options: type[Options], summary: str, on_nonlinear=None, refuses=None
+) -> Method:
     def fit(experiments, config, opts, callback):
         return _fit(name, optimiser, experiments, config, opts, callback)
 
-    return Method(name=name, fit=fit, options=options, summary=summary, nonlinear=on_nonlinear)
+    return Method(
+        name=name, fit=fit, options=options, summary=summary, nonlinear=on_nonlinear, refuses=refuses
+    )
 
 
 ML_GN = _method(
@@ -781,6 +783,7 @@ ML_NR = _method(
     newton_raphson,
     NewtonRaphsonOptions,
     "maximum likelihood output error by the paper's modified Newton-Raphson (Eq. 10)",
+    refuses=lambda config: check_mounting(config, "ml-nr"),  # its second derivatives: the states'
 )
 ML_NM = _method(
     "ml-nm",

@@ -50,6 +50,7 @@ __all__ = [
     "check_fit",
     "check_inputs",
     "check_mounting",
+    "check_one_model",
     "expanded",
     "free_values",
     "one_model",
@@ -425,15 +426,9 @@ def check_mounting(config: ModelConfig, method: str) -> None:
         )
 
 
-def one_model(
-    experiments: Sequence[Experiment], config: ModelConfig, method: str, terms: bool = False
-) -> tuple[list[Experiment], ModelConfig]:
-    """For a filter: the experiments with the config's sensors undone (`ModelConfig.readings`),
-    its given output terms (biases, the current) taken off their measured states and its given
-    input delay applied to their inputs (each record's own), and the config without them.
-    `InputError` for what a filter that runs one model over every record (`method`: mekf, ekf)
-    cannot take: values per record, a record's own coefficient or offset, a free output term or
-    delay; `terms` (ml-fem, a filter per record group) takes them all."""
+def check_one_model(config: ModelConfig, method: str, terms: bool = False) -> None:
+    """`InputError` for what a filter (`method`) cannot take in `config` (`one_model`), before
+    any data are read."""
     source = config.source or "config"
     if config.per_record and not terms:
         raise InputError(
@@ -449,6 +444,20 @@ def one_model(
             "current and the inputs' delay as the config gives them: expected them fixed, or "
             "ml-fem or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
+
+
+def one_model(
+    experiments: Sequence[Experiment], config: ModelConfig, method: str, terms: bool = False
+) -> tuple[list[Experiment], ModelConfig]:
+    """For a filter: the experiments with the config's sensors undone (`ModelConfig.readings`),
+    its given output terms (biases, the current) taken off their measured states and its given
+    input delay applied to their inputs (each record's own), and the config without them.
+    `InputError` for what a filter that runs one model over every record (`method`: mekf, ekf)
+    cannot take: values per record, a record's own coefficient or offset, a free output term or
+    delay; `terms` (ml-fem, a filter per record group) takes them all."""
+    source = config.source or "config"
+    check_one_model(config, method, terms)
+    free = [n for n in config.free if n in OUTSIDE_EQUATIONS]
     experiments = config.readings(experiments)
     unfree = dict.fromkeys(free, 0.0)  # a free one is fitted, not taken off the data
     given = replace(
