@@ -123,7 +123,8 @@ SINGULAR = 1e-10  # an eigenvalue of the scaled Fisher information below this ×
 # is the commoner error, present whether the channel varies or not.
 # The attitude offsets come last (`_rank`): with u near constant the log's w bias makes nearly
 # the sink rate of a pitch offset, and an AHRS mounted off its axes is the commoner error.
-HELD_FIRST = ("k_", "m_", "tau_", "b_")
+HELD_FIRST = ("k_", "m_", "r_", "tau_", "b_")
+MAX_ARM = 50.0  # m: the largest |r| of a lever arm fitted or applied
 STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
 # A scale factor multiplies its channel, a delay its channel's rate of change, the log's u and v
 # biases sin θ and sin φ: a parameter whose regressor is mostly the noise of a measured channel
@@ -144,6 +145,9 @@ REGRESSORS = {
     "tau_dvl": (("w",), ("u", "theta"), ("v", "phi")),
     "b_phi": (("v",), ("w",)),
     "m_dvl_z": (("phi",),),
+    "r_dvl_x": (("theta",),),
+    "r_dvl_y": (("phi",),),
+    "r_dvl_z": (("phi",), ("theta",)),
 }
 MIN_SIGNAL = 3.0
 MAX_PITCH = 1.5  # rad (86°): beyond, the attitude check is not run (tan θ, 1 / cos θ near ±π/2)
@@ -170,11 +174,13 @@ class Check:
     initial: tuple[str, ...]
     delay: str
     axes: tuple[str, ...] = ()  # the body axes about which the driving sensor may be turned
+    arm: bool = False  # the driving sensor's position (its lever arm) among the parameters
 
     @property
     def sensor(self) -> tuple[str, ...]:
         """The sensor parameters: each driving channel's bias and scale factor, the delay, each
-        used channel's offset, the driving sensor's misalignment about each of `axes`."""
+        used channel's offset, the driving sensor's misalignment about each of `axes`, its
+        position along x, y, z where it has an `arm`."""
         group = self.delay.removeprefix("tau_")
         return (
             tuple(f"b_{c}" for c in self.drives)
@@ -182,6 +188,7 @@ class Check:
             + (self.delay,)
             + tuple(f"b_{c}" for c in self.uses)
             + tuple(f"m_{group}_{a}" for a in self.axes)
+            + (tuple(f"r_{group}_{a}" for a in "xyz") if self.arm else ())
         )
 
     @property
@@ -205,11 +212,13 @@ DEPTH = Check(
     initial=("z0",),
     delay="tau_dvl",
     axes=("y", "z"),
+    arm=True,
 )
 CHECKS = (ATTITUDE, DEPTH)
 SENSOR_PARAMETERS = ATTITUDE.sensor + DEPTH.sensor
 OFFSETS = tuple(f"b_{c}" for check in CHECKS for c in check.uses)  # the attitude offsets
 MISALIGNMENTS = tuple(n for check in CHECKS for n in check.sensor if n.startswith("m_"))
+ARMS = tuple(n for check in CHECKS for n in check.sensor if n.startswith("r_"))  # lever arms, m
 
 
 @dataclass(frozen=True)
@@ -435,50 +444,61 @@ class _Record:
         return out
 
     def _corrected(self, x: np.ndarray):
-        """The initial states (B, initial), the corrected driving channels (B, 2N − 1, channels)
-        and the used channels less their offsets (channel → (B, 2N − 1)) of the parameter rows
-        `x` (B, initial + sensor), complex."""
+        """The initial states (B, initial), the corrected driving channels (B, 2N − 1, channels),
+        the used channels less their offsets (channel → (B, 2N − 1)) and the driving sensor's
+        lever arm (B, 3, or (B, 0) without one) of the parameter rows `x` (B, initial + sensor),
+        complex."""
         check, n = self.check, len(self.check.drives)
         x0 = x[:, : len(check.initial)]
         sensor = x[:, len(check.initial) :]
         b, k, tau = sensor[:, :n], sensor[:, n : 2 * n], sensor[:, 2 * n]
         offsets = sensor[:, 2 * n + 1 : 2 * n + 1 + len(check.uses)]
-        turns = sensor[:, 2 * n + 1 + len(check.uses) :]
+        at = 2 * n + 1 + len(check.uses)
+        turns, arm = sensor[:, at : at + len(check.axes)], sensor[:, at + len(check.axes) :]
         used = {c: self.used[c][None, :] - offsets[:, [i]] for i, c in enumerate(check.uses)}
         w = (self.drives(tau) - b[:, None, :]) / (1 + k[:, None, :])
         if check.axes:
             w = _turned(w, turns[:, 0, None], turns[:, 1, None])
-        return np.ascontiguousarray(x0), w, used
+        return np.ascontiguousarray(x0), w, used, arm
 
-    def _depth_steps(self, w: np.ndarray, phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """The depth's change over each step (B, N − 1): Simpson's rule on ż."""
+    def _depth_steps(self, w: np.ndarray, phi: np.ndarray, theta: np.ndarray, arm: np.ndarray) -> np.ndarray:
+        """The depth's change over each step (B, N − 1): Simpson's rule on ż of the log's point,
+        less the change of that point's depth below the CG's (the log at r reads v + ω × r, whose
+        ż is the CG's plus d(C r)₃/dt: its integral is (C r)₃ at the step's ends,
+        (C r)₃ = −r_x sin θ + (r_y sin φ + r_z cos φ) cos θ)."""
         zdot = -w[:, :, 0] * np.sin(theta) + (w[:, :, 1] * np.sin(phi) + w[:, :, 2] * np.cos(phi)) * np.cos(
             theta
         )
-        return self.h / 6 * (zdot[:, 0:-1:2] + 4 * zdot[:, 1::2] + zdot[:, 2::2])
+        steps = self.h / 6 * (zdot[:, 0:-1:2] + 4 * zdot[:, 1::2] + zdot[:, 2::2])
+        if arm.shape[1]:
+            r = arm[:, :, None]
+            s, c = np.sin(phi[:, 0::2]), np.cos(phi[:, 0::2])
+            point = -r[:, 0] * np.sin(theta[:, 0::2]) + (r[:, 1] * s + r[:, 2] * c) * np.cos(theta[:, 0::2])
+            steps = steps - np.diff(point, axis=1)
+        return steps
 
     def outputs(self, x: np.ndarray) -> np.ndarray:
         """The outputs reconstructed open loop (B, N, outputs) at the parameter rows `x`."""
-        x0, w, used = self._corrected(x)
+        x0, w, used, arm = self._corrected(x)
         if self.check is ATTITUDE:
             out = np.empty((len(x), len(self.t), 3), dtype=complex)
             attitudes(self.h, np.ascontiguousarray(w), x0, out)
             return out
-        steps = self._depth_steps(w, used["phi"], used["theta"])
+        steps = self._depth_steps(w, used["phi"], used["theta"], arm)
         return (np.concatenate([np.zeros((len(x), 1)), np.cumsum(steps, axis=1)], axis=1) + x0)[:, :, None]
 
     def innovations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """The filter's whitened innovations (B, N, outputs) at the parameter rows `x`, and the
         log-ratios ln(S / R) of their variances to the noise's where these depend on the
         parameters (the depth check; None for the attitude, whose gain is held)."""
-        x0, w, used = self._corrected(x)
+        x0, w, used, arm = self._corrected(x)
         if self.check is ATTITUDE:
             out = np.empty((len(x), len(self.t), 3), dtype=complex)
             attitude_filter(self.h, np.ascontiguousarray(w), x0, self.y, self.R, self.Sw, out)
             return out, None
         out, logs = (np.empty((len(x), len(self.t)), dtype=complex) for _ in range(2))
         phi, theta = used["phi"], used["theta"]
-        steps, q = self._depth_steps(w, phi, theta), self._depth_noise(x, w, phi, theta)
+        steps, q = self._depth_steps(w, phi, theta, arm), self._depth_noise(x, w, phi, theta)
         depth_filter(
             np.ascontiguousarray(steps),
             np.ascontiguousarray(q),
@@ -606,6 +626,8 @@ class _Fit:
             if n.startswith("k_")
             else MAX_MISALIGNMENT
             if n in MISALIGNMENTS
+            else MAX_ARM
+            if n in ARMS
             else np.inf
             for n in free
         ]
@@ -968,6 +990,8 @@ def check_corrections(values, where: str) -> dict[str, float]:
             if n.startswith("k_")
             else MAX_MISALIGNMENT
             if n in MISALIGNMENTS
+            else MAX_ARM
+            if n in ARMS
             else MAX_OFFSET
             if n in OFFSETS
             else MAX_DATA
@@ -990,8 +1014,10 @@ def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float
     """The experiments with each measured channel corrected by its sensor's parameters: a rate or
     velocity `(c(t + τ) − b_c) / (1 + k_c)`, c(t + τ) from the cubic spline through the
     channel's samples present (the end values held beyond them; a missing sample stays
-    missing), an attitude channel less its offset `c − b_c`; parameters not given are 0,
-    channels not measured are skipped."""
+    missing), an attitude channel less its offset `c − b_c`, the log's velocities turned back by
+    its misalignment and moved from its point to the CG, v − ω × r (the rates measured: an
+    `InputError` naming the record otherwise); parameters not given are 0, channels not measured
+    are skipped."""
     corrections = check_corrections(corrections, "corrections")
     out = []
     for e in experiments:
@@ -1017,5 +1043,19 @@ def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float
             if any(turns) and all(c in e.measured for c in check.drives):
                 at = [e.measured.index(c) for c in check.drives]
                 y[:, at] = _turned(y[:, at], *turns)
+            arm = np.array([corrections.get(n, 0.0) for n in check.sensor if n in ARMS])
+            if np.any(arm) and all(c in e.measured for c in check.drives):
+                # the log's point moved to the CG: v = M y − ω × r, with the measured rates
+                if not all(c in e.measured for c in ATTITUDE.drives):
+                    named = ", ".join(f"{n} = {corrections[n]:g}" for n in ARMS if corrections.get(n))
+                    raise InputError(
+                        f"corrections: {named}; record {e.name!r} has no p, q, r to move the log's "
+                        "velocities to the CG with (v − ω × r): expected rate gyros, or the log's "
+                        "position as the model config's r_dvl_x, r_dvl_y, r_dvl_z (identify reads the "
+                        "velocities through it)"
+                    )
+                at = [e.measured.index(c) for c in check.drives]
+                rates = np.column_stack([e.column(c) for c in ATTITUDE.drives])
+                y[:, at] = y[:, at] - np.cross(rates, arm)
         out.append(replace(e, y=y))
     return out
