@@ -2,7 +2,8 @@
 against a global search, the attitude offsets, and held-out dives.
 
     python studies/lake.py [--seeds 10] [--out runs/lake] [--fit-dives 12] [--methods M ...] [--jobs N]
-    python studies/lake.py --tables runs/lake/study.json     # the tables of a study again
+    python studies/lake.py --tables runs/lake/study.json     # the tables of a study again (its
+                                                             # check run where it has none)
 
 For each seed k the built-in lake trial (docs/scenarios.md, the lake trial) is simulated as a
 user does it (`testbed simulate --scenario lake --seed k --out OUT/seed<k>`) and fitted through
@@ -16,6 +17,8 @@ b_phi, b_theta, b_psi among the candidates), every fit timed (wall clock of the 
 - **the attitude offsets** of default `ml-gn` against the scenario's AHRS `bias` (read from the
   run's scenario.toml), in the fit's σ (the coloured-residual bound where the JSON gives one,
   else the Cramér-Rao σ): within 3 σ; one the screen fixed is not estimated (its reason);
+- **the attitude offsets of `testbed check`** (the depth check's kinematics, pooled over the
+  dives: no dynamic model) against the same AHRS bias, in the check's Cramér-Rao σ;
 - **held-out dives**: `ml-gn` on the first `--fit-dives` dives, `testbed validate` of that
   estimate and of `prior.toml` as it stands on the others; per fitted channel the median fit %
   over the held-out dives, the fit's against the prior's.
@@ -120,6 +123,36 @@ def offsets(estimate: dict, truth: dict[str, float]) -> dict[str, dict]:
     return out
 
 
+def check(run: Path, out: Path) -> dict:
+    """`testbed check RUN --out OUT`: exit status, seconds and the pooled depth check's attitude
+    offsets against the scenario's AHRS bias (value, σ, error in σ; or why the check held it)."""
+    code, last, seconds = command("check", str(run), "--out", str(out), "--force")
+    row = {"exit": code, "seconds": seconds, "reason": last}
+    if code != 0:
+        return row
+    pooled = json.loads(out.read_text())["pooled"].get("depth", {}).get("parameters", {})
+    truth = true_offsets(run)
+    row["offsets"] = {}
+    for name in ("b_phi", "b_theta"):
+        p = pooled.get(name)
+        if p is None or not p["identifiable"]:
+            row["offsets"][name] = {
+                "true": truth[name],
+                "estimated": False,
+                "reason": (p or {}).get("reason", ""),
+            }
+            continue
+        sd = p["std"] or np.inf
+        row["offsets"][name] = {
+            "true": truth[name],
+            "estimated": True,
+            "value": p["value"],
+            "std": sd,
+            "sigmas": (p["value"] - truth[name]) / sd if np.isfinite(sd) else None,
+        }
+    return row
+
+
 def median_fit(validation: dict, channels: list[str]) -> dict[str, float | None]:
     """Per channel, the median fit % over the experiments validated."""
     out = {}
@@ -149,6 +182,7 @@ def seed_study(run: Path, methods=tuple(sorted(METHODS)), fit_dives: int = 12) -
         row["delta_j"] = gn["estimate"]["cost"] - best
         row["same_free"] = list(gn["estimate"]["coefficients"]) == list(search["estimate"]["coefficients"])
     row["offsets"] = offsets(gn["estimate"], true_offsets(run)) if gn["estimate"] else {}
+    row["check"] = check(run, fits / "check.json")
     dives = json.loads((run / "manifest.json").read_text())["experiments"]
     fitted, held = dives[:fit_dives], dives[fit_dives:]
     part = identify([run / f"{d}.csv" for d in fitted], prior, fits / "ml-gn-fit-dives.json")
@@ -205,6 +239,16 @@ def seed_table(seed: int, row: dict) -> str:
             )
         else:
             out.append(f"| {name} | {o['true']:.5f} | not estimated | {o['reason']} | |")
+    c = row.get("check", {})
+    if c.get("offsets"):
+        out += ["", f"`testbed check` (exit {c['exit']}, {c['seconds']:.1f} s), the depth check pooled:", ""]
+        out += ["| offset | true (AHRS bias) | estimate ± σ | error |", "|---|---:|---:|---|"]
+        for name, o in c["offsets"].items():
+            if o["estimated"]:
+                error = "unbounded σ" if o["sigmas"] is None else f"{o['sigmas']:+.1f} σ"
+                out.append(f"| {name} | {o['true']:.5f} | {o['value']:.5f} ± {o['std']:.2g} | {error} |")
+            else:
+                out.append(f"| {name} | {o['true']:.5f} | held | {o['reason']} |")
     h = row["held_out"]
     out += [
         "",
@@ -263,6 +307,10 @@ def summary(rows: dict[int, dict]) -> str:
         out.append(
             f"| {name} within {SIGMAS:g} σ of the AHRS bias plus the plant's own offset | {model} of {n} |"
         )
+    for name in ("b_phi", "b_theta"):
+        mine = [r.get("check", {}).get("offsets", {}).get(name, {}) for r in rows.values()]
+        within = sum(abs(o.get("sigmas") or np.inf) <= SIGMAS for o in mine)
+        out.append(f"| {name} of `testbed check` within {SIGMAS:g} σ of the AHRS bias | {within} of {n} |")
     better = sum(r["held_out"].get("better", False) for r in rows.values())
     out.append(f"| held-out dives better than the prior on every fitted channel | {better} of {n} |")
     return "\n".join(out) + "\n"
@@ -295,6 +343,8 @@ def main(argv=None) -> int:
         for r in rows.values():
             gn = r["methods"].get("ml-gn", {}).get("estimate")
             r["offsets"] = offsets(gn, true_offsets(Path(r["run"]))) if gn else {}
+            if "check" not in r:
+                r["check"] = check(Path(r["run"]), Path(r["run"]) / "fits" / "check.json")
         print("\n".join([seed_table(seed, row) for seed, row in rows.items()] + [summary(rows)]))
         return 0
     try:

@@ -54,6 +54,10 @@ def test_the_study_s_core_records_every_fit_s_exit_reason_and_time(short_row):
         assert f["seconds"] > 0
     held = row["held_out"]
     assert held["fit_dives"] == ["dive-08", "dive-09"] and held["held_dives"] == ["dive-11"]
+    # the attitude offsets of the kinematic check: the pitch offset within 3 σ of the AHRS's
+    assert row["check"]["exit"] == 0, row["check"]["reason"]
+    b_theta = row["check"]["offsets"]["b_theta"]
+    assert b_theta["estimated"] and abs(b_theta["sigmas"]) <= lake.SIGMAS, b_theta
     text = lake.seed_table(1, row) + lake.summary({1: row})
     assert "### Seed 1" in text and "| ml-gn --start global |" in text
     json.dumps(row)
