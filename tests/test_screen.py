@@ -263,7 +263,6 @@ def test_the_screen_takes_the_information_at_an_estimate_with_a_mode_faster_than
         ("mekf", ("b_v",), "free lists b_v; mekf takes the outputs' biases"),
         ("ekf", ("m_dvl_z",), "m_dvl_z is free or not 0; ekf reads the velocities"),
         ("equation-error", ("c_N",), "free lists c_N; equation-error regresses"),
-        ("ml-nr", ("r_dvl_x",), "r_dvl_x is free or not 0; ml-nr reads the velocities"),
         ("ml-fem", ("m_dvl_y",), "m_dvl_y is free or not 0; ml-fem reads the velocities"),
     ],
 )

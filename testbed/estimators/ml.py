@@ -33,7 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from testbed.identification import bounds, concentrated, likelihood, recursions, scan
-from testbed.identification.problem import Problem, check_mounting, problem
+from testbed.identification.problem import Problem, problem
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators import nonlinear, starts, trust_region
@@ -783,7 +783,6 @@ ML_NR = _method(
     newton_raphson,
     NewtonRaphsonOptions,
     "maximum likelihood output error by the paper's modified Newton-Raphson (Eq. 10)",
-    refuses=lambda config: check_mounting(config, "ml-nr"),  # its second derivatives: the states'
 )
 ML_NM = _method(
     "ml-nm",

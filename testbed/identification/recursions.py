@@ -379,8 +379,15 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
         inputs = prob.inputs(r, p[:nf])
         x = trajectory(d, prob.x0(r, p), inputs)
         w, X = _w(x, inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX), p[:nf], biases=False)
-        a = np.zeros((len(w), NX), dtype=np.result_type(wr, p))
-        a[:, r.measured] = wr
+        mounted = prob.mounted and bool(np.any(r.measured < 3))
+        # the weights on the states: Cᵀ w, C the outputs' derivative w.r.t. the state
+        a = (
+            (wr @ prob.read_matrix(r, p[:nf]))
+            if mounted
+            else np.zeros((len(w), NX), dtype=np.result_type(wr, p))
+        )
+        if not mounted:
+            a[:, r.measured] = wr
         Phi = d.E[:, :NX]
         mu = scan.propagate(Phi.T, a[-1], a[-2::-1])[::-1]  # μ[k], k = 0 … N−1
         dPhi = np.zeros((X.shape[2], NX, NX), dtype=X.dtype)
@@ -398,6 +405,52 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
             Hr[:nf, j] += cross
             Hr[j, :nf] += cross
             Hr[j, j] += np.sum(d.E[:, NX : NX + NU] * (mu[1:].T @ prob.input_curvatures(r, p[:nf])[:-1]))
+        if mounted:
+            Hr += _read_curvature(prob, r, x, X, wr, p[:nf])
         cols = prob.columns(r)
         H[np.ix_(cols, cols)] += Hr
+    return H
+
+
+def _read_curvature(
+    prob: Problem, r: Record, x: np.ndarray, X: np.ndarray, wr: np.ndarray, values
+) -> np.ndarray:
+    """What a `mounted` velocity log adds to record r's `curvature` (q, q): Σ w ∂²y/∂p∂p of its
+    reading y = C(g) (v; ω) + Mᵀ c_b beyond C ∂²x, over the record's own parameters (q = n_free
+    + its x0): the mounting g with the states' sensitivities X (N, 10, q), Σ w (∂C/∂g_i) ∂x/∂p_j
+    both ways, with itself and with the current (`log_mounting.second_derivatives`,
+    `log_mounting.matrix_derivatives`)."""
+    theta = prob.coefficients(values, r.group)
+    g, acting = theta[IMOUNTING], prob.acting(r.group)
+    velocity = r.measured < 3
+    wv, read = wr[:, velocity], r.measured[velocity]  # the log's channels and their weights
+    speed = np.array([prob.speed, 0.0, 0.0])
+    current = prob.current(r, theta)
+    H = np.zeros((X.shape[2], X.shape[2]))
+    mounting = [
+        (i, int(np.flatnonzero(IMOUNTING == k)[0]))
+        for i, k in enumerate(prob.index)
+        if k in IMOUNTING and acting[i]
+    ]
+    currents = [
+        (i, int(np.flatnonzero(ICURRENT == k)[0]))
+        for i, k in enumerate(prob.index)
+        if k in ICURRENT and acting[i]
+    ]
+    dC = log_mounting.matrix_derivatives(g)[:, read]  # (5, channels, 6)
+    d2 = log_mounting.second_derivatives(g, x[:, :3] + speed, x[:, 3:6], current)[:, :, :, read]
+    dM = log_mounting.turned_derivatives(g)
+    for i, s in mounting:
+        cross = np.einsum("nc,cs,nsq->q", wv, dC[s], X[:, :6])  # Σ w (∂C/∂g_s) ∂x/∂p
+        H[i] += cross
+        H[:, i] += cross
+        for j, t in mounting:
+            H[i, j] += np.sum(wv * d2[s, t])
+        if s < 2:  # a turn moves the current's reading: ∂²(Mᵀ c_b)/∂m ∂c = (∂c_b/∂c) ∂M/∂m
+            for j, c in currents:
+                unit = np.zeros_like(theta)
+                unit[ICURRENT[c]] = 1.0
+                term = np.sum(wv * (prob.current(r, unit) @ dM[s])[:, read])
+                H[i, j] += term
+                H[j, i] += term
     return H

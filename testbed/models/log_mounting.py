@@ -22,7 +22,18 @@ import numpy as np
 from testbed.models.linear import MOUNTING
 from testbed.models.sensors import rotation
 
-__all__ = ["MOUNTING", "derivatives", "matrix", "read", "read_matrix", "reading", "turned"]
+__all__ = [
+    "MOUNTING",
+    "derivatives",
+    "matrix",
+    "matrix_derivatives",
+    "read",
+    "read_matrix",
+    "reading",
+    "second_derivatives",
+    "turned",
+    "turned_derivatives",
+]
 
 _EY = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])  # [e_y]×
 _EZ = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])  # [e_z]×
@@ -56,12 +67,56 @@ def derivatives(
 ) -> np.ndarray:
     """∂y/∂(m_dvl_y, m_dvl_z, r_dvl_x, r_dvl_y, r_dvl_z) (5, N, 3) of `reading`:
     ∂M/∂m_y = M [e_y]×, ∂M/∂m_z = [e_z]× M, and ∂(ω × r)/∂r_i = ω × e_i."""
-    M = turned(mounting)
+    M, first = turned(mounting), _turns(mounting)[0]
     q = velocity + np.cross(rates, np.asarray(mounting[2:])) + current
-    out = [q @ (M @ _EY), q @ (_EZ @ M)]
+    out = [q @ first[0], q @ first[1]]
     for e in np.eye(3):
         out.append(np.cross(rates, e) @ M)
     return np.stack(out)
+
+
+def _turns(mounting: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """∂M/∂(m_dvl_y, m_dvl_z) (2, 3, 3) and the second derivatives (2, 2, 3, 3):
+    ∂M/∂m_y = M [e_y]×, ∂M/∂m_z = [e_z]× M, ∂²M/∂m_y² = M [e_y]×², ∂²M/∂m_z² = [e_z]×² M,
+    ∂²M/∂m_y∂m_z = [e_z]× M [e_y]×."""
+    M = turned(mounting)
+    first = np.stack([M @ _EY, _EZ @ M])
+    cross = _EZ @ M @ _EY
+    second = np.stack([np.stack([M @ _EY @ _EY, cross]), np.stack([cross, _EZ @ _EZ @ M])])
+    return first, second
+
+
+def matrix_derivatives(mounting: np.ndarray) -> np.ndarray:
+    """∂C/∂(m_dvl_y, m_dvl_z, r_dvl_x, r_dvl_y, r_dvl_z) (5, 3, 6) of `matrix`:
+    (∂M/∂m)ᵀ [I  −[r]×] for a turn, −Mᵀ [e_i]× on the rates for a position."""
+    first, _ = _turns(mounting)
+    arm = np.hstack([np.eye(3), -_skew(np.asarray(mounting[2:], float))])
+    out = np.zeros((5, 3, 6))
+    out[:2] = np.einsum("aji,jk->aik", first, arm)
+    for i, e in enumerate(np.eye(3)):
+        out[2 + i, :, 3:] = -turned(mounting).T @ _skew(e)
+    return out
+
+
+def second_derivatives(
+    mounting: np.ndarray, velocity: np.ndarray, rates: np.ndarray, current: np.ndarray
+) -> np.ndarray:
+    """∂²y/∂g_i∂g_j (5, 5, N, 3) of `reading`, g = (m_dvl_y, m_dvl_z, r_dvl_x, r_dvl_y, r_dvl_z):
+    q ∂²M for two turns, (ω × e_i) ∂M for a turn and a position, 0 for two positions."""
+    first, second = _turns(mounting)
+    q = velocity + np.cross(rates, np.asarray(mounting[2:], float)) + current
+    out = np.zeros((5, 5) + q.shape)
+    for a in range(2):
+        for b in range(2):
+            out[a, b] = q @ second[a, b]
+        for i, e in enumerate(np.eye(3)):
+            out[a, 2 + i] = out[2 + i, a] = np.cross(rates, e) @ first[a]
+    return out
+
+
+def turned_derivatives(mounting: np.ndarray) -> np.ndarray:
+    """∂M/∂(m_dvl_y, m_dvl_z) (2, 3, 3)."""
+    return _turns(mounting)[0]
 
 
 def read_matrix(mounting: np.ndarray, columns) -> np.ndarray:
