@@ -422,7 +422,7 @@ def check_mounting(config: ModelConfig, method: str) -> None:
         raise InputError(
             f"{config.source or 'config'}: {named[0]} is free or not 0; {method} reads the velocities at "
             "the CG in the body's axes: expected the velocity log's mounting 0 and fixed (with rate "
-            "gyros, a known one as [sensors.NAME] position and misalignment), or ml-gn, ml-lm or ml-nm"
+            "gyros, a known one as [sensors.NAME] position and misalignment), or an output-error method (ml-gn, ml-lm, ml-nr, ml-nm)"
         )
 
 
