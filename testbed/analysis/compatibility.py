@@ -619,18 +619,7 @@ class _Fit:
         return np.concatenate([np.zeros(len(free))] + [rec.start() for rec in self.records])
 
     def bounds(self, free):
-        limit = [
-            MAX_DELAY
-            if n == self.check.delay
-            else MAX_SCALE
-            if n.startswith("k_")
-            else MAX_MISALIGNMENT
-            if n in MISALIGNMENTS
-            else MAX_ARM
-            if n in ARMS
-            else np.inf
-            for n in free
-        ]
+        limit = [_limit(n) or np.inf for n in free]
         hi = np.array(limit + [np.inf] * self.ni * len(self.records))
         return -hi, hi
 
@@ -971,10 +960,24 @@ def compatibility(experiments: Sequence[Experiment]) -> Compatibility:
     return Compatibility(records=records, pooled=pooled, unchecked=unchecked)
 
 
+def _limit(name: str) -> float | None:
+    """The largest |value| of a sensor parameter fitted or applied: a delay `MAX_DELAY` s, a
+    scale factor `MAX_SCALE`, a misalignment `MAX_MISALIGNMENT` rad, a lever arm `MAX_ARM` m;
+    None for a bias or an attitude offset."""
+    if name.startswith("tau_"):
+        return MAX_DELAY
+    if name.startswith("k_"):
+        return MAX_SCALE
+    if name in MISALIGNMENTS:
+        return MAX_MISALIGNMENT
+    return MAX_ARM if name in ARMS else None
+
+
 def check_corrections(values, where: str) -> dict[str, float]:
     """`values` (sensor parameter → number) checked: known names, finite numbers, biases within
     ±`MAX_DATA`, attitude offsets within ±`MAX_OFFSET` rad, scale factors within ±`MAX_SCALE`,
-    misalignments within ±`MAX_MISALIGNMENT` rad, delays within ±`MAX_DELAY` s."""
+    misalignments within ±`MAX_MISALIGNMENT` rad, lever arms within ±`MAX_ARM` m, delays within
+    ±`MAX_DELAY` s (`_limit`)."""
     if not isinstance(values, Mapping):
         raise InputError(f'{where}: expected an object of sensor parameters, e.g. {{"b_r": 0.002}}')
     out = {}
@@ -983,19 +986,7 @@ def check_corrections(values, where: str) -> dict[str, float]:
             raise InputError(
                 f"{where}: {str(n)[:40]!r} is not a sensor parameter; expected {', '.join(SENSOR_PARAMETERS)}"
             )
-        limit = (
-            MAX_DELAY
-            if n.startswith("tau_")
-            else MAX_SCALE
-            if n.startswith("k_")
-            else MAX_MISALIGNMENT
-            if n in MISALIGNMENTS
-            else MAX_ARM
-            if n in ARMS
-            else MAX_OFFSET
-            if n in OFFSETS
-            else MAX_DATA
-        )
+        limit = _limit(n) or (MAX_OFFSET if n in OFFSETS else MAX_DATA)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= limit:
             raise InputError(f"{where}: {n} = {repr(v)[:40]}; expected a number within ±{limit:g}")
         out[n] = float(v)

@@ -226,7 +226,7 @@ def simplex(
             )
             fitted.append(x)
             dx0 = flight(model, th[:m], r.t, x, r.fins, (), None, states).dx_dx0
-            sens.append(np.einsum("cs,nsk->nck", log_mounting.read_matrix(g, ch), dx0)[:, :, ch])
+            sens.append(log_mounting.read_derivatives(g, dx0, ch)[:, :, ch])
             simulated(len(r.t) * (1 + len(ch)))
         return np.array(fitted), sens
 

@@ -249,11 +249,7 @@ def fit_initial_states(
     # mounted velocity log mixes the states, the data less the outputs at trim (affine in x)
     mixed = [prob.mounted and bool(np.any(r.measured < 3)) for r in prob.records]
     ys = [
-        r.y - prob.outputs(r, np.zeros((len(r.y), NX)), values)
-        if mix
-        else r.y - prob.output_terms(r, values)
-        if prob.biased
-        else r.y
+        r.y - prob.outputs(r, np.zeros((len(r.y), NX)), values) if prob.biased or mix else r.y
         for r, mix in zip(prob.records, mixed)
     ]
     for r, y, mix in zip(prob.records, ys, mixed):

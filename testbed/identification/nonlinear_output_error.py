@@ -275,13 +275,12 @@ def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     theta, ch = _padded(theta, m, ch), np.asarray(ch)
     own, bias, mounting = free < m, (free >= m) & (free < m + len(ch)), free >= m + len(ch)
     g = theta[m + len(ch) :]
-    C = log_mounting.read_matrix(g, ch)  # ∂y/∂x: the states' own but where the log mixes them
     out = []
     for r, x, states in zip(records, x0, flown):
         f = flight(model, theta[:m], r.t, x, r.fins, free[own], substeps, states)
         simulated(len(r.t) * (1 + int(own.sum())))
         St = np.zeros((len(r.t), len(ch), len(free)))
-        St[:, :, own] = np.einsum("cs,nsq->ncq", C, f.dx_dtheta) if np.any(g) else f.dx_dtheta[:, ch]
+        St[:, :, own] = log_mounting.read_derivatives(g, f.dx_dtheta, ch)
         # ∂(x + b)/∂b = 1 on the bias's own channel, 0 on the others
         St[:, free[bias] - m, np.flatnonzero(bias)] = 1.0
         if mounting.any():  # the log's reading moves with its mounting, on u, v, w
@@ -289,8 +288,7 @@ def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
             velocity = ch < 3
             for j in np.flatnonzero(mounting):
                 St[:, velocity, j] = dg[free[j] - m - len(ch)][:, ch[velocity]]
-        Sx = np.einsum("cs,nsk->nck", C, f.dx_dx0) if np.any(g) else f.dx_dx0[:, ch]
-        out.append((St, Sx[:, :, ch]))
+        out.append((St, log_mounting.read_derivatives(g, f.dx_dx0, ch)[:, :, ch]))
     return out
 
 

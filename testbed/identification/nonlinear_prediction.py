@@ -117,7 +117,6 @@ def initial_state(
     present = np.isfinite(y)
     cols = [ch[j] for j in moved]
     mounting = np.zeros(len(MOUNTING)) if mounting is None else np.asarray(mounting, float)
-    C = log_mounting.read_matrix(mounting, ch)  # ∂y/∂x
 
     def residual(x):
         return np.where(present, y - log_mounting.read(mounting, x, ch), 0.0)
@@ -128,9 +127,8 @@ def initial_state(
     res, lam = residual(states), 1e-3
     for _ in range(ITERATIONS if moved else 0):
         V = np.maximum(np.sum(res**2, axis=0) / np.maximum(present.sum(axis=0), 1), 1e-30) if R is None else R
-        J = np.einsum("cs,nsk->nck", C, flight(model, theta, t, x0, fins, (), substeps, states).dx_dx0)[
-            :, :, cols
-        ]
+        dx0 = flight(model, theta, t, x0, fins, (), substeps, states).dx_dx0
+        J = log_mounting.read_derivatives(mounting, dx0, ch)[:, :, cols]
         simulated(len(t) * (1 + len(cols)))
         J = np.where(present[:, :, None], J, 0.0)
         W = J / V[:, None]

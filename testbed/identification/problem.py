@@ -238,11 +238,7 @@ class Problem:
     def read_matrix(self, record: Record, values: np.ndarray) -> np.ndarray:
         """∂y/∂x (k, 10): the outputs' derivative w.r.t. the state, the state's own but for the
         u, v, w of a `mounted` velocity log, `log_mounting.matrix` on (u, v, w, p, q, r)."""
-        theta = self.coefficients(values, record.group)
-        C = np.eye(NX, dtype=theta.dtype)
-        if self.mounted:
-            C[:3, :6] = log_mounting.matrix(theta[IMOUNTING])
-        return C[record.measured]
+        return log_mounting.read_matrix(self.coefficients(values, record.group)[IMOUNTING], record.measured)
 
     def outputs(self, record: Record, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         """The record's model outputs (N, k) from its states `x` (N, 10) at the free `values`:

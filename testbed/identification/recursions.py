@@ -237,15 +237,15 @@ def _read_parts(prob, record, d, x, rows, scale, size, present, values) -> Itera
     S[:, :3] = np.einsum("cs,nsq->ncq", log_mounting.matrix(mounting), S[:, :6])
     acting = prob.acting(record.group)
     speed = np.array([prob.speed, 0.0, 0.0])
+    if np.isin(prob.index[acting], IMOUNTING).any():
+        dg = log_mounting.derivatives(mounting, x[:, :3] + speed, x[:, 3:6], prob.current(record, theta))
     for i, k in enumerate(prob.index):
         if not acting[i]:
             continue
         if k in IBIAS:
             S[:, k - IBIAS[0], i] = 1.0
         elif k in IMOUNTING:
-            at = int(np.flatnonzero(IMOUNTING == k)[0])
-            current = prob.current(record, theta)
-            S[:, :3, i] = log_mounting.derivatives(mounting, x[:, :3] + speed, x[:, 3:6], current)[at]
+            S[:, :3, i] = dg[int(np.flatnonzero(IMOUNTING == k)[0])]
         elif k in ICURRENT:
             unit = np.zeros_like(theta)
             unit[k] = 1.0
@@ -379,15 +379,7 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
         inputs = prob.inputs(r, p[:nf])
         x = trajectory(d, prob.x0(r, p), inputs)
         w, X = _w(x, inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX), p[:nf], biases=False)
-        mounted = prob.mounted and bool(np.any(r.measured < 3))
-        # the weights on the states: Cᵀ w, C the outputs' derivative w.r.t. the state
-        a = (
-            (wr @ prob.read_matrix(r, p[:nf]))
-            if mounted
-            else np.zeros((len(w), NX), dtype=np.result_type(wr, p))
-        )
-        if not mounted:
-            a[:, r.measured] = wr
+        a = wr @ prob.read_matrix(r, p[:nf])  # the weights on the states: Cᵀ w, C = ∂y/∂x
         Phi = d.E[:, :NX]
         mu = scan.propagate(Phi.T, a[-1], a[-2::-1])[::-1]  # μ[k], k = 0 … N−1
         dPhi = np.zeros((X.shape[2], NX, NX), dtype=X.dtype)
@@ -405,7 +397,7 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
             Hr[:nf, j] += cross
             Hr[j, :nf] += cross
             Hr[j, j] += np.sum(d.E[:, NX : NX + NU] * (mu[1:].T @ prob.input_curvatures(r, p[:nf])[:-1]))
-        if mounted:
+        if prob.mounted and np.any(r.measured < 3):
             Hr += _read_curvature(prob, r, x, X, wr, p[:nf])
         cols = prob.columns(r)
         H[np.ix_(cols, cols)] += Hr
@@ -427,16 +419,16 @@ def _read_curvature(
     speed = np.array([prob.speed, 0.0, 0.0])
     current = prob.current(r, theta)
     H = np.zeros((X.shape[2], X.shape[2]))
-    mounting = [
-        (i, int(np.flatnonzero(IMOUNTING == k)[0]))
-        for i, k in enumerate(prob.index)
-        if k in IMOUNTING and acting[i]
-    ]
-    currents = [
-        (i, int(np.flatnonzero(ICURRENT == k)[0]))
-        for i, k in enumerate(prob.index)
-        if k in ICURRENT and acting[i]
-    ]
+
+    def free(among: np.ndarray) -> list[tuple[int, int]]:
+        """(free index, position in `among`) of the free values among `among` acting here."""
+        return [
+            (i, int(np.flatnonzero(among == k)[0]))
+            for i, k in enumerate(prob.index)
+            if k in among and acting[i]
+        ]
+
+    mounting, currents = free(IMOUNTING), free(ICURRENT)
     dC = log_mounting.matrix_derivatives(g)[:, read]  # (5, channels, 6)
     d2 = log_mounting.second_derivatives(g, x[:, :3] + speed, x[:, 3:6], current)[:, :, :, read]
     dM = log_mounting.turned_derivatives(g)

@@ -28,6 +28,7 @@ __all__ = [
     "matrix",
     "matrix_derivatives",
     "read",
+    "read_derivatives",
     "read_matrix",
     "reading",
     "second_derivatives",
@@ -125,6 +126,15 @@ def read_matrix(mounting: np.ndarray, columns) -> np.ndarray:
     C = np.eye(10, dtype=np.result_type(mounting, float))
     C[:3, :6] = matrix(mounting)
     return C[np.asarray(columns)]
+
+
+def read_derivatives(mounting: np.ndarray, dx: np.ndarray, columns) -> np.ndarray:
+    """The derivatives (N, len(columns), q) of the states `columns` as read (`read`), from the
+    states' own `dx` (N, 10, q): `read_matrix` times them, or their rows where the log is at the
+    CG and aligned."""
+    if not np.any(mounting):
+        return dx[:, np.asarray(columns)]
+    return np.einsum("cs,nsq->ncq", read_matrix(mounting, columns), dx)
 
 
 def read(mounting: np.ndarray, states: np.ndarray, columns) -> np.ndarray:
