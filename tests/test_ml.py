@@ -157,10 +157,12 @@ def test_ml_nr_in_coordinates_scaled_by_the_start_reaches_the_optimum_in_fewer_i
         identify(data, prior, method="ml-nr", coordinates="x")
 
 
-def test_ml_nm_with_and_without_restarts_reaches_the_optimum(monkeypatch):
-    # restarts=True: a fresh simplex per continuation stage and per noise update; False: the
-    # paper's one simplex from the start's, continued through the noise updates. Both end within
-    # 0.1 σ of ml-gn's optimum from 10 % off; the fresh simplexes made are counted where made.
+@pytest.mark.parametrize("coordinates, steps", [("information", (1.0, 0.1)), ("scaled", (0.1, 0.02))])
+def test_ml_nm_with_and_without_restarts_reaches_the_optimum(monkeypatch, coordinates, steps):
+    # restarts=True: a fresh simplex per continuation stage and per noise update (and where a run
+    # is cut short); False: the paper's one simplex from the start's, continued through the noise
+    # updates. Both end within 0.1 σ of ml-gn's optimum from 10 % off, in either coordinates;
+    # the fresh simplexes made are counted where made, each `step` or `restart_step` wide.
     from testbed.estimators import ml
 
     data = _vertical()
@@ -174,14 +176,17 @@ def test_ml_nm_with_and_without_restarts_reaches_the_optimum(monkeypatch):
     counts = {}
     for restarts in (True, False):
         made.clear()
-        est = identify(data, prior, method="ml-nm", start="config", restarts=restarts)
+        est = identify(data, prior, method="ml-nm", start="config", restarts=restarts, coordinates=coordinates)
         assert est.converged, restarts
         _same_optimum(est, gn, 0.1)
         counts[restarts] = list(made)
-    assert counts[False] == [0.1]  # the first simplex only, `step` wide
-    assert len(counts[True]) > 1 and counts[True][0] == 0.1 and set(counts[True][1:]) == {0.02}
+    step, restart_step = steps
+    assert counts[False] == [step]  # the first simplex only, `step` wide
+    assert len(counts[True]) > 1 and counts[True][0] == step and restart_step in counts[True][1:]
     with pytest.raises(InputError, match="restarts=1"):
         identify(data, prior, method="ml-nm", restarts=1)
+    with pytest.raises(InputError, match="coordinates='si'"):
+        identify(data, prior, method="ml-nm", coordinates="si")
 
 
 def test_ml_nr_divergence_is_reported_not_raised():

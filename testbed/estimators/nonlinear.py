@@ -25,7 +25,7 @@ What a linear method's option means here:
 - `max_iter`: the iteration limit (`ml-gn`: every stage of the fit's record-length halving
   counted, at least 1; `ml-nm`: simplex iterations, default 500 per free coefficient);
 - `tol` (`ml-gn`): converged when every parameter's step is below `tol` × its Cramér-Rao σ;
-- `eps`, `step`, `restart_step`, `r_tol`, `max_relaxations`, `coefficients` (`ml-nm`): as for
+- `eps`, `step`, `restart_step`, `r_tol`, `max_relaxations`, `coefficients`, `coordinates` (`ml-nm`; only `scaled`): as for
   the linear model;
 - `start`: `config` (the config's values), `equation-error` (the dynamics rows fitted to the
   measured states' difference quotients from the config's values, `nonlinear_regression`: no
@@ -54,7 +54,7 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status
 from testbed.estimators.nonlinear_regression import equation_error
-from testbed.estimators.simplex import fresh_simplex, simplex_coefficients, simplex_run
+from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficients, simplex_run
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
     fit_output_error,
@@ -76,7 +76,7 @@ __all__ = ["STARTS", "gauss_newton", "simplex"]
 STARTS = ("auto", "config", "equation-error")  # the starts a nonlinear model has (module doc)
 _STATUS = {"converged": Status.CONVERGED, "iteration limit": Status.MAX_ITERATIONS, "stalled": Status.STALLED}
 _GN = ("max_iter", "tol", "start")  # the options each method honours on a nonlinear model config
-_NM = ("max_iter", "start", "eps", "step", "restart_step", "r_tol", "max_relaxations", "coefficients")
+_NM = ("max_iter", "start", "eps", "step", "restart_step", "r_tol", "max_relaxations", "coefficients", "coordinates")
 
 
 def _checked(method: str, options: Options, meant: Sequence[str]) -> None:
@@ -195,6 +195,8 @@ def simplex(
     """`ml-nm` on a nonlinear model config (module doc)."""
     t0, name = time.perf_counter(), "ml-nm"
     _checked(name, options, _NM)
+    if options.coordinates == "information":
+        raise OptionError(name, "coordinates", options.coordinates, "scaled or None for a nonlinear model config")
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     ch = [STATES.index(c) for c in channels]
     given = config.noise_std or {}
@@ -263,13 +265,14 @@ def simplex(
 
         coef = simplex_coefficients(options.coefficients, nf)
         tol = options.eps / N
-        x, size, it, status = theta[idx] / scale, options.step, 0, Status.STALLED
+        steps = [d if v is None else v for v, d in zip((options.step, options.restart_step), STEPS["scaled"])]
+        x, size, it, status = theta[idx] / scale, steps[0], 0, Status.STALLED
         for _ in range(options.max_relaxations):
             J_start = J(x)
             corners, J_i, it, stopped = simplex_run(
                 J, fresh_simplex(x, size), coef, tol, it, max_iter, report
             )
-            x, J_best, size = corners[0], J_i[0], options.restart_step
+            x, J_best, size = corners[0], J_i[0], steps[1]
             if not stopped:
                 status = Status.MAX_ITERATIONS
                 break

@@ -5,7 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["fresh_simplex", "simplex_coefficients", "simplex_run"]
+__all__ = ["STEPS", "fresh_simplex", "simplex_coefficients", "simplex_run"]
+
+# the first simplex's edge and a later run's, per coordinates: Cramér-Rao σ (information) or
+# fractions of |θ_i,start| (scaled)
+STEPS = {"information": (1.0, 0.1), "scaled": (0.1, 0.02)}
 
 
 def simplex_coefficients(kind: str, m: int) -> tuple[float, float, float, float]:
@@ -28,9 +32,10 @@ def simplex_run(
     """One run of the paper's eight steps from the corners `simplex` (m + 1, m), their J
     evaluated first.
 
+    `report(it, best corner, its J)` after each iteration; a true return stops the run there.
     Returns the corners where it stopped (the lowest first), their J, the iteration count
     (continued from `it`) and whether the stopping rule (step 3, spread ≤ `tol`) stopped it
-    rather than `max_iter`.
+    rather than `max_iter` or `report`.
     """
     alpha, gamma, beta, delta = coefficients
     m = simplex.shape[1]
@@ -75,6 +80,7 @@ def simplex_run(
                 simplex = simplex[lo] + delta * (simplex - simplex[lo])
                 J_i = np.array([J_i[lo] if i == lo else J(v) for i, v in enumerate(simplex)])
         lo = int(np.argmin(J_i))
-        report(it, simplex[lo], float(J_i[lo]))
+        if report(it, simplex[lo], float(J_i[lo])):  # the caller's own reason to stop here
+            break
     order = np.argsort(J_i, kind="stable")
     return simplex[order], J_i[order], it, stopped

@@ -59,19 +59,19 @@ ARMS: dict[str, Arm] = {
             "ml-nm-paper",
             "ml-nm",
             "the paper's Nelder-Mead: coefficients (1, 2, ½, ½), one simplex",
-            {"coefficients": "paper", "restarts": False, "start": "config"},
+            {"coefficients": "paper", "restarts": False, "start": "config", "coordinates": "scaled"},
         ),
         Arm(
             "ml-nm-paper-restarts",
             "ml-nm",
             "Nelder-Mead, the paper's coefficients, with restarts and record-length continuation",
-            {"coefficients": "paper", "restarts": True, "start": "config"},
+            {"coefficients": "paper", "restarts": True, "start": "config", "coordinates": "scaled"},
         ),
         Arm(
             "ml-nm-adaptive",
             "ml-nm",
             "Nelder-Mead with Gao & Han's adaptive coefficients, one simplex",
-            {"coefficients": "adaptive", "restarts": False, "start": "config"},
+            {"coefficients": "adaptive", "restarts": False, "start": "config", "coordinates": "scaled"},
         ),
         Arm(
             "ml-nm-adaptive-restarts",
