@@ -12,7 +12,15 @@ projection, Golub & Pereyra).
   exactly through the eigenvectors of `D⁻¹FD⁻¹`). `D = diag(1/s)` with `s_i` the largest of the
   coefficient's a-priori magnitude, its magnitude at the start and its Cramér-Rao bound there: a
   unit lets every coefficient move by its own size (or, a-priori 0, by one standard error),
-  whatever its units; the first region is √n_free units.
+  whatever its units. On the whole record the first region is `RADIUS` √n_free units, a tenth
+  of each coefficient's size along every axis at once: a first step that far is still a small
+  change of the model, inside the basin the start lies in, and the region doubles with each
+  step the model predicts well, so a good prior on benign data converges in a handful of
+  iterations, where a region of whole sizes let the first steps leap into another basin (on
+  the REMUS-class records, 12 iterations lost there). On multiple shooting's segments, whose
+  cost is nearer quadratic (a model's error does not grow along a whole record), the first
+  region is `SEGMENT_RADIUS` √n_free: whole sizes, which carry a far start past the segments'
+  shallow minima.
 - Acceptance: `ρ = (W(θ) − W(θ + d)) / (m(0) − m(d))`, W the weighted cost `½ Σ eᵀR⁻¹e` with R
   held at its estimate at θ and the trial's initial states fitted with it; the step is taken
   when ρ > `ACCEPT`, and Δ shrinks (ρ < ¼) or grows (ρ > ¾ at the boundary) as in every
@@ -47,6 +55,9 @@ from testbed.estimators.base import Outcome, Progress, Status
 
 __all__ = [
     "ACCEPT",
+    "JOIN",
+    "RADIUS",
+    "SEGMENT_RADIUS",
     "SEGMENTS",
     "SHRINK",
     "STAGE_TOL",
@@ -66,6 +77,8 @@ DIRECT = 12  # iterations on the whole record before multiple shooting is tried 
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
 SHRINK = 4  # each multiple-shooting stage has this many times fewer segments than the one before
 JOIN = 2.0  # a fit within this many Cramér-Rao σ of an earlier optimum is in its basin (ΔJ ≈ 2 in the quadratic model)
+RADIUS = 0.1  # the first trust region's radius over √n_free (scaled units) on the whole record
+SEGMENT_RADIUS = 1.0  # … and on multiple shooting's segments
 MIN_RADIUS = 1e-3  # the trust radius a stage hands on, at least (scaled units)
 NEGATIVE = 1e-8  # an eigenvalue of the scaled Hessian below −NEGATIVE × its largest is negative curvature
 
@@ -276,13 +289,13 @@ def trust_region(
     callback=None,
     tol: float = 1e-3,
     segments: int = SEGMENTS,
-    radius: float = 1.0,
+    radius: float = RADIUS,
     escapes: int = 3,
     follow: tuple = (),
 ) -> Outcome:
     """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
     are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
-    scaled coordinates, with the second-order check at the end (leaving at most `escapes`
+    scaled coordinates (`SEGMENT_RADIUS` × √n_free where multiple shooting begins), with the second-order check at the end (leaving at most `escapes`
     saddles). From a start whose response grows beyond bound along the records
     (`likelihood.bounded` cuts them into segments), multiple shooting from the first iteration,
     with all of `max_iter`: stages of that many pieces per record (of at least
@@ -315,8 +328,8 @@ def trust_region(
         count = likelihood.bounded(prob, p[:nf], likelihood.FEWEST_SEGMENT)[2]
     if segments > 1 and count > 1:  # the start's response grows beyond bound: segments first
         out = _stages(
-            prob, _shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, tol, radius,
-            escapes, follow, report,
+            prob, _shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, tol,
+            SEGMENT_RADIUS, escapes, follow, report,
         )  # fmt: skip
         return _outcome(prob, p, out, history)
     direct = _stages(
@@ -332,7 +345,7 @@ def trust_region(
     if direct.status is not Status.CONVERGED and stages:
         # multiple shooting gets half of what is left; the rest goes on from the lower of the
         # points the two reached on the whole record (no budget is left unused)
-        out = _stages(prob, stages, p, left() // 2, tol, radius, escapes, follow, report)
+        out = _stages(prob, stages, p, left() // 2, tol, SEGMENT_RADIUS, escapes, follow, report)
         if out.status is not Status.CONVERGED:
             lower = min(
                 (d for d in (direct, out) if d.point is not None), key=lambda d: d.point.J, default=None
