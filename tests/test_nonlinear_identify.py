@@ -176,7 +176,8 @@ def test_ml_nm_reports_through_the_contract_and_refuses_what_it_cannot_honour(tr
     assert [p.iteration for p in steps] == [1, 2, 3] and est.history.shape == (4, 2)
     assert np.all(np.isfinite(est.std)) and np.all(est.std > 0) and est.evaluations > 3
     assert set(est.initial_states["doublets"]) == set(STATES)
-    for options, name in (({"restarts": False}, "restarts"), ({"first_length": 1.0}, "first_length")):
+    refused = (({"restarts": False}, "restarts"), ({"first_length": 1.0}, "first_length"))
+    for options, name in refused + (({"coordinates": "information"}, "coordinates"),):
         with pytest.raises(OptionError) as e:
             identify([noisy], start, "ml-nm", options)
         assert e.value.option == name
