@@ -49,7 +49,9 @@ def console(name: str = "testbed") -> Path:
     """The console script `name` installed beside this interpreter."""
     script = Path(sys.executable).parent / name
     if not script.exists():
-        raise SystemExit(f"no console script {script}: install the package into this interpreter (pip install -e .)")
+        raise SystemExit(
+            f"no console script {script}: install the package into this interpreter (pip install -e .)"
+        )
     return script
 
 
@@ -57,6 +59,11 @@ def command(argv: list, cwd: str | os.PathLike) -> float:
     """Wall time of one run of `argv` from `cwd` to its exit, its output discarded; it must succeed."""
     t0 = time.perf_counter()
     subprocess.run(
-        [str(a) for a in argv], cwd=cwd, env=ENV, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        [str(a) for a in argv],
+        cwd=cwd,
+        env=ENV,
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
     )
     return time.perf_counter() - t0

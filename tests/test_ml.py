@@ -176,7 +176,9 @@ def test_ml_nm_with_and_without_restarts_reaches_the_optimum(monkeypatch, coordi
     counts = {}
     for restarts in (True, False):
         made.clear()
-        est = identify(data, prior, method="ml-nm", start="config", restarts=restarts, coordinates=coordinates)
+        est = identify(
+            data, prior, method="ml-nm", start="config", restarts=restarts, coordinates=coordinates
+        )
         assert est.converged, restarts
         _same_optimum(est, gn, 0.1)
         counts[restarts] = list(made)

@@ -280,9 +280,13 @@ def nelder_mead(
         return _information_frame(stage, theta, R, scale)
 
     if not restarts:
-        R = likelihood.noise_variance(prob, recursions.residuals(prob, likelihood.initial_states(prob, theta)))
+        R = likelihood.noise_variance(
+            prob, recursions.residuals(prob, likelihood.initial_states(prob, theta))
+        )
         frame = framed(prob, theta, R)
-        return _one_simplex(prob, frame, R, coef, eps, step, r_tol, max_relaxations, max_iter, report, history)
+        return _one_simplex(
+            prob, frame, R, coef, eps, step, r_tol, max_relaxations, max_iter, report, history
+        )
     stages = _stages(prob, first_length)
     for stage in stages:
         final[0] = stage is prob
@@ -311,7 +315,10 @@ def nelder_mead(
             if not stopped:
                 if it >= max_iter:
                     return Outcome(
-                        likelihood.initial_states(prob, theta, R), Status.MAX_ITERATIONS, it, np.array(history)
+                        likelihood.initial_states(prob, theta, R),
+                        Status.MAX_ITERATIONS,
+                        it,
+                        np.array(history),
                     )
                 # a run cut short: afresh from its best corner in the frame there, as large as
                 # the simplex had become (its corners' median distance from the best)

@@ -76,7 +76,17 @@ __all__ = ["STARTS", "gauss_newton", "simplex"]
 STARTS = ("auto", "config", "equation-error")  # the starts a nonlinear model has (module doc)
 _STATUS = {"converged": Status.CONVERGED, "iteration limit": Status.MAX_ITERATIONS, "stalled": Status.STALLED}
 _GN = ("max_iter", "tol", "start")  # the options each method honours on a nonlinear model config
-_NM = ("max_iter", "start", "eps", "step", "restart_step", "r_tol", "max_relaxations", "coefficients", "coordinates")
+_NM = (
+    "max_iter",
+    "start",
+    "eps",
+    "step",
+    "restart_step",
+    "r_tol",
+    "max_relaxations",
+    "coefficients",
+    "coordinates",
+)
 
 
 def _checked(method: str, options: Options, meant: Sequence[str]) -> None:
@@ -196,7 +206,9 @@ def simplex(
     t0, name = time.perf_counter(), "ml-nm"
     _checked(name, options, _NM)
     if options.coordinates == "information":
-        raise OptionError(name, "coordinates", options.coordinates, "scaled or None for a nonlinear model config")
+        raise OptionError(
+            name, "coordinates", options.coordinates, "scaled or None for a nonlinear model config"
+        )
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     ch = [STATES.index(c) for c in channels]
     given = config.noise_std or {}
