@@ -334,24 +334,38 @@ def nelder_mead(
                 return Outcome(
                     likelihood.initial_states(prob, theta, R), Status.STALLED, it, np.array(history)
                 )
-    p = likelihood.initial_states(prob, theta, R)
-    return Outcome(p, Status.CONVERGED, it, np.array(history), optimum=_optimum(prob, p, R))
+    return _converged(prob, theta, R, it, history)
 
 
 RUN = 20  # iterations per free coefficient after which a simplex run that has not stopped starts afresh
 
 
-def _optimum(prob: Problem, p: np.ndarray, R: np.ndarray) -> tuple:
-    """(θ, Cramér-Rao σ) at the optimum `p` for later starts to recognise (`Outcome.optimum`);
-    () where the information there is not finite."""
-    nf = prob.n_free
-    x = trust_region.point(prob, p[:nf], R)
+def _information(
+    prob: Problem, theta: np.ndarray, R: np.ndarray, weigh: np.ndarray | None = None
+) -> tuple[trust_region.Point, np.ndarray, np.ndarray] | None:
+    """The point at θ (its initial states fitted with `R`), the Gauss-Newton information M of the
+    full parameter vector there, weighed by `weigh` (None: the point's own residual variance), and
+    M with the initial states solved for (F, θ's alone); None where the model diverges at θ."""
+    x = trust_region.point(prob, theta, R)
     if x is None:
-        return ()
+        return None
     with np.errstate(over="ignore", invalid="ignore"):
-        g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
-    std = bounds.crlb(likelihood.reduced(M, g, nf)[0]).std
-    return (p[:nf].copy(), std) if np.all(np.isfinite(std)) else ()
+        g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R if weigh is None else weigh)
+    return x, M, likelihood.reduced(M, g, prob.n_free)[0]
+
+
+def _converged(prob: Problem, theta: np.ndarray, R: np.ndarray, it: int, history: list) -> Outcome:
+    """The CONVERGED outcome at θ (its initial states fitted with `R`), with its Fisher information
+    (which spares `bounds.assess` a pass) and its optimum (θ, Cramér-Rao σ) for later starts to
+    recognise (`Outcome.optimum`), where the information there is finite."""
+    found = _information(prob, theta, R)
+    if found is None:
+        return Outcome(likelihood.initial_states(prob, theta, R), Status.CONVERGED, it, np.array(history))
+    x, M, F = found
+    std = bounds.crlb(F).std
+    if not (np.all(np.isfinite(M)) and np.all(np.isfinite(std))):
+        return Outcome(x.p, Status.CONVERGED, it, np.array(history))
+    return Outcome(x.p, Status.CONVERGED, it, np.array(history), M, (theta.copy(), std))
 
 
 @dataclass(frozen=True)
@@ -377,14 +391,11 @@ def _information_frame(prob: Problem, theta: np.ndarray, R: np.ndarray, scale: n
     farther than its coefficients' own size (`scale`: T's column at most unit length in θ/scale).
     The coordinates scaled by `scale` where the information is not finite there (the model
     diverges)."""
-    nf = prob.n_free
-    fallback = _Frame(np.zeros(nf), scale)
-    x = trust_region.point(prob, theta, R)
-    if x is None:
+    fallback = _Frame(np.zeros(prob.n_free), scale)
+    found = _information(prob, theta, R, weigh=R)
+    if found is None:
         return fallback
-    with np.errstate(over="ignore", invalid="ignore"):
-        g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, R)
-    F = likelihood.reduced(M, g, nf)[0]
+    F = found[2]
     if not np.all(np.isfinite(F)) or not np.all(np.diag(F) > 0):
         return fallback
     D = 1.0 / np.sqrt(np.diag(F))
