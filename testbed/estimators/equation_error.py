@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
@@ -141,23 +142,20 @@ def smoothed(y: np.ndarray, win: int, present: np.ndarray | None = None) -> np.n
     present: a gap is not bridged, and a cubic's four coefficients are fitted to at least five
     distinct samples, never a singular system."""
     h = win // 2
-    n = len(y) - 2 * h
     if present is None or present.all():
         # the fitted cubic's value at the window's centre: the first row of the Vandermonde
         # pseudo-inverse
         c = np.linalg.pinv(np.vander(np.arange(-h, h + 1.0), 4, increasing=True))[0]
-        return sum(c[o] * y[o : o + n] for o in range(win))
+        return sliding_window_view(y, win, axis=0) @ c
     # per window and channel the normal equations of the cubic in s = o − h, weighted by presence:
-    # Σ P s^(a+b) (a, b ≤ 3) and Σ P s^a y, summed over the window's offsets o
+    # Σ P s^(a+b) (a, b ≤ 3) and Σ P s^a y, summed over the window's offsets o: each a product of
+    # the windows (n, k, win) with the powers of s (win, ·)
     w = present.astype(float)
     y = np.where(present, y, 0.0)
     s = (np.arange(win) - h) / max(h, 1)  # scaled to [−1, 1]: the 4 × 4 systems stay conditioned
     powers = s[:, None] ** np.arange(7)  # (win, 7)
-    A, b = np.zeros((n, y.shape[1], 7)), np.zeros((n, y.shape[1], 4))
-    for o in range(win):
-        wo = w[o : o + n][:, :, None]
-        A += wo * powers[o]
-        b += (y[o : o + n] * w[o : o + n])[:, :, None] * powers[o, :4]
+    A = sliding_window_view(w, win, axis=0) @ powers  # (n, k, 7)
+    b = sliding_window_view(y * w, win, axis=0) @ powers[:, :4]  # (n, k, 4)
     normal = A[:, :, np.add.outer(np.arange(4), np.arange(4))]  # (n, k, 4, 4) Hankel
     enough = A[:, :, 0] >= np.maximum(w.mean(axis=0) * win / 2, SMOOTHABLE)
     normal[~enough] = np.eye(4)

@@ -42,6 +42,7 @@ __all__ = [
     "analysed",
     "assess",
     "colored_covariance",
+    "lagged",
     "colored_term",
     "crlb",
     "eliminated",
@@ -228,22 +229,19 @@ def colored_term(Z: np.ndarray, v: np.ndarray, present: np.ndarray | None = None
     auto = np.fft.irfft(V.real**2 + V.imag**2, axis=0)[: n // 4 + 2]
     K = lag_window(auto[1 : n // 4 + 1] / np.maximum(auto[0], 1e-300), n)
     L = fft_length(n + K + 1)  # lags up to K without wrap-around
-    # G(τ) = w(τ) R_vv(τ), 0 < τ ≤ K
-    G = np.empty((K, k * k))
-    # with missing samples (v = 0 there) each lag's sum has fewer pairs: scaled by
-    # (n − τ)/pairs, which leaves a complete record's estimate as it is
+    # G(τ) = w(τ) R_vv(τ), 0 < τ ≤ K, from the lagged products Σ_m v(m) v(m+τ)ᵀ of every channel
+    # pair (`lagged`); with missing samples (v = 0 there) each lag's sum has fewer pairs: scaled
+    # by (n − τ)/pairs, which leaves a complete record's estimate as it is
     P = None if present is None else present.astype(float)
-    for tau in range(1, K + 1):
-        fewer = 1.0 if P is None else (n - tau) / np.maximum(P[: n - tau].T @ P[tau:], 1.0)
-        G[tau - 1] = ((1.0 - tau / (K + 1)) / n * (v[: n - tau].T @ v[tau:]) * fewer).ravel()
+    tau = np.arange(1, K + 1)[:, None, None]
+    G = (1.0 - tau / (K + 1)) / n * lagged(v, K, L)[1:]
+    if P is not None:
+        G *= (n - tau) / np.maximum(lagged(P, K, L)[1:], 1.0)
     # Φ(f) = R_vv(0) + Σ_τ>0 (G(τ) e^{+iωτ} + G(τ)ᵀ e^{−iωτ}) (as R_vv(−τ) = R_vv(τ)ᵀ)
-    #      = R_vv(0) + Gc + Gcᵀ + i (Gs − Gsᵀ), Gc = Σ_τ G(τ) cos ωτ, Gs = Σ_τ G(τ) sin ωτ
-    omega_tau = 2 * np.pi / L * np.outer(np.arange(L // 2 + 1), np.arange(1, K + 1))
-    Gc, Gs = (np.cos(omega_tau) @ G).reshape(-1, k, k), (np.sin(omega_tau) @ G).reshape(-1, k, k)
-    Phi = np.empty(Gc.shape, complex)
-    np.add(Gc, Gc.transpose(0, 2, 1), out=Phi.real)
+    #      = R_vv(0) + conj(F(f)) + F(f)ᵀ, F(f) = Σ_τ G(τ) e^{−iωτ}: the DFT of G over the lags
+    F = np.fft.rfft(np.concatenate([np.zeros((1, k, k)), G]), L, axis=0)
+    Phi = F.conj() + F.transpose(0, 2, 1)
     Phi.real += v.T @ v / (n if P is None else np.maximum(P.T @ P, 1.0))
-    np.subtract(Gs, Gs.transpose(0, 2, 1), out=Phi.imag)
     Zf = np.fft.rfft(Z, L, axis=0)  # (frequencies, k, n_free)
     PhiZ = Phi @ Zf
     Zf[0] *= 0.5  # DC and Nyquist appear once in the full spectrum, the others twice
@@ -253,6 +251,13 @@ def colored_term(Z: np.ndarray, v: np.ndarray, present: np.ndarray | None = None
     # arrays viewed as (re, im) pairs
     RI = np.ascontiguousarray(Zf).reshape(-1, nf).view(float).T @ PhiZ.reshape(-1, nf).view(float)
     return (RI[0::2, 0::2] + RI[1::2, 1::2]) * (2.0 / L)
+
+
+def lagged(x: np.ndarray, K: int, L: int) -> np.ndarray:
+    """`Σ_m x(m) x(m+τ)ᵀ` for τ = 0 … K (K + 1, k, k), `x` (n, k), from the cross-spectra on
+    an L-point DFT grid (L ≥ n + K: no wrap-around at those lags)."""
+    X = np.fft.rfft(x, L, axis=0)
+    return np.fft.irfft(X.conj()[:, :, None] * X[:, None, :], L, axis=0)[: K + 1]
 
 
 @dataclass(frozen=True)

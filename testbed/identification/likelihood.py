@@ -32,12 +32,15 @@ __all__ = [
     "FEWEST_SEGMENT",
     "LEAST_SEGMENT",
     "RELAXATIONS",
+    "blocks",
     "bounded",
     "divergence",
     "eliminate",
     "exploded",
     "fit_initial_states",
     "gauss_newton_terms",
+    "grows",
+    "growth_rate",
     "initial_states",
     "negative_log_likelihood",
     "noise_variance",
@@ -168,6 +171,19 @@ def segmented(prob: Problem, count: int, least: int) -> Problem:
     return replace(prob, records=tuple(records))
 
 
+def growth_rate(prob: Problem, values: np.ndarray) -> float:
+    """The rate of the model's least stable mode at the free `values` (A's eigenvalue of largest
+    real part, 1/s), 0 where every mode decays."""
+    A = continuous(prob.structure, prob.coefficients(values))[0]
+    return max(float(np.max(np.linalg.eigvals(A).real)), 0.0)
+
+
+def grows(prob: Problem, values: np.ndarray) -> bool:
+    """Whether the model's least stable mode grows by more than `EXPLODE` over the longest record."""
+    longest = max(len(r.y) * r.dt for r in prob.records)
+    return growth_rate(prob, values) * longest > np.log(EXPLODE)
+
+
 def bounded(
     prob: Problem, values: np.ndarray, least: int = LEAST_SEGMENT
 ) -> tuple[Problem, np.ndarray, int, str | None]:
@@ -180,9 +196,7 @@ def bounded(
     elimination of that initial state cannot resolve it); the parameter vector there with the
     best-fitting initial states, the segments asked per record (1: `prob` itself), and None. Where
     even the shortest segments do not stay bounded, those, and why not."""
-    rate = max(
-        float(np.max(np.linalg.eigvals(continuous(prob.structure, prob.coefficients(values))[0]).real)), 0.0
-    )
+    rate = growth_rate(prob, values)
     count, pieces = 1, 0
     while True:
         stage = prob if count == 1 else segmented(prob, count, least)
@@ -206,11 +220,29 @@ def bounded(
 def eliminate(M: np.ndarray, nf: int, rhs: np.ndarray) -> np.ndarray:
     """`M_xx⁻¹ rhs`, x the parameters after the first `nf` (the initial states), with M_xx
     scaled to a unit diagonal first: an unstable model's initial-state sensitivities grow along
-    the record, so M_xx spans many decades."""
+    the record, so M_xx spans many decades. Each record's initial state acts on its own
+    samples alone, so M_xx is block diagonal (`blocks`) and is solved a block at a time: on
+    multiple shooting's hundreds of segments that is hundreds of k × k solves, not one of their
+    order cubed."""
     Mxx = M[nf:, nf:]
     D = np.sqrt(np.maximum(np.diag(Mxx), 0.0))
     D = np.where(D > 0, D, 1.0)
-    return np.linalg.lstsq(Mxx / np.outer(D, D), rhs / D[:, None], rcond=None)[0] / D[:, None]
+    A, b = Mxx / np.outer(D, D), rhs / D[:, None]
+    out = np.empty(b.shape, dtype=np.result_type(A, b))
+    for block in blocks(A):
+        out[block] = np.linalg.lstsq(A[block, block], b[block], rcond=None)[0]
+    return out / D[:, None]
+
+
+def blocks(A: np.ndarray) -> list[slice]:
+    """The diagonal blocks of the symmetric matrix `A`, as fine as its zeros allow: a block ends
+    at the first index that no entry of the rows up to it reaches beyond."""
+    n = len(A)
+    nz = A != 0
+    last = np.where(nz.any(axis=1), n - 1 - np.argmax(nz[:, ::-1], axis=1), 0)
+    reach = np.maximum.accumulate(np.maximum(last, np.arange(n)))
+    ends = np.flatnonzero(reach == np.arange(n))
+    return [slice(int(a), int(b) + 1) for a, b in zip(np.r_[0, ends[:-1] + 1], ends)]
 
 
 def reduced(M: np.ndarray, g: np.ndarray, nf: int) -> tuple[np.ndarray, np.ndarray]:
