@@ -608,16 +608,25 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
 
     fits: list[Fit] = []
 
-    def begin(theta: np.ndarray) -> tuple[np.ndarray, float]:
-        """The parameter vector at θ with its best initial states, and its cost."""
+    def begin(theta: np.ndarray) -> tuple[np.ndarray, float, trust_region.Point | None]:
+        """The parameter vector at θ with its best initial states, its cost, and for `ml-gn` the
+        trust region's point there (None where the model diverges), which it starts from."""
+        if optimiser is trust_region.trust_region:
+            at = trust_region.point(prob, theta)
+            if at is not None:
+                return at.p, at.J, at
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is reported below
             p0 = likelihood.initial_states(prob, theta)
-        return p0, _cost(prob, p0)
+        return p0, _cost(prob, p0), None
 
-    def run(label: str, p0: np.ndarray, J0: float, earlier: Sequence[Fit] = ()) -> Fit:
+    def run(
+        label: str, p0: np.ndarray, J0: float, at: trust_region.Point | None, earlier: Sequence[Fit] = ()
+    ) -> Fit:
         more = {}
         if optimiser in (trust_region.trust_region, nelder_mead):
             more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
+        if at is not None:
+            more["at"] = at
         done = sum(f.outcome.iterations for f in fits)  # the iterations count on over the starts
 
         def report(step: Progress) -> None:

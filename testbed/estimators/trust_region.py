@@ -231,18 +231,19 @@ def _descend(
     max_iter: int,
     report,
     follow: tuple = (),
+    terms: tuple | None = None,
 ) -> Descent:
     """Trust-region steps on one stage's problem from `start` until the Gauss-Newton step is
     shorter than `tol` Cramér-Rao σ (CONVERGED), `max_iter` steps (MAX_ITERATIONS), the region
     shrinks to nothing (STALLED), or a step lands within `JOIN` Cramér-Rao σ of one of the
     optima `follow` ((θ, σ) of earlier fits on the same problem): inside its quadratic basin,
-    bound for the same point."""
+    bound for the same point. `terms`: `_terms` at `start`, if known."""
     nf, x, it, steps = prob.n_free, start, 0, []
     while True:
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
                 return Descent(x, Status.CONVERGED, it, delta, None, joined=i)
-        terms = _terms(prob, x)
+        terms = _terms(prob, x) if terms is None else terms
         if terms is None:  # the coefficients ran off where the data hold nothing to stop them
             return Descent(x, Status.DIVERGED, it, delta, None)
         g, M = terms
@@ -278,7 +279,7 @@ def _descend(
                 break
             if delta < 1e-12 or predicted <= 0:
                 return Descent(x, Status.STALLED, it, delta, M, step=step)
-        x, it = trial, it + 1
+        x, it, terms = trial, it + 1, None
         report(x)
 
 
@@ -292,6 +293,7 @@ def trust_region(
     radius: float = RADIUS,
     escapes: int = 3,
     follow: tuple = (),
+    at: Point | None = None,
 ) -> Outcome:
     """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
     are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
@@ -310,7 +312,8 @@ def trust_region(
     points they reached. `max_iter` bounds the iterations of all of them together.
 
     `follow`: earlier fits' optima `(θ, σ)` on the same problem (`Outcome.optimum`); a fit that
-    steps into one's basin stops there (`Outcome.joined`: which one)."""
+    steps into one's basin stops there (`Outcome.joined`: which one). `at`: `point(prob, p[:n_free])`,
+    if the caller has it."""
     nf = prob.n_free
     history: list[np.ndarray] = [p[:nf].copy()]
 
@@ -324,8 +327,12 @@ def trust_region(
     def left() -> int:
         return max_iter - (len(history) - 1)
 
-    with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is an answer here
-        count = likelihood.bounded(prob, p[:nf], likelihood.FEWEST_SEGMENT)[2]
+    if at is not None and not likelihood.grows(prob, p[:nf]):
+        count = 1  # the start's response stays bounded over the whole record (`point` checked it)
+    else:
+        at = None
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is an answer here
+            count = likelihood.bounded(prob, p[:nf], likelihood.FEWEST_SEGMENT)[2]
     if segments > 1 and count > 1:  # the start's response grows beyond bound: segments first
         out = _stages(
             prob, _shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, tol,
@@ -333,7 +340,7 @@ def trust_region(
         )  # fmt: skip
         return _outcome(prob, p, out, history)
     direct = _stages(
-        prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report
+        prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report, at
     )
     if direct.status is Status.MAX_ITERATIONS and direct.step < min(NEAR, direct.earlier / 2) and stages:
         # near a stationary point, and closing in on it: as many iterations again before anything
@@ -391,14 +398,16 @@ def _shooting_stages(prob: Problem, segments: int, least: int) -> list[Problem]:
     return stages
 
 
-def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> Descent:
+def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report, at=None) -> Descent:
     """`_descend` on each of `stages` (multiple-shooting problems) in turn and then on `prob`,
     each from the one before's θ; the second-order check on `prob`'s optimum. The descent on
-    `prob` (point None where the model diverges on it)."""
+    `prob` (point None where the model diverges on it). `at`: the point at `p` on the first
+    stage, if known."""
     nf = prob.n_free
     theta, s, delta, used = p[:nf].copy(), None, None, 0
     for stage in stages + [prob]:
-        x = point(stage, theta)
+        x = at if at is not None else point(stage, theta)
+        at, terms = None, None
         if x is None:  # the model diverges on this stage from the last one's θ
             if stage is prob:
                 return Descent(None, Status.DIVERGED, used, 0.0, None)
@@ -411,7 +420,7 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report) -> 
             s, delta = _scale(prob.start, theta, likelihood.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
         final = stage is prob
         tol_stage = tol if final else max(tol, STAGE_TOL)
-        out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow)
+        out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow, terms)
         used += out.iterations
         for k in range(escapes + 1 if final else 0):
             if out.status is not Status.CONVERGED or out.joined >= 0:
