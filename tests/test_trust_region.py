@@ -166,3 +166,24 @@ def test_a_fit_that_stops_at_its_limit_has_used_the_whole_limit_and_kept_its_bes
             out = trust_region.trust_region(prob, prob.start.copy(), max_iter=limit)
             J = trust_region.point(prob, out.p[:nf]).J
             assert J <= trust_region.point(prob, whole.p[:nf]).J + 1e-9 * abs(start) and J < start
+
+
+def test_a_step_longer_than_its_region_still_shrinks_the_region(monkeypatch):
+    """On coefficients scaled decades apart (a fit of random numbers ran them to 7e13) the step's
+    length in floating point can come out above the region's radius it was solved for. Every
+    step that fails must still shrink the region, so that a fit whose steps all fail stalls
+    rather than trying the same step forever: here every step is 4 × the region long and
+    uphill."""
+    data = experiments(seed=2, duration=20.0)[1:]
+    prob = problem(data, example_config(VERTICAL))
+    solved = []
+
+    def uphill(F, g, s, delta):
+        solved.append(delta)
+        assert len(solved) < 1000, f"the same step tried over and over: Δ = {solved[-5:]}"
+        return -4.0 * delta * s * g / np.linalg.norm(g), 1.0
+
+    monkeypatch.setattr(trust_region, "subproblem", uphill)
+    out = trust_region.trust_region(prob, prob.start.copy(), segments=1)
+    assert out.status is Status.STALLED and out.iterations == 0
+    assert len(solved) < 100 and all(b < a for a, b in zip(solved, solved[1:]))

@@ -271,8 +271,11 @@ def _descend(
                 else -np.inf
             )
             size = np.linalg.norm(d / s)
-            if rho < 0.25:
-                delta = 0.25 * size
+            if not rho >= 0.25:  # a poor model of the cost there (or none: NaN): a smaller region
+                # a quarter of the step, or of the region where the step came out longer (its
+                # length in floating point off the model's, on coefficients scaled decades
+                # apart): the region shrinks whatever the step
+                delta = 0.25 * (size if size < delta else delta)
             elif rho > 0.75 and size > 0.99 * delta:
                 delta *= 2.0
             if rho > ACCEPT:
