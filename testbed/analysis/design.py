@@ -365,13 +365,20 @@ def spec(
     )
 
 
-def largest(m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, duration: float) -> float:
+def still(m: Model, kind: str, fins: Mapping[str, Signal], duration: float):
+    """The experiment of `kind` flown with its signals `fins` at zero: `fly_model`'s flight, the
+    same for every signal of those channels."""
+    return fly_model(m, spec(kind, {c: scaled(s, 0.0) for c, s in fins.items()}, duration), duration)
+
+
+def largest(
+    m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, duration: float, zero=None
+) -> float:
     """The largest factor c such that the experiment with the fin amplitudes times c stays
     within `limits` (the model and autopilots are linear: the response is the part with the
-    signals at zero plus c times the signals' part)."""
+    signals at zero plus c times the signals' part). `zero`: `still`'s flight, if flown."""
     dt = 1.0 / m.control_rate
-    zero = {c: scaled(s, 0.0) for c, s in fins.items()}
-    _, x0s, f0s = fly_model(m, spec(kind, zero, duration), duration)
+    _, x0s, f0s = still(m, kind, fins, duration) if zero is None else zero
     _, x1s, f1s = fly_model(m, spec(kind, fins, duration), duration)
     dx, df = x1s - x0s, f1s - f0s
 
@@ -418,9 +425,12 @@ def information(
     return Candidate(kind, fins, duration, fisher(m, t, xs, f, kind), hold, growth)
 
 
-def evaluate(m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, duration: float) -> Candidate:
-    """The experiment scaled to the regime's peak bounds and its Fisher information."""
-    c = largest(m, kind, fins, limits, duration)
+def evaluate(
+    m: Model, kind: str, fins: Mapping[str, Signal], limits: Limits, duration: float, zero=None
+) -> Candidate:
+    """The experiment scaled to the regime's peak bounds and its Fisher information (`zero`:
+    `still`'s flight, if flown)."""
+    c = largest(m, kind, fins, limits, duration, zero)
     return information(
         m, kind, {ch: scaled(s, float(f"{s.amplitude * c:.3g}")) for ch, s in fins.items()}, duration
     )
@@ -471,7 +481,9 @@ def best_signals(
     out = {}
     for kind in ("horizontal", "vertical", "roll"):
         (channel,) = TEMPLATES[kind]["channels"]
-        tried = [evaluate(m, kind, {channel: sig}, limits, duration) for sig in candidates(duration)]
+        signals = candidates(duration)
+        zero = still(m, kind, {channel: signals[0]}, duration)  # the same for every signal
+        tried = [evaluate(m, kind, {channel: sig}, limits, duration, zero) for sig in signals]
         best = max(tried, key=value)
         if not check:
             out[kind] = best

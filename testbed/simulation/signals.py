@@ -165,16 +165,22 @@ def min_crest_phases(frequencies: tuple) -> tuple:
     span = peak_span(f)
     t = np.linspace(0.0, span, int(min(PEAK_SAMPLES, 16 * f.max() * span + 1)))
     arg = 2 * np.pi * np.outer(t, f)
+    cos, sin = np.cos(arg), np.sin(arg)
     # Σ a_k cos(arg_k + φ_k) = Σ (a_k cos φ_k) cos arg_k − (a_k sin φ_k) sin arg_k
-    project = np.linalg.pinv(np.hstack([np.cos(arg), -np.sin(arg)]))
+    project = np.linalg.pinv(np.hstack([cos, -sin]))
+
+    def signal(phi: np.ndarray) -> np.ndarray:  # Σ cos(arg_k + φ_k), one product per term
+        return cos @ np.cos(phi) - sin @ np.sin(phi)
+
     phi = schroeder_phases(len(f))
-    best, best_peak = phi, np.abs(np.cos(arg + phi).sum(1)).max()
+    x = signal(phi)
+    best, best_peak = phi, np.abs(x).max()
     for _ in range(CLIP_ITERATIONS):
-        x = np.cos(arg + phi).sum(1)
         level = CLIP * np.abs(x).max()
         c = project @ np.clip(x, -level, level)
         phi = np.arctan2(c[len(f) :], c[: len(f)])
-        peak = np.abs(np.cos(arg + phi).sum(1)).max()
+        x = signal(phi)
+        peak = np.abs(x).max()
         if peak < best_peak:
             best, best_peak = phi, peak
     return tuple(float(v) for v in best)
