@@ -345,7 +345,10 @@ def test_workers_load_the_compiled_step_from_the_cache_this_process_fills(cluste
 
 
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:1", "not an address"])
-def test_a_scheduler_that_does_not_answer_is_an_error_before_anything_is_written(tmp_path, address):
+def test_a_scheduler_that_does_not_answer_is_an_error_before_anything_is_written(
+    tmp_path, address, monkeypatch
+):
+    monkeypatch.setattr(campaign, "CONNECT_S", 1.0)  # a refused connection is retried until then
     with pytest.raises(InputError, match=f"scheduler={address}: cannot connect"):
         campaign.reproduce(tmp_path / "study", seeds=1, scheduler=address, **TINY)
     assert list(tmp_path.iterdir()) == []

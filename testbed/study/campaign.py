@@ -57,6 +57,7 @@ from testbed.study.results import (
 from testbed.study.rules import FACTORIAL, NM_ARM, conclusions
 
 __all__ = [
+    "CONNECT_S",
     "FACTORIAL",
     "KeepFreedMemory",
     "MARKER",
@@ -79,6 +80,7 @@ MAX_SEEDS = 1000  # noise seeds 1..N: weeks of one machine's time at the most
 MAX_SPREAD = 3.0  # e^±3σ_c: beyond it an a-priori model is no model
 MARKER = ".testbed-campaign"  # the file that makes a folder a campaign's, which reproduce resumes
 QUICK_DURATION = 30.0  # s per experiment in --quick
+CONNECT_S = 10.0  # s a scheduler given by its address has to answer
 
 
 def plan(
@@ -307,7 +309,7 @@ class _client:
     def __enter__(self):
         if self.address:
             try:
-                self.client = Client(self.address, timeout="10s")
+                self.client = Client(self.address, timeout=f"{CONNECT_S:g}s")
             except (OSError, TimeoutError, ValueError) as exc:
                 raise InputError(
                     f"scheduler={self.address}: cannot connect ({one_line(exc)}); "
