@@ -180,6 +180,7 @@ def test_injected_biases_and_delay_recovered_within_3_sigma(truth):
             assert 0.8 < fit["innovation_rms"] < 1.25, (c, fit)
 
 
+@pytest.mark.slow  # Monte Carlo over noise seeds, about 8 s on one core
 def test_the_bounds_match_the_scatter_over_noise_seeds(truth):
     # 12 seeds: the scatter's sampling error is 1/√(2 × 11) = 21 %; the bounds must match it
     # within 3 of that, and the mean error be within 3 standard errors of 0

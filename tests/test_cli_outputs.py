@@ -118,7 +118,8 @@ CASES = {
         _rrd,
     ),
 }
-FAST = [k for k in CASES if not k.startswith("design")]  # a design takes ~12 s of one core
+# a design takes ~12 s of one core, the captive reference with its recording ~10 s
+FAST = [k for k in CASES if not k.startswith("design") and k != "captive --rrd"]
 
 
 def _argv(case, run, estimates, folder):
@@ -184,7 +185,7 @@ def test_force_replaces_an_existing_file(case, run, estimates, tmp_path, capsys)
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case", [k for k in CASES if k not in FAST])
-def test_design_force_replaces_an_existing_file(case, run, estimates, tmp_path, capsys):
+def test_slow_commands_force_replaces_an_existing_file(case, run, estimates, tmp_path, capsys):
     _replaced(case, run, estimates, tmp_path, capsys)
 
 

@@ -229,7 +229,6 @@ def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
     """`--from EST.json`: the design model takes the estimate's coefficients (its free set)
     and noise; the information scales as 1/σ², so doubling every noise σ doubles every bound
     of the same design exactly."""
-    from testbed.cli import main
     from testbed.simulation.analytic import analytic_config
 
     analytic = analytic_config()[0].coefficients
@@ -248,6 +247,22 @@ def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
     d0 = D.design(120.0, "A", free=free, check=False)  # at the analytic model
     assert not np.allclose(d0.crlb_base, d1.crlb_base)
 
+
+@pytest.mark.slow  # a design grown on the truth plant, about 20 s on one core
+def test_design_from_an_estimates_file_writes_a_scenario_made_at_it(tmp_path):
+    """`testbed design --from EST.json`: the scenario file says it was made at the estimate and
+    lists its free set, and reads back as a scenario."""
+    from testbed.cli import main
+    from testbed.simulation.analytic import analytic_config
+
+    analytic = analytic_config()[0].coefficients
+    free = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr", "K_p", "K_der", "K_del")
+    path = tmp_path / "est.json"
+    path.write_text(
+        json.dumps(
+            {"coefficients": {n: {"value": 1.2 * analytic[n]} for n in free}, "noise_std": {"v": 0.03}}
+        )
+    )
     out = tmp_path / "next.toml"
     assert main(["design", "--from", str(path), "--duration", "120", "--out", str(out)]) == 0
     text = out.read_text()

@@ -203,6 +203,7 @@ def _study(config, seeds, coloured=0.0):
     return {m: (np.array(v), np.array(s)) for m, (v, s) in out.items()}
 
 
+@pytest.mark.slow  # Monte Carlo: 40 fits over 20 seeds, about 15 s on one core
 def test_with_turbulence_filter_error_is_unbiased_and_its_bounds_true_where_output_error_is_not(config):
     # 20 seeds of closed-loop data with process noise, both methods from the same guesses: the
     # filter error's mean error is below 0.5 σ and σ/scatter within 0.7-1.4 on every coefficient;
@@ -389,6 +390,7 @@ def test_coloured_noise_is_a_first_order_lag_on_each_noisy_row(config):
     assert Aw is A and Ww is W and np.allclose(Phi_w, expm(A * DT), rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.slow  # Monte Carlo: 40 ml-fem fits over 20 seeds, about 35 s on one core
 def test_with_coloured_turbulence_and_its_correlation_time_it_is_unbiased(config):
     # process noise through a 0.3 s lag, slow against the sway-yaw modes: ml-fem told the
     # correlation time is unbiased (mean error < 0.5 σ) with true bounds (σ/scatter 0.7-1.4)

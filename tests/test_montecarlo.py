@@ -1,5 +1,5 @@
-"""Noise studies: the MEKF against its own σ (default run); slow: reduced studies — ml-gn
-against its Cramér-Rao bound, the MEKF reported beside it."""
+"""Noise studies, all `slow` (Monte Carlo over tens of seeds): the MEKF against its own σ; reduced
+studies — ml-gn against its Cramér-Rao bound, the MEKF reported beside it."""
 
 import csv
 
@@ -16,6 +16,7 @@ def _table(path):
     return [r for r in csv.DictReader(line for line in path.open() if not line.startswith("#"))]
 
 
+@pytest.mark.slow  # Monte Carlo: 50 MEKF fits, about 15 s on one core
 def test_mekf_reports_the_scatter_of_its_estimates():
     # The Monte Carlo study's data (linear model, white noise, 30 % off start), the MEKF as the
     # study runs it: its mean error is below 2 of its own σ and that σ is 0.7-1.5 times the

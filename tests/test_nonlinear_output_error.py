@@ -158,6 +158,7 @@ def test_bad_names_are_one_line_input_errors(truth):
         assert "\n" not in str(err.value)
 
 
+@pytest.mark.slow  # Monte Carlo over noise seeds, about 5 s on one core
 def test_the_cramer_rao_bounds_match_the_scatter_over_seeds(truth):
     """Over 8 noise seeds the errors normalised by their σ have mean square ≈ 1 (80 of them:
     χ²₈₀/80 lies in [0.5, 1.6] with probability > 0.999), with the continuation in record length:
