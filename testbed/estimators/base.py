@@ -185,6 +185,8 @@ class Outcome:
     fisher: np.ndarray | None = None  # M at p, when the optimiser has it (saves `assess` a pass)
     optimum: tuple = ()  # (θ, σ) where it converged, for later fits to recognise (`follow`)
     joined: int = -1  # which earlier optimum's basin it entered and stopped in (-1: none)
+    cost: float | None = None  # the negative log-likelihood at p, when the optimiser has it
+    at: tuple | None = None  # (states, residuals) per record at p, when the optimiser has them
 
 
 @dataclass(frozen=True)

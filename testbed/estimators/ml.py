@@ -468,7 +468,7 @@ def _estimate(
     if why is None:
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                info = bounds.assess(prob, out.p, out.fisher)
+                info = bounds.assess(prob, out.p, out.fisher, at=out.at)
             # an infinite bound is an unidentifiable coefficient's (bounds.crlb); NaN is a failure
             why = (
                 None
@@ -643,7 +643,7 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
             twin = [f for f in earlier if f.outcome.optimum][out.joined]
             out = replace(twin.outcome, iterations=out.iterations, history=out.history, optimum=(), joined=-1)
             return Fit(label, out, twin.cost, J0, twin.start)
-        J = _cost(prob, out.p)
+        J = _cost(prob, out.p) if out.cost is None else out.cost
         if J > J0 + 1e-9 * abs(J0) and out.status is not Status.DIVERGED:
             out = replace(out, status=Status.WORSE)
         return Fit(label, out, J, J0)

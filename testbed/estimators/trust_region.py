@@ -381,8 +381,17 @@ def _outcome(prob: Problem, p: np.ndarray, out: Descent, history: list) -> Outco
             out.point.p[:nf].copy(),
             bounds.crlb(likelihood.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]).std,
         )
+    x = out.point
     return Outcome(
-        out.point.p, out.status, len(history) - 1, np.array(history), out.fisher, optimum, out.joined
+        x.p,
+        out.status,
+        len(history) - 1,
+        np.array(history),
+        out.fisher,
+        optimum,
+        out.joined,
+        x.J,
+        (x.xs, x.res),
     )
 
 
