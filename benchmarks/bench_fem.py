@@ -8,14 +8,30 @@ K_dr) from the same start, the a-priori values × exp(0.3 N(0, 1)); each timed a
 three runs, the two alternating, with single-threaded BLAS. Prints both times, their ratio, the
 iterations and each method's errors in its own σ.
 
-    python3 benchmarks/bench_fem.py
+    python3 benchmarks/bench_fem.py [--rounds 3]
+
+The command beside the library cell (`identify(data, start, method="ml-fem")`): the same three
+records written as measurement CSVs (`testbed.data.write_csv`: `horizontal.csv`, `vertical.csv`,
+`roll.csv`) and the same start as a model config (`write_config`, `start.toml`: the 17
+coefficients an explicit free list) into a temporary folder, then `testbed identify
+horizontal.csv vertical.csv roll.csv --config start.toml --method ml-fem --out est.json` with
+default options, as a process from its start to its exit (the console script beside this
+interpreter; one untimed run first, so Python's byte code is cached as for any user; best of
+`--rounds`): start-up, reading, the screen (only reported for an explicit list, but run: its
+own `ml-gn` fit from the default `auto` starts), the `ml-fem` fit (its default start `config`),
+validation and writing. Printed: both times, the ratio command / cell, the fit the command's
+estimates JSON reports (`wall_time_s`, `iterations`), and where the two differ by more than 3×
+a line saying why, measured stage by stage in one more run of the command (`workload.why`);
+both also in units of a fixed numpy workload timed in the same run (`workload.machine`).
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,7 +42,8 @@ one_blas_thread()  # as the command line does, before numpy loads
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from testbed.data import Experiment  # noqa: E402
+from benchmarks.workload import REFERENCE_S, command, console, fit_summary, machine, why  # noqa: E402
+from testbed.data import Experiment, write_config, write_csv  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
 from testbed.identification.innovations import process_covariance  # noqa: E402
 from testbed.models.linear import INPUTS, IX, STATES, continuous, discretize, structure, theta_vector  # noqa: E402
@@ -69,7 +86,10 @@ def _data(config, seed: int) -> list[Experiment]:
     return out
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=3, help="runs of the command (the best counts)")
+    args = ap.parse_args(argv)
     config, _ = analytic_config()
     config = dataclasses.replace(config, free=FREE, screen=False)
     data = _data(config, seed=1)
@@ -103,6 +123,31 @@ def main() -> int:
     print(
         "process noise σ (true / ml-fem):",
         {k: (F[k], round(v["value"], 4)) for k, v in est["ml-fem"].process_noise_std.items()},
+    )
+    testbed, t_fem = console(), min(times["ml-fem"])
+    with tempfile.TemporaryDirectory() as tmp:
+        csvs = [write_csv(Path(tmp) / f"{e.name}.csv", e.t, e.y, e.inputs, e.measured).name for e in data]
+        write_config(Path(tmp) / "start.toml", start)
+
+        def user(out):  # the command as a user types it, default options
+            return [testbed, "identify", *csvs, "--config", "start.toml", "--method", "ml-fem", "--out", out]
+
+        command(user("est0.json"), tmp)  # byte code cached, as for any user
+        t_cmd = min(command(user(f"est{k}.json"), tmp) for k in range(1, args.rounds + 1))
+        fit = fit_summary(Path(tmp) / "est1.json")
+        cell = f"ml-fem from the start, {est['ml-fem'].iterations} iterations, {len(FREE)} free"
+        reason = why(user("why.json"), tmp, t_fem, t_cmd, cell)
+    work = machine()
+    print(
+        f"command `testbed identify {' '.join(csvs)} --config start.toml --method ml-fem --out est.json`: "
+        f"{t_cmd:.2f} s (best of {args.rounds}); its fit (estimates JSON): {fit}"
+    )
+    print(f"cell ml-fem {t_fem:.2f} s, command {t_cmd:.2f} s: command / cell {t_cmd / t_fem:.1f}x")
+    if reason:
+        print(reason)
+    print(
+        f"workload {work:.3f} s (reference {REFERENCE_S:.3f} s): cell {t_fem / work:.1f}, "
+        f"command {t_cmd / work:.1f} workloads"
     )
     return 0
 

@@ -10,13 +10,29 @@ of five runs, the two alternating. Both run with single-threaded BLAS (set befor
 the matrices are small, and on a shared 2-core machine BLAS threads only add synchronisation
 noise. (`benchmarks/bench_command.py` measures the same two as whole commands.)
 
-    python3 benchmarks/bench_ml.py
+    python3 benchmarks/bench_ml.py [--rounds 5]
+
+The command beside the library cell (`identify(data, prior, method="ml-gn", start="config")`):
+the same two records written as measurement CSVs (`testbed.data.write_csv`, `horizontal.csv`,
+`vertical.csv`) and the same prior as a model config (`write_config`, `prior.toml`: its 15
+coefficients an explicit free list) into a temporary folder, then `testbed identify
+horizontal.csv vertical.csv --config prior.toml --out est.json` with default options, as a
+process from its start to its exit (the console script beside this interpreter; one untimed run
+first, so Python's byte code is cached as for any user; best of `--rounds`): start-up, reading,
+the screen (only reported for an explicit list; its `ml-gn` fit, from the default `auto` starts,
+is the fit itself), the Cramér-Rao analysis, validation and writing. Printed: both times, the
+ratio command / cell, the fit the command's estimates JSON reports (`wall_time_s`,
+`iterations`, the starts tried), and where the two differ by more than 3× a line saying why,
+measured stage by stage in one more run of the command (`workload.why`); both also in units of
+a fixed numpy workload timed in the same run (`workload.machine`).
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -28,6 +44,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.scipy_reference import scipy_fit  # noqa: E402
+from benchmarks.workload import REFERENCE_S, command, console, fit_summary, machine, why  # noqa: E402
+from testbed.data import write_config, write_csv  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
 from testbed.identification.examples import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config  # noqa: E402
 
@@ -44,7 +62,10 @@ def _best(runs, rounds: int = 5):
     return [(min(t), o) for t, o in zip(times, out)]
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=5, help="runs of the command (the best counts)")
+    args = ap.parse_args(argv)
     data = experiments(seed=0)
     prior = prior_config(error=0.3)
     simulated = np.array([EXAMPLE_COEFFICIENTS[n] for n in FREE])
@@ -75,6 +96,31 @@ def main() -> int:
     print(
         f"speed ratio scipy/ml-gn: {t_ls / t_gn:.1f}x (goal >= 10x); "
         f"max |ml-gn − scipy| = {np.max(np.abs(z_gn - z_ls)):.3f} σ"
+    )
+    testbed = console()
+    with tempfile.TemporaryDirectory() as tmp:
+        csvs = [write_csv(Path(tmp) / f"{e.name}.csv", e.t, e.y, e.inputs, e.measured).name for e in data]
+        write_config(Path(tmp) / "prior.toml", prior)
+
+        def user(out):  # the command as a user types it, default options
+            return [testbed, "identify", *csvs, "--config", "prior.toml", "--out", out]
+
+        command(user("est0.json"), tmp)  # byte code cached, as for any user
+        t_cmd = min(command(user(f"est{k}.json"), tmp) for k in range(1, args.rounds + 1))
+        fit = fit_summary(Path(tmp) / "est1.json")
+        cell = f"ml-gn from the config start, {est.iterations} iterations, {len(FREE)} free"
+        reason = why(user("why.json"), tmp, t_gn, t_cmd, cell)
+    work = machine()
+    print(
+        f"command `testbed identify {' '.join(csvs)} --config prior.toml --out est.json`: "
+        f"{t_cmd:.3f} s (best of {args.rounds}); its fit (estimates JSON): {fit}"
+    )
+    print(f"cell ml-gn {t_gn:.3f} s, command {t_cmd:.3f} s: command / cell {t_cmd / t_gn:.1f}x")
+    if reason:
+        print(reason)
+    print(
+        f"workload {work:.3f} s (reference {REFERENCE_S:.3f} s): cell {t_gn / work:.1f}, "
+        f"command {t_cmd / work:.1f} workloads"
     )
     return 0
 

@@ -20,11 +20,34 @@ of `--rounds` calls, alternating, with single-threaded BLAS and numba, in wall a
 machine may be shared). The model's compiled code is loaded from numba's cache before the clock
 starts; the first call's time in this process (the cache read) and a compilation from an empty
 cache (in a fresh process) are printed apart.
+
+The commands beside the two nonlinear cells, each the same fit as a user types it: the captive
+configs written by `testbed captive --model polynomial --speed 20 --out polynomial.toml` and
+`testbed captive --speed 20 --out components.toml` (the component model, the default) in the
+temporary folder (untimed), each config's `[identify]` candidate list replaced by the cell's
+explicit free list (`screen` off; the component config's 14 values moved as the cell's start,
+`read_config` then `write_config`), then `testbed identify run --config polynomial.toml --out
+est.json` and `testbed identify run --config components.toml --out est.json` on the run above
+with default options, as processes from their start to their exit (the console script beside
+this interpreter; one untimed run of the first, so Python's byte code is cached as for any user;
+then best of `--rounds`, the two alternating): start-up, reading, the screen (only reported for
+an explicit list, but run: the Fisher information from the flight's sensitivities at the start
+and at the estimate, and its `ml-gn` fit, which is the fit itself where the screen's first stage
+fixes nothing, else a second fit of the list as written follows), the fit from the default
+`auto` start (the config's values or the equation-error regression, whichever flies the record
+better; converged at steps below `ml-gn`'s `tol`, 0.001 σ, where the cells stop at
+`fit_output_error`'s default 0.01 σ), its Cramér-Rao and coloured-residual bounds, validation
+(the fitted model flown open loop) and writing. Printed: each command's time, the ratio command
+/ cell, the fit its estimates JSON reports (`wall_time_s`, `iterations`, `start`), and where the
+two differ by more than 3× a line saying why, measured stage by stage in one more run of the
+command (`workload.why`); all also in units of a fixed numpy workload timed in the same run
+(`workload.machine`), against the goal in those units (30 s at the workload's reference time).
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import subprocess
 import sys
@@ -41,8 +64,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from testbed.data import load_data  # noqa: E402
-from testbed.estimators import identify  # noqa: E402
+from testbed.data import load_data, read_config, write_config  # noqa: E402
+from testbed.estimators import identify, lookup  # noqa: E402
 from testbed.identification.nonlinear_output_error import Record, fit_output_error  # noqa: E402
 from testbed.identification.nonlinear_sensitivities import flight  # noqa: E402
 from testbed.models.linear import STATES  # noqa: E402
@@ -52,6 +75,7 @@ from testbed.simulation.captive_reference import captive_reference, component_re
 from testbed.simulation.runs import simulate  # noqa: E402
 from testbed.simulation.scenario import scenario  # noqa: E402
 from testbed.simulation.vehicle import constants, load_model  # noqa: E402
+from workload import REFERENCE_S, command, console, fit_summary, machine, why  # noqa: E402
 
 GOAL = 30.0  # s, one fit on one core
 SPEED = 20.0
@@ -98,24 +122,35 @@ def _best(runs, rounds):
     return [(min(w), min(c), o) for w, c, o in zip(wall, cpu, out)]
 
 
+def _explicit(path: Path, free, values) -> None:
+    """`testbed captive`'s config at `path` with `free` its explicit free list (no screen) and
+    `values` (name → value) set, as a user edits it for the fit."""
+    config = read_config(path).with_coefficients(values)
+    write_config(path, replace(config, free=tuple(free), screen=False), force=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seed", type=int, default=1, help="the run's noise seed")
-    ap.add_argument("--rounds", type=int, default=3, help="timed calls of each fit (best taken)")
+    ap.add_argument("--rounds", type=int, default=3, help="timed calls of each fit and command (best taken)")
     ap.add_argument("--fin-rate", type=float, default=None, help="Hz: Scenario I's fins logged this often")
     args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:  # the run and the commands' inputs, to the end
+        return _bench(args, Path(tmp))
+
+
+def _bench(args, tmp: Path) -> int:
     s = scenario("I")
     s = replace(s, sensors=replace(s.sensors, fin_rate=args.fin_rate))
-    with tempfile.TemporaryDirectory() as tmp:
-        run = Path(tmp) / "run"
-        simulate(s, seed=args.seed, out=run)
-        experiments, analytic = load_data([run])
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
-        cold = float(
-            subprocess.run(
-                [sys.executable, "-c", COLD], env=env, check=True, capture_output=True, text=True
-            ).stdout
-        )
+    run = tmp / "run"
+    simulate(s, seed=args.seed, out=run)
+    experiments, analytic = load_data([run])
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp / "cache"))
+    cold = float(
+        subprocess.run(
+            [sys.executable, "-c", COLD], env=env, check=True, capture_output=True, text=True
+        ).stdout
+    )
     mjcf = load_model()
     reference = captive_reference(mjcf, SPEED)
     model = nonlinear_model(constants(mjcf, SPEED), reference.terms)
@@ -188,6 +223,49 @@ def main(argv=None) -> int:
         f"estimates from the captive values: max {np.max(np.abs(zc)):.1f} σ "
         f"({COMPONENT_FREE[int(np.argmax(np.abs(zc)))]})"
     )
+    testbed = console()
+    command([testbed, "captive", "--model", "polynomial", "--speed", SPEED, "--out", "polynomial.toml"], tmp)
+    command([testbed, "captive", "--speed", SPEED, "--out", "components.toml"], tmp)
+    _explicit(tmp / "polynomial.toml", free, {})
+    _explicit(
+        tmp / "components.toml", COMPONENT_FREE, {n: cstart[cmodel.names.index(n)] for n in COMPONENT_FREE}
+    )
+
+    def user(config, out):  # the command as a user types it, default options
+        return [testbed, "identify", run.name, "--config", config, "--out", out]
+
+    commands = {
+        "polynomial": (t_nl, fit, free, "the captive values"),
+        "components": (t_cm, cfit, COMPONENT_FREE, "the captive values × exp(±0.2)"),
+    }
+    command(user("polynomial.toml", "est0.json"), tmp)  # byte code cached, as for any user
+    times = {name: [] for name in commands}
+    for k in range(1, args.rounds + 1):
+        for name in commands:
+            times[name].append(command(user(f"{name}.toml", f"{name}{k}.json"), tmp))
+    work, goal = machine(), GOAL / REFERENCE_S
+    # the step tolerances in Cramér-Rao σ: the cell's (fit_output_error's default), the command's (ml-gn's)
+    tolerance = inspect.signature(fit_output_error).parameters["tolerance"].default
+    tol = lookup("ml-gn").options.build("ml-gn", {}).tol
+    for name, (t_cell, cell, names, start) in commands.items():
+        t_cmd = min(times[name])
+        what = (
+            f"fit_output_error from {start}, {cell.iterations} iterations, {len(names)} free, "
+            f"converged at steps below {tolerance:g} σ (the command's ml-gn: {tol:g} σ)"
+        )
+        reason = why(user(f"{name}.toml", f"{name}-why.json"), tmp, t_cell, t_cmd, what)
+        print(
+            f"command `testbed identify run --config {name}.toml --out est.json`: {t_cmd:.2f} s "
+            f"(best of {args.rounds}); its fit (estimates JSON): {fit_summary(tmp / f'{name}1.json')}"
+        )
+        print(f"{name} cell {t_cell:.2f} s, command {t_cmd:.2f} s: command / cell {t_cmd / t_cell:.1f}x")
+        if reason:
+            print(reason)
+        print(
+            f"workload {work:.3f} s (reference {REFERENCE_S:.3f} s): {name} cell {t_cell / work:.1f}, "
+            f"command {t_cmd / work:.1f} workloads; goal {goal:.1f} ({GOAL:g} s at the reference): "
+            f"cell {t_cell / work / goal:.2f}, command {t_cmd / work / goal:.2f} of the goal"
+        )
     return 0
 
 

@@ -11,6 +11,12 @@ residuals, refit, until R settles). As a whole command it reads the measurement 
 model config with testbed's readers and writes the estimate as JSON:
 
     python benchmarks/scipy_reference.py A.csv B.csv --config cfg.toml --out ref.json [--plain]
+        [--free NAME,NAME,...]
+
+It fits the config's `[identify] free` as written (a candidate list is not screened). `--free`
+fits those names instead, a subset of the config's list, the others fixed at their a-priori
+values: the free set `testbed identify` kept after its screen (its estimate's `coefficients`, the
+rest under `fixed`), so that both fit the same model.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 
 from testbed.threads import one_blas_thread
 
@@ -80,8 +87,17 @@ def main(argv=None) -> int:
     ap.add_argument("--config", required=True, help="model config TOML")
     ap.add_argument("--out", required=True, help="estimate JSON")
     ap.add_argument("--plain", action="store_true", help="simulate with scipy alone (expm, dlsim)")
+    ap.add_argument("--free", help="comma-separated names to fit, a subset of the config's free list")
     args = ap.parse_args(argv)
     data, config = [read_csv(f) for f in args.data], read_config(args.config)
+    if args.free is not None:
+        free = tuple(n.strip() for n in args.free.split(",") if n.strip())
+        other = [n for n in free if n not in config.free]
+        if not free or other or len(set(free)) < len(free):
+            ap.error(
+                f"--free {args.free}: expected distinct names of {args.config}'s free list {config.free}"
+            )
+        config = replace(config, free=free)
     t0 = time.perf_counter()
     values, nfev, rounds = scipy_fit(config.fitted(data), config, args.plain)
     doc = {
