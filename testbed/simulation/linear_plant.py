@@ -21,6 +21,8 @@ from testbed.models.linear import IX, NX, discretize
 
 __all__ = ["LinearPlant"]
 
+_U, _V, _PSI = IX["u"], IX["v"], IX["psi"]
+
 
 class LinearPlant:
     """The linear model (A, B, S) stepped every `timestep` s, fins slewing at `rate_limit` rad/s."""
@@ -74,13 +76,16 @@ class LinearPlant:
     def step(self, fin_commands, n: int = 1) -> None:
         """Advance `n` steps with the fins commanded to `fin_commands` (rad)."""
         dt, reach = self.timestep, self.rate_limit * self.timestep
+        commands = np.asarray(fin_commands, float)
         for _ in range(n):
-            move = np.clip(np.asarray(fin_commands, float) - self.fin, -reach, reach)
+            # the fins' move, clipped to ±reach (numpy's clip costs more than its arithmetic here)
+            move = np.minimum(np.maximum(commands - self.fin, -reach), reach)
             held = self.fin + move * (1.0 - 0.5 * np.abs(move) / reach)
-            u, v, psi = self.speed + self.x[IX["u"]], self.x[IX["v"]], self.x[IX["psi"]]
-            self.track += dt * np.array(
-                [u * math.cos(psi) - v * math.sin(psi), u * math.sin(psi) + v * math.cos(psi)]
-            )
+            x = self.x.tolist()
+            u, v, psi = self.speed + x[_U], x[_V], x[_PSI]
+            c, s = math.cos(psi), math.sin(psi)
+            self.track[0] += dt * (u * c - v * s)
+            self.track[1] += dt * (u * s + v * c)
             self.x = self.Phi @ self.x + self.Gamma @ held + self.s
             if self.wrench.size:
                 self.x += self.Gamma_w @ self.wrench
