@@ -42,7 +42,7 @@ one_blas_thread()  # as the command line does, before numpy loads
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks.workload import REFERENCE_S, command, console, fit_summary, machine, why  # noqa: E402
+from benchmarks.workload import beside, console  # noqa: E402
 from testbed.data import Experiment, write_config, write_csv  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
 from testbed.identification.innovations import process_covariance  # noqa: E402
@@ -132,23 +132,9 @@ def main(argv=None) -> int:
         def user(out):  # the command as a user types it, default options
             return [testbed, "identify", *csvs, "--config", "start.toml", "--method", "ml-fem", "--out", out]
 
-        command(user("est0.json"), tmp)  # byte code cached, as for any user
-        t_cmd = min(command(user(f"est{k}.json"), tmp) for k in range(1, args.rounds + 1))
-        fit = fit_summary(Path(tmp) / "est1.json")
         cell = f"ml-fem from the start, {est['ml-fem'].iterations} iterations, {len(FREE)} free"
-        reason = why(user("why.json"), tmp, t_fem, t_cmd, cell)
-    work = machine()
-    print(
-        f"command `testbed identify {' '.join(csvs)} --config start.toml --method ml-fem --out est.json`: "
-        f"{t_cmd:.2f} s (best of {args.rounds}); its fit (estimates JSON): {fit}"
-    )
-    print(f"cell ml-fem {t_fem:.2f} s, command {t_cmd:.2f} s: command / cell {t_cmd / t_fem:.1f}x")
-    if reason:
-        print(reason)
-    print(
-        f"workload {work:.3f} s (reference {REFERENCE_S:.3f} s): cell {t_fem / work:.1f}, "
-        f"command {t_cmd / work:.1f} workloads"
-    )
+        lines = beside(user, tmp, args.rounds, "ml-fem", t_fem, cell)
+    print("\n".join(lines))
     return 0
 
 

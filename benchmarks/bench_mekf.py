@@ -62,7 +62,7 @@ from testbed.models.linear import (  # noqa: E402
     structure,
     theta_vector,
 )
-from workload import REFERENCE_S, command, console, fit_summary, machine, why  # noqa: E402
+from workload import beside, console  # noqa: E402
 
 GOAL = 20.0  # × real time
 VARIANTS = (
@@ -240,29 +240,12 @@ def main(argv=None) -> None:
         def user(out):  # the command as a user types it, default options
             return [testbed, "identify", run.name, "--method", "mekf", "--out", out]
 
-        command(user("est0.json"), tmp)  # byte code cached, as for any user
-        t_cmd = min(command(user(f"est{k}.json"), tmp) for k in range(1, args.repeat + 1))
-        fit = fit_summary(Path(tmp) / "est1.json")
         what = (
             f"the default MEKF on model.toml's {len(cell.free)} candidates unscreened, "
             f"{cell.iterations} samples"
         )
-        reason = why(user("why.json"), tmp, cell.wall_time_s, t_cmd, what)
-    work = machine()
-    print(
-        f"  command `testbed identify {run.name} --method mekf --out est.json`: {t_cmd:.2f} s "
-        f"(best of {args.repeat}); its fit (estimates JSON): {fit}"
-    )
-    print(
-        f"  cell (default variant) {cell.wall_time_s:.2f} s, command {t_cmd:.2f} s: "
-        f"command / cell {t_cmd / cell.wall_time_s:.1f}x"
-    )
-    if reason:
-        print(f"  {reason}")
-    print(
-        f"  workload {work:.3f} s (reference {REFERENCE_S:.3f} s): cell {cell.wall_time_s / work:.1f}, "
-        f"command {t_cmd / work:.1f} workloads"
-    )
+        lines = beside(user, tmp, args.repeat, "(default variant)", cell.wall_time_s, what)
+    print("\n".join(f"  {line}" for line in lines))
 
     if args.no_synthetic:
         return

@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.scipy_reference import scipy_fit  # noqa: E402
-from benchmarks.workload import REFERENCE_S, command, console, fit_summary, machine, why  # noqa: E402
+from benchmarks.workload import beside, console  # noqa: E402
 from testbed.data import write_config, write_csv  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
 from testbed.identification.examples import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config  # noqa: E402
@@ -105,23 +105,9 @@ def main(argv=None) -> int:
         def user(out):  # the command as a user types it, default options
             return [testbed, "identify", *csvs, "--config", "prior.toml", "--out", out]
 
-        command(user("est0.json"), tmp)  # byte code cached, as for any user
-        t_cmd = min(command(user(f"est{k}.json"), tmp) for k in range(1, args.rounds + 1))
-        fit = fit_summary(Path(tmp) / "est1.json")
         cell = f"ml-gn from the config start, {est.iterations} iterations, {len(FREE)} free"
-        reason = why(user("why.json"), tmp, t_gn, t_cmd, cell)
-    work = machine()
-    print(
-        f"command `testbed identify {' '.join(csvs)} --config prior.toml --out est.json`: "
-        f"{t_cmd:.3f} s (best of {args.rounds}); its fit (estimates JSON): {fit}"
-    )
-    print(f"cell ml-gn {t_gn:.3f} s, command {t_cmd:.3f} s: command / cell {t_cmd / t_gn:.1f}x")
-    if reason:
-        print(reason)
-    print(
-        f"workload {work:.3f} s (reference {REFERENCE_S:.3f} s): cell {t_gn / work:.1f}, "
-        f"command {t_cmd / work:.1f} workloads"
-    )
+        lines = beside(user, tmp, args.rounds, "ml-gn", t_gn, cell)
+    print("\n".join(lines))
     return 0
 
 

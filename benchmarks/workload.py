@@ -10,7 +10,8 @@ five. `REFERENCE_S` is its time on the 2-core development machine on 2026-12-06,
 commands' goals in seconds were measured against: a goal of G seconds is G / `REFERENCE_S`
 workloads, whatever the machine's speed in the run.
 
-`why(argv, cwd, cell_s, command_s, cell)`: where a command and the library cell it is set beside
+`beside(user, cwd, rounds, name, cell_s, cell)`: a `testbed identify` command timed beside its
+library cell, as the lines a benchmark prints. `why(argv, cwd, cell_s, command_s, cell)`: where a command and the library cell it is set beside
 differ by more than `APART` times, one line saying why, measured: one more run of the command
 (`stages`) in a process of this interpreter that calls `testbed.cli.main` as the console script
 does, with the library's stages timed inside it (the interpreter's start, the imports, reading,
@@ -32,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["APART", "REFERENCE_S", "command", "console", "fit_summary", "machine", "stages", "why"]
+__all__ = ["APART", "REFERENCE_S", "beside", "command", "console", "fit_summary", "machine", "stages", "why"]
 
 REFERENCE_S = 0.065  # `machine()` on the development machine, 2026-12-06, idle (0.0652–0.0655 s)
 APART = 3.0  # command / cell beyond this (either way): the benchmark says why
@@ -276,3 +277,24 @@ def why(argv: list, cwd: str | os.PathLike, cell_s: float, command_s: float, cel
     return f"why command / cell = {ratio:.1f}x (beyond {APART:g}x): the cell is {cell}; " + breakdown(
         stages(argv, cwd)
     )
+
+
+def beside(user, cwd: str | os.PathLike, rounds: int, name: str, cell_s: float, cell: str) -> list[str]:
+    """The command `user(out)` (its argv, the estimates written to `out`, relative to `cwd`) timed
+    beside the library cell `name` of `cell_s` seconds (`cell`: what the cell fits): one untimed
+    run first (Python's byte code cached, as for any user), then the best of `rounds`. The lines
+    to print: the command with the fit its estimates JSON reports, both times and their ratio,
+    the measured reason where they differ by more than `APART` (`why`), both in workloads."""
+    command(user("est0.json"), cwd)
+    t_cmd = min(command(user(f"est{k}.json"), cwd) for k in range(1, rounds + 1))
+    fit = fit_summary(Path(cwd) / "est1.json")
+    reason = why(user("why.json"), cwd, cell_s, t_cmd, cell)
+    work = machine()
+    shown = " ".join(Path(a).name if k == 0 else str(a) for k, a in enumerate(user("est.json")))
+    return [
+        f"command `{shown}`: {t_cmd:.3f} s (best of {rounds}); its fit (estimates JSON): {fit}",
+        f"cell {name} {cell_s:.3f} s, command {t_cmd:.3f} s: command / cell {t_cmd / cell_s:.1f}x",
+        *([reason] if reason else []),
+        f"workload {work:.3f} s (reference {REFERENCE_S:.3f} s): cell {cell_s / work:.1f}, "
+        f"command {t_cmd / work:.1f} workloads",
+    ]
