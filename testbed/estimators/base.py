@@ -186,7 +186,7 @@ class Outcome:
     optimum: tuple = ()  # (θ, σ) where it converged, for later fits to recognise (`follow`)
     joined: int = -1  # which earlier optimum's basin it entered and stopped in (-1: none)
     cost: float | None = None  # the negative log-likelihood at p, when the optimiser has it
-    at: tuple | None = None  # (states, residuals) per record at p, when the optimiser has them
+    simulated: tuple | None = None  # (states, residuals) per record at p, when the optimiser has them
 
 
 @dataclass(frozen=True)

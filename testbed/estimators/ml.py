@@ -468,7 +468,7 @@ def _estimate(
     if why is None:
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                info = bounds.assess(prob, out.p, out.fisher, at=out.at)
+                info = bounds.assess(prob, out.p, out.fisher, simulated=out.simulated)
             # an infinite bound is an unidentifiable coefficient's (bounds.crlb); NaN is a failure
             why = (
                 None

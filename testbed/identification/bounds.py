@@ -286,20 +286,20 @@ def assess(
     p: np.ndarray,
     M: np.ndarray | None = None,
     R: np.ndarray | None = None,
-    at: tuple | None = None,
+    simulated: tuple | None = None,
 ) -> Information:
     """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`.
 
-    `M`: `gauss_newton_terms(prob, p, …, R)[1]` with R the residual variance at `p`, and `at`:
+    `M`: `gauss_newton_terms(prob, p, …, R)[1]` with R the residual variance at `p`, and `simulated`:
     the states and residuals per record there `(xs, res)`, if an optimiser already has them (not
     checked: the caller vouches that they belong to `p`). `R`: the noise variance per channel to
     use instead of the residual variance at `p`.
     """
-    if at is None:
+    if simulated is None:
         xs = states(prob, p)
         res = [r.residual(prob.outputs(r, x, p[: prob.n_free])) for r, x in zip(prob.records, xs)]
     else:
-        xs, res = at
+        xs, res = simulated
     R = noise_variance(prob, res) if R is None else R
     if M is None:
         M = gauss_newton_terms(prob, p, xs, res, R)[1]
