@@ -563,7 +563,8 @@ def identify_screened(
     config's `[identify] screen`); otherwise fit `config.free` as written, the screen only
     reported. The screen's `ml-gn` fit is the fit itself when `method` is `ml-gn` and the free set
     is the same (then `callback` gets its steps when it ends); otherwise `method` fits anew
-    (`ml-gn`: from where the screen's fit ended, its fixes tested as a likelihood ratio and undone
+    (`ml-gn`: from where the screen's fit ended alone, the starts asked for having run in the
+    screen's fit; its fixes tested as a likelihood ratio and undone
     where they fail it; `callback` gets the steps of the fit returned, when it ends).
     `InputError` when the screen applied leaves nothing free.
     """
@@ -591,8 +592,16 @@ def identify_screened(
         # a-priori values: its basin, not the a-priori model's again
         kept = {n: v for n, v in zip(s.fit.free, s.fit.values) if base_name(n) in fitted.free}
         start, rest = fitted.with_coefficients(kept), []
-        estimate = identify(experiments, start, method=method, options=options, callback=rest.append)
         dropped = [n for n in dict.fromkeys(map(base_name, s.fit.free)) if n not in fitted.free]
+        # one start: the screen's fit ran the starts asked for, and its optimum is this one's
+        local = replace(m.options.build(m.name, options), start="config")
+        estimate = identify(experiments, start, method=method, options=local, callback=rest.append)
+        reason = f"then from its optimum with {', '.join(dropped)} fixed"
+        estimate = replace(
+            estimate,
+            start=s.fit.start,
+            start_reason=f"{s.fit.start_reason}; {reason}" if s.fit.start_reason else reason,
+        )
         # the likelihood-ratio test of the significance stage's fixes: fixing k coefficients the
         # data do not contradict raises the cost by at most χ²₀.₉₅(k)/2; more, and the quadratic
         # model that chose them did not hold (a model far from linear in them): their fit stands
