@@ -4,6 +4,9 @@ state and one component at a time, for real and complex arguments (the formulas:
 Every intermediate lives in one scratch array the caller gives (`SCRATCH` entries of z's dtype),
 at fixed places: a flight evaluates the components some forty thousand times, and allocating the
 few dozen 3-vectors and 3 × 3 matrices of each evaluation would cost more than the arithmetic.
+Their views (`_vec`, `_mat`) are inlined where they are taken, and constant flags and indices
+passed on are wrapped (`int(0)`): numba compiles a callee anew for every literal argument value
+(`nonlinear_kernels`).
 """
 
 from __future__ import annotations
@@ -14,15 +17,14 @@ import numpy as np
 __all__ = ["SCRATCH", "turned_mass", "wrenches"]
 
 SCRATCH = 1150  # the scratch entries `wrenches` and `turned_mass` need
-_MUNK = np.array([False, False, False, False, False, True])  # a blade at δ = 0: its added mass alone
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _vec(S, at):
     return S[at : at + 3]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _mat(S, at):
     return S[at : at + 9].reshape((3, 3))
 
@@ -35,23 +37,44 @@ def _cross(a, b, out):
 
 
 @numba.njit(cache=True)
-def _mm(A, B, out, transpose=False):
-    """out = A B, or Aᵀ B with `transpose` (A (3, 3), B (3, k))."""
+def _mm(A, B, out):
+    """out = A B (A (3, 3), B (3, k))."""
     for i in range(3):
         for j in range(B.shape[1]):
             acc = 0.0 * B[0, 0]
             for k in range(3):
-                acc += (A[k, i] if transpose else A[i, k]) * B[k, j]
+                acc += A[i, k] * B[k, j]
             out[i, j] = acc
 
 
 @numba.njit(cache=True)
-def _mv(A, x, out, transpose=False):
-    """out = A x, or Aᵀ x with `transpose` (A (3, 3), x (3,))."""
+def _mtm(A, B, out):
+    """out = Aᵀ B (A (3, 3), B (3, k))."""
+    for i in range(3):
+        for j in range(B.shape[1]):
+            acc = 0.0 * B[0, 0]
+            for k in range(3):
+                acc += A[k, i] * B[k, j]
+            out[i, j] = acc
+
+
+@numba.njit(cache=True)
+def _mv(A, x, out):
+    """out = A x (A (3, 3), x (3,))."""
     for i in range(3):
         acc = 0.0 * x[0]
         for k in range(3):
-            acc += (A[k, i] if transpose else A[i, k]) * x[k]
+            acc += A[i, k] * x[k]
+        out[i] = acc
+
+
+@numba.njit(cache=True)
+def _mtv(A, x, out):
+    """out = Aᵀ x (A (3, 3), x (3,))."""
+    for i in range(3):
+        acc = 0.0 * x[0]
+        for k in range(3):
+            acc += A[k, i] * x[k]
         out[i] = acc
 
 
@@ -96,8 +119,8 @@ def _local(geometry, fin, z, S):
 
 
 @numba.njit(cache=True)
-def _kinds(r, kappa, rho, added, v, w, f, J, used, S):
-    """Each `used` kind's wrench (f (6, 6): force, torque) in the component's axes at its local
+def _kinds(r, kappa, rho, added, v, w, f, J, used, first, S):
+    """Each `used` kind from `first` on's wrench (f (6, 6): force, torque) in the component's axes at its local
     (v, ω), per unit coefficient, and J (6, 6, 6): its derivatives along (v, ω) (0 for the
     others); the last kind the whole added-mass velocity wrench (`wrenches` takes its change with
     the fin angle). Scratch from S[69:180]."""
@@ -113,7 +136,7 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used, S):
     r_max = max(r[0], r[1], r[2])
     r_mid = r[0] + r[1] + r[2] - r_max - min(r[0], r[1], r[2])
     A_max = np.pi * r_max * r_mid
-    if N.real > 0 and (used[0] or used[1] or used[2]):
+    if N.real > 0 and first <= 2 and (used[0] or used[1] or used[2]):
         speed = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
         A_p = np.pi * np.sqrt(D / N)
         # ∇A_p = π²/A_p · v ∘ (b² N − b D) / N²
@@ -154,7 +177,7 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used, S):
     _cross(w, v, m)
     _skew(w, Sw)
     _skew(v, Sv2)
-    if used[3]:
+    if used[3] and first <= 3:
         for i in range(3):
             f[3, i] = rho * V * m[i]
             for j in range(3):
@@ -162,7 +185,7 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used, S):
                 J[3, i, 3 + j] = -rho * V * Sv2[i, j]
     # angular drag −ρ ‖κ∘ω‖ ω: ∂/∂ω = −ρ (‖κ∘ω‖ I + ω (κ²∘ω)ᵀ / ‖κ∘ω‖)
     norm = np.sqrt((kappa[0] * w[0]) ** 2 + (kappa[1] * w[1]) ** 2 + (kappa[2] * w[2]) ** 2)
-    if norm.real > 0 and used[4]:
+    if norm.real > 0 and used[4] and first <= 4:
         for i in range(3):
             f[4, 3 + i] = -rho * norm * w[i]
             for j in range(3):
@@ -196,14 +219,16 @@ def wrenches(geometry, fin, z, W, JW, jacobian, used, S):
     """W (6, 6): each `used` kind's wrench on the vehicle (force, moment about the CG, body axes)
     per unit coefficient at z (9,) = (ν, δ) for one component (`packed_components`' row and fin),
     0 for the others; with `jacobian` JW (6, 6, 9) = ∂W/∂z. S: scratch (`SCRATCH`,) of z's dtype."""
-    _posed(geometry, fin, z, W, JW, jacobian, used, S)
+    _posed(geometry, fin, z, W, JW, jacobian, used, int(0), S)
     if fin < 0 or not used[5]:
         W[5, :] = 0.0
         JW[5, :, :] = 0.0
         return
     W0 = S[678:714].reshape((6, 6))
     J0 = S[714:1038].reshape((6, 6, 9))
-    _posed(geometry, -1, z, W0, J0, jacobian, _MUNK, S)  # the blade at δ = 0: its added mass alone
+    _posed(
+        geometry, int(-1), z, W0, J0, jacobian, used, int(5), S
+    )  # the blade at δ = 0: its added mass alone
     for i in range(6):
         W[5, i] -= W0[5, i]
         if jacobian:
@@ -212,8 +237,8 @@ def wrenches(geometry, fin, z, W, JW, jacobian, used, S):
 
 
 @numba.njit(cache=True)
-def _posed(geometry, fin, z, W, JW, jacobian, used, S):
-    """`wrenches`' kinds, the last the whole added-mass velocity wrench, the component posed at
+def _posed(geometry, fin, z, W, JW, jacobian, used, first, S):
+    """`wrenches`' kinds (the `used` ones from `first` on), the last the whole added-mass velocity wrench, the component posed at
     its fin's angle (at 0 for fin −1). Scratch from S[0:678]."""
     _local(geometry, fin, z, S)
     Q, dQ, p, dp = _mat(S, 0), _mat(S, 9), _vec(S, 18), _vec(S, 21)
@@ -227,13 +252,13 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, S):
     _cross(nu_w, p, vp)
     for i in range(3):
         vp[i] += nu_v[i]
-    _mv(Q, vp, v, True)
-    _mv(Q, nu_w, w, True)
-    _kinds(r, kappa, rho, added, v, w, f, J, used, S)
+    _mtv(Q, vp, v)
+    _mtv(Q, nu_w, w)
+    _kinds(r, kappa, rho, added, v, w, f, J, used, first, S)
     _skew(p, P)
     W[:, :] = 0.0
     for k in range(6):
-        if not used[k]:
+        if not used[k] or k < first:
             continue
         _mv(Q, f[k, :3], F)
         _mv(Q, f[k, 3:], G)
@@ -250,7 +275,7 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, S):
     dQf, dQg, t1, t2 = _vec(S, 666), _vec(S, 669), _vec(S, 672), _vec(S, 675)
     # ∂(v, ω)_local/∂ν: v = Qᵀ(v_b − [p]× ω_b), ω = Qᵀ ω_b
     L[:, :] = 0.0
-    _mm(Q, P, QtP, True)
+    _mtm(Q, P, QtP)
     for i in range(3):
         for j in range(3):
             L[i, j] = Q[j, i]
@@ -258,15 +283,15 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, S):
             L[3 + i, 3 + j] = Q[j, i]
     if fin >= 0:  # along δ: dQᵀ (v_b + ω_b × p) + Qᵀ (ω_b × dp), dQᵀ ω_b
         _cross(nu_w, dp, wdp)
-        _mv(dQ, vp, a, True)
-        _mv(Q, wdp, t1, True)
-        _mv(dQ, nu_w, b, True)
+        _mtv(dQ, vp, a)
+        _mtv(Q, wdp, t1)
+        _mtv(dQ, nu_w, b)
         for i in range(3):
             L[i, 6 + fin] = a[i] + t1[i]
             L[3 + i, 6 + fin] = b[i]
     JW[:, :, :] = 0.0
     for k in range(6):
-        if not used[k]:
+        if not used[k] or k < first:
             continue
         for i in range(6):  # ∂(f, g)_local/∂z
             for j in range(9):
@@ -320,7 +345,7 @@ def turned_mass(geometry, fin, z, DM, dDM, S):
     (X `_transform`, dX/dδ from the pose's). Scratch S[0:60] and S[1040:1148]."""
     added = geometry[25:31]
     X, dX, X0 = S[1040:1076].reshape((6, 6)), S[1076:1112].reshape((6, 6)), S[1112:1148].reshape((6, 6))
-    _local(geometry, -1, z, S)
+    _local(geometry, int(-1), z, S)
     _transform(_mat(S, 0), _vec(S, 18), X0)
     _local(geometry, fin, z, S)
     Q, dQ, p, dp = _mat(S, 0), _mat(S, 9), _vec(S, 18), _vec(S, 21)

@@ -119,13 +119,13 @@ def kinematics_state(x, f, J, jacobian):
 @numba.njit(cache=True)
 def _coriolis(M, nu, F, J):
     for n in range(nu.shape[0]):
-        coriolis_state(M, nu[n], F[n], J[n], True)
+        coriolis_state(M, nu[n], F[n], J[n], bool(True))  # bool(): no literal specialisation
 
 
 @numba.njit(cache=True)
 def _kinematics(x, f, J):
     for n in range(x.shape[0]):
-        kinematics_state(x[n], f[n], J[n], True)
+        kinematics_state(x[n], f[n], J[n], bool(True))
 
 
 def _common(*arrays):

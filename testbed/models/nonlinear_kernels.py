@@ -18,6 +18,10 @@ With `jacobian`, a state's evaluation writes ∂F/∂(x, δ) (6 × 13) beside F;
 the sensitivities S = ∂x/∂(θ[free], x0) (10 × (p + 10)) through each RK4 stage,
 ∂k_i = A_i ∂X_i + [F_θ,i 0], so they are exact for the flight (module doc of
 `identification.nonlinear_sensitivities`).
+
+A flag passed as a constant is wrapped (`bool(False)`): numba compiles a callee anew for every
+literal value it is called with, but once per type for a value it only knows at run time, and
+compiling these kernels, once per installation, is most of the first nonlinear fit's time.
 """
 
 from __future__ import annotations
@@ -287,7 +291,7 @@ def rates(m, x, d, f):
     work = _work(m, x)
     A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
     for n in range(x.shape[0]):
-        _state(m, x[n], d[n], f[n], A, B, work, False)
+        _state(m, x[n], d[n], f[n], A, B, work, bool(False))
 
 
 @numba.njit(cache=True)
@@ -295,7 +299,7 @@ def jacobians(m, x, d, f, A, B):
     """f (n, 10), ∂f/∂x A (n, 10, 10) and ∂f/∂δ B (n, 10, 3) at x (n, 10), d (n, 3)."""
     work = _work(m, x)
     for n in range(x.shape[0]):
-        _state(m, x[n], d[n], f[n], A[n], B[n], work, True)
+        _state(m, x[n], d[n], f[n], A[n], B[n], work, bool(True))
 
 
 @numba.njit(cache=True)
@@ -306,7 +310,7 @@ def sensitivities(m, x, d, G):
     A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
     columns = np.arange(G.shape[2])
     for n in range(x.shape[0]):
-        _state(m, x[n], d[n], f, A, B, work, False)
+        _state(m, x[n], d[n], f, A, B, work, bool(False))
         _theta_columns(m, x[n], f, work, columns, G[n])
 
 
@@ -325,7 +329,7 @@ def fly(m, t, x, fins, substeps):
             for i, a in enumerate((0.0, 0.5, 0.5, 1.0)):
                 for j in range(10):
                     X[j] = xs[j] if i == 0 else xs[j] + a * h * ks[i - 1, j]
-                _state(m, X, fins[k], ks[i], A, B, work, False)
+                _state(m, X, fins[k], ks[i], A, B, work, bool(False))
             for j in range(10):
                 xs[j] = xs[j] + h / 6 * (ks[0, j] + 2 * ks[1, j] + 2 * ks[2, j] + ks[3, j])
         x[k + 1] = xs
@@ -352,7 +356,7 @@ def flight(m, t, x, fins, columns, substeps, S):
                     X[j] = xs[j] if i == 0 else xs[j] + a * h * ks[i - 1, j]
                     for c in range(width):
                         dX[j, c] = T[j, c] if i == 0 else T[j, c] + a * h * dks[i - 1, j, c]
-                _state(m, X, fins[k], ks[i], A, B, work, True)
+                _state(m, X, fins[k], ks[i], A, B, work, bool(True))
                 _theta_columns(m, X, ks[i], work, columns, G)
                 for j in range(10):  # ∂k_i = A_i ∂X_i + [G_i 0]
                     for c in range(width):
