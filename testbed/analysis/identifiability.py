@@ -564,7 +564,7 @@ def identify_screened(
     reported. The screen's `ml-gn` fit is the fit itself when `method` is `ml-gn` and the free set
     is the same (then `callback` gets its steps when it ends); otherwise `method` fits anew
     (`ml-gn`: from where the screen's fit ended alone, the starts asked for having run in the
-    screen's fit; its fixes tested as a likelihood ratio and undone
+    screen's fit, whose time and simulations its own count in; its fixes tested as a likelihood ratio and undone
     where they fail it; `callback` gets the steps of the fit returned, when it ends).
     `InputError` when the screen applied leaves nothing free.
     """
@@ -601,6 +601,8 @@ def identify_screened(
             estimate,
             start=s.fit.start,
             start_reason=f"{s.fit.start_reason}; {reason}" if s.fit.start_reason else reason,
+            wall_time_s=s.fit.wall_time_s + estimate.wall_time_s,  # what the estimate cost
+            evaluations=s.fit.evaluations + estimate.evaluations,
         )
         # the likelihood-ratio test of the significance stage's fixes: fixing k coefficients the
         # data do not contradict raises the cost by at most χ²₀.₉₅(k)/2; more, and the quadratic
