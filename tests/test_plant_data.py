@@ -85,7 +85,30 @@ def test_noisy_fit_is_within_its_bounds(run, tmp_path):
     assert _within(doc, read_config(run / "model.toml").coefficients) == {}
     assert {"K_p", "K_der", "K_del"} <= set(doc["coefficients"])  # the roll row is identified
     rows = {r["name"]: r for r in doc["comparison"]["rows"]}
-    assert all(abs(r["model_bias_relative"]) < 0.01 for r in rows.values() if r["analytic"])
+    # the linear model's own error, as the estimate weighs the channels, within the 3 % above
+    assert all(abs(r["model_bias_relative"]) < 0.03 for r in rows.values() if r["analytic"])
+
+
+@pytest.mark.slow  # 20 Scenario II runs flown and identified, about 2 minutes on one core
+def test_the_truth_fit_is_where_the_estimates_fall_on_average(tmp_path):
+    """Monte Carlo over 20 noise seeds: the noise part of the error, (identified − truth_fit)/σ,
+    averages to 0 within 3 standard errors for every coefficient, so the truth fit is the value
+    the estimate aims at and `model_bias_relative` the linear model's share of the error
+    (a truth fit weighing each noise-free channel by its own model error instead was found
+    0.6–1.4 σ off on K_p, K_der, K_del, Y_v and Y_r)."""
+    from testbed.jobs import identify_data
+
+    noise = {}
+    for seed in range(1, 21):
+        done = identify_data([simulate("II", seed=seed, out=tmp_path / f"II-{seed}")])
+        c = done.comparison
+        for n, x, t, s in zip(c.names, c.identified, c.truth_fit, c.std):
+            noise.setdefault(n, []).append((x - t) / s)
+    common = [n for n, z in noise.items() if len(z) == 20]
+    assert {"Y_v", "Y_r", "K_p", "K_der", "K_del", "N_r"} <= set(common)
+    for n in common:
+        z = np.array(noise[n])
+        assert abs(z.mean()) <= 3 / np.sqrt(len(z)), (n, z.mean())
 
 
 @pytest.mark.slow
