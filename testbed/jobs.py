@@ -103,8 +103,8 @@ def truth_data(paths: Sequence[str | os.PathLike]) -> list[Experiment] | None:
 def truth_comparison(estimate: Estimate, analytic: ModelConfig, truth: list[Experiment] | None) -> Comparison:
     """The comparison with the analytic model, its bias split off by `ml-gn` on the noise-free
     `truth` from the analytic model, whatever method made the estimate (the bias belongs to the
-    model, and a filter needs noise to work). The truth fit weighs the channels by the
-    estimate's noise σ, held: it is the optimum the estimate's own weighting aims at, where
+    model, and a filter needs noise to work). The truth fit takes the channels the estimate
+    weighed, by its noise σ, held: it is the optimum the estimate's own weighting aims at, where
     noise-free residuals would weigh each channel by its model error alone (and take as many
     Gauss-Newton iterations as that weighting takes to settle). A truth fit that cannot run is
     a note, not a failure: the estimate stands without it."""
@@ -115,7 +115,10 @@ def truth_comparison(estimate: Estimate, analytic: ModelConfig, truth: list[Expe
         per_record = tuple(dict.fromkeys(base_name(n) for n in estimate.free if n != base_name(n)))
         noise = {**(analytic.noise_std or {}), **estimate.noise_std}
         config = replace(analytic, free=names, per_record=per_record, noise_std=noise or None)
-        fit = identify(truth, config, method="ml-gn", start="config")
+        weighed = tuple(estimate.noise_std)
+        fit = identify(
+            [e.only(weighed) for e in truth] if weighed else truth, config, method="ml-gn", start="config"
+        )
     except InputError as exc:
         return replace(compare(estimate, analytic), note=f"no linear-model bias column: {exc}")
     return compare(estimate, analytic, fit)

@@ -563,9 +563,10 @@ def identify_screened(
     config's `[identify] screen`); otherwise fit `config.free` as written, the screen only
     reported. The screen's `ml-gn` fit is the fit itself when `method` is `ml-gn` and the free set
     is the same (then `callback` gets its steps when it ends); otherwise `method` fits anew
-    (`ml-gn`: from where the screen's fit ended alone, the starts asked for having run in the
-    screen's fit, whose time and simulations its own count in; its fixes tested as a likelihood ratio and undone
-    where they fail it; `callback` gets the steps of the fit returned, when it ends).
+    (`ml-gn`: one start, where the screen's fit ended, that fit having run the starts asked for;
+    the estimate's time and simulations count that fit in; its fixes tested as a likelihood
+    ratio and undone where they fail it; `callback` gets the steps of the fit returned, when it
+    ends).
     `InputError` when the screen applied leaves nothing free.
     """
     apply = config.screen if apply is None else apply
