@@ -571,7 +571,7 @@ def identify_screened(
     """
     apply = config.screen if apply is None else apply
     m = lookup(method)
-    m.options.build(m.name, options)  # what the method refuses, before the screen's fit
+    built = m.options.build(m.name, options)  # what the method refuses, before the screen's fit
     check_method(m.name, config)
     same = m.name == "ml-gn"
     steps = []
@@ -595,7 +595,7 @@ def identify_screened(
         start, rest = fitted.with_coefficients(kept), []
         dropped = [n for n in dict.fromkeys(map(base_name, s.fit.free)) if n not in fitted.free]
         # one start: the screen's fit ran the starts asked for, and its optimum is this one's
-        local = replace(m.options.build(m.name, options), start="config")
+        local = replace(built, start="config")
         estimate = identify(experiments, start, method=method, options=local, callback=rest.append)
         reason = f"then from its optimum with {', '.join(dropped)} fixed"
         estimate = replace(

@@ -4,9 +4,9 @@ state and one component at a time, for real and complex arguments (the formulas:
 Every intermediate lives in one scratch array the caller gives (`SCRATCH` entries of z's dtype),
 at fixed places: a flight evaluates the components some forty thousand times, and allocating the
 few dozen 3-vectors and 3 × 3 matrices of each evaluation would cost more than the arithmetic.
-Their views (`_vec`, `_mat`) are inlined where they are taken, and constant flags and indices
-passed on are wrapped (`int(0)`): numba compiles a callee anew for every literal argument value
-(`nonlinear_kernels`).
+Their views (`_vec`, `_mat`) are inlined where they are taken, transposes are passed as views
+(`A.T`), and constant flags and indices passed on are wrapped (`int(0)`): numba compiles a
+callee anew for every literal argument value (`nonlinear_kernels`).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def _cross(a, b, out):
 
 @numba.njit(cache=True)
 def _mm(A, B, out):
-    """out = A B (A (3, 3), B (3, k))."""
+    """out = A B (A (3, 3), B (3, k)); Aᵀ B with A.T given (a view)."""
     for i in range(3):
         for j in range(B.shape[1]):
             acc = 0.0 * B[0, 0]
@@ -48,33 +48,12 @@ def _mm(A, B, out):
 
 
 @numba.njit(cache=True)
-def _mtm(A, B, out):
-    """out = Aᵀ B (A (3, 3), B (3, k))."""
-    for i in range(3):
-        for j in range(B.shape[1]):
-            acc = 0.0 * B[0, 0]
-            for k in range(3):
-                acc += A[k, i] * B[k, j]
-            out[i, j] = acc
-
-
-@numba.njit(cache=True)
 def _mv(A, x, out):
-    """out = A x (A (3, 3), x (3,))."""
+    """out = A x (A (3, 3), x (3,)); Aᵀ x with A.T given (a view)."""
     for i in range(3):
         acc = 0.0 * x[0]
         for k in range(3):
             acc += A[i, k] * x[k]
-        out[i] = acc
-
-
-@numba.njit(cache=True)
-def _mtv(A, x, out):
-    """out = Aᵀ x (A (3, 3), x (3,))."""
-    for i in range(3):
-        acc = 0.0 * x[0]
-        for k in range(3):
-            acc += A[k, i] * x[k]
         out[i] = acc
 
 
@@ -120,9 +99,9 @@ def _local(geometry, fin, z, S):
 
 @numba.njit(cache=True)
 def _kinds(r, kappa, rho, added, v, w, f, J, used, first, S):
-    """Each `used` kind from `first` on's wrench (f (6, 6): force, torque) in the component's axes at its local
-    (v, ω), per unit coefficient, and J (6, 6, 6): its derivatives along (v, ω) (0 for the
-    others); the last kind the whole added-mass velocity wrench (`wrenches` takes its change with
+    """The wrench of each `used` kind from `first` on (f (6, 6): force, torque) in the
+    component's axes at its local (v, ω), per unit coefficient, and J (6, 6, 6): its derivatives
+    along (v, ω) (0 for the others); the last kind the whole added-mass velocity wrench (`wrenches` takes its change with
     the fin angle). Scratch from S[69:180]."""
     f[:, :] = 0.0
     J[:, :, :] = 0.0
@@ -226,9 +205,8 @@ def wrenches(geometry, fin, z, W, JW, jacobian, used, S):
         return
     W0 = S[678:714].reshape((6, 6))
     J0 = S[714:1038].reshape((6, 6, 9))
-    _posed(
-        geometry, int(-1), z, W0, J0, jacobian, used, int(5), S
-    )  # the blade at δ = 0: its added mass alone
+    # the blade at δ = 0: its added mass alone
+    _posed(geometry, int(-1), z, W0, J0, jacobian, used, int(5), S)
     for i in range(6):
         W[5, i] -= W0[5, i]
         if jacobian:
@@ -238,8 +216,9 @@ def wrenches(geometry, fin, z, W, JW, jacobian, used, S):
 
 @numba.njit(cache=True)
 def _posed(geometry, fin, z, W, JW, jacobian, used, first, S):
-    """`wrenches`' kinds (the `used` ones from `first` on), the last the whole added-mass velocity wrench, the component posed at
-    its fin's angle (at 0 for fin −1). Scratch from S[0:678]."""
+    """`wrenches`' kinds (the `used` ones from `first` on), the last the whole added-mass
+    velocity wrench, the component posed at its fin's angle (at 0 for fin −1). Scratch from
+    S[0:678]."""
     _local(geometry, fin, z, S)
     Q, dQ, p, dp = _mat(S, 0), _mat(S, 9), _vec(S, 18), _vec(S, 21)
     r, kappa, rho, added = geometry[0:3], geometry[15:18], geometry[18], geometry[25:31]
@@ -252,8 +231,8 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, first, S):
     _cross(nu_w, p, vp)
     for i in range(3):
         vp[i] += nu_v[i]
-    _mtv(Q, vp, v)
-    _mtv(Q, nu_w, w)
+    _mv(Q.T, vp, v)
+    _mv(Q.T, nu_w, w)
     _kinds(r, kappa, rho, added, v, w, f, J, used, first, S)
     _skew(p, P)
     W[:, :] = 0.0
@@ -275,7 +254,7 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, first, S):
     dQf, dQg, t1, t2 = _vec(S, 666), _vec(S, 669), _vec(S, 672), _vec(S, 675)
     # ∂(v, ω)_local/∂ν: v = Qᵀ(v_b − [p]× ω_b), ω = Qᵀ ω_b
     L[:, :] = 0.0
-    _mtm(Q, P, QtP)
+    _mm(Q.T, P, QtP)
     for i in range(3):
         for j in range(3):
             L[i, j] = Q[j, i]
@@ -283,9 +262,9 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, first, S):
             L[3 + i, 3 + j] = Q[j, i]
     if fin >= 0:  # along δ: dQᵀ (v_b + ω_b × p) + Qᵀ (ω_b × dp), dQᵀ ω_b
         _cross(nu_w, dp, wdp)
-        _mtv(dQ, vp, a)
-        _mtv(Q, wdp, t1)
-        _mtv(dQ, nu_w, b)
+        _mv(dQ.T, vp, a)
+        _mv(Q.T, wdp, t1)
+        _mv(dQ.T, nu_w, b)
         for i in range(3):
             L[i, 6 + fin] = a[i] + t1[i]
             L[3 + i, 6 + fin] = b[i]
