@@ -69,12 +69,10 @@ def _pooled_variance(prob: Problem, sums: Sequence[np.ndarray]) -> np.ndarray:
     Floored far below any real sensor noise so that a noise-free fit stays finite; the channels
     whose noise the config gives (`[identify] noise_std`) keep it.
     """
-    ss, n, scale = np.zeros(len(prob.channels)), np.zeros(len(prob.channels)), np.zeros(len(prob.channels))
+    ss = np.zeros(len(prob.channels))
     for r, e2 in zip(prob.records, sums):  # a record's channels are distinct
         ss[r.channels] += e2
-        n[r.channels] += r.counts
-        scale[r.channels] += np.sum(r.y**2, axis=0)
-    n = np.maximum(n, 1)  # a channel without a sample present (a stage too short for it)
+    n, scale = prob.pooled
     R = np.maximum(ss / n, 1e-14 * scale / n + 1e-30)
     return R if prob.known is None else np.where(np.isnan(prob.known), R, prob.known)
 
@@ -305,30 +303,39 @@ def fit_initial_states(
             T[channels] = np.linalg.qr(block, mode="r")[:, : k + 1]
         factors.append(T if finite else None)
 
+    # the records by their number of measured states, each group's factors stacked: one batched
+    # solve per group (a segmented problem has dozens of records of the same size)
+    groups: dict[int, list[int]] = {}
+    for i, (r, T) in enumerate(zip(prob.records, factors)):
+        if T is not None:
+            groups.setdefault(len(r.measured), []).append(i)
+    stacked = {k: np.stack([factors[i] for i in idx]) for k, idx in groups.items()}
+
     def solve(variance) -> list[np.ndarray]:
         """x0 per record for channel variances `variance(record)` (stored in `p`), and the
         residual sums of squares there: min Σ_c ‖(G_c x − v_c)‖²/R_c = Σ_c ‖U_c x − z_c‖²/R_c + ρ_c²/R_c
         with [U_c z_c; 0 ρ_c] channel c's factor."""
-        sums = []
-        for r, T, y in zip(prob.records, factors, ys):
-            k = len(r.measured)
-            if T is not None:
-                w = variance(r) ** -0.5
-                A, z = (T[:, :k, :k] * w[:, None, None]).reshape(-1, k), (T[:, :k, k] * w[:, None]).ravel()
-            if T is None or not (np.all(np.isfinite(A)) and np.all(np.isfinite(z))):
-                p[r.offset : r.offset + k] = y[0]
-                sums.append(np.full(k, np.inf))
-                continue
-            # columns scaled to unit length: x0's units do not count
-            with np.errstate(over="ignore"):
-                D = np.linalg.norm(A, axis=0)
-            if not np.all(np.isfinite(D)):  # a square overflowed: the norm over the largest entry
-                top = np.max(np.abs(A), axis=0)
-                D = top * np.linalg.norm(A / np.where(top > 0, top, 1.0), axis=0)
-            D = np.where(D > 0, D, 1.0)
-            x0 = np.linalg.lstsq(A / D, z, rcond=None)[0] / D
-            p[r.offset : r.offset + k] = x0
-            sums.append(np.sum((T[:, :k, :k] @ x0 - T[:, :k, k]) ** 2, axis=1) + T[:, k, k] ** 2)
+        sums = [None] * len(prob.records)
+        for k, idx in groups.items():
+            T = stacked[k]
+            w = np.stack([variance(prob.records[i]) for i in idx]) ** -0.5
+            A = (T[:, :, :k, :k] * w[:, :, None, None]).reshape(len(idx), -1, k)
+            z = (T[:, :, :k, k] * w[:, :, None]).reshape(len(idx), -1)
+            x0 = np.full((len(idx), k), np.nan)
+            finite = np.all(np.isfinite(A), axis=(1, 2)) & np.all(np.isfinite(z), axis=1)
+            if finite.any():
+                x0[finite] = _least_squares(A[finite], z[finite])
+            # Σ_c ‖U_c x0 − z_c‖² + ρ_c², per record and channel
+            r2 = np.sum((np.einsum("bcij,bj->bci", T[:, :, :k, :k], x0) - T[:, :, :k, k]) ** 2, axis=2)
+            r2 += T[:, :, k, k] ** 2
+            for j, i in enumerate(idx):
+                r = prob.records[i]
+                p[r.offset : r.offset + k] = x0[j] if finite[j] else ys[i][0]
+                sums[i] = r2[j] if finite[j] else np.full(k, np.inf)
+        for i, (r, y) in enumerate(zip(prob.records, ys)):
+            if sums[i] is None:  # responses not finite: the first measured samples
+                p[r.offset : r.offset + len(r.measured)] = y[0]
+                sums[i] = np.full(len(r.measured), np.inf)
         return sums
 
     if R is None:
@@ -343,6 +350,29 @@ def fit_initial_states(
         solve(lambda r: R[r.channels])
     xs = [trajectory(models[prob.key(r)], prob.x0(r, p), prob.inputs(r, values)) for r in prob.records]
     return p, xs if full else [prob.outputs(r, x, values) for r, x in zip(prob.records, xs)]
+
+
+def _least_squares(A: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """The least-squares solutions x of the stacked problems `A[b] x ≈ z[b]` (B, m, k), each
+    with its columns scaled to unit length first (x's units do not count): by one batched QR where
+    every R is well conditioned, `np.linalg.lstsq` (its minimum-norm solution) where one is not."""
+    with np.errstate(over="ignore"):
+        D = np.linalg.norm(A, axis=1)
+    if not np.all(np.isfinite(D)):  # a square overflowed: the norm over the largest entry
+        top = np.max(np.abs(A), axis=1)
+        D = top * np.linalg.norm(A / np.where(top > 0, top, 1.0)[:, None, :], axis=1)
+    D = np.where(D > 0, D, 1.0)
+    A = A / D[:, None, :]
+    Q, U = np.linalg.qr(A)
+    d = np.abs(np.diagonal(U, axis1=1, axis2=2))
+    # lstsq's rank rule, on the triangular factor's diagonal: well above eps·max(m, k)·its largest
+    good = np.all(d > 1e3 * np.finfo(float).eps * max(A.shape[1:]) * d.max(axis=1, keepdims=True), axis=1)
+    x = np.empty(A.shape[::2])
+    if good.any():
+        x[good] = np.linalg.solve(U[good], np.einsum("bmk,bm->bk", Q[good], z[good])[:, :, None])[:, :, 0]
+    for b in np.flatnonzero(~good):
+        x[b] = np.linalg.lstsq(A[b], z[b], rcond=None)[0]
+    return x / D
 
 
 def _responses(d, r, u1: np.ndarray):

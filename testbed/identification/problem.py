@@ -113,6 +113,16 @@ class Problem:
     thetas: np.ndarray | None = None
 
     @functools.cached_property
+    def pooled(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per channel, over the records: the samples present (at least 1: a channel may have
+        none, a stage too short for it) and Σ y², what the noise variance is pooled over."""
+        n, scale = np.zeros(len(self.channels)), np.zeros(len(self.channels))
+        for r in self.records:  # a record's channels are distinct
+            n[r.channels] += r.counts
+            scale[r.channels] += np.sum(r.y**2, axis=0)
+        return np.maximum(n, 1), scale
+
+    @functools.cached_property
     def per_record(self) -> bool:
         """Whether the records' models differ: some free values, or fixed values, are a
         record's own."""
