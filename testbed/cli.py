@@ -357,8 +357,7 @@ def _cmd_reproduce(args) -> int:
         file=sys.stderr,
     )
     for k, v in done.conclusions.items():
-        verdict = {True: "holds", False: "refuted", None: "undecided"}[v["holds"]]
-        print(f"conclusion {k}: {verdict}: {v['evidence']}", file=sys.stderr)
+        print(f"conclusion {k}: {v['verdict']}: {v['evidence']}", file=sys.stderr)
     print(done.out / "report.html")
     return 0
 

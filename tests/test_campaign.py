@@ -188,7 +188,8 @@ def test_each_arm_is_judged_against_the_lowest_cost_found_on_its_data():
     docs = [
         _doc(OPTIMUM, 1, [1.0, 2.0], 100.0),
         _doc("ml-gn", 1, [1.001, 2.0], 100.0),  # at the optimum: 0.01 σ
-        _doc("ml-nr", 1, [1.3, 2.0], 100.2, status="max iterations"),  # 3 σ off: stalled
+        _doc("ml-nr", 1, [1.3, 2.0], 100.2, status="max iterations"),  # 3 σ off, inside the region
+        _doc("ml-nr-scaled", 1, [1.3, 2.0], 103.1, status="max iterations"),  # outside: stalled
         _doc("ml-nm-paper", 1, [5.0, 2.0], 140.0),  # converged at another minimum
         _doc("mekf-paper", 1, [math.nan, 2.0], math.inf, status="diverged"),
         # seed 2: an arm found a lower cost than the optimum search: it is the optimum
@@ -200,17 +201,30 @@ def test_each_arm_is_judged_against_the_lowest_cost_found_on_its_data():
     got = {k: (v[0].outcome.name.lower() if v else None) for k, v in judgements(docs).items()}
     assert got == {
         "ml-gn-1-0.4": "success",
-        "ml-nr-1-0.4": "stalled",
+        "ml-nr-1-0.4": "success",
+        "ml-nr-scaled-1-0.4": "stalled",
         "ml-nm-paper-1-0.4": "elsewhere",
         "mekf-paper-1-0.4": "diverged",
         "ml-gn-2-0.4": "elsewhere",
         "ml-nm-paper-2-0.4": "success",
     }
     rows = results_rows(docs)
-    assert {r["arm"] for r in rows} == {"ml-gn", "ml-nr", "ml-nm-paper", "mekf-paper", "drift-mt"}
+    assert {r["arm"] for r in rows} == {
+        "ml-gn",
+        "ml-nr",
+        "ml-nr-scaled",
+        "ml-nm-paper",
+        "mekf-paper",
+        "drift-mt",
+    }
     assert {r["outcome"] for r in rows if r["arm"] == "drift-mt"} == {""}  # not judged
     nm2 = [r for r in rows if r["arm"] == "ml-nm-paper" and r["seed"] == 2]
     assert [r["optimum"] for r in nm2] == [0.5, 2.0]
+    # ... which the search missed: 20 below it, counted against the search
+    assert {r["search_delta_cost"] for r in nm2} == {-20.0}
+    assert [r["search_delta_cost"] for r in rows if r["arm"] == "ml-nr"] == [pytest.approx(0.2)] * 2
+    # accuracy in the optimum's σ (0.1 here), whatever the cell's own
+    assert {r["optimum_std"] for r in rows if r["arm"] == "ml-nr"} == {0.1}
 
 
 def test_the_summary_counts_outcomes_with_wilson_intervals(tmp_path):
@@ -231,6 +245,7 @@ def test_the_summary_counts_outcomes_with_wilson_intervals(tmp_path):
         centre + half
     )
     assert row["accurate"] == 7  # the other three are 800 % off with σ 0.1
+    assert (row["beat_search"], row["min_search_delta_cost"]) == (0, 0.0)
     written = results_csv([row], SUMMARY_COLUMNS).splitlines()
     assert written[0] == ",".join(SUMMARY_COLUMNS)
     assert dict(zip(SUMMARY_COLUMNS, written[1].split(",")))["success"] == "7"
@@ -265,7 +280,7 @@ def _check_outputs(out, planned):
         (c.scenario, c.arm, c.seed) for c in planned if c.arm != OPTIMUM
     }
     verdicts = json.loads((out / "conclusions.json").read_text())
-    assert set(verdicts) == {"1", "2", "3", "mekf"}
+    assert set(verdicts) == {"1", "2-nr", "2-nm", "3", "mekf"}
     assert all(v["holds"] in (True, False, None) for v in verdicts.values())
     html = (out / "report.html").read_text()
     for name in ("success-spread.png", "fig5-inputs-II.png", "fig6-coefficients-II.png", "iterations-II.png"):

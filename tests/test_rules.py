@@ -47,6 +47,7 @@ def cell(
         "seed": seed,
         "outcome": outcome,
         "delta_cost": 0.0 if outcome == "success" else 100.0,  # inside the likelihood region or far out
+        "sigmas": 0.5 if outcome == "success" else 50.0,
     }
     if outcome == "failed":
         return [
@@ -57,6 +58,7 @@ def cell(
                 "optimum": "",
                 "estimate": math.nan,
                 "std": math.nan,
+                "optimum_std": math.nan,
             }
         ]
     return [
@@ -67,6 +69,7 @@ def cell(
             "optimum": "" if optimum is None else i * (1 + optimum),
             "estimate": i * (1 + error),
             "std": i * std,
+            "optimum_std": i * std,
         }
         for i in range(1, coefficients + 1)
     ]
@@ -96,15 +99,20 @@ def test_wilson_of_no_trials_is_the_whole_interval():
     assert wilson(0, 0) == (0.0, 1.0)
 
 
-def test_coefficient_ok_within_ten_percent_or_three_finite_sigmas():
-    r = {"analytic": -2.0, "std": math.inf}
+def test_coefficient_ok_within_ten_percent_or_three_of_the_optimums_sigmas():
+    r = {"analytic": -2.0, "optimum_std": math.inf, "std": 1.0}
     assert coefficient_ok({**r, "estimate": -2.19})  # 9.5 %
-    assert not coefficient_ok({**r, "estimate": -2.21})  # 10.5 %, an infinite σ bounds nothing
-    assert coefficient_ok({**r, "estimate": -2.5, "std": 0.17})  # 2.9 σ
-    assert not coefficient_ok({**r, "estimate": -2.5, "std": 0.16})  # 3.1 σ
-    assert not coefficient_ok({**r, "estimate": math.nan, "std": 1.0})
-    assert not coefficient_ok({**r, "estimate": -2.5, "std": math.nan})
-    assert coefficient_ok({"analytic": 0.0, "estimate": 0.02, "std": 0.01})  # at 0: only σ can pass it
+    assert not coefficient_ok({**r, "estimate": -2.21})  # 10.5 %: an infinite σ bounds nothing
+    assert coefficient_ok({**r, "estimate": -2.5, "optimum_std": 0.17})  # 2.9 σ
+    assert not coefficient_ok({**r, "estimate": -2.5, "optimum_std": 0.16})  # 3.1 σ
+    # the cell's own σ never counts: a fit stopped far off can have a σ that passes anything
+    assert not coefficient_ok({**r, "estimate": -2.5, "optimum_std": 0.16, "std": 100.0})
+    assert not coefficient_ok({**r, "estimate": math.nan, "optimum_std": 1.0})
+    assert not coefficient_ok({**r, "estimate": -2.5, "optimum_std": math.nan})
+    assert not coefficient_ok({"analytic": -2.0, "estimate": -2.5, "std": 1.0})  # no optimum: σ unknown
+    assert coefficient_ok(
+        {"analytic": 0.0, "estimate": 0.02, "optimum_std": 0.01}
+    )  # at 0: only σ can pass it
 
 
 def test_cell_accuracy_and_relative_error():
@@ -155,15 +163,33 @@ def test_valid_reference_is_the_linear_truth_or_a_fit_of_99_percent():
     assert not valid_reference("inputs-square/plant", VALID)  # no regime measured: not known valid
 
 
-def test_no_rows_leave_every_conclusion_undecided():
+def test_no_rows_leave_every_claim_not_decided():
     out = conclusions([], {}, {})
-    assert set(out) == {"1", "2", "3", "mekf"}
+    assert set(out) == {"1", "2-nr", "2-nm", "3", "mekf"}
     for v in out.values():
-        assert v["holds"] is None and v["rule"] and v["evidence"]
+        assert v["holds"] is None and v["verdict"] == "not decided" and v["rule"] and v["evidence"]
     json.dumps(out)
 
 
-# -- conclusion 1: drift is more probable with Mt free ---------------------------------------------
+@pytest.mark.parametrize(
+    "k, n, threshold, at_least, strict, expected",
+    [
+        (20, 20, 0.8, True, False, True),  # Wilson 84–100 %: all of it ≥ 80 %
+        (19, 20, 0.8, True, False, None),  # 76–99 %: straddles 80 %
+        (12, 20, 0.8, True, False, False),  # 39–78 %: all of it below
+        (0, 20, 0.5, False, False, True),  # 0–16 % < 50 %
+        (10, 20, 0.5, False, False, None),
+        (18, 20, 0.5, False, False, False),  # 70–97 %
+        (20, 20, 0.5, True, True, True),
+        (0, 0, 0.5, True, False, None),  # no trials: nothing to decide
+        (0, 1, 0.8, True, False, False),  # one failure: 0–79 %, below 80 % already
+    ],
+)
+def test_decide_by_the_wilson_interval_against_the_threshold(k, n, threshold, at_least, strict, expected):
+    assert rules.decide(k, n, threshold, at_least, strict) is expected
+
+
+# -- conclusion 1: drift is more probable with Mt free, at every spread ----------------------------
 
 
 def drift_of(condition_mt=2e14, condition_a=4e7, shared_mt=0.3, shared_a=0.05, seeds=8, **extra):
@@ -184,194 +210,189 @@ def drift_of(condition_mt=2e14, condition_a=4e7, shared_mt=0.3, shared_a=0.05, s
 
 
 def test_conclusion_1_holds_when_mt_form_is_ill_conditioned_and_its_shared_coefficients_scatter():
-    drift = {"II/plant": drift_of(converged_mt=1, converged_a=8), "II/linear": drift_of(shared_mt=0.1)}
+    drift = {
+        "II/plant s=0.2": drift_of(converged_mt=1, converged_a=8),
+        "II/linear s=0.2": drift_of(shared_mt=0.1),  # 0.1 against 0.05, exactly 2×
+    }
     out = conclusions([], VALID, drift)["1"]
-    assert out["holds"] is True  # II/linear: 0.1 against 0.05, exactly 2×
-    assert "II/plant (8 seeds)" in out["evidence"] and "ratio 6" in out["evidence"]
+    assert out["holds"] is True and out["verdict"] == "reproduced"
+    assert "II/plant s=0.2 (8 seeds)" in out["evidence"] and "ratio 6" in out["evidence"]
     assert "converged fits 1 (Mt-form) and 8 (A-form)" in out["evidence"]
 
 
+def test_conclusion_1_must_hold_at_every_spread_whatever_their_order():
+    # I/linear at two spreads: 2.5× at 0.2, 1.7× at 0.5 (the threshold 2×)
+    at = {"I/linear s=0.2": drift_of(shared_mt=0.125), "I/linear s=0.5": drift_of(shared_mt=0.085)}
+    for drift in (at, dict(reversed(list(at.items())))):
+        out = conclusions([], VALID, drift)["1"]
+        assert out["holds"] is False and out["verdict"] == "not reproduced"
+        assert "I/linear s=0.5 (8 seeds)" in out["evidence"] and "fails" in out["evidence"]
+    assert conclusions([], VALID, {"I/linear s=0.2": at["I/linear s=0.2"]})["1"]["holds"] is True
+
+
 def test_conclusion_1_fails_when_the_shared_coefficients_scatter_alike():
-    drift = {"II/plant": drift_of(), "II/linear": drift_of(shared_mt=0.09)}  # 1.8×
+    drift = {"II/plant s=0.4": drift_of(), "II/linear s=0.4": drift_of(shared_mt=0.09)}  # 1.8×
     out = conclusions([], VALID, drift)["1"]
     assert out["holds"] is False and "fails" in out["evidence"]
 
 
 def test_conclusion_1_fails_when_the_conditions_are_alike():
-    drift = {"II/linear": drift_of(condition_mt=3e8, condition_a=4e7)}  # ratio 7.5
+    drift = {"II/linear s=0.4": drift_of(condition_mt=3e8, condition_a=4e7)}  # ratio 7.5
     assert conclusions([], VALID, drift)["1"]["holds"] is False
 
 
 def test_conclusion_1_ignores_invalid_references_single_seeds_and_missing_scatter():
     # Scenario I on the plant (fit 42 %): its deviations are model error, not drift
-    drift = {"I/plant": drift_of(shared_mt=0.05), "II/linear": drift_of(seeds=1)}
-    drift["II/plant"] = {k: v for k, v in drift_of().items() if k != "shared_scatter_a"}
+    drift = {"I/plant s=0.4": drift_of(shared_mt=0.05), "II/linear s=0.4": drift_of(seeds=1)}
+    drift["II/plant s=0.4"] = {k: v for k, v in drift_of().items() if k != "shared_scatter_a"}
     assert conclusions([], VALID, drift)["1"]["holds"] is None
-    drift["II/plant"] = drift_of()
+    drift["II/plant s=0.4"] = drift_of()
     assert conclusions([], VALID, drift)["1"]["holds"] is True
 
 
-# -- conclusion 2: Nelder-Mead acceptable, Newton-Raphson unsatisfactory ---------------------------
+# -- conclusion 2: Newton-Raphson unsatisfactory, Nelder-Mead acceptable, each its own rule ---------
 
 
-def methods_rows(nm=9, nr=2):
+def methods_rows(nm=20, nr=0, n=20):
     return [
-        *arm_cells("II", "linear", "ml-nm-paper", nm),
-        *arm_cells("II", "linear", "ml-nr", nr),
+        *arm_cells("II", "linear", "ml-nm-paper", nm, n=n),
+        *arm_cells("II", "linear", "ml-nr", nr, n=n),
+        *arm_cells("II", "plant", "ml-nm-paper", 20, n=20),
+        *arm_cells("II", "plant", "ml-nr", 0, n=20),
         # Scenario I on the plant, whose reference is not valid: never counted
-        *arm_cells("I", "plant", "ml-nm-paper", 0),
-        *arm_cells("I", "plant", "ml-nr", 10),
+        *arm_cells("I", "plant", "ml-nm-paper", 0, n=20),
+        *arm_cells("I", "plant", "ml-nr", 20, n=20),
         # the analytic start (spread 0) is not a realistic one: never counted
-        *arm_cells("II", "linear", "ml-nm-paper", 0, spreads=(0.0,)),
+        *arm_cells("II", "linear", "ml-nm-paper", 0, n=20, spreads=(0.0,)),
     ]
 
 
-def test_conclusion_2_holds_when_nm_succeeds_and_nr_does_not():
-    out = conclusions(methods_rows(), VALID, {})["2"]
-    assert out["holds"] is True
-    assert "spread 0.2: ml-nm-paper 9/10 (90 %" in out["evidence"]
-    assert "ml-nr 2/10 (20 %" in out["evidence"] and "I/plant" not in out["evidence"]
-    assert "median relative error 2.0 %" in out["evidence"]
-    assert "ml-nm-paper within the likelihood region of the optimum in 18/20 cells" in out["evidence"]
-
-
-def test_conclusion_2_fails_when_nm_succeeds_in_fewer_than_80_percent():
-    assert conclusions(methods_rows(nm=7), VALID, {})["2"]["holds"] is False
-
-
-def test_conclusion_2_fails_when_nr_succeeds_in_half():
-    assert conclusions(methods_rows(nr=5), VALID, {})["2"]["holds"] is False
-
-
-def test_conclusion_2_fails_at_one_spread():
-    rows = methods_rows() + arm_cells("II", "linear", "ml-nm-paper", 5, spreads=(0.7,))
-    rows += arm_cells("II", "linear", "ml-nr", 0, spreads=(0.7,))
-    assert conclusions(rows, VALID, {})["2"]["holds"] is False
-
-
-def test_conclusion_2_undecided_without_a_valid_data_set():
-    rows = arm_cells("I", "plant", "ml-nm-paper", 0) + arm_cells("I", "plant", "ml-nr", 10)
-    assert conclusions(rows, VALID, {})["2"]["holds"] is None
-
-
-# -- conclusion 3: Nelder-Mead satisfactory with PRBS inputs ---------------------------------------
-
-
-def factorial_rows(prbs_success=20, prbs_std=0.03, square_std=0.03, other_std=0.05):
-    """ml-nm-paper on the PRBS (Scenario II), `prbs_success` of 20 cells at spread 0.4 reaching
-    the optimum; ml-gn on every input reaching it in its 20 cells, σ relative; the optimum 1 %
-    off the analytic model."""
-    rows = arm_cells(
-        rules.FACTORIAL[0], "plant", "ml-nm-paper", prbs_success, n=20, spreads=(0.4,), optimum=0.01
+def test_conclusion_2_reproduced_when_nm_succeeds_and_nr_does_not_on_each_data_set():
+    out = conclusions(methods_rows(), VALID, {})
+    nr, nm = out["2-nr"], out["2-nm"]
+    assert (nr["verdict"], nm["verdict"]) == ("reproduced", "reproduced")
+    assert "II/linear spread 0.2: 0/20 (0 %, 95 % CI 0–16 %) — yes" in nr["evidence"]
+    assert "II/plant spread 0.4: 20/20 (100 %, 95 % CI 84–100 %) — yes" in nm["evidence"]
+    parts = (nr["evidence"] + "; " + nm["evidence"]).split("; ")
+    assert not any(part.startswith("I/plant") for part in parts) and "spread 0:" not in nm["evidence"]
+    assert (
+        "median relative error 2.0 %" in nm["evidence"]
+        and "median distance 0.5 of the optimum's σ" in nm["evidence"]
     )
-    for s in rules.FACTORIAL:
-        std = prbs_std if s == rules.FACTORIAL[0] else square_std if s == "inputs-square" else other_std
-        rows += arm_cells(s, "plant", "ml-gn", 20, n=20, spreads=(0.4,), error=0.01, std=std, optimum=0.01)
+
+
+def test_conclusion_2_each_claim_is_decided_apart():
+    out = conclusions(methods_rows(nm=12), VALID, {})  # 12/20: 39–78 %, below 80 %
+    assert out["2-nm"]["verdict"] == "not reproduced" and out["2-nr"]["verdict"] == "reproduced"
+    out = conclusions(methods_rows(nr=15), VALID, {})  # 15/20: 53–89 %, not below 50 %
+    assert out["2-nr"]["verdict"] == "not reproduced" and out["2-nm"]["verdict"] == "reproduced"
+
+
+def test_conclusion_2_is_not_decided_where_the_interval_straddles_the_threshold():
+    out = conclusions(methods_rows(nm=19, nr=8), VALID, {})  # 76–99 % and 22–61 %
+    assert out["2-nm"]["holds"] is None and out["2-nr"]["holds"] is None
+    assert "19/20 (95 %, 95 % CI 76–99 %) — not decided" in out["2-nm"]["evidence"]
+    # a decided failure anywhere outweighs what is not decided elsewhere
+    rows = methods_rows(nm=19) + arm_cells("II", "linear", "ml-nm-paper", 5, n=20, spreads=(0.7,))
+    assert conclusions(rows, VALID, {})["2-nm"]["holds"] is False
+
+
+def test_conclusion_2_one_cell_decides_only_a_failure():
+    # --quick's one seed: a success is not enough evidence, a failure of "≥ 80 %" already is
+    assert conclusions(methods_rows(nm=1, nr=0, n=1), {}, {})["2-nm"]["holds"] is None
+    assert conclusions(methods_rows(nm=0, nr=0, n=1), {}, {})["2-nm"]["holds"] is False
+    assert conclusions(methods_rows(nm=1, nr=0, n=1), {}, {})["2-nr"]["holds"] is None
+
+
+def test_conclusion_2_not_decided_without_a_valid_data_set():
+    rows = arm_cells("I", "plant", "ml-nm-paper", 0) + arm_cells("I", "plant", "ml-nr", 10)
+    out = conclusions(rows, VALID, {})
+    assert out["2-nm"]["holds"] is None and out["2-nr"]["holds"] is None
+
+
+# -- conclusion 3: Scenario II's data better than Scenario I's for Nelder-Mead ---------------------
+
+
+def scenario_rows(closer_on_ii=18, n=20, arm="ml-nm-paper"):
+    """`arm` on I/linear 10 % off the analytic model in every seed; on II/linear 5 % off in the first
+    `closer_on_ii` seeds and 20 % in the rest."""
+    rows = arm_cells("I", "linear", arm, 0, n=n, spreads=(0.4,), error=0.1)
+    for seed in range(1, n + 1):
+        rows += cell("II", "linear", 0.4, arm, seed, "stalled", error=0.05 if seed <= closer_on_ii else 0.2)
     return rows
 
 
-def test_conclusion_3_holds_when_prbs_succeeds_and_informs_as_much():
-    out = conclusions(factorial_rows(), FACTORIAL_REGIME, {})["3"]
-    assert out["holds"] is True
-    json.dumps(out)
-    assert "spread 0.4 20/20" in out["evidence"]
-    assert "inputs-3211 median relative σ 5.0 %" in out["evidence"]  # σ 0.05 i over the optimum 1.01 i
-    # within 1.25×: σ 0.037 against the square wave's 0.03 (1.23×)
-    assert conclusions(factorial_rows(prbs_std=0.037), FACTORIAL_REGIME, {})["3"]["holds"] is True
-
-
-def test_conclusion_3_takes_information_only_from_fits_that_reached_the_optimum():
-    # the square wave's ml-gn cells all stopped elsewhere, with a σ that would beat PRBS's
-    rows = [
-        r for r in factorial_rows(prbs_std=0.039) if r["scenario"] != "inputs-square" or r["arm"] != "ml-gn"
-    ]
-    rows += arm_cells("inputs-square", "plant", "ml-gn", 0, n=20, spreads=(0.4,), std=0.01, optimum=0.01)
+def test_conclusion_3_reproduced_when_nm_is_closer_on_ii_in_most_seeds():
+    rows = scenario_rows() + scenario_rows(closer_on_ii=0, arm="ml-gn")
+    rows += arm_cells("inputs-square", "plant", "ml-gn", 20, n=20, spreads=(0.4,), std=0.05, optimum=0.0)
     out = conclusions(rows, FACTORIAL_REGIME, {})["3"]
-    assert out["holds"] is True and "the best other input: inputs-square" not in out["evidence"]
+    assert out["verdict"] == "reproduced"
+    assert "spread 0.4: closer on II in 18/20 (90 %, 95 % CI 70–97 %) — yes" in out["evidence"]
+    # every method on both, and the input factorial beside it
+    assert (
+        "ml-gn: I/linear success 0/20" in out["evidence"] and "closer on II in 0/20 seeds" in out["evidence"]
+    )
+    assert "inputs-square median relative σ 5.0 %" in out["evidence"]
+    json.dumps(out)
 
 
-def test_conclusion_3_fails_when_prbs_succeeds_in_fewer_than_80_percent():
-    assert conclusions(factorial_rows(prbs_success=15), FACTORIAL_REGIME, {})["3"]["holds"] is False
+def test_conclusion_3_not_reproduced_when_ii_is_no_better():
+    assert conclusions(scenario_rows(closer_on_ii=3), VALID, {})["3"]["verdict"] == "not reproduced"
 
 
-def test_conclusion_3_fails_when_another_input_informs_more():
-    # PRBS's σ 0.039, the square wave's 0.03: 1.3×
-    out = conclusions(factorial_rows(prbs_std=0.039), FACTORIAL_REGIME, {})["3"]
-    assert out["holds"] is False and "the best other input: inputs-square" in out["evidence"]
+def test_conclusion_3_not_decided_on_an_even_split_or_one_seed():
+    assert conclusions(scenario_rows(closer_on_ii=10), VALID, {})["3"]["holds"] is None
+    assert conclusions(scenario_rows(closer_on_ii=1, n=1), VALID, {})["3"]["holds"] is None
 
 
-def test_conclusion_3_counts_only_valid_data_sets():
-    regime = {**FACTORIAL_REGIME, "inputs-square/plant": {"lowest_truth_fit": 97.9}}
-    # the square wave (the only input more informative than PRBS) is outside the linear regime
-    out = conclusions(factorial_rows(prbs_std=0.039), regime, {})["3"]
-    assert out["holds"] is True and "inputs-square" not in out["evidence"]
-    rows = [r for r in factorial_rows() if r["scenario"] == rules.FACTORIAL[0]]
-    assert conclusions(rows, FACTORIAL_REGIME, {})["3"]["holds"] is None  # nothing to compare with
+def test_conclusion_3_pairs_seeds_and_ignores_the_plant():
+    rows = [r for r in scenario_rows() if r["scenario"] == "II"]  # no Scenario I cell to pair with
+    rows += arm_cells("I", "plant", "ml-nm-paper", 0, n=20, spreads=(0.4,), error=0.5)
+    assert conclusions(rows, VALID, {})["3"]["holds"] is None
 
 
-def test_conclusion_3_without_a_finite_sigma_decides_only_a_failure():
-    rows = factorial_rows(prbs_std=math.inf)
-    assert conclusions(rows, FACTORIAL_REGIME, {})["3"]["holds"] is None
-    rows = factorial_rows(prbs_success=15, prbs_std=math.inf)
-    assert conclusions(rows, FACTORIAL_REGIME, {})["3"]["holds"] is False
+# -- the MEKF: acceptable and similar on both scenarios --------------------------------------------
 
 
-# -- the MEKF: similar results on both scenarios ---------------------------------------------------
-
-
-def mekf_rows(error_i, error_ii, arm="mekf-paper", optimum=0.0):
+def mekf_rows(success_i=20, success_ii=20, arm="mekf-paper", n=20):
     return [
-        *arm_cells("I", "linear", arm, 10, n=5, error=error_i, optimum=optimum),
-        *arm_cells("II", "linear", arm, 10, n=5, error=error_ii, optimum=optimum),
+        *arm_cells("I", "linear", arm, success_i, n=n, spreads=(0.4,), error=0.05),
+        *arm_cells("II", "linear", arm, success_ii, n=n, spreads=(0.4,), error=0.03),
         # not the exact reference: never counted
-        *arm_cells("I", "plant", arm, 10, n=5, error=0.24, optimum=optimum),
+        *arm_cells("I", "plant", arm, 0, n=n, spreads=(0.4,), error=0.24),
     ]
 
 
-def test_mekf_holds_when_similar_and_acceptable_on_both():
-    rows = mekf_rows(0.05, 0.03) + mekf_rows(0.3, 0.02, arm="mekf")
+def test_mekf_reproduced_when_inside_the_region_on_both():
+    rows = mekf_rows() + mekf_rows(0, 0, arm="mekf")
     out = conclusions(rows, VALID, {})["mekf"]
-    assert out["holds"] is True
+    assert out["verdict"] == "reproduced"
+    assert "I/linear spread 0.4: 20/20 (100 %, 95 % CI 84–100 %) — yes" in out["evidence"]
+    # a filter inside the likelihood region half a σ from the optimum: the distance reported, not judged
     assert (
-        "mekf-paper: median relative distance from the optimum 5.0 % on I/linear, 3.0 % on II/linear"
-        in (out["evidence"])
+        "mekf-paper on I/linear: median ΔJ 0, median distance 0.5 σ, median relative error 5.0 %"
+        in out["evidence"]
     )
-    assert "mekf: median relative distance from the optimum 30.0 % on I/linear" in out["evidence"]
+    assert "mekf on II/linear: median ΔJ 100" in out["evidence"]
 
 
-def test_mekf_is_measured_from_the_optimum_not_the_analytic_model():
-    # the optimum 10 % off the analytic model: 15.5 % and 13.3 % off it is 5 % and 3 % from the optimum
-    out = conclusions(mekf_rows(0.155, 0.133, optimum=0.1), VALID, {})["mekf"]
-    assert out["holds"] is True
-    assert "optimum 5.0 % on I/linear, 3.0 % on II/linear" in out["evidence"]  # 1.155/1.1, 1.133/1.1
-    assert "error against the analytic model 15.5 % on I/linear, 13.3 % on II/linear" in out["evidence"]
-    # on target against the analytic model on I, 9.1 % from an optimum 10 % off it: 5× II's 1.8 %
-    assert conclusions(mekf_rows(0.0, 0.08, optimum=0.1), VALID, {})["mekf"]["holds"] is False
+def test_mekf_not_reproduced_when_one_scenario_falls_short():
+    assert conclusions(mekf_rows(success_ii=10), VALID, {})["mekf"]["verdict"] == "not reproduced"
 
 
-def test_mekf_fails_when_one_scenario_is_twice_as_far():
-    assert conclusions(mekf_rows(0.07, 0.03), VALID, {})["mekf"]["holds"] is False
-
-
-def test_mekf_tiny_distances_are_similar_within_one_percent_whatever_their_ratio():
-    assert conclusions(mekf_rows(0.002, 0.010), VALID, {})["mekf"]["holds"] is True  # 5×, 0.8 % apart
-    assert conclusions(mekf_rows(0.005, 0.020), VALID, {})["mekf"]["holds"] is False  # 4×, 1.5 % apart
-
-
-def test_mekf_fails_when_both_are_similar_but_far():
-    assert conclusions(mekf_rows(0.3, 0.25), VALID, {})["mekf"]["holds"] is False
+def test_mekf_not_decided_where_the_interval_straddles():
+    assert conclusions(mekf_rows(success_i=18), VALID, {})["mekf"]["holds"] is None
 
 
 def test_mekf_fails_when_it_diverges():
-    rows = mekf_rows(0.05, 0.03)
+    rows = mekf_rows()
     for r in rows:
         if r["scenario"] == "I":
-            r["estimate"] = math.nan
+            r["outcome"], r["estimate"] = "diverged", math.nan
     out = conclusions(rows, VALID, {})["mekf"]
     assert out["holds"] is False and "∞" in out["evidence"]
 
 
-def test_mekf_undecided_without_both_linear_scenarios_or_their_optimum():
-    rows = [r for r in mekf_rows(0.05, 0.03) if r["scenario"] == "II"]
+def test_mekf_not_decided_without_both_linear_scenarios():
+    rows = [r for r in mekf_rows() if r["scenario"] == "II"]
     assert conclusions(rows, VALID, {})["mekf"]["holds"] is None
-    assert conclusions(mekf_rows(0.05, 0.03, optimum=None), VALID, {})["mekf"]["holds"] is None

@@ -257,13 +257,13 @@ def write_report(
 PAPER = {
     "1": "Linear equations of motion of a submerged body cannot have global identifiability and have a "
     "higher probability of simultaneous drift, due to the inertia matrix, than general state equations.",
-    "2": "ML with the Nelder-Mead simplex gives acceptable results; ML with Newton-Raphson and steepest "
-    "descent is unsatisfactory.",
-    "3": "ML with the Nelder-Mead simplex gives satisfactory results when the inputs are designed as "
-    "pseudo-random binary sequences.",
-    "mekf": "The modified extended Kalman filter gives similar results in both scenarios.",
+    "2-nr": "The results of ML in combination with Newton-Raphson and steepest descent are unsatisfactory.",
+    "2-nm": "ML with the Nelder-Mead simplex gives acceptable results.",
+    "3": "ML with the Nelder-Mead simplex gives satisfactory results if the inputs are designed as "
+    "pseudo-random binary sequences: Scenario II's data are better than Scenario I's for it.",
+    "mekf": "The modified extended Kalman filter gives acceptable results, similar in both scenarios.",
 }
-VERDICT = {True: ("holds", "holds"), False: ("refuted", "refuted"), None: ("undecided", "undecided")}
+VERDICT_CLASS = {True: "holds", False: "refuted", None: "undecided"}
 
 
 def _pct(v: float) -> str:
@@ -297,8 +297,8 @@ def report_html(
         f"<p>{len(docs)} cells: data sets × seeds {e(', '.join(map(str, seeds)))} × start spreads "
         f"{e(', '.join(f'{s:g}' for s in spreads))} × arms. Every arm of a data set, seed and spread "
         "starts from the same a-priori model (log-normal errors per coefficient class, the screen run "
-        "at it) and is judged against the data's best-likelihood optimum (within 0.1 σ and a "
-        "χ²-sized ΔJ). Files: <a href='results.csv'>results.csv</a>, <a href='summary.csv'>summary.csv</a>, "
+        "at it) and is judged against the data's best-likelihood optimum, the best of a multi-start "
+        "search and every arm's end point: a success ends inside its likelihood region (ΔJ ≤ χ²₀.₉₅(p)/2). Files: <a href='results.csv'>results.csv</a>, <a href='summary.csv'>summary.csv</a>, "
         "<a href='conclusions.json'>conclusions.json</a>, <a href='regime.json'>regime.json</a>, "
         "<a href='drift.json'>drift.json</a>, <a href='report.rrd'>report.rrd</a> "
         "(open with <code>rerun report.rrd</code>).</p>",
@@ -306,7 +306,7 @@ def report_html(
         "<th>rule</th><th>evidence</th></tr>",
     ]
     for k, v in verdicts.items():
-        cls, word = VERDICT[v["holds"]]
+        cls, word = VERDICT_CLASS[v["holds"]], v["verdict"]
         parts.append(
             f"<tr><td>{e(k)}</td><td>{e(PAPER.get(k, ''))}</td><td class='{cls}'>{word}</td>"
             f"<td>{e(v.get('rule', ''))}</td><td>{e(v['evidence'])}</td></tr>"

@@ -54,7 +54,7 @@ from testbed.study.results import (
     results_rows,
     summary_table,
 )
-from testbed.study.rules import FACTORIAL, NM_ARM, conclusions
+from testbed.study.rules import DRIFT_AT, FACTORIAL, NM_ARM, conclusions
 
 __all__ = [
     "CONNECT_S",
@@ -370,14 +370,14 @@ def regime(out: Path, cells: list[Cell]) -> dict[str, dict]:
 
 
 def drift(out: Path, docs: list[dict], cells: list[Cell]) -> dict[str, dict]:
-    """Per data set ("scenario/truth") with drift cells: the Mt-form against the A-form at its first
-    spread: `drift.forms` at the analytic model of the first seed's run and `drift.evidence` of
-    every seed's finite estimates, converged or not (a fit that drifts off to its limit is the
-    evidence), with how many of each form's fits converged."""
-    found = {}
+    """Per data set and spread with drift cells ("scenario/truth s=spread", `rules.DRIFT_AT`): the
+    Mt-form against the A-form, `drift.forms` at the analytic model of the first seed's run and
+    `drift.evidence` of every seed's finite estimates at that spread, converged or not (a fit
+    that drifts off to its limit is the evidence), with how many of each form's fits converged."""
+    found, forms_of = {}, {}
     for c in cells:
-        key = f"{c.scenario}/{c.truth}"
-        if key in found or c.arm != DRIFT_ARMS[0] or c.seed != 1:
+        key = f"{c.scenario}/{c.truth}{DRIFT_AT}{c.spread:g}"
+        if key in found or c.arm != DRIFT_ARMS[0]:
             continue
         mine = [
             d
@@ -392,9 +392,12 @@ def drift(out: Path, docs: list[dict], cells: list[Cell]) -> dict[str, dict]:
             for a in DRIFT_ARMS
         }
         try:
-            experiments, analytic = load_data([out / "runs" / c.run_name])
-            f = forms(experiments, analytic)
-            measured = evidence(f, *([d["values"] for d in picked[a]] for a in DRIFT_ARMS))
+            if (c.scenario, c.truth) not in forms_of:  # the first seed's run (the plan's order)
+                experiments, analytic = load_data([out / "runs" / c.run_name])
+                forms_of[c.scenario, c.truth] = forms(experiments, analytic)
+            measured = evidence(
+                forms_of[c.scenario, c.truth], *([d["values"] for d in picked[a]] for a in DRIFT_ARMS)
+            )
         except (InputError, OSError, np.linalg.LinAlgError, ValueError):
             continue
         found[key] = {

@@ -9,9 +9,11 @@ kept. The draws come from their own random stream of (seed, `PRIOR_STREAM`), one
 coefficient in `COEFFICIENTS` order, so one scenario, seed and spread give one prior whatever
 the method, the free set or the noise's streams (`testbed.simulation.measurements`).
 
-`judge` says whether a fit reached the best-likelihood optimum of its data set — every free
-coefficient within `SIGMAS` of the optimum's σ and its cost within the likelihood-ratio bound
-χ²_LEVEL(p)/2 — and, when it did not, how it failed (`Outcome`).
+`judge` says whether a fit reached the best-likelihood optimum of its data set — its cost
+within the likelihood-ratio bound χ²_LEVEL(p)/2 of the optimum's, the region a likelihood-ratio
+test cannot tell from it: what a stopping rule on the cost can deliver, and a filter too — and,
+when it did not, how it failed (`Outcome`). Its largest distance from the optimum in the
+optimum's σ is measured beside it, never part of the verdict.
 """
 
 from __future__ import annotations
@@ -38,7 +40,6 @@ __all__ = [
     "ZERO_SIGMAS",
     "PRIOR_STREAM",
     "TERM_STREAM",
-    "SIGMAS",
     "LEVEL",
     "prior",
     "term_class",
@@ -77,7 +78,6 @@ PRIOR_STREAM = 0x7072696F
 # A nonlinear model's terms draw from SeedSequence(seed, spawn_key=(PRIOR_STREAM, TERM_STREAM))
 TERM_STREAM = 1
 
-SIGMAS = 0.1  # success: every free coefficient within SIGMAS · σ of the optimum
 LEVEL = 0.95  # success: ΔJ ≤ χ²_LEVEL(p)/2, the likelihood-ratio confidence region at LEVEL
 
 
@@ -175,12 +175,14 @@ def cost_bound(p: int, level: float = LEVEL) -> float:
 
 
 def judge(fit: Estimate, best: Estimate) -> Judgement:
-    """`fit` against `best`, the best-likelihood fit of the same data and free set (its `std`,
-    the Cramér-Rao σ, sizes the tolerance). Success iff every free coefficient is within `SIGMAS`
-    σ of `best`'s (a non-finite σ never passes) and ΔJ ≤ `cost_bound`; whatever the fit's
-    status. Otherwise: diverged (status diverged, or a non-finite value or cost), stalled at the
-    limit (iteration limit or no decreasing step), or converged elsewhere (any other status: it
-    stopped at a point that is not the optimum)."""
+    """`fit` against `best`, the best-likelihood fit of the same data and free set. Success iff
+    its cost and coefficients are finite and ΔJ ≤ `cost_bound` (inside the optimum's likelihood
+    region), whatever the fit's status: a filter's estimate, or an optimiser's stopped by a rule
+    on the cost, can be as good as the data allow without sitting on the optimum. Otherwise:
+    diverged (status diverged, or a non-finite value or cost), stalled at the limit (iteration
+    limit or no decreasing step), or converged elsewhere (any other status: it stopped at a
+    point the data tell from the optimum). `sigmas`, the largest |θ − θ̂|/σ over the free
+    coefficients in `best`'s Cramér-Rao σ, is measured beside the verdict."""
     if set(fit.free) != set(best.free):
         raise InputError(
             f"fit of {', '.join(fit.free)} judged against an optimum of {', '.join(best.free)}; "
@@ -190,10 +192,12 @@ def judge(fit: Estimate, best: Estimate) -> Judgement:
     sigmas = max((_in_sigmas(theta[n] - theta_hat[n], sigma[n]) for n in best.free), default=0.0)
     delta, bound = float(fit.cost) - float(best.cost), cost_bound(len(best.free))
     finite = math.isfinite(fit.cost) and all(math.isfinite(v) for v in theta.values())
-    if fit.status is Status.DIVERGED or not finite:
+    if not finite:
         outcome = Outcome.DIVERGED
-    elif sigmas <= SIGMAS and delta <= bound:
+    elif delta <= bound:
         outcome = Outcome.SUCCESS
+    elif fit.status is Status.DIVERGED:
+        outcome = Outcome.DIVERGED
     elif fit.status in (Status.MAX_ITERATIONS, Status.STALLED):
         outcome = Outcome.STALLED
     else:
@@ -202,7 +206,7 @@ def judge(fit: Estimate, best: Estimate) -> Judgement:
 
 
 def _in_sigmas(d: float, sigma: float) -> float:
-    """|d| in units of σ: ∞ for a non-finite σ (it never passes), or a non-zero d at σ = 0."""
+    """|d| in units of σ: ∞ for a non-finite σ, or a non-zero d at σ = 0."""
     if not math.isfinite(sigma) or not math.isfinite(d):
         return math.inf
     if d == 0:

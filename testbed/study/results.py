@@ -2,12 +2,15 @@
 best-likelihood optimum, results.csv, and the table per data set, spread and arm.
 
 The optimum of a data set, seed and spread is the lowest `cost` (the output-error negative
-log-likelihood at the estimate, the same measure for every method) among its `OPTIMUM` cell and
-its judged arms' cells: the optimum search from the analytic values, or an arm where one went
-lower. Its σ are the `OPTIMUM` cell's Cramér-Rao σ (corrected for coloured residuals), the
-lowest cell's own where those are not finite. Each judged cell is then judged by
-`priors.judge`: success, diverged, stalled at the limit or converged elsewhere; a cell whose fit
-failed is "failed"; the drift arms are not judged (their outcome is empty). The `NONLINEAR`
+log-likelihood at the estimate, the same measure for every method) among its `OPTIMUM` cell
+(the multi-start search, `cells.REFERENCE_SEARCH`) and its judged arms' end points. Its σ are the
+`OPTIMUM` cell's Cramér-Rao σ (corrected for coloured residuals), the lowest cell's own where
+those are not finite; they are the σ of every accuracy measure (`optimum_std`). Each judged cell
+is then judged by `priors.judge`: success (inside the optimum's likelihood region), diverged,
+stalled at the limit or converged elsewhere; a cell whose fit failed is "failed"; the drift arms
+are not judged (their outcome is empty). `search_delta_cost` is a cell's cost less the search's:
+below −`SEARCH_TIE` the arm found what the search missed (`beat_search` in the summary counts
+those cells, which should be none: the search is then too small). The `NONLINEAR`
 cells are judged against the captive reference instead: their rows carry the captive value in
 the `analytic` column (the reference of `rules.accurate` and `rules.relative_error` in the
 summary) and the largest |θ − θ_captive|/σ in `sigmas`; their outcome is empty.
@@ -30,6 +33,7 @@ from testbed.study.rules import accurate, cells, coefficient_ok, relative_error,
 
 __all__ = [
     "COLUMNS",
+    "SEARCH_TIE",
     "SUMMARY_COLUMNS",
     "Point",
     "captive_table",
@@ -52,11 +56,13 @@ COLUMNS = (
     "optimum",
     "estimate",
     "std",
+    "optimum_std",
     "converged",
     "status",
     "outcome",
     "sigmas",
     "delta_cost",
+    "search_delta_cost",
     "iterations",
     "evaluations",
     "wall_time_s",
@@ -76,12 +82,27 @@ SUMMARY_COLUMNS = (
     "stalled",
     "elsewhere",
     "failed",
+    "beat_search",
+    "min_search_delta_cost",
     "accurate",
     "median_relative_error",
     "median_evaluations",
     "median_wall_time_s",
 )
-NUMBERS = ("spread", "analytic", "optimum", "estimate", "std", "sigmas", "delta_cost", "wall_time_s")
+SEARCH_TIE = 0.01  # ΔJ: a cost this much below the search's is one the search missed
+
+NUMBERS = (
+    "spread",
+    "analytic",
+    "optimum",
+    "estimate",
+    "std",
+    "optimum_std",
+    "sigmas",
+    "delta_cost",
+    "search_delta_cost",
+    "wall_time_s",
+)
 INTEGERS = ("seed", "iterations", "evaluations")
 
 
@@ -112,9 +133,10 @@ def _group(doc: dict) -> tuple:
     return (c["scenario"], c["truth"], c["spread"], c["seed"], c["duration"])
 
 
-def judgements(docs: list[dict]) -> dict[str, tuple[Judgement, Point] | None]:
-    """Per judged cell's key: its judgement and the optimum it was judged against (None where the
-    cell failed or its group has no finite optimum)."""
+def judgements(docs: list[dict]) -> dict[str, tuple[Judgement, Point, float] | None]:
+    """Per judged cell's key: its judgement, the optimum it was judged against and its cost less
+    the search's (NaN without one); None where the cell failed or its group has no finite
+    optimum."""
     groups: dict[tuple, list[dict]] = {}
     for d in docs:
         groups.setdefault(_group(d), []).append(d)
@@ -133,7 +155,12 @@ def judgements(docs: list[dict]) -> dict[str, tuple[Judgement, Point] | None]:
             if d["status"] == "failed" or best is None or set(d["free"]) != set(best.free):
                 out[d["key"]] = None
                 continue
-            out[d["key"]] = (judge(_point(d), best), best)
+            search = (
+                reference["cost"]
+                if reference and math.isfinite(reference.get("cost", math.inf))
+                else math.nan
+            )
+            out[d["key"]] = (judge(_point(d), best), best, float(d["cost"]) - search)
     return out
 
 
@@ -169,12 +196,22 @@ def results_rows(docs: list[dict]) -> list[dict]:
             "outcome": outcome,
             "sigmas": sigmas,
             "delta_cost": verdict[0].delta_cost if verdict else math.nan,
+            "search_delta_cost": verdict[2] if verdict else math.nan,
             "iterations": d["iterations"],
             "evaluations": d.get("evaluations", 0),
             "wall_time_s": round(d["wall_time_s"], 3),
             "reason": d.get("reason", ""),
         }
         optimum = verdict[1].coefficients if verdict else {}
+        # accuracy is judged in the data's Cramér-Rao σ: the optimum's; a nonlinear cell's own
+        # (its fit is the only best-likelihood fit of the nonlinear model to these data)
+        sigma = (
+            dict(zip(verdict[1].free, verdict[1].std))
+            if verdict
+            else {n: _std(d, n) for n in d.get("free", [])}
+            if c["arm"] == NONLINEAR
+            else {}
+        )
         names = d.get("free") or [""]
         for n in names:
             rows.append(
@@ -185,6 +222,7 @@ def results_rows(docs: list[dict]) -> list[dict]:
                     "optimum": optimum.get(n, math.nan),
                     "estimate": d["values"][n] if n else math.nan,
                     "std": _std(d, n),
+                    "optimum_std": float(sigma.get(n, math.nan)),
                 }
             )
     return rows
@@ -225,7 +263,9 @@ def read_results(path) -> list[dict]:
 
 def summary_table(rows: list[dict]) -> list[dict]:
     """Per data set, spread and arm: cells, each outcome's count, the success proportion with its
-    Wilson 95 % interval, the cells whose coefficients are acceptable against the analytic model
+    Wilson 95 % interval, the cells whose cost is below the reference search's (`beat_search`,
+    beyond `SEARCH_TIE`) and the least cost difference from it, the cells whose coefficients are
+    acceptable against the analytic model
     (`rules.accurate`), the median of the cells' relative errors against it (`rules.relative_error`,
     those finite), and the median evaluations and wall time."""
     groups: dict[tuple, list[list[dict]]] = {}
@@ -238,6 +278,7 @@ def summary_table(rows: list[dict]) -> list[dict]:
         k, n = outcomes.count("success"), len(judged)
         lo, hi = wilson(k, n) if n else (math.nan, math.nan)
         rel = [v for v in map(relative_error, cs) if np.isfinite(v)]
+        below = [rs[0]["search_delta_cost"] for rs in cs if math.isfinite(rs[0]["search_delta_cost"])]
         out.append(
             {
                 "scenario": s,
@@ -250,6 +291,8 @@ def summary_table(rows: list[dict]) -> list[dict]:
                 "success_low": lo,
                 "success_high": hi,
                 **{o: outcomes.count(o) for o in ("diverged", "stalled", "elsewhere", "failed")},
+                "beat_search": sum(v < -SEARCH_TIE for v in below),
+                "min_search_delta_cost": min(below, default=math.nan),
                 "accurate": sum(map(accurate, cs)),
                 "median_relative_error": float(np.median(rel)) if rel else math.nan,
                 "median_evaluations": float(np.median([rs[0]["evaluations"] for rs in cs])),
