@@ -370,10 +370,11 @@ def test_mekf_reproduced_when_inside_the_region_on_both():
     assert "I/linear spread 0.4: 20/20 (100 %, 95 % CI 84–100 %) — yes" in out["evidence"]
     # a filter inside the likelihood region half a σ from the optimum: the distance reported, not judged
     assert (
-        "mekf-paper on I/linear: median ΔJ 0, median distance 0.5 σ, median relative error 5.0 %"
-        in out["evidence"]
+        "mekf-paper on I/linear: median ΔJ 0 of the region's bound, median distance 0.5 σ, "
+        "median relative error 5.0 %" in out["evidence"]
     )
-    assert "mekf on II/linear: median ΔJ 100" in out["evidence"]
+    # ΔJ 100 over χ²₀.₉₅(4)/2 = 4.74
+    assert "mekf on II/linear: median ΔJ 21.1 of the region's bound" in out["evidence"]
 
 
 def test_mekf_not_reproduced_when_one_scenario_falls_short():

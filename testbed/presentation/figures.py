@@ -1,7 +1,7 @@
 """The campaign's report: PNG figures (matplotlib, Agg: no display needed), report.html beside
 them, and report.rrd (the same results in Rerun).
 
-Figures: `success-spread.png` (the probability of reaching the data's optimum against the start
+Figures: `success-spread.png` (the probability of ending inside the data's optimum's likelihood region against the start
 spread, per data set and arm, with Wilson intervals); named after the paper's,
 `fig3-inputs-I.png` and `fig5-inputs-II.png` (the fin angles of the first seed's experiments),
 `fig4-coefficients-I.png` and `fig6-coefficients-II.png` (each free coefficient's estimate over
@@ -118,7 +118,7 @@ def coefficient_figure(out: Path, scenario: str, rows: list[dict], number: int, 
 
 
 def success_figure(out: Path, summary: list[dict], arms, palette) -> str | None:
-    """The probability of reaching the data's optimum against the start spread, one panel per
+    """The probability of ending inside the data's optimum's likelihood region against the start spread, one panel per
     data set, one line per judged arm, with the Wilson 95 % interval of each proportion."""
     judged = [r for r in summary if r["judged"]]
     sets = list(dict.fromkeys((r["scenario"], r["truth"]) for r in judged))
@@ -159,7 +159,7 @@ def success_figure(out: Path, summary: list[dict], arms, palette) -> str | None:
     for ax in axes.flat[len(sets) :]:
         ax.axis("off")
     for ax in axes[:, 0]:
-        ax.set_ylabel("P(reach the optimum)")
+        ax.set_ylabel("P(inside the optimum's likelihood region)")
     handles, labels = axes.flat[0].get_legend_handles_labels()
     for ax in axes.flat[1 : len(sets)]:
         h, lab = ax.get_legend_handles_labels()
@@ -224,7 +224,9 @@ def write_report(
     figures, missing = [], []
     name = success_figure(out, summary, arms, palette)
     if name:
-        figures.append(("Probability of reaching the data's optimum against the start spread", name))
+        figures.append(
+            ("Probability of ending inside the optimum's likelihood region against the start spread", name)
+        )
     # the paper's order: each scenario's inputs, then its coefficients
     for s, number in FIGURE_NUMBERS.items():
         if s not in inputs:

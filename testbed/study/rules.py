@@ -244,8 +244,9 @@ def _coefficients(rows: list[dict]) -> list[dict]:
 
 
 def _delta(rows: list[dict]) -> float:
-    """A cell's ΔJ from its data set's optimum (NaN: unknown, the cell does not count)."""
-    return _value(rows[0].get("delta_cost"))
+    """A cell's ΔJ from its data set's optimum in units of the likelihood region's bound
+    χ²₀.₉₅(p)/2 (1: the region's edge, whatever p; NaN: unknown, the cell does not count)."""
+    return _value(rows[0].get("delta_cost")) / cost_bound(max(len(_coefficients(rows)), 1))
 
 
 def _sigmas(rows: list[dict]) -> float:
@@ -350,8 +351,8 @@ def _proportion_rule(table, regime, arm: str, claim: str, at_least: bool, thresh
         decisions.append(decide(k, n, threshold, at_least))
         parts.append(f"{key} spread {s:g}: {_proportion(k, n)} — {_WORD[decisions[-1]]}")
     accuracy = (
-        f"{arm} over these cells: median ΔJ from the optimum {_median(picked, _delta):.3g} (the region's "
-        f"bound {cost_bound(len(_coefficients(picked[0][1]))):.3g}), median distance "
+        f"{arm} over these cells: median ΔJ from the optimum {_median(picked, _delta):.3g} of the "
+        f"likelihood region's bound, median distance "
         f"{_median(picked, _sigmas):.3g} of the optimum's σ, accurate against the analytic model in "
         f"{sum(accurate(rs) for _, rs in picked)}/{len(picked)} cells, median relative error "
         f"{_pct(_median_error(picked))}"
@@ -416,7 +417,8 @@ def _mekf(table) -> dict:
             decisions.append(decide(k, n, ACCEPTABLE, True))
             parts.append(f"{scenario}/linear spread {s:g}: {_proportion(k, n)} — {_WORD[decisions[-1]]}")
     beside = "; ".join(
-        f"{a} on {s}/linear: median ΔJ {_median(p, _delta):.3g}, median distance {_median(p, _sigmas):.3g} σ, "
+        f"{a} on {s}/linear: median ΔJ {_median(p, _delta):.3g} of the region's bound, median distance "
+        f"{_median(p, _sigmas):.3g} σ, "
         f"median relative error {_pct(_median_error(p))}"
         for a in MEKF_ARMS
         for s in ("I", "II")
