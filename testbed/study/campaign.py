@@ -72,6 +72,7 @@ __all__ = [
     "plan",
     "read_cell",
     "reproduce",
+    "write_outputs",
 ]
 
 SCENARIOS = ("I", "II")  # the paper's, fitted by every arm on every truth
