@@ -361,7 +361,8 @@ def report_html(
     parts.append(
         "<h2>Arms</h2><table><tr><th>data set</th><th>spread</th><th>arm</th><th>cells</th><th>success</th>"
         "<th>95 % interval</th><th>diverged</th><th>stalled</th><th>elsewhere</th><th>failed</th>"
-        "<th>accurate</th><th>median relative error</th><th>median evaluations</th><th>median wall time (s)</th></tr>"
+        "<th>below the optimum search</th><th>accurate</th><th>median relative error</th>"
+        "<th>median evaluations</th><th>median wall time (s)</th></tr>"
     )
     for r in summary:
         share = f"{r['success']}/{r['judged']}" if r["judged"] else "–"
@@ -369,7 +370,8 @@ def report_html(
         parts.append(
             f"<tr><td>{e(r['scenario'])}/{e(r['truth'])}</td><td>{r['spread']:g}</td><td>{e(r['arm'])}</td>"
             f"<td>{r['cells']}</td><td>{share}</td><td>{ci}</td><td>{r['diverged']}</td><td>{r['stalled']}</td>"
-            f"<td>{r['elsewhere']}</td><td>{r['failed']}</td><td>{r['accurate']}</td>"
+            f"<td>{r['elsewhere']}</td><td>{r['failed']}</td><td>{r['beat_search'] if r['judged'] else '–'}</td>"
+            f"<td>{r['accurate']}</td>"
             f"<td>{_pct(r['median_relative_error'])}</td><td>{r['median_evaluations']:.0f}</td>"
             f"<td>{r['median_wall_time_s']:.1f}</td></tr>"
         )
