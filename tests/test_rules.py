@@ -13,7 +13,6 @@ from testbed.study.rules import (
     accurate,
     coefficient_ok,
     conclusions,
-    relative_distance,
     relative_error,
     relative_sigma,
     valid_reference,
@@ -124,20 +123,6 @@ def test_cell_accuracy_and_relative_error():
     assert relative_error(rows) == math.inf
     failed = cell("II", "linear", 0.2, "ml-gn", 1, "failed")
     assert not accurate(failed) and relative_error(failed) == math.inf
-
-
-def test_relative_distance_is_from_the_optimum():
-    rows = cell("II", "linear", 0.2, "ml-gn", 1, error=0.1, optimum=0.1)
-    assert relative_error(rows) == pytest.approx(0.1) and relative_distance(rows) == pytest.approx(0.0)
-    rows = cell("II", "linear", 0.2, "ml-gn", 1, error=0.21, optimum=0.1)
-    assert relative_distance(rows) == pytest.approx(0.1)  # 1.21 against 1.1
-    rows[0]["optimum"] = 0.0  # an optimum at 0 has no relative distance: left out of the median
-    rows[0]["estimate"] = 5.0
-    assert relative_distance(rows) == pytest.approx(0.1)
-    rows[1]["estimate"] = math.nan  # a diverged estimate is infinitely far
-    assert relative_distance(rows) == math.inf
-    assert math.isnan(relative_distance(cell("II", "linear", 0.2, "ml-gn", 1, optimum=None)))  # unknown
-    assert relative_distance(cell("II", "linear", 0.2, "ml-gn", 1, "failed")) == math.inf
 
 
 def test_relative_sigma_over_the_optimum_or_the_analytic_value():

@@ -47,7 +47,6 @@ __all__ = [
     "coefficient_ok",
     "conclusions",
     "decide",
-    "relative_distance",
     "relative_error",
     "relative_sigma",
     "valid_reference",
@@ -132,23 +131,6 @@ def relative_error(rows: list[dict]) -> float:
 def _value(v) -> float:
     """A results.csv number: NaN where it is empty or missing."""
     return math.nan if v is None or v == "" else float(v)
-
-
-def relative_distance(rows: list[dict]) -> float:
-    """A cell's median |θ − θ_optimum| / |θ_optimum| over its coefficients whose optimum is not 0;
-    ∞ for a cell without coefficients (a failed fit) or with a non-finite estimate; NaN — the
-    cell does not count — where its data set's optimum is unknown (an empty or NaN `optimum`)."""
-    coef = [r for r in rows if r["coefficient"]]
-    if not coef:
-        return math.inf
-    optimum = [_value(r.get("optimum")) for r in coef]
-    if not all(map(math.isfinite, optimum)):
-        return math.nan
-    estimate = [_value(r["estimate"]) for r in coef]
-    if not all(map(math.isfinite, estimate)):
-        return math.inf
-    rel = [abs(e - o) / abs(o) for e, o in zip(estimate, optimum) if o]
-    return float(np.median(rel)) if rel else math.nan
 
 
 def relative_sigma(rows: list[dict]) -> float:
@@ -281,10 +263,6 @@ def _median(picked, of) -> float:
 
 def _median_error(picked) -> float:
     return _median(picked, relative_error)
-
-
-def _spreads(picked) -> list[float]:
-    return sorted({k[2] for k, _ in picked})
 
 
 # -- the rules -------------------------------------------------------------------------------------
