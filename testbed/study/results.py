@@ -151,15 +151,12 @@ def judgements(docs: list[dict]) -> dict[str, tuple[Judgement, Point, float] | N
             if d["status"] != "failed" and math.isfinite(d.get("cost", math.inf))
         ]
         best = _point(min(candidates, key=lambda d: d["cost"]), sigma) if candidates else None
+        finite = reference is not None and math.isfinite(reference.get("cost", math.inf))
+        search = reference["cost"] if finite else math.nan
         for d in judged:
             if d["status"] == "failed" or best is None or set(d["free"]) != set(best.free):
                 out[d["key"]] = None
                 continue
-            search = (
-                reference["cost"]
-                if reference and math.isfinite(reference.get("cost", math.inf))
-                else math.nan
-            )
             out[d["key"]] = (judge(_point(d), best), best, float(d["cost"]) - search)
     return out
 
@@ -205,13 +202,12 @@ def results_rows(docs: list[dict]) -> list[dict]:
         optimum = verdict[1].coefficients if verdict else {}
         # accuracy is judged in the data's Cramér-Rao σ: the optimum's; a nonlinear cell's own
         # (its fit is the only best-likelihood fit of the nonlinear model to these data)
-        sigma = (
-            dict(zip(verdict[1].free, verdict[1].std))
-            if verdict
-            else {n: _std(d, n) for n in d.get("free", [])}
-            if c["arm"] == NONLINEAR
-            else {}
-        )
+        if verdict:
+            sigma = dict(zip(verdict[1].free, verdict[1].std))
+        elif c["arm"] == NONLINEAR:
+            sigma = {n: _std(d, n) for n in d.get("free", [])}
+        else:
+            sigma = {}
         names = d.get("free") or [""]
         for n in names:
             rows.append(

@@ -236,6 +236,11 @@ def _sigmas(rows: list[dict]) -> float:
     return _value(rows[0].get("sigmas"))
 
 
+def _linear(table, arm: str, scenario: str) -> list[tuple[tuple, list[dict]]]:
+    """`_pick`: `arm`'s cells on `scenario` flown by the linear truth."""
+    return _pick(table, arm, lambda key: key == f"{scenario}/linear")
+
+
 def _success(picked) -> tuple[int, int]:
     return sum(rs[0]["outcome"] == "success" for _, rs in picked), len(picked)
 
@@ -370,7 +375,7 @@ def _scenarios(table, regime) -> dict:
     arms = sorted(
         {k[3] for k, rs in table.items() if k[:2] in (("I", "linear"), ("II", "linear")) and rs[0]["outcome"]}
     )
-    methods = "; ".join(map(lambda a: _on_both(table, a), arms))
+    methods = "; ".join(_on_both(table, a) for a in arms)
     return _verdict(
         _all(decisions), rule, "; ".join(parts) + f"; per method: {methods}; {_factorial(table, regime)}"
     )
@@ -385,7 +390,7 @@ def _mekf(table) -> dict:
         f"on each, decided by the {100 * LEVEL:.0f} % Wilson interval (not decided where it straddles "
         f"{100 * ACCEPTABLE:.0f} %); its ΔJ, distance in σ and error, and {MEKF_ARMS[1]}'s, reported beside it."
     )
-    picked = {s: _pick(table, arm, lambda key, s=s: key == f"{s}/linear") for s in ("I", "II")}
+    picked = {s: _linear(table, arm, s) for s in ("I", "II")}
     if not all(picked.values()):
         return _verdict(None, rule, f"no {arm} cells from a spread > 0 on both I/linear and II/linear")
     parts, decisions = [], []
@@ -400,7 +405,7 @@ def _mekf(table) -> dict:
         f"median relative error {_pct(_median_error(p))}"
         for a in MEKF_ARMS
         for s in ("I", "II")
-        if (p := _pick(table, a, lambda key, s=s: key == f"{s}/linear"))
+        if (p := picked[s] if a == arm else _linear(table, a, s))
     )
     return _verdict(_all(decisions), rule, "; ".join(parts) + f"; {beside}")
 
@@ -431,7 +436,7 @@ def _paired(table, arm: str, measure) -> dict[float, tuple[int, int]]:
 def _on_both(table, arm: str) -> str:
     """`arm` on I/linear against II/linear: success, the optimum's median relative σ, the median
     relative error, the seeds closer on II."""
-    p = {s: _pick(table, arm, lambda key, s=s: key == f"{s}/linear") for s in ("I", "II")}
+    p = {s: _linear(table, arm, s) for s in ("I", "II")}
     pairs = _paired(table, arm, relative_error)
     better = sum(k for k, _ in pairs.values()), sum(n for _, n in pairs.values())
     return (
