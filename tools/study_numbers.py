@@ -25,6 +25,10 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this checkout's testbed, installed or not
+
+from testbed.study.rules import DRIFT_AT, valid_reference  # noqa: E402
+
 ASSETS = ROOT / "assets" / "reproduce"
 FILES = ("summary.csv", "conclusions.json", "drift.json")
 FIGURES = (
@@ -133,7 +137,7 @@ def _short(key: str, verdict: dict, rows, valid: list[str], drift: dict) -> str:
     ratios = [
         (d["condition_mt"] / d["condition_a"], d["shared_scatter_mt"] / d["shared_scatter_a"])
         for k, d in drift.items()
-        if k.split(" s=")[0] in valid and d.get("condition_a") and d.get("shared_scatter_a")
+        if k.split(DRIFT_AT)[0] in valid and d.get("condition_a") and d.get("shared_scatter_a")
     ]
     if not ratios:
         return verdict["evidence"]
@@ -238,13 +242,29 @@ def blocks(assets: Path = ASSETS) -> dict[Path, tuple[str, str]]:
 
 def rejudge(campaign: Path) -> None:
     """The campaign's results, verdicts, report and figures written again from its cell files by
-    this checkout's code, the cells in the plan's order (seed, spread, data set)."""
-    from testbed.study.campaign import write_outputs
+    this checkout's code, the cells in the order `campaign.plan` gives the campaign they make up
+    (its seeds, spreads in increasing order, arms, truths and duration read off the cells)."""
+    from testbed.simulation.scenario import TRUTHS
+    from testbed.study.arms import ARMS
+    from testbed.study.campaign import plan, write_outputs
     from testbed.study.cells import Cell
 
-    docs = [json.loads(f.read_text(encoding="utf-8")) for f in sorted((campaign / "cells").glob("*.json"))]
-    spreads = list(dict.fromkeys(d["cell"]["spread"] for d in docs))
-    docs.sort(key=lambda d: (d["cell"]["seed"], spreads.index(d["cell"]["spread"])))
+    docs = [json.loads(f.read_text(encoding="utf-8")) for f in (campaign / "cells").glob("*.json")]
+    cells = [d["cell"] for d in docs]
+    planned = plan(
+        max(c["seed"] for c in cells),
+        arms=[a for a in ARMS if any(c["arm"] == a for c in cells)],
+        spreads=sorted({c["spread"] for c in cells}),
+        truths=[t for t in TRUTHS if any(c["truth"] == t for c in cells)],
+        duration=cells[0]["duration"],
+    )
+    # a cell's key hashes the code that computed it: matched by what it is instead
+    place = {(c.scenario, c.truth, c.spread, c.arm, c.seed): i for i, c in enumerate(planned)}
+    docs.sort(
+        key=lambda d: place.get(
+            tuple(d["cell"][k] for k in ("scenario", "truth", "spread", "arm", "seed")), len(place)
+        )
+    )
     write_outputs(campaign, docs, [Cell(**d["cell"]) for d in docs])
 
 
@@ -265,9 +285,6 @@ def main(argv=None) -> int:
         "(the cells as computed; for a change to the judging code alone)",
     )
     args = ap.parse_args(argv)
-    sys.path.insert(0, str(ROOT))
-    from testbed.study.rules import valid_reference
-
     missing = [n for n in (*FILES, *FIGURES, "regime.json") if not (args.campaign / n).is_file()]
     if missing:
         print(
@@ -281,9 +298,8 @@ def main(argv=None) -> int:
         ["git", "rev-parse", "--short", args.commit], cwd=ROOT, capture_output=True, text=True, check=True
     ).stdout.strip()
     regime = json.loads((args.campaign / "regime.json").read_text(encoding="utf-8"))
-    sets = sorted(
-        {f"{r['scenario']}/{r['truth']}" for r in csv.DictReader(open(args.campaign / "summary.csv"))}
-    )
+    with open(args.campaign / "summary.csv", newline="", encoding="utf-8") as f:
+        sets = sorted({f"{r['scenario']}/{r['truth']}" for r in csv.DictReader(f)})
     ASSETS.mkdir(parents=True, exist_ok=True)
     for n in (*FILES, *FIGURES):
         shutil.copyfile(args.campaign / n, ASSETS / n)
