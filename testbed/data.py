@@ -50,6 +50,7 @@ __all__ = [
     "Experiment",
     "MAX_CONSTANT",
     "MAX_DATA",
+    "MAX_GAP",
     "MAX_NAME",
     "MAX_SAMPLES",
     "MIN_NOISE_STD",
@@ -79,7 +80,10 @@ __all__ = [
     "read_toml",
     "run_csvs",
     "sensor_table",
+    "split",
     "stale",
+    "stretch_name",
+    "stretches",
     "toml_value",
     "write_config",
     "write_csv",
@@ -93,6 +97,12 @@ MAX_SAMPLES = 10**6  # the most samples a record's time grid may have
 CLOCK_POINTS = 32
 CLOCK_DIVISIONS = 8
 MIN_ROWS = 3  # the fewest samples a record can have: the estimators difference and fit x0 on them
+# The longest gap in a record's logged inputs, in their median intervals, across which the model
+# holds the fins (`stretches`): a few rows dropped, where holding them costs less than a new
+# initial state (a tenth of the rows dropped at random and the record split at every pair: bounds
+# 1.5–1.9× wider); a longer dropout splits the record (a 2.4 s one held in a Scenario II log:
+# coefficients 60 σ off and `ml-gn` at its iteration limit)
+MAX_GAP = 10.0
 # The largest magnitude a measured state or input may have, in SI units (m, m/s, rad, rad/s):
 # 1000 km of depth, 1000 km/s, 10⁶ rad. Beyond it a value is a unit or export error, and its
 # square, summed over a record, would leave the range of double precision long before 1e300.
@@ -119,8 +129,9 @@ WRAPPING = ("phi", "psi")
 
 @dataclass(frozen=True)
 class Experiment:
-    """One continuous record: uniform time `t`, measured states (absolute `u`; NaN where a
-    sample is missing), inputs (rad)."""
+    """One record: uniform time `t`, measured states (absolute `u`; NaN where a sample is
+    missing), inputs (rad), and where no row logged the inputs (`held`: held from the row
+    before; the model is flown across a short gap so, and split at a long one, `stretches`)."""
 
     name: str
     t: np.ndarray  # (N,)
@@ -131,6 +142,7 @@ class Experiment:
     sensors: tuple[
         str, ...
     ] = ()  # the config sensors whose readings are already undone (`ModelConfig.readings`)
+    held: np.ndarray | None = None  # (N,) True where no row logged the inputs; None: none
 
     @property
     def dt(self) -> float:
@@ -397,7 +409,9 @@ def read_csv(path: str | Path, name: str | None = None, keep_repeats: bool = Fal
     n = len(measured)
     if not keep_repeats:
         values[:, 1 : 1 + n][stale(values[:, 1 : 1 + n])] = math.nan
-    values = _on_grid(path, _held(path, values, n))
+    unlogged = np.isnan(values[:, 1 + n :]).any(axis=1)  # a row with a fin field empty
+    values, rows = _on_grid(path, _held(path, values, n))
+    held = (rows < 0) | unlogged[np.maximum(rows, 0)]
     for j, state in enumerate(measured):
         if np.isnan(values[:, 1 + j]).all():
             raise InputError(f"{path}: column '{state}' has no value; expected at least one sample of it")
@@ -408,7 +422,53 @@ def read_csv(path: str | Path, name: str | None = None, keep_repeats: bool = Fal
         _unwrapped(path, values[:, 1 : 1 + n], measured),
         values[:, 1 + n :],
         str(path),
+        held=held if held.any() else None,
     )
+
+
+def stretches(e: Experiment) -> list[tuple[int, int]]:
+    """The sample ranges `[a, b)` of `e` the model is flown over: the whole record, split at each
+    gap in its inputs longer than `MAX_GAP` times their median interval (a stretch of samples
+    `held` from the last row that logged them: a logger's dropout, over which the fins moved as
+    nothing recorded), each stretch from the row after the gap; the samples inside a gap, and a
+    stretch with fewer than `MIN_ROWS` rows that logged the inputs, are left out. Across a
+    shorter gap (a row dropped or two, a clock whose ticks outnumber the rows) the fins are
+    held, the model's own zero-order hold."""
+    n = len(e.t)
+    if e.held is None or not e.held.any():
+        return [(0, n)]
+    held = np.asarray(e.held, dtype=bool)
+    logged = np.flatnonzero(~held)
+    if len(logged) < 2:
+        return [(0, n)]
+    # the gaps: after logged[i], where the next logged row (or the record's end) is far
+    last = len(logged) - 1
+    gaps = np.flatnonzero(np.diff(np.r_[logged, n]) > MAX_GAP * median(np.diff(logged)))
+    starts = np.r_[logged[0], logged[gaps[gaps < last] + 1]]
+    ends = np.r_[logged[gaps] + 1, [n] if last not in gaps else []].astype(int)
+    keep = [(int(a), int(b)) for a, b in zip(starts, ends) if np.count_nonzero(~held[a:b]) >= MIN_ROWS]
+    return keep or [(0, n)]
+
+
+def stretch_name(e: Experiment, a: int, b: int) -> str:
+    """The name of `e`'s samples `[a, b)` (`stretches`): its own for the whole record, else
+    `NAME a–b s` with the stretch's first and last times."""
+    return e.name if (a, b) == (0, len(e.t)) else f"{e.name} {e.t[a]:.4g}–{e.t[b - 1]:.4g} s"
+
+
+def split(e: Experiment) -> list[Experiment]:
+    """`e` as the records of its `stretches`, each named by `stretch_name`."""
+    return [
+        replace(
+            e,
+            name=stretch_name(e, a, b),
+            t=e.t[a:b],
+            y=e.y[a:b],
+            inputs=e.inputs[a:b],
+            held=None if e.held is None or not e.held[a:b].any() else e.held[a:b],
+        )
+        for a, b in stretches(e)
+    ]
 
 
 def stale(states: np.ndarray) -> np.ndarray:
@@ -458,7 +518,7 @@ def _held(path: Path, values: np.ndarray, n: int) -> np.ndarray:
     return values
 
 
-def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
+def _on_grid(path: Path, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rows of `values` (t first, then the states, then the inputs) on the record's clock,
     the rule for logs as they come (docs/files.md#measurement-csv): uniform times are kept as
     they are; otherwise the rows go to the points of the grid t0 + jh that `clock` finds (every
@@ -466,12 +526,13 @@ def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
     on the point of the row before it takes the point a median step later where the next row is
     more than 1.5 median steps away: a stale stamp), rows still on one point are merged (each state the mean of the values present, the
     inputs of the last row), and a point without a row has every state missing (NaN) and the
-    inputs held from the row before it. `InputError` naming the data row where the time
-    decreases, and for a grid longer than `MAX_SAMPLES`."""
+    inputs held from the row before it. With the rows of `values` each point takes its inputs
+    from (−1: none, held). `InputError` naming the data row where the time decreases, and for a
+    grid longer than `MAX_SAMPLES`."""
     t = values[:, 0]
     dt, off = uniform_step(t)
     if off is None:
-        return values
+        return values, np.arange(len(values))
     with np.errstate(over="ignore", invalid="ignore"):
         back = np.flatnonzero(~(np.diff(t) >= 0))
         if back.size:
@@ -481,7 +542,8 @@ def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
                 "times that never decrease"
             )
         same = (values[1:] == values[:-1]) | (np.isnan(values[1:]) & np.isnan(values[:-1]))
-        values = values[np.r_[True, ~same.all(axis=1)]]  # a row logged twice is one row
+        distinct = np.flatnonzero(np.r_[True, ~same.all(axis=1)])
+        values = values[distinct]  # a row logged twice is one row
         t = values[:, 0]
         steps = np.diff(t)
         positive = steps[steps > 0]
@@ -522,7 +584,7 @@ def _on_grid(path: Path, values: np.ndarray) -> np.ndarray:
     grid[:, -len(INPUTS) :] = values[held, -len(INPUTS) :]
     if len(last) < MIN_ROWS:
         raise InputError(f"{path}: {len(last)} distinct stamps; expected at least {MIN_ROWS}")
-    return grid
+    return grid, np.where(occupied, distinct[held], -1)
 
 
 def clock(t: np.ndarray, dt: float) -> tuple[float, float, np.ndarray]:

@@ -39,7 +39,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.analysis.identifiability import SIGNIFICANT, Identifiability, ScreenModel, Structural, assessed
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, split
 from testbed.estimators import Estimate
 from testbed.identification.bounds import NULL, crlb, eliminated
 from testbed.identification.nonlinear_output_error import information, outputs, pooled_noise, setup
@@ -85,8 +85,9 @@ def nonlinear_identifiability(
 ) -> Identifiability:
     """The identifiability of `config.free` (a nonlinear model config's) from `experiments` at
     the config's values (module doc); `initial`: each record's initial state by record name
-    (an estimate's `initial_states`, held), else its best fit at the config's values."""
-    experiments = config.fitted(experiments)
+    (an estimate's `initial_states`, held), else its best fit at the config's values. A record
+    split at a dropout is its stretches (`data.split`)."""
+    experiments = [p for e in config.fitted(experiments) for p in split(e)]
     channels, recs, model, theta, idx = setup(experiments, config, "analyze on a nonlinear model config")
     free = tuple(config.free)
     ch = [STATES.index(c) for c in channels]

@@ -22,7 +22,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, split, stretches
 from testbed.errors import InputError
 from testbed.fit_percent import fit_percent
 from testbed.identification import nonlinear_prediction
@@ -140,10 +140,20 @@ def validate(
     with np.errstate(over="ignore", invalid="ignore"):  # an overflowing prediction is refused below
         if config.terms is None:
             yhat = predict(experiments, config, initial)
-        else:
-            yhat = nonlinear_prediction.predict(experiments, config, initial)
-    for e, y_model in zip(experiments, yhat):
-        if not np.all(np.isfinite(y_model)):  # an unstable model's response overflowed: no score
+        else:  # flown over each record's stretches, NaN between them as the linear prediction
+            pieces = iter(
+                nonlinear_prediction.predict([p for e in experiments for p in split(e)], config, initial)
+            )
+            yhat = [np.full(np.shape(e.y), np.nan) for e in experiments]
+            for e, y in zip(experiments, yhat):
+                for a, b in stretches(e):
+                    y[a:b] = next(pieces)
+    flown = [np.zeros(len(e.t), dtype=bool) for e in experiments]  # the model's stretches of each
+    for e, f in zip(experiments, flown):
+        for a, b in stretches(e):
+            f[a:b] = True
+    for e, y_model, f in zip(experiments, yhat, flown):
+        if not np.all(np.isfinite(y_model[f])):  # an unstable model's response overflowed: no score
             raise InputError(
                 f"{config.source or 'config'}: the model's prediction of {e.source or e.name} leaves the "
                 "finite numbers (its response grows beyond them along the record); expected coefficients "
@@ -151,11 +161,11 @@ def validate(
             )
     base = predict(experiments, analytic) if analytic is not None else [None] * len(experiments)
     out, predictions = {}, {}
-    for e, y_model, y_base in zip(experiments, yhat, base):
+    for e, y_model, y_base, f in zip(experiments, yhat, base, flown):
         predictions[e.name] = replace(e, y=y_model, source=f"the model's prediction of {e.source or e.name}")
         out[e.name] = {}
         for k, c in enumerate(e.measured):
-            at = ~np.isnan(e.y[:, k])  # the samples present; their residuals in sequence
+            at = f & ~np.isnan(e.y[:, k])  # the samples present and flown; their residuals in sequence
             y = e.y[at, k]
             out[e.name][c] = ChannelMetrics(
                 fit_percent(y, y_model[at, k]),

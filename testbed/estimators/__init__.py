@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from typing import Mapping, Sequence
 
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, split
 from testbed.errors import InputError
 from testbed.estimators import equation_error, fem, mekf, ml
 from testbed.estimators.base import Callback, Estimate, Method, OptionError, Options, Progress, Status
@@ -108,8 +108,8 @@ def identify(
     m = lookup(method)
     opts = m.options.build(m.name, options, **more)
     check_method(m.name, config)
-    if config.terms is not None:
-        return m.nonlinear(config.fitted(experiments), config, opts, callback)
+    if config.terms is not None:  # a record split at a dropout: its stretches (`data.split`)
+        return m.nonlinear([p for e in config.fitted(experiments) for p in split(e)], config, opts, callback)
     experiments = config.fitted(experiments)
     check_fit(experiments, config)
     return m.fit(experiments, config, opts, callback)

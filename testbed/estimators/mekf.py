@@ -179,7 +179,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, split
 from testbed.errors import InputError, is_number
 from testbed.estimators.base import (
     Estimate,
@@ -926,8 +926,10 @@ def run_filter(
     docstring, "Fixed-interval iterations"). `modified`: centre the Jacobian on a parallel KF
     (square-root only); otherwise on the filter's own estimate. A nonlinear model config
     (`config.terms`) is filtered with its own transition (module docstring, "The nonlinear
-    model")."""
+    model"). A record split at a dropout in its logged inputs (`data.split`) is filtered as its
+    stretches, the state started afresh on each."""
     t_start = time.perf_counter()
+    experiments = [s for e in experiments for s in split(e)]
     prepare = _linear if config.terms is None else _nonlinear
     experiments, config, theta, idx, transition, unphysical_at = prepare(experiments, config, method, options)
     if options.state_noise is None:

@@ -23,10 +23,12 @@ def predict(
     config: ModelConfig,
     initial: Mapping[str, Mapping[str, float]] | None = None,
 ) -> list[np.ndarray]:
-    """Model outputs (N, k) per experiment in its measured columns, absolute u, for plots.
+    """Model outputs (N, k) per experiment in its measured columns, absolute u, for plots; NaN
+    at the samples the model is not flown over (a gap in the logged inputs, `data.stretches`).
 
-    `initial`: experiment → state → x0 (absolute u, as in `Estimate.initial_states`);
-    the ones it does not give are the best-fitting initial states (no fit when it gives all).
+    `initial`: record → state → x0 (absolute u, as in `Estimate.initial_states`: a record split
+    at a gap names each stretch); the ones it does not give are the best-fitting initial states
+    (no fit when it gives all).
     """
     prob = problem(experiments, config)
     given = initial or {}
@@ -38,11 +40,11 @@ def predict(
         for j, i in enumerate(r.measured):
             if STATES[i] in given.get(r.name, {}):
                 p[r.offset + j] = initial[r.name][STATES[i]] - (prob.speed if STATES[i] == "u" else 0)
-    out = []
+    out = [np.full(np.shape(e.y), np.nan) for e in experiments]
     for r, yhat in zip(prob.records, outputs(prob, p)):
         yhat = yhat.copy()
         yhat[:, r.measured == IX["u"]] += prob.speed
-        out.append(yhat)
+        out[r.group][r.first : r.first + len(yhat)] = yhat
     return out
 
 

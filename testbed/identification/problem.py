@@ -1,9 +1,10 @@
 """The output-error problem: experiments and a model config checked and converted once for the
-numerical core (`Problem`, one `Record` per experiment).
+numerical core (`Problem`, one `Record` per experiment, or per stretch of one split at a gap in
+its logged inputs: `data.stretches`).
 
 The parameter vector of the output-error fit is
 
-    p = (θ_free, x0 of experiment 1, x0 of experiment 2, ...)
+    p = (θ_free, x0 of record 1, x0 of record 2, ...)
 
 where each experiment's initial state is estimated in its *measured* components only; the
 unmeasured ones stay at trim (0). Measured components are pinned by the first samples, so they
@@ -20,7 +21,15 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, ModelConfig, check_config, check_excited, check_experiment
+from testbed.data import (
+    Experiment,
+    ModelConfig,
+    check_config,
+    check_excited,
+    check_experiment,
+    stretch_name,
+    stretches,
+)
 from testbed.errors import InputError
 from testbed.models import log_mounting
 from testbed.models.linear import (
@@ -75,6 +84,7 @@ class Record:
     group: int = 0  # which experiment it is (its segments share it): the owner of per-record values
     heading: np.ndarray | None = None  # (N,) the measured ψ (None: not measured, the trim's 0)
     present: np.ndarray | None = None  # (N, k) bool, the samples there are; None: all of them
+    first: int = 0  # its first sample in the experiment (a stretch of one split at a gap)
 
     @property
     def counts(self) -> np.ndarray:
@@ -90,7 +100,14 @@ class Record:
         """The record's samples a … b − 1 (its own initial state still at `offset`)."""
         present = None if self.present is None else self.present[a:b]
         heading = None if self.heading is None else self.heading[a:b]
-        return replace(self, y=self.y[a:b], inputs=self.inputs[a:b], present=present, heading=heading)
+        return replace(
+            self,
+            y=self.y[a:b],
+            inputs=self.inputs[a:b],
+            present=present,
+            heading=heading,
+            first=self.first + a,
+        )
 
 
 @dataclass(frozen=True)
@@ -387,21 +404,24 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
             y[:, e.measured.index("u")] -= config.vehicle.speed
         present = ~np.isnan(y)
         y[~present] = 0.0
-        records.append(
-            Record(
-                e.name,
-                y,
-                inputs,
-                measured,
-                np.array([channels.index(s) for s in e.measured]),
-                float(t[1] - t[0]),
-                offset,
-                j,
-                _heading(e),
-                None if present.all() else present,
-            )
+        whole = Record(
+            e.name,
+            y,
+            inputs,
+            measured,
+            np.array([channels.index(s) for s in e.measured]),
+            float(t[1] - t[0]),
+            offset,
+            j,
+            _heading(e),
+            None if present.all() else present,
         )
-        offset += len(measured)
+        for a, b in stretches(e):  # a record split at its gaps: each stretch its own initial state
+            r = whole.rows(a, b)
+            if r.present is not None and r.present.all():
+                r = replace(r, present=None)
+            records.append(replace(r, name=stretch_name(e, a, b), offset=offset))
+            offset += len(measured)
     index = np.array([ITHETA[base_name(n)] for n in free], dtype=int)
     thetas = np.array(own) if any(e.name in config.record_values for e in experiments) else None
     return Problem(
