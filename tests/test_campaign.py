@@ -388,3 +388,26 @@ def test_a_cell_whose_run_cannot_be_read_fails_with_the_files_reason(tmp_path, c
     verdicts = json.loads((out / "conclusions.json").read_text())
     assert not any(v["holds"] for v in verdicts.values())
     assert (out / "report.html").is_file()
+
+
+@pytest.mark.parametrize(
+    "arm, limit",
+    [("ml-nr", None), ("ml-nr-10x", 1000), ("ml-nm-paper", None), ("ml-nm-paper-10x", 5000 * 15)],
+)
+def test_an_arm_with_a_budget_fits_with_that_many_times_its_methods_limit(monkeypatch, arm, limit):
+    """`ml-nr-10x` fits with 10 × ml-nr's 100 iterations, `ml-nm-paper-10x` with 10 × ml-nm's 500
+    per free coefficient (the example's 15); the testbed's own arms leave the limit to the method."""
+    from testbed.identification import examples
+
+    seen = {}
+
+    def spy(experiments, config, method, options, callback):
+        seen.update(options, free=len(config.free))
+        raise RuntimeError("only the options are wanted")
+
+    monkeypatch.setattr(cells, "identify", spy)
+    data = (examples.experiments(1, duration=5.0), examples.example_config())
+    begin = cells.Start(examples.prior_config(), examples.prior_config(), {}, "")
+    doc = cells.run_cell(Cell("II", arm, 1, 0.3, "linear"), data, begin)
+    assert doc["status"] == "failed" and seen["free"] == len(examples.FREE) == 15
+    assert seen.get("max_iter") == limit

@@ -138,7 +138,10 @@ def test_relative_sigma_over_the_optimum_or_the_analytic_value():
 def test_the_arms_the_rules_name_exist():
     from testbed.study.arms import ARMS
 
-    assert {rules.NM_ARM, rules.NR_ARM, *rules.MEKF_ARMS} <= set(ARMS)
+    assert {rules.NM_ARM, rules.NR_ARM, *rules.MEKF_ARMS, *rules.LONGER.values()} <= set(ARMS)
+    for arm, longer in rules.LONGER.items():  # the same method and options, ten times the limit
+        assert (ARMS[longer].method, ARMS[longer].options) == (ARMS[arm].method, ARMS[arm].options)
+        assert (ARMS[arm].budget, ARMS[longer].budget) == (1, 10)
 
 
 def test_valid_reference_is_the_linear_truth_or_a_fit_of_99_percent():
@@ -287,6 +290,21 @@ def test_conclusion_2_one_cell_decides_only_a_failure():
     assert conclusions(methods_rows(nm=1, nr=0, n=1), {}, {})["2-nm"]["holds"] is None
     assert conclusions(methods_rows(nm=0, nr=0, n=1), {}, {})["2-nm"]["holds"] is False
     assert conclusions(methods_rows(nm=1, nr=0, n=1), {}, {})["2-nr"]["holds"] is None
+
+
+def test_conclusion_2_at_ten_times_the_iteration_limit_is_decided_beside_it():
+    """Newton-Raphson stalled at the testbed's limit and reaching the optimum with ten times it:
+    the claim is reproduced at the limit and not with the longer budget, both reported; without
+    the longer arms' cells there is no "longer"."""
+    rows = methods_rows() + arm_cells("II", "linear", "ml-nr-10x", 20, n=20)
+    rows += arm_cells("II", "linear", "ml-nm-paper-10x", 20, n=20)
+    out = conclusions(rows, VALID, {})
+    nr, nm = out["2-nr"], out["2-nm"]
+    assert nr["verdict"] == "reproduced" and nr["longer"]["verdict"] == "not reproduced"
+    assert nr["longer"]["arm"] == "ml-nr-10x" and "rule" not in nr["longer"]
+    assert "II/linear spread 0.2: 20/20 (100 %, 95 % CI 84–100 %) — no" in nr["longer"]["evidence"]
+    assert nm["verdict"] == nm["longer"]["verdict"] == "reproduced"
+    assert "ten times" in nr["rule"] and "longer" not in conclusions(methods_rows(), VALID, {})["2-nr"]
 
 
 def test_conclusion_2_not_decided_without_a_valid_data_set():

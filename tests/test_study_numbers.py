@@ -54,3 +54,21 @@ def test_a_number_changed_by_hand_is_caught(numbers, tmp_path):
     rows[1] = ",".join(cells)
     (assets / "summary.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
     assert numbers.blocks(assets) != numbers.blocks()
+
+
+def test_a_claim_decided_with_ten_times_the_iteration_limit_is_shown_beside_it(numbers):
+    summary, conclusions, drift, measured = numbers.load()
+    longer = dict(conclusions)
+    longer["2-nr"] = conclusions["2-nr"] | {
+        "longer": {
+            "arm": "ml-nr-10x",
+            "verdict": "not reproduced",
+            "holds": False,
+            "evidence": "II/linear 9/10",
+        }
+    }
+    readme = numbers.readme_block(summary, longer, drift, measured)
+    assert "With ten times the iteration limit (`ml-nr-10x`): **not reproduced**." in readme
+    assert "ml-nr-10x" not in numbers.readme_block(summary, conclusions, drift, measured)
+    studies = numbers.studies_block(summary, longer, drift, measured)
+    assert "(`ml-nr-10x`): **not reproduced**: II/linear 9/10." in studies

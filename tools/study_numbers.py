@@ -162,6 +162,14 @@ def _head(columns: list[str]) -> list[str]:
     return ["", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
 
 
+def _longer(verdict: dict) -> str:
+    """The claim's verdict with ten times the iteration limit, where the campaign ran it."""
+    longer = verdict.get("longer")
+    if not longer:
+        return ""
+    return f" With ten times the iteration limit (`{longer['arm']}`): **{longer['verdict']}**."
+
+
 def readme_block(summary: list[dict], conclusions: dict, drift: dict, measured: dict) -> str:
     rows, spreads, valid = _rows(summary), _spreads(summary), measured["valid"]
     lines = [
@@ -171,7 +179,9 @@ def readme_block(summary: list[dict], conclusions: dict, drift: dict, measured: 
         "",
     ]
     for key, v in conclusions.items():
-        lines.append(f"- **{CLAIMS.get(key, key)}: {v['verdict']}** — {_short(key, v, rows, valid, drift)}.")
+        lines.append(
+            f"- **{CLAIMS.get(key, key)}: {v['verdict']}** — {_short(key, v, rows, valid, drift)}.{_longer(v)}"
+        )
     at_spreads = [f"s = {s:g}" for s in spreads]
     lines += _head(
         [
@@ -199,7 +209,9 @@ def studies_block(summary: list[dict], conclusions: dict, drift: dict, measured:
     rows, spreads = _rows(summary), _spreads(summary)
     lines = [_measured(measured), "", "Verdicts (`conclusions.json`):", ""]
     for key, v in conclusions.items():
-        lines.append(f"- **{CLAIMS.get(key, key)}: {v['verdict']}.** {v['evidence']}.")
+        longer = v.get("longer")
+        more = f" {_longer(v).strip()[:-1]}: {longer['evidence']}." if longer else ""
+        lines.append(f"- **{CLAIMS.get(key, key)}: {v['verdict']}.** {v['evidence']}.{more}")
     lines += _head(
         ["data set", "arm", *(f"success at s = {s:g}" for s in spreads)]
         + ["beat the search", "accurate", "median rel. error", "median evaluations", "median time"]

@@ -63,6 +63,7 @@ __all__ = [
     "ML_NM",
     "ML_NR",
     "NewtonRaphsonOptions",
+    "SIMPLEX_ITERATIONS",
     "SimplexOptions",
     "TrustRegionOptions",
 ]
@@ -253,7 +254,7 @@ def nelder_mead(
     no variance by more than `r_tol`; STALLED after `max_relaxations` R updates.
     """
     nf = prob.n_free
-    max_iter = 500 * nf if max_iter is None else max_iter
+    max_iter = SIMPLEX_ITERATIONS * nf if max_iter is None else max_iter
     coef = simplex_coefficients(coefficients, nf)
     coordinates = coordinates or "information"
     step = STEPS[coordinates][0] if step is None else step
@@ -337,6 +338,7 @@ def nelder_mead(
     return _converged(prob, theta, R, it, history)
 
 
+SIMPLEX_ITERATIONS = 500  # ml-nm's iteration limit per free coefficient, unless max_iter sets one
 RUN = 20  # iterations per free coefficient after which a simplex run that has not stopped starts afresh
 
 
@@ -778,7 +780,7 @@ def _max_iter(default: int | None):
         default,
         lambda v: (v is None and default is None) or (is_count(v) and v >= 0),
         "an integer ≥ 0 (iterations)",
-        "iteration limit" + ("; None: 500 per free coefficient" if default is None else ""),
+        "iteration limit" + (f"; None: {SIMPLEX_ITERATIONS} per free coefficient" if default is None else ""),
     )
 
 

@@ -27,13 +27,18 @@ class Arm:
 
     `free`: "screened" (the screen's free set at the cell's prior, shared by the judged arms),
     "mt" (the candidates and the inertia terms, normalised) or "a" (the candidates as written,
-    the inertia known); only the screened arms are judged against the data's optimum."""
+    the inertia known); only the screened arms are judged against the data's optimum.
+
+    `budget`: the iteration limit in units of the method's own (`ml-nr` 100 iterations, `ml-nm`
+    `SIMPLEX_ITERATIONS` per free coefficient): the paper states none for its methods, so the
+    study runs them at the testbed's limit and at ten times it."""
 
     name: str
     method: str
     summary: str
     options: Mapping = field(default_factory=dict)
     free: str = "screened"
+    budget: int = 1
 
     @property
     def judged(self) -> bool:
@@ -50,6 +55,13 @@ ARMS: dict[str, Arm] = {
             {"coordinates": "si", "start": "config"},
         ),
         Arm(
+            "ml-nr-10x",
+            "ml-nr",
+            "the paper's Newton-Raphson with ten times the testbed's iteration limit",
+            {"coordinates": "si", "start": "config"},
+            budget=10,
+        ),
+        Arm(
             "ml-nr-scaled",
             "ml-nr",
             "Newton-Raphson in coordinates scaled by the start",
@@ -60,6 +72,13 @@ ARMS: dict[str, Arm] = {
             "ml-nm",
             "the paper's Nelder-Mead: coefficients (1, 2, ½, ½), one simplex",
             {"coefficients": "paper", "restarts": False, "start": "config", "coordinates": "scaled"},
+        ),
+        Arm(
+            "ml-nm-paper-10x",
+            "ml-nm",
+            "the paper's Nelder-Mead with ten times the testbed's iteration limit",
+            {"coefficients": "paper", "restarts": False, "start": "config", "coordinates": "scaled"},
+            budget=10,
         ),
         Arm(
             "ml-nm-paper-restarts",

@@ -44,6 +44,7 @@ from testbed.analysis.validation import validate
 from testbed.data import load_data
 from testbed.errors import InputError, one_line
 from testbed.estimators import FilterEstimate, identify, lookup
+from testbed.estimators.ml import SIMPLEX_ITERATIONS
 from testbed.identification import likelihood, recursions, scan
 from testbed.identification.bounds import fisher
 from testbed.identification.problem import problem
@@ -121,6 +122,7 @@ class Cell:
             "method": self.method,
             "options": dict(a.options) if a else {},
             "free": a.free if a else "screened",
+            "budget": a.budget if a else 1,
             "seed": self.seed,
             "code": code_hash(),
         }
@@ -288,6 +290,10 @@ def run_cell(cell: Cell, data, begin: Start) -> dict:
         config = _fitted_config(cell, data, begin)
         method = lookup(cell.method)
         options = dict(ARMS[cell.arm].options) if cell.arm in ARMS else REFERENCE_SEARCH | {"seed": cell.seed}
+        budget = ARMS[cell.arm].budget if cell.arm in ARMS else 1
+        if budget != 1:  # the method's own iteration limit, `budget` times
+            limit = method.options.build(method.name, options).max_iter
+            options["max_iter"] = budget * (SIMPLEX_ITERATIONS * len(config.free) if limit is None else limit)
         costs = []
         callback = (lambda step: costs.append(float(step.cost))) if method.iterative else None
         est = identify(experiments, config, method=cell.method, options=options, callback=callback)
