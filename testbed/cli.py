@@ -211,6 +211,7 @@ def _cmd_identify(args) -> int:
         rrd=args.rrd,
         options=options,
         perturb=args.perturb,
+        perturb_spread=args.perturb_spread,
         seed=args.seed,
         screen=args.screen,
         noise_std=args.noise_std,
@@ -518,14 +519,25 @@ def parser() -> argparse.ArgumentParser:
         help="ml-fem only: the process noise's correlation time (s; default 0, white), e.g. the "
         "turbulence's eddy length over the speed",
     )
-    s.add_argument(
+    moved = s.add_mutually_exclusive_group()
+    moved.add_argument(
         "--perturb",
         type=_positive,
         default=None,
         help="move every free coefficient's start by this fraction (e.g. 0.4), to test "
         "convergence from a poor a-priori model",
     )
-    s.add_argument("--seed", type=_seed, default=0, help="signs of --perturb (default 0)")
+    moved.add_argument(
+        "--perturb-spread",
+        type=_positive,
+        default=None,
+        metavar="S",
+        help="multiply every free coefficient's start by exp(S·N(0,1)) (e.g. 0.3): the log-normal "
+        "errors of an a-priori model, as the study draws them",
+    )
+    s.add_argument(
+        "--seed", type=_seed, default=0, help="signs of --perturb, draws of --perturb-spread (default 0)"
+    )
     s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
     listed = s.add_mutually_exclusive_group()
     listed.add_argument(

@@ -51,6 +51,7 @@ __all__ = [
     "identify_data",
     "inputs",
     "perturbed",
+    "spread",
     "truth_comparison",
     "truth_data",
     "validate_data",
@@ -87,6 +88,24 @@ def perturbed(config: ModelConfig, fraction: float, seed: int) -> ModelConfig:
     values = config.values
     moved = config.with_coefficients({n: values[n] * (1 + s * fraction) for n, s in zip(config.free, signs)})
     return replace(moved, source=f"{config.source or 'config'} with its start moved by perturb={fraction:g}")
+
+
+def spread(config: ModelConfig, s: float, seed: int) -> ModelConfig:
+    """The config with every free coefficient's start multiplied by exp(s·z), z standard normal
+    per coefficient drawn from `seed`: log-normal errors, as an a-priori model's are (a start
+    keeps its sign; one at 0 stays there)."""
+    z = np.random.default_rng(seed).standard_normal(len(config.free))
+    values = config.values
+    with np.errstate(over="ignore", invalid="ignore"):  # checked below
+        starts = {n: float(values[n] * np.exp(s * zn)) for n, zn in zip(config.free, z)}
+    far = [n for n, v in starts.items() if not abs(v) <= MAX_CONSTANT]
+    if far:
+        raise InputError(
+            f"--perturb-spread {s:g}: {far[0]}'s start {values[far[0]]:g} × exp({s:g}·{z[config.free.index(far[0])]:.3g}) "
+            f"is beyond ±{MAX_CONSTANT:g}; expected a spread of a few tenths (0.3: errors of about 30 %)"
+        )
+    moved = config.with_coefficients(starts)
+    return replace(moved, source=f"{config.source or 'config'} with its start spread by perturb-spread={s:g}")
 
 
 def truth_data(paths: Sequence[str | os.PathLike]) -> list[Experiment] | None:
@@ -161,6 +180,7 @@ def identify_data(
     perturb: float | None = None,
     seed: int = 0,
     screen: bool | None = None,
+    perturb_spread: float | None = None,
     noise_std: Mapping[str, float] | None = None,
     progress: Callable[[Progress], None] | None = None,
     corrections: str | os.PathLike | None = None,
@@ -173,6 +193,7 @@ def identify_data(
 
     `config`: the model config (default: the run's model.toml); `options`: the method's
     options; `perturb`: move every free start by this fraction (signs from `seed`);
+    `perturb_spread`: multiply every free start by exp(S·N(0, 1)) instead (drawn from `seed`);
     `screen`: fit only the candidates of the config's free list that the data determine
     (`analysis.identify_screened`), or (False) the list as written, the screen only reported in
     the JSON's `screen`; default: as the config's `[identify] screen` says; `noise_std`: the
@@ -205,6 +226,8 @@ def identify_data(
         _nonlinear_refusals(cfg, rrd)
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
+    if perturb_spread is not None:
+        cfg = spread(cfg, perturb_spread, seed)
     iterations = []  # (iteration, values, cost) of the iterative methods, for the recording
 
     def callback(step: Progress) -> None:

@@ -338,6 +338,24 @@ def test_identify_refuses_a_negative_seed(run, capsys):
     refused(capsys, "identify", run, "--perturb", "0.2", "--seed", "-1", words=["--seed", "-1"])
 
 
+def test_identify_refuses_both_perturbations_and_a_spread_beyond_any_start(run, capsys, tmp_path):
+    refused(capsys, "identify", run, "--perturb", "0.2", "--perturb-spread", "0.3", words=["--perturb"])
+    for bad in ("0", "-0.3", "nan", "inf"):
+        refused(capsys, "identify", run, "--perturb-spread", bad, words=["--perturb-spread", bad])
+    out = tmp_path / "e.json"
+    refused(
+        capsys,
+        "identify",
+        run,
+        "--perturb-spread",
+        "1e300",
+        "--out",
+        out,
+        words=["--perturb-spread", "1e+15"],
+    )
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("duration", ["0.001", "0.02", "1e300"])
 def test_simulate_refuses_a_duration_it_could_not_use_up_front(tmp_path, capsys, monkeypatch, duration):
     import testbed.simulation.runs
