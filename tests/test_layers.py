@@ -17,7 +17,7 @@ from pathlib import Path
 import testbed
 
 LAYERS = [
-    ("testbed.errors", "testbed.memory", "testbed.threads", "testbed.fit_percent"),
+    ("testbed.errors", "testbed.memory", "testbed.threads", "testbed.fit_percent", "testbed.html_table"),
     ("testbed.models", "testbed.models.linear"),
     ("testbed.models.sensors",),
     ("testbed.models.log_mounting",),

@@ -25,6 +25,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, split, stretches
 from testbed.errors import InputError
 from testbed.fit_percent import fit_percent
+from testbed.html_table import html_table
 from testbed.identification import nonlinear_prediction
 from testbed.identification.bounds import chi2_sf
 from testbed.identification.prediction import predict
@@ -102,22 +103,39 @@ class Validation:
     def to_dict(self) -> dict:
         return {e: {c: m.to_dict() for c, m in ch.items()} for e, ch in self.experiments.items()}
 
-    def table(self) -> str:
-        """The metrics as a plain table, one row per experiment and channel."""
+    def rows(self) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+        """The metrics' column names and one row of text per experiment and channel (the analytic
+        model's fit % only where some channel has it)."""
         analytic = any(
             m.fit_percent_analytic is not None for ch in self.experiments.values() for m in ch.values()
         )
-        head = f"{'experiment':<16}{'channel':<8}{'fit %':>8}" + (f"{'analytic':>10}" if analytic else "")
-        lines = [head + f"{'max |r_k|':>11}{'bound':>8}{'Ljung-Box p':>13}  residual"]
+        head = ("experiment", "channel", "fit %") + (("analytic",) if analytic else ())
+        head += ("max |r_k|", "bound", "Ljung-Box p", "residual")
+        rows = []
         for e, ch in self.experiments.items():
             for c, m in ch.items():
                 w = m.whiteness
-                row = f"{e:<16}{c:<8}{_pct(m.fit_percent):>8}"
-                if analytic:
-                    row += f"{_pct(m.fit_percent_analytic):>10}"
-                row += f"{w.max_autocorrelation:>11.3f}{w.bound:>8.3f}{w.ljung_box_p:>13.2g}  {'white' if w.white else 'coloured'}"
-                lines.append(row)
-        return "\n".join(lines)
+                row = (e, c, _pct(m.fit_percent)) + ((_pct(m.fit_percent_analytic),) if analytic else ())
+                rows.append(
+                    row
+                    + (f"{w.max_autocorrelation:.3f}", f"{w.bound:.3f}", f"{w.ljung_box_p:.2g}")
+                    + ("white" if w.white else "coloured",)
+                )
+        return head, rows
+
+    def table(self) -> str:
+        """The metrics as a plain table, one row per experiment and channel."""
+        head, rows = self.rows()
+        widths = (16, 8, 8) + ((10,) if "analytic" in head else ()) + (11, 8, 13)
+        return "\n".join(
+            "".join(f"{v:<{w}}" if k < 2 else f"{v:>{w}}" for k, (v, w) in enumerate(zip(row, widths)))
+            + f"  {row[-1]}"
+            for row in [head, *rows]
+        )
+
+    def _repr_html_(self) -> str:
+        """The metrics in a notebook: one row per experiment and channel."""
+        return html_table(*self.rows(), "the model's fit % and residual whiteness per channel")
 
 
 def _pct(v) -> str:

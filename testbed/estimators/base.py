@@ -14,6 +14,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
+from testbed.html_table import html_table
 from testbed.errors import InputError
 from testbed.models.linear import Structure, inertia_defect
 
@@ -155,6 +156,22 @@ class Estimate:
 
     def to_json(self) -> str:
         return json.dumps(self.json_fields(), indent=2, allow_nan=False) + "\n"
+
+    def _repr_html_(self) -> str:
+        """The estimate in a notebook: how the fit ended, each coefficient with its bounds, the
+        noise σ."""
+        coloured = self.crlb_corrected_std if self.crlb_corrected_std is not None else [None] * len(self.free)
+        rows = [
+            (n, f"{v:.6g}", f"{s:.3g}", "-" if c is None else f"{c:.3g}")
+            for n, v, s, c in zip(self.free, self.values, self.std, coloured)
+        ]
+        head = ("coefficient", "estimate", "σ (Cramér-Rao)", "σ (coloured residuals)")
+        summary = (
+            f"{self.method}: {self.status.message}, {self.iterations} iterations, cost {self.cost:.6g}, "
+            f"from the {self.start} start"
+        )
+        noise = html_table(("state", "noise σ"), [(k, f"{v:.3g}") for k, v in self.noise_std.items()])
+        return html_table(head, rows, summary) + noise
 
 
 def _finite(x) -> float | None:

@@ -1,0 +1,79 @@
+"""Results in a notebook: `Estimate` and `Validation` render as HTML tables (`_repr_html_`), the
+numbers the terminal tables and the JSON hold, every cell escaped."""
+
+from dataclasses import replace
+from html.parser import HTMLParser
+
+import pytest
+
+from testbed import identify
+from testbed.analysis.validation import validate
+from testbed.html_table import html_table
+from testbed.identification import examples
+
+
+class Tables(HTMLParser):
+    """The text of every cell, per table and row; the captions."""
+
+    def __init__(self, text: str):
+        super().__init__()
+        self.tables, self.captions, self._cell, self._in = [], [], None, None
+        self.feed(text)
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "table":
+            self.tables.append([])
+        elif tag == "tr":
+            self.tables[-1].append([])
+        elif tag in ("td", "th", "caption"):
+            self._cell, self._in = "", tag
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th"):
+            self.tables[-1][-1].append(self._cell)
+        elif tag == "caption":
+            self.captions.append(self._cell)
+        if tag in ("td", "th", "caption"):
+            self._cell = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell += data
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    experiments = examples.experiments(2, duration=30.0)
+    return experiments, identify(experiments, examples.prior_config(), "ml-gn")
+
+
+def test_an_estimate_shows_how_it_ended_its_coefficients_and_noise(fitted):
+    _, est = fitted
+    t = Tables(est._repr_html_())
+    coefficients, noise = t.tables
+    assert coefficients[0] == ["coefficient", "estimate", "σ (Cramér-Rao)", "σ (coloured residuals)"]
+    assert [r[0] for r in coefficients[1:]] == list(est.free)
+    for row, v, s, c in zip(coefficients[1:], est.values, est.std, est.crlb_corrected_std):
+        assert (float(row[1]), float(row[2]), float(row[3])) == pytest.approx((v, s, c), rel=1e-2)
+    assert t.captions[0].startswith(f"ml-gn: {est.status.message}, {est.iterations} iterations")
+    assert {r[0] for r in noise[1:]} == set(est.noise_std)
+
+
+def test_a_validation_shows_the_terminal_tables_rows_escaped(fitted):
+    experiments, est = fitted
+    odd = [replace(e, name=f"<b>{e.name} & co</b>") for e in experiments]
+    v = validate(odd, examples.prior_config().with_coefficients(est.coefficients))
+    text = v._repr_html_()
+    assert "<b>" not in text.replace("<tbody>", "") and "&lt;b&gt;horizontal &amp; co&lt;/b&gt;" in text
+    rows = Tables(text).tables[0]
+    head, body = v.rows()
+    assert rows == [list(head), *map(list, body)]
+    assert len(body) == sum(len(e.measured) for e in experiments)
+    lines = v.table().splitlines()
+    assert len(lines) == len(body) + 1 and all(r[2] in line for r, line in zip(body, lines[1:]))
+
+
+def test_numbers_right_aligned_text_not():
+    text = html_table(("a", "b"), [("x", 1.5), ("y", "12.0%")])
+    assert '<td style="text-align:right">1.5</td>' in text and "<td>x</td>" in text
+    assert '<td style="text-align:right">12.0%</td>' in text
