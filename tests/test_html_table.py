@@ -77,3 +77,24 @@ def test_numbers_right_aligned_text_not():
     text = html_table(("a", "b"), [("x", 1.5), ("y", "12.0%")])
     assert '<td style="text-align:right">1.5</td>' in text and "<td>x</td>" in text
     assert '<td style="text-align:right">12.0%</td>' in text
+
+
+def test_a_comparison_and_an_analysis_show_their_rows(fitted):
+    import numpy as np
+
+    from testbed import analyze, compare
+
+    experiments, est = fitted
+    c = compare(est, examples.example_config())
+    rows = Tables(c._repr_html_()).tables[0]
+    assert rows[0][:3] == ["coefficient", "analytic", "identified"] and len(rows) == len(est.free) + 1
+    for row, r in zip(rows[1:], c.rows()):
+        assert row[0] == r["name"] and float(row[2]) == pytest.approx(r["identified"], rel=1e-3)
+    assert [line.split()[0] for line in c.table().splitlines()[1:]] == list(est.free)
+    a = analyze(experiments, examples.prior_config().with_coefficients(est.coefficients))
+    t = Tables(a._repr_html_())
+    bounds = t.tables[0]
+    assert [r[0] for r in bounds[1:]] == list(a.free)
+    for row, sd in zip(bounds[1:], a.crlb_std):
+        assert row[2] == "∞" if not np.isfinite(sd) else float(row[2]) == pytest.approx(sd, rel=1e-2)
+    assert t.captions[0] == "identifiability"

@@ -9,6 +9,7 @@ the model stays put; to first order that is the null space of a linear map, comp
 
 from __future__ import annotations
 
+import html
 import json
 from dataclasses import dataclass, replace
 from typing import Callable, Mapping, Sequence
@@ -17,6 +18,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
+from testbed.html_table import html_table
 from testbed.estimators import Estimate, Status, check_method, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
 from testbed.identification.bounds import NULL, Unflyable, analysed, chi2_sf, crlb, fisher, fisher_at
@@ -220,6 +222,26 @@ class Identifiability:
         seen = [set(g) for g in groups]
         extra = tuple(g for g in self.practical_groups if not any(set(g) <= s for s in seen))
         return groups + extra
+
+    def _repr_html_(self) -> str:
+        """The analysis in a notebook: each coefficient's value and Cramér-Rao bound, the drift
+        groups, and the summary."""
+        rows = [
+            (
+                n,
+                f"{v:.4g}",
+                "∞" if not np.isfinite(sd) else f"{sd:.3g}",
+                "-" if not (v and np.isfinite(sd)) else f"{abs(sd / v):.1%}",
+            )
+            for n, v, sd in zip(self.free, self.values, self.crlb_std)
+        ]
+        groups = html_table(("drift group",), [(", ".join(g),) for g in self.drift_groups])
+        summary = "".join(f"<p>{html.escape(line)}</p>" for line in self.summary)
+        return (
+            html_table(("coefficient", "value", "Cramér-Rao σ", "relative"), rows, "identifiability")
+            + groups
+            + summary
+        )
 
     def to_json(self) -> str:
 
@@ -751,29 +773,48 @@ class Comparison:
         ]
         return {"rows": rows, **({"note": self.note} if self.note else {})}
 
-    def table(self) -> str:
-        head = f"{'coefficient':<12}{'analytic':>12}{'identified':>12}{'std':>10}{'rel.err':>9}{'sigmas':>8}"
+    def cells(self) -> tuple[list[str], list[list[str]]]:
+        """The column names and each coefficient's row as text ("-" where a value is undefined)."""
+        head = ["coefficient", "analytic", "identified", "std", "rel.err", "sigmas"]
         if self.truth_fit is not None:
-            head += f"{'truth fit':>12}{'lin.bias':>9}{'noise σ':>8}"
-        lines = [head]
+            head += ["truth fit", "lin.bias", "noise σ"]
 
-        def f(v, fmt, width):
-            return format(v, fmt) if v is not None else "-".rjust(width)
+        def f(v, fmt):
+            return format(v, fmt) if v is not None else "-"
 
+        rows = []
         for r in self.rows():
-            line = (
-                f"{r['name']:<12}{r['analytic']:>12.4g}{r['identified']:>12.4g}{r['std']:>10.2g}"
-                f"{f(r['relative_error'], '>9.1%', 9)}{f(r['error_sigmas'], '>8.1f', 8)}"
-            )
+            row = [
+                r["name"],
+                f"{r['analytic']:.4g}",
+                f"{r['identified']:.4g}",
+                f"{r['std']:.2g}",
+                f(r["relative_error"], ".1%"),
+                f(r["error_sigmas"], ".1f"),
+            ]
             if self.truth_fit is not None:
-                line += (
-                    f"{r['truth_fit']:>12.4g}{f(r['model_bias_relative'], '>9.1%', 9)}"
-                    f"{f(r['noise_sigmas'], '>8.1f', 8)}"
-                )
-            lines.append(line)
+                row += [
+                    f"{r['truth_fit']:.4g}",
+                    f(r["model_bias_relative"], ".1%"),
+                    f(r["noise_sigmas"], ".1f"),
+                ]
+            rows.append(row)
+        return head, rows
+
+    def table(self) -> str:
+        head, rows = self.cells()
+        widths = [12, 12, 12, 10, 9, 8, 12, 9, 8]
+        lines = [
+            "".join(v.ljust(w) if k == 0 else v.rjust(w) for k, (v, w) in enumerate(zip(row, widths)))
+            for row in [head, *rows]
+        ]
         if self.note:
             lines.append(self.note)
         return "\n".join(lines)
+
+    def _repr_html_(self) -> str:
+        """The comparison in a notebook: one row per coefficient, as `table`."""
+        return html_table(*self.cells(), self.note or "identified against the analytic coefficients")
 
 
 def compare(estimate, analytic_config, truth_estimate=None) -> Comparison:
