@@ -222,8 +222,6 @@ def identify_data(
     )
     check_outputs(read, {"out": out, "history": history, "rrd": rrd}, force)
     check_method(m.name, cfg)  # before the screen's fit
-    if cfg.terms is not None:
-        _nonlinear_refusals(cfg, rrd)
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
     if perturb_spread is not None:
@@ -299,13 +297,6 @@ def identify_data(
     return Identified(
         estimate, cfg, screened.fixed, screened.screen, comparison, validation, doc, text, written
     )
-
-
-def _nonlinear_refusals(cfg: ModelConfig, rrd) -> None:
-    """`InputError` for what `identify_data` does for the linear model only."""
-    where = f"{cfg.source or 'config'}: a nonlinear model config ([terms])"
-    if rrd is not None:
-        raise InputError(f"{where}: --rrd logs the linear model's fit only; expected no recording")
 
 
 def analyze_data(

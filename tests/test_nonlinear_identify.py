@@ -393,7 +393,6 @@ def test_analyze_on_the_command_line(files, capsys, tmp_path):
         (["--method", "ml-fem"], "--method 'ml-fem' fits the linear model only"),
         (["--start", "mekf"], "option --start 'mekf'; expected auto, config or equation-error"),
         (["--max-iter", "0"], "option --max-iter 0; expected an integer ≥ 1"),
-        (["--rrd", "{tmp}/fit.rrd"], "--rrd logs the linear model's fit only"),
     ],
 )
 def test_identify_refusals_are_one_line_and_write_nothing(files, capsys, tmp_path, extra, words):
@@ -403,6 +402,15 @@ def test_identify_refusals_are_one_line_and_write_nothing(files, capsys, tmp_pat
     err = capsys.readouterr().err
     assert code == 2 and words in err and err.strip().count("\n") == 0, err
     assert not any(tmp_path.iterdir())
+
+
+def test_identify_records_the_nonlinear_fit_to_rerun(files, capsys, tmp_path):
+    """`--rrd` for a nonlinear model config writes the recording beside the estimates
+    (its contents: tests/test_report.py)."""
+    rrd, out = tmp_path / "fit.rrd", tmp_path / "est.json"
+    argv = ["identify", files / "doublets.csv", "--config", files / "start.toml", "--out", out, "--rrd", rrd]
+    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["est.json", "fit.rrd"] and rrd.stat().st_size > 0
 
 
 def test_validate_refuses_estimates_of_another_model(files, capsys, tmp_path):

@@ -16,7 +16,7 @@ from testbed.simulation import recording
 
 from testbed.presentation import report
 from testbed.analysis.identifiability import compare
-from testbed.data import ModelConfig
+from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.identification import likelihood, prediction
@@ -526,6 +526,40 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
         path = report.log_fit(tmp_path / f"fit{k + 2}.rrd", data, start, e, [])
         expected = prediction.predict(data, start.with_coefficients(est.coefficients), e.initial_states)[0]
         assert np.allclose(_scalars(path, f"/outputs/{name}/psi")[:, 1], expected[:, 2])
+
+
+def test_a_nonlinear_fit_is_recorded_with_the_nonlinear_models_outputs(tmp_path):
+    """A nonlinear model config's `ml-gn` fit: each free term per iteration on the parameters tab,
+    and the outputs of the nonlinear model flown from the estimate's initial state
+    (`nonlinear_prediction.predict`), not the linear model's."""
+    from testbed.identification.nonlinear_prediction import predict as fly_nonlinear
+    from testbed.models.nonlinear_flight import fly
+    from testbed.simulation.captive_config import captive_config
+
+    free = ("Y_uv", "N_uv")
+    config = dataclasses.replace(captive_config(model="polynomial")[0], free=free, screen=False)
+    model, theta = config.nonlinear()
+    t = np.arange(151) * 0.02
+    fins = np.zeros((len(t), 3))
+    fins[(t > 0.4) & (t < 1.4), 0] = np.radians(3.0)
+    x = fly(model, theta, t, np.r_[config.vehicle.speed, np.zeros(9)], fins)
+    y = x + np.random.default_rng(2).normal(size=x.shape) * 1e-3
+    data = [Experiment("turn", t, STATES, y, fins)]
+    start = config.with_coefficients({n: 0.8 * config.terms[n] for n in free})
+    iterations = []
+    est = identify(
+        data, start, "ml-gn", start="config",
+        callback=lambda step: iterations.append((step.iteration, list(step.values), step.cost)),
+    )  # fmt: skip
+    path = report.log_fit(tmp_path / "fit.rrd", data, start, est, iterations)
+    for j, n in enumerate(free):
+        assert np.allclose(_scalars(path, f"/parameters/{n}")[:, 0], [v[j] for _, v, _ in iterations])
+    expected = fly_nonlinear(data, start.with_coefficients(est.coefficients), est.initial_states)[0]
+    for j, s in enumerate(STATES):
+        got = _scalars(path, f"/outputs/turn/{s}")
+        assert np.allclose(got[:, 0], y[:, j]) and np.allclose(
+            got[:, 1], expected[:, j], rtol=1e-9, atol=1e-12
+        ), s
 
 
 def test_filter_recording_has_parameter_histories_with_sigma_bands_on_time(tmp_path, yaw_fit):

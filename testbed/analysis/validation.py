@@ -22,7 +22,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, ModelConfig, split, stretches
+from testbed.data import Experiment, ModelConfig, stretches
 from testbed.errors import InputError
 from testbed.fit_percent import fit_percent
 from testbed.html_table import html_table
@@ -158,14 +158,8 @@ def validate(
     with np.errstate(over="ignore", invalid="ignore"):  # an overflowing prediction is refused below
         if config.terms is None:
             yhat = predict(experiments, config, initial)
-        else:  # flown over each record's stretches, NaN between them as the linear prediction
-            pieces = iter(
-                nonlinear_prediction.predict([p for e in experiments for p in split(e)], config, initial)
-            )
-            yhat = [np.full(np.shape(e.y), np.nan) for e in experiments]
-            for e, y in zip(experiments, yhat):
-                for a, b in stretches(e):
-                    y[a:b] = next(pieces)
+        else:
+            yhat = nonlinear_prediction.predict(experiments, config, initial)
     flown = [np.zeros(len(e.t), dtype=bool) for e in experiments]  # the model's stretches of each
     for e, f in zip(experiments, flown):
         for a, b in stretches(e):

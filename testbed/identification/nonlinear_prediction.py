@@ -20,7 +20,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.data import Experiment, ModelConfig
+from testbed.data import Experiment, ModelConfig, split, stretches
 from testbed.errors import InputError
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.recursions import simulated
@@ -44,14 +44,20 @@ def predict(
     """The nonlinear model's outputs (N, k) per experiment in its measured columns (the flown
     states plus the config's output biases), absolute u,
     flown by RK4 with `substeps` steps per sample interval from the initial states `initial`
-    (experiment → state → x0) gives and the best-fitting ones it does not (module doc);
+    (record → state → x0: a record split at a dropout names each stretch, `data.split`) gives and
+    the best-fitting ones it does not (module doc), over each stretch, NaN between them;
     `InputError` naming the record where a flight leaves the finite numbers."""
-    flown = flights(experiments, config, initial, substeps)
-    return [
-        log_mounting.read(config.mounting(), x, [STATES.index(c) for c in e.measured])
-        + config.output_biases(e.measured)
-        for e, x in zip(experiments, flown)
-    ]
+    pieces = [split(e) for e in experiments]
+    flown = iter(flights([p for ps in pieces for p in ps], config, initial, substeps))
+    out = []
+    for e, ps in zip(experiments, pieces):
+        y = np.full(np.shape(e.y), np.nan)
+        for (a, b), p in zip(stretches(e), ps):
+            x = next(flown)
+            y[a:b] = log_mounting.read(config.mounting(), x, [STATES.index(c) for c in p.measured])
+            y[a:b] += config.output_biases(p.measured)
+        out.append(y)
+    return out
 
 
 def flights(

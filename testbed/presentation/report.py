@@ -19,6 +19,7 @@ import rerun.blueprint as rrb
 
 from testbed.errors import InputError
 from testbed.estimators import FilterEstimate
+from testbed.identification import nonlinear_prediction
 from testbed.identification.prediction import predict
 from testbed.simulation.recording import (
     axis_range,
@@ -226,7 +227,8 @@ def log_fit(
     residual whiteness per experiment and channel), and measured versus model outputs per
     experiment. It opens on the parameters tab and the timeline they are logged on.
 
-    The model outputs start from the estimate's `initial_states` when it has them (the
+    The model outputs (the linear model's, or a nonlinear model config's flown by
+    `nonlinear_prediction`) start from the estimate's `initial_states` when it has them (the
     output-error methods), else from best-fitting initial states. `recording_id` defaults to one
     derived from the method, the data and the estimate. An existing file at `path` is an
     `InputError` unless `force` (then replaced).
@@ -242,8 +244,9 @@ def log_fit(
             history_t,
         )
     fitted = config.with_coefficients(estimate.coefficients)
+    flown = predict if config.terms is None else nonlinear_prediction.predict
     try:
-        outputs = predict(experiments, fitted, estimate.initial_states)
+        outputs = flown(experiments, fitted, estimate.initial_states)
     except (InputError, np.linalg.LinAlgError, ValueError):
         outputs = [None] * len(experiments)  # a model that cannot be simulated: log the rest
     tabs = []
