@@ -354,7 +354,9 @@ def _plant_cache() -> tuple[str, int, int]:
 def test_workers_load_the_compiled_step_from_the_cache_this_process_fills(cluster):
     c, client = cluster
     path, _, _ = _plant_cache()  # compiled here if the cache is empty, then on disk
-    client.restart()  # new worker processes, nothing compiled in them
+    # new worker processes, nothing compiled in them (their start, an import of testbed, numba and
+    # Dask, can take minutes on a machine the rest of the test run loads)
+    client.restart(timeout=600)
     for where, (their_path, hits, misses) in client.run(_plant_cache).items():
         assert (their_path, hits, misses) == (path, 1, 0), where
 
