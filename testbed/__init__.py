@@ -9,6 +9,8 @@ The public API (each name is loaded on first use, so `import testbed` stays ligh
 - analysis: `analyze` (identifiability: Fisher information, Cramér-Rao bounds, drift groups),
   `screen` (the candidates the data determine), `compare` (against the analytic model),
   `validate` (fit % and residual whiteness);
+- reports: `report` (a fit's self-contained HTML page: outputs, residuals, coefficients,
+  correlations, convergence);
 - the study: `reproduce` (the paper's study as a campaign, with its report);
 - errors: `InputError` (a `ValueError`: bad input, named), `OptionError`.
 
@@ -38,6 +40,7 @@ _API = {
     "screen": "testbed.analysis.identifiability",
     "compare": "testbed.analysis.identifiability",
     "validate": "testbed.analysis.validation",
+    "report": "testbed.presentation.fit_report",
     "reproduce": "testbed.study.campaign",
     "InputError": "testbed.errors",
 }

@@ -212,6 +212,7 @@ def _cmd_identify(args) -> int:
         options=options,
         perturb=args.perturb,
         perturb_spread=args.perturb_spread,
+        report=args.report,
         seed=args.seed,
         screen=args.screen,
         noise_std=args.noise_std,
@@ -539,6 +540,13 @@ def parser() -> argparse.ArgumentParser:
         "--seed", type=_seed, default=0, help="signs of --perturb, draws of --perturb-spread (default 0)"
     )
     s.add_argument("--rrd", type=Path, help="also log the fit to this Rerun recording")
+    s.add_argument(
+        "--report",
+        type=Path,
+        metavar="DIR",
+        help="also write the fit's report to DIR/report.html (a new or empty folder): outputs against "
+        "the model, residuals, coefficients with their bounds, correlations, convergence",
+    )
     listed = s.add_mutually_exclusive_group()
     listed.add_argument(
         "--screen",

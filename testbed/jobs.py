@@ -181,6 +181,7 @@ def identify_data(
     seed: int = 0,
     screen: bool | None = None,
     perturb_spread: float | None = None,
+    report: str | os.PathLike | None = None,
     noise_std: Mapping[str, float] | None = None,
     progress: Callable[[Progress], None] | None = None,
     corrections: str | os.PathLike | None = None,
@@ -194,6 +195,7 @@ def identify_data(
     `config`: the model config (default: the run's model.toml); `options`: the method's
     options; `perturb`: move every free start by this fraction (signs from `seed`);
     `perturb_spread`: multiply every free start by exp(S·N(0, 1)) instead (drawn from `seed`);
+    `report`: a new or empty folder for the fit's HTML report (`presentation.fit_report`);
     `screen`: fit only the candidates of the config's free list that the data determine
     (`analysis.identify_screened`), or (False) the list as written, the screen only reported in
     the JSON's `screen`; default: as the config's `[identify] screen` says; `noise_std`: the
@@ -221,11 +223,16 @@ def identify_data(
         Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
     )
     check_outputs(read, {"out": out, "history": history, "rrd": rrd}, force)
+    if report is not None:  # matplotlib loads only for a report
+        from testbed.presentation.fit_report import check_report_folder
+
+        check_report_folder(report, force)
     check_method(m.name, cfg)  # before the screen's fit
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
     if perturb_spread is not None:
         cfg = spread(cfg, perturb_spread, seed)
+    a_priori = cfg  # the start, for the report's a-priori predictions
     iterations = []  # (iteration, values, cost) of the iterative methods, for the recording
 
     def callback(step: Progress) -> None:
@@ -280,6 +287,21 @@ def identify_data(
     )
     doc["validation"] = validation.to_dict()
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
+    page = None
+    if report is not None:
+        from testbed.presentation.fit_report import fit_report_html, write_fit_report
+
+        page = fit_report_html(
+            experiments,
+            cfg,
+            estimate,
+            validation,
+            a_priori,
+            iterations,
+            run_config if cfg.terms is None else None,
+            screened.fixed,
+            f"testbed identify: {m.name} on {', '.join(map(str, data))}",
+        )
     files = {Path(out): text} if out is not None else {}
     if history is not None:
         files = {history: estimate.history_csv(), **files}
@@ -293,7 +315,13 @@ def identify_data(
             )
         for path, content in files.items():
             temporary[path].write_text(content)
-    written = tuple(files) + ((Path(rrd),) if rrd is not None else ())
+        if page is not None:  # last: a folder made only once everything else is ready
+            write_fit_report(report, page, force)
+    written = (
+        tuple(files)
+        + ((Path(rrd),) if rrd is not None else ())
+        + ((Path(report),) if report is not None else ())
+    )
     return Identified(
         estimate, cfg, screened.fixed, screened.screen, comparison, validation, doc, text, written
     )

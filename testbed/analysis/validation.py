@@ -30,7 +30,16 @@ from testbed.identification import nonlinear_prediction
 from testbed.identification.bounds import chi2_sf
 from testbed.identification.prediction import predict
 
-__all__ = ["CONFIDENCE", "ChannelMetrics", "Validation", "Whiteness", "validate", "whiteness"]
+__all__ = [
+    "CONFIDENCE",
+    "LAGS",
+    "ChannelMetrics",
+    "Validation",
+    "Whiteness",
+    "autocorrelation",
+    "validate",
+    "whiteness",
+]
 
 LAGS = 25  # autocorrelation lags tested (0.5 s at 50 Hz: beyond the torpedo's fast modes)
 CONFIDENCE = 2.576  # 99 % two-sided normal quantile
@@ -59,16 +68,26 @@ class Whiteness:
         }
 
 
-def whiteness(e: np.ndarray, lags: int = LAGS) -> Whiteness:
-    """The autocorrelation test of a residual sequence `e` (N,)."""
+def autocorrelation(e: np.ndarray, lags: int = LAGS) -> np.ndarray:
+    """The sample autocorrelation r_1 … r_lags of a residual sequence `e` (N,), its mean taken
+    off (fewer lags where the sequence is shorter; none where it holds one value)."""
     e = np.asarray(e, float) - np.mean(e)
     n = len(e)
     lags = min(lags, n - 1)
     energy = float(e @ e)
     if energy == 0.0 or lags < 1:
-        return Whiteness(0.0, CONFIDENCE / np.sqrt(n), 0, 0.0, 1.0, True)
+        return np.zeros(0)
     spectrum = np.fft.rfft(e, 2 * n)  # r_k for every lag at once, no circular wrap
-    r = np.fft.irfft(spectrum * np.conj(spectrum))[1 : lags + 1] / energy
+    return np.fft.irfft(spectrum * np.conj(spectrum), 2 * n)[1 : lags + 1] / energy
+
+
+def whiteness(e: np.ndarray, lags: int = LAGS) -> Whiteness:
+    """The autocorrelation test of a residual sequence `e` (N,)."""
+    n = len(e)
+    r = autocorrelation(e, lags)
+    lags = len(r)
+    if lags == 0:
+        return Whiteness(0.0, CONFIDENCE / np.sqrt(n), 0, 0.0, 1.0, True)
     bound = CONFIDENCE / np.sqrt(n)
     q = float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1))))
     p = chi2_sf(q, lags)

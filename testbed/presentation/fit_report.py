@@ -1,0 +1,282 @@
+"""A fit's report: one self-contained HTML page (its figures embedded as PNG, no network), what an
+identification engineer looks at after a fit (MATLAB's `compare` and `resid`, SIDPAC's plots):
+
+- **summary**: the method, how the fit ended, its cost, every start with the cost it reached,
+  what the screen fixed and why;
+- **outputs**: per record, each channel measured against the fitted model and the a-priori one,
+  fit % in the panel's title;
+- **residuals**: per record, the residuals over time, their autocorrelation with the whiteness test's 99 % band
+  and their spectrum; which channels are coloured;
+- **coefficients**: each estimate and a-priori value with ±2σ (Cramér-Rao and coloured-residual)
+  over its reference (the analytic model of a run, where known), and the table;
+- **correlation**: the estimates' correlation matrix, the drift groups and the analysis' summary
+  at the estimate (`analyze`);
+- **convergence**: the cost per iteration.
+
+`write_fit_report` writes it to `FOLDER/report.html`; a folder holding anything else is refused.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from testbed.analysis.identifiability import identifiability
+from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
+from testbed.analysis.validation import Validation, validate
+from testbed.data import Experiment, ModelConfig, stretch_name, stretches
+from testbed.errors import InputError, atomic_write_text, check_output_directory
+from testbed.html_table import html_table
+from testbed.identification import nonlinear_prediction
+from testbed.identification.prediction import predict
+from testbed.presentation import fit_figures
+
+__all__ = ["REPORT", "SECTIONS", "check_report_folder", "fit_report_html", "report", "write_fit_report"]
+
+REPORT = "report.html"
+SECTIONS = ("summary", "outputs", "residuals", "coefficients", "correlation", "convergence")
+STYLE = (
+    "body{font-family:sans-serif;max-width:1250px;margin:2em auto;padding:0 1em;color:#222}"
+    "table{border-collapse:collapse;margin:0.8em 0}td,th{border:1px solid #ccc;padding:3px 8px}"
+    "th{background:#f3f3f3}caption{text-align:left;font-weight:bold;padding:4px 0;white-space:nowrap}"
+    "img{max-width:100%;border:1px solid #ddd;margin:0.4em 0}nav a{margin-right:1em}"
+)
+
+
+def check_report_folder(folder: str | os.PathLike, force: bool = False) -> Path:
+    """`InputError` unless `folder` can take the report: a new folder, an empty one, or (with
+    `force`) one holding only a report. A folder of anything else is a user's: never written to."""
+    folder = Path(folder)
+    if not os.path.lexists(folder):
+        check_output_directory(folder, label=f"--report {folder}")
+        return folder
+    if not folder.is_dir():
+        raise InputError(f"--report {folder}: is a file; expected a new or empty folder for the report")
+    held = sorted(p.name for p in folder.iterdir())
+    if held and not (force and held == [REPORT]):
+        raise InputError(
+            f"--report {folder}: holds {held[0]}{' and more' if len(held) > 1 else ''}; expected a new or "
+            f"empty folder (or one holding only {REPORT}, with --force)"
+        )
+    return folder
+
+
+def _img(png: bytes, alt: str) -> str:
+    return f"<img alt='{html.escape(alt)}' src='data:image/png;base64,{base64.b64encode(png).decode()}'>"
+
+
+def _predicted(experiments, config: ModelConfig, initial) -> list[np.ndarray]:
+    flown = predict if config.terms is None else nonlinear_prediction.predict
+    with np.errstate(all="ignore"):
+        return flown(experiments, config, initial)
+
+
+def _drawn(tasks: Sequence[tuple]) -> list[bytes]:
+    """Each `(figure, arguments)` drawn, in order: in worker processes, one per core, where there
+    are several of both (matplotlib draws on one core; each figure takes a fraction of a second),
+    else here."""
+    workers = min(len(tasks), len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+    if workers < 2:
+        return [f(*args) for f, args in tasks]
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+        return list(pool.map(_draw, tasks))
+
+
+def _draw(task: tuple) -> bytes:
+    figure, args = task
+    return figure(*args)
+
+
+def fit_report_html(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    estimate,
+    validation: Validation,
+    prior: ModelConfig | None = None,
+    iterations: Sequence[tuple] = (),
+    reference: ModelConfig | None = None,
+    fixed: Mapping[str, str] | None = None,
+    title: str = "",
+) -> str:
+    """The report's page: `config` the model config fitted (its free coefficients the estimate's),
+    `validation` of the fitted model, `prior` the a-priori config (its predictions beside the fit's),
+    `iterations` (iteration, values, cost) as the fit reported them, `reference` a model config
+    whose coefficients are the reference (a run's analytic model), `fixed` what the screen fixed
+    (name → why)."""
+    e = html.escape
+    fitted = config.with_coefficients(estimate.coefficients)
+    experiments = fitted.fitted(experiments)
+    model = _predicted(experiments, fitted, estimate.initial_states)
+    before = None
+    if prior is not None:
+        try:
+            before = _predicted(experiments, prior, None)
+        except (InputError, np.linalg.LinAlgError, ValueError):
+            before = None  # an a-priori model that cannot be flown on these data: the fit alone
+    parts = [
+        "<!doctype html><html lang='en'><head><meta charset='utf-8'>",
+        f"<title>{e(title or 'testbed fit report')}</title><style>{STYLE}</style></head><body>",
+        f"<h1>{e(title or 'testbed fit report')}</h1><nav>",
+        *(f"<a href='#{s}'>{s}</a>" for s in SECTIONS),
+        "</nav>",
+    ]
+    # summary
+    parts.append("<section id='summary'><h2>Summary</h2>")
+    parts.append(
+        f"<p><b>{e(estimate.method)}</b>: {e(estimate.status.message)}; {estimate.iterations} iterations, "
+        f"{estimate.evaluations} simulations, cost (negative log-likelihood) {estimate.cost:.6g}, from the "
+        f"{e(estimate.start)} start{e(f' ({estimate.start_reason})' if estimate.start_reason else '')}.</p>"
+    )
+    if estimate.starts:
+        parts.append(
+            html_table(
+                ("start", "cost", "status", "iterations"),
+                [
+                    (
+                        s.get("start"),
+                        f"{s.get('cost', float('nan')):.6g}",
+                        s.get("status", s.get("reason", "")),
+                        s.get("iterations", ""),
+                    )
+                    for s in estimate.starts
+                ],  # fmt: skip
+                "every start tried",
+            )
+        )
+    if fixed:
+        parts.append(
+            html_table(("coefficient", "fixed because"), sorted(fixed.items()), "what the screen fixed")
+        )
+    parts.append(
+        html_table(
+            ("record", "samples", "duration (s)", "channels", "fitted over"),
+            [
+                (
+                    r.name,
+                    len(r.t),
+                    f"{r.t[-1] - r.t[0]:.4g}",
+                    ", ".join(r.measured),
+                    "; ".join(stretch_name(r, a, b) for a, b in stretches(r)),
+                )  # fmt: skip
+                for r in experiments
+            ],
+            "the records (one split at a dropout in its fins: its stretches)",
+        )  # fmt: skip
+    )
+    parts.append("</section>")
+    # outputs and residuals
+    metrics = validation.experiments
+    outputs, residuals = (
+        ["<section id='outputs'><h2>Outputs</h2>"],
+        ["<section id='residuals'><h2>Residuals</h2>"],
+    )
+    tasks = []  # (figure, its arguments) per record: drawn side by side (`_drawn`)
+    for r, yhat, y0 in zip(experiments, model, before or [None] * len(experiments)):
+        m = metrics.get(r.name, {})
+        fits = [m[c].fit_percent if c in m else None for c in r.measured]
+        res = r.y - yhat
+        bounds = [m[c].whiteness.bound if c in m else 0.0 for c in r.measured]
+        white = [m[c].whiteness.white if c in m else True for c in r.measured]
+        tasks += [
+            (fit_figures.outputs_figure, (r.name, r.t, r.measured, r.y, yhat, fits, y0)),
+            (fit_figures.residuals_figure, (r.name, r.t, r.measured, res)),
+            (fit_figures.autocorrelation_figure, (r.name, r.measured, res, bounds, white)),
+            (fit_figures.spectrum_figure, (r.name, r.dt, r.measured, res)),
+        ]
+    drawn = iter(_drawn(tasks))
+    for r in experiments:
+        m = metrics.get(r.name, {})
+        coloured = [c for c in r.measured if c in m and not m[c].whiteness.white]
+        outputs.append(_img(next(drawn), f"{r.name} outputs"))
+        residuals.append(f"<h3>{e(r.name)}</h3><p>coloured: {e(', '.join(coloured) or 'none')}</p>")
+        residuals += [
+            _img(next(drawn), f"{r.name} {what}") for what in ("residuals", "autocorrelation", "spectrum")
+        ]
+    parts += outputs + ["</section>"] + residuals
+    parts.append(html_table(*validation.rows(), "fit % and residual whiteness per channel") + "</section>")
+    # coefficients
+    names = list(estimate.free)
+    values, std = np.asarray(estimate.values, float), np.asarray(estimate.std, float)
+    coloured = None if estimate.crlb_corrected_std is None else np.asarray(estimate.crlb_corrected_std, float)
+    start = prior if prior is not None else config
+    a_priori = np.array([start.values.get(n, np.nan) for n in names], float)
+    ref = None
+    if reference is not None:
+        ref = np.array([reference.values.get(n, np.nan) for n in names], float)
+        ref = ref if np.all(np.isfinite(ref)) else None
+    parts.append("<section id='coefficients'><h2>Coefficients</h2>")
+    parts.append(
+        _img(
+            fit_figures.coefficients_figure(names, values, std, coloured, a_priori, ref, "analytic value"),
+            "coefficients",
+        )
+    )
+    rows = [
+        (n, f"{v:.6g}", f"{s:.3g}", "-" if coloured is None else f"{coloured[k]:.3g}", f"{a_priori[k]:.6g}")
+        + (() if ref is None else (f"{ref[k]:.6g}",))
+        for k, (n, v, s) in enumerate(zip(names, values, std))
+    ]
+    head = ("coefficient", "estimate", "σ Cramér-Rao", "σ coloured", "a-priori") + (
+        () if ref is None else ("analytic",)
+    )
+    parts.append(html_table(head, rows, "the estimates") + "</section>")
+    # correlation
+    parts.append("<section id='correlation'><h2>Correlation and drift</h2>")
+    try:
+        if fitted.terms is None:
+            analysis = identifiability(experiments, fitted, noise_std=estimate.noise_std)
+        else:
+            analysis = nonlinear_identifiability(experiments, fitted, estimate.initial_states)
+        parts.append(_img(fit_figures.correlation_figure(analysis.free, analysis.correlation), "correlation"))
+        groups = [(", ".join(g),) for g in analysis.drift_groups] or [("none",)]
+        parts.append(html_table(("drift group",), groups, "coefficients the data cannot tell apart"))
+        parts += [f"<p>{e(line)}</p>" for line in analysis.summary]
+    except (InputError, np.linalg.LinAlgError, ValueError) as exc:
+        parts.append(f"<p>No analysis at the estimate: {e(str(exc))}</p>")
+    parts.append("</section>")
+    # convergence
+    parts.append("<section id='convergence'><h2>Convergence</h2>")
+    costs = [(k, c) for k, _, c in iterations if c is not None and np.isfinite(c)]
+    if len(costs) > 1:
+        parts.append(_img(fit_figures.convergence_figure(costs), "convergence"))
+    else:
+        parts.append("<p>No cost per iteration to show (a filter, or a fit of one iteration).</p>")
+    parts.append("</section></body></html>")
+    return "\n".join(parts)
+
+
+def write_fit_report(folder: str | os.PathLike, page: str, force: bool = False) -> Path:
+    """`page` written to `folder/report.html` (`check_report_folder`: a new or empty folder)."""
+    folder = check_report_folder(folder, force)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / REPORT
+    atomic_write_text(path, page, force=True)
+    return path
+
+
+def report(
+    folder: str | os.PathLike,
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    estimate,
+    prior: ModelConfig | None = None,
+    iterations: Sequence[tuple] = (),
+    reference: ModelConfig | None = None,
+    force: bool = False,
+) -> Path:
+    """The report of `estimate` (fitted to `experiments` with `config`) written to
+    `folder/report.html`, the fitted model validated on the same records: `testbed identify
+    --report` from Python. `prior`, `iterations` and `reference` as for `fit_report_html`."""
+    check_report_folder(folder, force)
+    fitted = config.with_coefficients(estimate.coefficients)
+    initial = estimate.initial_states if config.terms is not None else None
+    validation = validate(experiments, fitted, reference if config.terms is None else None, initial)
+    page = fit_report_html(experiments, config, estimate, validation, prior, iterations, reference)
+    return write_fit_report(folder, page, force)

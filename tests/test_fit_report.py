@@ -1,0 +1,176 @@
+"""`identify --report DIR`: one self-contained HTML page of the fit (figures embedded), for the
+linear model and a nonlinear model config; a user's folder is never written to; the page opened
+in headless Chromium shows every section with its figures and logs no error."""
+
+from __future__ import annotations
+
+import base64
+import re
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from testbed.cli import main
+from testbed.data import write_config, write_csv
+from testbed.identification import examples
+from testbed.presentation.fit_report import REPORT, SECTIONS
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def linear(tmp_path_factory):
+    """Two records of the example (one with a dropout) and its a-priori config."""
+    root = tmp_path_factory.mktemp("linear")
+    paths = []
+    for e in examples.experiments(4, duration=30.0):
+        rows = np.arange(len(e.t)) if e.name == "horizontal" else np.r_[0:200, 260 : len(e.t)]
+        paths.append(root / f"{e.name}.csv")
+        write_csv(paths[-1], e.t[rows], e.y[rows], e.inputs[rows])
+    write_config(root / "prior.toml", examples.prior_config())
+    return root, paths
+
+
+@pytest.fixture(scope="module")
+def nonlinear(tmp_path_factory):
+    """A 3 s doublet record of the captive polynomial model and a start 20 % off on two terms."""
+    from testbed.models.linear import STATES
+    from testbed.models.nonlinear_flight import fly
+    from testbed.simulation.captive_config import captive_config
+
+    free = ("Y_uv", "N_uv")
+    config = replace(captive_config(model="polynomial")[0], free=free, screen=False)
+    model, theta = config.nonlinear()
+    t = np.arange(151) * 0.02
+    fins = np.zeros((len(t), 3))
+    fins[(t > 0.4) & (t < 1.4), 0] = np.radians(3.0)
+    fins[(t >= 1.4) & (t < 2.4), 0] = -np.radians(3.0)
+    x = fly(model, theta, t, np.r_[config.vehicle.speed, np.zeros(9)], fins)
+    y = x + np.random.default_rng(3).normal(size=x.shape) * 1e-3
+    root = tmp_path_factory.mktemp("nonlinear")
+    write_csv(root / "doublet.csv", t, y, fins, STATES)
+    write_config(root / "start.toml", config.with_coefficients({n: 0.8 * config.terms[n] for n in free}))
+    return root
+
+
+def _report(capsys, data, config, folder, *extra) -> str:
+    argv = ["identify", *map(str, data), "--config", str(config), "--report", str(folder), *extra]
+    code = main(argv + ["--out", str(folder.parent / f"{folder.name}.json")])
+    assert code == 0, capsys.readouterr().err
+    return (folder / REPORT).read_text(encoding="utf-8")
+
+
+def _sections(page: str) -> dict[str, str]:
+    parts = re.split(r"<section id='([a-z]+)'>", page)
+    return {parts[k]: parts[k + 1] for k in range(1, len(parts) - 1, 2)}
+
+
+def _images(html: str) -> list[bytes]:
+    return [base64.b64decode(b) for b in re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", html)]
+
+
+def test_a_linear_fit_report_has_every_section_with_its_figures(linear, capsys, tmp_path):
+    root, paths = linear
+    page = _report(capsys, paths, root / "prior.toml", tmp_path / "report")
+    assert list(tmp_path.joinpath("report").iterdir()) == [tmp_path / "report" / REPORT]
+    sections = _sections(page)
+    assert list(sections) == list(SECTIONS)
+    figures = {name: _images(body) for name, body in sections.items()}
+    assert all(png.startswith(PNG) and len(png) > 5_000 for pngs in figures.values() for png in pngs)
+    # per record: outputs; residuals over time, autocorrelation, spectrum
+    assert len(figures["outputs"]) == 2 and len(figures["residuals"]) == 6
+    assert len(figures["coefficients"]) == len(figures["correlation"]) == len(figures["convergence"]) == 1
+    assert "http" not in page.replace("http-equiv", "")  # nothing fetched: self-contained
+    for name in examples.FREE:
+        assert f"<td>{name}</td>" in sections["coefficients"], name
+    assert "<td>vertical 0–9.95 s; vertical 13–29.95 s</td>" in sections["summary"]
+    assert "<td>horizontal</td><td" in sections["summary"]
+    assert "every start tried" in sections["summary"] and "drift group" in sections["correlation"]
+
+
+def test_a_nonlinear_fit_report_flies_the_nonlinear_model(nonlinear, capsys, tmp_path):
+    page = _report(capsys, [nonlinear / "doublet.csv"], nonlinear / "start.toml", tmp_path / "nl")
+    sections = _sections(page)
+    assert list(sections) == list(SECTIONS)
+    assert len(_images(sections["outputs"])) == 1 and len(_images(sections["residuals"])) == 3
+    assert "<td>Y_uv</td>" in sections["coefficients"] and "<td>N_uv</td>" in sections["coefficients"]
+
+
+@pytest.mark.parametrize("held", ["file", "folder"])
+def test_a_users_file_or_folder_is_never_written_to(linear, capsys, tmp_path, held):
+    root, paths = linear
+    target = tmp_path / "mine"
+    if held == "file":
+        target.write_text("my notes")
+    else:
+        target.mkdir()
+        (target / "notes.txt").write_text("my notes")
+    argv = ["identify", *map(str, paths), "--config", str(root / "prior.toml"), "--report", str(target)]
+    code = main(argv + ["--out", str(tmp_path / "e.json"), "--force"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--report" in err and err.strip().count("\n") == 0, err
+    assert not (tmp_path / "e.json").exists()  # refused before the fit: nothing written
+    if held == "file":
+        assert target.read_text() == "my notes"
+    else:
+        assert [p.name for p in target.iterdir()] == ["notes.txt"]
+
+
+def test_a_report_folder_is_replaced_only_with_force(linear, capsys, tmp_path):
+    root, paths = linear
+    folder = tmp_path / "r"
+    folder.mkdir()
+    (folder / REPORT).write_text("an old report")
+    argv = ["identify", *map(str, paths), "--config", str(root / "prior.toml"), "--report", str(folder)]
+    assert main(argv + ["--out", str(tmp_path / "a.json")]) == 2
+    assert (folder / REPORT).read_text() == "an old report"
+    capsys.readouterr()
+    assert main(argv + ["--out", str(tmp_path / "b.json"), "--force"]) == 0
+    assert (folder / REPORT).read_text(encoding="utf-8").startswith("<!doctype html>")
+
+
+def test_the_page_opens_in_chromium_with_every_section_and_no_console_error(linear, capsys, tmp_path):
+    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        pytest.skip("no Chromium on this machine (Debian's chromium package)")
+    root, paths = linear
+    _report(capsys, paths, root / "prior.toml", tmp_path / "report")
+    flags = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking"]
+    errors = []
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=flags)
+        page = browser.new_page()
+        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(Path(tmp_path / "report" / REPORT).as_uri())
+        for section in SECTIONS:
+            assert page.locator(f"section#{section} h2").count() == 1, section
+        widths = page.eval_on_selector_all("img", "imgs => imgs.map(i => i.naturalWidth)")
+        browser.close()
+    assert widths and all(w > 100 for w in widths), widths
+    assert errors == []
+
+
+def test_the_same_page_from_python(tmp_path):
+    """`testbed.report` writes the page of a fit made in Python, the prior's predictions beside it."""
+    import testbed
+
+    experiments = examples.experiments(6, duration=20.0)
+    prior = examples.prior_config()
+    iterations = []
+    est = testbed.identify(
+        experiments, prior, "ml-gn", callback=lambda s: iterations.append((s.iteration, s.values, s.cost))
+    )
+    path = testbed.report(
+        tmp_path / "r", experiments, prior, est, prior, iterations, examples.example_config()
+    )
+    page = path.read_text(encoding="utf-8")
+    sections = _sections(page)
+    assert path == tmp_path / "r" / REPORT and list(sections) == list(SECTIONS)
+    assert "<th>analytic</th>" in sections["coefficients"] and len(_images(sections["convergence"])) == 1
+    with pytest.raises(testbed.InputError, match="--report"):
+        testbed.report(tmp_path / "r", experiments, prior, est)
