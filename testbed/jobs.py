@@ -301,6 +301,7 @@ def identify_data(
             run_config if cfg.terms is None else None,
             screened.fixed,
             f"testbed identify: {m.name} on {', '.join(map(str, data))}",
+            None if rrd is None else os.path.relpath(Path(rrd).resolve(), Path(report).resolve()),
         )
     files = {Path(out): text} if out is not None else {}
     if history is not None:

@@ -91,6 +91,14 @@ def test_a_linear_fit_report_has_every_section_with_its_figures(linear, capsys, 
     assert "every start tried" in sections["summary"] and "drift group" in sections["correlation"]
 
 
+def test_the_report_links_the_fits_recording(linear, capsys, tmp_path):
+    root, paths = linear
+    page = _report(
+        capsys, paths, root / "prior.toml", tmp_path / "report", "--rrd", str(tmp_path / "fit.rrd")
+    )
+    assert "<a href='../fit.rrd'>../fit.rrd</a>" in page and (tmp_path / "fit.rrd").is_file()
+
+
 def test_a_nonlinear_fit_report_flies_the_nonlinear_model(nonlinear, capsys, tmp_path):
     page = _report(capsys, [nonlinear / "doublet.csv"], nonlinear / "start.toml", tmp_path / "nl")
     sections = _sections(page)

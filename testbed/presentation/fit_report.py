@@ -104,12 +104,14 @@ def fit_report_html(
     reference: ModelConfig | None = None,
     fixed: Mapping[str, str] | None = None,
     title: str = "",
+    recording: str | None = None,
 ) -> str:
     """The report's page: `config` the model config fitted (its free coefficients the estimate's),
     `validation` of the fitted model, `prior` the a-priori config (its predictions beside the fit's),
     `iterations` (iteration, values, cost) as the fit reported them, `reference` a model config
     whose coefficients are the reference (a run's analytic model), `fixed` what the screen fixed
-    (name → why)."""
+    (name → why), `recording` the fit's Rerun recording as the page links it (a path relative to
+    the page's folder)."""
     e = html.escape
     fitted = config.with_coefficients(estimate.coefficients)
     experiments = fitted.fitted(experiments)
@@ -134,6 +136,11 @@ def fit_report_html(
         f"{estimate.evaluations} simulations, cost (negative log-likelihood) {estimate.cost:.6g}, from the "
         f"{e(estimate.start)} start{e(f' ({estimate.start_reason})' if estimate.start_reason else '')}.</p>"
     )
+    if recording is not None:
+        parts.append(
+            f"<p>The fit's Rerun recording: <a href='{e(recording)}'>{e(recording)}</a> "
+            f"(open it with <code>rerun {e(recording)}</code>).</p>"
+        )
     if estimate.starts:
         parts.append(
             html_table(
