@@ -302,6 +302,7 @@ def _cmd_validate(args) -> int:
         out=out,
         keep_repeats=args.keep_repeats,
         force=args.force,
+        report=args.report,
     )
     _emit(out, text)
     print(validation.table(), file=sys.stderr)
@@ -607,6 +608,13 @@ def parser() -> argparse.ArgumentParser:
         "config a nonlinear fit's estimates name)",
     )
     s.add_argument("--out", type=Path, help="validation JSON (default: stdout)")
+    s.add_argument(
+        "--report",
+        type=Path,
+        metavar="DIR",
+        help="also write the validation's report to DIR/report.html (a new or empty folder): each "
+        "record's outputs against the model, the residuals and their whiteness",
+    )
     s.add_argument("--keep-repeats", action="store_true", help=KEEP_REPEATS_HELP)
     s.set_defaults(func=_cmd_validate)
 

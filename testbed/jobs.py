@@ -384,6 +384,7 @@ def validate_data(
     out: str | os.PathLike | None = None,
     keep_repeats: bool = False,
     force: bool = False,
+    report: str | os.PathLike | None = None,
 ) -> tuple[Validation, str, dict]:
     """Fit % and residual whiteness on `data` of a model config (`config`, default: the run's
     model.toml, or a nonlinear fit's config named in `estimates`) with the coefficients of the
@@ -392,7 +393,9 @@ def validate_data(
     experiment name → the
     manoeuvre metrics of the record and of the model's open-loop prediction for each manoeuvre a
     run directory of `data` flies (`analysis.manoeuvres.compared`: `Compared`). A nonlinear model config is flown open loop
-    (`analysis.validate`)."""
+    (`analysis.validate`). `report`: a new or empty folder for the validation's HTML page
+    (`presentation.fit_report.validation_report_html`: the model against the records, the config
+    as written beside it where `estimates` changed it)."""
     model = _nonlinear_estimates(estimates) if estimates is not None else None
     if config is None and model is not None:
         config = model["config"]
@@ -400,6 +403,10 @@ def validate_data(
     runs = [Path(p) for p in data if (Path(p) / "scenario.toml").is_file()]  # their manoeuvres compared
     read += [f for run in runs for f in (run / "scenario.toml", *run.glob("*.truth.csv"))]
     check_outputs(read + ([estimates] if estimates is not None else []), {"out": out}, force)
+    if report is not None:  # matplotlib loads only for a report
+        from testbed.presentation.fit_report import check_report_folder
+
+        check_report_folder(report, force)
     coefficients = {}
     if cfg.terms is None:
         if model is not None:
@@ -442,7 +449,25 @@ def validate_data(
         )
         + "\n"
     )
+    page = None
+    if report is not None:
+        from testbed.presentation.fit_report import validation_report_html
+
+        what = f"{cfg.source} with the coefficients of {estimates}" if given else f"{cfg.source} as written"
+        page = validation_report_html(
+            experiments,
+            cfg.with_coefficients(coefficients),
+            validation,
+            cfg if given else None,
+            f"testbed validate: {', '.join(map(str, data))}",
+            f"The model validated: {what}; its outputs flown open loop from the best-fitting initial "
+            "states" + (", the config as written beside them (a-priori)." if given else "."),
+        )
     write_text(out, text, force)
+    if page is not None:  # last: a folder made only once everything else is written
+        from testbed.presentation.fit_report import write_fit_report
+
+        write_fit_report(report, page, force)
     return validation, text, manoeuvres
 
 

@@ -16,7 +16,7 @@ import pytest
 from testbed.cli import main
 from testbed.data import write_config, write_csv
 from testbed.identification import examples
-from testbed.presentation.fit_report import REPORT, SECTIONS
+from testbed.presentation.fit_report import REPORT, SECTIONS, VALIDATION_SECTIONS
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -89,6 +89,31 @@ def test_a_linear_fit_report_has_every_section_with_its_figures(linear, capsys, 
     assert "<td>vertical 0–9.95 s; vertical 13–29.95 s</td>" in sections["summary"]
     assert "<td>horizontal</td><td" in sections["summary"]
     assert "every start tried" in sections["summary"] and "drift group" in sections["correlation"]
+
+
+def test_a_validation_report_shows_the_held_out_records_against_the_model(linear, capsys, tmp_path):
+    """Fitted on seed 4's records, validated on seed 5's: the page's outputs and residuals of the
+    held-out records, the config as written beside the estimate's model, fit % as the JSON's."""
+    import json
+
+    root, paths = linear
+    _report(capsys, paths, root / "prior.toml", tmp_path / "fit")
+    held_out = []
+    for e in examples.experiments(5, duration=20.0):
+        held_out.append(tmp_path / f"held_{e.name}.csv")
+        write_csv(held_out[-1], e.t, e.y, e.inputs)
+    argv = ["validate", *map(str, held_out), "--config", str(root / "prior.toml"), "--estimates"]
+    argv += [str(tmp_path / "fit.json"), "--out", str(tmp_path / "v.json"), "--report", str(tmp_path / "v")]
+    assert main(argv) == 0, capsys.readouterr().err
+    page = (tmp_path / "v" / REPORT).read_text(encoding="utf-8")
+    sections = _sections(page)
+    assert list(sections) == list(VALIDATION_SECTIONS)
+    assert len(_images(sections["outputs"])) == 2 and len(_images(sections["residuals"])) == 6
+    doc = json.loads((tmp_path / "v.json").read_text())
+    fit = doc["validation"]["held_horizontal"]["r"]["fit_percent"]
+    assert (
+        f">{fit:.2f}</td>" in sections["residuals"] and "with the coefficients of" in sections["summary"]
+    )
 
 
 def test_the_report_links_the_fits_recording(linear, capsys, tmp_path):

@@ -38,10 +38,20 @@ from testbed.identification import nonlinear_prediction
 from testbed.identification.prediction import predict
 from testbed.presentation import fit_figures
 
-__all__ = ["REPORT", "SECTIONS", "check_report_folder", "fit_report_html", "report", "write_fit_report"]
+__all__ = [
+    "REPORT",
+    "SECTIONS",
+    "VALIDATION_SECTIONS",
+    "check_report_folder",
+    "fit_report_html",
+    "report",
+    "validation_report_html",
+    "write_fit_report",
+]
 
 REPORT = "report.html"
 SECTIONS = ("summary", "outputs", "residuals", "coefficients", "correlation", "convergence")
+VALIDATION_SECTIONS = ("summary", "outputs", "residuals")  # a validation has no fit to show
 STYLE = (
     "body{font-family:sans-serif;max-width:1250px;margin:2em auto;padding:0 1em;color:#222}"
     "table{border-collapse:collapse;margin:0.8em 0}td,th{border:1px solid #ccc;padding:3px 8px}"
@@ -94,6 +104,161 @@ def _draw(task: tuple) -> bytes:
     return figure(*args)
 
 
+def _page(title: str, sections: Sequence[tuple[str, str, str]]) -> str:
+    """The page: `title`, a navigation bar, and each `(id, heading, body)` as a `<section>`."""
+    e = html.escape
+    parts = [
+        "<!doctype html><html lang='en'><head><meta charset='utf-8'>",
+        f"<title>{e(title)}</title><style>{STYLE}</style></head><body>",
+        f"<h1>{e(title)}</h1><nav>",
+        *(f"<a href='#{k}'>{k}</a>" for k, _, _ in sections),
+        "</nav>",
+    ]
+    parts += [f"<section id='{k}'><h2>{e(heading)}</h2>\n{body}\n</section>" for k, heading, body in sections]
+    return "\n".join(parts + ["</body></html>"])
+
+
+def _records(experiments: Sequence[Experiment]) -> str:
+    """The records: their samples, duration, channels and the stretches the model is flown over."""
+    rows = [
+        (
+            r.name,
+            len(r.t),
+            f"{r.t[-1] - r.t[0]:.4g}",
+            ", ".join(r.measured),
+            "; ".join(stretch_name(r, a, b) for a, b in stretches(r)),
+        )  # fmt: skip
+        for r in experiments
+    ]
+    head = ("record", "samples", "duration (s)", "channels", "flown over")
+    return html_table(head, rows, "the records (one split at a dropout in its fins: its stretches)")
+
+
+def _outputs_and_residuals(experiments, model, before, validation: Validation) -> tuple[str, str]:
+    """The outputs section's body (per record, measured against `model` and the a-priori
+    `before`, fit % from `validation`) and the residuals section's (per record over time, their
+    autocorrelation and spectrum, which channels are coloured; the metrics table)."""
+    e = html.escape
+    metrics = validation.experiments
+    tasks = []  # (figure, its arguments) per record: drawn side by side (`_drawn`)
+    for r, yhat, y0 in zip(experiments, model, before or [None] * len(experiments)):
+        m = metrics.get(r.name, {})
+        fits = [m[c].fit_percent if c in m else None for c in r.measured]
+        res = r.y - yhat
+        bounds = [m[c].whiteness.bound if c in m else 0.0 for c in r.measured]
+        white = [m[c].whiteness.white if c in m else True for c in r.measured]
+        tasks += [
+            (fit_figures.outputs_figure, (r.name, r.t, r.measured, r.y, yhat, fits, y0)),
+            (fit_figures.residuals_figure, (r.name, r.t, r.measured, res)),
+            (fit_figures.autocorrelation_figure, (r.name, r.measured, res, bounds, white)),
+            (fit_figures.spectrum_figure, (r.name, r.dt, r.measured, res)),
+        ]
+    drawn = iter(_drawn(tasks))
+    outputs, residuals = [], []
+    for r in experiments:
+        m = metrics.get(r.name, {})
+        coloured = [c for c in r.measured if c in m and not m[c].whiteness.white]
+        outputs.append(_img(next(drawn), f"{r.name} outputs"))
+        residuals.append(f"<h3>{e(r.name)}</h3><p>coloured: {e(', '.join(coloured) or 'none')}</p>")
+        residuals += [
+            _img(next(drawn), f"{r.name} {what}") for what in ("residuals", "autocorrelation", "spectrum")
+        ]
+    residuals.append(html_table(*validation.rows(), "fit % and residual whiteness per channel"))
+    return "\n".join(outputs), "\n".join(residuals)
+
+
+def _a_priori(experiments, prior: ModelConfig | None):
+    """The a-priori model's predictions, or None (no prior, or one that cannot be flown here)."""
+    if prior is None:
+        return None
+    try:
+        return _predicted(experiments, prior, None)
+    except (InputError, np.linalg.LinAlgError, ValueError):
+        return None
+
+
+def _summary(estimate, recording: str | None, fixed: Mapping[str, str] | None, experiments) -> str:
+    """How the fit ended, every start, the recording, what the screen fixed, the records."""
+    e = html.escape
+    parts = [
+        f"<p><b>{e(estimate.method)}</b>: {e(estimate.status.message)}; {estimate.iterations} iterations, "
+        f"{estimate.evaluations} simulations, cost (negative log-likelihood) {estimate.cost:.6g}, from the "
+        f"{e(estimate.start)} start{e(f' ({estimate.start_reason})' if estimate.start_reason else '')}.</p>"
+    ]
+    if recording is not None:
+        parts.append(
+            f"<p>The fit's Rerun recording: <a href='{e(recording)}'>{e(recording)}</a> "
+            f"(open it with <code>rerun {e(recording)}</code>).</p>"
+        )
+    if estimate.starts:
+        rows = [
+            (
+                t.get("start"),
+                f"{t.get('cost', float('nan')):.6g}",
+                t.get("status", t.get("reason", "")),
+                t.get("iterations", ""),
+            )  # fmt: skip
+            for t in estimate.starts
+        ]
+        parts.append(html_table(("start", "cost", "status", "iterations"), rows, "every start tried"))
+    if fixed:
+        parts.append(
+            html_table(("coefficient", "fixed because"), sorted(fixed.items()), "what the screen fixed")
+        )
+    parts.append(_records(experiments))
+    return "\n".join(parts)
+
+
+def _coefficients(estimate, start: ModelConfig, reference: ModelConfig | None) -> str:
+    """The estimates against the a-priori values of `start` and the `reference`'s: the figure and
+    the table."""
+    names = list(estimate.free)
+    values, std = np.asarray(estimate.values, float), np.asarray(estimate.std, float)
+    coloured = None if estimate.crlb_corrected_std is None else np.asarray(estimate.crlb_corrected_std, float)
+    a_priori = np.array([start.values.get(n, np.nan) for n in names], float)
+    ref = None
+    if reference is not None:
+        ref = np.array([reference.values.get(n, np.nan) for n in names], float)
+        ref = ref if np.all(np.isfinite(ref)) else None
+    figure = fit_figures.coefficients_figure(names, values, std, coloured, a_priori, ref, "analytic value")
+    rows = [
+        (n, f"{v:.6g}", f"{s:.3g}", "-" if coloured is None else f"{coloured[k]:.3g}", f"{a_priori[k]:.6g}")
+        + (() if ref is None else (f"{ref[k]:.6g}",))
+        for k, (n, v, s) in enumerate(zip(names, values, std))
+    ]
+    head = ("coefficient", "estimate", "σ Cramér-Rao", "σ coloured", "a-priori") + (
+        () if ref is None else ("analytic",)
+    )
+    return _img(figure, "coefficients") + html_table(head, rows, "the estimates")
+
+
+def _correlation(experiments, fitted: ModelConfig, estimate) -> str:
+    """The analysis at the estimate: the correlation matrix, the drift groups, its summary."""
+    e = html.escape
+    try:
+        if fitted.terms is None:
+            analysis = identifiability(experiments, fitted, noise_std=estimate.noise_std)
+        else:
+            analysis = nonlinear_identifiability(experiments, fitted, estimate.initial_states)
+    except (InputError, np.linalg.LinAlgError, ValueError) as exc:
+        return f"<p>No analysis at the estimate: {e(str(exc))}</p>"
+    groups = [(", ".join(g),) for g in analysis.drift_groups] or [("none",)]
+    return "\n".join(
+        [
+            _img(fit_figures.correlation_figure(analysis.free, analysis.correlation), "correlation"),
+            html_table(("drift group",), groups, "coefficients the data cannot tell apart"),
+            *(f"<p>{e(line)}</p>" for line in analysis.summary),
+        ]
+    )
+
+
+def _convergence(iterations: Sequence[tuple]) -> str:
+    costs = [(k, c) for k, _, c in iterations if c is not None and np.isfinite(c)]
+    if len(costs) > 1:
+        return _img(fit_figures.convergence_figure(costs), "convergence")
+    return "<p>No cost per iteration to show (a filter, or a fit of one iteration).</p>"
+
+
 def fit_report_html(
     experiments: Sequence[Experiment],
     config: ModelConfig,
@@ -112,151 +277,46 @@ def fit_report_html(
     whose coefficients are the reference (a run's analytic model), `fixed` what the screen fixed
     (name → why), `recording` the fit's Rerun recording as the page links it (a path relative to
     the page's folder)."""
-    e = html.escape
     fitted = config.with_coefficients(estimate.coefficients)
     experiments = fitted.fitted(experiments)
     model = _predicted(experiments, fitted, estimate.initial_states)
-    before = None
-    if prior is not None:
-        try:
-            before = _predicted(experiments, prior, None)
-        except (InputError, np.linalg.LinAlgError, ValueError):
-            before = None  # an a-priori model that cannot be flown on these data: the fit alone
-    parts = [
-        "<!doctype html><html lang='en'><head><meta charset='utf-8'>",
-        f"<title>{e(title or 'testbed fit report')}</title><style>{STYLE}</style></head><body>",
-        f"<h1>{e(title or 'testbed fit report')}</h1><nav>",
-        *(f"<a href='#{s}'>{s}</a>" for s in SECTIONS),
-        "</nav>",
-    ]
-    # summary
-    parts.append("<section id='summary'><h2>Summary</h2>")
-    parts.append(
-        f"<p><b>{e(estimate.method)}</b>: {e(estimate.status.message)}; {estimate.iterations} iterations, "
-        f"{estimate.evaluations} simulations, cost (negative log-likelihood) {estimate.cost:.6g}, from the "
-        f"{e(estimate.start)} start{e(f' ({estimate.start_reason})' if estimate.start_reason else '')}.</p>"
-    )
-    if recording is not None:
-        parts.append(
-            f"<p>The fit's Rerun recording: <a href='{e(recording)}'>{e(recording)}</a> "
-            f"(open it with <code>rerun {e(recording)}</code>).</p>"
-        )
-    if estimate.starts:
-        parts.append(
-            html_table(
-                ("start", "cost", "status", "iterations"),
-                [
-                    (
-                        s.get("start"),
-                        f"{s.get('cost', float('nan')):.6g}",
-                        s.get("status", s.get("reason", "")),
-                        s.get("iterations", ""),
-                    )
-                    for s in estimate.starts
-                ],  # fmt: skip
-                "every start tried",
-            )
-        )
-    if fixed:
-        parts.append(
-            html_table(("coefficient", "fixed because"), sorted(fixed.items()), "what the screen fixed")
-        )
-    parts.append(
-        html_table(
-            ("record", "samples", "duration (s)", "channels", "fitted over"),
-            [
-                (
-                    r.name,
-                    len(r.t),
-                    f"{r.t[-1] - r.t[0]:.4g}",
-                    ", ".join(r.measured),
-                    "; ".join(stretch_name(r, a, b) for a, b in stretches(r)),
-                )  # fmt: skip
-                for r in experiments
-            ],
-            "the records (one split at a dropout in its fins: its stretches)",
-        )  # fmt: skip
-    )
-    parts.append("</section>")
-    # outputs and residuals
-    metrics = validation.experiments
-    outputs, residuals = (
-        ["<section id='outputs'><h2>Outputs</h2>"],
-        ["<section id='residuals'><h2>Residuals</h2>"],
-    )
-    tasks = []  # (figure, its arguments) per record: drawn side by side (`_drawn`)
-    for r, yhat, y0 in zip(experiments, model, before or [None] * len(experiments)):
-        m = metrics.get(r.name, {})
-        fits = [m[c].fit_percent if c in m else None for c in r.measured]
-        res = r.y - yhat
-        bounds = [m[c].whiteness.bound if c in m else 0.0 for c in r.measured]
-        white = [m[c].whiteness.white if c in m else True for c in r.measured]
-        tasks += [
-            (fit_figures.outputs_figure, (r.name, r.t, r.measured, r.y, yhat, fits, y0)),
-            (fit_figures.residuals_figure, (r.name, r.t, r.measured, res)),
-            (fit_figures.autocorrelation_figure, (r.name, r.measured, res, bounds, white)),
-            (fit_figures.spectrum_figure, (r.name, r.dt, r.measured, res)),
-        ]
-    drawn = iter(_drawn(tasks))
-    for r in experiments:
-        m = metrics.get(r.name, {})
-        coloured = [c for c in r.measured if c in m and not m[c].whiteness.white]
-        outputs.append(_img(next(drawn), f"{r.name} outputs"))
-        residuals.append(f"<h3>{e(r.name)}</h3><p>coloured: {e(', '.join(coloured) or 'none')}</p>")
-        residuals += [
-            _img(next(drawn), f"{r.name} {what}") for what in ("residuals", "autocorrelation", "spectrum")
-        ]
-    parts += outputs + ["</section>"] + residuals
-    parts.append(html_table(*validation.rows(), "fit % and residual whiteness per channel") + "</section>")
-    # coefficients
-    names = list(estimate.free)
-    values, std = np.asarray(estimate.values, float), np.asarray(estimate.std, float)
-    coloured = None if estimate.crlb_corrected_std is None else np.asarray(estimate.crlb_corrected_std, float)
-    start = prior if prior is not None else config
-    a_priori = np.array([start.values.get(n, np.nan) for n in names], float)
-    ref = None
-    if reference is not None:
-        ref = np.array([reference.values.get(n, np.nan) for n in names], float)
-        ref = ref if np.all(np.isfinite(ref)) else None
-    parts.append("<section id='coefficients'><h2>Coefficients</h2>")
-    parts.append(
-        _img(
-            fit_figures.coefficients_figure(names, values, std, coloured, a_priori, ref, "analytic value"),
+    outputs, residuals = _outputs_and_residuals(experiments, model, _a_priori(experiments, prior), validation)
+    sections = [
+        ("summary", "Summary", _summary(estimate, recording, fixed, experiments)),
+        ("outputs", "Outputs", outputs),
+        ("residuals", "Residuals", residuals),
+        (
             "coefficients",
-        )
-    )
-    rows = [
-        (n, f"{v:.6g}", f"{s:.3g}", "-" if coloured is None else f"{coloured[k]:.3g}", f"{a_priori[k]:.6g}")
-        + (() if ref is None else (f"{ref[k]:.6g}",))
-        for k, (n, v, s) in enumerate(zip(names, values, std))
+            "Coefficients",
+            _coefficients(estimate, prior if prior is not None else config, reference),
+        ),
+        ("correlation", "Correlation and drift", _correlation(experiments, fitted, estimate)),
+        ("convergence", "Convergence", _convergence(iterations)),
     ]
-    head = ("coefficient", "estimate", "σ Cramér-Rao", "σ coloured", "a-priori") + (
-        () if ref is None else ("analytic",)
-    )
-    parts.append(html_table(head, rows, "the estimates") + "</section>")
-    # correlation
-    parts.append("<section id='correlation'><h2>Correlation and drift</h2>")
-    try:
-        if fitted.terms is None:
-            analysis = identifiability(experiments, fitted, noise_std=estimate.noise_std)
-        else:
-            analysis = nonlinear_identifiability(experiments, fitted, estimate.initial_states)
-        parts.append(_img(fit_figures.correlation_figure(analysis.free, analysis.correlation), "correlation"))
-        groups = [(", ".join(g),) for g in analysis.drift_groups] or [("none",)]
-        parts.append(html_table(("drift group",), groups, "coefficients the data cannot tell apart"))
-        parts += [f"<p>{e(line)}</p>" for line in analysis.summary]
-    except (InputError, np.linalg.LinAlgError, ValueError) as exc:
-        parts.append(f"<p>No analysis at the estimate: {e(str(exc))}</p>")
-    parts.append("</section>")
-    # convergence
-    parts.append("<section id='convergence'><h2>Convergence</h2>")
-    costs = [(k, c) for k, _, c in iterations if c is not None and np.isfinite(c)]
-    if len(costs) > 1:
-        parts.append(_img(fit_figures.convergence_figure(costs), "convergence"))
-    else:
-        parts.append("<p>No cost per iteration to show (a filter, or a fit of one iteration).</p>")
-    parts.append("</section></body></html>")
-    return "\n".join(parts)
+    return _page(title or "testbed fit report", sections)
+
+
+def validation_report_html(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    validation: Validation,
+    prior: ModelConfig | None = None,
+    title: str = "",
+    note: str = "",
+) -> str:
+    """A validation's page: the model of `config` flown on the records (held out from its fit, as
+    a rule) against what they measured, beside `prior`'s where given, with the residuals and their
+    whiteness; `note` says what model and coefficients were validated."""
+    experiments = config.fitted(experiments)
+    model = _predicted(experiments, config, None)
+    outputs, residuals = _outputs_and_residuals(experiments, model, _a_priori(experiments, prior), validation)
+    summary = (f"<p>{html.escape(note)}</p>" if note else "") + _records(experiments)
+    sections = [
+        ("summary", "Summary", summary),
+        ("outputs", "Outputs", outputs),
+        ("residuals", "Residuals", residuals),
+    ]
+    return _page(title or "testbed validation report", sections)
 
 
 def write_fit_report(folder: str | os.PathLike, page: str, force: bool = False) -> Path:
