@@ -268,6 +268,7 @@ def _cmd_analyze(args) -> int:
         noise_std=args.noise_std,
         keep_repeats=args.keep_repeats,
         force=args.force,
+        report=args.report,
     )
     _emit(out, result.to_json())
     for line in result.summary:
@@ -579,6 +580,13 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--config", type=Path, help="model config TOML (default: the run's model.toml)")
     s.add_argument("--out", type=Path, help="identifiability JSON (default or -: stdout)")
+    s.add_argument(
+        "--report",
+        type=Path,
+        metavar="DIR",
+        help="also write the analysis' report to DIR/report.html (a new or empty folder): the bounds, "
+        "the correlation matrix and the drift groups",
+    )
     s.add_argument("--noise-std", type=_noise_std, metavar="STATE=SIGMA,...", help=NOISE_STD_HELP)
     s.add_argument("--keep-repeats", action="store_true", help=KEEP_REPEATS_HELP)
     s.set_defaults(func=_cmd_analyze)

@@ -16,7 +16,7 @@ import pytest
 from testbed.cli import main
 from testbed.data import write_config, write_csv
 from testbed.identification import examples
-from testbed.presentation.fit_report import REPORT, SECTIONS, VALIDATION_SECTIONS
+from testbed.presentation.fit_report import ANALYSIS_SECTIONS, REPORT, SECTIONS, VALIDATION_SECTIONS
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -111,9 +111,28 @@ def test_a_validation_report_shows_the_held_out_records_against_the_model(linear
     assert len(_images(sections["outputs"])) == 2 and len(_images(sections["residuals"])) == 6
     doc = json.loads((tmp_path / "v.json").read_text())
     fit = doc["validation"]["held_horizontal"]["r"]["fit_percent"]
-    assert (
-        f">{fit:.2f}</td>" in sections["residuals"] and "with the coefficients of" in sections["summary"]
-    )
+    assert f">{fit:.2f}</td>" in sections["residuals"] and "with the coefficients of" in sections["summary"]
+
+
+def test_an_analysis_report_shows_the_bounds_correlation_and_drift(linear, nonlinear, capsys, tmp_path):
+    """`analyze --report`: the bounds as the JSON gives them, the correlation heat map and the
+    drift groups, for the linear model and a nonlinear model config."""
+    import json
+
+    root, paths = linear
+    for name, data, config in (
+        ("linear", paths, root / "prior.toml"),
+        ("nonlinear", [nonlinear / "doublet.csv"], nonlinear / "start.toml"),
+    ):
+        argv = ["analyze", *map(str, data), "--config", str(config), "--out", str(tmp_path / f"{name}.json")]
+        assert main(argv + ["--report", str(tmp_path / name)]) == 0, capsys.readouterr().err
+        sections = _sections((tmp_path / name / REPORT).read_text(encoding="utf-8"))
+        assert list(sections) == list(ANALYSIS_SECTIONS), name
+        doc = json.loads((tmp_path / f"{name}.json").read_text())
+        for coefficient, sd in doc["crlb_std"].items():
+            assert f"<td>{coefficient}</td>" in sections["bounds"], (name, coefficient)
+            assert sd is None or f">{sd:.3g}</td>" in sections["bounds"], (name, coefficient)
+        assert len(_images(sections["correlation"])) == 1 and "drift group" in sections["correlation"]
 
 
 def test_the_report_links_the_fits_recording(linear, capsys, tmp_path):

@@ -223,25 +223,26 @@ class Identifiability:
         extra = tuple(g for g in self.practical_groups if not any(set(g) <= s for s in seen))
         return groups + extra
 
-    def _repr_html_(self) -> str:
-        """The analysis in a notebook: each coefficient's value and Cramér-Rao bound, the drift
-        groups, and the summary."""
+    def bounds(self) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+        """The column names and each coefficient's row as text: the value analysed, its Cramér-Rao
+        bound (∞ where the data do not determine it) and that bound relative to the value."""
         rows = [
             (
                 n,
-                f"{v:.4g}",
+                f"{v:.6g}",
                 "∞" if not np.isfinite(sd) else f"{sd:.3g}",
                 "-" if not (v and np.isfinite(sd)) else f"{abs(sd / v):.1%}",
-            )
+            )  # fmt: skip
             for n, v, sd in zip(self.free, self.values, self.crlb_std)
         ]
+        return ("coefficient", "value analysed", "Cramér-Rao σ", "relative"), rows
+
+    def _repr_html_(self) -> str:
+        """The analysis in a notebook: each coefficient's value and Cramér-Rao bound, the drift
+        groups, and the summary."""
         groups = html_table(("drift group",), [(", ".join(g),) for g in self.drift_groups])
         summary = "".join(f"<p>{html.escape(line)}</p>" for line in self.summary)
-        return (
-            html_table(("coefficient", "value", "Cramér-Rao σ", "relative"), rows, "identifiability")
-            + groups
-            + summary
-        )
+        return html_table(*self.bounds(), "identifiability") + groups + summary
 
     def to_json(self) -> str:
 

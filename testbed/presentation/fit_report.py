@@ -39,9 +39,11 @@ from testbed.identification.prediction import predict
 from testbed.presentation import fit_figures
 
 __all__ = [
+    "ANALYSIS_SECTIONS",
     "REPORT",
     "SECTIONS",
     "VALIDATION_SECTIONS",
+    "analysis_report_html",
     "check_report_folder",
     "fit_report_html",
     "report",
@@ -52,6 +54,7 @@ __all__ = [
 REPORT = "report.html"
 SECTIONS = ("summary", "outputs", "residuals", "coefficients", "correlation", "convergence")
 VALIDATION_SECTIONS = ("summary", "outputs", "residuals")  # a validation has no fit to show
+ANALYSIS_SECTIONS = ("summary", "bounds", "correlation")
 STYLE = (
     "body{font-family:sans-serif;max-width:1250px;margin:2em auto;padding:0 1em;color:#222}"
     "table{border-collapse:collapse;margin:0.8em 0}td,th{border:1px solid #ccc;padding:3px 8px}"
@@ -234,20 +237,25 @@ def _coefficients(estimate, start: ModelConfig, reference: ModelConfig | None) -
 
 def _correlation(experiments, fitted: ModelConfig, estimate) -> str:
     """The analysis at the estimate: the correlation matrix, the drift groups, its summary."""
-    e = html.escape
     try:
         if fitted.terms is None:
             analysis = identifiability(experiments, fitted, noise_std=estimate.noise_std)
         else:
             analysis = nonlinear_identifiability(experiments, fitted, estimate.initial_states)
     except (InputError, np.linalg.LinAlgError, ValueError) as exc:
-        return f"<p>No analysis at the estimate: {e(str(exc))}</p>"
+        return f"<p>No analysis at the estimate: {html.escape(str(exc))}</p>"
+    return _analysis(analysis)
+
+
+def _analysis(analysis) -> str:
+    """An identifiability analysis (`analyze`'s): the correlation matrix, the drift groups and its
+    summary."""
     groups = [(", ".join(g),) for g in analysis.drift_groups] or [("none",)]
     return "\n".join(
         [
             _img(fit_figures.correlation_figure(analysis.free, analysis.correlation), "correlation"),
             html_table(("drift group",), groups, "coefficients the data cannot tell apart"),
-            *(f"<p>{e(line)}</p>" for line in analysis.summary),
+            *(f"<p>{html.escape(line)}</p>" for line in analysis.summary),
         ]
     )
 
@@ -294,6 +302,23 @@ def fit_report_html(
         ("convergence", "Convergence", _convergence(iterations)),
     ]
     return _page(title or "testbed fit report", sections)
+
+
+def analysis_report_html(
+    experiments: Sequence[Experiment], config: ModelConfig, analysis, title: str = ""
+) -> str:
+    """An identifiability analysis' page (`analyze --report`): the records and the coefficients
+    analysed with their Cramér-Rao bounds, and the correlation matrix with the drift groups."""
+    bounds = html_table(*analysis.bounds(), "the bounds")
+    summary = f"<p>{html.escape(config.source or 'the config')} analysed on:</p>" + _records(
+        config.fitted(experiments)
+    )
+    sections = [
+        ("summary", "Summary", summary),
+        ("bounds", "Cramér-Rao bounds", bounds),
+        ("correlation", "Correlation and drift", _analysis(analysis)),
+    ]
+    return _page(title or "testbed identifiability report", sections)
 
 
 def validation_report_html(
