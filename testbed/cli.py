@@ -280,7 +280,9 @@ def _cmd_check(args) -> int:
     from testbed.jobs import check_data
 
     out = _to_stdout(args.out)
-    result = check_data(args.data, out=out, keep_repeats=args.keep_repeats, force=args.force)
+    result = check_data(
+        args.data, out=out, keep_repeats=args.keep_repeats, force=args.force, report=args.report
+    )
     if args.out == STDOUT:
         sys.stdout.write(result.to_json())
         print(result.table(), end="", file=sys.stderr)
@@ -596,6 +598,13 @@ def parser() -> argparse.ArgumentParser:
     )
     s.add_argument("data", nargs="+", type=Path, help="run directories or measurement CSVs")
     s.add_argument("--out", type=Path, help="check JSON (default: none, the table only; -: stdout)")
+    s.add_argument(
+        "--report",
+        type=Path,
+        metavar="DIR",
+        help="also write the check's report to DIR/report.html (a new or empty folder): the corrections, "
+        "each check's parameters pooled and per record, the reconstructions' fit",
+    )
     s.add_argument("--keep-repeats", action="store_true", help=KEEP_REPEATS_HELP)
     s.set_defaults(func=_cmd_check)
 

@@ -371,19 +371,31 @@ def check_data(
     out: str | os.PathLike | None = None,
     keep_repeats: bool = False,
     force: bool = False,
+    report: str | os.PathLike | None = None,
 ):
     """The data-compatibility check of `data` (run directories or measurement CSVs): the
     kinematics reconstructed, the sensor biases, scale factors and delays estimated with their
     bounds, written as JSON to `out` (`keep_repeats` and `force` as for `identify_data`); the
-    `analysis.compatibility.Compatibility`."""
+    `analysis.compatibility.Compatibility`; `report`: a new or empty folder for its HTML page
+    (`presentation.fit_report.check_report_html`)."""
     from testbed.analysis.compatibility import compatibility  # numba and scipy: only here
 
     experiments, _ = load_data(data, keep_repeats)
     read = [Path(e.source) for e in experiments]
     read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]
     check_outputs(read, {"out": out}, force)
+    if report is not None:  # matplotlib loads only for a report
+        from testbed.presentation.fit_report import check_report_folder
+
+        check_report_folder(report, force)
     result = compatibility(experiments)
     write_text(out, result.to_json(), force)
+    if report is not None:  # last: a folder made only once everything else is written
+        from testbed.presentation.fit_report import check_report_html, write_fit_report
+
+        write_fit_report(
+            report, check_report_html(result, f"testbed check: {', '.join(map(str, data))}"), force
+        )
     return result
 
 

@@ -389,6 +389,30 @@ def test_check_writes_the_json_and_prints_the_table(trial, tmp_path, capsys):
     assert json.loads(std.out)["corrections"] == doc["corrections"] and "attitude check" in std.err
 
 
+def test_check_report_shows_the_corrections_and_each_checks_parameters(trial, tmp_path, capsys):
+    """`check --report DIR`: the pooled corrections as the JSON gives them, one figure of each
+    check's parameters (pooled and per record) with its reconstruction's fit, nothing unchecked."""
+    import base64
+    import re
+
+    from testbed.presentation.fit_report import REPORT
+
+    out, folder = tmp_path / "check.json", tmp_path / "report"
+    assert main(["check", str(trial), "--out", str(out), "--report", str(folder)]) == 0, (
+        capsys.readouterr().err
+    )
+    page = (folder / REPORT).read_text(encoding="utf-8")
+    ids = re.findall(r"<section id='([a-z]+)'>", page)
+    assert ids == ["corrections", "attitude", "depth", "unchecked"]
+    doc = json.loads(out.read_text())
+    tau = doc["corrections"]["tau_gyro"]
+    assert f">{tau:.4g}</td>" in page and "every record checked" in page
+    images = [base64.b64decode(b) for b in re.findall(r"base64,([A-Za-z0-9+/=]+)'", page)]
+    assert len(images) == 2 and all(png.startswith(b"\x89PNG") for png in images)
+    fit = doc["pooled"]["depth"]["fit"]["z"]["fit_percent"]
+    assert f">{fit:.2f}</td>" in page
+
+
 def test_check_bad_input_one_line_status_2_nothing_written(trial, tmp_path, capsys):
     csv = trial / "scenario-I.csv"
     before = csv.read_bytes()

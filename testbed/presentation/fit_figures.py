@@ -26,6 +26,7 @@ __all__ = [
     "autocorrelation_figure",
     "coefficients_figure",
     "convergence_figure",
+    "corrections_figure",
     "correlation_figure",
     "outputs_figure",
     "residuals_figure",
@@ -257,3 +258,33 @@ def convergence_figure(costs: Sequence[tuple[int, float]]) -> bytes:
     ax.set_ylabel("J − J least")
     ax.set_title("cost per iteration")
     return _png(fig)
+
+
+@_styled
+def corrections_figure(
+    check: str, names: Sequence[str], estimates: Sequence[tuple[str, np.ndarray, np.ndarray]]
+) -> bytes:
+    """One panel per sensor parameter of `check`: each fit's estimate with ±2σ, `estimates` as
+    (label, values, σ) over `names` (the pooled fit first, then each record alone); a parameter
+    held at 0 has σ 0, one the data do not determine an infinite σ (no bar)."""
+    fig, axes = _grid(len(names), f"{check} check: the sensor parameters, pooled and per record", height=2.0)
+    k = np.arange(len(estimates))
+    for j, (ax, n) in enumerate(zip(axes, names)):
+        values = np.array([v[j] for _, v, _ in estimates], float)
+        std = np.array([s[j] for _, _, s in estimates], float)
+        ax.errorbar(
+            k, values, yerr=2 * np.where(np.isfinite(std), std, 0.0), fmt="o", color=MODEL, ms=4, capsize=3
+        )
+        ax.axhline(0.0, color="black", lw=0.5)
+        ax.set_xticks(k, [label[-14:] for label, _, _ in estimates], rotation=30, ha="right")
+        ax.set_title(f"{n} ({_sensor_unit(n)})")
+    return _png(fig)
+
+
+def _sensor_unit(name: str) -> str:
+    """The unit of a data-compatibility check's sensor parameter: a bias in its channel's unit,
+    a scale factor none, a delay s, a misalignment rad, a lever arm m."""
+    kind, _, channel = name.partition("_")
+    if kind == "b":
+        return UNITS.get(channel, "")
+    return {"k": "–", "tau": "s", "m": "rad", "r": "m"}.get(kind, "")

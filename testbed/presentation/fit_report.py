@@ -45,6 +45,7 @@ __all__ = [
     "VALIDATION_SECTIONS",
     "analysis_report_html",
     "check_report_folder",
+    "check_report_html",
     "fit_report_html",
     "report",
     "validation_report_html",
@@ -319,6 +320,68 @@ def analysis_report_html(
         ("correlation", "Correlation and drift", _analysis(analysis)),
     ]
     return _page(title or "testbed identifiability report", sections)
+
+
+def check_report_html(result, title: str = "") -> str:
+    """A data-compatibility check's page (`check --report`): the corrections it found, per check
+    the sensor parameters of the pooled fit and of each record alone (figure and table) and each
+    output's fit, and what was not checked."""
+    e = html.escape
+    head = ("parameter", "value", "σ", "identifiable", "why held")
+    corrections = [
+        (
+            n,
+            f"{p.value:.4g}",
+            "∞" if not np.isfinite(p.std) else f"{p.std:.2g}",
+            "yes" if p.estimated else "no",
+            p.reason,
+        )
+        for pooled in result.pooled.values()
+        for n, p in pooled.parameters.items()
+    ]
+    sections = [("corrections", "Corrections", html_table(head, corrections, "the pooled sensor parameters"))]
+    for check, pooled in result.pooled.items():
+        names = list(pooled.parameters)
+        fits = [("pooled", pooled)] + [(r, c[check]) for r, c in result.records.items() if check in c]
+        estimates = [
+            (
+                label,
+                np.array([f.parameters[n].value for n in names]),
+                np.array([f.parameters[n].std if f.parameters[n].estimated else 0.0 for n in names]),
+            )  # fmt: skip
+            for label, f in fits
+        ]
+        rows = [
+            (
+                o,
+                "-" if v["fit_percent"] is None else f"{v['fit_percent']:.2f}",
+                f"{v['residual_std']:.3g}",
+                f"{v['noise_std']:.3g}",
+                f"{v['innovation_rms']:.3g}",
+            )  # fmt: skip
+            for o, v in pooled.fit.items()
+        ]
+        body = "\n".join(
+            [
+                f"<p>Fitted on {e(', '.join(pooled.records))}; {pooled.iterations} evaluations.</p>",
+                _img(fit_figures.corrections_figure(check, names, estimates), f"{check} parameters"),
+                html_table(
+                    ("output", "fit %", "residual σ", "noise σ", "innovation rms"), rows, "the reconstruction"
+                ),
+            ]
+        )
+        sections.append((check, f"The {check} check", body))
+    unchecked = [
+        (name, check, why) for name, checks in result.unchecked.items() for check, why in checks.items()
+    ]
+    sections.append(
+        (
+            "unchecked",
+            "Not checked",
+            html_table(("record", "check", "why"), unchecked or [("-", "-", "every record checked")]),
+        )
+    )
+    return _page(title or "testbed check report", sections)
 
 
 def validation_report_html(
