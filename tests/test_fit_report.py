@@ -184,13 +184,19 @@ def test_a_report_folder_is_replaced_only_with_force(linear, capsys, tmp_path):
     assert (folder / REPORT).read_text(encoding="utf-8").startswith("<!doctype html>")
 
 
-def test_the_page_opens_in_chromium_with_every_section_and_no_console_error(linear, capsys, tmp_path):
+@pytest.mark.parametrize("model", ["linear", "nonlinear"])
+def test_the_page_opens_in_chromium_with_every_section_and_no_console_error(
+    linear, nonlinear, capsys, tmp_path, model
+):
     playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
         pytest.skip("no Chromium on this machine (Debian's chromium package)")
-    root, paths = linear
-    _report(capsys, paths, root / "prior.toml", tmp_path / "report")
+    if model == "linear":
+        root, paths = linear
+        _report(capsys, paths, root / "prior.toml", tmp_path / "report")
+    else:
+        _report(capsys, [nonlinear / "doublet.csv"], nonlinear / "start.toml", tmp_path / "report")
     flags = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking"]
     errors = []
     with playwright.sync_playwright() as p:
