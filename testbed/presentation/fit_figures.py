@@ -254,6 +254,8 @@ def convergence_figure(costs: Sequence[tuple[int, float]]) -> bytes:
     c = np.array([j for _, j in costs], float)
     above = c - np.nanmin(c)
     ax.semilogy(np.arange(1, len(c) + 1), np.where(above > 0, above, np.nan), "o-", color=MODEL, ms=3)
+    ax.yaxis.set_major_locator(LogLocator(numticks=6))
+    ax.yaxis.set_minor_locator(NullLocator())
     ax.set_xlabel("iteration (every start's, in the order run)")
     ax.set_ylabel("J − J least")
     ax.set_title("cost per iteration")

@@ -171,12 +171,26 @@ def _outputs_and_residuals(experiments, model, before, validation: Validation) -
     return "\n".join(outputs), "\n".join(residuals)
 
 
-def _a_priori(experiments, prior: ModelConfig | None):
-    """The a-priori model's predictions, or None (no prior, or one that cannot be flown here)."""
+def _validated(experiments, validation: Validation) -> list[np.ndarray] | None:
+    """The model's outputs the validation scored (the fit % shown beside them), where it holds
+    every record with its channels; else None."""
+    out = []
+    for r in experiments:
+        p = validation.predictions.get(r.name)
+        if p is None or tuple(p.measured) != tuple(r.measured):
+            return None
+        out.append(np.asarray(p.y, float))
+    return out
+
+
+def _a_priori(experiments, prior: ModelConfig | None, initial=None):
+    """The a-priori model's predictions, or None (no prior, or one that cannot be flown here): a
+    nonlinear model flown from the fit's initial states `initial` (its own best-fitting ones cost
+    a Gauss-Newton fit per record), the linear model from its best-fitting ones (least squares)."""
     if prior is None:
         return None
     try:
-        return _predicted(experiments, prior, None)
+        return _predicted(experiments, prior, initial if prior.terms is not None else None)
     except (InputError, np.linalg.LinAlgError, ValueError):
         return None
 
@@ -288,8 +302,9 @@ def fit_report_html(
     the page's folder)."""
     fitted = config.with_coefficients(estimate.coefficients)
     experiments = fitted.fitted(experiments)
-    model = _predicted(experiments, fitted, estimate.initial_states)
-    outputs, residuals = _outputs_and_residuals(experiments, model, _a_priori(experiments, prior), validation)
+    model = _validated(experiments, validation) or _predicted(experiments, fitted, estimate.initial_states)
+    before = _a_priori(experiments, prior, estimate.initial_states)
+    outputs, residuals = _outputs_and_residuals(experiments, model, before, validation)
     sections = [
         ("summary", "Summary", _summary(estimate, recording, fixed, experiments)),
         ("outputs", "Outputs", outputs),
@@ -396,7 +411,7 @@ def validation_report_html(
     a rule) against what they measured, beside `prior`'s where given, with the residuals and their
     whiteness; `note` says what model and coefficients were validated."""
     experiments = config.fitted(experiments)
-    model = _predicted(experiments, config, None)
+    model = _validated(experiments, validation) or _predicted(experiments, config, None)
     outputs, residuals = _outputs_and_residuals(experiments, model, _a_priori(experiments, prior), validation)
     summary = (f"<p>{html.escape(note)}</p>" if note else "") + _records(experiments)
     sections = [
