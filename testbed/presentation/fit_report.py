@@ -1,19 +1,23 @@
-"""A fit's report: one self-contained HTML page (its figures embedded as PNG, no network), what an
-identification engineer looks at after a fit (MATLAB's `compare` and `resid`, SIDPAC's plots):
+"""Reports: one self-contained HTML page (its figures embedded as PNG, no network) of what an
+identification engineer looks at (MATLAB's `compare` and `resid`, SIDPAC's plots). A fit's page
+(`identify --report`, `fit_report_html`, `SECTIONS`):
 
 - **summary**: the method, how the fit ended, its cost, every start with the cost it reached,
-  what the screen fixed and why;
+  what the screen fixed and why, the records and the stretches the model is flown over;
 - **outputs**: per record, each channel measured against the fitted model and the a-priori one,
   fit % in the panel's title;
-- **residuals**: per record, the residuals over time, their autocorrelation with the whiteness test's 99 % band
-  and their spectrum; which channels are coloured;
+- **residuals**: per record, the residuals over time, their autocorrelation with the whiteness
+  test's 99 % band and their spectrum; which channels are coloured;
 - **coefficients**: each estimate and a-priori value with ±2σ (Cramér-Rao and coloured-residual)
   over its reference (the analytic model of a run, where known), and the table;
 - **correlation**: the estimates' correlation matrix, the drift groups and the analysis' summary
   at the estimate (`analyze`);
 - **convergence**: the cost per iteration.
 
-`write_fit_report` writes it to `FOLDER/report.html`; a folder holding anything else is refused.
+A validation's page has its summary, outputs and residuals (`validation_report_html`); an
+analysis' its records, bounds and correlation (`analysis_report_html`); a data-compatibility
+check's its corrections and each check's parameters (`check_report_html`). `write_fit_report`
+writes a page to `FOLDER/report.html`; a folder holding anything else is refused.
 """
 
 from __future__ import annotations
