@@ -83,6 +83,7 @@ def test_a_linear_fit_report_has_every_section_with_its_figures(linear, capsys, 
     # per record: outputs; residuals over time, autocorrelation, spectrum
     assert len(figures["outputs"]) == 2 and len(figures["residuals"]) == 6
     assert len(figures["coefficients"]) == len(figures["correlation"]) == len(figures["convergence"]) == 1
+    assert "No analysis" not in sections["correlation"]
     assert "http" not in page.replace("http-equiv", "")  # nothing fetched: self-contained
     for name in examples.FREE:
         assert f"<td>{name}</td>" in sections["coefficients"], name
@@ -149,6 +150,7 @@ def test_a_nonlinear_fit_report_flies_the_nonlinear_model(nonlinear, capsys, tmp
     assert list(sections) == list(SECTIONS)
     assert len(_images(sections["outputs"])) == 1 and len(_images(sections["residuals"])) == 3
     assert "<td>Y_uv</td>" in sections["coefficients"] and "<td>N_uv</td>" in sections["coefficients"]
+    assert len(_images(sections["correlation"])) == 1 and "No analysis" not in sections["correlation"]
 
 
 @pytest.mark.parametrize("held", ["file", "folder"])

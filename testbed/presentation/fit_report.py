@@ -260,7 +260,7 @@ def _correlation(experiments, fitted: ModelConfig, estimate) -> str:
         if fitted.terms is None:
             analysis = identifiability(experiments, fitted, noise_std=estimate.noise_std)
         else:
-            analysis = nonlinear_identifiability(experiments, fitted, estimate.initial_states)
+            analysis = nonlinear_identifiability(experiments, fitted, initial=estimate.initial_states)
     except (InputError, np.linalg.LinAlgError, ValueError) as exc:
         return f"<p>No analysis at the estimate: {html.escape(str(exc))}</p>"
     return _analysis(analysis)
