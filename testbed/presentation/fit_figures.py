@@ -17,7 +17,7 @@ import numpy as np
 
 matplotlib.use("Agg")  # headless: figures are bytes
 import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.ticker import LogLocator, NullLocator  # noqa: E402
+from matplotlib.ticker import LogLocator, MaxNLocator, NullLocator  # noqa: E402
 
 from testbed.analysis.validation import LAGS, autocorrelation  # noqa: E402
 
@@ -256,6 +256,7 @@ def convergence_figure(costs: Sequence[tuple[int, float]]) -> bytes:
     ax.semilogy(np.arange(1, len(c) + 1), np.where(above > 0, above, np.nan), "o-", color=MODEL, ms=3)
     ax.yaxis.set_major_locator(LogLocator(numticks=6))
     ax.yaxis.set_minor_locator(NullLocator())
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration (every start's, in the order run)")
     ax.set_ylabel("J − J least")
     ax.set_title("cost per iteration")
