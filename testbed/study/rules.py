@@ -329,19 +329,25 @@ def _proportion_rule(table, regime, arm: str, claim: str, at_least: bool, thresh
         f"(not decided where it straddles {100 * threshold:.0f} %), at the testbed's iteration limit "
         f"(the paper states none); {LONGER[arm]} runs it with ten times that limit."
     )
-    out = _share(table, regime, arm, rule, at_least, threshold)
-    longer = _pick(table, LONGER[arm], lambda key: valid_reference(key, regime))
+
+    def valid(key) -> bool:
+        return valid_reference(key, regime)
+
+    picked = _pick(table, arm, valid)
+    if not picked:
+        return _verdict(None, rule, f"no {arm} cells from a spread > 0 on a data set with a valid reference")
+    holds, evidence = _share(picked, arm, at_least, threshold)
+    out = _verdict(holds, rule, evidence)
+    longer = _pick(table, LONGER[arm], valid)
     if longer:
-        out["longer"] = {"arm": LONGER[arm]} | _share(table, regime, LONGER[arm], rule, at_least, threshold)
-        del out["longer"]["rule"]
+        holds, evidence = _share(longer, LONGER[arm], at_least, threshold)
+        out["longer"] = {"arm": LONGER[arm], "verdict": VERDICTS[holds], "holds": holds, "evidence": evidence}
     return out
 
 
-def _share(table, regime, arm: str, rule: str, at_least: bool, threshold: float) -> dict:
-    """`_proportion_rule`'s decision on `arm`'s cells."""
-    picked = _pick(table, arm, lambda key: valid_reference(key, regime))
-    if not picked:
-        return _verdict(None, rule, f"no {arm} cells from a spread > 0 on a data set with a valid reference")
+def _share(picked, arm: str, at_least: bool, threshold: float) -> tuple[bool | None, str]:
+    """`_proportion_rule`'s decision on `arm`'s cells `picked`: whether the claim holds (None:
+    not decided) and the evidence."""
     parts, decisions = [], []
     for key, s in sorted({(f"{k[0]}/{k[1]}", k[2]) for k, _ in picked}):
         here = [c for c in picked if (f"{c[0][0]}/{c[0][1]}", c[0][2]) == (key, s)]
@@ -355,7 +361,7 @@ def _share(table, regime, arm: str, rule: str, at_least: bool, threshold: float)
         f"{sum(accurate(rs) for _, rs in picked)}/{len(picked)} cells, median relative error "
         f"{_pct(_median_error(picked))}"
     )
-    return _verdict(_all(decisions), rule, "; ".join(parts) + f"; {accuracy}")
+    return _all(decisions), "; ".join(parts) + f"; {accuracy}"
 
 
 def _nr(table, regime) -> dict:
