@@ -37,6 +37,7 @@ __all__ = [
     "Validation",
     "Whiteness",
     "autocorrelation",
+    "predicted",
     "validate",
     "whiteness",
 ]
@@ -161,6 +162,18 @@ def _pct(v) -> str:
     return "-" if v is None or not np.isfinite(v) else f"{v:.2f}"
 
 
+def predicted(
+    experiments: Sequence[Experiment],
+    config: ModelConfig,
+    initial: Mapping[str, Mapping[str, float]] | None = None,
+) -> list[np.ndarray]:
+    """`config`'s model outputs per experiment (NaN where it is not flown): the linear model's
+    (`prediction.predict`), or a nonlinear model config's flown open loop
+    (`nonlinear_prediction.predict`); `initial` as they take it."""
+    flown = predict if config.terms is None else nonlinear_prediction.predict
+    return flown(experiments, config, initial)
+
+
 def validate(
     experiments: Sequence[Experiment],
     config: ModelConfig,
@@ -175,10 +188,7 @@ def validate(
     sample skipped, a slower sensor's at its own rate)."""
     experiments = config.readings(experiments)  # compared in the states, the config's sensors undone
     with np.errstate(over="ignore", invalid="ignore"):  # an overflowing prediction is refused below
-        if config.terms is None:
-            yhat = predict(experiments, config, initial)
-        else:
-            yhat = nonlinear_prediction.predict(experiments, config, initial)
+        yhat = predicted(experiments, config, initial)
     flown = [np.zeros(len(e.t), dtype=bool) for e in experiments]  # the model's stretches of each
     for e, f in zip(experiments, flown):
         for a, b in stretches(e):

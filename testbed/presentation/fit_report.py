@@ -34,12 +34,10 @@ import numpy as np
 
 from testbed.analysis.identifiability import identifiability
 from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
-from testbed.analysis.validation import Validation, validate
+from testbed.analysis.validation import Validation, predicted, validate
 from testbed.data import Experiment, ModelConfig, stretch_name, stretches
 from testbed.errors import InputError, atomic_write_text, check_output_directory
 from testbed.html_table import html_table
-from testbed.identification import nonlinear_prediction
-from testbed.identification.prediction import predict
 from testbed.presentation import fit_figures
 
 __all__ = [
@@ -91,9 +89,8 @@ def _img(png: bytes, alt: str) -> str:
 
 
 def _predicted(experiments, config: ModelConfig, initial) -> list[np.ndarray]:
-    flown = predict if config.terms is None else nonlinear_prediction.predict
-    with np.errstate(all="ignore"):
-        return flown(experiments, config, initial)
+    with np.errstate(all="ignore"):  # a diverging model's outputs are drawn as they come
+        return predicted(experiments, config, initial)
 
 
 def _drawn(tasks: Sequence[tuple]) -> list[bytes]:

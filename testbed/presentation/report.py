@@ -19,8 +19,7 @@ import rerun.blueprint as rrb
 
 from testbed.errors import InputError
 from testbed.estimators import FilterEstimate
-from testbed.identification import nonlinear_prediction
-from testbed.identification.prediction import predict
+from testbed.analysis.validation import predicted
 from testbed.simulation.recording import (
     axis_range,
     data_id,
@@ -244,9 +243,8 @@ def log_fit(
             history_t,
         )
     fitted = config.with_coefficients(estimate.coefficients)
-    flown = predict if config.terms is None else nonlinear_prediction.predict
     try:
-        outputs = flown(experiments, fitted, estimate.initial_states)
+        outputs = predicted(experiments, fitted, estimate.initial_states)
     except (InputError, np.linalg.LinAlgError, ValueError):
         outputs = [None] * len(experiments)  # a model that cannot be simulated: log the rest
     tabs = []
