@@ -108,6 +108,15 @@ def spread(config: ModelConfig, s: float, seed: int) -> ModelConfig:
     return replace(moved, source=f"{config.source or 'config'} with its start spread by perturb-spread={s:g}")
 
 
+def _check_report(report, force: bool) -> None:
+    """`InputError` unless the `--report` folder can take a report (`check_report_folder`); the
+    report's module (matplotlib) loads only when one is asked for."""
+    if report is not None:
+        from testbed.presentation.fit_report import check_report_folder
+
+        check_report_folder(report, force)
+
+
 def truth_data(paths: Sequence[str | os.PathLike]) -> list[Experiment] | None:
     """The noise-free `<experiment>.truth.csv` of the run directories among `paths` (read and
     checked now, before any fit), or None when any is missing: the comparison then has no bias
@@ -223,10 +232,7 @@ def identify_data(
         Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
     )
     check_outputs(read, {"out": out, "history": history, "rrd": rrd}, force)
-    if report is not None:  # matplotlib loads only for a report
-        from testbed.presentation.fit_report import check_report_folder
-
-        check_report_folder(report, force)
+    _check_report(report, force)
     check_method(m.name, cfg)  # before the screen's fit
     if perturb is not None:
         cfg = perturbed(cfg, perturb, seed)
@@ -346,10 +352,7 @@ def analyze_data(
     experiments, cfg, _, read = inputs(data, config, keep_repeats)
     cfg = cfg.with_noise_std(noise_std)
     check_outputs(read, {"out": out}, force)
-    if report is not None:  # matplotlib loads only for a report
-        from testbed.presentation.fit_report import check_report_folder
-
-        check_report_folder(report, force)
+    _check_report(report, force)
     if not cfg.free:
         raise InputError(f"{cfg.source or 'config'}: [identify] free is empty; nothing to analyse")
     if cfg.terms is not None:
@@ -384,10 +387,7 @@ def check_data(
     read = [Path(e.source) for e in experiments]
     read += [Path(p) / "manifest.json" for p in data if (Path(p) / "manifest.json").is_file()]
     check_outputs(read, {"out": out}, force)
-    if report is not None:  # matplotlib loads only for a report
-        from testbed.presentation.fit_report import check_report_folder
-
-        check_report_folder(report, force)
+    _check_report(report, force)
     result = compatibility(experiments)
     write_text(out, result.to_json(), force)
     if report is not None:  # last: a folder made only once everything else is written
@@ -426,10 +426,7 @@ def validate_data(
     runs = [Path(p) for p in data if (Path(p) / "scenario.toml").is_file()]  # their manoeuvres compared
     read += [f for run in runs for f in (run / "scenario.toml", *run.glob("*.truth.csv"))]
     check_outputs(read + ([estimates] if estimates is not None else []), {"out": out}, force)
-    if report is not None:  # matplotlib loads only for a report
-        from testbed.presentation.fit_report import check_report_folder
-
-        check_report_folder(report, force)
+    _check_report(report, force)
     coefficients = {}
     if cfg.terms is None:
         if model is not None:
