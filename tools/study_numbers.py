@@ -162,12 +162,14 @@ def _head(columns: list[str]) -> list[str]:
     return ["", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
 
 
-def _longer(verdict: dict) -> str:
-    """The claim's verdict with ten times the iteration limit, where the campaign ran it."""
+def _longer(verdict: dict, evidence: bool = False) -> str:
+    """The claim's verdict with ten times the iteration limit, where the campaign ran it (and its
+    evidence, with `evidence`); "" where it did not."""
     longer = verdict.get("longer")
     if not longer:
         return ""
-    return f" With ten times the iteration limit (`{longer['arm']}`): **{longer['verdict']}**."
+    said = f" With ten times the iteration limit (`{longer['arm']}`): **{longer['verdict']}**"
+    return said + (f": {longer['evidence']}." if evidence else ".")
 
 
 def readme_block(summary: list[dict], conclusions: dict, drift: dict, measured: dict) -> str:
@@ -209,9 +211,9 @@ def studies_block(summary: list[dict], conclusions: dict, drift: dict, measured:
     rows, spreads = _rows(summary), _spreads(summary)
     lines = [_measured(measured), "", "Verdicts (`conclusions.json`):", ""]
     for key, v in conclusions.items():
-        longer = v.get("longer")
-        more = f" {_longer(v).strip()[:-1]}: {longer['evidence']}." if longer else ""
-        lines.append(f"- **{CLAIMS.get(key, key)}: {v['verdict']}.** {v['evidence']}.{more}")
+        lines.append(
+            f"- **{CLAIMS.get(key, key)}: {v['verdict']}.** {v['evidence']}.{_longer(v, evidence=True)}"
+        )
     lines += _head(
         ["data set", "arm", *(f"success at s = {s:g}" for s in spreads)]
         + ["beat the search", "accurate", "median rel. error", "median evaluations", "median time"]
