@@ -20,6 +20,7 @@ from testbed.analysis.nonlinear_identifiability import (
     rank_tolerance,
 )
 from testbed.cli import main
+from testbed.estimators import identify
 from testbed.data import Experiment, read_config, read_csv, write_config, write_csv
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
@@ -121,6 +122,23 @@ def test_stage_1_keeps_a_candidate_0_a_priori_that_is_determined(truth):
     s = screening([record], candidates, model=NONLINEAR)
     assert s.fixed == {} and s.fit.free == (*DETERMINED, "Z_uude")
     assert abs(s.fit.values[-1] - config.terms["Z_uude"]) <= 3 * s.fit.std[-1]
+
+
+@pytest.mark.parametrize("method", ["ml-gn", "ml-nm"])
+def test_the_fits_information_is_the_analysis_at_the_estimate(truth, method):
+    """An estimate carries the Fisher information its bounds come from; the analysis at the
+    estimate (the screen's stage 2, a report's correlation) takes it, and gets what flying the
+    sensitivities again at the estimate gives."""
+    config, record = truth
+    fit = identify([record], replace(_start(config), free=DETERMINED), method=method)
+    at = replace(config.with_coefficients(fit.coefficients), free=DETERMINED, noise_std=fit.noise_std)
+    flown = nonlinear_identifiability([record], at, initial=fit.initial_states)
+    given = nonlinear_identifiability([record], at, initial=fit.initial_states, information=fit.information)
+    np.testing.assert_allclose(given.fisher, flown.fisher, rtol=1e-6)
+    np.testing.assert_allclose(given.correlation, flown.correlation, atol=1e-8)
+    np.testing.assert_allclose(np.sqrt(np.diag(np.linalg.inv(given.fisher))), fit.std, rtol=1e-6)
+    with pytest.raises(ValueError, match="expected"):
+        nonlinear_identifiability([record], at, information=fit.information[1:, 1:])
 
 
 def test_identify_screened_fits_the_screened_list(truth):

@@ -82,21 +82,26 @@ def nonlinear_identifiability(
     config: ModelConfig,
     substeps: int | None = None,
     initial: Mapping[str, Mapping[str, float]] | None = None,
+    information: np.ndarray | None = None,
 ) -> Identifiability:
     """The identifiability of `config.free` (a nonlinear model config's) from `experiments` at
     the config's values (module doc); `initial`: each record's initial state by record name
-    (an estimate's `initial_states`, held), else its best fit at the config's values. A record
+    (an estimate's `initial_states`, held), else its best fit at the config's values;
+    `information`: the Fisher information already computed there (an `Estimate.information`:
+    the free coefficients, then each record's measured initial states), else computed. A record
     split at a dropout is its stretches (`data.split`)."""
     experiments = [p for e in config.fitted(experiments) for p in split(e)]
     channels, recs, model, theta, idx = setup(experiments, config, "analyze on a nonlinear model config")
     free = tuple(config.free)
-    ch = [STATES.index(c) for c in channels]
-    flown = flights(experiments, config, initial, substeps=substeps)
-    given = config.noise_std or {}
-    held = np.array([given.get(c, np.nan) ** 2 for c in channels])
-    m = len(model.names)  # the outputs: the states as read plus their biases
-    R = pooled_noise([r.y - outputs(x, theta, m, ch) for r, x in zip(recs, flown)], held)
-    H = information(model, theta, np.array([x[0] for x in flown]), recs, channels, free, R, substeps)[0]
+    size = len(free) + len(recs) * len(channels)
+    if information is not None and np.shape(information) != (size, size):
+        raise ValueError(
+            f"information of shape {np.shape(information)}; expected ({size}, {size}): the "
+            f"{len(free)} free coefficients and {len(channels)} initial states in each of {len(recs)} records"
+        )
+    if information is None:
+        information = _information(experiments, config, (channels, recs, model, theta), initial, substeps)
+    H = information
     F = eliminated(H, len(free))
     blind = tuple(n for k, n in enumerate(free) if H[k, k] == 0.0)
     struct = Structural(
@@ -146,6 +151,21 @@ def forward(result: Identifiability) -> dict[str, str]:
     return fixed
 
 
+def _information(experiments, config: ModelConfig, problem: tuple, initial, substeps) -> np.ndarray:
+    """The Fisher information of `config.free` and the records' measured initial states, each
+    record flown from `initial` (else its best fit), with the config's noise (else the
+    residuals' mean square); `problem`: `(channels, records, model, θ)` as `setup` gives them."""
+    channels, recs, model, theta = problem
+    ch = [STATES.index(c) for c in channels]
+    flown = flights(experiments, config, initial, substeps=substeps)
+    given = config.noise_std or {}
+    held = np.array([given.get(c, np.nan) ** 2 for c in channels])
+    m = len(model.names)  # the outputs: the states as read plus their biases
+    R = pooled_noise([r.y - outputs(x, theta, m, ch) for r, x in zip(recs, flown)], held)
+    x0 = np.array([x[0] for x in flown])
+    return information(model, theta, x0, recs, channels, config.free, R, substeps)[0]
+
+
 def _check(experiments: Sequence[Experiment], config: ModelConfig) -> None:
     """`InputError` for what the nonlinear fit cannot take (`nonlinear_output_error.setup`)."""
     setup(config.fitted(experiments), config, "the screen of a nonlinear model config")
@@ -156,10 +176,13 @@ def _assess(experiments, config: ModelConfig, noise_std: Mapping[str, float]) ->
     return nonlinear_identifiability(experiments, _noise(config, noise_std))
 
 
-def _information(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:
-    """Stage 2: the information at the estimate `fit`, its noise and initial states."""
+def _at_estimate(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:
+    """Stage 2: the information at the estimate `fit`, its noise and initial states (the fit's
+    own, where it gives it)."""
     at = _noise(candidates.with_coefficients(fit.coefficients), fit.noise_std)
-    return nonlinear_identifiability(experiments, at, initial=fit.initial_states).fisher
+    return nonlinear_identifiability(
+        experiments, at, initial=fit.initial_states, information=fit.information
+    ).fisher
 
 
 def _noise(config: ModelConfig, noise_std: Mapping[str, float]) -> ModelConfig:
@@ -168,4 +191,4 @@ def _noise(config: ModelConfig, noise_std: Mapping[str, float]) -> ModelConfig:
     return replace(config, noise_std={c: s for c, s in noise_std.items() if s > 0})
 
 
-NONLINEAR = ScreenModel(check=_check, assess=_assess, information=_information, unidentified=forward)
+NONLINEAR = ScreenModel(check=_check, assess=_assess, information=_at_estimate, unidentified=forward)

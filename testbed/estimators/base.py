@@ -92,6 +92,10 @@ class Estimate:
         process_noise_std: body state → {"value", "std"}: the process noise's standard deviation
             f (continuous time, state unit/√s) and its Cramér-Rao bound, for `ml-fem`, which
             estimates it (None otherwise).
+        information: the Fisher information at the estimate from which `std` comes, over the
+            free coefficients and then each record's fitted initial states in its measured
+            states (the nonlinear model's output-error fits; None otherwise): its analysis
+            (`nonlinear_identifiability`) takes it rather than fly the sensitivities again.
     """
 
     method: str
@@ -112,6 +116,7 @@ class Estimate:
     crlb_corrected_std: np.ndarray | None = field(default=None, repr=False)
     initial_states: dict[str, dict[str, float]] | None = field(default=None, repr=False)
     process_noise_std: dict[str, dict[str, float]] | None = field(default=None, repr=False)
+    information: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def converged(self) -> bool:

@@ -178,7 +178,9 @@ def gauss_newton(
             max_iterations=int(options.max_iter),
         )
     R = np.array([fit.noise_std[c] ** 2 for c in channels])
-    coloured = coloured_bounds(model, fit.theta, fit.initial_states, recs, channels, config.free, R)[1]
+    std, coloured, _, H = coloured_bounds(
+        model, fit.theta, fit.initial_states, recs, channels, config.free, R
+    )
     return _estimate(
         config,
         experiments,
@@ -189,13 +191,14 @@ def gauss_newton(
         method=name,
         status=_STATUS[fit.status],
         values=np.array([fit.estimates[n] for n in config.free]),
-        std=np.array([fit.std[n] for n in config.free]),
+        std=std,
         cost=fit.cost,
         iterations=fit.iterations,
         noise_std=dict(fit.noise_std),
         start=label,
         history=np.array(history),
         crlb_corrected_std=coloured,
+        information=H,
     )
 
 
@@ -295,7 +298,7 @@ def simplex(
                 status = Status.CONVERGED
                 break
     th = coefficients(x)
-    std, coloured, res = coloured_bounds(model, th, x0, recs, channels, config.free, R)
+    std, coloured, res, H = coloured_bounds(model, th, x0, recs, channels, config.free, R)
     return _estimate(
         config,
         experiments,
@@ -313,4 +316,5 @@ def simplex(
         start=label,
         history=np.array(history),
         crlb_corrected_std=coloured,
+        information=H,
     )

@@ -482,11 +482,12 @@ def coloured_bounds(
     free: Sequence[str],
     R: np.ndarray,
     substeps: int | None = None,
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """`(σ, σ_coloured, residuals)` at θ and the initial states `x0` (records, 10) with the noise
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
+    """`(σ, σ_coloured, residuals, H)` at θ and the initial states `x0` (records, 10) with the noise
     variances `R`: the Cramér-Rao σ of the `free` parameters of θ ⊕ b ⊕ g (the initial states among the
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
-    (`bounds.colored_covariance`, its per-record sum `bounds.colored_term`), and the residuals."""
+    (`bounds.colored_covariance`, its per-record sum `bounds.colored_term`), the residuals and
+    the Fisher information H they come from (`information`'s)."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
     R = np.asarray(R, float)
     H, _ = _normal_equations(res, sens, R, True)
@@ -502,4 +503,4 @@ def coloured_bounds(
         Z = (J / scale[:, None]) @ cov[:p].T
         total += colored_term(Z, e / scale, ~missing if missing.any() else None)
     coloured = np.where(np.isinf(std[:p]), np.inf, np.sqrt(np.maximum(np.diag(total), 0.0)))
-    return std[:p], coloured, res
+    return std[:p], coloured, res, H
