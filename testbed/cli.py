@@ -220,6 +220,7 @@ def _cmd_identify(args) -> int:
         corrections=args.corrections,
         keep_repeats=args.keep_repeats,
         force=args.force,
+        reference=args.reference,
     )
     estimate = done.estimate
     if live and estimate.iterations:
@@ -550,6 +551,14 @@ def parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="also write the fit's report to DIR/report.html (a new or empty folder): outputs against "
         "the model, residuals, coefficients with their bounds, correlations, convergence",
+    )
+    s.add_argument(
+        "--reference",
+        type=Path,
+        metavar="CONFIG",
+        help="a model config the report shows beside the estimates, e.g. the captive config a "
+        "perturbed start came from (default: the run's model.toml for a linear fit, the config as "
+        "written with --perturb or --perturb-spread)",
     )
     listed = s.add_mutually_exclusive_group()
     listed.add_argument(

@@ -178,6 +178,28 @@ class Identified:
     written: tuple[Path, ...]
 
 
+def _reference(
+    reference, report, config: ModelConfig, run_config: ModelConfig | None, moved: bool
+) -> tuple[ModelConfig | None, str]:
+    """The report's reference and its label (`identify_data`'s `reference`); `InputError` for a
+    reference with no report to show it, or of the other model."""
+    if reference is None:
+        if config.terms is None and run_config is not None:
+            return run_config, "analytic"
+        return (config, "config as written") if moved else (None, "")
+    if report is None:
+        raise InputError(
+            f"--reference {reference}: shown only in a fit report; expected --report DIR beside it"
+        )
+    given = read_config(reference)
+    if (given.terms is None) != (config.terms is None):
+        kind = "linear" if config.terms is None else "nonlinear"
+        raise InputError(
+            f"{reference}: a {'non' if kind == 'linear' else ''}linear model config; expected a {kind} one as the fitted config"
+        )
+    return given, Path(reference).stem
+
+
 def identify_data(
     data: Sequence[str | os.PathLike],
     *,
@@ -196,6 +218,7 @@ def identify_data(
     corrections: str | os.PathLike | None = None,
     keep_repeats: bool = False,
     force: bool = False,
+    reference: str | os.PathLike | None = None,
 ) -> Identified:
     """Identify the coefficients of `data` (run directories or CSVs) and write the estimates JSON
     to `out`, a filter's estimate and ±σ histories beside it (`.history.csv`), and a Rerun
@@ -205,6 +228,10 @@ def identify_data(
     options; `perturb`: move every free start by this fraction (signs from `seed`);
     `perturb_spread`: multiply every free start by exp(S·N(0, 1)) instead (drawn from `seed`);
     `report`: a new or empty folder for the fit's HTML report (`presentation.fit_report`);
+    `reference`: a model config whose values the report shows beside the estimates, named by its
+    file's stem (e.g. the captive config a perturbed start came from; default: the run's analytic
+    model for a linear fit, else the config as written where `perturb` or `perturb_spread` moved
+    the start);
     `screen`: fit only the candidates of the config's free list that the data determine
     (`analysis.identify_screened`), or (False) the list as written, the screen only reported in
     the JSON's `screen`; default: as the config's `[identify] screen` says; `noise_std`: the
@@ -231,6 +258,8 @@ def identify_data(
     history = (
         Path(out).with_suffix(".history.csv") if out is not None and m.online and not is_stream(out) else None
     )
+    shown = _reference(reference, report, cfg, run_config, perturb is not None or perturb_spread is not None)
+    read += [Path(reference)] if reference is not None else []
     check_outputs(read, {"out": out, "history": history, "rrd": rrd}, force)
     _check_report(report, force)
     check_method(m.name, cfg)  # before the screen's fit
@@ -304,10 +333,11 @@ def identify_data(
             validation,
             a_priori,
             iterations,
-            run_config if cfg.terms is None else None,
+            shown[0],
             screened.fixed,
             f"testbed identify: {m.name} on {', '.join(map(str, data))}",
             None if rrd is None else os.path.relpath(Path(rrd).resolve(), Path(report).resolve()),
+            shown[1],
         )
     files = {Path(out): text} if out is not None else {}
     if history is not None:

@@ -153,6 +153,53 @@ def test_a_nonlinear_fit_report_flies_the_nonlinear_model(nonlinear, capsys, tmp
     assert len(_images(sections["correlation"])) == 1 and "No analysis" not in sections["correlation"]
 
 
+def test_the_trials_parameters_have_their_own_section_with_their_units(linear, capsys, tmp_path):
+    """A yaw offset and a rate gyro's bias freed and a compass bias set: the trial section gives
+    each with its unit (the free ones with their bounds), the coefficients section none of them."""
+    root, paths = linear
+    prior = examples.prior_config()
+    config = replace(prior, free=(*prior.free, "N_0", "b_r"), per_record=("N_0",))
+    write_config(tmp_path / "trial.toml", config.with_coefficients({"b_psi": 0.01}))
+    sections = _sections(_report(capsys, paths, tmp_path / "trial.toml", tmp_path / "report"))
+    trial = sections["trial"]
+    for name, unit in (
+        ("N_0[horizontal]", "N m"),
+        ("N_0[vertical]", "N m"),
+        ("b_r", "rad/s"),
+        ("b_psi", "rad"),
+    ):
+        assert f"<td>{name}</td><td>{unit}</td>" in trial, name
+        assert f"<td>{name}</td>" not in sections["coefficients"], name
+    assert len(_images(trial)) == 1 and "set in the config" in trial
+    assert "<td>Y_v</td>" in sections["coefficients"] and "Y_v" not in trial
+    plain = _sections(_report(capsys, paths, root / "prior.toml", tmp_path / "plain"))
+    assert "None free or set" in plain["trial"] and not _images(plain["trial"])
+
+
+def test_a_nonlinear_report_shows_its_reference_beside_a_perturbed_start(linear, nonlinear, capsys, tmp_path):
+    """From a perturbed start the config as written is the reference; `--reference` names another
+    (here the captive config itself); `--reference` without a report, or of the other model, is
+    refused before the fit."""
+    data, start = [nonlinear / "doublet.csv"], nonlinear / "start.toml"
+    page = _report(capsys, data, start, tmp_path / "moved", "--perturb-spread", "0.2", "--seed", "3")
+    assert "<th>config as written</th>" in _sections(page)["coefficients"]
+    page = _report(capsys, data, start, tmp_path / "given", "--reference", str(start))
+    assert "<th>start</th>" in _sections(page)["coefficients"]
+    argv = ["identify", *map(str, data), "--config", str(start), "--out", str(tmp_path / "x.json")]
+    capsys.readouterr()
+    for extra, message in (
+        (["--reference", str(start)], "expected --report"),
+        (
+            ["--reference", str(linear[0] / "prior.toml"), "--report", str(tmp_path / "r")],
+            "expected a nonlinear one",
+        ),
+    ):
+        assert main(argv + extra) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.strip().count("\n") == 0, err
+    assert not (tmp_path / "x.json").exists()
+
+
 @pytest.mark.parametrize("held", ["file", "folder"])
 def test_a_users_file_or_folder_is_never_written_to(linear, capsys, tmp_path, held):
     root, paths = linear

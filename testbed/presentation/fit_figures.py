@@ -2,7 +2,8 @@
 
 Each is titled, its axes labelled with units: measured against predicted outputs per record,
 the residuals over time, their autocorrelation with its 99 % band and their spectrum, the
-coefficients with their bounds, the correlation matrix, and the cost per iteration.
+coefficients with their bounds, the trial parameters' distance from their a-priori values in σ,
+the correlation matrix, and the cost per iteration.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ __all__ = [
     "correlation_figure",
     "outputs_figure",
     "residuals_figure",
+    "shifts_figure",
     "spectrum_figure",
 ]
 
@@ -198,6 +200,32 @@ def spectrum_figure(name: str, dt: float, measured: Sequence[str], residuals: np
 
 
 @_styled
+def shifts_figure(
+    names: Sequence[str], values: np.ndarray, std: np.ndarray, coloured: np.ndarray | None, prior: np.ndarray
+) -> bytes:
+    """Each estimate's distance from its a-priori value in its own σ (Cramér-Rao, dots; coloured-
+    residual, crosses), on a symmetric-log axis with the band within 2σ shaded: parameters of
+    different units and a-priori values of 0 (a trial's offsets, biases, current, delay) on one
+    axis, what the data moved away from the a-priori model beyond its bounds standing out."""
+    n = len(names)
+    fig, ax = plt.subplots(figsize=(8, 0.32 * n + 1.6), layout="constrained")
+    k = np.arange(n)[::-1]
+    shift = np.asarray(values, float) - np.asarray(prior, float)
+    ax.axvspan(-2, 2, color="#eeeeee", label="within 2σ of the a-priori value")
+    if coloured is not None:
+        ax.plot(shift / coloured, k, "x", color="#f5b041", label="/ σ coloured residuals")
+    ax.plot(shift / std, k, "o", color=MODEL, ms=4, label="/ σ Cramér-Rao")
+    ax.axvline(0.0, color="black", lw=0.6)
+    ax.set_xscale("symlog", linthresh=2.0)
+    ax.margins(x=0.06)
+    ax.set_yticks(k, names, fontsize=8)
+    ax.set_xlabel("(estimate − a-priori) / σ (symmetric log beyond ±2)")
+    ax.set_title("trial's parameters: the estimates' distance from the a-priori values")
+    ax.legend(loc="best")
+    return _png(fig)
+
+
+@_styled
 def coefficients_figure(
     names: Sequence[str],
     values: np.ndarray,
@@ -211,7 +239,8 @@ def coefficients_figure(
     a-priori value; its Cramér-Rao σ where that is 0): the estimate with ±2σ (Cramér-Rao, thick;
     coloured-residual, thin) and the a-priori value, the reference at 1."""
     base = reference if reference is not None else prior
-    base = np.where(base != 0, base, np.where(np.isfinite(std) & (std > 0), std, 1.0))
+    zero = base == 0
+    base = np.where(zero, np.where(np.isfinite(std) & (std > 0), std, 1.0), base)
     scale = np.abs(base)
     n = len(names)
     fig, ax = plt.subplots(figsize=(8, 0.32 * n + 1.6), layout="constrained")
@@ -226,7 +255,8 @@ def coefficients_figure(
         1.0, color="black", lw=0.6, label=reference_label if reference is not None else "a-priori value"
     )
     ax.set_yticks(k, names, fontsize=8)
-    ax.set_xlabel(f"coefficient / {reference_label if reference is not None else 'a-priori value'}")
+    over = reference_label if reference is not None else "a-priori value"
+    ax.set_xlabel(f"value / {over}" + (f" (/ σ where the {over} is 0)" if zero.any() else ""))
     ax.set_title("coefficients")
     ax.legend(loc="best")
     return _png(fig)

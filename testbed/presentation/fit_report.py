@@ -9,7 +9,10 @@ identification engineer looks at (MATLAB's `compare` and `resid`, SIDPAC's plots
 - **residuals**: per record, the residuals over time, their autocorrelation with the whiteness
   test's 99 % band and their spectrum; which channels are coloured;
 - **coefficients**: each estimate and a-priori value with ±2σ (Cramér-Rao and coloured-residual)
-  over its reference (the analytic model of a run, where known), and the table;
+  over its reference (the analytic model of a run, a captive config, where known), and the table;
+- **trial**: the trial's parameters, free or set (`trial_parameters`): the offsets `X_0` … `N_0`,
+  the output biases, the current, the velocity log's mounting and the inputs' delay, each with
+  its unit, estimate, bounds and a-priori value;
 - **correlation**: the estimates' correlation matrix, the drift groups and the analysis' summary
   at the estimate (`analyze`);
 - **convergence**: the cost per iteration.
@@ -38,24 +41,28 @@ from testbed.analysis.validation import Validation, predicted, validate
 from testbed.data import Experiment, ModelConfig, stretch_name, stretches
 from testbed.errors import InputError, atomic_write_text, check_output_directory
 from testbed.html_table import html_table
+from testbed.identification.problem import base_name
+from testbed.models.linear import CURRENT, DELAY, MOUNTING, OFFSETS, STATES
 from testbed.presentation import fit_figures
 
 __all__ = [
     "ANALYSIS_SECTIONS",
     "REPORT",
     "SECTIONS",
+    "TRIAL_UNITS",
     "VALIDATION_SECTIONS",
     "analysis_report_html",
     "check_report_folder",
     "check_report_html",
     "fit_report_html",
     "report",
+    "trial_parameters",
     "validation_report_html",
     "write_fit_report",
 ]
 
 REPORT = "report.html"
-SECTIONS = ("summary", "outputs", "residuals", "coefficients", "correlation", "convergence")
+SECTIONS = ("summary", "outputs", "residuals", "coefficients", "trial", "correlation", "convergence")
 VALIDATION_SECTIONS = ("summary", "outputs", "residuals")  # a validation has no fit to show
 ANALYSIS_SECTIONS = ("summary", "bounds", "correlation")
 STYLE = (
@@ -64,6 +71,17 @@ STYLE = (
     "th{background:#f3f3f3}caption{text-align:left;font-weight:bold;padding:4px 0;white-space:nowrap}"
     "img{max-width:100%;border:1px solid #ddd;margin:0.4em 0}nav a{margin-right:1em}"
 )
+
+
+# each trial parameter's unit (docs/model.md): the offsets' forces and moments, the output biases'
+# in their state's unit, the current's velocity, the mounting's angles and lever arm, the delay
+TRIAL_UNITS = {
+    **{n: "N" if n[0] in "XYZ" else "N m" for n in OFFSETS},
+    **{f"b_{x}": fit_figures.UNITS[x] for x in STATES},
+    **dict.fromkeys(CURRENT, "m/s"),
+    **{n: "rad" if n.startswith("m_") else "m" for n in MOUNTING},
+    DELAY: "s",
+}
 
 
 def check_report_folder(folder: str | os.PathLike, force: bool = False) -> Path:
@@ -228,27 +246,84 @@ def _summary(estimate, recording: str | None, fixed: Mapping[str, str] | None, e
     return "\n".join(parts)
 
 
-def _coefficients(estimate, start: ModelConfig, reference: ModelConfig | None) -> str:
-    """The estimates against the a-priori values of `start` and the `reference`'s: the figure and
-    the table."""
-    names = list(estimate.free)
-    values, std = np.asarray(estimate.values, float), np.asarray(estimate.std, float)
-    coloured = None if estimate.crlb_corrected_std is None else np.asarray(estimate.crlb_corrected_std, float)
+def trial_parameters(names) -> list[str]:
+    """The trial's parameters among `names` (a per-record one by its base name): the offsets, the
+    output biases, the current, the velocity log's mounting and the inputs' delay, which a real
+    trial adds to the model's coefficients."""
+    return [n for n in names if base_name(n) in TRIAL_UNITS]
+
+
+def _coefficients(estimate, start: ModelConfig, reference: ModelConfig | None, label: str) -> str:
+    """The estimates of the model's coefficients (the trial's parameters have their own section)
+    against the a-priori values of `start` and the `reference`'s (`label` its column): the figure
+    and the table."""
+    trial = set(trial_parameters(estimate.free))
+    keep = [k for k, n in enumerate(estimate.free) if n not in trial]
+    if not keep:
+        return "<p>No coefficient of the model is free: only the trial's parameters (below).</p>"
+    return _estimates(estimate, keep, start, reference, label, "coefficients")
+
+
+def _estimates(
+    estimate, keep, start: ModelConfig, reference, label: str, title: str, shifts: bool = False
+) -> str:
+    """The figure and the table of the estimates `keep` (indices into `estimate.free`): each over
+    its reference (`fit_figures.coefficients_figure`) or, `shifts`, its distance from the a-priori
+    value in σ (`fit_figures.shifts_figure`: parameters of several units, most 0 a priori)."""
+    names = [estimate.free[k] for k in keep]
+    values, std = np.asarray(estimate.values, float)[keep], np.asarray(estimate.std, float)[keep]
+    coloured = None
+    if estimate.crlb_corrected_std is not None:
+        coloured = np.asarray(estimate.crlb_corrected_std, float)[keep]
     a_priori = np.array([start.values.get(n, np.nan) for n in names], float)
     ref = None
     if reference is not None:
         ref = np.array([reference.values.get(n, np.nan) for n in names], float)
         ref = ref if np.all(np.isfinite(ref)) else None
-    figure = fit_figures.coefficients_figure(names, values, std, coloured, a_priori, ref, "analytic value")
+    if shifts:
+        figure = fit_figures.shifts_figure(names, values, std, coloured, a_priori)
+    else:
+        figure = fit_figures.coefficients_figure(names, values, std, coloured, a_priori, ref, label)
+    units = [TRIAL_UNITS.get(base_name(n)) for n in names]
     rows = [
-        (n, f"{v:.6g}", f"{s:.3g}", "-" if coloured is None else f"{coloured[k]:.3g}", f"{a_priori[k]:.6g}")
+        (n,)
+        + (() if not any(units) else (units[k] or "-",))
+        + (f"{v:.6g}", f"{s:.3g}", "-" if coloured is None else f"{coloured[k]:.3g}", f"{a_priori[k]:.6g}")
         + (() if ref is None else (f"{ref[k]:.6g}",))
         for k, (n, v, s) in enumerate(zip(names, values, std))
     ]
-    head = ("coefficient", "estimate", "σ Cramér-Rao", "σ coloured", "a-priori") + (
-        () if ref is None else ("analytic",)
+    head = (
+        ("parameter" if any(units) else "coefficient",)
+        + (("unit",) if any(units) else ())
+        + ("estimate", "σ Cramér-Rao", "σ coloured", "a-priori")
+        + (() if ref is None else (label,))
     )
-    return _img(figure, "coefficients") + html_table(head, rows, "the estimates")
+    return _img(figure, title) + html_table(head, rows, f"the estimates of the {title}")
+
+
+def _trial(estimate, start: ModelConfig) -> str:
+    """The trial's parameters: the free ones estimated (figure and table), the others as set."""
+    free = trial_parameters(estimate.free)
+    parts = []
+    if free:
+        keep = [estimate.free.index(n) for n in free]
+        parts.append(_estimates(estimate, keep, start, None, "", "trial's parameters", shifts=True))
+    held = [
+        (n, TRIAL_UNITS[n], f"{v:.6g}")
+        for n, v in start.values.items()
+        if n in TRIAL_UNITS and n not in free and v != 0
+    ]
+    if held:
+        parts.append(
+            html_table(("parameter", "unit", "value"), held, "the trial's parameters set in the config")
+        )
+    if not parts:
+        parts.append(
+            "<p>None free or set: the config fixes every offset, output bias, current, mounting and "
+            "delay at 0. A trial's imperfections are freed in <code>[identify] free</code> "
+            "(docs/model.md).</p>"
+        )
+    return "\n".join(parts)
 
 
 def _correlation(experiments, fitted: ModelConfig, estimate) -> str:
@@ -257,7 +332,9 @@ def _correlation(experiments, fitted: ModelConfig, estimate) -> str:
         if fitted.terms is None:
             analysis = identifiability(experiments, fitted, noise_std=estimate.noise_std)
         else:
-            analysis = nonlinear_identifiability(experiments, fitted, initial=estimate.initial_states)
+            analysis = nonlinear_identifiability(
+                experiments, fitted, initial=estimate.initial_states, information=estimate.information
+            )
     except (InputError, np.linalg.LinAlgError, ValueError) as exc:
         return f"<p>No analysis at the estimate: {html.escape(str(exc))}</p>"
     return _analysis(analysis)
@@ -294,27 +371,27 @@ def fit_report_html(
     fixed: Mapping[str, str] | None = None,
     title: str = "",
     recording: str | None = None,
+    reference_label: str = "analytic",
 ) -> str:
     """The report's page: `config` the model config fitted (its free coefficients the estimate's),
     `validation` of the fitted model, `prior` the a-priori config (its predictions beside the fit's),
     `iterations` (iteration, values, cost) as the fit reported them, `reference` a model config
-    whose coefficients are the reference (a run's analytic model), `fixed` what the screen fixed
-    (name → why), `recording` the fit's Rerun recording as the page links it (a path relative to
-    the page's folder)."""
+    whose coefficients are the reference (a run's analytic model, a captive config) and
+    `reference_label` its name in the table, `fixed` what the screen fixed (name → why),
+    `recording` the fit's Rerun recording as the page links it (a path relative to the page's
+    folder)."""
     fitted = config.with_coefficients(estimate.coefficients)
     experiments = fitted.fitted(experiments)
     model = _validated(experiments, validation) or _predicted(experiments, fitted, estimate.initial_states)
     before = _a_priori(experiments, prior, estimate.initial_states)
     outputs, residuals = _outputs_and_residuals(experiments, model, before, validation)
+    start = prior if prior is not None else config
     sections = [
         ("summary", "Summary", _summary(estimate, recording, fixed, experiments)),
         ("outputs", "Outputs", outputs),
         ("residuals", "Residuals", residuals),
-        (
-            "coefficients",
-            "Coefficients",
-            _coefficients(estimate, prior if prior is not None else config, reference),
-        ),
+        ("coefficients", "Coefficients", _coefficients(estimate, start, reference, reference_label)),
+        ("trial", "Trial parameters", _trial(estimate, start)),
         ("correlation", "Correlation and drift", _correlation(experiments, fitted, estimate)),
         ("convergence", "Convergence", _convergence(iterations)),
     ]
@@ -441,13 +518,24 @@ def report(
     iterations: Sequence[tuple] = (),
     reference: ModelConfig | None = None,
     force: bool = False,
+    reference_label: str = "analytic",
 ) -> Path:
     """The report of `estimate` (fitted to `experiments` with `config`) written to
     `folder/report.html`, the fitted model validated on the same records: `testbed identify
-    --report` from Python. `prior`, `iterations` and `reference` as for `fit_report_html`."""
+    --report` from Python. `prior`, `iterations`, `reference` and `reference_label` as for
+    `fit_report_html`."""
     check_report_folder(folder, force)
     fitted = config.with_coefficients(estimate.coefficients)
     initial = estimate.initial_states if config.terms is not None else None
     validation = validate(experiments, fitted, reference if config.terms is None else None, initial)
-    page = fit_report_html(experiments, config, estimate, validation, prior, iterations, reference)
+    page = fit_report_html(
+        experiments,
+        config,
+        estimate,
+        validation,
+        prior,
+        iterations,
+        reference,
+        reference_label=reference_label,
+    )
     return write_fit_report(folder, page, force)
