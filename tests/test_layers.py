@@ -17,7 +17,14 @@ from pathlib import Path
 import testbed
 
 LAYERS = [
-    ("testbed.errors", "testbed.memory", "testbed.threads", "testbed.fit_percent", "testbed.html_table"),
+    (
+        "testbed.errors",
+        "testbed.memory",
+        "testbed.threads",
+        "testbed.fit_percent",
+        "testbed.html_table",
+        "testbed.html_figures",
+    ),
     ("testbed.models", "testbed.models.linear"),
     ("testbed.models.sensors",),
     ("testbed.models.log_mounting",),

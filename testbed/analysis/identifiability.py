@@ -18,6 +18,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
+from testbed.html_figures import svg_dots, svg_heatmap
 from testbed.html_table import html_table
 from testbed.estimators import Estimate, Status, check_method, identify, lookup
 from testbed.identification.problem import base_name, check_fit, expanded
@@ -238,11 +239,12 @@ class Identifiability:
         return ("coefficient", "value analysed", "Cramér-Rao σ", "relative"), rows
 
     def _repr_html_(self) -> str:
-        """The analysis in a notebook: each coefficient's value and Cramér-Rao bound, the drift
-        groups, and the summary."""
+        """The analysis in a notebook: each coefficient's value and Cramér-Rao bound, the
+        correlation matrix as a heat map, the drift groups, and the summary."""
         groups = html_table(("drift group",), [(", ".join(g),) for g in self.drift_groups])
         summary = "".join(f"<p>{html.escape(line)}</p>" for line in self.summary)
-        return html_table(*self.bounds(), "identifiability") + groups + summary
+        heat = svg_heatmap(self.free, self.correlation, "the coefficients' correlation matrix")
+        return html_table(*self.bounds(), "identifiability") + heat + groups + summary
 
     def to_json(self) -> str:
 
@@ -814,8 +816,19 @@ class Comparison:
         return "\n".join(lines)
 
     def _repr_html_(self) -> str:
-        """The comparison in a notebook: one row per coefficient, as `table`."""
-        return html_table(*self.cells(), self.note or "identified against the analytic coefficients")
+        """The comparison in a notebook: one row per coefficient, as `table`, and a figure of each
+        error in its σ with the ±2σ band."""
+        rows = self.rows()
+        errors = [np.nan if r["error_sigmas"] is None else r["error_sigmas"] for r in rows]
+        figure = svg_dots(
+            [r["name"] for r in rows],
+            errors,
+            "identified − analytic, in the estimate's σ",
+            "(identified − analytic) / σ",
+            band=(-2.0, 2.0),
+            reference=0.0,
+        )
+        return html_table(*self.cells(), self.note or "identified against the analytic coefficients") + figure
 
 
 def compare(estimate, analytic_config, truth_estimate=None) -> Comparison:

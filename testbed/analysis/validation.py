@@ -25,6 +25,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, stretches
 from testbed.errors import InputError
 from testbed.fit_percent import fit_percent
+from testbed.html_figures import svg_dots
 from testbed.html_table import html_table
 from testbed.identification import nonlinear_prediction
 from testbed.identification.bounds import chi2_sf
@@ -154,8 +155,17 @@ class Validation:
         )
 
     def _repr_html_(self) -> str:
-        """The metrics in a notebook: one row per experiment and channel."""
-        return html_table(*self.rows(), "the model's fit % and residual whiteness per channel")
+        """The metrics in a notebook: one row per experiment and channel, and a figure of the fit
+        % of each (a coloured residual marked)."""
+        names, fits = [], []
+        for e, ch in self.experiments.items():
+            for c, m in ch.items():
+                names.append(f"{e} {c}{'' if m.whiteness.white else ' (coloured)'}")
+                fits.append(m.fit_percent)
+        figure = svg_dots(
+            names, fits, "the model's fit per channel", "fit % (100: every sample)", reference=100.0
+        )
+        return html_table(*self.rows(), "the model's fit % and residual whiteness per channel") + figure
 
 
 def _pct(v) -> str:

@@ -14,6 +14,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
+from testbed.html_figures import svg_dots
 from testbed.html_table import html_table
 from testbed.errors import InputError
 from testbed.models.linear import Structure, inertia_defect
@@ -163,8 +164,8 @@ class Estimate:
         return json.dumps(self.json_fields(), indent=2, allow_nan=False) + "\n"
 
     def _repr_html_(self) -> str:
-        """The estimate in a notebook: how the fit ended, each coefficient with its bounds, the
-        noise σ."""
+        """The estimate in a notebook: how the fit ended, each coefficient with its bounds (and a
+        figure of each bound relative to its estimate), the noise σ."""
         coloured = self.crlb_corrected_std if self.crlb_corrected_std is not None else [None] * len(self.free)
         rows = [
             (n, f"{v:.6g}", f"{s:.3g}", "-" if c is None else f"{c:.3g}")
@@ -176,7 +177,10 @@ class Estimate:
             f"from the {self.start} start"
         )
         noise = html_table(("state", "noise σ"), [(k, f"{v:.3g}") for k, v in self.noise_std.items()])
-        return html_table(head, rows, summary) + noise
+        with np.errstate(divide="ignore", invalid="ignore"):
+            relative = 200 * np.asarray(self.std, float) / np.abs(np.asarray(self.values, float))
+        figure = svg_dots(self.free, relative, "each estimate's ±2σ Cramér-Rao bound", "2σ / |estimate| (%)")
+        return html_table(head, rows, summary) + figure + noise
 
 
 def _finite(x) -> float | None:
