@@ -19,6 +19,7 @@ from testbed.study import campaign, cells, hashing
 from testbed.study.arms import ARMS, DEFAULT_ARMS, FACTORIAL_ARMS
 from testbed.study.campaign import plan
 from testbed.study.cells import NONLINEAR, OPTIMUM, Cell
+from testbed.simulation.vehicle import vehicles
 from testbed.study.results import (
     SUMMARY_COLUMNS,
     judgements,
@@ -41,31 +42,32 @@ TINY = dict(
 def test_a_cell_key_follows_the_code(tmp_path, monkeypatch):
     """Editing any source or data file a cell computes with changes the hash and so every cell's
     key; editing a module that only reads finished cells does not, nor do compiled caches."""
-    package = tmp_path / "testbed"
+    package, models = tmp_path / "testbed", tmp_path / "mjcf"
     shutil.copytree(
         Path(campaign.__file__).resolve().parents[1], package, ignore=shutil.ignore_patterns("*.pyc")
     )
-    before = hashing.source_hash(package)
+    shutil.copytree(vehicles(), models)
+    before = hashing.source_hash(package, models)
+    assert hashing.source_hash(package) != before  # the vehicle models are among what is hashed
     (package / "__pycache__").mkdir(exist_ok=True)
     (package / "__pycache__" / "x.cpython-311.pyc").write_bytes(b"compiled")
-    assert hashing.source_hash(package) == before
-    for edited in (
-        "identification/likelihood.py",
-        "simulation/scenarios/II.toml",
-        "simulation/mjcf/torpedo.xml",
+    assert hashing.source_hash(package, models) == before
+    for path in (
+        package / "identification/likelihood.py",
+        package / "simulation/scenarios/II.toml",
+        models / "torpedo.xml",
     ):
-        path = package / edited
         text = path.read_bytes()
         path.write_bytes(text + b"\n")
-        assert hashing.source_hash(package) != before, edited
+        assert hashing.source_hash(package, models) != before, path
         path.write_bytes(text)
     for edited in ("presentation/figures.py", "study/rules.py", "study/results.py", "cli.py"):
         path = package / edited  # read finished cells only: the same cells, rewritten outputs
         text = path.read_bytes()
         path.write_bytes(text + b"\n")
-        assert hashing.source_hash(package) == before, edited
+        assert hashing.source_hash(package, models) == before, edited
         path.write_bytes(text)
-    assert hashing.source_hash(package) == before
+    assert hashing.source_hash(package, models) == before
     key = Cell("II", "ml-gn", 1).key
     monkeypatch.setattr(cells, "code_hash", lambda: "other code")
     assert Cell("II", "ml-gn", 1).key != key

@@ -1,5 +1,5 @@
 """The README's and docs/studies.md's numbers of the paper's study are the committed campaign's:
-`tools/study_numbers.py` renders its blocks from assets/reproduce/ and the pages hold them as rendered."""
+`tools/study_numbers.py` renders its blocks from docs/figures/ and the pages hold them as rendered."""
 
 from __future__ import annotations
 

@@ -46,6 +46,7 @@ __all__ = [
     "semi_axes",
     "skew",
     "trim_speed",
+    "vehicles",
     "volume",
 ]
 
@@ -53,9 +54,17 @@ FINS = ("rudder", "elevator_right", "elevator_left")
 FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> body axes (FRD); also ENU-ish world <-> NED
 
 
+def vehicles() -> Path:
+    """The folder of the bundled vehicle models: the source tree's `assets/mjcf/`, which the
+    build ships in the wheel as `testbed/vehicles/` (pyproject.toml's package-dir)."""
+    package = Path(__file__).resolve().parents[1]
+    shipped = package / "vehicles"
+    return shipped if shipped.is_dir() else package.parent / "assets" / "mjcf"
+
+
 def default_mjcf() -> Path:
     """The bundled torpedo."""
-    return Path(__file__).resolve().parent / "mjcf" / "torpedo.xml"
+    return vehicles() / "torpedo.xml"
 
 
 def load_model(path: str | Path | None = None) -> mujoco.MjModel:

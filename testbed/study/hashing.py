@@ -11,6 +11,8 @@ import hashlib
 import os
 from pathlib import Path
 
+from testbed.simulation.vehicle import vehicles
+
 __all__ = ["CODE_FILES", "READERS", "code_hash", "source_hash"]
 
 CODE_FILES = ("*.py", "*.toml", "*.xml")  # what the package computes with: its modules and data
@@ -26,29 +28,31 @@ READERS = (
 )
 
 
-def source_hash(root: str | os.PathLike) -> str:
-    """SHA-256 of the package's code under `root`: every file matching `CODE_FILES` but the
-    `READERS`, by its path relative to `root` and its bytes, in path order (compiled caches and
-    other files ignored)."""
+def source_hash(root: str | os.PathLike, vehicles: str | os.PathLike | None = None) -> str:
+    """SHA-256 of the package's code under `root` and the bundled vehicle models in `vehicles`:
+    every file matching `CODE_FILES` but the `READERS`, by its path relative to `root` (a vehicle
+    model's under `vehicles/`) and its bytes, in path order (compiled caches and other files
+    ignored)."""
     root = Path(root)
-    files = sorted(
-        {
-            p
-            for pattern in CODE_FILES
-            for p in root.rglob(pattern)
-            if "__pycache__" not in p.parts
-            and not any(fnmatch(p.relative_to(root).as_posix(), r) for r in READERS)
-        }
-    )
+    files = {
+        p.relative_to(root).as_posix(): p
+        for pattern in CODE_FILES
+        for p in root.rglob(pattern)
+        if "__pycache__" not in p.parts
+        and not any(fnmatch(p.relative_to(root).as_posix(), r) for r in READERS)
+    }
+    if vehicles is not None:
+        folder = Path(vehicles)
+        files |= {f"vehicles/{p.relative_to(folder).as_posix()}": p for p in folder.rglob("*.xml")}
     h = hashlib.sha256()
-    for p in files:
-        data = p.read_bytes()
-        h.update(f"{p.relative_to(root).as_posix()}\0{len(data)}\0".encode())
+    for name in sorted(files):
+        data = files[name].read_bytes()
+        h.update(f"{name}\0{len(data)}\0".encode())
         h.update(data)
     return h.hexdigest()
 
 
 @functools.lru_cache(maxsize=None)
 def code_hash() -> str:
-    """`source_hash` of this installation of testbed."""
-    return source_hash(Path(__file__).resolve().parents[1])
+    """`source_hash` of this installation of testbed and its bundled vehicle models."""
+    return source_hash(Path(__file__).resolve().parents[1], vehicles())
