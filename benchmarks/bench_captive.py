@@ -24,7 +24,7 @@ one_blas_thread()  # as the command line does, before numpy loads
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from testbed.models import nonlinear  # noqa: E402
 from testbed.simulation.analytic import analytic_model  # noqa: E402
-from testbed.simulation.captive_reference import captive_reference  # noqa: E402
+from testbed.captive.reference import captive_reference  # noqa: E402
 from testbed.simulation.vehicle import constants, load_model  # noqa: E402
 
 SPEED = 20.0

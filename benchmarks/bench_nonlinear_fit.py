@@ -71,7 +71,7 @@ from testbed.identification.nonlinear_sensitivities import flight  # noqa: E402
 from testbed.models.linear import STATES  # noqa: E402
 from testbed.models.nonlinear import nonlinear_model, theta_vector  # noqa: E402
 from testbed.models.nonlinear_flight import fly  # noqa: E402
-from testbed.simulation.captive_reference import captive_reference, component_reference, slope_terms  # noqa: E402
+from testbed.captive.reference import captive_reference, component_reference, slope_terms  # noqa: E402
 from testbed.simulation.runs import simulate  # noqa: E402
 from testbed.simulation.scenario import scenario  # noqa: E402
 from testbed.simulation.vehicle import constants, load_model  # noqa: E402

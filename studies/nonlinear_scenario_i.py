@@ -65,9 +65,9 @@ from testbed.estimators import Estimate, identify
 from testbed.identification.nonlinear_prediction import predict
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
-from testbed.simulation.captive_config import MODELS, captive_config
+from testbed.captive.config import MODELS, captive_config
 from testbed.study.priors import term_prior
-from testbed.simulation.captive_reference import slope_terms
+from testbed.captive.reference import slope_terms
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import read_scenario, scenario

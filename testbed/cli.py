@@ -136,7 +136,7 @@ def _cmd_captive(args) -> int:
     _check_recording(args.rrd)
     written = []
     if args.figures is None and args.rrd is None:  # no figures: matplotlib and Rerun not loaded
-        from testbed.simulation.captive_config import captive_config_text
+        from testbed.captive.config import captive_config_text
 
         text, fit = captive_config_text(args.mjcf, args.speed, out, args.force, args.model)
     else:

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from testbed.presentation.figures import write_report
-from testbed.simulation.captive_config import captive_config
-from testbed.simulation.captive_reference import slope_terms
+from testbed.captive.config import captive_config
+from testbed.captive.reference import slope_terms
 from testbed.study.cells import NONLINEAR, Cell, Start, load_run, run_cell
 from testbed.study.priors import SPREAD, term_class
 from testbed.study.results import captive_table, read_results, results_csv, results_rows, summary_table

@@ -14,14 +14,7 @@ import pytest
 
 from testbed.errors import InputError
 from testbed.simulation.analytic import analytic_model, geom_terms
-from testbed.simulation.captive import (
-    OSCILLATIONS,
-    SWEEPS,
-    Oscillation,
-    Sweep,
-    captive_tests,
-    pmm_coefficients,
-)
+from testbed.captive.rig import OSCILLATIONS, SWEEPS, Oscillation, Sweep, captive_tests, pmm_coefficients
 from testbed.simulation.plant import Plant
 from testbed.simulation.vehicle import (
     FINS,
@@ -34,7 +27,7 @@ from testbed.simulation.vehicle import (
     rotation,
     semi_axes,
 )
-from testbed.simulation.wrench import hydrodynamic_wrench
+from testbed.captive.wrench import hydrodynamic_wrench
 
 T6 = np.kron(np.eye(2), FLIP)  # MuJoCo's body axes (FLU) <-> FRD, for (lin, ang)
 

@@ -25,11 +25,11 @@ from testbed.presentation.captive_figures import figure_name, sweep_figure
 from testbed.presentation.captive_recording import TIMELINE, log_captive, milli, sweep_entity
 from testbed.presentation.captive_report import MARKER
 from testbed.presentation.captive_sweeps import DENSE, sweep_panels
-from testbed.simulation.captive import Oscillation
-from testbed.simulation.captive_config import captive_config_text
-from testbed.simulation.captive_reference import region_tests
+from testbed.captive.rig import Oscillation
+from testbed.captive.config import captive_config_text
+from testbed.captive.reference import region_tests
 from testbed.simulation.vehicle import constants, load_model
-from testbed.simulation.wrench import hydrodynamic_wrench
+from testbed.captive.wrench import hydrodynamic_wrench
 
 SPEED = 20.0
 _RATES = {"v": 1, "w": 2, "p": 3, "q": 4, "r": 5}

@@ -26,9 +26,9 @@ from testbed.models.nonlinear import (
 from testbed.models.nonlinear_flight import fly
 from testbed.simulation import runs
 from testbed.simulation.analytic import analytic_model
-from testbed.simulation.captive import DEFAULT_TESTS, Measurement, captive_tests
-from testbed.simulation.captive_fit import fit_captive, pmm_inertia
-from testbed.simulation.captive_reference import (
+from testbed.captive.rig import DEFAULT_TESTS, Measurement, captive_tests
+from testbed.captive.fit import fit_captive, pmm_inertia
+from testbed.captive.reference import (
     Turns,
     captive_reference,
     couplings,

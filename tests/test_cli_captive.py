@@ -11,8 +11,8 @@ import pytest
 from test_bad_input import cli
 from testbed.data import read_config
 from testbed.models.nonlinear import INERTIA, TERMS
-from testbed.simulation.captive_reference import Turns, reference_tests
-from testbed.simulation.fluid_components import component_terms, mjcf_components
+from testbed.captive.reference import Turns, reference_tests
+from testbed.captive.fluid_components import component_terms, mjcf_components
 from testbed.simulation.vehicle import default_mjcf, load_model
 
 

@@ -60,13 +60,13 @@ CASES = {
     "captive --out": (
         ["captive", "--out", "{user}"],
         "--out",
-        "testbed.simulation.captive_config.captive_config",
+        "testbed.captive.config.captive_config",
         _toml,
     ),
     "captive --rrd": (
         ["captive", "--out", "{new}", "--rrd", "{user}"],
         "--rrd",
-        "testbed.simulation.captive_config.captive_config",
+        "testbed.captive.config.captive_config",
         _rrd,
     ),
     "identify --out": (

@@ -27,7 +27,7 @@ from testbed.models.linear import STATES
 from testbed.models.nonlinear import INERTIA
 from testbed.models.nonlinear_flight import fly
 from testbed.simulation.analytic import analytic, analytic_config
-from testbed.simulation.fluid_components import component_terms, mjcf_components
+from testbed.captive.fluid_components import component_terms, mjcf_components
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.vehicle import load_model
 

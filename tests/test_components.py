@@ -31,10 +31,10 @@ from testbed.models.nonlinear_flight import fly
 from testbed.models.regressors import parse_term, term_wrenches
 from testbed.simulation import runs
 from testbed.simulation.analytic import analytic
-from testbed.simulation.captive_reference import component_reference
-from testbed.simulation.fluid_components import component_terms, inertia_terms, mjcf_components
+from testbed.captive.reference import component_reference
+from testbed.captive.fluid_components import component_terms, inertia_terms, mjcf_components
 from testbed.simulation.vehicle import added_mass, load_model, rigid_body_mass
-from testbed.simulation.wrench import hydrodynamic_wrench
+from testbed.captive.wrench import hydrodynamic_wrench
 
 RHO = 1025.0
 BLUNT, SLENDER, LIFT, MAGNUS, ANGULAR, MUNK = range(len(KINDS))

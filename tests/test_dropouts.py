@@ -127,7 +127,7 @@ def test_a_nonlinear_model_config_fits_a_log_with_a_dropout_as_its_stretches(tmp
     from dataclasses import replace
 
     from testbed.models.nonlinear_flight import fly
-    from testbed.simulation.captive_config import captive_config
+    from testbed.captive.config import captive_config
     from testbed.simulation.measurements import NOISE_STD
 
     free = ("Y_uv", "N_uv", "Z_uw", "M_uw")

@@ -39,7 +39,7 @@ def nonlinear(tmp_path_factory):
     """A 3 s doublet record of the captive polynomial model and a start 20 % off on two terms."""
     from testbed.models.linear import STATES
     from testbed.models.nonlinear_flight import fly
-    from testbed.simulation.captive_config import captive_config
+    from testbed.captive.config import captive_config
 
     free = ("Y_uv", "N_uv")
     config = replace(captive_config(model="polynomial")[0], free=free, screen=False)

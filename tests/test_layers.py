@@ -1,129 +1,43 @@
-"""The package reads top-down: each module imports only modules of the layers below it.
-
-The layers, in the order data flows (a module may import from any earlier layer, never from its
-own or a later one): the errors and file safety; the linear model's equations; data files and
-sensor noise; the MJCF vehicle, its plant and its analytic model; autopilots and input signals;
-scenarios; recordings and run directories; the linear model's services; the estimators (their
-contract, then the methods, then the front door); validation and identifiability analysis;
-experiment design and fit reports; the headless jobs; the study's a-priori models and its judge
-of success; the campaign's figures and the campaign; the command line; the public API.
-"""
+"""The package reads top-down: each module imports only modules of the layers above it, as the
+layer map of docs/architecture.md declares them (one table row per layer, in the order data
+flows; the folders' rows in the order of their folders)."""
 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import testbed
 
-LAYERS = [
-    (
-        "testbed.errors",
-        "testbed.memory",
-        "testbed.threads",
-        "testbed.fit_percent",
-        "testbed.html_table",
-        "testbed.html_figures",
-    ),
-    ("testbed.models", "testbed.models.linear"),
-    ("testbed.models.sensors",),
-    ("testbed.models.log_mounting",),
-    ("testbed.models.component_kernels",),
-    ("testbed.models.components",),
-    ("testbed.models.regressors", "testbed.models.mechanics"),
-    ("testbed.models.nonlinear_kernels",),
-    ("testbed.models.nonlinear",),
-    ("testbed.models.nonlinear_flight",),
-    ("testbed.data",),
-    ("testbed.simulation", "testbed.simulation.measurements"),
-    ("testbed.simulation.vehicle",),
-    ("testbed.simulation.plant", "testbed.simulation.linear_plant"),
-    ("testbed.simulation.states",),
-    ("testbed.simulation.nonlinear_reference",),
-    ("testbed.simulation.analytic", "testbed.simulation.wrench", "testbed.simulation.fluid_components"),
-    (
-        "testbed.simulation.autopilot",
-        "testbed.simulation.signals",
-        "testbed.simulation.sensing",
-        "testbed.simulation.trial",
-        "testbed.simulation.prior",
-        "testbed.simulation.captive",
-    ),
-    ("testbed.simulation.captive_fit",),
-    ("testbed.simulation.captive_reference",),
-    ("testbed.simulation.captive_config",),
-    ("testbed.simulation.imperfect",),
-    ("testbed.simulation.scenario",),
-    ("testbed.simulation.recording",),
-    ("testbed.simulation.runs",),
-    ("testbed.identification", "testbed.identification.kernels"),
-    ("testbed.identification.problem", "testbed.identification.scan"),
-    ("testbed.identification.recursions",),
-    ("testbed.identification.likelihood", "testbed.identification.nonlinear_sensitivities"),
-    (
-        "testbed.identification.bounds",
-        "testbed.identification.prediction",
-        "testbed.identification.nonlinear_prediction",
-        "testbed.identification.nonlinear_transition",
-        "testbed.identification.concentrated",
-        "testbed.identification.innovations",
-    ),
-    ("testbed.identification.examples", "testbed.identification.nonlinear_output_error"),
-    ("testbed.estimators.base", "testbed.estimators.simplex", "testbed.estimators.intervals"),
-    (
-        "testbed.estimators.mekf",
-        "testbed.estimators.equation_error",
-        "testbed.estimators.nonlinear_regression",
-    ),
-    ("testbed.estimators.nonlinear",),
-    ("testbed.estimators.trust_region", "testbed.estimators.starts"),
-    ("testbed.estimators.ml", "testbed.estimators.fem"),
-    ("testbed.estimators",),
-    (
-        "testbed.analysis",
-        "testbed.analysis.validation",
-        "testbed.analysis.identifiability",
-        "testbed.analysis.kinematics",
-        "testbed.analysis.profile",
-    ),
-    (
-        "testbed.analysis.regime",
-        "testbed.analysis.compatibility",
-        "testbed.analysis.nonlinear_identifiability",
-    ),
-    ("testbed.analysis.design",),
-    ("testbed.analysis.drift",),
-    ("testbed.analysis.instants", "testbed.analysis.track"),
-    ("testbed.analysis.turning", "testbed.analysis.zigzag"),
-    ("testbed.analysis.manoeuvres",),
-    ("testbed.presentation", "testbed.presentation.report", "testbed.presentation.design_report"),
-    ("testbed.presentation.captive_sweeps",),
-    ("testbed.presentation.captive_figures", "testbed.presentation.captive_recording"),
-    ("testbed.presentation.captive_report",),
-    ("testbed.presentation.figures", "testbed.presentation.fit_figures"),
-    ("testbed.presentation.fit_report",),
-    ("testbed.jobs",),
-    ("testbed.study.priors", "testbed.study.hashing"),
-    ("testbed.study.rules",),
-    ("testbed.study.arms",),
-    ("testbed.study.cells",),
-    ("testbed.study.results",),
-    ("testbed.study", "testbed.study.campaign"),
-    ("testbed.cli",),
-    ("testbed.__main__",),
-    ("testbed",),
-]
-PACKAGES = (
-    "testbed.models",
-    "testbed.simulation",
-    "testbed.identification",
-    "testbed.estimators",
-    "testbed.analysis",
-    "testbed.presentation",
-    "testbed.study",
+ROOT = Path(testbed.__file__).parent
+ARCHITECTURE = ROOT.parent / "docs" / "architecture.md"
+
+
+def layer_map(text: str) -> list[tuple[str, ...]]:
+    """The layers of the page's "The layer map" section: per table row, the modules its first
+    cell names (`models.linear` is `testbed.models.linear`; `testbed` the package itself)."""
+    section = text.split("## The layer map", 1)[1]
+    section = re.split(r"^## ", section, maxsplit=1, flags=re.M)[0]
+    layers = []
+    for line in section.splitlines():
+        if line.startswith("| `"):
+            names = re.findall(r"`([\w.]+)`", line.split("|")[1])
+            layers.append(tuple(n if n == "testbed" else f"testbed.{n}" for n in names))
+    return layers
+
+
+LAYERS = layer_map(ARCHITECTURE.read_text(encoding="utf-8"))
+# the folders, in the order of their rows
+PACKAGES = tuple(
+    dict.fromkeys(
+        ".".join(m.split(".")[:2])
+        for names in LAYERS
+        for m in names
+        if m.count(".") >= 1 and (ROOT / m.split(".")[1]).is_dir()
+    )
 )
 RANK = {name: k for k, names in enumerate(LAYERS) for name in names}
-ROOT = Path(testbed.__file__).parent
 
 
 def _module(path: Path) -> str:
@@ -190,21 +104,9 @@ def test_the_public_api_loads_on_demand_and_shadows_no_module():
     )
 
 
-def test_the_architecture_page_names_every_module_in_layer_order():
-    text = (ROOT.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
-    names = [m.removeprefix("testbed.") for names in LAYERS[:-2] for m in names]
-    positions = [text.find(f"`{n}`") for n in names]
-    assert [n for n, p in zip(names, positions) if p < 0] == []
-    assert positions == sorted(positions)
-
-
-def test_fitting_a_csv_loads_neither_mujoco_nor_rerun_nor_a_compiler():
-    import subprocess
-    import sys
-
-    code = (
-        "import sys, testbed.cli, testbed.jobs, testbed.estimators; "
-        "print(sorted({'mujoco', 'rerun', 'numba', 'scipy'} & set(sys.modules)))"
-    )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert done.stdout.strip() == "[]"
+def test_the_layer_map_is_read_from_the_page():
+    """The map has the folders in their order and a row per layer; a row the page adds is read."""
+    assert PACKAGES[:3] == ("testbed.models", "testbed.simulation", "testbed.captive")
+    assert LAYERS[0][0] == "testbed.errors" and LAYERS[-1] == ("testbed",)
+    extra = layer_map("## The layer map\n| `a`, `b.c` | x |\n| modules | y |\n## Next\n| `d` | z |\n")
+    assert extra == [("testbed.a", "testbed.b.c")]

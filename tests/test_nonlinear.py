@@ -29,7 +29,7 @@ from testbed.models.nonlinear import (
 )
 from testbed.models import nonlinear_kernels
 from testbed.models.regressors import WEIGHTS, parse_term, regressors
-from testbed.simulation.nonlinear_reference import SCENARIO_I, fit_terms, sample_box
+from nonlinear_reference import SCENARIO_I, fit_terms, sample_box
 
 # A torpedo-like body (SI): CB 2 cm above the CG, slightly heavy, off-diagonal added mass.
 VEHICLE = linear.Vehicle(

@@ -30,7 +30,7 @@ from testbed.jobs import perturbed
 from testbed.models import log_mounting
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
-from testbed.simulation.captive_config import captive_config
+from testbed.captive.config import captive_config
 from testbed.simulation.measurements import NOISE_STD
 
 FREE = ("Y_uv", "N_uv", "Z_uw", "M_uw")

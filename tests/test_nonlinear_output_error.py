@@ -13,7 +13,7 @@ from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import INERTIA, nonlinear_model, theta_vector
 from testbed.models.nonlinear_flight import fly
-from testbed.simulation.captive_reference import captive_reference
+from testbed.captive.reference import captive_reference
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.vehicle import constants, load_model
 

@@ -14,7 +14,7 @@ from testbed.models.nonlinear import INERTIA, linearise, nonlinear_model, theta_
 from testbed.models.nonlinear_flight import fly
 from testbed.simulation import runs
 from testbed.simulation.analytic import analytic
-from testbed.simulation.nonlinear_reference import Box, fit_plant, sample_box
+from nonlinear_reference import Box, fit_plant, sample_box
 from testbed.simulation.plant import Plant
 from testbed.simulation.states import plant_rates
 from testbed.simulation.vehicle import rigid_body_mass

@@ -25,7 +25,7 @@ from testbed.data import Experiment, read_config, read_csv, write_config, write_
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
 from testbed.simulation import runs
-from testbed.simulation.captive_config import captive_config
+from testbed.captive.config import captive_config
 from testbed.simulation.measurements import NOISE_STD
 
 DETERMINED = ("Y_uv", "N_uv", "Z_uw", "M_uw")  # moved 20 % off in the start

@@ -534,7 +534,7 @@ def test_a_nonlinear_fit_is_recorded_with_the_nonlinear_models_outputs(tmp_path)
     (`nonlinear_prediction.predict`), not the linear model's."""
     from testbed.identification.nonlinear_prediction import predict as fly_nonlinear
     from testbed.models.nonlinear_flight import fly
-    from testbed.simulation.captive_config import captive_config
+    from testbed.captive.config import captive_config
 
     free = ("Y_uv", "N_uv")
     config = dataclasses.replace(captive_config(model="polynomial")[0], free=free, screen=False)

@@ -72,7 +72,7 @@ def test_the_nonlinear_model_on_alternating_stamps_matches_its_even_sub_log(tmp_
     from dataclasses import replace
 
     from testbed.models.nonlinear_flight import fly
-    from testbed.simulation.captive_config import captive_config
+    from testbed.captive.config import captive_config
     from testbed.simulation.measurements import NOISE_STD
 
     free = ("Y_uv", "N_uv", "Z_uw", "M_uw")

@@ -20,8 +20,8 @@ from testbed.errors import (
 from testbed.presentation.captive_figures import figure_name, sweep_figure
 from testbed.presentation.captive_recording import log_captive
 from testbed.presentation.captive_sweeps import by_test, sweep_panels
-from testbed.simulation.captive_config import captive_config_text
-from testbed.simulation.captive_fit import CaptiveFit
+from testbed.captive.config import captive_config_text
+from testbed.captive.fit import CaptiveFit
 from testbed.simulation.vehicle import load_model
 
 __all__ = ["MARKER", "write_captive"]

@@ -24,9 +24,9 @@ import mujoco
 import numpy as np
 
 from testbed.models.regressors import ROWS
-from testbed.simulation.captive import Measurement, Oscillation, captive_tests, pmm_coefficients
-from testbed.simulation.captive_fit import CaptiveFit, fitted_wrench
-from testbed.simulation.captive_reference import region_tests
+from testbed.captive.rig import Measurement, Oscillation, captive_tests, pmm_coefficients
+from testbed.captive.fit import CaptiveFit, fitted_wrench
+from testbed.captive.reference import region_tests
 from testbed.simulation.recording import STYLE
 from testbed.simulation.vehicle import constants
 
@@ -97,7 +97,7 @@ class SweepPanel:
 def sweep_panels(model: mujoco.MjModel, fit: CaptiveFit) -> tuple[SweepPanel, ...]:
     """The panels of `fit`, the captive reference of the vehicle `model` (`captive_reference`):
     its second stage's tests (`region_tests` at the fit's trim speed) run on the plant again, and the model
-    evaluated with `captive_fit.fitted_wrench`, in the fit's order of tests, speeds and rows."""
+    evaluated with `captive.fit.fitted_wrench`, in the fit's order of tests, speeds and rows."""
     vehicle = constants(model, fit.speed)
     tests = {t.name: t for t in region_tests(model, fit.speed, fit.terms)}
     measurements = captive_tests(model, tuple(tests.values()))

@@ -16,7 +16,7 @@ the judge compares (`testbed.study.results`).
 
 On Scenario I flown on the plant one more fit per seed and spread, the `NONLINEAR` cell: `ml-gn`
 fitting the nonlinear model of the captive reference (`captive_config`, the plant's body at the
-run's trim speed) with its terms that have a slope at trim free (`captive_reference.slope_terms`),
+run's trim speed) with its terms that have a slope at trim free (`captive.reference.slope_terms`),
 started from the captive values perturbed as the linear arms' a-priori model is
 (`priors.term_prior`). It is judged against the captive values: per coefficient the error in
 its Cramér-Rao σ (corrected for coloured residuals) and in % of the captive value, with the
@@ -49,8 +49,8 @@ from testbed.identification import likelihood, recursions, scan
 from testbed.identification.bounds import fisher
 from testbed.identification.problem import problem
 from testbed.models.linear import COEFFICIENTS
-from testbed.simulation.captive_config import captive_config
-from testbed.simulation.captive_reference import slope_terms
+from testbed.captive.config import captive_config
+from testbed.captive.reference import slope_terms
 from testbed.simulation.measurements import noise_from_data
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text

@@ -30,11 +30,11 @@ import numpy as np
 from testbed.errors import InputError
 from testbed.models.nonlinear import TERMS, NonlinearModel, linearise, nonlinear_model, theta_vector
 from testbed.models.regressors import component_kind, parse_term
-from testbed.simulation.captive import Oscillation, Sweep, captive_tests
-from testbed.simulation.captive_fit import CaptiveFit, fit_captive, pmm_inertia
-from testbed.simulation.fluid_components import component_terms, inertia_terms, mjcf_components, rigid_inertia
+from testbed.captive.rig import Oscillation, Sweep, captive_tests
+from testbed.captive.fit import CaptiveFit, fit_captive, pmm_inertia
+from testbed.captive.fluid_components import component_terms, inertia_terms, mjcf_components, rigid_inertia
 from testbed.simulation.vehicle import constants
-from testbed.simulation.wrench import hydrodynamic_wrench
+from testbed.captive.wrench import hydrodynamic_wrench
 
 __all__ = [
     "BAND",

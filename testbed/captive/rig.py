@@ -32,7 +32,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.models.linear import INPUTS
-from testbed.simulation.wrench import hydrodynamic_wrench
+from testbed.captive.wrench import hydrodynamic_wrench
 
 __all__ = [
     "DEFAULT_TESTS",

@@ -35,7 +35,7 @@ from testbed.fit_percent import fit_percent
 from testbed.models import linear, nonlinear
 from testbed.models.mechanics import coriolis
 from testbed.models.regressors import ROWS
-from testbed.simulation.captive import Measurement, Oscillation, pmm_coefficients
+from testbed.captive.rig import Measurement, Oscillation, pmm_coefficients
 
 __all__ = ["CaptiveFit", "SurfaceFit", "fit_captive", "fitted_wrench", "pmm_inertia"]
 

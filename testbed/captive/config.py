@@ -7,8 +7,8 @@ from pathlib import Path
 from testbed.data import ModelConfig, config_text
 from testbed.errors import InputError, atomic_write_text, check_outputs
 from testbed.models.regressors import component_kind
-from testbed.simulation.captive_fit import CaptiveFit
-from testbed.simulation.captive_reference import captive_reference, component_reference, slope_terms
+from testbed.captive.fit import CaptiveFit
+from testbed.captive.reference import captive_reference, component_reference, slope_terms
 from testbed.simulation.vehicle import constants, cruise_speed, load_model, trim_speed
 
 __all__ = ["MODELS", "captive_config", "captive_config_text"]
