@@ -106,7 +106,7 @@ def test_the_public_api_loads_on_demand_and_shadows_no_module():
 
 def test_the_layer_map_is_read_from_the_page():
     """The map has the folders in their order and a row per layer; a row the page adds is read."""
-    assert PACKAGES[:3] == ("testbed.models", "testbed.simulation", "testbed.captive")
+    assert PACKAGES[:4] == ("testbed.models", "testbed.data", "testbed.simulation", "testbed.captive")
     assert LAYERS[0][0] == "testbed.errors" and LAYERS[-1] == ("testbed",)
     extra = layer_map("## The layer map\n| `a`, `b.c` | x |\n| modules | y |\n## Next\n| `d` | z |\n")
     assert extra == [("testbed.a", "testbed.b.c")]
