@@ -42,7 +42,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from testbed.analysis.identifiability import screening  # noqa: E402
+from testbed.analysis.screening import screening  # noqa: E402
 from testbed.data import load_data  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
 from testbed.identification import concentrated  # noqa: E402

@@ -113,7 +113,7 @@ first = time.time()
 record, argv = sys.argv[1], sys.argv[2:]
 import testbed.cli  # first: it sets the BLAS threads before numpy loads
 from testbed import jobs
-from testbed.analysis import identifiability
+from testbed.analysis import screening
 from testbed.estimators import lookup
 
 imported = time.time()
@@ -181,12 +181,12 @@ timed(
     "screen",
     lambda r: kept.append([r.estimate.method, r.estimate.cost, r.estimate.iterations]),
 )
-timed(identifiability, "screening", "screening")
+timed(screening, "screening", "screening")
 timed(jobs, "truth_comparison", "comparison")
 timed(jobs, "validate", "validation")
 timed(jobs, "identify_data", "job")
 jobs.identify_data = job_times(jobs.identify_data)
-fitted(identifiability)
+fitted(screening)
 fitted(jobs)
 try:
     status = testbed.cli.main(argv)

@@ -20,7 +20,7 @@ value, and whether it is within max(3 σ, 10 %) of it; per channel the residual 
 sensor's σ.
 
 Default free list, on seed 1's record at the captive values: for the component model, what the
-screen (`identifiability.screening` with `NONLINEAR`, as `testbed identify --config` runs it)
+screen (`screening.screening` with `NONLINEAR`, as `testbed identify --config` runs it)
 frees of its 23 component terms; for the polynomial terms, the 19 slope terms (`slope_terms`)
 and the cross-flow terms whose bound with all 102 free is below `--level`.
 
@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from testbed.analysis.manoeuvres import experiment_metrics
-from testbed.analysis.identifiability import screening
+from testbed.analysis.screening import screening
 from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_identifiability
 from testbed.analysis.regime import open_loop
 from testbed.analysis.track import record_track

@@ -20,7 +20,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from testbed.analysis.identifiability import screen
+from testbed.analysis.screening import screen
 from testbed.data import Experiment
 from testbed.errors import atomic_write_text
 from testbed.estimators import identify

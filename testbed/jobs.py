@@ -18,14 +18,11 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.identifiability import (
-    Comparison,
-    Identifiability,
-    LINEAR,
-    compare,
-    identifiability,
-    identify_screened,
-)
+from testbed.analysis.comparison import Comparison, compare
+from testbed.analysis.identifiability import Identifiability, identifiability
+from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_identifiability
+from testbed.analysis.screening import LINEAR, identify_screened
+from testbed.analysis.validation import Validation, validate
 from testbed.data import (
     MAX_CONSTANT,
     Experiment,
@@ -39,8 +36,6 @@ from testbed.data import (
 )
 from testbed.errors import InputError, atomic_file, atomic_write_text, check_outputs, is_stream
 from testbed.estimators import Estimate, Progress, Status, check_method, identify, lookup
-from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_identifiability
-from testbed.analysis.validation import Validation, validate
 from testbed.identification.problem import base_name, check_inputs
 from testbed.models.linear import BIASES, MOUNTING
 
@@ -237,7 +232,7 @@ def identify_data(
     the JSON's `screen`; default: as the config's `[identify] screen` says; `noise_std`: the
     sensors' noise σ per state, replacing the config's `[identify] noise_std` entry by entry;
     `corrections`: a check JSON (`check_data`) whose sensor corrections are applied to the data
-    before the fit (`analysis.compatibility.corrected`); `keep_repeats`: read a state's stale
+    before the fit (`analysis.corrections.corrected`); `keep_repeats`: read a state's stale
     repeats as samples (`data.stale`: missing by default). A diverged fit is an `InputError` and writes nothing; a fit that ran but did not converge is
     written (`Identified.estimate.converged` says so). An existing file at `out`, its history
     CSV or `rrd` is refused before the fit (`InputError`) unless `force` (then replaced).
@@ -248,7 +243,7 @@ def identify_data(
     cfg = cfg.with_noise_std(noise_std)
     applied = None
     if corrections is not None:  # the check's module loads numba and scipy: only when asked for
-        from testbed.analysis.compatibility import corrected, read_corrections
+        from testbed.analysis.corrections import corrected, read_corrections
 
         applied = read_corrections(corrections)
         experiments = corrected(experiments, applied)
@@ -409,7 +404,7 @@ def check_data(
     """The data-compatibility check of `data` (run directories or measurement CSVs): the
     kinematics reconstructed, the sensor biases, scale factors and delays estimated with their
     bounds, written as JSON to `out` (`keep_repeats` and `force` as for `identify_data`); the
-    `analysis.compatibility.Compatibility`; `report`: a new or empty folder for its HTML page
+    `analysis.compatibility_checks.Compatibility`; `report`: a new or empty folder for its HTML page
     (`presentation.fit_report.check_report_html`)."""
     from testbed.analysis.compatibility import compatibility  # numba and scipy: only here
 

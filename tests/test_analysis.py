@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from testbed.analysis.identifiability import structural
+from testbed.analysis.structural import structural
 from testbed.models.linear import COEFFICIENTS, ITHETA, NTHETA, STATES, Vehicle, continuous, structure, tilde
 
 VEHICLE = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)
@@ -87,7 +87,8 @@ def test_well_posed_case_has_no_null_direction():
 def test_a_singular_information_shows_as_named_null_directions():
     """F = JᵀJ with b's column twice a's (J (1, −½, 0, 0) = 0) and no information on d: two null
     directions beyond the structure's, named, exactly the coefficients with infinite bounds."""
-    from testbed.analysis.identifiability import Structural, assessed
+    from testbed.analysis.identifiability import assessed
+    from testbed.analysis.structural import Structural
 
     free = ("a", "b", "c", "d")
     rng = np.random.default_rng(3)
@@ -112,7 +113,8 @@ def test_analyze_and_the_screen_name_an_unexcited_row_as_null_directions():
     """Dives with the rudder at 0 and sway fitted, no yaw rate: the rudder's yaw moment has no
     information. analyze reports it as a null direction (not 0 beside an infinite bound), and
     the screen's first stage fixes it naming the direction analyze lists."""
-    from testbed.analysis.identifiability import identifiability, structurally_unidentified
+    from testbed.analysis.identifiability import identifiability
+    from testbed.analysis.screening import structurally_unidentified
     from testbed.identification.examples import example_config, experiments
 
     vertical = experiments(seed=0, duration=20.0)[1].only(("v", "psi"))

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from testbed.simulation import analytic
-from testbed.analysis.identifiability import structural
+from testbed.analysis.structural import structural
 from testbed.cli import main
 from testbed.data import ModelConfig, parse_config, read_config
 from testbed.errors import InputError
-from testbed.simulation.plant import Plant
 from testbed.models.linear import IX, PARAMETERS, STATES, continuous, structure, theta_vector
+from testbed.simulation import analytic
+from testbed.simulation.plant import Plant
 from testbed.simulation.vehicle import added_mass, default_mjcf, load_model
 
 SPEEDS = (20.0, 12.0)

@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 
 import testbed.estimators
+from testbed.analysis.identifiability import identifiability
+from testbed.analysis.screening import structurally_unidentified
 from testbed.cli import main
-from testbed.analysis.identifiability import identifiability, structurally_unidentified
 from testbed.data import ModelConfig, config_text, csv_text, load_data, read_config, read_csv, write_config
 from testbed.errors import InputError, atomic_file
 from testbed.estimators import Estimate, Status, identify
@@ -861,7 +862,7 @@ def test_a_record_whose_only_motion_is_a_channels_rounding_is_refused(run, capsy
 def test_a_value_the_fit_carried_off_is_reported_as_the_fits(run, capsys, monkeypatch, tmp_path):
     """A fit that ends with a coefficient beyond what a config may hold (±1e15) is refused as
     the fit's outcome on the data, never as a value of the config the fit started from."""
-    from testbed.analysis.identifiability import identify_screened as real
+    from testbed.analysis.screening import identify_screened as real
 
     def carried_off(*args, **kwargs):
         done = real(*args, **kwargs)

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from references import assert_sensitivities_match_complex_step, qr_cost
+from test_offsets import FIN_OFFSET, LATERAL, _lsim, _start, _turns  # noqa: F401  (shared data)
 
 from testbed.errors import InputError
 from testbed.estimators import identify
@@ -9,9 +11,6 @@ from testbed.identification import concentrated, likelihood
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS
 from testbed.identification.problem import problem
 from testbed.models.linear import IX
-from references import assert_sensitivities_match_complex_step, qr_cost
-
-from test_offsets import FIN_OFFSET, LATERAL, _lsim, _start, _turns  # noqa: F401  (shared data)
 
 GYRO = 0.004  # rad/s: a yaw-rate gyro's bias, 1.3× the example's gyro noise
 DVL = 0.03  # m/s: a velocity log's sway bias
@@ -84,7 +83,7 @@ def test_a_bias_the_config_gives_is_taken_off_the_data():
 
 
 def test_the_kalman_filters_refuse_a_free_bias_ml_fem_fits_it_and_the_screen_fixes_a_heading_bias():
-    from testbed.analysis.identifiability import screening
+    from testbed.analysis.screening import screening
 
     data = _biased(_turns((FIN_OFFSET, -FIN_OFFSET), duration=20.0), BIASES)
     for method in ("mekf", "ekf"):

@@ -16,15 +16,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
-from testbed.analysis.compatibility import (
-    ATTITUDE,
-    DEPTH,
-    SENSOR_PARAMETERS,
-    check_corrections,
-    compatibility,
-    corrected,
-    reconstruct,
-)
+from testbed.analysis.compatibility import compatibility
+from testbed.analysis.compatibility_checks import ATTITUDE, DEPTH, SENSOR_PARAMETERS
+from testbed.analysis.compatibility_records import reconstruct
+from testbed.analysis.corrections import check_corrections, corrected
 from testbed.cli import main
 from testbed.data import Experiment, read_csv, write_csv
 from testbed.errors import InputError

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from references import assert_curvature_matches_complex_step, assert_sensitivities_match_complex_step, qr_cost
+from test_offsets import LATERAL, _start  # noqa: F401  (shared data)
 
 from testbed.errors import InputError
 from testbed.estimators import identify
@@ -9,9 +11,6 @@ from testbed.identification import concentrated, likelihood
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE
 from testbed.identification.problem import problem, shifted
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector
-from references import assert_curvature_matches_complex_step, assert_sensitivities_match_complex_step, qr_cost
-
-from test_offsets import LATERAL, _start  # noqa: F401  (shared data)
 
 DELAY = 0.075  # s: a logger 1.5 samples late at 20 Hz
 
@@ -123,7 +122,7 @@ def test_the_kalman_filters_refuse_a_free_delay_and_ml_fem_fits_it():
 
 
 def test_the_screen_keeps_a_delay_the_data_determine():
-    from testbed.analysis.identifiability import screening
+    from testbed.analysis.screening import screening
 
     s = screening(_late(duration=20.0), _start(LATERAL + ("input_delay",)))
     assert "input_delay" not in s.fixed and "input_delay" in s.config.free

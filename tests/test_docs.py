@@ -335,7 +335,7 @@ def test_files_estimates_json_keys():
 
 
 def test_files_comparison_and_validation_keys():
-    from testbed.analysis.identifiability import Comparison
+    from testbed.analysis.comparison import Comparison
     from testbed.analysis.validation import ChannelMetrics, whiteness
 
     one = np.array([1.0])
@@ -360,7 +360,8 @@ def _written_keys_dumps(fn) -> set[str]:
 
 
 def test_files_identifiability_json_keys():
-    from testbed.analysis.identifiability import Identifiability, Structural
+    from testbed.analysis.identifiability import Identifiability
+    from testbed.analysis.structural import Structural
 
     free = ("X_u",)
     result = Identifiability(

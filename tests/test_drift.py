@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from testbed.analysis import drift
-from testbed.analysis.identifiability import structural
+from testbed.analysis.structural import structural
 from testbed.errors import InputError
 from testbed.identification.bounds import crlb, eliminated, fisher
 from testbed.identification.examples import NOISE, example_config, inputs

@@ -4,24 +4,22 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from references import assert_curvature_matches_complex_step, assert_sensitivities_match_complex_step
 
 from testbed.errors import InputError
-from testbed.estimators import identify
+from testbed.estimators import equation_error, identify
+from testbed.identification import bounds, likelihood, prediction, recursions, scan
 from testbed.identification.examples import (
+    EXAMPLE_COEFFICIENTS,
     FREE,
     NOISE,
-    EXAMPLE_COEFFICIENTS,
+    example_config,
     experiments,
     inputs,
     prior_config,
-    example_config,
 )
-from testbed.identification import bounds
-from testbed.estimators import equation_error
-from testbed.identification import likelihood, prediction, recursions, scan
 from testbed.identification.problem import problem
 from testbed.models.linear import IX, NX, continuous
-from references import assert_curvature_matches_complex_step, assert_sensitivities_match_complex_step
 
 VERTICAL_SUBSET = ("u", "w", "q", "theta", "z", "p", "phi")
 

@@ -9,14 +9,16 @@ import pytest
 from filterpy.kalman import KalmanFilter, SquareRootKalmanFilter
 from scipy.signal import butter, filtfilt
 
-from testbed.identification import examples
 from testbed.cli import main
 from testbed.data import Experiment, ModelConfig, load_data, write_config, write_csv
 from testbed.errors import InputError
 from testbed.estimators import Status, identify
-from testbed.estimators.mekf import FilterOptions, DiscreteModel, run_filter, sqrt_update, svd_root, tria
+from testbed.estimators.filter_model import DiscreteModel
+from testbed.estimators.filter_options import FilterOptions
+from testbed.estimators.mekf import run_filter
+from testbed.estimators.square_root import sqrt_update, svd_root, tria
+from testbed.identification import examples
 from testbed.identification.bounds import information
-from testbed.simulation.measurements import noise_free_channels, noise_from_data
 from testbed.models.linear import (
     COEFFICIENTS,
     ITHETA,
@@ -28,6 +30,7 @@ from testbed.models.linear import (
     structure,
     theta_vector,
 )
+from testbed.simulation.measurements import noise_free_channels, noise_from_data
 from testbed.simulation.runs import simulate
 
 # A torpedo like the bundled one at 20 m/s (SI units); CB slightly off the CG so S ≠ 0.
@@ -597,7 +600,7 @@ def test_the_papers_mekf_has_a_fixed_zero_model_noise_and_fits_an_exact_model():
     # PAPER_OPTIONS: no covariance matching, no floor; on data from the linear model itself (the
     # model exact, where Q = 0 is the truth) the filter converges within its σ of the simulated
     # coefficients and reports no model error, where the default matches some.
-    from testbed.estimators.mekf import PAPER_OPTIONS
+    from testbed.estimators.filter_options import PAPER_OPTIONS
 
     assert FilterOptions.build("mekf", PAPER_OPTIONS) == FilterOptions(noise_window=0, state_noise=0.0)
     data = examples.experiments(seed=4, duration=60.0)

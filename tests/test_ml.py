@@ -7,21 +7,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from testbed.errors import InputError
+from testbed.estimators import METHODS, Status, identify
+from testbed.estimators.ml import DELTA_J
+from testbed.identification.bounds import information
 from testbed.identification.examples import (
+    EXAMPLE_COEFFICIENTS,
     FREE,
     NOISE,
-    EXAMPLE_COEFFICIENTS,
+    example_config,
     experiments,
     prior_config,
-    example_config,
     unstable_config,
 )
-
-from testbed.errors import InputError
-from testbed.estimators.ml import DELTA_J
 from testbed.models.linear import continuous, structure, theta_vector
-from testbed.estimators import METHODS, Status, identify
-from testbed.identification.bounds import information
 
 WANT = np.array([EXAMPLE_COEFFICIENTS[n] for n in FREE])
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")
@@ -163,7 +162,7 @@ def test_ml_nm_with_and_without_restarts_reaches_the_optimum(monkeypatch, coordi
     # is cut short); False: the paper's one simplex from the start's, continued through the noise
     # updates. Both end within 0.1 σ of ml-gn's optimum from 10 % off, in either coordinates;
     # the fresh simplexes made are counted where made, each `step` or `restart_step` wide.
-    from testbed.estimators import ml
+    from testbed.estimators import simplex
 
     data = _vertical()
     prior = example_config(VERTICAL).with_coefficients(
@@ -171,8 +170,8 @@ def test_ml_nm_with_and_without_restarts_reaches_the_optimum(monkeypatch, coordi
     )
     gn = identify(data, prior, method="ml-gn", start="config")
     made = []
-    fresh = ml.fresh_simplex
-    monkeypatch.setattr(ml, "fresh_simplex", lambda x, size: made.append(size) or fresh(x, size))
+    fresh = simplex.fresh_simplex
+    monkeypatch.setattr(simplex, "fresh_simplex", lambda x, size: made.append(size) or fresh(x, size))
     counts = {}
     for restarts in (True, False):
         made.clear()
@@ -443,9 +442,9 @@ def test_masked_initial_states_are_the_least_squares_of_the_samples_present():
 def test_a_4_dof_config_without_iy_fits_lateral_data_and_refuses_vertical_ones():
     """No Iy in the config: lateral data (v, p, r, φ, ψ) fit exactly as with it; a measured q,
     or a measured u (the surge row sees θ through W − B), is refused naming Iy and the state."""
-    from testbed.simulation.analytic import analytic_config
     from testbed.identification.prediction import synthetic
     from testbed.models.linear import INPUTS
+    from testbed.simulation.analytic import analytic_config
 
     config, _ = analytic_config()
     free = ("N_r", "N_dr", "K_p")

@@ -10,9 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from nonlinear_reference import SCENARIO_I, fit_terms, sample_box
 
 from testbed.errors import InputError
-from testbed.models import linear
+from testbed.models import linear, nonlinear_kernels
 from testbed.models.mechanics import coriolis, kinematics
 from testbed.models.nonlinear import (
     INERTIA,
@@ -27,9 +28,7 @@ from testbed.models.nonlinear import (
     theta_vector,
     thrust,
 )
-from testbed.models import nonlinear_kernels
 from testbed.models.regressors import WEIGHTS, parse_term, regressors
-from nonlinear_reference import SCENARIO_I, fit_terms, sample_box
 
 # A torpedo-like body (SI): CB 2 cm above the CG, slightly heavy, off-diagonal added mass.
 VEHICLE = linear.Vehicle(

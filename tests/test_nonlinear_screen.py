@@ -12,20 +12,22 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.analysis.identifiability import Structural, assessed, identify_screened, screening
+from testbed.analysis.identifiability import assessed
 from testbed.analysis.nonlinear_identifiability import (
     NONLINEAR,
     forward,
     nonlinear_identifiability,
     rank_tolerance,
 )
+from testbed.analysis.screening import identify_screened, screening
+from testbed.analysis.structural import Structural
+from testbed.captive.config import captive_config
 from testbed.cli import main
-from testbed.estimators import identify
 from testbed.data import Experiment, read_config, read_csv, write_config, write_csv
+from testbed.estimators import identify
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
 from testbed.simulation import runs
-from testbed.captive.config import captive_config
 from testbed.simulation.measurements import NOISE_STD
 
 DETERMINED = ("Y_uv", "N_uv", "Z_uw", "M_uw")  # moved 20 % off in the start

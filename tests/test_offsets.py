@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from references import assert_sensitivities_match_complex_step
 from scipy import signal
 
 from testbed.data import Experiment
@@ -11,7 +12,6 @@ from testbed.identification import likelihood
 from testbed.identification.examples import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE, example_config, inputs
 from testbed.identification.problem import problem
 from testbed.models.linear import IX, NX, OFFSETS, STATES, continuous, structure, theta_vector, tilde
-from references import assert_sensitivities_match_complex_step
 
 LATERAL = ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr")  # a rudder alone leaves roll unexcited
 FIN_OFFSET = 0.0087  # rad: a rudder whose zero is 0.5° off
@@ -132,7 +132,7 @@ def test_filters_refuse_per_record_values():
 
 
 def test_the_screen_fixes_a_per_record_name_only_where_no_record_determines_it():
-    from testbed.analysis.identifiability import screening
+    from testbed.analysis.screening import screening
 
     offsets = (FIN_OFFSET, -FIN_OFFSET)
     data = _turns(offsets)
@@ -146,7 +146,7 @@ def test_a_free_offset_unpins_its_row():
     """W ≠ B pins the heave row: scaling it by 1 + ε would scale the known W − B in St, which no
     coefficient takes up. A free Z_0 takes it up (Z_0 → (1 + ε)(W − B + Z_0) − (W − B)): the
     heave row's coefficients and Z_0 then drift together."""
-    from testbed.analysis.identifiability import structural
+    from testbed.analysis.structural import structural
 
     heave = ("Z_wdot", "Z_qdot", "Z_w", "Z_q", "Z_de")
     s, theta = structure(VEHICLE), theta_vector(EXAMPLE_COEFFICIENTS)

@@ -2,17 +2,18 @@
 with the analytic linear model of the MJCF, noise-free and through the whole identify path."""
 
 import json
+
 import numpy as np
 import pytest
 
-from testbed.analysis.identifiability import screen
+from testbed.analysis.screening import screen
 from testbed.cli import main
 from testbed.data import Experiment, load_data, read_config
 from testbed.estimators import identify
+from testbed.fit_percent import fit_percent
 from testbed.identification.prediction import predict
 from testbed.models.linear import STATES
 from testbed.simulation.runs import simulate
-from testbed.fit_percent import fit_percent
 
 # The channels each experiment is designed to excite.
 EXCITED = {"horizontal": ("v", "r", "psi"), "vertical": ("w", "q", "theta", "z"), "roll": ("p", "phi")}

@@ -12,16 +12,15 @@ import pytest
 import rerun.chunk
 from scipy.spatial.transform import Rotation
 
-from testbed.simulation import recording
-
-from testbed.presentation import report
-from testbed.analysis.identifiability import compare
+from testbed.analysis.comparison import compare
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.identification import likelihood, prediction
 from testbed.identification.prediction import synthetic
 from testbed.models.linear import INPUTS, STATES
+from testbed.presentation import report
+from testbed.simulation import recording
 from testbed.simulation.analytic import analytic_config
 
 FIN_NAMES = ("rudder", "elevator_right", "elevator_left")
@@ -532,9 +531,9 @@ def test_a_nonlinear_fit_is_recorded_with_the_nonlinear_models_outputs(tmp_path)
     """A nonlinear model config's `ml-gn` fit: each free term per iteration on the parameters tab,
     and the outputs of the nonlinear model flown from the estimate's initial state
     (`nonlinear_prediction.predict`), not the linear model's."""
+    from testbed.captive.config import captive_config
     from testbed.identification.nonlinear_prediction import predict as fly_nonlinear
     from testbed.models.nonlinear_flight import fly
-    from testbed.captive.config import captive_config
 
     free = ("Y_uv", "N_uv")
     config = dataclasses.replace(captive_config(model="polynomial")[0], free=free, screen=False)

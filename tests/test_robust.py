@@ -9,15 +9,15 @@ import pytest
 from scipy.optimize import brentq
 
 from studies import starts
-from testbed.identification import bounds, prediction
-from testbed.analysis.identifiability import screen
+from testbed.analysis.screening import screen
 from testbed.data import load_data
 from testbed.errors import InputError
 from testbed.estimators import OptionError, identify
-from testbed.simulation.measurements import NOISE_STD
+from testbed.identification import bounds, prediction
 from testbed.models.linear import IX, continuous, discretize, structure, theta_vector
-from testbed.simulation.signals import Prbs
 from testbed.simulation.analytic import analytic_config
+from testbed.simulation.measurements import NOISE_STD
+from testbed.simulation.signals import Prbs
 
 # -- a course-unstable vehicle ---------------------------------------------------------------------
 
@@ -272,7 +272,7 @@ def test_a_scenario_ii_log_as_it_comes_keeps_its_information(tmp_path):
     the model as its even twin does, tests/test_time_as_logged.py.)"""
     from importlib.resources import files
 
-    from testbed.analysis.identifiability import identify_screened
+    from testbed.analysis.screening import identify_screened
     from testbed.identification.bounds import information
     from testbed.simulation.runs import simulate
 
@@ -301,7 +301,7 @@ def test_the_screened_list_is_fitted_from_where_the_screen_s_fit_ended():
     """When the screen fixes a candidate, `ml-gn` fits the rest from the screen's own estimate
     (the fixed one at its a-priori value), not from the a-priori model again: in the screen fit's
     basin, which a poor a-priori model may not lead back to."""
-    from testbed.analysis.identifiability import identify_screened, screening
+    from testbed.analysis.screening import identify_screened, screening
     from testbed.identification.examples import example_config, experiments
 
     config = example_config()
@@ -320,16 +320,16 @@ def test_a_fix_that_costs_more_than_the_likelihood_ratio_test_allows_is_undone(m
     """The significance stage chooses its fixes by the cost's quadratic model; where fixing them
     raises the cost by more than χ²₀.₉₅(k)/2 (here N_r held at half its value, forced through the
     stage), the screen's fit of every candidate stands, the reason in its start_reason."""
-    from testbed.analysis import identifiability
+    from testbed.analysis import screening
     from testbed.identification.examples import example_config, experiments
 
     config = example_config()
     prior = replace(config.with_coefficients({"N_r": 0.5 * config.coefficients["N_r"]}), screen=True)
     data = experiments(seed=1, duration=60.0)
-    monkeypatch.setattr(identifiability, "insignificant", lambda *a: {"N_r": "forced"})
-    screened = identifiability.identify_screened(data, prior, options={"start": "config"})
+    monkeypatch.setattr(screening, "insignificant", lambda *a: {"N_r": "forced"})
+    screened = screening.identify_screened(data, prior, options={"start": "config"})
     assert screened.fixed == {} and "N_r" in screened.estimate.free
     assert "the screen kept them: fixing N_r raised the cost by" in screened.estimate.start_reason
     monkeypatch.undo()
-    whole = identifiability.identify_screened(data, replace(prior, screen=False), options={"start": "config"})
+    whole = screening.identify_screened(data, replace(prior, screen=False), options={"start": "config"})
     assert screened.estimate.cost == pytest.approx(whole.estimate.cost, abs=1e-6)

@@ -12,16 +12,17 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.analysis.identifiability import SIGNIFICANT, UNCERTAIN, identifiability, insignificant, screening
+from testbed.analysis.identifiability import UNCERTAIN, identifiability
+from testbed.analysis.screening import SIGNIFICANT, insignificant, screening
 from testbed.cli import main
 from testbed.data import config_text, read_config, write_csv
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed.jobs import identify_data
 from testbed.identification.prediction import synthetic
+from testbed.jobs import identify_data
+from testbed.simulation.analytic import analytic_config, analytic_config_text
 from testbed.simulation.measurements import NOISE_STD, noise_from_data
 from testbed.simulation.signals import Prbs
-from testbed.simulation.analytic import analytic_config, analytic_config_text
 
 MEASURED = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
 ZERO = ("Z_q", "M_w", "N_v", "N_p")  # 0 in the user's a-priori config, not in the foreign body
@@ -271,14 +272,14 @@ def test_what_a_method_refuses_in_the_config_is_refused_before_the_screen_s_fit(
 ):
     """A config the method cannot take, whatever the data: the one-line refusal, and no screen
     (its `ml-gn` fit can take minutes on a real log)."""
-    from testbed.analysis import identifiability
+    from testbed.analysis import screening
     from testbed.identification.examples import FREE, experiments, prior_config
 
     def screened(*args, **kwargs):
         raise AssertionError("the screen ran before the method's refusal")
 
-    monkeypatch.setattr(identifiability, "screening", screened)
+    monkeypatch.setattr(screening, "screening", screened)
     config = replace(prior_config(), free=FREE + free, screen=True)
     with pytest.raises(InputError, match=words) as exc:
-        identifiability.identify_screened(experiments(seed=0, duration=5.0), config, method)
+        screening.identify_screened(experiments(seed=0, duration=5.0), config, method)
     assert "\n" not in str(exc.value)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.optimize import NonlinearConstraint, minimize
 
-from testbed.identification import likelihood
-from testbed.identification.problem import problem
 from testbed.estimators import Status, identify, trust_region
-from testbed.identification.examples import experiments, example_config
+from testbed.identification import likelihood
+from testbed.identification.examples import example_config, experiments
+from testbed.identification.problem import problem
 
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")
 

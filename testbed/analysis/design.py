@@ -50,17 +50,17 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.identifiability import unidentified
 from testbed.analysis.regime import FITTED, SEED, Limits, Linearity, linearity, peaks
+from testbed.analysis.screening import unidentified
 from testbed.data import Experiment, ModelConfig, check_free
 from testbed.errors import InputError
 from testbed.identification import bounds
 from testbed.identification.bounds import crlb
 from testbed.models.linear import (
     COEFFICIENTS,
-    PARAMETERS,
     IX,
     NX,
+    PARAMETERS,
     STATES,
     continuous,
     derivatives,

@@ -2,7 +2,7 @@
 
 The coefficients of `Mt ẋ = At x + Bt δ + St` are not globally identifiable: with Mt unknown a
 row can be scaled, or combined with the rows its inertia couples it to, and the outputs stay the
-same (`identifiability.structural` finds these exact null directions). The practical question
+same (`structural.structural` finds these exact null directions). The practical question
 is whether, once the rows are normalised so that no exact null direction is left, the fit with
 the inertia terms free (the Mt-form) still drifts more than the fit of the same data with the
 inertia known (the A-form: `ẋ = Mt⁻¹At x + Mt⁻¹Bt δ`, only At and Bt coefficients free).
@@ -22,7 +22,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.analysis.design import scales
-from testbed.analysis.identifiability import structural
+from testbed.analysis.structural import structural
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.identification.bounds import crlb, fisher

@@ -17,7 +17,7 @@ counterpart here, so `structural_drift_groups` holds only those. A direction alo
 information is numerically singular (an eigenvalue within its own rounding: `rank_tolerance`)
 gives its coefficients infinite bounds.
 
-The screen of a nonlinear model config (`NONLINEAR`, for `identifiability.screening`) takes its
+The screen of a nonlinear model config (`NONLINEAR`, for `screening.screening`) takes its
 stage 1 from this analysis at the a-priori values (`forward`) and its stage 2 from it at the
 `ml-gn` estimate, each record flown from the fit's initial state. Stage 1 cannot fix every
 candidate along a singular direction, as the linear model's fixes every member of a drift group:
@@ -26,7 +26,7 @@ each blade's blunt and slender drag), along which the information is singular or
 fixing all of them would leave little to fit (of the captive component model's 23 candidates on
 Scenario I, one). `forward` keeps one of each instead: it takes the candidates one at a time, the
 most significant alone first, and keeps each while the information stays regular and every
-candidate kept is significant at its a-priori value (|θ₀| ≥ 2 σ: `identifiability.SIGNIFICANT`),
+candidate kept is significant at its a-priori value (|θ₀| ≥ 2 σ: `screening.SIGNIFICANT`),
 the rule stage 2 applies at the estimate. A candidate 0 a priori is kept where its own bound is
 finite and the others stay significant, so none is fixed for being 0.
 """
@@ -38,7 +38,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.identifiability import SIGNIFICANT, Identifiability, ScreenModel, Structural, assessed
+from testbed.analysis.identifiability import Identifiability, assessed
+from testbed.analysis.screening import SIGNIFICANT, ScreenModel
+from testbed.analysis.structural import Structural
 from testbed.data import Experiment, ModelConfig, split
 from testbed.estimators import Estimate
 from testbed.identification.bounds import NULL, crlb, eliminated

@@ -26,7 +26,7 @@ from testbed.data import Experiment, ModelConfig, split
 from testbed.errors import InputError
 from testbed.estimators import equation_error, fem, mekf, ml
 from testbed.estimators.base import Callback, Estimate, Method, OptionError, Options, Progress, Status
-from testbed.estimators.mekf import FilterEstimate, FilterOptions
+from testbed.estimators.filter_options import FilterEstimate, FilterOptions
 from testbed.identification.problem import check_fit
 
 __all__ = [

@@ -65,13 +65,13 @@ from testbed.identification.nonlinear_output_error import (
     setup,
     start_states,
 )
-from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.nonlinear_prediction import initial_state
+from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.recursions import counting, simulated
 from testbed.models import log_mounting
 from testbed.models.linear import STATES
 
-__all__ = ["STARTS", "gauss_newton", "simplex"]
+__all__ = ["STARTS", "damped_gauss_newton", "simplex"]
 
 STARTS = ("auto", "config", "equation-error")  # the starts a nonlinear model has (module doc)
 _STATUS = {"converged": Status.CONVERGED, "iteration limit": Status.MAX_ITERATIONS, "stalled": Status.STALLED}
@@ -145,7 +145,7 @@ def _start(start: str, model, theta, recs, channels, free, held) -> tuple[str, n
     return min((("config", theta), ("equation-error", regressed)), key=lambda s: cost(s[1]))
 
 
-def gauss_newton(
+def damped_gauss_newton(
     experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
 ) -> Estimate:
     """`ml-gn` on a nonlinear model config (module doc)."""

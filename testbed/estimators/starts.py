@@ -17,14 +17,13 @@ from typing import Sequence
 
 import numpy as np
 
-from testbed.identification import bounds
-from testbed.estimators import equation_error
-from testbed.identification import likelihood, recursions
-from testbed.identification.problem import Problem
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import mekf
+from testbed.estimators import equation_error, mekf
 from testbed.estimators.base import Status
+from testbed.estimators.filter_options import FilterOptions
+from testbed.identification import bounds, likelihood, recursions
+from testbed.identification.problem import Problem
 
 __all__ = ["BOX_BOUNDS", "box", "named"]
 
@@ -50,7 +49,7 @@ def named(
                 f"these data ({why}); expected records measuring those states, or start config or mekf"
             )
         return values, left
-    est = mekf.MEKF.fit(experiments, config, mekf.FilterOptions(), None)
+    est = mekf.MEKF.fit(experiments, config, FilterOptions(), None)
     if est.status is Status.DIVERGED:
         raise InputError(
             f"{prob.source}: start='mekf': the MEKF diverged ({est.message}); expected "

@@ -86,7 +86,7 @@ ROWS = "XYZKMN"  # force/moment letter of the rows u v w p q r
 _T6 = np.kron(np.eye(2), FLIP)  # MuJoCo hull axes (FLU) <-> body axes (FRD), for (lin, ang)
 # The default [identify] free list: the damping and control derivatives but X_u. The added-mass
 # (*dot) terms stay at their potential-flow values: with them free the rows of Mt can be rescaled
-# without changing the outputs (exactly unidentifiable directions, testbed.analysis.identifiability.structural).
+# without changing the outputs (exactly unidentifiable directions, testbed.analysis.structural.structural).
 # X_u stays too: at constant thrust no scenario excites surge, and the speed lost in turns is
 # second order.
 FREE = tuple(n for n in COEFFICIENTS if not n.endswith("dot") and n != "X_u")

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 from testbed.errors import InputError
-from testbed.estimators.mekf import PAPER_OPTIONS
+from testbed.estimators.filter_options import PAPER_OPTIONS
 
 __all__ = ["ARMS", "Arm", "DEFAULT_ARMS", "DRIFT_ARMS", "FACTORIAL_ARMS", "arm", "arms"]
 

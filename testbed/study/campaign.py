@@ -44,7 +44,8 @@ from testbed.errors import InputError, atomic_write_text, check_output_directory
 from testbed.memory import keep_freed_memory
 from testbed.presentation.figures import write_report
 from testbed.simulation.scenario import TRUTHS
-from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS, arms as checked_arms
+from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS
+from testbed.study.arms import arms as checked_arms
 from testbed.study.cells import NONLINEAR, OPTIMUM, Cell, load_run, run_cell, start
 from testbed.study.results import (
     SUMMARY_COLUMNS,

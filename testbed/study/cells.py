@@ -39,18 +39,18 @@ import mujoco
 import numpy as np
 
 from testbed.analysis.drift import normalised
-from testbed.analysis.identifiability import screening
+from testbed.analysis.screening import screening
 from testbed.analysis.validation import validate
+from testbed.captive.config import captive_config
+from testbed.captive.reference import slope_terms
 from testbed.data import load_data
 from testbed.errors import InputError, one_line
 from testbed.estimators import FilterEstimate, identify, lookup
-from testbed.estimators.ml import SIMPLEX_ITERATIONS
+from testbed.estimators.nelder_mead import SIMPLEX_ITERATIONS
 from testbed.identification import likelihood, recursions, scan
 from testbed.identification.bounds import fisher
 from testbed.identification.problem import problem
 from testbed.models.linear import COEFFICIENTS
-from testbed.captive.config import captive_config
-from testbed.captive.reference import slope_terms
 from testbed.simulation.measurements import noise_from_data
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text
