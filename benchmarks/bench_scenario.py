@@ -35,7 +35,8 @@ def main(argv=None):
     import testbed.presentation.report  # noqa: F401  (the recording's imports, as simulate pays them)
     from testbed.simulation.plant import Plant
     from testbed.simulation.runs import simulate
-    from testbed.simulation.scenario import fly_scenario, scenario
+    from testbed.simulation.flight import fly_scenario
+    from testbed.simulation.scenario import scenario
 
     Plant().step((0.0, 0.0, 0.0))  # loads the compiled completion
     startup = time.perf_counter() - t0

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from testbed.analysis.regime import linearity
-from testbed.simulation.scenario import fly_scenario, scenario
+from testbed.simulation.flight import fly_scenario
+from testbed.simulation.scenario import scenario
 from testbed.simulation.signals import Prbs
 
 EXCITED = {"horizontal": ("v", "r", "psi"), "vertical": ("w", "q", "theta", "z"), "roll": ("p", "phi")}

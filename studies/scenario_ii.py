@@ -26,7 +26,8 @@ from testbed.errors import atomic_write_text
 from testbed.estimators import identify
 from testbed.simulation.measurements import measure, rng_for
 from testbed.models.linear import STATES
-from testbed.simulation.scenario import fly_scenario, scenario
+from testbed.simulation.flight import fly_scenario
+from testbed.simulation.scenario import scenario
 from testbed.simulation.analytic import model_config
 from testbed.simulation.vehicle import default_mjcf
 

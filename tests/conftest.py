@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
 
-from testbed.simulation.scenario import Flight  # noqa: E402
+from testbed.simulation.flight import Flight  # noqa: E402
 
 _COMMON = dict(
     deadline=None,

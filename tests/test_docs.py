@@ -130,7 +130,7 @@ def test_model_vehicle_constants():
 
 
 def subcommands() -> dict[str, argparse.ArgumentParser]:
-    from testbed.cli import parser
+    from testbed.arguments import parser
 
     (action,) = [a for a in parser()._actions if isinstance(a, argparse._SubParsersAction)]
     return dict(action.choices)

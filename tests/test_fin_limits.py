@@ -9,7 +9,8 @@ import pytest
 from testbed.analysis import design as D
 from testbed.errors import InputError
 from testbed.simulation.analytic import analytic, model_config
-from testbed.simulation.scenario import ExperimentSpec, Scenario, fly_scenario
+from testbed.simulation.flight import fly_scenario
+from testbed.simulation.scenario import ExperimentSpec, Scenario
 from testbed.simulation.signals import Hold, Prbs
 from testbed.simulation.vehicle import default_mjcf, fin_limits, load_model
 

@@ -21,7 +21,8 @@ from testbed.errors import InputError
 from testbed.models.linear import STATES, continuous, structure, theta_vector
 from testbed.simulation.measurements import rng_for
 from testbed.simulation.runs import simulate
-from testbed.simulation.scenario import fly_scenario, scenario
+from testbed.simulation.flight import fly_scenario
+from testbed.simulation.scenario import scenario
 from testbed.simulation.sensing import SENSOR_STREAM
 
 SEED = 3

@@ -16,6 +16,7 @@ from testbed.analysis.zigzag import zigzag
 from testbed.errors import InputError
 from testbed.models.linear import IX
 from testbed.simulation import runs
+from testbed.simulation import flight as fl
 from testbed.simulation import scenario as sc
 
 # -- an analytic turning circle ------------------------------------------------------------------
@@ -202,7 +203,7 @@ def test_the_plants_zigzag_overshoots_are_its_records_peaks(name, state, rate, c
     commanded reversals, to within the parabola's refinement of the sampled peak, and the
     peak instant is where the angle's rate changes sign."""
     s = sc.scenario(name).with_overrides(duration=6.0)
-    (f,), _ = sc.fly_scenario(s)
+    (f,), _ = fl.fly_scenario(s)
     spec = s.experiments[0]
     m = experiment_metrics(spec, flight_track(f))
     angle, h = f.truth[:, IX[state]], f.t[1] - f.t[0]
@@ -227,7 +228,7 @@ def test_the_plants_turning_circle_is_steady_symmetric_and_held():
     starboard; the steady turn rate is the record's mean r over the steady part, within the
     band there; the circle fitted to the track has the kinematic diameter 2 U / |r|."""
     s = sc.scenario("turning-circle").with_overrides(duration=8.0)
-    flights, _ = sc.fly_scenario(s)
+    flights, _ = fl.fly_scenario(s)
     port, starboard = (experiment_metrics(e, flight_track(f)) for e, f in zip(s.experiments, flights))
     assert (port.side, starboard.side) == ("port", "starboard")
     for field in ("advance", "transfer", "tactical_diameter", "steady_diameter", "steady_speed"):
@@ -250,7 +251,7 @@ def test_a_run_directory_gives_the_flights_metrics(tmp_path):
     the metrics of the flight itself (the plant's position), to the dead reckoning's error."""
     s = sc.scenario("turning-circle").with_overrides(duration=8.0)
     run = runs.simulate(s, out=tmp_path / "run")
-    flights, _ = sc.fly_scenario(s)
+    flights, _ = fl.fly_scenario(s)
     metrics = run_metrics(run)
     assert list(metrics) == ["port", "starboard"]
     for e, f in zip(s.experiments, flights):

@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 
 from testbed.simulation import runs
+from testbed.simulation import flight as fl
 from testbed.simulation import scenario as sc
 from testbed.simulation import signals as sig
-from testbed.cli import BUILTIN_SCENARIOS, main
+from testbed.arguments import BUILTIN_SCENARIOS
+from testbed.cli import main
 from testbed.data import load_data
 from testbed.errors import InputError
 from testbed.simulation.measurements import rng_for
@@ -32,7 +34,7 @@ def _short(name, duration):
 
 def test_scenario_i_commands_are_the_papers():
     s = sc.scenario("I")
-    program = sc.program(s, s.experiments[0], seed=0, index=0)
+    program = fl.program(s, s.experiments[0], seed=0, index=0)
     x = np.zeros(10)
     for k in range(1500):  # the control instants k / 50 Hz
         c = program(k * 0.02, x)
@@ -42,7 +44,7 @@ def test_scenario_i_commands_are_the_papers():
 
 
 def test_scenario_i_is_flown_not_toned_down():
-    (flight,), _ = sc.fly_scenario(_short("I", 12.0))
+    (flight,), _ = fl.fly_scenario(_short("I", 12.0))
     r, z = flight.truth[:, IX["r"]], flight.truth[:, IX["z"]]
     assert r.max() > 0.85 * math.radians(20) and r.min() < -0.85 * math.radians(20)
     assert z.max() - z.min() > 15.0
@@ -75,7 +77,7 @@ def test_prbs_spectrum_covers_the_vehicle_bandwidth():
 
 def test_scenario_ii_horizontal_holds_depth_while_the_rudder_follows_the_prbs():
     s = _short("II", 20.0)
-    horizontal, _, _ = sc.fly_scenario(s, seed=3)[0]
+    horizontal, _, _ = fl.fly_scenario(s, seed=3)[0]
     z = horizontal.truth[:, IX["z"]]
     assert np.abs(z - 100.0).max() < 0.2  # depth held while the rudder is excited
     rudder = s.experiments[0].fins["rudder"]
@@ -95,7 +97,7 @@ def test_scenario_ii_vertical_elevators_follow_the_prbs(seed):
     bounded and steps the depth by 3 m every 15 s: the PRBS dominates the elevators above
     0.1 Hz."""
     s = sc.scenario("II")
-    _, f, _ = sc.fly_scenario(s, seed=seed)[0]
+    _, f, _ = fl.fly_scenario(s, seed=seed)[0]
     dt, e = 1.0 / s.sensors.rate, s.experiments[1].fins["elevators"]
     prbs = e.amplitude * sig.prbs(e.order, rng_for(seed, 1, 2))[np.arange(len(f.t)) // 5]
     assert np.array_equal(f.commands["elevators"], prbs)
@@ -115,7 +117,7 @@ def test_scenario_ii_roll_moves_the_elevators_differentially_only():
     """The roll experiment's PRBS on the elevators' difference, depth held by their sum, rudder
     fixed: an input for the roll row that no autopilot correlates with the states."""
     s = _short("II", 20.0)
-    _, _, f = sc.fly_scenario(s, seed=2)[0]
+    _, _, f = fl.fly_scenario(s, seed=2)[0]
     a = s.experiments[2].fins["differential"]
     prbs = a.amplitude * sig.prbs(a.order, rng_for(2, 2, 3))[np.arange(len(f.t)) // 5]
     assert np.array_equal(f.commands["differential"], prbs)
@@ -128,7 +130,7 @@ def test_scenario_ii_roll_moves_the_elevators_differentially_only():
 
 def test_turning_circle_reaches_a_steady_yaw_rate_at_the_commanded_rudder():
     s = _short("turn", 8.0)
-    (f,), _ = sc.fly_scenario(s)
+    (f,), _ = fl.fly_scenario(s)
     rudder = s.experiments[0].fins["rudder"].value
     steady = f.t >= 5.0
     r = f.truth[steady, IX["r"]]
@@ -159,7 +161,7 @@ def _zigzag_commands(angle, fin, switch):
 )
 def test_zigzag_switches_the_fins_when_the_angle_passes_the_switching_angle(scenario, state, fin, keyword):
     s = _short(scenario, 12.0)
-    (f,), _ = sc.fly_scenario(s)
+    (f,), _ = fl.fly_scenario(s)
     limit, switch = s.experiments[0].fins[keyword].angle, s.experiments[0].fins[keyword].switch
     angle = f.truth[:, IX[state]]
     command = f.commands[keyword]
@@ -392,14 +394,14 @@ def test_the_autopilots_read_the_true_states_or_the_records_readings(feedback, t
     feedback: over the ground in a current), the same autopilots and programs give the fin
     commands flown, and the measured states keep the documented noise either way."""
     s = replace(_short("II", 6.0), feedback=feedback, trial=parse_trial(TRIALS[trial], "trial"))
-    flights, lin = sc.fly_scenario(s, seed=3, truth="linear")
+    flights, lin = fl.fly_scenario(s, seed=3, truth="linear")
     for k, (e, f) in enumerate(zip(s.experiments, flights)):
         autopilot = Autopilot.designed(
             lin.A_full, lin.B_full, lin.vehicle.speed, 1 / s.control_rate, lin.fins.angle
         )
-        program = sc.program(s, e, seed=3, index=k)
+        program = fl.program(s, e, seed=3, index=k)
         rows = f.truth if feedback == "true" else f.measured
-        flown = np.column_stack([f.commands[c] for c in sc.FIN_COMMANDS])
+        flown = np.column_stack([f.commands[c] for c in fl.FIN_COMMANDS])
         replayed = np.array([autopilot.step(x, **program(t, x))[0] for t, x in zip(f.t, rows)])
         assert np.abs(replayed - flown).max() < 1e-12, e.name
         other = f.measured if feedback == "true" else f.truth
@@ -426,7 +428,7 @@ def test_with_two_control_steps_a_sample_the_record_holds_every_other_reading(tr
     monkeypatch.setattr(Autopilot, "step", logged)
     s = replace(_short("II", 2.0), feedback="measured", control_rate=100.0)
     assert sc.parse_scenario(tomllib.loads(sc.scenario_text(s)), s.source) == s
-    flights, _ = sc.fly_scenario(s, seed=5, truth=truth)
+    flights, _ = fl.fly_scenario(s, seed=5, truth=truth)
     for f in flights:
         readings, read[:] = np.array(read[: 2 * len(f.t) - 1]), read[2 * len(f.t) - 1 :]
         at_samples = readings[::2]
@@ -440,7 +442,7 @@ def test_with_two_control_steps_a_sample_the_record_holds_every_other_reading(tr
 
 def test_noise_is_the_documented_noise(tmp_path):
     s = _short("I", 20.0)
-    f = sc.fly_scenario(s, seed=2)[0][0]
+    f = fl.fly_scenario(s, seed=2)[0][0]
     for name, std in s.sensors.noise_std.items():
         k = IX[name]
         assert np.std(f.measured[:, k] - f.truth[:, k]) == pytest.approx(std, rel=0.1)
@@ -470,11 +472,11 @@ def test_bad_input_leaves_nothing(tmp_path, capsys, monkeypatch):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(sc, "fly", interrupted)
+    monkeypatch.setattr(fl, "fly", interrupted)
     assert main(["simulate", "--scenario", "I", "--quiet", "--out", str(tmp_path / "cut")]) == 130
     assert sorted(p.name for p in tmp_path.iterdir()) == ["exists", "file"]  # no run, no temp dir
     with pytest.raises(InputError, match="duration"):
-        sc.fly_scenario(replace(sc.scenario("I"), duration=-1.0))
+        fl.fly_scenario(replace(sc.scenario("I"), duration=-1.0))
 
 
 @pytest.mark.parametrize(
@@ -514,7 +516,7 @@ def test_library_checks_its_inputs(tmp_path):
         with pytest.raises(InputError, match="seed .*non-negative integer"):
             rng_for(bad, 0)
         with pytest.raises(InputError, match="seed"):
-            sc.fly_scenario(_short("I", 1.0), seed=bad)
+            fl.fly_scenario(_short("I", 1.0), seed=bad)
     assert rng_for(np.int64(3), 0).integers(1 << 30) == rng_for(3, 0).integers(1 << 30)
     with pytest.raises(
         InputError,
@@ -528,7 +530,7 @@ def test_kill_leaves_nothing(tmp_path, monkeypatch):
         os.kill(os.getpid(), signal.SIGTERM)  # as `kill PID` would, mid-flight
         raise AssertionError("SIGTERM did not stop the run")
 
-    monkeypatch.setattr(sc, "fly", killed)
+    monkeypatch.setattr(fl, "fly", killed)
     assert main(["simulate", "--scenario", "II", "--quiet", "--out", str(tmp_path / "run")]) == 130
     assert list(tmp_path.iterdir()) == []  # no run directory, no temporary one
 
@@ -542,8 +544,8 @@ def test_fins_logged_at_the_physics_rate_are_the_servos_steps_between_the_sample
     s = _short("I", 3.0)
     fine = replace(s, sensors=replace(s.sensors, fin_rate=100.0))
     assert sc.parse_scenario(tomllib.loads(sc.scenario_text(fine)), fine.source) == fine
-    (f,), _ = sc.fly_scenario(s, seed=3)
-    (g,), _ = sc.fly_scenario(fine, seed=3)
+    (f,), _ = fl.fly_scenario(s, seed=3)
+    (g,), _ = fl.fly_scenario(fine, seed=3)
     assert f.fin_log is None and np.array_equal(g.measured, f.measured) and np.array_equal(g.truth, f.truth)
     log = g.fin_log
     assert len(log.t) == 2 * len(f.t) - 1 and np.allclose(log.t[::2], f.t)
@@ -551,7 +553,7 @@ def test_fins_logged_at_the_physics_rate_are_the_servos_steps_between_the_sample
     np.testing.assert_allclose(0.5 * (log.fins[:-1:2] + log.fins[1::2]), f.fins[:-1], atol=1e-12)
     model = load_model()
     limits, slew = fin_limits(model).angle, fin_rate_limit(model) * model.opt.timestep
-    commands = np.column_stack([g.commands[k] for k in sc.FIN_COMMANDS])
+    commands = np.column_stack([g.commands[k] for k in fl.FIN_COMMANDS])
     reference, replayed = np.zeros(3), []
     for command in commands[:-1]:
         for _ in range(2):

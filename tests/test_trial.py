@@ -14,7 +14,8 @@ import pytest
 from testbed.cli import main
 from testbed.models.linear import INPUTS, IX, STATES
 from testbed.models.sensors import rotation
-from testbed.simulation.scenario import SCENARIO_DIR, fly_scenario, parse_scenario, scenario, scenario_text
+from testbed.simulation.flight import fly_scenario
+from testbed.simulation.scenario import SCENARIO_DIR, parse_scenario, scenario, scenario_text
 from testbed.simulation.trial import Backlash, Trial, gauss_markov
 
 BASE = """

@@ -71,7 +71,8 @@ from testbed.models.linear import (
 from testbed.simulation.analytic import analytic, model_config
 from testbed.simulation.autopilot import Autopilot, fly_linear
 from testbed.simulation.measurements import NOISE_STD
-from testbed.simulation.scenario import ExperimentSpec, Scenario, program, scenario
+from testbed.simulation.flight import program
+from testbed.simulation.scenario import ExperimentSpec, Scenario, scenario
 from testbed.simulation.signals import TAPS, Hold, Multisine, Prbs, Signal, Square
 from testbed.simulation.vehicle import FinLimits
 

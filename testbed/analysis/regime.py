@@ -23,7 +23,8 @@ from testbed.errors import InputError
 from testbed.identification.prediction import predict
 from testbed.models.linear import IX, STATES
 from testbed.simulation.analytic import model_config
-from testbed.simulation.scenario import Scenario, fly_scenario, read_scenario
+from testbed.simulation.flight import fly_scenario
+from testbed.simulation.scenario import Scenario, read_scenario
 
 __all__ = [
     "EXCITED_SNR",

@@ -34,15 +34,8 @@ from testbed.models.linear import STATES
 from testbed.models.sensors import ACCELERATIONS
 from testbed.simulation.recording import log_run
 from testbed.simulation.sensing import gapped_csv_text
-from testbed.simulation.scenario import (
-    UNFITTED_DEPTH,
-    Scenario,
-    check_flyable,
-    check_truth,
-    fly_scenario,
-    scenario,
-    scenario_text,
-)
+from testbed.simulation.flight import check_flyable, check_truth, fly_scenario
+from testbed.simulation.scenario import UNFITTED_DEPTH, Scenario, scenario, scenario_text
 from testbed.simulation.analytic import model_config
 from testbed.simulation.prior import prior_config
 from testbed.simulation.vehicle import default_mjcf
