@@ -24,7 +24,7 @@ from testbed.analysis.identifiability import identifiability
 from testbed.data import load_data, read_config
 from testbed.analysis.design import TEMPLATES
 from testbed.presentation.design_report import write_design
-from testbed.jobs import identify_data
+from testbed.jobs.identify import identify_data
 from testbed.identification.prediction import predict
 from testbed.models.linear import STATES
 from testbed.simulation.runs import simulate

@@ -128,7 +128,7 @@ def _cmd_simulate(args) -> int:
 
 def _cmd_identify(args) -> int:
     from testbed.estimators import lookup
-    from testbed.jobs import identify_data
+    from testbed.jobs.identify import identify_data
 
     out = _to_stdout(args.out)
     _check_recording(args.rrd)
@@ -206,7 +206,7 @@ def _cmd_identify(args) -> int:
 
 
 def _cmd_analyze(args) -> int:
-    from testbed.jobs import analyze_data
+    from testbed.jobs.analyze import analyze_data
 
     out = _to_stdout(args.out)
     result = analyze_data(
@@ -225,7 +225,7 @@ def _cmd_analyze(args) -> int:
 
 
 def _cmd_check(args) -> int:
-    from testbed.jobs import check_data
+    from testbed.jobs.check import check_data
 
     out = _to_stdout(args.out)
     result = check_data(
@@ -243,7 +243,7 @@ def _cmd_check(args) -> int:
 
 def _cmd_validate(args) -> int:
     from testbed.analysis.manoeuvres import compared_table
-    from testbed.jobs import validate_data
+    from testbed.jobs.validate import validate_data
 
     out = _to_stdout(args.out)
     validation, text, manoeuvres = validate_data(

@@ -862,7 +862,7 @@ def test_a_record_whose_only_motion_is_a_channels_rounding_is_refused(run, capsy
 def test_a_value_the_fit_carried_off_is_reported_as_the_fits(run, capsys, monkeypatch, tmp_path):
     """A fit that ends with a coefficient beyond what a config may hold (±1e15) is refused as
     the fit's outcome on the data, never as a value of the config the fit started from."""
-    from testbed.analysis.screening import identify_screened as real
+    from testbed.jobs.identify import identify_screened as real
 
     def carried_off(*args, **kwargs):
         done = real(*args, **kwargs)
@@ -870,7 +870,7 @@ def test_a_value_the_fit_carried_off_is_reported_as_the_fits(run, capsys, monkey
         values[0] = -1e18
         return replace(done, estimate=replace(done.estimate, values=values))
 
-    monkeypatch.setattr("testbed.jobs.identify_screened", carried_off)
+    monkeypatch.setattr("testbed.jobs.identify.identify_screened", carried_off)
     out = tmp_path / "e.json"
     err = refused(
         capsys,

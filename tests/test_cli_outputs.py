@@ -13,7 +13,10 @@ import pytest
 from test_bad_input import cli
 from testbed.data import read_config, write_config, write_csv
 from testbed.errors import InputError, atomic_file, atomic_write_text
-from testbed.jobs import analyze_data, check_data, identify_data, validate_data
+from testbed.jobs.analyze import analyze_data
+from testbed.jobs.check import check_data
+from testbed.jobs.identify import identify_data
+from testbed.jobs.validate import validate_data
 from testbed.simulation.runs import simulate
 
 OLD = b"a user's file\n"
@@ -72,25 +75,25 @@ CASES = {
     "identify --out": (
         ["identify", "{run}", "--max-iter", "1", "--out", "{user}"],
         "--out",
-        "testbed.jobs.identify_screened",
+        "testbed.jobs.identify.identify_screened",
         _json,
     ),
     "identify --rrd": (
         ["identify", "{run}", "--max-iter", "1", "--out", "{new}.json", "--rrd", "{user}"],
         "--rrd",
-        "testbed.jobs.identify_screened",
+        "testbed.jobs.identify.identify_screened",
         _rrd,
     ),
     "identify history": (
         ["identify", "{run}", "--method", "mekf", "--out", "{user_stem}.json"],
         ".history.csv",
-        "testbed.jobs.identify_screened",
+        "testbed.jobs.identify.identify_screened",
         lambda path: path.read_text().startswith("t,"),
     ),
     "analyze --out": (
         ["analyze", "{run}", "--out", "{user}"],
         "--out",
-        "testbed.jobs.identifiability",
+        "testbed.jobs.analyze.identifiability",
         _json,
     ),
     "check --out": (
@@ -102,7 +105,7 @@ CASES = {
     "validate --out": (
         ["validate", "{run}", "--estimates", "{estimates}", "--out", "{user}"],
         "--out",
-        "testbed.jobs.validate",
+        "testbed.jobs.validate.validate",
         _json,
     ),
     "design --out": (

@@ -141,7 +141,8 @@ def test_the_testbeds_own_runs_read_the_same_with_and_without_repeats(tmp_path):
     ],
 )
 def test_every_command_that_reads_data_takes_keep_repeats(argv, monkeypatch, capsys):
-    import testbed.jobs
+    import testbed.jobs.check
+    import testbed.jobs.common
     from testbed.cli import main
 
     seen = []
@@ -150,6 +151,7 @@ def test_every_command_that_reads_data_takes_keep_repeats(argv, monkeypatch, cap
         seen.append(keep_repeats)
         raise InputError("x.csv: read")
 
-    monkeypatch.setattr(testbed.jobs, "load_data", load_data)
+    for reader in (testbed.jobs.common, testbed.jobs.check):  # every job's reading of data
+        monkeypatch.setattr(reader, "load_data", load_data)
     assert main([*argv, "--keep-repeats"]) == 2 and main(list(argv)) == 2
     assert seen == [True, False]

@@ -285,7 +285,7 @@ def _function_tree(fn):
 
 def test_files_estimates_json_keys():
     from testbed.estimators import Estimate, FilterEstimate, Status
-    from testbed.jobs import identify_data
+    from testbed.jobs.identify import identify_data
 
     text = section(page("files.md"), "Estimates JSON")
     one = dict(
@@ -343,7 +343,7 @@ def test_files_comparison_and_validation_keys():
     keys = set(comparison) | set(comparison["rows"][0])
     metrics = ChannelMetrics(50.0, whiteness(np.random.default_rng(0).standard_normal(100)), 60.0).to_dict()
     keys |= set(metrics) | set(metrics["whiteness"])
-    from testbed.jobs import validate_data
+    from testbed.jobs.validate import validate_data
 
     validate = _written_keys_dumps(validate_data)
     assert {"estimates", "coefficients", "validation"} <= validate

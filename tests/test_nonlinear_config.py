@@ -10,7 +10,7 @@ import pytest
 from studies.fuzz import corpus, run_case, workspace
 from testbed.data import ModelConfig, config_text, parse_config, read_config, write_config
 from testbed.errors import InputError
-from testbed.jobs import inputs
+from testbed.jobs.common import inputs
 from testbed.models.nonlinear import INERTIA, TERMS
 from testbed.simulation.analytic import analytic
 

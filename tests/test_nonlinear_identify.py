@@ -26,7 +26,7 @@ from testbed.identification.nonlinear_output_error import (
 )
 from testbed.identification import nonlinear_prediction
 from testbed.identification.nonlinear_sensitivities import flight
-from testbed.jobs import perturbed
+from testbed.jobs.common import perturbed
 from testbed.models import log_mounting
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly

@@ -19,7 +19,8 @@ from testbed.analysis.nonlinear_identifiability import (
     nonlinear_identifiability,
     rank_tolerance,
 )
-from testbed.analysis.screening import identify_screened, screening
+from testbed.analysis.screening import screening
+from testbed.jobs.identify import identify_screened
 from testbed.analysis.structural import Structural
 from testbed.captive.config import captive_config
 from testbed.cli import main

@@ -193,7 +193,7 @@ def test_identify_command_reports_and_validates_each_record_with_its_own_offsets
 
 
 def test_per_record_estimates_keep_the_truth_fit_and_the_one_model_filter_refuses_their_values():
-    from testbed.jobs import truth_comparison
+    from testbed.jobs.common import truth_comparison
 
     offsets = (FIN_OFFSET, -FIN_OFFSET)
     data, clean = _turns(offsets), _turns(offsets, noise=False)

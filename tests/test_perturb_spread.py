@@ -9,7 +9,7 @@ from scipy import stats
 from testbed.cli import main
 from testbed.data import write_config, write_csv
 from testbed.identification import examples
-from testbed.jobs import spread
+from testbed.jobs.common import spread
 
 
 def test_the_starts_are_log_normal_around_the_config_with_the_spread_asked():

@@ -97,7 +97,7 @@ def test_the_truth_fit_is_where_the_estimates_fall_on_average(tmp_path):
     the estimate aims at and `model_bias_relative` the linear model's share of the error
     (a truth fit weighing each noise-free channel by its own model error instead was found
     0.6–1.4 σ off on K_p, K_der, K_del, Y_v and Y_r)."""
-    from testbed.jobs import identify_data
+    from testbed.jobs.identify import identify_data
 
     noise = {}
     for seed in range(1, 21):

@@ -272,7 +272,7 @@ def test_a_scenario_ii_log_as_it_comes_keeps_its_information(tmp_path):
     the model as its even twin does, tests/test_time_as_logged.py.)"""
     from importlib.resources import files
 
-    from testbed.analysis.screening import identify_screened
+    from testbed.jobs.identify import identify_screened
     from testbed.identification.bounds import information
     from testbed.simulation.runs import simulate
 
@@ -301,7 +301,8 @@ def test_the_screened_list_is_fitted_from_where_the_screen_s_fit_ended():
     """When the screen fixes a candidate, `ml-gn` fits the rest from the screen's own estimate
     (the fixed one at its a-priori value), not from the a-priori model again: in the screen fit's
     basin, which a poor a-priori model may not lead back to."""
-    from testbed.analysis.screening import identify_screened, screening
+    from testbed.analysis.screening import screening
+    from testbed.jobs.identify import identify_screened
     from testbed.identification.examples import example_config, experiments
 
     config = example_config()
@@ -322,14 +323,15 @@ def test_a_fix_that_costs_more_than_the_likelihood_ratio_test_allows_is_undone(m
     stage), the screen's fit of every candidate stands, the reason in its start_reason."""
     from testbed.analysis import screening
     from testbed.identification.examples import example_config, experiments
+    from testbed.jobs.identify import identify_screened
 
     config = example_config()
     prior = replace(config.with_coefficients({"N_r": 0.5 * config.coefficients["N_r"]}), screen=True)
     data = experiments(seed=1, duration=60.0)
     monkeypatch.setattr(screening, "insignificant", lambda *a: {"N_r": "forced"})
-    screened = screening.identify_screened(data, prior, options={"start": "config"})
+    screened = identify_screened(data, prior, options={"start": "config"})
     assert screened.fixed == {} and "N_r" in screened.estimate.free
     assert "the screen kept them: fixing N_r raised the cost by" in screened.estimate.start_reason
     monkeypatch.undo()
-    whole = screening.identify_screened(data, replace(prior, screen=False), options={"start": "config"})
+    whole = identify_screened(data, replace(prior, screen=False), options={"start": "config"})
     assert screened.estimate.cost == pytest.approx(whole.estimate.cost, abs=1e-6)

@@ -19,7 +19,7 @@ from testbed.data import config_text, read_config, write_csv
 from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.identification.prediction import synthetic
-from testbed.jobs import identify_data
+from testbed.jobs.identify import identify_data
 from testbed.simulation.analytic import analytic_config, analytic_config_text
 from testbed.simulation.measurements import NOISE_STD, noise_from_data
 from testbed.simulation.signals import Prbs
@@ -272,14 +272,14 @@ def test_what_a_method_refuses_in_the_config_is_refused_before_the_screen_s_fit(
 ):
     """A config the method cannot take, whatever the data: the one-line refusal, and no screen
     (its `ml-gn` fit can take minutes on a real log)."""
-    from testbed.analysis import screening
     from testbed.identification.examples import FREE, experiments, prior_config
+    from testbed.jobs import identify
 
     def screened(*args, **kwargs):
         raise AssertionError("the screen ran before the method's refusal")
 
-    monkeypatch.setattr(screening, "screening", screened)
+    monkeypatch.setattr(identify, "screening", screened)
     config = replace(prior_config(), free=FREE + free, screen=True)
     with pytest.raises(InputError, match=words) as exc:
-        screening.identify_screened(experiments(seed=0, duration=5.0), config, method)
+        identify.identify_screened(experiments(seed=0, duration=5.0), config, method)
     assert "\n" not in str(exc.value)

@@ -4,7 +4,8 @@ Stage 1 fixes what the analysis at the a-priori values cannot determine (the lin
 structurally unidentified candidates, `structurally_unidentified`); stage 2 fits the rest and
 fixes, by backward elimination, those the estimate does not make significant (`insignificant`,
 checked by the likelihood ratio). `screening` runs both for the linear model (`LINEAR`) or
-another (`ScreenModel`); `identify_screened` fits the screened list with the method asked for.
+another (`ScreenModel`); `jobs.identify.identify_screened` fits the screened list with the
+method asked for.
 """
 
 from __future__ import annotations
@@ -16,9 +17,8 @@ import numpy as np
 
 from testbed.analysis.identifiability import UNCERTAIN, Identifiability, direction_text, identifiability
 from testbed.data import Experiment, ModelConfig
-from testbed.errors import InputError
-from testbed.estimators import Estimate, Status, check_method, identify, lookup
-from testbed.identification.bounds import Unflyable, chi2_sf, crlb, fisher
+from testbed.estimators import Estimate, Status, identify
+from testbed.identification.bounds import Unflyable, crlb, fisher
 from testbed.identification.problem import base_name, check_fit, expanded
 from testbed.simulation.measurements import noise_from_data
 
@@ -27,13 +27,13 @@ __all__ = [
     "SIGNIFICANT",
     "Screen",
     "ScreenModel",
-    "Screened",
-    "identify_screened",
+    "LIKELIHOOD_RATIO",
     "insignificant",
     "screen",
     "screening",
     "structurally_unidentified",
     "unidentified",
+    "without",
 ]
 
 
@@ -60,24 +60,6 @@ class Screen:
     fixed: dict[str, str]
     fit: Estimate | None
     skipped: str = ""
-
-
-@dataclass(frozen=True)
-class Screened:
-    """A fit behind the screen (`identify_screened`): `config` fitted, its `estimate`, `screen`
-    (name → why) what the screen fixes, whether it was `applied` (else only reported), and why
-    its structural stage was `skipped` ("" where it was taken: `Screen.skipped`)."""
-
-    config: ModelConfig
-    estimate: Estimate
-    screen: dict[str, str]
-    applied: bool
-    skipped: str = ""
-
-    @property
-    def fixed(self) -> dict[str, str]:
-        """The candidates left at their a-priori values, name → why."""
-        return self.screen if self.applied else {}
 
 
 def structurally_unidentified(result: Identifiability) -> dict[str, str]:
@@ -205,7 +187,7 @@ def screening(experiments, config, options=None, callback=None, model: ScreenMod
             n: f"not determined by these data: {why}"
             for n, why in _by_name(result.free, model.unidentified(result)).items()
         }
-    candidates = _without(config, fixed)
+    candidates = without(config, fixed)
     if not candidates.free:
         return Screen(candidates, fixed, None)
     fit = identify(experiments, candidates, method="ml-gn", options=options, callback=callback)
@@ -219,7 +201,7 @@ def screening(experiments, config, options=None, callback=None, model: ScreenMod
     prior = [config.values[base_name(n)] for n in fit.free]
     for n, why in _by_name(fit.free, insignificant(fit.free, fit.values, information, prior)).items():
         fixed[n] = f"not determined by these data: {why}"
-    return Screen(_without(config, fixed), fixed, fit, skipped)
+    return Screen(without(config, fixed), fixed, fit, skipped)
 
 
 def _by_name(values: tuple[str, ...], fixed: dict[str, str]) -> dict[str, str]:
@@ -235,7 +217,7 @@ def _by_name(values: tuple[str, ...], fixed: dict[str, str]) -> dict[str, str]:
     return out
 
 
-def _without(config: ModelConfig, fixed) -> ModelConfig:
+def without(config: ModelConfig, fixed) -> ModelConfig:
     """`config` with the names in `fixed` no longer free (nor per record)."""
     return replace(
         config,
@@ -252,96 +234,13 @@ def screen(experiments, config):
     return s.config, s.fixed
 
 
-def identify_screened(
-    experiments,
-    config,
-    method: str = "ml-gn",
-    options=None,
-    callback=None,
-    apply: bool | None = None,
-    model: ScreenModel = LINEAR,
-) -> Screened:
-    """Screen `config.free` (`screening`, for `model`) and fit with `method` (`options`,
-    `callback` as for `identify`).
-
-    `apply`: fit only the candidates the screen leaves free (default: `config.screen`, the
-    config's `[identify] screen`); otherwise fit `config.free` as written, the screen only
-    reported. The screen's `ml-gn` fit is the fit itself when `method` is `ml-gn` and the free set
-    is the same (then `callback` gets its steps when it ends); otherwise `method` fits anew
-    (`ml-gn`: one start, where the screen's fit ended, that fit having run the starts asked for;
-    the estimate's time and simulations count that fit in; its fixes tested as a likelihood
-    ratio and undone where they fail it; `callback` gets the steps of the fit returned, when it
-    ends).
-    `InputError` when the screen applied leaves nothing free.
-    """
-    apply = config.screen if apply is None else apply
-    m = lookup(method)
-    built = m.options.build(m.name, options)  # what the method refuses, before the screen's fit
-    check_method(m.name, config)
-    same = m.name == "ml-gn"
-    steps = []
-    s = screening(experiments, config, options if same else None, steps.append if same else None, model)
-    fitted = s.config if apply else config
-    if not fitted.free:
-        first = next(iter(s.fixed))
-        raise InputError(
-            f"{config.source or 'config'}: no candidate of [identify] free is determined by these "
-            f"data ({first} {s.fixed[first]}); expected data that excite them, or the list "
-            "estimated as written (screen=False)"
-        )
-    if same and s.fit is not None and s.fit.free == fitted.free:
-        for step in steps if callback is not None else ():
-            callback(step)
-        estimate = s.fit
-    elif same and apply and s.fit is not None and s.fit.status is not Status.DIVERGED:
-        # the screened set from where the screen's fit ended, the fixed candidates at their
-        # a-priori values: its basin, not the a-priori model's again
-        kept = {n: v for n, v in zip(s.fit.free, s.fit.values) if base_name(n) in fitted.free}
-        start, rest = fitted.with_coefficients(kept), []
-        dropped = [n for n in dict.fromkeys(map(base_name, s.fit.free)) if n not in fitted.free]
-        # one start: the screen's fit ran the starts asked for, and its optimum is this one's
-        local = replace(built, start="config")
-        estimate = identify(experiments, start, method=method, options=local, callback=rest.append)
-        reason = f"then from its optimum with {', '.join(dropped)} fixed"
-        estimate = replace(
-            estimate,
-            start=s.fit.start,
-            start_reason=f"{s.fit.start_reason}; {reason}" if s.fit.start_reason else reason,
-            wall_time_s=s.fit.wall_time_s + estimate.wall_time_s,  # what the estimate cost
-            evaluations=s.fit.evaluations + estimate.evaluations,
-        )
-        # the likelihood-ratio test of the significance stage's fixes: fixing k coefficients the
-        # data do not contradict raises the cost by at most χ²₀.₉₅(k)/2; more, and the quadratic
-        # model that chose them did not hold (a model far from linear in them): their fit stands
-        rise = estimate.cost - s.fit.cost  # NaN where the fit of the rest diverged
-        if not (rise <= 0 or (np.isfinite(rise) and chi2_sf(2 * rise, len(dropped)) >= 1 - LIKELIHOOD_RATIO)):
-            why = (
-                f"fixing {', '.join(dropped)} raised the cost by {rise:.4g}, more than the χ² "
-                f"test allows (p = {chi2_sf(2 * rise, len(dropped)):.2g})"
-                if np.isfinite(rise)
-                else f"the fit with {', '.join(dropped)} fixed diverged"
-            )
-            structural = {n: w for n, w in s.fixed.items() if n not in dropped}
-            fitted = _without(config, structural)
-            s = replace(s, config=fitted, fixed=structural)
-            estimate, rest = (
-                replace(s.fit, start_reason=f"{s.fit.start_reason}; the screen kept them: {why}"),
-                steps,
-            )
-        for step in rest if callback is not None else ():  # the steps of the fit returned
-            callback(step)
-    else:
-        estimate = identify(experiments, fitted, method=method, options=options, callback=callback)
-    return Screened(fitted, estimate, s.fixed, apply, s.skipped)
-
-
 def unidentified(experiments, config, noise_std=None) -> dict[str, str]:
     """The screen's rule where the data would come from the config's own model (the design's
     default free set), name → why: stage 1, then stage 2 at the config's coefficients, which a fit
     of such data estimates (on average), with the Fisher information there; no fit needed."""
     result = identifiability(experiments, config, noise_std)
     fixed = _by_name(result.free, structurally_unidentified(result))
-    rest = _without(config, fixed)
+    rest = without(config, fixed)
     if rest.free:
         fitted = rest.fitted(experiments)
         names = expanded(rest, [e.name for e in fitted])[0]

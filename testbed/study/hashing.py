@@ -23,7 +23,8 @@ READERS = (
     "study/rules.py",
     "study/campaign.py",
     "cli.py",
-    "jobs.py",
+    "jobs/*",
+    "arguments.py",
     "__main__.py",
 )
 
