@@ -55,7 +55,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from testbed.identification.examples import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config  # noqa: E402
+from studies.remus import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config  # noqa: E402
 
 from testbed.data import read_config, run_csvs, write_config, write_csv  # noqa: E402
 

@@ -47,7 +47,7 @@ from benchmarks.scipy_reference import scipy_fit  # noqa: E402
 from benchmarks.workload import beside, console  # noqa: E402
 from testbed.data import write_config, write_csv  # noqa: E402
 from testbed.estimators import identify  # noqa: E402
-from testbed.identification.examples import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config  # noqa: E402
+from studies.remus import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config  # noqa: E402
 
 
 def _best(runs, rounds: int = 5):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from testbed.analysis.identifiability import identifiability
 from testbed.data import load_data, read_config
-from testbed.analysis.design import TEMPLATES
+from testbed.analysis.design_signals import TEMPLATES
 from testbed.presentation.design_report import write_design
 from testbed.jobs.identify import identify_data
 from testbed.identification.prediction import predict

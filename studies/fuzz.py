@@ -49,7 +49,7 @@ from typing import Callable
 import numpy as np
 
 from testbed.data import ModelConfig, config_text, csv_text
-from testbed.identification.examples import NOISE, EXAMPLE_COEFFICIENTS, VEHICLE, inputs
+from studies.remus import NOISE, EXAMPLE_COEFFICIENTS, VEHICLE, inputs
 from testbed.identification.prediction import synthetic
 from testbed.models.linear import COEFFICIENTS, INPUTS, STATES, Vehicle
 

@@ -1,6 +1,6 @@
 """Monte Carlo study of the ML output-error estimator.
 
-Data simulated from the linear model itself (`testbed.identification.examples`: the REMUS-class example vehicle,
+Data simulated from the linear model itself (`studies.remus`: the REMUS-class example vehicle,
 two Scenario-II-like experiments, rudder PRBS; elevator PRBS with a differential part for roll),
 all ten states measured with white noise. For every noise seed the
 free coefficients are fitted by `ml-gn` and by `mekf`; per coefficient the
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from testbed.errors import atomic_write_text
-from testbed.identification.examples import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config
+from studies.remus import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
 from studies.seeds import counted, fit_seeds, scatter  # noqa: E402

@@ -115,7 +115,7 @@ def test_analyze_and_the_screen_name_an_unexcited_row_as_null_directions():
     the screen's first stage fixes it naming the direction analyze lists."""
     from testbed.analysis.identifiability import identifiability
     from testbed.analysis.screening import structurally_unidentified
-    from testbed.identification.examples import example_config, experiments
+    from studies.remus import example_config, experiments
 
     vertical = experiments(seed=0, duration=20.0)[1].only(("v", "psi"))
     config = example_config(free=("N_v", "N_r", "N_dr"))

@@ -8,7 +8,7 @@ from test_offsets import FIN_OFFSET, LATERAL, _lsim, _start, _turns  # noqa: F40
 from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.identification import concentrated, likelihood
-from testbed.identification.examples import EXAMPLE_COEFFICIENTS
+from studies.remus import EXAMPLE_COEFFICIENTS
 from testbed.identification.problem import problem
 from testbed.models.linear import IX
 

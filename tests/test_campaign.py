@@ -347,10 +347,11 @@ def test_campaign_on_two_workers_survives_a_killed_worker_and_resumes(tmp_path, 
 def _plant_cache() -> tuple[str, int, int]:
     """Fly the plant one step; where its compiled step's cache is, and how many times this
     process loaded it from there or compiled it."""
-    from testbed.simulation import plant
+    from testbed.simulation.plant import Plant
+    from testbed.simulation.plant_step import step_cache
 
-    plant.Plant().step()
-    return plant.step_cache()
+    Plant().step()
+    return step_cache()
 
 
 def test_workers_load_the_compiled_step_from_the_cache_this_process_fills(cluster):
@@ -401,7 +402,7 @@ def test_a_cell_whose_run_cannot_be_read_fails_with_the_files_reason(tmp_path, c
 def test_an_arm_with_a_budget_fits_with_that_many_times_its_methods_limit(monkeypatch, arm, limit):
     """`ml-nr-10x` fits with 10 × ml-nr's 100 iterations, `ml-nm-paper-10x` with 10 × ml-nm's 500
     per free coefficient (the example's 15); the testbed's own arms leave the limit to the method."""
-    from testbed.identification import examples
+    from studies import remus as examples
 
     seen = {}
 

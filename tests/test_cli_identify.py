@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from testbed.identification import examples
+from studies import remus as examples
 from testbed.cli import main
 from testbed.data import config_text, read_config, write_config, write_csv
 from testbed.identification.prediction import synthetic
@@ -330,7 +330,7 @@ def test_a_prior_that_cannot_be_flown_even_in_segments_is_still_a_start(unstable
     in one line, but `identify` does not: the screen's structural step fixes nothing (a note says
     why, the JSON's `screen_skipped`), and the default `ml-gn` fit goes on from the equation-error
     start to the optimum the stable start reaches, within ΔJ 1."""
-    from testbed.identification import examples
+    from studies import remus as examples
 
     data, _, truth = unstable
     wild = tmp_path / "wild.toml"
@@ -355,7 +355,7 @@ def test_a_sparse_log_from_a_course_unstable_model_is_fitted_on_shorter_segments
     (4 s); counted in ticks, 50 of them (10 s) still grew e^8-fold and the prior was refused.
     `analyze` bounds every coefficient on them, and `ml-gn` from the prior reaches the optimum
     the model that flew reaches, within ΔJ 1."""
-    from testbed.identification import examples
+    from studies import remus as examples
 
     data = []
     for e in examples.experiments(seed=1, duration=60.0, dt=0.2):

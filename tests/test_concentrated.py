@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from testbed.identification import concentrated, kernels, likelihood, recursions
-from testbed.identification.examples import EXAMPLE_COEFFICIENTS, FREE, experiments, prior_config
+from studies.remus import EXAMPLE_COEFFICIENTS, FREE, experiments, prior_config
 from testbed.identification.problem import problem
 
 

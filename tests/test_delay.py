@@ -8,7 +8,7 @@ from test_offsets import LATERAL, _start  # noqa: F401  (shared data)
 from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.identification import concentrated, likelihood
-from testbed.identification.examples import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE
+from studies.remus import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE
 from testbed.identification.problem import problem, shifted
 from testbed.models.linear import IX, NX, STATES, continuous, structure, theta_vector
 
@@ -22,7 +22,7 @@ def _late(duration=40.0, noise=True, delay=DELAY):
     from scipy import signal
 
     from testbed.data import Experiment
-    from testbed.identification.examples import inputs
+    from studies.remus import inputs
 
     rng = np.random.default_rng(11) if noise else None
     A, B, S = continuous(structure(VEHICLE), theta_vector(EXAMPLE_COEFFICIENTS))

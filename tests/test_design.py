@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from testbed.analysis import design as D
+from testbed.analysis import design_model as DM
+from testbed.analysis import design_signals as DS
 from testbed.analysis import regime
 from testbed.presentation import design_report
 from testbed.errors import InputError
@@ -22,33 +24,33 @@ def model():
 
     lin = analytic()
     config = model_config(lin)[0]
-    return D.model(replace(config, free=("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")), lin.fins)
+    return DM.model(replace(config, free=("Y_v", "N_r", "N_dr", "K_p", "K_der", "M_q", "M_de")), lin.fins)
 
 
 def test_criteria_on_relative_coefficients():
     F = np.diag([4.0, 100.0])
     s = np.array([1.0, 0.1])  # relative information: diag(4, 1)
-    assert D.criterion(F, s, "D") == pytest.approx(math.log(4.0))
-    assert D.criterion(F, s, "A") == pytest.approx(-(0.25 + 1.0))
-    assert D.criterion(F, s, "E") == pytest.approx(1.0)
-    assert D.criterion(np.diag([1.0, 0.0]), np.ones(2), "A") == -math.inf
+    assert DM.criterion(F, s, "D") == pytest.approx(math.log(4.0))
+    assert DM.criterion(F, s, "A") == pytest.approx(-(0.25 + 1.0))
+    assert DM.criterion(F, s, "E") == pytest.approx(1.0)
+    assert DM.criterion(np.diag([1.0, 0.0]), np.ones(2), "A") == -math.inf
     with pytest.raises(InputError, match="criterion"):
-        D.criterion(F, s, "X")
+        DM.criterion(F, s, "X")
 
 
 def test_band_is_harmonics_of_the_record():
-    f = np.array(D.band(60.0, 0.0, 1.0))
-    assert f.min() == pytest.approx(1 / 60) and f.max() <= 1.0 + 1e-9 and len(f) <= D.MULTISINE_LINES
+    f = np.array(DS.band(60.0, 0.0, 1.0))
+    assert f.min() == pytest.approx(1 / 60) and f.max() <= 1.0 + 1e-9 and len(f) <= DS.MULTISINE_LINES
     assert np.allclose(f * 60, np.round(f * 60))
-    assert len(D.band(60.0, 0.0, 100.0)) == D.MULTISINE_LINES
+    assert len(DS.band(60.0, 0.0, 100.0)) == DS.MULTISINE_LINES
 
 
 def test_split_puts_time_where_the_criterion_needs_it():
     # two experiment types, each informing one coefficient at 1 per second; the second
     # coefficient is 4x larger so it needs 4x the information for the same relative bound
     cands = {
-        "a": D.Candidate("a", {}, 60.0, np.diag([60.0, 0.0])),
-        "b": D.Candidate("b", {}, 60.0, np.diag([0.0, 60.0])),
+        "a": DS.Candidate("a", {}, 60.0, np.diag([60.0, 0.0])),
+        "b": DS.Candidate("b", {}, 60.0, np.diag([0.0, 60.0])),
     }
     s = np.array([1.0, 0.5])
     d = D.split(cands, 100.0, s, "E")
@@ -59,18 +61,18 @@ def test_split_puts_time_where_the_criterion_needs_it():
 
 
 def test_largest_amplitude_meets_a_bound_exactly(model):
-    limits = D.regime_limits(model)
+    limits = DM.regime_limits(model)
     # Scenario II's own experiments define the bounds: its rudder PRBS sits on the yaw-rate bound
     sig = Prbs(amplitude=1e-3, order=10, clock=0.1)
-    c = D.largest(model, "horizontal", {"rudder": sig}, limits, 60.0)
-    t, xs, fins = D.fly_model(model, D.spec("horizontal", {"rudder": D.scaled(sig, 1e-3 * c)}), 60.0)
+    c = DS.largest(model, "horizontal", {"rudder": sig}, limits, 60.0)
+    t, xs, fins = DM.fly_model(model, DS.spec("horizontal", {"rudder": DS.scaled(sig, 1e-3 * c)}), 60.0)
     ratios = limits.ratios(regime.peaks(xs, fins, model.speed, 0.02))
     assert max(ratios.values()) == pytest.approx(1.0, abs=1e-6)
     assert max(ratios, key=ratios.get) in ("yaw_rate", "sideslip")
     # a multisine gets the amplitude that reaches its own binding peak
-    ms = Multisine(amplitude=1e-3, frequencies=D.band(60.0, 0.0, 1.0))
-    c2 = D.largest(model, "roll", {"differential": ms}, limits, 60.0)
-    t, xs, fins = D.fly_model(model, D.spec("roll", {"differential": D.scaled(ms, 1e-3 * c2)}), 60.0)
+    ms = Multisine(amplitude=1e-3, frequencies=DS.band(60.0, 0.0, 1.0))
+    c2 = DS.largest(model, "roll", {"differential": ms}, limits, 60.0)
+    t, xs, fins = DM.fly_model(model, DS.spec("roll", {"differential": DS.scaled(ms, 1e-3 * c2)}), 60.0)
     assert max(limits.ratios(regime.peaks(xs, fins, model.speed, 0.02)).values()) == pytest.approx(
         1.0, abs=1e-6
     )
@@ -81,9 +83,9 @@ def test_fisher_matches_finite_differences_of_the_outputs(model):
     outputs (initial states at trim are known here and the experiment starts at trim)."""
     from testbed.identification.prediction import synthetic
 
-    e = D.spec("horizontal", {"rudder": Prbs(amplitude=1e-3, order=8, clock=0.2)})
-    t, xs, fins = D.fly_model(model, e, 20.0)
-    F = D.fisher(model, t, xs, fins)
+    e = DS.spec("horizontal", {"rudder": Prbs(amplitude=1e-3, order=8, clock=0.2)})
+    t, xs, fins = DM.fly_model(model, e, 20.0)
+    F = DM.fisher(model, t, xs, fins)
     cfg = model.config
     chans = [c for c in regime.FITTED]
     w = np.array([1.0 / model.noise_std[c] ** 2 for c in chans])
@@ -213,7 +215,7 @@ def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identif
     truth, _ = load_data(sorted(runs["designed"].glob("*.truth.csv")), keep_repeats=True)
     start = {e.name: dict(zip(STATES, e.y[0])) for e in truth}
     for e, yhat in zip(truth, predict(truth, config, start)):
-        excited = D.TEMPLATES[e.name.split("-")[0].split(".")[0]]["excited"]
+        excited = DS.TEMPLATES[e.name.split("-")[0].split(".")[0]]["excited"]
         for c in excited:
             assert fit_percent(e.column(c), yhat[:, STATES.index(c)]) >= 99.0, (e.name, c)
 

@@ -13,7 +13,7 @@ from testbed.analysis import drift
 from testbed.analysis.structural import structural
 from testbed.errors import InputError
 from testbed.identification.bounds import crlb, eliminated, fisher
-from testbed.identification.examples import NOISE, example_config, inputs
+from studies.remus import NOISE, example_config, inputs
 from testbed.identification.prediction import synthetic
 from testbed.models.linear import ITHETA, NX, STATES, structure, theta_vector
 from testbed.simulation.analytic import analytic_config

@@ -8,7 +8,7 @@ import pytest
 from testbed import identify
 from testbed.analysis.validation import validate
 from testbed.data import MAX_GAP, MIN_ROWS, read_csv, stretches, write_csv
-from testbed.identification import examples
+from studies import remus as examples
 from testbed.identification.prediction import synthetic
 from testbed.models.linear import STATES
 

@@ -6,7 +6,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.analysis import design as D
+from testbed.analysis import design_model as DM
+from testbed.analysis import design_signals as DS
 from testbed.errors import InputError
 from testbed.simulation.analytic import analytic, model_config
 from testbed.simulation.flight import fly_scenario
@@ -61,10 +62,10 @@ def test_a_signal_beyond_the_vehicles_range_is_refused(narrow):
 
 def test_the_design_bounds_and_flies_the_vehicles_fins(narrow):
     lin = analytic(narrow)
-    m = D.model(replace(model_config(lin, narrow)[0], free=("Y_v", "N_r", "N_dr")), lin.fins)
-    limits = D.regime_limits(m)
+    m = DM.model(replace(model_config(lin, narrow)[0], free=("Y_v", "N_r", "N_dr")), lin.fins)
+    limits = DM.regime_limits(m)
     assert (limits.fin, limits.fin_rate) == (NARROW, 2.0)
-    spec = D.spec("horizontal", {"rudder": Prbs(amplitude=0.3, order=5, clock=0.5)})
-    _, _, fins = D.fly_model(m, spec, 10.0)
+    spec = DS.spec("horizontal", {"rudder": Prbs(amplitude=0.3, order=5, clock=0.5)})
+    _, _, fins = DM.fly_model(m, spec, 10.0)
     assert np.abs(fins[:, 0]).max() == pytest.approx(NARROW)
     assert np.abs(np.diff(fins[:, 0])).max() <= 2.0 / m.control_rate + 1e-12  # the MJCF's rate

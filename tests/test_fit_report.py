@@ -15,7 +15,7 @@ import pytest
 
 from testbed.cli import main
 from testbed.data import write_config, write_csv
-from testbed.identification import examples
+from studies import remus as examples
 from testbed.presentation.fit_report import ANALYSIS_SECTIONS, REPORT, SECTIONS, VALIDATION_SECTIONS
 
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -10,7 +10,7 @@ import pytest
 from testbed import identify
 from testbed.analysis.validation import validate
 from testbed.html_table import html_table
-from testbed.identification import examples
+from studies import remus as examples
 
 
 class Tables(HTMLParser):

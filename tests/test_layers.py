@@ -110,3 +110,15 @@ def test_the_layer_map_is_read_from_the_page():
     assert LAYERS[0][0] == "testbed.errors" and LAYERS[-1] == ("testbed",)
     extra = layer_map("## The layer map\n| `a`, `b.c` | x |\n| modules | y |\n## Next\n| `d` | z |\n")
     assert extra == [("testbed.a", "testbed.b.c")]
+
+
+def test_each_subpackage_docstring_names_its_modules():
+    """A folder's `__init__` docstring names every module in it, so it stays the folder's map."""
+    missing = []
+    for package in PACKAGES:
+        folder = ROOT / package.split(".")[1]
+        doc = ast.get_docstring(ast.parse((folder / "__init__.py").read_text(encoding="utf-8"))) or ""
+        for module in sorted(p.stem for p in folder.glob("*.py") if p.stem != "__init__"):
+            if f"`{module}`" not in doc:
+                missing.append(f"{package}: {module}")
+    assert missing == []

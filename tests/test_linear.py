@@ -9,15 +9,7 @@ from references import assert_curvature_matches_complex_step, assert_sensitiviti
 from testbed.errors import InputError
 from testbed.estimators import equation_error, identify
 from testbed.identification import bounds, likelihood, prediction, recursions, scan
-from testbed.identification.examples import (
-    EXAMPLE_COEFFICIENTS,
-    FREE,
-    NOISE,
-    example_config,
-    experiments,
-    inputs,
-    prior_config,
-)
+from studies.remus import EXAMPLE_COEFFICIENTS, FREE, NOISE, example_config, experiments, inputs, prior_config
 from testbed.identification.problem import problem
 from testbed.models.linear import IX, NX, continuous
 

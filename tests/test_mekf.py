@@ -17,7 +17,7 @@ from testbed.estimators.filter_model import DiscreteModel
 from testbed.estimators.filter_options import FilterOptions
 from testbed.estimators.mekf import run_filter
 from testbed.estimators.square_root import sqrt_update, svd_root, tria
-from testbed.identification import examples
+from studies import remus as examples
 from testbed.identification.bounds import information
 from testbed.models.linear import (
     COEFFICIENTS,

@@ -11,7 +11,7 @@ from testbed.errors import InputError
 from testbed.estimators import METHODS, Status, identify
 from testbed.estimators.ml import DELTA_J
 from testbed.identification.bounds import information
-from testbed.identification.examples import (
+from studies.remus import (
     EXAMPLE_COEFFICIENTS,
     FREE,
     NOISE,

@@ -14,7 +14,7 @@ from testbed.models.linear import (
     tilde,
 )
 
-from testbed.identification.examples import EXAMPLE_COEFFICIENTS, VEHICLE  # noqa: E402
+from studies.remus import EXAMPLE_COEFFICIENTS, VEHICLE  # noqa: E402
 
 
 def test_matrices_match_the_spec_table():

@@ -9,7 +9,7 @@ from testbed.data import Experiment
 from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.identification import likelihood
-from testbed.identification.examples import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE, example_config, inputs
+from studies.remus import EXAMPLE_COEFFICIENTS, NOISE, VEHICLE, example_config, inputs
 from testbed.identification.problem import problem
 from testbed.models.linear import IX, NX, OFFSETS, STATES, continuous, structure, theta_vector, tilde
 

@@ -8,7 +8,7 @@ from scipy import stats
 
 from testbed.cli import main
 from testbed.data import write_config, write_csv
-from testbed.identification import examples
+from studies import remus as examples
 from testbed.jobs.common import spread
 
 

@@ -10,7 +10,7 @@ import pytest
 from testbed.analysis.profile import profile
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed.identification.examples import experiments, prior_config
+from studies.remus import experiments, prior_config
 
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")
 

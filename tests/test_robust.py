@@ -303,7 +303,7 @@ def test_the_screened_list_is_fitted_from_where_the_screen_s_fit_ended():
     basin, which a poor a-priori model may not lead back to."""
     from testbed.analysis.screening import screening
     from testbed.jobs.identify import identify_screened
-    from testbed.identification.examples import example_config, experiments
+    from studies.remus import example_config, experiments
 
     config = example_config()
     prior = config.with_coefficients({n: 0.6 * config.coefficients[n] for n in config.free})
@@ -322,7 +322,7 @@ def test_a_fix_that_costs_more_than_the_likelihood_ratio_test_allows_is_undone(m
     raises the cost by more than χ²₀.₉₅(k)/2 (here N_r held at half its value, forced through the
     stage), the screen's fit of every candidate stands, the reason in its start_reason."""
     from testbed.analysis import screening
-    from testbed.identification.examples import example_config, experiments
+    from studies.remus import example_config, experiments
     from testbed.jobs.identify import identify_screened
 
     config = example_config()

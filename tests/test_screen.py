@@ -226,7 +226,7 @@ def test_the_screen_takes_the_information_at_an_estimate_with_a_mode_faster_than
     # estimate given back as a start is no error (the exact zero-order hold shows the fast stable
     # mode as decayed within the step) and ends where it began.
     from testbed.analysis.validation import validate
-    from testbed.identification import examples
+    from studies import remus as examples
     from testbed.identification.bounds import COARSEST
     from testbed.models.linear import continuous, structure, theta_vector
 
@@ -272,7 +272,7 @@ def test_what_a_method_refuses_in_the_config_is_refused_before_the_screen_s_fit(
 ):
     """A config the method cannot take, whatever the data: the one-line refusal, and no screen
     (its `ml-gn` fit can take minutes on a real log)."""
-    from testbed.identification.examples import FREE, experiments, prior_config
+    from studies.remus import FREE, experiments, prior_config
     from testbed.jobs import identify
 
     def screened(*args, **kwargs):

@@ -10,7 +10,7 @@ import pytest
 from testbed.data import ModelConfig, config_text, parse_config, read_config, write_config
 from testbed.errors import InputError
 from testbed.estimators import identify
-from testbed.identification.examples import EXAMPLE_COEFFICIENTS, FREE, example_config, experiments
+from studies.remus import EXAMPLE_COEFFICIENTS, FREE, example_config, experiments
 from testbed.models.linear import STATES
 from testbed.models.sensors import Sensor, outputs
 

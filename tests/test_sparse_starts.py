@@ -16,7 +16,7 @@ from testbed.cli import main
 from testbed.errors import InputError
 from testbed.estimators import equation_error, identify
 from testbed.estimators.intervals import between_present
-from testbed.identification.examples import EXAMPLE_COEFFICIENTS, FREE, experiments, prior_config
+from studies.remus import EXAMPLE_COEFFICIENTS, FREE, experiments, prior_config
 from testbed.identification.problem import problem
 from testbed.models.linear import STATES
 from testbed.simulation.runs import simulate

@@ -5,7 +5,7 @@ import numpy as np
 
 from testbed import identify
 from testbed.data import read_csv, write_csv
-from testbed.identification import examples
+from studies import remus as examples
 from testbed.identification.prediction import synthetic
 from testbed.models.linear import STATES
 

@@ -8,7 +8,7 @@ from scipy.optimize import NonlinearConstraint, minimize
 
 from testbed.estimators import Status, identify, trust_region
 from testbed.identification import likelihood
-from testbed.identification.examples import example_config, experiments
+from studies.remus import example_config, experiments
 from testbed.identification.problem import problem
 
 VERTICAL = ("Z_w", "Z_q", "Z_de", "M_w", "M_q", "M_de")

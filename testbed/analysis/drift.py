@@ -21,7 +21,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.design import scales
+from testbed.analysis.design_model import scales
 from testbed.analysis.structural import structural
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError

@@ -1,9 +1,13 @@
-"""The numerical core of identification, for the linear model: the output-error problem
-(`problem`), the recursions over the samples (`scan`, compiled in `kernels`), the model's states
-and exact sensitivities (`recursions`), the likelihood (`likelihood`), the Fisher information and
-Cramér-Rao bounds (`bounds`), the model's predictions and synthetic data (`prediction`), and the
-example vehicle's exactly simulated experiments (`examples`). The estimators themselves are
-`testbed.estimators`.
+"""The numerical core of identification, for the linear model and the nonlinear one: the
+output-error problem (`problem`), the recursions over the samples (`scan`, compiled in
+`kernels`), the linear model's states and exact sensitivities (`recursions`), the likelihood
+(`likelihood`), the nonlinear model's flight and exact sensitivities
+(`nonlinear_sensitivities`), the Fisher information and Cramér-Rao bounds (`bounds`), the
+models' predictions and synthetic data (`prediction`, `nonlinear_prediction`), the nonlinear
+model's one-sample transition for the filters (`nonlinear_transition`), the cost with the
+initial states concentrated out (`concentrated`), the model with process noise and its Kalman
+filter (`innovations`), and output-error maximum likelihood for the nonlinear model
+(`nonlinear_output_error`). The estimators themselves are `testbed.estimators`.
 """
 
 __all__: list[str] = []

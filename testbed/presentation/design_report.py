@@ -13,7 +13,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from testbed.analysis.design import GROWTH_MARGIN, Design, design
+from testbed.analysis.design import Design, design
+from testbed.analysis.design_signals import GROWTH_MARGIN
 from testbed.analysis.regime import Limits
 from testbed.data import read_estimates as data_read_estimates
 from testbed.errors import atomic_write_text, check_outputs
