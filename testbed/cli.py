@@ -195,6 +195,8 @@ def _cmd_identify(args) -> int:
             file=sys.stderr,
         )
     print(done.validation.table(), file=sys.stderr)
+    if estimate.at_bounds:
+        print(f"testbed identify: ended on its bounds: {estimate.bounds_text()}", file=sys.stderr)
     for path in done.written:
         print(path, file=sys.stderr if path == args.rrd else sys.stdout)
     if out is None:

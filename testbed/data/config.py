@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import numbers
+import reprlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -27,12 +28,14 @@ from testbed.models.linear import (
     Vehicle,
 )
 from testbed.models.nonlinear import INERTIA, NonlinearModel, nonlinear_model, theta_vector
+from testbed.models.regressors import physical_bounds
 from testbed.models.sensors import OUTPUTS, Sensor, needs, states_from
 
 __all__ = [
     "BLADE_KEYS",
     "COMPONENT_KEYS",
     "CONFIG_SENSOR_KEYS",
+    "IDENTIFY_KEYS",
     "MAX_CONSTANT",
     "MIN_NOISE_STD",
     "MOUNTING_LIMITS",
@@ -90,6 +93,11 @@ class ModelConfig:
     sensors: tuple[Sensor, ...] = ()  # [sensors.NAME]: the sensors whose geometry and errors are known
     terms: Mapping[str, float] | None = None  # [terms]: the nonlinear model's terms, in order; None: linear
     components: tuple[Component, ...] = ()  # [components.NAME]: what the component terms name
+    # [identify] bounds: free name → (low, high), the box the fit keeps it in (±inf: open)
+    bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    # [identify] physical_bounds: each free term not in `bounds` on its physical side
+    # (`regressors.physical_bounds`: drags ≥ 0, a row's damping in its own velocity ≤ 0)
+    physical_bounds: bool = True
 
     def __post_init__(self):  # a name a config leaves out is 0 (and fixed)
         object.__setattr__(self, "coefficients", dict.fromkeys(PARAMETERS, 0.0) | dict(self.coefficients))
@@ -158,6 +166,17 @@ class ModelConfig:
         coefficients, then the terms)."""
         model = nonlinear_model(self.vehicle, tuple(self.terms), self.components)
         return model, theta_vector(model, {**{n: self.coefficients[n] for n in INERTIA}, **self.terms})
+
+    def box(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        """`(low, high)` of each of `names`: its `bounds` entry, else (a nonlinear model config's
+        term, with `physical_bounds`) its physical side, else unbounded (±inf)."""
+        low, high = np.full(len(names), -math.inf), np.full(len(names), math.inf)
+        for k, n in enumerate(names):
+            if n in self.bounds:
+                low[k], high[k] = self.bounds[n]
+            elif self.physical_bounds and self.terms is not None and n in self.terms:
+                low[k], high[k] = physical_bounds(n)
+        return low, high
 
     def output_biases(self, states: Sequence[str]) -> np.ndarray:
         """The output biases `b_<state>` of `states`, in their order: y = x + b."""
@@ -266,6 +285,14 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
     per_record = ident.get("per_record", []) if isinstance(ident, dict) else []
     if not isinstance(per_record, list) or not all(isinstance(n, str) for n in per_record):
         raise InputError(f"{source}: [identify] per_record must be a list of names from free")
+    if isinstance(ident, dict):
+        check_keys(ident, IDENTIFY_KEYS, f"{source}: [identify]")
+    bounds = _bounds(
+        ident.get("bounds", {}) if isinstance(ident, dict) else {}, f"{source}: [identify] bounds"
+    )
+    physical = ident.get("physical_bounds", True) if isinstance(ident, dict) else True
+    if not isinstance(physical, bool):
+        raise InputError(f"{source}: [identify] physical_bounds = {physical!r}; expected true or false")
     tables = doc.get("sensors", {})
     if not isinstance(tables, Mapping):
         raise InputError(f"{source}: [sensors] must hold [sensors.NAME] tables")
@@ -298,11 +325,33 @@ def parse_config(doc: Mapping, source: str = "<config>") -> ModelConfig:
         sensors=sensors,
         terms=terms,
         components=components,
+        bounds=bounds,
+        physical_bounds=physical,
     )
     check_config(config)
     return config
 
 
+def _bounds(table, where: str) -> dict[str, tuple[float, float]]:
+    """`[identify] bounds` as name → (low, high): a table of names, each `[low, high]`, numbers
+    with low < high (`-inf`, `inf`: open)."""
+    if not isinstance(table, Mapping):
+        raise InputError(f"{where} = {reprlib.repr(table)}; expected a table of names, each [low, high]")
+    out = {}
+    for name, pair in table.items():
+        if not (isinstance(pair, list) and len(pair) == 2):
+            raise InputError(f"{where}.{name} = {reprlib.repr(pair)}; expected [low, high]")
+        low, high = (
+            float(v) if isinstance(v, float) and math.isinf(v) else number(v, f"{where}.{name}") for v in pair
+        )
+        if not low < high:
+            raise InputError(f"{where}.{name} = [{low:g}, {high:g}]; expected low < high")
+        out[str(name)] = (low, high)
+    return out
+
+
+# the [identify] table's keys
+IDENTIFY_KEYS = ("free", "outputs", "noise_std", "screen", "per_record", "bounds", "physical_bounds")
 # a [components.NAME] table's keys: the required, then the optional (a fin blade's hinge)
 COMPONENT_KEYS = ("axes", "centre", "frame", "moments", "density", "added_mass")
 
@@ -392,6 +441,20 @@ def check_config(config: ModelConfig) -> None:
         )
     if config.noise_std is not None:
         check_noise_std(config.noise_std, f"{source}: [identify] noise_std")
+    for n, (low, high) in config.bounds.items():
+        where = f"{source}: [identify] bounds.{n}"
+        if config.terms is None:
+            raise InputError(
+                f"{where}: the linear model's methods take no bounds; expected bounds on a nonlinear "
+                "model config's free names (its ml-gn keeps them)"
+            )
+        if n not in config.free:
+            raise InputError(f"{where}: not a free name; expected a name of [identify] free")
+        value = config.values[n]
+        if not low <= value <= high:
+            raise InputError(
+                f"{where} = [{low:g}, {high:g}]: its a-priori value {value:g} lies outside; expected a box holding it"
+            )
 
 
 def check_noise_std(noise, where: str) -> dict[str, float]:

@@ -85,6 +85,13 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         note = f"  # {comments['noise_std']}" if "noise_std" in comments else ""
         pairs = ", ".join(f"{s} = {float(v)!r}" for s, v in config.noise_std.items())
         lines.append(f"noise_std = {{{pairs}}}{note}")
+    if config.bounds:
+        pairs = ", ".join(
+            f"{json.dumps(n)} = {toml_value([float(x) for x in b])}" for n, b in config.bounds.items()
+        )
+        lines.append(f"bounds = {{{pairs}}}")
+    if not config.physical_bounds:
+        lines.append("physical_bounds = false")
     for sensor in config.sensors:
         lines += ["", f"[sensors.{json.dumps(sensor.name)}]"]
         lines += [f"{k} = {toml_value(v)}" for k, v in sensor_table(sensor).items()]

@@ -97,6 +97,9 @@ class Estimate:
             free coefficients and then each record's fitted initial states in its measured
             states (the nonlinear model's output-error fits; None otherwise): its analysis
             (`nonlinear_identifiability`) takes it rather than fly the sensitivities again.
+        at_bounds: the free coefficients the fit ended on a bound of (`[identify] bounds` and the
+            physical sides), name → the bound; each is held there, its σ NaN, the others' σ with
+            it held (None: no bound reached, or a method that takes none).
     """
 
     method: str
@@ -118,6 +121,7 @@ class Estimate:
     initial_states: dict[str, dict[str, float]] | None = field(default=None, repr=False)
     process_noise_std: dict[str, dict[str, float]] | None = field(default=None, repr=False)
     information: np.ndarray | None = field(default=None, repr=False)
+    at_bounds: dict[str, float] | None = None
 
     @property
     def converged(self) -> bool:
@@ -126,6 +130,10 @@ class Estimate:
     @property
     def coefficients(self) -> dict[str, float]:
         return dict(zip(self.free, map(float, self.values)))
+
+    def bounds_text(self) -> str:
+        """The bounds the fit ended on, as `name = value` (empty where none)."""
+        return ", ".join(f"{n} = {v:g}" for n, v in (self.at_bounds or {}).items())
 
     def json_fields(self) -> dict[str, Any]:
         """The estimate as the estimates JSON's fields (a mapping of JSON values)."""
@@ -158,6 +166,8 @@ class Estimate:
             doc["starts"] = [{**t, "cost": _finite(t["cost"])} for t in self.starts]
         if self.status is Status.DIVERGED:
             doc["diverged"] = {"reason": self.message or self.status.message}
+        if self.at_bounds:
+            doc["at_bounds"] = {n: float(v) for n, v in self.at_bounds.items()}
         return doc
 
     def to_json(self) -> str:
@@ -175,6 +185,7 @@ class Estimate:
         summary = (
             f"{self.method}: {self.status.message}, {self.iterations} iterations, cost {self.cost:.6g}, "
             f"from the {self.start} start"
+            + (f"; on its bounds: {self.bounds_text()}" if self.at_bounds else "")
         )
         noise = html_table(("state", "noise σ"), [(k, f"{v:.3g}") for k, v in self.noise_std.items()])
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -163,6 +163,7 @@ def damped_gauss_newton(
         if callback is not None:
             callback(Progress(len(history) - 1, values.copy(), cost))
 
+    box = config.box(config.free)
     with counting() as tally:
         label, start = _start(options.start, model, theta, recs, channels, config.free, held)
         history[0] = start[idx]
@@ -176,11 +177,17 @@ def damped_gauss_newton(
             callback=step,
             tolerance=float(options.tol),
             max_iterations=int(options.max_iter),
+            bounds=box,
         )
     R = np.array([fit.noise_std[c] ** 2 for c in channels])
-    std, coloured, _, H = coloured_bounds(
-        model, fit.theta, fit.initial_states, recs, channels, config.free, R
-    )
+    # the bounds reached held: the others' σ with them held, theirs NaN (a bound is no estimate's σ)
+    moving = [n for n in config.free if n not in fit.at_bounds]
+    std, coloured, H = np.full(len(config.free), np.nan), np.full(len(config.free), np.nan), None
+    if moving:
+        at = [config.free.index(n) for n in moving]
+        std[at], coloured[at], _, H = coloured_bounds(
+            model, fit.theta, fit.initial_states, recs, channels, moving, R
+        )
     return _estimate(
         config,
         experiments,
@@ -198,8 +205,22 @@ def damped_gauss_newton(
         start=label,
         history=np.array(history),
         crlb_corrected_std=coloured,
-        information=H,
+        information=H if not fit.at_bounds else None,
+        at_bounds=dict(fit.at_bounds) or None,
+        message=f"on its bounds: {', '.join(f'{n} = {v:g}' for n, v in fit.at_bounds.items())}"
+        if fit.at_bounds
+        else "",
     )
+
+
+def _unbounded(name: str, config: ModelConfig) -> None:
+    """`InputError` for `[identify] bounds` given to a method that does not keep them."""
+    if config.bounds:
+        first = next(iter(config.bounds))
+        raise InputError(
+            f"{config.source or 'config'}: [identify] bounds.{first}: {name} does not keep bounds; "
+            "expected ml-gn, or no [identify] bounds"
+        )
 
 
 def simplex(
@@ -208,6 +229,7 @@ def simplex(
     """`ml-nm` on a nonlinear model config (module doc)."""
     t0, name = time.perf_counter(), "ml-nm"
     _checked(name, options, _NM)
+    _unbounded(name, config)
     if options.coordinates == "information":
         raise OptionError(
             name, "coordinates", options.coordinates, "scaled or None for a nonlinear model config"

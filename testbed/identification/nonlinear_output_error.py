@@ -32,7 +32,7 @@ iterations reported count every stage's.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -95,6 +95,9 @@ class NonlinearFit:
     cost: float  # −ln p(Z | θ, R): ½ Σ_c N_c ln 2π R_c + ½ Σ eᵀR⁻¹e
     iterations: int
     status: str  # "converged", "iteration limit" or "stalled" (no step lowers the cost)
+    at_bounds: dict[str, float] = field(
+        default_factory=dict
+    )  # the free parameters it ends on a bound of, at it
 
 
 def records(
@@ -306,18 +309,22 @@ def fit_output_error(
     max_iterations: int = 50,
     continuation: bool = False,
     callback: Callable[[np.ndarray, float], None] | None = None,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> NonlinearFit:
     """Fit the `free` parameters of θ ⊕ b ⊕ g (names from `parameter_names`), started from
     `theta` (θ, θ ⊕ b or θ ⊕ b ⊕ g: the channels' biases and the mounting, 0 where left out), and each
     record's initial state (`free_initial`) to the `records`' measured `channels`, each record
     flown by RK4 with `substeps` steps per sample interval (module doc). `callback(values, cost)`
-    after every step taken, any stage's: the free coefficients and the negative log-likelihood."""
+    after every step taken, any stage's: the free coefficients and the negative log-likelihood.
+    `bounds`: `(low, high)` per free parameter (±inf: open), the box the fit keeps them in
+    (a start outside it is moved onto it; `NonlinearFit.at_bounds` names those it ends on)."""
     channels, free, noise_std = tuple(channels), tuple(free), dict(noise_std or {})
     _check(model, records, channels, free, noise_std, tolerance, max_iterations)
     ch = [STATES.index(c) for c in channels]
     x0 = start_states(model, records, ch)
     held = np.array([noise_std.get(c, np.nan) ** 2 for c in channels])
-    settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations, callback)
+    box = _box(bounds, len(free))
+    settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations, callback, box)
     options = dict(
         free_initial=free_initial,
         noise_std=noise_std,
@@ -325,6 +332,7 @@ def fit_output_error(
         tolerance=tolerance,
         max_iterations=max_iterations,
         callback=callback,
+        bounds=box,
     )
     n = min(len(r.t) for r in records)
     theta, stage = np.array(_padded(np.asarray(theta, float), len(model.names), ch), float), None
@@ -345,6 +353,24 @@ def fit_output_error(
     return fit if stage is None else replace(fit, iterations=fit.iterations + stage.iterations)
 
 
+def _box(bounds, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """`bounds` as (low, high) arrays of length `p` (None: unbounded); `InputError` unless
+    low < high everywhere."""
+    if bounds is None:
+        return np.full(p, -np.inf), np.full(p, np.inf)
+    low, high = (np.asarray(b, float).reshape(-1) for b in bounds)
+    if low.shape != (p,) or high.shape != (p,) or not np.all(low < high):
+        raise InputError(f"bounds {bounds!r}; expected (low, high), {p} each, low < high")
+    return low, high
+
+
+def _active(q: np.ndarray, g: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The parameters held on their bound this iteration: on it with the likelihood's descent
+    direction `g` (the normal equations' right side) pointing out of the box (the KKT condition
+    of the bound: its multiplier has the right sign)."""
+    return ((q <= low) & (g <= 0)) | ((q >= high) & (g >= 0))
+
+
 def _halves(records):
     """The records' first halves."""
     return [
@@ -355,11 +381,15 @@ def _halves(records):
 def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
     """`fit_output_error` from θ and the initial states x0 (records, 10); None where the flight
     from them does not stay finite."""
-    channels, free, free_initial, held, substeps, tolerance, max_iterations, callback = settings
+    channels, free, free_initial, held, substeps, tolerance, max_iterations, callback, box = settings
     ch = [STATES.index(c) for c in channels]
     names = parameter_names(model, channels)
     idx = np.array([names.index(n) for n in free])
     p = len(idx)
+    low, high = (
+        np.r_[box[0], np.full(len(records) * len(ch) if free_initial else 0, -np.inf)],
+        np.r_[box[1], np.full(len(records) * len(ch) if free_initial else 0, np.inf)],
+    )
 
     def unpack(q):
         th, x = theta.copy(), x0.copy()
@@ -371,21 +401,32 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
     def weighted(res, R):
         return 0.5 * sum(float(np.nansum(e**2 / R)) for e in res)
 
-    q = np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []])
+    q = np.clip(np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []]), low, high)
     flown, res = _simulate(model, *unpack(q), records, ch, substeps)
     if res is None:
         return None
     R = pooled_noise(res, held)
     lam, down, cap = DAMPING[0], DAMPING[1], DAMPING[2]
     status, iterations = "iteration limit", 0
+    held_on = np.zeros(len(q), bool)
     for iterations in range(1, max_iterations + 1):
         sens = _sensitivities(model, *unpack(q), records, flown, ch, idx, substeps)
         H, g = _normal_equations(res, sens, R, free_initial)
-        std = crlb(H).std
+        # projected Levenberg-Marquardt: the parameters held on their bound stay out of the step,
+        # the others' step is taken in the box (clipped onto it)
+        held_on = _active(q, g, low, high)
+        moving = ~held_on
+        std = np.full(len(q), np.inf)
+        std[moving] = crlb(H[np.ix_(moving, moving)]).std
         cost = weighted(res, R)
         while lam <= cap:
-            D = np.diag(H)
-            step = np.linalg.solve(H + lam * np.diag(np.where(D > 0, D, 1.0)), g)
+            D = np.diag(H)[moving]
+            step = np.zeros(len(q))
+            # (H_FF + λ diag H_FF) d_F = g_F
+            step[moving] = np.linalg.solve(
+                H[np.ix_(moving, moving)] + lam * np.diag(np.where(D > 0, D, 1.0)), g[moving]
+            )
+            step = np.clip(q + step, low, high) - q
             trial_flown, trial = _simulate(model, *unpack(q + step), records, ch, substeps)
             if trial is not None and weighted(trial, R) < cost:
                 break
@@ -401,12 +442,17 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
             status = "converged"
             break
     H, _ = _normal_equations(res, sens, R, free_initial)
-    std = crlb(H).std
+    std = np.full(len(q), np.inf)
+    std[moving] = crlb(H[np.ix_(moving, moving)]).std
     th, x = unpack(q)
+    at = {
+        free[k]: float(q[k]) for k in np.flatnonzero(held_on[:p] | (q[:p] <= low[:p]) | (q[:p] >= high[:p]))
+    }
     return NonlinearFit(
         theta=th,
         estimates={n: float(v) for n, v in zip(free, q[:p])},
         std={n: float(s) for n, s in zip(free, std[:p])},
+        at_bounds=at,
         initial_states=x,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
         cost=neg_log_likelihood(res, R),

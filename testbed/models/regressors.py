@@ -31,6 +31,7 @@ root, analytic off a = b = 0, its derivative (a, b)/√(a² + b²) (taken as 0 a
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from functools import lru_cache
@@ -50,6 +51,7 @@ __all__ = [
     "factor_table",
     "magnitude",
     "parse_term",
+    "physical_bounds",
     "regressors",
     "term_components",
     "term_wrenches",
@@ -89,6 +91,24 @@ def component_kind(name: str) -> str | None:
     other name."""
     match = _COMPONENT.fullmatch(str(name))
     return match.group(1) if match else None
+
+
+# The terms whose sign physics fixes: a component's drags (`blunt`, `slender`, `angular`:
+# f = −c ρ A ‖v‖ v, dissipative for c ≥ 0) and a body row's quadratic damping in its own
+# velocity (`Y_v|v|`: −Y_v|v| ≥ 0 opposes v); the lift, Magnus and Munk terms and every other
+# polynomial term may take either sign
+DRAGS = ("blunt", "slender", "angular")
+SELF_DAMPING = tuple(f"{row}_{s}|{s}|" for row, s in zip(ROWS, "uvwpqr"))
+
+
+def physical_bounds(name: str) -> tuple[float, float]:
+    """`(low, high)` of the term `name` on its dissipative side: `(0, ∞)` for a component's drag,
+    `(−∞, 0)` for a row's quadratic damping in its own velocity, else `(−∞, ∞)`."""
+    if component_kind(name) in DRAGS:
+        return 0.0, math.inf
+    if name in SELF_DAMPING:
+        return -math.inf, 0.0
+    return -math.inf, math.inf
 
 
 def parse_term(name: str, components=()) -> Term:

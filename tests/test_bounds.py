@@ -1,0 +1,97 @@
+"""Bounds on a nonlinear model config's free coefficients (`[identify] bounds`, and the physical
+sides `regressors.physical_bounds` on by default): the config reads and writes them and refuses
+what cannot be one; `ml-gn` keeps every coefficient in its box, and where a bound holds one the
+fit is the fit of the others with it fixed there (the bound's KKT point), its σ NaN, the bound
+named; the methods that keep none refuse them."""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from test_nonlinear_screen import DETERMINED, truth  # noqa: F401  (the fixture: a doublet the captive model flew)
+
+from testbed.data import config_text, parse_config
+from testbed.errors import InputError
+from testbed.estimators import identify
+from testbed.models.regressors import physical_bounds
+
+
+def test_the_physical_sides_are_the_drags_and_each_rows_own_damping():
+    assert physical_bounds("blunt@hull") == (0.0, math.inf)
+    assert physical_bounds("angular@rudder_upper") == (0.0, math.inf)
+    assert physical_bounds("N_r|r|") == (-math.inf, 0.0) and physical_bounds("Y_v|v|") == (-math.inf, 0.0)
+    for free in ("lift@rudder_upper", "munk@elevator_left", "N_v|v|", "Y_uv", "X_uu"):
+        assert physical_bounds(free) == (-math.inf, math.inf), free
+
+
+def test_the_config_reads_writes_and_checks_its_bounds(truth):  # noqa: F811
+    config, _ = truth
+    boxed = replace(config, free=DETERMINED, bounds={"Y_uv": (-math.inf, 0.0)}, physical_bounds=False)
+    back = parse_config(tomllib.loads(config_text(boxed)), "back")
+    assert back.bounds == {"Y_uv": (-math.inf, 0.0)} and back.physical_bounds is False
+    low, high = replace(config, free=("Y_v|v|", "Y_uv")).box(("Y_v|v|", "Y_uv"))
+    assert list(low) == [-math.inf, -math.inf] and list(high) == [0.0, math.inf]
+    text = config_text(replace(config, free=DETERMINED))
+    for bad, words in (
+        ('bounds = {"Y_uv" = [1.0, 1.0]}', "low < high"),
+        ('bounds = {"Y_uv" = [0.0]}', "expected [low, high]"),
+        ('bounds = {"X_uu" = [-1e9, 1e9]}', "not a free name"),
+        ('bounds = {"Y_uv" = [0.0, 1.0]}', "lies outside"),
+        ("bound = {}", "unknown key 'bound'"),
+        ("physical_bounds = 1", "expected true or false"),
+    ):
+        doc = tomllib.loads(text.replace("[identify]\n", f"[identify]\n{bad}\n"))
+        with pytest.raises(InputError, match=re.escape(words)) as exc:
+            parse_config(doc, "c.toml")
+        assert "\n" not in str(exc.value) and "c.toml: [identify]" in str(exc.value)
+
+
+def test_a_bound_that_holds_gives_the_fit_of_the_others_with_it_fixed_there(truth):  # noqa: F811
+    """`Y_uv` bounded below its value in the data: the fit ends on the bound, and the other
+    coefficients are where the fit with `Y_uv` fixed at the bound puts them."""
+    config, record = truth
+    start = replace(config, free=DETERMINED, screen=False)
+    free = identify([record], start, "ml-gn", start="config")
+    high = config.terms["Y_uv"] - 20 * free.std[0]  # far inside the region the data exclude
+    boxed = identify(
+        [record],
+        replace(start, bounds={"Y_uv": (-math.inf, high)}).with_coefficients({"Y_uv": high}),
+        "ml-gn",
+        start="config",
+    )
+    assert boxed.at_bounds == {"Y_uv": pytest.approx(high)} and boxed.converged
+    assert boxed.values[0] == pytest.approx(high) and math.isnan(boxed.std[0])
+    assert "on its bounds: Y_uv" in boxed.message and boxed.json_fields()["at_bounds"] == {
+        "Y_uv": pytest.approx(high)
+    }
+    fixed = identify(
+        [record],
+        replace(start, free=DETERMINED[1:]).with_coefficients({"Y_uv": high}),
+        "ml-gn",
+        start="config",
+    )
+    np.testing.assert_allclose(boxed.values[1:], fixed.values, rtol=0, atol=1e-3 * np.max(fixed.std))
+    np.testing.assert_allclose(boxed.std[1:], fixed.std, rtol=1e-3)
+    assert boxed.cost >= free.cost - 1e-9 and boxed.cost == pytest.approx(fixed.cost, abs=1e-6)
+
+
+def test_a_start_on_the_wrong_side_of_a_physical_bound_ends_on_its_side(truth):  # noqa: F811
+    """A self-damping term started positive (undamped) is moved onto its side, 0, and stays there
+    or inside; with the physical bounds off it may cross."""
+    config, record = truth
+    start = replace(config, free=(*DETERMINED, "Y_v|v|"), screen=False).with_coefficients({"Y_v|v|": 50.0})
+    est = identify([record], start, "ml-gn", start="config")
+    assert est.values[-1] <= 0.0
+
+
+@pytest.mark.parametrize("method", ["ml-nm", "mekf"])
+def test_a_method_that_keeps_no_bounds_refuses_them(truth, method):  # noqa: F811
+    config, record = truth
+    boxed = replace(config, free=DETERMINED, screen=False, bounds={"Y_uv": (-math.inf, math.inf)})
+    with pytest.raises(InputError, match=f"{method} does not keep bounds"):
+        identify([record], boxed, method)
