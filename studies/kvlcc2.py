@@ -45,7 +45,7 @@ from scipy.optimize import least_squares, linprog
 from testbed.identification import likelihood, recursions
 from testbed.identification.problem import Problem, problem
 from testbed.data import ModelConfig, read_config, read_csv, write_config, write_csv
-from testbed.errors import atomic_write_text
+from testbed.outputs import atomic_write_text
 from testbed.models.linear import COEFFICIENTS, Vehicle
 from testbed.analysis.validation import validate
 

@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from testbed import METHODS
-from testbed.errors import InputError, atomic_write_text
+from testbed.outputs import atomic_write_text
+from testbed.errors import InputError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too
 from studies.seeds import check_out  # noqa: E402

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.errors import atomic_write_text
+from testbed.outputs import atomic_write_text
 from studies.remus import FREE, EXAMPLE_COEFFICIENTS, experiments, prior_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script, too

@@ -60,7 +60,8 @@ from testbed.analysis.nonlinear_identifiability import NONLINEAR, nonlinear_iden
 from testbed.analysis.regime import open_loop
 from testbed.analysis.track import record_track
 from testbed.data import Experiment, ModelConfig, load_data, read_csv
-from testbed.errors import InputError, atomic_write_text, check_output_directory, check_output_file
+from testbed.outputs import atomic_write_text, check_output_directory, check_output_file
+from testbed.errors import InputError
 from testbed.estimators import Estimate, identify
 from testbed.identification.nonlinear_prediction import predict
 from testbed.models.linear import STATES

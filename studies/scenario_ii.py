@@ -22,7 +22,7 @@ from pathlib import Path
 
 from testbed.analysis.screening import screen
 from testbed.data import Experiment
-from testbed.errors import atomic_write_text
+from testbed.outputs import atomic_write_text
 from testbed.estimators import identify
 from testbed.simulation.measurements import measure, rng_for
 from testbed.models.linear import STATES

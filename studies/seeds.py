@@ -11,7 +11,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.errors import check_output_directory, check_output_file
+from testbed.outputs import check_output_directory, check_output_file
 from testbed.estimators import Estimate, Status, identify
 
 

@@ -38,7 +38,8 @@ import numpy as np
 
 from testbed.identification.bounds import information
 from testbed.data import Experiment, ModelConfig, load_data
-from testbed.errors import InputError, atomic_write_text
+from testbed.outputs import atomic_write_text
+from testbed.errors import InputError
 from testbed.estimators import identify, lookup
 from testbed.simulation.runs import simulate
 

@@ -44,7 +44,8 @@ import numpy as np
 
 from testbed.analysis.profile import profile
 from testbed.data import ModelConfig, load_data
-from testbed.errors import InputError, atomic_write_text
+from testbed.outputs import atomic_write_text
+from testbed.errors import InputError
 from testbed.estimators import Estimate, identify
 from testbed.models.linear import IX, OFFSETS, STATES, structure, theta_vector, tilde
 from testbed.models.sensors import Sensor

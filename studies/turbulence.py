@@ -31,7 +31,8 @@ from testbed.data import Experiment, load_data
 from testbed.models.linear import IX, NX, STATES, continuous, discretize, structure, theta_vector, tilde
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.trial import gauss_markov
-from testbed.errors import InputError, atomic_write_text
+from testbed.outputs import atomic_write_text
+from testbed.errors import InputError
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import FEEDBACKS, scenario, scenario_text
 

@@ -23,7 +23,8 @@ from testbed.analysis.identifiability import identifiability
 from testbed.analysis.screening import structurally_unidentified
 from testbed.cli import main
 from testbed.data import ModelConfig, config_text, csv_text, load_data, read_config, read_csv, write_config
-from testbed.errors import InputError, atomic_file
+from testbed.outputs import atomic_file
+from testbed.errors import InputError
 from testbed.estimators import Estimate, Status, identify
 from testbed.models.linear import COEFFICIENTS
 from testbed.simulation.measurements import noise_from_data

@@ -12,7 +12,8 @@ import pytest
 
 from test_bad_input import cli
 from testbed.data import read_config, write_config, write_csv
-from testbed.errors import InputError, atomic_file, atomic_write_text
+from testbed.outputs import atomic_file, atomic_write_text
+from testbed.errors import InputError
 from testbed.jobs.analyze import analyze_data
 from testbed.jobs.check import check_data
 from testbed.jobs.identify import identify_data

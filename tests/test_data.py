@@ -19,7 +19,8 @@ from testbed.data import (
     write_config,
     write_csv,
 )
-from testbed.errors import InputError, atomic_directory
+from testbed.outputs import atomic_directory
+from testbed.errors import InputError
 from testbed.models.linear import COEFFICIENTS, INPUTS, PARAMETERS, STATES, Vehicle
 
 VEHICLE = Vehicle(30.51, 0.177, 3.45, 3.45, 299.0, 306.0, 0.0, 0.0, -0.0196, 1.54)

@@ -86,10 +86,10 @@ def _ar1(rng, shape, rho, std):
     return a
 
 
-def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
+def test_coloured_residual_bound_equals_the_morelli_klein_double_sum():
     prob, p = _problem(duration=6.0)
     rng = np.random.default_rng(5)
-    res = [_ar1(rng, r.y.shape, 0.6, 0.01) for r in prob.records]  # colored: K above the floor
+    res = [_ar1(rng, r.y.shape, 0.6, 0.01) for r in prob.records]  # coloured: K above the floor
     R = likelihood.noise_variance(prob, res)
     mid, lags = np.zeros((prob.n_params, prob.n_params)), []
     for r, S, v in zip(prob.records, recursions.sensitivities(prob, p), res):
@@ -109,11 +109,11 @@ def test_colored_residual_bound_equals_the_morelli_klein_double_sum():
     A = rng.normal(size=(prob.n_params, prob.n_params))
     cov = A @ A.T  # any symmetric matrix in place of M⁻¹: the sandwich is linear in each side
     ref = (cov @ mid @ cov)[: prob.n_free, : prob.n_free]
-    got = bounds.colored_covariance(prob, p, recursions.states(prob, p), res, R, cov)
+    got = bounds.coloured_covariance(prob, p, recursions.states(prob, p), res, R, cov)
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
 
 
-def test_lag_window_is_the_floor_for_white_residuals_and_spans_a_colored_correlation():
+def test_lag_window_is_the_floor_for_white_residuals_and_spans_a_coloured_correlation():
     rng = np.random.default_rng(2)
     n = 4000
 
@@ -146,7 +146,7 @@ def _fits(noise, seeds):
     return fits
 
 
-def test_colored_residual_bound_equals_the_plain_one_for_white_residuals():
+def test_coloured_residual_bound_equals_the_plain_one_for_white_residuals():
     # the fitted residuals of white-noise data: the corrected bound within a few % of the plain one
     # (measured 0.98-1.00 per coefficient over 12 seeds; all lags unwindowed read 0.80-1.01)
     fits = _fits(lambda rng, shape, std: rng.normal(size=shape) * std, 5)
@@ -155,7 +155,7 @@ def test_colored_residual_bound_equals_the_plain_one_for_white_residuals():
     assert np.all((ratio > 0.93) & (ratio < 1.07)), ratio
 
 
-def test_colored_residual_bound_grows_with_an_ar1_correlation_as_theory_says():
+def test_coloured_residual_bound_grows_with_an_ar1_correlation_as_theory_says():
     # AR(1) noise, ρ = 0.7: the estimate's covariance is the sandwich C Sᵀ Σ⁻¹ T Σ⁻¹ S C with
     # T(i, j) = ρ^|i−j| (Σ the noise variances, C the white bound); for slowly varying
     # sensitivities it is (1+ρ)/(1−ρ) times the white bound
@@ -177,7 +177,7 @@ def test_colored_residual_bound_grows_with_an_ar1_correlation_as_theory_says():
     theory = np.sqrt(np.diag(C @ mid @ C) / np.diag(C))[: prob.n_free]
     lateral = [FREE.index(n) for n in ("Y_v", "Y_r", "Y_dr", "N_v", "N_r", "N_dr")]
     np.testing.assert_allclose(theory[lateral], np.sqrt((1 + rho) / (1 - rho)), rtol=0.03)
-    # the residuals are fitted, which takes some of the colored noise's low frequencies with it:
+    # the residuals are fitted, which takes some of the coloured noise's low frequencies with it:
     # measured 0.89-0.94 of the sandwich per coefficient (all lags unwindowed: 0.65-0.94)
     assert np.all((ratio / theory > 0.82) & (ratio / theory < 1.05)), ratio / theory
     assert 0.88 < np.mean(ratio / theory) < 1.02, ratio / theory

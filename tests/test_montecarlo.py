@@ -47,7 +47,7 @@ def test_reduced_monte_carlo_study(tmp_path):
     assert np.all(np.abs(z) < 3 / np.sqrt(SEEDS)), z
     assert np.all((ratio > 0.6) & (ratio < 1.45)), ratio
     corrected = np.array([float(r["crlb_corrected_over_crlb"]) for r in rows])
-    # white residuals: the colored-residual bound (lag-windowed) agrees with the plain one
+    # white residuals: the coloured-residual bound (lag-windowed) agrees with the plain one
     # (measured 0.98-0.99 per coefficient, 20 seeds of 60 s)
     assert np.all((corrected > 0.93) & (corrected < 1.07)), corrected
     # the MEKF beside it: reported for every coefficient, finite bias and spread, never better

@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from testbed.data import ModelConfig, config_text
-from testbed.errors import InputError, atomic_write_text, check_outputs
+from testbed.outputs import atomic_write_text, check_outputs
+from testbed.errors import InputError
 from testbed.models.regressors import component_kind
 from testbed.captive.fit import CaptiveFit
 from testbed.captive.reference import captive_reference, component_reference, slope_terms

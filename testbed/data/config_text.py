@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Mapping
 
 from testbed.data.config import BLADE_KEYS, COMPONENT_KEYS, ModelConfig
-from testbed.errors import atomic_write_text
+from testbed.outputs import atomic_write_text
 from testbed.models.linear import BIASES, COEFFICIENTS, DELAY, MOUNTING, OFFSETS, OUTPUT_TERMS, Vehicle
 from testbed.models.nonlinear import INERTIA
 from testbed.models.sensors import Sensor

@@ -14,7 +14,8 @@ import numpy as np
 
 from testbed.data.experiment import MIN_ROWS, TOO_LARGE, Experiment, median, too_large, uniform_step
 from testbed.data.files import read_text
-from testbed.errors import InputError, atomic_write_text
+from testbed.outputs import atomic_write_text
+from testbed.errors import InputError
 from testbed.models.linear import INPUTS, STATES
 
 __all__ = [

@@ -41,9 +41,9 @@ __all__ = [
     "Information",
     "analysed",
     "assess",
-    "colored_covariance",
+    "coloured_covariance",
     "lagged",
-    "colored_term",
+    "coloured_term",
     "crlb",
     "eliminated",
     "fft_length",
@@ -137,7 +137,7 @@ def fft_length(n: int) -> int:
 
 
 def lag_window(rho: np.ndarray, n: int) -> int:
-    """K, the lags the residual autocorrelation is kept to in `colored_covariance`.
+    """K, the lags the residual autocorrelation is kept to in `coloured_covariance`.
 
     `rho`: (lags 1 … n/4, k) each channel's residual autocorrelation coefficient ρ(τ) =
     r_cc(τ)/r_cc(0), `n` the record's samples. K covers, in every channel, both
@@ -164,7 +164,7 @@ def lag_window(rho: np.ndarray, n: int) -> int:
     return int(min(max(2 * last, sokal, MIN_LAGS), n // 2))
 
 
-def colored_covariance(
+def coloured_covariance(
     prob: Problem,
     p: np.ndarray,
     xs: Sequence[np.ndarray],
@@ -172,7 +172,7 @@ def colored_covariance(
     R: np.ndarray,
     cov: np.ndarray,
 ) -> np.ndarray:
-    """Morelli & Klein's covariance of the free coefficients for colored residuals,
+    """Morelli & Klein's covariance of the free coefficients for coloured residuals,
 
         C (Σ_i Σ_j S(i)ᵀR⁻¹ R_vv(i−j) R⁻¹S(j)) Cᵀ,   R_vv(τ) = w(τ) 1/N Σ_m v(m) v(m+τ)ᵀ,
 
@@ -215,12 +215,12 @@ def colored_covariance(
         ):
             for samples, S in pieces:
                 Zr[np.ix_(np.arange(n)[samples], channels)] = (S @ C[params]).transpose(1, 0, 2)
-        out += colored_term(Zr, e / np.sqrt(R[r.channels]), r.present)
+        out += coloured_term(Zr, e / np.sqrt(R[r.channels]), r.present)
     return out
 
 
-def colored_term(Z: np.ndarray, v: np.ndarray, present: np.ndarray | None = None) -> np.ndarray:
-    """One record's `1/L Σ_f Z(f)ᴴ Φ(f) Z(f)` of `colored_covariance`: `Z` (N, k, n_free) its
+def coloured_term(Z: np.ndarray, v: np.ndarray, present: np.ndarray | None = None) -> np.ndarray:
+    """One record's `1/L Σ_f Z(f)ᴴ Φ(f) Z(f)` of `coloured_covariance`: `Z` (N, k, n_free) its
     sensitivities R^-½ S Cᵀ, `v` (N, k) its residuals R^-½ v (0 where missing), `present` (N, k)
     where the samples are (None: all)."""
     n, k, nf = Z.shape
@@ -269,7 +269,7 @@ class Information:
     fisher: np.ndarray  # (n_free, n_free), the initial states eliminated (Schur complement)
     crlb_std: np.ndarray  # (n_free,) Cramér-Rao standard errors
     correlation: np.ndarray  # (n_free, n_free)
-    crlb_corrected_std: np.ndarray  # (n_free,) Morelli-Klein colored-residual bound
+    crlb_corrected_std: np.ndarray  # (n_free,) Morelli-Klein coloured-residual bound
     noise_std: dict[str, float]  # per measured state: √R
     initial_states: dict[str, dict[str, float]]  # experiment → measured state → x0 (absolute u)
     cost: float  # negative log-likelihood (R at its ML value)
@@ -288,7 +288,7 @@ def assess(
     R: np.ndarray | None = None,
     simulated: tuple | None = None,
 ) -> Information:
-    """Fisher information, Cramér-Rao bounds and the colored-residual bound at `p`.
+    """Fisher information, Cramér-Rao bounds and the coloured-residual bound at `p`.
 
     `M`: `gauss_newton_terms(prob, p, …, R)[1]` with R the residual variance at `p`, and `simulated`:
     the states and residuals per record there `(xs, res)`, if an optimiser already has them (not
@@ -305,12 +305,12 @@ def assess(
         M = gauss_newton_terms(prob, p, xs, res, R)[1]
     nf = prob.n_free
     # the bounds of θ from its information with the initial states eliminated, which stays well
-    # conditioned where M itself does not (an unstable model's); the colored bound needs the θ
+    # conditioned where M itself does not (an unstable model's); the coloured bound needs the θ
     # rows of M⁻¹ too: [F⁻¹, −F⁻¹ M_θx M_xx⁻¹] (the inverse of a 2 × 2 block matrix)
     F = eliminated(M, nf)
     cov, std, corr = crlb(F)
     rows = np.hstack([cov, -cov @ eliminate(M, nf, M[nf:, :nf]).T]) if len(M) > nf else cov
-    corrected = colored_covariance(prob, p, xs, res, R, rows)
+    corrected = coloured_covariance(prob, p, xs, res, R, rows)
     x0 = {}
     for r in prob.records:
         xr = prob.x0(r, p) + np.eye(NX)[IX["u"]] * prob.speed
@@ -405,7 +405,7 @@ def fisher(
     noise_std: Mapping[str, float] | None = None,
 ) -> np.ndarray:
     """`information(...).fisher` alone: the Fisher information of `config.free` (n_free, n_free),
-    the initial states eliminated, without the bounds (no colored-residual analysis)."""
+    the initial states eliminated, without the bounds (no coloured-residual analysis)."""
     return fisher_at(analysed(experiments, config, values, noise_std))
 
 

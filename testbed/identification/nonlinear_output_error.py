@@ -39,7 +39,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
-from testbed.identification.bounds import colored_term, crlb
+from testbed.identification.bounds import coloured_term, crlb
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
@@ -532,7 +532,7 @@ def coloured_bounds(
     """`(σ, σ_coloured, residuals, H)` at θ and the initial states `x0` (records, 10) with the noise
     variances `R`: the Cramér-Rao σ of the `free` parameters of θ ⊕ b ⊕ g (the initial states among the
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
-    (`bounds.colored_covariance`, its per-record sum `bounds.colored_term`), the residuals and
+    (`bounds.coloured_covariance`, its per-record sum `bounds.coloured_term`), the residuals and
     the Fisher information H they come from (`information`'s)."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
     R = np.asarray(R, float)
@@ -547,6 +547,6 @@ def coloured_bounds(
         missing = np.isnan(e[rows])
         e, J = present_only(e[rows], _jacobian(i, St[rows], Sx[rows], P, True))
         Z = (J / scale[:, None]) @ cov[:p].T
-        total += colored_term(Z, e / scale, ~missing if missing.any() else None)
+        total += coloured_term(Z, e / scale, ~missing if missing.any() else None)
     coloured = np.where(np.isinf(std[:p]), np.inf, np.sqrt(np.maximum(np.diag(total), 0.0)))
     return std[:p], coloured, res, H

@@ -7,7 +7,8 @@ import os
 from typing import Mapping, Sequence
 from testbed.analysis.identifiability import Identifiability, identifiability
 from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
-from testbed.errors import InputError, check_outputs
+from testbed.outputs import check_outputs
+from testbed.errors import InputError
 from testbed.jobs.common import write_text, inputs, check_report
 
 __all__ = ["analyze_data"]

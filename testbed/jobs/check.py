@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 from typing import Sequence
 from testbed.data import load_data
-from testbed.errors import check_outputs
+from testbed.outputs import check_outputs
 from testbed.jobs.common import write_text, check_report
 
 __all__ = ["check_data"]

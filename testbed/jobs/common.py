@@ -11,7 +11,8 @@ from typing import Sequence
 import numpy as np
 from testbed.analysis.comparison import Comparison, compare
 from testbed.data import MAX_CONSTANT, Experiment, ModelConfig, load_data, read_config, read_csv, run_csvs
-from testbed.errors import InputError, atomic_write_text
+from testbed.outputs import atomic_write_text
+from testbed.errors import InputError
 from testbed.estimators import Estimate, identify
 from testbed.identification.problem import base_name
 

@@ -15,7 +15,8 @@ from testbed.analysis.nonlinear_identifiability import NONLINEAR
 from testbed.analysis.screening import LINEAR
 from testbed.analysis.validation import Validation, validate
 from testbed.data import MAX_CONSTANT, ModelConfig, read_config
-from testbed.errors import InputError, atomic_file, check_outputs, is_stream
+from testbed.outputs import atomic_file, check_outputs, is_stream
+from testbed.errors import InputError
 from testbed.estimators import Estimate, Progress, Status, check_method, identify, lookup
 from testbed.identification.problem import base_name
 from testbed.jobs.common import inputs, perturbed, spread, check_report, truth_data, truth_comparison

@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Sequence
 from testbed.analysis.validation import Validation, validate
 from testbed.data import read_estimates, read_json
-from testbed.errors import InputError, check_outputs
+from testbed.outputs import check_outputs
+from testbed.errors import InputError
 from testbed.identification.problem import check_inputs
 from testbed.models.linear import BIASES, MOUNTING
 from testbed.jobs.common import write_text, inputs, check_report

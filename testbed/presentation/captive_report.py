@@ -10,13 +10,8 @@ import contextlib
 import os
 from pathlib import Path
 
-from testbed.errors import (
-    InputError,
-    atomic_directory,
-    atomic_write_text,
-    check_output_directory,
-    check_outputs,
-)
+from testbed.outputs import atomic_directory, atomic_write_text, check_output_directory, check_outputs
+from testbed.errors import InputError
 from testbed.presentation.captive_figures import figure_name, sweep_figure
 from testbed.presentation.captive_recording import log_captive
 from testbed.presentation.captive_sweeps import by_test, sweep_panels

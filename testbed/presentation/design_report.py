@@ -17,7 +17,7 @@ from testbed.analysis.design import Design, design
 from testbed.analysis.design_signals import GROWTH_MARGIN
 from testbed.analysis.regime import Limits
 from testbed.data import read_estimates as data_read_estimates
-from testbed.errors import atomic_write_text, check_outputs
+from testbed.outputs import atomic_write_text, check_outputs
 from testbed.models.linear import INPUTS, STATES
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.recording import (

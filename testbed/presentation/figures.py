@@ -25,7 +25,7 @@ __all__ = ["write_report"]
 matplotlib.use("Agg")  # headless: figures are files
 import matplotlib.pyplot as plt  # noqa: E402
 
-from testbed.errors import atomic_file, atomic_write_text
+from testbed.outputs import atomic_file, atomic_write_text
 from testbed.models.linear import INPUTS
 from testbed.simulation.recording import data_id, recording
 

@@ -39,7 +39,8 @@ from testbed.analysis.identifiability import identifiability
 from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
 from testbed.analysis.validation import Validation, predicted, validate
 from testbed.data import Experiment, ModelConfig, stretch_name, stretches
-from testbed.errors import InputError, atomic_write_text, check_output_directory
+from testbed.outputs import atomic_write_text, check_output_directory
+from testbed.errors import InputError
 from testbed.html_table import html_table
 from testbed.identification.problem import base_name
 from testbed.models.linear import CURRENT, DELAY, MOUNTING, OFFSETS, STATES

@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 
 from testbed.data import ModelConfig, config_text
-from testbed.errors import atomic_write_text, check_outputs
+from testbed.outputs import atomic_write_text, check_outputs
 from testbed.models.linear import (
     COEFFICIENTS,
     INPUTS,

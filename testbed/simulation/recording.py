@@ -28,7 +28,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from testbed.errors import atomic_file
+from testbed.outputs import atomic_file
 from testbed.models.linear import INPUTS, IX, STATES
 from testbed.simulation.vehicle import FINS, FLIP, load_model, rotation
 
@@ -149,7 +149,7 @@ def recording(path: str | os.PathLike, title: str, recording_id: str, force: boo
     """Yield a recording stream saving to a unique temporary sibling of `path` (send the
     blueprint last, inside the block), renamed to `path` when the block finishes; on any
     exception (Ctrl-C included) the temporary file is removed, so a recording is whole or absent
-    (`testbed.errors.atomic_file`; the file sink writes while we log). An existing file at `path`
+    (`testbed.outputs.atomic_file`; the file sink writes while we log). An existing file at `path`
     is an `InputError` unless `force` (then replaced).
 
     No wall-clock start time is sent: the same data give the same decoded contents.

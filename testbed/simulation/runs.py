@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from testbed.data import config_text, csv_text
-from testbed.errors import atomic_directory
+from testbed.outputs import atomic_directory
 from testbed.simulation.measurements import check_seed
 from testbed.models.linear import STATES
 from testbed.models.sensors import ACCELERATIONS

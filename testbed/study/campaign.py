@@ -40,7 +40,8 @@ from dask.distributed import Client, LocalCluster, WorkerPlugin, as_completed
 from testbed.analysis.drift import evidence, forms
 from testbed.analysis.regime import open_loop_fit
 from testbed.data import load_data
-from testbed.errors import InputError, atomic_write_text, check_output_directory, is_number, one_line
+from testbed.outputs import atomic_write_text, check_output_directory
+from testbed.errors import InputError, is_number, one_line
 from testbed.memory import keep_freed_memory
 from testbed.presentation.figures import write_report
 from testbed.simulation.scenario import TRUTHS
