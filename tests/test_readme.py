@@ -14,7 +14,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 SIGMAS = 4.0
 # The linear model's own bias on Scenario II, which no noise level removes: the fit to the
 # plant's noise-free data is within 1 % of the analytic model, 3 % in the roll row
-# (tests/test_plant_data.py, test_noise_free_fit_is_the_analytic_model).
+# (tests/simulation/test_plant_data.py, test_noise_free_fit_is_the_analytic_model).
 BIAS = 0.01
 ROLL_ROW_BIAS = 0.03
 

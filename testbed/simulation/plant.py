@@ -41,7 +41,7 @@ own step would not do: its RK4 stages cannot be completed, and its first-order
 steps are far from the continuous plant that the analytic model linearises (even at 4 ms, implicit
 Euler moves the 23.7 rad/s sway-yaw and heave-pitch poles by 4 %, and `implicitfast` keeps only
 the lower triangle of the strongly asymmetric fluid-force derivative): with `implicitfast` the
-analytic model tracked the same response with 92–94 % fit (tests/test_plant.py measures the
+analytic model tracked the same response with 92–94 % fit (tests/simulation/test_plant.py measures the
 agreement that RK4 and quasi-steady fins give).
 """
 

@@ -406,7 +406,7 @@ def test_identify_refusals_are_one_line_and_write_nothing(files, capsys, tmp_pat
 
 def test_identify_records_the_nonlinear_fit_to_rerun(files, capsys, tmp_path):
     """`--rrd` for a nonlinear model config writes the recording beside the estimates
-    (its contents: tests/test_report.py)."""
+    (its contents: tests/presentation/test_report.py)."""
     rrd, out = tmp_path / "fit.rrd", tmp_path / "est.json"
     argv = ["identify", files / "doublets.csv", "--config", files / "start.toml", "--out", out, "--rrd", rrd]
     assert main([str(a) for a in argv]) == 0, capsys.readouterr().err

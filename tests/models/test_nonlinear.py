@@ -454,7 +454,7 @@ def test_the_fit_recovers_the_coefficients_of_data_the_model_made():
 
 
 def test_the_model_page_lists_the_default_terms_in_order():
-    text = (Path(__file__).resolve().parents[1] / "docs" / "model.md").read_text(encoding="utf-8")
+    text = (Path(__file__).resolve().parents[2] / "docs" / "model.md").read_text(encoding="utf-8")
     nonlinear = text[text.index("# The nonlinear model") :]
     listed = re.search(r"```\n(X_uu .*?)```", nonlinear, re.S).group(1).split()
     assert listed == list(TERMS)

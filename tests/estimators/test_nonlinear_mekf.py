@@ -18,8 +18,8 @@ from testbed.identification.nonlinear_transition import NonlinearTransition
 from testbed.models.linear import IX, STATES
 from testbed.models.nonlinear_flight import fly
 
-import test_nonlinear_identify as shared
-from test_nonlinear_identify import FREE, SIGMA, _ok, _start
+import estimators.test_nonlinear as shared
+from estimators.test_nonlinear import FREE, SIGMA, _ok, _start
 
 truth, files = shared.truth, shared.files  # the shared record and its files (fixtures)
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 from references import assert_curvature_matches_complex_step, assert_sensitivities_match_complex_step, qr_cost
-from test_offsets import LATERAL, _start  # noqa: F401  (shared data)
+from identification.test_offsets import LATERAL, _start  # noqa: F401  (shared data)
 
 from testbed.errors import InputError
 from testbed.estimators import identify

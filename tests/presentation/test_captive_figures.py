@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import rerun.chunk
 
-from test_report import _blueprint, _logged, _matches, _tabs, _views  # noqa: F401  (the recording's readers)
+from presentation.test_report import _blueprint, _logged, _matches, _tabs, _views  # noqa: F401  (the recording's readers)
 from test_bad_input import cli
 from testbed.models import linear, nonlinear
 from testbed.models.mechanics import coriolis

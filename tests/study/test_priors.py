@@ -252,7 +252,7 @@ def test_free_coefficients_are_matched_by_name():
 
 def test_the_classes_are_documented_as_in_the_code():
     """docs/studies.md's table of classes lists each class's coefficients and spread as the code."""
-    text = (Path(__file__).resolve().parents[1] / "docs" / "studies.md").read_text(encoding="utf-8")
+    text = (Path(__file__).resolve().parents[2] / "docs" / "studies.md").read_text(encoding="utf-8")
     rows = {}
     for line in text.splitlines():
         cells = [c.strip() for c in line.strip("|").split("|")]

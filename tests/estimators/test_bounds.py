@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from test_nonlinear_screen import DETERMINED, truth  # noqa: F401  (the fixture: a doublet the captive model flew)
+from analysis.test_nonlinear_identifiability import DETERMINED, truth  # noqa: F401  (the fixture: a doublet the captive model flew)
 
 from testbed.data import config_text, parse_config
 from testbed.errors import InputError

@@ -374,7 +374,7 @@ def test_check_writes_the_json_and_prints_the_table(trial, tmp_path, capsys):
         "fit_percent",
         "innovation_rms",
     }
-    documented = (Path(__file__).parents[1] / "docs" / "files.md").read_text().split("## Check JSON")[1]
+    documented = (Path(__file__).parents[2] / "docs" / "files.md").read_text().split("## Check JSON")[1]
     documented = documented.split("\n## ")[0]
     fit = doc["pooled"]["attitude"]
     keys = set(doc) | set(fit) | set(fit["fit"]["phi"]) | {k for p in fit["parameters"].values() for k in p}

@@ -16,8 +16,14 @@ from testbed.models.linear import IX, MOUNTING, STATES
 from testbed.models.sensors import Sensor, outputs
 from references import assert_curvature_matches_complex_step, assert_sensitivities_match_complex_step
 
-from test_current import _data as _current_data
-from test_offsets import FIN_OFFSET, LATERAL, _start, _turns, assert_recovered_beside_the_offsets
+from identification.test_current import _data as _current_data
+from identification.test_offsets import (
+    FIN_OFFSET,
+    LATERAL,
+    _start,
+    _turns,
+    assert_recovered_beside_the_offsets,
+)
 
 MOUNT = {"m_dvl_y": 0.0, "m_dvl_z": 0.03, "r_dvl_x": 0.6, "r_dvl_y": 0.0, "r_dvl_z": 0.25}
 

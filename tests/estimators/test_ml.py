@@ -257,7 +257,7 @@ def test_ml_nr_and_ml_nm_start_from_a_course_unstable_model_on_segments():
 
 
 @pytest.mark.skipif(
-    "mekf" not in METHODS and not (Path(__file__).parents[1] / "testbed" / "estimators" / "mekf.py").exists(),
+    "mekf" not in METHODS and not (Path(__file__).parents[2] / "testbed" / "estimators" / "mekf.py").exists(),
     reason="the MEKF is not in this tree yet",
 )
 def test_start_from_the_mekf_estimate():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 from references import assert_sensitivities_match_complex_step, qr_cost
-from test_offsets import FIN_OFFSET, LATERAL, _lsim, _start, _turns  # noqa: F401  (shared data)
+from identification.test_offsets import FIN_OFFSET, LATERAL, _lsim, _start, _turns  # noqa: F401  (shared data)
 
 from testbed.errors import InputError
 from testbed.estimators import identify

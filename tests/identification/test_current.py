@@ -9,7 +9,13 @@ from testbed.identification import concentrated, likelihood
 from testbed.identification.problem import problem
 from references import assert_sensitivities_match_complex_step, qr_cost
 
-from test_offsets import FIN_OFFSET, LATERAL, _start, _turns, assert_recovered_beside_the_offsets  # noqa: F401
+from identification.test_offsets import (
+    FIN_OFFSET,
+    LATERAL,
+    _start,
+    _turns,
+    assert_recovered_beside_the_offsets,
+)  # noqa: F401
 
 CURRENT = (0.12, -0.08)  # m/s north, east: a 0.14 m/s tidal current, a tenth of the example's speed
 

@@ -269,7 +269,7 @@ def test_a_scenario_ii_log_as_it_comes_keeps_its_information(tmp_path):
     model.toml converges on each. (Its estimate is not the clean log's: the servos move every
     10 ms, and the fins held from stamp to jittered stamp are another approximation of their
     course than the 20 ms intervals' means; a log whose fins change at its own stamps identifies
-    the model as its even twin does, tests/test_time_as_logged.py.)"""
+    the model as its even twin does, tests/data/test_time_as_logged.py.)"""
     from importlib.resources import files
 
     from testbed.jobs.identify import identify_screened
