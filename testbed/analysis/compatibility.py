@@ -49,7 +49,7 @@ parameter within 2 σ of 0 is held at 0 (`HELD_FIRST`: scale factors, delays, th
 others updated for it held there), and those left are fitted again until none is. The initial
 states are always fitted.
 
-The depth check's log may be turned from the body's axes by `m_dvl_y`, `m_dvl_z` (its reading
+The depth check's log may be misaligned from the body's axes by `m_dvl_y`, `m_dvl_z` (its reading
 Mᵀ v, M = Rz(m_dvl_z) Ry(m_dvl_y), a scenario sensor's `misalignment`). A parameter correlated
 beyond 0.99 with an attitude offset in these data is held, not separable (`_inseparable`): a
 log's w bias makes the sink rate of a pitch offset wherever u is near constant, its
@@ -60,7 +60,7 @@ bias only where the speed varies. Among the insignificant, the offsets are held 
 Missing samples: each channel's samples present are its data. The filter steps from row to row
 of those where every output of the check is present (the others' outputs are left out); the
 driving and used channels are cubic splines through their samples present, bridging a gap up
-to `MAX_GAP` (3) times the channel's median interval (a dropped sample or two, a slower
+to `BRIDGED_GAP` (3) times the channel's median interval (a dropped sample or two, a slower
 sensor's rate); across a longer gap the record is split, each stretch checked with its own
 initial state and named `record a–b s`, the gap named unchecked. A record missing a channel a
 check needs (not a column, or under 2 samples) is not checked for it: no gyros, no attitude
@@ -81,9 +81,9 @@ import numpy as np
 from testbed.analysis.compatibility_checks import (
     ATTITUDE,
     CHECKS,
-    MAX_GAP,
+    BRIDGED_GAP,
     MAX_PITCH,
-    MIN_ROWS,
+    MIN_CHECKED_ROWS,
     Check,
     Compatibility,
     Reconstruction,
@@ -99,8 +99,8 @@ __all__ = ["compatibility"]
 
 def _stretches(e: Experiment, check: Check) -> tuple[list[tuple[float, float]], list[str]]:
     """The stretches of `e` that `check` can check: where every driving and used channel has
-    samples on both sides, split at each gap of one longer than `MAX_GAP` times its median
-    interval, and holding at least `MIN_ROWS` rows with every output; and the parts left out,
+    samples on both sides, split at each gap of one longer than `BRIDGED_GAP` times its median
+    interval, and holding at least `MIN_CHECKED_ROWS` rows with every output; and the parts left out,
     each with its reason."""
     rows = ~np.isnan(np.column_stack([e.column(c) for c in check.outputs])).any(axis=1)
     out_t = e.t[rows]
@@ -113,7 +113,7 @@ def _stretches(e: Experiment, check: Check) -> tuple[list[tuple[float, float]], 
         ts, _ = channel_samples(e, c)
         a, b = max(a, ts[0]), min(b, ts[-1])
         d = np.diff(ts)
-        limits[c] = MAX_GAP * float(np.median(d))
+        limits[c] = BRIDGED_GAP * float(np.median(d))
         for i in np.flatnonzero(d > limits[c]):
             gaps.setdefault((float(ts[i]), float(ts[i + 1])), []).append(c)
     why = []
@@ -124,7 +124,7 @@ def _stretches(e: Experiment, check: Check) -> tuple[list[tuple[float, float]], 
         limit = " or ".join(f"{v:.3g} s" for v in sorted({limits[c] for c in cs}))
         why.append(
             f"over {g0:.4g}–{g1:.4g} s, {', '.join(cs)} {'has' if len(cs) == 1 else 'have'} no sample "
-            f"for {g1 - g0:.3g} s (a gap over {MAX_GAP:g} times the channel's median interval, {limit}, "
+            f"for {g1 - g0:.3g} s (a gap over {BRIDGED_GAP:g} times the channel's median interval, {limit}, "
             "is not bridged)"
         )
     if out_t[-1] > b:
@@ -140,9 +140,9 @@ def _stretches(e: Experiment, check: Check) -> tuple[list[tuple[float, float]], 
         n = int(np.sum((out_t >= s0) & (out_t <= s1)))
         if n == 0:
             continue
-        if n < MIN_ROWS:
+        if n < MIN_CHECKED_ROWS:
             why.append(
-                f"over {s0:.4g}–{s1:.4g} s, between gaps, only {n} rows of the outputs (under {MIN_ROWS})"
+                f"over {s0:.4g}–{s1:.4g} s, between gaps, only {n} rows of the outputs (under {MIN_CHECKED_ROWS})"
             )
         else:
             stretches.append((float(s0), float(s1)))

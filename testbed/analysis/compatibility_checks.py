@@ -22,22 +22,22 @@ __all__ = [
     "MAX_ARM",
     "MAX_CORRELATION",
     "MAX_DELAY",
-    "MAX_GAP",
+    "BRIDGED_GAP",
     "MAX_MISALIGNMENT",
     "MAX_OFFSET",
     "MAX_PITCH",
     "MAX_SCALE",
-    "MIN_ROWS",
+    "MIN_CHECKED_ROWS",
     "MIN_SIGNAL",
     "MISALIGNMENTS",
-    "OFFSETS",
+    "ATTITUDE_OFFSETS",
     "Parameter",
     "REGRESSORS",
     "Reconstruction",
     "SENSOR_PARAMETERS",
     "SIGNIFICANCE",
     "SINGULAR",
-    "STEP",
+    "COMPLEX_STEP",
     "limit_of",
     "parameter_cell",
 ]
@@ -70,7 +70,7 @@ HELD_FIRST = ("k_", "m_", "r_", "tau_", "b_")
 MAX_ARM = 50.0  # m: the largest |r| of a lever arm fitted or applied
 
 
-STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
+COMPLEX_STEP = 1e-30  # the complex step: exact derivatives (no difference is taken)
 
 
 # A scale factor multiplies its channel, a delay its channel's rate of change, the log's u and v
@@ -112,12 +112,12 @@ MAX_OFFSET = math.pi  # rad: the largest |b| of an attitude offset applied
 
 
 # A driving or used channel's gap (between two samples present) is bridged by its cubic spline
-# when it is at most MAX_GAP times the channel's median interval in the record: a sensor's
+# when it is at most BRIDGED_GAP times the channel's median interval in the record: a sensor's
 # dropped sample or two; a longer gap splits the record, the stretch across it left unchecked.
-MAX_GAP = 3.0
+BRIDGED_GAP = 3.0
 
 
-MIN_ROWS = 4  # a stretch between gaps is checked when its outputs have at least this many rows
+MIN_CHECKED_ROWS = 4  # a stretch between gaps is checked when its outputs have at least this many rows
 
 
 @dataclass(frozen=True)
@@ -132,7 +132,7 @@ class Check:
     outputs: tuple[str, ...]
     initial: tuple[str, ...]
     delay: str
-    axes: tuple[str, ...] = ()  # the body axes about which the driving sensor may be turned
+    axes: tuple[str, ...] = ()  # the body axes about which the driving sensor may be misaligned
     arm: bool = False  # the driving sensor's position (its lever arm) among the parameters
 
     @property
@@ -183,7 +183,7 @@ CHECKS = (ATTITUDE, DEPTH)
 SENSOR_PARAMETERS = ATTITUDE.sensor + DEPTH.sensor
 
 
-OFFSETS = tuple(f"b_{c}" for check in CHECKS for c in check.uses)  # the attitude offsets
+ATTITUDE_OFFSETS = tuple(f"b_{c}" for check in CHECKS for c in check.uses)  # the attitude offsets
 
 
 MISALIGNMENTS = tuple(n for check in CHECKS for n in check.sensor if n.startswith("m_"))

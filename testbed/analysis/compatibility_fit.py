@@ -15,7 +15,7 @@ from testbed.analysis.compatibility_checks import (
     HELD_FIRST,
     MAX_CORRELATION,
     MIN_SIGNAL,
-    OFFSETS,
+    ATTITUDE_OFFSETS,
     REGRESSORS,
     SIGNIFICANCE,
     SINGULAR,
@@ -156,10 +156,10 @@ def _inseparable(M: np.ndarray, names: Sequence[str], held: Mapping[str, str]) -
         index = {names[i]: j for j, i in enumerate(keep) if i < len(names)}
         pairs = [
             (abs(P[j, index[o]]) / (s[j] * s[index[o]]), n, o)
-            for o in OFFSETS
+            for o in ATTITUDE_OFFSETS
             if o in index
             for n, j in index.items()
-            if n not in OFFSETS
+            if n not in ATTITUDE_OFFSETS
         ]
         rho, n, o = max(pairs, default=(0.0, "", ""))
         if rho <= MAX_CORRELATION:
@@ -181,7 +181,7 @@ def _conditional(x: np.ndarray, P: np.ndarray, i) -> np.ndarray:
 
 def _rank(name: str) -> int:
     """Where `name` comes in the order parameters are held (`HELD_FIRST`, the offsets last)."""
-    if name in OFFSETS:
+    if name in ATTITUDE_OFFSETS:
         return len(HELD_FIRST)
     return next(i for i, prefix in enumerate(HELD_FIRST) if name.startswith(prefix))
 

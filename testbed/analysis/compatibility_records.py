@@ -11,7 +11,7 @@ from typing import Mapping
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from testbed.analysis.compatibility_checks import ATTITUDE, STEP, Check
+from testbed.analysis.compatibility_checks import ATTITUDE, COMPLEX_STEP, Check
 from testbed.analysis.kinematics import attitude_filter, attitudes, depth_filter
 from testbed.data import Experiment
 from testbed.errors import InputError
@@ -23,12 +23,12 @@ __all__ = [
     "check_needs",
     "missing_channels",
     "reconstruct",
-    "turned",
+    "misaligned",
 ]
 
 
-def turned(v: np.ndarray, ay, az) -> np.ndarray:
-    """The velocities `v` (..., 3) in a sensor's axes turned into the body's: Rz(az) Ry(ay) v,
+def misaligned(v: np.ndarray, ay, az) -> np.ndarray:
+    """The velocities `v` (..., 3) in a sensor's axes misaligned into the body's: Rz(az) Ry(ay) v,
     a sensor misaligned by ay about y and az about z (its reading Mᵀ v, as a scenario's
     `misalignment`)."""
     cy, sy, cz, sz = np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
@@ -147,7 +147,7 @@ class CheckRecord:
         used = {c: self.used[c][None, :] - offsets[:, [i]] for i, c in enumerate(check.uses)}
         w = (self.drives(tau) - b[:, None, :]) / (1 + k[:, None, :])
         if check.axes:
-            w = turned(w, turns[:, 0, None], turns[:, 1, None])
+            w = misaligned(w, turns[:, 0, None], turns[:, 1, None])
         return np.ascontiguousarray(x0), w, used, arm
 
     def _depth_steps(self, w: np.ndarray, phi: np.ndarray, theta: np.ndarray, arm: np.ndarray) -> np.ndarray:
@@ -207,11 +207,11 @@ class CheckRecord:
         """At `x` (real): the whitened innovations e and the log-ratios g (N, outputs; g None
         for the attitude) and, with `jac`, their derivatives (N, outputs, parameters) by the
         complex step (else None)."""
-        rows = x[None, :] + 1j * STEP * np.eye(len(x)) if jac else x[None, :].astype(complex)
+        rows = x[None, :] + 1j * COMPLEX_STEP * np.eye(len(x)) if jac else x[None, :].astype(complex)
         e, g = self.innovations(rows)
 
         def split(a):
-            return a[0].real, (np.moveaxis(a.imag / STEP, 0, -1) if jac else None)
+            return a[0].real, (np.moveaxis(a.imag / COMPLEX_STEP, 0, -1) if jac else None)
 
         return split(e) + (split(g) if g is not None else (None, None))
 
@@ -253,7 +253,7 @@ def check_needs(e: Experiment, check: Check) -> None:
 # What each missing channel prevents, by check.
 WHY_NEEDED = {
     "attitude": "the attitude is integrated from the rate gyros and compared with the measured attitude",
-    "depth": "the depth is integrated from the log's velocities turned by the measured attitude",
+    "depth": "the depth is integrated from the log's velocities misaligned by the measured attitude",
 }
 
 

@@ -17,11 +17,11 @@ from testbed.analysis.compatibility_checks import (
     CHECKS,
     MAX_OFFSET,
     MISALIGNMENTS,
-    OFFSETS,
+    ATTITUDE_OFFSETS,
     SENSOR_PARAMETERS,
     limit_of,
 )
-from testbed.analysis.compatibility_records import channel_samples, turned
+from testbed.analysis.compatibility_records import channel_samples, misaligned
 from testbed.data import MAX_DATA, Experiment, read_json
 from testbed.errors import InputError
 
@@ -41,7 +41,7 @@ def check_corrections(values, where: str) -> dict[str, float]:
             raise InputError(
                 f"{where}: {str(n)[:40]!r} is not a sensor parameter; expected {', '.join(SENSOR_PARAMETERS)}"
             )
-        limit = limit_of(n) or (MAX_OFFSET if n in OFFSETS else MAX_DATA)
+        limit = limit_of(n) or (MAX_OFFSET if n in ATTITUDE_OFFSETS else MAX_DATA)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= limit:
             raise InputError(f"{where}: {n} = {repr(v)[:40]}; expected a number within ±{limit:g}")
         out[n] = float(v)
@@ -60,7 +60,7 @@ def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float
     """The experiments with each measured channel corrected by its sensor's parameters: a rate or
     velocity `(c(t + τ) − b_c) / (1 + k_c)`, c(t + τ) from the cubic spline through the
     channel's samples present (the end values held beyond them; a missing sample stays
-    missing), an attitude channel less its offset `c − b_c`, the log's velocities turned back by
+    missing), an attitude channel less its offset `c − b_c`, the log's velocities misaligned back by
     its misalignment and moved from its point to the CG, v − ω × r (the rates measured: an
     `InputError` naming the record otherwise); parameters not given are 0, channels not measured
     are skipped."""
@@ -88,7 +88,7 @@ def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float
             turns = [corrections.get(n, 0.0) for n in check.sensor if n in MISALIGNMENTS]
             if any(turns) and all(c in e.measured for c in check.drives):
                 at = [e.measured.index(c) for c in check.drives]
-                y[:, at] = turned(y[:, at], *turns)
+                y[:, at] = misaligned(y[:, at], *turns)
             arm = np.array([corrections.get(n, 0.0) for n in check.sensor if n in ARMS])
             if np.any(arm) and all(c in e.measured for c in check.drives):
                 # the log's point moved to the CG: v = M y − ω × r, with the measured rates

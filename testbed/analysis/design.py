@@ -73,13 +73,13 @@ from testbed.analysis.design_signals import (
     CHECK_SEEDS,
     Candidate,
     MAX_SHRINKS,
-    SHRINK,
+    AMPLITUDE_SHRINK,
     TEMPLATES,
     best_signals,
     scaled,
 )
 
-__all__ = ["MIN_EXPERIMENT", "STEP", "Design", "design", "identified", "split"]
+__all__ = ["MIN_EXPERIMENT", "STEP", "Design", "design", "identified", "time_split"]
 
 
 STEP = 10.0  # s, the grid of the time split
@@ -88,7 +88,7 @@ STEP = 10.0  # s, the grid of the time split
 MIN_EXPERIMENT = 20.0  # s, the shortest experiment of a split
 
 
-def split(cands: Mapping[str, Candidate], total: float, s: np.ndarray, kind: str) -> dict[str, float]:
+def time_split(cands: Mapping[str, Candidate], total: float, s: np.ndarray, kind: str) -> dict[str, float]:
     """Durations per experiment type (STEP grid, 0 or ≥ MIN_EXPERIMENT, summing to `total`)
     maximising the criterion of Σ (T_k / T_ref) F_k."""
     names = list(cands)
@@ -215,7 +215,7 @@ def design(
     limits = regime_limits(m)
     s = scales(m.config)
     cands = best_signals(m, limits, criterion_, mjcf=mjcf, check=check)
-    durations = split(cands, duration, s, criterion_)
+    durations = time_split(cands, duration, s, criterion_)
     records = {}  # experiment name -> (type, duration)
     for k, d in durations.items():
         n = math.ceil(d / MAX_EXPERIMENT - 1e-9)
@@ -246,7 +246,7 @@ def design(
                     replace(
                         e,
                         fins={
-                            c: scaled(sig, float(f"{sig.amplitude * SHRINK:.3g}"))
+                            c: scaled(sig, float(f"{sig.amplitude * AMPLITUDE_SHRINK:.3g}"))
                             if e in failed and c in TEMPLATES[kinds[e.name]]["channels"]
                             else sig
                             for c, sig in e.fins.items()

@@ -36,7 +36,7 @@ __all__ = [
     "PRBS_CLOCKS",
     "REFERENCE",
     "SCENARIO_HOLD",
-    "SHRINK",
+    "AMPLITUDE_SHRINK",
     "TEMPLATES",
     "band",
     "best_signals",
@@ -58,7 +58,7 @@ CHECK_SEEDS = (0, 1, 2)  # the PRBS phases the flown design is checked with (sim
 GROWTH_MARGIN = 0.7  # the rule's tolerances an amplitude is grown to: a margin for other phases
 
 
-SHRINK = 0.8  # amplitude factor per failed linearity check
+AMPLITUDE_SHRINK = 0.8  # amplitude factor per failed linearity check
 
 
 MAX_SHRINKS = 6
@@ -245,7 +245,7 @@ def grow(m: Model, cand: Candidate, mjcf=None) -> Candidate:
         s = Scenario(name="growth", experiments=(e,), duration=cand.duration)
         return linearity(s, excited, mjcf).passed(cand.kind, GROWTH_MARGIN)
 
-    lo, hi = (1.0, 2.0) if passes(1.0) else (SHRINK**MAX_SHRINKS, 1.0)
+    lo, hi = (1.0, 2.0) if passes(1.0) else (AMPLITUDE_SHRINK**MAX_SHRINKS, 1.0)
     if lo == 1.0:
         while hi <= GROWTH and passes(hi):
             lo, hi = hi, 2 * hi

@@ -612,7 +612,7 @@ def test_corrected_takes_the_attitude_offsets_off_the_attitude():
 
 
 def test_a_dvls_misalignment_about_z_recovered_where_the_vehicle_rolls_and_about_y_held():
-    # the speed 1.2-2.8 m/s, rolling ±0.3 rad and pitching ±0.1: the DVL, turned by 0.05 rad
+    # the speed 1.2-2.8 m/s, rolling ±0.3 rad and pitching ±0.1: the DVL, misaligned by 0.05 rad
     # about z, reads Rz(−0.05) v; ż integrated independently (solve_ivp). Turned about z it puts
     # az u into v, seen through v sin φ: at a constant speed it would be a v bias; the speed
     # varying tells them apart. Turned about y it is a pitch offset: held for b_theta.
@@ -642,7 +642,7 @@ def test_a_dvls_misalignment_about_z_recovered_where_the_vehicle_rolls_and_about
     p = depth.parameters["m_dvl_z"]
     assert p.estimated and abs(p.value - az) < 3 * p.std and p.std < az / 5, p
     assert depth.parameters["m_dvl_y"].reason.startswith("not separable from b_theta"), depth.parameters
-    back = corrected([e], {"m_dvl_z": az})[0]  # the reading turned back into the body's axes
+    back = corrected([e], {"m_dvl_z": az})[0]  # the reading misaligned back into the body's axes
     np.testing.assert_allclose(back.column("v"), v, atol=0.03)
     np.testing.assert_allclose(back.column("u"), u, atol=0.03)
 

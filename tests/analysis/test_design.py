@@ -53,11 +53,11 @@ def test_split_puts_time_where_the_criterion_needs_it():
         "b": DS.Candidate("b", {}, 60.0, np.diag([0.0, 60.0])),
     }
     s = np.array([1.0, 0.5])
-    d = D.split(cands, 100.0, s, "E")
+    d = D.time_split(cands, 100.0, s, "E")
     assert d == {"a": 20.0, "b": 80.0} or d == {"a": 30.0, "b": 70.0}  # λ = max min(Ta, Tb/4)
-    assert D.split(cands, 100.0, s, "D") == {"a": 50.0, "b": 50.0}
+    assert D.time_split(cands, 100.0, s, "D") == {"a": 50.0, "b": 50.0}
     with pytest.raises(InputError, match="duration"):
-        D.split({"a": cands["a"]}, 100.0, s, "A")  # b's coefficient never informed
+        D.time_split({"a": cands["a"]}, 100.0, s, "A")  # b's coefficient never informed
 
 
 def test_largest_amplitude_meets_a_bound_exactly(model):
