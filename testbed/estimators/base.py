@@ -28,6 +28,7 @@ __all__ = [
     "Outcome",
     "Progress",
     "Status",
+    "bounds_text",
     "count_option",
     "is_count",
     "option",
@@ -133,7 +134,7 @@ class Estimate:
 
     def bounds_text(self) -> str:
         """The bounds the fit ended on, as `name = value` (empty where none)."""
-        return ", ".join(f"{n} = {v:g}" for n, v in (self.at_bounds or {}).items())
+        return bounds_text(self.at_bounds or {})
 
     def json_fields(self) -> dict[str, Any]:
         """The estimate as the estimates JSON's fields (a mapping of JSON values)."""
@@ -192,6 +193,11 @@ class Estimate:
             relative = 200 * np.asarray(self.std, float) / np.abs(np.asarray(self.values, float))
         figure = svg_dots(self.free, relative, "each estimate's ±2σ Cramér-Rao bound", "2σ / |estimate| (%)")
         return html_table(head, rows, summary) + figure + noise
+
+
+def bounds_text(at_bounds: Mapping[str, float]) -> str:
+    """Bounds reached, name → value, as `name = value, …`."""
+    return ", ".join(f"{n} = {v:g}" for n, v in at_bounds.items())
 
 
 def _finite(x) -> float | None:

@@ -52,7 +52,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status
+from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status, bounds_text
 from testbed.estimators.nonlinear_regression import equation_error
 from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficients, simplex_run
 from testbed.identification.nonlinear_output_error import (
@@ -207,9 +207,7 @@ def damped_gauss_newton(
         crlb_corrected_std=coloured,
         information=H if not fit.at_bounds else None,
         at_bounds=dict(fit.at_bounds) or None,
-        message=f"on its bounds: {', '.join(f'{n} = {v:g}' for n, v in fit.at_bounds.items())}"
-        if fit.at_bounds
-        else "",
+        message=f"on its bounds: {bounds_text(fit.at_bounds)}" if fit.at_bounds else "",
     )
 
 

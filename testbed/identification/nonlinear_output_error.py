@@ -386,10 +386,14 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
     names = parameter_names(model, channels)
     idx = np.array([names.index(n) for n in free])
     p = len(idx)
-    low, high = (
-        np.r_[box[0], np.full(len(records) * len(ch) if free_initial else 0, -np.inf)],
-        np.r_[box[1], np.full(len(records) * len(ch) if free_initial else 0, np.inf)],
-    )
+    states = len(records) * len(ch) if free_initial else 0  # the initial states: unbounded
+    low, high = np.r_[box[0], np.full(states, -np.inf)], np.r_[box[1], np.full(states, np.inf)]
+
+    def bounds_of(H, moving):
+        """The Cramér-Rao σ of the parameters off their bounds (those held: infinite)."""
+        std = np.full(len(moving), np.inf)
+        std[moving] = crlb(H[np.ix_(moving, moving)]).std
+        return std
 
     def unpack(q):
         th, x = theta.copy(), x0.copy()
@@ -408,16 +412,13 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
     R = pooled_noise(res, held)
     lam, down, cap = DAMPING[0], DAMPING[1], DAMPING[2]
     status, iterations = "iteration limit", 0
-    held_on = np.zeros(len(q), bool)
     for iterations in range(1, max_iterations + 1):
         sens = _sensitivities(model, *unpack(q), records, flown, ch, idx, substeps)
         H, g = _normal_equations(res, sens, R, free_initial)
         # projected Levenberg-Marquardt: the parameters held on their bound stay out of the step,
         # the others' step is taken in the box (clipped onto it)
-        held_on = _active(q, g, low, high)
-        moving = ~held_on
-        std = np.full(len(q), np.inf)
-        std[moving] = crlb(H[np.ix_(moving, moving)]).std
+        moving = ~_active(q, g, low, high)
+        std = bounds_of(H, moving)
         cost = weighted(res, R)
         while lam <= cap:
             D = np.diag(H)[moving]
@@ -441,13 +442,9 @@ def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
         if np.all(np.abs(step) <= tolerance * std):
             status = "converged"
             break
-    H, _ = _normal_equations(res, sens, R, free_initial)
-    std = np.full(len(q), np.inf)
-    std[moving] = crlb(H[np.ix_(moving, moving)]).std
+    std = bounds_of(_normal_equations(res, sens, R, free_initial)[0], moving)
     th, x = unpack(q)
-    at = {
-        free[k]: float(q[k]) for k in np.flatnonzero(held_on[:p] | (q[:p] <= low[:p]) | (q[:p] >= high[:p]))
-    }
+    at = {free[k]: float(q[k]) for k in np.flatnonzero((q[:p] <= low[:p]) | (q[:p] >= high[:p]))}
     return NonlinearFit(
         theta=th,
         estimates={n: float(v) for n, v in zip(free, q[:p])},
