@@ -254,6 +254,15 @@ def trial_parameters(names) -> list[str]:
     return [n for n in names if base_name(n) in TRIAL_UNITS]
 
 
+def _value(config: ModelConfig, name: str) -> float:
+    """`config`'s value of an estimate's name: a per-record one (`N_0[zigzag]`) the record's own,
+    else the config's; NaN where the config has none."""
+    if name.endswith("]"):
+        base, record = name[:-1].split("[", 1)
+        return config.record_coefficients(record).get(base, np.nan)
+    return config.values.get(name, np.nan)
+
+
 def _coefficients(estimate, start: ModelConfig, reference: ModelConfig | None, label: str) -> str:
     """The estimates of the model's coefficients (the trial's parameters have their own section)
     against the a-priori values of `start` and the `reference`'s (`label` its column): the figure
@@ -276,10 +285,10 @@ def _estimates(
     coloured = None
     if estimate.crlb_corrected_std is not None:
         coloured = np.asarray(estimate.crlb_corrected_std, float)[keep]
-    a_priori = np.array([start.values.get(n, np.nan) for n in names], float)
+    a_priori = np.array([_value(start, n) for n in names], float)
     ref = None
     if reference is not None:
-        ref = np.array([reference.values.get(n, np.nan) for n in names], float)
+        ref = np.array([_value(reference, n) for n in names], float)
         ref = ref if np.all(np.isfinite(ref)) else None
     if shifts:
         figure = fit_figures.shifts_figure(names, values, std, coloured, a_priori)
@@ -305,6 +314,7 @@ def _estimates(
 def _trial(estimate, start: ModelConfig) -> str:
     """The trial's parameters: the free ones estimated (figure and table), the others as set."""
     free = trial_parameters(estimate.free)
+    estimated = {base_name(n) for n in free}
     parts = []
     if free:
         keep = [estimate.free.index(n) for n in free]
@@ -312,7 +322,7 @@ def _trial(estimate, start: ModelConfig) -> str:
     held = [
         (n, TRIAL_UNITS[n], f"{v:.6g}")
         for n, v in start.values.items()
-        if n in TRIAL_UNITS and n not in free and v != 0
+        if n in TRIAL_UNITS and n not in estimated and v != 0
     ]
     if held:
         parts.append(

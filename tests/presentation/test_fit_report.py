@@ -171,6 +171,8 @@ def test_the_trials_parameters_have_their_own_section_with_their_units(linear, c
         assert f"<td>{name}</td><td>{unit}</td>" in trial, name
         assert f"<td>{name}</td>" not in sections["coefficients"], name
     assert len(_images(trial)) == 1 and "set in the config" in trial
+    assert "nan" not in trial  # a per-record name's a-priori value is its record's
+    assert "<td>N_0</td>" not in trial  # estimated per record, so not among those set
     assert "<td>Y_v</td>" in sections["coefficients"] and "Y_v" not in trial
     plain = _sections(_report(capsys, paths, root / "prior.toml", tmp_path / "plain"))
     assert "None free or set" in plain["trial"] and not _images(plain["trial"])
