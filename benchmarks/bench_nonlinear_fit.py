@@ -8,7 +8,7 @@ fins logged every 10 ms (`[sensors] fin_rate`: 6001 rows, the states at 3001 of 
 with 2 RK4 steps a row (the same 5 ms steps). The fit: the nonlinear model over the
 captive reference's terms (`testbed captive`'s at 20 m/s), its 19 terms with a slope at trim and
 `N_r|r|` free (20 coefficients), started from the captive values, every record's initial state
-free (`identification.nonlinear_output_error.fit_output_error`, RK4 steps of 5 ms).
+free (`estimators.nonlinear_fit.fit_output_error`: `ml-gn`'s trust-region optimiser, RK4 steps of 5 ms).
 The component model (`testbed captive`'s default: the hull's and fin blades' forces at their own
 flow) is fitted the same way, 14 of its terms free (the stricter list of docs/studies.md, whose
 relative Cramér-Rao bounds stay below 15 %: the four blades' lift and blunt drag, the hull's
@@ -34,9 +34,9 @@ then best of `--rounds`, the two alternating): start-up, reading, the screen (on
 an explicit list, but run: the Fisher information from the flight's sensitivities at the start
 and at the estimate, and its `ml-gn` fit, which is the fit itself where the screen's first stage
 fixes nothing, else a second fit of the list as written follows), the fit from the default
-`auto` start (the config's values or the equation-error regression, whichever flies the record
-better; converged at steps below `ml-gn`'s `tol`, 0.001 σ, where the cells stop at
-`fit_output_error`'s default 0.01 σ), its Cramér-Rao and coloured-residual bounds, validation
+`auto` starts (the config's values and the equation-error regression, the better-flying first,
+the other stopping where it joins the first's basin; converged at steps below `ml-gn`'s `tol`,
+0.001 σ, as the cells), its Cramér-Rao and coloured-residual bounds, validation
 (the fitted model flown open loop) and writing. Printed: each command's time, the ratio command
 / cell, the fit its estimates JSON reports (`wall_time_s`, `iterations`, `start`), and where the
 two differ by more than 3× a line saying why, measured stage by stage in one more run of the
@@ -66,7 +66,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from testbed.data import load_data, read_config, write_config  # noqa: E402
 from testbed.estimators import identify, lookup  # noqa: E402
-from testbed.identification.nonlinear_output_error import Record, fit_output_error  # noqa: E402
+from testbed.estimators.nonlinear_fit import fit_output_error  # noqa: E402
+from testbed.identification.nonlinear_output_error import Record  # noqa: E402
 from testbed.identification.nonlinear_sensitivities import flight  # noqa: E402
 from testbed.models.linear import STATES  # noqa: E402
 from testbed.models.nonlinear import nonlinear_model, theta_vector  # noqa: E402

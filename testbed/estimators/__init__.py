@@ -18,12 +18,14 @@ A method with none of them (`equation-error`) is solved at once: one iteration, 
 Every method reports its progress to `callback(Progress)` after each iteration (or sample).
 
 The modules, in layer order: the contract (`base`), the paper's simplex (`simplex`), the
-equation-error methods' intervals (`intervals`), the filters' algebra, model, options and
-passes (`square_root`, `filter_model`, `filter_options`, `filter_passes`) and the filters as
-methods (`mekf`), equation error (`equation_error`) and the nonlinear model's start from it
-(`nonlinear_regression`), the nonlinear model's output-error methods (`nonlinear`), the
-optimisers (`trust_region`, `levenberg_marquardt`, `newton_raphson`, `nelder_mead`) and
-where they start (`starts`), the ML methods (`ml`) and the filter-error method (`fem`).
+equation-error methods' intervals (`intervals`), the filters' algebra, model and options
+(`square_root`, `filter_model`, `filter_options`), fits from several starts (`multistart`),
+the default ML optimiser over either model's likelihood (`trust_region`), the filters' passes
+(`filter_passes`), the nonlinear model's fit by it (`nonlinear_fit`), the filters as methods
+(`mekf`), equation error (`equation_error`) and the nonlinear model's start from it
+(`nonlinear_regression`), the nonlinear model's output-error methods (`nonlinear`), the other
+optimisers (`levenberg_marquardt`, `newton_raphson`, `nelder_mead`) and where the linear
+model's fits start (`starts`), the ML methods (`ml`) and the filter-error method (`fem`).
 """
 
 from __future__ import annotations

@@ -230,6 +230,7 @@ class Outcome:
     joined: int = -1  # which earlier optimum's basin it entered and stopped in (-1: none)
     cost: float | None = None  # the negative log-likelihood at p, when the optimiser has it
     simulated: tuple | None = None  # (states, residuals) per record at p, when the optimiser has them
+    held: np.ndarray | None = None  # (n_free,) bool: the values it ends held on a bound of its box
 
 
 @dataclass(frozen=True)

@@ -49,15 +49,15 @@ from testbed.estimators.base import (
     unphysical,
 )
 from testbed.estimators.levenberg_marquardt import levenberg_marquardt
+from testbed.estimators.multistart import DELTA_J, Fit, best_fit, record, summary
 from testbed.estimators.nelder_mead import SIMPLEX_ITERATIONS, nelder_mead
 from testbed.estimators.newton_raphson import newton_raphson
 from testbed.identification import bounds, likelihood, recursions
+from testbed.identification.linear_objective import point
+from testbed.identification.objective import Point
 from testbed.identification.problem import Problem, problem
 
 __all__ = [
-    "DELTA_J",
-    "Fit",
-    "best_fit",
     "GaussNewtonOptions",
     "ML_GN",
     "ML_LM",
@@ -76,22 +76,7 @@ def _estimate(
     and every start's result (`fits`; `notes`, start → the coefficients it left at their
     a-priori values, or why it was not computed) and the fit's `evaluations`; a DIVERGED one (the
     reason in its `message`) where that analysis breaks down or is not finite."""
-    out, start, start_reason = fit.outcome, fit.start, _summary(fits, notes)
-    tried = tuple(
-        {
-            "start": f.start,
-            "cost": f.cost,
-            "status": f.outcome.status.message,
-            "iterations": f.outcome.iterations,
-        }
-        | ({"joined": f.joined} if f.joined else {})
-        | notes.get(f.start, {})
-        for f in fits
-    ) + tuple(
-        {"start": k, "cost": np.nan, "status": NOT_COMPUTED, "iterations": 0} | note
-        for k, note in notes.items()
-        if "reason" in note
-    )
+    out, start, start_reason, tried = fit.outcome, fit.start, summary(fits, notes), record(fits, notes)
     why = None
     if out.status is Status.DIVERGED:  # where the model diverges there, no analysis to make
         with np.errstate(over="ignore", invalid="ignore"):
@@ -151,20 +136,6 @@ def _estimate(
     )
 
 
-DELTA_J = 1.0  # two fits whose negative log-likelihoods differ by less are at one optimum (½ χ²₁ at 84 %)
-
-
-@dataclass(frozen=True)
-class Fit:
-    """One start's fit: where it began and where the optimiser stopped, with the cost there."""
-
-    start: str
-    outcome: Outcome
-    cost: float  # the negative log-likelihood at outcome.p (inf where the model diverges)
-    start_cost: float
-    joined: str = ""  # the earlier start whose optimum's basin this one entered, ending there
-
-
 def _cost(prob: Problem, p: np.ndarray) -> float:
     """The negative log-likelihood at `p`; inf where the model diverges there (`likelihood.exploded`)."""
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
@@ -172,34 +143,6 @@ def _cost(prob: Problem, p: np.ndarray) -> float:
     if likelihood.exploded(prob, out) is not None:
         return np.inf
     return likelihood.negative_log_likelihood(prob, [r.residual(y) for r, y in zip(prob.records, out)])
-
-
-def best_fit(fits: list[Fit]) -> Fit:
-    """The fit of least cost; a converged fit within `DELTA_J` of it (the same optimum) before
-    one that stopped otherwise."""
-    least = min(f.cost for f in fits)
-    converged = [f for f in fits if f.outcome.status is Status.CONVERGED and f.cost <= least + DELTA_J]
-    return min(converged or fits, key=lambda f: f.cost)
-
-
-NOT_COMPUTED = "not computed"  # a start's status in `starts` where it could not be computed
-
-
-def _summary(fits: list[Fit], notes: dict[str, dict]) -> str:
-    """What every start reached, or why it was not computed, for the estimate's `start_reason`."""
-    parts = [
-        f"{f.start}: cost {f.cost:.6g} ({f.outcome.status.message}"
-        + (f", on the {f.joined} start's path" if f.joined else "")
-        + (
-            f"; {', '.join(notes[f.start]['left'])} left at their a-priori values"
-            if "left" in notes.get(f.start, {})
-            else ""
-        )
-        + ")"
-        for f in fits
-    ] + [f"{k}: {NOT_COMPUTED} ({note['reason']})" for k, note in notes.items() if "reason" in note]
-    kept = f"the least cost of {len(fits)} starts" if len(fits) > 1 else "the only start computed"
-    return f"{kept} ({'; '.join(parts)})" if len(parts) > 1 else ""
 
 
 def _fit(
@@ -241,20 +184,18 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
 
     fits: list[Fit] = []
 
-    def begin(theta: np.ndarray) -> tuple[np.ndarray, float, trust_region.Point | None]:
+    def begin(theta: np.ndarray) -> tuple[np.ndarray, float, Point | None]:
         """The parameter vector at θ with its best initial states, its cost, and for `ml-gn` the
         trust region's point there (None where the model diverges), which it starts from."""
         if optimiser is trust_region.trust_region:
-            at = trust_region.point(prob, theta)
+            at = point(prob, theta)
             if at is not None:
                 return at.p, at.J, at
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is reported below
             p0 = likelihood.initial_states(prob, theta)
         return p0, _cost(prob, p0), None
 
-    def run(
-        label: str, p0: np.ndarray, J0: float, at: trust_region.Point | None, earlier: Sequence[Fit] = ()
-    ) -> Fit:
+    def run(label: str, p0: np.ndarray, J0: float, at: Point | None, earlier: Sequence[Fit] = ()) -> Fit:
         more = {}
         if optimiser in (trust_region.trust_region, nelder_mead):
             more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
@@ -558,7 +499,7 @@ ML_GN = _method(
     trust_region.trust_region,
     TrustRegionOptions,
     "maximum likelihood output error by scaled trust-region Gauss-Newton with multiple shooting",
-    nonlinear.damped_gauss_newton,
+    nonlinear.gauss_newton,
 )
 
 

@@ -16,6 +16,8 @@ from testbed.estimators import simplex
 from testbed.estimators.simplex import STEPS, simplex_coefficients, simplex_run
 from testbed.identification import bounds, concentrated, likelihood, recursions, scan
 from testbed.identification.problem import Problem
+from testbed.identification.linear_objective import point
+from testbed.identification.objective import Point
 
 __all__ = ["RUN", "SIMPLEX_ITERATIONS", "nelder_mead"]
 
@@ -178,11 +180,11 @@ RUN = 20  # iterations per free coefficient after which a simplex run that has n
 
 def _information(
     prob: Problem, theta: np.ndarray, R: np.ndarray, weigh: np.ndarray | None = None
-) -> tuple[trust_region.Point, np.ndarray, np.ndarray] | None:
+) -> tuple[Point, np.ndarray, np.ndarray] | None:
     """The point at θ (its initial states fitted with `R`), the Gauss-Newton information M of the
     full parameter vector there, weighed by `weigh` (None: the point's own residual variance), and
     M with the initial states solved for (F, θ's alone); None where the model diverges at θ."""
-    x = trust_region.point(prob, theta, R)
+    x = point(prob, theta, R)
     if x is None:
         return None
     with np.errstate(over="ignore", invalid="ignore"):

@@ -1,8 +1,11 @@
 """The output-error methods on a nonlinear model config (one with `[terms]`), behind the same
 contract and `Estimate` as the linear model's methods:
 
-- `ml-gn`: `nonlinear_output_error.fit_output_error`, damped Gauss-Newton with the flight's exact
-  sensitivities, R estimated by relaxation, each record's measured initial states free;
+- `ml-gn`: the linear model's optimiser, `trust_region` (scaled trust-region Gauss-Newton with
+  multiple shooting, bounds and the second-order check), on the nonlinear likelihood
+  (`nonlinear_fit.fit_output_error` over `nonlinear_objective.NonlinearObjective`), the
+  flight's exact sensitivities, each record's measured initial states free, from the starts
+  below, kept as the linear model's are (`multistart.best_fit`);
 - `ml-nm`: the paper's Nelder-Mead simplex (`simplex`) on the same likelihood,
   `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients in coordinates scaled by the start
   (θᵢ/|θᵢ,start|). Each record's initial state is concentrated out at every θ to first order:
@@ -22,21 +25,24 @@ in `evaluations`, as for the linear model).
 
 What a linear method's option means here:
 
-- `max_iter`: the iteration limit (`ml-gn`: every stage of the fit's record-length halving
-  counted, at least 1; `ml-nm`: simplex iterations, default 500 per free coefficient);
-- `tol` (`ml-gn`): converged when every parameter's step is below `tol` × its Cramér-Rao σ;
+- `max_iter`: the iteration limit (`ml-gn`: every stage of multiple shooting and every start
+  counted as the linear model's; `ml-nm`: simplex iterations, default 500 per free coefficient);
+- `tol`, `segments` (`ml-gn`): as for the linear model;
 - `eps`, `step`, `restart_step`, `r_tol`, `max_relaxations`, `coefficients`, `coordinates` (`ml-nm`; only `scaled`): as for
   the linear model;
 - `start`: `config` (the config's values), `equation-error` (the dynamics rows fitted to the
   measured states' difference quotients from the config's values, `nonlinear_regression`: no
-  flight, so no basin; it needs u v w p q r φ θ measured), or `auto` (the default): of those
-  two the one whose flight fits the records better (the likelihood with R the residuals' mean
-  square, the measured first samples as initial states; two flights, counted in
-  `evaluations`), `config` where the records cannot give the second. `Estimate.start` names
-  the start taken. No MEKF start;
-- any other option (`segments`, the global start's `samples`, `ml-nm`'s `restarts`,
-  `first_length` …) has no meaning here: given a value other than its default, an
-  `OptionError` names it.
+  flight, so no basin; it needs u v w p q r φ θ measured), or `auto` (the default): `ml-gn`
+  fits from both, the better-flying first (the likelihood with R the residuals' mean square,
+  the measured first samples as initial states), the second stopping where it steps into the
+  first's basin, and keeps the least cost; `ml-nm` takes the better-flying one. `config` alone
+  where the records cannot give the second. `global` (`ml-gn`): auto's two and the best
+  `polish` of `samples` draws in the box a-priori × e^±`spread` (a value at 0: ±3 Cramér-Rao
+  σ there; inside the bounds), ranked by their cost on the records cut into 16 segments, as the
+  linear model's. `Estimate.start` names the start kept, `Estimate.starts` every start's end.
+  No MEKF start;
+- any other option (`ml-nm`'s `restarts`, `first_length` …) has no meaning here: given a value
+  other than its default, an `OptionError` names it.
 
 The records must measure the same states (`nonlinear_output_error.records`); a missing sample
 is left out of every sum, the flight going through it; no value is estimated per record.
@@ -52,12 +58,18 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
+from testbed.estimators import trust_region
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status, bounds_text
+from testbed.estimators.multistart import BOX_BOUNDS, Fit, best_fit, latin, record, summary
+from testbed.estimators.nonlinear_fit import fit as fit_from
+from testbed.estimators.nonlinear_fit import NonlinearFit, objective
 from testbed.estimators.nonlinear_regression import equation_error
 from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficients, simplex_run
+from testbed.identification.bounds import crlb
+from testbed.identification.likelihood import LEAST_SEGMENT, reduced
+from testbed.identification.nonlinear_objective import NonlinearObjective
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
-    fit_output_error,
     neg_log_likelihood,
     pooled_noise,
     present_only,
@@ -71,11 +83,20 @@ from testbed.identification.recursions import counting, simulated
 from testbed.models import log_mounting
 from testbed.models.linear import STATES
 
-__all__ = ["STARTS", "damped_gauss_newton", "simplex"]
+__all__ = ["GN_STARTS", "STARTS", "gauss_newton", "simplex"]
 
 STARTS = ("auto", "config", "equation-error")  # the starts a nonlinear model has (module doc)
-_STATUS = {"converged": Status.CONVERGED, "iteration limit": Status.MAX_ITERATIONS, "stalled": Status.STALLED}
-_GN = ("max_iter", "tol", "start")  # the options each method honours on a nonlinear model config
+GN_STARTS = STARTS + ("global",)  # … and `ml-gn`'s global search
+_GN = (
+    "max_iter",
+    "tol",
+    "start",
+    "segments",
+    "samples",
+    "spread",
+    "polish",
+    "seed",
+)  # the options each method honours
 _NM = (
     "max_iter",
     "start",
@@ -89,18 +110,17 @@ _NM = (
 )
 
 
-def _checked(method: str, options: Options, meant: Sequence[str]) -> None:
-    """`OptionError` for an option the nonlinear fit cannot honour (module doc)."""
+def _checked(method: str, options: Options, meant: Sequence[str], starts: Sequence[str] = STARTS) -> None:
+    """`OptionError` for an option the nonlinear fit cannot honour (module doc), or a start not
+    among `starts`."""
     for f in fields(options):
         value = getattr(options, f.name)
         if f.name not in meant and value != f.default:
             raise OptionError(
                 method, f.name, value, "its default: the nonlinear model's fit has no such option"
             )
-    if options.start not in STARTS:
-        raise OptionError(
-            method, "start", options.start, "auto, config or equation-error for a nonlinear model config"
-        )
+    if options.start not in starts:
+        raise OptionError(method, "start", options.start, f"{', '.join(starts)} for a nonlinear model config")
 
 
 def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields) -> Estimate:
@@ -118,67 +138,133 @@ def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields
     )
 
 
-def _start(start: str, model, theta, recs, channels, free, held) -> tuple[str, np.ndarray]:
-    """The start `start` names as (name, θ ⊕ b ⊕ g), for `auto` the better-flying one (module doc):
-    the equation-error start fits θ's free coefficients to the records less their biases b, which
-    it holds; `InputError` where the equation-error start is named and the records cannot give it."""
-    if start == "config":
-        return "config", theta
+def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | None:
+    """The equation-error start as θ ⊕ b ⊕ g: θ's free coefficients fitted to the records less
+    their biases b, which it holds; None where the records cannot give it, `InputError` if
+    `start` names it."""
     m, own = len(model.names), [n for n in free if n in model.names]
     # the records less their biases; a mounted log's velocities taken as the CG's (a start)
     unbiased = [replace(r, y=r.y - theta[m : m + len(channels)]) for r in recs]
     try:
-        regressed = np.concatenate([equation_error(model, theta[:m], unbiased, channels, own), theta[m:]])
+        return np.concatenate([equation_error(model, theta[:m], unbiased, channels, own), theta[m:]])
     except InputError:
         if start == "equation-error":
             raise
-        return "config", theta
-    if start == "equation-error":
-        return "equation-error", regressed
-    ch = [STATES.index(c) for c in channels]
-    x0 = start_states(model, recs, ch)
-
-    def cost(th):
-        res = residuals(model, th, x0, recs, ch)
-        return np.inf if res is None else neg_log_likelihood(res, pooled_noise(res, held))
-
-    return min((("config", theta), ("equation-error", regressed)), key=lambda s: cost(s[1]))
+        return None
 
 
-def damped_gauss_newton(
+def _start_cost(prob: NonlinearObjective, values: np.ndarray) -> float:
+    """The negative log-likelihood of the free `values` with each record's first sample as its
+    initial state, R the residuals' mean square; inf where the flight leaves the data's range."""
+    at = prob.point(np.asarray(values, float))
+    return np.inf if at is None else at.J
+
+
+def _starts(options: Options, model, theta, recs, channels, free, prob, box, notes):
+    """The starts `options.start` names as (label, θ ⊕ b ⊕ g), in the order they are run (module
+    doc): `auto` and `global` the better-flying of the a-priori and equation-error starts first,
+    `global` then the best `polish` box draws (`_box_draws`)."""
+    if options.start == "config":
+        yield "config", theta
+        return
+    regressed = _regressed(options.start, model, theta, recs, channels, free)
+    if options.start == "equation-error":
+        yield "equation-error", regressed
+        return
+    named = {"config": theta}
+    if regressed is None:
+        notes["equation-error"] = {"reason": "the records cannot give it (module doc)"}
+    else:
+        named["equation-error"] = regressed
+    idx = prob.free
+    cost = {k: _start_cost(prob, v[idx]) for k, v in named.items()}
+    for k in sorted(named, key=lambda k: (cost[k], k != "config")):
+        yield k, named[k]
+    if options.start == "global":
+        for k, values in enumerate(_box_draws(prob, options, box)):
+            start = theta.copy()
+            start[idx] = values
+            yield f"box-{k + 1}", start
+
+
+def _box_draws(prob: NonlinearObjective, options: Options, box) -> list[np.ndarray]:
+    """The best `options.polish` of `options.samples` free-value vectors drawn by Latin hypercube
+    around the a-priori values (`starts.latin`: θ_i e^±spread, one at 0 within ±`BOX_BOUNDS`
+    Cramér-Rao σ there), inside the `box`, by their cost on the records cut into
+    `trust_region.SEGMENTS` segments, each with its own initial state."""
+    theta0 = prob.start
+    half = np.zeros(len(theta0))
+    at = prob.point(theta0)
+    if at is not None and np.any(theta0 == 0):
+        g, M = prob.terms(at)
+        std = crlb(reduced(M, g, prob.n_free)[0]).std
+        half = np.where(np.isfinite(std), BOX_BOUNDS * std, 0.0)
+    draws = latin(theta0, half, options.samples, options.spread, np.random.default_rng(options.seed))
+    if box is not None:
+        draws = np.clip(draws, *box)
+    stage = prob.segmented(trust_region.SEGMENTS, LEAST_SEGMENT)
+    costs = [_start_cost(stage, d) for d in draws]
+    return [draws[i] for i in np.argsort(costs)[: options.polish] if np.isfinite(costs[i])]
+
+
+def gauss_newton(
     experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
 ) -> Estimate:
     """`ml-gn` on a nonlinear model config (module doc)."""
     t0, name = time.perf_counter(), "ml-gn"
-    _checked(name, options, _GN)
+    _checked(name, options, _GN, GN_STARTS)
     if options.max_iter < 1:
         raise OptionError(name, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     noise = {c: s for c, s in (config.noise_std or {}).items() if c in channels}
-    held = np.array([noise.get(c, np.nan) ** 2 for c in channels])
-    history = [theta[idx]]
-
-    def step(values: np.ndarray, cost: float) -> None:
-        history.append(values)
-        if callback is not None:
-            callback(Progress(len(history) - 1, values.copy(), cost))
-
     box = config.box(config.free)
+    fits: list[Fit] = []
+    notes: dict[str, dict] = {}
     with counting() as tally:
-        label, start = _start(options.start, model, theta, recs, channels, config.free, held)
-        history[0] = start[idx]
-        fit = fit_output_error(
-            model,
-            start,
-            recs,
-            channels,
-            config.free,
-            noise_std=noise,
-            callback=step,
-            tolerance=float(options.tol),
-            max_iterations=int(options.max_iter),
-            bounds=box,
-        )
+        prob = objective(model, theta, recs, channels, config.free, noise_std=noise)
+
+        def run(label: str, start: np.ndarray) -> tuple[Fit, NonlinearFit] | None:
+            """The fit from θ ⊕ b ⊕ g `start` (stopping in an earlier fit's basin, then that
+            one's), None where it cannot be computed (the reason in `notes`)."""
+            done = sum(f.outcome.iterations for f in fits)
+
+            def report(values: np.ndarray, cost: float) -> None:
+                history.append(values.copy())
+                if callback is not None:
+                    callback(Progress(done + len(history), values.copy(), cost))
+
+            history: list[np.ndarray] = []
+            earlier = [f for f in fits if f.outcome.optimum]
+            at = prob.point(start[idx])
+            J0 = np.inf if at is None else at.J
+            try:
+                fit = fit_from(
+                    prob, start[idx], callback=report, tolerance=float(options.tol),
+                    max_iterations=int(options.max_iter), bounds=box, at=at,
+                    follow=tuple(f.outcome.optimum for f in earlier), segments=int(options.segments),
+                )  # fmt: skip
+            except InputError as exc:
+                notes[label] = {"reason": str(exc)}
+                return None
+            out = replace(fit.outcome, history=np.vstack([start[idx], *history]))
+            if out.joined >= 0:  # on an earlier fit's path: it ends where that one did
+                twin = earlier[out.joined]
+                out = replace(
+                    twin.outcome, iterations=out.iterations, history=out.history, optimum=(), joined=-1
+                )
+                return Fit(label, out, twin.cost, J0, twin.start), kept[twin.start]
+            return Fit(label, out, fit.cost, J0), fit
+
+        kept: dict[str, NonlinearFit] = {}
+        for label, start in _starts(options, model, theta, recs, channels, config.free, prob, box, notes):
+            done = run(label, start)
+            if done is not None:
+                fits.append(done[0])
+                kept[label] = done[1]
+        if not fits:
+            raise InputError(next(iter(notes.values()))["reason"])
+        best = best_fit(fits)
+        fit = kept[best.start if not best.joined else best.joined]
     R = np.array([fit.noise_std[c] ** 2 for c in channels])
     # the bounds reached held: the others' σ with them held, theirs NaN (a bound is no estimate's σ)
     moving = [n for n in config.free if n not in fit.at_bounds]
@@ -196,14 +282,16 @@ def damped_gauss_newton(
         t0,
         tally[0],
         method=name,
-        status=_STATUS[fit.status],
+        status=best.outcome.status,
         values=np.array([fit.estimates[n] for n in config.free]),
         std=std,
         cost=fit.cost,
-        iterations=fit.iterations,
+        iterations=sum(f.outcome.iterations for f in fits),
         noise_std=dict(fit.noise_std),
-        start=label,
-        history=np.array(history),
+        start=best.start,
+        history=best.outcome.history,
+        start_reason=summary(fits, notes),
+        starts=record(fits, notes),
         crlb_corrected_std=coloured,
         information=H if not fit.at_bounds else None,
         at_bounds=dict(fit.at_bounds) or None,
@@ -237,7 +325,9 @@ def simplex(
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
     with counting() as ranked:  # the starts' flights, counted with the fit's
-        label, theta = _start(options.start, model, theta, recs, channels, config.free, held)
+        prob = objective(model, theta, recs, channels, config.free, noise_std=given)
+        # the better-flying start (`_starts`' first)
+        label, theta = next(_starts(options, model, theta, recs, channels, config.free, prob, None, {}))
     nf, N = len(idx), int(sum(np.sum(~np.isnan(r.y).all(axis=1)) for r in recs))  # the samples
     max_iter = 500 * nf if options.max_iter is None else options.max_iter
     scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # θ[free] = scale·x

@@ -22,12 +22,11 @@ from testbed.errors import InputError
 from testbed.estimators import equation_error, mekf
 from testbed.estimators.base import Status
 from testbed.estimators.filter_options import FilterOptions
+from testbed.estimators.multistart import BOX_BOUNDS, latin
 from testbed.identification import bounds, likelihood, recursions
 from testbed.identification.problem import Problem
 
-__all__ = ["BOX_BOUNDS", "box", "named"]
-
-BOX_BOUNDS = 3.0  # a coefficient analysed at 0 is searched within ± this many Cramér-Rao bounds
+__all__ = ["box", "named"]
 
 
 def named(
@@ -64,11 +63,8 @@ def box(prob: Problem, count: int, spread: float, rng: np.random.Generator) -> n
     shuffled per axis; log-uniform within e^±`spread` for a coefficient ≠ 0, uniform within
     ±`BOX_BOUNDS` Cramér-Rao bounds (at the a-priori values) for one at 0."""
     theta0 = prob.start
-    u = rng.permuted(np.tile(np.arange(count), (len(theta0), 1)), axis=1).T + rng.random((count, len(theta0)))
-    u = 2.0 * u / count - 1.0  # (count, n_free) in (−1, 1)
     half = np.zeros(len(theta0))
-    zero = theta0 == 0
-    if zero.any():
+    if np.any(theta0 == 0):
         with np.errstate(over="ignore", invalid="ignore"):
             p = likelihood.initial_states(prob, theta0)
         if likelihood.divergence(prob, p) is None:
@@ -77,4 +73,4 @@ def box(prob: Problem, count: int, spread: float, rng: np.random.Generator) -> n
             g, M = likelihood.gauss_newton_terms(prob, p, xs, res, likelihood.noise_variance(prob, res))
             std = bounds.crlb(likelihood.reduced(M, g, prob.n_free)[0]).std
             half = np.where(np.isfinite(std), BOX_BOUNDS * std, 0.0)
-    return np.where(zero, u * half, theta0 * np.exp(spread * u))
+    return latin(theta0, half, count, spread, rng)

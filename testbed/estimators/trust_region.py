@@ -1,13 +1,19 @@
-"""The default `ml-gn` optimiser: a scaled trust-region Gauss-Newton method on the likelihood.
+"""The default `ml-gn` optimiser: a scaled trust-region Gauss-Newton method on the likelihood,
+written once over `objective.Objective`, so the linear model (`linear_objective`) and the
+nonlinear one (`nonlinear_objective`) are fitted by the same code.
 
 It minimises the negative log-likelihood with the noise variance at its ML value, the cost the
-estimate is judged by, as a function of the free coefficients θ alone: at every θ each record's
-initial state is the weighted least-squares one (`likelihood.fit_initial_states`; outputs are linear
-in it), so the optimiser moves only in θ and the initial states follow exactly (variable
-projection, Golub & Pereyra).
+estimate is judged by, as a function of the free coefficients θ: the optimiser steps in θ and the
+initial states follow (`objective.following`: the linear model's are fitted exactly at every θ,
+its outputs being linear in them, variable projection, Golub & Pereyra; the nonlinear model's
+take their Gauss-Newton step with θ's).
 
-- The model: `m(d) = J − g_rᵀd + ½ dᵀF d`, with `F` and `g_r` the Gauss-Newton normal equations
-  with the initial states solved for (`likelihood.reduced`), R the residual variance at θ.
+- The model: `m(d) = J − g_rᵀd + ½ dᵀF d − ½ g_xᵀM_xx⁻¹g_x`, with `F` and `g_r` the Gauss-Newton
+  normal equations with the initial states solved for (`likelihood.reduced`), the last term the
+  initial states' own step (0 where they are fitted exactly), R the residual variance at θ.
+- Bounds (`box`): a value on its bound with the descent direction pointing out of the box is
+  held there for the iteration (the KKT condition of the bound); the others take the step of the
+  subproblem in their own subspace, clipped onto the box (a projected trust-region step).
 - The step: the minimiser of `m` within `‖D d‖ ≤ Δ` (Moré's trust-region subproblem, solved
   exactly through the eigenvectors of `D⁻¹FD⁻¹`). `D = diag(1/s)` with `s_i` the largest of the
   coefficient's a-priori magnitude, its magnitude at the start and its Cramér-Rao bound there: a
@@ -36,11 +42,15 @@ projection, Golub & Pereyra).
   with the continuity between segments relaxed, a model that is not the data's (real data) has
   another optimum on segments than on the whole record, and the whole record's fit from there
   can end in another basin than from the start.
-- Converged: the Gauss-Newton step is shorter than `tol` Cramér-Rao σ (`√(g_rᵀF⁻¹g_r)`), and the
-  point passes the second-order check: the Hessian of the cost (second-order sensitivities
-  included, `recursions.curvature`, the initial states eliminated) has no negative eigenvalue. A
-  stationary point that fails the check is a saddle: the method steps along the direction of
-  negative curvature and goes on; one it cannot leave ends as `Status.SADDLE`.
+- Converged: the Gauss-Newton step of the values off their bounds and the initial states is
+  shorter than `tol` Cramér-Rao σ (`√(g_rᵀF⁻¹g_r + g_xᵀM_xx⁻¹g_x)`), and the point passes the
+  second-order check (`second_order`): where the objective has the Hessian of the cost
+  (second-order sensitivities included, the initial states eliminated: the linear model's,
+  `recursions.curvature`) it has no negative eigenvalue; a stationary point that fails is a
+  saddle: the method steps along the direction of negative curvature and goes on, and one it
+  cannot leave ends as `Status.SADDLE`. Where it has none (the nonlinear model), the cost is
+  probed one Cramér-Rao σ either way along the least-determined directions of the information,
+  and a probe that lowers it is a point the method goes on from.
 """
 
 from __future__ import annotations
@@ -49,7 +59,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from testbed.identification import bounds, likelihood, recursions
+from testbed.identification import bounds, likelihood
+from testbed.identification.linear_objective import objective
+from testbed.identification.objective import Objective, Point, following
 from testbed.identification.problem import Problem
 from testbed.estimators.base import Outcome, Progress, Status
 
@@ -61,9 +73,7 @@ __all__ = [
     "SEGMENTS",
     "SHRINK",
     "STAGE_TOL",
-    "Point",
-    "hessian",
-    "point",
+    "PROBES",
     "second_order",
     "subproblem",
     "trust_region",
@@ -80,38 +90,8 @@ JOIN = 2.0  # a fit within this many Cramér-Rao σ of an earlier optimum is in 
 RADIUS = 0.1  # the first trust region's radius over √n_free (scaled units) on the whole record
 SEGMENT_RADIUS = 1.0  # … and on multiple shooting's segments
 MIN_RADIUS = 1e-3  # the trust radius a stage hands on, at least (scaled units)
+PROBES = 3  # directions the second-order check probes where the objective has no Hessian (`second_order`)
 NEGATIVE = 1e-8  # an eigenvalue of the scaled Hessian below −NEGATIVE × its largest is negative curvature
-
-
-@dataclass(frozen=True)
-class Point:
-    """θ with its best initial states: the full parameter vector, states, residuals, R and J."""
-
-    p: np.ndarray
-    xs: list
-    res: list
-    R: np.ndarray
-    J: float
-
-
-def point(prob: Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Point | None:
-    """The point at θ: the initial states fitted with the noise variance `R` (None: R and they
-    at their maximum likelihood, `likelihood.fit_initial_states`), R re-estimated from the residuals;
-    None where the model is invalid there (singular Mt, diverging)."""
-    if not np.all(np.isfinite(theta)):
-        return None
-    try:
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-            p, xs = likelihood.fit_initial_states(prob, theta, R, full=True)
-    except np.linalg.LinAlgError:
-        return None
-    out = [prob.outputs(r, x, theta) for r, x in zip(prob.records, xs)]
-    if likelihood.exploded(prob, out) is not None:
-        return None
-    res = [r.residual(y) for r, y in zip(prob.records, out)]
-    return Point(
-        p, xs, res, likelihood.noise_variance(prob, res), likelihood.negative_log_likelihood(prob, res)
-    )
 
 
 def subproblem(F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float) -> tuple[np.ndarray, float]:
@@ -177,35 +157,64 @@ def _scale(prior: np.ndarray, theta: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.where(s > 0, s, 1.0)
 
 
-def hessian(prob: Problem, at: Point, M: np.ndarray | None = None) -> np.ndarray:
-    """The Hessian in θ of the weighted cost `½ Σ eᵀR⁻¹e` (R held at `at`'s) with each
-    record's initial state at its least-squares value: `H = M − Σ (e/R) ∂²y` (first- and
-    second-order sensitivities) with the initial states eliminated (Schur complement), the
-    curvature of the cost as the optimiser sees it. `M`: the Gauss-Newton information there,
-    if known."""
-    weights = [e / at.R[r.channels] for r, e in zip(prob.records, at.res)]
+def second_order(
+    prob: Objective, at: Point, s: np.ndarray, M: np.ndarray | None = None, moving: np.ndarray | None = None
+) -> tuple[list[np.ndarray], bool]:
+    """The directions the second-order check of the stationary point `at` leaves along (unit
+    length in the coordinates scaled by `s`, 0 on the values held on a bound: `moving` False):
+    where the objective has the Hessian (`Objective.hessian`), its direction of most negative
+    curvature, none where it has no negative eigenvalue; where it has none, the `PROBES`
+    least-determined directions of the Gauss-Newton information (F's eigenvectors of least
+    eigenvalue, scaled), along which a negative curvature of `M − Σ (e/R) ∂²y` lies first (M is
+    positive semi-definite, the residuals' term small at a fit), each scaled to one Cramér-Rao
+    σ: `_leave_saddle` keeps the first along which the cost falls. With them, whether they are
+    probes (True), not a negative curvature found."""
+    nf = prob.n_free
+    moving = np.ones(nf, dtype=bool) if moving is None else moving
     if M is None:
-        M = likelihood.gauss_newton_terms(prob, at.p, at.xs, at.res, at.R)[1]
-    return likelihood.reduced(M - recursions.curvature(prob, at.p, weights), np.zeros(len(M)), prob.n_free)[0]
+        M = _terms(prob, at)[1]
+    H = prob.hessian(at, M)
+    if H is not None:
+        H = H[np.ix_(moving, moving)] * np.outer(s[moving], s[moving])
+        lam, V = np.linalg.eigh(H)
+        if lam[0] >= -NEGATIVE * max(abs(lam[-1]), 1e-300):
+            return [], False
+        v = np.zeros(nf)
+        v[moving] = s[moving] * V[:, 0]
+        return [v], False
+    F = likelihood.reduced(M, np.zeros(len(M)), nf)[0][np.ix_(moving, moving)]
+    D = s[moving]
+    lam, V = np.linalg.eigh(F * np.outer(D, D))
+    out = []
+    for k in np.flatnonzero(lam > bounds.NULL * max(lam.max(initial=0.0), 1e-300))[:PROBES]:
+        v = np.zeros(nf)
+        v[moving] = D * V[:, k] / np.sqrt(lam[k])  # one Cramér-Rao σ along it
+        out.append(v)
+    return out, True
 
 
-def second_order(prob: Problem, at: Point, s: np.ndarray, M: np.ndarray | None = None) -> np.ndarray | None:
-    """The direction of most negative curvature (`hessian`, in the coordinates scaled by `s`:
-    unit length there), or None where there is none: the second-order check of a stationary
-    point."""
-    lam, V = np.linalg.eigh(hessian(prob, at, M) * np.outer(s, s))
-    if lam[0] >= -NEGATIVE * max(abs(lam[-1]), 1e-300):
-        return None
-    return s * V[:, 0]
-
-
-def _terms(prob: Problem, x: Point) -> tuple[np.ndarray, np.ndarray] | None:
-    """g and M at `x` (`likelihood.gauss_newton_terms`), None where they are not finite numbers:
-    weights of a channel that holds one value (its R at the floor) times sensitivities of
-    coefficients carried far off overflow."""
+def _terms(prob: Objective, x: Point) -> tuple[np.ndarray, np.ndarray] | None:
+    """g and M at `x` (`Objective.terms`), None where they are not finite numbers: weights of a
+    channel that holds one value (its R at the floor) times sensitivities of coefficients carried
+    far off overflow."""
     with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked for
-        g, M = likelihood.gauss_newton_terms(prob, x.p, x.xs, x.res, x.R)
+        g, M = prob.terms(x)
     return (g, M) if np.all(np.isfinite(g)) and np.all(np.isfinite(M)) else None
+
+
+def _held(theta: np.ndarray, g: np.ndarray, box: tuple | None) -> np.ndarray:
+    """The free values held on their bound this iteration (bool, n_free): on it with the
+    likelihood's descent direction `g` (the reduced normal equations' right side) pointing out of
+    the box, the KKT condition of the bound (its multiplier has the right sign)."""
+    if box is None:
+        return np.zeros(len(theta), dtype=bool)
+    low, high = box
+    return ((theta <= low) & (g <= 0)) | ((theta >= high) & (g >= 0))
+
+
+def _in_box(theta: np.ndarray, box: tuple | None) -> np.ndarray:
+    """θ moved onto the box, where it lies outside."""
+    return theta if box is None else np.clip(theta, box[0], box[1])
 
 
 @dataclass(frozen=True)
@@ -220,10 +229,11 @@ class Descent:
     joined: int = -1  # the earlier optimum (of `follow`) whose basin it entered; -1: none
     step: float = np.inf  # the last Gauss-Newton step's length in Cramér-Rao σ
     earlier: float = np.inf  # its length `PACE` iterations before
+    held: np.ndarray | None = None  # (n_free,) bool: the values held on a bound at the point
 
 
 def _descend(
-    prob: Problem,
+    prob: Objective,
     start: Point,
     s: np.ndarray,
     delta: float,
@@ -232,12 +242,15 @@ def _descend(
     report,
     follow: tuple = (),
     terms: tuple | None = None,
+    box: tuple | None = None,
 ) -> Descent:
     """Trust-region steps on one stage's problem from `start` until the Gauss-Newton step is
     shorter than `tol` Cramér-Rao σ (CONVERGED), `max_iter` steps (MAX_ITERATIONS), the region
     shrinks to nothing (STALLED), or a step lands within `JOIN` Cramér-Rao σ of one of the
     optima `follow` ((θ, σ) of earlier fits on the same problem): inside its quadratic basin,
-    bound for the same point. `terms`: `_terms` at `start`, if known."""
+    bound for the same point. `terms`: `_terms` at `start`, if known. `box`: (low, high) of the
+    free values (None: unbounded); a value on its bound with the descent pointing out is held
+    there (`_held`), the others step in the box (the step clipped onto it)."""
     nf, x, it, steps = prob.n_free, start, 0, []
     while True:
         for i, (theta, std) in enumerate(follow):
@@ -248,25 +261,36 @@ def _descend(
             return Descent(x, Status.DIVERGED, it, delta, None)
         g, M = terms
         F, gr = likelihood.reduced(M, g, nf)
-        # the Gauss-Newton step in Cramér-Rao units: √(g_rᵀ F⁻¹ g_r)
-        step = np.sqrt(max(gr @ bounds.crlb(F).covariance @ gr, 0.0))
+        held = _held(x.p[:nf], gr, box)
+        free = ~held
+        # the initial states' own Gauss-Newton decrease (×2), none where they are fitted at every θ
+        own = 0.0 if prob.projected else following(M, g, nf, np.zeros(nf))[1]
+        Ff, gf = F[np.ix_(free, free)], gr[free]
+        # the Gauss-Newton step in Cramér-Rao units, the initial states' included: √(g_rᵀ F⁻¹ g_r + g_xᵀ M_xx⁻¹ g_x)
+        step = np.sqrt(max(gf @ bounds.crlb(Ff).covariance @ gf + own, 0.0))
         steps.append(step)
         if step < tol:
-            return Descent(x, Status.CONVERGED, it, delta, M, step=step)
+            return Descent(x, Status.CONVERGED, it, delta, M, step=step, held=held)
         if it >= max_iter:
             earlier = steps[-1 - PACE] if len(steps) > PACE else np.inf
-            return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step, earlier=earlier)
+            return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step, earlier=earlier, held=held)
         while True:
-            d, predicted = subproblem(F, gr, s, delta)
-            trial = point(prob, x.p[:nf] + d, x.R)
+            d = np.zeros(nf)
+            d[free] = subproblem(Ff, gf, s[free], delta)[0]
+            if box is not None:
+                d = _in_box(x.p[:nf] + d, box) - x.p[:nf]
+            # the decrease the quadratic model predicts, the initial states following θ's step:
+            # g_rᵀd − ½ dᵀF d + ½ g_xᵀ M_xx⁻¹ g_x
+            whole, own = (d, 0.0) if prob.projected else following(M, g, nf, d)
+            predicted = float(gr @ d - 0.5 * d @ F @ d) + 0.5 * own
+            trial = prob.moved(x, whole)
             # ρ = actual / predicted decrease of the weighted cost with R held at its estimate at
             # x, the trial's initial states fitted with that R: a smooth function of the step
             # (the likelihood relaxed in R and x0 at every trial need not be: their alternation
             # can stall short of its fixed point). A decrease there is one of the likelihood
             # too, which the trial's own R̂ lowers further (½ Σ N_c ln R̂_c ≤ ½ Σ eᵀR⁻¹e + const)
             rho = (
-                (likelihood.weighted_cost(prob, x.res, x.R) - likelihood.weighted_cost(prob, trial.res, x.R))
-                / predicted
+                (prob.weighted_cost(x.res, x.R) - prob.weighted_cost(trial.res, x.R)) / predicted
                 if trial is not None and predicted > 0
                 else -np.inf
             )
@@ -281,13 +305,13 @@ def _descend(
             if rho > ACCEPT:
                 break
             if delta < 1e-12 or predicted <= 0:
-                return Descent(x, Status.STALLED, it, delta, M, step=step)
+                return Descent(x, Status.STALLED, it, delta, M, step=step, held=held)
         x, it, terms = trial, it + 1, None
         report(x)
 
 
 def trust_region(
-    prob: Problem,
+    prob: Problem | Objective,
     p: np.ndarray,
     max_iter: int = 100,
     callback=None,
@@ -297,17 +321,20 @@ def trust_region(
     escapes: int = 3,
     follow: tuple = (),
     at: Point | None = None,
+    box: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Outcome:
-    """Minimise the negative log-likelihood from the free coefficients of `p` (the initial states
-    are fitted) by trust-region steps (`_descend`) from a region of `radius` × √n_free in the
-    scaled coordinates (`SEGMENT_RADIUS` × √n_free where multiple shooting begins), with the second-order check at the end (leaving at most `escapes`
-    saddles). From a start whose response grows beyond bound along the records
-    (`likelihood.bounded` cuts them into segments), multiple shooting from the first iteration,
-    with all of `max_iter`: stages of that many pieces per record (of at least
-    `likelihood.FEWEST_SEGMENT` samples), a quarter as many, …, then the whole record. Otherwise,
-    where the whole record's fit does not converge in `DIRECT` iterations (`DIRECT` more if its
-    Gauss-Newton step is then below `NEAR` σ and has halved over the last `PACE`), or the model diverges over the whole record from
-    `p`, multiple shooting from `p` again, with half the iterations left: stages of `segments`,
+    """Minimise the negative log-likelihood of `prob` (a linear `Problem`, or any `Objective`:
+    the nonlinear model's too) from the free coefficients of `p` (the initial states are fitted)
+    by trust-region steps (`_descend`) from a region of `radius` × √n_free in the scaled
+    coordinates (`SEGMENT_RADIUS` × √n_free where multiple shooting begins), with the
+    second-order check at the end (leaving at most `escapes` saddles). From a start whose
+    response grows beyond bound along the records (`Objective.shooting` cuts them into
+    segments), multiple shooting from the first iteration, with all of `max_iter`: stages of that
+    many pieces per record (of at least `likelihood.FEWEST_SEGMENT` samples), a quarter as many,
+    …, then the whole record. Otherwise, where the whole record's fit does not converge in
+    `DIRECT` iterations (`DIRECT` more if its Gauss-Newton step is then below `NEAR` σ and has
+    halved over the last `PACE`), or the model diverges over the whole record from `p`, multiple
+    shooting from `p` again, with half the iterations left: stages of `segments`,
     `segments`/`SHRINK`, … pieces per record (of at least `likelihood.LEAST_SEGMENT` samples, or
     `likelihood.FEWEST_SEGMENT` where the model diverges from `p`: a sparse log's records may hold
     too few samples for the longer ones), then the whole record. Where that does not converge
@@ -315,9 +342,16 @@ def trust_region(
     points they reached. `max_iter` bounds the iterations of all of them together.
 
     `follow`: earlier fits' optima `(θ, σ)` on the same problem (`Outcome.optimum`); a fit that
-    steps into one's basin stops there (`Outcome.joined`: which one). `at`: `point(prob, p[:n_free])`,
-    if the caller has it."""
+    steps into one's basin stops there (`Outcome.joined`: which one). `at`: `prob.point(p[:n_free])`,
+    if the caller has it. `box`: `(low, high)` of the free values (±inf: open), the box the fit
+    keeps them in (a start outside it is moved onto it; `Outcome.held` marks those it ends on)."""
+    prob = objective(prob)
     nf = prob.n_free
+    if box is not None:
+        box = tuple(np.asarray(b, float) for b in box)
+        inside = _in_box(p[:nf], box)
+        if not np.array_equal(inside, p[:nf]):
+            p, at = np.concatenate([inside, p[nf:]]), None
     history: list[np.ndarray] = [p[:nf].copy()]
 
     def report(x: Point) -> None:
@@ -330,46 +364,40 @@ def trust_region(
     def left() -> int:
         return max_iter - (len(history) - 1)
 
-    if at is not None and not likelihood.grows(prob, p[:nf]):
+    def run(stages, p, budget, radius, at=None) -> Descent:
+        return _stages(prob, stages, p, budget, tol, radius, escapes, follow, report, at, box)
+
+    if at is not None and not prob.grows(p[:nf]):
         count = 1  # the start's response stays bounded over the whole record (`point` checked it)
     else:
         at = None
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is an answer here
-            count = likelihood.bounded(prob, p[:nf], likelihood.FEWEST_SEGMENT)[2]
+            count = prob.shooting(p[:nf], likelihood.FEWEST_SEGMENT)
     if segments > 1 and count > 1:  # the start's response grows beyond bound: segments first
-        out = _stages(
-            prob, _shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, tol,
-            SEGMENT_RADIUS, escapes, follow, report,
-        )  # fmt: skip
+        out = run(_shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, SEGMENT_RADIUS)
         return _outcome(prob, p, out, history)
-    direct = _stages(
-        prob, [], p, min(max_iter, DIRECT) if stages else max_iter, tol, radius, escapes, follow, report, at
-    )
+    direct = run([], p, min(max_iter, DIRECT) if stages else max_iter, radius, at)
     if direct.status is Status.MAX_ITERATIONS and direct.step < min(NEAR, direct.earlier / 2) and stages:
         # near a stationary point, and closing in on it: as many iterations again before anything
         # else (a step that stays near one size is a slow crawl in a poor basin's valley)
-        direct = _stages(prob, [], direct.point.p, min(left(), DIRECT), tol, radius, escapes, follow, report)
+        direct = run([], direct.point.p, min(left(), DIRECT), radius)
     if direct.point is None:  # the model diverges from `p`: segments as short as the records need
         stages = _shooting_stages(prob, segments, likelihood.FEWEST_SEGMENT)
     out = direct
-    if direct.status is not Status.CONVERGED and stages:
+    if direct.status is not Status.CONVERGED and stages and left() // 2:
         # multiple shooting gets half of what is left; the rest goes on from the lower of the
         # points the two reached on the whole record (no budget is left unused)
-        out = _stages(prob, stages, p, left() // 2, tol, SEGMENT_RADIUS, escapes, follow, report)
+        out = run(stages, p, left() // 2, SEGMENT_RADIUS)
         if out.status is not Status.CONVERGED:
             lower = min(
                 (d for d in (direct, out) if d.point is not None), key=lambda d: d.point.J, default=None
             )
             if lower is not None:
-                out = (
-                    _stages(prob, [], lower.point.p, left(), tol, radius, escapes, follow, report)
-                    if left()
-                    else lower
-                )
+                out = run([], lower.point.p, left(), radius) if left() else lower
     return _outcome(prob, p, out, history)
 
 
-def _outcome(prob: Problem, p: np.ndarray, out: Descent, history: list) -> Outcome:
+def _outcome(prob: Objective, p: np.ndarray, out: Descent, history: list) -> Outcome:
     """The fit's `Outcome` where its last descent `out` stopped (from `p`; `history`: θ after
     each iteration), with its optimum (θ and Cramér-Rao σ) where it converged."""
     nf = prob.n_free
@@ -382,6 +410,7 @@ def _outcome(prob: Problem, p: np.ndarray, out: Descent, history: list) -> Outco
             bounds.crlb(likelihood.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]).std,
         )
     x = out.point
+    held = out.held if out.held is not None and out.held.any() else None
     return Outcome(
         x.p,
         out.status,
@@ -392,25 +421,24 @@ def _outcome(prob: Problem, p: np.ndarray, out: Descent, history: list) -> Outco
         out.joined,
         x.J,
         (x.xs, x.res),
+        held,
     )
 
 
-def _shooting_stages(prob: Problem, segments: int, least: int) -> list[Problem]:
+def _shooting_stages(prob: Objective, segments: int, least: int) -> list[Objective]:
     """The multiple-shooting stages: `segments`, `segments`/`SHRINK`, … pieces per record of at
-    least `least` samples (`likelihood.segmented`), each with fewer than the one before and more
+    least `least` samples (`Objective.segmented`), each with fewer than the one before and more
     than the records themselves."""
     stages, n = [], segments
     while n > 1:
-        stage = likelihood.segmented(prob, n, least)
-        if len(stage.records) > len(prob.records) and (
-            not stages or len(stage.records) < len(stages[-1].records)
-        ):
+        stage = prob.segmented(n, least)
+        if stage.pieces > prob.pieces and (not stages or stage.pieces < stages[-1].pieces):
             stages.append(stage)
         n //= SHRINK
     return stages
 
 
-def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report, at=None) -> Descent:
+def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report, at=None, box=None) -> Descent:
     """`_descend` on each of `stages` (multiple-shooting problems) in turn and then on `prob`,
     each from the one before's θ; the second-order check on `prob`'s optimum. The descent on
     `prob` (point None where the model diverges on it). `at`: the point at `p` on the first
@@ -418,7 +446,7 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report, at=
     nf = prob.n_free
     theta, s, delta, used = p[:nf].copy(), None, None, 0
     for stage in stages + [prob]:
-        x = at if at is not None else point(stage, theta)
+        x = at if at is not None else stage.point(theta)
         at, terms = None, None
         if x is None:  # the model diverges on this stage from the last one's θ
             if stage is prob:
@@ -432,31 +460,44 @@ def _stages(prob, stages, p, max_iter, tol, radius, escapes, follow, report, at=
             s, delta = _scale(prob.start, theta, likelihood.reduced(M, g, nf)[0]), radius * np.sqrt(nf)
         final = stage is prob
         tol_stage = tol if final else max(tol, STAGE_TOL)
-        out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow, terms)
+        out = _descend(stage, x, s, delta, tol_stage, max_iter - used, report, follow, terms, box)
         used += out.iterations
         for k in range(escapes + 1 if final else 0):
             if out.status is not Status.CONVERGED or out.joined >= 0:
                 break
-            v = second_order(stage, out.point, s, out.fisher)
-            if v is None:
+            moving = ~out.held if out.held is not None else None
+            directions, probed = second_order(stage, out.point, s, out.fisher, moving)
+            if not directions:
                 break
-            moved = _leave_saddle(stage, out.point, v, out.delta) if k < escapes else None
+            sizes = (1.0,) if probed else out.delta * 0.5 ** np.arange(8)
+            moved = (
+                _leave_saddle(stage, out.point, directions, sizes, out.fisher, box) if k < escapes else None
+            )
             if moved is None:
-                out = replace(out, status=Status.SADDLE)
+                if not probed:
+                    out = replace(out, status=Status.SADDLE)
                 break
             report(moved)
-            out = _descend(stage, moved, s, out.delta, tol_stage, max_iter - used, report, follow)
+            out = _descend(stage, moved, s, out.delta, tol_stage, max_iter - used, report, follow, None, box)
             used += out.iterations
         theta, delta = out.point.p[:nf].copy(), max(out.delta, MIN_RADIUS)
     return out
 
 
-def _leave_saddle(prob: Problem, x: Point, v: np.ndarray, delta: float) -> Point | None:
-    """A point of lower cost along ±v (the direction of negative curvature, unit in scaled
-    coordinates), steps of the trust radius and shorter; None if there is none."""
-    for size in delta * 0.5 ** np.arange(8):
-        for sign in (1.0, -1.0):
-            trial = point(prob, x.p[: prob.n_free] + sign * size * v, x.R)
-            if trial is not None and trial.J < x.J:
-                return trial
+def _leave_saddle(
+    prob: Objective, x: Point, directions: list, sizes, M: np.ndarray, box: tuple | None
+) -> Point | None:
+    """A point of lower cost along ±v for v in `directions` (in turn), steps of each of `sizes`
+    × v (the initial states following, `objective.following`; inside the `box`); None if there
+    is none."""
+    nf = prob.n_free
+    for v in directions:
+        for size in sizes:
+            for sign in (1.0, -1.0):
+                d = sign * size * v
+                if box is not None:
+                    d = _in_box(x.p[:nf] + d, box) - x.p[:nf]
+                trial = prob.moved(x, d if prob.projected else following(M, np.zeros(len(M)), nf, d)[0])
+                if trial is not None and trial.J < x.J:
+                    return trial
     return None

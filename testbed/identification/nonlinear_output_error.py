@@ -1,39 +1,30 @@
-"""Output-error maximum likelihood for the nonlinear model: chosen coefficients and each record's
-initial state fitted to measured states by a damped Gauss-Newton (Levenberg-Marquardt) iteration.
+"""The nonlinear model's output-error likelihood: its records, parameters, flights, residuals,
+noise, sensitivities and normal equations, and the Fisher information and bounds at a fit.
+`nonlinear_objective` makes it an `objective.Objective`, which `estimators.trust_region` fits.
 
 The outputs are the measured states of the simulated trajectory (`nonlinear_sensitivities.flight`)
 plus their output biases, `y = x + b + v` (an attitude sensor's mounting offset; `b` acts on its
 own channel alone, `∂y/∂b = 1` there and 0 elsewhere, and not on the flight), the velocities as
 a log mounted as g reads them (`log_mounting`: away from the CG, turned; 0 at the CG). The
 fit's parameters are θ ⊕ b ⊕ g (`parameter_names`: θ's names, then `b_<state>` of each
-measured channel, then the mounting), a bias or the mounting free like any coefficient; the noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
+measured channel, then the mounting), a bias or the mounting free like any coefficient; the
+noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
 records. A missing sample (NaN: a sensor slower than the fins are logged, a dropout) is left
 out of every sum, its residual NaN and its rows of J zero; the flight goes through it with the
 fins of every row, so fins logged faster than the states move the model as they moved the body.
-As for the linear model (`likelihood`), the likelihood is minimised by relaxation: R is set to
-the residuals' mean square per channel (or held where `noise_std` gives it), then held
-while the parameters step on `½ Σ eᵀ R⁻¹ e`. The step solves the Gauss-Newton normal equations
-`(H + λ diag H) Δ = g`, `H = Σ Jᵀ R⁻¹ J`, `g = Σ Jᵀ R⁻¹ e`, J the outputs' exact sensitivities;
-λ falls after a step that lowers the cost and grows until one does. The fit has converged when
-every parameter's step is below `tolerance` × its Cramér-Rao σ. The bounds are those of the
-Fisher information H at the last linearisation, with the initial states (when free) among the
+As for the linear model (`likelihood`), R is the residuals' mean square per channel (or held
+where `noise_std` gives it); the normal equations are `H = Σ Jᵀ R⁻¹ J`, `g = Σ Jᵀ R⁻¹ e`, J the
+outputs' exact sensitivities, the bounds those of H with the initial states among the
 parameters.
 
 A record's initial state starts from its first sample in the measured channels and from straight
 flight at the vehicle's speed in the others; free, only the measured channels' components move.
-A continuation in record length (`continuation`) widens the basin, which output error's shrinks
-as the record grows: the records' first halves are fitted first (recursively, down to `FIRST`
-samples or more) and the whole records from that fit; it costs two to three times the direct
-fit's time. Without it the first halves are fitted first only where the flight from the start
-leaves every finite number (a start off the truth can make a nearly unstable vehicle diverge
-within seconds of a large manoeuvre), halved again as needed down to `SHORTEST` samples. The
-iterations reported count every stage's.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -48,28 +39,23 @@ from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
 __all__ = [
-    "DAMPING",
-    "FIRST",
-    "SHORTEST",
-    "NonlinearFit",
     "Record",
+    "check_fit",
     "coloured_bounds",
-    "fit_output_error",
     "information",
     "neg_log_likelihood",
+    "normal_equations",
     "outputs",
     "parameter_names",
     "pooled_noise",
     "present_only",
     "records",
     "residuals",
+    "sensitivities",
     "setup",
+    "simulate",
     "start_states",
 ]
-
-DAMPING = (1e-3, 10.0, 1e10)  # λ: its start, its factor down after a success and up after a failure, its cap
-FIRST = 150  # samples: the continuation's first records are no shorter (module doc)
-SHORTEST = 25  # samples: records the start's flight overflows are halved down to no shorter
 
 
 @dataclass(frozen=True)
@@ -81,23 +67,6 @@ class Record:
     t: np.ndarray
     fins: np.ndarray
     y: np.ndarray
-
-
-@dataclass(frozen=True)
-class NonlinearFit:
-    """The result of `fit_output_error`."""
-
-    theta: np.ndarray  # all of θ ⊕ b ⊕ g in `parameter_names` order, the free ones fitted
-    estimates: dict[str, float]  # the free coefficients
-    std: dict[str, float]  # their Cramér-Rao σ
-    initial_states: np.ndarray  # (records, 10)
-    noise_std: dict[str, float]  # √R per channel
-    cost: float  # −ln p(Z | θ, R): ½ Σ_c N_c ln 2π R_c + ½ Σ eᵀR⁻¹e
-    iterations: int
-    status: str  # "converged", "iteration limit" or "stalled" (no step lowers the cost)
-    at_bounds: dict[str, float] = field(
-        default_factory=dict
-    )  # the free parameters it ends on a bound of, at it
 
 
 def records(
@@ -167,7 +136,11 @@ def setup(
     return channels, recs, model, theta, [names.index(n) for n in config.free]
 
 
-def _check(model, records, channels, free, noise_std, tolerance, max_iterations):
+def check_fit(model, records, channels, free, noise_std, tolerance, max_iterations) -> None:
+    """`InputError` for what a fit of the `free` parameters (names) to the `records`' measured
+    `channels` cannot take: a tolerance ≤ 0, an iteration limit < 1, a name not in the model,
+    channels not states, given noise of a channel not measured or not a positive number, records
+    of the wrong shapes or with infinite samples."""
     if not (isinstance(max_iterations, int) and max_iterations >= 1 and tolerance > 0):
         raise InputError(
             f"tolerance={tolerance!r}, max_iterations={max_iterations!r}; expected a tolerance > 0 "
@@ -198,7 +171,7 @@ def _check(model, records, channels, free, noise_std, tolerance, max_iterations)
             )
 
 
-def _simulate(model, theta, x0, records, ch, substeps):
+def simulate(model, theta, x0, records, ch, substeps):
     """Each record's flown states (N, 10) and residuals `e = y − ŷ` (N, C) (`outputs`), NaN
     where the sample is missing, at θ ⊕ b ⊕ g (`theta`; what it leaves out: 0); (None, None)
     where a flight does not stay finite. Tallied as simulated samples (`recursions.counting`)."""
@@ -229,7 +202,7 @@ def residuals(
     """Each record's residuals (N, C) in the state columns `ch` (NaN where the sample is
     missing) at θ ⊕ b ⊕ g (`theta`; what it leaves out: 0), flown from its row of `x0` (records, 10); None
     where a flight does not stay finite. Tallied as `_simulate`'s."""
-    return _simulate(model, theta, x0, records, ch, substeps)[1]
+    return simulate(model, theta, x0, records, ch, substeps)[1]
 
 
 def start_states(model: NonlinearModel, records: Sequence[Record], ch) -> np.ndarray:
@@ -269,7 +242,7 @@ def neg_log_likelihood(res: Sequence[np.ndarray], R: np.ndarray) -> float:
     )
 
 
-def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
+def sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     """Each record's output sensitivities to (θ ⊕ b ⊕ g)[free] (N, C, p) and to the measured
     channels' initial states (N, C, C), along its flown states; tallied
     (`recursions.counting`) as 1 + the free coefficients of θ columns a sample (the pass
@@ -295,169 +268,6 @@ def _sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     return out
 
 
-def fit_output_error(
-    model: NonlinearModel,
-    theta,
-    records: Sequence[Record],
-    channels: Sequence[str],
-    free: Sequence[str],
-    *,
-    free_initial: bool = True,
-    noise_std: Mapping[str, float] | None = None,
-    substeps: int | None = None,
-    tolerance: float = 0.01,
-    max_iterations: int = 50,
-    continuation: bool = False,
-    callback: Callable[[np.ndarray, float], None] | None = None,
-    bounds: tuple[np.ndarray, np.ndarray] | None = None,
-) -> NonlinearFit:
-    """Fit the `free` parameters of θ ⊕ b ⊕ g (names from `parameter_names`), started from
-    `theta` (θ, θ ⊕ b or θ ⊕ b ⊕ g: the channels' biases and the mounting, 0 where left out), and each
-    record's initial state (`free_initial`) to the `records`' measured `channels`, each record
-    flown by RK4 with `substeps` steps per sample interval (module doc). `callback(values, cost)`
-    after every step taken, any stage's: the free coefficients and the negative log-likelihood.
-    `bounds`: `(low, high)` per free parameter (±inf: open), the box the fit keeps them in
-    (a start outside it is moved onto it; `NonlinearFit.at_bounds` names those it ends on)."""
-    channels, free, noise_std = tuple(channels), tuple(free), dict(noise_std or {})
-    _check(model, records, channels, free, noise_std, tolerance, max_iterations)
-    ch = [STATES.index(c) for c in channels]
-    x0 = start_states(model, records, ch)
-    held = np.array([noise_std.get(c, np.nan) ** 2 for c in channels])
-    box = _box(bounds, len(free))
-    settings = (channels, free, free_initial, held, substeps, tolerance, max_iterations, callback, box)
-    options = dict(
-        free_initial=free_initial,
-        noise_std=noise_std,
-        substeps=substeps,
-        tolerance=tolerance,
-        max_iterations=max_iterations,
-        callback=callback,
-        bounds=box,
-    )
-    n = min(len(r.t) for r in records)
-    theta, stage = np.array(_padded(np.asarray(theta, float), len(model.names), ch), float), None
-    if continuation and n >= 2 * FIRST:
-        stage = fit_output_error(model, theta, _halves(records), channels, free, continuation=True, **options)
-        theta, x0 = stage.theta, stage.initial_states
-    fit = _fit(model, theta, x0, records, settings)
-    if fit is None and stage is None and n >= 2 * SHORTEST:
-        stage = fit_output_error(
-            model, theta, _halves(records), channels, free, continuation=False, **options
-        )
-        fit = _fit(model, stage.theta, stage.initial_states, records, settings)
-    if fit is None:
-        raise InputError(
-            f"the model's flight from the start values does not stay finite over the records ({n} samples "
-            "or fewer); expected a start whose flight does"
-        )
-    return fit if stage is None else replace(fit, iterations=fit.iterations + stage.iterations)
-
-
-def _box(bounds, p: int) -> tuple[np.ndarray, np.ndarray]:
-    """`bounds` as (low, high) arrays of length `p` (None: unbounded); `InputError` unless
-    low < high everywhere."""
-    if bounds is None:
-        return np.full(p, -np.inf), np.full(p, np.inf)
-    low, high = (np.asarray(b, float).reshape(-1) for b in bounds)
-    if low.shape != (p,) or high.shape != (p,) or not np.all(low < high):
-        raise InputError(f"bounds {bounds!r}; expected (low, high), {p} each, low < high")
-    return low, high
-
-
-def _active(q: np.ndarray, g: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """The parameters held on their bound this iteration: on it with the likelihood's descent
-    direction `g` (the normal equations' right side) pointing out of the box (the KKT condition
-    of the bound: its multiplier has the right sign)."""
-    return ((q <= low) & (g <= 0)) | ((q >= high) & (g >= 0))
-
-
-def _halves(records):
-    """The records' first halves."""
-    return [
-        Record(t=r.t[: len(r.t) // 2], fins=r.fins[: len(r.t) // 2], y=r.y[: len(r.t) // 2]) for r in records
-    ]
-
-
-def _fit(model, theta, x0, records, settings) -> NonlinearFit | None:
-    """`fit_output_error` from θ and the initial states x0 (records, 10); None where the flight
-    from them does not stay finite."""
-    channels, free, free_initial, held, substeps, tolerance, max_iterations, callback, box = settings
-    ch = [STATES.index(c) for c in channels]
-    names = parameter_names(model, channels)
-    idx = np.array([names.index(n) for n in free])
-    p = len(idx)
-    states = len(records) * len(ch) if free_initial else 0  # the initial states: unbounded
-    low, high = np.r_[box[0], np.full(states, -np.inf)], np.r_[box[1], np.full(states, np.inf)]
-
-    def bounds_of(H, moving):
-        """The Cramér-Rao σ of the parameters off their bounds (those held: infinite)."""
-        std = np.full(len(moving), np.inf)
-        std[moving] = crlb(H[np.ix_(moving, moving)]).std
-        return std
-
-    def unpack(q):
-        th, x = theta.copy(), x0.copy()
-        th[idx] = q[:p]
-        if free_initial:
-            x[:, ch] = q[p:].reshape(len(records), len(ch))
-        return th, x
-
-    def weighted(res, R):
-        return 0.5 * sum(float(np.nansum(e**2 / R)) for e in res)
-
-    q = np.clip(np.concatenate([theta[idx], x0[:, ch].ravel() if free_initial else []]), low, high)
-    flown, res = _simulate(model, *unpack(q), records, ch, substeps)
-    if res is None:
-        return None
-    R = pooled_noise(res, held)
-    lam, down, cap = DAMPING[0], DAMPING[1], DAMPING[2]
-    status, iterations = "iteration limit", 0
-    for iterations in range(1, max_iterations + 1):
-        sens = _sensitivities(model, *unpack(q), records, flown, ch, idx, substeps)
-        H, g = _normal_equations(res, sens, R, free_initial)
-        # projected Levenberg-Marquardt: the parameters held on their bound stay out of the step,
-        # the others' step is taken in the box (clipped onto it)
-        moving = ~_active(q, g, low, high)
-        std = bounds_of(H, moving)
-        cost = weighted(res, R)
-        while lam <= cap:
-            D = np.diag(H)[moving]
-            step = np.zeros(len(q))
-            # (H_FF + λ diag H_FF) d_F = g_F
-            step[moving] = np.linalg.solve(
-                H[np.ix_(moving, moving)] + lam * np.diag(np.where(D > 0, D, 1.0)), g[moving]
-            )
-            step = np.clip(q + step, low, high) - q
-            trial_flown, trial = _simulate(model, *unpack(q + step), records, ch, substeps)
-            if trial is not None and weighted(trial, R) < cost:
-                break
-            lam *= down
-        else:
-            status = "stalled"
-            break
-        q, flown, res, lam = q + step, trial_flown, trial, lam / down
-        R = pooled_noise(res, held)
-        if callback is not None:
-            callback(q[:p].copy(), neg_log_likelihood(res, R))
-        if np.all(np.abs(step) <= tolerance * std):
-            status = "converged"
-            break
-    std = bounds_of(_normal_equations(res, sens, R, free_initial)[0], moving)
-    th, x = unpack(q)
-    at = {free[k]: float(q[k]) for k in np.flatnonzero((q[:p] <= low[:p]) | (q[:p] >= high[:p]))}
-    return NonlinearFit(
-        theta=th,
-        estimates={n: float(v) for n, v in zip(free, q[:p])},
-        std={n: float(s) for n, s in zip(free, std[:p])},
-        at_bounds=at,
-        initial_states=x,
-        noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)},
-        cost=neg_log_likelihood(res, R),
-        iterations=iterations,
-        status=status,
-    )
-
-
 def information(
     model: NonlinearModel,
     theta,
@@ -472,7 +282,7 @@ def information(
     (`theta`, `parameter_names`) | each record's measured initial states] with the noise variances `R` per channel, each record flown
     from its row of `x0` (records, 10), and the residuals along the flights."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
-    return _normal_equations(res, sens, np.asarray(R, float), True)[0], res
+    return normal_equations(res, sens, np.asarray(R, float), True)[0], res
 
 
 def _linearisation(model, theta, x0, records, channels, free, substeps):
@@ -481,13 +291,13 @@ def _linearisation(model, theta, x0, records, channels, free, substeps):
     ch = [STATES.index(c) for c in channels]
     names = parameter_names(model, channels)
     idx = np.array([names.index(n) for n in free], dtype=np.int64)
-    flown, res = _simulate(model, theta, x0, records, ch, substeps)
+    flown, res = simulate(model, theta, x0, records, ch, substeps)
     if res is None:
         raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
-    return res, _sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
+    return res, sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
 
 
-def _normal_equations(res, sens, R, free_initial):
+def normal_equations(res, sens, R, free_initial):
     """H = Σ Jᵀ R⁻¹ J and g = Σ Jᵀ R⁻¹ e over the records' samples present, the columns
     [θ[free] | each record's measured initial states] (the latter only when free)."""
     P = _columns(res, sens, free_initial)
@@ -533,7 +343,7 @@ def coloured_bounds(
     the Fisher information H they come from (`information`'s)."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
     R = np.asarray(R, float)
-    H, _ = _normal_equations(res, sens, R, True)
+    H, _ = normal_equations(res, sens, R, True)
     cov, std, _ = crlb(H)
     p, P, scale = len(free), len(H), np.sqrt(R)
     total = np.zeros((p, p))

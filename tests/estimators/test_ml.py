@@ -9,7 +9,7 @@ import pytest
 
 from testbed.errors import InputError
 from testbed.estimators import METHODS, Status, identify
-from testbed.estimators.ml import DELTA_J
+from testbed.estimators.multistart import DELTA_J
 from testbed.identification.bounds import information
 from studies.remus import (
     EXAMPLE_COEFFICIENTS,
@@ -112,7 +112,7 @@ def test_auto_from_an_a_priori_model_that_diverges_over_the_record(data, from_si
 
 def test_the_least_cost_fit_is_kept_even_unconverged():
     from testbed.estimators.base import Outcome
-    from testbed.estimators.ml import Fit, best_fit
+    from testbed.estimators.multistart import Fit, best_fit
 
     def fit(name, status, cost):
         return Fit(name, Outcome(np.zeros(1), status, 1, np.zeros((2, 1))), cost, cost + 5)

@@ -1,14 +1,13 @@
-"""Output error for the nonlinear model against independent references: the trajectory's
-sensitivities against complex steps of an RK4 flight written here, and fits of data the model
-itself flew, with the testbed's sensor noise, against the truth and the Cramér-Rao bounds."""
+"""The nonlinear model's output-error likelihood against independent references: the trajectory's
+sensitivities against complex steps of an RK4 flight written here. Its fits are
+`tests/estimators/test_nonlinear_fit.py`'s."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from testbed.errors import InputError
-from testbed.identification.nonlinear_output_error import Record, fit_output_error
+from testbed.identification.nonlinear_output_error import Record
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import INERTIA, nonlinear_model, theta_vector
@@ -23,6 +22,11 @@ SIGMA = np.array([NOISE_STD[s] for s in STATES])
 
 @pytest.fixture(scope="module")
 def truth():
+    return captive_truth()
+
+
+def captive_truth():
+    """The torpedo's nonlinear model at 20 m/s and its captive reference's θ."""
     mjcf = load_model()
     model = nonlinear_model(constants(mjcf, 20.0))
     return model, theta_vector(model, captive_reference(mjcf, 20.0).coefficients)
@@ -100,78 +104,3 @@ def noisy(model, theta, seed, seconds=10.0):
     for n in FREE:
         start[model.names.index(n)] *= np.exp(0.2 * rng.normal())
     return Record(t=t, fins=fins, y=y), start
-
-
-def test_a_fit_from_a_perturbed_start_returns_the_truth_within_three_sigma(truth):
-    model, theta = truth
-    record, start = noisy(model, theta, seed=1)
-    fit = fit_output_error(model, start, [record], STATES, FREE)
-    assert fit.status == "converged"
-    for n in FREE:
-        true = theta[model.names.index(n)]
-        assert abs(fit.estimates[n] - true) <= 3 * fit.std[n], (n, fit.estimates[n], true, fit.std[n])
-        assert fit.theta[model.names.index(n)] == fit.estimates[n]
-    held = [n for n in model.names if n not in FREE]
-    assert np.array_equal(
-        fit.theta[[model.names.index(n) for n in held]], theta[[model.names.index(n) for n in held]]
-    )
-    # the noise estimated is the noise added (1000 samples: its standard deviation to ~2 %)
-    assert np.allclose([fit.noise_std[s] for s in STATES], SIGMA, rtol=0.08)
-    assert np.all(np.abs(fit.initial_states - record.y[0]) <= 3 * SIGMA)
-
-
-def test_a_start_whose_flight_overflows_is_fitted_from_the_records_first_halves(truth):
-    model, theta = truth
-    record, start = noisy(model, theta, seed=5, seconds=3.0)
-    with np.errstate(all="ignore"):
-        assert not np.all(np.isfinite(fly(model, start, record.t, record.y[0], record.fins)))
-    fit = fit_output_error(model, start, [record], STATES, FREE)
-    assert fit.status == "converged"
-    for n in FREE:
-        assert abs(fit.estimates[n] - theta[model.names.index(n)]) <= 3 * fit.std[n], n
-
-
-def test_held_noise_and_held_initial_states_are_kept(truth):
-    model, theta = truth
-    record, start = noisy(model, theta, seed=2, seconds=2.0)
-    given = {"q": 0.004, "r": 0.001}
-    fit = fit_output_error(model, start, [record], STATES, FREE[:2], free_initial=False, noise_std=given)
-    assert fit.noise_std["q"] == 0.004 and fit.noise_std["r"] == 0.001
-    assert np.array_equal(fit.initial_states[0], record.y[0])
-
-
-def test_bad_names_are_one_line_input_errors(truth):
-    model, theta = truth
-    record, _ = noisy(model, theta, seed=3, seconds=0.2)
-    cases = [
-        dict(channels=STATES, free=("Y_nope",)),
-        dict(channels=STATES, free=()),
-        dict(channels=("u", "yaw"), free=FREE),
-        dict(channels=STATES, free=FREE, noise_std={"x": 1.0}),
-        dict(channels=STATES, free=FREE, noise_std={"u": -1.0}),
-        dict(channels=STATES[:3], free=FREE),  # y has 10 columns
-        dict(channels=STATES, free=FREE, max_iterations=0),
-    ]
-    for kwargs in cases:
-        with pytest.raises(InputError) as err:
-            fit_output_error(model, theta, [record], **kwargs)
-        assert "\n" not in str(err.value)
-
-
-@pytest.mark.slow  # Monte Carlo over noise seeds, about 5 s on one core
-def test_the_cramer_rao_bounds_match_the_scatter_over_seeds(truth):
-    """Over 8 noise seeds the errors normalised by their σ have mean square ≈ 1 (80 of them:
-    χ²₈₀/80 lies in [0.5, 1.6] with probability > 0.999), with the continuation in record length:
-    without it seed 13 ends in a local optimum. Starts that fly the manoeuvre to overflow are among
-    them (one of the eight)."""
-    model, theta = truth
-    z, diverged = [], 0
-    for seed in range(10, 18):
-        record, start = noisy(model, theta, seed=seed, seconds=6.0)
-        with np.errstate(all="ignore"):
-            diverged += not np.all(np.isfinite(fly(model, start, record.t, record.y[0], record.fins)))
-        fit = fit_output_error(model, start, [record], STATES, FREE, continuation=True)
-        assert fit.status == "converged"
-        z += [(fit.estimates[n] - theta[model.names.index(n)]) / fit.std[n] for n in FREE]
-    assert diverged >= 1
-    assert 0.5 <= np.mean(np.square(z)) <= 1.6, np.round(z, 2)
