@@ -443,11 +443,6 @@ def check_config(config: ModelConfig) -> None:
         check_noise_std(config.noise_std, f"{source}: [identify] noise_std")
     for n, (low, high) in config.bounds.items():
         where = f"{source}: [identify] bounds.{n}"
-        if config.terms is None:
-            raise InputError(
-                f"{where}: the linear model's methods take no bounds; expected bounds on a nonlinear "
-                "model config's free names (its ml-gn keeps them)"
-            )
         if n not in config.free:
             raise InputError(f"{where}: not a free name; expected a name of [identify] free")
         value = config.values[n]

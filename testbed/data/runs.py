@@ -22,14 +22,17 @@ __all__ = ["load_data", "read_estimates", "run_csvs"]
 def read_estimates(
     path: str | Path, names: Sequence[str] | None = None
 ) -> tuple[dict[str, float], dict[str, float] | None]:
-    """The coefficients and offsets (name → value) of an estimates JSON, without the values
-    estimated per record, and its `noise_std` (state → σ) when it has one of positive numbers,
+    """The coefficients and offsets (name → value) of an estimates JSON, the candidates its screen
+    fixed among them at the values the fit held them at, without the values estimated per
+    record, and its `noise_std` (state → σ) when it has one of positive numbers,
     else None; InputError naming the file. `names`: a nonlinear model's names (its inertia
     coefficients, terms and output biases), which its coefficients must be among instead of the linear model's."""
     expected = "an estimates JSON with coefficients {name: {value: ...}}"
     doc = read_json(path, expected)
     try:
         values = {n: c["value"] for n, c in doc["coefficients"].items()}
+        # the candidates the screen fixed, at the values the fit held them at (a moved start's)
+        values = {n: c["value"] for n, c in doc.get("fixed", {}).items()} | values
     except (KeyError, TypeError, AttributeError):
         raise InputError(f"{path}: expected {expected}") from None
     # a value estimated per record (`name[experiment]`) belongs to that record, not to the vehicle

@@ -86,8 +86,8 @@ def lookup(name: str) -> Method:
 
 def check_method(method: str, config: ModelConfig) -> None:
     """`InputError` unless the named method fits the model of `config`: a method without a
-    `nonlinear` fit refuses a nonlinear model config (`config.terms`), and a linear one what it
-    `refuses`."""
+    `nonlinear` fit refuses a nonlinear model config (`config.terms`), a linear one what it
+    `refuses`, and a method that keeps no bounds a config with `[identify] bounds`."""
     m = lookup(method)
     if config.terms is None and m.refuses is not None:
         m.refuses(config)
@@ -96,6 +96,12 @@ def check_method(method: str, config: ModelConfig) -> None:
         raise InputError(
             f"method={m.name!r} fits the linear model only; {config.source or 'the config'} is a "
             f"nonlinear model config ([terms]); expected a linear model config, or {takes} for [terms]"
+        )
+    if config.bounds and not m.bounds:
+        keeps = ", ".join(n for n, k in METHODS.items() if k.bounds)
+        raise InputError(
+            f"{config.source or 'config'}: [identify] bounds.{next(iter(config.bounds))}: {m.name} does not "
+            f"keep bounds; expected {keeps}, or no [identify] bounds"
         )
 
 

@@ -330,6 +330,8 @@ class Method:
         refuses: `refuses(config)` raises `InputError` for what the method cannot take in a
             linear model config, whatever the data (a free output term, values per record): checked
             before any fit, the screen's included. None: it takes any.
+        bounds: keeps the free values in the box of `[identify] bounds` (and a nonlinear model
+            config's physical bounds); a method that does not refuses a config with bounds.
     """
 
     name: str
@@ -341,6 +343,7 @@ class Method:
     online: bool = False
     nonlinear: Callable[[Sequence[Experiment], ModelConfig, Options, Callback | None], Estimate] | None = None
     refuses: Callable[[ModelConfig], None] | None = None
+    bounds: bool = False
 
     def __post_init__(self):
         names = {f.name for f in fields(self.options)}

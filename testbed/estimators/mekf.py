@@ -226,11 +226,6 @@ def _nonlinear(experiments: Sequence[Experiment], config: ModelConfig, method: s
                 method, name, value, "its default: the filter on a nonlinear model config has no such option"
             )
     check_mounting(config, f"{method} on a nonlinear model config")
-    if config.bounds:
-        raise InputError(
-            f"{config.source or 'config'}: [identify] bounds.{next(iter(config.bounds))}: {method} does not "
-            "keep bounds; expected ml-gn, or no [identify] bounds"
-        )
     model, theta, idx = setup(experiments, config, f"{method} on a nonlinear model config")[2:]
     m = len(model.names)
     biased = [n for n, i in zip(config.free, idx) if i >= m]

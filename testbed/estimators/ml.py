@@ -43,6 +43,7 @@ from testbed.estimators.base import (
     Outcome,
     Progress,
     Status,
+    bounds_text,
     count_option,
     is_count,
     option,
@@ -55,7 +56,7 @@ from testbed.estimators.newton_raphson import newton_raphson
 from testbed.identification import bounds, likelihood, recursions
 from testbed.identification.linear_objective import point
 from testbed.identification.objective import Point
-from testbed.identification.problem import Problem, problem
+from testbed.identification.problem import Problem, base_name, problem
 
 __all__ = [
     "GaussNewtonOptions",
@@ -116,12 +117,19 @@ def _estimate(
             start_reason=start_reason,
             starts=tried,
         )
+    std, coloured, at_bounds = info.crlb_std, np.asarray(info.crlb_corrected_std, float), {}
+    if out.held is not None:  # the values held on a bound: no σ, the others' with them held
+        nf, moving = prob.n_free, ~out.held
+        F = likelihood.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]
+        std, coloured = np.full(nf, np.nan), np.where(moving, coloured, np.nan)
+        std[moving] = bounds.crlb(F[np.ix_(moving, moving)]).std
+        at_bounds = {prob.free[k]: float(info.values[k]) for k in np.flatnonzero(out.held)}
     return Estimate(
         method=name,
         status=out.status,
         free=prob.free,
         values=info.values,
-        std=info.crlb_std,
+        std=std,
         cost=info.cost,
         iterations=sum(f.outcome.iterations for f in fits),
         wall_time_s=time.perf_counter() - t0,
@@ -131,8 +139,10 @@ def _estimate(
         history=out.history,
         start_reason=start_reason,
         starts=tried,
-        crlb_corrected_std=np.asarray(info.crlb_corrected_std, float),
+        crlb_corrected_std=coloured,
         initial_states=info.initial_states,
+        at_bounds=at_bounds or None,
+        message=f"on its bounds: {bounds_text(at_bounds)}" if at_bounds else "",
     )
 
 
@@ -201,6 +211,8 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
             more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
         if at is not None:
             more["at"] = at
+        if optimiser is trust_region.trust_region and config.bounds:
+            more["box"] = config.box([base_name(n) for n in prob.free])
         done = sum(f.outcome.iterations for f in fits)  # the iterations count on over the starts
 
         def report(step: Progress) -> None:
@@ -484,13 +496,19 @@ class SimplexOptions(Options):
 
 
 def _method(
-    name: str, optimiser, options: type[Options], summary: str, on_nonlinear=None, refuses=None
+    name: str, optimiser, options: type[Options], summary: str, on_nonlinear=None, refuses=None, bounds=False
 ) -> Method:
     def fit(experiments, config, opts, callback):
         return _fit(name, optimiser, experiments, config, opts, callback)
 
     return Method(
-        name=name, fit=fit, options=options, summary=summary, nonlinear=on_nonlinear, refuses=refuses
+        name=name,
+        fit=fit,
+        options=options,
+        summary=summary,
+        nonlinear=on_nonlinear,
+        refuses=refuses,
+        bounds=bounds,
     )
 
 
@@ -500,6 +518,7 @@ ML_GN = _method(
     TrustRegionOptions,
     "maximum likelihood output error by scaled trust-region Gauss-Newton with multiple shooting",
     nonlinear.gauss_newton,
+    bounds=True,
 )
 
 

@@ -161,15 +161,15 @@ def _start_cost(prob: NonlinearObjective, values: np.ndarray) -> float:
 
 
 def _starts(options: Options, model, theta, recs, channels, free, prob, box, notes):
-    """The starts `options.start` names as (label, θ ⊕ b ⊕ g), in the order they are run (module
-    doc): `auto` and `global` the better-flying of the a-priori and equation-error starts first,
+    """The starts `options.start` names as (label, θ ⊕ b ⊕ g, its point where computed), in the
+    order they are run (module doc): `auto` and `global` the better-flying of the a-priori and equation-error starts first,
     `global` then the best `polish` box draws (`_box_draws`)."""
     if options.start == "config":
-        yield "config", theta
+        yield "config", theta, None
         return
     regressed = _regressed(options.start, model, theta, recs, channels, free)
     if options.start == "equation-error":
-        yield "equation-error", regressed
+        yield "equation-error", regressed, None
         return
     named = {"config": theta}
     if regressed is None:
@@ -177,14 +177,15 @@ def _starts(options: Options, model, theta, recs, channels, free, prob, box, not
     else:
         named["equation-error"] = regressed
     idx = prob.free
-    cost = {k: _start_cost(prob, v[idx]) for k, v in named.items()}
+    at = {k: prob.point(v[idx]) for k, v in named.items()}
+    cost = {k: np.inf if a is None else a.J for k, a in at.items()}
     for k in sorted(named, key=lambda k: (cost[k], k != "config")):
-        yield k, named[k]
+        yield k, named[k], at[k]
     if options.start == "global":
         for k, values in enumerate(_box_draws(prob, options, box)):
             start = theta.copy()
             start[idx] = values
-            yield f"box-{k + 1}", start
+            yield f"box-{k + 1}", start, None
 
 
 def _box_draws(prob: NonlinearObjective, options: Options, box) -> list[np.ndarray]:
@@ -223,7 +224,7 @@ def gauss_newton(
     with counting() as tally:
         prob = objective(model, theta, recs, channels, config.free, noise_std=noise)
 
-        def run(label: str, start: np.ndarray) -> tuple[Fit, NonlinearFit] | None:
+        def run(label: str, start: np.ndarray, at) -> tuple[Fit, NonlinearFit] | None:
             """The fit from θ ⊕ b ⊕ g `start` (stopping in an earlier fit's basin, then that
             one's), None where it cannot be computed (the reason in `notes`)."""
             done = sum(f.outcome.iterations for f in fits)
@@ -235,7 +236,7 @@ def gauss_newton(
 
             history: list[np.ndarray] = []
             earlier = [f for f in fits if f.outcome.optimum]
-            at = prob.point(start[idx])
+            at = prob.point(start[idx]) if at is None else at
             J0 = np.inf if at is None else at.J
             try:
                 fit = fit_from(
@@ -256,8 +257,8 @@ def gauss_newton(
             return Fit(label, out, fit.cost, J0), fit
 
         kept: dict[str, NonlinearFit] = {}
-        for label, start in _starts(options, model, theta, recs, channels, config.free, prob, box, notes):
-            done = run(label, start)
+        for label, start, at in _starts(options, model, theta, recs, channels, config.free, prob, box, notes):
+            done = run(label, start, at)
             if done is not None:
                 fits.append(done[0])
                 kept[label] = done[1]
@@ -299,23 +300,12 @@ def gauss_newton(
     )
 
 
-def _unbounded(name: str, config: ModelConfig) -> None:
-    """`InputError` for `[identify] bounds` given to a method that does not keep them."""
-    if config.bounds:
-        first = next(iter(config.bounds))
-        raise InputError(
-            f"{config.source or 'config'}: [identify] bounds.{first}: {name} does not keep bounds; "
-            "expected ml-gn, or no [identify] bounds"
-        )
-
-
 def simplex(
     experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
 ) -> Estimate:
     """`ml-nm` on a nonlinear model config (module doc)."""
     t0, name = time.perf_counter(), "ml-nm"
     _checked(name, options, _NM)
-    _unbounded(name, config)
     if options.coordinates == "information":
         raise OptionError(
             name, "coordinates", options.coordinates, "scaled or None for a nonlinear model config"
@@ -327,7 +317,7 @@ def simplex(
     with counting() as ranked:  # the starts' flights, counted with the fit's
         prob = objective(model, theta, recs, channels, config.free, noise_std=given)
         # the better-flying start (`_starts`' first)
-        label, theta = next(_starts(options, model, theta, recs, channels, config.free, prob, None, {}))
+        label, theta, _ = next(_starts(options, model, theta, recs, channels, config.free, prob, None, {}))
     nf, N = len(idx), int(sum(np.sum(~np.isnan(r.y).all(axis=1)) for r in recs))  # the samples
     max_iter = 500 * nf if options.max_iter is None else options.max_iter
     scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # θ[free] = scale·x

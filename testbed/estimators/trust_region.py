@@ -90,7 +90,7 @@ JOIN = 2.0  # a fit within this many Cramér-Rao σ of an earlier optimum is in 
 RADIUS = 0.1  # the first trust region's radius over √n_free (scaled units) on the whole record
 SEGMENT_RADIUS = 1.0  # … and on multiple shooting's segments
 MIN_RADIUS = 1e-3  # the trust radius a stage hands on, at least (scaled units)
-PROBES = 3  # directions the second-order check probes where the objective has no Hessian (`second_order`)
+PROBES = 1  # directions the second-order check probes where the objective has no Hessian (`second_order`)
 NEGATIVE = 1e-8  # an eigenvalue of the scaled Hessian below −NEGATIVE × its largest is negative curvature
 
 

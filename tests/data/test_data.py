@@ -463,3 +463,23 @@ def test_a_4_dof_config_may_leave_out_the_pitch_constants(tmp_path):
     doc["vehicle"] |= {"zB": 0.0, "GM": float("nan")}
     with pytest.raises(InputError, match=r"\[vehicle\] GM = nan; expected a finite number"):
         parse_config(doc, "m.toml")
+
+
+def test_an_estimates_json_gives_the_fixed_candidates_at_the_values_the_fit_held(tmp_path):
+    """A screened fit's `fixed` candidates stayed at their a-priori values, which `--perturb`
+    moves: the model an estimates JSON describes has them there, not at the config's values."""
+    import json
+
+    from testbed.data import read_estimates
+
+    path = tmp_path / "e.json"
+    doc = {
+        "coefficients": {"Y_v": {"value": -2000.0, "std": 10.0}},
+        "fixed": {"K_r": {"value": 3.1, "reason": "not determined"}, "Y_v": {"value": 7.0, "reason": "-"}},
+    }
+    path.write_text(json.dumps(doc))
+    values, _ = read_estimates(path)
+    assert values == {"K_r": 3.1, "Y_v": -2000.0}
+    path.write_text(json.dumps(doc | {"fixed": {"K_r": {"reason": "no value"}}}))
+    with pytest.raises(InputError, match="e.json"):
+        read_estimates(path)

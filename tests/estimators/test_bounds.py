@@ -95,3 +95,39 @@ def test_a_method_that_keeps_no_bounds_refuses_them(truth, method):  # noqa: F81
     boxed = replace(config, free=DETERMINED, screen=False, bounds={"Y_uv": (-math.inf, math.inf)})
     with pytest.raises(InputError, match=f"{method} does not keep bounds"):
         identify([record], boxed, method)
+
+
+@pytest.mark.parametrize("method", ["ml-lm", "ml-nr", "ml-nm", "ml-fem", "mekf", "equation-error"])
+def test_a_linear_method_that_keeps_no_bounds_refuses_them(method):
+    from estimators.test_trust_region import VERTICAL
+    from studies.remus import example_config, experiments
+
+    config = example_config(VERTICAL)
+    boxed = replace(config, bounds={config.free[0]: (-math.inf, math.inf)})
+    with pytest.raises(InputError, match=f"{method} does not keep bounds; expected ml-gn") as exc:
+        identify(experiments(seed=2, duration=20.0)[1:], boxed, method)
+    assert "\n" not in str(exc.value)
+
+
+def test_a_linear_fit_on_its_bound_is_the_fit_of_the_others_with_it_fixed_there():
+    """The linear model's `ml-gn` (the same optimiser) keeps `[identify] bounds` too: a
+    coefficient bounded 20 σ short of its estimate ends on the bound, its σ NaN, and the others
+    where the fit with it fixed there puts them."""
+    from estimators.test_trust_region import VERTICAL
+    from studies.remus import example_config, experiments
+
+    data = experiments(seed=2, duration=20.0)[1:]
+    config = example_config(VERTICAL)
+    free = identify(data, config, "ml-gn", start="config")
+    name, value, std = config.free[0], free.values[0], free.std[0]
+    bound = value - 20 * std * np.sign(value)  # toward 0: the box (bound, ∞) or (−∞, bound) excludes it
+    box = (bound, math.inf) if bound > value else (-math.inf, bound)
+    start = replace(config, bounds={name: box}).with_coefficients({name: bound})
+    boxed = identify(data, start, "ml-gn", start="config")
+    assert boxed.at_bounds == {name: pytest.approx(bound)} and boxed.converged
+    assert math.isnan(boxed.std[0]) and f"on its bounds: {name}" in boxed.message
+    fixed = identify(
+        data, replace(config, free=config.free[1:]).with_coefficients({name: bound}), "ml-gn", start="config"
+    )
+    np.testing.assert_allclose(boxed.values[1:], fixed.values, rtol=0, atol=1e-2 * np.max(fixed.std))
+    np.testing.assert_allclose(boxed.std[1:], fixed.std, rtol=1e-2)

@@ -95,8 +95,8 @@ def test_the_cramer_rao_bounds_match_the_scatter_over_seeds(truth):
 
 
 def test_the_linear_and_the_nonlinear_fit_run_through_one_optimiser(truth, monkeypatch):
-    """`ml-gn` on either model descends by the same `trust_region._descend`, given each model's
-    objective."""
+    """`ml-gn` on either model runs the same `trust_region`, given each model's objective: its
+    second-order check at each optimum sees the linear and then the nonlinear objective."""
     from studies.remus import example_config, experiments
 
     from testbed.estimators import identify, trust_region
@@ -104,13 +104,13 @@ def test_the_linear_and_the_nonlinear_fit_run_through_one_optimiser(truth, monke
     from testbed.identification.nonlinear_objective import NonlinearObjective
 
     seen = []
-    real = trust_region._descend
+    real = trust_region.second_order
 
-    def descend(prob, *args, **kwargs):
+    def second_order(prob, *args, **kwargs):
         seen.append(type(prob))
         return real(prob, *args, **kwargs)
 
-    monkeypatch.setattr(trust_region, "_descend", descend)
+    monkeypatch.setattr(trust_region, "second_order", second_order)
     identify(experiments(seed=2, duration=20.0)[1:], example_config(), "ml-gn", start="config")
     assert set(seen) == {LinearObjective}
     model, theta = truth
