@@ -67,7 +67,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from testbed.data import load_data, read_config, write_config  # noqa: E402
 from testbed.estimators import identify, lookup  # noqa: E402
 from testbed.estimators.nonlinear_fit import fit_output_error  # noqa: E402
-from testbed.identification.nonlinear_output_error import Record  # noqa: E402
+from testbed.identification.nonlinear_output_error import FlightRecord  # noqa: E402
 from testbed.identification.nonlinear_sensitivities import flight  # noqa: E402
 from testbed.models.linear import STATES  # noqa: E402
 from testbed.models.nonlinear import nonlinear_model, theta_vector  # noqa: E402
@@ -159,7 +159,8 @@ def _bench(args, tmp: Path) -> int:
     free = slope_terms(reference.terms) + EXTRA
     channels = tuple(s for s in experiments[0].measured if s in STATES)
     records = [
-        Record(t=e.t, fins=e.inputs, y=e.y[:, [e.measured.index(c) for c in channels]]) for e in experiments
+        FlightRecord(t=e.t, fins=e.inputs, y=e.y[:, [e.measured.index(c) for c in channels]])
+        for e in experiments
     ]
     r = records[0]
     x0 = np.zeros(10)
@@ -181,7 +182,7 @@ def _bench(args, tmp: Path) -> int:
     for k, n in enumerate(COMPONENT_FREE):
         cstart[cmodel.names.index(n)] *= np.exp(0.2 if k % 2 == 0 else -0.2)
     fit_output_error(
-        cmodel, cstart, [Record(t=r.t[:3], fins=r.fins[:3], y=r.y[:3])], channels, COMPONENT_FREE[:1]
+        cmodel, cstart, [FlightRecord(t=r.t[:3], fins=r.fins[:3], y=r.y[:3])], channels, COMPONENT_FREE[:1]
     )
     (t_nl, c_nl, fit), (t_cm, c_cm, cfit), (t_lin, c_lin, lin) = _best(
         [

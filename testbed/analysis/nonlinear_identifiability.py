@@ -44,7 +44,12 @@ from testbed.analysis.structural import Structural
 from testbed.data import Experiment, ModelConfig, split
 from testbed.estimators import Estimate
 from testbed.identification.bounds import NULL, crlb, eliminated
-from testbed.identification.nonlinear_output_error import information, outputs, pooled_noise, setup
+from testbed.identification.nonlinear_output_error import (
+    flight_information,
+    pooled_noise,
+    read_outputs,
+    setup,
+)
 from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import substeps_for
@@ -163,9 +168,9 @@ def _information(experiments, config: ModelConfig, problem: tuple, initial, subs
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
     m = len(model.names)  # the outputs: the states as read plus their biases
-    R = pooled_noise([r.y - outputs(x, theta, m, ch) for r, x in zip(recs, flown)], held)
+    R = pooled_noise([r.y - read_outputs(x, theta, m, ch) for r, x in zip(recs, flown)], held)
     x0 = np.array([x[0] for x in flown])
-    return information(model, theta, x0, recs, channels, config.free, R, substeps)[0]
+    return flight_information(model, theta, x0, recs, channels, config.free, R, substeps)[0]
 
 
 def _check(experiments: Sequence[Experiment], config: ModelConfig) -> None:

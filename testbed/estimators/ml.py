@@ -50,7 +50,7 @@ from testbed.estimators.base import (
     unphysical,
 )
 from testbed.estimators.levenberg_marquardt import levenberg_marquardt
-from testbed.estimators.multistart import DELTA_J, Fit, best_fit, record, summary
+from testbed.estimators.multistart import DELTA_J, Fit, best_fit, starts_record, starts_summary
 from testbed.estimators.nelder_mead import SIMPLEX_ITERATIONS, nelder_mead
 from testbed.estimators.newton_raphson import newton_raphson
 from testbed.identification import bounds, likelihood, recursions
@@ -77,7 +77,12 @@ def _estimate(
     and every start's result (`fits`; `notes`, start → the coefficients it left at their
     a-priori values, or why it was not computed) and the fit's `evaluations`; a DIVERGED one (the
     reason in its `message`) where that analysis breaks down or is not finite."""
-    out, start, start_reason, tried = fit.outcome, fit.start, summary(fits, notes), record(fits, notes)
+    out, start, start_reason, tried = (
+        fit.outcome,
+        fit.start,
+        starts_summary(fits, notes),
+        starts_record(fits, notes),
+    )
     why = None
     if out.status is Status.DIVERGED:  # where the model diverges there, no analysis to make
         with np.errstate(over="ignore", invalid="ignore"):

@@ -1,5 +1,5 @@
 """Fits from several starts: each start's `Fit`, the one kept (`best_fit`), and what every start
-reached as the estimate records it (`summary`, `record`), and a global search's draws
+reached as the estimate records it (`starts_summary`, `starts_record`), and a global search's draws
 (`latin`), for the linear model's ML methods
 (`ml`) and the nonlinear model's (`nonlinear`) alike.
 """
@@ -12,7 +12,16 @@ import numpy as np
 
 from testbed.estimators.base import Outcome, Status
 
-__all__ = ["BOX_BOUNDS", "DELTA_J", "NOT_COMPUTED", "Fit", "best_fit", "latin", "record", "summary"]
+__all__ = [
+    "BOX_BOUNDS",
+    "DELTA_J",
+    "NOT_COMPUTED",
+    "Fit",
+    "best_fit",
+    "latin",
+    "starts_record",
+    "starts_summary",
+]
 
 BOX_BOUNDS = 3.0  # a coefficient analysed at 0 is searched within ± this many Cramér-Rao bounds
 
@@ -41,7 +50,7 @@ def best_fit(fits: list[Fit]) -> Fit:
 NOT_COMPUTED = "not computed"  # a start's status in `starts` where it could not be computed
 
 
-def summary(fits: list[Fit], notes: dict[str, dict]) -> str:
+def starts_summary(fits: list[Fit], notes: dict[str, dict]) -> str:
     """What every start reached, or why it was not computed, for the estimate's `start_reason`."""
     parts = [
         f"{f.start}: cost {f.cost:.6g} ({f.outcome.status.message}"
@@ -58,7 +67,7 @@ def summary(fits: list[Fit], notes: dict[str, dict]) -> str:
     return f"{kept} ({'; '.join(parts)})" if len(parts) > 1 else ""
 
 
-def record(fits: list[Fit], notes: dict[str, dict]) -> tuple[dict, ...]:
+def starts_record(fits: list[Fit], notes: dict[str, dict]) -> tuple[dict, ...]:
     """Every start's result as `Estimate.starts` holds it: its cost, status and iterations, the
     start whose path it joined, what it left at the a-priori values; a start that could not be
     computed with its reason (`notes`: start → "left" or "reason")."""

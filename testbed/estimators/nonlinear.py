@@ -13,7 +13,7 @@ contract and `Estimate` as the linear model's methods:
   initial states, taken at the run's reference state (the linear `ml-nm` concentrates it
   exactly, its outputs being linear in it). R and that reference are held during a simplex run
   and relaxed at its best corner between runs (the initial state by Gauss-Newton,
-  `nonlinear_prediction.initial_state`, its sensitivities there; R the residuals' mean square);
+  `nonlinear_prediction.initial_state`, its sensitivities there; R the flight_residuals' mean square);
   every later run a fresh simplex at the best corner (`restart_step`). Converged when a run stops by its
   rule, improves J_M by no more than ε = `eps`/N, and the relaxation that follows changes no
   variance by more than `r_tol`; stalled after `max_relaxations` runs. No record-length
@@ -33,7 +33,7 @@ What a linear method's option means here:
 - `start`: `config` (the config's values), `equation-error` (the dynamics rows fitted to the
   measured states' difference quotients from the config's values, `nonlinear_regression`: no
   flight, so no basin; it needs u v w p q r φ θ measured), or `auto` (the default): `ml-gn`
-  fits from both, the better-flying first (the likelihood with R the residuals' mean square,
+  fits from both, the better-flying first (the likelihood with R the flight_residuals' mean square,
   the measured first samples as initial states), the second stopping where it steps into the
   first's basin, and keeps the least cost; `ml-nm` takes the better-flying one. `config` alone
   where the records cannot give the second. `global` (`ml-gn`): auto's two and the best
@@ -60,9 +60,9 @@ from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators import trust_region
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status, bounds_text
-from testbed.estimators.multistart import BOX_BOUNDS, Fit, best_fit, latin, record, summary
+from testbed.estimators.multistart import BOX_BOUNDS, Fit, best_fit, latin, starts_record, starts_summary
 from testbed.estimators.nonlinear_fit import fit as fit_from
-from testbed.estimators.nonlinear_fit import NonlinearFit, objective
+from testbed.estimators.nonlinear_fit import NonlinearFit, nonlinear_problem
 from testbed.estimators.nonlinear_regression import equation_error
 from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficients, simplex_run
 from testbed.identification.bounds import crlb
@@ -73,7 +73,7 @@ from testbed.identification.nonlinear_output_error import (
     neg_log_likelihood,
     pooled_noise,
     present_only,
-    residuals,
+    flight_residuals,
     setup,
     start_states,
 )
@@ -155,7 +155,7 @@ def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | N
 
 def _start_cost(prob: NonlinearObjective, values: np.ndarray) -> float:
     """The negative log-likelihood of the free `values` with each record's first sample as its
-    initial state, R the residuals' mean square; inf where the flight leaves the data's range."""
+    initial state, R the flight_residuals' mean square; inf where the flight leaves the data's range."""
     at = prob.point(np.asarray(values, float))
     return np.inf if at is None else at.J
 
@@ -222,7 +222,7 @@ def gauss_newton(
     fits: list[Fit] = []
     notes: dict[str, dict] = {}
     with counting() as tally:
-        prob = objective(model, theta, recs, channels, config.free, noise_std=noise)
+        prob = nonlinear_problem(model, theta, recs, channels, config.free, noise_std=noise)
 
         def run(label: str, start: np.ndarray, at) -> tuple[Fit, NonlinearFit] | None:
             """The fit from θ ⊕ b ⊕ g `start` (stopping in an earlier fit's basin, then that
@@ -291,8 +291,8 @@ def gauss_newton(
         noise_std=dict(fit.noise_std),
         start=best.start,
         history=best.outcome.history,
-        start_reason=summary(fits, notes),
-        starts=record(fits, notes),
+        start_reason=starts_summary(fits, notes),
+        starts=starts_record(fits, notes),
         crlb_corrected_std=coloured,
         information=H if not fit.at_bounds else None,
         at_bounds=dict(fit.at_bounds) or None,
@@ -315,7 +315,7 @@ def simplex(
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
     with counting() as ranked:  # the starts' flights, counted with the fit's
-        prob = objective(model, theta, recs, channels, config.free, noise_std=given)
+        prob = nonlinear_problem(model, theta, recs, channels, config.free, noise_std=given)
         # the better-flying start (`_starts`' first)
         label, theta, _ = next(_starts(options, model, theta, recs, channels, config.free, prob, None, {}))
     nf, N = len(idx), int(sum(np.sum(~np.isnan(r.y).all(axis=1)) for r in recs))  # the samples
@@ -329,7 +329,7 @@ def simplex(
         return th
 
     def flown(th, x0):
-        return residuals(model, th, x0, recs, ch)
+        return flight_residuals(model, th, x0, recs, ch)
 
     def relaxed(th, x0, R):
         """Each record's initial state fitted at θ (R held where given) and its outputs'

@@ -24,8 +24,8 @@ from testbed.estimators.trust_region import SEGMENTS, trust_region
 from testbed.identification.bounds import crlb
 from testbed.identification.nonlinear_objective import NonlinearObjective
 from testbed.identification.nonlinear_output_error import (
-    Record,
-    check_fit,
+    FlightRecord,
+    check_records,
     neg_log_likelihood,
     parameter_names,
     pooled_noise,
@@ -34,7 +34,7 @@ from testbed.identification.objective import Point
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import NonlinearModel
 
-__all__ = ["NonlinearFit", "fit", "fit_output_error", "objective", "result"]
+__all__ = ["NonlinearFit", "fit", "fit_output_error", "nonlinear_problem", "result"]
 
 
 @dataclass(frozen=True)
@@ -53,10 +53,10 @@ class NonlinearFit:
     outcome: Outcome | None = None  # the optimiser's own result (its optimum, for later starts to join)
 
 
-def objective(
+def nonlinear_problem(
     model: NonlinearModel,
     theta,
-    records: Sequence[Record],
+    records: Sequence[FlightRecord],
     channels: Sequence[str],
     free: Sequence[str],
     *,
@@ -68,7 +68,7 @@ def objective(
     `parameter_names`; `theta`: θ, θ ⊕ b or θ ⊕ b ⊕ g, what it leaves out 0) on the `records`'
     measured `channels`, R held where `noise_std` gives it."""
     noise_std = dict(noise_std or {})
-    check_fit(model, records, tuple(channels), tuple(free), noise_std, 1.0, 1)
+    check_records(model, records, tuple(channels), tuple(free), noise_std, 1.0, 1)
     ch = tuple(STATES.index(c) for c in channels)
     names = parameter_names(model, channels)
     theta = np.asarray(theta, float)
@@ -118,14 +118,14 @@ def result(prob: NonlinearObjective, out: Outcome) -> NonlinearFit:
 
 
 def fit_output_error(
-    model: NonlinearModel, theta, records: Sequence[Record], channels, free, **keywords
+    model: NonlinearModel, theta, records: Sequence[FlightRecord], channels, free, **keywords
 ) -> NonlinearFit:
     """Fit the `free` parameters of θ ⊕ b ⊕ g (names from `parameter_names`), started from
     `theta` (θ, θ ⊕ b or θ ⊕ b ⊕ g: the channels' biases and the mounting, 0 where left out), and
     each record's initial state to the `records`' measured `channels` by `trust_region` (module
-    doc). `keywords`: `objective`'s (`free_initial`, `noise_std`, `substeps`) and `fit`'s."""
+    doc). `keywords`: `nonlinear_problem`'s (`free_initial`, `noise_std`, `substeps`) and `fit`'s."""
     problem = {k: keywords.pop(k) for k in ("free_initial", "noise_std", "substeps") if k in keywords}
-    prob = objective(model, theta, records, channels, free, **problem)
+    prob = nonlinear_problem(model, theta, records, channels, free, **problem)
     return fit(prob, prob.start, **keywords)
 
 

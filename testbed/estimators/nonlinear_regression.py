@@ -32,7 +32,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.estimators.intervals import between_present
-from testbed.identification.nonlinear_output_error import Record
+from testbed.identification.nonlinear_output_error import FlightRecord
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import NonlinearModel, rates, sensitivities
 
@@ -44,7 +44,7 @@ STEPS = 8  # Gauss-Newton steps at most: M⁻¹ is the only nonlinearity in θ
 STEP_TOL = 1e-6  # stop when every step is below this fraction of its coefficient
 
 
-def _intervals(records: Sequence[Record], channels: Sequence[str]):
+def _intervals(records: Sequence[FlightRecord], channels: Sequence[str]):
     """(ν̇, x̄, δ) over every record's intervals between consecutive samples where the rows'
     states are all present (`intervals.between_present`), the states the rows do not involve at 0."""
     to = [STATES.index(c) for c in NEEDED]
@@ -61,7 +61,11 @@ def _intervals(records: Sequence[Record], channels: Sequence[str]):
 
 
 def equation_error(
-    model: NonlinearModel, theta, records: Sequence[Record], channels: Sequence[str], free: Sequence[str]
+    model: NonlinearModel,
+    theta,
+    records: Sequence[FlightRecord],
+    channels: Sequence[str],
+    free: Sequence[str],
 ) -> np.ndarray:
     """θ with its `free` coefficients (names from `model.names`) fitted to the records' difference
     quotients from `theta` (module doc); `InputError` naming the states the rows need that the

@@ -60,7 +60,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from testbed.identification import bounds, likelihood
-from testbed.identification.linear_objective import objective
+from testbed.identification.linear_objective import as_objective
 from testbed.identification.objective import Objective, Point, following
 from testbed.identification.problem import Problem
 from testbed.estimators.base import Outcome, Progress, Status
@@ -345,7 +345,7 @@ def trust_region(
     steps into one's basin stops there (`Outcome.joined`: which one). `at`: `prob.point(p[:n_free])`,
     if the caller has it. `box`: `(low, high)` of the free values (±inf: open), the box the fit
     keeps them in (a start outside it is moved onto it; `Outcome.held` marks those it ends on)."""
-    prob = objective(prob)
+    prob = as_objective(prob)
     nf = prob.n_free
     if box is not None:
         box = tuple(np.asarray(b, float) for b in box)

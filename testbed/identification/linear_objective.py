@@ -15,7 +15,7 @@ from testbed.identification import likelihood, recursions
 from testbed.identification.objective import Objective, Point
 from testbed.identification.problem import Problem
 
-__all__ = ["LinearObjective", "objective", "point"]
+__all__ = ["LinearObjective", "as_objective", "point"]
 
 
 def point(prob: Problem, theta: np.ndarray, R: np.ndarray | None = None) -> Point | None:
@@ -99,7 +99,7 @@ class LinearObjective:
         return likelihood.grows(self.prob, theta)
 
 
-def objective(prob: Problem | Objective) -> Objective:
+def as_objective(prob: Problem | Objective) -> Objective:
     """`prob` as an `Objective`: a linear `Problem` wrapped (`LinearObjective`), an objective as
     it is."""
     return LinearObjective(prob) if isinstance(prob, Problem) else prob

@@ -8,7 +8,7 @@ of an initial state stay at straight flight at the vehicle's speed
 point's initial states are the records' first samples where it starts, and then take their
 Gauss-Newton step with θ's at every step (`objective.following`). The noise variance R is the
 residuals' mean square per channel over the samples present (or `held` where given). The
-sensitivities are the flight's exact ones (`nonlinear_sensitivities`); the model has no
+output_sensitivities are the flight's exact ones (`nonlinear_sensitivities`); the model has no
 second-order ones, so `hessian` is None and the optimiser's second-order check probes the cost.
 """
 
@@ -19,12 +19,12 @@ import numpy as np
 
 from testbed.identification.likelihood import EXPLODE
 from testbed.identification.nonlinear_output_error import (
-    Record,
+    FlightRecord,
     neg_log_likelihood,
     normal_equations,
     pooled_noise,
-    sensitivities,
-    simulate,
+    output_sensitivities,
+    fly_records,
     start_states,
 )
 from testbed.identification.objective import Point
@@ -43,7 +43,7 @@ class NonlinearObjective:
     model: NonlinearModel
     theta: np.ndarray
     free: np.ndarray
-    records: tuple[Record, ...]
+    records: tuple[FlightRecord, ...]
     ch: tuple[int, ...]
     held: np.ndarray
     substeps: int | None = None
@@ -84,7 +84,7 @@ class NonlinearObjective:
         leaves the finite numbers or the data's range by `likelihood.EXPLODE`."""
         if not np.all(np.isfinite(p)):
             return None
-        flown, res = simulate(self.model, *self.unpack(p), self.records, list(self.ch), self.substeps)
+        flown, res = fly_records(self.model, *self.unpack(p), self.records, list(self.ch), self.substeps)
         # a flight whose outputs leave the data's range EXPLODE-fold has diverged (NaN: missing)
         with np.errstate(invalid="ignore"):
             if res is None or any(
@@ -105,7 +105,7 @@ class NonlinearObjective:
 
     def terms(self, at: Point) -> tuple[np.ndarray, np.ndarray]:
         theta, x0 = self.unpack(at.p)
-        sens = sensitivities(
+        sens = output_sensitivities(
             self.model, theta, x0, self.records, at.xs, list(self.ch), self.free, self.substeps
         )
         M, g = normal_equations(at.res, sens, at.R, self.free_initial)
@@ -116,7 +116,7 @@ class NonlinearObjective:
         return 0.5 * sum(float(np.nansum(e**2 / R)) for e in res)
 
     def hessian(self, at: Point, M: np.ndarray | None = None) -> None:
-        """None: the flight has no second-order sensitivities (module doc)."""
+        """None: the flight has no second-order output_sensitivities (module doc)."""
         return None
 
     def segmented(self, count: int, least: int) -> "NonlinearObjective":
@@ -130,7 +130,7 @@ class NonlinearObjective:
             at = np.linspace(0, len(rows), pieces + 1).round().astype(int)[1:-1]
             edges = np.r_[0, rows[at], len(r.t)]
             records += [
-                Record(t=r.t[a:b], fins=r.fins[a:b], y=r.y[a:b]) for a, b in zip(edges[:-1], edges[1:])
+                FlightRecord(t=r.t[a:b], fins=r.fins[a:b], y=r.y[a:b]) for a, b in zip(edges[:-1], edges[1:])
             ]
         return replace(self, records=tuple(records), x0=None)
 

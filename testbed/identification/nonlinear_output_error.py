@@ -39,27 +39,27 @@ from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
 __all__ = [
-    "Record",
-    "check_fit",
+    "FlightRecord",
+    "check_records",
     "coloured_bounds",
-    "information",
+    "flight_information",
     "neg_log_likelihood",
     "normal_equations",
-    "outputs",
+    "read_outputs",
     "parameter_names",
     "pooled_noise",
     "present_only",
     "records",
-    "residuals",
-    "sensitivities",
+    "flight_residuals",
+    "output_sensitivities",
     "setup",
-    "simulate",
+    "fly_records",
     "start_states",
 ]
 
 
 @dataclass(frozen=True)
-class Record:
+class FlightRecord:
     """One record: sample times (N,), fin angles (N, 3) held per sample, and the measured
     states (N, C) in the fit's channels' order, NaN where a sample is missing (a sensor slower
     than the fins are logged, a dropout)."""
@@ -71,8 +71,8 @@ class Record:
 
 def records(
     experiments: Sequence[Experiment], fit: str = "the nonlinear fit"
-) -> tuple[tuple[str, ...], list[Record]]:
-    """The measured channels (every record's, the same) and the `Record` of each experiment;
+) -> tuple[tuple[str, ...], list[FlightRecord]]:
+    """The measured channels (every record's, the same) and the `FlightRecord` of each experiment;
     `InputError` naming the record and the `fit` that needs them for records measuring different
     states."""
     channels = experiments[0].measured
@@ -83,7 +83,7 @@ def records(
                 f"{where}: measures {', '.join(e.measured)}, {experiments[0].source or experiments[0].name} "
                 f"{', '.join(channels)}; {fit} takes records measuring the same states"
             )
-    return channels, [Record(t=e.t, fins=e.inputs, y=e.y) for e in experiments]
+    return channels, [FlightRecord(t=e.t, fins=e.inputs, y=e.y) for e in experiments]
 
 
 def parameter_names(model: NonlinearModel, channels: Sequence[str]) -> tuple[str, ...]:
@@ -93,7 +93,7 @@ def parameter_names(model: NonlinearModel, channels: Sequence[str]) -> tuple[str
     return model.names + tuple(f"b_{c}" for c in channels) + MOUNTING
 
 
-def outputs(states: np.ndarray, theta: np.ndarray, m: int, ch) -> np.ndarray:
+def read_outputs(states: np.ndarray, theta: np.ndarray, m: int, ch) -> np.ndarray:
     """The outputs (N, C) of the flown `states` (N, 10) in the state columns `ch` at θ ⊕ b ⊕ g
     (`theta`, θ's length `m`): the states as read (u, v, w by the log mounted as g,
     `log_mounting.read`) plus their biases."""
@@ -102,7 +102,7 @@ def outputs(states: np.ndarray, theta: np.ndarray, m: int, ch) -> np.ndarray:
 
 def setup(
     experiments: Sequence[Experiment], config: ModelConfig, fit: str
-) -> tuple[tuple[str, ...], list[Record], NonlinearModel, np.ndarray, list[int]]:
+) -> tuple[tuple[str, ...], list[FlightRecord], NonlinearModel, np.ndarray, list[int]]:
     """`(channels, records, model, θ ⊕ b ⊕ g, free indices)` of a nonlinear model config's `free`
     (indices into `parameter_names`) on the experiments (`records`), b the config's output biases
     of the channels, g its velocity log's mounting; `InputError` naming the `fit` for what it cannot take: nothing free, values
@@ -136,7 +136,7 @@ def setup(
     return channels, recs, model, theta, [names.index(n) for n in config.free]
 
 
-def check_fit(model, records, channels, free, noise_std, tolerance, max_iterations) -> None:
+def check_records(model, records, channels, free, noise_std, tolerance, max_iterations) -> None:
     """`InputError` for what a fit of the `free` parameters (names) to the `records`' measured
     `channels` cannot take: a tolerance ≤ 0, an iteration limit < 1, a name not in the model,
     channels not states, given noise of a channel not measured or not a positive number, records
@@ -171,8 +171,8 @@ def check_fit(model, records, channels, free, noise_std, tolerance, max_iteratio
             )
 
 
-def simulate(model, theta, x0, records, ch, substeps):
-    """Each record's flown states (N, 10) and residuals `e = y − ŷ` (N, C) (`outputs`), NaN
+def fly_records(model, theta, x0, records, ch, substeps):
+    """Each record's flown states (N, 10) and residuals `e = y − ŷ` (N, C) (`read_outputs`), NaN
     where the sample is missing, at θ ⊕ b ⊕ g (`theta`; what it leaves out: 0); (None, None)
     where a flight does not stay finite. Tallied as simulated samples (`recursions.counting`)."""
     m = len(model.names)
@@ -185,7 +185,7 @@ def simulate(model, theta, x0, records, ch, substeps):
             if not np.all(np.isfinite(states[:, ch])):
                 return None, None
             flown.append(states)
-            res.append(r.y - outputs(states, theta, m, ch))
+            res.append(r.y - read_outputs(states, theta, m, ch))
     return flown, res
 
 
@@ -196,16 +196,21 @@ def _padded(theta, m: int, ch) -> np.ndarray:
     return theta if len(theta) == full else np.concatenate([theta, np.zeros(full - len(theta))])
 
 
-def residuals(
-    model: NonlinearModel, theta, x0: np.ndarray, records: Sequence[Record], ch, substeps: int | None = None
+def flight_residuals(
+    model: NonlinearModel,
+    theta,
+    x0: np.ndarray,
+    records: Sequence[FlightRecord],
+    ch,
+    substeps: int | None = None,
 ):
     """Each record's residuals (N, C) in the state columns `ch` (NaN where the sample is
     missing) at θ ⊕ b ⊕ g (`theta`; what it leaves out: 0), flown from its row of `x0` (records, 10); None
     where a flight does not stay finite. Tallied as `_simulate`'s."""
-    return simulate(model, theta, x0, records, ch, substeps)[1]
+    return fly_records(model, theta, x0, records, ch, substeps)[1]
 
 
-def start_states(model: NonlinearModel, records: Sequence[Record], ch) -> np.ndarray:
+def start_states(model: NonlinearModel, records: Sequence[FlightRecord], ch) -> np.ndarray:
     """(records, 10): each record's first sample in its measured state columns `ch`, straight
     flight at the vehicle's speed in the others and where the first sample is missing."""
     x0 = np.zeros((len(records), NX))
@@ -242,7 +247,7 @@ def neg_log_likelihood(res: Sequence[np.ndarray], R: np.ndarray) -> float:
     )
 
 
-def sensitivities(model, theta, x0, records, flown, ch, free, substeps):
+def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     """Each record's output sensitivities to (θ ⊕ b ⊕ g)[free] (N, C, p) and to the measured
     channels' initial states (N, C, C), along its flown states; tallied
     (`recursions.counting`) as 1 + the free coefficients of θ columns a sample (the pass
@@ -268,11 +273,11 @@ def sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     return out
 
 
-def information(
+def flight_information(
     model: NonlinearModel,
     theta,
     x0: np.ndarray,
-    records: Sequence[Record],
+    records: Sequence[FlightRecord],
     channels: Sequence[str],
     free: Sequence[str],
     R: np.ndarray,
@@ -291,10 +296,10 @@ def _linearisation(model, theta, x0, records, channels, free, substeps):
     ch = [STATES.index(c) for c in channels]
     names = parameter_names(model, channels)
     idx = np.array([names.index(n) for n in free], dtype=np.int64)
-    flown, res = simulate(model, theta, x0, records, ch, substeps)
+    flown, res = fly_records(model, theta, x0, records, ch, substeps)
     if res is None:
         raise InputError("the model's flight does not stay finite over the records; expected a bounded one")
-    return res, sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
+    return res, output_sensitivities(model, theta, x0, records, flown, ch, idx, substeps)
 
 
 def normal_equations(res, sens, R, free_initial):
@@ -316,7 +321,7 @@ def _columns(res, sens, free_initial) -> int:
 
 
 def _jacobian(i, St, Sx, P, free_initial) -> np.ndarray:
-    """Record i's output sensitivities (N, C, P) to [θ[free] | each record's measured initial
+    """FlightRecord i's output sensitivities (N, C, P) to [θ[free] | each record's measured initial
     states] from its sensitivities to θ[free] `St` and to its own initial states `Sx`."""
     p, c = St.shape[2], Sx.shape[2]
     J = np.zeros(St.shape[:2] + (P,))
@@ -330,7 +335,7 @@ def coloured_bounds(
     model: NonlinearModel,
     theta,
     x0: np.ndarray,
-    records: Sequence[Record],
+    records: Sequence[FlightRecord],
     channels: Sequence[str],
     free: Sequence[str],
     R: np.ndarray,
@@ -340,7 +345,7 @@ def coloured_bounds(
     variances `R`: the Cramér-Rao σ of the `free` parameters of θ ⊕ b ⊕ g (the initial states among the
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
     (`bounds.coloured_covariance`, its per-record sum `bounds.coloured_term`), the residuals and
-    the Fisher information H they come from (`information`'s)."""
+    the Fisher information H they come from (`flight_information`'s)."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
     R = np.asarray(R, float)
     H, _ = normal_equations(res, sens, R, True)

@@ -35,7 +35,7 @@ __all__ = [
     "COLUMNS",
     "SEARCH_TIE",
     "SUMMARY_COLUMNS",
-    "Point",
+    "Judged",
     "captive_table",
     "judgements",
     "read_results",
@@ -107,7 +107,7 @@ INTEGERS = ("seed", "iterations", "evaluations")
 
 
 @dataclass(frozen=True)
-class Point:
+class Judged:
     """A cell's estimate as the judge reads it: free names, values, σ, cost and status."""
 
     free: tuple
@@ -117,7 +117,7 @@ class Point:
     status: Status
 
 
-def _point(doc: dict, sigma: dict | None = None) -> Point:
+def _point(doc: dict, sigma: dict | None = None) -> Judged:
     """`doc` as the judge reads it; with `sigma` (the `OPTIMUM` cell's σ), those σ where finite,
     the doc's own elsewhere."""
     free = tuple(doc["free"])
@@ -125,7 +125,7 @@ def _point(doc: dict, sigma: dict | None = None) -> Point:
     std |= {n: v for n, v in (sigma or {}).items() if math.isfinite(v)}
     s = tuple(float(std.get(n, math.inf)) for n in free)
     status = Status[doc["status"].upper().replace(" ", "_")] if doc["status"] != "failed" else Status.DIVERGED
-    return Point(free, dict(doc["values"]), s, float(doc.get("cost", math.inf)), status)
+    return Judged(free, dict(doc["values"]), s, float(doc.get("cost", math.inf)), status)
 
 
 def _group(doc: dict) -> tuple:
@@ -133,7 +133,7 @@ def _group(doc: dict) -> tuple:
     return (c["scenario"], c["truth"], c["spread"], c["seed"], c["duration"])
 
 
-def judgements(docs: list[dict]) -> dict[str, tuple[Judgement, Point, float] | None]:
+def judgements(docs: list[dict]) -> dict[str, tuple[Judgement, Judged, float] | None]:
     """Per judged cell's key: its judgement, the optimum it was judged against and its cost less
     the search's (NaN without one); None where the cell failed or its group has no finite
     optimum."""

@@ -19,7 +19,7 @@ from testbed.estimators import OptionError, identify
 from testbed.estimators.nonlinear_fit import fit_output_error
 from testbed.estimators.nonlinear_regression import equation_error
 from testbed.identification.likelihood import reduced
-from testbed.identification.nonlinear_output_error import coloured_bounds, information, records
+from testbed.identification.nonlinear_output_error import coloured_bounds, flight_information, records
 from testbed.identification import nonlinear_prediction
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.jobs.common import perturbed
@@ -237,7 +237,7 @@ def test_rows_without_states_are_left_out_of_every_sum(truth):
     np.testing.assert_allclose(got[1][0], got[0][0], rtol=1e-6)
     np.testing.assert_allclose(got[1][1], got[0][1], rtol=1e-6)
     H = [
-        information(model, a.theta, a.initial_states, r, channels, FREE, R, n)[0]
+        flight_information(model, a.theta, a.initial_states, r, channels, FREE, R, n)[0]
         for r, n in ((whole, 4), (halved, 2))
     ]
     np.testing.assert_allclose(H[1], H[0], rtol=1e-8)

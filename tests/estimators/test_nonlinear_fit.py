@@ -124,14 +124,14 @@ def test_the_second_order_probes_lie_one_cramer_rao_sigma_out(truth):
     second-order sensitivities) lie one Cramér-Rao σ out along the least-determined directions:
     the weighted cost rises by ½ there (its quadratic model; within 20 %), and none lowers it."""
     from testbed.estimators import trust_region
-    from testbed.estimators.nonlinear_fit import objective
+    from testbed.estimators.nonlinear_fit import nonlinear_problem
     from testbed.identification.nonlinear_output_error import neg_log_likelihood, pooled_noise
     from testbed.identification.objective import Point, following
 
     model, theta = truth
     record, start = noisy(model, theta, seed=1, seconds=6.0)
     fit = fit_output_error(model, start, [record], STATES, FREE)
-    prob = objective(model, start, [record], STATES, FREE)  # the fit's own
+    prob = nonlinear_problem(model, start, [record], STATES, FREE)  # the fit's own
     xs, res = fit.outcome.simulated
     R = pooled_noise(res, prob.held)
     at = Point(fit.outcome.p, xs, res, R, neg_log_likelihood(res, R))

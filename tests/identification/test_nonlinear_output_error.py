@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed.identification.nonlinear_output_error import Record
+from testbed.identification.nonlinear_output_error import FlightRecord
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import INERTIA, nonlinear_model, theta_vector
@@ -103,4 +103,4 @@ def noisy(model, theta, seed, seconds=10.0):
     start = theta.copy()
     for n in FREE:
         start[model.names.index(n)] *= np.exp(0.2 * rng.normal())
-    return Record(t=t, fins=fins, y=y), start
+    return FlightRecord(t=t, fins=fins, y=y), start
