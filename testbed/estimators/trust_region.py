@@ -68,12 +68,13 @@ from testbed.estimators.base import Outcome, Progress, Status
 __all__ = [
     "ACCEPT",
     "JOIN",
+    "PROBES",
     "RADIUS",
     "SEGMENT_RADIUS",
     "SEGMENTS",
     "SHRINK",
     "STAGE_TOL",
-    "PROBES",
+    "bounded_step",
     "second_order",
     "subproblem",
     "trust_region",
@@ -212,6 +213,34 @@ def _held(theta: np.ndarray, g: np.ndarray, box: tuple | None) -> np.ndarray:
     return ((theta <= low) & (g <= 0)) | ((theta >= high) & (g >= 0))
 
 
+def bounded_step(
+    F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float, theta: np.ndarray, free: np.ndarray, box
+) -> np.ndarray:
+    """The trust-region step of the `free` values (the others held: 0) inside the `box`: the
+    subproblem's step (`subproblem`); where it carries values across their bounds, those stop on
+    them and the subproblem is solved again for the rest, with the region left and the model's
+    gradient there (`g − F_·h d_h`), until no value crosses (an active-set step: clipping the
+    whole step instead would turn it off the model's descent and stall the region)."""
+    d = np.zeros(len(theta))
+    if box is None:
+        d[free] = subproblem(F[np.ix_(free, free)], g[free], s[free], delta)[0]
+        return d
+    low, high = box
+    hit = np.zeros(len(theta), dtype=bool)
+    for _ in range(len(theta)):
+        m = free & ~hit
+        left = delta**2 - float(np.sum((d[hit] / s[hit]) ** 2))
+        if not m.any() or left <= 0:
+            break
+        d[m] = subproblem(F[np.ix_(m, m)], g[m] - F[np.ix_(m, hit)] @ d[hit], s[m], np.sqrt(left))[0]
+        crossed = m & ((theta + d < low) | (theta + d > high))
+        if not crossed.any():
+            break
+        d[crossed] = np.clip(theta + d, low, high)[crossed] - theta[crossed]
+        hit |= crossed
+    return _in_box(theta + d, box) - theta
+
+
 def _in_box(theta: np.ndarray, box: tuple | None) -> np.ndarray:
     """θ moved onto the box, where it lies outside."""
     return theta if box is None else np.clip(theta, box[0], box[1])
@@ -275,10 +304,7 @@ def _descend(
             earlier = steps[-1 - PACE] if len(steps) > PACE else np.inf
             return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step, earlier=earlier, held=held)
         while True:
-            d = np.zeros(nf)
-            d[free] = subproblem(Ff, gf, s[free], delta)[0]
-            if box is not None:
-                d = _in_box(x.p[:nf] + d, box) - x.p[:nf]
+            d = bounded_step(F, gr, s, delta, x.p[:nf], free, box)
             # the decrease the quadratic model predicts, the initial states following θ's step:
             # g_rᵀd − ½ dᵀF d + ½ g_xᵀ M_xx⁻¹ g_x
             whole, own = (d, 0.0) if prob.projected else following(M, g, nf, d)

@@ -131,3 +131,25 @@ def test_a_linear_fit_on_its_bound_is_the_fit_of_the_others_with_it_fixed_there(
     )
     np.testing.assert_allclose(boxed.values[1:], fixed.values, rtol=0, atol=1e-2 * np.max(fixed.std))
     np.testing.assert_allclose(boxed.std[1:], fixed.std, rtol=1e-2)
+
+
+@pytest.mark.slow  # Scenario I flown and every component term fitted: about a minute on one core
+def test_free_all_on_the_component_model_keeps_every_drag_on_its_side_and_converges(tmp_path):
+    """The plant's Scenario I (fins logged at 100 Hz), `testbed captive`'s component config with
+    every term free (`--free-all`: near-copies the data cannot separate among them): the fit
+    converges with every drag ≥ 0 and names the bounds it ends on."""
+    from testbed.captive.config import captive_config
+    from testbed.data import load_data
+    from testbed.simulation.runs import simulate
+    from testbed.simulation.scenario import scenario
+
+    s = scenario("I")
+    simulate(replace(s, sensors=replace(s.sensors, fin_rate=100.0)), seed=1, out=tmp_path / "I")
+    experiments, _ = load_data([tmp_path / "I"])
+    config = replace(captive_config(speed=20.0)[0], screen=False)
+    est = identify(experiments, config, "ml-gn")
+    assert est.converged, est.message
+    drags = {n: v for n, v in zip(est.free, est.values) if n.split("@")[0] in ("blunt", "slender", "angular")}
+    assert drags and min(drags.values()) >= 0.0
+    assert est.at_bounds and all(drags[n] == 0.0 for n in est.at_bounds if n in drags)
+    assert "on its bounds" in est.message

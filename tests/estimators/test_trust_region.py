@@ -189,3 +189,29 @@ def test_a_step_longer_than_its_region_still_shrinks_the_region(monkeypatch):
     out = trust_region.trust_region(prob, prob.start.copy(), segments=1)
     assert out.status is Status.STALLED and out.iterations == 0
     assert len(solved) < 100 and all(b < a for a, b in zip(solved, solved[1:]))
+
+
+def test_a_step_in_a_box_stops_the_values_that_cross_and_solves_for_the_rest_as_scipy_does():
+    """The bounded step (`trust_region.bounded_step` through the public optimiser's box): with the
+    region wide open, the values the Gauss-Newton step carries across their bounds stop on them
+    and the rest minimise the quadratic model given that: on a nearly diagonal convex model the
+    bound-constrained minimiser, which scipy's L-BFGS-B finds independently."""
+    from scipy.optimize import minimize
+
+    rng = np.random.default_rng(3)
+    n = 6
+    A = np.eye(n) + 0.05 * rng.normal(size=(n, n))
+    F = A.T @ A
+    g = rng.normal(size=n)
+    theta = np.zeros(n)
+    full = np.linalg.solve(F, g)
+    low, high = np.full(n, -np.inf), np.full(n, np.inf)
+    for k in np.argsort(-np.abs(full))[:2]:  # the two largest moves cross a bound at half their length
+        (high if full[k] > 0 else low)[k] = full[k] / 2
+    d = trust_region.bounded_step(F, g, np.ones(n), 1e6, theta, np.ones(n, dtype=bool), (low, high))
+    ref = minimize(
+        lambda x: -g @ x + 0.5 * x @ F @ x, np.zeros(n), jac=lambda x: F @ x - g,
+        bounds=list(zip(low, high)), method="L-BFGS-B", options={"ftol": 1e-15, "gtol": 1e-12},
+    )  # fmt: skip
+    np.testing.assert_allclose(d, ref.x, atol=1e-6)
+    assert np.all(d >= low) and np.all(d <= high)
