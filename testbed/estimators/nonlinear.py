@@ -68,6 +68,7 @@ from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficient
 from testbed.identification.bounds import crlb
 from testbed.identification.likelihood import LEAST_SEGMENT, reduced
 from testbed.identification.nonlinear_objective import NonlinearObjective
+from testbed.identification.nonlinear_output_error import coloured as coloured_from
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
     neg_log_likelihood,
@@ -272,9 +273,13 @@ def gauss_newton(
     std, coloured, H = np.full(len(config.free), np.nan), np.full(len(config.free), np.nan), None
     if moving:
         at = [config.free.index(n) for n in moving]
-        std[at], coloured[at], _, H = coloured_bounds(
-            model, fit.theta, fit.initial_states, recs, channels, moving, R
-        )
+        if fit.sensitivities is not None:  # the fit's own at its estimate, those of the values held left out
+            sens = [(St[:, :, at], Sx) for St, Sx in fit.sensitivities]
+            std[at], coloured[at], _, H = coloured_from(fit.outcome.simulated[1], sens, R)
+        else:
+            std[at], coloured[at], _, H = coloured_bounds(
+                model, fit.theta, fit.initial_states, recs, channels, moving, R
+            )
     return _estimate(
         config,
         experiments,

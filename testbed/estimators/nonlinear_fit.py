@@ -51,6 +51,8 @@ class NonlinearFit:
     status: Status
     at_bounds: dict[str, float] = field(default_factory=dict)  # the free parameters held on a bound, at it
     outcome: Outcome | None = None  # the optimiser's own result (its optimum, for later starts to join)
+    # the output sensitivities at the estimate (`nonlinear_output_error.output_sensitivities`)
+    sensitivities: list | None = field(default=None, repr=False)
 
 
 def nonlinear_problem(
@@ -114,6 +116,7 @@ def result(prob: NonlinearObjective, out: Outcome) -> NonlinearFit:
         status=out.status,
         at_bounds={free[k]: float(out.p[k]) for k in np.flatnonzero(held)},
         outcome=out,
+        sensitivities=prob.sensitivities_at(out.p),
     )
 
 

@@ -14,7 +14,7 @@ second-order ones, so `hessian` is None and the optimiser's second-order check p
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import numpy as np
 
 from testbed.identification.likelihood import EXPLODE
@@ -49,6 +49,8 @@ class NonlinearObjective:
     substeps: int | None = None
     free_initial: bool = True
     x0: np.ndarray | None = None  # (records, 10) the initial states a point starts from; None: `start_states`
+    # the last point's parameter vector and output sensitivities (`terms`), for the bounds at a fit's end
+    last: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def n_free(self) -> int:
@@ -109,7 +111,14 @@ class NonlinearObjective:
             self.model, theta, x0, self.records, at.xs, list(self.ch), self.free, self.substeps
         )
         M, g = normal_equations(at.res, sens, at.R, self.free_initial)
+        self.last.update(p=at.p.copy(), sensitivities=sens)
         return g, M
+
+    def sensitivities_at(self, p: np.ndarray) -> list | None:
+        """The output sensitivities `terms` took at the parameter vector `p`, if it was the last
+        one it took; else None."""
+        same = "p" in self.last and np.array_equal(self.last["p"], p)
+        return self.last["sensitivities"] if same else None
 
     def weighted_cost(self, res: list, R: np.ndarray) -> float:
         """`½ Σ eᵀR⁻¹e` over the samples present."""
@@ -132,7 +141,7 @@ class NonlinearObjective:
             records += [
                 FlightRecord(t=r.t[a:b], fins=r.fins[a:b], y=r.y[a:b]) for a, b in zip(edges[:-1], edges[1:])
             ]
-        return replace(self, records=tuple(records), x0=None)
+        return replace(self, records=tuple(records), x0=None, last={})
 
     def shooting(self, theta: np.ndarray, least: int) -> int:
         """The fewest segments per record (1, 2, 4, …; each of at least `least` rows with a

@@ -41,6 +41,7 @@ from testbed.models.nonlinear_flight import fly
 __all__ = [
     "FlightRecord",
     "check_records",
+    "coloured",
     "coloured_bounds",
     "flight_information",
     "neg_log_likelihood",
@@ -346,11 +347,17 @@ def coloured_bounds(
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
     (`bounds.coloured_covariance`, its per-record sum `bounds.coloured_term`), the residuals and
     the Fisher information H they come from (`flight_information`'s)."""
-    res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
+    return coloured(*_linearisation(model, theta, x0, records, channels, free, substeps), R)
+
+
+def coloured(res: Sequence[np.ndarray], sens: Sequence[tuple], R) -> tuple:
+    """`coloured_bounds` from each record's residuals `res` and output sensitivities `sens` (as
+    `output_sensitivities` gives them, its columns the free parameters), with the noise
+    variances `R`."""
     R = np.asarray(R, float)
     H, _ = normal_equations(res, sens, R, True)
     cov, std, _ = crlb(H)
-    p, P, scale = len(free), len(H), np.sqrt(R)
+    p, P, scale = sens[0][0].shape[2], len(H), np.sqrt(R)
     total = np.zeros((p, p))
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
         # the rows with no sample (fins logged between the samples) left out: the residuals'
