@@ -66,6 +66,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from testbed.data import load_data, read_config, write_config  # noqa: E402
 from testbed.estimators import identify, lookup  # noqa: E402
+from testbed.estimators import nonlinear_fit  # noqa: E402
 from testbed.estimators.nonlinear_fit import fit_output_error  # noqa: E402
 from testbed.identification.nonlinear_output_error import FlightRecord  # noqa: E402
 from testbed.identification.nonlinear_sensitivities import flight  # noqa: E402
@@ -207,7 +208,7 @@ def _bench(args, tmp: Path) -> int:
     print(
         f"one flight (RK4, 5 ms steps): {1e3 * t_fly:.1f} ms; flight and sensitivities: {1e3 * t_flight:.1f} ms"
     )
-    print(f"nonlinear ml-gn: {t_nl:7.2f} s ({c_nl:.2f} s CPU), {fit.status}, {fit.iterations} iterations")
+    print(f"nonlinear ml-gn: {t_nl:7.2f} s ({c_nl:.2f} s CPU), {fit.status.message}, {fit.iterations} iterations")
     print(
         f"linear ml-gn   : {t_lin:7.2f} s ({c_lin:.2f} s CPU), {lin.status.name}, {lin.iterations} iterations (analytic start, {len(analytic.free)} free)"
     )
@@ -217,7 +218,7 @@ def _bench(args, tmp: Path) -> int:
     )
     zc = [(cfit.estimates[n] - components.coefficients[n]) / cfit.std[n] for n in COMPONENT_FREE]
     print(
-        f"component ml-gn: {t_cm:7.2f} s ({c_cm:.2f} s CPU), {cfit.status}, {cfit.iterations} iterations, "
+        f"component ml-gn: {t_cm:7.2f} s ({c_cm:.2f} s CPU), {cfit.status.message}, {cfit.iterations} iterations, "
         f"{len(COMPONENT_FREE)} free from the captive values × exp(±0.2)"
     )
     print(
@@ -246,8 +247,8 @@ def _bench(args, tmp: Path) -> int:
         for name in commands:
             times[name].append(command(user(f"{name}.toml", f"{name}{k}.json"), tmp))
     work, goal = machine(), GOAL / REFERENCE_S
-    # the step tolerances in Cramér-Rao σ: the cell's (fit_output_error's default), the command's (ml-gn's)
-    tolerance = inspect.signature(fit_output_error).parameters["tolerance"].default
+    # the step tolerances in Cramér-Rao σ: the cell's (`nonlinear_fit.fit`'s default), the command's (ml-gn's)
+    tolerance = inspect.signature(nonlinear_fit.fit).parameters["tolerance"].default
     tol = lookup("ml-gn").options.build("ml-gn", {}).tol
     for name, (t_cell, cell, names, start) in commands.items():
         t_cmd = min(times[name])
