@@ -208,7 +208,9 @@ def _bench(args, tmp: Path) -> int:
     print(
         f"one flight (RK4, 5 ms steps): {1e3 * t_fly:.1f} ms; flight and sensitivities: {1e3 * t_flight:.1f} ms"
     )
-    print(f"nonlinear ml-gn: {t_nl:7.2f} s ({c_nl:.2f} s CPU), {fit.status.message}, {fit.iterations} iterations")
+    print(
+        f"nonlinear ml-gn: {t_nl:7.2f} s ({c_nl:.2f} s CPU), {fit.status.message}, {fit.iterations} iterations"
+    )
     print(
         f"linear ml-gn   : {t_lin:7.2f} s ({c_lin:.2f} s CPU), {lin.status.name}, {lin.iterations} iterations (analytic start, {len(analytic.free)} free)"
     )

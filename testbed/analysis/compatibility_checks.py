@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 __all__ = [
-    "ARMS",
+    "LEVER_ARMS",
     "ATTITUDE",
     "CHECKS",
     "Check",
@@ -189,7 +189,7 @@ ATTITUDE_OFFSETS = tuple(f"b_{c}" for check in CHECKS for c in check.uses)  # th
 MISALIGNMENTS = tuple(n for check in CHECKS for n in check.sensor if n.startswith("m_"))
 
 
-ARMS = tuple(n for check in CHECKS for n in check.sensor if n.startswith("r_"))  # lever arms, m
+LEVER_ARMS = tuple(n for check in CHECKS for n in check.sensor if n.startswith("r_"))  # lever arms, m
 
 
 @dataclass(frozen=True)
@@ -319,4 +319,4 @@ def limit_of(name: str) -> float | None:
         return MAX_SCALE
     if name in MISALIGNMENTS:
         return MAX_MISALIGNMENT
-    return MAX_ARM if name in ARMS else None
+    return MAX_ARM if name in LEVER_ARMS else None

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from testbed.analysis.compatibility_checks import (
-    ARMS,
+    LEVER_ARMS,
     ATTITUDE,
     CHECKS,
     MAX_OFFSET,
@@ -89,11 +89,11 @@ def corrected(experiments: Sequence[Experiment], corrections: Mapping[str, float
             if any(turns) and all(c in e.measured for c in check.drives):
                 at = [e.measured.index(c) for c in check.drives]
                 y[:, at] = misaligned(y[:, at], *turns)
-            arm = np.array([corrections.get(n, 0.0) for n in check.sensor if n in ARMS])
+            arm = np.array([corrections.get(n, 0.0) for n in check.sensor if n in LEVER_ARMS])
             if np.any(arm) and all(c in e.measured for c in check.drives):
                 # the log's point moved to the CG: v = M y − ω × r, with the measured rates
                 if not all(c in e.measured for c in ATTITUDE.drives):
-                    named = ", ".join(f"{n} = {corrections[n]:g}" for n in ARMS if corrections.get(n))
+                    named = ", ".join(f"{n} = {corrections[n]:g}" for n in LEVER_ARMS if corrections.get(n))
                     raise InputError(
                         f"corrections: {named}; record {e.name!r} has no p, q, r to move the log's "
                         "velocities to the CG with (v − ω × r): expected rate gyros, or the log's "

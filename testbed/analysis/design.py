@@ -79,27 +79,27 @@ from testbed.analysis.design_signals import (
     scaled,
 )
 
-__all__ = ["MIN_EXPERIMENT", "STEP", "Design", "design", "identified", "time_split"]
+__all__ = ["MIN_EXPERIMENT", "SPLIT_STEP", "Design", "design", "identified", "time_split"]
 
 
-STEP = 10.0  # s, the grid of the time split
+SPLIT_STEP = 10.0  # s, the grid of the time split
 
 
 MIN_EXPERIMENT = 20.0  # s, the shortest experiment of a split
 
 
 def time_split(cands: Mapping[str, Candidate], total: float, s: np.ndarray, kind: str) -> dict[str, float]:
-    """Durations per experiment type (STEP grid, 0 or ≥ MIN_EXPERIMENT, summing to `total`)
+    """Durations per experiment type (SPLIT_STEP grid, 0 or ≥ MIN_EXPERIMENT, summing to `total`)
     maximising the criterion of Σ (T_k / T_ref) F_k."""
     names = list(cands)
     rate = [cands[n].fisher / cands[n].duration for n in names]
-    steps = int(round(total / STEP))
+    steps = int(round(total / SPLIT_STEP))
     best, best_value = None, -math.inf
 
     def walk(i, left, chosen):
         nonlocal best, best_value
         if i == len(names) - 1:
-            durations = chosen + [left * STEP]
+            durations = chosen + [left * SPLIT_STEP]
             if any(0 < d < MIN_EXPERIMENT for d in durations):
                 return
             F = sum(d * r for d, r in zip(durations, rate))
@@ -108,7 +108,7 @@ def time_split(cands: Mapping[str, Candidate], total: float, s: np.ndarray, kind
                 best, best_value = durations, v
             return
         for k in range(left + 1):
-            walk(i + 1, left - k, chosen + [k * STEP])
+            walk(i + 1, left - k, chosen + [k * SPLIT_STEP])
 
     walk(0, steps, [])
     if best is None:

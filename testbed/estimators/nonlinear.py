@@ -68,9 +68,9 @@ from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficient
 from testbed.identification.bounds import crlb
 from testbed.identification.likelihood import LEAST_SEGMENT, reduced
 from testbed.identification.nonlinear_objective import NonlinearObjective
-from testbed.identification.nonlinear_output_error import coloured as coloured_from
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
+    sensitivity_bounds,
     neg_log_likelihood,
     pooled_noise,
     present_only,
@@ -275,7 +275,7 @@ def gauss_newton(
         at = [config.free.index(n) for n in moving]
         if fit.sensitivities is not None:  # the fit's own at its estimate, those of the values held left out
             sens = [(St[:, :, at], Sx) for St, Sx in fit.sensitivities]
-            std[at], coloured[at], _, H = coloured_from(fit.outcome.simulated[1], sens, R)
+            std[at], coloured[at], _, H = sensitivity_bounds(fit.outcome.simulated[1], sens, R)
         else:
             std[at], coloured[at], _, H = coloured_bounds(
                 model, fit.theta, fit.initial_states, recs, channels, moving, R

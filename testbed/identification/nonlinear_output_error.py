@@ -41,12 +41,12 @@ from testbed.models.nonlinear_flight import fly
 __all__ = [
     "FlightRecord",
     "check_records",
-    "coloured",
     "coloured_bounds",
     "flight_information",
     "neg_log_likelihood",
     "normal_equations",
     "read_outputs",
+    "sensitivity_bounds",
     "parameter_names",
     "pooled_noise",
     "present_only",
@@ -347,10 +347,10 @@ def coloured_bounds(
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
     (`bounds.coloured_covariance`, its per-record sum `bounds.coloured_term`), the residuals and
     the Fisher information H they come from (`flight_information`'s)."""
-    return coloured(*_linearisation(model, theta, x0, records, channels, free, substeps), R)
+    return sensitivity_bounds(*_linearisation(model, theta, x0, records, channels, free, substeps), R)
 
 
-def coloured(res: Sequence[np.ndarray], sens: Sequence[tuple], R) -> tuple:
+def sensitivity_bounds(res: Sequence[np.ndarray], sens: Sequence[tuple], R) -> tuple:
     """`coloured_bounds` from each record's residuals `res` and output sensitivities `sens` (as
     `output_sensitivities` gives them, its columns the free parameters), with the noise
     variances `R`."""

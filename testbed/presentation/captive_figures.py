@@ -18,7 +18,7 @@ matplotlib.use("Agg")  # headless: figures are files
 import matplotlib.pyplot as plt  # noqa: E402
 
 from testbed.models.regressors import ROWS  # noqa: E402
-from testbed.presentation.captive_sweeps import UNITS, SweepPanel, series_colours  # noqa: E402
+from testbed.presentation.captive_sweeps import SWEEP_UNITS, SweepPanel, series_colours  # noqa: E402
 
 __all__ = ["DPI", "figure_name", "sweep_figure"]
 
@@ -35,7 +35,7 @@ def _rgb(colour) -> tuple[float, float, float]:
 
 
 def _title(p: SweepPanel) -> str:
-    lines = [f"{p.row} ({UNITS[p.row]}) at {p.speed:g} m/s: fit {p.fit:.2f} %"]
+    lines = [f"{p.row} ({SWEEP_UNITS[p.row]}) at {p.speed:g} m/s: fit {p.fit:.2f} %"]
     lines += [f"{n}: plant {a:.4g}, model {b:.4g}" for n, (a, b) in p.parts.items()]
     return "\n".join(lines)
 
@@ -79,7 +79,7 @@ def sweep_figure(path: Path, panels: Sequence[SweepPanel]) -> Path:
             ax.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(5))  # few ticks: each costs time
             ax.grid(alpha=0.3)
             if i == len(speeds) - 1:
-                ax.set_xlabel(f"{p.x} ({UNITS[p.x]})", fontsize=8)
+                ax.set_xlabel(f"{p.x} ({SWEEP_UNITS[p.x]})", fontsize=8)
     first = panels[0]
     if len(first.plant) > 1:
         handles = [

@@ -18,7 +18,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from testbed.presentation.captive_sweeps import UNITS, Series, SweepPanel, by_test, series_colours
+from testbed.presentation.captive_sweeps import SWEEP_UNITS, Series, SweepPanel, by_test, series_colours
 from testbed.simulation.recording import axis_range, data_id, recording
 
 __all__ = ["KEY", "MILLI", "TIMELINE", "log_captive", "milli", "sweep_entity"]
@@ -62,7 +62,7 @@ def _view(p: SweepPanel) -> rrb.TimeSeriesView:
     at = rrb.TimeRangeBoundary.absolute
     return rrb.TimeSeriesView(
         origin=sweep_entity(p),
-        name=f"{p.row} ({UNITS[p.row]}) against {p.x} ({MILLI[UNITS[p.x]]}) at {p.speed:g} m/s: fit {p.fit:.2f} %",
+        name=f"{p.row} ({SWEEP_UNITS[p.row]}) against {p.x} ({MILLI[SWEEP_UNITS[p.x]]}) at {p.speed:g} m/s: fit {p.fit:.2f} %",
         axis_x=rrb.TimeAxis(view_range=rr.TimeRange(start=at(seq=int(x.min())), end=at(seq=int(x.max())))),
         axis_y=rrb.ScalarAxis(range=axis_range(y, 6)),
         plot_legend=rrb.PlotLegend(visible=False),

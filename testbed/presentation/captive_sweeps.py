@@ -33,7 +33,7 @@ from testbed.simulation.vehicle import constants
 __all__ = [
     "DENSE",
     "NEGLIGIBLE",
-    "UNITS",
+    "SWEEP_UNITS",
     "Series",
     "SweepPanel",
     "by_test",
@@ -44,7 +44,7 @@ __all__ = [
 NEGLIGIBLE = 1e-6  # a PMM part whose harmonic is below this share of its row's range is not shown
 DENSE = 81  # the model's curve: values of the swept variable from −extent to +extent, or instants a period
 # The unit of each swept variable, of time, and of each wrench row.
-UNITS = {
+SWEEP_UNITS = {
     **dict.fromkeys("uvw", "m/s"),
     **dict.fromkeys("pqr", "rad/s"),
     **dict.fromkeys(("delta_r", "delta_er", "delta_el", "delta_e", "delta_d"), "rad"),
@@ -142,7 +142,7 @@ def _panels(vehicle, fit, test, m: Measurement, rows, rated) -> list[SweepPanel]
     dense = dataclasses.replace(test, points=(DENSE,) + test.points[1:], speeds=(m.speed,))
     curve = model_at(dense.states(m.speed))
     slices = list(itertools.product(*axes[1:]))
-    labels = [", ".join(f"{v} = {x:.3g} {UNITS[v]}" for v, x in zip(test.vary[1:], s)) for s in slices]
+    labels = [", ".join(f"{v} = {x:.3g} {SWEEP_UNITS[v]}" for v, x in zip(test.vary[1:], s)) for s in slices]
     # the grid runs with the first variable slowest: slice k is every len(slices)-th point from k
     n = len(slices)
     return [

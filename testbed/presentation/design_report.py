@@ -34,12 +34,12 @@ from testbed.simulation.scenario import scenario_text
 
 __all__ = [
     "BOUNDS_KEY",
-    "COLUMNS",
+    "DESIGN_COLUMNS",
     "FLIGHTS_KEY",
     "MOVED",
     "limits_text",
     "log_design",
-    "read_estimates",
+    "design_estimates",
     "rows",
     "summary",
     "table",
@@ -59,11 +59,11 @@ def limits_text(limits: Limits) -> str:
     )
 
 
-COLUMNS = ("coefficient", "value", "design σ", "design %", "II σ", "II %", "II/design")
+DESIGN_COLUMNS = ("coefficient", "value", "design σ", "design %", "II σ", "II %", "II/design")
 
 
 def rows(d: Design) -> list[tuple[str, ...]]:
-    """Per coefficient, formatted (`COLUMNS`): value, predicted bound and relative bound (%)
+    """Per coefficient, formatted (`DESIGN_COLUMNS`): value, predicted bound and relative bound (%)
     of the design and of Scenario II at the same flight time, and their ratio."""
     rel = 100 * d.relative(d.crlb), 100 * d.relative(d.crlb_base)
     return [
@@ -90,13 +90,13 @@ def summary(d: Design) -> str:
 
 
 def table(d: Design) -> str:
-    """`rows` under `COLUMNS`, fixed width, then the worst relative bounds."""
+    """`rows` under `DESIGN_COLUMNS`, fixed width, then the worst relative bounds."""
     widths = (12, 12, 11, 10, 11, 10, 10)
 
     def line(cells):  # the name left-aligned, the numbers right-aligned
         return "".join(f"{c:<{w}}" if k == 0 else f"{c:>{w}}" for k, (c, w) in enumerate(zip(cells, widths)))
 
-    return "\n".join([line(COLUMNS), *map(line, rows(d)), summary(d)])
+    return "\n".join([line(DESIGN_COLUMNS), *map(line, rows(d)), summary(d)])
 
 
 def text(d: Design) -> str:
@@ -168,7 +168,7 @@ def log_design(path: str | Path, d: Design, force: bool = False) -> Path:
             )
             rec.log(f"/bounds/{label}", bars, static=True)
         table = "\n".join(
-            [f"| # | {' | '.join(COLUMNS)} |", "|---" * (len(COLUMNS) + 1) + "|"]
+            [f"| # | {' | '.join(DESIGN_COLUMNS)} |", "|---" * (len(DESIGN_COLUMNS) + 1) + "|"]
             + [f"| {i} | {' | '.join(row)} |" for i, row in enumerate(rows(d))]
             + ["", summary(d)]
         )
@@ -219,7 +219,7 @@ def log_design(path: str | Path, d: Design, force: bool = False) -> Path:
     return Path(path)
 
 
-def read_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
+def design_estimates(path: str | Path) -> tuple[dict[str, float], dict[str, float] | None]:
     """The coefficients and the noise of an estimates JSON (`data.read_estimates`), the noise
     completed with the sensors' defaults (`measurements.NOISE_STD`) for the states it lacks."""
     values, noise = data_read_estimates(path)
@@ -242,7 +242,7 @@ def write_design(
     with `rrd` logged to that Rerun recording (`log_design`). Existing files at `out` and `rrd`
     are refused before the work (`InputError`) unless `force` (then replaced)."""
     check_outputs([start_from] if start_from else [], {"out": out, "rrd": rrd}, force)
-    estimates, noise = read_estimates(start_from) if start_from else (None, None)
+    estimates, noise = design_estimates(start_from) if start_from else (None, None)
     result = design(
         duration,
         criterion_,

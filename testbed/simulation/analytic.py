@@ -68,8 +68,8 @@ from testbed.simulation.vehicle import (
 
 __all__ = [
     "FREE",
-    "ROWS",
-    "TERMS",
+    "FORCE_ROWS",
+    "MUJOCO_TERMS",
     "LinearModel",
     "OutsideTerm",
     "analytic",
@@ -81,8 +81,8 @@ __all__ = [
     "numerical_model",
 ]
 
-TERMS = ("drag", "lift", "magnus", "added_mass", "viscous")  # MuJoCo's ellipsoid-model forces
-ROWS = "XYZKMN"  # force/moment letter of the rows u v w p q r
+MUJOCO_TERMS = ("drag", "lift", "magnus", "added_mass", "viscous")  # MuJoCo's ellipsoid-model forces
+FORCE_ROWS = "XYZKMN"  # force/moment letter of the rows u v w p q r
 _T6 = np.kron(np.eye(2), FLIP)  # MuJoCo hull axes (FLU) <-> body axes (FRD), for (lin, ang)
 # The default [identify] free list: the damping and control derivatives but X_u. The added-mass
 # (*dot) terms stay at their potential-flow values: with them free the rows of Mt can be rescaled
@@ -230,7 +230,7 @@ def analytic_model(model: mujoco.MjModel, speed: float) -> LinearModel:
     rho, beta = model.opt.density, model.opt.viscosity
     nu0 = np.array([U, 0.0, 0.0, 0.0, 0.0, 0.0])  # hull axes (FLU): x is forward in both
     wrench0 = np.zeros(6)
-    parts = {t: (np.zeros((6, 6)), np.zeros((6, NU))) for t in TERMS}
+    parts = {t: (np.zeros((6, 6)), np.zeros((6, NU))) for t in MUJOCO_TERMS}
     for g, fin, Q, p, dQ, dp in _geom_frames(model):
         X = motion_transform(Q, p)
         terms = geom_terms(
@@ -249,7 +249,7 @@ def analytic_model(model: mujoco.MjModel, speed: float) -> LinearModel:
     Mt = np.eye(NX)
     Mt[:6, :6] = M_RB + M_A
     At, Bt, St = np.zeros((NX, NX)), np.zeros((NX, NU)), np.zeros(NX)
-    for t in TERMS:
+    for t in MUJOCO_TERMS:
         At[:6, :6] += parts[t][0]
         Bt[:6] += parts[t][1]
     # Rigid body about its CG: −(m ω × v, ω × Iω), linear part −m ω × U e_x.
@@ -334,7 +334,7 @@ def _outside(dMt, dAt, dBt, dSt, Mt, At, Bt, thrust, length) -> tuple[OutsideTer
     short = {"delta_r": "dr", "delta_er": "der", "delta_el": "del"}
     terms = []
     for row in range(6):
-        X = ROWS[row]
+        X = FORCE_ROWS[row]
         for col in range(NX):
             terms.append(
                 OutsideTerm(
@@ -454,14 +454,14 @@ def _comments(lin: LinearModel, mjcf) -> dict[str, str]:
             continue
         matrix, D = (0, s.dAt[k]) if s.dAt[k].any() else (1, s.dBt[k])
         parts = []
-        for t in TERMS:
+        for t in MUJOCO_TERMS:
             block = lin.parts[t][matrix]
             value = float(np.sum(D[:6, : block.shape[1]] * block) / np.sum(D * D))
             if abs(value) > 1e-9 * max(1.0, abs(lin.coefficients[name])):
                 parts.append(f"{t.replace('_', ' ')} {value:.4g}")
         notes[name] = ", ".join(parts) if parts else "no fluid term"
     for row, diag in enumerate(("X_u", "Y_v", "Z_w", "K_p", "M_q", "N_r")):
-        extra = [t for t in lin.outside if t.name[0] == ROWS[row]][:4]
+        extra = [t for t in lin.outside if t.name[0] == FORCE_ROWS[row]][:4]
         if extra:
             notes[diag] += "; outside the linear model: " + ", ".join(
                 f"{t.name} = {t.value:.3g} ({100 * t.relative:.2g} % of row)" for t in extra

@@ -62,7 +62,7 @@ from testbed.simulation.vehicle import FinLimits
 
 __all__ = [
     "HOLD_BANDWIDTH",
-    "STEPS",
+    "STEP_RESPONSES",
     "Autopilot",
     "Channel",
     "Design",
@@ -354,7 +354,7 @@ def step_metrics(t: np.ndarray, y: np.ndarray, start: float, target: float) -> S
 
 
 # The documented steps: Scenario I's sizes (course rate and depth), a 5 deg roll step.
-STEPS = {
+STEP_RESPONSES = {
     "course rate": ("r", "yaw_rate", 0.0, np.radians(20.0)),
     "depth": ("z", "depth", 100.0, 120.0),
     "roll": ("phi", "roll", 0.0, np.radians(5.0)),
@@ -371,11 +371,11 @@ def step_response(
     rate: float = 50.0,
     target: float | None = None,
 ):
-    """The closed-loop response of `loop` (a key of STEPS) to its step, the other loops holding
+    """The closed-loop response of `loop` (a key of STEP_RESPONSES) to its step, the other loops holding
     (course-rate steps hold depth and roll; depth and roll steps hold each other and zero course
     rate), with the vehicle's fin range and rate `fins`. Returns (t, y, fins, StepMetrics);
     `target` overrides the step's end value."""
-    state, key, start, end = STEPS[loop]
+    state, key, start, end = STEP_RESPONSES[loop]
     end = end if target is None else target
     hold = {"yaw_rate": 0.0, "depth": 100.0, "roll": 0.0}
     x0 = np.zeros(NX)

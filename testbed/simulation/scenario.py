@@ -70,7 +70,7 @@ from testbed.simulation.measurements import NOISE_STD, Sensors
 from testbed.models.linear import STATES
 from testbed.models.sensors import Sensor
 from testbed.simulation.prior import Prior, parse_prior, prior_table
-from testbed.simulation.sensing import check_sensors, columns, parse_sensor
+from testbed.simulation.sensing import check_sensors, columns, scenario_sensor
 from testbed.simulation.trial import Trial, parse_trial, trial_table
 from testbed.simulation.signals import Signal, parse_signal, signal_table
 from testbed.simulation.vehicle import MAX_SPEED, MIN_SPEED
@@ -387,7 +387,7 @@ def parse_scenario(doc: Mapping, source: str = "<scenario>") -> Scenario:
         sensors=_sensors(doc.get("sensors", {}), f"{source}: sensors"),
         measured=_measured(doc.get("sensors", {}), f"{source}: sensors"),
         named_sensors=tuple(
-            parse_sensor(k, v, f"{source}: sensors.{k}")
+            scenario_sensor(k, v, f"{source}: sensors.{k}")
             for k, v in doc.get("sensors", {}).items()
             if k not in _SENSORS
         ),

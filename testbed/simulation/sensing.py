@@ -53,7 +53,7 @@ __all__ = [
     "check_sensors",
     "columns",
     "gapped_csv_text",
-    "parse_sensor",
+    "scenario_sensor",
     "sample",
 ]
 
@@ -78,7 +78,7 @@ def _default_std(output: str) -> float:
     return ACCELERATION_STD if output in ACCELERATIONS else NOISE_STD[output]
 
 
-def parse_sensor(name: str, doc, where: str) -> Sensor:
+def scenario_sensor(name: str, doc, where: str) -> Sensor:
     """The `Sensor` of a scenario's `[sensors.NAME]` table (`where`: the file and table, for
     messages; `data.parse_sensor`), its outputs' noise defaulting to today's sensors'."""
     sensor = data_parse_sensor(name, doc, where, SENSOR_KEYS)

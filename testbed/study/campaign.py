@@ -6,7 +6,7 @@ the input factorial (`FACTORIAL`: Scenario II's layout with PRBS, square, 3-2-1-
 inputs) on the plant. Per data set, seed and spread one a-priori model, screened at itself
 (`cells.start`), is where every arm (`arms.ARMS`) starts; the `OPTIMUM` cell looks for the data's
 best-likelihood optimum, against which each arm is judged (`results`); on Scenario I on the
-plant the `NONLINEAR` cell fits the nonlinear model, judged against the captive reference. The verdicts on the
+plant the `NONLINEAR_ARM` cell fits the nonlinear model, judged against the captive reference. The verdicts on the
 paper's conclusions are `rules.conclusions` of results.csv, of the analytic model's open-loop
 fit per data set (`regime.json`) and of the drift measured per data set (`drift.json`).
 
@@ -47,7 +47,7 @@ from testbed.presentation.figures import write_report
 from testbed.simulation.scenario import TRUTHS
 from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS
 from testbed.study.arms import arms as checked_arms
-from testbed.study.cells import NONLINEAR, OPTIMUM, Cell, load_run, run_cell, start
+from testbed.study.cells import NONLINEAR_ARM, OPTIMUM, Cell, load_run, run_cell, start
 from testbed.study.results import (
     SUMMARY_COLUMNS,
     captive_table,
@@ -62,9 +62,9 @@ __all__ = [
     "CONNECT_S",
     "FACTORIAL",
     "KeepFreedMemory",
-    "MARKER",
+    "CAMPAIGN_MARKER",
     "MAX_SEEDS",
-    "Outcome",
+    "Reproduction",
     "QUICK_DURATION",
     "SCENARIOS",
     "SPREADS",
@@ -81,7 +81,7 @@ SCENARIOS = ("I", "II")  # the paper's, fitted by every arm on every truth
 SPREADS = (0.4,)  # the default start spread: a user's a-priori model (`priors.SPREAD`)
 MAX_SEEDS = 1000  # noise seeds 1..N: weeks of one machine's time at the most
 MAX_SPREAD = 3.0  # e^±3σ_c: beyond it an a-priori model is no model
-MARKER = ".testbed-campaign"  # the file that makes a folder a campaign's, which reproduce resumes
+CAMPAIGN_MARKER = ".testbed-campaign"  # the file that makes a folder a campaign's, which reproduce resumes
 QUICK_DURATION = 30.0  # s per experiment in --quick
 CONNECT_S = 10.0  # s a scheduler given by its address has to answer
 
@@ -99,7 +99,7 @@ def plan(
     """The campaign's cells, seed by seed, spread by spread, data set by data set: the `OPTIMUM`
     cell, then `arms` (`all`: every arm); the input factorial's data sets with `FACTORIAL_ARMS`
     among them only, the drift arms on `scenarios` only; on Scenario I on the plant (with some
-    arm) the `NONLINEAR` cell after them. Seeds 1..N; `quick`: experiments of `QUICK_DURATION` s
+    arm) the `NONLINEAR_ARM` cell after them. Seeds 1..N; `quick`: experiments of `QUICK_DURATION` s
     (unless `duration` says otherwise)."""
     if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEEDS:
         raise InputError(f"seeds={seeds!r}; expected an integer from 1 to {MAX_SEEDS}")
@@ -133,14 +133,14 @@ def plan(
 def _nonlinear(scenario: str, truth: str) -> tuple[str, ...]:
     """The nonlinear cell where a data set has one: Scenario I on the plant (the captive
     reference is the plant's; the linear truth has no nonlinear reference)."""
-    return (NONLINEAR,) if (scenario, truth) == ("I", "plant") else ()
+    return (NONLINEAR_ARM,) if (scenario, truth) == ("I", "plant") else ()
 
 
 # -- the campaign (runs on the client) -------------------------------------------------------------
 
 
 @dataclass(frozen=True)
-class Outcome:
+class Reproduction:
     """What `reproduce` did: the files it wrote, the verdicts, the cells computed now and before."""
 
     out: Path
@@ -164,7 +164,7 @@ def reproduce(
     scenarios=SCENARIOS,
     factorial=FACTORIAL,
     duration: float | None = None,
-) -> Outcome:
+) -> Reproduction:
     """Run (or resume) the campaign into `out` and write results.csv, summary.csv,
     conclusions.json, regime.json, drift.json, report.html with its figures and report.rrd.
     `scheduler`: the address of a running Dask scheduler (its workers must see `out`); default
@@ -236,7 +236,7 @@ def reproduce(
     docs = [read_cell(cells_dir / f"{c.key}.json") for c in cells]
     write_outputs(out, docs, cells)
     verdicts = json.loads((out / "conclusions.json").read_text())
-    return Outcome(out, len(todo), len(cells) - len(todo), failed, verdicts, time.perf_counter() - t0)
+    return Reproduction(out, len(todo), len(cells) - len(todo), failed, verdicts, time.perf_counter() - t0)
 
 
 def _run(c: Cell) -> tuple:
@@ -263,7 +263,7 @@ def read_cell(path: Path) -> dict | None:
 
 def check_folder(out: Path) -> None:
     """`InputError` unless `out` can hold the campaign: a new folder (its parents made), an empty
-    one or a campaign's (holding `MARKER`, which it resumes). A folder of anything else is a
+    one or a campaign's (holding `CAMPAIGN_MARKER`, which it resumes). A folder of anything else is a
     user's, whose files (a results.csv, say) the campaign's would replace."""
     if not os.path.lexists(out):
         check_output_directory(out, label=f"out={out}")  # a file in the way of its parents
@@ -271,9 +271,9 @@ def check_folder(out: Path) -> None:
     try:
         if not out.is_dir():
             raise InputError(f"out={out}: is a file; expected a folder for the campaign")
-        if not (out / MARKER).is_file() and any(out.iterdir()):
+        if not (out / CAMPAIGN_MARKER).is_file() and any(out.iterdir()):
             raise InputError(
-                f"out={out}: holds files that are not a campaign's (no {MARKER}); expected a new "
+                f"out={out}: holds files that are not a campaign's (no {CAMPAIGN_MARKER}); expected a new "
                 "or empty folder, or a campaign's folder to resume"
             )
     except OSError as exc:
@@ -281,12 +281,12 @@ def check_folder(out: Path) -> None:
 
 
 def make_folder(out: Path) -> None:
-    """Make the campaign's folder `out` (checked by `check_folder`), its `MARKER` and `cells/`."""
+    """Make the campaign's folder `out` (checked by `check_folder`), its `CAMPAIGN_MARKER` and `cells/`."""
     try:
         (out / "cells").mkdir(parents=True, exist_ok=True)
-        if not (out / MARKER).is_file():
+        if not (out / CAMPAIGN_MARKER).is_file():
             atomic_write_text(
-                out / MARKER, "a testbed reproduce campaign: `testbed reproduce --out` resumes it\n"
+                out / CAMPAIGN_MARKER, "a testbed reproduce campaign: `testbed reproduce --out` resumes it\n"
             )
     except OSError as exc:
         raise InputError(f"out={out}: cannot create ({exc.strerror or exc})") from None

@@ -14,7 +14,7 @@ cell is judged against is the lowest cost of that search and every arm's end poi
 negative log-likelihood at its estimate (`likelihood_at`), one measure for every method, which
 the judge compares (`testbed.study.results`).
 
-On Scenario I flown on the plant one more fit per seed and spread, the `NONLINEAR` cell: `ml-gn`
+On Scenario I flown on the plant one more fit per seed and spread, the `NONLINEAR_ARM` cell: `ml-gn`
 fitting the nonlinear model of the captive reference (`captive_config`, the plant's body at the
 run's trim speed) with its terms that have a slope at trim free (`captive.reference.slope_terms`),
 started from the captive values perturbed as the linear arms' a-priori model is
@@ -62,7 +62,7 @@ __all__ = [
     "Cell",
     "FORMAT",
     "HISTORY_POINTS",
-    "NONLINEAR",
+    "NONLINEAR_ARM",
     "OPTIMUM",
     "REFERENCE_SEARCH",
     "Start",
@@ -80,7 +80,7 @@ OPTIMUM = "optimum"  # the cell that looks for the data's best-likelihood optimu
 # estimate, the best `polish` of `samples` draws of the box a-priori × e^±1), the draws seeded
 # by the cell's seed
 REFERENCE_SEARCH = {"start": "global", "samples": 50, "polish": 2}
-NONLINEAR = "ml-gn-nonlinear"  # ml-gn on the nonlinear model, judged against the captive reference
+NONLINEAR_ARM = "ml-gn-nonlinear"  # ml-gn on the nonlinear model, judged against the captive reference
 HISTORY_POINTS = 400  # the MEKF's per-sample history, thinned to this many points per cell
 
 
@@ -105,7 +105,7 @@ class Cell:
 
     @property
     def method(self) -> str:
-        return "ml-gn" if self.arm in (OPTIMUM, NONLINEAR) else ARMS[self.arm].method
+        return "ml-gn" if self.arm in (OPTIMUM, NONLINEAR_ARM) else ARMS[self.arm].method
 
     @functools.cached_property  # reads the scenario file: once per cell
     def key(self) -> str:
@@ -226,7 +226,7 @@ def _captive(speed: float):
 
 def captive_start(speed: float, spread: float, seed: int):
     """(the captive reference at trim speed `speed` with its slope terms free, it started from
-    their a-priori values of `spread` and `seed`): what the `NONLINEAR` cell is judged against,
+    their a-priori values of `spread` and `seed`): what the `NONLINEAR_ARM` cell is judged against,
     and where it starts."""
     captive, free = _captive(float(speed))
     captive = replace(captive, free=free)
@@ -234,7 +234,7 @@ def captive_start(speed: float, spread: float, seed: int):
 
 
 def _nonlinear_fit(doc: dict, cell: Cell, experiments, speed: float) -> None:
-    """The `NONLINEAR` cell's fit and its errors against the captive values, into `doc`."""
+    """The `NONLINEAR_ARM` cell's fit and its errors against the captive values, into `doc`."""
     captive, config = captive_start(speed, cell.spread, cell.seed)
     costs = []
     est = identify(
@@ -283,7 +283,7 @@ def run_cell(cell: Cell, data, begin: Start) -> dict:
     t0 = time.perf_counter()
     doc = {"key": cell.key, "cell": asdict(cell), "start_note": begin.note}
     try:
-        if cell.arm == NONLINEAR:
+        if cell.arm == NONLINEAR_ARM:
             _nonlinear_fit(doc, cell, data[0], data[1].vehicle.speed)
             return doc
         experiments, analytic = data

@@ -12,7 +12,7 @@ the method, the free set or the noise's streams (`testbed.simulation.measurement
 `judge` says whether a fit reached the best-likelihood optimum of its data set — its cost
 within the likelihood-ratio bound χ²_LEVEL(p)/2 of the optimum's, the region a likelihood-ratio
 test cannot tell from it: what a stopping rule on the cost can deliver, and a filter too — and,
-when it did not, how it failed (`Outcome`). Its largest distance from the optimum in the
+when it did not, how it failed (`Ending`). Its largest distance from the optimum in the
 optimum's σ is measured beside it, never part of the verdict.
 """
 
@@ -44,7 +44,7 @@ __all__ = [
     "prior",
     "term_class",
     "term_prior",
-    "Outcome",
+    "Ending",
     "Judgement",
     "cost_bound",
     "judge",
@@ -143,7 +143,7 @@ def term_prior(config: ModelConfig, names, spread: float, seed: int) -> ModelCon
     )
 
 
-class Outcome(enum.Enum):
+class Ending(enum.Enum):
     """A fit judged against the data's optimum; the value is the message."""
 
     SUCCESS = "reached the best-likelihood optimum"
@@ -157,14 +157,14 @@ class Judgement:
     """A fit against the optimum: its outcome, the largest |θ − θ̂|/σ over the free
     coefficients, ΔJ = J − Ĵ and the bound ΔJ had to meet."""
 
-    outcome: Outcome
+    outcome: Ending
     sigmas: float
     delta_cost: float
     bound: float
 
     @property
     def success(self) -> bool:
-        return self.outcome is Outcome.SUCCESS
+        return self.outcome is Ending.SUCCESS
 
 
 def cost_bound(p: int, level: float = LEVEL) -> float:
@@ -193,15 +193,15 @@ def judge(fit: Estimate, best: Estimate) -> Judgement:
     delta, bound = float(fit.cost) - float(best.cost), cost_bound(len(best.free))
     finite = math.isfinite(fit.cost) and all(math.isfinite(v) for v in theta.values())
     if not finite:
-        outcome = Outcome.DIVERGED
+        outcome = Ending.DIVERGED
     elif delta <= bound:
-        outcome = Outcome.SUCCESS
+        outcome = Ending.SUCCESS
     elif fit.status is Status.DIVERGED:
-        outcome = Outcome.DIVERGED
+        outcome = Ending.DIVERGED
     elif fit.status in (Status.MAX_ITERATIONS, Status.STALLED):
-        outcome = Outcome.STALLED
+        outcome = Ending.STALLED
     else:
-        outcome = Outcome.ELSEWHERE
+        outcome = Ending.ELSEWHERE
     return Judgement(outcome=outcome, sigmas=float(sigmas), delta_cost=delta, bound=bound)
 
 

@@ -10,7 +10,7 @@ is then judged by `priors.judge`: success (inside the optimum's likelihood regio
 stalled at the limit or converged elsewhere; a cell whose fit failed is "failed"; the drift arms
 are not judged (their outcome is empty). `search_delta_cost` is a cell's cost less the search's:
 below −`SEARCH_TIE` the arm found what the search missed (`beat_search` in the summary counts
-those cells, which should be none: the search is then too small). The `NONLINEAR`
+those cells, which should be none: the search is then too small). The `NONLINEAR_ARM`
 cells are judged against the captive reference instead: their rows carry the captive value in
 the `analytic` column (the reference of `rules.accurate` and `rules.relative_error` in the
 summary) and the largest |θ − θ_captive|/σ in `sigmas`; their outcome is empty.
@@ -27,7 +27,7 @@ import numpy as np
 
 from testbed.estimators.base import Status
 from testbed.study.arms import ARMS
-from testbed.study.cells import NONLINEAR, OPTIMUM, Cell
+from testbed.study.cells import NONLINEAR_ARM, OPTIMUM, Cell
 from testbed.study.priors import Judgement, judge
 from testbed.study.rules import accurate, cells, coefficient_ok, relative_error, wilson
 
@@ -177,16 +177,16 @@ def results_rows(docs: list[dict]) -> list[dict]:
         )
         if judged and outcome == "" and d["status"] != "failed":
             outcome = "unjudged"
-        reference = d.get("captive") if c["arm"] == NONLINEAR else d.get("analytic")
+        reference = d.get("captive") if c["arm"] == NONLINEAR_ARM else d.get("analytic")
         sigmas = verdict[0].sigmas if verdict else math.nan
-        if c["arm"] == NONLINEAR and d.get("error_sigmas"):
+        if c["arm"] == NONLINEAR_ARM and d.get("error_sigmas"):
             sigmas = max(abs(v) if v is not None else math.inf for v in d["error_sigmas"].values())
         base = {
             "scenario": c["scenario"],
             "truth": c["truth"],
             "spread": c["spread"],
             "arm": c["arm"],
-            "method": Cell(**c).method if c["arm"] in (*ARMS, NONLINEAR) else "",
+            "method": Cell(**c).method if c["arm"] in (*ARMS, NONLINEAR_ARM) else "",
             "seed": c["seed"],
             "converged": d["converged"],
             "status": d["status"],
@@ -204,7 +204,7 @@ def results_rows(docs: list[dict]) -> list[dict]:
         # (its fit is the only best-likelihood fit of the nonlinear model to these data)
         if verdict:
             sigma = dict(zip(verdict[1].free, verdict[1].std))
-        elif c["arm"] == NONLINEAR:
+        elif c["arm"] == NONLINEAR_ARM:
             sigma = {n: _std(d, n) for n in d.get("free", [])}
         else:
             sigma = {}
@@ -299,7 +299,7 @@ def summary_table(rows: list[dict]) -> list[dict]:
 
 
 def captive_table(rows: list[dict], docs: list[dict]) -> dict[str, list[dict]]:
-    """The `NONLINEAR` cells against the captive reference: "coefficients", per spread and
+    """The `NONLINEAR_ARM` cells against the captive reference: "coefficients", per spread and
     coefficient (results.csv's rows, the captive value in `analytic`), the captive value, the
     cells, the median estimate, the median error in σ ((θ − θ_captive)/σ) and in % of the
     captive value, and the cells within `rules.coefficient_ok` (max(3 σ, 10 %) of the captive
@@ -307,7 +307,7 @@ def captive_table(rows: list[dict], docs: list[dict]) -> dict[str, list[dict]]:
     open-loop fit % per experiment and channel."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        if r["arm"] == NONLINEAR and r["coefficient"]:
+        if r["arm"] == NONLINEAR_ARM and r["coefficient"]:
             groups.setdefault((r["spread"], r["coefficient"]), []).append(r)
     out = []
     for (sp, n), rs in groups.items():
@@ -333,6 +333,6 @@ def captive_table(rows: list[dict], docs: list[dict]) -> dict[str, list[dict]]:
             "fit": d.get("fit", {}),
         }
         for d in docs
-        if d and d["cell"]["arm"] == NONLINEAR
+        if d and d["cell"]["arm"] == NONLINEAR_ARM
     ]
     return {"coefficients": out, "cells": fits}

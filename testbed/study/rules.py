@@ -4,7 +4,7 @@
 the analytic model's open-loop fit per data set (`regime`, keyed "{scenario}/{truth}") and the
 drift measured per data set and spread (`drift`, keyed "{scenario}/{truth} s={spread}"), and
 gives per claim its verdict — reproduced, not reproduced, or not decided (no evidence, or a
-Wilson interval at `LEVEL` straddling the rule's threshold) — its rule in one sentence and the
+Wilson interval at `INTERVAL_LEVEL` straddling the rule's threshold) — its rule in one sentence and the
 numbers. Each claim is decided as the paper makes it, on each data set where the linear
 reference is valid (the linear truth, or a data set the analytic model fits ≥ `VALID_FIT` %)
 and at each spread, and holds only where it holds on each.
@@ -34,7 +34,7 @@ __all__ = [
     "DRIFT_AT",
     "FACTORIAL",
     "INFORMATION_ARM",
-    "LEVEL",
+    "INTERVAL_LEVEL",
     "LONGER",
     "MEKF_ARMS",
     "NM_ARM",
@@ -57,7 +57,7 @@ __all__ = [
 COEFFICIENT_TOLERANCE = 0.10  # a coefficient is acceptable within 10 % of the analytic value ...
 COEFFICIENT_SIGMAS = 3.0  # ... or within 3 of the optimum's (coloured-residual) σ; an infinite σ never passes
 VALID_FIT = 99.0  # % lowest truth fit of the analytic model: the linear reference is valid above it
-LEVEL = 0.95  # of the Wilson intervals
+INTERVAL_LEVEL = 0.95  # of the Wilson intervals
 ACCEPTABLE = 0.8  # a method is acceptable when it succeeds in ≥ 80 % of its cells ...
 UNSATISFACTORY = 0.5  # ... and unsatisfactory when in fewer than 50 %
 CONDITION_RATIO = 10.0  # conclusion 1: the Mt-form's Fisher condition number ≥ 10× the A-form's ...
@@ -75,7 +75,7 @@ VERDICTS = {True: "reproduced", False: "not reproduced", None: "not decided"}
 _WORD = {True: "yes", False: "no", None: "not decided"}
 
 
-def wilson(k: int, n: int, level: float = LEVEL) -> tuple[float, float]:
+def wilson(k: int, n: int, level: float = INTERVAL_LEVEL) -> tuple[float, float]:
     """The Wilson score interval of a proportion k/n at `level`: the p whose normal test of k
     successes in n trials is not rejected at 1 − level; (0, 1) for n = 0."""
     if n == 0:
@@ -181,7 +181,7 @@ def conclusions(rows: list[dict], regime: dict, drift: dict) -> dict:
 
 def decide(k: int, n: int, threshold: float, at_least: bool = True, strict: bool = False) -> bool | None:
     """Whether the proportion behind k of n is ≥ `threshold` (`at_least`; > with `strict`) or
-    < it (not `at_least`), by its Wilson interval at `LEVEL`: True where the whole interval lies
+    < it (not `at_least`), by its Wilson interval at `INTERVAL_LEVEL`: True where the whole interval lies
     on the claim's side, False where it lies on the other, None (not decided) where it straddles
     the threshold or there are no trials."""
     if n == 0:
@@ -250,7 +250,7 @@ def _success(picked) -> tuple[int, int]:
 def _proportion(k: int, n: int) -> str:
     lo, hi = wilson(k, n)
     return (
-        f"{k}/{n} ({100 * k / n:.0f} %, {100 * LEVEL:.0f} % CI {100 * lo:.0f}–{100 * hi:.0f} %)"
+        f"{k}/{n} ({100 * k / n:.0f} %, {100 * INTERVAL_LEVEL:.0f} % CI {100 * lo:.0f}–{100 * hi:.0f} %)"
         if n
         else "0/0"
     )
@@ -325,7 +325,7 @@ def _proportion_rule(table, regime, arm: str, claim: str, at_least: bool, thresh
     rule = (
         f"{claim}: from realistic starts (spread > 0), on each data set with a valid linear reference "
         f"and at each spread, {arm} ends inside the optimum's likelihood region in {word} "
-        f"{100 * threshold:.0f} % of its cells, decided by the {100 * LEVEL:.0f} % Wilson interval "
+        f"{100 * threshold:.0f} % of its cells, decided by the {100 * INTERVAL_LEVEL:.0f} % Wilson interval "
         f"(not decided where it straddles {100 * threshold:.0f} %), at the testbed's iteration limit "
         f"(the paper states none); {LONGER[arm]} runs it with ten times that limit."
     )
@@ -379,7 +379,7 @@ def _scenarios(table, regime) -> dict:
         f"Scenario II's data identify the coefficients better than Scenario I's with {NM_ARM}: on the "
         f"linear truth (the reference valid on both), at each spread > 0, its estimate from a seed's "
         f"prior is closer to the analytic model (median relative error) on II than on I in more than "
-        f"half of the seeds, decided by the {100 * LEVEL:.0f} % Wilson interval of that share against "
+        f"half of the seeds, decided by the {100 * INTERVAL_LEVEL:.0f} % Wilson interval of that share against "
         "½; every method's success, the optimum's σ and the error on both are reported beside it, "
         "and the input factorial on the plant."
     )
@@ -408,7 +408,7 @@ def _mekf(table) -> dict:
         f"The MEKF gives similar, acceptable results on both scenarios: on the linear truth (I/linear "
         f"and II/linear, where the analytic model is the exact reference on both), at each spread > 0, "
         f"{arm} ends inside the optimum's likelihood region in ≥ {100 * ACCEPTABLE:.0f} % of its cells "
-        f"on each, decided by the {100 * LEVEL:.0f} % Wilson interval (not decided where it straddles "
+        f"on each, decided by the {100 * INTERVAL_LEVEL:.0f} % Wilson interval (not decided where it straddles "
         f"{100 * ACCEPTABLE:.0f} %); its ΔJ, distance in σ and error, and {MEKF_ARMS[1]}'s, reported beside it."
     )
     picked = {s: _linear(table, arm, s) for s in ("I", "II")}

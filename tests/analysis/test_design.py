@@ -114,14 +114,14 @@ def test_read_estimates(tmp_path):
     p.write_text(
         json.dumps({"coefficients": {"Y_v": {"value": -2000.0, "std": 10.0}}, "noise_std": {"v": 0.03}})
     )
-    values, noise = design_report.read_estimates(p)
+    values, noise = design_report.design_estimates(p)
     assert values == {"Y_v": -2000.0} and noise["v"] == 0.03 and noise["r"] == 0.002
     p.write_text(json.dumps({"coefficients": {"Y_q": {"value": 1.0}}}))
     with pytest.raises(InputError, match="Y_q"):
-        design_report.read_estimates(p)
+        design_report.design_estimates(p)
     p.write_text("{")
     with pytest.raises(InputError, match="estimates JSON"):
-        design_report.read_estimates(p)
+        design_report.design_estimates(p)
 
 
 def test_design_refuses_bad_arguments():
@@ -240,7 +240,7 @@ def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
     path.write_text(
         json.dumps({"coefficients": {n: {"value": v} for n, v in estimate.items()}, "noise_std": {"v": 0.03}})
     )
-    values, noise = design_report.read_estimates(path)
+    values, noise = design_report.design_estimates(path)
     d1 = D.design(120.0, "A", estimates=values, noise_std=noise, check=False)
     assert d1.source == "estimate" and set(d1.free) == set(free)
     assert np.allclose(d1.values, [estimate[n] for n in d1.free])

@@ -54,10 +54,10 @@ def _documented_table():
     return {name: tuple(map(float, values)) for name, *values in rows}
 
 
-@pytest.mark.parametrize("loop", list(ap.STEPS))
+@pytest.mark.parametrize("loop", list(ap.STEP_RESPONSES))
 def test_step_responses_reach_the_command_as_documented(lin, design, loop):
     t, y, fins, m = ap.step_response(lin.A_full, lin.B_full, design, loop, lin.fins)
-    state, keyword, start, end = ap.STEPS[loop]
+    state, keyword, start, end = ap.STEP_RESPONSES[loop]
     assert m.final == pytest.approx(end, abs=0.02 * abs(end - start))  # reaches the command
     assert np.abs(fins).max() <= lin.fins.angle
     rise, overshoot, settling = _documented_table()[loop]

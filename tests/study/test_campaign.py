@@ -18,7 +18,7 @@ from testbed.errors import InputError
 from testbed.study import campaign, cells, hashing
 from testbed.study.arms import ARMS, DEFAULT_ARMS, FACTORIAL_ARMS
 from testbed.study.campaign import plan
-from testbed.study.cells import NONLINEAR, OPTIMUM, Cell
+from testbed.study.cells import NONLINEAR_ARM, OPTIMUM, Cell
 from testbed.simulation.vehicle import vehicles
 from testbed.study.results import (
     SUMMARY_COLUMNS,
@@ -85,7 +85,7 @@ def test_plan_pairs_every_arm_with_the_optimum_per_data_set_seed_and_spread():
         for k in (1, 2)
     }
     # Scenario I on the plant: the nonlinear model, judged against the captive reference
-    expected |= {("I", "plant", sp, NONLINEAR, k) for sp in (0.2, 0.4) for k in (1, 2)}
+    expected |= {("I", "plant", sp, NONLINEAR_ARM, k) for sp in (0.2, 0.4) for k in (1, 2)}
     expected |= {
         (s, t, sp, a, k)
         for s, t in factorial
@@ -100,8 +100,8 @@ def test_plan_pairs_every_arm_with_the_optimum_per_data_set_seed_and_spread():
     assert Cell("I", "ml-gn", 1).key != Cell("I", "ml-gn", 1, truth="linear").key
     assert Cell("I", "ml-gn", 1).key != Cell("I", "ml-gn", 1, spread=0.4).key
     assert all(c.duration == campaign.QUICK_DURATION for c in plan(1, quick=True))
-    assert {c.arm for c in plan(1, arms=("all",))} == {OPTIMUM, NONLINEAR, *ARMS}
-    assert not any(c.arm == NONLINEAR for c in plan(1, scenarios=("II",), factorial=()))
+    assert {c.arm for c in plan(1, arms=("all",))} == {OPTIMUM, NONLINEAR_ARM, *ARMS}
+    assert not any(c.arm == NONLINEAR_ARM for c in plan(1, scenarios=("II",), factorial=()))
     # without Scenario II among the scenarios its PRBS level is still fitted by conclusion 3's arm
     alone = plan(1, scenarios=("I",), spreads=(0.4,))
     assert {c.arm for c in alone if c.scenario == "II"} == {OPTIMUM, "ml-nm-paper", "ml-gn"}
@@ -154,7 +154,7 @@ def test_the_campaign_folder_is_new_empty_or_a_campaigns(tmp_path):
     with pytest.raises(InputError, match="notes.txt is a file, not a folder"):
         campaign.check_folder(mine / "notes.txt" / "study")
     campaign.make_folder(tmp_path / "empty")
-    assert sorted(p.name for p in (tmp_path / "empty").iterdir()) == [campaign.MARKER, "cells"]
+    assert sorted(p.name for p in (tmp_path / "empty").iterdir()) == [campaign.CAMPAIGN_MARKER, "cells"]
     (tmp_path / "empty" / "results.csv").write_text("the campaign's\n")
     campaign.check_folder(tmp_path / "empty")  # a campaign's folder: resumed
 

@@ -11,7 +11,7 @@ import pytest
 from testbed.presentation.figures import write_report
 from testbed.captive.config import captive_config
 from testbed.captive.reference import slope_terms
-from testbed.study.cells import NONLINEAR, Cell, Start, load_run, run_cell
+from testbed.study.cells import NONLINEAR_ARM, Cell, Start, load_run, run_cell
 from testbed.study.priors import SPREAD, term_class
 from testbed.study.results import captive_table, read_results, results_csv, results_rows, summary_table
 
@@ -23,7 +23,7 @@ SPREAD_S = 0.4
 def cell(tmp_path_factory):
     out = tmp_path_factory.mktemp("campaign")
     data = load_run(str(out), "I", "plant", 1, DURATION)
-    c = Cell("I", NONLINEAR, 1, SPREAD_S, "plant", DURATION)
+    c = Cell("I", NONLINEAR_ARM, 1, SPREAD_S, "plant", DURATION)
     doc = run_cell(c, data, Start(None, None, {}, ""))  # the linear start is not the nonlinear cell's
     return doc, data
 
@@ -67,7 +67,7 @@ def test_its_rows_summary_and_report_table_carry_the_captive_judgement(cell, tmp
     doc, data = cell
     (tmp_path / "results.csv").write_text(results_csv(results_rows([doc])))
     rows = read_results(tmp_path / "results.csv")
-    assert {r["arm"] for r in rows} == {NONLINEAR} and {r["method"] for r in rows} == {"ml-gn"}
+    assert {r["arm"] for r in rows} == {NONLINEAR_ARM} and {r["method"] for r in rows} == {"ml-gn"}
     captive = captive_config(speed=data[1].vehicle.speed, model="polynomial")[0].terms
     sigmas = {r["coefficient"]: (r["estimate"] - captive[r["coefficient"]]) / r["std"] for r in rows}
     assert {r["coefficient"]: r["analytic"] for r in rows} == pytest.approx(

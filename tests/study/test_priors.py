@@ -27,7 +27,7 @@ from testbed.study.priors import (
     SPREAD,
     PRIOR_STREAM,
     ZERO_SIGMAS,
-    Outcome,
+    Ending,
     cost_bound,
     judge,
     prior,
@@ -200,7 +200,7 @@ def test_the_cost_bound_is_the_likelihood_ratio_region():
 
 def test_success_is_inside_the_likelihood_region():
     j = judge(estimate([10.0 + 0.09, -20.0 - 0.19], 100.0 + 2.9), BEST)
-    assert j.success and j.outcome is Outcome.SUCCESS
+    assert j.success and j.outcome is Ending.SUCCESS
     assert j.sigmas == pytest.approx(0.095) and j.delta_cost == pytest.approx(2.9)
     # a lower cost than the reference optimum is within the bound too
     assert judge(estimate([10.0, -20.0], 99.0), BEST).success
@@ -214,7 +214,7 @@ def test_a_fit_far_in_sigma_inside_the_region_succeeds_and_its_distance_is_measu
 
 def test_a_cost_outside_the_bound_fails():
     j = judge(estimate([10.0, -20.0], 100.0 + 3.1), BEST)
-    assert not j.success and j.outcome is Outcome.ELSEWHERE and j.bound == pytest.approx(-math.log(0.05))
+    assert not j.success and j.outcome is Ending.ELSEWHERE and j.bound == pytest.approx(-math.log(0.05))
 
 
 def test_an_infinite_sigma_is_an_infinite_distance_not_a_verdict():
@@ -225,22 +225,22 @@ def test_an_infinite_sigma_is_an_infinite_distance_not_a_verdict():
 
 @pytest.mark.parametrize("status", [Status.MAX_ITERATIONS, Status.STALLED])
 def test_stalled_at_the_limit(status):
-    assert judge(estimate([12.0, -20.0], 150.0, status), BEST).outcome is Outcome.STALLED
+    assert judge(estimate([12.0, -20.0], 150.0, status), BEST).outcome is Ending.STALLED
     # a fit that stopped at its limit but inside the region is a success
     assert judge(estimate([10.0, -20.0], 100.0, status), BEST).success
 
 
 def test_diverged():
-    assert judge(estimate([10.0, -20.0], 150.0, Status.DIVERGED), BEST).outcome is Outcome.DIVERGED
-    assert judge(estimate([10.0, -20.0], math.nan), BEST).outcome is Outcome.DIVERGED
-    assert judge(estimate([math.inf, -20.0], 100.0), BEST).outcome is Outcome.DIVERGED
+    assert judge(estimate([10.0, -20.0], 150.0, Status.DIVERGED), BEST).outcome is Ending.DIVERGED
+    assert judge(estimate([10.0, -20.0], math.nan), BEST).outcome is Ending.DIVERGED
+    assert judge(estimate([math.inf, -20.0], 100.0), BEST).outcome is Ending.DIVERGED
     # a filter flagged diverged whose finite estimate the data cannot tell from the optimum
     assert judge(estimate([10.0, -20.0], 101.0, Status.DIVERGED), BEST).success
 
 
 @pytest.mark.parametrize("status", [Status.CONVERGED, Status.SADDLE, Status.WORSE])
 def test_converged_elsewhere(status):
-    assert judge(estimate([5.0, -25.0], 140.0, status), BEST).outcome is Outcome.ELSEWHERE
+    assert judge(estimate([5.0, -25.0], 140.0, status), BEST).outcome is Ending.ELSEWHERE
 
 
 def test_free_coefficients_are_matched_by_name():
