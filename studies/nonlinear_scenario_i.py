@@ -63,7 +63,7 @@ from testbed.data import Experiment, ModelConfig, load_data, read_csv
 from testbed.outputs import atomic_write_text, check_output_directory, check_output_file
 from testbed.errors import InputError
 from testbed.estimators import Estimate, identify
-from testbed.identification.nonlinear_prediction import predict
+from testbed.identification.nonlinear_prediction import predict_nonlinear
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly
 from testbed.captive.config import MODELS, captive_config
@@ -154,7 +154,7 @@ def ratios(experiments, config: ModelConfig, initial=None) -> str:
     else the best-fitting initial states) over the sensor's noise σ, over the samples present,
     as CSV cells."""
     y = np.concatenate([e.y for e in experiments])
-    yhat = np.concatenate(predict(experiments, config, initial))
+    yhat = np.concatenate(predict_nonlinear(experiments, config, initial))
     rms = np.sqrt(np.nanmean((y - yhat) ** 2, axis=0))
     by = dict(zip(experiments[0].measured, rms))
     return ",".join(f"{by[s] / NOISE_STD[s]:.3f}" if s in by else "" for s in STATES)

@@ -61,7 +61,7 @@ from testbed.analysis.design_model import (
     Model,
     criterion,
     experiment,
-    fisher,
+    design_fisher,
     fly_model,
     model,
     regime_limits,
@@ -260,7 +260,7 @@ def design(
     F, flown_peaks, flights = 0.0, {}, []
     for k, e in enumerate(scn.experiments):
         t, xs, f = fly_model(m, e, scn.duration_of(e), SEED, k)
-        F = F + fisher(m, t, xs, f, e.name)
+        F = F + design_fisher(m, t, xs, f, e.name)
         flown_peaks[e.name] = peaks(xs, f, m.speed, 1.0 / m.control_rate)
         flights.append(experiment(m, t, xs, f, e.name))
     base = scenario_information(m, duration)

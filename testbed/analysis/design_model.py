@@ -36,7 +36,7 @@ __all__ = [
     "Model",
     "criterion",
     "experiment",
-    "fisher",
+    "design_fisher",
     "fly_model",
     "instability",
     "model",
@@ -145,7 +145,9 @@ def experiment(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: 
     return Experiment(name, t, STATES, y, fins)
 
 
-def fisher(m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design") -> np.ndarray:
+def design_fisher(
+    m: Model, t: np.ndarray, xs: np.ndarray, fins: np.ndarray, name: str = "design"
+) -> np.ndarray:
     """Fisher information of `m.config.free` from one noise-free experiment (initial states
     eliminated), with the sensor noise `m.noise_std`."""
     e = experiment(m, t, xs, fins, name)

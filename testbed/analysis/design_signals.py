@@ -17,7 +17,7 @@ from testbed.analysis.design_model import (
     MAX_EXPERIMENT,
     Model,
     criterion,
-    fisher,
+    design_fisher,
     fly_model,
     scales,
     scenario_information,
@@ -216,7 +216,7 @@ def information(
 ) -> Candidate:
     """The candidate of these signals: its information flown on the design model."""
     t, xs, f = fly_model(m, spec(kind, fins, duration, hold=hold), duration)
-    return Candidate(kind, fins, duration, fisher(m, t, xs, f, kind), hold, growth)
+    return Candidate(kind, fins, duration, design_fisher(m, t, xs, f, kind), hold, growth)
 
 
 def evaluate(

@@ -27,7 +27,7 @@ from testbed.data import Experiment, read_csv
 from testbed.errors import InputError
 from testbed.simulation.scenario import ExperimentSpec, read_scenario
 from testbed.simulation.signals import Step
-from testbed.simulation.signals import Zigzag as ZigzagSignal
+from testbed.simulation.signals import ZigzagSignal
 
 __all__ = [
     "TABLE_METRICS",

@@ -179,8 +179,8 @@ def predicted(
 ) -> list[np.ndarray]:
     """`config`'s model outputs per experiment (NaN where it is not flown): the linear model's
     (`prediction.predict`), or a nonlinear model config's flown open loop
-    (`nonlinear_prediction.predict`); `initial` as they take it."""
-    flown = predict if config.terms is None else nonlinear_prediction.predict
+    (`nonlinear_prediction.predict_nonlinear`); `initial` as they take it."""
+    flown = predict if config.terms is None else nonlinear_prediction.predict_nonlinear
     return flown(experiments, config, initial)
 
 

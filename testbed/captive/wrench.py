@@ -26,7 +26,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.simulation.plant import Plant
-from testbed.simulation.vehicle import FINS, FLIP, hydrostatics
+from testbed.simulation.vehicle import FIN_JOINTS, FLIP, hydrostatics
 
 __all__ = ["hydrodynamic_wrench"]
 
@@ -51,8 +51,8 @@ def hydrodynamic_wrench(vehicle, nu, fins=None, nu_dot=None) -> np.ndarray:
     rig = _Rig(model)
     one = all(a is None or np.ndim(a) == 1 for a in (nu, fins, nu_dot))
     nu = _rows("nu", nu, 6)
-    fins = _rows("fins", np.zeros(len(FINS)) if fins is None else fins, len(FINS))
-    missing = [FINS[k] for k in np.flatnonzero((rig.fins < 0) & fins.any(0))]
+    fins = _rows("fins", np.zeros(len(FIN_JOINTS)) if fins is None else fins, len(FIN_JOINTS))
+    missing = [FIN_JOINTS[k] for k in np.flatnonzero((rig.fins < 0) & fins.any(0))]
     if missing:
         raise InputError(f"fins: {missing[0]} deflected; expected 0, the MJCF has no hinge {missing[0]!r}")
     nu_dot = _rows("nu_dot", np.zeros(6) if nu_dot is None else nu_dot, 6)
@@ -101,8 +101,8 @@ class _Rig:
         j = free[0]
         self.model, self.data = model, mujoco.MjData(model)
         self.qadr, self.vadr = int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
-        self.fins = np.full(len(FINS), -1, np.intp)  # qpos address of each fin's hinge, -1: none
-        for i, f in enumerate(FINS):
+        self.fins = np.full(len(FIN_JOINTS), -1, np.intp)  # qpos address of each fin's hinge, -1: none
+        for i, f in enumerate(FIN_JOINTS):
             k = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f)
             if k >= 0 and model.jnt_type[k] == mujoco.mjtJoint.mjJNT_HINGE:
                 self.fins[i] = model.jnt_qposadr[k]

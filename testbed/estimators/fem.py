@@ -287,7 +287,7 @@ class _Likelihood:
                 e = np.zeros(len(f.Phi_c[0]))  # the filter's states, the coloured noise's after them
                 e[np.searchsorted(f.states, m)] = 1.0
                 recursions.simulated(len(v))
-                x = innovations.propagate(f.Phi_c, e, np.zeros((len(v) - 1, len(e))))
+                x = innovations.propagate_periodic(f.Phi_c, e, np.zeros((len(v) - 1, len(e))))
                 J[:, :, len(cols) + c] = -x[:, f.rows]
             if r.present is not None:
                 J[~r.present] = 0.0

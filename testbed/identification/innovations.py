@@ -72,8 +72,8 @@ __all__ = [
     "observed",
     "periodic_gain",
     "process_covariance",
-    "propagate",
-    "start",
+    "propagate_periodic",
+    "initial_prediction",
 ]
 
 BODY = STATES[:6]  # u v w p q r: the rows process noise enters
@@ -345,7 +345,7 @@ def coloured(A: np.ndarray, W: np.ndarray, tau: float, dt: float):
     return Aa, Wa, expm(Aa * dt)
 
 
-def propagate(Phi_c: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.ndarray:
+def propagate_periodic(Phi_c: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.ndarray:
     """`x[i+1] = Phi_c[i mod P] x[i] + forcing[i]` from x0 (n,); returns (len(forcing) + 1, n).
     With P > 1 as one recursion over whole cycles, `z[m+1] = T z[m] + g[m]` with T the cycle's
     product of transitions (`scan.propagate`), and each phase's states from the cycle's first."""
@@ -367,7 +367,7 @@ def propagate(Phi_c: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.ndar
     return np.vstack([x, z[-1:] @ U[P].T + h[P][-1:]])[:N]
 
 
-def start(f: Filter, x0: np.ndarray) -> np.ndarray:
+def initial_prediction(f: Filter, x0: np.ndarray) -> np.ndarray:
     """The filter's initial prediction from the states' `x0` (10,): its states', and 0 for the
     coloured noise's (its mean)."""
     out = np.zeros(len(f.Phi_c[0]), dtype=x0.dtype)
@@ -383,6 +383,6 @@ def innovations(record: Record, f: Filter, x0: np.ndarray, y: np.ndarray, inputs
     forcing = inputs[:-1] @ f.Gamma.T + f.s
     for j in range(P):
         forcing[j::P] += y[:-1][j::P] @ f.PhiK[j].T
-    x = propagate(f.Phi_c, start(f, x0), forcing)
+    x = propagate_periodic(f.Phi_c, initial_prediction(f, x0), forcing)
     nu = y - x[:, f.rows]
     return nu if record.present is None else np.where(record.present, nu, 0.0)

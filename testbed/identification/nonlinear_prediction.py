@@ -29,13 +29,13 @@ from testbed.models.linear import MOUNTING, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly
 
-__all__ = ["ITERATIONS", "TOLERANCE", "flights", "initial_state", "predict"]
+__all__ = ["ITERATIONS", "TOLERANCE", "flights", "initial_state", "predict_nonlinear"]
 
 ITERATIONS = 20  # Gauss-Newton steps of an initial state's fit, at most
 TOLERANCE = 0.01  # converged when every component's step is below this many of its Cramér-Rao σ
 
 
-def predict(
+def predict_nonlinear(
     experiments: Sequence[Experiment],
     config: ModelConfig,
     initial: Mapping[str, Mapping[str, float]] | None = None,
@@ -66,7 +66,7 @@ def flights(
     initial: Mapping[str, Mapping[str, float]] | None = None,
     substeps: int | None = None,
 ) -> list[np.ndarray]:
-    """`predict`'s flights: every state (N, 10) of each experiment, absolute u (no output bias)."""
+    """`predict_nonlinear`'s flights: every state (N, 10) of each experiment, absolute u (no output bias)."""
     model, theta = config.nonlinear()
     out = []
     for e in experiments:

@@ -20,11 +20,11 @@ from testbed.models.linear import NX
 from testbed.models.nonlinear import NonlinearModel, packed
 from testbed.models.nonlinear_flight import fly, substeps_for
 
-__all__ = ["Flight", "flight"]
+__all__ = ["FlightSensitivities", "flight"]
 
 
 @dataclass(frozen=True)
-class Flight:
+class FlightSensitivities:
     """A simulated record and its sensitivities at its samples."""
 
     x: np.ndarray  # (N, 10) states, absolute u
@@ -34,7 +34,7 @@ class Flight:
 
 def flight(
     model: NonlinearModel, theta, t, x0, fins, free=(), substeps: int | None = None, states=None
-) -> Flight:
+) -> FlightSensitivities:
     """`fly`'s states at the times `t` (N,) from `x0` (10,) with the fins (N, 3) held per sample,
     and their exact sensitivities to θ[free] (indices into `model.names`) and to x0. `states`:
     the same call's `fly` states when already flown (not flown again)."""
@@ -55,4 +55,4 @@ def flight(
         substeps,
         S,
     )
-    return Flight(x=x, dx_dtheta=S[:, :, :p], dx_dx0=S[:, :, p:])
+    return FlightSensitivities(x=x, dx_dtheta=S[:, :, :p], dx_dx0=S[:, :, p:])

@@ -26,7 +26,7 @@ Course rate and roll rise fast and then creep back from their overshoot with the
 slow mode; depth is first order (k_z = 0.6/s, the pitch command at its 0.45 rad limit for the
 first 0.8 s), so Scenario I's 5 s depth steps reach 95 % but not ±2 %.
 
-Vertical excitation hold (`Design.hold`): in Scenario II's vertical mode both elevators follow a
+Vertical excitation hold (`Autopilots.hold`): in Scenario II's vertical mode both elevators follow a
 PRBS. The torpedo is nearly neutral in pitch (its only restoring moment is zB B: a pole at
 −0.012 rad/s), so an open-loop PRBS random-walks pitch and depth. The hold is a state feedback
 on (θ, z − z_cmd) only, designed on the quasi-steady model of the slow pitch-depth motion (w and
@@ -65,7 +65,7 @@ __all__ = [
     "STEP_RESPONSES",
     "Autopilot",
     "Channel",
-    "Design",
+    "Autopilots",
     "StepMetrics",
     "check_sampled",
     "closed_loop",
@@ -129,7 +129,7 @@ def design_hold(A, b, bandwidth: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Design:
+class Autopilots:
     """The three loops, the depth outer loop and the slow hold of the vertical excitation mode."""
 
     yaw_rate: Channel
@@ -144,12 +144,12 @@ class Design:
 HOLD_BANDWIDTH = 0.2  # rad/s: the vertical-mode hold, far below the PRBS band (0.01–4.4 Hz)
 
 
-def design(A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = HOLD_BANDWIDTH) -> Design:
-    """Design the autopilots on the continuous linear model (A, B) at trim `speed` (`STATES` order)."""
+def design(A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = HOLD_BANDWIDTH) -> Autopilots:
+    """Autopilots the autopilots on the continuous linear model (A, B) at trim `speed` (`STATES` order)."""
     rudder = B[:, 0]
     together = B[:, 1] + B[:, 2]  # δer = δel = δe
     differential = B[:, 1] - B[:, 2]  # δer = −δel = δa
-    return Design(
+    return Autopilots(
         yaw_rate=design_channel(A, rudder, ("v", "r"), "r", [2.0, 0.3, 0.3], 0.02),
         pitch=design_channel(A, together, ("w", "q", "theta"), "theta", [2.0, 0.3, 0.1, 0.1], 0.05),
         roll=design_channel(A, differential, ("p", "phi"), "phi", [1.0, 0.05, 0.05], 0.01),
@@ -158,7 +158,7 @@ def design(A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = H
     )
 
 
-def _loop_gains(d: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _loop_gains(d: Autopilots) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mix K, mix Ki, E) of all loops in their linear range, commands zero: the fins are
     −(mix K x + mix Ki ∫), and the integrators integrate E x."""
     mix = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, -1.0]])  # (δr, δe, δa) -> fins
@@ -171,7 +171,7 @@ def _loop_gains(d: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return mix @ K, mix @ Ki, E
 
 
-def closed_loop(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> np.ndarray:
+def closed_loop(A: np.ndarray, B: np.ndarray, d: Autopilots, dt: float) -> np.ndarray:
     """The sampled closed loop of all loops in their linear range, from the design's gains:
     state (x, ∫yaw, ∫pitch, ∫roll), commands zero, the fins held over each control period dt
     (the exact zero-order-hold model of (A, B))."""
@@ -181,7 +181,7 @@ def closed_loop(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> np.ndarra
     return np.block([[Phi - Gamma @ K, -Gamma @ Ki], [dt * E, np.eye(3)]])
 
 
-def check_sampled(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> None:
+def check_sampled(A: np.ndarray, B: np.ndarray, d: Autopilots, dt: float) -> None:
     """InputError when the loops, stable in continuous time, are unstable sampled every dt: the
     fins' effectiveness grows as U², and above some speed the pitch loop's gain makes its
     sampled mode at the Nyquist frequency grow (this torpedo at 50 Hz: above about 27 m/s). The
@@ -206,7 +206,7 @@ def check_sampled(A: np.ndarray, B: np.ndarray, d: Design, dt: float) -> None:
 class Autopilot:
     """The autopilots with their integrators (the only state). Modes switch loops on or off."""
 
-    design: Design
+    design: Autopilots
     dt: float  # control period, s
     fin_limit: float  # rad: fin commands are clipped to ±fin_limit (the MJCF's servo range)
     integrators: np.ndarray = field(default_factory=lambda: np.zeros(3))  # YAW, PITCH, ROLL
@@ -364,7 +364,7 @@ STEP_RESPONSES = {
 def step_response(
     A: np.ndarray,
     B: np.ndarray,
-    design_: Design,
+    design_: Autopilots,
     loop: str,
     fins: FinLimits,
     duration: float = 10.0,

@@ -28,7 +28,7 @@ __all__ = [
     "FIN_COMMANDS",
     "FinLog",
     "Flight",
-    "Program",
+    "CommandProgram",
     "check_fins",
     "check_flyable",
     "check_truth",
@@ -38,10 +38,10 @@ __all__ = [
 ]
 
 
-Program = Callable[[float, np.ndarray], dict]  # (t, x) -> Autopilot.step keywords
+CommandProgram = Callable[[float, np.ndarray], dict]  # (t, x) -> Autopilot.step keywords
 
 
-def program(s: Scenario, e: ExperimentSpec, seed: int, index: int) -> Program:
+def program(s: Scenario, e: ExperimentSpec, seed: int, index: int) -> CommandProgram:
     """The command program of experiment `e` (the `index`-th of `s`) for `seed`: at each control
     instant, the Autopilot keywords. Each signal has its own random stream (the PRBS phase)."""
     check_seed(seed)
@@ -99,7 +99,7 @@ def fly(
     plant: Plant | LinearPlant,
     autopilot: Autopilot,
     name: str,
-    program: Program,
+    program: CommandProgram,
     s: Scenario,
     duration: float,
     rng: np.random.Generator,

@@ -53,7 +53,7 @@ import numpy as np
 from testbed.errors import InputError
 from testbed.models.linear import Vehicle
 from testbed.simulation.vehicle import (
-    FINS,
+    FIN_JOINTS,
     FLIP,
     check_model,
     constants,
@@ -61,7 +61,7 @@ from testbed.simulation.vehicle import (
     fin_rate_limit,
     hydrostatics,
     load_model,
-    rotation,
+    quaternion_matrix,
 )
 from testbed.simulation.plant_step import (
     Kernel,
@@ -110,13 +110,13 @@ class Plant:
         self.hull = m.body("hull").id
         self._qadr = m.jnt_qposadr[m.joint("hull").id]
         self._vadr = m.jnt_dofadr[m.joint("hull").id]
-        self._fin_qadr = np.array([m.jnt_qposadr[m.joint(f).id] for f in FINS], np.intp)
-        self._fin_act = np.array([m.actuator(f).id for f in FINS], np.intp)
+        self._fin_qadr = np.array([m.jnt_qposadr[m.joint(f).id] for f in FIN_JOINTS], np.intp)
+        self._fin_act = np.array([m.actuator(f).id for f in FIN_JOINTS], np.intp)
         self._thruster = m.actuator("thruster").id
         self._fin_limit = m.actuator_ctrlrange[self._fin_act].copy()
         self._rate = fin_rate_limit(m)
         dofs = np.concatenate(
-            [np.arange(self._vadr, self._vadr + 6), [m.jnt_dofadr[m.joint(f).id] for f in FINS]]
+            [np.arange(self._vadr, self._vadr + 6), [m.jnt_dofadr[m.joint(f).id] for f in FIN_JOINTS]]
         ).astype(np.intp)
         # d.M's CSR entries as (row, col) of the 9×9 matrix over `dofs` (check_model: nv = 9).
         where = np.empty(m.nv, np.intp)
@@ -149,8 +149,8 @@ class Plant:
             -m.opt.density * B * m.opt.gravity,
             c,
             np.zeros(6),
-            np.zeros(len(FINS)),
-            np.zeros(len(FINS)),
+            np.zeros(len(FIN_JOINTS)),
+            np.zeros(len(FIN_JOINTS)),
             np.zeros(6),
         )
         self.reset()
@@ -197,7 +197,7 @@ class Plant:
         q = np.array([math.cos(heading / 2), 0.0, 0.0, -math.sin(heading / 2)])  # NED yaw = -z turn
         d.qpos[self._qadr : self._qadr + 3] = (0.0, 0.0, -depth)
         d.qpos[self._qadr + 3 : self._qadr + 7] = q
-        R = rotation(q)
+        R = quaternion_matrix(q)
         d.qvel[self._vadr : self._vadr + 3] = R @ np.array([speed, 0.0, 0.0])
         self.reference[:] = 0.0
         self._k.integral[:] = 0.0
@@ -219,7 +219,7 @@ class Plant:
     def state(self) -> np.ndarray:
         """The state `u v w p q r phi theta psi z` (absolute u; body FRD, earth NED, at the CG)."""
         d = self.data
-        R = rotation(d.qpos[self._qadr + 3 : self._qadr + 7])
+        R = quaternion_matrix(d.qpos[self._qadr + 3 : self._qadr + 7])
         v = R.T @ d.qvel[self._vadr : self._vadr + 3]
         w = d.qvel[self._vadr + 3 : self._vadr + 6]
         # NED-from-FRD is FLIP R FLIP: entries (2,1), (2,2), (2,0), (1,0), (0,0) of it below.
@@ -247,7 +247,7 @@ class Plant:
         velocities non-finite or beyond `MAX_VELOCITY` (m/s, rad/s).
         """
         m, d, k = self.model, self.data, self._k
-        cmd = np.asarray(fin_commands, float).reshape(len(FINS))  # _servo clips it to the range
+        cmd = np.asarray(fin_commands, float).reshape(len(FIN_JOINTS))  # _servo clips it to the range
         slew = self._rate * m.opt.timestep
         d.ctrl[self._thruster] = self.thrust
         t0 = d.time

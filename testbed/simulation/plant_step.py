@@ -13,7 +13,7 @@ import llvmlite.binding
 import mujoco
 import numba
 import numpy as np
-from testbed.simulation.vehicle import FINS, hydrostatics, motion_transform, rotation, skew
+from testbed.simulation.vehicle import FIN_JOINTS, hydrostatics, motion_transform, quaternion_matrix, skew
 
 __all__ = [
     "Kernel",
@@ -318,7 +318,7 @@ def _servo(reference, limits, ctrl, fin_act, cmd, slew):
 
 @numba.njit(**_INNER)
 def _turn(R, x, y, z):
-    """R (x, y, z), as a tuple, R a rotation matrix stored row by row (MuJoCo's `xmat` row)."""
+    """R (x, y, z), as a tuple, R a quaternion_matrix matrix stored row by row (MuJoCo's `xmat` row)."""
     return (R[0] * x + R[1] * y + R[2] * z, R[3] * x + R[4] * y + R[5] * z, R[6] * x + R[7] * y + R[8] * z)
 
 
@@ -440,7 +440,7 @@ def added_mass_basis(model: mujoco.MjModel):
     """
     h = hydrostatics(model)
     hull = model.body("hull").id
-    P = np.zeros((len(FINS), 3, 3, 9, 9))
+    P = np.zeros((len(FIN_JOINTS), 3, 3, 9, 9))
     M_hull = np.zeros((9, 9))
     volume, moment = 0.0, np.zeros(3)
     for b, Mb, V, cb in zip(h.bodies, h.added_mass, h.volume, h.centroid):
@@ -448,10 +448,10 @@ def added_mass_basis(model: mujoco.MjModel):
             M_hull[:6, :6] += Mb
             volume, moment = volume + V, moment + V * cb
             continue
-        fin = next(f for f in FINS if model.joint(f).bodyid[0] == b)  # check_model: one exists
-        k, j = FINS.index(fin), model.joint(fin).id
+        fin = next(f for f in FIN_JOINTS if model.joint(f).bodyid[0] == b)  # check_model: one exists
+        k, j = FIN_JOINTS.index(fin), model.joint(fin).id
         a = model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j])
-        Q0 = rotation(model.body_quat[b])  # hull from fin at δ = 0
+        Q0 = quaternion_matrix(model.body_quat[b])  # hull from fin at δ = 0
         p = model.body_pos[b]
         A = skew(a)
         # Rot(a, δ) = I + sin δ [a]× + (1 − cos δ)[a]×², so the fin's axes Q0 Rot(δ) and with them

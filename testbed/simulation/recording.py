@@ -30,7 +30,7 @@ import rerun.blueprint as rrb
 
 from testbed.outputs import atomic_file
 from testbed.models.linear import INPUTS, IX, STATES
-from testbed.simulation.vehicle import FINS, FLIP, load_model, rotation
+from testbed.simulation.vehicle import FIN_JOINTS, FLIP, load_model, quaternion_matrix
 
 __all__ = [
     "STYLE",
@@ -193,7 +193,7 @@ def _quat_wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
 
 
 def euler_quaternions(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
-    """Quaternions (N, 4; x, y, z, w) of the body-to-NED rotation Rz(ψ) Ry(θ) Rx(φ)."""
+    """Quaternions (N, 4; x, y, z, w) of the body-to-NED quaternion_matrix Rz(ψ) Ry(θ) Rx(φ)."""
     cr, sr = np.cos(phi / 2), np.sin(phi / 2)
     cp, sp = np.cos(theta / 2), np.sin(theta / 2)
     cy, sy = np.cos(psi / 2), np.sin(psi / 2)
@@ -217,13 +217,13 @@ def _geometry(mjcf):
         out = []
         for g in np.flatnonzero(model.geom_bodyid == body):
             q = np.empty(4)
-            mujoco.mju_mat2Quat(q, (FLIP @ rotation(model.geom_quat[g]) @ FLIP).ravel())
+            mujoco.mju_mat2Quat(q, (FLIP @ quaternion_matrix(model.geom_quat[g]) @ FLIP).ravel())
             out.append((FLIP @ model.geom_pos[g], model.geom_size[g].copy(), _quat_wxyz_to_xyzw(q)))
         return out
 
     hull = geoms_of(hull_body)
     fins = {}
-    for f in FINS:
+    for f in FIN_JOINTS:
         j = model.joint(f).id
         body = model.jnt_bodyid[j]
         fins[f] = (FLIP @ model.body_pos[body], FLIP @ model.jnt_axis[j], geoms_of(body))

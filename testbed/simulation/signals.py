@@ -44,11 +44,11 @@ __all__ = [
     "Input3211",
     "Multisine",
     "Prbs",
-    "Program",
+    "SignalProgram",
     "Signal",
     "Square",
     "Step",
-    "Zigzag",
+    "ZigzagSignal",
     "min_crest_phases",
     "multisine_peak",
     "parse_signal",
@@ -61,7 +61,7 @@ __all__ = [
     "signal_table",
 ]
 
-Program = Callable[[float, np.ndarray], float]
+SignalProgram = Callable[[float, np.ndarray], float]
 
 # Maximal-length feedback taps (1-indexed register stages) for orders 2..20.
 TAPS = {
@@ -208,7 +208,7 @@ class Signal:
             if not ok(getattr(self, name)):
                 raise InputError(f"{self.kind} {name} = {getattr(self, name)!r}; expected {expected}")
 
-    def program(self, rng: np.random.Generator) -> Program:
+    def program(self, rng: np.random.Generator) -> SignalProgram:
         raise NotImplementedError
 
     def peak(self) -> float:
@@ -346,7 +346,7 @@ class Input3211(_Pulses):
         return self.unit
 
 
-def _pulses(amplitude: float, start: float, width: float, signs: tuple) -> Program:
+def _pulses(amplitude: float, start: float, width: float, signs: tuple) -> SignalProgram:
     """±amplitude over consecutive slots of `width` s from `start`, then 0."""
 
     def program(t, x):
@@ -401,7 +401,7 @@ class Multisine(Signal):
 
 
 @dataclass(frozen=True)
-class Zigzag(Signal):
+class ZigzagSignal(Signal):
     kind: ClassVar[str] = "zigzag"
     checks: ClassVar[dict] = {
         "angle": (lambda v: is_number(v) and v > 0, "a finite angle > 0 rad"),
@@ -434,7 +434,7 @@ class Zigzag(Signal):
 
 
 SIGNALS: dict[str, type[Signal]] = {
-    s.kind: s for s in (Hold, Step, Square, Prbs, Doublet, Input3211, Multisine, Zigzag)
+    s.kind: s for s in (Hold, Step, Square, Prbs, Doublet, Input3211, Multisine, ZigzagSignal)
 }
 
 

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from testbed.simulation.plant import Plant
-from testbed.simulation.vehicle import FINS, FLIP
+from testbed.simulation.vehicle import FIN_JOINTS, FLIP
 
 __all__ = ["earth_from_body", "plant_rates"]
 
@@ -33,7 +33,7 @@ def plant_rates(plant: Plant, x, delta, depth: float = 50.0) -> np.ndarray:
     m = plant.model
     qadr = m.jnt_qposadr[m.joint("hull").id]
     vadr = m.jnt_dofadr[m.joint("hull").id]
-    fins = [m.jnt_qposadr[m.joint(f).id] for f in FINS]
+    fins = [m.jnt_qposadr[m.joint(f).id] for f in FIN_JOINTS]
     x, delta = np.atleast_2d(x), np.atleast_2d(delta)
     out = np.empty((len(x), 6))
     quat = np.empty(4)

@@ -22,7 +22,7 @@ from testbed.errors import InputError
 from testbed.models.linear import MAX_SPEED, MIN_SPEED, Vehicle
 
 __all__ = [
-    "FINS",
+    "FIN_JOINTS",
     "FLIP",
     "MAX_SPEED",
     "MIN_SPEED",
@@ -42,7 +42,7 @@ __all__ = [
     "load_model",
     "motion_transform",
     "rigid_body_mass",
-    "rotation",
+    "quaternion_matrix",
     "semi_axes",
     "skew",
     "trim_speed",
@@ -50,7 +50,7 @@ __all__ = [
     "volume",
 ]
 
-FINS = ("rudder", "elevator_right", "elevator_left")
+FIN_JOINTS = ("rudder", "elevator_right", "elevator_left")
 FLIP = np.diag([1.0, -1.0, -1.0])  # MuJoCo hull axes (FLU) <-> body axes (FRD); also ENU-ish world <-> NED
 
 
@@ -104,7 +104,7 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
     if mujoco.mjtJoint(int(hull.type[0])) != mujoco.mjtJoint.mjJNT_FREE or hull.bodyid[0] != body:
         raise InputError(f"{source}: joint 'hull' must be the free joint of body 'hull'")
     fin_bodies = []
-    for fin in FINS:
+    for fin in FIN_JOINTS:
         need(mujoco.mjtObj.mjOBJ_JOINT, fin, "hinge joint")
         j = model.joint(fin)
         if mujoco.mjtJoint(int(j.type[0])) != mujoco.mjtJoint.mjJNT_HINGE:
@@ -139,10 +139,10 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
                 f"biasprm[:2]=({a.biasprm[0]:g}, {a.biasprm[1]:g})); expected a "
                 "<position> actuator: gainprm[0] = kp > 0, biasprm[:2] = (0, -kp)"
             )
-    if model.njnt != 1 + len(FINS):
+    if model.njnt != 1 + len(FIN_JOINTS):
         raise InputError(
             f"{source}: {model.njnt} joints; expected only the free joint 'hull' and "
-            f"the hinges {', '.join(map(repr, FINS))}"
+            f"the hinges {', '.join(map(repr, FIN_JOINTS))}"
         )
     need(mujoco.mjtObj.mjOBJ_ACTUATOR, "thruster", "motor actuator")
     thruster = model.actuator("thruster")
@@ -165,7 +165,7 @@ def check_model(model: mujoco.MjModel, source: str = "MJCF") -> None:
                 "fluid geoms on the hull and the fins only"
             )
         if b != body:
-            fin = FINS[fin_bodies.index(b)]
+            fin = FIN_JOINTS[fin_bodies.index(b)]
             axis = model.joint(fin).axis / np.linalg.norm(model.joint(fin).axis)
             if np.linalg.norm(np.cross(axis, centre)) > 1e-9:
                 raise InputError(
@@ -213,16 +213,16 @@ def fluid_frames(model: mujoco.MjModel) -> list[tuple]:
     its fin's joint turns it about (None, None on the hull). Fluid geoms are on the hull or a fin
     (`check_model`)."""
     hull = model.body("hull").id
-    fin_of = {int(model.joint(f).bodyid[0]): k for k, f in enumerate(FINS)}
+    fin_of = {int(model.joint(f).bodyid[0]): k for k, f in enumerate(FIN_JOINTS)}
     out = []
     for g in fluid_geoms(model):
         b = int(model.geom_bodyid[g])
-        Ql, pl = rotation(model.geom_quat[g]), model.geom_pos[g]
+        Ql, pl = quaternion_matrix(model.geom_quat[g]), model.geom_pos[g]
         if b == hull:
             out.append((g, None, Ql, pl, None, None))
             continue
-        j = model.joint(FINS[fin_of[b]]).id
-        Q0 = rotation(model.body_quat[b])
+        j = model.joint(FIN_JOINTS[fin_of[b]]).id
+        Q0 = quaternion_matrix(model.body_quat[b])
         axis = Q0 @ (model.jnt_axis[j] / np.linalg.norm(model.jnt_axis[j]))
         hinge = model.body_pos[b] + Q0 @ model.jnt_pos[j]  # the joint turns the fin about its anchor
         out.append((g, fin_of[b], Q0 @ Ql, model.body_pos[b] + Q0 @ pl, hinge, axis))
@@ -276,7 +276,7 @@ def hydrostatics(model: mujoco.MjModel) -> Hydrostatics:
     for g in geoms:
         k = int(np.searchsorted(bodies, model.geom_bodyid[g]))
         p = model.geom_pos[g]
-        X = motion_transform(rotation(model.geom_quat[g]), p)
+        X = motion_transform(quaternion_matrix(model.geom_quat[g]), p)
         M[k] += X.T @ np.diag(rho * model.geom_fluid[g, 6:12]) @ X
         v = volume(model, g)
         C[k] += v * p
@@ -289,8 +289,8 @@ def skew(a: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
-def rotation(quat) -> np.ndarray:
-    """The 3×3 rotation matrix of a unit quaternion (w, x, y, z), MuJoCo's convention."""
+def quaternion_matrix(quat) -> np.ndarray:
+    """The 3×3 quaternion_matrix matrix of a unit quaternion (w, x, y, z), MuJoCo's convention."""
     R = np.empty(9)
     mujoco.mju_quat2Mat(R, np.asarray(quat, float))
     return R.reshape(3, 3)
@@ -335,7 +335,7 @@ def fin_limits(model: mujoco.MjModel) -> FinLimits:
     """The fins' limits as the plant applies them: the servos' control ranges (`ctrlrange` of the
     actuators `rudder`, `elevator_right`, `elevator_left`; the smallest |bound| of the three, as
     the autopilots clip symmetrically; inf where none is limited) and `fin_rate_limit`."""
-    ids = [model.actuator(f).id for f in FINS]
+    ids = [model.actuator(f).id for f in FIN_JOINTS]
     bounds = [np.abs(model.actuator_ctrlrange[i]).min() for i in ids if model.actuator_ctrllimited[i]]
     return FinLimits(angle=float(min(bounds, default=np.inf)), rate=fin_rate_limit(model))
 
@@ -356,7 +356,7 @@ def added_mass(model: mujoco.MjModel) -> np.ndarray:
 def _body_rigid(model, data, b):
     """Body b's rigid-body 6×6 about its own origin, its own axes: diag(m, I_c) at its CoM c,
     moved to the origin (`[[m, −m[c]×], [m[c]×, I_c − m[c]×²]]`)."""
-    R = rotation(model.body_iquat[b])
+    R = quaternion_matrix(model.body_iquat[b])
     I = R @ np.diag(model.body_inertia[b]) @ R.T  # about the body's CoM, body axes
     X = motion_transform(np.eye(3), model.body_ipos[b])
     return X.T @ np.block([[model.body_mass[b] * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), I]]) @ X

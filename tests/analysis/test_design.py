@@ -85,7 +85,7 @@ def test_fisher_matches_finite_differences_of_the_outputs(model):
 
     e = DS.spec("horizontal", {"rudder": Prbs(amplitude=1e-3, order=8, clock=0.2)})
     t, xs, fins = DM.fly_model(model, e, 20.0)
-    F = DM.fisher(model, t, xs, fins)
+    F = DM.design_fisher(model, t, xs, fins)
     cfg = model.config
     chans = [c for c in regime.FITTED]
     w = np.array([1.0 / model.noise_std[c] ** 2 for c in chans])

@@ -17,14 +17,14 @@ from testbed.simulation.analytic import analytic_model, geom_terms
 from testbed.captive.rig import OSCILLATIONS, SWEEPS, Oscillation, Sweep, captive_tests, pmm_coefficients
 from testbed.simulation.plant import Plant
 from testbed.simulation.vehicle import (
-    FINS,
+    FIN_JOINTS,
     FLIP,
     added_mass,
     buoyancy_centre,
     constants,
     fluid_geoms,
     load_model,
-    rotation,
+    quaternion_matrix,
     semi_axes,
 )
 from testbed.captive.wrench import hydrodynamic_wrench
@@ -97,7 +97,7 @@ def fluid_rst_force(v, w, v_dot, w_dot, Q):
 
 def test_ellipsoid_sweeps_match_the_closed_form():
     model = ellipsoid_model()
-    Q = rotation(model.geom_quat[0])
+    Q = quaternion_matrix(model.geom_quat[0])
     speeds = (4.0, 7.0)
     tests = (
         Sweep(name="drift", vary=("v",), extent=(3.0,), points=(9,), speeds=speeds),
@@ -126,7 +126,7 @@ def test_pmm_recovers_the_added_mass_set():
     """The quadrature parts of pure sway, heave, roll, pitch and yaw are −M_A's columns, M_A the
     added mass set on the ellipsoid carried to the body's origin (written out here)."""
     model = ellipsoid_model()
-    Q, p = rotation(model.geom_quat[0]), CENTRE
+    Q, p = quaternion_matrix(model.geom_quat[0]), CENTRE
     # M_A about the origin: the kinetic energy ½ (X ν)ᵀ diag(m_A, I_A) (X ν), X the ellipsoid's
     # velocity (its axes) from the origin's, v_g = Qᵀ (v + ω × p), ω_g = Qᵀ ω.
     X = np.block(
@@ -217,7 +217,7 @@ def test_torpedo_fluid_force_is_the_sum_over_its_geoms():
     runs = captive_tests(model, tests)
     d = mujoco.MjData(model)
     hull = model.body("hull").id
-    qadr = [model.jnt_qposadr[model.joint(f).id] for f in FINS]
+    qadr = [model.jnt_qposadr[model.joint(f).id] for f in FIN_JOINTS]
     for run in runs:
         for nu, fins, wrench in zip(run.nu, run.fins, run.wrench):
             d.qpos[qadr] = fins
@@ -257,9 +257,9 @@ def test_the_plant_obeys_its_equations_with_the_captive_wrench():
     quat = np.array([0.9, 0.1, -0.2, 0.3]) / np.linalg.norm([0.9, 0.1, -0.2, 0.3])
     qpos[qadr + 3 : qadr + 7] = quat
     fins = np.array([0.1, -0.2, 0.3])
-    qpos[[m.jnt_qposadr[m.joint(f).id] for f in FINS]] = fins
+    qpos[[m.jnt_qposadr[m.joint(f).id] for f in FIN_JOINTS]] = fins
     nu = np.array([18.0, 1.5, -1.0, 0.7, -0.4, 0.9])
-    R = rotation(quat)  # world from hull, MuJoCo's axes
+    R = quaternion_matrix(quat)  # world from hull, MuJoCo's axes
     qvel[vadr : vadr + 3] = R @ FLIP @ nu[:3]
     qvel[vadr + 3 : vadr + 6] = FLIP @ nu[3:]
     plant.set_state(qpos, qvel)

@@ -676,8 +676,8 @@ def test_ml_gn_and_ml_nm_recover_a_mounted_log_with_the_terms(truth):
     for v, s, g in zip(nm.values, nm.std, gn.values):
         assert abs(v - g) <= 0.1 * s
     fitted = config.with_coefficients(dict(zip(est.free, est.values)))
-    (yhat,) = nonlinear_prediction.predict(data, fitted)
-    plain = nonlinear_prediction.predict(data, config)[0]
+    (yhat,) = nonlinear_prediction.predict_nonlinear(data, fitted)
+    plain = nonlinear_prediction.predict_nonlinear(data, config)[0]
     for c in range(3):  # the mounted reading fits u, v, w far better than the CG's velocities
         assert np.std(data[0].y[:, c] - yhat[:, c]) < np.std(data[0].y[:, c] - plain[:, c])
 

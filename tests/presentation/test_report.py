@@ -530,9 +530,9 @@ def test_fit_outputs_start_from_the_estimates_initial_states(tmp_path, yaw_fit, 
 def test_a_nonlinear_fit_is_recorded_with_the_nonlinear_models_outputs(tmp_path):
     """A nonlinear model config's `ml-gn` fit: each free term per iteration on the parameters tab,
     and the outputs of the nonlinear model flown from the estimate's initial state
-    (`nonlinear_prediction.predict`), not the linear model's."""
+    (`nonlinear_prediction.predict_nonlinear`), not the linear model's."""
     from testbed.captive.config import captive_config
-    from testbed.identification.nonlinear_prediction import predict as fly_nonlinear
+    from testbed.identification.nonlinear_prediction import predict_nonlinear as fly_nonlinear
     from testbed.models.nonlinear_flight import fly
 
     free = ("Y_uv", "N_uv")
