@@ -98,11 +98,13 @@ def result(prob: NonlinearObjective, out: Outcome) -> NonlinearFit:
     xs, res = out.simulated
     R = pooled_noise(res, prob.held)
     M = out.fisher
-    if M is None:  # it stopped in an earlier fit's basin: the information at its own point
+    if M is None and out.joined < 0:  # the information at the point, where the fit has none
         M = prob.terms(Point(out.p, xs, res, R, neg_log_likelihood(res, R)))[1]
     held = np.zeros(nf, dtype=bool) if out.held is None else out.held
     std = np.full(nf, np.nan)
-    if (~held).any():  # the values held on a bound left out: no σ, the others' with them held
+    # the values held on a bound left out: no σ, the others' with them held; none where the fit
+    # stopped in an earlier fit's basin (`follow`: that fit's are its caller's)
+    if M is not None and (~held).any():
         keep = np.r_[np.flatnonzero(~held), nf : len(M)]
         std[~held] = crlb(M[np.ix_(keep, keep)]).std[: int((~held).sum())]
     return NonlinearFit(
@@ -150,7 +152,8 @@ def fit(
     parameters and the negative log-likelihood. `bounds`: `(low, high)` per free parameter
     (±inf: open), the box the fit keeps them in (a start outside it is moved onto it;
     `NonlinearFit.at_bounds` names those it ends on). `follow`: earlier fits' optima (θ, σ) on
-    the same problem (`Outcome.optimum`): a fit that steps into one's basin stops there.
+    the same problem (`Outcome.optimum`): a fit that steps into one's basin stops there
+    (`Outcome.joined`), its σ NaN (the earlier fit's are the caller's).
     `segments`: multiple shooting's first stage, pieces per record (1: none)."""
     if not (isinstance(max_iterations, int) and max_iterations >= 1 and tolerance > 0):
         raise InputError(
