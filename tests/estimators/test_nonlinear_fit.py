@@ -144,3 +144,49 @@ def test_the_second_order_probes_lie_one_cramer_rao_sigma_out(truth):
             moved = prob.moved(at, following(M, np.zeros(len(M)), prob.n_free, sign * v)[0])
             rise = prob.weighted_cost(moved.res, at.R) - base
             assert 0.4 <= rise <= 0.6, rise
+
+
+def test_the_nonlinear_objectives_gradient_is_the_cost_differentiated(truth):
+    """`NonlinearObjective.terms`' g is minus the gradient of the weighted cost `½ Σ eᵀR⁻¹e` in
+    the whole parameter vector (coefficients and initial states), R held: against central
+    differences of the cost the objective itself evaluates (`moved`)."""
+    from testbed.estimators.nonlinear_fit import nonlinear_problem
+
+    model, theta = truth
+    record, start = noisy(model, theta, seed=3, seconds=2.0)
+    prob = nonlinear_problem(model, start, [record], STATES, FREE)
+    at = prob.point(prob.start)
+    g, M = prob.terms(at)
+    assert M.shape == (len(g), len(g)) == (prob.n_free + len(STATES),) * 2
+    seen = np.diag(M) > 0  # a term the 2 s do not excite has no information and no gradient
+    assert np.all(g[~seen] == 0) and seen.sum() >= len(g) - 2
+    scale = np.sqrt(1.0 / np.where(seen, np.diag(M), 1.0))  # one Cramér-Rao-like unit per parameter
+    for k in np.flatnonzero(seen):
+        e = np.zeros(len(g))
+        e[k] = 1e-3 * scale[k]
+        up, down = prob.moved(at, e), prob.moved(at, -e)
+        slope = (prob.weighted_cost(up.res, at.R) - prob.weighted_cost(down.res, at.R)) / (2 * e[k])
+        assert slope == pytest.approx(-g[k], rel=1e-4, abs=1e-6 / scale[k]), k
+
+
+def test_the_initial_states_step_minimises_the_quadratic_model_given_thetas():
+    """`objective.following`: with θ moved by d, the initial states' step `M_xx⁻¹ (g_x − M_xθ d)`
+    minimises `−gᵀp + ½ pᵀM p` over them, and `g_xᵀ M_xx⁻¹ g_x` is twice the decrease of their
+    own step; against numpy's least squares on a random positive definite model."""
+    from testbed.identification.objective import following
+
+    rng = np.random.default_rng(5)
+    nf, n = 3, 7
+    A = rng.normal(size=(20, n))
+    M, g = A.T @ A, rng.normal(size=n)
+    d = rng.normal(size=nf)
+    step, own = following(M, g, nf, d)
+    np.testing.assert_array_equal(step[:nf], d)
+    # the model's minimiser over x given θ's step d: M_xx x = g_x − M_xθ d
+    x = np.linalg.lstsq(M[nf:, nf:], g[nf:] - M[nf:, :nf] @ d, rcond=None)[0]
+    np.testing.assert_allclose(step[nf:], x, rtol=1e-10)
+    alone = np.linalg.solve(M[nf:, nf:], g[nf:])
+    assert own == pytest.approx(g[nf:] @ alone, rel=1e-10)
+    assert following(M[:nf, :nf], g[:nf], nf, d) == (d, 0.0) or np.array_equal(
+        following(M[:nf, :nf], g[:nf], nf, d)[0], d
+    )
