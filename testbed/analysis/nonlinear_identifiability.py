@@ -54,7 +54,7 @@ from testbed.identification.nonlinear_prediction import flights
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import substeps_for
 
-__all__ = ["NONLINEAR", "forward", "nonlinear_identifiability", "rank_tolerance"]
+__all__ = ["NONLINEAR", "first_samples", "forward", "nonlinear_identifiability", "rank_tolerance"]
 
 
 def rank_tolerance(H: np.ndarray, F: np.ndarray, samples: int, channels: int, substeps: int) -> float:
@@ -179,8 +179,24 @@ def _check(experiments: Sequence[Experiment], config: ModelConfig) -> None:
 
 
 def _assess(experiments, config: ModelConfig, noise_std: Mapping[str, float]) -> Identifiability:
-    """Stage 1: the analysis at the config's values with the noise σ `noise_std`."""
-    return nonlinear_identifiability(experiments, _noise(config, noise_std))
+    """Stage 1: the analysis at the config's values with the noise σ `noise_std`, each record
+    flown from its first sample (`first_samples`): the information moves with the initial state
+    only at second order, and the fit that follows fits it (where a mounted log's velocities are
+    not the states', from the best fit)."""
+    config = _noise(config, noise_std)
+    parts = [p for e in config.fitted(experiments) for p in split(e)]  # the records it analyses
+    initial = None if np.any(config.mounting()) else first_samples(parts, config)
+    return nonlinear_identifiability(experiments, config, initial=initial)
+
+
+def first_samples(experiments: Sequence[Experiment], config: ModelConfig) -> dict[str, dict[str, float]]:
+    """Each record's initial state as its first sample less the config's output biases, record
+    name → state → value (a state whose first sample is missing left out: fitted)."""
+    out = {}
+    for e in experiments:
+        first = np.asarray(e.y[0], float) - config.output_biases(e.measured)
+        out[e.name] = {c: float(v) for c, v in zip(e.measured, first) if np.isfinite(v)}
+    return out
 
 
 def _at_estimate(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:
