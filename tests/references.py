@@ -14,7 +14,7 @@ def assert_sensitivities_match_complex_step(prob, p: np.ndarray) -> list[np.ndar
     for j in range(prob.n_params):
         pc = p.astype(complex)
         pc[j] += 1j * h
-        for r, S, yc in zip(prob.records, sens, recursions.outputs(prob, pc)):
+        for r, S, yc in zip(prob.records, sens, recursions.simulated_outputs(prob, pc)):
             ref, cols = yc.imag / h, list(prob.columns(r))
             if j not in cols:  # another experiment's initial state
                 assert not ref.any()

@@ -152,7 +152,7 @@ def test_a_positive_rudder_turns_the_written_model_to_port_as_the_data_do(tmp_pa
     e = read_csv(tmp_path / "out" / f"{name}.csv")
     step = e.__class__(e.name, e.t, ("r",), np.zeros((e.t.size, 1)), np.tile([0.1, 0, 0], (e.t.size, 1)))
     prob = problem([step], config)
-    r = recursions.outputs(prob, np.r_[prob.start, 0.0])[0][:, 0]
+    r = recursions.simulated_outputs(prob, np.r_[prob.start, 0.0])[0][:, 0]
     assert r[-1] < 0  # positive δ steers to port (SIMMAN), as on testbed's torpedo (N_dr < 0)
 
 

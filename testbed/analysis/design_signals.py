@@ -44,7 +44,7 @@ __all__ = [
     "evaluate",
     "grow",
     "hold_signal",
-    "information",
+    "candidate_information",
     "largest",
     "scaled",
     "spec",
@@ -206,7 +206,7 @@ class Candidate:
         return spec(self.kind, self.fins, duration, name, self.hold)
 
 
-def information(
+def candidate_information(
     m: Model,
     kind: str,
     fins: Mapping[str, Signal],
@@ -225,7 +225,7 @@ def evaluate(
     """The experiment scaled to the regime's peak bounds and its Fisher information (`zero`:
     `still`'s flight, if flown)."""
     c = largest(m, kind, fins, limits, duration, zero)
-    return information(
+    return candidate_information(
         m, kind, {ch: scaled(s, float(f"{s.amplitude * c:.3g}")) for ch, s in fins.items()}, duration
     )
 
@@ -256,7 +256,7 @@ def grow(m: Model, cand: Candidate, mjcf=None) -> Candidate:
     for _ in range(GROWTH_BISECTIONS):
         mid = math.sqrt(lo * hi)
         lo, hi = (mid, hi) if passes(mid) else (lo, mid)
-    return information(m, cand.kind, fins(lo), cand.duration, cand.hold, lo)
+    return candidate_information(m, cand.kind, fins(lo), cand.duration, cand.hold, lo)
 
 
 def best_signals(

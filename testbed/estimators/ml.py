@@ -154,7 +154,7 @@ def _estimate(
 def _cost(prob: Problem, p: np.ndarray) -> float:
     """The negative log-likelihood at `p`; inf where the model diverges there (`likelihood.exploded`)."""
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-        out = recursions.outputs(prob, p)
+        out = recursions.simulated_outputs(prob, p)
     if likelihood.exploded(prob, out) is not None:
         return np.inf
     return likelihood.negative_log_likelihood(prob, [r.residual(y) for r, y in zip(prob.records, out)])

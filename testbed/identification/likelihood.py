@@ -19,8 +19,8 @@ from testbed.identification.problem import Problem
 from testbed.identification.recursions import (
     channel_weights,
     discrete_models,
-    outputs,
     sensitivity_parts,
+    simulated_outputs,
     simulated,
     trajectory,
     uncoupled,
@@ -203,7 +203,7 @@ def bounded(
             stage = segmented(prob, count, least)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
             p = initial_states(stage, values)
-            out = outputs(stage, p)
+            out = simulated_outputs(stage, p)
         longest = max(len(r.y) * r.dt for r in stage.records)
         why = exploded(stage, out)
         if why is None and rate * longest > np.log(EXPLODE):
@@ -417,7 +417,7 @@ def initial_states(prob: Problem, values: np.ndarray, R: np.ndarray | None = Non
 def divergence(prob: Problem, p: np.ndarray) -> str | None:
     """Why the model at `p` diverges on the data (with its least stable eigenvalue), or None."""
     with np.errstate(over="ignore", invalid="ignore"):
-        why = exploded(prob, outputs(prob, p))
+        why = exploded(prob, simulated_outputs(prob, p))
     if why is None:
         return None
     A = continuous(prob.structure, prob.coefficients(p[: prob.n_free]))[0]

@@ -266,7 +266,9 @@ def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
         # ∂(x + b)/∂b = 1 on the bias's own channel, 0 on the others
         St[:, free[bias] - m, np.flatnonzero(bias)] = 1.0
         if mounting.any():  # the log's reading moves with its mounting, on u, v, w
-            dg = log_mounting.derivatives(g, states[:, :3], states[:, 3:6], np.zeros((len(states), 3)))
+            dg = log_mounting.mounting_derivatives(
+                g, states[:, :3], states[:, 3:6], np.zeros((len(states), 3))
+            )
             velocity = ch < 3
             for j in np.flatnonzero(mounting):
                 St[:, velocity, j] = dg[free[j] - m - len(ch)][:, ch[velocity]]

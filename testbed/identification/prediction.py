@@ -12,7 +12,7 @@ from testbed.data import Experiment, ModelConfig
 from testbed.identification import scan
 from testbed.identification.likelihood import initial_states
 from testbed.identification.problem import problem
-from testbed.identification.recursions import outputs
+from testbed.identification.recursions import simulated_outputs
 from testbed.models.linear import IX, NX, STATES, continuous, discretize, structure, theta_vector
 
 __all__ = ["predict", "synthetic"]
@@ -41,7 +41,7 @@ def predict(
             if STATES[i] in given.get(r.name, {}):
                 p[r.offset + j] = initial[r.name][STATES[i]] - (prob.speed if STATES[i] == "u" else 0)
     out = [np.full(np.shape(e.y), np.nan) for e in experiments]
-    for r, yhat in zip(prob.records, outputs(prob, p)):
+    for r, yhat in zip(prob.records, simulated_outputs(prob, p)):
         yhat = yhat.copy()
         yhat[:, r.measured == IX["u"]] += prob.speed
         out[r.group][r.first : r.first + len(yhat)] = yhat

@@ -45,7 +45,7 @@ __all__ = [
     "curvature",
     "discrete",
     "discrete_models",
-    "outputs",
+    "simulated_outputs",
     "residuals",
     "sensitivities",
     "sensitivity_parts",
@@ -150,14 +150,14 @@ def states(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     return [trajectory(models[prob.key(r)], prob.x0(r, p), prob.inputs(r, values)) for r in prob.records]
 
 
-def outputs(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
+def simulated_outputs(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Model outputs (N, k) per experiment at the parameter vector `p` (u as a perturbation)."""
     return [prob.outputs(r, x, p[: prob.n_free]) for r, x in zip(prob.records, states(prob, p))]
 
 
 def residuals(prob: Problem, p: np.ndarray) -> list[np.ndarray]:
     """Measured minus model outputs (N, k) per experiment."""
-    return [r.residual(yhat) for r, yhat in zip(prob.records, outputs(prob, p))]
+    return [r.residual(yhat) for r, yhat in zip(prob.records, simulated_outputs(prob, p))]
 
 
 def sensitivity_parts(
@@ -229,7 +229,7 @@ def _read_parts(prob, record, d, x, rows, scale, size, present, values) -> Itera
     """`sensitivity_parts` of a record whose velocity log is `mounted`, as one part: the
     states' sensitivities (every state, `_sensitivities`) read through the log,
     ∂y/∂p = C ∂(v; ω)/∂p for u, v, w (`log_mounting.matrix`), the others the states'; and the
-    output terms' own, ∂y/∂(mounting) (`log_mounting.derivatives`), ∂y/∂c = Mᵀ ∂c_b/∂c, ∂y_c/∂b_c = 1."""
+    output terms' own, ∂y/∂(mounting) (`log_mounting.mounting_derivatives`), ∂y/∂c = Mᵀ ∂c_b/∂c, ∂y_c/∂b_c = 1."""
     N = len(x)
     S = _sensitivities(prob, record, d, x, np.arange(NX), np.ones(NX), values, biases=False)
     theta = prob.coefficients(values, record.group)
@@ -238,7 +238,9 @@ def _read_parts(prob, record, d, x, rows, scale, size, present, values) -> Itera
     acting = prob.acting(record.group)
     speed = np.array([prob.speed, 0.0, 0.0])
     if np.isin(prob.index[acting], IMOUNTING).any():
-        dg = log_mounting.derivatives(mounting, x[:, :3] + speed, x[:, 3:6], prob.current(record, theta))
+        dg = log_mounting.mounting_derivatives(
+            mounting, x[:, :3] + speed, x[:, 3:6], prob.current(record, theta)
+        )
     for i, k in enumerate(prob.index):
         if not acting[i]:
             continue

@@ -12,7 +12,7 @@ model's u). The turn about x is left out: it mixes v and w, both small at trim, 
 misalignment shows only where its sideslip or heave does. For a given mounting the reading is
 linear in the state, `y = C (v; ω) + Mᵀ (U e_x + c_b) − U e_x` with `C = Mᵀ [I  −[r]×]`, so the
 output-error fit simulates the states as before and reads them through C; its mounting
-parameters are fitted like the outputs' biases, with exact derivatives (`derivatives`).
+parameters are fitted like the outputs' biases, with exact derivatives (`mounting_derivatives`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from testbed.models.sensors import rotation
 
 __all__ = [
     "MOUNTING",
-    "derivatives",
+    "mounting_derivatives",
     "matrix",
     "matrix_derivatives",
     "read",
@@ -63,7 +63,7 @@ def reading(mounting: np.ndarray, velocity: np.ndarray, rates: np.ndarray, curre
     return q @ turned(mounting)  # row k: (Mᵀ q_k)ᵀ = q_kᵀ M
 
 
-def derivatives(
+def mounting_derivatives(
     mounting: np.ndarray, velocity: np.ndarray, rates: np.ndarray, current: np.ndarray
 ) -> np.ndarray:
     """∂y/∂(m_dvl_y, m_dvl_z, r_dvl_x, r_dvl_y, r_dvl_z) (5, N, 3) of `reading`:

@@ -69,7 +69,7 @@ __all__ = [
     "StepMetrics",
     "check_sampled",
     "closed_loop",
-    "design",
+    "design_autopilots",
     "design_channel",
     "design_hold",
     "fly_linear",
@@ -144,7 +144,9 @@ class Autopilots:
 HOLD_BANDWIDTH = 0.2  # rad/s: the vertical-mode hold, far below the PRBS band (0.01–4.4 Hz)
 
 
-def design(A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = HOLD_BANDWIDTH) -> Autopilots:
+def design_autopilots(
+    A: np.ndarray, B: np.ndarray, speed: float, hold_bandwidth: float = HOLD_BANDWIDTH
+) -> Autopilots:
     """Autopilots the autopilots on the continuous linear model (A, B) at trim `speed` (`STATES` order)."""
     rudder = B[:, 0]
     together = B[:, 1] + B[:, 2]  # δer = δel = δe
@@ -220,7 +222,7 @@ class Autopilot:
     def designed(cls, A: np.ndarray, B: np.ndarray, speed: float, dt: float, fin_limit: float) -> "Autopilot":
         """The autopilots designed on (A, B) at trim `speed`, run every dt s (`check_sampled`),
         their fin commands clipped to ±`fin_limit` rad."""
-        d = design(A, B, speed)
+        d = design_autopilots(A, B, speed)
         check_sampled(A, B, d, dt)
         return cls(d, dt, fin_limit)
 

@@ -425,14 +425,14 @@ def test_masked_initial_states_are_the_least_squares_of_the_samples_present():
     R = np.linspace(1e-5, 1e-3, len(prob.channels))
     p = likelihood.initial_states(prob, prob.start, R)
     base = np.concatenate([prob.start, np.zeros(prob.n_params - prob.n_free)])
-    forced = recursions.outputs(prob, base)
+    forced = recursions.simulated_outputs(prob, base)
     for i, r in enumerate(prob.records):
         k = len(r.measured)
         G = []
         for j in range(k):
             q = base.copy()
             q[r.offset + j] = 1.0
-            G.append(recursions.outputs(prob, q)[i] - forced[i])
+            G.append(recursions.simulated_outputs(prob, q)[i] - forced[i])
         G = np.stack(G, axis=2) / np.sqrt(R[r.channels])[None, :, None]  # (N, k, k)
         v = (r.y - forced[i]) / np.sqrt(R[r.channels])
         x0 = np.linalg.lstsq(G[r.present], v[r.present], rcond=None)[0]
@@ -484,7 +484,7 @@ def test_a_slower_sensor_s_likelihood_by_hand():
     config = prior_config(error=0.1)
     prob = problem(slow, config)
     p = likelihood.initial_states(prob, prob.start)
-    out = recursions.outputs(prob, p)
+    out = recursions.simulated_outputs(prob, p)
     sums, counts = {}, {}
     for e, yhat in zip(slow, out):
         for j, s in enumerate(e.measured):

@@ -47,7 +47,7 @@ def test_zero_order_hold_model_matches_fine_rk4_with_singular_A():
     prob, p = _problem(duration=4.0)
     A, B, S = continuous(prob.structure, prob.theta)
     assert np.linalg.matrix_rank(A) < NX  # ψ and z are pure integrators
-    for r, yhat in zip(prob.records, recursions.outputs(prob, p)):
+    for r, yhat in zip(prob.records, recursions.simulated_outputs(prob, p)):
         x, h, sub = prob.x0(r, p).copy(), r.dt / 200, 200
         f = lambda x, u: A @ x + B @ u + S  # noqa: E731
         ref = [x[r.measured]]
@@ -213,7 +213,7 @@ def test_compiled_recursions_equal_the_numpy_blocks():
             *recursions.sensitivities(prob, p, xs),
             *likelihood.gauss_newton_terms(prob, p, xs, res, R),
             likelihood.fit_initial_states(prob, prob.start)[0],
-            *recursions.outputs(prob, pc),
+            *recursions.simulated_outputs(prob, pc),
         )
 
     blocks = everything()

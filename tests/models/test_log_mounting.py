@@ -44,7 +44,7 @@ def test_the_reading_is_the_sensor_model_s_and_its_derivatives_the_complex_step_
     want = outputs(sensor, x, current=current)
     got = log_mounting.reading(g, x[:, :3], x[:, 3:6], current)
     np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-15)
-    dg = log_mounting.derivatives(g, x[:, :3], x[:, 3:6], current)
+    dg = log_mounting.mounting_derivatives(g, x[:, :3], x[:, 3:6], current)
     for i in range(5):
         gc = g.astype(complex)
         gc[i] += 1e-30j
@@ -121,7 +121,7 @@ def test_the_initial_states_minimise_the_cost_as_scipy_finds():
         return np.concatenate(
             [
                 (r.residual(y) / np.sqrt(R[r.channels])).ravel()
-                for r, y in zip(prob.records, recursions.outputs(prob, q))
+                for r, y in zip(prob.records, recursions.simulated_outputs(prob, q))
             ]
         )
 

@@ -21,7 +21,7 @@ def lin():
 
 @pytest.fixture(scope="module")
 def design(lin):
-    return ap.design(lin.A_full, lin.B_full, 20.0)
+    return ap.design_autopilots(lin.A_full, lin.B_full, 20.0)
 
 
 def _closed_loop(lin, d):
@@ -200,7 +200,7 @@ def test_autopilots_unstable_when_sampled_are_refused():
     with pytest.raises(InputError, match=r"sampled at 50 Hz at a trim speed of 30 m/s.*25\.0 Hz"):
         ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, DT, lin.fins.angle)
     assert ap.Autopilot.designed(lin.A_full, lin.B_full, 30.0, 0.005, lin.fins.angle).dt == 0.005
-    d = ap.design(lin.A_full, lin.B_full, 30.0)
+    d = ap.design_autopilots(lin.A_full, lin.B_full, 30.0)
     assert np.abs(np.linalg.eigvals(ap.closed_loop(lin.A_full, lin.B_full, d, DT))).max() > 1.2
 
 
