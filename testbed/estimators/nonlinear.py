@@ -13,7 +13,7 @@ contract and `Estimate` as the linear model's methods:
   initial states, taken at the run's reference state (the linear `ml-nm` concentrates it
   exactly, its outputs being linear in it). R and that reference are held during a simplex run
   and relaxed at its best corner between runs (the initial state by Gauss-Newton,
-  `nonlinear_prediction.initial_state`, its sensitivities there; R the flight_residuals' mean square);
+  `nonlinear_prediction.initial_state`, its sensitivities there; R the residuals' mean square);
   every later run a fresh simplex at the best corner (`restart_step`). Converged when a run stops by its
   rule, improves J_M by no more than ε = `eps`/N, and the relaxation that follows changes no
   variance by more than `r_tol`; stalled after `max_relaxations` runs. No record-length
@@ -33,7 +33,7 @@ What a linear method's option means here:
 - `start`: `config` (the config's values), `equation-error` (the dynamics rows fitted to the
   measured states' difference quotients from the config's values, `nonlinear_regression`: no
   flight, so no basin; it needs u v w p q r φ θ measured), or `auto` (the default): `ml-gn`
-  fits from both, the better-flying first (the likelihood with R the flight_residuals' mean square,
+  fits from both, the better-flying first (the likelihood with R the residuals' mean square,
   the measured first samples as initial states), the second stopping where it steps into the
   first's basin, and keeps the least cost; `ml-nm` takes the better-flying one. `config` alone
   where the records cannot give the second. `global` (`ml-gn`): auto's two and the best
@@ -156,7 +156,7 @@ def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | N
 
 def _start_cost(prob: NonlinearObjective, values: np.ndarray) -> float:
     """The negative log-likelihood of the free `values` with each record's first sample as its
-    initial state, R the flight_residuals' mean square; inf where the flight leaves the data's range."""
+    initial state, R the residuals' mean square; inf where the flight leaves the data's range."""
     at = prob.point(np.asarray(values, float))
     return np.inf if at is None else at.J
 

@@ -318,7 +318,7 @@ def _servo(reference, limits, ctrl, fin_act, cmd, slew):
 
 @numba.njit(**_INNER)
 def _turn(R, x, y, z):
-    """R (x, y, z), as a tuple, R a quaternion_matrix matrix stored row by row (MuJoCo's `xmat` row)."""
+    """R (x, y, z), as a tuple, R a rotation matrix stored row by row (MuJoCo's `xmat` row)."""
     return (R[0] * x + R[1] * y + R[2] * z, R[3] * x + R[4] * y + R[5] * z, R[6] * x + R[7] * y + R[8] * z)
 
 

@@ -193,7 +193,7 @@ def _quat_wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
 
 
 def euler_quaternions(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
-    """Quaternions (N, 4; x, y, z, w) of the body-to-NED quaternion_matrix Rz(ψ) Ry(θ) Rx(φ)."""
+    """Quaternions (N, 4; x, y, z, w) of the body-to-NED rotation Rz(ψ) Ry(θ) Rx(φ)."""
     cr, sr = np.cos(phi / 2), np.sin(phi / 2)
     cp, sp = np.cos(theta / 2), np.sin(theta / 2)
     cy, sy = np.cos(psi / 2), np.sin(psi / 2)

@@ -290,7 +290,7 @@ def skew(a: np.ndarray) -> np.ndarray:
 
 
 def quaternion_matrix(quat) -> np.ndarray:
-    """The 3×3 quaternion_matrix matrix of a unit quaternion (w, x, y, z), MuJoCo's convention."""
+    """The 3×3 rotation matrix of a unit quaternion (w, x, y, z), MuJoCo's convention."""
     R = np.empty(9)
     mujoco.mju_quat2Mat(R, np.asarray(quat, float))
     return R.reshape(3, 3)
