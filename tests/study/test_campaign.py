@@ -119,6 +119,18 @@ def test_plan_pairs_every_arm_with_the_optimum_per_data_set_seed_and_spread():
         plan(1, truths=("wind",))
 
 
+def test_the_cells_run_seed_by_seed_each_seeds_nonlinear_fits_first():
+    cells = plan(2, spreads=(0.2, 0.4))
+    order = campaign.run_order(cells)
+    assert sorted(c.key for c in order) == sorted(c.key for c in cells)
+    assert [c.seed for c in order] == sorted(c.seed for c in cells)  # a stopped campaign has whole seeds
+    for seed in (1, 2):
+        arms = [c.arm for c in order if c.seed == seed]
+        assert arms[:2] == [NONLINEAR_ARM] * 2 and NONLINEAR_ARM not in arms[2:]
+        rest = [c.key for c in cells if c.seed == seed and c.arm != NONLINEAR_ARM]
+        assert [c.key for c in order if c.seed == seed][2:] == rest  # the plan's order otherwise
+
+
 def test_every_output_error_arm_starts_where_it_says_never_from_the_default_starts():
     """The default start (auto) would also try the equation-error and MEKF starts: an arm starts
     from the paired a-priori model unless it is about another start."""
