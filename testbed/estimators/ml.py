@@ -50,11 +50,11 @@ from testbed.estimators.base import (
     unphysical,
 )
 from testbed.estimators.levenberg_marquardt import levenberg_marquardt
-from testbed.estimators.multistart import DELTA_J, Fit, best_fit, starts_record, starts_summary
+from testbed.estimators.multistart import DELTA_J, Fit, best_fit, box_draws, starts_record, starts_summary
 from testbed.estimators.nelder_mead import SIMPLEX_ITERATIONS, nelder_mead
 from testbed.estimators.newton_raphson import newton_raphson
 from testbed.identification import bounds, likelihood, recursions
-from testbed.identification.linear_objective import point
+from testbed.identification.linear_objective import as_objective, point
 from testbed.identification.objective import Point
 from testbed.identification.problem import Problem, base_name, problem
 
@@ -176,7 +176,8 @@ def _fit(
     error (which leaves the rows the data cannot regress at their a-priori values) nor the MEKF
     gave a whole second start.
     `global`: from those two and from the best `polish` of `samples`
-    coefficient vectors drawn in a box around the a-priori values (`starts.box`), ranked by
+    coefficient vectors drawn in a box around the a-priori values (`multistart.box_draws`, inside
+    the bounds where given), ranked by
     their cost on the first multiple-shooting stage (records cut in 16: a poor model's error does
     not grow along the whole record there). Every start's result is recorded in the estimate,
     and the simulations of all of them counted (`Estimate.evaluations`).
@@ -198,6 +199,8 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
     tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name not in START_OPTIONS}
 
     fits: list[Fit] = []
+    # the bounds `ml-gn` keeps (the other optimisers refuse them: `Method.bounds`), and its box draws too
+    box = config.box([base_name(n) for n in prob.free]) if config.bounds else None
 
     def begin(theta: np.ndarray) -> tuple[np.ndarray, float, Point | None]:
         """The parameter vector at θ with its best initial states, its cost, and for `ml-gn` the
@@ -216,8 +219,8 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
             more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
         if at is not None:
             more["at"] = at
-        if optimiser is trust_region.trust_region and config.bounds:
-            more["box"] = config.box([base_name(n) for n in prob.free])
+        if optimiser is trust_region.trust_region and box is not None:
+            more["box"] = box
         done = sum(f.outcome.iterations for f in fits)  # the iterations count on over the starts
 
         def report(step: Progress) -> None:
@@ -263,7 +266,7 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
     for k in sorted(first, key=lambda k: (first[k][1], k != "config")):
         fits.append(run(k, *first[k], fits))
     if start == "global":
-        for k, theta in enumerate(_polish_starts(prob, options)):
+        for k, theta in enumerate(box_draws(as_objective(prob), options, box)):
             fits.append(run(f"box-{k + 1}", *begin(theta), fits))
         return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally), notes)
     if (
@@ -278,7 +281,7 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
     if not whole and not any(f.start == "mekf" for f in fits):
         # no whole second start (equation error left rows at the a-priori values, no MEKF
         # fit): the best box draw is one
-        for theta in _polish_starts(prob, replace(options, polish=1)):
+        for theta in box_draws(as_objective(prob), replace(options, polish=1), box):
             fits.append(run("box-1", *begin(theta), fits))
     return _estimate(name, prob, best_fit(fits), t0, fits, _evaluations(prob, tally), notes)
 
@@ -321,16 +324,6 @@ def _shooting(optimiser, prob: Problem, first: tuple, tuning: dict, callback) ->
         history.append(out.history[1:])
         theta = out.p[: prob.n_free]
     return replace(out, iterations=used, history=np.concatenate(history))
-
-
-def _polish_starts(prob: Problem, options: Options) -> list[np.ndarray]:
-    """The best `options.polish` of `options.samples` box draws (`starts.box`), by their cost on
-    the records cut into 16 segments, each with its own initial state."""
-    rng = np.random.default_rng(options.seed)
-    samples = starts.box(prob, options.samples, options.spread, rng)
-    stage = likelihood.segmented(prob, trust_region.SEGMENTS, likelihood.LEAST_SEGMENT)
-    costs = [_cost(stage, likelihood.initial_states(stage, theta)) for theta in samples]
-    return [samples[i] for i in np.argsort(costs)[: options.polish] if np.isfinite(costs[i])]
 
 
 STARTS = ("auto", "config", "equation-error", "mekf", "global")
@@ -395,7 +388,7 @@ class TrustRegionOptions(Options):
     start: str = _START
     tol: float = _TOL
     segments: int = count_option(
-        trust_region.SEGMENTS,
+        likelihood.SEGMENTS,
         1,
         "multiple shooting: each record is first fitted cut into this many pieces, a quarter as many per stage",
     )

@@ -1,7 +1,7 @@
 """Fits from several starts: each start's `Fit`, the one kept (`best_fit`), and what every start
 reached as the estimate records it (`starts_summary`, `starts_record`), and a global search's draws
-(`latin`), for the linear model's ML methods
-(`ml`) and the nonlinear model's (`nonlinear`) alike.
+(`latin`, ranked by `box_draws`), for the linear model's ML methods (`ml`) and the nonlinear
+model's (`nonlinear`) alike, over the `Objective` protocol.
 """
 
 from __future__ import annotations
@@ -11,6 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from testbed.estimators.base import Outcome, Status
+from testbed.identification.bounds import crlb
+from testbed.identification.likelihood import LEAST_SEGMENT, SEGMENTS, reduced
+from testbed.identification.objective import Objective
 
 __all__ = [
     "BOX_BOUNDS",
@@ -18,6 +21,7 @@ __all__ = [
     "NOT_COMPUTED",
     "Fit",
     "best_fit",
+    "box_draws",
     "latin",
     "starts_record",
     "starts_summary",
@@ -97,3 +101,29 @@ def latin(
     u = rng.permuted(np.tile(np.arange(count), (len(theta0), 1)), axis=1).T + rng.random((count, len(theta0)))
     u = 2.0 * u / count - 1.0  # (count, len(θ0)) in (−1, 1)
     return np.where(theta0 == 0, u * half, theta0 * np.exp(spread * u))
+
+
+def box_draws(
+    objective: Objective, options, box: tuple[np.ndarray, np.ndarray] | None = None
+) -> list[np.ndarray]:
+    """The best `options.polish` of `options.samples` free-value vectors drawn by Latin hypercube
+    around the a-priori values `objective.start` (`latin` with `options.spread` and `options.seed`;
+    a value at 0 within ±`BOX_BOUNDS` Cramér-Rao σ at the a-priori values, 0 where they cannot be
+    flown), inside `box` (lower, upper) where given, ranked by their cost on the records cut into
+    `SEGMENTS` segments, each with its own initial state: a draw's basin shows on short segments,
+    where a model that drifts off over the whole record still flies."""
+    theta0 = objective.start
+    half = np.zeros(len(theta0))
+    if np.any(theta0 == 0):
+        at = objective.point(theta0)
+        if at is not None:
+            g, M = objective.terms(at)
+            std = crlb(reduced(M, g, objective.n_free)[0]).std
+            half = np.where(np.isfinite(std), BOX_BOUNDS * std, 0.0)
+    draws = latin(theta0, half, options.samples, options.spread, np.random.default_rng(options.seed))
+    if box is not None:
+        draws = np.clip(draws, *box)
+    stage = objective.segmented(SEGMENTS, LEAST_SEGMENT)
+    points = [stage.point(d) for d in draws]
+    costs = [np.inf if a is None else a.J for a in points]
+    return [draws[i] for i in np.argsort(costs)[: options.polish] if np.isfinite(costs[i])]

@@ -58,16 +58,12 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators import trust_region
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status, bounds_text
-from testbed.estimators.multistart import BOX_BOUNDS, Fit, best_fit, latin, starts_record, starts_summary
+from testbed.estimators.multistart import Fit, best_fit, box_draws, starts_record, starts_summary
 from testbed.estimators.nonlinear_fit import fit as fit_from
 from testbed.estimators.nonlinear_fit import NonlinearFit, nonlinear_problem
 from testbed.estimators.nonlinear_regression import equation_error
 from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficients, simplex_run
-from testbed.identification.bounds import crlb
-from testbed.identification.likelihood import LEAST_SEGMENT, reduced
-from testbed.identification.nonlinear_objective import NonlinearObjective
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
     sensitivity_bounds,
@@ -154,17 +150,10 @@ def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | N
         return None
 
 
-def _start_cost(prob: NonlinearObjective, values: np.ndarray) -> float:
-    """The negative log-likelihood of the free `values` with each record's first sample as its
-    initial state, R the residuals' mean square; inf where the flight leaves the data's range."""
-    at = prob.point(np.asarray(values, float))
-    return np.inf if at is None else at.J
-
-
 def _starts(options: Options, model, theta, recs, channels, free, prob, box, notes):
     """The starts `options.start` names as (label, θ ⊕ b ⊕ g, its point where computed), in the
     order they are run (module doc): `auto` and `global` the better-flying of the a-priori and equation-error starts first,
-    `global` then the best `polish` box draws (`_box_draws`)."""
+    `global` then the best `polish` box draws (`multistart.box_draws`)."""
     if options.start == "config":
         yield "config", theta, None
         return
@@ -183,30 +172,10 @@ def _starts(options: Options, model, theta, recs, channels, free, prob, box, not
     for k in sorted(named, key=lambda k: (cost[k], k != "config")):
         yield k, named[k], at[k]
     if options.start == "global":
-        for k, values in enumerate(_box_draws(prob, options, box)):
+        for k, values in enumerate(box_draws(prob, options, box)):
             start = theta.copy()
             start[idx] = values
             yield f"box-{k + 1}", start, None
-
-
-def _box_draws(prob: NonlinearObjective, options: Options, box) -> list[np.ndarray]:
-    """The best `options.polish` of `options.samples` free-value vectors drawn by Latin hypercube
-    around the a-priori values (`starts.latin`: θ_i e^±spread, one at 0 within ±`BOX_BOUNDS`
-    Cramér-Rao σ there), inside the `box`, by their cost on the records cut into
-    `trust_region.SEGMENTS` segments, each with its own initial state."""
-    theta0 = prob.start
-    half = np.zeros(len(theta0))
-    at = prob.point(theta0)
-    if at is not None and np.any(theta0 == 0):
-        g, M = prob.terms(at)
-        std = crlb(reduced(M, g, prob.n_free)[0]).std
-        half = np.where(np.isfinite(std), BOX_BOUNDS * std, 0.0)
-    draws = latin(theta0, half, options.samples, options.spread, np.random.default_rng(options.seed))
-    if box is not None:
-        draws = np.clip(draws, *box)
-    stage = prob.segmented(trust_region.SEGMENTS, LEAST_SEGMENT)
-    costs = [_start_cost(stage, d) for d in draws]
-    return [draws[i] for i in np.argsort(costs)[: options.polish] if np.isfinite(costs[i])]
 
 
 def gauss_newton(

@@ -20,8 +20,9 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.estimators.base import Outcome, Status
-from testbed.estimators.trust_region import SEGMENTS, trust_region
+from testbed.estimators.trust_region import trust_region
 from testbed.identification.bounds import crlb
+from testbed.identification.likelihood import SEGMENTS
 from testbed.identification.nonlinear_objective import NonlinearObjective
 from testbed.identification.nonlinear_output_error import (
     FlightRecord,

@@ -6,9 +6,10 @@
   biased by noise and filtering.
 - `mekf`: the modified EKF's estimate after one pass (`mekf.MEKF`), which follows the states
   with the data, so a poor model cannot drift away from them.
-- `box`: coefficients drawn in a box around the a-priori values (Latin hypercube): a coefficient
-  θ_i ≠ 0 between θ_i e^−b and θ_i e^b, one analysed at 0 within ±3 of its Cramér-Rao bounds
-  there, for a multi-start search (the paper's future work 2, global optimisation).
+- `global`'s box draws (`multistart.box_draws`): coefficients drawn in a box around the a-priori
+  values (Latin hypercube): a coefficient θ_i ≠ 0 between θ_i e^−b and θ_i e^b, one analysed at
+  0 within ±3 of its Cramér-Rao bounds there, for a multi-start search (the paper's future work
+  2, global optimisation).
 """
 
 from __future__ import annotations
@@ -22,11 +23,9 @@ from testbed.errors import InputError
 from testbed.estimators import equation_error, mekf
 from testbed.estimators.base import Status
 from testbed.estimators.filter_options import FilterOptions
-from testbed.estimators.multistart import BOX_BOUNDS, latin
-from testbed.identification import bounds, likelihood, recursions
 from testbed.identification.problem import Problem
 
-__all__ = ["box", "named"]
+__all__ = ["named"]
 
 
 def named(
@@ -55,22 +54,3 @@ def named(
             "a filter that converges, or start auto or equation-error"
         )
     return np.array([est.coefficients[n] for n in prob.free]), {}
-
-
-def box(prob: Problem, count: int, spread: float, rng: np.random.Generator) -> np.ndarray:
-    """`count` coefficient vectors (count, n_free) drawn by Latin hypercube in the box around the
-    a-priori values: each axis cut into `count` equal strata, one draw in each, the strata
-    shuffled per axis; log-uniform within e^±`spread` for a coefficient ≠ 0, uniform within
-    ±`BOX_BOUNDS` Cramér-Rao bounds (at the a-priori values) for one at 0."""
-    theta0 = prob.start
-    half = np.zeros(len(theta0))
-    if np.any(theta0 == 0):
-        with np.errstate(over="ignore", invalid="ignore"):
-            p = likelihood.initial_states(prob, theta0)
-        if likelihood.divergence(prob, p) is None:
-            xs = recursions.states(prob, p)
-            res = [r.residual(prob.outputs(r, x, theta0)) for r, x in zip(prob.records, xs)]
-            g, M = likelihood.gauss_newton_terms(prob, p, xs, res, likelihood.noise_variance(prob, res))
-            std = bounds.crlb(likelihood.reduced(M, g, prob.n_free)[0]).std
-            half = np.where(np.isfinite(std), BOX_BOUNDS * std, 0.0)
-    return latin(theta0, half, count, spread, rng)

@@ -60,6 +60,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from testbed.identification import bounds, likelihood
+from testbed.identification.likelihood import SEGMENTS
 from testbed.identification.linear_objective import as_objective
 from testbed.identification.objective import Objective, Point, following
 from testbed.identification.problem import Problem
@@ -71,7 +72,6 @@ __all__ = [
     "PROBES",
     "RADIUS",
     "SEGMENT_RADIUS",
-    "SEGMENTS",
     "SHRINK",
     "STAGE_TOL",
     "bounded_step",
@@ -81,7 +81,6 @@ __all__ = [
 ]
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
-SEGMENTS = 16  # multiple shooting's first stage: segments per record
 NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
 PACE = 3  # a descent closes in on its stationary point when its step halves over this many iterations
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead

@@ -32,6 +32,7 @@ __all__ = [
     "FEWEST_SEGMENT",
     "LEAST_SEGMENT",
     "RELAXATIONS",
+    "SEGMENTS",
     "blocks",
     "bounded",
     "divergence",
@@ -51,6 +52,7 @@ __all__ = [
 
 EXPLODE = 1e3  # a simulated output beyond EXPLODE·max|y| + 1 (SI) means the model diverged
 LEAST_SEGMENT = 50  # samples in a multiple-shooting segment, at least
+SEGMENTS = 16  # multiple shooting's first stage, and a global search's ranking: segments per record
 # the fewest samples of a segment where a record holds too few for `LEAST_SEGMENT`-sample ones
 # (a small vehicle's 25 s dive logged at 2 Hz) and the model diverges over it: each segment's
 # initial state still has several samples of every measured channel
