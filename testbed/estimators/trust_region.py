@@ -31,7 +31,11 @@ take their Gauss-Newton step with θ's).
   held at its estimate at θ and the trial's initial states fitted with it; the step is taken
   when ρ > `ACCEPT`, and Δ shrinks (ρ < ¼) or grows (ρ > ¾ at the boundary) as in every
   trust-region method (Nocedal & Wright, Alg. 4.1). Then R is re-estimated at θ + d. Every step
-  taken lowers the likelihood itself: W falls at the old R, and R̂ lowers it further.
+  taken lowers the likelihood itself: W falls at the old R, and R̂ lowers it further. Where the
+  initial states follow θ's step (the nonlinear model), a rejected step whose decrease the
+  initial states' own step promised the most cuts that step to a quarter instead of the region:
+  the flight's dependence on its first state can be far from its quadratic model (a kink of an
+  |v| term crossed), and no θ step mends that.
 - Multiple shooting, where the fit on the whole record fails: from a poor start the whole
   record's output error is far from quadratic (an unstable or wrong model's error grows along the
   record, and the heading integrates it), so the method fits the records cut into `segments`
@@ -291,8 +295,9 @@ def _descend(
         F, gr = likelihood.reduced(M, g, nf)
         held = _held(x.p[:nf], gr, box)
         free = ~held
-        # the initial states' own Gauss-Newton decrease (×2), none where they are fitted at every θ
-        own = 0.0 if prob.projected else following(M, g, nf, np.zeros(nf))[1]
+        # the initial states' own Gauss-Newton step and decrease (×2), none where they are fitted
+        # at every θ
+        alone, own = (None, 0.0) if prob.projected else following(M, g, nf, np.zeros(nf))
         Ff, gf = F[np.ix_(free, free)], gr[free]
         # the Gauss-Newton step in Cramér-Rao units, the initial states' included: √(g_rᵀ F⁻¹ g_r + g_xᵀ M_xx⁻¹ g_x)
         step = np.sqrt(max(gf @ bounds.crlb(Ff).covariance @ gf + own, 0.0))
@@ -302,12 +307,17 @@ def _descend(
         if it >= max_iter:
             earlier = steps[-1 - PACE] if len(steps) > PACE else np.inf
             return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step, earlier=earlier, held=held)
+        reach = 1.0  # the share of the initial states' own step taken: cut as the region is
         while True:
             d = bounded_step(F, gr, s, delta, x.p[:nf], free, box)
-            # the decrease the quadratic model predicts, the initial states following θ's step:
-            # g_rᵀd − ½ dᵀF d + ½ g_xᵀ M_xx⁻¹ g_x
-            whole, own = (d, 0.0) if prob.projected else following(M, g, nf, d)
-            predicted = float(gr @ d - 0.5 * d @ F @ d) + 0.5 * own
+            if prob.projected:
+                whole = d
+                # the decrease the quadratic model predicts, the initial states at their best: g_rᵀd − ½ dᵀF d
+                predicted = float(gr @ d - 0.5 * d @ F @ d)
+            else:  # the initial states follow θ's step, their own step cut to `reach` of it
+                whole = following(M, g, nf, d)[0] - (1.0 - reach) * alone
+                # gᵀΔp − ½ ΔpᵀMΔp; with the whole own step, g_rᵀd − ½ dᵀF d + ½ g_xᵀ M_xx⁻¹ g_x
+                predicted = float(g @ whole - 0.5 * whole @ M @ whole)
             trial = prob.moved(x, whole)
             # ρ = actual / predicted decrease of the weighted cost with R held at its estimate at
             # x, the trial's initial states fitted with that R: a smooth function of the step
@@ -320,7 +330,14 @@ def _descend(
                 else -np.inf
             )
             size = np.linalg.norm(d / s)
-            if not rho >= 0.25:  # a poor model of the cost there (or none: NaN): a smaller region
+            # the initial states' own step's share of the decrease predicted: ½ g_xᵀM_xx⁻¹g_x c (2 − c)
+            own_share = 0.5 * own * reach * (2.0 - reach)
+            if not rho >= 0.25 and own_share > 0.5 * predicted:
+                # a poor model of the cost along the initial states' own step, which promised the
+                # most (a kink of the flight in its first state crossed): a quarter of it, the
+                # region kept, or no θ step would ever lower the cost
+                reach *= 0.25
+            elif not rho >= 0.25:  # a poor model of the cost there (or none: NaN): a smaller region
                 # a quarter of the step, or of the region where the step came out longer (its
                 # length in floating point off the model's, on coefficients scaled decades
                 # apart): the region shrinks whatever the step

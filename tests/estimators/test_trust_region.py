@@ -215,3 +215,38 @@ def test_a_step_in_a_box_stops_the_values_that_cross_and_solves_for_the_rest_as_
     )  # fmt: skip
     np.testing.assert_allclose(d, ref.x, atol=1e-6)
     assert np.all(d >= low) and np.all(d <= high)
+
+
+class _MisModelledInitialState:
+    """W(θ, x) = ½ (θ − 1)² + 10 x², one θ and one initial state that follows it (not projected),
+    whose Gauss-Newton curvature is reported as 1 where the cost's is 20: the initial state's own
+    step overshoots twentyfold, as a flight far from its quadratic model in its first state does."""
+
+    n_free, pieces, projected = 1, 1, False
+    start = np.array([0.0])
+
+    def _at(self, p):
+        res = [np.array([[1.0 - p[0], -np.sqrt(20.0) * p[1]]])]
+        R = np.ones(2)
+        return Point(p, [None], res, R, self.weighted_cost(res, R))
+
+    def point(self, theta, R=None):
+        return self._at(np.array([theta[0], 1.0]))
+
+    def moved(self, at, step):
+        return self._at(at.p + step)
+
+    def terms(self, at):
+        e = at.res[0][0]
+        return np.array([e[0], np.sqrt(20.0) * e[1]]), np.eye(2)
+
+    def weighted_cost(self, res, R):
+        return 0.5 * float(np.sum(res[0] ** 2 / R))
+
+
+def test_a_rejected_step_cuts_the_initial_states_own_step_too():
+    prob = _MisModelledInitialState()
+    start = prob.point(np.array([0.0]))
+    out = trust_region._descend(prob, start, np.ones(1), 1.0, 1e-3, 200, lambda x: None)
+    assert out.status is Status.CONVERGED
+    assert abs(out.point.p[0] - 1.0) < 1e-3 and abs(out.point.p[1]) < 1e-3 / np.sqrt(20.0)
