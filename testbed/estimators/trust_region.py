@@ -32,10 +32,12 @@ take their Gauss-Newton step with θ's).
   when ρ > `ACCEPT`, and Δ shrinks (ρ < ¼) or grows (ρ > ¾ at the boundary) as in every
   trust-region method (Nocedal & Wright, Alg. 4.1). Then R is re-estimated at θ + d. Every step
   taken lowers the likelihood itself: W falls at the old R, and R̂ lowers it further. Where the
-  initial states follow θ's step (the nonlinear model), a rejected step whose decrease the
-  initial states' own step promised the most cuts that step to a quarter instead of the region:
-  the flight's dependence on its first state can be far from its quadratic model (a kink of an
-  |v| term crossed), and no θ step mends that.
+  initial states follow θ's step (the nonlinear model), their own step (`g_xᵀM_xx⁻¹` of it) has
+  a region of its own, a share of the whole: a rejected step cuts it to a quarter first, down to
+  `LEAST_REACH`, while it is at least `OWN_SHARE` of the decrease predicted, and the region after
+  (the flight's dependence on its first state can be far from its quadratic model, a kink of an
+  |v| term crossed, and no θ step mends that); a step the model predicts well doubles it, up to
+  the whole.
 - Multiple shooting, where the fit on the whole record fails: from a poor start the whole
   record's output error is far from quadratic (an unstable or wrong model's error grows along the
   record, and the heading integrates it), so the method fits the records cut into `segments`
@@ -73,6 +75,8 @@ from testbed.estimators.base import Outcome, Progress, Status
 __all__ = [
     "ACCEPT",
     "JOIN",
+    "LEAST_REACH",
+    "OWN_SHARE",
     "PROBES",
     "RADIUS",
     "SEGMENT_RADIUS",
@@ -85,6 +89,8 @@ __all__ = [
 ]
 
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
+LEAST_REACH = 1.0 / 64  # the initial states' own step is cut to no less than this share before the region is
+OWN_SHARE = 1e-3  # and only while that step's share of the decrease predicted is at least this
 NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
 PACE = 3  # a descent closes in on its stationary point when its step halves over this many iterations
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
@@ -284,6 +290,7 @@ def _descend(
     free values (None: unbounded); a value on its bound with the descent pointing out is held
     there (`_held`), the others step in the box (the step clipped onto it)."""
     nf, x, it, steps = prob.n_free, start, 0, []
+    reach = 1.0  # the share of the initial states' own step taken: a region of its own
     while True:
         for i, (theta, std) in enumerate(follow):
             if np.all(np.abs(x.p[:nf] - theta) <= JOIN * std):
@@ -307,7 +314,6 @@ def _descend(
         if it >= max_iter:
             earlier = steps[-1 - PACE] if len(steps) > PACE else np.inf
             return Descent(x, Status.MAX_ITERATIONS, it, delta, M, step=step, earlier=earlier, held=held)
-        reach = 1.0  # the share of the initial states' own step taken: cut as the region is
         while True:
             d = bounded_step(F, gr, s, delta, x.p[:nf], free, box)
             if prob.projected:
@@ -332,18 +338,21 @@ def _descend(
             size = np.linalg.norm(d / s)
             # the initial states' own step's share of the decrease predicted: ½ g_xᵀM_xx⁻¹g_x c (2 − c)
             own_share = 0.5 * own * reach * (2.0 - reach)
-            if not rho >= 0.25 and own_share > 0.5 * predicted:
-                # a poor model of the cost along the initial states' own step, which promised the
-                # most (a kink of the flight in its first state crossed): a quarter of it, the
-                # region kept, or no θ step would ever lower the cost
+            if not rho >= 0.25 and reach > LEAST_REACH and own_share > OWN_SHARE * predicted:
+                # a poor model of the cost there, the initial states' own step a part of it: a
+                # quarter of that step first, the region kept (the flight's dependence on its
+                # first state can be far from quadratic, a kink of an |v| term crossed, and no θ
+                # step mends that)
                 reach *= 0.25
             elif not rho >= 0.25:  # a poor model of the cost there (or none: NaN): a smaller region
                 # a quarter of the step, or of the region where the step came out longer (its
                 # length in floating point off the model's, on coefficients scaled decades
                 # apart): the region shrinks whatever the step
                 delta = 0.25 * (size if size < delta else delta)
-            elif rho > 0.75 and size > 0.99 * delta:
-                delta *= 2.0
+            elif rho > 0.75:
+                reach = min(1.0, 2.0 * reach)
+                if size > 0.99 * delta:
+                    delta *= 2.0
             if rho > ACCEPT:
                 break
             if delta < 1e-12 or predicted <= 0:
