@@ -42,7 +42,7 @@ def main() -> int:
         lin = analytic_model(model, SPEED)
         best["analytic"] = min(best["analytic"], time.perf_counter() - t0)
     nl = nonlinear.nonlinear_model(constants(model, SPEED), fit.terms)
-    theta = nonlinear.theta_vector(nl, fit.coefficients)
+    theta = nonlinear.nonlinear_theta(nl, fit.coefficients)
     linear = nonlinear.linearise(nl, theta).coefficients
     worst = max(abs(linear[n] / lin.coefficients[n] - 1.0) for n in DERIVATIVES)
     print(f"captive reference: {best['captive']:.3f} s (best of 3; goal <= 30 s)")

@@ -71,8 +71,8 @@ from testbed.estimators.nonlinear_fit import fit_output_error  # noqa: E402
 from testbed.identification.nonlinear_output_error import FlightRecord  # noqa: E402
 from testbed.identification.nonlinear_sensitivities import flight  # noqa: E402
 from testbed.models.linear import STATES  # noqa: E402
-from testbed.models.nonlinear import nonlinear_model, theta_vector  # noqa: E402
-from testbed.models.nonlinear_flight import fly  # noqa: E402
+from testbed.models.nonlinear import nonlinear_model, nonlinear_theta  # noqa: E402
+from testbed.models.nonlinear_flight import fly_nonlinear  # noqa: E402
 from testbed.captive.reference import captive_reference, component_reference, slope_terms  # noqa: E402
 from testbed.simulation.runs import simulate  # noqa: E402
 from testbed.simulation.scenario import scenario  # noqa: E402
@@ -99,7 +99,7 @@ COLD = """
 import time, numpy as np
 t0 = time.perf_counter()
 from testbed.models.nonlinear import TERMS, nonlinear_model
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.simulation.vehicle import constants, load_model
 model = nonlinear_model(constants(load_model(), 20.0), TERMS)
@@ -156,7 +156,7 @@ def _bench(args, tmp: Path) -> int:
     mjcf = load_model()
     reference = captive_reference(mjcf, SPEED)
     model = nonlinear_model(constants(mjcf, SPEED), reference.terms)
-    theta = theta_vector(model, reference.coefficients)
+    theta = nonlinear_theta(model, reference.coefficients)
     free = slope_terms(reference.terms) + EXTRA
     channels = tuple(s for s in experiments[0].measured if s in STATES)
     records = [
@@ -173,12 +173,15 @@ def _bench(args, tmp: Path) -> int:
     flight(model, theta, r.t[:2], x0, r.fins[:2], idx)  # the compiled code, read from numba's cache
     first = time.perf_counter() - t0
     (t_fly, _, _), (t_flight, _, _) = _best(
-        [lambda: fly(model, theta, r.t, x0, r.fins), lambda: flight(model, theta, r.t, x0, r.fins, idx)],
+        [
+            lambda: fly_nonlinear(model, theta, r.t, x0, r.fins),
+            lambda: flight(model, theta, r.t, x0, r.fins, idx),
+        ],
         args.rounds,
     )
     components = component_reference(mjcf, SPEED)
     cmodel = nonlinear_model(constants(mjcf, SPEED), components.terms, components.components)
-    ctheta = theta_vector(cmodel, components.coefficients)
+    ctheta = nonlinear_theta(cmodel, components.coefficients)
     cstart = ctheta.copy()
     for k, n in enumerate(COMPONENT_FREE):
         cstart[cmodel.names.index(n)] *= np.exp(0.2 if k % 2 == 0 else -0.2)

@@ -30,7 +30,7 @@ after 2 s and held for 28 s, and a zigzag of ±`--rudder` switched at ±`--switc
 heading (default 15°, Scenario I's heading swing), depth and roll held by the autopilots. The
 plant flies them (noise-free truth); each identified model, the captive model and the analytic
 linear model fly open loop from the truth's first state with its fin angles
-(`nonlinear_flight.fly`, `regime.open_loop`); the metrics (`experiment_metrics`: tactical
+(`nonlinear_flight.fly_nonlinear`, `regime.open_loop`); the metrics (`experiment_metrics`: tactical
 diameter, steady turn rate, first and second overshoots) are compared with the plant's.
 
 Outputs in `--out`: one run directory per seed (`seed<k>`), `turn` and `zigzag` (the held-out
@@ -65,7 +65,7 @@ from testbed.errors import InputError
 from testbed.estimators import Estimate, identify
 from testbed.identification.nonlinear_prediction import predict_nonlinear
 from testbed.models.linear import STATES
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.captive.config import MODELS, captive_config
 from testbed.study.priors import term_prior
 from testbed.captive.reference import slope_terms
@@ -165,7 +165,7 @@ def flown(config: ModelConfig, truth: Experiment) -> Experiment:
     model, theta = config.nonlinear()
     x0 = np.array([truth.column(s)[0] for s in STATES])
     with np.errstate(all="ignore"):
-        x = fly(model, theta, truth.t, x0, truth.inputs)
+        x = fly_nonlinear(model, theta, truth.t, x0, truth.inputs)
     return replace(truth, measured=STATES, y=x)
 
 

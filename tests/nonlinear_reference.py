@@ -70,7 +70,7 @@ class FitQuality:
 def fit_terms(model: nonlinear.NonlinearModel, inertia: dict[str, float], x, delta, nudot) -> FitQuality:
     """Fit `model`'s terms to the plant's accelerations `nudot` (n, 6) at `x`, `delta`, with the
     inertia coefficients (`nonlinear.INERTIA`) held at `inertia`."""
-    theta0 = nonlinear.theta_vector(model, inertia)
+    theta0 = nonlinear.nonlinear_theta(model, inertia)
     M = model.inertia(theta0)
     y = nudot @ M.T - nonlinear.forces(model, theta0, x, delta)  # what the terms must give
     R = nonlinear.force_regressors(model, x, delta)

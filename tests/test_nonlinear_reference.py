@@ -10,8 +10,8 @@ import pytest
 
 from testbed.fit_percent import fit_percent
 from testbed.data import read_csv
-from testbed.models.nonlinear import INERTIA, linearise, nonlinear_model, theta_vector
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear import INERTIA, linearise, nonlinear_model, nonlinear_theta
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.simulation import runs
 from testbed.simulation.analytic import analytic
 from nonlinear_reference import Box, fit_plant, sample_box
@@ -57,7 +57,7 @@ def test_the_terms_fitted_near_trim_linearise_to_the_analytic_model():
     near = Box(speed=(19.98, 20.02), velocity=0.01, rate=0.004, angle=0.3, fin=0.001)
     x, delta = sample_box(near, 2000, seed=5)
     quality = fit_plant(Plant(), model, inertia, x, delta)
-    linear = linearise(model, theta_vector(model, {**inertia, **quality.coefficients}))
+    linear = linearise(model, nonlinear_theta(model, {**inertia, **quality.coefficients}))
     assert linear.outside == ()
     for name, value in lin.coefficients.items():
         if name.endswith("dot"):
@@ -79,8 +79,8 @@ def test_the_terms_can_fly_scenario_i_to_the_issues_bar(tmp_path):
     inertia = {n: lin.coefficients[n] for n in INERTIA}
     model = nonlinear_model(lin.vehicle)
     quality = fit_plant(Plant(), model, inertia, truth.y, truth.inputs)
-    theta = theta_vector(model, {**inertia, **quality.coefficients})
-    flown = fly(model, theta, truth.t, truth.y[0], truth.inputs)
+    theta = nonlinear_theta(model, {**inertia, **quality.coefficients})
+    flown = fly_nonlinear(model, theta, truth.t, truth.y[0], truth.inputs)
     index = {c: i for i, c in enumerate(truth.measured)}
     for c in ("u", "v", "w", "p", "q", "r", "theta", "psi"):
         assert fit_percent(truth.column(c), flown[:, index[c]]) >= 98.0, c

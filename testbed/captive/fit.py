@@ -133,7 +133,7 @@ def fit_captive(
     if stray:
         raise InputError(f"captive fit: held term {stray[0]!r}; expected one of the fitted terms")
     inertia = pmm_inertia(tests, measurements)
-    M_A = model.inertia(nonlinear.theta_vector(model, inertia)) - model.M_RB
+    M_A = model.inertia(nonlinear.nonlinear_theta(model, inertia)) - model.M_RB
     nu = np.concatenate([m.nu for m in measurements])
     x = np.concatenate([nu, np.zeros((len(nu), linear.NX - 6))], axis=1)
     R = nonlinear.force_regressors(model, x, np.concatenate([m.fins for m in measurements]))
@@ -169,8 +169,8 @@ def fitted_wrench(vehicle: linear.Vehicle, fit: CaptiveFit, nu, fins, nu_dot) ->
             f"vehicle at speed={vehicle.speed!r} m/s; expected the fit's trim speed {fit.speed!r}"
         )
     model = nonlinear.nonlinear_model(vehicle, fit.terms, fit.components)
-    theta = nonlinear.theta_vector(model, fit.coefficients)
-    body = nonlinear.theta_vector(model, fit.rigid)  # the rigid body's share alone
+    theta = nonlinear.nonlinear_theta(model, fit.coefficients)
+    body = nonlinear.nonlinear_theta(model, fit.rigid)  # the rigid body's share alone
     nu, nu_dot = np.atleast_2d(nu), np.atleast_2d(nu_dot)
     x = np.concatenate([nu, np.zeros((len(nu), linear.NX - 6))], axis=1)
     rigid = nonlinear.forces(model, body, x, fins)  # −C_RB ν and the restoring forces

@@ -91,7 +91,7 @@ def inertia_terms(model: mujoco.MjModel, speed: float, inertia: dict[str, float]
     is quadratic in ν. Their acceleration part stays out of the model."""
     vehicle = constants(model, speed)
     bare = nonlinear.nonlinear_model(vehicle, ())
-    theta = nonlinear.theta_vector(bare, {n: inertia[n] for n in nonlinear.INERTIA})
+    theta = nonlinear.nonlinear_theta(bare, {n: inertia[n] for n in nonlinear.INERTIA})
     dM = rigid_body_mass(model) + added_mass(model) - bare.inertia(theta)
     dM[np.abs(dM) < 1e-9 * np.abs(bare.inertia(theta)).max()] = 0.0
     E = np.eye(6)

@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from testbed.errors import InputError
-from testbed.models.nonlinear import TERMS, NonlinearModel, linearise, nonlinear_model, theta_vector
+from testbed.models.nonlinear import TERMS, NonlinearModel, linearise, nonlinear_model, nonlinear_theta
 from testbed.models.regressors import component_kind, parse_term
 from testbed.captive.rig import Oscillation, Sweep, captive_tests
 from testbed.captive.fit import CaptiveFit, fit_captive, pmm_inertia
@@ -225,7 +225,7 @@ def _region_tests(speed: float, terms, vehicle, first) -> tuple:
     the trim stage's model."""
     terms = _design(terms)
     linear = nonlinear_model(vehicle, slope_terms(terms))
-    return reference_tests(speed, terms, steady_turns(linear, theta_vector(linear, first.coefficients)))
+    return reference_tests(speed, terms, steady_turns(linear, nonlinear_theta(linear, first.coefficients)))
 
 
 def region_tests(model: mujoco.MjModel, speed: float, terms=TERMS) -> tuple:

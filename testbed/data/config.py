@@ -27,7 +27,7 @@ from testbed.models.linear import (
     STATES,
     Vehicle,
 )
-from testbed.models.nonlinear import INERTIA, NonlinearModel, nonlinear_model, theta_vector
+from testbed.models.nonlinear import INERTIA, NonlinearModel, nonlinear_model, nonlinear_theta
 from testbed.models.regressors import physical_bounds
 from testbed.models.sensors import OUTPUTS, Sensor, needs, states_from
 
@@ -165,7 +165,7 @@ class ModelConfig:
         """A nonlinear model config's model and its θ (`models.nonlinear`: the inertia
         coefficients, then the terms)."""
         model = nonlinear_model(self.vehicle, tuple(self.terms), self.components)
-        return model, theta_vector(model, {**{n: self.coefficients[n] for n in INERTIA}, **self.terms})
+        return model, nonlinear_theta(model, {**{n: self.coefficients[n] for n in INERTIA}, **self.terms})
 
     def box(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
         """`(low, high)` of each of `names`: its `bounds` entry, else (a nonlinear model config's

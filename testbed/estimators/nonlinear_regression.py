@@ -10,7 +10,7 @@ the samples present either side, with the fins' mean over it):
     e(θ) = Δν/Δt − f_ν(x̄, δ; θ)
 
 and θ's free coefficients are taken by Gauss-Newton on Σ eᵀ W e, its Jacobian ∂f/∂θ the model's
-exact sensitivities (`nonlinear.sensitivities`), W the inverse of each row's mean-square error
+exact sensitivities (`nonlinear.rate_sensitivities`), W the inverse of each row's mean-square error
 at the current θ. The states are not smoothed, as the linear model's regression smooths them:
 ν̇ jumps at every sample where the fins move, and a window spreads the jump over its neighbours
 (on Scenario I's noise-free truth a 0.1 s window puts the fins' lift 1.4 % off, 0.5 s 25–35 %,
@@ -34,7 +34,7 @@ from testbed.errors import InputError
 from testbed.estimators.intervals import between_present
 from testbed.identification.nonlinear_output_error import FlightRecord
 from testbed.models.linear import STATES
-from testbed.models.nonlinear import NonlinearModel, rates, sensitivities
+from testbed.models.nonlinear import NonlinearModel, rates, rate_sensitivities
 
 __all__ = ["NEEDED", "equation_error"]
 
@@ -92,7 +92,7 @@ def equation_error(
             raise InputError("equation-error start: the model's rates are not finite at the records' states")
         # W = diag(1 / mean eᵢ²): each row weighted by its own error's scale
         W = 1.0 / np.maximum(np.mean(e**2, axis=0), np.finfo(float).tiny)
-        J = sensitivities(model, theta, x, fins)[:, :ROWS, idx]
+        J = rate_sensitivities(model, theta, x, fins)[:, :ROWS, idx]
         A = (J * np.sqrt(W)[None, :, None]).reshape(-1, len(idx))
         b = (e * np.sqrt(W)).reshape(-1)
         scale = np.linalg.norm(A, axis=0)

@@ -15,14 +15,14 @@ __all__ = [
     "concentrated_sse",
     "gramian",
     "masked_gramian",
-    "propagate",
+    "propagate_states",
     "recursion",
     "weighted_sse",
 ]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})  # the sums reordered: 1.5× faster
-def propagate(Phi, x, F):
+def propagate_states(Phi, x, F):
     """`x[k+1] = Φ x[k] + F[k]` in place for k < len(F), from `x[0]`."""
     n = x.shape[1]
     for k in range(F.shape[0]):
@@ -73,7 +73,7 @@ def adjoint_sum(Phi, F, y, measured, W, P):
     n, N, c = Phi.shape[0], y.shape[0], len(measured)
     x = np.empty((N, n))
     x[0] = 0.0
-    propagate(Phi, x, F)
+    propagate_states(Phi, x, F)
     a = np.zeros((N, n))  # a[N − 1 − k]: the adjoint runs backwards
     for k in range(N):
         for j in range(c):
@@ -83,7 +83,7 @@ def adjoint_sum(Phi, F, y, measured, W, P):
                 a[N - 1 - k, measured[j]] = W[j] * P[k, j] * (y[k, j] - x[k, measured[j]])
     lam = x  # λ[N − 1 − k], in x's memory
     lam[0] = a[0]
-    propagate(np.ascontiguousarray(Phi.T), lam, a[1:])
+    propagate_states(np.ascontiguousarray(Phi.T), lam, a[1:])
     out = np.empty(c)
     for j in range(c):
         out[j] = lam[N - 1, measured[j]]
@@ -103,7 +103,7 @@ def weighted_sse(Phi, x0, F, y, measured, W, P, explode):
     bound = explode * bound + 1.0
     x = np.empty((N, Phi.shape[0]))
     x[0] = x0
-    propagate(Phi, x, F)
+    propagate_states(Phi, x, F)
     total = 0.0
     for k in range(N):
         for j in range(c):

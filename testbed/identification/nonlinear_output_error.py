@@ -36,7 +36,7 @@ from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
 from testbed.models.linear import MOUNTING, NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 
 __all__ = [
     "FlightRecord",
@@ -181,7 +181,7 @@ def fly_records(model, theta, x0, records, ch, substeps):
     flown, res = [], []
     with np.errstate(all="ignore"):
         for r, x in zip(records, x0):
-            states = fly(model, theta[:m], r.t, x, r.fins, substeps)
+            states = fly_nonlinear(model, theta[:m], r.t, x, r.fins, substeps)
             simulated(len(r.t))
             if not np.all(np.isfinite(states[:, ch])):
                 return None, None

@@ -1,5 +1,5 @@
 """What a nonlinear model config predicts on measured experiments: its model flown open loop
-(`nonlinear_flight.fly`) with each record's fin angles, for validation.
+(`nonlinear_flight.fly_nonlinear`) with each record's fin angles, for validation.
 
 The outputs are the flown states plus the config's output biases (`y = x + b`, `b_<state>`), the
 velocities as the config's velocity log reads them where it is mounted (`log_mounting.read`).
@@ -27,7 +27,7 @@ from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
 from testbed.models.linear import MOUNTING, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 
 __all__ = ["ITERATIONS", "TOLERANCE", "flights", "initial_state", "predict_nonlinear"]
 
@@ -81,7 +81,7 @@ def flights(
             x0[STATES.index(c)] = v
         moved = [j for j, c in enumerate(e.measured) if c not in given]
         with np.errstate(all="ignore"):
-            states = fly(model, theta, e.t, x0, e.inputs, substeps)
+            states = fly_nonlinear(model, theta, e.t, x0, e.inputs, substeps)
         bad = np.argwhere(~np.isfinite(states))
         if len(bad):
             raise InputError(
@@ -128,7 +128,7 @@ def initial_state(
         return np.where(present, y - log_mounting.read(mounting, x, ch), 0.0)
 
     if states is None:
-        states = fly(model, theta, t, x0, fins, substeps)
+        states = fly_nonlinear(model, theta, t, x0, fins, substeps)
         simulated(len(t))
     res, lam = residual(states), 1e-3
     for _ in range(ITERATIONS if moved else 0):
@@ -150,7 +150,7 @@ def initial_state(
             step = np.linalg.solve(H + lam * np.diag(np.where(np.diag(H) > 0, np.diag(H), 1.0)), g)
             trial_x0 = x0.copy()
             trial_x0[cols] += step
-            trial = fly(model, theta, t, trial_x0, fins, substeps)
+            trial = fly_nonlinear(model, theta, t, trial_x0, fins, substeps)
             simulated(len(t))
             if np.all(np.isfinite(trial)) and float(np.sum(residual(trial) ** 2 / V)) < cost:
                 break

@@ -1,7 +1,7 @@
 """The nonlinear model's one-sample transition for a Kalman filter: the state one sample interval
 on and its exact Jacobians with respect to the state and the free coefficients.
 
-The transition from sample k is `fly`'s RK4 flight over [t_k, t_{k+1}] with the fins held at
+The transition from sample k is `fly_nonlinear`'s RK4 flight over [t_k, t_{k+1}] with the fins held at
 sample k's (`substeps` steps), and its Jacobians are that discrete map's own
 (`nonlinear_sensitivities.flight` over the one interval: ∂x⁺/∂x and ∂x⁺/∂θ[free], each RK4
 stage differentiated), so the filter linearises exactly the model it predicts with. The filter's
@@ -17,7 +17,7 @@ from testbed.data import Experiment
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import IX
 from testbed.models.nonlinear import NonlinearModel
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 
 __all__ = ["NonlinearTransition"]
 
@@ -48,6 +48,6 @@ class NonlinearTransition:
         ahead = (
             None
             if x is None
-            else fly(self.model, theta, t, x + self.trim, fins, self.substeps)[1] - self.trim
+            else fly_nonlinear(self.model, theta, t, x + self.trim, fins, self.substeps)[1] - self.trim
         )
         return f.dx_dx0[1], f.dx_dtheta[1], f.x[1] - self.trim, ahead

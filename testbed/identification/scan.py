@@ -48,7 +48,7 @@ def propagate(Phi: np.ndarray, x0: np.ndarray, F: np.ndarray) -> np.ndarray:
     kernels = _KERNELS.get()
     if kernels is not None:
         x[0] = x0
-        kernels.propagate(np.ascontiguousarray(Phi, dtype), x, np.ascontiguousarray(F, dtype))
+        kernels.propagate_states(np.ascontiguousarray(Phi, dtype), x, np.ascontiguousarray(F, dtype))
         return x
     order, Y, _ = Scan(np.asarray(Phi, dtype), 1, 1, np.arange(n), N)(
         np.asarray(x0, dtype)[:, None], np.asarray(F, dtype)[:, :, None], N

@@ -57,8 +57,8 @@ __all__ = [
     "packed",
     "rates",
     "row_least_squares",
-    "sensitivities",
-    "theta_vector",
+    "rate_sensitivities",
+    "nonlinear_theta",
     "thrust",
 ]
 
@@ -225,7 +225,7 @@ def nonlinear_model(vehicle: linear.Vehicle, terms=TERMS, components=()) -> Nonl
     return NonlinearModel(vehicle=vehicle, terms=parsed, M_RB=s.Mt0[_BODY, _BODY].copy(), dM=dM, surge=surge)
 
 
-def theta_vector(model: NonlinearModel, coefficients: Mapping[str, float]) -> np.ndarray:
+def nonlinear_theta(model: NonlinearModel, coefficients: Mapping[str, float]) -> np.ndarray:
     """θ in `model.names` order; a missing name is 0, an unknown one `InputError`."""
     unknown = sorted(set(coefficients) - set(model.names))
     if unknown:
@@ -294,7 +294,7 @@ def _forces(model: NonlinearModel, theta, x, delta, derivatives: bool):
     """F (n, 6), and with `derivatives` also ∂F/∂x (n, 6, 10) and ∂F/∂δ (n, 6, 3)."""
     kernels, m, x, delta, _ = _evaluate(model, theta, x, delta)
     F, JF = np.zeros((len(x), 6), x.dtype), np.zeros((len(x), 6, linear.NX + linear.NU), x.dtype)
-    kernels.forces(m, x, delta, F, JF, derivatives)
+    kernels.state_forces(m, x, delta, F, JF, derivatives)
     return (F, JF[:, :, : linear.NX], JF[:, :, linear.NX :]) if derivatives else F
 
 
@@ -339,7 +339,7 @@ def rates(model: NonlinearModel, theta, x, delta) -> np.ndarray:
     """ẋ = f(x, δ, θ) at the states x (n, 10) and fin angles δ (n, 3) (or one of each)."""
     kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
     out = np.empty((len(x), linear.NX), x.dtype)
-    kernels.rates(m, x, delta, out)
+    kernels.state_rates(m, x, delta, out)
     return out[0] if single else out
 
 
@@ -351,16 +351,16 @@ def jacobians(model: NonlinearModel, theta, x, delta):
     f, A, B = (
         np.empty(s, x.dtype) for s in ((n, linear.NX), (n, linear.NX, linear.NX), (n, linear.NX, linear.NU))
     )
-    kernels.jacobians(m, x, delta, f, A, B)
+    kernels.state_jacobians(m, x, delta, f, A, B)
     return (f[0], A[0], B[0]) if single else (f, A, B)
 
 
-def sensitivities(model: NonlinearModel, theta, x, delta) -> np.ndarray:
+def rate_sensitivities(model: NonlinearModel, theta, x, delta) -> np.ndarray:
     """∂f/∂θ (n, 10, len(θ)): for a term M⁻¹ (φ_k e_row + ∂T/∂θ_k e_x), for an inertia
     coefficient M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇) with C_k the Kirchhoff forces of ∂M/∂θ_k."""
     kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
     out = np.empty((len(x), linear.NX, len(model.names)), x.dtype)
-    kernels.sensitivities(m, x, delta, out)
+    kernels.theta_rates(m, x, delta, out)
     return out[0] if single else out
 
 

@@ -1,11 +1,11 @@
 """The nonlinear model flown open loop: its states from a first one, driven by recorded fin angles.
 
-`fly` integrates ẋ = f(x, δ, θ) (`nonlinear.rates`) by the classical fourth-order Runge-Kutta
+`fly_nonlinear` integrates ẋ = f(x, δ, θ) (`nonlinear.rates`) by the classical fourth-order Runge-Kutta
 method, `substeps` steps per sample interval (by default steps of about 5 ms, `substeps_for`:
 4 a 20 ms interval, 2 a 10 ms one), each sample's fin angles held until the next: a
 run's records give at each sample the fins' mean over the interval that follows it, which held
 over that interval moves the body as the fins did to first order (the linear model's predictions
-take the inputs so too). The flight is compiled (`nonlinear_kernels.fly`), real or complex.
+take the inputs so too). The flight is compiled (`nonlinear_kernels.rk4_states`), real or complex.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from testbed.errors import InputError
 from testbed.models.linear import NU, NX
 from testbed.models.nonlinear import NonlinearModel, packed
 
-__all__ = ["STEP", "fly", "substeps_for"]
+__all__ = ["STEP", "fly_nonlinear", "substeps_for"]
 
 
 STEP = 0.005  # s: the RK4 step a flight takes unless told (4 steps a 20 ms sample interval)
@@ -37,7 +37,7 @@ def _check(t, x0, fins, substeps) -> None:
         raise InputError(f"substeps={substeps!r}; expected a whole number >= 1")
 
 
-def fly(model: NonlinearModel, theta, t, x0, fins, substeps: int | None = None) -> np.ndarray:
+def fly_nonlinear(model: NonlinearModel, theta, t, x0, fins, substeps: int | None = None) -> np.ndarray:
     """The states (N, 10), absolute u, at the times `t` (N,) from `x0` (10,) at t[0], the fin
     angles `fins` (N, 3) (rad) given at the same times, each held until the next, `substeps` RK4
     steps an interval (None: `substeps_for(t)`); complex where
@@ -50,5 +50,7 @@ def fly(model: NonlinearModel, theta, t, x0, fins, substeps: int | None = None) 
     _check(t, x0, fins, substeps)
     out = np.empty((len(t), NX), dtype)
     out[0] = x0
-    nonlinear_kernels.fly(packed(model, theta, dtype), t, out, np.ascontiguousarray(fins, dtype), substeps)
+    nonlinear_kernels.rk4_states(
+        packed(model, theta, dtype), t, out, np.ascontiguousarray(fins, dtype), substeps
+    )
     return out

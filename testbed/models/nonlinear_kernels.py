@@ -14,7 +14,7 @@ magnitudes √(z_i² + z_j²) of pairs of z's entries (`regressors.PAIRS`) and t
 with the gradient of each product by the product rule (summed per force row and atom, then
 taken through W once).
 
-With `jacobian`, a state's evaluation writes ∂F/∂(x, δ) (6 × 13) beside F; `flight` carries
+With `jacobian`, a state's evaluation writes ∂F/∂(x, δ) (6 × 13) beside F; `rk4_sensitivities` carries
 the sensitivities S = ∂x/∂(θ[free], x0) (10 × (p + 10)) through each RK4 stage,
 ∂k_i = A_i ∂X_i + [F_θ,i 0], so they are exact for the flight (module doc of
 `identification.nonlinear_sensitivities`).
@@ -32,7 +32,7 @@ import numpy as np
 from testbed.models.component_kernels import SCRATCH, turned_mass, wrenches
 from testbed.models.mechanics import coriolis_state, kinematics_state, kirchhoff, restoring_state
 
-__all__ = ["flight", "fly", "forces", "jacobians", "rates", "sensitivities"]
+__all__ = ["rk4_sensitivities", "rk4_states", "state_forces", "state_jacobians", "state_rates", "theta_rates"]
 
 
 @numba.njit(cache=True)
@@ -275,7 +275,7 @@ def _work(m, like):
 
 
 @numba.njit(cache=True)
-def forces(m, x, d, F, JF, jacobian):
+def state_forces(m, x, d, F, JF, jacobian):
     """F (n, 6) at the states x (n, 10) and fins d (n, 3); with `jacobian` JF (n, 6, 13)."""
     work = _work(m, x)
     for n in range(x.shape[0]):
@@ -286,7 +286,7 @@ def forces(m, x, d, F, JF, jacobian):
 
 
 @numba.njit(cache=True)
-def rates(m, x, d, f):
+def state_rates(m, x, d, f):
     """f (n, 10) = ẋ at the states x (n, 10) and fins d (n, 3)."""
     work = _work(m, x)
     A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
@@ -295,7 +295,7 @@ def rates(m, x, d, f):
 
 
 @numba.njit(cache=True)
-def jacobians(m, x, d, f, A, B):
+def state_jacobians(m, x, d, f, A, B):
     """f (n, 10), ∂f/∂x A (n, 10, 10) and ∂f/∂δ B (n, 10, 3) at x (n, 10), d (n, 3)."""
     work = _work(m, x)
     for n in range(x.shape[0]):
@@ -303,7 +303,7 @@ def jacobians(m, x, d, f, A, B):
 
 
 @numba.njit(cache=True)
-def sensitivities(m, x, d, G):
+def theta_rates(m, x, d, G):
     """∂f/∂θ G (n, 10, P) at x (n, 10), d (n, 3), every coefficient."""
     work = _work(m, x)
     f = np.empty(10, dtype=x.dtype)
@@ -315,7 +315,7 @@ def sensitivities(m, x, d, G):
 
 
 @numba.njit(cache=True)
-def fly(m, t, x, fins, substeps):
+def rk4_states(m, t, x, fins, substeps):
     """x[k + 1] (10,) from x[k] for k < N − 1 in place (x (N, 10), x[0] given): classical RK4,
     `substeps` steps per interval [t[k], t[k + 1]], the fins (N, 3) held at fins[k]."""
     work = _work(m, x)
@@ -336,9 +336,9 @@ def fly(m, t, x, fins, substeps):
 
 
 @numba.njit(cache=True)
-def flight(m, t, x, fins, columns, substeps, S):
+def rk4_sensitivities(m, t, x, fins, columns, substeps, S):
     """S[k + 1] (10, p + 10) from S[k] for k < N − 1 in place (S[0] given): the sensitivities of
-    `fly`'s states x (N, 10) to θ[columns] (p) and to x[0], carried through every RK4 stage."""
+    `rk4_states`' states x (N, 10) to θ[columns] (p) and to x[0], carried through every RK4 stage."""
     work = _work(m, x)
     p, width = len(columns), S.shape[2]
     A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)

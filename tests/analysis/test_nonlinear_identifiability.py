@@ -27,7 +27,7 @@ from testbed.cli import main
 from testbed.data import Experiment, read_config, read_csv, write_config, write_csv
 from testbed.estimators import identify
 from testbed.models.linear import STATES
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.simulation import runs
 from testbed.simulation.measurements import NOISE_STD
 
@@ -51,7 +51,7 @@ def truth():
     d = np.radians(3.0) * (((t >= 0.2) & (t < 1.0)) * 1.0 - ((t >= 1.0) & (t < 1.8)))
     fins = np.column_stack([d, d, d])  # δr, δer, δel: δe = δr, δa = 0
     x0 = np.array([config.vehicle.speed, 0.1, -0.1, 0.01, 0.02, -0.01, 0.02, -0.01, 0.3, 1.0])
-    x = fly(model, theta, t, x0, fins)
+    x = fly_nonlinear(model, theta, t, x0, fins)
     noisy = x + np.random.default_rng(1).normal(size=x.shape) * SIGMA
     return config, Experiment("doublet", t, STATES, noisy, fins)
 
@@ -201,7 +201,7 @@ def test_on_scenario_i_flown_by_the_captive_model_every_freed_term_is_within_3_s
     run = runs.simulate("I", seed=1, out=tmp_path / "I")
     truth = read_csv(run / "scenario-I.truth.csv", keep_repeats=True)
     model, theta = config.nonlinear()
-    x = fly(model, theta, truth.t, np.array([truth.column(s)[0] for s in STATES]), truth.inputs)
+    x = fly_nonlinear(model, theta, truth.t, np.array([truth.column(s)[0] for s in STATES]), truth.inputs)
     noisy = x + np.random.default_rng(1).normal(size=x.shape) * SIGMA
     screened = identify_screened(
         [Experiment("I", truth.t, STATES, noisy, truth.inputs)], config, model=NONLINEAR

@@ -20,10 +20,10 @@ from testbed.models.nonlinear import (
     linearise,
     nonlinear_model,
     rates,
-    theta_vector,
+    nonlinear_theta,
     thrust,
 )
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.simulation import runs
 from testbed.simulation.analytic import analytic_model
 from testbed.captive.rig import DEFAULT_TESTS, Measurement, captive_tests
@@ -69,7 +69,7 @@ def made_up_theta(model, seed=1):
     scale = {"X": 10.0, "Y": 100.0, "Z": 100.0, "K": 5.0, "M": 100.0, "N": 100.0}
     values = {n: lin[n] for n in INERTIA}
     values.update({t: scale[t[0]] * rng.uniform(0.5, 2.0) * rng.choice([-1, 1]) for t in TERMS})
-    return theta_vector(model, values)
+    return nonlinear_theta(model, values)
 
 
 def test_a_captive_test_of_the_model_fits_back_to_its_coefficients():
@@ -81,7 +81,7 @@ def test_a_captive_test_of_the_model_fits_back_to_its_coefficients():
     tests = reference_tests(20.0)
     measured = model_wrench(model, theta, tests)
     fit = fit_captive(model.vehicle, tests, measured, thrust(model, theta))
-    got = theta_vector(model, fit.coefficients)
+    got = nonlinear_theta(model, fit.coefficients)
     assert np.abs(got - theta).max() <= 1e-8 * np.abs(theta).max()
     for name, value in zip(model.names, theta):
         assert fit.coefficients[name] == pytest.approx(value, rel=1e-7, abs=1e-9 * abs(value) + 1e-9), name
@@ -128,7 +128,7 @@ def test_the_reference_linearises_to_the_analytic_model(reference):
     (the roll row's control derivative, same units)."""
     mjcf = load_model()
     model = nonlinear_model(constants(mjcf, 20.0))
-    got = linearise(model, theta_vector(model, reference.coefficients)).coefficients
+    got = linearise(model, nonlinear_theta(model, reference.coefficients)).coefficients
     want = analytic_model(mjcf, 20.0).coefficients
     for name in CHECKED:
         scale = abs(want[name]) if want[name] else abs(want["K_der"])
@@ -156,7 +156,7 @@ def test_the_reference_turns_as_the_analytic_model_turns(reference):
     elevator at a unit pitch rate, the drift and rudder at a unit yaw rate), within 1 %."""
     mjcf = load_model()
     model = nonlinear_model(constants(mjcf, 20.0))
-    got = steady_turns(model, theta_vector(model, reference.coefficients))
+    got = steady_turns(model, nonlinear_theta(model, reference.coefficients))
     lin = analytic_model(mjcf, 20.0)
     A, B = lin.At_full, lin.Bt_full
     de = B[:, 1] + B[:, 2]
@@ -184,20 +184,20 @@ def test_slope_terms_are_those_with_a_slope_at_trim():
     found = []
     for name in TERMS:
         model = nonlinear_model(vehicle, (name,))
-        lin = linearise(model, theta_vector(model, {name: 1.0}))
-        free = linearise(model, theta_vector(model, {name: 0.0}))
+        lin = linearise(model, nonlinear_theta(model, {name: 1.0}))
+        free = linearise(model, nonlinear_theta(model, {name: 0.0}))
         if np.abs(lin.At - free.At).max() > 0 or np.abs(lin.Bt - free.Bt).max() > 0:
             found.append(name)
     assert tuple(found) == slope_terms(TERMS)
 
 
 def test_fly_is_the_ode_solution():
-    """`fly` against an adaptive high-order solver of the same equations, interval by interval
+    """`fly_nonlinear` against an adaptive high-order solver of the same equations, interval by interval
     with each sample's fins held, over 2 s of a turning, pitching flight: it converges to it as
     the steps shrink (RK4's h⁴ where the forces are smooth; the magnitudes' kinks slow it)."""
     mjcf = load_model()
     model = nonlinear_model(constants(mjcf, 20.0))
-    theta = theta_vector(model, captive_reference(mjcf, 20.0).coefficients)
+    theta = nonlinear_theta(model, captive_reference(mjcf, 20.0).coefficients)
     t = np.arange(0, 2.0001, 0.02)
     fins = np.stack([0.05 * np.sin(2 * t), 0.1 * np.cos(3 * t), 0.08 * np.cos(3 * t)], axis=1)
     x0 = np.array([20.0, 0.1, 0.2, 0.05, 0.1, 0.05, 0.02, 0.05, 0.0, 50.0])
@@ -213,10 +213,10 @@ def test_fly_is_the_ode_solution():
         )
         ref.append(step.y[:, -1])
     ref = np.array(ref)
-    error = [np.abs(fly(model, theta, t, x0, fins, substeps=n) - ref).max() for n in (4, 16)]
+    error = [np.abs(fly_nonlinear(model, theta, t, x0, fins, substeps=n) - ref).max() for n in (4, 16)]
     assert error[1] < 1e-7 * np.abs(ref).max() and error[1] < error[0] / 10
     with pytest.raises(InputError, match="increasing"):
-        fly(model, theta, t[::-1], x0, fins)
+        fly_nonlinear(model, theta, t[::-1], x0, fins)
 
 
 def test_the_reference_flies_scenario_i_better_than_the_linear_model(tmp_path, reference):
@@ -227,7 +227,9 @@ def test_the_reference_flies_scenario_i_better_than_the_linear_model(tmp_path, r
     truth = read_csv(run / "scenario-I.truth.csv", keep_repeats=True)
     mjcf = load_model()
     model = nonlinear_model(constants(mjcf, 20.0))
-    flown = fly(model, theta_vector(model, reference.coefficients), truth.t, truth.y[0], truth.inputs)
+    flown = fly_nonlinear(
+        model, nonlinear_theta(model, reference.coefficients), truth.t, truth.y[0], truth.inputs
+    )
     linear = {"v": 83, "w": 87, "q": 81, "r": 82, "psi": 79, "theta": 42}
     index = {c: i for i, c in enumerate(truth.measured)}
     for c, fit in linear.items():

@@ -25,7 +25,7 @@ from testbed.data import (
 from testbed.errors import InputError
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import INERTIA
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.simulation.analytic import analytic, analytic_config
 from testbed.captive.fluid_components import component_terms, mjcf_components
 from testbed.simulation.measurements import NOISE_STD
@@ -114,7 +114,7 @@ def files(config, tmp_path_factory):
     fins[(t >= 0.5) & (t < 1.0), 0], fins[(t >= 1.0) & (t < 1.5), 0] = a, -a
     fins[(t >= 3.0) & (t < 3.5), 1:], fins[(t >= 3.5) & (t < 4.0), 1:] = a, -a
     x0 = np.array([config.vehicle.speed, 0.1, -0.1, 0.01, 0.02, -0.01, 0.02, -0.01, 0.3, 1.0])
-    x = fly(model, theta, t, x0, fins)
+    x = fly_nonlinear(model, theta, t, x0, fins)
     noisy = x + np.random.default_rng(2).normal(size=x.shape) * np.array([NOISE_STD[s] for s in STATES])
     root = tmp_path_factory.mktemp("components")
     write_csv(root / "doublets.csv", t, noisy, fins)

@@ -126,7 +126,7 @@ def test_a_nonlinear_model_config_fits_a_log_with_a_dropout_as_its_stretches(tmp
     apart, and `validate` flies the model over each stretch (NaN inside the dropout)."""
     from dataclasses import replace
 
-    from testbed.models.nonlinear_flight import fly
+    from testbed.models.nonlinear_flight import fly_nonlinear
     from testbed.captive.config import captive_config
     from testbed.simulation.measurements import NOISE_STD
 
@@ -138,7 +138,7 @@ def test_a_nonlinear_model_config_fits_a_log_with_a_dropout_as_its_stretches(tmp
     fins[(t >= 0.4) & (t < 1.6), 0], fins[(t >= 1.6) & (t < 2.8), 0] = 0.05, -0.05
     fins[(t >= 2.5) & (t < 3.3), 1:], fins[(t >= 3.3) & (t < 4.1), 1:] = 0.05, -0.05
     x0 = np.array([config.vehicle.speed, 0.1, -0.1, 0.01, 0.02, -0.01, 0.02, -0.01, 0.3, 1.0])
-    x = fly(model, theta, t, x0, fins)
+    x = fly_nonlinear(model, theta, t, x0, fins)
     y = x + np.random.default_rng(5).normal(size=x.shape) * np.array([NOISE_STD[s] for s in STATES])
     n = len(t)
     log = _csv(tmp_path / "gapped.csv", t, y, fins, np.r_[0:130, 180:n])

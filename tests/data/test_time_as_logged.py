@@ -71,7 +71,7 @@ def test_the_nonlinear_model_on_alternating_stamps_matches_its_even_sub_log(tmp_
     every other row, the log's even 0.05 s sub-log, and within 3 σ of the model that flew."""
     from dataclasses import replace
 
-    from testbed.models.nonlinear_flight import fly
+    from testbed.models.nonlinear_flight import fly_nonlinear
     from testbed.captive.config import captive_config
     from testbed.simulation.measurements import NOISE_STD
 
@@ -88,7 +88,7 @@ def test_the_nonlinear_model_on_alternating_stamps_matches_its_even_sub_log(tmp_
     a = np.radians(3.0)
     fins = np.column_stack([doublet(0.2, 0.8, a), doublet(1.5, 0.8, a), doublet(3.0, 0.4, np.radians(0.3))])
     x0 = np.array([config.vehicle.speed, 0.1, -0.1, 0.01, 0.02, -0.01, 0.02, -0.01, 0.3, 1.0])
-    x = fly(model, theta, t, x0, fins)
+    x = fly_nonlinear(model, theta, t, x0, fins)
     stamps = np.r_[0.0, np.cumsum(np.tile([0.02, 0.03], 80))]
     at = np.rint(stamps / TICK).astype(int)
     sigma = np.array([NOISE_STD[s] for s in STATES])

@@ -25,7 +25,7 @@ from testbed.identification.nonlinear_sensitivities import flight
 from testbed.jobs.common import perturbed
 from testbed.models import log_mounting
 from testbed.models.linear import STATES
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.captive.config import captive_config
 from testbed.simulation.measurements import NOISE_STD
 
@@ -52,7 +52,7 @@ def truth():
         [doublet(t, 0.2, 0.8, a), doublet(t, 1.5, 0.8, a), doublet(t, 3.0, 0.4, np.radians(0.3))]
     )
     x0 = np.array([config.vehicle.speed, 0.1, -0.1, 0.01, 0.02, -0.01, 0.02, -0.01, 0.3, 1.0])
-    x = fly(model, theta, t, x0, fins)
+    x = fly_nonlinear(model, theta, t, x0, fins)
     noisy = x + np.random.default_rng(1).normal(size=x.shape) * SIGMA
     return config, Experiment("doublets", t, STATES, noisy, fins), Experiment("clean", t, STATES, x, fins)
 
@@ -273,7 +273,7 @@ def fine(truth):
     fins = np.column_stack(
         [doublet(t, 0.21, 0.79, a), doublet(t, 1.51, 0.79, a), doublet(t, 3.01, 0.39, np.radians(0.3))]
     )
-    x = fly(
+    x = fly_nonlinear(
         model,
         theta,
         t,
@@ -313,11 +313,13 @@ def test_the_bounds_of_analyze_are_those_of_the_complex_step_fisher_information(
     for name in FREE:
         d = np.zeros(len(theta), complex)
         d[model.names.index(name)] = 1e-30j
-        columns.append(fly(model, theta + d, clean.t, x0, clean.inputs).imag.ravel() / 1e-30)
+        columns.append(fly_nonlinear(model, theta + d, clean.t, x0, clean.inputs).imag.ravel() / 1e-30)
     for i in range(10):
         d = np.zeros(10, complex)
         d[i] = 1e-30j
-        columns.append(fly(model, theta.astype(complex), clean.t, x0 + d, clean.inputs).imag.ravel() / 1e-30)
+        columns.append(
+            fly_nonlinear(model, theta.astype(complex), clean.t, x0 + d, clean.inputs).imag.ravel() / 1e-30
+        )
     J = np.column_stack(columns)
     W = np.tile(1 / SIGMA**2, n)
     F = reduced(J.T @ (W[:, None] * J), np.zeros(len(FREE) + 10), len(FREE))[0]
@@ -591,7 +593,7 @@ def test_the_bias_columns_of_analyze_are_those_of_the_complex_step_fisher_inform
     x0 = clean.y[0] - b
 
     def outputs(th, x, bias):
-        return (fly(model, th, clean.t, x, clean.inputs) + bias).imag.ravel() / 1e-30
+        return (fly_nonlinear(model, th, clean.t, x, clean.inputs) + bias).imag.ravel() / 1e-30
 
     columns, h = [], 1e-30j
     for name in FREE:
@@ -695,7 +697,10 @@ def test_the_mounting_columns_of_analyze_are_those_of_the_complex_step_fisher_in
     x0 = truth[2].y[0]
 
     def outputs(th, x, g):
-        return log_mounting.read(g, fly(model, th, clean.t, x, clean.inputs), range(10)).imag.ravel() / 1e-30
+        return (
+            log_mounting.read(g, fly_nonlinear(model, th, clean.t, x, clean.inputs), range(10)).imag.ravel()
+            / 1e-30
+        )
 
     columns, h = [], 1e-30j
     for name in FREE:

@@ -11,7 +11,7 @@ from testbed.errors import InputError
 from testbed.estimators import Status
 from testbed.estimators.nonlinear_fit import fit_output_error
 from testbed.models.linear import STATES
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 from identification.test_nonlinear_output_error import FREE, SIGMA, captive_truth, noisy
 
 
@@ -42,7 +42,7 @@ def test_a_start_whose_flight_overflows_is_fitted_by_multiple_shooting(truth):
     model, theta = truth
     record, start = noisy(model, theta, seed=5, seconds=3.0)
     with np.errstate(all="ignore"):
-        assert not np.all(np.isfinite(fly(model, start, record.t, record.y[0], record.fins)))
+        assert not np.all(np.isfinite(fly_nonlinear(model, start, record.t, record.y[0], record.fins)))
     fit = fit_output_error(model, start, [record], STATES, FREE)
     assert fit.status is Status.CONVERGED
     for n in FREE:
@@ -86,7 +86,9 @@ def test_the_cramer_rao_bounds_match_the_scatter_over_seeds(truth):
     for seed in range(10, 18):
         record, start = noisy(model, theta, seed=seed, seconds=6.0)
         with np.errstate(all="ignore"):
-            diverged += not np.all(np.isfinite(fly(model, start, record.t, record.y[0], record.fins)))
+            diverged += not np.all(
+                np.isfinite(fly_nonlinear(model, start, record.t, record.y[0], record.fins))
+            )
         fit = fit_output_error(model, start, [record], STATES, FREE)
         assert fit.status is Status.CONVERGED
         z += [(fit.estimates[n] - theta[model.names.index(n)]) / fit.std[n] for n in FREE]

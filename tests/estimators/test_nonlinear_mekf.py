@@ -16,7 +16,7 @@ from testbed.errors import InputError
 from testbed.estimators import FilterEstimate, OptionError, identify
 from testbed.identification.nonlinear_transition import NonlinearTransition
 from testbed.models.linear import IX, STATES
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 
 import estimators.test_nonlinear as shared
 from estimators.test_nonlinear import FREE, SIGMA, _ok, _start
@@ -70,15 +70,21 @@ def test_the_transition_jacobians_are_complex_steps_of_one_rk4_interval(truth):
     trim = np.eye(10)[IX["u"]] * U
     h = 1e-30
     want_phi = np.column_stack(
-        [fly(model, theta.astype(complex), t, xk + trim + 1j * h * e, fins)[1].imag / h for e in np.eye(10)]
+        [
+            fly_nonlinear(model, theta.astype(complex), t, xk + trim + 1j * h * e, fins)[1].imag / h
+            for e in np.eye(10)
+        ]
     )
     want_d = np.column_stack(
-        [fly(model, theta + 1j * h * np.eye(len(theta))[i], t, xk + trim, fins)[1].imag / h for i in idx]
+        [
+            fly_nonlinear(model, theta + 1j * h * np.eye(len(theta))[i], t, xk + trim, fins)[1].imag / h
+            for i in idx
+        ]
     )
     assert np.allclose(Phi, want_phi, rtol=1e-10, atol=1e-13)
     assert np.allclose(D, want_d, rtol=1e-10, atol=1e-13 * np.abs(want_d).max())
-    assert np.allclose(xk1, fly(model, theta, t, xk + trim, fins)[1] - trim, rtol=1e-14, atol=1e-14)
-    assert np.allclose(x1, fly(model, theta, t, x + trim, fins)[1] - trim, rtol=1e-14, atol=1e-14)
+    assert np.allclose(xk1, fly_nonlinear(model, theta, t, xk + trim, fins)[1] - trim, rtol=1e-14, atol=1e-14)
+    assert np.allclose(x1, fly_nonlinear(model, theta, t, x + trim, fins)[1] - trim, rtol=1e-14, atol=1e-14)
     assert step.step(k, theta[idx], None, xk)[3] is None
     assert abs(noisy.inputs[k, 0]) > 0 and np.abs(Phi - np.eye(10)).max() > 1e-3  # a real interval
 

@@ -10,8 +10,8 @@ import pytest
 from testbed.identification.nonlinear_output_error import FlightRecord
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import STATES
-from testbed.models.nonlinear import INERTIA, nonlinear_model, theta_vector
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear import INERTIA, nonlinear_model, nonlinear_theta
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.captive.reference import captive_reference
 from testbed.simulation.measurements import NOISE_STD
 from testbed.simulation.vehicle import constants, load_model
@@ -29,7 +29,7 @@ def captive_truth():
     """The torpedo's nonlinear model at 20 m/s and its captive reference's θ."""
     mjcf = load_model()
     model = nonlinear_model(constants(mjcf, 20.0))
-    return model, theta_vector(model, captive_reference(mjcf, 20.0).coefficients)
+    return model, nonlinear_theta(model, captive_reference(mjcf, 20.0).coefficients)
 
 
 def doublet(t, start, half, amplitude):
@@ -63,17 +63,17 @@ def test_the_trajectory_sensitivities_are_the_complex_step_derivatives_of_the_fl
     names = INERTIA + ("Y_uv", "M_q|q|", "N_uudr", "K_p|p|", "X_uudada", "Z_uude|da|", "Y_uv|dr|")
     free = [model.names.index(n) for n in names]
     got = flight(model, theta, t, x0, fins, free)
-    assert np.array_equal(got.x, fly(model, theta, t, x0, fins))
+    assert np.array_equal(got.x, fly_nonlinear(model, theta, t, x0, fins))
     for j, i in enumerate(free):
         step = 1e-30 * abs(theta[i])
         tc = theta.astype(complex)
         tc[i] += 1j * step
-        want = fly(model, tc, t, x0, fins).imag / step
+        want = fly_nonlinear(model, tc, t, x0, fins).imag / step
         assert np.abs(got.dx_dtheta[:, :, j] - want).max() <= 1e-12 * np.abs(want).max(), names[j]
     for i in range(10):
         xc = x0.astype(complex)
         xc[i] += 1e-30j
-        want = fly(model, theta, t, xc, fins).imag / 1e-30
+        want = fly_nonlinear(model, theta, t, xc, fins).imag / 1e-30
         assert np.abs(got.dx_dx0[:, :, i] - want).max() <= 1e-12 * np.abs(want).max(), STATES[i]
     given = flight(model, theta, t, x0, fins, free, states=got.x)  # the states not flown again
     assert np.array_equal(given.dx_dtheta, got.dx_dtheta) and np.array_equal(given.dx_dx0, got.dx_dx0)
@@ -87,19 +87,22 @@ def test_the_default_flight_takes_5_ms_steps_at_any_sample_rate(truth):
     t, fins, x0 = manoeuvre(2.0)
     fine_t = np.arange(2 * len(t) - 1) * 0.01
     fine_fins = np.repeat(fins, 2, axis=0)[:-1]
-    coarse, fine = fly(model, theta, t, x0, fins), fly(model, theta, fine_t, x0, fine_fins)
-    assert np.array_equal(coarse, fly(model, theta, t, x0, fins, substeps=4))
-    assert np.array_equal(fine, fly(model, theta, fine_t, x0, fine_fins, substeps=2))
+    coarse, fine = (
+        fly_nonlinear(model, theta, t, x0, fins),
+        fly_nonlinear(model, theta, fine_t, x0, fine_fins),
+    )
+    assert np.array_equal(coarse, fly_nonlinear(model, theta, t, x0, fins, substeps=4))
+    assert np.array_equal(fine, fly_nonlinear(model, theta, fine_t, x0, fine_fins, substeps=2))
     scale = np.abs(coarse).max(axis=0) + 1e-3
     assert np.max(np.abs(fine[::2] - coarse) / scale) < 1e-12
-    coarser = fly(model, theta, fine_t, x0, fine_fins, substeps=1)[::2]
+    coarser = fly_nonlinear(model, theta, fine_t, x0, fine_fins, substeps=1)[::2]
     assert np.max(np.abs(coarser - coarse) / scale) > 1e-9
 
 
 def noisy(model, theta, seed, seconds=10.0):
     t, fins, x0 = manoeuvre(seconds)
     rng = np.random.default_rng(seed)
-    y = fly(model, theta, t, x0, fins) + rng.normal(size=(len(t), 10)) * SIGMA
+    y = fly_nonlinear(model, theta, t, x0, fins) + rng.normal(size=(len(t), 10)) * SIGMA
     start = theta.copy()
     for n in FREE:
         start[model.names.index(n)] *= np.exp(0.2 * rng.normal())

@@ -24,10 +24,10 @@ from testbed.models.nonlinear import (
     linearise,
     nonlinear_model,
     rates,
-    sensitivities,
-    theta_vector,
+    rate_sensitivities,
+    nonlinear_theta,
 )
-from testbed.models.nonlinear_flight import fly
+from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.models.regressors import parse_term, term_wrenches
 from testbed.simulation import runs
 from testbed.simulation.analytic import analytic
@@ -160,7 +160,7 @@ def torpedo():
     mjcf, lin = load_model(), analytic()
     terms = component_terms(mjcf) | inertia_terms(mjcf, 20.0, lin.coefficients)
     model = nonlinear_model(lin.vehicle, tuple(terms), mjcf_components(mjcf))
-    return model, theta_vector(model, {**{n: lin.coefficients[n] for n in INERTIA}, **terms}), lin
+    return model, nonlinear_theta(model, {**{n: lin.coefficients[n] for n in INERTIA}, **terms}), lin
 
 
 def test_the_component_models_derivatives_match_complex_steps(torpedo):
@@ -189,7 +189,7 @@ def test_the_component_models_derivatives_match_complex_steps(torpedo):
         np.abs(B - steps(lambda z: rates(model, theta, x, z), delta.astype(complex))).max()
         <= 1e-12 * np.abs(B).max()
     )
-    S = sensitivities(model, theta, x, delta)
+    S = rate_sensitivities(model, theta, x, delta)
     reference = steps(lambda t: rates(model, t, x, delta), theta.astype(complex))
     assert np.abs(S - reference).max() <= 1e-12 * np.abs(S).max()
 
@@ -216,7 +216,7 @@ def test_the_component_model_linearises_to_the_analytic_model(torpedo, reference
     MJCF's coefficients and with the captive reference's."""
     model, theta, lin = torpedo
     if which == "captive":
-        theta = theta_vector(model, reference.coefficients)
+        theta = nonlinear_theta(model, reference.coefficients)
     got = linearise(model, theta).coefficients
     scale = abs(lin.coefficients["K_p"])  # the least of the damping derivatives
     for name, want in lin.coefficients.items():
@@ -230,7 +230,9 @@ def test_the_component_reference_flies_scenario_i_to_98_percent(tmp_path, refere
     run = runs.simulate("I", seed=3, out=tmp_path / "I")
     truth = read_csv(run / "scenario-I.truth.csv", keep_repeats=True)
     model = nonlinear_model(analytic().vehicle, reference.terms, reference.components)
-    flown = fly(model, theta_vector(model, reference.coefficients), truth.t, truth.y[0], truth.inputs)
+    flown = fly_nonlinear(
+        model, nonlinear_theta(model, reference.coefficients), truth.t, truth.y[0], truth.inputs
+    )
     for i, c in enumerate(truth.measured):
         assert fit_percent(truth.column(c), flown[:, i]) >= 98.0, c
 

@@ -24,8 +24,8 @@ from testbed.models.nonlinear import (
     nonlinear_model,
     packed,
     rates,
-    sensitivities,
-    theta_vector,
+    rate_sensitivities,
+    nonlinear_theta,
     thrust,
 )
 from testbed.models.regressors import WEIGHTS, parse_term, regressors
@@ -66,7 +66,7 @@ def model_and_theta(seed=0):
     rng = np.random.default_rng(seed)
     coefficients = dict(DOTS)
     coefficients.update({t.name: rng.normal() * 50.0 for t in model.terms})
-    return model, theta_vector(model, coefficients), coefficients
+    return model, nonlinear_theta(model, coefficients), coefficients
 
 
 def samples(n=6, seed=1):
@@ -138,7 +138,7 @@ def test_any_term_set_is_evaluated_from_its_factor_table():
     names = ("X_uvwpqr", "Y_|u||v||w||p||q||r|", "Z_drdedada", "K_|dr||de||da|", "M_u|de|", "N_vdr|r|")
     model = nonlinear_model(VEHICLE, names)
     rng = np.random.default_rng(3)
-    theta = theta_vector(model, {**DOTS, **{n: rng.normal() * 10 for n in names}})
+    theta = nonlinear_theta(model, {**DOTS, **{n: rng.normal() * 10 for n in names}})
     x, delta = samples(seed=9)
     u, v, w, p, q, r = x[:, :6].T
     dr, de, da = delta[:, 0], (delta[:, 1] + delta[:, 2]) / 2, (delta[:, 1] - delta[:, 2]) / 2
@@ -153,13 +153,13 @@ def test_any_term_set_is_evaluated_from_its_factor_table():
         ]
     )
     F = forces(model, theta, x, delta)
-    F0 = forces(model, theta_vector(model, DOTS), x, delta)
+    F0 = forces(model, nonlinear_theta(model, DOTS), x, delta)
     # one term per row, X..N; X_uvwpqr is 0 in straight flight, so the thrust holds none of it
     assert close(F - F0, want * theta[len(INERTIA) :], 1e-14)
     f, A, B = jacobians(model, theta, x, delta)
     assert close(A, complex_step(lambda z: rates(model, theta, z, delta), x.astype(complex)), 1e-13)
     assert close(B, complex_step(lambda z: rates(model, theta, x, z), delta.astype(complex)), 1e-13)
-    S = sensitivities(model, theta, x, delta)
+    S = rate_sensitivities(model, theta, x, delta)
     assert close(S, complex_step(lambda t: rates(model, t, x, delta), theta.astype(complex)), 1e-13)
 
 
@@ -172,7 +172,7 @@ def test_a_pair_magnitude_atom_is_evaluated_with_its_exact_gradient():
     c = np.array([3.0, -2.0, 5.0])
 
     def kernel_model(dtype, coefficients):
-        m = list(packed(model, theta_vector(model, DOTS), dtype))
+        m = list(packed(model, nonlinear_theta(model, DOTS), dtype))
         m[1] = np.array([[1, 2 * L], [2 * L + 1, 2 * L + 1], [2 * L, L]])  # v|vw|, |qδr|², |vw|·|u|
         m[2], m[3], m[8] = np.array([1, 5, 2]), coefficients.astype(dtype), np.zeros(3)
         m[12] = np.array([[1, 2], [4, 6]])
@@ -181,13 +181,13 @@ def test_a_pair_magnitude_atom_is_evaluated_with_its_exact_gradient():
 
     def rates_of(x, d, coefficients=c):
         out = np.empty(x.shape, x.dtype)
-        nonlinear_kernels.rates(kernel_model(x.dtype.type, coefficients), x, d, out)
+        nonlinear_kernels.state_rates(kernel_model(x.dtype.type, coefficients), x, d, out)
         return out
 
     x, delta = samples(seed=11)
     F, F0, JF = np.empty((len(x), 6)), np.empty((len(x), 6)), np.empty((len(x), 6, 13))
-    nonlinear_kernels.forces(kernel_model(float, c), x, delta, F, JF, False)
-    nonlinear_kernels.forces(kernel_model(float, 0 * c), x, delta, F0, JF, False)
+    nonlinear_kernels.state_forces(kernel_model(float, c), x, delta, F, JF, False)
+    nonlinear_kernels.state_forces(kernel_model(float, 0 * c), x, delta, F0, JF, False)
     u, v, w, q = x[:, 0], x[:, 1], x[:, 2], x[:, 4]
     want = np.zeros((len(x), 6))
     want[:, 1] = c[0] * v * np.hypot(v, w)
@@ -195,21 +195,21 @@ def test_a_pair_magnitude_atom_is_evaluated_with_its_exact_gradient():
     want[:, 2] = c[2] * np.hypot(v, w) * np.abs(u)
     assert close(F - F0, want, 1e-14)
     f, A, B = (np.empty(s) for s in ((len(x), 10), (len(x), 10, 10), (len(x), 10, 3)))
-    nonlinear_kernels.jacobians(kernel_model(float, c), x, delta, f, A, B)
+    nonlinear_kernels.state_jacobians(kernel_model(float, c), x, delta, f, A, B)
     assert close(f, rates_of(x, delta), 0)
     assert close(A, complex_step(lambda z: rates_of(z, delta.astype(complex)), x.astype(complex)), 1e-13)
     assert close(B, complex_step(lambda z: rates_of(x.astype(complex), z), delta.astype(complex)), 1e-13)
     x[:, 1:3] = 0.0  # v = w = 0: |vw| has no slope there, and |vw|·|u| none along u
     A0 = np.empty_like(A)
-    nonlinear_kernels.jacobians(kernel_model(float, np.zeros(3)), x, delta, f, A0, B)
-    nonlinear_kernels.jacobians(kernel_model(float, np.array([0.0, 0.0, 1.0])), x, delta, f, A, B)
+    nonlinear_kernels.state_jacobians(kernel_model(float, np.zeros(3)), x, delta, f, A0, B)
+    nonlinear_kernels.state_jacobians(kernel_model(float, np.array([0.0, 0.0, 1.0])), x, delta, f, A, B)
     assert np.array_equal(A, A0)
 
 
 def test_sensitivities_match_complex_step():
     model, theta, _ = model_and_theta()
     x, delta = samples()
-    S = sensitivities(model, theta, x, delta)
+    S = rate_sensitivities(model, theta, x, delta)
     reference = complex_step(lambda t: rates(model, t, x, delta), theta.astype(complex))
     assert S.shape == (len(x), 10, len(INERTIA) + len(TERMS))
     assert close(S, reference, 1e-13)
@@ -288,7 +288,7 @@ def test_linearisation_is_the_linear_model_with_its_coefficients():
 
 def test_a_term_outside_the_linear_table_is_named():
     model = nonlinear_model(VEHICLE, ("X_uu", "M_uu", "Z_uw", "X_uw"))
-    theta = theta_vector(model, {**DOTS, "X_uu": -6.0, "M_uu": 0.5, "Z_uw": -60.0, "X_uw": 3.0})
+    theta = nonlinear_theta(model, {**DOTS, "X_uu": -6.0, "M_uu": 0.5, "Z_uw": -60.0, "X_uw": 3.0})
     lin = linearise(model, theta)
     U = VEHICLE.speed
     assert {(e.name, e.matrix): e.value for e in lin.outside} == pytest.approx(
@@ -318,7 +318,7 @@ def test_restoring_at_sixty_degrees_of_roll_is_the_closed_form():
         mass=B / 9.81, Ix=3.0, Iy=50.0, Iz=50.0, weight=B, buoyancy=B, xB=0, yB=0, zB=-h, speed=10.0
     )
     model = nonlinear_model(body, ())
-    theta = theta_vector(model, {})
+    theta = nonlinear_theta(model, {})
     x = np.zeros(10)
     x[6] = math.radians(60)
     F = forces(model, theta, x, np.zeros(3))[0]
@@ -328,7 +328,7 @@ def test_restoring_at_sixty_degrees_of_roll_is_the_closed_form():
 
 def test_restoring_at_any_attitude_is_weight_and_buoyancy_turned_by_the_rotation():
     model, _, _ = model_and_theta()
-    theta = theta_vector(model, DOTS)  # no hydrodynamic terms: at rest only the restoring is left
+    theta = nonlinear_theta(model, DOTS)  # no hydrodynamic terms: at rest only the restoring is left
     rB = np.array([VEHICLE.xB, VEHICLE.yB, VEHICLE.zB])
     for phi, th, psi in ((1.0, -0.9, 2.0), (-2.5, 1.2, -0.3), (math.pi / 2, 0.4, 1.0)):
         x = np.array([0, 0, 0, 0, 0, 0, phi, th, psi, 7.0])

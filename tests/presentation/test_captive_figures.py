@@ -65,8 +65,8 @@ def fitted(captive):
     and the plant's thrust."""
     vehicle, _, fit, _ = captive
     model = nonlinear.nonlinear_model(constants(vehicle, fit.speed), fit.terms)
-    theta = nonlinear.theta_vector(model, fit.coefficients)
-    M_A = model.inertia(theta) - model.inertia(nonlinear.theta_vector(model, fit.rigid))  # the water's
+    theta = nonlinear.nonlinear_theta(model, fit.coefficients)
+    M_A = model.inertia(theta) - model.inertia(nonlinear.nonlinear_theta(model, fit.rigid))  # the water's
     c = theta[len(nonlinear.INERTIA) :]
 
     def wrench(nu, fins, nu_dot):

@@ -38,7 +38,7 @@ def linear(tmp_path_factory):
 def nonlinear(tmp_path_factory):
     """A 3 s doublet record of the captive polynomial model and a start 20 % off on two terms."""
     from testbed.models.linear import STATES
-    from testbed.models.nonlinear_flight import fly
+    from testbed.models.nonlinear_flight import fly_nonlinear
     from testbed.captive.config import captive_config
 
     free = ("Y_uv", "N_uv")
@@ -48,7 +48,7 @@ def nonlinear(tmp_path_factory):
     fins = np.zeros((len(t), 3))
     fins[(t > 0.4) & (t < 1.4), 0] = np.radians(3.0)
     fins[(t >= 1.4) & (t < 2.4), 0] = -np.radians(3.0)
-    x = fly(model, theta, t, np.r_[config.vehicle.speed, np.zeros(9)], fins)
+    x = fly_nonlinear(model, theta, t, np.r_[config.vehicle.speed, np.zeros(9)], fins)
     y = x + np.random.default_rng(3).normal(size=x.shape) * 1e-3
     root = tmp_path_factory.mktemp("nonlinear")
     write_csv(root / "doublet.csv", t, y, fins, STATES)

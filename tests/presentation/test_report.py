@@ -532,8 +532,8 @@ def test_a_nonlinear_fit_is_recorded_with_the_nonlinear_models_outputs(tmp_path)
     and the outputs of the nonlinear model flown from the estimate's initial state
     (`nonlinear_prediction.predict_nonlinear`), not the linear model's."""
     from testbed.captive.config import captive_config
-    from testbed.identification.nonlinear_prediction import predict_nonlinear as fly_nonlinear
-    from testbed.models.nonlinear_flight import fly
+    from testbed.identification.nonlinear_prediction import predict_nonlinear
+    from testbed.models.nonlinear_flight import fly_nonlinear
 
     free = ("Y_uv", "N_uv")
     config = dataclasses.replace(captive_config(model="polynomial")[0], free=free, screen=False)
@@ -541,7 +541,7 @@ def test_a_nonlinear_fit_is_recorded_with_the_nonlinear_models_outputs(tmp_path)
     t = np.arange(151) * 0.02
     fins = np.zeros((len(t), 3))
     fins[(t > 0.4) & (t < 1.4), 0] = np.radians(3.0)
-    x = fly(model, theta, t, np.r_[config.vehicle.speed, np.zeros(9)], fins)
+    x = fly_nonlinear(model, theta, t, np.r_[config.vehicle.speed, np.zeros(9)], fins)
     y = x + np.random.default_rng(2).normal(size=x.shape) * 1e-3
     data = [Experiment("turn", t, STATES, y, fins)]
     start = config.with_coefficients({n: 0.8 * config.terms[n] for n in free})
@@ -553,7 +553,7 @@ def test_a_nonlinear_fit_is_recorded_with_the_nonlinear_models_outputs(tmp_path)
     path = report.log_fit(tmp_path / "fit.rrd", data, start, est, iterations)
     for j, n in enumerate(free):
         assert np.allclose(_scalars(path, f"/parameters/{n}")[:, 0], [v[j] for _, v, _ in iterations])
-    expected = fly_nonlinear(data, start.with_coefficients(est.coefficients), est.initial_states)[0]
+    expected = predict_nonlinear(data, start.with_coefficients(est.coefficients), est.initial_states)[0]
     for j, s in enumerate(STATES):
         got = _scalars(path, f"/outputs/turn/{s}")
         assert np.allclose(got[:, 0], y[:, j]) and np.allclose(
