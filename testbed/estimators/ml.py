@@ -326,7 +326,7 @@ def _shooting(optimiser, prob: Problem, first: tuple, tuning: dict, callback) ->
     return replace(out, iterations=used, history=np.concatenate(history))
 
 
-STARTS = ("auto", "config", "equation-error", "mekf", "global")
+_STARTS = ("auto", "config", "equation-error", "mekf", "global")
 
 
 START_OPTIONS = ("start", "samples", "spread", "polish", "seed")
@@ -334,8 +334,8 @@ START_OPTIONS = ("start", "samples", "spread", "polish", "seed")
 
 _START = option(
     "auto",
-    lambda v: v in STARTS,
-    f"one of {', '.join(STARTS)}",
+    lambda v: v in _STARTS,
+    f"one of {', '.join(_STARTS)}",
     "where the iterations begin: auto (the a-priori values and the equation-error estimate, "
     "and the MEKF's when those two end apart or fail, the best box draw where neither gave a whole second start; "
     "the least cost is kept), config (the "

@@ -39,8 +39,8 @@ from testbed.models.nonlinear import NonlinearModel, rates, rate_sensitivities
 __all__ = ["NEEDED", "equation_error"]
 
 NEEDED = ("u", "v", "w", "p", "q", "r", "phi", "theta")  # the states the dynamics rows involve
-ROWS = 6  # ν̇'s rows of f
-STEPS = 8  # Gauss-Newton steps at most: M⁻¹ is the only nonlinearity in θ
+_ROWS = 6  # ν̇'s rows of f
+_STEPS = 8  # Gauss-Newton steps at most: M⁻¹ is the only nonlinearity in θ
 STEP_TOL = 1e-6  # stop when every step is below this fraction of its coefficient
 
 
@@ -54,7 +54,7 @@ def _intervals(records: Sequence[FlightRecord], channels: Sequence[str]):
         quotient, mid, mean = between_present(r.t, r.y[:, source], r.fins)
         x = np.zeros((len(mid), len(STATES)))
         x[:, to] = mid
-        nudot.append(quotient[:, :ROWS])
+        nudot.append(quotient[:, :_ROWS])
         xbar.append(x)
         fins.append(mean)
     return np.concatenate(nudot), np.concatenate(xbar), np.concatenate(fins)
@@ -85,14 +85,14 @@ def equation_error(
         )
     idx = np.array([model.names.index(n) for n in free])
     theta = np.array(theta, float)
-    for _ in range(STEPS):
+    for _ in range(_STEPS):
         # e = Δν/Δt − f_ν(x̄, δ; θ), J = ∂f_ν/∂θ at the free coefficients
-        e = nudot - rates(model, theta, x, fins)[:, :ROWS]
+        e = nudot - rates(model, theta, x, fins)[:, :_ROWS]
         if not np.all(np.isfinite(e)):
             raise InputError("equation-error start: the model's rates are not finite at the records' states")
         # W = diag(1 / mean eᵢ²): each row weighted by its own error's scale
         W = 1.0 / np.maximum(np.mean(e**2, axis=0), np.finfo(float).tiny)
-        J = rate_sensitivities(model, theta, x, fins)[:, :ROWS, idx]
+        J = rate_sensitivities(model, theta, x, fins)[:, :_ROWS, idx]
         A = (J * np.sqrt(W)[None, :, None]).reshape(-1, len(idx))
         b = (e * np.sqrt(W)).reshape(-1)
         scale = np.linalg.norm(A, axis=0)

@@ -91,7 +91,7 @@ __all__ = [
 ACCEPT = 1e-4  # least ratio of actual to predicted decrease for a step to be taken
 LEAST_REACH = 1.0 / 64  # the initial states' own step is cut to no less than this share before the region is
 OWN_SHARE = 1e-3  # and only while that step's share of the decrease predicted is at least this
-NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
+_NEAR = 1.0  # a Gauss-Newton step shorter than this (Cramér-Rao σ): near a stationary point
 PACE = 3  # a descent closes in on its stationary point when its step halves over this many iterations
 DIRECT = 12  # iterations on the whole record before multiple shooting is tried instead
 STAGE_TOL = 0.1  # a shorter stage's convergence (Cramér-Rao σ): enough to start the next in its basin
@@ -383,7 +383,7 @@ def trust_region(
     segments), multiple shooting from the first iteration, with all of `max_iter`: stages of that
     many pieces per record (of at least `likelihood.FEWEST_SEGMENT` samples), a quarter as many,
     …, then the whole record. Otherwise, where the whole record's fit does not converge in
-    `DIRECT` iterations (`DIRECT` more if its Gauss-Newton step is then below `NEAR` σ and has
+    `DIRECT` iterations (`DIRECT` more if its Gauss-Newton step is then below `_NEAR` σ and has
     halved over the last `PACE`), or the model diverges over the whole record from `p`, multiple
     shooting from `p` again, with half the iterations left: stages of `segments`,
     `segments`/`SHRINK`, … pieces per record (of at least `likelihood.LEAST_SEGMENT` samples, or
@@ -428,7 +428,7 @@ def trust_region(
         out = run(_shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, SEGMENT_RADIUS)
         return _outcome(prob, p, out, history)
     direct = run([], p, min(max_iter, DIRECT) if stages else max_iter, radius, at)
-    if direct.status is Status.MAX_ITERATIONS and direct.step < min(NEAR, direct.earlier / 2) and stages:
+    if direct.status is Status.MAX_ITERATIONS and direct.step < min(_NEAR, direct.earlier / 2) and stages:
         # near a stationary point, and closing in on it: as many iterations again before anything
         # else (a step that stays near one size is a slow crawl in a poor basin's valley)
         direct = run([], direct.point.p, min(left(), DIRECT), radius)

@@ -57,10 +57,9 @@ import numpy as np
 from testbed.identification import scan
 from testbed.identification.problem import Problem, Record
 from testbed.identification.recursions import discrete_models, simulated
-from testbed.models.linear import IX, NU, NX, STATES, continuous
+from testbed.models.linear import BODY, IX, NU, NX, continuous
 
 __all__ = [
-    "BODY",
     "BODY_ROWS",
     "FASTEST_LAG",
     "MAX_CYCLE",
@@ -76,8 +75,7 @@ __all__ = [
     "initial_prediction",
 ]
 
-BODY = STATES[:6]  # u v w p q r: the rows process noise enters
-BODY_ROWS = np.array([IX[s] for s in BODY])
+BODY_ROWS = np.array([IX[s] for s in BODY])  # u v w p q r: the rows process noise enters
 _REGULAR = 1e-10  # process noise on every state, relative, where the Riccati equation needs it
 _NEWTON = 30  # Newton steps on the discrete Riccati equation, at most
 _SETTLING = 200  # cycles of the recursion that make Newton's method's other start

@@ -20,6 +20,7 @@ __all__ = [
     "COEFFICIENTS",
     "INPUTS",
     "BIASES",
+    "BODY",
     "CURRENT",
     "DELAY",
     "IBIAS",
@@ -392,7 +393,7 @@ def derivatives(
 
 # -- what a model config must satisfy before a fit -----------------------------------------------
 
-BODY = ("u", "v", "w", "p", "q", "r")
+BODY = ("u", "v", "w", "p", "q", "r")  # the body rows: the velocities and rates
 # the diagonal of Mt's body block, as the linear model's table writes it
 INERTIA_TERMS = {
     "u": "m − X_udot",

@@ -47,12 +47,12 @@ UNITS = {
     "psi": "rad",
     "z": "m",
 }
-COLUMNS = 3  # subplots per row of a channel grid
-DPI = 80
+_COLUMNS = 3  # subplots per row of a channel grid
+_DPI = 80
 MEASURED, MODEL, PRIOR = "#8a8a8a", "#c0392b", "#2e86c1"
 
 
-STYLE = {  # set once for every figure: per-axis settings re-create its ticks (most of the time)
+_STYLE = {  # set once for every figure: per-axis settings re-create its ticks (most of the time)
     "axes.titlesize": 10,
     "axes.titley": 1.02,  # a title at a fixed height: placing it above the tick labels measures them
     "axes.labelsize": 8,
@@ -65,11 +65,11 @@ STYLE = {  # set once for every figure: per-axis settings re-create its ticks (m
 
 
 def _styled(draw):
-    """`draw` run under `STYLE` (its name kept: a worker process finds it by name)."""
+    """`draw` run under `_STYLE` (its name kept: a worker process finds it by name)."""
 
     @functools.wraps(draw)
     def styled(*args, **kwargs):
-        with plt.rc_context(STYLE):
+        with plt.rc_context(_STYLE):
             return draw(*args, **kwargs)
 
     return styled
@@ -77,7 +77,7 @@ def _styled(draw):
 
 def _png(fig) -> bytes:
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=DPI)
+    fig.savefig(buffer, format="png", dpi=_DPI)
     plt.close(fig)
     return buffer.getvalue()
 
@@ -85,16 +85,16 @@ def _png(fig) -> bytes:
 def _bottom(axes, n: int, xlabel: str) -> None:
     """`xlabel` under the lowest panel of each column of a `_grid` of `n` panels (the panels of a
     column share the x quantity; the channel and its unit are in each panel's title)."""
-    for k in range(max(0, n - COLUMNS), n):
+    for k in range(max(0, n - _COLUMNS), n):
         axes[k].set_xlabel(xlabel)
 
 
 def _grid(n: int, title: str, height: float = 2.1):
-    """A grid of `n` panels, `COLUMNS` a row, each row `height` inches, with room for the titles
+    """A grid of `n` panels, `_COLUMNS` a row, each row `height` inches, with room for the titles
     and labels fixed in inches (a constrained layout measures every tick label: seconds a page)."""
-    rows = max(1, math.ceil(n / COLUMNS))
+    rows = max(1, math.ceil(n / _COLUMNS))
     total = height * rows + 0.8
-    fig, axes = plt.subplots(rows, COLUMNS, figsize=(12, total), squeeze=False)
+    fig, axes = plt.subplots(rows, _COLUMNS, figsize=(12, total), squeeze=False)
     fig.subplots_adjust(
         left=0.07, right=0.99, top=1 - 0.8 / total, bottom=0.5 / total, hspace=0.6 * 2.1 / height, wspace=0.32
     )

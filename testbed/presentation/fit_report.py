@@ -66,7 +66,7 @@ REPORT = "report.html"
 SECTIONS = ("summary", "outputs", "residuals", "coefficients", "trial", "correlation", "convergence")
 VALIDATION_SECTIONS = ("summary", "outputs", "residuals")  # a validation has no fit to show
 ANALYSIS_SECTIONS = ("summary", "bounds", "correlation")
-STYLE = (
+_STYLE = (
     "body{font-family:sans-serif;max-width:1250px;margin:2em auto;padding:0 1em;color:#222}"
     "table{border-collapse:collapse;margin:0.8em 0}td,th{border:1px solid #ccc;padding:3px 8px}"
     "th{background:#f3f3f3}caption{text-align:left;font-weight:bold;padding:4px 0;white-space:nowrap}"
@@ -133,7 +133,7 @@ def _page(title: str, sections: Sequence[tuple[str, str, str]]) -> str:
     e = html.escape
     parts = [
         "<!doctype html><html lang='en'><head><meta charset='utf-8'>",
-        f"<title>{e(title)}</title><style>{STYLE}</style></head><body>",
+        f"<title>{e(title)}</title><style>{_STYLE}</style></head><body>",
         f"<h1>{e(title)}</h1><nav>",
         *(f"<a href='#{k}'>{k}</a>" for k, _, _ in sections),
         "</nav>",

@@ -30,6 +30,7 @@ import rerun.blueprint as rrb
 
 from testbed.outputs import atomic_file
 from testbed.models.linear import INPUTS, IX, STATES
+from testbed.simulation.flight import FIN_COMMANDS
 from testbed.simulation.vehicle import FIN_JOINTS, FLIP, load_model, quaternion_matrix
 
 __all__ = [
@@ -94,7 +95,6 @@ COMMAND_PANELS = {
     "fin_er": ("delta_er",),
     "fin_el": ("delta_el",),
 }
-FIN_COMMANDS = ("fin_r", "fin_er", "fin_el")  # the autopilot's commands to the fin servos
 # Commands with no quantity of their own to share axes with: their panel's title.
 OTHER_COMMANDS = {"differential": "differential elevator command δa = (δer − δel)/2 (rad)"}
 # The key lines under the plots, which say what the styles mean.
