@@ -316,7 +316,7 @@ def simplex(
                 model, th[:m], r.t, r.fins, r.y - b, ch, range(len(ch)), x, R, None, None, g
             )
             fitted.append(x)
-            dx0 = flight(model, th[:m], r.t, x, r.fins, (), None, states).dx_dx0
+            dx0 = flight(model, th[:m], r.t, x, r.fins, (), None).dx_dx0
             sens.append(log_mounting.read_derivatives(g, dx0, ch)[:, :, ch])
             simulated(len(r.t) * (1 + len(ch)))
         return np.array(fitted), sens

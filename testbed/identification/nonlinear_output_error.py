@@ -259,7 +259,7 @@ def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     g = theta[m + len(ch) :]
     out = []
     for r, x, states in zip(records, x0, flown):
-        f = flight(model, theta[:m], r.t, x, r.fins, free[own], substeps, states)
+        f = flight(model, theta[:m], r.t, x, r.fins, free[own], substeps)
         simulated(len(r.t) * (1 + int(own.sum())))
         St = np.zeros((len(r.t), len(ch), len(free)))
         St[:, :, own] = log_mounting.read_derivatives(g, f.dx_dtheta, ch)

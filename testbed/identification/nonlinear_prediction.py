@@ -133,7 +133,7 @@ def initial_state(
     res, lam = residual(states), 1e-3
     for _ in range(ITERATIONS if moved else 0):
         V = np.maximum(np.sum(res**2, axis=0) / np.maximum(present.sum(axis=0), 1), 1e-30) if R is None else R
-        dx0 = flight(model, theta, t, x0, fins, (), substeps, states).dx_dx0
+        dx0 = flight(model, theta, t, x0, fins, (), substeps).dx_dx0
         J = log_mounting.read_derivatives(mounting, dx0, ch)[:, :, cols]
         simulated(len(t) * (1 + len(cols)))
         J = np.where(present[:, :, None], J, 0.0)

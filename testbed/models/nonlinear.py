@@ -290,11 +290,22 @@ def _evaluate(model, theta, x, delta):
     return nonlinear_kernels, packed(model, theta, dtype), x, delta, single
 
 
+def _state_model(model, theta, x, delta, jacobian: bool, derivatives_in_theta: bool):
+    """`nonlinear_kernels.state_model` at the samples: (F, ∂F/∂(x, δ), ẋ, ∂f/∂x, ∂f/∂δ, ∂f/∂θ),
+    the derivatives not asked for one sample of scratch, and whether one sample was given."""
+    kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
+    n, nx, nu = len(x), linear.NX, linear.NU
+    J, P = (n if jacobian else 1), (n if derivatives_in_theta else 1)
+    F, JF = np.zeros((n, 6), x.dtype), np.zeros((J, 6, nx + nu), x.dtype)
+    f, A, B = np.empty((n, nx), x.dtype), np.empty((J, nx, nx), x.dtype), np.empty((J, nx, nu), x.dtype)
+    G = np.empty((P, nx, len(model.names) if derivatives_in_theta else 0), x.dtype)
+    kernels.state_model(m, x, delta, F, JF, f, A, B, G, jacobian, derivatives_in_theta)
+    return F, JF, f, A, B, G, single
+
+
 def _forces(model: NonlinearModel, theta, x, delta, derivatives: bool):
     """F (n, 6), and with `derivatives` also ∂F/∂x (n, 6, 10) and ∂F/∂δ (n, 6, 3)."""
-    kernels, m, x, delta, _ = _evaluate(model, theta, x, delta)
-    F, JF = np.zeros((len(x), 6), x.dtype), np.zeros((len(x), 6, linear.NX + linear.NU), x.dtype)
-    kernels.state_forces(m, x, delta, F, JF, derivatives)
+    F, JF, *_ = _state_model(model, theta, x, delta, derivatives, False)
     return (F, JF[:, :, : linear.NX], JF[:, :, linear.NX :]) if derivatives else F
 
 
@@ -337,31 +348,22 @@ def row_least_squares(model: NonlinearModel, R, y, weights=None, held=()) -> np.
 
 def rates(model: NonlinearModel, theta, x, delta) -> np.ndarray:
     """ẋ = f(x, δ, θ) at the states x (n, 10) and fin angles δ (n, 3) (or one of each)."""
-    kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
-    out = np.empty((len(x), linear.NX), x.dtype)
-    kernels.state_rates(m, x, delta, out)
-    return out[0] if single else out
+    *_, f, _, _, _, single = _state_model(model, theta, x, delta, False, False)
+    return f[0] if single else f
 
 
 def jacobians(model: NonlinearModel, theta, x, delta):
     """(ẋ, ∂f/∂x (n, 10, 10), ∂f/∂δ (n, 10, 3)), exact: M⁻¹ times the forces' Jacobians in the body
     rows, the kinematics' in the others."""
-    kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
-    n = len(x)
-    f, A, B = (
-        np.empty(s, x.dtype) for s in ((n, linear.NX), (n, linear.NX, linear.NX), (n, linear.NX, linear.NU))
-    )
-    kernels.state_jacobians(m, x, delta, f, A, B)
+    _, _, f, A, B, _, single = _state_model(model, theta, x, delta, True, False)
     return (f[0], A[0], B[0]) if single else (f, A, B)
 
 
 def rate_sensitivities(model: NonlinearModel, theta, x, delta) -> np.ndarray:
     """∂f/∂θ (n, 10, len(θ)): for a term M⁻¹ (φ_k e_row + ∂T/∂θ_k e_x), for an inertia
     coefficient M⁻¹ (−C_k(ν) ν − ∂M/∂θ_k ν̇) with C_k the Kirchhoff forces of ∂M/∂θ_k."""
-    kernels, m, x, delta, single = _evaluate(model, theta, x, delta)
-    out = np.empty((len(x), linear.NX, len(model.names)), x.dtype)
-    kernels.theta_rates(m, x, delta, out)
-    return out[0] if single else out
+    *_, G, single = _state_model(model, theta, x, delta, False, True)
+    return G[0] if single else G
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ method, `substeps` steps per sample interval (by default steps of about 5 ms, `s
 4 a 20 ms interval, 2 a 10 ms one), each sample's fin angles held until the next: a
 run's records give at each sample the fins' mean over the interval that follows it, which held
 over that interval moves the body as the fins did to first order (the linear model's predictions
-take the inputs so too). The flight is compiled (`nonlinear_kernels.rk4_states`), real or complex.
+take the inputs so too). The flight is compiled (`nonlinear_kernels.rk4_flight`), real or complex.
 """
 
 from __future__ import annotations
@@ -16,10 +16,12 @@ from testbed.errors import InputError
 from testbed.models.linear import NU, NX
 from testbed.models.nonlinear import NonlinearModel, packed
 
-__all__ = ["STEP", "fly_nonlinear", "substeps_for"]
+__all__ = ["STEP", "check_flight", "fly_nonlinear", "substeps_for"]
 
 
 STEP = 0.005  # s: the RK4 step a flight takes unless told (4 steps a 20 ms sample interval)
+
+_NO_COLUMNS = np.zeros(0, dtype=np.int64)  # a flight without sensitivities differentiates along no θ
 
 
 def substeps_for(t) -> int:
@@ -28,7 +30,8 @@ def substeps_for(t) -> int:
     return max(1, int(round(float(np.median(np.diff(np.asarray(t, float)))) / STEP)))
 
 
-def _check(t, x0, fins, substeps) -> None:
+def check_flight(t, x0, fins, substeps) -> None:
+    """`InputError` unless `t` (N,) increases, x0 is (10,), the fins (N, 3) and `substeps` a whole number ≥ 1."""
     if t.ndim != 1 or len(t) < 2 or not np.all(np.diff(t) > 0):
         raise InputError(f"t: {t.shape} times; expected two or more increasing times")
     if x0.shape != (NX,) or fins.shape != (len(t), NU):
@@ -47,10 +50,18 @@ def fly_nonlinear(model: NonlinearModel, theta, t, x0, fins, substeps: int | Non
     dtype = complex if np.iscomplexobj(theta) or np.iscomplexobj(x0) else float
     t, x0, fins = np.asarray(t, float), np.asarray(x0, dtype), np.asarray(fins, float)
     substeps = substeps_for(t) if substeps is None and len(t) > 1 else substeps
-    _check(t, x0, fins, substeps)
+    check_flight(t, x0, fins, substeps)
     out = np.empty((len(t), NX), dtype)
     out[0] = x0
-    nonlinear_kernels.rk4_states(
-        packed(model, theta, dtype), t, out, np.ascontiguousarray(fins, dtype), substeps
+    none = np.zeros((1, NX, 0), dtype)  # no sensitivities carried
+    nonlinear_kernels.rk4_flight(
+        packed(model, theta, dtype),
+        t,
+        out,
+        np.ascontiguousarray(fins, dtype),
+        _NO_COLUMNS,
+        substeps,
+        none,
+        False,
     )
     return out

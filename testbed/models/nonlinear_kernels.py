@@ -14,7 +14,7 @@ magnitudes √(z_i² + z_j²) of pairs of z's entries (`regressors.PAIRS`) and t
 with the gradient of each product by the product rule (summed per force row and atom, then
 taken through W once).
 
-With `jacobian`, a state's evaluation writes ∂F/∂(x, δ) (6 × 13) beside F; `rk4_sensitivities` carries
+With `jacobian`, a state's evaluation writes ∂F/∂(x, δ) (6 × 13) beside F; `rk4_flight` carries
 the sensitivities S = ∂x/∂(θ[free], x0) (10 × (p + 10)) through each RK4 stage,
 ∂k_i = A_i ∂X_i + [F_θ,i 0], so they are exact for the flight (module doc of
 `identification.nonlinear_sensitivities`).
@@ -32,7 +32,7 @@ import numpy as np
 from testbed.models.component_kernels import SCRATCH, turned_mass, wrenches
 from testbed.models.mechanics import coriolis_state, kinematics_state, kirchhoff, restoring_state
 
-__all__ = ["rk4_sensitivities", "rk4_states", "state_forces", "state_jacobians", "state_rates", "theta_rates"]
+__all__ = ["rk4_flight", "state_model"]
 
 
 @numba.njit(cache=True)
@@ -275,70 +275,33 @@ def _work(m, like):
 
 
 @numba.njit(cache=True)
-def state_forces(m, x, d, F, JF, jacobian):
-    """F (n, 6) at the states x (n, 10) and fins d (n, 3); with `jacobian` JF (n, 6, 13)."""
+def state_model(m, x, d, F, JF, f, A, B, G, jacobian, theta):
+    """At the states x (n, 10) and fins d (n, 3): the forces F (n, 6) and f (n, 10) = ẋ; with
+    `jacobian` JF (n, 6, 13) = ∂F/∂(x, δ), A (n, 10, 10) = ∂f/∂x and B (n, 10, 3) = ∂f/∂δ; with
+    `theta` G (n, 10, P) = ∂f/∂θ, every coefficient. An array a flag leaves out may have one
+    sample: it is scratch. One kernel for all of them: each compiled kernel takes the whole
+    model's tree anew, and compiling it is most of a first nonlinear fit's time."""
     work = _work(m, x)
-    for n in range(x.shape[0]):
-        _forces(m, x[n], d[n], work, jacobian)
-        F[n] = work[0]
-        if jacobian:
-            JF[n] = work[1]
-
-
-@numba.njit(cache=True)
-def state_rates(m, x, d, f):
-    """f (n, 10) = ẋ at the states x (n, 10) and fins d (n, 3)."""
-    work = _work(m, x)
-    A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
-    for n in range(x.shape[0]):
-        _state(m, x[n], d[n], f[n], A, B, work, bool(False))
-
-
-@numba.njit(cache=True)
-def state_jacobians(m, x, d, f, A, B):
-    """f (n, 10), ∂f/∂x A (n, 10, 10) and ∂f/∂δ B (n, 10, 3) at x (n, 10), d (n, 3)."""
-    work = _work(m, x)
-    for n in range(x.shape[0]):
-        _state(m, x[n], d[n], f[n], A[n], B[n], work, bool(True))
-
-
-@numba.njit(cache=True)
-def theta_rates(m, x, d, G):
-    """∂f/∂θ G (n, 10, P) at x (n, 10), d (n, 3), every coefficient."""
-    work = _work(m, x)
-    f = np.empty(10, dtype=x.dtype)
-    A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
     columns = np.arange(G.shape[2])
     for n in range(x.shape[0]):
-        _state(m, x[n], d[n], f, A, B, work, bool(False))
-        _theta_columns(m, x[n], f, work, columns, G[n])
+        k = n if jacobian else 0
+        _state(m, x[n], d[n], f[n], A[k], B[k], work, jacobian)
+        for r in range(6):
+            F[n, r] = work[0][r]
+            if jacobian:
+                for i in range(13):
+                    JF[n, r, i] = work[1][r, i]
+        if theta:
+            _theta_columns(m, x[n], f[n], work, columns, G[n])
 
 
 @numba.njit(cache=True)
-def rk4_states(m, t, x, fins, substeps):
+def rk4_flight(m, t, x, fins, columns, substeps, S, sensitivities):
     """x[k + 1] (10,) from x[k] for k < N − 1 in place (x (N, 10), x[0] given): classical RK4,
-    `substeps` steps per interval [t[k], t[k + 1]], the fins (N, 3) held at fins[k]."""
-    work = _work(m, x)
-    A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
-    ks = np.empty((4, 10), dtype=x.dtype)
-    X = np.empty(10, dtype=x.dtype)
-    for k in range(x.shape[0] - 1):
-        h = (t[k + 1] - t[k]) / substeps
-        xs = x[k].copy()
-        for _ in range(substeps):
-            for i, a in enumerate((0.0, 0.5, 0.5, 1.0)):
-                for j in range(10):
-                    X[j] = xs[j] if i == 0 else xs[j] + a * h * ks[i - 1, j]
-                _state(m, X, fins[k], ks[i], A, B, work, bool(False))
-            for j in range(10):
-                xs[j] = xs[j] + h / 6 * (ks[0, j] + 2 * ks[1, j] + 2 * ks[2, j] + ks[3, j])
-        x[k + 1] = xs
-
-
-@numba.njit(cache=True)
-def rk4_sensitivities(m, t, x, fins, columns, substeps, S):
-    """S[k + 1] (10, p + 10) from S[k] for k < N − 1 in place (S[0] given): the sensitivities of
-    `rk4_states`' states x (N, 10) to θ[columns] (p) and to x[0], carried through every RK4 stage."""
+    `substeps` steps per interval [t[k], t[k + 1]], the fins (N, 3) held at fins[k]. With
+    `sensitivities`, also S[k + 1] (10, p + 10) from S[k] (S[0] given): the states'
+    sensitivities to θ[columns] (p) and to x[0], carried through every RK4 stage (without, S
+    may be (1, 10, 0))."""
     work = _work(m, x)
     p, width = len(columns), S.shape[2]
     A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
@@ -347,16 +310,26 @@ def rk4_sensitivities(m, t, x, fins, columns, substeps, S):
     dks = np.empty((4, 10, width), dtype=x.dtype)
     X = np.empty(10, dtype=x.dtype)
     dX = np.empty((10, width), dtype=x.dtype)
+    xs = np.empty(10, dtype=x.dtype)
+    T = np.empty((10, width), dtype=x.dtype)
     for k in range(x.shape[0] - 1):
         h = (t[k + 1] - t[k]) / substeps
-        xs, T = x[k].copy(), S[k].copy()
+        for j in range(10):
+            xs[j] = x[k, j]
+            if sensitivities:
+                for c in range(width):
+                    T[j, c] = S[k, j, c]
         for _ in range(substeps):
             for i, a in enumerate((0.0, 0.5, 0.5, 1.0)):
                 for j in range(10):
                     X[j] = xs[j] if i == 0 else xs[j] + a * h * ks[i - 1, j]
+                if not sensitivities:
+                    _state(m, X, fins[k], ks[i], A, B, work, sensitivities)
+                    continue
+                for j in range(10):
                     for c in range(width):
                         dX[j, c] = T[j, c] if i == 0 else T[j, c] + a * h * dks[i - 1, j, c]
-                _state(m, X, fins[k], ks[i], A, B, work, bool(True))
+                _state(m, X, fins[k], ks[i], A, B, work, sensitivities)
                 _theta_columns(m, X, ks[i], work, columns, G)
                 for j in range(10):  # ∂k_i = A_i ∂X_i + [G_i 0]
                     for c in range(width):
@@ -368,8 +341,13 @@ def rk4_sensitivities(m, t, x, fins, columns, substeps, S):
                                 dks[i, j, c] += a_jl * dX[l, c]
             for j in range(10):
                 xs[j] = xs[j] + h / 6 * (ks[0, j] + 2 * ks[1, j] + 2 * ks[2, j] + ks[3, j])
+                if sensitivities:
+                    for c in range(width):
+                        T[j, c] = T[j, c] + h / 6 * (
+                            dks[0, j, c] + 2 * dks[1, j, c] + 2 * dks[2, j, c] + dks[3, j, c]
+                        )
+        for j in range(10):
+            x[k + 1, j] = xs[j]
+            if sensitivities:
                 for c in range(width):
-                    T[j, c] = T[j, c] + h / 6 * (
-                        dks[0, j, c] + 2 * dks[1, j, c] + 2 * dks[2, j, c] + dks[3, j, c]
-                    )
-        S[k + 1] = T
+                    S[k + 1, j, c] = T[j, c]

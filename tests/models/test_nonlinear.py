@@ -179,30 +179,35 @@ def test_a_pair_magnitude_atom_is_evaluated_with_its_exact_gradient():
         m[13], m[14] = np.full(3, -1), np.full(3, -1)  # no component terms
         return tuple(m)
 
+    def evaluated(coefficients, x, d, jacobian=False):
+        """(F, f, A, B) of the compiled model at the samples (A, B one sample of scratch unless
+        `jacobian`)."""
+        n, J = len(x), len(x) if jacobian else 1
+        F, JF, f = np.empty((n, 6), x.dtype), np.empty((J, 6, 13), x.dtype), np.empty((n, 10), x.dtype)
+        A, B, G = np.empty((J, 10, 10), x.dtype), np.empty((J, 10, 3), x.dtype), np.empty((1, 10, 0), x.dtype)
+        nonlinear_kernels.state_model(
+            kernel_model(x.dtype.type, coefficients), x, d, F, JF, f, A, B, G, jacobian, False
+        )
+        return F, f, A, B
+
     def rates_of(x, d, coefficients=c):
-        out = np.empty(x.shape, x.dtype)
-        nonlinear_kernels.state_rates(kernel_model(x.dtype.type, coefficients), x, d, out)
-        return out
+        return evaluated(coefficients, x, d)[1]
 
     x, delta = samples(seed=11)
-    F, F0, JF = np.empty((len(x), 6)), np.empty((len(x), 6)), np.empty((len(x), 6, 13))
-    nonlinear_kernels.state_forces(kernel_model(float, c), x, delta, F, JF, False)
-    nonlinear_kernels.state_forces(kernel_model(float, 0 * c), x, delta, F0, JF, False)
+    F, F0 = evaluated(c, x, delta)[0], evaluated(0 * c, x, delta)[0]
     u, v, w, q = x[:, 0], x[:, 1], x[:, 2], x[:, 4]
     want = np.zeros((len(x), 6))
     want[:, 1] = c[0] * v * np.hypot(v, w)
     want[:, 5] = c[1] * (q**2 + delta[:, 0] ** 2)
     want[:, 2] = c[2] * np.hypot(v, w) * np.abs(u)
     assert close(F - F0, want, 1e-14)
-    f, A, B = (np.empty(s) for s in ((len(x), 10), (len(x), 10, 10), (len(x), 10, 3)))
-    nonlinear_kernels.state_jacobians(kernel_model(float, c), x, delta, f, A, B)
+    _, f, A, B = evaluated(c, x, delta, jacobian=True)
     assert close(f, rates_of(x, delta), 0)
     assert close(A, complex_step(lambda z: rates_of(z, delta.astype(complex)), x.astype(complex)), 1e-13)
     assert close(B, complex_step(lambda z: rates_of(x.astype(complex), z), delta.astype(complex)), 1e-13)
     x[:, 1:3] = 0.0  # v = w = 0: |vw| has no slope there, and |vw|·|u| none along u
-    A0 = np.empty_like(A)
-    nonlinear_kernels.state_jacobians(kernel_model(float, np.zeros(3)), x, delta, f, A0, B)
-    nonlinear_kernels.state_jacobians(kernel_model(float, np.array([0.0, 0.0, 1.0])), x, delta, f, A, B)
+    A0 = evaluated(np.zeros(3), x, delta, jacobian=True)[2]
+    A = evaluated(np.array([0.0, 0.0, 1.0]), x, delta, jacobian=True)[2]
     assert np.array_equal(A, A0)
 
 
