@@ -10,6 +10,8 @@ Each computes what `scan.Scan` computes, sample by sample: numpy's per-call over
 import numba
 import numpy as np
 
+from testbed.models.cholesky import solve_spd
+
 __all__ = [
     "adjoint_sum",
     "concentrated_sse",
@@ -59,8 +61,10 @@ def recursion(Phi, forcing, X, rows, S):
             for i in range(j):
                 xn[a, i] += forcing[t, a, i]
         x, xn = xn, x
-    if x is not X:
-        X[:, :] = x
+    if x is not X:  # element by element: an array assignment compiles its shape check's messages
+        for a in range(n):
+            for k in range(m):
+                X[a, k] = x[a, k]
 
 
 @numba.njit(cache=True, fastmath={"reassoc"})
@@ -82,7 +86,8 @@ def adjoint_sum(Phi, F, y, measured, W, P):
             else:
                 a[N - 1 - k, measured[j]] = W[j] * P[k, j] * (y[k, j] - x[k, measured[j]])
     lam = x  # λ[N − 1 − k], in x's memory
-    lam[0] = a[0]
+    for i in range(n):
+        lam[0, i] = a[0, i]
     propagate_states(np.ascontiguousarray(Phi.T), lam, a[1:])
     out = np.empty(c)
     for j in range(c):
@@ -102,7 +107,8 @@ def weighted_sse(Phi, x0, F, y, measured, W, P, explode):
             bound[j] = max(bound[j], abs(y[k, j]))
     bound = explode * bound + 1.0
     x = np.empty((N, Phi.shape[0]))
-    x[0] = x0
+    for i in range(Phi.shape[0]):
+        x[0, i] = x0[i]
     propagate_states(Phi, x, F)
     total = 0.0
     for k in range(N):
@@ -251,7 +257,7 @@ def concentrated_sse(Phi, Gamma, s, inputs, y, P, complete, starts, measured, co
         bounds = np.linalg.eigvalsh(A)
         if not bounds[0] * condition >= bounds[-1]:  # NaN too
             return -2.0
-        x0m = np.linalg.solve(A, rhs / D) / D
+        x0m = solve_spd(A, rhs / D) / D  # A is positive definite (a Gramian, its condition checked)
         x0 = np.zeros(n)
         for j in range(c):
             x0[m[j]] = x0m[j]

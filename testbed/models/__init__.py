@@ -2,6 +2,7 @@
 
 - `linear`: the paper's linear model `Mt ẋ = At x + Bt δ + St`, its coefficients, states,
   offsets, output biases, current, mounting and delay, and its exact discretisation;
+- `cholesky`: small positive definite systems solved inside compiled kernels;
 - `sensors`: the measurement model, each sensor's outputs from the state and its inverse;
 - `log_mounting`: a velocity log's mounting read through the linear model's outputs;
 - `component_kernels`, `components`: the fluid forces of a vehicle's components (hull, fin

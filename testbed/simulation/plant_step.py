@@ -13,6 +13,7 @@ import llvmlite.binding
 import mujoco
 import numba
 import numpy as np
+from testbed.models.cholesky import solve_spd
 from testbed.simulation.vehicle import FIN_JOINTS, hydrostatics, motion_transform, quaternion_matrix, skew
 
 __all__ = [
@@ -187,7 +188,7 @@ def advance(model, data, k, n, h, cmd, slew):
                     for j in range(6):  # f = passive + applied (actuators included) − bias
                         d = dofs[j]
                         rhs[j] = k.qfrc_passive[d] + k.qfrc[d] - k.qfrc_bias[d]
-                    a = _solve_spd(H, rhs)  # H q̈_hull = f_hull
+                    a = solve_spd(H, rhs)  # H q̈_hull = f_hull
                     for j in range(nv):
                         qacc[j] = 0.0
                     for j in range(6):
@@ -401,33 +402,6 @@ def _complete(k, M9):
         k.M[e] += M9[k.rows[e], k.cols[e]]
     for i in range(9):
         k.qfrc[dofs[i]] = F[i] + (B[i] if i < 3 else 0.0)
-
-
-@numba.njit(**_INNER)
-def _solve_spd(H, b):
-    """x = H⁻¹ b for a small symmetric positive definite H, by Cholesky H = L Lᵀ (in place)."""
-    n = b.shape[0]
-    for j in range(n):
-        s = H[j, j]
-        for m in range(j):
-            s -= H[j, m] * H[j, m]
-        H[j, j] = np.sqrt(s)
-        for i in range(j + 1, n):
-            s = H[i, j]
-            for m in range(j):
-                s -= H[i, m] * H[j, m]
-            H[i, j] = s / H[j, j]
-    for i in range(n):  # L y = b
-        s = b[i]
-        for m in range(i):
-            s -= H[i, m] * b[m]
-        b[i] = s / H[i, i]
-    for i in range(n - 1, -1, -1):  # Lᵀ x = y
-        s = b[i]
-        for m in range(i + 1, n):
-            s -= H[m, i] * b[m]
-        b[i] = s / H[i, i]
-    return b
 
 
 def added_mass_basis(model: mujoco.MjModel):
