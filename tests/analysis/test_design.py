@@ -183,6 +183,7 @@ def _analyze(main, run, free, tmp_path):
     return json.loads(out.read_text())["relative_crlb"]
 
 
+@pytest.mark.slow  # the design's study through six commands (design, two simulate, identify, analyze), about 20 s
 def test_designed_run_halves_scenario_ii_worst_bound_stays_linear_and_is_identified(tmp_path):
     """The acceptance of `testbed design`, through the command line as a user runs it: the
     default design and Scenario II flown (default seed, same flight time), each identified by

@@ -59,8 +59,26 @@ def nonlinear(tmp_path_factory):
 def _report(capsys, data, config, folder, *extra) -> str:
     argv = ["identify", *map(str, data), "--config", str(config), "--report", str(folder), *extra]
     code = main(argv + ["--out", str(folder.parent / f"{folder.name}.json")])
-    assert code == 0, capsys.readouterr().err
+    assert code == 0, capsys.readouterr().err if capsys else code
     return (folder / REPORT).read_text(encoding="utf-8")
+
+
+@pytest.fixture(scope="module")
+def linear_report(linear, tmp_path_factory):
+    """The linear records' report with default options, its folder (`report`) beside the fit's
+    JSON (`report.json`): drawn once for the tests that only read it."""
+    root, paths = linear
+    folder = tmp_path_factory.mktemp("linear_report") / "report"
+    _report(None, paths, root / "prior.toml", folder)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def nonlinear_report(nonlinear, tmp_path_factory):
+    """The nonlinear record's report from its start, drawn once (as `linear_report`)."""
+    folder = tmp_path_factory.mktemp("nonlinear_report") / "report"
+    _report(None, [nonlinear / "doublet.csv"], nonlinear / "start.toml", folder)
+    return folder
 
 
 def _sections(page: str) -> dict[str, str]:
@@ -72,10 +90,9 @@ def _images(html: str) -> list[bytes]:
     return [base64.b64decode(b) for b in re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", html)]
 
 
-def test_a_linear_fit_report_has_every_section_with_its_figures(linear, capsys, tmp_path):
-    root, paths = linear
-    page = _report(capsys, paths, root / "prior.toml", tmp_path / "report")
-    assert list(tmp_path.joinpath("report").iterdir()) == [tmp_path / "report" / REPORT]
+def test_a_linear_fit_report_has_every_section_with_its_figures(linear_report):
+    page = (linear_report / REPORT).read_text(encoding="utf-8")
+    assert list(linear_report.iterdir()) == [linear_report / REPORT]
     sections = _sections(page)
     assert list(sections) == list(SECTIONS)
     figures = {name: _images(body) for name, body in sections.items()}
@@ -92,19 +109,21 @@ def test_a_linear_fit_report_has_every_section_with_its_figures(linear, capsys, 
     assert "every start tried" in sections["summary"] and "drift group" in sections["correlation"]
 
 
-def test_a_validation_report_shows_the_held_out_records_against_the_model(linear, capsys, tmp_path):
+def test_a_validation_report_shows_the_held_out_records_against_the_model(
+    linear, linear_report, capsys, tmp_path
+):
     """Fitted on seed 4's records, validated on seed 5's: the page's outputs and residuals of the
     held-out records, the config as written beside the estimate's model, fit % as the JSON's."""
     import json
 
     root, paths = linear
-    _report(capsys, paths, root / "prior.toml", tmp_path / "fit")
     held_out = []
     for e in examples.experiments(5, duration=20.0):
         held_out.append(tmp_path / f"held_{e.name}.csv")
         write_csv(held_out[-1], e.t, e.y, e.inputs)
     argv = ["validate", *map(str, held_out), "--config", str(root / "prior.toml"), "--estimates"]
-    argv += [str(tmp_path / "fit.json"), "--out", str(tmp_path / "v.json"), "--report", str(tmp_path / "v")]
+    argv += [str(linear_report.parent / "report.json"), "--out", str(tmp_path / "v.json")]
+    argv += ["--report", str(tmp_path / "v")]
     assert main(argv) == 0, capsys.readouterr().err
     page = (tmp_path / "v" / REPORT).read_text(encoding="utf-8")
     sections = _sections(page)
@@ -144,8 +163,8 @@ def test_the_report_links_the_fits_recording(linear, capsys, tmp_path):
     assert "<a href='../fit.rrd'>../fit.rrd</a>" in page and (tmp_path / "fit.rrd").is_file()
 
 
-def test_a_nonlinear_fit_report_flies_the_nonlinear_model(nonlinear, capsys, tmp_path):
-    page = _report(capsys, [nonlinear / "doublet.csv"], nonlinear / "start.toml", tmp_path / "nl")
+def test_a_nonlinear_fit_report_flies_the_nonlinear_model(nonlinear_report):
+    page = (nonlinear_report / REPORT).read_text(encoding="utf-8")
     sections = _sections(page)
     assert list(sections) == list(SECTIONS)
     assert len(_images(sections["outputs"])) == 1 and len(_images(sections["residuals"])) == 3
@@ -153,7 +172,9 @@ def test_a_nonlinear_fit_report_flies_the_nonlinear_model(nonlinear, capsys, tmp
     assert len(_images(sections["correlation"])) == 1 and "No analysis" not in sections["correlation"]
 
 
-def test_the_trials_parameters_have_their_own_section_with_their_units(linear, capsys, tmp_path):
+def test_the_trials_parameters_have_their_own_section_with_their_units(
+    linear, linear_report, capsys, tmp_path
+):
     """A yaw offset and a rate gyro's bias freed and a compass bias set: the trial section gives
     each with its unit (the free ones with their bounds), the coefficients section none of them."""
     root, paths = linear
@@ -174,7 +195,7 @@ def test_the_trials_parameters_have_their_own_section_with_their_units(linear, c
     assert "nan" not in trial  # a per-record name's a-priori value is its record's
     assert "<td>N_0</td>" not in trial  # estimated per record, so not among those set
     assert "<td>Y_v</td>" in sections["coefficients"] and "Y_v" not in trial
-    plain = _sections(_report(capsys, paths, root / "prior.toml", tmp_path / "plain"))
+    plain = _sections((linear_report / REPORT).read_text(encoding="utf-8"))
     assert "None free or set" in plain["trial"] and not _images(plain["trial"])
 
 
@@ -236,18 +257,12 @@ def test_a_report_folder_is_replaced_only_with_force(linear, capsys, tmp_path):
 
 
 @pytest.mark.parametrize("model", ["linear", "nonlinear"])
-def test_the_page_opens_in_chromium_with_every_section_and_no_console_error(
-    linear, nonlinear, capsys, tmp_path, model
-):
+def test_the_page_opens_in_chromium_with_every_section_and_no_console_error(request, model):
     playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
         pytest.skip("no Chromium on this machine (Debian's chromium package)")
-    if model == "linear":
-        root, paths = linear
-        _report(capsys, paths, root / "prior.toml", tmp_path / "report")
-    else:
-        _report(capsys, [nonlinear / "doublet.csv"], nonlinear / "start.toml", tmp_path / "report")
+    folder = request.getfixturevalue(f"{model}_report")
     flags = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking"]
     errors = []
     with playwright.sync_playwright() as p:
@@ -255,7 +270,7 @@ def test_the_page_opens_in_chromium_with_every_section_and_no_console_error(
         page = browser.new_page()
         page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
         page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(Path(tmp_path / "report" / REPORT).as_uri())
+        page.goto(Path(folder / REPORT).as_uri())
         for section in SECTIONS:
             assert page.locator(f"section#{section} h2").count() == 1, section
         widths = page.eval_on_selector_all("img", "imgs => imgs.map(i => i.naturalWidth)")
