@@ -96,7 +96,7 @@ class ModelConfig:
     # [identify] bounds: free name → (low, high), the box the fit keeps it in (±inf: open)
     bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     # [identify] physical_bounds: each free term not in `bounds` on its physical side
-    # (`regressors.physical_bounds`: drags ≥ 0, a row's damping in its own velocity ≤ 0)
+    # (`regressors.physical_bounds`: a component's drags ≥ 0)
     physical_bounds: bool = True
 
     def __post_init__(self):  # a name a config leaves out is 0 (and fixed)

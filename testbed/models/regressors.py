@@ -94,20 +94,18 @@ def component_kind(name: str) -> str | None:
 
 
 # The terms whose sign physics fixes: a component's drags (`blunt`, `slender`, `angular`:
-# f = −c ρ A ‖v‖ v, dissipative for c ≥ 0) and a body row's quadratic damping in its own
-# velocity (`Y_v|v|`: −Y_v|v| ≥ 0 opposes v); the lift, Magnus and Munk terms and every other
-# polynomial term may take either sign
+# f = −c ρ A ‖v‖ v, dissipative for c ≥ 0), each the coefficient of a drag law. A polynomial
+# term's sign is not physics': a row's damping in its own velocity is shared by every term of
+# the set even in it (the bundled torpedo's captive polynomial fit has Y_v|v|, Z_w|w|, M_q|q|
+# and N_r|r| positive, its cross-flow terms carrying the damping), so none is bounded unasked
 DRAGS = ("blunt", "slender", "angular")
-SELF_DAMPING = tuple(f"{row}_{s}|{s}|" for row, s in zip(ROWS, "uvwpqr"))
 
 
 def physical_bounds(name: str) -> tuple[float, float]:
     """`(low, high)` of the term `name` on its dissipative side: `(0, ∞)` for a component's drag,
-    `(−∞, 0)` for a row's quadratic damping in its own velocity, else `(−∞, ∞)`."""
+    else `(−∞, ∞)`."""
     if component_kind(name) in DRAGS:
         return 0.0, math.inf
-    if name in SELF_DAMPING:
-        return -math.inf, 0.0
     return -math.inf, math.inf
 
 

@@ -21,12 +21,24 @@ from testbed.estimators import identify
 from testbed.models.regressors import physical_bounds
 
 
-def test_the_physical_sides_are_the_drags_and_each_rows_own_damping():
+def test_the_physical_sides_are_the_components_drags():
     assert physical_bounds("blunt@hull") == (0.0, math.inf)
+    assert physical_bounds("slender@elevator_left") == (0.0, math.inf)
     assert physical_bounds("angular@rudder_upper") == (0.0, math.inf)
-    assert physical_bounds("N_r|r|") == (-math.inf, 0.0) and physical_bounds("Y_v|v|") == (-math.inf, 0.0)
-    for free in ("lift@rudder_upper", "munk@elevator_left", "N_v|v|", "Y_uv", "X_uu"):
+    for free in ("lift@rudder_upper", "munk@elevator_left", "N_r|r|", "Y_v|v|", "N_v|v|", "Y_uv", "X_uu"):
         assert physical_bounds(free) == (-math.inf, math.inf), free
+
+
+def test_no_physical_side_contradicts_the_bundled_torpedos_captive_values():
+    """The defaults a user's fit keeps are physics', so the plant's own captive fit (both models)
+    lies inside them: a polynomial term's sign is shared with the other terms of its row (this
+    fit's Y_v|v|, Z_w|w|, M_q|q| and N_r|r| are positive)."""
+    from testbed.captive.config import captive_config
+
+    for model in ("polynomial", "components"):
+        terms = captive_config(model=model)[0].terms
+        outside = {n: v for n, v in terms.items() if not physical_bounds(n)[0] <= v <= physical_bounds(n)[1]}
+        assert outside == {}, (model, outside)
 
 
 def test_the_config_reads_writes_and_checks_its_bounds(truth):  # noqa: F811
@@ -34,7 +46,9 @@ def test_the_config_reads_writes_and_checks_its_bounds(truth):  # noqa: F811
     boxed = replace(config, free=DETERMINED, bounds={"Y_uv": (-math.inf, 0.0)}, physical_bounds=False)
     back = parse_config(tomllib.loads(config_text(boxed)), "back")
     assert back.bounds == {"Y_uv": (-math.inf, 0.0)} and back.physical_bounds is False
-    low, high = replace(config, free=("Y_v|v|", "Y_uv")).box(("Y_v|v|", "Y_uv"))
+    low, high = replace(config, free=("Y_v|v|", "Y_uv"), bounds={"Y_v|v|": (-math.inf, 0.0)}).box(
+        ("Y_v|v|", "Y_uv")
+    )
     assert list(low) == [-math.inf, -math.inf] and list(high) == [0.0, math.inf]
     text = config_text(replace(config, free=DETERMINED))
     for bad, words in (
@@ -80,13 +94,15 @@ def test_a_bound_that_holds_gives_the_fit_of_the_others_with_it_fixed_there(trut
     assert boxed.cost >= free.cost - 1e-9 and boxed.cost == pytest.approx(fixed.cost, abs=1e-6)
 
 
-def test_a_start_on_the_wrong_side_of_a_physical_bound_ends_on_its_side(truth):  # noqa: F811
-    """A self-damping term started positive (undamped) is moved onto its side, 0, and stays there
-    or inside; with the physical bounds off it may cross."""
+def test_a_start_on_the_wrong_side_of_a_bound_ends_on_its_side(truth):  # noqa: F811
+    """A term bounded to ≤ 0 and started at 50 is moved onto its side, 0, and stays there or
+    inside; unbounded, it ends where the data put it (69 in the captive model that flew them)."""
     config, record = truth
     start = replace(config, free=(*DETERMINED, "Y_v|v|"), screen=False).with_coefficients({"Y_v|v|": 50.0})
-    est = identify([record], start, "ml-gn", start="config")
+    est = identify([record], replace(start, bounds={"Y_v|v|": (-math.inf, 0.0)}), "ml-gn", start="config")
     assert est.values[-1] <= 0.0
+    free = identify([record], start, "ml-gn", start="config")
+    assert abs(free.values[-1] - config.terms["Y_v|v|"]) <= 3 * free.std[-1] and free.values[-1] > 0
 
 
 @pytest.mark.parametrize("method", ["ml-nm", "mekf"])
