@@ -50,11 +50,11 @@ from testbed.identification.nonlinear_output_error import (
     read_outputs,
     setup,
 )
-from testbed.identification.nonlinear_prediction import flights
+from testbed.identification.nonlinear_prediction import first_samples, flights
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import substeps_for
 
-__all__ = ["NONLINEAR", "first_samples", "forward", "nonlinear_identifiability", "rank_tolerance"]
+__all__ = ["NONLINEAR", "forward", "nonlinear_identifiability", "rank_tolerance"]
 
 
 def rank_tolerance(H: np.ndarray, F: np.ndarray, samples: int, channels: int, substeps: int) -> float:
@@ -187,16 +187,6 @@ def _assess(experiments, config: ModelConfig, noise_std: Mapping[str, float]) ->
     parts = [p for e in config.fitted(experiments) for p in split(e)]  # the records it analyses
     initial = None if np.any(config.mounting()) else first_samples(parts, config)
     return nonlinear_identifiability(experiments, config, initial=initial)
-
-
-def first_samples(experiments: Sequence[Experiment], config: ModelConfig) -> dict[str, dict[str, float]]:
-    """Each record's initial state as its first sample less the config's output biases, record
-    name → state → value (a state whose first sample is missing left out: fitted)."""
-    out = {}
-    for e in experiments:
-        first = np.asarray(e.y[0], float) - config.output_biases(e.measured)
-        out[e.name] = {c: float(v) for c, v in zip(e.measured, first) if np.isfinite(v)}
-    return out
 
 
 def _at_estimate(experiments, candidates: ModelConfig, fit: Estimate) -> np.ndarray:

@@ -29,7 +29,7 @@ from testbed.models.linear import MOUNTING, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly_nonlinear
 
-__all__ = ["ITERATIONS", "TOLERANCE", "flights", "initial_state", "predict_nonlinear"]
+__all__ = ["ITERATIONS", "TOLERANCE", "first_samples", "flights", "initial_state", "predict_nonlinear"]
 
 ITERATIONS = 20  # Gauss-Newton steps of an initial state's fit, at most
 TOLERANCE = 0.01  # converged when every component's step is below this many of its Cramér-Rao σ
@@ -60,6 +60,16 @@ def predict_nonlinear(
     return out
 
 
+def first_samples(experiments: Sequence[Experiment], config: ModelConfig) -> dict[str, dict[str, float]]:
+    """Each record's initial state as its first sample less the config's output biases, record
+    name → state → value (a state whose first sample is missing left out: fitted)."""
+    out = {}
+    for e in experiments:
+        first = np.asarray(e.y[0], float) - config.output_biases(e.measured)
+        out[e.name] = {c: float(v) for c, v in zip(e.measured, first) if np.isfinite(v)}
+    return out
+
+
 def flights(
     experiments: Sequence[Experiment],
     config: ModelConfig,
@@ -75,9 +85,7 @@ def flights(
         y = e.y - config.output_biases(e.measured)  # y − b: the states as read
         x0 = np.zeros(NX)
         x0[0] = model.vehicle.speed
-        first = np.asarray(y[0], float)
-        x0[ch] = np.where(np.isfinite(first), first, x0[ch])
-        for c, v in given.items():
+        for c, v in {**first_samples([e], config)[e.name], **given}.items():
             x0[STATES.index(c)] = v
         moved = [j for j, c in enumerate(e.measured) if c not in given]
         with np.errstate(all="ignore"):
