@@ -167,22 +167,22 @@ class OpenLoopFit:
 
     @property
     def lowest(self) -> tuple[str, str, float] | None:
-        """(experiment, channel, fit %) of the lowest truth fit over the excited channels; None
+        """(experiment, channel, fit %) of the lowest fit % to the truth over the excited channels; None
         where no channel is excited."""
         fits = [(n, c, self.truth[n][c]) for n, cs in self.excited.items() for c in cs]
         return min(fits, key=lambda f: f[2]) if fits else None
 
     @property
-    def lowest_truth_fit(self) -> float:
-        """The lowest truth fit % over the excited channels of every experiment (NaN: none)."""
+    def lowest_fit_to_truth(self) -> float:
+        """The lowest fit % to the truth over the excited channels of every experiment (NaN: none)."""
         return self.lowest[2] if self.lowest else math.nan
 
     def to_dict(self) -> dict:
-        """JSON-able (NaN as None), with the derived `lowest_truth_fit` and `lowest`."""
+        """JSON-able (NaN as None), with the derived `lowest_fit_to_truth` and `lowest`."""
         lowest = self.lowest
         return {
             "speed": self.speed,
-            "lowest_truth_fit": _json(self.lowest_truth_fit),
+            "lowest_fit_to_truth": _json(self.lowest_fit_to_truth),
             "lowest": None if lowest is None else {"experiment": lowest[0], "channel": lowest[1]},
             "excited_snr": EXCITED_SNR,
             "data": {n: {c: _json(v) for c, v in fits.items()} for n, fits in self.data.items()},

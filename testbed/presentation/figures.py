@@ -319,9 +319,9 @@ def report_html(
         "% against the noise-free truth on every excited channel (the truth moving at least twice the "
         "sensor σ) and the lowest of them (the median over the seeds' runs; the channel and the rest "
         "from the first seed's), the lowest against the measured data, the speed loss and the peak "
-        "pitch and pitch rate. Where the lowest truth fit is below 99 % the linear reference does not "
+        "pitch and pitch rate. Where the lowest fit to the truth is below 99 % the linear reference does not "
         "hold.</p><table>"
-        "<tr><th>data set</th><th>lowest truth fit</th><th>truth fit per excited channel</th>"
+        "<tr><th>data set</th><th>lowest fit to the truth</th><th>fit to the truth per excited channel</th>"
         "<th>lowest fit to the data</th>"
         "<th>speed loss</th><th>peak pitch</th><th>peak pitch rate</th></tr>"
     )
@@ -335,7 +335,7 @@ def report_html(
         )
         lowest = r["lowest"]
         parts.append(
-            f"<tr><td>{e(key)}</td><td>{_fit(r['lowest_truth_fit'])} ({e(str(lowest['channel']))}, "
+            f"<tr><td>{e(key)}</td><td>{_fit(r['lowest_fit_to_truth'])} ({e(str(lowest['channel']))}, "
             f"{e(str(lowest['experiment']))})</td><td>{e(fits)}</td><td>{_fit(_lowest(r['data'], r['excited']))}</td>"
             f"<td>{max(r['speed_loss'].values()):.2f} %</td><td>{max(r['peak_pitch'].values()):.1f}°</td>"
             f"<td>{max(r['peak_pitch_rate'].values()):.1f} °/s</td></tr>"

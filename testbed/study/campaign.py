@@ -355,9 +355,9 @@ class _client:
 
 def regime(out: Path, cells: list[Cell]) -> dict[str, dict]:
     """Per data set ("scenario/truth"), the analytic model's open-loop fit (`regime.open_loop_fit`)
-    on its first seed's run, with `lowest_truth_fit` the median over the seeds' runs of each
+    on its first seed's run, with `lowest_fit_to_truth` the median over the seeds' runs of each
     run's lowest (the input sequences and noise differ by seed: one seed's margin does not
-    decide) and `lowest_truth_fit_seeds` each seed's; a run that cannot be read is left out."""
+    decide) and `lowest_fit_to_truth_seeds` each seed's; a run that cannot be read is left out."""
     fits: dict[str, dict[int, dict]] = {}
     for c in cells:
         runs = fits.setdefault(f"{c.scenario}/{c.truth}", {})
@@ -372,12 +372,12 @@ def regime(out: Path, cells: list[Cell]) -> dict[str, dict]:
         read = {seed: r for seed, r in sorted(runs.items()) if r is not None}
         if not read:
             continue
-        lowest = {seed: r["lowest_truth_fit"] for seed, r in read.items()}
+        lowest = {seed: r["lowest_fit_to_truth"] for seed, r in read.items()}
         finite = [v for v in lowest.values() if v is not None]
         found[key] = {
             **next(iter(read.values())),
-            "lowest_truth_fit": float(np.median(finite)) if finite else None,
-            "lowest_truth_fit_seeds": {str(seed): v for seed, v in lowest.items()},
+            "lowest_fit_to_truth": float(np.median(finite)) if finite else None,
+            "lowest_fit_to_truth_seeds": {str(seed): v for seed, v in lowest.items()},
         }
     return found
 

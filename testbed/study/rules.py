@@ -56,7 +56,7 @@ __all__ = [
 
 COEFFICIENT_TOLERANCE = 0.10  # a coefficient is acceptable within 10 % of the analytic value ...
 COEFFICIENT_SIGMAS = 3.0  # ... or within 3 of the optimum's (coloured-residual) σ; an infinite σ never passes
-VALID_FIT = 99.0  # % lowest truth fit of the analytic model: the linear reference is valid above it
+VALID_FIT = 99.0  # % lowest fit of the analytic model to the truth: the linear reference is valid above it
 INTERVAL_LEVEL = 0.95  # of the Wilson intervals
 ACCEPTABLE = 0.8  # a method is acceptable when it succeeds in ≥ 80 % of its cells ...
 UNSATISFACTORY = 0.5  # ... and unsatisfactory when in fewer than 50 %
@@ -159,7 +159,7 @@ def valid_reference(key: str, regime: dict) -> bool:
     linear truth, or a data set it fits ≥ `VALID_FIT` % on every excited channel."""
     if key.endswith("/linear"):
         return True
-    fit = (regime.get(key) or {}).get("lowest_truth_fit")
+    fit = (regime.get(key) or {}).get("lowest_fit_to_truth")
     return fit is not None and float(fit) >= VALID_FIT
 
 

@@ -28,7 +28,7 @@ def fits(tmp_path_factory):
 
 def test_scenario_ii_is_in_the_linear_regime_on_the_plant(fits):
     run, f = fits["II", "plant"]
-    assert f.lowest_truth_fit >= FIT_LIMIT, f.lowest
+    assert f.lowest_fit_to_truth >= FIT_LIMIT, f.lowest
     sigma = read_scenario(run / "scenario.toml").sensors.noise_std
     for name in ("horizontal", "vertical", "roll"):
         truth = read_csv(run / f"{name}.truth.csv", keep_repeats=True)
@@ -41,7 +41,7 @@ def test_scenario_ii_is_in_the_linear_regime_on_the_plant(fits):
 
 def test_the_linear_truth_is_fitted_to_rounding(fits):
     _, f = fits["II", "linear"]
-    assert f.lowest_truth_fit > 99.99
+    assert f.lowest_fit_to_truth > 99.99
     assert all(v == 0.0 for v in f.speed_loss.values())  # u is decoupled at trim in the linear model
     assert math.isnan(f.truth["horizontal"]["u"])  # a channel that does not vary has no fit %
 
@@ -56,7 +56,7 @@ def test_scenario_i_is_far_outside_it(fits):
     assert f.speed * (1 - f.speed_loss["scenario-I"] / 100) == pytest.approx(16.4, abs=0.1)
     assert f.peak_pitch["scenario-I"] == pytest.approx(30.0, abs=1.0)
     assert f.peak_pitch_rate["scenario-I"] == pytest.approx(95.0, abs=2.0)
-    assert f.lowest_truth_fit < known["theta"]  # the lowest is over every excited channel
+    assert f.lowest_fit_to_truth < known["theta"]  # the lowest is over every excited channel
     assert set(known) <= set(f.excited["scenario-I"])
 
 
@@ -64,10 +64,12 @@ def test_to_dict_is_json_and_round_trips(fits):
     for _, f in fits.values():
         d = json.loads(json.dumps(f.to_dict(), allow_nan=False))
         assert OpenLoopFit.from_dict(d).to_dict() == d
-        assert d["lowest_truth_fit"] == pytest.approx(f.lowest_truth_fit)
+        assert d["lowest_fit_to_truth"] == pytest.approx(f.lowest_fit_to_truth)
         n, c = d["lowest"]["experiment"], d["lowest"]["channel"]
-        assert d["truth"][n][c] == d["lowest_truth_fit"] and c in d["excited"][n]
-        assert min(d["truth"][n][c] for n in d["excited"] for c in d["excited"][n]) == d["lowest_truth_fit"]
+        assert d["truth"][n][c] == d["lowest_fit_to_truth"] and c in d["excited"][n]
+        assert (
+            min(d["truth"][n][c] for n in d["excited"] for c in d["excited"][n]) == d["lowest_fit_to_truth"]
+        )
 
 
 def test_a_run_without_its_full_truth_is_a_one_line_error(fits, tmp_path):

@@ -19,8 +19,8 @@ from testbed.study.rules import (
     wilson,
 )
 
-VALID = {"II/plant": {"lowest_truth_fit": 99.4}, "I/plant": {"lowest_truth_fit": 42.0}}
-FACTORIAL_REGIME = {f"{s}/plant": {"lowest_truth_fit": 99.3} for s in rules.FACTORIAL}
+VALID = {"II/plant": {"lowest_fit_to_truth": 99.4}, "I/plant": {"lowest_fit_to_truth": 42.0}}
+FACTORIAL_REGIME = {f"{s}/plant": {"lowest_fit_to_truth": 99.3} for s in rules.FACTORIAL}
 
 
 def cell(
