@@ -38,7 +38,7 @@ LISTED = 40  # cells that did not converge or failed, listed by name; the rest c
 TRUTH_NAMES = {"plant": "plant", "linear": "linear model"}
 
 
-def colors(arms) -> dict[str, str]:
+def _arm_colours(arms) -> dict[str, str]:
     """One colour per arm, in the order given (matplotlib's tab10, tab20 for more than ten)."""
     cmap = plt.get_cmap("tab10" if len(arms) <= 10 else "tab20")
     return {a: matplotlib.colors.to_hex(cmap(i % cmap.N)) for i, a in enumerate(arms)}
@@ -220,7 +220,7 @@ def write_report(
     `regime` and `drift` per data set, `arms` in the order the figures show them, `captive` per
     spread and coefficient of the nonlinear cells (`results.captive_table`)."""
     arms = [a for a in arms if any(d["cell"]["arm"] == a for d in docs)]
-    palette = colors(arms)
+    palette = _arm_colours(arms)
     figures, missing = [], []
     name = success_figure(out, summary, arms, palette)
     if name:
