@@ -791,6 +791,8 @@ def corpus(root: Path) -> list[Case]:
             cases.append(Case(f"{argv[0]} {' '.join(argv[2:4])} --out {target}", (*argv, "--out", target)))
     cases.append(Case("analytic --out link.txt", ("analytic", "--out", "link.txt")))
     cases.append(Case("analytic --out keep.txt --force", ("analytic", "--out", "keep.txt", "--force")))
+    # through a link, --force replaces the file it names (the link stays)
+    cases.append(Case("analytic --out link.txt --force", ("analytic", "--out", "link.txt", "--force")))
     for target in ("out", "keep.txt", "keep.txt/run", "-", "data", "run", "out/new/run"):
         for force in ((), ("--force",)):
             cases.append(
@@ -1068,11 +1070,17 @@ def run_subprocess(argv, cwd: Path) -> tuple[int, str, str]:
     return done.returncode, done.stdout, done.stderr
 
 
-def _is_output(path: str, argv) -> bool:
-    """Whether `path` is one of the outputs `argv` names (--out, --rrd, the history), inside one
-    (a run directory) or a folder made for one."""
+def _is_output(path: str, argv, before: dict) -> bool:
+    """Whether `path` is one of the outputs `argv` names (--out, --rrd, the history), the file a
+    named symbolic link points to (`before`: the snapshot; a link names its target's file, which
+    `--force` replaces), inside one (a run directory) or a folder made for one."""
     targets = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a in ("--out", "--rrd")]
     targets += [str(Path(t).with_suffix(".history.csv")) for t in targets]
+    targets += [
+        os.path.normpath(os.path.join(os.path.dirname(t), before[t][len("link:") :]))
+        for t in targets
+        if str(before.get(t, "")).startswith("link:")
+    ]
     return any(path == t or path.startswith(t.rstrip("/") + "/") or t.startswith(path + "/") for t in targets)
 
 
@@ -1087,7 +1095,9 @@ def judge(argv, code, out, err, before: dict, after: dict) -> tuple[str, str]:
     failed = code not in (0, 1)
     replaced = "--force" not in argv  # a file that was there is replaced only when asked for
     partial = [
-        p for p in changed if failed or not _is_output(p, argv) or (replaced and _was_file(before.get(p)))
+        p
+        for p in changed
+        if failed or not _is_output(p, argv, before) or (replaced and _was_file(before.get(p)))
     ]
     named = [a for a in argv if a] + [Path(a).name for a in argv if a]
     blamed = re.match(r"testbed \S+: error: (--[\w-]+)", err)  # the flag the error starts with

@@ -23,6 +23,23 @@ def test_every_fourth_case_of_the_corpus(ws):
     assert counts["errors"] > counts["ok"] > 0  # the corpus is mostly bad input, and some runs succeed
 
 
+def test_an_output_through_a_link_replaces_its_file_only_with_force(ws):
+    """`--out link.txt` (a link to keep.txt, a user's file): refused, nothing changed; with
+    `--force` the file the link names is replaced and the link stays: the judge counts it as the
+    output, and a change to any other file would still be partial."""
+    from studies.fuzz import judge
+
+    by_label = {c.label: c for c in corpus(ws)}
+    refused = run_case(ws, by_label["analytic --out link.txt"])
+    assert refused.code == 2 and refused.kind == "error" and not refused.partial
+    forced = run_case(ws, by_label["analytic --out link.txt --force"])
+    assert forced.code == 0 and not forced.partial
+    argv = ("analytic", "--out", "link.txt", "--force")
+    before = {"link.txt": "link:keep.txt", "keep.txt": "a", "data/h.csv": "b"}
+    assert judge(argv, 0, "", "", before, {**before, "keep.txt": "c"})[1] == ""
+    assert judge(argv, 0, "", "", before, {**before, "data/h.csv": "c"})[1] == "data/h.csv"
+
+
 @pytest.mark.slow
 def test_the_whole_corpus(ws):
     counts = _check(ws, corpus(ws))
