@@ -67,8 +67,7 @@ from testbed.estimators.base import (
 )
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
 from testbed.identification.problem import Problem, check_one_model, one_model, problem
-from testbed.models.linear import BODY
-from testbed.models.linear import IX, NX, STATES
+from testbed.models.linear import BODY, IX, NX, STATES
 
 __all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
 

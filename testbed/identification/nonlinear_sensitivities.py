@@ -5,7 +5,7 @@ The trajectory is `fly_nonlinear`'s: classical RK4, `substeps` steps per sample 
 held. The sensitivities are those of that discrete map, not of the ODE: each RK4 stage
 `k_i = f(X_i, δ, θ)` is differentiated, `∂k_i = A_i ∂X_i + F_θ,i` with `A_i = ∂f/∂x` and
 `F_θ,i = ∂f/∂θ` at the stage's state X_i (the model's exact Jacobians), so the gradient of any
-cost of the simulated outputs is exact. One compiled forward pass (`nonlinear_kernels.rk4_flight`)
+cost of the simulated outputs is exact. One compiled forward pass (`nonlinear_flight.fly_with_sensitivities`)
 flies the record and carries the sensitivity matrix S = ∂x/∂[θ[free] | x0] (10 × (p + 10)) through every stage from
 S_0 = [0 I].
 """
@@ -16,9 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from testbed.models.linear import NX
-from testbed.models.nonlinear import NonlinearModel, packed
-from testbed.models.nonlinear_flight import check_flight, substeps_for
+from testbed.models.nonlinear import NonlinearModel
+from testbed.models.nonlinear_flight import fly_with_sensitivities
 
 __all__ = ["FlightSensitivities", "flight"]
 
@@ -37,19 +36,9 @@ def flight(
 ) -> FlightSensitivities:
     """`fly_nonlinear`'s states at the times `t` (N,) from `x0` (10,) with the fins (N, 3) held per sample,
     and their exact sensitivities to θ[free] (indices into `model.names`) and to x0, in one pass."""
-    from testbed.models import nonlinear_kernels  # numba: only when a model is flown
-
-    t = np.asarray(t, float)
-    substeps = substeps_for(t) if substeps is None else substeps
-    fins = np.asarray(fins, float)
-    check_flight(t, np.asarray(x0), fins, substeps)
     free = np.asarray(free, dtype=np.int64).reshape(-1)
-    p = len(free)
-    x = np.empty((len(t), NX))
-    x[0] = x0
-    S = np.zeros((len(t), NX, p + NX))
-    S[0, :, p:] = np.eye(NX)
-    nonlinear_kernels.rk4_flight(
-        packed(model, theta), t, x, np.ascontiguousarray(fins, float), free, substeps, S, True
+    x, S = fly_with_sensitivities(
+        model, np.asarray(theta, float), t, np.asarray(x0, float), fins, free, substeps
     )
+    p = len(free)
     return FlightSensitivities(x=x, dx_dtheta=S[:, :, :p], dx_dx0=S[:, :, p:])

@@ -11,7 +11,8 @@
   Kirchhoff, restoring and kinematic parts;
 - `nonlinear_kernels`, `nonlinear`: the nonlinear model's state derivative, Jacobians and RK4
   flight (compiled), the model itself and its linearisation;
-- `nonlinear_flight`: the nonlinear model flown open loop from recorded fin angles.
+- `nonlinear_flight`: the nonlinear model flown open loop from recorded fin angles, and its
+  sensitivities in the same pass.
 """
 
 __all__: list[str] = []

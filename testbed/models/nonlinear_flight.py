@@ -5,7 +5,8 @@ method, `substeps` steps per sample interval (by default steps of about 5 ms, `s
 4 a 20 ms interval, 2 a 10 ms one), each sample's fin angles held until the next: a
 run's records give at each sample the fins' mean over the interval that follows it, which held
 over that interval moves the body as the fins did to first order (the linear model's predictions
-take the inputs so too). The flight is compiled (`nonlinear_kernels.rk4_flight`), real or complex.
+take the inputs so too). The flight is compiled (`nonlinear_kernels.rk4_flight`), real or complex;
+`fly_with_sensitivities` carries its exact sensitivities in the same pass.
 """
 
 from __future__ import annotations
@@ -16,12 +17,10 @@ from testbed.errors import InputError
 from testbed.models.linear import NU, NX
 from testbed.models.nonlinear import NonlinearModel, packed
 
-__all__ = ["STEP", "check_flight", "fly_nonlinear", "substeps_for"]
+__all__ = ["STEP", "fly_nonlinear", "fly_with_sensitivities", "substeps_for"]
 
 
 STEP = 0.005  # s: the RK4 step a flight takes unless told (4 steps a 20 ms sample interval)
-
-_NO_COLUMNS = np.zeros(0, dtype=np.int64)  # a flight without sensitivities differentiates along no θ
 
 
 def substeps_for(t) -> int:
@@ -30,7 +29,31 @@ def substeps_for(t) -> int:
     return max(1, int(round(float(np.median(np.diff(np.asarray(t, float)))) / STEP)))
 
 
-def check_flight(t, x0, fins, substeps) -> None:
+def _flown(model: NonlinearModel, theta, t, x0, fins, substeps, free) -> tuple[np.ndarray, np.ndarray]:
+    """The states (N, 10) and, for `free` (indices into `model.names`; None: none), their
+    sensitivities S (N, 10, p + 10) to θ[free] and x0 from S_0 = [0 I], in one compiled pass
+    (`nonlinear_kernels.rk4_flight`); complex where `theta` or `x0` is."""
+    from testbed.models import nonlinear_kernels  # numba: only when a model is flown
+
+    dtype = complex if np.iscomplexobj(theta) or np.iscomplexobj(x0) else float
+    t, x0, fins = np.asarray(t, float), np.asarray(x0, dtype), np.asarray(fins, float)
+    substeps = substeps_for(t) if substeps is None and len(t) > 1 else substeps
+    _check(t, x0, fins, substeps)
+    columns = np.zeros(0, dtype=np.int64) if free is None else np.asarray(free, dtype=np.int64).reshape(-1)
+    x = np.empty((len(t), NX), dtype)
+    x[0] = x0
+    if free is None:
+        S = np.zeros((1, NX, 0), dtype)  # no sensitivities carried
+    else:
+        S = np.zeros((len(t), NX, len(columns) + NX), dtype)
+        S[0, :, len(columns) :] = np.eye(NX)
+    nonlinear_kernels.rk4_flight(
+        packed(model, theta, dtype), t, x, np.ascontiguousarray(fins, dtype), columns, substeps, S
+    )
+    return x, S
+
+
+def _check(t, x0, fins, substeps) -> None:
     """`InputError` unless `t` (N,) increases, x0 is (10,), the fins (N, 3) and `substeps` a whole number ≥ 1."""
     if t.ndim != 1 or len(t) < 2 or not np.all(np.diff(t) > 0):
         raise InputError(f"t: {t.shape} times; expected two or more increasing times")
@@ -45,23 +68,13 @@ def fly_nonlinear(model: NonlinearModel, theta, t, x0, fins, substeps: int | Non
     angles `fins` (N, 3) (rad) given at the same times, each held until the next, `substeps` RK4
     steps an interval (None: `substeps_for(t)`); complex where
     `theta` or `x0` is (a complex-step derivative of the flight)."""
-    from testbed.models import nonlinear_kernels  # numba: only when a model is flown
+    return _flown(model, theta, t, x0, fins, substeps, None)[0]
 
-    dtype = complex if np.iscomplexobj(theta) or np.iscomplexobj(x0) else float
-    t, x0, fins = np.asarray(t, float), np.asarray(x0, dtype), np.asarray(fins, float)
-    substeps = substeps_for(t) if substeps is None and len(t) > 1 else substeps
-    check_flight(t, x0, fins, substeps)
-    out = np.empty((len(t), NX), dtype)
-    out[0] = x0
-    none = np.zeros((1, NX, 0), dtype)  # no sensitivities carried
-    nonlinear_kernels.rk4_flight(
-        packed(model, theta, dtype),
-        t,
-        out,
-        np.ascontiguousarray(fins, dtype),
-        _NO_COLUMNS,
-        substeps,
-        none,
-        False,
-    )
-    return out
+
+def fly_with_sensitivities(
+    model: NonlinearModel, theta, t, x0, fins, free, substeps: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """`fly_nonlinear`'s states (N, 10) and, in the same pass, their sensitivities
+    S (N, 10, p + 10): to θ[free] (p indices into `model.names`) and to x0, each RK4 stage
+    differentiated."""
+    return _flown(model, theta, t, x0, fins, substeps, free)

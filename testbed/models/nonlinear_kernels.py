@@ -296,14 +296,15 @@ def state_model(m, x, d, F, JF, f, A, B, G, jacobian, theta):
 
 
 @numba.njit(cache=True)
-def rk4_flight(m, t, x, fins, columns, substeps, S, sensitivities):
+def rk4_flight(m, t, x, fins, columns, substeps, S):
     """x[k + 1] (10,) from x[k] for k < N − 1 in place (x (N, 10), x[0] given): classical RK4,
-    `substeps` steps per interval [t[k], t[k + 1]], the fins (N, 3) held at fins[k]. With
-    `sensitivities`, also S[k + 1] (10, p + 10) from S[k] (S[0] given): the states'
-    sensitivities to θ[columns] (p) and to x[0], carried through every RK4 stage (without, S
-    may be (1, 10, 0))."""
+    `substeps` steps per interval [t[k], t[k + 1]], the fins (N, 3) held at fins[k]; and S[k + 1]
+    (10, p + 10) from S[k] (S[0] given): the states' sensitivities to θ[columns] (p) and to x[0],
+    carried through every RK4 stage. S with no columns (1, 10, 0): the flight alone, the model
+    evaluated without its derivatives."""
     work = _work(m, x)
     p, width = len(columns), S.shape[2]
+    carried = width > 0  # a run-time flag: `_state` compiled once for both
     A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
     G = np.empty((10, p), dtype=x.dtype)
     ks = np.empty((4, 10), dtype=x.dtype)
@@ -316,20 +317,17 @@ def rk4_flight(m, t, x, fins, columns, substeps, S, sensitivities):
         h = (t[k + 1] - t[k]) / substeps
         for j in range(10):
             xs[j] = x[k, j]
-            if sensitivities:
-                for c in range(width):
-                    T[j, c] = S[k, j, c]
+            for c in range(width):
+                T[j, c] = S[k, j, c]
         for _ in range(substeps):
             for i, a in enumerate((0.0, 0.5, 0.5, 1.0)):
                 for j in range(10):
                     X[j] = xs[j] if i == 0 else xs[j] + a * h * ks[i - 1, j]
-                if not sensitivities:
-                    _state(m, X, fins[k], ks[i], A, B, work, sensitivities)
-                    continue
-                for j in range(10):
                     for c in range(width):
                         dX[j, c] = T[j, c] if i == 0 else T[j, c] + a * h * dks[i - 1, j, c]
-                _state(m, X, fins[k], ks[i], A, B, work, sensitivities)
+                _state(m, X, fins[k], ks[i], A, B, work, carried)
+                if not carried:
+                    continue
                 _theta_columns(m, X, ks[i], work, columns, G)
                 for j in range(10):  # ∂k_i = A_i ∂X_i + [G_i 0]
                     for c in range(width):
@@ -341,13 +339,11 @@ def rk4_flight(m, t, x, fins, columns, substeps, S, sensitivities):
                                 dks[i, j, c] += a_jl * dX[l, c]
             for j in range(10):
                 xs[j] = xs[j] + h / 6 * (ks[0, j] + 2 * ks[1, j] + 2 * ks[2, j] + ks[3, j])
-                if sensitivities:
-                    for c in range(width):
-                        T[j, c] = T[j, c] + h / 6 * (
-                            dks[0, j, c] + 2 * dks[1, j, c] + 2 * dks[2, j, c] + dks[3, j, c]
-                        )
+                for c in range(width):
+                    T[j, c] = T[j, c] + h / 6 * (
+                        dks[0, j, c] + 2 * dks[1, j, c] + 2 * dks[2, j, c] + dks[3, j, c]
+                    )
         for j in range(10):
             x[k + 1, j] = xs[j]
-            if sensitivities:
-                for c in range(width):
-                    S[k + 1, j, c] = T[j, c]
+            for c in range(width):
+                S[k + 1, j, c] = T[j, c]
