@@ -29,6 +29,7 @@ import json
 import logging
 import math
 import os
+import socket
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -36,6 +37,7 @@ from typing import Callable
 
 import numpy as np
 from dask.distributed import Client, LocalCluster, WorkerPlugin, as_completed
+from distributed.comm.addressing import parse_address, parse_host_port
 
 from testbed.analysis.drift import evidence, forms
 from testbed.analysis.regime import open_loop_fit
@@ -312,6 +314,20 @@ class KeepFreedMemory(WorkerPlugin):
         keep_freed_memory()
 
 
+def _reachable(address: str) -> None:
+    """OSError where a tcp:// `address` cannot be reached by a plain connection within
+    `CONNECT_S` (nothing listens on its port, the host unknown or silent). Dask's client retries a
+    refused connection until its timeout, so a mistyped port would otherwise cost the whole wait.
+    Another scheme, or an address Dask parses otherwise, is left to Dask's client."""
+    try:
+        scheme, location = parse_address(address)
+        host, port = parse_host_port(location) if scheme == "tcp" else (None, None)
+    except (ValueError, TypeError):
+        return
+    if host is not None:
+        socket.create_connection((host, port), timeout=CONNECT_S).close()
+
+
 class _client:
     """A Dask client on the scheduler at `address`, or on a LocalCluster of `workers`
     single-threaded processes (closed on exit)."""
@@ -322,6 +338,7 @@ class _client:
     def __enter__(self):
         if self.address:
             try:
+                _reachable(self.address)
                 self.client = Client(self.address, timeout=f"{CONNECT_S:g}s")
             except (OSError, TimeoutError, ValueError) as exc:
                 raise InputError(
