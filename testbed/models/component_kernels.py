@@ -98,13 +98,15 @@ def _local(geometry, fin, z, S):
 
 
 @numba.njit(cache=True)
-def _kinds(r, kappa, rho, added, v, w, f, J, used, first, S):
+def _kinds(r, kappa, rho, added, v, w, f, J, jacobian, used, first, S):
     """The wrench of each `used` kind from `first` on (f (6, 6): force, torque) in the
-    component's axes at its local (v, ω), per unit coefficient, and J (6, 6, 6): its derivatives
-    along (v, ω) (0 for the others); the last kind the whole added-mass velocity wrench (`wrenches` takes its change with
-    the fin angle). Scratch from S[69:180]."""
+    component's axes at its local (v, ω), per unit coefficient, and with `jacobian` J (6, 6, 6):
+    its derivatives along (v, ω) (0 for the others; without it J is left as it was); the last
+    kind the whole added-mass velocity wrench (`wrenches` takes its change with the fin angle).
+    Scratch from S[69:180]."""
     f[:, :] = 0.0
-    J[:, :, :] = 0.0
+    if jacobian:
+        J[:, :, :] = 0.0
     b, gA, n, nv, wl = _vec(S, 69), _vec(S, 72), _vec(S, 75), _vec(S, 78), _vec(S, 81)
     Sv, Sn, Snv, dw, tmp = _mat(S, 84), _mat(S, 93), _mat(S, 102), _mat(S, 111), _mat(S, 120)
     m, Sw, Sv2 = _vec(S, 129), _mat(S, 132), _mat(S, 141)
@@ -118,47 +120,54 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used, first, S):
     if N.real > 0 and first <= 2 and (used[0] or used[1] or used[2]):
         speed = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
         A_p = np.pi * np.sqrt(D / N)
-        # ∇A_p = π²/A_p · v ∘ (b² N − b D) / N²
-        for i in range(3):
-            gA[i] = np.pi**2 / A_p * v[i] * (b[i] ** 2 * N - b[i] * D) / N**2
-        # drag −ρ a ‖v‖ v: ∂/∂v = −ρ [a (‖v‖ I + v vᵀ/‖v‖) + ‖v‖ v ∇aᵀ], a = A_p or A_max − A_p
-        for kind, area, sign in ((0, A_p, 1.0), (1, A_max - A_p, -1.0)):
+        # drag −ρ a ‖v‖ v, a = A_p or A_max − A_p
+        for kind, area in ((0, A_p), (1, A_max - A_p)):
             for i in range(3):
                 f[kind, i] = -rho * area * speed * v[i]
-                for j in range(3):
-                    J[kind, i, j] = -rho * (
-                        area * ((speed if i == j else 0.0) + v[i] * v[j] / speed)
-                        + speed * v[i] * sign * gA[j]
-                    )
-        # Kutta lift σ w, σ = ρ π √(N/D)/‖v‖, w = (n × v) × v, n = b∘v:
-        # ∂/∂v = w ∇σᵀ + σ ([v]×[v]× diag(b) − [v]×[n]× + [n × v]×)
+        # Kutta lift σ w, σ = ρ π √(N/D)/‖v‖, w = (n × v) × v, n = b∘v
         for i in range(3):
             n[i] = b[i] * v[i]
         _cross(n, v, nv)
         _cross(nv, v, wl)
         sigma = rho * np.pi * np.sqrt(N / D) / speed
-        _skew(v, Sv)
-        _skew(n, Sn)
-        _skew(nv, Snv)
-        _mm(Sv, Sv, dw)
-        _mm(Sv, Sn, tmp)
-        for i in range(3):
-            for j in range(3):
-                dw[i, j] = dw[i, j] * b[j] + Snv[i, j] - tmp[i, j]
         for i in range(3):
             f[2, i] = sigma * wl[i]
-        for j in range(3):
-            g_sigma = sigma * (n[j] / N - b[j] * n[j] / D - v[j] / speed**2)
+        if jacobian:
+            # ∇A_p = π²/A_p · v ∘ (b² N − b D) / N²
             for i in range(3):
-                J[2, i, j] = wl[i] * g_sigma + sigma * dw[i, j]
+                gA[i] = np.pi**2 / A_p * v[i] * (b[i] ** 2 * N - b[i] * D) / N**2
+            # the drags' ∂/∂v = −ρ [a (‖v‖ I + v vᵀ/‖v‖) + ‖v‖ v ∇aᵀ]
+            for kind, area, sign in ((0, A_p, 1.0), (1, A_max - A_p, -1.0)):
+                for i in range(3):
+                    for j in range(3):
+                        J[kind, i, j] = -rho * (
+                            area * ((speed if i == j else 0.0) + v[i] * v[j] / speed)
+                            + speed * v[i] * sign * gA[j]
+                        )
+            # the lift's ∂/∂v = w ∇σᵀ + σ ([v]×[v]× diag(b) − [v]×[n]× + [n × v]×)
+            _skew(v, Sv)
+            _skew(n, Sn)
+            _skew(nv, Snv)
+            _mm(Sv, Sv, dw)
+            _mm(Sv, Sn, tmp)
+            for i in range(3):
+                for j in range(3):
+                    dw[i, j] = dw[i, j] * b[j] + Snv[i, j] - tmp[i, j]
+            for j in range(3):
+                g_sigma = sigma * (n[j] / N - b[j] * n[j] / D - v[j] / speed**2)
+                for i in range(3):
+                    J[2, i, j] = wl[i] * g_sigma + sigma * dw[i, j]
     # Magnus ρ V ω × v: ∂/∂v = ρ V [ω]×, ∂/∂ω = −ρ V [v]×
     V = 4.0 / 3.0 * np.pi * r[0] * r[1] * r[2]
     _cross(w, v, m)
-    _skew(w, Sw)
-    _skew(v, Sv2)
+    if jacobian:
+        _skew(w, Sw)
+        _skew(v, Sv2)
     if used[3] and first <= 3:
         for i in range(3):
             f[3, i] = rho * V * m[i]
+            if not jacobian:
+                continue
             for j in range(3):
                 J[3, i, j] = rho * V * Sw[i, j]
                 J[3, i, 3 + j] = -rho * V * Sv2[i, j]
@@ -167,6 +176,8 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used, first, S):
     if norm.real > 0 and used[4] and first <= 4:
         for i in range(3):
             f[4, 3 + i] = -rho * norm * w[i]
+            if not jacobian:
+                continue
             for j in range(3):
                 J[4, 3 + i, 3 + j] = -rho * ((norm if i == j else 0.0) + w[i] * kappa[j] ** 2 * w[j] / norm)
     if not used[5]:
@@ -183,6 +194,8 @@ def _kinds(r, kappa, rho, added, v, w, f, J, used, first, S):
     _cross(H, w, t2)
     for i in range(3):
         f[5, 3 + i] = t1[i] + t2[i]
+    if not jacobian:
+        return
     _skew(P, SP)
     _skew(H, SH)
     for i in range(3):
@@ -233,7 +246,7 @@ def _posed(geometry, fin, z, W, JW, jacobian, used, first, S):
         vp[i] += nu_v[i]
     _mv(Q.T, vp, v)
     _mv(Q.T, nu_w, w)
-    _kinds(r, kappa, rho, added, v, w, f, J, used, first, S)
+    _kinds(r, kappa, rho, added, v, w, f, J, jacobian, used, first, S)
     _skew(p, P)
     W[:, :] = 0.0
     for k in range(6):
