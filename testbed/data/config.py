@@ -19,6 +19,7 @@ from testbed.models.components import Component, check_component_name
 from testbed.models.linear import (
     BIASES,
     COEFFICIENTS,
+    CURRENT,
     MAX_SPEED,
     MIN_SPEED,
     MOUNTING,
@@ -185,6 +186,10 @@ class ModelConfig:
     def mounting(self) -> np.ndarray:
         """The velocity log's mounting (5,), `MOUNTING` order: 0 at the CG, aligned."""
         return np.array([self.coefficients[n] for n in MOUNTING], float)
+
+    def current(self) -> np.ndarray:
+        """The steady current (c_N, c_E) (2,), m/s: 0 in still water."""
+        return np.array([self.coefficients[n] for n in CURRENT], float)
 
     def with_noise_std(self, values: Mapping[str, float] | None, where: str = "noise_std") -> "ModelConfig":
         """The config with `values` (state → σ, checked as `where`) replacing its `noise_std`
@@ -552,22 +557,24 @@ def _check_terms(config: ModelConfig, source: str) -> None:
         raise InputError(f"{source}: [terms] {exc}") from None
     for key, v in config.terms.items():
         number(v, f"{source}: [terms] {json.dumps(key)}")
-    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA + BIASES + MOUNTING]
+    outputs = BIASES + MOUNTING + CURRENT
+    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA + outputs]
     if extra:
         raise InputError(
             f"{source}: [coefficients] {extra[0]} in a nonlinear model config (one with [terms]); "
             f"expected only the inertia coefficients ({', '.join(INERTIA)}), the output biases "
-            "(b_ and a state) and the velocity log's mounting, the rest in [terms]"
+            "(b_ and a state), the velocity log's mounting and the current, the rest in [terms]"
         )
     seen = set()
     for n in config.free:
-        if n not in model.names + BIASES + MOUNTING or n in seen:
+        if n not in model.names + outputs or n in seen:
             raise InputError(
                 f"{source}: [identify] free names {n[:40]!r}"
                 + (
                     " twice"
                     if n in seen
-                    else ", not an inertia coefficient, an output bias, the velocity log's mounting or one of [terms]"
+                    else ", not an inertia coefficient, an output bias, the velocity log's mounting, "
+                    "the current or one of [terms]"
                 )
                 + "; expected each of the model's names once"
             )

@@ -8,7 +8,16 @@ from typing import Mapping
 
 from testbed.data.config import BLADE_KEYS, COMPONENT_KEYS, ModelConfig
 from testbed.outputs import atomic_write_text
-from testbed.models.linear import BIASES, COEFFICIENTS, DELAY, MOUNTING, OFFSETS, OUTPUT_TERMS, Vehicle
+from testbed.models.linear import (
+    BIASES,
+    COEFFICIENTS,
+    CURRENT,
+    DELAY,
+    MOUNTING,
+    OFFSETS,
+    OUTPUT_TERMS,
+    Vehicle,
+)
 from testbed.models.nonlinear import INERTIA
 from testbed.models.sensors import Sensor
 
@@ -65,7 +74,7 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in INERTIA]
         lines += [
             line(k, config.coefficients[k])
-            for k in BIASES + MOUNTING
+            for k in BIASES + MOUNTING + CURRENT
             if config.coefficients[k] != 0.0 or k in config.free
         ]
         lines += ["", "[terms]"] + [

@@ -71,6 +71,9 @@ from testbed.identification.nonlinear_output_error import (
     pooled_noise,
     present_only,
     flight_residuals,
+    output_terms,
+    current_along,
+    read_outputs,
     setup,
     start_states,
 )
@@ -78,7 +81,7 @@ from testbed.identification.nonlinear_prediction import initial_state
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.recursions import counting, simulated
 from testbed.models import log_mounting
-from testbed.models.linear import STATES
+from testbed.models.linear import NX, STATES
 
 __all__ = ["GN_STARTS", "STARTS", "gauss_newton", "simplex"]
 
@@ -140,8 +143,12 @@ def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | N
     their biases b, which it holds; None where the records cannot give it, `InputError` if
     `start` names it."""
     m, own = len(model.names), [n for n in free if n in model.names]
-    # the records less their biases; a mounted log's velocities taken as the CG's (a start)
-    unbiased = [replace(r, y=r.y - theta[m : m + len(channels)]) for r in recs]
+    # the records less what their outputs add to a body at rest (the biases, the current); a
+    # mounted log's velocities taken as the CG's (a start)
+    ch = [STATES.index(c) for c in channels]
+    unbiased = [
+        replace(r, y=r.y - read_outputs(np.zeros((len(r.t), NX)), theta, m, ch, r.heading)) for r in recs
+    ]
     try:
         return np.concatenate([equation_error(model, theta[:m], unbiased, channels, own), theta[m:]])
     except InputError:
@@ -310,10 +317,12 @@ def simplex(
         sensitivities to the measured initial states there (N, k, k)."""
         fitted, sens, m = [], [], len(model.names)
         for r, x in zip(recs, x0):
-            # the flight fitted to the record less its output biases b, read by the log (θ ⊕ b ⊕ g = th)
-            b, g = th[m : m + len(ch)], th[m + len(ch) :]
+            # the flight fitted to the record less its output biases b, read by the log mounted as
+            # g over the ground, the current c along the record's heading (θ ⊕ b ⊕ g ⊕ c = th)
+            b, g, c = output_terms(th, m, ch)
+            current = current_along(c, r.heading, len(r.t))
             x, states = initial_state(
-                model, th[:m], r.t, r.fins, r.y - b, ch, range(len(ch)), x, R, None, None, g
+                model, th[:m], r.t, r.fins, r.y - b, ch, range(len(ch)), x, R, None, None, g, current
             )
             fitted.append(x)
             dx0 = flight(model, th[:m], r.t, x, r.fins, (), None).dx_dx0

@@ -138,9 +138,7 @@ class NonlinearObjective:
             pieces = max(1, min(count, len(rows) // max(least, 1)))
             at = np.linspace(0, len(rows), pieces + 1).round().astype(int)[1:-1]
             edges = np.r_[0, rows[at], len(r.t)]
-            records += [
-                FlightRecord(t=r.t[a:b], fins=r.fins[a:b], y=r.y[a:b]) for a, b in zip(edges[:-1], edges[1:])
-            ]
+            records += [r.rows(a, b) for a, b in zip(edges[:-1], edges[1:])]
         return replace(self, records=tuple(records), x0=None, last={})
 
     def shooting(self, theta: np.ndarray, least: int) -> int:

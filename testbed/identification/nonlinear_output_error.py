@@ -5,9 +5,11 @@ noise, sensitivities and normal equations, and the Fisher information and bounds
 The outputs are the measured states of the simulated trajectory (`nonlinear_sensitivities.flight`)
 plus their output biases, `y = x + b + v` (an attitude sensor's mounting offset; `b` acts on its
 own channel alone, `∂y/∂b = 1` there and 0 elsewhere, and not on the flight), the velocities as
-a log mounted as g reads them (`log_mounting`: away from the CG, turned; 0 at the CG). The
-fit's parameters are θ ⊕ b ⊕ g (`parameter_names`: θ's names, then `b_<state>` of each
-measured channel, then the mounting), a bias or the mounting free like any coefficient; the
+a log mounted as g reads them over the ground (`log_mounting`: away from the CG, turned; 0 at
+the CG), a steady current c = (c_N, c_E) turned into the body's axes by the record's measured
+heading (`log_mounting.body_current`), as the linear model's outputs take it. The fit's
+parameters are θ ⊕ b ⊕ g ⊕ c (`parameter_names`: θ's names, then `b_<state>` of each measured
+channel, then the mounting, then the current), an output term free like any coefficient; the
 noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
 records. A missing sample (NaN: a sensor slower than the fins are logged, a dropout) is left
 out of every sum, its residual NaN and its rows of J zero; the flight goes through it with the
@@ -32,9 +34,10 @@ from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.identification.bounds import coloured_term, crlb
 from testbed.identification.nonlinear_sensitivities import flight
+from testbed.identification.problem import check_heading, measured_heading
 from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
-from testbed.models.linear import MOUNTING, NU, NX, STATES
+from testbed.models.linear import CURRENT, MOUNTING, NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly_nonlinear
 
@@ -43,8 +46,10 @@ __all__ = [
     "check_records",
     "coloured_bounds",
     "flight_information",
+    "current_along",
     "neg_log_likelihood",
     "normal_equations",
+    "output_terms",
     "read_outputs",
     "sensitivity_bounds",
     "parameter_names",
@@ -61,13 +66,20 @@ __all__ = [
 
 @dataclass(frozen=True)
 class FlightRecord:
-    """One record: sample times (N,), fin angles (N, 3) held per sample, and the measured
+    """One record: sample times (N,), fin angles (N, 3) held per sample, the measured
     states (N, C) in the fit's channels' order, NaN where a sample is missing (a sensor slower
-    than the fins are logged, a dropout)."""
+    than the fins are logged, a dropout), and its measured heading ψ (N,) that turns the current
+    into the body's axes (`problem.measured_heading`; None: not measured, taken as 0)."""
 
     t: np.ndarray
     fins: np.ndarray
     y: np.ndarray
+    heading: np.ndarray | None = None
+
+    def rows(self, a: int, b: int) -> "FlightRecord":
+        """Its samples a to b (a segment)."""
+        heading = None if self.heading is None else self.heading[a:b]
+        return FlightRecord(t=self.t[a:b], fins=self.fins[a:b], y=self.y[a:b], heading=heading)
 
 
 def records(
@@ -84,21 +96,40 @@ def records(
                 f"{where}: measures {', '.join(e.measured)}, {experiments[0].source or experiments[0].name} "
                 f"{', '.join(channels)}; {fit} takes records measuring the same states"
             )
-    return channels, [FlightRecord(t=e.t, fins=e.inputs, y=e.y) for e in experiments]
+    return channels, [
+        FlightRecord(t=e.t, fins=e.inputs, y=e.y, heading=measured_heading(e)) for e in experiments
+    ]
 
 
 def parameter_names(model: NonlinearModel, channels: Sequence[str]) -> tuple[str, ...]:
-    """The names of the fit's parameters θ ⊕ b ⊕ g: θ's (`model.names`), the output bias
-    `b_<state>` of each measured channel in `channels`, then the velocity log's mounting g
-    (`MOUNTING`)."""
-    return model.names + tuple(f"b_{c}" for c in channels) + MOUNTING
+    """The names of the fit's parameters θ ⊕ b ⊕ g ⊕ c: θ's (`model.names`), the output bias
+    `b_<state>` of each measured channel in `channels`, the velocity log's mounting g
+    (`MOUNTING`), then the current c (`CURRENT`)."""
+    return model.names + tuple(f"b_{c}" for c in channels) + MOUNTING + CURRENT
 
 
-def read_outputs(states: np.ndarray, theta: np.ndarray, m: int, ch) -> np.ndarray:
-    """The outputs (N, C) of the flown `states` (N, 10) in the state columns `ch` at θ ⊕ b ⊕ g
-    (`theta`, θ's length `m`): the states as read (u, v, w by the log mounted as g,
-    `log_mounting.read`) plus their biases."""
-    return log_mounting.read(theta[m + len(ch) :], states, ch) + theta[m : m + len(ch)]
+def output_terms(theta: np.ndarray, m: int, ch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(b, g, c) of θ ⊕ b ⊕ g ⊕ c (θ's length `m`, the channels `ch`)."""
+    k = m + len(ch)
+    return theta[m:k], theta[k : k + len(MOUNTING)], theta[k + len(MOUNTING) :]
+
+
+def current_along(c: np.ndarray, heading: np.ndarray | None, n: int) -> np.ndarray | None:
+    """The current c in body axes along the record's `heading` (`log_mounting.body_current`; ψ 0
+    where not measured) over its `n` samples, None where c is 0."""
+    if not np.any(c):
+        return None
+    return log_mounting.body_current(c, np.zeros(n) if heading is None else heading)
+
+
+def read_outputs(
+    states: np.ndarray, theta: np.ndarray, m: int, ch, heading: np.ndarray | None = None
+) -> np.ndarray:
+    """The outputs (N, C) of the flown `states` (N, 10) in the state columns `ch` at θ ⊕ b ⊕ g ⊕ c
+    (`theta`, θ's length `m`): the states as read (u, v, w by the log mounted as g over the
+    ground, the current turned by the record's `heading`, `log_mounting.read`) plus their biases."""
+    b, g, c = output_terms(theta, m, ch)
+    return log_mounting.read(g, states, ch, current_along(c, heading, len(states))) + b
 
 
 def setup(
@@ -127,13 +158,16 @@ def setup(
             f"{source}: [identify] free names {unmeasured[0]}, the output bias of a state the records do not "
             f"measure (they measure {', '.join(channels)}); expected the biases of measured states"
         )
-    blind = [n for n in config.free if n in MOUNTING] if not {"u", "v", "w"} & set(channels) else []
+    blind = [n for n in config.free if n in MOUNTING + CURRENT] if not {"u", "v", "w"} & set(channels) else []
     if blind:
+        what = "the velocity log's mounting" if blind[0] in MOUNTING else "the current"
         raise InputError(
-            f"{source}: [identify] free names {blind[0]}, the velocity log's mounting, but the records "
+            f"{source}: [identify] free names {blind[0]}, {what}, but the records "
             f"measure no velocity (they measure {', '.join(channels)}); expected u, v or w measured"
         )
-    theta = np.concatenate([theta, config.output_biases(channels), config.mounting()])
+    current = np.any(config.current()) or any(n in CURRENT for n in config.free)
+    check_heading(experiments, bool(current))
+    theta = np.concatenate([theta, config.output_biases(channels), config.mounting(), config.current()])
     return channels, recs, model, theta, [names.index(n) for n in config.free]
 
 
@@ -186,14 +220,14 @@ def fly_records(model, theta, x0, records, ch, substeps):
             if not np.all(np.isfinite(states[:, ch])):
                 return None, None
             flown.append(states)
-            res.append(r.y - read_outputs(states, theta, m, ch))
+            res.append(r.y - read_outputs(states, theta, m, ch, r.heading))
     return flown, res
 
 
 def _padded(theta, m: int, ch) -> np.ndarray:
-    """θ ⊕ b ⊕ g from θ, θ ⊕ b or θ ⊕ b ⊕ g (what is left out: 0)."""
+    """θ ⊕ b ⊕ g ⊕ c from θ or a part of it that leaves out its end (what is left out: 0)."""
     theta = np.asarray(theta)
-    full = m + len(ch) + len(MOUNTING)
+    full = m + len(ch) + len(MOUNTING) + len(CURRENT)
     return theta if len(theta) == full else np.concatenate([theta, np.zeros(full - len(theta))])
 
 
@@ -249,14 +283,17 @@ def neg_log_likelihood(res: Sequence[np.ndarray], R: np.ndarray) -> float:
 
 
 def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
-    """Each record's output sensitivities to (θ ⊕ b ⊕ g)[free] (N, C, p) and to the measured
+    """Each record's output sensitivities to (θ ⊕ b ⊕ g ⊕ c)[free] (N, C, p) and to the measured
     channels' initial states (N, C, C), along its flown states; tallied
     (`recursions.counting`) as 1 + the free coefficients of θ columns a sample (the pass
     evaluates the model at every RK4 stage again)."""
     m, free = len(model.names), np.asarray(free, dtype=np.int64).reshape(-1)
     theta, ch = _padded(theta, m, ch), np.asarray(ch)
-    own, bias, mounting = free < m, (free >= m) & (free < m + len(ch)), free >= m + len(ch)
-    g = theta[m + len(ch) :]
+    k = m + len(ch)  # where the mounting starts, the current after it
+    own, bias = free < m, (free >= m) & (free < k)
+    mounting, current = (free >= k) & (free < k + len(MOUNTING)), free >= k + len(MOUNTING)
+    _, g, c = output_terms(theta, m, ch)
+    velocity = ch < 3
     out = []
     for r, x, states in zip(records, x0, flown):
         f = flight(model, theta[:m], r.t, x, r.fins, free[own], substeps)
@@ -265,13 +302,16 @@ def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
         St[:, :, own] = log_mounting.read_derivatives(g, f.dx_dtheta, ch)
         # ∂(x + b)/∂b = 1 on the bias's own channel, 0 on the others
         St[:, free[bias] - m, np.flatnonzero(bias)] = 1.0
+        psi = np.zeros(len(r.t)) if r.heading is None else r.heading
         if mounting.any():  # the log's reading moves with its mounting, on u, v, w
-            dg = log_mounting.mounting_derivatives(
-                g, states[:, :3], states[:, 3:6], np.zeros((len(states), 3))
-            )
-            velocity = ch < 3
+            cb = log_mounting.body_current(c, psi)
+            dg = log_mounting.mounting_derivatives(g, states[:, :3], states[:, 3:6], cb)
             for j in np.flatnonzero(mounting):
-                St[:, velocity, j] = dg[free[j] - m - len(ch)][:, ch[velocity]]
+                St[:, velocity, j] = dg[free[j] - k][:, ch[velocity]]
+        if current.any():  # the reading Mᵀ(v + ω × r + c_b): ∂y/∂c = Mᵀ ∂c_b/∂c on u, v, w
+            dc = log_mounting.body_current_derivatives(psi) @ log_mounting.turned(g)
+            for j in np.flatnonzero(current):
+                St[:, velocity, j] = dc[free[j] - k - len(MOUNTING)][:, ch[velocity]]
         out.append((St, log_mounting.read_derivatives(g, f.dx_dx0, ch)[:, :, ch]))
     return out
 

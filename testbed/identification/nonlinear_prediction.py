@@ -2,7 +2,8 @@
 (`nonlinear_flight.fly_nonlinear`) with each record's fin angles, for validation.
 
 The outputs are the flown states plus the config's output biases (`y = x + b`, `b_<state>`), the
-velocities as the config's velocity log reads them where it is mounted (`log_mounting.read`).
+velocities as the config's velocity log reads them where it is mounted and over the ground where
+the config has a current, turned by the record's measured heading (`log_mounting.read`).
 Each record is flown from its initial state: the given one (an estimate's `initial_states`) where
 given, else the best-fitting one, as the linear model's predictions take it. The best fit starts
 from the record's first sample in its measured states (straight flight at the vehicle's speed in
@@ -23,13 +24,22 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, split, stretches
 from testbed.errors import InputError
 from testbed.identification.nonlinear_sensitivities import flight
+from testbed.identification.problem import measured_heading
 from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
 from testbed.models.linear import MOUNTING, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly_nonlinear
 
-__all__ = ["ITERATIONS", "TOLERANCE", "first_samples", "flights", "initial_state", "predict_nonlinear"]
+__all__ = [
+    "ITERATIONS",
+    "TOLERANCE",
+    "first_samples",
+    "flights",
+    "initial_state",
+    "predict_nonlinear",
+    "unread",
+]
 
 ITERATIONS = 20  # Gauss-Newton steps of an initial state's fit, at most
 TOLERANCE = 0.01  # converged when every component's step is below this many of its Cramér-Rao σ
@@ -54,18 +64,41 @@ def predict_nonlinear(
         y = np.full(np.shape(e.y), np.nan)
         for (a, b), p in zip(stretches(e), ps):
             x = next(flown)
-            y[a:b] = log_mounting.read(config.mounting(), x, [STATES.index(c) for c in p.measured])
+            ch = [STATES.index(c) for c in p.measured]
+            y[a:b] = log_mounting.read(config.mounting(), x, ch, _current(p, config))
             y[a:b] += config.output_biases(p.measured)
         out.append(y)
     return out
 
 
+def _current(e: Experiment, config: ModelConfig) -> np.ndarray | None:
+    """The config's current in body axes along the record's measured heading (ψ 0 where it has
+    none; `log_mounting.body_current`), None where the config has none."""
+    if not np.any(config.current()):
+        return None
+    psi = measured_heading(e)
+    return log_mounting.body_current(config.current(), np.zeros(len(e.t)) if psi is None else psi)
+
+
+def unread(e: Experiment, config: ModelConfig) -> np.ndarray:
+    """The record's readings (N, k) less the config's output biases and, on u and v, its current
+    (`_current`): the states as a log at the CG reads them through the water (a mounted log's
+    reading is not undone)."""
+    y = e.y - config.output_biases(e.measured)
+    current = _current(e, config)
+    if current is not None:
+        for j, c in enumerate(e.measured):
+            if c in ("u", "v"):
+                y[:, j] -= current[:, STATES.index(c)]
+    return y
+
+
 def first_samples(experiments: Sequence[Experiment], config: ModelConfig) -> dict[str, dict[str, float]]:
-    """Each record's initial state as its first sample less the config's output biases, record
-    name → state → value (a state whose first sample is missing left out: fitted)."""
+    """Each record's initial state as its first sample less the config's output terms (`unread`),
+    record name → state → value (a state whose first sample is missing left out: fitted)."""
     out = {}
     for e in experiments:
-        first = np.asarray(e.y[0], float) - config.output_biases(e.measured)
+        first = unread(e, config)[0]
         out[e.name] = {c: float(v) for c, v in zip(e.measured, first) if np.isfinite(v)}
     return out
 
@@ -100,7 +133,19 @@ def flights(
         with np.errstate(all="ignore"):
             out.append(
                 initial_state(
-                    model, theta, e.t, e.inputs, y, ch, moved, x0, None, substeps, states, config.mounting()
+                    model,
+                    theta,
+                    e.t,
+                    e.inputs,
+                    y,
+                    ch,
+                    moved,
+                    x0,
+                    None,
+                    substeps,
+                    states,
+                    config.mounting(),
+                    _current(e, config),
                 )[1]
             )
     return out
@@ -119,10 +164,12 @@ def initial_state(
     substeps: int | None = None,
     states: np.ndarray | None = None,
     mounting: np.ndarray | None = None,
+    current: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`(x0, states)`: the best-fitting initial state (module doc) of a record with times `t`,
     fins and measurements `y` (N, k) of the states `ch` as read (NaN where missing; u, v, w by a
-    velocity log mounted as `mounting`, None: at the CG), started from `x0`, its components
+    velocity log mounted as `mounting`, None: at the CG, over the ground where the `current` in
+    body axes (N, 3) is given), started from `x0`, its components
     `moved` (indices into `ch`) fitted, and the flight from it; the noise variances `R` (k,) held
     where given, else relaxed. The flight from `x0` (`states` where already flown) must stay
     finite. Its flights count 1 a sample and its sensitivity passes 1 + the components moved
@@ -133,7 +180,7 @@ def initial_state(
     mounting = np.zeros(len(MOUNTING)) if mounting is None else np.asarray(mounting, float)
 
     def residual(x):
-        return np.where(present, y - log_mounting.read(mounting, x, ch), 0.0)
+        return np.where(present, y - log_mounting.read(mounting, x, ch, current), 0.0)
 
     if states is None:
         states = fly_nonlinear(model, theta, t, x0, fins, substeps)

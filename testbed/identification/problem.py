@@ -57,11 +57,13 @@ __all__ = [
     "Record",
     "base_name",
     "check_fit",
+    "check_heading",
     "check_inputs",
     "check_mounting",
     "check_one_model",
     "expanded",
     "free_values",
+    "measured_heading",
     "one_model",
     "problem",
     "shifted",
@@ -215,11 +217,8 @@ class Problem:
     def current(self, record: Record, theta: np.ndarray) -> np.ndarray:
         """The current (c_N, c_E of the full parameter vector `theta`) in body axes along the
         record's measured heading ψ, (N, 3): (c_N cos ψ + c_E sin ψ, c_E cos ψ − c_N sin ψ, 0)."""
-        c_n, c_e = theta[ICURRENT]
         psi = np.zeros(len(record.y)) if record.heading is None else record.heading
-        cos, sin = np.cos(psi), np.sin(psi)
-        zero = np.zeros(len(psi), dtype=np.result_type(theta, psi))
-        return np.column_stack([c_n * cos + c_e * sin, c_e * cos - c_n * sin, zero])
+        return log_mounting.body_current(theta[ICURRENT], psi)
 
     @functools.cached_property
     def mounted(self) -> bool:
@@ -283,7 +282,19 @@ class Problem:
         return x0
 
 
-def _heading(e: Experiment) -> np.ndarray | None:
+def check_heading(experiments: Sequence[Experiment], current: bool) -> None:
+    """`InputError` naming the first record that fits u or v without ψ where the model has a
+    `current` (free or not 0): the current turns with the heading into the body's axes."""
+    for e in experiments:
+        if current and "psi" not in e.measured and {"u", "v"} & set(e.measured):
+            raise InputError(
+                f"{e.source or e.name}: the current (c_N, c_E) turns with the heading, and this "
+                "record fits u or v without psi: expected a psi column (and psi among [identify] "
+                "outputs), or the current 0 and fixed"
+            )
+
+
+def measured_heading(e: Experiment) -> np.ndarray | None:
     """The record's measured ψ (N,), its missing samples interpolated (a regressor of the
     current, not a sample of the likelihood: docs/model.md), or None where it has no ψ column."""
     if "psi" not in e.measured:
@@ -388,13 +399,7 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
     free, owner = expanded(config, [e.name for e in experiments])
     own = [theta_vector(config.record_coefficients(e.name)) for e in experiments]  # each record's θ
     current = any(base_name(n) in CURRENT for n in free) or any(theta[ICURRENT].any() for theta in own)
-    for e in experiments:
-        if current and "psi" not in e.measured and {"u", "v"} & set(e.measured):
-            raise InputError(
-                f"{e.source or e.name}: the current (c_N, c_E) turns with the heading, and this "
-                "record fits u or v without psi: expected a psi column (and psi among [identify] "
-                "outputs), or the current 0 and fixed"
-            )
+    check_heading(experiments, current)
     records, offset = [], len(free)
     for j, e in enumerate(experiments):
         y, inputs, t = (np.asarray(a, dtype=float) for a in (e.y, e.inputs, e.t))
@@ -413,7 +418,7 @@ def problem(experiments: Sequence[Experiment], config: ModelConfig) -> Problem:
             float(t[1] - t[0]),
             offset,
             j,
-            _heading(e),
+            measured_heading(e),
             None if present.all() else present,
         )
         for a, b in stretches(e):  # a record split at its gaps: each stretch its own initial state

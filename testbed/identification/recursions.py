@@ -265,7 +265,7 @@ def _output_terms(prob: Problem, record: Record) -> dict[int, dict[int, np.ndarr
     −sin ψ, cos ψ on v (`Problem.output_terms`), for the states the record measures."""
     acting, out = prob.acting(record.group), {}
     psi = np.zeros(len(record.y)) if record.heading is None else record.heading
-    along = {ICURRENT[0]: (np.cos(psi), -np.sin(psi)), ICURRENT[1]: (np.sin(psi), np.cos(psi))}
+    along = {k: (d[:, 0], d[:, 1]) for k, d in zip(ICURRENT, log_mounting.body_current_derivatives(psi))}
     for i, k in enumerate(prob.index):
         if not acting[i]:
             continue

@@ -24,6 +24,8 @@ from testbed.models.sensors import rotation
 
 __all__ = [
     "MOUNTING",
+    "body_current",
+    "body_current_derivatives",
     "mounting_derivatives",
     "matrix",
     "matrix_derivatives",
@@ -137,16 +139,32 @@ def read_derivatives(mounting: np.ndarray, dx: np.ndarray, columns) -> np.ndarra
     return np.einsum("cs,nsq->ncq", read_matrix(mounting, columns), dx)
 
 
-def read(mounting: np.ndarray, states: np.ndarray, columns) -> np.ndarray:
-    """The states `columns` of `states` (N, 10; absolute u, no current) as read: u, v, w by the
-    log mounted as `mounting` (`reading`), the others as they are."""
+def read(mounting: np.ndarray, states: np.ndarray, columns, current: np.ndarray | None = None) -> np.ndarray:
+    """The states `columns` of `states` (N, 10; absolute u, the motion through the water) as
+    read: u, v, w by the log mounted as `mounting` (`reading`) over the ground, the `current` in
+    body axes (N, 3; `body_current`) added (None: no current), the others as they are."""
     columns = np.asarray(columns)
     y = states[:, columns]
-    if not np.any(mounting):
+    if not np.any(mounting) and current is None:
         return y
     velocity = columns < 3
-    y = y.astype(np.result_type(y, mounting))
-    y[:, velocity] = reading(mounting, states[:, :3], states[:, 3:6], np.zeros((len(states), 3)))[
-        :, columns[velocity]
-    ]
+    current = np.zeros((len(states), 3)) if current is None else current
+    y = y.astype(np.result_type(y, mounting, current))
+    y[:, velocity] = reading(mounting, states[:, :3], states[:, 3:6], current)[:, columns[velocity]]
     return y
+
+
+def body_current(current: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """The current (c_N, c_E) in body axes along the heading ψ (N,), (N, 3):
+    (c_N cos ψ + c_E sin ψ, c_E cos ψ − c_N sin ψ, 0) (the roll and pitch left out, as the
+    linear model's outputs leave them)."""
+    c_n, c_e = current
+    cos, sin = np.cos(psi), np.sin(psi)
+    zero = np.zeros(len(psi), dtype=np.result_type(current, psi))
+    return np.column_stack([c_n * cos + c_e * sin, c_e * cos - c_n * sin, zero])
+
+
+def body_current_derivatives(psi: np.ndarray) -> np.ndarray:
+    """∂/∂(c_N, c_E) (2, N, 3) of `body_current`: (cos ψ, −sin ψ, 0) and (sin ψ, cos ψ, 0)."""
+    cos, sin, zero = np.cos(psi), np.sin(psi), np.zeros(len(psi))
+    return np.stack([np.column_stack([cos, -sin, zero]), np.column_stack([sin, cos, zero])])

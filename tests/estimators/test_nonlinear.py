@@ -659,27 +659,35 @@ def _mounted(e: Experiment, clean: Experiment) -> Experiment:
     return replace(e, y=y)
 
 
+def _recovered(config, data, values: dict) -> tuple[np.ndarray, np.ndarray]:
+    """`ml-gn` on `data` from the terms 20 % off and the output terms `values` at 0: the terms
+    and those within 3 σ of what flew and read the record; `ml-nm` with the output terms alone
+    free (the terms at their values) at `ml-gn`'s optimum on the first 80 samples (0.1 σ). The
+    prediction of `data` with the fit's values, and with the config's."""
+    est = identify(data, replace(_start(config), free=FREE + tuple(values)), "ml-gn", start="config")
+    assert est.converged
+    for n, v, s in zip(est.free, est.values, est.std):
+        want = values[n] if n in values else config.terms[n]
+        assert abs(v - want) <= 3 * s, (n, v, want, s)
+    short = [_first(data[0], 80)]
+    at = replace(config, free=tuple(values))
+    nm, gn = identify(short, at, "ml-nm", start="config"), identify(short, at, "ml-gn", start="config")
+    assert nm.converged and gn.converged
+    for v, s, g in zip(nm.values, nm.std, gn.values):
+        assert abs(v - g) <= 0.1 * s
+    fitted = config.with_coefficients(dict(zip(est.free, est.values)))
+    return nonlinear_prediction.predict_nonlinear(data, fitted)[0], nonlinear_prediction.predict_nonlinear(
+        data, config
+    )[0]
+
+
 def test_ml_gn_and_ml_nm_recover_a_mounted_log_with_the_terms(truth):
     """A log 0.8 m forward, 0.2 m below the CG, turned 0.02 rad in yaw: from the terms 20 % off
     and the mounting at 0, `ml-gn` puts the terms and the mounting within 3 σ; `ml-nm` (the terms
     at their values) ends at its optimum; `validate` reads the velocities as the fit did."""
     config, noisy, clean = truth
     data = [_mounted(noisy, clean)]
-    free = FREE + ("m_dvl_z", "r_dvl_x", "r_dvl_z")
-    est = identify(data, replace(_start(config), free=free), "ml-gn", start="config")
-    assert est.converged
-    for n, v, s in zip(est.free, est.values, est.std):
-        want = MOUNTED[n] if n in MOUNTED else config.terms[n]
-        assert abs(v - want) <= 3 * s, (n, v, want, s)
-    short = [_first(data[0], 80)]
-    at = replace(config, free=("m_dvl_z", "r_dvl_x", "r_dvl_z"))
-    nm, gn = identify(short, at, "ml-nm", start="config"), identify(short, at, "ml-gn", start="config")
-    assert nm.converged and gn.converged
-    for v, s, g in zip(nm.values, nm.std, gn.values):
-        assert abs(v - g) <= 0.1 * s
-    fitted = config.with_coefficients(dict(zip(est.free, est.values)))
-    (yhat,) = nonlinear_prediction.predict_nonlinear(data, fitted)
-    plain = nonlinear_prediction.predict_nonlinear(data, config)[0]
+    yhat, plain = _recovered(config, data, {n: MOUNTED[n] for n in ("m_dvl_z", "r_dvl_x", "r_dvl_z")})
     for c in range(3):  # the mounted reading fits u, v, w far better than the CG's velocities
         assert np.std(data[0].y[:, c] - yhat[:, c]) < np.std(data[0].y[:, c] - plain[:, c])
 
@@ -711,6 +719,104 @@ def test_the_mounting_columns_of_analyze_are_those_of_the_complex_step_fisher_in
         columns.append(outputs(theta.astype(complex), x0 + h * np.eye(10)[i], g0))
     assert got.free == FREE + names
     assert np.allclose(got.crlb_std, _complex_step_bounds(columns, n, len(FREE) + len(names)), rtol=1e-8)
+
+
+CURRENT = {"c_N": 0.3, "c_E": -0.2}
+
+
+def _in_current(e: Experiment, clean: Experiment, mounting=None) -> Experiment:
+    """The record's u, v, w as a log (mounted as `mounting`, None: at the CG) reads them over the
+    ground in the steady `CURRENT`, turned into the body's axes by the record's own measured
+    heading (the regressor the model takes), from the clean flight; its noise kept."""
+    g = np.zeros(5) if mounting is None else np.asarray(mounting, float)
+    c = log_mounting.body_current(np.array(list(CURRENT.values())), e.y[:, STATES.index("psi")])
+    x, y = clean.y, e.y.copy()
+    y[:, :3] += log_mounting.reading(g, x[:, :3], x[:, 3:6], c) - x[:, :3]
+    return replace(e, y=y)
+
+
+def test_ml_gn_and_ml_nm_recover_a_current_with_the_terms(truth):
+    """A current of 0.36 m/s under a log at the CG: from the terms 20 % off and the current at
+    0, `ml-gn` puts the terms and (c_N, c_E) within 3 σ; `ml-nm` (the terms at their values)
+    ends at `ml-gn`'s optimum; the prediction with the fitted current reads u and v over the
+    ground, where the model without it is off by the current."""
+    config, noisy, clean = truth
+    data = [_in_current(noisy, clean)]
+    yhat, still = _recovered(config, data, CURRENT)
+    for c in range(2):  # RMS: the current is a slowly turning offset, which a spread would miss
+        fit, off = (np.sqrt(np.mean((data[0].y[:, c] - y[:, c]) ** 2)) for y in (yhat, still))
+        assert fit < 2 * SIGMA[c] < off, (STATES[c], fit, off)
+
+
+def test_the_current_columns_of_analyze_are_those_of_the_complex_step_fisher_information(truth):
+    """As for the mounting: the Cramér-Rao bounds over the free terms, the mounting and the
+    current under a mounted log, from complex-step derivatives of the read outputs, against the
+    analysis's exact sensitivities."""
+    config, _, clean = truth
+    n, names = 80, ("m_dvl_z", "r_dvl_x", "c_N", "c_E")
+    g0, c0 = np.array(list(MOUNTED.values())), np.array(list(CURRENT.values()))
+    clean = _in_current(_first(clean, n), _first(clean, n), g0)
+    at = replace(config, free=FREE + names, noise_std=dict(zip(STATES, SIGMA)))
+    got = nonlinear_identifiability([clean], at.with_coefficients({**MOUNTED, **CURRENT}))
+    model, theta = config.nonlinear()
+    psi, x0 = clean.y[:, STATES.index("psi")], truth[2].y[0]
+
+    def outputs(th, x, g, c):
+        states = fly_nonlinear(model, th, clean.t, x, clean.inputs)
+        return log_mounting.read(g, states, range(10), log_mounting.body_current(c, psi)).imag.ravel() / 1e-30
+
+    columns, h, real = [], 1e-30j, theta.astype(complex)
+    for name in FREE:
+        columns.append(outputs(theta + h * np.eye(len(theta))[model.names.index(name)], x0, g0, c0))
+    for name in names[:2]:
+        columns.append(outputs(real, x0, g0 + h * np.eye(5)[list(MOUNTED).index(name)], c0))
+    for name in names[2:]:
+        columns.append(outputs(real, x0, g0, c0 + h * np.eye(2)[list(CURRENT).index(name)]))
+    for i in range(10):
+        columns.append(outputs(real, x0 + h * np.eye(10)[i], g0, c0))
+    assert got.free == FREE + names
+    assert np.allclose(got.crlb_std, _complex_step_bounds(columns, n, len(FREE) + len(names)), rtol=1e-8)
+
+
+def test_identify_and_validate_on_the_command_line_read_the_velocities_over_the_ground(
+    truth, capsys, tmp_path
+):
+    """A nonlinear config freeing the current: `identify` writes c_N and c_E with the terms, the
+    config written back keeps them, and `validate` reads u and v over the ground as the fit did."""
+    config, noisy, clean = truth
+    data = _in_current(noisy, clean)
+    write_csv(tmp_path / "current.csv", data.t, data.y, data.inputs)
+    write_config(
+        tmp_path / "c.toml",
+        replace(_start(config), free=FREE + tuple(CURRENT)).with_coefficients({"c_N": 0.1}),
+    )
+    assert read_config(tmp_path / "c.toml").current().tolist() == [0.1, 0.0]
+    est = tmp_path / "est.json"
+    _ok(capsys, ["identify", tmp_path / "current.csv", "--config", tmp_path / "c.toml", "--out", est])
+    doc = json.loads(est.read_text())
+    for n, want in CURRENT.items():
+        c = doc["coefficients"][n]
+        assert abs(c["value"] - want) <= 3 * c["std"], (n, c)
+    out = tmp_path / "v.json"
+    _ok(capsys, ["validate", tmp_path / "current.csv", "--estimates", est, "--out", out])
+    v = json.loads(out.read_text())["validation"]["current"]
+    for s in ("u", "v"):
+        assert v[s]["fit_percent"] == pytest.approx(doc["validation"]["current"][s]["fit_percent"], abs=0.5)
+
+
+def test_a_current_without_the_heading_or_the_velocities_is_refused(truth):
+    """The current turns with the heading: a record fitting u or v without ψ is refused where
+    the current is free or not 0, and a free current where no velocity is measured, each in one
+    line naming what is missing, for the fits and the analysis alike."""
+    config, noisy, _ = truth
+    no_psi = noisy.only(tuple(s for s in STATES if s != "psi"))
+    for cfg in (replace(config, free=FREE + ("c_N",)), replace(config, free=FREE).with_coefficients(CURRENT)):
+        for method in ("ml-gn", "ml-nm", "mekf"):
+            with pytest.raises(InputError, match=r"the current \(c_N, c_E\) turns with the heading") as e:
+                identify([no_psi], cfg, method)
+            assert "\n" not in str(e.value)
+    with pytest.raises(InputError, match=r"free names c_E, the current, but the records measure no velocity"):
+        nonlinear_identifiability([noisy.only(STATES[3:])], replace(config, free=FREE + ("c_E",)))
 
 
 def _complex_step_bounds(columns, n: int, p: int) -> np.ndarray:
