@@ -205,7 +205,9 @@ def nonlinear_model(vehicle: linear.Vehicle, terms=TERMS, components=()) -> Nonl
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise InputError(f"term {twice[0]!r} is named twice; expected each term once")
-    clash = sorted(set(names) & set(linear.PARAMETERS))
+    # a linear model's name means another thing here (Y_v: the linear terms scale with the speed),
+    # but for the offsets, a constant force either way
+    clash = sorted(set(names) & (set(linear.PARAMETERS) - set(linear.OFFSETS)))
     if clash:
         raise InputError(f"term {clash[0]!r} is a linear model's name; expected a nonlinear term")
     s = linear.structure(vehicle)

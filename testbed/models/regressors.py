@@ -2,8 +2,10 @@
 
 A term is a force or moment row and a product of factors, named as the submarine equations
 name them: `Y_uv` is Y_uv·u·v in the sway row, `N_v|v|` is N_v|v|·v·|v| in the yaw row,
-`Z_uude` is Z_uude·u²·δe. The letter before the underscore is the row (X Y Z K M N: surge, sway,
-heave, roll, pitch, yaw); after it, the factors, each one of
+`Z_uude` is Z_uude·u²·δe, and `M_0` the pitch row's offset, a constant moment (the linear model's
+`M_0`; a trial's trim or buoyancy error). The letter before the underscore is the row (X Y Z K M N:
+surge, sway, heave, roll, pitch, yaw; no `X_0`: the thrust balances the surge row at trim, so a
+constant surge force is the thrust's); after it, `0` or the factors, each one of
 
     u v w p q r      the body velocities (u the absolute surge speed) and rates
     dr de da         the rudder δr, the elevators' mean δe = (δer + δel)/2 and half their
@@ -123,6 +125,13 @@ def parse_term(name: str, components=()) -> Term:
             )
         return Term(str(name), -1, (), named[which], KINDS.index(kind))
     row, _, rest = str(name).partition("_")
+    if rest == "0" and row in ROWS[1:]:  # the row's offset: a constant force or moment, φ = 1
+        return Term(name=str(name), row=ROWS.index(row), factors=())
+    if str(name) == "X_0":
+        raise InputError(
+            "term 'X_0': the thrust balances the surge row in straight flight at trim, so a constant "
+            "surge force is the thrust's and moves nothing; expected the offset of another row (Y_0 … N_0)"
+        )
     tokens = _TOKEN.findall(rest)
     if len(row) != 1 or row not in ROWS or not tokens or "".join(tokens) != rest:
         raise InputError(

@@ -633,6 +633,24 @@ def test_identify_on_the_command_line_writes_the_output_biases(files, truth, cap
         assert v[s]["fit_percent"] > 90, (s, v[s])
 
 
+def test_ml_gn_and_ml_nm_recover_the_rows_offsets_with_the_terms(truth):
+    """Constant pitch and yaw moments (a trim or buoyancy error: `M_0`, `N_0` among the terms):
+    the record flown with them and the sensors' noise, fitted from the terms 20 % off and the
+    offsets at 0: `ml-gn` puts every free value within 3 σ of what flew it, and `ml-nm` (the
+    terms at their values) ends at `ml-gn`'s optimum; the fit without them is rejected by the
+    likelihood-ratio test (ΔJ beyond χ²₂(0.999)/2)."""
+    config, _, clean = truth
+    offsets = {"M_0": 4.0, "N_0": -3.0}
+    at_zero = replace(config, terms={**config.terms, **dict.fromkeys(offsets, 0.0)})
+    model, theta = at_zero.with_coefficients(offsets).nonlinear()
+    x = fly_nonlinear(model, theta, clean.t, clean.y[0], clean.inputs)
+    y = x + np.random.default_rng(2).normal(size=x.shape) * SIGMA
+    data = [Experiment("offsets", clean.t, STATES, y, clean.inputs)]
+    est = _recovered(at_zero, data, offsets)[0]
+    without = identify(data, replace(_start(at_zero), free=FREE), "ml-gn", start="config")
+    assert without.cost - est.cost > 13.8 / 2, (without.cost, est.cost)
+
+
 def test_a_free_output_bias_of_a_state_not_measured_is_refused(truth):
     config, noisy, _ = truth
     start = replace(config, free=FREE + ("b_psi",))
@@ -659,11 +677,11 @@ def _mounted(e: Experiment, clean: Experiment) -> Experiment:
     return replace(e, y=y)
 
 
-def _recovered(config, data, values: dict) -> tuple[np.ndarray, np.ndarray]:
-    """`ml-gn` on `data` from the terms 20 % off and the output terms `values` at 0: the terms
-    and those within 3 σ of what flew and read the record; `ml-nm` with the output terms alone
-    free (the terms at their values) at `ml-gn`'s optimum on the first 80 samples (0.1 σ). The
-    prediction of `data` with the fit's values, and with the config's."""
+def _recovered(config, data, values: dict):
+    """`ml-gn` on `data` from the terms 20 % off and the parameters `values` at the config's
+    (0): the terms and those within 3 σ of what flew and read the record; `ml-nm` with those
+    alone free (the terms at their values) at `ml-gn`'s optimum on the first 80 samples (0.1 σ).
+    The estimate, the prediction of `data` with its values and with the config's."""
     est = identify(data, replace(_start(config), free=FREE + tuple(values)), "ml-gn", start="config")
     assert est.converged
     for n, v, s in zip(est.free, est.values, est.std):
@@ -676,9 +694,8 @@ def _recovered(config, data, values: dict) -> tuple[np.ndarray, np.ndarray]:
     for v, s, g in zip(nm.values, nm.std, gn.values):
         assert abs(v - g) <= 0.1 * s
     fitted = config.with_coefficients(dict(zip(est.free, est.values)))
-    return nonlinear_prediction.predict_nonlinear(data, fitted)[0], nonlinear_prediction.predict_nonlinear(
-        data, config
-    )[0]
+    predict = nonlinear_prediction.predict_nonlinear
+    return est, predict(data, fitted)[0], predict(data, config)[0]
 
 
 def test_ml_gn_and_ml_nm_recover_a_mounted_log_with_the_terms(truth):
@@ -687,7 +704,7 @@ def test_ml_gn_and_ml_nm_recover_a_mounted_log_with_the_terms(truth):
     at their values) ends at its optimum; `validate` reads the velocities as the fit did."""
     config, noisy, clean = truth
     data = [_mounted(noisy, clean)]
-    yhat, plain = _recovered(config, data, {n: MOUNTED[n] for n in ("m_dvl_z", "r_dvl_x", "r_dvl_z")})
+    _, yhat, plain = _recovered(config, data, {n: MOUNTED[n] for n in ("m_dvl_z", "r_dvl_x", "r_dvl_z")})
     for c in range(3):  # the mounted reading fits u, v, w far better than the CG's velocities
         assert np.std(data[0].y[:, c] - yhat[:, c]) < np.std(data[0].y[:, c] - plain[:, c])
 
@@ -742,7 +759,7 @@ def test_ml_gn_and_ml_nm_recover_a_current_with_the_terms(truth):
     ground, where the model without it is off by the current."""
     config, noisy, clean = truth
     data = [_in_current(noisy, clean)]
-    yhat, still = _recovered(config, data, CURRENT)
+    _, yhat, still = _recovered(config, data, CURRENT)
     for c in range(2):  # RMS: the current is a slowly turning offset, which a spread would miss
         fit, off = (np.sqrt(np.mean((data[0].y[:, c] - y[:, c]) ** 2)) for y in (yhat, still))
         assert fit < 2 * SIGMA[c] < off, (STATES[c], fit, off)

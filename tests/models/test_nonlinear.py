@@ -163,6 +163,34 @@ def test_any_term_set_is_evaluated_from_its_factor_table():
     assert close(S, complex_step(lambda t: rates(model, t, x, delta), theta.astype(complex)), 1e-13)
 
 
+def test_a_rows_offset_is_a_constant_force_and_the_linear_models_offset():
+    """`Y_0` … `N_0` (a term of no factor): the forces move by the offsets exactly, wherever the
+    state; the linearisation's offsets are theirs; the derivatives by complex step of the same
+    code; `X_0`, which the thrust would cancel at trim, is refused with the reason."""
+    offsets = {"Y_0": 40.0, "Z_0": -25.0, "K_0": 3.0, "M_0": 60.0, "N_0": -45.0}
+    model = nonlinear_model(VEHICLE, ("Y_uv", "N_ur", *offsets))
+    assert [parse_term(n).factors for n in offsets] == [()] * 5
+    base = {**DOTS, "Y_uv": -30.0, "N_ur": -15.0}
+    theta, still = nonlinear_theta(model, {**base, **offsets}), nonlinear_theta(model, base)
+    x, delta = samples(seed=5)
+    assert close(
+        forces(model, theta, x, delta) - forces(model, still, x, delta),
+        np.tile([0.0, *offsets.values()], (len(x), 1)),
+        1e-14,
+    )
+    moved = linearise(model, theta).coefficients
+    assert all(
+        moved[n] - linearise(model, still).coefficients[n] == pytest.approx(v, abs=1e-9)
+        for n, v in offsets.items()
+    )
+    f, A, B = jacobians(model, theta, x, delta)
+    assert close(A, complex_step(lambda z: rates(model, theta, z, delta), x.astype(complex)), 1e-13)
+    S = rate_sensitivities(model, theta, x, delta)
+    assert close(S, complex_step(lambda t: rates(model, t, x, delta), theta.astype(complex)), 1e-13)
+    with pytest.raises(InputError, match="'X_0': the thrust balances the surge row"):
+        nonlinear_model(VEHICLE, ("X_0",))
+
+
 def test_a_pair_magnitude_atom_is_evaluated_with_its_exact_gradient():
     """Atoms √(z_i² + z_j²) of pairs of z = (ν, δ) (`regressors.PAIRS`' form), given to the compiled
     model directly: the terms' forces against the formula, the Jacobians against complex steps of
