@@ -20,6 +20,7 @@ from testbed.models.linear import (
     BIASES,
     COEFFICIENTS,
     CURRENT,
+    DELAY,
     MAX_SPEED,
     MIN_SPEED,
     MOUNTING,
@@ -557,13 +558,13 @@ def _check_terms(config: ModelConfig, source: str) -> None:
         raise InputError(f"{source}: [terms] {exc}") from None
     for key, v in config.terms.items():
         number(v, f"{source}: [terms] {json.dumps(key)}")
-    outputs = BIASES + MOUNTING + CURRENT
+    outputs = BIASES + MOUNTING + CURRENT + (DELAY,)
     extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA + outputs]
     if extra:
         raise InputError(
             f"{source}: [coefficients] {extra[0]} in a nonlinear model config (one with [terms]); "
             f"expected only the inertia coefficients ({', '.join(INERTIA)}), the output biases "
-            "(b_ and a state), the velocity log's mounting and the current, the rest in [terms]"
+            "(b_ and a state), the velocity log's mounting, the current and input_delay, the rest in [terms]"
         )
     seen = set()
     for n in config.free:
@@ -574,7 +575,7 @@ def _check_terms(config: ModelConfig, source: str) -> None:
                     " twice"
                     if n in seen
                     else ", not an inertia coefficient, an output bias, the velocity log's mounting, "
-                    "the current or one of [terms]"
+                    "the current, input_delay or one of [terms]"
                 )
                 + "; expected each of the model's names once"
             )

@@ -74,7 +74,7 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in INERTIA]
         lines += [
             line(k, config.coefficients[k])
-            for k in BIASES + MOUNTING + CURRENT
+            for k in BIASES + MOUNTING + CURRENT + (DELAY,)
             if config.coefficients[k] != 0.0 or k in config.free
         ]
         lines += ["", "[terms]"] + [

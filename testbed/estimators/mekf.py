@@ -188,7 +188,7 @@ from testbed.estimators.filter_options import (
 )
 from testbed.estimators.filter_passes import FilterState, filter_pass, final_covariance
 from testbed.identification.nonlinear_output_error import setup
-from testbed.identification.nonlinear_prediction import unread
+from testbed.identification.nonlinear_prediction import delayed_inputs, unread
 from testbed.identification.nonlinear_transition import NonlinearTransition
 from testbed.identification.problem import check_mounting, check_one_model, one_model
 from testbed.identification.recursions import simulated
@@ -236,8 +236,9 @@ def _nonlinear(experiments: Sequence[Experiment], config: ModelConfig, method: s
             "config takes the fixed output biases off the data and estimates none: expected ml-gn or ml-nm"
         )
     theta, idx = theta[:m], np.array(idx)
-    # the fixed output biases and current taken off the measured states
-    experiments = [replace(e, y=unread(e, config)) for e in experiments]
+    # the fixed output biases and current taken off the measured states, the fins advanced by the
+    # fixed delay
+    experiments = [replace(e, y=unread(e, config), inputs=delayed_inputs(e, config)) for e in experiments]
     return (
         experiments,
         config,

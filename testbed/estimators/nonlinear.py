@@ -74,6 +74,7 @@ from testbed.identification.nonlinear_output_error import (
     output_terms,
     current_along,
     read_outputs,
+    record_fins,
     setup,
     start_states,
 )
@@ -143,11 +144,16 @@ def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | N
     their biases b, which it holds; None where the records cannot give it, `InputError` if
     `start` names it."""
     m, own = len(model.names), [n for n in free if n in model.names]
-    # the records less what their outputs add to a body at rest (the biases, the current); a
-    # mounted log's velocities taken as the CG's (a start)
+    # the records less what their outputs add to a body at rest (the biases, the current), their
+    # fins advanced by the delay; a mounted log's velocities taken as the CG's (a start)
     ch = [STATES.index(c) for c in channels]
     unbiased = [
-        replace(r, y=r.y - read_outputs(np.zeros((len(r.t), NX)), theta, m, ch, r.heading)) for r in recs
+        replace(
+            r,
+            y=r.y - read_outputs(np.zeros((len(r.t), NX)), theta, m, ch, r.heading),
+            fins=record_fins(r, theta, m, ch)[0],
+        )
+        for r in recs
     ]
     try:
         return np.concatenate([equation_error(model, theta[:m], unbiased, channels, own), theta[m:]])
@@ -320,12 +326,12 @@ def simplex(
             # the flight fitted to the record less its output biases b, read by the log mounted as
             # g over the ground, the current c along the record's heading (θ ⊕ b ⊕ g ⊕ c = th)
             b, g, c = output_terms(th, m, ch)
-            current = current_along(c, r.heading, len(r.t))
+            current, fins = current_along(c, r.heading, len(r.t)), record_fins(r, th, m, ch)[0]
             x, states = initial_state(
-                model, th[:m], r.t, r.fins, r.y - b, ch, range(len(ch)), x, R, None, None, g, current
+                model, th[:m], r.t, fins, r.y - b, ch, range(len(ch)), x, R, None, None, g, current
             )
             fitted.append(x)
-            dx0 = flight(model, th[:m], r.t, x, r.fins, (), None).dx_dx0
+            dx0 = flight(model, th[:m], r.t, x, fins, (), None).dx_dx0
             sens.append(log_mounting.read_derivatives(g, dx0, ch)[:, :, ch])
             simulated(len(r.t) * (1 + len(ch)))
         return np.array(fitted), sens

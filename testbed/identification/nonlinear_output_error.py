@@ -7,9 +7,12 @@ plus their output biases, `y = x + b + v` (an attitude sensor's mounting offset;
 own channel alone, `∂y/∂b = 1` there and 0 elsewhere, and not on the flight), the velocities as
 a log mounted as g reads them over the ground (`log_mounting`: away from the CG, turned; 0 at
 the CG), a steady current c = (c_N, c_E) turned into the body's axes by the record's measured
-heading (`log_mounting.body_current`), as the linear model's outputs take it. The fit's
-parameters are θ ⊕ b ⊕ g ⊕ c (`parameter_names`: θ's names, then `b_<state>` of each measured
-channel, then the mounting, then the current), an output term free like any coefficient; the
+heading (`log_mounting.body_current`), as the linear model's outputs take it. The fins the
+model flies are the recorded ones advanced by the inputs' delay τ, δ(t_k) = δ_rec(t_k + τ)
+(`problem.shifted`: cubic convolution between samples, on a record's constant sample interval),
+the flight's sensitivity to τ forced by ∂f/∂δ ∂δ/∂τ (`nonlinear_sensitivities`). The fit's
+parameters are θ ⊕ b ⊕ g ⊕ c ⊕ τ (`parameter_names`: θ's names, then `b_<state>` of each
+measured channel, the mounting, the current, the delay), each free like any coefficient; the
 noise `v ~ N(0, R)` with R diagonal, one variance per measured channel pooled over the
 records. A missing sample (NaN: a sensor slower than the fins are logged, a dropout) is left
 out of every sum, its residual NaN and its rows of J zero; the flight goes through it with the
@@ -34,15 +37,16 @@ from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.identification.bounds import coloured_term, crlb
 from testbed.identification.nonlinear_sensitivities import flight
-from testbed.identification.problem import check_heading, measured_heading
+from testbed.identification.problem import check_heading, measured_heading, shifted
 from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
-from testbed.models.linear import CURRENT, MOUNTING, NU, NX, STATES
+from testbed.models.linear import CURRENT, DELAY, MOUNTING, NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly_nonlinear
 
 __all__ = [
     "FlightRecord",
+    "check_constant_interval",
     "check_records",
     "coloured_bounds",
     "flight_information",
@@ -51,6 +55,7 @@ __all__ = [
     "normal_equations",
     "output_terms",
     "read_outputs",
+    "record_fins",
     "sensitivity_bounds",
     "parameter_names",
     "pooled_noise",
@@ -102,16 +107,36 @@ def records(
 
 
 def parameter_names(model: NonlinearModel, channels: Sequence[str]) -> tuple[str, ...]:
-    """The names of the fit's parameters θ ⊕ b ⊕ g ⊕ c: θ's (`model.names`), the output bias
+    """The names of the fit's parameters θ ⊕ b ⊕ g ⊕ c ⊕ τ: θ's (`model.names`), the output bias
     `b_<state>` of each measured channel in `channels`, the velocity log's mounting g
-    (`MOUNTING`), then the current c (`CURRENT`)."""
-    return model.names + tuple(f"b_{c}" for c in channels) + MOUNTING + CURRENT
+    (`MOUNTING`), the current c (`CURRENT`), then the inputs' delay τ (`DELAY`)."""
+    return model.names + tuple(f"b_{c}" for c in channels) + MOUNTING + CURRENT + (DELAY,)
 
 
 def output_terms(theta: np.ndarray, m: int, ch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(b, g, c) of θ ⊕ b ⊕ g ⊕ c (θ's length `m`, the channels `ch`)."""
+    """(b, g, c) of θ ⊕ b ⊕ g ⊕ c ⊕ τ (θ's length `m`, the channels `ch`)."""
     k = m + len(ch)
-    return theta[m:k], theta[k : k + len(MOUNTING)], theta[k + len(MOUNTING) :]
+    g = k + len(MOUNTING)
+    return theta[m:k], theta[k:g], theta[g : g + len(CURRENT)]
+
+
+def _delay_at(m: int, ch) -> int:
+    """Where τ sits in θ ⊕ b ⊕ g ⊕ c ⊕ τ: last."""
+    return m + len(ch) + len(MOUNTING) + len(CURRENT)
+
+
+def record_fins(
+    record: FlightRecord, theta: np.ndarray, m: int, ch, along: bool = False
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The fins (N, 3) the model flies on `record` at θ ⊕ b ⊕ g ⊕ c ⊕ τ: the recorded ones
+    advanced by τ, δ_rec(t_k + τ) (`problem.shifted` on the record's sample interval; at τ = 0
+    the recorded ones), and with `along` their derivative along τ (N, 3, 1), else None."""
+    tau = theta[_delay_at(m, ch)]
+    if tau == 0 and not along:
+        return record.fins, None
+    dt = record.t[1] - record.t[0]
+    value, first, _ = shifted(record.fins, tau / dt)
+    return value, (first / dt)[:, :, None] if along else None
 
 
 def current_along(c: np.ndarray, heading: np.ndarray | None, n: int) -> np.ndarray | None:
@@ -130,6 +155,18 @@ def read_outputs(
     ground, the current turned by the record's `heading`, `log_mounting.read`) plus their biases."""
     b, g, c = output_terms(theta, m, ch)
     return log_mounting.read(g, states, ch, current_along(c, heading, len(states))) + b
+
+
+def check_constant_interval(experiments: Sequence[Experiment], what: str) -> None:
+    """`InputError` naming the first record whose samples are not at one constant interval (to
+    1e-6 of it), which `what` (the inputs' delay: a shift in samples) needs."""
+    for e in experiments:
+        dt = np.diff(np.asarray(e.t, float))
+        if len(dt) and np.any(np.abs(dt - dt[0]) > 1e-6 * dt[0]):
+            raise InputError(
+                f"{e.source or e.name}: its samples are {dt.min():g} to {dt.max():g} s apart; {what} "
+                "shifts the fins by a fraction of one interval: expected a constant sample interval"
+            )
 
 
 def setup(
@@ -167,7 +204,12 @@ def setup(
         )
     current = np.any(config.current()) or any(n in CURRENT for n in config.free)
     check_heading(experiments, bool(current))
-    theta = np.concatenate([theta, config.output_biases(channels), config.mounting(), config.current()])
+    delay = config.coefficients[DELAY]
+    if delay != 0 or DELAY in config.free:
+        check_constant_interval(experiments, f"{DELAY} (free or not 0)")
+    theta = np.concatenate(
+        [theta, config.output_biases(channels), config.mounting(), config.current(), [delay]]
+    )
     return channels, recs, model, theta, [names.index(n) for n in config.free]
 
 
@@ -215,7 +257,7 @@ def fly_records(model, theta, x0, records, ch, substeps):
     flown, res = [], []
     with np.errstate(all="ignore"):
         for r, x in zip(records, x0):
-            states = fly_nonlinear(model, theta[:m], r.t, x, r.fins, substeps)
+            states = fly_nonlinear(model, theta[:m], r.t, x, record_fins(r, theta, m, ch)[0], substeps)
             simulated(len(r.t))
             if not np.all(np.isfinite(states[:, ch])):
                 return None, None
@@ -225,9 +267,9 @@ def fly_records(model, theta, x0, records, ch, substeps):
 
 
 def _padded(theta, m: int, ch) -> np.ndarray:
-    """θ ⊕ b ⊕ g ⊕ c from θ or a part of it that leaves out its end (what is left out: 0)."""
+    """θ ⊕ b ⊕ g ⊕ c ⊕ τ from θ or a part of it that leaves out its end (what is left out: 0)."""
     theta = np.asarray(theta)
-    full = m + len(ch) + len(MOUNTING) + len(CURRENT)
+    full = _delay_at(m, ch) + 1
     return theta if len(theta) == full else np.concatenate([theta, np.zeros(full - len(theta))])
 
 
@@ -289,17 +331,24 @@ def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
     evaluates the model at every RK4 stage again)."""
     m, free = len(model.names), np.asarray(free, dtype=np.int64).reshape(-1)
     theta, ch = _padded(theta, m, ch), np.asarray(ch)
-    k = m + len(ch)  # where the mounting starts, the current after it
+    k, d = m + len(ch), _delay_at(m, ch)  # where the mounting starts (the current after it), τ
     own, bias = free < m, (free >= m) & (free < k)
-    mounting, current = (free >= k) & (free < k + len(MOUNTING)), free >= k + len(MOUNTING)
+    mounting, current, delay = (
+        (free >= k) & (free < k + len(MOUNTING)),
+        (free >= k + len(MOUNTING)) & (free < d),
+        free == d,
+    )
     _, g, c = output_terms(theta, m, ch)
     velocity = ch < 3
     out = []
     for r, x, states in zip(records, x0, flown):
-        f = flight(model, theta[:m], r.t, x, r.fins, free[own], substeps)
-        simulated(len(r.t) * (1 + int(own.sum())))
+        fins, dfins = record_fins(r, theta, m, ch, bool(delay.any()))
+        f = flight(model, theta[:m], r.t, x, fins, free[own], substeps, dfins)
+        simulated(len(r.t) * (1 + int(own.sum()) + int(delay.any())))
         St = np.zeros((len(r.t), len(ch), len(free)))
         St[:, :, own] = log_mounting.read_derivatives(g, f.dx_dtheta, ch)
+        if delay.any():  # the flight's own, through the fins it moves
+            St[:, :, delay] = log_mounting.read_derivatives(g, f.dx_dinputs, ch)
         # ∂(x + b)/∂b = 1 on the bias's own channel, 0 on the others
         St[:, free[bias] - m, np.flatnonzero(bias)] = 1.0
         psi = np.zeros(len(r.t)) if r.heading is None else r.heading

@@ -3,7 +3,8 @@
 
 The outputs are the flown states plus the config's output biases (`y = x + b`, `b_<state>`), the
 velocities as the config's velocity log reads them where it is mounted and over the ground where
-the config has a current, turned by the record's measured heading (`log_mounting.read`).
+the config has a current, turned by the record's measured heading (`log_mounting.read`); the
+fins flown are the recorded ones advanced by the config's inputs' delay (`delayed_inputs`).
 Each record is flown from its initial state: the given one (an estimate's `initial_states`) where
 given, else the best-fitting one, as the linear model's predictions take it. The best fit starts
 from the record's first sample in its measured states (straight flight at the vehicle's speed in
@@ -24,16 +25,17 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, split, stretches
 from testbed.errors import InputError
 from testbed.identification.nonlinear_sensitivities import flight
-from testbed.identification.problem import measured_heading
+from testbed.identification.problem import measured_heading, shifted
 from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
-from testbed.models.linear import MOUNTING, NX, STATES
+from testbed.models.linear import DELAY, MOUNTING, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
 from testbed.models.nonlinear_flight import fly_nonlinear
 
 __all__ = [
     "ITERATIONS",
     "TOLERANCE",
+    "delayed_inputs",
     "first_samples",
     "flights",
     "initial_state",
@@ -80,6 +82,16 @@ def _current(e: Experiment, config: ModelConfig) -> np.ndarray | None:
     return log_mounting.body_current(config.current(), np.zeros(len(e.t)) if psi is None else psi)
 
 
+def delayed_inputs(e: Experiment, config: ModelConfig) -> np.ndarray:
+    """The fins (N, 3) the config's model flies on record `e`: the recorded ones advanced by its
+    inputs' delay τ, δ_rec(t_k + τ) (`problem.shifted` on the record's first sample interval,
+    which a delay needs constant: `nonlinear_output_error.check_constant_interval`)."""
+    tau = config.coefficients[DELAY]
+    if tau == 0 or len(e.t) < 2:
+        return e.inputs
+    return shifted(np.asarray(e.inputs, float), tau / (e.t[1] - e.t[0]))[0]
+
+
 def unread(e: Experiment, config: ModelConfig) -> np.ndarray:
     """The record's readings (N, k) less the config's output biases and, on u and v, its current
     (`_current`): the states as a log at the CG reads them through the water (a mounted log's
@@ -121,8 +133,9 @@ def flights(
         for c, v in {**first_samples([e], config)[e.name], **given}.items():
             x0[STATES.index(c)] = v
         moved = [j for j, c in enumerate(e.measured) if c not in given]
+        fins = delayed_inputs(e, config)
         with np.errstate(all="ignore"):
-            states = fly_nonlinear(model, theta, e.t, x0, e.inputs, substeps)
+            states = fly_nonlinear(model, theta, e.t, x0, fins, substeps)
         bad = np.argwhere(~np.isfinite(states))
         if len(bad):
             raise InputError(
@@ -136,7 +149,7 @@ def flights(
                     model,
                     theta,
                     e.t,
-                    e.inputs,
+                    fins,
                     y,
                     ch,
                     moved,

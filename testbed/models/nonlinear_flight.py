@@ -29,26 +29,31 @@ def substeps_for(t) -> int:
     return max(1, int(round(float(np.median(np.diff(np.asarray(t, float)))) / STEP)))
 
 
-def _flown(model: NonlinearModel, theta, t, x0, fins, substeps, free) -> tuple[np.ndarray, np.ndarray]:
+def _flown(
+    model: NonlinearModel, theta, t, x0, fins, substeps, free, dfins=None
+) -> tuple[np.ndarray, np.ndarray]:
     """The states (N, 10) and, for `free` (indices into `model.names`; None: none), their
-    sensitivities S (N, 10, p + 10) to θ[free] and x0 from S_0 = [0 I], in one compiled pass
-    (`nonlinear_kernels.rk4_flight`); complex where `theta` or `x0` is."""
+    sensitivities S (N, 10, p + q + 10) to θ[free], to the q parameters that move the fins
+    (`dfins` (N, 3, q): the fins' derivatives along them; None: none) and to x0 from
+    S_0 = [0 0 I], in one compiled pass (`nonlinear_kernels.rk4_flight`); complex where
+    `theta`, `x0` or the fins are."""
     from testbed.models import nonlinear_kernels  # numba: only when a model is flown
 
-    dtype = complex if np.iscomplexobj(theta) or np.iscomplexobj(x0) else float
-    t, x0, fins = np.asarray(t, float), np.asarray(x0, dtype), np.asarray(fins, float)
+    dtype = complex if any(np.iscomplexobj(a) for a in (theta, x0, fins)) else float
+    t, x0, fins = np.asarray(t, float), np.asarray(x0, dtype), np.asarray(fins, dtype)
     substeps = substeps_for(t) if substeps is None and len(t) > 1 else substeps
     _check(t, x0, fins, substeps)
     columns = np.zeros(0, dtype=np.int64) if free is None else np.asarray(free, dtype=np.int64).reshape(-1)
+    D = np.zeros((1, 3, 0), dtype) if dfins is None else np.ascontiguousarray(dfins, dtype)
     x = np.empty((len(t), NX), dtype)
     x[0] = x0
     if free is None:
         S = np.zeros((1, NX, 0), dtype)  # no sensitivities carried
     else:
-        S = np.zeros((len(t), NX, len(columns) + NX), dtype)
-        S[0, :, len(columns) :] = np.eye(NX)
+        S = np.zeros((len(t), NX, len(columns) + D.shape[2] + NX), dtype)
+        S[0, :, len(columns) + D.shape[2] :] = np.eye(NX)
     nonlinear_kernels.rk4_flight(
-        packed(model, theta, dtype), t, x, np.ascontiguousarray(fins, dtype), columns, substeps, S
+        packed(model, theta, dtype), t, x, np.ascontiguousarray(fins, dtype), columns, substeps, S, D
     )
     return x, S
 
@@ -67,14 +72,15 @@ def fly_nonlinear(model: NonlinearModel, theta, t, x0, fins, substeps: int | Non
     """The states (N, 10), absolute u, at the times `t` (N,) from `x0` (10,) at t[0], the fin
     angles `fins` (N, 3) (rad) given at the same times, each held until the next, `substeps` RK4
     steps an interval (None: `substeps_for(t)`); complex where
-    `theta` or `x0` is (a complex-step derivative of the flight)."""
+    `theta`, `x0` or the fins are (a complex-step derivative of the flight)."""
     return _flown(model, theta, t, x0, fins, substeps, None)[0]
 
 
 def fly_with_sensitivities(
-    model: NonlinearModel, theta, t, x0, fins, free, substeps: int | None = None
+    model: NonlinearModel, theta, t, x0, fins, free, substeps: int | None = None, dfins=None
 ) -> tuple[np.ndarray, np.ndarray]:
     """`fly_nonlinear`'s states (N, 10) and, in the same pass, their sensitivities
-    S (N, 10, p + 10): to θ[free] (p indices into `model.names`) and to x0, each RK4 stage
-    differentiated."""
-    return _flown(model, theta, t, x0, fins, substeps, free)
+    S (N, 10, p + q + 10): to θ[free] (p indices into `model.names`), to the q parameters whose
+    derivatives of the fins `dfins` (N, 3, q) gives (held as the fins are; None: none) and to
+    x0, each RK4 stage differentiated."""
+    return _flown(model, theta, t, x0, fins, substeps, free, dfins)

@@ -15,8 +15,8 @@ with the gradient of each product by the product rule (summed per force row and 
 taken through W once).
 
 With `jacobian`, a state's evaluation writes ∂F/∂(x, δ) (6 × 13) beside F; `rk4_flight` carries
-the sensitivities S = ∂x/∂(θ[free], x0) (10 × (p + 10)) through each RK4 stage,
-∂k_i = A_i ∂X_i + [F_θ,i 0], so they are exact for the flight (module doc of
+the sensitivities S = ∂x/∂(θ[free], the fins' parameters, x0) (10 × (p + q + 10)) through each
+RK4 stage, ∂k_i = A_i ∂X_i + [F_θ,i  B_i ∂δ  0], so they are exact for the flight (module doc of
 `identification.nonlinear_sensitivities`).
 
 A flag passed as a constant is wrapped (`bool(False)`): numba compiles a callee anew for every
@@ -296,14 +296,15 @@ def state_model(m, x, d, F, JF, f, A, B, G, jacobian, theta):
 
 
 @numba.njit(cache=True)
-def rk4_flight(m, t, x, fins, columns, substeps, S):
+def rk4_flight(m, t, x, fins, columns, substeps, S, D):
     """x[k + 1] (10,) from x[k] for k < N − 1 in place (x (N, 10), x[0] given): classical RK4,
     `substeps` steps per interval [t[k], t[k + 1]], the fins (N, 3) held at fins[k]; and S[k + 1]
-    (10, p + 10) from S[k] (S[0] given): the states' sensitivities to θ[columns] (p) and to x[0],
+    (10, p + q + 10) from S[k] (S[0] given): the states' sensitivities to θ[columns] (p), to q
+    parameters that move the fins (D (N, 3, q): ∂fins[k]/∂ each, held with them) and to x[0],
     carried through every RK4 stage. S with no columns (1, 10, 0): the flight alone, the model
     evaluated without its derivatives."""
     work = _work(m, x)
-    p, width = len(columns), S.shape[2]
+    p, q, width = len(columns), D.shape[2], S.shape[2]
     carried = width > 0  # a run-time flag: `_state` compiled once for both
     A, B = np.empty((10, 10), dtype=x.dtype), np.empty((10, 3), dtype=x.dtype)
     G = np.empty((10, p), dtype=x.dtype)
@@ -329,9 +330,12 @@ def rk4_flight(m, t, x, fins, columns, substeps, S):
                 if not carried:
                     continue
                 _theta_columns(m, X, ks[i], work, columns, G)
-                for j in range(10):  # ∂k_i = A_i ∂X_i + [G_i 0]
+                for j in range(10):  # ∂k_i = A_i ∂X_i + [G_i  B_i D_k  0]
                     for c in range(width):
                         dks[i, j, c] = G[j, c] if c < p else 0.0
+                    for c in range(q):
+                        for l in range(3):
+                            dks[i, j, p + c] += B[j, l] * D[k, l, c]
                     for l in range(10):
                         a_jl = A[j, l]
                         if a_jl != 0:

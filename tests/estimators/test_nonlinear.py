@@ -22,6 +22,7 @@ from testbed.identification.likelihood import reduced
 from testbed.identification.nonlinear_output_error import coloured_bounds, flight_information, records
 from testbed.identification import nonlinear_prediction
 from testbed.identification.nonlinear_sensitivities import flight
+from testbed.identification.problem import shifted
 from testbed.jobs.common import perturbed
 from testbed.models import log_mounting
 from testbed.models.linear import STATES
@@ -651,6 +652,72 @@ def test_ml_gn_and_ml_nm_recover_the_rows_offsets_with_the_terms(truth):
     assert without.cost - est.cost > 13.8 / 2, (without.cost, est.cost)
 
 
+def _delayed(config, clean: Experiment, tau: float, noise: int | None = None) -> Experiment:
+    """The record `clean`'s fins logged `tau` s late: the model flown with them advanced by tau
+    (δ_rec(t + τ), `problem.shifted`), its states as data (with the sensors' noise of seed
+    `noise`, None: none), the fins as recorded."""
+    model, theta = config.nonlinear()
+    fins = shifted(clean.inputs, tau / (clean.t[1] - clean.t[0]))[0]
+    x = fly_nonlinear(model, theta, clean.t, clean.y[0], fins)
+    if noise is not None:
+        x = x + np.random.default_rng(noise).normal(size=x.shape) * SIGMA
+    return Experiment("delayed", clean.t, STATES, x, clean.inputs)
+
+
+def test_ml_gn_and_ml_nm_recover_the_inputs_delay_with_the_terms(truth):
+    """Fins logged 30 ms late (1.5 samples): from the terms 20 % off and no delay, `ml-gn` puts
+    the terms and τ within 3 σ; `ml-nm` (τ alone free) ends at `ml-gn`'s optimum; the fit without
+    τ is rejected by the likelihood-ratio test (ΔJ beyond χ²₁(0.999)/2)."""
+    config, _, clean = truth
+    data = [_delayed(config, clean, 0.03, noise=1)]
+    est = _recovered(config, data, {"input_delay": 0.03})[0]
+    without = identify(data, replace(_start(config), free=FREE), "ml-gn", start="config")
+    assert without.cost - est.cost > 10.8 / 2, (without.cost, est.cost)
+
+
+def test_the_delay_column_of_analyze_is_that_of_the_complex_step_fisher_information(truth):
+    """The Cramér-Rao bounds over the free terms and the inputs' delay, from complex-step
+    derivatives of the flight with its fins shifted (`problem.shifted`, complex in the shift),
+    against the analysis's exact sensitivities, the flight's sensitivity to τ forced by ∂f/∂δ ∂δ/∂τ."""
+    config, _, clean = truth
+    n, tau = 80, 0.013
+    clean = _first(clean, n)
+    data = _delayed(config, clean, tau)
+    at = replace(config, free=FREE + ("input_delay",), noise_std=dict(zip(STATES, SIGMA)))
+    got = nonlinear_identifiability([data], at.with_coefficients({"input_delay": tau}))
+    model, theta = config.nonlinear()
+    dt, x0 = clean.t[1] - clean.t[0], clean.y[0]
+
+    def outputs(th, x, shift):
+        fins = shifted(clean.inputs, shift / dt)[0]
+        return fly_nonlinear(model, th, clean.t, x, fins).imag.ravel() / 1e-30
+
+    columns, h, real = [], 1e-30j, theta.astype(complex)
+    for name in FREE:
+        columns.append(outputs(theta + h * np.eye(len(theta))[model.names.index(name)], x0, tau))
+    columns.append(outputs(real, x0, tau + h))
+    for i in range(10):
+        columns.append(outputs(real, x0 + h * np.eye(10)[i], tau))
+    assert got.free == FREE + ("input_delay",)
+    assert np.allclose(got.crlb_std, _complex_step_bounds(columns, n, len(FREE) + 1), rtol=1e-8)
+
+
+def test_a_delay_on_records_without_a_constant_interval_is_refused(truth):
+    config, noisy, _ = truth
+    t = noisy.t.copy()
+    t[50:] += 0.005  # one interval 25 ms, the others 20 ms
+    uneven = replace(noisy, t=t)
+    for cfg in (
+        replace(config, free=FREE + ("input_delay",)),
+        replace(config, free=FREE).with_coefficients({"input_delay": 0.02}),
+    ):
+        with pytest.raises(
+            InputError, match=r"input_delay \(free or not 0\) shifts the fins .* constant sample interval"
+        ) as e:
+            identify([uneven], cfg, "ml-gn")
+        assert "\n" not in str(e.value)
+
+
 def test_a_free_output_bias_of_a_state_not_measured_is_refused(truth):
     config, noisy, _ = truth
     start = replace(config, free=FREE + ("b_psi",))
@@ -795,30 +862,37 @@ def test_the_current_columns_of_analyze_are_those_of_the_complex_step_fisher_inf
     assert np.allclose(got.crlb_std, _complex_step_bounds(columns, n, len(FREE) + len(names)), rtol=1e-8)
 
 
-def test_identify_and_validate_on_the_command_line_read_the_velocities_over_the_ground(
-    truth, capsys, tmp_path
-):
-    """A nonlinear config freeing the current: `identify` writes c_N and c_E with the terms, the
-    config written back keeps them, and `validate` reads u and v over the ground as the fit did."""
+@pytest.mark.parametrize("kind", ["current", "delay"])
+def test_identify_and_validate_on_the_command_line_take_a_trials_parameters(kind, truth, capsys, tmp_path):
+    """A nonlinear config freeing the current (the velocities read over the ground) or the
+    inputs' delay (the fins logged 30 ms late), a start value given: the config written back
+    keeps it, `identify` writes the parameters with the terms, within 3 σ, and `validate`
+    predicts every channel as the fit did."""
     config, noisy, clean = truth
-    data = _in_current(noisy, clean)
-    write_csv(tmp_path / "current.csv", data.t, data.y, data.inputs)
+    if kind == "current":
+        data, values, given = _in_current(noisy, clean), CURRENT, {"c_N": 0.1}
+    else:
+        data, values, given = (
+            _delayed(config, clean, 0.03, noise=1),
+            {"input_delay": 0.03},
+            {"input_delay": 0.01},
+        )
+    write_csv(tmp_path / "trial.csv", data.t, data.y, data.inputs)
     write_config(
-        tmp_path / "c.toml",
-        replace(_start(config), free=FREE + tuple(CURRENT)).with_coefficients({"c_N": 0.1}),
+        tmp_path / "c.toml", replace(_start(config), free=FREE + tuple(values)).with_coefficients(given)
     )
-    assert read_config(tmp_path / "c.toml").current().tolist() == [0.1, 0.0]
+    assert all(read_config(tmp_path / "c.toml").coefficients[n] == v for n, v in given.items())
     est = tmp_path / "est.json"
-    _ok(capsys, ["identify", tmp_path / "current.csv", "--config", tmp_path / "c.toml", "--out", est])
+    _ok(capsys, ["identify", tmp_path / "trial.csv", "--config", tmp_path / "c.toml", "--out", est])
     doc = json.loads(est.read_text())
-    for n, want in CURRENT.items():
+    for n, want in values.items():
         c = doc["coefficients"][n]
         assert abs(c["value"] - want) <= 3 * c["std"], (n, c)
     out = tmp_path / "v.json"
-    _ok(capsys, ["validate", tmp_path / "current.csv", "--estimates", est, "--out", out])
-    v = json.loads(out.read_text())["validation"]["current"]
-    for s in ("u", "v"):
-        assert v[s]["fit_percent"] == pytest.approx(doc["validation"]["current"][s]["fit_percent"], abs=0.5)
+    _ok(capsys, ["validate", tmp_path / "trial.csv", "--estimates", est, "--out", out])
+    v = json.loads(out.read_text())["validation"]["trial"]
+    for s in STATES:
+        assert v[s]["fit_percent"] == pytest.approx(doc["validation"]["trial"][s]["fit_percent"], abs=0.5), s
 
 
 def test_a_current_without_the_heading_or_the_velocities_is_refused(truth):
