@@ -15,6 +15,7 @@ from testbed.analysis.nonlinear_identifiability import nonlinear_identifiability
 from testbed.errors import InputError
 from testbed.estimators import FilterEstimate, OptionError, identify
 from testbed.identification.nonlinear_transition import NonlinearTransition
+from testbed.identification.problem import shifted
 from testbed.models.linear import IX, STATES
 from testbed.models.nonlinear_flight import fly_nonlinear
 
@@ -127,14 +128,26 @@ def test_mekf_on_the_command_line(files, truth, capsys, tmp_path):
     assert history[0] == "t," + ",".join(f"{n},{n}_std" for n in FREE) and len(history) == 202
 
 
-def test_the_filter_takes_fixed_output_biases_off_the_data_and_refuses_free_ones(truth):
-    """A record logged with attitude offsets and a config fixing them at their values: the
-    filter's estimate is the one on the record without them. A free offset is refused in one line."""
+def test_the_filter_takes_fixed_trial_parameters_off_the_data_and_refuses_free_ones(truth):
+    """A record logged with attitude offsets, in a current, or with its fins logged late, and a
+    config fixing those at their values: the filter's estimate is the one on the record without
+    them. A free one is refused in one line."""
     config, noisy, _ = truth
     start = _start(config)
-    plain = identify([noisy], start, "mekf")
-    est = identify([shared._offset(noisy)], start.with_coefficients(shared.OFFSETS), "mekf")
-    assert np.allclose(est.values, plain.values, rtol=1e-6) and np.allclose(est.std, plain.std, rtol=1e-6)
-    with pytest.raises(InputError, match=r"free names b_phi; mekf on a nonlinear model config") as e:
-        identify([noisy], replace(start, free=FREE + ("b_phi",)), "mekf")
-    assert "\n" not in str(e.value)
+    late = replace(noisy, inputs=shifted(noisy.inputs, -1.5)[0])  # recorded 1.5 samples late
+    on_time = replace(late, inputs=shifted(late.inputs, 1.5)[0])  # the fins a 30 ms delay flies
+    for record, fixed, without in (
+        (shared._offset(noisy), shared.OFFSETS, noisy),
+        (shared._in_current(noisy, noisy), shared.CURRENT, noisy),
+        (late, {"input_delay": 1.5 * (noisy.t[1] - noisy.t[0])}, on_time),
+    ):
+        est, plain = (
+            identify([record], start.with_coefficients(fixed), "mekf"),
+            identify([without], start, "mekf"),
+        )
+        assert np.allclose(est.values, plain.values, rtol=1e-6), fixed
+        assert np.allclose(est.std, plain.std, rtol=1e-6), fixed
+    for name in ("b_phi", "c_N", "input_delay"):
+        with pytest.raises(InputError, match=rf"free names {name}; mekf on a nonlinear model config") as e:
+            identify([noisy], replace(start, free=FREE + (name,)), "mekf")
+        assert "\n" not in str(e.value)
