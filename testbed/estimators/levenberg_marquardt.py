@@ -1,65 +1,74 @@
 """The plain Gauss-Newton optimiser of the output-error likelihood with Levenberg-Marquardt
-damping (`ml-lm`), and the normal equations and progress reports the optimisers share.
+damping (`ml-lm`), written once over the `objective.Objective` protocol: the linear model's and
+the nonlinear model's likelihood alike.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from testbed.estimators.base import Callback, Outcome, Progress, Status
-from testbed.identification import bounds, likelihood, recursions
+from testbed.estimators.base import Outcome, Progress, Status
+from testbed.identification import bounds, likelihood, linear_objective
+from testbed.identification.objective import Objective, Point
 from testbed.identification.problem import Problem
 
-__all__ = ["levenberg_marquardt", "normal_terms", "report_iteration", "simulated_residuals"]
-
-
-def normal_terms(prob: Problem, p: np.ndarray, xs, res, tol: float):
-    """R, g and M at `p` (`likelihood.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is
-    shorter than `tol` in Cramér-Rao units: converged."""
-    R = likelihood.noise_variance(prob, res)
-    g, M = likelihood.gauss_newton_terms(prob, p, xs, res, R)
-    return R, g, M, np.sqrt(max(g @ bounds.crlb(M).covariance @ g, 0.0)) < tol
-
-
-def simulated_residuals(prob: Problem, p: np.ndarray):
-    """States and residuals at `p`, or None where the model is invalid (singular Mt, diverging)."""
-    try:
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
-            xs = recursions.states(prob, p)
-    except np.linalg.LinAlgError:
-        return None
-    out = [prob.outputs(r, x, p[: prob.n_free]) for r, x in zip(prob.records, xs)]
-    if not np.all(np.isfinite(p)) or likelihood.exploded(prob, out) is not None:
-        return None
-    return xs, [r.residual(y) for r, y in zip(prob.records, out)]
-
-
-def report_iteration(callback: Callback | None, prob: Problem, it: int, p: np.ndarray, res) -> None:
-    if callback is not None:
-        callback(Progress(it, p[: prob.n_free].copy(), likelihood.negative_log_likelihood(prob, res)))
+__all__ = ["levenberg_marquardt"]
 
 
 def levenberg_marquardt(
-    prob: Problem, p: np.ndarray, max_iter: int = 50, callback=None, tol: float = 1e-3
+    prob: Problem | Objective,
+    p: np.ndarray,
+    max_iter: int = 50,
+    callback=None,
+    tol: float = 1e-3,
+    at: Point | None = None,
 ) -> Outcome:
-    """Levenberg-Marquardt on `½ Σ eᵀR⁻¹e`, R re-estimated before every step."""
-    history, lam = [p[: prob.n_free].copy()], 0.01
-    xs, res = simulated_residuals(prob, p)
+    """Levenberg-Marquardt on the weighted cost `½ Σ eᵀR⁻¹e` of `prob` (a linear `Problem`, or
+    any `Objective`) from the free values of `p`, R re-estimated at every point taken.
+
+    The step solves the Gauss-Newton normal equations damped by Marquardt's diagonal,
+    `(F + λ diag F) d = g`: where the objective fits the initial states at every θ (`projected`,
+    the linear model) on θ's reduced equations (`likelihood.reduced`, the initial states
+    eliminated), else on the whole parameter vector, the initial states stepping with θ. A step
+    that lowers the cost (R held at the point's) is taken and λ falls tenfold; else λ rises
+    tenfold, STALLED beyond 1e12. Converged when the Gauss-Newton step is shorter than `tol`
+    Cramér-Rao σ. `at`: `prob.point(p[:n_free])`, if the caller has it."""
+    obj = linear_objective.as_objective(prob)
+    nf = obj.n_free
+    x = obj.point(p[:nf]) if at is None else at
+    if x is None:
+        return Outcome(p, Status.DIVERGED, 0, np.array([p[:nf]]))
+    history, lam, M = [x.p[:nf].copy()], 0.01, None
+    status = Status.MAX_ITERATIONS
     for it in range(max_iter + 1):
-        R, g, M, converged = normal_terms(prob, p, xs, res, tol)
-        if converged or it == max_iter:
+        g, M = obj.terms(x)
+        # F d = g: θ's reduced equations where the initial states are fitted at every θ
+        F, gr = likelihood.reduced(M, g, nf) if obj.projected else (M, g)
+        # the Gauss-Newton step in Cramér-Rao units: √(gᵀ F⁻¹ g)
+        if np.sqrt(max(gr @ bounds.crlb(F).covariance @ gr, 0.0)) < tol:
+            status = Status.CONVERGED
             break
-        J0, D = likelihood.weighted_cost(prob, res, R), np.diag(np.maximum(np.diag(M), 1e-300))
+        if it == max_iter:
+            break
+        W0, D = obj.weighted_cost(x.res, x.R), np.diag(np.maximum(np.diag(F), 1e-300))
         while True:
-            trial = p + np.linalg.solve(M + lam * D, g)
-            sim = simulated_residuals(prob, trial)
-            if sim is not None and likelihood.weighted_cost(prob, sim[1], R) < J0:
-                p, (xs, res), lam = trial, sim, max(lam / 10, 1e-12)
+            try:
+                d = np.linalg.solve(F + lam * D, gr)
+            except np.linalg.LinAlgError:
+                d = None
+            step = d if d is None or not obj.projected else np.concatenate([d, np.zeros(len(x.p) - nf)])
+            trial = None if step is None else obj.moved(x, step)
+            if trial is not None and obj.weighted_cost(trial.res, x.R) < W0:
+                x, lam = trial, max(lam / 10, 1e-12)
                 break
             lam *= 10
             if lam > 1e12:
-                return Outcome(p, Status.STALLED, it, np.array(history), M)
-        history.append(p[: prob.n_free].copy())
-        report_iteration(callback, prob, it + 1, p, res)
-    status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
-    return Outcome(p, status, it, np.array(history), M)
+                return _outcome(x, Status.STALLED, it, history, M)
+        history.append(x.p[:nf].copy())
+        if callback is not None:
+            callback(Progress(it + 1, x.p[:nf].copy(), x.J))
+    return _outcome(x, status, it, history, M)
+
+
+def _outcome(x: Point, status: Status, it: int, history: list, M) -> Outcome:
+    return Outcome(x.p, status, it, np.array(history), M, cost=x.J, simulated=(x.xs, x.res))

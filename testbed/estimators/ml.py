@@ -6,7 +6,8 @@ initial-state parameters (`testbed.identification`), so they compare fairly:
 
 - `ml-gn` (default): the scaled trust-region Gauss-Newton method of `trust_region`, with
   multiple shooting and a second-order check at the optimum, from the starts of `starts`.
-- `ml-lm`: Gauss-Newton with Levenberg-Marquardt damping (Marquardt's diagonal scaling).
+- `ml-lm`: Gauss-Newton with Levenberg-Marquardt damping (Marquardt's diagonal scaling) over the
+  objective protocol, the initial states fitted at every θ (`levenberg_marquardt`).
 - `ml-nr`: the paper's modified Newton-Raphson, Eq. 10, exactly: the Hessian of J_M from the
   second-order sensitivities, `μ ∂J/∂θ + (∂²J/∂θ² + λI) Δθ = 0`, λ = max|∂J/∂θ|, μ = 0.5 if
   λ > 1 else 1/(λ+1); every step is taken (no line search), so its drift and divergence show;
@@ -525,6 +526,7 @@ ML_LM = _method(
     levenberg_marquardt,
     GaussNewtonOptions,
     "maximum likelihood output error by Gauss-Newton with Levenberg-Marquardt damping",
+    nonlinear.levenberg_marquardt,
 )
 
 

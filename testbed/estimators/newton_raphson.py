@@ -8,9 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from testbed.estimators.base import Outcome, Status
-from testbed.estimators.levenberg_marquardt import normal_terms, report_iteration, simulated_residuals
-from testbed.identification import recursions, scan
+from testbed.estimators.base import Callback, Outcome, Progress, Status
+from testbed.identification import bounds, likelihood, recursions, scan
 from testbed.identification.problem import Problem
 
 __all__ = ["length_stages", "newton_raphson"]
@@ -41,13 +40,13 @@ def newton_raphson(
         S[: prob.n_free] = np.where(p[: prob.n_free] != 0, np.abs(p[: prob.n_free]), 1.0)
     last = p
     for it in range(max_iter + 1):
-        sim = simulated_residuals(prob, p)
+        sim = _simulated_residuals(prob, p)
         if sim is None:  # the step into an invalid model does not count; report the one before
             return Outcome(last, Status.DIVERGED, it - 1, np.array(history[:it]))
         xs, res = sim
         if it:
-            report_iteration(callback, prob, it, p, res)
-        R, g, M, converged = normal_terms(prob, p, xs, res, tol)
+            _report_iteration(callback, prob, it, p, res)
+        R, g, M, converged = _normal_terms(prob, p, xs, res, tol)
         if converged or it == max_iter:
             break
         grad = -2.0 / N * g * S  # ∂J_M/∂x
@@ -64,6 +63,32 @@ def newton_raphson(
         history.append(p[: prob.n_free].copy())
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
     return Outcome(p, status, it, np.array(history), M)
+
+
+def _normal_terms(prob: Problem, p: np.ndarray, xs, res, tol: float):
+    """R, g and M at `p` (`likelihood.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is
+    shorter than `tol` in Cramér-Rao units: converged."""
+    R = likelihood.noise_variance(prob, res)
+    g, M = likelihood.gauss_newton_terms(prob, p, xs, res, R)
+    return R, g, M, np.sqrt(max(g @ bounds.crlb(M).covariance @ g, 0.0)) < tol
+
+
+def _simulated_residuals(prob: Problem, p: np.ndarray):
+    """States and residuals at `p`, or None where the model is invalid (singular Mt, diverging)."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging model is an answer here
+            xs = recursions.states(prob, p)
+    except np.linalg.LinAlgError:
+        return None
+    out = [prob.outputs(r, x, p[: prob.n_free]) for r, x in zip(prob.records, xs)]
+    if not np.all(np.isfinite(p)) or likelihood.exploded(prob, out) is not None:
+        return None
+    return xs, [r.residual(y) for r, y in zip(prob.records, out)]
+
+
+def _report_iteration(callback: Callback | None, prob: Problem, it: int, p: np.ndarray, res) -> None:
+    if callback is not None:
+        callback(Progress(it, p[: prob.n_free].copy(), likelihood.negative_log_likelihood(prob, res)))
 
 
 def length_stages(prob: Problem, first_length: float) -> list[Problem]:

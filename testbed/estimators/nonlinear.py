@@ -6,6 +6,9 @@ contract and `Estimate` as the linear model's methods:
   (`nonlinear_fit.fit_output_error` over `nonlinear_objective.NonlinearObjective`), the
   flight's exact sensitivities, each record's measured initial states free, from the starts
   below, kept as the linear model's are (`multistart.best_fit`);
+- `ml-lm`: the linear model's `levenberg_marquardt` on the same objective, the initial states
+  stepping with θ, from `config`, `equation-error` or `auto` (both run to their end, the least
+  cost kept); no bounds, no multiple shooting;
 - `ml-nm`: the paper's Nelder-Mead simplex (`simplex`) on the same likelihood,
   `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients in coordinates scaled by the start
   (θᵢ/|θᵢ,start|). Each record's initial state is concentrated out at every θ to first order:
@@ -84,7 +87,7 @@ from testbed.identification.recursions import counting, simulated
 from testbed.models import log_mounting
 from testbed.models.linear import NX, STATES
 
-__all__ = ["GN_STARTS", "STARTS", "gauss_newton", "simplex"]
+__all__ = ["GN_STARTS", "STARTS", "gauss_newton", "levenberg_marquardt", "simplex"]
 
 STARTS = ("auto", "config", "equation-error")  # the starts a nonlinear model has (module doc)
 GN_STARTS = STARTS + ("global",)  # … and `ml-gn`'s global search
@@ -98,6 +101,7 @@ _GN = (
     "polish",
     "seed",
 )  # the options each method honours
+_LM = ("max_iter", "tol", "start")
 _NM = (
     "max_iter",
     "start",
@@ -195,13 +199,30 @@ def gauss_newton(
     experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
 ) -> Estimate:
     """`ml-gn` on a nonlinear model config (module doc)."""
-    t0, name = time.perf_counter(), "ml-gn"
-    _checked(name, options, _GN, GN_STARTS)
+    return _output_error("ml-gn", experiments, config, options, callback)
+
+
+def levenberg_marquardt(
+    experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
+) -> Estimate:
+    """`ml-lm` on a nonlinear model config (module doc)."""
+    return _output_error("ml-lm", experiments, config, options, callback)
+
+
+def _output_error(
+    name: str, experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback
+) -> Estimate:
+    """`ml-gn` or `ml-lm` (`name`) on a nonlinear model config (module doc): each start's fit
+    (`nonlinear_fit.fit` by that optimiser), the best kept."""
+    t0 = time.perf_counter()
+    gn = name == "ml-gn"
+    _checked(name, options, _GN if gn else _LM, GN_STARTS if gn else STARTS)
     if options.max_iter < 1:
         raise OptionError(name, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     noise = {c: s for c, s in (config.noise_std or {}).items() if c in channels}
-    box = config.box(config.free)
+    box = config.box(config.free) if gn else None
+    trust = {"bounds": box, "segments": int(options.segments)} if gn else {"optimiser": name}
     fits: list[Fit] = []
     notes: dict[str, dict] = {}
     with counting() as tally:
@@ -224,8 +245,8 @@ def gauss_newton(
             try:
                 fit = fit_from(
                     prob, start[idx], callback=report, tolerance=float(options.tol),
-                    max_iterations=int(options.max_iter), bounds=box, at=at,
-                    follow=tuple(f.outcome.optimum for f in earlier), segments=int(options.segments),
+                    max_iterations=int(options.max_iter), at=at,
+                    follow=tuple(f.outcome.optimum for f in earlier), **trust,
                 )  # fmt: skip
             except InputError as exc:
                 notes[label] = {"reason": str(exc)}

@@ -20,6 +20,7 @@ import numpy as np
 
 from testbed.errors import InputError
 from testbed.estimators.base import Outcome, Status
+from testbed.estimators.levenberg_marquardt import levenberg_marquardt
 from testbed.estimators.trust_region import trust_region
 from testbed.identification.bounds import crlb
 from testbed.identification.likelihood import SEGMENTS
@@ -146,6 +147,7 @@ def fit(
     follow: tuple = (),
     segments: int = SEGMENTS,
     at: Point | None = None,
+    optimiser: str = "ml-gn",
 ) -> NonlinearFit:
     """The fit of the objective `prob` from its free `values` (`at`: `prob.point` there, if the
     caller has it) until the Gauss-Newton step is shorter than `tolerance` Cramér-Rao σ or
@@ -155,7 +157,9 @@ def fit(
     `NonlinearFit.at_bounds` names those it ends on). `follow`: earlier fits' optima (θ, σ) on
     the same problem (`Outcome.optimum`): a fit that steps into one's basin stops there
     (`Outcome.joined`), its σ NaN (the earlier fit's are the caller's).
-    `segments`: multiple shooting's first stage, pieces per record (1: none)."""
+    `segments`: multiple shooting's first stage, pieces per record (1: none). `optimiser`:
+    `ml-gn` (`trust_region`, all of the above) or `ml-lm` (`levenberg_marquardt`: no bounds, no
+    multiple shooting; `follow` is then unused)."""
     if not (isinstance(max_iterations, int) and max_iterations >= 1 and tolerance > 0):
         raise InputError(
             f"tolerance={tolerance!r}, max_iterations={max_iterations!r}; expected a tolerance > 0 "
@@ -164,10 +168,18 @@ def fit(
     box = _box(bounds, prob.n_free)
     report = None if callback is None else (lambda step: callback(step.values, step.cost))
     x0 = prob.first_states()[:, list(prob.ch)].ravel() if prob.free_initial else []
-    out = trust_region(
-        prob, np.concatenate([values, x0]), max_iter=max_iterations, tol=tolerance, callback=report,
-        follow=follow, at=prob.point(values) if at is None else at, box=box, segments=segments,
-    )  # fmt: skip
+    at = prob.point(values) if at is None else at
+    if optimiser == "ml-lm":
+        if box is not None:
+            raise InputError(f"bounds {bounds!r}; ml-lm keeps no bounds: expected none, or ml-gn")
+        out = levenberg_marquardt(
+            prob, np.concatenate([values, x0]), max_iter=max_iterations, tol=tolerance, callback=report, at=at
+        )
+    else:
+        out = trust_region(
+            prob, np.concatenate([values, x0]), max_iter=max_iterations, tol=tolerance, callback=report,
+            follow=follow, at=at, box=box, segments=segments,
+        )  # fmt: skip
     if out.status is Status.DIVERGED and out.simulated is None:
         raise InputError(
             "the model's flight from the start values does not stay finite over the records, even on "
