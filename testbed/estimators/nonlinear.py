@@ -144,7 +144,7 @@ def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields
 
 
 def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | None:
-    """The equation-error start as θ ⊕ b ⊕ g: θ's free coefficients fitted to the records less
+    """The equation-error start as θ ⊕ b ⊕ g ⊕ c ⊕ τ: θ's free coefficients fitted to the records less
     their biases b, which it holds; None where the records cannot give it, `InputError` if
     `start` names it."""
     m, own = len(model.names), [n for n in free if n in model.names]
@@ -168,7 +168,7 @@ def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | N
 
 
 def _starts(options: Options, model, theta, recs, channels, free, prob, box, notes):
-    """The starts `options.start` names as (label, θ ⊕ b ⊕ g, its point where computed), in the
+    """The starts `options.start` names as (label, θ ⊕ b ⊕ g ⊕ c ⊕ τ, its point where computed), in the
     order they are run (module doc): `auto` and `global` the better-flying of the a-priori and equation-error starts first,
     `global` then the best `polish` box draws (`multistart.box_draws`)."""
     if options.start == "config":
@@ -229,7 +229,7 @@ def _output_error(
         prob = nonlinear_problem(model, theta, recs, channels, config.free, noise_std=noise)
 
         def run(label: str, start: np.ndarray, at) -> tuple[Fit, NonlinearFit] | None:
-            """The fit from θ ⊕ b ⊕ g `start` (stopping in an earlier fit's basin, then that
+            """The fit from θ ⊕ b ⊕ g ⊕ c ⊕ τ `start` (stopping in an earlier fit's basin, then that
             one's), None where it cannot be computed (the reason in `notes`)."""
             done = sum(f.outcome.iterations for f in fits)
 

@@ -1,5 +1,5 @@
 """Output-error maximum likelihood for the nonlinear model as a library call: chosen parameters of
-θ ⊕ b ⊕ g and each record's measured initial state fitted to measured states by the same scaled
+θ ⊕ b ⊕ g ⊕ c ⊕ τ and each record's measured initial state fitted to measured states by the same scaled
 trust-region Gauss-Newton method as the linear model's `ml-gn` (`trust_region`, over
 `nonlinear_objective.NonlinearObjective`): multiple shooting where the flight from the start
 leaves the data's range or the whole record's fit does not converge, the projected step inside
@@ -43,7 +43,7 @@ __all__ = ["NonlinearFit", "fit", "fit_output_error", "nonlinear_problem", "resu
 class NonlinearFit:
     """The result of `fit_output_error`."""
 
-    theta: np.ndarray  # all of θ ⊕ b ⊕ g in `parameter_names` order, the free ones fitted
+    theta: np.ndarray  # all of θ ⊕ b ⊕ g ⊕ c ⊕ τ in `parameter_names` order, the free ones fitted
     estimates: dict[str, float]  # the free parameters
     std: dict[str, float]  # their Cramér-Rao σ (NaN: held on a bound)
     initial_states: np.ndarray  # (records, 10)
@@ -68,8 +68,8 @@ def nonlinear_problem(
     noise_std: Mapping[str, float] | None = None,
     substeps: int | None = None,
 ) -> NonlinearObjective:
-    """The `NonlinearObjective` of the `free` parameters of θ ⊕ b ⊕ g (names from
-    `parameter_names`; `theta`: θ, θ ⊕ b or θ ⊕ b ⊕ g, what it leaves out 0) on the `records`'
+    """The `NonlinearObjective` of the `free` parameters of θ ⊕ b ⊕ g ⊕ c ⊕ τ (names from
+    `parameter_names`; `theta`: θ or θ ⊕ b ⊕ g ⊕ c ⊕ τ cut after any part, what it leaves out 0) on the `records`'
     measured `channels`, R held where `noise_std` gives it."""
     noise_std = dict(noise_std or {})
     check_records(model, records, tuple(channels), tuple(free), noise_std, 1.0, 1)
@@ -127,8 +127,8 @@ def result(prob: NonlinearObjective, out: Outcome) -> NonlinearFit:
 def fit_output_error(
     model: NonlinearModel, theta, records: Sequence[FlightRecord], channels, free, **keywords
 ) -> NonlinearFit:
-    """Fit the `free` parameters of θ ⊕ b ⊕ g (names from `parameter_names`), started from
-    `theta` (θ, θ ⊕ b or θ ⊕ b ⊕ g: the channels' biases and the mounting, 0 where left out), and
+    """Fit the `free` parameters of θ ⊕ b ⊕ g ⊕ c ⊕ τ (names from `parameter_names`), started from
+    `theta` (θ or θ ⊕ b ⊕ g ⊕ c ⊕ τ cut after any part: the channels' biases, the mounting, the current and the delay, 0 where left out), and
     each record's initial state to the `records`' measured `channels` by `trust_region` (module
     doc). `keywords`: `nonlinear_problem`'s (`free_initial`, `noise_std`, `substeps`) and `fit`'s."""
     problem = {k: keywords.pop(k) for k in ("free_initial", "noise_std", "substeps") if k in keywords}

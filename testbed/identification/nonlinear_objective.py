@@ -1,7 +1,7 @@
 """The nonlinear model's output-error likelihood as an `objective.Objective`, the one
 `estimators.trust_region` fits the linear model's by.
 
-The parameters are θ ⊕ b ⊕ g's free ones (`nonlinear_output_error.parameter_names`) and, when
+The parameters are θ ⊕ b ⊕ g ⊕ c ⊕ τ's free ones (`nonlinear_output_error.parameter_names`) and, when
 `free_initial`, each record's initial state in its measured channels; the unmeasured components
 of an initial state stay at straight flight at the vehicle's speed
 (`nonlinear_output_error.start_states`). The outputs are not linear in the initial states: a
@@ -35,7 +35,7 @@ __all__ = ["NonlinearObjective"]
 
 @dataclass(frozen=True)
 class NonlinearObjective:
-    """The nonlinear output-error problem: `model`, its parameters θ ⊕ b ⊕ g `theta` (the free
+    """The nonlinear output-error problem: `model`, its parameters θ ⊕ b ⊕ g ⊕ c ⊕ τ `theta` (the free
     ones, indices `free` into it, at their a-priori values), the `records` and their measured
     state columns `ch`, R held where `held` is not NaN (per channel), RK4 `substeps`, each
     record's measured initial state free (`free_initial`) or held at its first sample."""
@@ -74,7 +74,7 @@ class NonlinearObjective:
         return start_states(self.model, self.records, self.ch) if self.x0 is None else self.x0
 
     def unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """θ ⊕ b ⊕ g and the initial states (records, 10) of the parameter vector `p`."""
+        """θ ⊕ b ⊕ g ⊕ c ⊕ τ and the initial states (records, 10) of the parameter vector `p`."""
         theta, x0 = self.theta.copy(), self.first_states().copy()
         theta[self.free] = p[: self.n_free]
         if self.free_initial:

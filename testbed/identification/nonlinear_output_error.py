@@ -150,8 +150,8 @@ def current_along(c: np.ndarray, heading: np.ndarray | None, n: int) -> np.ndarr
 def read_outputs(
     states: np.ndarray, theta: np.ndarray, m: int, ch, heading: np.ndarray | None = None
 ) -> np.ndarray:
-    """The outputs (N, C) of the flown `states` (N, 10) in the state columns `ch` at θ ⊕ b ⊕ g ⊕ c
-    (`theta`, θ's length `m`): the states as read (u, v, w by the log mounted as g over the
+    """The outputs (N, C) of the flown `states` (N, 10) in the state columns `ch` at
+    θ ⊕ b ⊕ g ⊕ c ⊕ τ (`theta`, θ's length `m`): the states as read (u, v, w by the log mounted as g over the
     ground, the current turned by the record's `heading`, `log_mounting.read`) plus their biases."""
     b, g, c = output_terms(theta, m, ch)
     return log_mounting.read(g, states, ch, current_along(c, heading, len(states))) + b
@@ -172,7 +172,7 @@ def check_constant_interval(experiments: Sequence[Experiment], what: str) -> Non
 def setup(
     experiments: Sequence[Experiment], config: ModelConfig, fit: str
 ) -> tuple[tuple[str, ...], list[FlightRecord], NonlinearModel, np.ndarray, list[int]]:
-    """`(channels, records, model, θ ⊕ b ⊕ g, free indices)` of a nonlinear model config's `free`
+    """`(channels, records, model, θ ⊕ b ⊕ g ⊕ c ⊕ τ, free indices)` of a nonlinear model config's `free`
     (indices into `parameter_names`) on the experiments (`records`), b the config's output biases
     of the channels, g its velocity log's mounting; `InputError` naming the `fit` for what it cannot take: nothing free, values
     per record, a free output bias of a state no record measures, or records that do not move
@@ -250,7 +250,7 @@ def check_records(model, records, channels, free, noise_std, tolerance, max_iter
 
 def fly_records(model, theta, x0, records, ch, substeps):
     """Each record's flown states (N, 10) and residuals `e = y − ŷ` (N, C) (`read_outputs`), NaN
-    where the sample is missing, at θ ⊕ b ⊕ g (`theta`; what it leaves out: 0); (None, None)
+    where the sample is missing, at θ ⊕ b ⊕ g ⊕ c ⊕ τ (`theta`; what it leaves out: 0); (None, None)
     where a flight does not stay finite. Tallied as simulated samples (`recursions.counting`)."""
     m = len(model.names)
     theta = _padded(theta, m, ch)
@@ -282,7 +282,7 @@ def flight_residuals(
     substeps: int | None = None,
 ):
     """Each record's residuals (N, C) in the state columns `ch` (NaN where the sample is
-    missing) at θ ⊕ b ⊕ g (`theta`; what it leaves out: 0), flown from its row of `x0` (records, 10); None
+    missing) at θ ⊕ b ⊕ g ⊕ c ⊕ τ (`theta`; what it leaves out: 0), flown from its row of `x0` (records, 10); None
     where a flight does not stay finite. Tallied as `_simulate`'s."""
     return fly_records(model, theta, x0, records, ch, substeps)[1]
 
@@ -325,10 +325,10 @@ def neg_log_likelihood(res: Sequence[np.ndarray], R: np.ndarray) -> float:
 
 
 def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
-    """Each record's output sensitivities to (θ ⊕ b ⊕ g ⊕ c)[free] (N, C, p) and to the measured
-    channels' initial states (N, C, C), along its flown states; tallied
-    (`recursions.counting`) as 1 + the free coefficients of θ columns a sample (the pass
-    evaluates the model at every RK4 stage again)."""
+    """Each record's output sensitivities to (θ ⊕ b ⊕ g ⊕ c ⊕ τ)[free] (N, C, p) and to the
+    measured channels' initial states (N, C, C), along its flown states; tallied
+    (`recursions.counting`) as 1 + the free coefficients of θ columns (and τ's) a sample (the
+    pass evaluates the model at every RK4 stage again)."""
     m, free = len(model.names), np.asarray(free, dtype=np.int64).reshape(-1)
     theta, ch = _padded(theta, m, ch), np.asarray(ch)
     k, d = m + len(ch), _delay_at(m, ch)  # where the mounting starts (the current after it), τ
@@ -375,7 +375,7 @@ def flight_information(
     R: np.ndarray,
     substeps: int | None = None,
 ) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [the `free` parameters of θ ⊕ b ⊕ g
+    """The Fisher information `Σ JᵀR⁻¹J` (the fit's bounds) over [the `free` parameters of θ ⊕ b ⊕ g ⊕ c ⊕ τ
     (`theta`, `parameter_names`) | each record's measured initial states] with the noise variances `R` per channel, each record flown
     from its row of `x0` (records, 10), and the residuals along the flights."""
     res, sens = _linearisation(model, theta, x0, records, channels, free, substeps)
@@ -434,7 +434,7 @@ def coloured_bounds(
     substeps: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
     """`(σ, σ_coloured, residuals, H)` at θ and the initial states `x0` (records, 10) with the noise
-    variances `R`: the Cramér-Rao σ of the `free` parameters of θ ⊕ b ⊕ g (the initial states among the
+    variances `R`: the Cramér-Rao σ of the `free` parameters of θ ⊕ b ⊕ g ⊕ c ⊕ τ (the initial states among the
     parameters, as the fit's), Morelli & Klein's σ for coloured residuals
     (`bounds.coloured_covariance`, its per-record sum `bounds.coloured_term`), the residuals and
     the Fisher information H they come from (`flight_information`'s)."""
