@@ -38,7 +38,7 @@ def levenberg_marquardt(
     x = obj.point(p[:nf]) if at is None else at
     if x is None:
         return Outcome(p, Status.DIVERGED, 0, np.array([p[:nf]]))
-    history, lam, M = [x.p[:nf].copy()], 0.01, None
+    history, lam = [x.p[:nf].copy()], 0.01
     status = Status.MAX_ITERATIONS
     for it in range(max_iter + 1):
         g, M = obj.terms(x)
@@ -53,11 +53,12 @@ def levenberg_marquardt(
         W0, D = obj.weighted_cost(x.res, x.R), np.diag(np.maximum(np.diag(F), 1e-300))
         while True:
             try:
+                # (F + λ diag F) d = g
                 d = np.linalg.solve(F + lam * D, gr)
-            except np.linalg.LinAlgError:
-                d = None
-            step = d if d is None or not obj.projected else np.concatenate([d, np.zeros(len(x.p) - nf)])
-            trial = None if step is None else obj.moved(x, step)
+            except np.linalg.LinAlgError:  # singular even damped: a larger λ
+                trial = None
+            else:  # projected: θ's step, the initial states fitted again there
+                trial = obj.moved(x, np.concatenate([d, np.zeros(len(x.p) - nf)]) if obj.projected else d)
             if trial is not None and obj.weighted_cost(trial.res, x.R) < W0:
                 x, lam = trial, max(lam / 10, 1e-12)
                 break
@@ -71,4 +72,5 @@ def levenberg_marquardt(
 
 
 def _outcome(x: Point, status: Status, it: int, history: list, M) -> Outcome:
+    """Where it stopped: the point `x`, with M there and its states and residuals."""
     return Outcome(x.p, status, it, np.array(history), M, cost=x.J, simulated=(x.xs, x.res))
