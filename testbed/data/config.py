@@ -17,14 +17,13 @@ from testbed.data.files import check_name, read_toml
 from testbed.errors import InputError, check_keys
 from testbed.models.components import Component, check_component_name
 from testbed.models.linear import (
-    BIASES,
     COEFFICIENTS,
     CURRENT,
-    DELAY,
     MAX_SPEED,
     MIN_SPEED,
     MOUNTING,
     OFFSETS,
+    OUTSIDE_EQUATIONS,
     PARAMETERS,
     STATES,
     Vehicle,
@@ -558,8 +557,7 @@ def _check_terms(config: ModelConfig, source: str) -> None:
         raise InputError(f"{source}: [terms] {exc}") from None
     for key, v in config.terms.items():
         number(v, f"{source}: [terms] {json.dumps(key)}")
-    outputs = BIASES + MOUNTING + CURRENT + (DELAY,)
-    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA + outputs]
+    extra = [k for k, v in config.coefficients.items() if v != 0.0 and k not in INERTIA + OUTSIDE_EQUATIONS]
     if extra:
         raise InputError(
             f"{source}: [coefficients] {extra[0]} in a nonlinear model config (one with [terms]); "
@@ -568,7 +566,7 @@ def _check_terms(config: ModelConfig, source: str) -> None:
         )
     seen = set()
     for n in config.free:
-        if n not in model.names + outputs or n in seen:
+        if n not in model.names + OUTSIDE_EQUATIONS or n in seen:
             raise InputError(
                 f"{source}: [identify] free names {n[:40]!r}"
                 + (

@@ -8,16 +8,7 @@ from typing import Mapping
 
 from testbed.data.config import BLADE_KEYS, COMPONENT_KEYS, ModelConfig
 from testbed.outputs import atomic_write_text
-from testbed.models.linear import (
-    BIASES,
-    COEFFICIENTS,
-    CURRENT,
-    DELAY,
-    MOUNTING,
-    OFFSETS,
-    OUTPUT_TERMS,
-    Vehicle,
-)
+from testbed.models.linear import COEFFICIENTS, DELAY, OFFSETS, OUTPUT_TERMS, OUTSIDE_EQUATIONS, Vehicle
 from testbed.models.nonlinear import INERTIA
 from testbed.models.sensors import Sensor
 
@@ -74,7 +65,7 @@ def config_text(config: ModelConfig, comments: Mapping[str, str] | None = None) 
         lines += ["", "[coefficients]"] + [line(k, config.coefficients.get(k, 0.0)) for k in INERTIA]
         lines += [
             line(k, config.coefficients[k])
-            for k in BIASES + MOUNTING + CURRENT + (DELAY,)
+            for k in OUTSIDE_EQUATIONS
             if config.coefficients[k] != 0.0 or k in config.free
         ]
         lines += ["", "[terms]"] + [

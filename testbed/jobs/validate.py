@@ -12,7 +12,7 @@ from testbed.data import read_estimates, read_json
 from testbed.outputs import check_outputs
 from testbed.errors import InputError
 from testbed.identification.problem import check_inputs
-from testbed.models.linear import BIASES, CURRENT, DELAY, MOUNTING
+from testbed.models.linear import OUTSIDE_EQUATIONS
 from testbed.jobs.common import write_text, inputs, check_report
 
 __all__ = ["validate_data"]
@@ -67,9 +67,7 @@ def validate_data(
                 f"{estimates}: fitted the nonlinear model over {model['config']}'s terms; {cfg.source} has "
                 "other terms; expected the config the estimates were fitted with"
             )
-        coefficients = read_estimates(
-            estimates, cfg.nonlinear()[0].names + BIASES + MOUNTING + CURRENT + (DELAY,)
-        )[0]
+        coefficients = read_estimates(estimates, cfg.nonlinear()[0].names + OUTSIDE_EQUATIONS)[0]
     validation = validate(experiments, cfg.with_coefficients(coefficients), run_config)
     manoeuvres = {}
     if runs:
