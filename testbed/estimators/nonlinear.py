@@ -75,7 +75,6 @@ from testbed.identification.nonlinear_output_error import (
     present_only,
     flight_residuals,
     output_terms,
-    current_along,
     read_outputs,
     record_fins,
     setup,
@@ -347,7 +346,7 @@ def simplex(
             # the flight fitted to the record less its output biases b, read by the log mounted as
             # g over the ground, the current c along the record's heading (θ ⊕ b ⊕ g ⊕ c = th)
             b, g, c = output_terms(th, m, ch)
-            current, fins = current_along(c, r.heading, len(r.t)), record_fins(r, th, m, ch)[0]
+            current, fins = log_mounting.current_along(c, r.heading, len(r.t)), record_fins(r, th, m, ch)[0]
             x, states = initial_state(
                 model, th[:m], r.t, fins, r.y - b, ch, range(len(ch)), x, R, None, None, g, current
             )

@@ -36,6 +36,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.identification.bounds import coloured_term, crlb
+from testbed.identification.nonlinear_prediction import check_constant_interval
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.problem import check_heading, measured_heading, shifted
 from testbed.identification.recursions import simulated
@@ -46,11 +47,9 @@ from testbed.models.nonlinear_flight import fly_nonlinear
 
 __all__ = [
     "FlightRecord",
-    "check_constant_interval",
     "check_records",
     "coloured_bounds",
     "flight_information",
-    "current_along",
     "neg_log_likelihood",
     "normal_equations",
     "output_terms",
@@ -139,14 +138,6 @@ def record_fins(
     return value, (first / dt)[:, :, None] if along else None
 
 
-def current_along(c: np.ndarray, heading: np.ndarray | None, n: int) -> np.ndarray | None:
-    """The current c in body axes along the record's `heading` (`log_mounting.body_current`; ψ 0
-    where not measured) over its `n` samples, None where c is 0."""
-    if not np.any(c):
-        return None
-    return log_mounting.body_current(c, np.zeros(n) if heading is None else heading)
-
-
 def read_outputs(
     states: np.ndarray, theta: np.ndarray, m: int, ch, heading: np.ndarray | None = None
 ) -> np.ndarray:
@@ -154,19 +145,7 @@ def read_outputs(
     θ ⊕ b ⊕ g ⊕ c ⊕ τ (`theta`, θ's length `m`): the states as read (u, v, w by the log mounted as g over the
     ground, the current turned by the record's `heading`, `log_mounting.read`) plus their biases."""
     b, g, c = output_terms(theta, m, ch)
-    return log_mounting.read(g, states, ch, current_along(c, heading, len(states))) + b
-
-
-def check_constant_interval(experiments: Sequence[Experiment], what: str) -> None:
-    """`InputError` naming the first record whose samples are not at one constant interval (to
-    1e-6 of it), which `what` (the inputs' delay: a shift in samples) needs."""
-    for e in experiments:
-        dt = np.diff(np.asarray(e.t, float))
-        if len(dt) and np.any(np.abs(dt - dt[0]) > 1e-6 * dt[0]):
-            raise InputError(
-                f"{e.source or e.name}: its samples are {dt.min():g} to {dt.max():g} s apart; {what} "
-                "shifts the fins by a fraction of one interval: expected a constant sample interval"
-            )
+    return log_mounting.read(g, states, ch, log_mounting.current_along(c, heading, len(states))) + b
 
 
 def setup(

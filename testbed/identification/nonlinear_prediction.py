@@ -35,6 +35,7 @@ from testbed.models.nonlinear_flight import fly_nonlinear
 __all__ = [
     "ITERATIONS",
     "TOLERANCE",
+    "check_constant_interval",
     "delayed_inputs",
     "first_samples",
     "flights",
@@ -74,21 +75,31 @@ def predict_nonlinear(
 
 
 def _current(e: Experiment, config: ModelConfig) -> np.ndarray | None:
-    """The config's current in body axes along the record's measured heading (ψ 0 where it has
-    none; `log_mounting.body_current`), None where the config has none."""
-    if not np.any(config.current()):
-        return None
-    psi = measured_heading(e)
-    return log_mounting.body_current(config.current(), np.zeros(len(e.t)) if psi is None else psi)
+    """The config's current in body axes along the record's measured heading
+    (`log_mounting.current_along`), None where the config has none."""
+    return log_mounting.current_along(config.current(), measured_heading(e), len(e.t))
+
+
+def check_constant_interval(experiments: Sequence[Experiment], what: str) -> None:
+    """`InputError` naming the first record whose samples are not at one constant interval (to
+    1e-6 of it), which `what` (the inputs' delay: a shift in samples) needs."""
+    for e in experiments:
+        dt = np.diff(np.asarray(e.t, float))
+        if len(dt) and np.any(np.abs(dt - dt[0]) > 1e-6 * dt[0]):
+            raise InputError(
+                f"{e.source or e.name}: its samples are {dt.min():g} to {dt.max():g} s apart; {what} "
+                "shifts the fins by a fraction of one interval: expected a constant sample interval"
+            )
 
 
 def delayed_inputs(e: Experiment, config: ModelConfig) -> np.ndarray:
     """The fins (N, 3) the config's model flies on record `e`: the recorded ones advanced by its
-    inputs' delay τ, δ_rec(t_k + τ) (`problem.shifted` on the record's first sample interval,
-    which a delay needs constant: `nonlinear_output_error.check_constant_interval`)."""
+    inputs' delay τ, δ_rec(t_k + τ) (`problem.shifted` on the record's sample interval, which a
+    delay needs constant: `check_constant_interval`)."""
     tau = config.coefficients[DELAY]
     if tau == 0 or len(e.t) < 2:
         return e.inputs
+    check_constant_interval([e], f"{DELAY} (free or not 0)")
     return shifted(np.asarray(e.inputs, float), tau / (e.t[1] - e.t[0]))[0]
 
 

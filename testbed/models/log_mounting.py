@@ -26,6 +26,7 @@ __all__ = [
     "MOUNTING",
     "body_current",
     "body_current_derivatives",
+    "current_along",
     "mounting_derivatives",
     "matrix",
     "matrix_derivatives",
@@ -162,6 +163,14 @@ def body_current(current: np.ndarray, psi: np.ndarray) -> np.ndarray:
     cos, sin = np.cos(psi), np.sin(psi)
     zero = np.zeros(len(psi), dtype=np.result_type(current, psi))
     return np.column_stack([c_n * cos + c_e * sin, c_e * cos - c_n * sin, zero])
+
+
+def current_along(current: np.ndarray, heading: np.ndarray | None, n: int) -> np.ndarray | None:
+    """`body_current` over a record's `n` samples along its measured `heading` (ψ 0 where it has
+    none), None where the current is 0: `read` then reads no current."""
+    if not np.any(current):
+        return None
+    return body_current(current, np.zeros(n) if heading is None else heading)
 
 
 def body_current_derivatives(psi: np.ndarray) -> np.ndarray:

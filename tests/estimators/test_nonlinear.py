@@ -703,18 +703,21 @@ def test_the_delay_column_of_analyze_is_that_of_the_complex_step_fisher_informat
 
 
 def test_a_delay_on_records_without_a_constant_interval_is_refused(truth):
+    """By the fits (free or given) and by the prediction `validate` makes (given), in one line."""
     config, noisy, _ = truth
     t = noisy.t.copy()
     t[50:] += 0.005  # one interval 25 ms, the others 20 ms
     uneven = replace(noisy, t=t)
-    for cfg in (
-        replace(config, free=FREE + ("input_delay",)),
-        replace(config, free=FREE).with_coefficients({"input_delay": 0.02}),
+    given = replace(config, free=FREE).with_coefficients({"input_delay": 0.02})
+    for run in (
+        lambda: identify([uneven], replace(config, free=FREE + ("input_delay",)), "ml-gn"),
+        lambda: identify([uneven], given, "ml-gn"),
+        lambda: nonlinear_prediction.predict_nonlinear([uneven], given),
     ):
         with pytest.raises(
             InputError, match=r"input_delay \(free or not 0\) shifts the fins .* constant sample interval"
         ) as e:
-            identify([uneven], cfg, "ml-gn")
+            run()
         assert "\n" not in str(e.value)
 
 
