@@ -40,7 +40,8 @@ def _flown(
     from testbed.models import nonlinear_kernels  # numba: only when a model is flown
 
     dtype = complex if any(np.iscomplexobj(a) for a in (theta, x0, fins)) else float
-    t, x0, fins = np.asarray(t, float), np.asarray(x0, dtype), np.asarray(fins, dtype)
+    # contiguous times: a column or a strided slice would compile the flight a second time
+    t, x0, fins = np.ascontiguousarray(t, float), np.asarray(x0, dtype), np.asarray(fins, dtype)
     substeps = substeps_for(t) if substeps is None and len(t) > 1 else substeps
     _check(t, x0, fins, substeps)
     columns = np.zeros(0, dtype=np.int64) if free is None else np.asarray(free, dtype=np.int64).reshape(-1)
