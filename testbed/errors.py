@@ -9,7 +9,7 @@ import numbers
 import unicodedata
 from typing import Mapping, Sequence
 
-__all__ = ["InputError", "check_keys", "is_number", "one_line", "printable"]
+__all__ = ["InputError", "Unflyable", "check_keys", "is_number", "one_line", "printable"]
 
 
 def printable(text: str) -> str:
@@ -28,6 +28,12 @@ class InputError(ValueError):
 
     def __init__(self, message: str = ""):
         super().__init__(printable(str(message)))
+
+
+class Unflyable(InputError):
+    """The model cannot be flown on the records at these coefficients: it has no information
+    there (an `InputError`: exit 2 where the user's config is at fault; an analysis that can
+    cut the records into segments tries them first)."""
 
 
 def one_line(exc: BaseException) -> str:

@@ -26,6 +26,7 @@ __all__ = [
     "assessed",
     "direction_text",
     "identifiability",
+    "on_segments",
     "singular",
 ]
 
@@ -148,13 +149,17 @@ def identifiability(experiments, config, noise_std=None) -> Identifiability:
     dynamic = tuple(n for n in config.free if n not in OUTSIDE_EQUATIONS)
     struct = copied(structural(structure(config.vehicle), theta, dynamic, measured), free)
     out = assessed(free, theta[[ITHETA[base_name(n)] for n in free]], F, struct)
-    if not at.segments:
-        return out
+    return on_segments(out, at.segments, at.why) if at.segments else out
+
+
+def on_segments(result: Identifiability, segments: int, why: str) -> Identifiability:
+    """`result`, computed on `segments` segments of the records because the model diverges over
+    the whole record (`why`), saying so first in its summary."""
     cut = (
-        f"Computed on {at.segments} segments of the records, each with its own initial state: the "
-        f"model diverges over the whole record at these coefficients ({at.why})."
+        f"Computed on {segments} segments of the records, each with its own initial state: the "
+        f"model diverges over the whole record at these coefficients ({why})."
     )
-    return replace(out, summary=(cut, *out.summary), segments=at.segments)
+    return replace(result, summary=(cut, *result.summary), segments=segments)
 
 
 def assessed(

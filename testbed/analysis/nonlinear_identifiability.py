@@ -4,7 +4,10 @@ output-error likelihood at the config's values, from the flight's exact sensitiv
 (`nonlinear_sensitivities.flight`), with the Cramér-Rao bounds, correlations and practical drift
 groups of the linear model's analysis (`identifiability.assessed`).
 
-Each record is flown from its best-fitting initial state (`nonlinear_prediction.flights`); its
+Each record is flown from its best-fitting initial state (`nonlinear_prediction.flights`), or,
+where a flight leaves the finite numbers (an unstable a-priori model), the records are cut into
+the fewest segments on which the flights from their first samples stay in the data's range, as
+the linear model's analysis cuts them (`identifiability.on_segments` says so); its
 measured initial states are parameters of the likelihood as in the fit, eliminated from the
 information (the Schur complement, `bounds.eliminated`: a parameter left with only the rounding
 of its information, such as a heading's output bias beside the initial heading, which ψ entering
@@ -38,12 +41,15 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from testbed.analysis.identifiability import Identifiability, assessed
+from testbed.analysis.identifiability import Identifiability, assessed, on_segments
 from testbed.analysis.screening import SIGNIFICANT, ScreenModel
 from testbed.analysis.structural import Structural
 from testbed.data import Experiment, ModelConfig, split
 from testbed.estimators import Estimate
+from testbed.errors import Unflyable
 from testbed.identification.bounds import NULL, crlb, eliminated
+from testbed.identification.likelihood import FEWEST_SEGMENT, LEAST_SEGMENT
+from testbed.identification.nonlinear_objective import NonlinearObjective
 from testbed.identification.nonlinear_output_error import (
     flight_information,
     pooled_noise,
@@ -106,8 +112,11 @@ def nonlinear_identifiability(
             f"information of shape {np.shape(information)}; expected ({size}, {size}): the "
             f"{len(free)} free coefficients and {len(channels)} initial states in each of {len(recs)} records"
         )
+    segments, why = 0, ""
     if information is None:
-        information = _information(experiments, config, (channels, recs, model, theta), initial, substeps)
+        information, segments, why = _information(
+            experiments, config, (channels, recs, model, theta, idx), initial, substeps
+        )
     H = information
     F = eliminated(H, len(free))
     blind = tuple(n for k, n in enumerate(free) if H[k, k] == 0.0)
@@ -116,7 +125,8 @@ def nonlinear_identifiability(
     )
     steps = substeps_for(recs[0].t) if substeps is None else substeps
     null = rank_tolerance(H, F, sum(len(r.t) for r in recs), len(channels), steps)
-    return assessed(free, theta[idx], F, struct, null)
+    out = assessed(free, theta[idx], F, struct, null)
+    return on_segments(out, segments, why) if segments else out
 
 
 def forward(result: Identifiability) -> dict[str, str]:
@@ -158,19 +168,54 @@ def forward(result: Identifiability) -> dict[str, str]:
     return fixed
 
 
-def _information(experiments, config: ModelConfig, problem: tuple, initial, substeps) -> np.ndarray:
-    """The Fisher information of `config.free` and the records' measured initial states, each
-    record flown from `initial` (else its best fit), with the config's noise (else the
-    residuals' mean square); `problem`: `(channels, records, model, θ)` as `setup` gives them."""
-    channels, recs, model, theta = problem
+def _information(experiments, config: ModelConfig, problem: tuple, initial, substeps) -> tuple:
+    """`(H, segments, why)`: the Fisher information of `config.free` and the records' measured
+    initial states, each record flown from `initial` (else its best fit), with the config's noise
+    (else the residuals' mean square); `problem`: `(channels, records, model, θ, free indices)`
+    as `setup` gives them. Where a record's flight leaves the finite numbers (an unstable
+    a-priori model), the information of the records cut into the fewest segments on which the
+    flights stay in the data's range (`_on_segments`), their number and why."""
+    channels, recs, model, theta, idx = problem
     ch = [STATES.index(c) for c in channels]
-    flown = flights(experiments, config, initial, substeps=substeps)
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
+    try:
+        flown = flights(experiments, config, initial, substeps=substeps)
+    except Unflyable as exc:
+        objective = NonlinearObjective(model, theta, np.asarray(idx), tuple(recs), tuple(ch), held, substeps)
+        H, segments = _on_segments(objective, channels, config.free, config.source or "the config")
+        return H, segments, str(exc).split(": ", 1)[-1].split("; expected")[0]
     m = len(model.names)  # the outputs: the states as read plus their biases
     R = pooled_noise([r.y - read_outputs(x, theta, m, ch) for r, x in zip(recs, flown)], held)
     x0 = np.array([x[0] for x in flown])
-    return flight_information(model, theta, x0, recs, channels, config.free, R, substeps)[0]
+    return flight_information(model, theta, x0, recs, channels, config.free, R, substeps)[0], 0, ""
+
+
+def _on_segments(objective: NonlinearObjective, channels, free, source: str) -> tuple[np.ndarray, int]:
+    """The information of `objective`'s records cut into the fewest segments (1, 2, 4, …, each
+    of at least `LEAST_SEGMENT` rows with a sample, or `FEWEST_SEGMENT` where that is not short
+    enough) on which the model at its a-priori values, flown from each segment's first sample,
+    stays in the data's range, and their number; `Unflyable` where even the shortest diverge."""
+    theta = objective.start
+    for least in (LEAST_SEGMENT, FEWEST_SEGMENT):
+        stage = objective.segmented(objective.shooting(theta, least), least)
+        at = stage.point(theta)
+        if at is not None:
+            H = flight_information(
+                stage.model,
+                stage.theta,
+                stage.first_states(),
+                stage.records,
+                channels,
+                free,
+                at.R,
+                stage.substeps,
+            )[0]
+            return H, stage.pieces
+    raise Unflyable(
+        f"{source}: the model diverges at these coefficients even on {stage.pieces} segments of the "
+        "records; expected coefficients giving a response bounded over a few seconds"
+    )
 
 
 def _check(experiments: Sequence[Experiment], config: ModelConfig) -> None:

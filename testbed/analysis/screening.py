@@ -18,7 +18,8 @@ import numpy as np
 from testbed.analysis.identifiability import UNCERTAIN, Identifiability, direction_text, identifiability
 from testbed.data import Experiment, ModelConfig
 from testbed.estimators import Estimate, Status, identify
-from testbed.identification.bounds import Unflyable, crlb, fisher
+from testbed.errors import Unflyable
+from testbed.identification.bounds import crlb, fisher
 from testbed.identification.problem import base_name, check_fit, expanded
 from testbed.simulation.measurements import noise_from_data
 

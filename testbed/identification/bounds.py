@@ -13,7 +13,7 @@ from typing import Mapping, NamedTuple, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig
-from testbed.errors import InputError
+from testbed.errors import InputError, Unflyable
 from testbed.identification.likelihood import (
     bounded,
     divergence,
@@ -36,7 +36,6 @@ __all__ = [
     "MIN_LAGS",
     "NULL",
     "Analysed",
-    "Unflyable",
     "Bounds",
     "Information",
     "analysed",
@@ -52,11 +51,6 @@ __all__ = [
     "information",
     "lag_window",
 ]
-
-
-class Unflyable(InputError):
-    """The model cannot be flown on the records at these coefficients, even in segments: it has
-    no information there (an `InputError`: exit 2 where the user's config is at fault)."""
 
 
 class Bounds(NamedTuple):

@@ -23,7 +23,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from testbed.data import Experiment, ModelConfig, split, stretches
-from testbed.errors import InputError
+from testbed.errors import InputError, Unflyable
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.problem import measured_heading, shifted
 from testbed.identification.recursions import simulated
@@ -59,7 +59,7 @@ def predict_nonlinear(
     flown by RK4 with `substeps` steps per sample interval from the initial states `initial`
     (record → state → x0: a record split at a dropout names each stretch, `data.split`) gives and
     the best-fitting ones it does not (module doc), over each stretch, NaN between them;
-    `InputError` naming the record where a flight leaves the finite numbers."""
+    `Unflyable` (an `InputError`) naming the record where a flight leaves the finite numbers."""
     pieces = [split(e) for e in experiments]
     flown = iter(flights([p for ps in pieces for p in ps], config, initial, substeps))
     out = []
@@ -149,7 +149,7 @@ def flights(
             states = fly_nonlinear(model, theta, e.t, x0, fins, substeps)
         bad = np.argwhere(~np.isfinite(states))
         if len(bad):
-            raise InputError(
+            raise Unflyable(
                 f"{e.source or e.name}: {config.source or 'the config'}'s model flown from the record's "
                 f"first sample leaves the finite numbers at t = {e.t[bad[0][0]]:g} s; expected a model "
                 "whose flight stays bounded"

@@ -26,6 +26,8 @@ from testbed.captive.config import captive_config
 from testbed.cli import main
 from testbed.data import Experiment, read_config, read_csv, write_config, write_csv
 from testbed.estimators import identify
+from testbed.errors import Unflyable
+from testbed.identification.nonlinear_prediction import first_samples, flights
 from testbed.models.linear import STATES
 from testbed.models.nonlinear_flight import fly_nonlinear
 from testbed.simulation import runs
@@ -188,6 +190,48 @@ def test_free_all_fits_the_list_as_written_and_reports_the_screen(truth, tmp_pat
     doc = json.loads(out.read_text())
     assert list(doc["coefficients"]) == [*DETERMINED, ZERO] and "fixed" not in doc
     assert list(doc["screen"]) == [ZERO]
+
+
+def _unstable(config, factor):
+    """The config with N_uv (the yaw moment of sideslip) `factor` times its value: at −1 the
+    flight from the record's first sample leaves the finite numbers within its 4 s, at −3 the
+    flights from every sample do within a fifth of a second."""
+    return config.with_coefficients({"N_uv": factor * config.terms["N_uv"]})
+
+
+def test_an_unstable_a_priori_model_is_analysed_on_the_segments_it_can_be_flown_on(truth):
+    """The information of a model whose flight over the whole record diverges is that of the
+    records cut where it stays bounded, each piece with its own initial state: the same as the
+    pieces analysed as records of their own, and the summary says so first."""
+    config, record = truth
+    prior = replace(_unstable(config, -1.0), free=DETERMINED, screen=False)
+    with pytest.raises(Unflyable):
+        flights([record], prior, first_samples([record], prior))
+    cut = nonlinear_identifiability([record], prior)
+    assert cut.segments > 1 and cut.summary[0].startswith(f"Computed on {cut.segments} segments")
+    assert "leaves the finite numbers" in cut.summary[0] and np.all(np.isfinite(cut.crlb_std))
+    # the pieces (nearly) equal, as many rows each, each flown from its first sample
+    edges = np.linspace(0, len(record.t), cut.segments + 1).round().astype(int)
+    pieces = [
+        Experiment(f"piece {k}", record.t[a:b], STATES, record.y[a:b], record.inputs[a:b])
+        for k, (a, b) in enumerate(zip(edges[:-1], edges[1:]))
+    ]
+    alone = nonlinear_identifiability(pieces, prior, initial=first_samples(pieces, prior))
+    assert alone.segments == 0
+    np.testing.assert_allclose(cut.fisher, alone.fisher, rtol=1e-9)
+
+
+@pytest.mark.parametrize("factor, skipped", [(-1.0, False), (-3.0, True)])
+def test_the_screen_starts_from_an_unstable_a_priori_model(truth, factor, skipped):
+    """An unstable prior is no refusal: its stage 1 reads the information on segments (−1), or,
+    where even the shortest diverge (−3), is skipped with the reason; the fit from the starts
+    that fly recovers every candidate within 3 σ."""
+    config, record = truth
+    s = screening([record], replace(_unstable(config, factor), free=DETERMINED), model=NONLINEAR)
+    assert bool(s.skipped) is skipped and ("even on" in s.skipped) is skipped, s.skipped
+    assert s.fit.converged and s.fit.free == DETERMINED
+    for n, v, sd in zip(s.fit.free, s.fit.values, s.fit.std):
+        assert abs(v - config.terms[n]) <= 3 * sd, (n, v, config.terms[n], sd)
 
 
 @pytest.mark.slow
