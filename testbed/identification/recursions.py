@@ -384,11 +384,13 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
         a = wr @ prob.read_matrix(r, p[:nf])  # the weights on the states: Cᵀ w, C = ∂y/∂x
         Phi = d.E[:, :NX]
         mu = scan.propagate(Phi.T, a[-1], a[-2::-1])[::-1]  # μ[k], k = 0 … N−1
-        dPhi = np.zeros((X.shape[2], NX, NX), dtype=X.dtype)
-        dPhi[:nf] = d.dE[:, :, :NX]
-        # H1[i, l] = Σ_k μ[k+1]ᵀ ∂Φ_i ∂x[k]/∂p_l, as one product over (k, b): (q, N·10) (N·10, q)
-        T = np.tensordot(dPhi, mu[1:], axes=([1], [1]))  # T[i, b, k] = (∂Φ_iᵀ μ[k+1])_b
-        H1 = T.transpose(0, 2, 1).reshape(len(dPhi), -1) @ X[:-1].reshape(-1, X.shape[2])
+        q = X.shape[2]
+        # H1[i, l] = Σ_k μ[k+1]ᵀ ∂Φ_i ∂x[k]/∂p_l = Σ_ab ∂Φ_i[a, b] W[a, b, l] with
+        # W[a, b, l] = Σ_k μ[k+1]_a ∂x_b[k]/∂p_l: one product over the samples, (10, N) (N, 10·q);
+        # only the coefficients move Φ (the rows of H1 past n_free are 0)
+        W = mu[1:].T @ X[:-1].reshape(len(X) - 1, NX * q)
+        H1 = np.zeros((q, q), dtype=W.dtype)
+        H1[:nf] = d.dE[:, :, :NX].reshape(nf, NX * NX) @ W.reshape(NX * NX, q)
         Hr = H1 + H1.T
         if nf:
             Hr[:nf, :nf] += np.tensordot(d.d2E, mu[1:].T @ w[:-1], axes=([2, 3], [0, 1]))
