@@ -380,15 +380,19 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
         d = models[prob.key(r)]
         inputs = prob.inputs(r, p[:nf])
         x = trajectory(d, prob.x0(r, p), inputs)
-        w, X = _w(x, inputs), _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX), p[:nf], biases=False)
+        w, q = _w(x, inputs), nf + len(r.measured)
         a = wr @ prob.read_matrix(r, p[:nf])  # the weights on the states: Cᵀ w, C = ∂y/∂x
         Phi = d.E[:, :NX]
         mu = scan.propagate(Phi.T, a[-1], a[-2::-1])[::-1]  # μ[k], k = 0 … N−1
-        q = X.shape[2]
         # H1[i, l] = Σ_k μ[k+1]ᵀ ∂Φ_i ∂x[k]/∂p_l = Σ_ab ∂Φ_i[a, b] W[a, b, l] with
-        # W[a, b, l] = Σ_k μ[k+1]_a ∂x_b[k]/∂p_l: one product over the samples, (10, N) (N, 10·q);
-        # only the coefficients move Φ (the rows of H1 past n_free are 0)
-        W = mu[1:].T @ X[:-1].reshape(len(X) - 1, NX * q)
+        # W[a, b, l] = Σ_k μ[k+1]_a ∂x_b[k]/∂p_l; only the coefficients move Φ (the rows of H1
+        # past n_free are 0)
+        mixed = prob.mounted and bool(np.any(r.measured < 3))
+        if mixed:  # the reading's own curvature needs the states' sensitivities whole
+            X = _sensitivities(prob, r, d, x, np.arange(NX), np.ones(NX), p[:nf], biases=False)
+            W = (mu[1:].T @ X[:-1].reshape(len(X) - 1, NX * q)).reshape(NX, NX, q)
+        else:
+            W = _adjoint_products(prob, r, d, x, mu, p[:nf])
         H1 = np.zeros((q, q), dtype=W.dtype)
         H1[:nf] = d.dE[:, :, :NX].reshape(nf, NX * NX) @ W.reshape(NX * NX, q)
         Hr = H1 + H1.T
@@ -401,11 +405,30 @@ def curvature(prob: Problem, p: np.ndarray, weights: Sequence[np.ndarray]) -> np
             Hr[:nf, j] += cross
             Hr[j, :nf] += cross
             Hr[j, j] += np.sum(d.E[:, NX : NX + NU] * (mu[1:].T @ prob.input_curvatures(r, p[:nf])[:-1]))
-        if prob.mounted and np.any(r.measured < 3):
+        if mixed:
             Hr += _read_curvature(prob, r, x, X, wr, p[:nf])
         cols = prob.columns(r)
         H[np.ix_(cols, cols)] += Hr
     return H
+
+
+def _adjoint_products(
+    prob: Problem, r: Record, d: Discrete, x: np.ndarray, mu: np.ndarray, values
+) -> np.ndarray:
+    """`W[a, b, l] = Σ_k μ[k+1]_a ∂x_b[k]/∂p_l` (10, 10, q) over k < N − 1, record r's states'
+    sensitivities to its own parameters taken a piece at a time (`sensitivity_parts`), never
+    held whole: per part and piece one product over its samples, (10, P) (P, channels·params)."""
+    q, last = prob.n_free + len(r.measured), len(x) - 1
+    W = np.zeros((NX, NX, q), dtype=np.result_type(x, d.E, mu))
+    for channels, params, pieces in sensitivity_parts(
+        prob, r, d, x, np.arange(NX), np.ones(NX), scan.PIECE, values=values, biases=False
+    ):
+        at = (slice(None), channels[:, None], params)
+        for samples, piece in pieces:
+            keep = samples < last  # μ[k+1] exists for k < N − 1
+            S = piece[:, keep].transpose(1, 0, 2).reshape(np.count_nonzero(keep), -1)
+            W[at] += (mu[samples[keep] + 1].T @ S).reshape(NX, len(channels), len(params))
+    return W
 
 
 def _read_curvature(
