@@ -19,7 +19,8 @@ Every method reports its progress to `callback(Progress)` after each iteration (
 
 The modules, in layer order: the contract (`base`), the paper's simplex (`simplex`), the
 equation-error methods' intervals (`intervals`), the filters' algebra, model and options
-(`square_root`, `filter_model`, `filter_options`), fits from several starts (`multistart`),
+(`square_root`, `filter_model`, `filter_options`), a box of bounds (`box_bounds`), fits from
+several starts (`multistart`),
 the default ML optimiser over either model's likelihood (`trust_region`), the filters' passes
 (`filter_passes`), the nonlinear model's fit by it (`nonlinear_fit`), the filters as methods
 (`mekf`), equation error (`equation_error`) and the nonlinear model's start from it

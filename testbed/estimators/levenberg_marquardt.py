@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.estimators.base import Outcome, Progress, Status
+from testbed.estimators.box_bounds import held_on_bounds, into_box, start_in_box
 from testbed.identification import bounds, likelihood, linear_objective
 from testbed.identification.objective import Objective, Point
 from testbed.identification.problem import Problem
@@ -22,6 +23,7 @@ def levenberg_marquardt(
     callback=None,
     tol: float = 1e-3,
     at: Point | None = None,
+    box: tuple | None = None,
 ) -> Outcome:
     """Levenberg-Marquardt on the weighted cost `½ Σ eᵀR⁻¹e` of `prob` (a linear `Problem`, or
     any `Objective`) from the free values of `p`, R re-estimated at every point taken.
@@ -32,9 +34,15 @@ def levenberg_marquardt(
     eliminated), else on the whole parameter vector, the initial states stepping with θ. A step
     that lowers the cost (R held at the point's) is taken and λ falls tenfold; else λ rises
     tenfold, STALLED beyond 1e12. Converged when the Gauss-Newton step is shorter than `tol`
-    Cramér-Rao σ. `at`: `prob.point(p[:n_free])`, if the caller has it."""
+    Cramér-Rao σ. `at`: `prob.point(p[:n_free])`, if the caller has it. `box`: `(low, high)` of
+    the free values (±inf: open), the box the fit keeps them in: a start outside it is moved onto
+    it, a value on its bound with the descent pointing out is held there for the iteration (the
+    bound's KKT condition, `box_bounds.held_on_bounds`: left out of the step and of the
+    convergence test), the others' step is stopped on the box (projected), and `Outcome.held`
+    marks those it ends held on."""
     obj = linear_objective.as_objective(prob)
     nf = obj.n_free
+    p, box, at = start_in_box(p, nf, box, at)
     x = obj.point(p[:nf]) if at is None else at
     if x is None:
         return Outcome(p, Status.DIVERGED, 0, np.array([p[:nf]]))
@@ -44,33 +52,42 @@ def levenberg_marquardt(
         g, M = obj.terms(x)
         # F d = g: θ's reduced equations where the initial states are fitted at every θ
         F, gr = likelihood.reduced(M, g, nf) if obj.projected else (M, g)
-        # the Gauss-Newton step in Cramér-Rao units: √(gᵀ F⁻¹ g)
-        if np.sqrt(max(gr @ bounds.crlb(F).covariance @ gr, 0.0)) < tol:
+        # the values a bound holds: by θ's descent with the initial states at their best
+        descent = gr[:nf] if obj.projected or box is None else likelihood.reduced(M, g, nf)[1]
+        held = held_on_bounds(x.p[:nf], descent, box)
+        keep = np.r_[~held, np.ones(len(F) - nf, dtype=bool)]
+        Fk, gk = F[np.ix_(keep, keep)], gr[keep]
+        # the Gauss-Newton step of the values not held, in Cramér-Rao units: √(gᵀ F⁻¹ g)
+        if np.sqrt(max(gk @ bounds.crlb(Fk).covariance @ gk, 0.0)) < tol:
             status = Status.CONVERGED
             break
         if it == max_iter:
             break
-        W0, D = obj.weighted_cost(x.res, x.R), np.diag(np.maximum(np.diag(F), 1e-300))
+        W0, D = obj.weighted_cost(x.res, x.R), np.diag(np.maximum(np.diag(Fk), 1e-300))
         while True:
+            d = np.zeros(len(F))
             try:
                 # (F + λ diag F) d = g
-                d = np.linalg.solve(F + lam * D, gr)
+                d[keep] = np.linalg.solve(Fk + lam * D, gk)
             except np.linalg.LinAlgError:  # singular even damped: a larger λ
                 trial = None
-            else:  # projected: θ's step, the initial states fitted again there
+            else:  # θ's step stopped on the box; projected: the initial states fitted again there
+                d[:nf] = into_box(x.p[:nf] + d[:nf], box) - x.p[:nf]
                 trial = obj.moved(x, np.concatenate([d, np.zeros(len(x.p) - nf)]) if obj.projected else d)
             if trial is not None and obj.weighted_cost(trial.res, x.R) < W0:
                 x, lam = trial, max(lam / 10, 1e-12)
                 break
             lam *= 10
             if lam > 1e12:
-                return _outcome(x, Status.STALLED, it, history, M)
+                return _outcome(x, Status.STALLED, it, history, M, held, box)
         history.append(x.p[:nf].copy())
         if callback is not None:
             callback(Progress(it + 1, x.p[:nf].copy(), x.J))
-    return _outcome(x, status, it, history, M)
+    return _outcome(x, status, it, history, M, held, box)
 
 
-def _outcome(x: Point, status: Status, it: int, history: list, M) -> Outcome:
-    """Where it stopped: the point `x`, with M there and its states and residuals."""
-    return Outcome(x.p, status, it, np.array(history), M, cost=x.J, simulated=(x.xs, x.res))
+def _outcome(x: Point, status: Status, it: int, history: list, M, held: np.ndarray, box) -> Outcome:
+    """Where it stopped: the point `x`, with M there and its states and residuals, and the values
+    `held` on a bound of the `box` (None where there is none)."""
+    held = held if box is not None and held.any() else None
+    return Outcome(x.p, status, it, np.array(history), M, cost=x.J, simulated=(x.xs, x.res), held=held)

@@ -200,7 +200,8 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
     tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name not in START_OPTIONS}
 
     fits: list[Fit] = []
-    # the bounds `ml-gn` keeps (the other optimisers refuse them: `Method.bounds`), and its box draws too
+    # the bounds `ml-gn` and `ml-lm` keep (the other optimisers refuse them: `Method.bounds`), and
+    # the box draws' too
     box = config.box([base_name(n) for n in prob.free]) if config.bounds else None
 
     def begin(theta: np.ndarray) -> tuple[np.ndarray, float, Point | None]:
@@ -220,8 +221,8 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
             more = {"follow": tuple(f.outcome.optimum for f in earlier if f.outcome.optimum)}
         if at is not None:
             more["at"] = at
-        if optimiser is trust_region.trust_region and box is not None:
-            more["box"] = box
+        kept = {"box": box} if box is not None else {}  # the optimisers that keep bounds take the box
+        more |= kept
         done = sum(f.outcome.iterations for f in fits)  # the iterations count on over the starts
 
         def report(step: Progress) -> None:
@@ -233,7 +234,7 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
         if first is None or (first[2] == 1 and np.isfinite(J0)):
             out = optimiser(prob, p0, callback=report if callback else None, **tuning, **more)
         else:  # a start that diverges over the whole record: on segments first
-            out = _shooting(optimiser, prob, first, tuning, report if callback else None)
+            out = _shooting(optimiser, prob, first, tuning | kept, report if callback else None)
         if out.joined >= 0:  # on an earlier fit's path: it ends where that one did
             twin = [f for f in earlier if f.outcome.optimum][out.joined]
             out = replace(twin.outcome, iterations=out.iterations, history=out.history, optimum=(), joined=-1)
@@ -527,6 +528,7 @@ ML_LM = _method(
     GaussNewtonOptions,
     "maximum likelihood output error by Gauss-Newton with Levenberg-Marquardt damping",
     nonlinear.levenberg_marquardt,
+    bounds=True,
 )
 
 

@@ -8,7 +8,7 @@ contract and `Estimate` as the linear model's methods:
   below, kept as the linear model's are (`multistart.best_fit`);
 - `ml-lm`: the linear model's `levenberg_marquardt` on the same objective, the initial states
   stepping with θ, from `config`, `equation-error` or `auto` (both run to their end, the least
-  cost kept); no bounds, no multiple shooting;
+  cost kept), in the same box as `ml-gn` (`box_bounds`); no multiple shooting;
 - `ml-nm`: the paper's Nelder-Mead simplex (`simplex`) on the same likelihood,
   `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients in coordinates scaled by the start
   (θᵢ/|θᵢ,start|). Each record's initial state is concentrated out at every θ to first order:
@@ -220,8 +220,8 @@ def _output_error(
         raise OptionError(name, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     noise = {c: s for c, s in (config.noise_std or {}).items() if c in channels}
-    box = config.box(config.free) if gn else None
-    trust = {"bounds": box, "segments": int(options.segments)} if gn else {"optimiser": name}
+    box = config.box(config.free)
+    trust = {"bounds": box} | ({"segments": int(options.segments)} if gn else {"optimiser": name})
     fits: list[Fit] = []
     notes: dict[str, dict] = {}
     with counting() as tally:

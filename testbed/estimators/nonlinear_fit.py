@@ -158,8 +158,8 @@ def fit(
     the same problem (`Outcome.optimum`): a fit that steps into one's basin stops there
     (`Outcome.joined`), its σ NaN (the earlier fit's are the caller's).
     `segments`: multiple shooting's first stage, pieces per record (1: none). `optimiser`:
-    `ml-gn` (`trust_region`, all of the above) or `ml-lm` (`levenberg_marquardt`: no bounds, no
-    multiple shooting; `follow` is then unused)."""
+    `ml-gn` (`trust_region`, all of the above) or `ml-lm` (`levenberg_marquardt`: the bounds,
+    no multiple shooting; `follow` is then unused)."""
     if not (isinstance(max_iterations, int) and max_iterations >= 1 and tolerance > 0):
         raise InputError(
             f"tolerance={tolerance!r}, max_iterations={max_iterations!r}; expected a tolerance > 0 "
@@ -170,11 +170,10 @@ def fit(
     x0 = prob.first_states()[:, list(prob.ch)].ravel() if prob.free_initial else []
     at = prob.point(values) if at is None else at
     if optimiser == "ml-lm":
-        if box is not None:
-            raise InputError(f"bounds {bounds!r}; ml-lm keeps no bounds: expected none, or ml-gn")
         out = levenberg_marquardt(
-            prob, np.concatenate([values, x0]), max_iter=max_iterations, tol=tolerance, callback=report, at=at
-        )
+            prob, np.concatenate([values, x0]), max_iter=max_iterations, tol=tolerance, callback=report,
+            at=at, box=box,
+        )  # fmt: skip
     else:
         out = trust_region(
             prob, np.concatenate([values, x0]), max_iter=max_iterations, tol=tolerance, callback=report,

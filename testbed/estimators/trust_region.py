@@ -71,6 +71,7 @@ from testbed.identification.linear_objective import as_objective
 from testbed.identification.objective import Objective, Point, following
 from testbed.identification.problem import Problem
 from testbed.estimators.base import Outcome, Progress, Status
+from testbed.estimators.box_bounds import held_on_bounds, into_box, start_in_box
 
 __all__ = [
     "ACCEPT",
@@ -212,16 +213,6 @@ def _terms(prob: Objective, x: Point) -> tuple[np.ndarray, np.ndarray] | None:
     return (g, M) if np.all(np.isfinite(g)) and np.all(np.isfinite(M)) else None
 
 
-def _held(theta: np.ndarray, g: np.ndarray, box: tuple | None) -> np.ndarray:
-    """The free values held on their bound this iteration (bool, n_free): on it with the
-    likelihood's descent direction `g` (the reduced normal equations' right side) pointing out of
-    the box, the KKT condition of the bound (its multiplier has the right sign)."""
-    if box is None:
-        return np.zeros(len(theta), dtype=bool)
-    low, high = box
-    return ((theta <= low) & (g <= 0)) | ((theta >= high) & (g >= 0))
-
-
 def bounded_step(
     F: np.ndarray, g: np.ndarray, s: np.ndarray, delta: float, theta: np.ndarray, free: np.ndarray, box
 ) -> np.ndarray:
@@ -247,12 +238,7 @@ def bounded_step(
             break
         d[crossed] = np.clip(theta + d, low, high)[crossed] - theta[crossed]
         hit |= crossed
-    return _in_box(theta + d, box) - theta
-
-
-def _in_box(theta: np.ndarray, box: tuple | None) -> np.ndarray:
-    """θ moved onto the box, where it lies outside."""
-    return theta if box is None else np.clip(theta, box[0], box[1])
+    return into_box(theta + d, box) - theta
 
 
 @dataclass(frozen=True)
@@ -288,7 +274,7 @@ def _descend(
     optima `follow` ((θ, σ) of earlier fits on the same problem): inside its quadratic basin,
     bound for the same point. `terms`: `_terms` at `start`, if known. `box`: (low, high) of the
     free values (None: unbounded); a value on its bound with the descent pointing out is held
-    there (`_held`), the others step in the box (the step clipped onto it)."""
+    there (`box_bounds.held_on_bounds`), the others step in the box (the step clipped onto it)."""
     nf, x, it, steps = prob.n_free, start, 0, []
     reach = 1.0  # the share of the initial states' own step taken: a region of its own
     while True:
@@ -300,7 +286,7 @@ def _descend(
             return Descent(x, Status.DIVERGED, it, delta, None)
         g, M = terms
         F, gr = likelihood.reduced(M, g, nf)
-        held = _held(x.p[:nf], gr, box)
+        held = held_on_bounds(x.p[:nf], gr, box)
         free = ~held
         # the initial states' own Gauss-Newton step and decrease (×2), none where they are fitted
         # at every θ
@@ -398,11 +384,7 @@ def trust_region(
     keeps them in (a start outside it is moved onto it; `Outcome.held` marks those it ends on)."""
     prob = as_objective(prob)
     nf = prob.n_free
-    if box is not None:
-        box = tuple(np.asarray(b, float) for b in box)
-        inside = _in_box(p[:nf], box)
-        if not np.array_equal(inside, p[:nf]):
-            p, at = np.concatenate([inside, p[nf:]]), None
+    p, box, at = start_in_box(p, nf, box, at)
     history: list[np.ndarray] = [p[:nf].copy()]
 
     def report(x: Point) -> None:
@@ -547,7 +529,7 @@ def _leave_saddle(
             for sign in (1.0, -1.0):
                 d = sign * size * v
                 if box is not None:
-                    d = _in_box(x.p[:nf] + d, box) - x.p[:nf]
+                    d = into_box(x.p[:nf] + d, box) - x.p[:nf]
                 trial = prob.moved(x, d if prob.projected else following(M, np.zeros(len(M)), nf, d)[0])
                 if trial is not None and trial.J < x.J:
                     return trial

@@ -1,6 +1,6 @@
 """Bounds on a nonlinear model config's free coefficients (`[identify] bounds`, and the physical
 sides `regressors.physical_bounds` on by default): the config reads and writes them and refuses
-what cannot be one; `ml-gn` keeps every coefficient in its box, and where a bound holds one the
+what cannot be one; `ml-gn` and `ml-lm` keep every coefficient in its box, and where a bound holds one the
 fit is the fit of the others with it fixed there (the bound's KKT point), its σ NaN, the bound
 named; the methods that keep none refuse them."""
 
@@ -19,6 +19,8 @@ from testbed.data import config_text, parse_config
 from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.models.regressors import physical_bounds
+
+KEEPERS = ["ml-gn", "ml-lm"]  # the methods that keep bounds: every test of a box runs against each
 
 
 def test_the_physical_sides_are_the_components_drags():
@@ -65,17 +67,18 @@ def test_the_config_reads_writes_and_checks_its_bounds(truth):  # noqa: F811
         assert "\n" not in str(exc.value) and "c.toml: [identify]" in str(exc.value)
 
 
-def test_a_bound_that_holds_gives_the_fit_of_the_others_with_it_fixed_there(truth):  # noqa: F811
+@pytest.mark.parametrize("method", KEEPERS)
+def test_a_bound_that_holds_gives_the_fit_of_the_others_with_it_fixed_there(truth, method):  # noqa: F811
     """`Y_uv` bounded below its value in the data: the fit ends on the bound, and the other
     coefficients are where the fit with `Y_uv` fixed at the bound puts them."""
     config, record = truth
     start = replace(config, free=DETERMINED, screen=False)
-    free = identify([record], start, "ml-gn", start="config")
+    free = identify([record], start, method, start="config")
     high = config.terms["Y_uv"] - 20 * free.std[0]  # far inside the region the data exclude
     boxed = identify(
         [record],
         replace(start, bounds={"Y_uv": (-math.inf, high)}).with_coefficients({"Y_uv": high}),
-        "ml-gn",
+        method,
         start="config",
     )
     assert boxed.at_bounds == {"Y_uv": pytest.approx(high)} and boxed.converged
@@ -86,7 +89,7 @@ def test_a_bound_that_holds_gives_the_fit_of_the_others_with_it_fixed_there(trut
     fixed = identify(
         [record],
         replace(start, free=DETERMINED[1:]).with_coefficients({"Y_uv": high}),
-        "ml-gn",
+        method,
         start="config",
     )
     np.testing.assert_allclose(boxed.values[1:], fixed.values, rtol=0, atol=1e-3 * np.max(fixed.std))
@@ -94,14 +97,15 @@ def test_a_bound_that_holds_gives_the_fit_of_the_others_with_it_fixed_there(trut
     assert boxed.cost >= free.cost - 1e-9 and boxed.cost == pytest.approx(fixed.cost, abs=1e-6)
 
 
-def test_a_start_on_the_wrong_side_of_a_bound_ends_on_its_side(truth):  # noqa: F811
+@pytest.mark.parametrize("method", KEEPERS)
+def test_a_start_on_the_wrong_side_of_a_bound_ends_on_its_side(truth, method):  # noqa: F811
     """A term bounded to ≤ 0 and started at 50 is moved onto its side, 0, and stays there or
     inside; unbounded, it ends where the data put it (69 in the captive model that flew them)."""
     config, record = truth
     start = replace(config, free=(*DETERMINED, "Y_v|v|"), screen=False).with_coefficients({"Y_v|v|": 50.0})
-    est = identify([record], replace(start, bounds={"Y_v|v|": (-math.inf, 0.0)}), "ml-gn", start="config")
+    est = identify([record], replace(start, bounds={"Y_v|v|": (-math.inf, 0.0)}), method, start="config")
     assert est.values[-1] <= 0.0
-    free = identify([record], start, "ml-gn", start="config")
+    free = identify([record], start, method, start="config")
     assert abs(free.values[-1] - config.terms["Y_v|v|"]) <= 3 * free.std[-1] and free.values[-1] > 0
 
 
@@ -113,37 +117,40 @@ def test_a_method_that_keeps_no_bounds_refuses_them(truth, method):  # noqa: F81
         identify([record], boxed, method)
 
 
-@pytest.mark.parametrize("method", ["ml-lm", "ml-nr", "ml-nm", "ml-fem", "mekf", "equation-error"])
+@pytest.mark.parametrize("method", ["ml-nr", "ml-nm", "ml-fem", "mekf", "equation-error"])
 def test_a_linear_method_that_keeps_no_bounds_refuses_them(method):
     from estimators.test_trust_region import VERTICAL
     from studies.remus import example_config, experiments
 
     config = example_config(VERTICAL)
     boxed = replace(config, bounds={config.free[0]: (-math.inf, math.inf)})
-    with pytest.raises(InputError, match=f"{method} does not keep bounds; expected ml-gn") as exc:
+    with pytest.raises(
+        InputError, match=f"{method} does not keep bounds; expected ml-gn, ml-lm, or no"
+    ) as exc:
         identify(experiments(seed=2, duration=20.0)[1:], boxed, method)
     assert "\n" not in str(exc.value)
 
 
-def test_a_linear_fit_on_its_bound_is_the_fit_of_the_others_with_it_fixed_there():
-    """The linear model's `ml-gn` (the same optimiser) keeps `[identify] bounds` too: a
-    coefficient bounded 20 σ short of its estimate ends on the bound, its σ NaN, and the others
+@pytest.mark.parametrize("method", KEEPERS)
+def test_a_linear_fit_on_its_bound_is_the_fit_of_the_others_with_it_fixed_there(method):
+    """The linear model's `ml-gn` and `ml-lm` (the same optimisers) keep `[identify] bounds` too:
+    a coefficient bounded 20 σ short of its estimate ends on the bound, its σ NaN, and the others
     where the fit with it fixed there puts them."""
     from estimators.test_trust_region import VERTICAL
     from studies.remus import example_config, experiments
 
     data = experiments(seed=2, duration=20.0)[1:]
     config = example_config(VERTICAL)
-    free = identify(data, config, "ml-gn", start="config")
+    free = identify(data, config, method, start="config")
     name, value, std = config.free[0], free.values[0], free.std[0]
     bound = value - 20 * std * np.sign(value)  # toward 0: the box (bound, ∞) or (−∞, bound) excludes it
     box = (bound, math.inf) if bound > value else (-math.inf, bound)
     start = replace(config, bounds={name: box}).with_coefficients({name: bound})
-    boxed = identify(data, start, "ml-gn", start="config")
+    boxed = identify(data, start, method, start="config")
     assert boxed.at_bounds == {name: pytest.approx(bound)} and boxed.converged
     assert math.isnan(boxed.std[0]) and f"on its bounds: {name}" in boxed.message
     fixed = identify(
-        data, replace(config, free=config.free[1:]).with_coefficients({name: bound}), "ml-gn", start="config"
+        data, replace(config, free=config.free[1:]).with_coefficients({name: bound}), method, start="config"
     )
     np.testing.assert_allclose(boxed.values[1:], fixed.values, rtol=0, atol=1e-2 * np.max(fixed.std))
     np.testing.assert_allclose(boxed.std[1:], fixed.std, rtol=1e-2)

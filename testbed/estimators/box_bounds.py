@@ -1,0 +1,40 @@
+"""A box of bounds on the free values, `(low, high)` arrays (±inf: open; None: no box), as the
+optimisers that keep one (`ml-gn`, `ml-lm`) use it: a start moved into it, the values a bound holds
+at an iteration (the KKT condition) and a step stopped on it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["held_on_bounds", "into_box", "start_in_box"]
+
+
+def held_on_bounds(theta: np.ndarray, g: np.ndarray, box: tuple | None) -> np.ndarray:
+    """The free values held on their bound this iteration (bool, n_free): on it with the
+    likelihood's descent direction `g` (the reduced normal equations' right side) pointing out of
+    the box, the KKT condition of the bound (its multiplier has the right sign)."""
+    if box is None:
+        return np.zeros(len(theta), dtype=bool)
+    low, high = box
+    return ((theta <= low) & (g <= 0)) | ((theta >= high) & (g >= 0))
+
+
+def into_box(theta: np.ndarray, box: tuple | None) -> np.ndarray:
+    """θ moved onto the box, where it lies outside."""
+    return theta if box is None else np.clip(theta, box[0], box[1])
+
+
+def start_in_box(
+    p: np.ndarray, n_free: int, box: tuple | None, at=None
+) -> tuple[np.ndarray, tuple | None, object]:
+    """`(p, box, at)`: the start's parameter vector with its free values (the first `n_free`)
+    moved into the box, the box as float arrays, and `at` (the point at `p`, if the caller has it)
+    kept only where nothing moved."""
+    if box is None:
+        return p, None, at
+    box = tuple(np.asarray(b, float) for b in box)
+    inside = into_box(p[:n_free], box)
+    if np.array_equal(inside, p[:n_free]):
+        return p, box, at
+    return np.concatenate([inside, p[n_free:]]), box, None
