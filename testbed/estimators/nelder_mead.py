@@ -5,12 +5,13 @@ until a run ends where it began, with the noise re-estimated between runs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from testbed.estimators import trust_region
 from testbed.estimators.base import Outcome, Progress, Status
+from testbed.estimators.box_bounds import into_box, start_in_box
 from testbed.estimators.newton_raphson import length_stages
 from testbed.estimators import simplex
 from testbed.estimators.simplex import STEPS, simplex_coefficients, simplex_run
@@ -39,6 +40,7 @@ def nelder_mead(
     restarts: bool = True,
     coordinates: str | None = None,
     follow: tuple = (),
+    box: tuple | None = None,
 ) -> Outcome:
     """The paper's eight-step simplex on J_M(θ) with R fixed; R relaxed between simplex runs.
 
@@ -86,7 +88,29 @@ def nelder_mead(
     rule, R is relaxed at its best corner and the same simplex goes on, its corners' J
     re-evaluated under the new R. Converged when it stops by its rule and that R update changes
     no variance by more than `r_tol`; STALLED after `max_relaxations` R updates.
+
+    `box`: `(low, high)` of the free values (±inf: open), the box the fit keeps them in: a start
+    outside it is moved onto it, and a corner whose θ lies outside costs J_M at θ moved onto the
+    box plus its squared distance from there in the simplex's coordinates over N (`_Frame`), so
+    the simplex searches the box and comes back to it; `Outcome.held` marks the values that end
+    on a bound.
     """
+    p, box, _ = start_in_box(p, prob.n_free, box)
+    out = _simplex(
+        prob, p, max_iter, callback, eps, step, restart_step, r_tol, max_relaxations, coefficients,
+        first_length, stage_eps, restarts, coordinates, follow, box,
+    )  # fmt: skip
+    if box is None:
+        return out
+    on = (out.p[: prob.n_free] <= box[0]) | (out.p[: prob.n_free] >= box[1])
+    return replace(out, held=on if on.any() else None)
+
+
+def _simplex(
+    prob, p, max_iter, callback, eps, step, restart_step, r_tol, max_relaxations, coefficients,
+    first_length, stage_eps, restarts, coordinates, follow, box,
+) -> Outcome:  # fmt: skip
+    """`nelder_mead` in the box `box` (None: none)."""
     nf = prob.n_free
     max_iter = SIMPLEX_ITERATIONS * nf if max_iter is None else max_iter
     coef = simplex_coefficients(coefficients, nf)
@@ -111,8 +135,8 @@ def nelder_mead(
 
     def framed(stage: Problem, theta: np.ndarray, R: np.ndarray) -> _Frame:
         if coordinates == "scaled":
-            return _Frame(np.zeros(nf), scale)
-        return _information_frame(stage, theta, R, scale)
+            return _Frame(np.zeros(nf), scale, box)
+        return replace(_information_frame(stage, theta, R, scale), box=box)
 
     if not restarts:
         R = likelihood.noise_variance(
@@ -133,8 +157,8 @@ def nelder_mead(
         while True:
             frame = framed(stage, theta, R)
 
-            def J(v: np.ndarray, cost=cost, R=R, frame=frame) -> float:
-                return cost(frame.theta(v), R)
+            def J(v: np.ndarray, cost=cost, R=R, frame=frame, n=stage.n_samples) -> float:
+                return cost(frame.theta(v), R) + frame.outside(v) / n
 
             x = frame.x(theta)
             J_start = J(x)
@@ -208,17 +232,29 @@ def _converged(prob: Problem, theta: np.ndarray, R: np.ndarray, it: int, history
 
 @dataclass(frozen=True)
 class _Frame:
-    """The simplex's coordinates x: θ = origin + T x, T a matrix or (a vector) a diagonal."""
+    """The simplex's coordinates x: θ = origin + T x, T a matrix or (a vector) a diagonal,
+    moved onto the `box` (None: none) where it lies outside."""
 
     origin: np.ndarray
     T: np.ndarray
+    box: tuple | None = None
+
+    def _raw(self, x: np.ndarray) -> np.ndarray:
+        return self.origin + (self.T * x if self.T.ndim == 1 else self.T @ x)
 
     def theta(self, x: np.ndarray) -> np.ndarray:
-        return self.origin + (self.T * x if self.T.ndim == 1 else self.T @ x)
+        return into_box(self._raw(x), self.box)
 
     def x(self, theta: np.ndarray) -> np.ndarray:
         d = theta - self.origin
         return d / self.T if self.T.ndim == 1 else np.linalg.solve(self.T, d)
+
+    def outside(self, x: np.ndarray) -> float:
+        """‖x − x(θ on the box)‖²: how far outside the box the corner x lies, in the simplex's
+        units (Cramér-Rao σ in the information's frame), 0 inside."""
+        raw = self._raw(x)
+        inside = into_box(raw, self.box)
+        return 0.0 if np.array_equal(inside, raw) else float(np.sum((x - self.x(inside)) ** 2))
 
 
 def _information_frame(prob: Problem, theta: np.ndarray, R: np.ndarray, scale: np.ndarray) -> _Frame:
@@ -256,7 +292,7 @@ def _one_simplex(
     for _ in range(max_relaxations):
 
         def J(v: np.ndarray, R=R) -> float:
-            return cost(frame.theta(v), R)
+            return cost(frame.theta(v), R) + frame.outside(v) / prob.n_samples
 
         corners, _, it, stopped = simplex_run(J, corners, coef, tol, it, max_iter, report)
         if not stopped:

@@ -62,6 +62,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
 from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status, bounds_text
+from testbed.estimators.box_bounds import into_box
 from testbed.estimators.multistart import Fit, best_fit, box_draws, starts_record, starts_summary
 from testbed.estimators.nonlinear_fit import fit as fit_from
 from testbed.estimators.nonlinear_fit import NonlinearFit, nonlinear_problem
@@ -327,13 +328,21 @@ def simplex(
         label, theta, _ = next(_starts(options, model, theta, recs, channels, config.free, prob, None, {}))
     nf, N = len(idx), int(sum(np.sum(~np.isnan(r.y).all(axis=1)) for r in recs))  # the samples
     max_iter = 500 * nf if options.max_iter is None else options.max_iter
+    box = config.box(config.free)
+    theta = theta.copy()
+    theta[idx] = into_box(theta[idx], box)  # a start outside the box moved onto it
     scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # θ[free] = scale·x
     history = [theta[idx].copy()]
 
     def coefficients(x):
+        """θ ⊕ b ⊕ g ⊕ c ⊕ τ at the simplex's x, its free values moved onto the box."""
         th = theta.copy()
-        th[idx] = scale * x
+        th[idx] = into_box(scale * x, box)
         return th
+
+    def outside(x) -> float:
+        """‖x − x(θ on the box)‖²: how far outside the box the corner x lies, 0 inside."""
+        return float(np.sum((x - coefficients(x)[idx] / scale) ** 2))
 
     def flown(th, x0):
         return flight_residuals(model, th, x0, recs, ch)
@@ -368,7 +377,9 @@ def simplex(
 
         def J(v: np.ndarray) -> float:
             """J_M at θ(v), each record's initial state concentrated out to first order: the
-            residual less its weighted least-squares fit by the initial-state sensitivities."""
+            residual less its weighted least-squares fit by the initial-state sensitivities; a
+            corner outside the box costs J_M at θ on the box plus its squared distance from
+            there over N, so the simplex comes back to the box."""
             res = flown(coefficients(v), x0)
             if res is None:
                 return np.inf
@@ -380,12 +391,12 @@ def simplex(
                     0
                 ]
                 total += float(np.sum((e - S @ d) ** 2 / R))
-            return total / N
+            return (total + outside(v)) / N
 
         def report(i: int, best: np.ndarray, cost: float) -> None:
-            history.append(scale * best)
+            history.append(coefficients(best)[idx])
             if callback is not None:
-                callback(Progress(i, scale * best, cost))
+                callback(Progress(i, history[-1].copy(), cost))
 
         coef = simplex_coefficients(options.coefficients, nf)
         tol = options.eps / N
@@ -407,7 +418,15 @@ def simplex(
                 status = Status.CONVERGED
                 break
     th = coefficients(x)
-    std, coloured, res, H = coloured_bounds(model, th, x0, recs, channels, config.free, R)
+    # the values on a bound held: the others' σ with them held, theirs NaN (a bound is no estimate's σ)
+    on = {n: float(v) for n, v, a, b in zip(config.free, th[idx], *box) if v <= a or v >= b}
+    moving = [n for n in config.free if n not in on]
+    std, coloured, H = np.full(nf, np.nan), np.full(nf, np.nan), None
+    if moving:
+        at = [config.free.index(n) for n in moving]
+        std[at], coloured[at], res, H = coloured_bounds(model, th, x0, recs, channels, moving, R)
+    else:
+        res = flown(th, x0)
     return _estimate(
         config,
         experiments,
@@ -425,5 +444,7 @@ def simplex(
         start=label,
         history=np.array(history),
         crlb_corrected_std=coloured,
-        information=H,
+        information=H if not on else None,
+        at_bounds=on or None,
+        message=f"on its bounds: {bounds_text(on)}" if on else "",
     )

@@ -1,6 +1,6 @@
 """Bounds on a nonlinear model config's free coefficients (`[identify] bounds`, and the physical
 sides `regressors.physical_bounds` on by default): the config reads and writes them and refuses
-what cannot be one; `ml-gn` and `ml-lm` keep every coefficient in its box, and where a bound holds one the
+what cannot be one; `ml-gn`, `ml-lm` and `ml-nm` keep every coefficient in its box, and where a bound holds one the
 fit is the fit of the others with it fixed there (the bound's KKT point), its σ NaN, the bound
 named; the methods that keep none refuse them."""
 
@@ -20,7 +20,13 @@ from testbed.errors import InputError
 from testbed.estimators import identify
 from testbed.models.regressors import physical_bounds
 
-KEEPERS = ["ml-gn", "ml-lm"]  # the methods that keep bounds: every test of a box runs against each
+KEEPERS = ["ml-gn", "ml-lm", "ml-nm"]  # the methods that keep bounds: every test of a box runs against each
+# on the nonlinear model, ml-nm flies the records at every corner of its simplex: 20-25 s a test
+NONLINEAR_KEEPERS = ["ml-gn", "ml-lm", pytest.param("ml-nm", marks=pytest.mark.slow)]
+# how near its optimum each method's stopping rule leaves a fit, in Cramér-Rao σ: the Gauss-Newton
+# step under `tol` = 1e-3 σ; the simplex's spread of N·J_M under `eps` = 1e-3, its corners within
+# about √(2·1e-3) ≈ 0.045 σ of the minimum and its cost within 1e-3
+STOPS = {"ml-gn": 1e-3, "ml-lm": 1e-3, "ml-nm": 0.05}
 
 
 def test_the_physical_sides_are_the_components_drags():
@@ -67,7 +73,7 @@ def test_the_config_reads_writes_and_checks_its_bounds(truth):  # noqa: F811
         assert "\n" not in str(exc.value) and "c.toml: [identify]" in str(exc.value)
 
 
-@pytest.mark.parametrize("method", KEEPERS)
+@pytest.mark.parametrize("method", NONLINEAR_KEEPERS)
 def test_a_bound_that_holds_gives_the_fit_of_the_others_with_it_fixed_there(truth, method):  # noqa: F811
     """`Y_uv` bounded below its value in the data: the fit ends on the bound, and the other
     coefficients are where the fit with `Y_uv` fixed at the bound puts them."""
@@ -92,12 +98,14 @@ def test_a_bound_that_holds_gives_the_fit_of_the_others_with_it_fixed_there(trut
         method,
         start="config",
     )
-    np.testing.assert_allclose(boxed.values[1:], fixed.values, rtol=0, atol=1e-3 * np.max(fixed.std))
-    np.testing.assert_allclose(boxed.std[1:], fixed.std, rtol=1e-3)
-    assert boxed.cost >= free.cost - 1e-9 and boxed.cost == pytest.approx(fixed.cost, abs=1e-6)
+    np.testing.assert_allclose(boxed.values[1:], fixed.values, rtol=0, atol=STOPS[method] * np.max(fixed.std))
+    np.testing.assert_allclose(boxed.std[1:], fixed.std, rtol=max(STOPS[method], 1e-3))
+    assert boxed.cost >= free.cost - 1e-9 and boxed.cost == pytest.approx(
+        fixed.cost, abs=1e-6 if method != "ml-nm" else 1e-3
+    )
 
 
-@pytest.mark.parametrize("method", KEEPERS)
+@pytest.mark.parametrize("method", NONLINEAR_KEEPERS)
 def test_a_start_on_the_wrong_side_of_a_bound_ends_on_its_side(truth, method):  # noqa: F811
     """A term bounded to ≤ 0 and started at 50 is moved onto its side, 0, and stays there or
     inside; unbounded, it ends where the data put it (69 in the captive model that flew them)."""
@@ -109,7 +117,7 @@ def test_a_start_on_the_wrong_side_of_a_bound_ends_on_its_side(truth, method):  
     assert abs(free.values[-1] - config.terms["Y_v|v|"]) <= 3 * free.std[-1] and free.values[-1] > 0
 
 
-@pytest.mark.parametrize("method", ["ml-nm", "mekf"])
+@pytest.mark.parametrize("method", ["mekf", "ekf"])
 def test_a_method_that_keeps_no_bounds_refuses_them(truth, method):  # noqa: F811
     config, record = truth
     boxed = replace(config, free=DETERMINED, screen=False, bounds={"Y_uv": (-math.inf, math.inf)})
@@ -117,7 +125,7 @@ def test_a_method_that_keeps_no_bounds_refuses_them(truth, method):  # noqa: F81
         identify([record], boxed, method)
 
 
-@pytest.mark.parametrize("method", ["ml-nr", "ml-nm", "ml-fem", "mekf", "equation-error"])
+@pytest.mark.parametrize("method", ["ml-nr", "ml-fem", "mekf", "equation-error"])
 def test_a_linear_method_that_keeps_no_bounds_refuses_them(method):
     from estimators.test_trust_region import VERTICAL
     from studies.remus import example_config, experiments
@@ -125,7 +133,7 @@ def test_a_linear_method_that_keeps_no_bounds_refuses_them(method):
     config = example_config(VERTICAL)
     boxed = replace(config, bounds={config.free[0]: (-math.inf, math.inf)})
     with pytest.raises(
-        InputError, match=f"{method} does not keep bounds; expected ml-gn, ml-lm, or no"
+        InputError, match=f"{method} does not keep bounds; expected ml-gn, ml-lm, ml-nm, or no"
     ) as exc:
         identify(experiments(seed=2, duration=20.0)[1:], boxed, method)
     assert "\n" not in str(exc.value)
