@@ -200,8 +200,8 @@ def _fit_counted(name, optimiser, experiments, config, options, callback, tally)
     tuning = {f.name: getattr(options, f.name) for f in fields(options) if f.name not in START_OPTIONS}
 
     fits: list[Fit] = []
-    # the bounds `ml-gn`, `ml-lm` and `ml-nm` keep (the other optimisers refuse them:
-    # `Method.bounds`), and the box draws' too
+    # the bounds the ML optimisers keep (the other methods refuse them: `Method.bounds`), and the
+    # box draws' too
     box = config.box([base_name(n) for n in prob.free]) if config.bounds else None
 
     def begin(theta: np.ndarray) -> tuple[np.ndarray, float, Point | None]:
@@ -537,6 +537,7 @@ ML_NR = _method(
     newton_raphson,
     NewtonRaphsonOptions,
     "maximum likelihood output error by the paper's modified Newton-Raphson (Eq. 10)",
+    bounds=True,
 )
 
 

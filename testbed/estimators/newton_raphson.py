@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from testbed.estimators.base import Callback, Outcome, Progress, Status
+from testbed.estimators.box_bounds import held_on_bounds, into_box, start_in_box
 from testbed.identification import bounds, likelihood, recursions, scan
 from testbed.identification.problem import Problem
 
@@ -23,6 +24,7 @@ def newton_raphson(
     callback=None,
     tol: float = 1e-3,
     coordinates: str = "si",
+    box: tuple | None = None,
 ) -> Outcome:
     """The paper's Eq. 10 on `J_M = 1/N Σ eᵀR⁻¹e`, R re-estimated before every step.
 
@@ -33,44 +35,70 @@ def newton_raphson(
     In SI units λ is the largest gradient entry of whichever coefficient has the largest units,
     and the damping λI then holds every step to about one SI unit; scaled, every coefficient
     moves in proportion to its size.
+
+    `box`: `(low, high)` of the free values (±inf: open), the box the fit keeps them in: a start
+    outside it is moved onto it, a value on its bound with the descent pointing out is held there
+    for the iteration (the bound's KKT condition, `box_bounds.held_on_bounds`: left out of the
+    step and of the convergence test), the others' step is stopped on the box, and
+    `Outcome.held` marks those it ends held on.
     """
-    history, N = [p[: prob.n_free].copy()], prob.n_samples
+    nf = prob.n_free
+    p, box, _ = start_in_box(p, nf, box)
+    history, N = [p[:nf].copy()], prob.n_samples
     S = np.ones(len(p))
     if coordinates == "scaled":
         S[: prob.n_free] = np.where(p[: prob.n_free] != 0, np.abs(p[: prob.n_free]), 1.0)
-    last = p
+    last, held = p, np.zeros(nf, dtype=bool)
     for it in range(max_iter + 1):
         sim = _simulated_residuals(prob, p)
         if sim is None:  # the step into an invalid model does not count; report the one before
-            return Outcome(last, Status.DIVERGED, it - 1, np.array(history[:it]))
+            return Outcome(last, Status.DIVERGED, it - 1, np.array(history[:it]), held=_on(held, box))
         xs, res = sim
         if it:
             _report_iteration(callback, prob, it, p, res)
-        R, g, M, converged = _normal_terms(prob, p, xs, res, tol)
+        R, g, M = _normal_terms(prob, p, xs, res)
+        # the values a bound holds: by θ's descent with the initial states at their best
+        held = held_on_bounds(p[:nf], likelihood.reduced(M, g, nf)[1], box) if box is not None else held
+        keep = np.r_[~held, np.ones(len(p) - nf, dtype=bool)]
+        converged = _converged(g[keep], M[np.ix_(keep, keep)], tol)
         if converged or it == max_iter:
             break
         grad = -2.0 / N * g * S  # ∂J_M/∂x
         weights = [e / R[r.channels] for r, e in zip(prob.records, res)]
         # ∂²J_M/∂x² (Eq. 3 sensitivities)
         hess = 2.0 / N * (M - recursions.curvature(prob, p, weights)) * np.outer(S, S)
-        lam = float(np.max(np.abs(grad)))
+        lam = float(np.max(np.abs(grad[keep])))
         mu = 0.5 if lam > 1 else 1.0 / (lam + 1.0)
+        step = np.zeros(len(p))
         try:
-            step = S * np.linalg.solve(hess + lam * np.eye(len(p)), -mu * grad)
+            step[keep] = S[keep] * np.linalg.solve(
+                hess[np.ix_(keep, keep)] + lam * np.eye(keep.sum()), -mu * grad[keep]
+            )
         except np.linalg.LinAlgError:
-            return Outcome(p, Status.DIVERGED, it, np.array(history))
+            return Outcome(p, Status.DIVERGED, it, np.array(history), held=_on(held, box))
+        if box is not None:  # stopped on the box
+            step[:nf] = into_box(p[:nf] + step[:nf], box) - p[:nf]
         last, p = p, p + step
-        history.append(p[: prob.n_free].copy())
+        history.append(p[:nf].copy())
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
-    return Outcome(p, status, it, np.array(history), M)
+    return Outcome(p, status, it, np.array(history), M, held=_on(held, box))
 
 
-def _normal_terms(prob: Problem, p: np.ndarray, xs, res, tol: float):
-    """R, g and M at `p` (`likelihood.gauss_newton_terms`), and whether the Gauss-Newton step `M⁻¹g` is
-    shorter than `tol` in Cramér-Rao units: converged."""
+def _on(held: np.ndarray, box) -> np.ndarray | None:
+    """`Outcome.held`: the values held on a bound of the `box`, None where none is."""
+    return held if box is not None and held.any() else None
+
+
+def _normal_terms(prob: Problem, p: np.ndarray, xs, res):
+    """R, g and M at `p` (`likelihood.gauss_newton_terms`)."""
     R = likelihood.noise_variance(prob, res)
     g, M = likelihood.gauss_newton_terms(prob, p, xs, res, R)
-    return R, g, M, np.sqrt(max(g @ bounds.crlb(M).covariance @ g, 0.0)) < tol
+    return R, g, M
+
+
+def _converged(g: np.ndarray, M: np.ndarray, tol: float) -> bool:
+    """Whether the Gauss-Newton step `M⁻¹g` is shorter than `tol` in Cramér-Rao units."""
+    return bool(np.sqrt(max(g @ bounds.crlb(M).covariance @ g, 0.0)) < tol)
 
 
 def _simulated_residuals(prob: Problem, p: np.ndarray):
