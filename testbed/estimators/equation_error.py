@@ -15,11 +15,12 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
-from testbed.estimators.base import Callback, Estimate, Method, Options, Progress, Status, option
+from testbed.estimators.base import Callback, Estimate, Method, Options, Progress, Status, bounds_text, option
+from testbed.estimators.box_bounds import into_box
 from testbed.estimators.intervals import between_present
-from testbed.identification.bounds import assess
+from testbed.identification.bounds import assess, held_bounds
 from testbed.identification.likelihood import divergence, initial_states
-from testbed.identification.problem import Problem, check_mounting, problem
+from testbed.identification.problem import Problem, base_name, check_mounting, problem
 from testbed.models.linear import NX, OUTSIDE_EQUATIONS, STATES, tilde
 
 __all__ = ["EQUATION_ERROR", "SMOOTHABLE", "WINDOW_S", "EquationErrorOptions", "regression", "smoothed"]
@@ -28,7 +29,9 @@ WINDOW_S = 0.5  # the smoothing window's default width, seconds
 SMOOTHABLE = 5  # the shortest window a cubic is smoothed over: a record needs as many samples
 
 
-def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, dict[str, str]]:
+def regression(
+    prob: Problem, window_s: float = WINDOW_S, box: tuple | None = None
+) -> tuple[np.ndarray, dict[str, str]]:
     """The free coefficients (n_free,) from a least-squares fit of the linear model's rows, and
     those left at their a-priori values for want of data: name → why.
 
@@ -42,7 +45,9 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
     on to the next one there is. A row is used only on experiments that measure every state it
     involves; the free coefficients of a row that no experiment supports (none measures those
     states, or none has enough of their samples present to smooth), and directions the data do
-    not excite, keep their a-priori values (minimum-norm correction).
+    not excite, keep their a-priori values (minimum-norm correction). `box`: `(low, high)` of the
+    free values (±inf: open; the a-priori values inside it): a row whose least-squares solution
+    leaves the box is solved in it instead (bounded least squares, `scipy.optimize.lsq_linear`).
     """
     s = prob.structure
     # each record's known part: constants and fixed coefficients (a record may have its own)
@@ -128,6 +133,15 @@ def regression(prob: Problem, window_s: float = WINDOW_S) -> tuple[np.ndarray, d
         scale = np.linalg.norm(X, axis=0)
         scale = np.where(scale > 0, scale, 1.0)
         step = np.linalg.lstsq(X / scale, Y - X @ prior, rcond=1e-8)[0] / scale
+        if box is not None and not np.all(
+            into_box(prior + step, (box[0][cols], box[1][cols])) == prior + step
+        ):
+            from scipy.optimize import lsq_linear  # only for a row that leaves its box
+
+            # min ‖(X/D) z − (Y − X θ₀)‖ with θ = θ₀ + z/D inside the box (D the columns' norms)
+            reach = ((box[0][cols] - prior) * scale, (box[1][cols] - prior) * scale)
+            step = lsq_linear(X / scale, Y - X @ prior, bounds=reach, method="bvls").x / scale
+            step = into_box(prior + step, (box[0][cols], box[1][cols])) - prior
         values[cols] = prior + step
     return values, left
 
@@ -190,7 +204,8 @@ def _fit(
     _refuses(config)
     t0 = time.perf_counter()
     prob = problem(experiments, config)
-    values, left = regression(prob, options.window_s)
+    box = config.box([base_name(n) for n in prob.free]) if config.bounds else None
+    values, left = regression(prob, options.window_s, box)
     if left:
         rows = {why: [n for n in left if left[n] == why] for why in left.values()}
         raise InputError(
@@ -222,20 +237,26 @@ def _fit(
     info = assess(prob, p)
     if callback is not None:
         callback(Progress(1, info.values.copy(), info.cost))
+    # the values on a bound: no σ, the others' with them held
+    held = None if box is None else (values <= box[0]) | (values >= box[1])
+    std, coloured = held_bounds(info, held)
+    at_bounds = {} if held is None else {prob.free[k]: float(values[k]) for k in np.flatnonzero(held)}
     return Estimate(
         method=EQUATION_ERROR.name,
         status=Status.CONVERGED,
         free=prob.free,
         values=info.values,
-        std=info.crlb_std,
+        std=std,
         cost=info.cost,
         iterations=1,
         evaluations=0,
         wall_time_s=time.perf_counter() - t0,
         noise_std=info.noise_std,
         history=history,
-        crlb_corrected_std=np.asarray(info.crlb_corrected_std, float),
+        crlb_corrected_std=coloured,
         initial_states=info.initial_states,
+        at_bounds=at_bounds or None,
+        message=f"on its bounds: {bounds_text(at_bounds)}" if at_bounds else "",
     )
 
 
@@ -261,4 +282,5 @@ EQUATION_ERROR = Method(
     iterative=False,
     starts=False,
     refuses=_refuses,
+    bounds=True,
 )

@@ -123,13 +123,11 @@ def _estimate(
             start_reason=start_reason,
             starts=tried,
         )
-    std, coloured, at_bounds = info.crlb_std, np.asarray(info.crlb_corrected_std, float), {}
-    if out.held is not None:  # the values held on a bound: no σ, the others' with them held
-        nf, moving = prob.n_free, ~out.held
-        F = likelihood.reduced(out.fisher, np.zeros(len(out.fisher)), nf)[0]
-        std, coloured = np.full(nf, np.nan), np.where(moving, coloured, np.nan)
-        std[moving] = bounds.crlb(F[np.ix_(moving, moving)]).std
-        at_bounds = {prob.free[k]: float(info.values[k]) for k in np.flatnonzero(out.held)}
+    # the values held on a bound: no σ, the others' with them held
+    std, coloured = bounds.held_bounds(info, out.held)
+    at_bounds = (
+        {} if out.held is None else {prob.free[k]: float(info.values[k]) for k in np.flatnonzero(out.held)}
+    )
     return Estimate(
         method=name,
         status=out.status,

@@ -48,6 +48,7 @@ __all__ = [
     "fft_length",
     "fisher",
     "fisher_at",
+    "held_bounds",
     "information",
     "lag_window",
 ]
@@ -273,6 +274,19 @@ class Information:
     @property
     def relative_std(self) -> np.ndarray:
         return self.crlb_std / np.maximum(np.abs(self.values), 1e-300)
+
+
+def held_bounds(info: "Information", held: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The Cramér-Rao and coloured-residual bounds of `info`'s free values where those `held`
+    (bool, n_free; None: none) end on a bound of a box: theirs NaN (a bound is no estimate's σ),
+    the others' Cramér-Rao bounds from the information with them held."""
+    std, coloured = info.crlb_std, np.asarray(info.crlb_corrected_std, float)
+    if held is None or not held.any():
+        return std, coloured
+    moving = ~held
+    std = np.full(len(held), np.nan)
+    std[moving] = crlb(info.fisher[np.ix_(moving, moving)]).std
+    return std, np.where(moving, coloured, np.nan)
 
 
 def assess(

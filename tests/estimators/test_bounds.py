@@ -17,7 +17,7 @@ from analysis.test_nonlinear_identifiability import DETERMINED, truth  # noqa: F
 
 from testbed.data import config_text, parse_config
 from testbed.errors import InputError
-from testbed.estimators import identify
+from testbed.estimators import METHODS, identify
 from testbed.models.regressors import physical_bounds
 
 KEEPERS = [
@@ -130,7 +130,7 @@ def test_a_method_that_keeps_no_bounds_refuses_them(truth, method):  # noqa: F81
         identify([record], boxed, method)
 
 
-@pytest.mark.parametrize("method", ["ml-fem", "mekf", "equation-error"])
+@pytest.mark.parametrize("method", ["ml-fem", "mekf"])
 def test_a_linear_method_that_keeps_no_bounds_refuses_them(method):
     from estimators.test_trust_region import VERTICAL
     from studies.remus import example_config, experiments
@@ -138,32 +138,36 @@ def test_a_linear_method_that_keeps_no_bounds_refuses_them(method):
     config = example_config(VERTICAL)
     boxed = replace(config, bounds={config.free[0]: (-math.inf, math.inf)})
     with pytest.raises(
-        InputError, match=f"{method} does not keep bounds; expected ml-gn, ml-lm, ml-nr, ml-nm, or no"
+        InputError,
+        match=f"{method} does not keep bounds; expected ml-gn, ml-lm, ml-nr, ml-nm, equation-error, or no",
     ) as exc:
         identify(experiments(seed=2, duration=20.0)[1:], boxed, method)
     assert "\n" not in str(exc.value)
 
 
-@pytest.mark.parametrize("method", KEEPERS)
+@pytest.mark.parametrize("method", [*KEEPERS, "equation-error"])
 def test_a_linear_fit_on_its_bound_is_the_fit_of_the_others_with_it_fixed_there(method):
-    """The linear model's `ml-gn` and `ml-lm` (the same optimisers) keep `[identify] bounds` too:
-    a coefficient bounded 20 σ short of its estimate ends on the bound, its σ NaN, and the others
-    where the fit with it fixed there puts them."""
+    """The linear model's methods that keep `[identify] bounds`: a coefficient bounded 20 σ short
+    of its estimate ends on the bound, its σ NaN, and the others where the fit with it fixed
+    there puts them (equation error: its rows' bounded least squares, whose solution with the
+    bound active is the one with the coefficient fixed there)."""
     from estimators.test_trust_region import VERTICAL
     from studies.remus import example_config, experiments
 
     data = experiments(seed=2, duration=20.0)[1:]
     config = example_config(VERTICAL)
-    free = identify(data, config, method, start="config")
+    start = {"start": "config"} if METHODS[method].starts else {}
+    free = identify(data, config, method, **start)
     name, value, std = config.free[0], free.values[0], free.std[0]
     bound = value - 20 * std * np.sign(value)  # toward 0: the box (bound, ∞) or (−∞, bound) excludes it
     box = (bound, math.inf) if bound > value else (-math.inf, bound)
-    start = replace(config, bounds={name: box}).with_coefficients({name: bound})
-    boxed = identify(data, start, method, start="config")
+    boxed = identify(
+        data, replace(config, bounds={name: box}).with_coefficients({name: bound}), method, **start
+    )
     assert boxed.at_bounds == {name: pytest.approx(bound)} and boxed.converged
     assert math.isnan(boxed.std[0]) and f"on its bounds: {name}" in boxed.message
     fixed = identify(
-        data, replace(config, free=config.free[1:]).with_coefficients({name: bound}), method, start="config"
+        data, replace(config, free=config.free[1:]).with_coefficients({name: bound}), method, **start
     )
     np.testing.assert_allclose(boxed.values[1:], fixed.values, rtol=0, atol=1e-2 * np.max(fixed.std))
     np.testing.assert_allclose(boxed.std[1:], fixed.std, rtol=1e-2)
