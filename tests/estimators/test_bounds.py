@@ -193,3 +193,20 @@ def test_free_all_on_the_component_model_keeps_every_drag_on_its_side_and_conver
     assert drags and min(drags.values()) >= 0.0
     assert est.at_bounds and all(drags[n] == 0.0 for n in est.at_bounds if n in drags)
     assert "on its bounds" in est.message
+
+
+def test_a_simplex_stopped_by_its_limit_on_a_bound_reports_the_others_bounds():
+    """`ml-nm` cut short by `max_iter` on a bound (an outcome that carries no information
+    matrix) reports the others' σ from the estimate's information, that one's null: the bound at
+    the a-priori value, on the side the data pull the coefficient to."""
+    from estimators.test_trust_region import VERTICAL
+    from studies.remus import example_config, experiments
+
+    data = experiments(seed=2, duration=20.0)[1:]
+    config = example_config(VERTICAL)
+    name, prior = config.free[0], config.values[config.free[0]]
+    pulled = identify(data, config, "ml-gn", start="config").values[0]
+    box = (-math.inf, prior) if pulled > prior else (prior, math.inf)
+    est = identify(data, replace(config, bounds={name: box}), "ml-nm", start="config", max_iter=30)
+    assert est.status.name == "MAX_ITERATIONS" and est.at_bounds == {name: prior}
+    assert math.isnan(est.std[0]) and np.all(np.isfinite(est.std[1:]))
