@@ -54,19 +54,21 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators import starts, trust_region
+from testbed.estimators.box_bounds import held_on_bounds, into_box
 from testbed.estimators.base import (
     Callback,
     Estimate,
     Method,
     Options,
     Progress,
+    bounds_text,
     Status,
     count_option,
     option,
     unphysical,
 )
 from testbed.identification import bounds, innovations, likelihood, recursions, scan
-from testbed.identification.problem import Problem, check_one_model, one_model, problem
+from testbed.identification.problem import Problem, base_name, check_one_model, one_model, problem
 from testbed.models.linear import BODY, IX, NX, STATES
 
 __all__ = ["FilterErrorOptions", "ML_FEM", "R_FLOOR", "R_ROOM", "START_SHARE", "noise_rows"]
@@ -353,7 +355,8 @@ def _fit(
         prob = problem(experiments, config)
         cycles = _cycles(prob)
         rows = noise_rows(prob, opts.process_noise)
-        theta0 = starts.named(prob, experiments, config, opts.start)[0]
+        box = config.box([base_name(n) for n in prob.free]) if config.bounds else None
+        theta0 = into_box(starts.named(prob, experiments, config, opts.start)[0], box)
         lik = _Likelihood(prob, rows, theta0, cycles, opts.correlation_time)
         S, q0 = _start_noise(lik)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is an answer here
@@ -371,17 +374,17 @@ def _fit(
             # a start that diverges over the whole record (an unstable model, `likelihood.bounded`):
             # output error and the filter are no near-quadratic problem from there; `ml-gn`'s
             # multiple shooting takes it to output error's optimum first
-            out = trust_region.trust_region(prob, p, max_iter=opts.max_iter, callback=callback)
+            out = trust_region.trust_region(prob, p, max_iter=opts.max_iter, callback=callback, box=box)
             if out.status is not Status.DIVERGED:
                 p, done, history = out.p, out.iterations, out.history[:-1]
         if lik.noisy:
             # output error first: from a poor θ the filter takes the model's error for process noise
             first = _Likelihood(prob, rows[:0], theta0, cycles)
-            out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, more(done))
+            out = _iterate(first, p, _start_noise(first)[0], scale[: len(p)], opts, more(done), box)
             if out[2] is not Status.DIVERGED:
                 p, done, history = out[0], done + out[3], np.vstack([history, out[4][:-1]])
 
-        p, S, status, it, steps, why = _iterate(lik, np.concatenate([p, q0]), S, scale, opts, more(done))
+        p, S, status, it, steps, why = _iterate(lik, np.concatenate([p, q0]), S, scale, opts, more(done), box)
         trail = [history, steps]
         zero = p[len(p) - len(q0) :] == 0
         if status is Status.CONVERGED and zero.any() and opts.max_iter > it:
@@ -392,13 +395,13 @@ def _fit(
             again = p.copy()
             again[len(p) - len(q0) :][zero] = q0[zero]
             other = _iterate(
-                lik, again, S, scale, replace(opts, max_iter=opts.max_iter - it), more(done + it)
+                lik, again, S, scale, replace(opts, max_iter=opts.max_iter - it), more(done + it), box
             )
             if other[2] is Status.CONVERGED and _cost(lik, other) < _cost(lik, (p, S)):
                 p, S, _, _, _, why = other
                 it += other[3]
                 trail.append(other[4][1:])
-        est = _estimate(lik, p, S, status, done + it, np.vstack(trail), why, scale)
+        est = _estimate(lik, p, S, status, done + it, np.vstack(trail), why, scale, box)
         # the simulations of the whole data set (`recursions.counting`), rounded up
         return replace(est, evaluations=-(-tally[0] // prob.n_samples), wall_time_s=time.perf_counter() - t0)
 
@@ -442,10 +445,11 @@ def _settle(lik: _Likelihood, p: np.ndarray, S: dict, trials: int):
     return p, None
 
 
-def _projected_step(p, M, g, bound, lam, first) -> np.ndarray:
+def _projected_step(p, M, g, bound, lam, low, high) -> np.ndarray:
     """p plus the damped Gauss-Newton step `(M + λ diag M) Δ = g` (solved with M scaled to a unit
-    diagonal) over the parameters off their bound, f² (from index `first`) kept ≥ 0: a spectral density the step would take below 0 is set
-    to 0 and held there while the step is solved again for the others."""
+    diagonal) over the parameters off their bound, each kept in [`low`, `high`] (the spectral
+    densities f² ≥ 0, the coefficients in their box): one the step would take beyond its bound is
+    set onto it and held there while the step is solved again for the others."""
     bound = bound.copy()
     while True:
         free = np.flatnonzero(~bound)
@@ -454,18 +458,25 @@ def _projected_step(p, M, g, bound, lam, first) -> np.ndarray:
         scaled = Mf / np.outer(d, d) + lam * np.eye(len(free))
         trial = p.copy()
         trial[free] += np.linalg.lstsq(scaled, g[free] / d, rcond=None)[0] / d
-        below = trial < 0
-        below[:first] = False
-        if not below.any():
+        beyond = (trial < low) | (trial > high)
+        if not beyond.any():
             return trial
-        bound |= below
+        bound |= beyond
         p = p.copy()
-        p[below] = 0.0
+        p[beyond] = np.clip(trial, low, high)[beyond]
 
 
-def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
-    """The relaxation's iterations from p and 𝒮: (p, 𝒮, status, iterations, history, reason)."""
+def _iterate(lik: _Likelihood, p, S, scale, opts, callback, box=None):
+    """The relaxation's iterations from p and 𝒮: (p, 𝒮, status, iterations, history, reason).
+    `box`: `(low, high)` of the free coefficients (None: none), kept as `ml-gn` keeps them: one
+    on its bound with the descent pointing out held there for the iteration, the others' step
+    stopped on the box."""
     nf, nx = lik.nf, lik.nx
+    # each parameter's range: the coefficients' box, the initial states free, f² ≥ 0
+    low = np.r_[
+        np.full(nf, -np.inf) if box is None else box[0], np.full(nx, -np.inf), np.zeros(len(p) - nf - nx)
+    ]
+    high = np.r_[np.full(nf, np.inf) if box is None else box[1], np.full(len(p) - nf, np.inf)]
     history = [p[:nf].copy()]
     p, now = _settle(lik, p, S, opts.max_trials)
     if now is None:
@@ -484,6 +495,8 @@ def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
         q = p[nf + nx :]
         bound = np.zeros(len(p), dtype=bool)
         bound[nf + nx :] = (q <= 0) & (g[nf + nx :] <= 0)
+        if box is not None:  # by θ's descent with the initial states and f² at their best
+            bound[:nf] = held_on_bounds(p[:nf], likelihood.reduced(M, g, nf)[1], box)
         free = np.flatnonzero(~bound)
         Mf, gf = M[np.ix_(free, free)], g[free]
         cov = bounds.crlb(Mf).covariance
@@ -494,7 +507,7 @@ def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
             break
         J0 = lik.weighted(nus, S)
         for _ in range(opts.max_trials):
-            trial = _projected_step(p, M, g, bound, lam, nf + nx)
+            trial = _projected_step(p, M, g, bound, lam, low, high)
             new = lik.run(trial, S)
             if new is not None and lik.weighted(new[1], S) < J0:
                 p, (flt, nus), lam = trial, new, max(lam / 10, 1e-9)
@@ -524,17 +537,19 @@ def _iterate(lik: _Likelihood, p, S, scale, opts, callback):
     return p, S, status, it, np.array(history), ""
 
 
-def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale) -> Estimate:
-    """The estimate at p with its Cramér-Rao bounds; DIVERGED (with the reason) where the fit
-    failed, left the physical region or its bounds are not finite."""
+def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale, box=None) -> Estimate:
+    """The estimate at p with its Cramér-Rao bounds (a coefficient on a bound of the `box`: none,
+    the others' with it held); DIVERGED (with the reason) where the fit failed, left the physical
+    region or its bounds are not finite."""
     prob, nf, nx = lik.prob, lik.nf, lik.nx
     noise, process, std, cost = {}, {}, np.full(nf, np.nan), np.nan
+    held = np.zeros(nf, dtype=bool) if box is None else (p[:nf] <= box[0]) | (p[:nf] >= box[1])
     if status is not Status.DIVERGED:
         flt, nus = lik.run(p, S)
         try:
             M = lik.terms(p, flt, nus, S, scale)[1]
             F = likelihood.reduced(M, np.zeros(len(M)), nf)[0]
-            std = bounds.crlb(F).std
+            std[~held] = bounds.crlb(F[np.ix_(~held, ~held)]).std
             full = bounds.crlb(M).std
         except np.linalg.LinAlgError as exc:
             status, why = Status.DIVERGED, f"the Cramér-Rao analysis at the estimate failed ({exc})"
@@ -548,11 +563,14 @@ def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale) -> Estima
                     "value": float(np.sqrt(qk)),
                     "std": float(full[nf + nx + k] / (2 * np.sqrt(qk))) if qk > 0 else float("inf"),
                 }
-            if not (np.isfinite(cost) and not np.any(np.isnan(std))):
+            if not (np.isfinite(cost) and not np.any(np.isnan(std[~held]))):
                 status, why = Status.DIVERGED, "the estimate or its Cramér-Rao bound is not finite"
     why = unphysical(prob.structure, prob.coefficients(p[:nf])) or why
     if why:
         status = Status.DIVERGED
+    at_bounds = (
+        {prob.free[k]: float(p[k]) for k in np.flatnonzero(held)} if status is not Status.DIVERGED else {}
+    )
     x0 = {}
     for r in prob.records:
         xr = prob.x0(r, p) + np.eye(NX)[IX["u"]] * prob.speed
@@ -568,9 +586,12 @@ def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale) -> Estima
         wall_time_s=0.0,
         noise_std=noise if status is not Status.DIVERGED else {},
         history=history,
-        message=why if status is Status.DIVERGED else "",
         initial_states=x0,
         process_noise_std=process if status is not Status.DIVERGED else None,
+        at_bounds=at_bounds or None,
+        message=why
+        if status is Status.DIVERGED
+        else (f"on its bounds: {bounds_text(at_bounds)}" if at_bounds else ""),
     )
 
 
@@ -581,4 +602,5 @@ ML_FEM = Method(
     summary="maximum likelihood filter error: a steady-state Kalman filter in the likelihood, for data "
     "with process noise",
     refuses=lambda config: check_one_model(config, "ml-fem", terms=True),
+    bounds=True,
 )

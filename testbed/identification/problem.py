@@ -497,6 +497,7 @@ def one_model(
         record_values={name: {**values, **unfree} for name, values in config.record_values.items()},
         free=(),
         per_record=(),
+        bounds={},  # nothing free, nothing bounded: this problem only reads the given terms
     )
     prob = problem(experiments, given)
     out, none = [], np.zeros(0)
