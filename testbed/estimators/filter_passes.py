@@ -67,8 +67,6 @@ class FilterState:
     q_samples: np.ndarray = field(default_factory=lambda: np.zeros(NX))  # and their sample counts
     asym: float = 0.0
     J: np.ndarray | None = None  # the last augmented root (square root) or covariance
-    # (low, high) of th (None: none): each update's estimate moved onto the box (`project`)
-    box: tuple | None = None
     ref: np.ndarray | None = None  # the coefficients the pass is linearised about (None: θ̂)
 
 
@@ -189,26 +187,6 @@ class Books:
             self.callback(Progress(c + 1, th.copy(), math.nan, np.sqrt(var)))
 
 
-def project(x: np.ndarray, th: np.ndarray, columns: Callable, box: tuple) -> None:
-    """The updated estimate (x, θ), in place, moved onto the box where θ left it: by the
-    projection that the covariance P weighs (Simon & Chia 2002), `x̂ − P Dᵀ (D P Dᵀ)⁻¹ (D x̂ − d)`
-    over the bounds θ crossed (D their rows, d their values), the maximum of the posterior
-    density on them, so the states and the other coefficients move by their correlation with the
-    ones held; a value that correction carries across its own bound is then clipped. `columns(A)`:
-    P's columns of the coefficients A (indices into θ), (10 + p, len(A))."""
-    target = np.clip(th, *box)
-    A = np.flatnonzero(target != th)
-    if not len(A):
-        return
-    PA = columns(A)
-    n = len(x)
-    # P Dᵀ (D P Dᵀ)⁻¹ (D x̂ − d)
-    shift = PA @ np.linalg.lstsq(PA[n + A], th[A] - target[A], rcond=None)[0]
-    x -= shift[:n]
-    th -= shift[n:]
-    np.clip(th, *box, out=th)
-
-
 def sqrt_pass(
     e: Experiment,
     st: FilterState,
@@ -264,8 +242,6 @@ def sqrt_pass(
             dx, w, L, Ja = sqrt_update(pre_a, m, nu)
             x += dx[:n]
             th += dx[n:]
-            if st.box is not None:
-                project(x, th, lambda A: Ja @ Ja[n + A].T, st.box)
             if modified:  # --- the Kalman filter
                 if svd:
                     pre_k[m:, m:] = svd_root(jk)
@@ -357,8 +333,6 @@ def conventional_pass(
                 raise Diverged("the covariance lost positive definiteness") from None
             dx = K @ nu[ok]
             x, th[:] = x + dx[:n], th + dx[n:]
-            if st.box is not None:
-                project(x, th, lambda A: P[:, n + A], st.box)
             if k > 0 and error.update(nu, s, ok):
                 Q[error.rows, error.rows] = error.q[error.rows] ** 2
             w = Linv @ nu[ok]

@@ -178,8 +178,7 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig, split
 from testbed.errors import InputError
-from testbed.estimators.base import Method, OptionError, Status, bounds_text, unphysical
-from testbed.estimators.box_bounds import into_box
+from testbed.estimators.base import Method, OptionError, Status, unphysical
 from testbed.estimators.filter_model import DiscreteModel
 from testbed.estimators.filter_options import (
     CONVENTIONAL_FLOOR,
@@ -265,9 +264,7 @@ def run_filter(
     (square-root only); otherwise on the filter's own estimate. A nonlinear model config
     (`config.terms`) is filtered with its own transition (module docstring, "The nonlinear
     model"). A record split at a dropout in its logged inputs (`data.split`) is filtered as its
-    stretches, the state started afresh on each. The config's box (`[identify] bounds`, a
-    nonlinear config's physical sides) holds the estimate: each update that leaves it is moved
-    back onto it (`filter_passes.project`); a value that ends on a bound has no σ."""
+    stretches, the state started afresh on each."""
     t_start = time.perf_counter()
     experiments = [s for e in experiments for s in split(e)]
     prepare = _linear if config.terms is None else _nonlinear
@@ -276,10 +273,7 @@ def run_filter(
         options = replace(options, state_noise=0.0 if square_root else CONVENTIONAL_FLOOR)
     U = config.vehicle.speed
     p, n = len(idx), NX
-    # the box the estimate is kept in (`[identify] bounds`; a nonlinear config's physical sides)
-    low, high = config.box(list(config.free))
-    box = (low, high) if np.isfinite(low).any() or np.isfinite(high).any() else None
-    th0 = into_box(theta[idx].copy(), box)
+    th0 = theta[idx].copy()
     floor = options.prior_floor or 1e-3 * (np.abs(theta).max() or 1.0)
     sig0 = np.maximum(options.prior_frac * np.abs(th0), floor)
     for name, v in (options.prior_std or {}).items():
@@ -318,7 +312,6 @@ def run_filter(
             total=total,
             matched=frozenset(sigma_r) - quiet,
             ref=ref,
-            box=box,
         )
         diverged = filter_pass(
             experiments, st, transition, options, sigma_r, U, modified, square_root, callback
@@ -351,10 +344,6 @@ def run_filter(
         settled = np.all(np.abs(tail - values) <= 3.0 * std)
         iterated = options.passes == 1 or (step is not None and step <= options.pass_tol)
         status = Status.CONVERGED if settled and iterated else Status.MAX_ITERATIONS
-    # a value on a bound of the box: held there, no σ
-    held = np.zeros(p, dtype=bool) if box is None or diverged else (values <= box[0]) | (values >= box[1])
-    at_bounds = {config.free[k]: float(values[k]) for k in np.flatnonzero(held)}
-    std = np.where(held, np.nan, std)
     model_error = None
     if st.q_samples.any():  # the model error found: RMS over the samples of its σ per sample
         model_error = {
@@ -373,10 +362,7 @@ def run_filter(
         evaluations=-(-processed * (1 + p) // samples),
         start="config",
         history=hist,
-        message=diverged["reason"]
-        if diverged
-        else (f"on its bounds: {bounds_text(at_bounds)}" if at_bounds else ""),
-        at_bounds=at_bounds or None,
+        message=diverged["reason"] if diverged else "",
         history_t=st.hist_t[:count],
         history_std=hist_std,
         covariance=P,
@@ -415,7 +401,6 @@ def _method(name: str, modified: bool, square_root: bool, summary: str) -> Metho
         online=True,
         nonlinear=fit,
         refuses=lambda config: check_one_model(config, name),
-        bounds=True,
     )
 
 

@@ -122,41 +122,27 @@ def test_a_start_on_the_wrong_side_of_a_bound_ends_on_its_side(truth, method):  
     assert abs(free.values[-1] - config.terms["Y_v|v|"]) <= 3 * free.std[-1] and free.values[-1] > 0
 
 
-def test_a_method_that_keeps_no_bounds_refuses_them(monkeypatch):
-    """The front door's contract for a method registered without `bounds` (every method shipped
-    keeps them): a config with bounds is an error naming the method and those that keep them."""
-    from estimators.test_trust_region import VERTICAL
-    from studies.remus import example_config, experiments
-
-    from testbed import estimators
-
-    monkeypatch.setitem(estimators.METHODS, "plain", replace(METHODS["ml-gn"], name="plain", bounds=False))
-    config = example_config(VERTICAL)
-    boxed = replace(config, bounds={config.free[0]: (-math.inf, math.inf)})
-    with pytest.raises(InputError, match="plain does not keep bounds; expected ml-gn, ml-lm, ") as exc:
-        identify(experiments(seed=2, duration=20.0)[1:], boxed, "plain")
-    assert "\n" not in str(exc.value)
+@pytest.mark.parametrize("method", ["mekf", "ekf"])
+def test_a_method_that_keeps_no_bounds_refuses_them(truth, method):  # noqa: F811
+    config, record = truth
+    boxed = replace(config, free=DETERMINED, screen=False, bounds={"Y_uv": (-math.inf, math.inf)})
+    with pytest.raises(InputError, match=f"{method} does not keep bounds"):
+        identify([record], boxed, method)
 
 
 @pytest.mark.parametrize("method", ["mekf", "ekf"])
-def test_a_filter_keeps_its_estimate_in_the_box_at_every_sample(method):
-    """The filters move the estimate onto the box after every update that leaves it, weighed by
-    their covariance (the others move with it): a coefficient bounded 20 σ short of the filter's
-    own estimate stays inside at every sample and ends within its σ of the bound (a plain clip
-    of it alone, the others left where the update put them, ends 37 σ inside)."""
+def test_a_linear_method_that_keeps_no_bounds_refuses_them(method):
     from estimators.test_trust_region import VERTICAL
     from studies.remus import example_config, experiments
 
-    data = experiments(seed=2, duration=20.0)[1:]
     config = example_config(VERTICAL)
-    free = identify(data, config, method)
-    name, value, std = config.free[0], free.values[0], free.std[0]
-    bound = value - 20 * std * np.sign(value)
-    box = (bound, math.inf) if bound > value else (-math.inf, bound)
-    boxed = identify(data, replace(config, bounds={name: box}).with_coefficients({name: bound}), method)
-    assert np.all((box[0] <= boxed.history[:, 0]) & (boxed.history[:, 0] <= box[1]))
-    assert abs(boxed.values[0] - bound) <= boxed.std[0] and boxed.converged
-    assert np.all(np.isfinite(boxed.std))
+    boxed = replace(config, bounds={config.free[0]: (-math.inf, math.inf)})
+    with pytest.raises(
+        InputError,
+        match=f"{method} does not keep bounds; expected ml-gn, ml-lm, ml-nr, ml-nm, ml-fem, equation-error, or no",
+    ) as exc:
+        identify(experiments(seed=2, duration=20.0)[1:], boxed, method)
+    assert "\n" not in str(exc.value)
 
 
 @pytest.mark.parametrize("method", [*KEEPERS, "equation-error", "ml-fem"])
