@@ -63,16 +63,13 @@ def levenberg_marquardt(
             break
         if it == max_iter:
             break
-        W0, D = obj.weighted_cost(x.res, x.R), np.diag(np.maximum(np.diag(Fk), 1e-300))
+        W0 = obj.weighted_cost(x.res, x.R)
         while True:
-            d = np.zeros(len(F))
             try:
-                # (F + λ diag F) d = g
-                d[keep] = np.linalg.solve(Fk + lam * D, gk)
+                d = _damped_step(F, gr, lam, keep, x.p[:nf], box)
             except np.linalg.LinAlgError:  # singular even damped: a larger λ
                 trial = None
-            else:  # θ's step stopped on the box; projected: the initial states fitted again there
-                d[:nf] = into_box(x.p[:nf] + d[:nf], box) - x.p[:nf]
+            else:  # projected: θ's step, the initial states fitted again there
                 trial = obj.moved(x, np.concatenate([d, np.zeros(len(x.p) - nf)]) if obj.projected else d)
             if trial is not None and obj.weighted_cost(trial.res, x.R) < W0:
                 x, lam = trial, max(lam / 10, 1e-12)
@@ -84,6 +81,31 @@ def levenberg_marquardt(
         if callback is not None:
             callback(Progress(it + 1, x.p[:nf].copy(), x.J))
     return _outcome(x, status, it, history, M, held, box)
+
+
+def _damped_step(F, g, lam: float, keep: np.ndarray, theta: np.ndarray, box) -> np.ndarray:
+    """The Levenberg-Marquardt step `(F + λ diag F) d = g` of the parameters `keep` (the others
+    0) inside the `box` of the first len(θ): where it carries values across their bounds, those
+    stop on them and the step is solved again for the rest with the model's gradient there
+    (`g − F_·h d_h`), until no value crosses (an active-set step, as `trust_region.bounded_step`:
+    clipping the whole step would turn it off the descent and stall the damping)."""
+    nf, d, hit = len(theta), np.zeros(len(F)), np.zeros(len(F), dtype=bool)
+    for _ in range(nf + 1):
+        m = keep & ~hit
+        Fm = F[np.ix_(m, m)]
+        # (F + λ diag F) d = g, the values stopped on a bound held there
+        d[m] = np.linalg.solve(
+            Fm + lam * np.diag(np.maximum(np.diag(Fm), 1e-300)), g[m] - F[np.ix_(m, hit)] @ d[hit]
+        )
+        if box is None:
+            break
+        crossed = np.zeros(len(F), dtype=bool)
+        crossed[:nf] = m[:nf] & ((theta + d[:nf] < box[0]) | (theta + d[:nf] > box[1]))
+        if not crossed.any():
+            break
+        d[crossed] = (into_box(theta + d[:nf], box) - theta)[crossed[:nf]]
+        hit |= crossed
+    return d
 
 
 def _outcome(x: Point, status: Status, it: int, history: list, M, held: np.ndarray, box) -> Outcome:
