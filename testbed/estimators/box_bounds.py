@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["held_on_bounds", "into_box", "start_in_box"]
+__all__ = ["active_set_step", "held_on_bounds", "into_box", "start_in_box"]
 
 
 def held_on_bounds(theta: np.ndarray, g: np.ndarray, box: tuple | None) -> np.ndarray:
@@ -18,6 +18,27 @@ def held_on_bounds(theta: np.ndarray, g: np.ndarray, box: tuple | None) -> np.nd
         return np.zeros(len(theta), dtype=bool)
     low, high = box
     return ((theta <= low) & (g <= 0)) | ((theta >= high) & (g >= 0))
+
+
+def active_set_step(solve, theta: np.ndarray, keep: np.ndarray, box: tuple | None) -> np.ndarray:
+    """The step d of the parameters `keep` (bool; the others 0), its first len(θ) (the free
+    values θ) inside the `box`: `solve(m, d, hit)` gives the step of the parameters `m` with those
+    `hit` held at their entries of d; values it carries across a bound stop on it and the step is
+    solved again for the rest, until none crosses (an active-set step: clipping the whole step
+    would turn it off the descent and stall the damping)."""
+    nf, d, hit = len(theta), np.zeros(len(keep)), np.zeros(len(keep), dtype=bool)
+    for _ in range(nf + 1):
+        m = keep & ~hit
+        d[m] = solve(m, d, hit)
+        if box is None:
+            break
+        crossed = np.zeros(len(keep), dtype=bool)
+        crossed[:nf] = m[:nf] & ((theta + d[:nf] < box[0]) | (theta + d[:nf] > box[1]))
+        if not crossed.any():
+            break
+        d[crossed] = (into_box(theta + d[:nf], box) - theta)[crossed[:nf]]
+        hit |= crossed
+    return d
 
 
 def into_box(theta: np.ndarray, box: tuple | None) -> np.ndarray:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.estimators.base import Outcome, Progress, Status
-from testbed.estimators.box_bounds import held_on_bounds, into_box, start_in_box
+from testbed.estimators.box_bounds import active_set_step, held_on_bounds, start_in_box
 from testbed.identification import bounds, likelihood, linear_objective
 from testbed.identification.objective import Objective, Point
 from testbed.identification.problem import Problem
@@ -85,27 +85,17 @@ def levenberg_marquardt(
 
 def _damped_step(F, g, lam: float, keep: np.ndarray, theta: np.ndarray, box) -> np.ndarray:
     """The Levenberg-Marquardt step `(F + λ diag F) d = g` of the parameters `keep` (the others
-    0) inside the `box` of the first len(θ): where it carries values across their bounds, those
-    stop on them and the step is solved again for the rest with the model's gradient there
-    (`g − F_·h d_h`), until no value crosses (an active-set step, as `trust_region.bounded_step`:
-    clipping the whole step would turn it off the descent and stall the damping)."""
-    nf, d, hit = len(theta), np.zeros(len(F)), np.zeros(len(F), dtype=bool)
-    for _ in range(nf + 1):
-        m = keep & ~hit
+    0), the values θ kept in the `box` by an active set (`box_bounds.active_set_step`): those
+    stopped on a bound held there, the rest solved with the model's gradient there, `g − F_·h d_h`."""
+
+    def solve(m, d, hit):
         Fm = F[np.ix_(m, m)]
-        # (F + λ diag F) d = g, the values stopped on a bound held there
-        d[m] = np.linalg.solve(
+        # (F + λ diag F) d = g − F_·h d_h
+        return np.linalg.solve(
             Fm + lam * np.diag(np.maximum(np.diag(Fm), 1e-300)), g[m] - F[np.ix_(m, hit)] @ d[hit]
         )
-        if box is None:
-            break
-        crossed = np.zeros(len(F), dtype=bool)
-        crossed[:nf] = m[:nf] & ((theta + d[:nf] < box[0]) | (theta + d[:nf] > box[1]))
-        if not crossed.any():
-            break
-        d[crossed] = (into_box(theta + d[:nf], box) - theta)[crossed[:nf]]
-        hit |= crossed
-    return d
+
+    return active_set_step(solve, theta, keep, box)
 
 
 def _outcome(x: Point, status: Status, it: int, history: list, M, held: np.ndarray, box) -> Outcome:

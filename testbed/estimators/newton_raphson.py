@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from testbed.estimators.base import Callback, Outcome, Progress, Status
-from testbed.estimators.box_bounds import held_on_bounds, into_box, start_in_box
+from testbed.estimators.box_bounds import active_set_step, held_on_bounds, start_in_box
 from testbed.identification import bounds, likelihood, recursions, scan
 from testbed.identification.problem import Problem
 
@@ -39,8 +39,8 @@ def newton_raphson(
     `box`: `(low, high)` of the free values (±inf: open), the box the fit keeps them in: a start
     outside it is moved onto it, a value on its bound with the descent pointing out is held there
     for the iteration (the bound's KKT condition, `box_bounds.held_on_bounds`: left out of the
-    step and of the convergence test), the others' step is stopped on the box, and
-    `Outcome.held` marks those it ends held on.
+    step and of the convergence test), the others' step is an active-set step in the box
+    (`box_bounds.active_set_step`), and `Outcome.held` marks those it ends held on.
     """
     nf = prob.n_free
     p, box, _ = start_in_box(p, nf, box)
@@ -69,15 +69,16 @@ def newton_raphson(
         hess = 2.0 / N * (M - recursions.curvature(prob, p, weights)) * np.outer(S, S)
         lam = float(np.max(np.abs(grad[keep])))
         mu = 0.5 if lam > 1 else 1.0 / (lam + 1.0)
-        step = np.zeros(len(p))
-        try:
-            step[keep] = S[keep] * np.linalg.solve(
-                hess[np.ix_(keep, keep)] + lam * np.eye(keep.sum()), -mu * grad[keep]
-            )
+
+        def solve(m, d, hit, hess=hess, lam=lam, mu=mu, grad=grad):
+            # (∂²J/∂x² + λI) Δx = −μ ∂J/∂x over the parameters m, those hit held at d (Δx = d/S)
+            rhs = -mu * grad[m] - hess[np.ix_(m, hit)] @ (d[hit] / S[hit])
+            return S[m] * np.linalg.solve(hess[np.ix_(m, m)] + lam * np.eye(m.sum()), rhs)
+
+        try:  # θ kept in the box by an active set
+            step = active_set_step(solve, p[:nf], keep, box)
         except np.linalg.LinAlgError:
             return Outcome(p, Status.DIVERGED, it, np.array(history), held=_on(held, box))
-        if box is not None:  # stopped on the box
-            step[:nf] = into_box(p[:nf] + step[:nf], box) - p[:nf]
         last, p = p, p + step
         history.append(p[:nf].copy())
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
