@@ -1,6 +1,6 @@
 """A box of bounds on the free values, `(low, high)` arrays (±inf: open; None: no box), as the
-optimisers that keep one (`ml-gn`, `ml-lm`) use it: a start moved into it, the values a bound holds
-at an iteration (the KKT condition) and a step stopped on it.
+methods that keep `[identify] bounds` use it: a start moved into it, the values a bound holds at
+an iteration (the KKT condition), a step solved in it by an active set, and a point moved onto it.
 """
 
 from __future__ import annotations
