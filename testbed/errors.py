@@ -33,7 +33,12 @@ class InputError(ValueError):
 class Unflyable(InputError):
     """The model cannot be flown on the records at these coefficients: it has no information
     there (an `InputError`: exit 2 where the user's config is at fault; an analysis that can
-    cut the records into segments tries them first)."""
+    cut the records into segments tries them first). `reason`: how it diverges, without the file
+    or the expectation the message adds (the message where none is given)."""
+
+    def __init__(self, message: str = "", reason: str = ""):
+        super().__init__(message)
+        self.reason = printable(reason) if reason else str(self)
 
 
 def one_line(exc: BaseException) -> str:

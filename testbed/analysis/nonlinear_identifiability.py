@@ -184,7 +184,7 @@ def _information(experiments, config: ModelConfig, problem: tuple, initial, subs
     except Unflyable as exc:
         objective = NonlinearObjective(model, theta, np.asarray(idx), tuple(recs), tuple(ch), held, substeps)
         H, segments = _on_segments(objective, channels, config.free, config.source or "the config")
-        return H, segments, str(exc).split(": ", 1)[-1].split("; expected")[0]
+        return H, segments, exc.reason
     m = len(model.names)  # the outputs: the states as read plus their biases
     R = pooled_noise([r.y - read_outputs(x, theta, m, ch) for r, x in zip(recs, flown)], held)
     x0 = np.array([x[0] for x in flown])

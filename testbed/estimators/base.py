@@ -28,6 +28,7 @@ __all__ = [
     "Outcome",
     "Progress",
     "Status",
+    "bounds_message",
     "bounds_text",
     "count_option",
     "is_count",
@@ -198,6 +199,11 @@ class Estimate:
 def bounds_text(at_bounds: Mapping[str, float]) -> str:
     """Bounds reached, name → value, as `name = value, …`."""
     return ", ".join(f"{n} = {v:g}" for n, v in at_bounds.items())
+
+
+def bounds_message(at_bounds: Mapping[str, float] | None) -> str:
+    """An estimate's message for the bounds it ended on (`bounds_text`), empty where none."""
+    return f"on its bounds: {bounds_text(at_bounds)}" if at_bounds else ""
 
 
 def _finite(x) -> float | None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["active_set_step", "held_on_bounds", "into_box", "start_in_box"]
+__all__ = ["active_set_step", "held_on_bounds", "into_box", "on_bounds", "outcome_held", "start_in_box"]
 
 
 def held_on_bounds(theta: np.ndarray, g: np.ndarray, box: tuple | None) -> np.ndarray:
@@ -39,6 +39,18 @@ def active_set_step(solve, theta: np.ndarray, keep: np.ndarray, box: tuple | Non
         d[crossed] = (into_box(theta + d[:nf], box) - theta)[crossed[:nf]]
         hit |= crossed
     return d
+
+
+def on_bounds(theta: np.ndarray, box: tuple | None) -> np.ndarray:
+    """The free values that lie on a bound of the box, or beyond (bool, n_free; none without one)."""
+    if box is None:
+        return np.zeros(len(theta), dtype=bool)
+    return (theta <= box[0]) | (theta >= box[1])
+
+
+def outcome_held(held: np.ndarray) -> np.ndarray | None:
+    """`Outcome.held` of the values `held` on a bound: None where none is."""
+    return held if held.any() else None
 
 
 def into_box(theta: np.ndarray, box: tuple | None) -> np.ndarray:

@@ -15,8 +15,17 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
-from testbed.estimators.base import Callback, Estimate, Method, Options, Progress, Status, bounds_text, option
-from testbed.estimators.box_bounds import into_box
+from testbed.estimators.base import (
+    Callback,
+    Estimate,
+    Method,
+    Options,
+    Progress,
+    Status,
+    bounds_message,
+    option,
+)
+from testbed.estimators.box_bounds import into_box, on_bounds
 from testbed.estimators.intervals import between_present
 from testbed.identification.bounds import assess, held_bounds
 from testbed.identification.likelihood import divergence, initial_states
@@ -238,9 +247,9 @@ def _fit(
     if callback is not None:
         callback(Progress(1, info.values.copy(), info.cost))
     # the values on a bound: no σ, the others' with them held
-    held = None if box is None else (values <= box[0]) | (values >= box[1])
+    held = on_bounds(values, box)
     std, coloured = held_bounds(info, held)
-    at_bounds = {} if held is None else {prob.free[k]: float(values[k]) for k in np.flatnonzero(held)}
+    at_bounds = {prob.free[k]: float(values[k]) for k in np.flatnonzero(held)}
     return Estimate(
         method=EQUATION_ERROR.name,
         status=Status.CONVERGED,
@@ -256,7 +265,7 @@ def _fit(
         crlb_corrected_std=coloured,
         initial_states=info.initial_states,
         at_bounds=at_bounds or None,
-        message=f"on its bounds: {bounds_text(at_bounds)}" if at_bounds else "",
+        message=bounds_message(at_bounds),
     )
 
 

@@ -54,14 +54,14 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError, is_number
 from testbed.estimators import starts, trust_region
-from testbed.estimators.box_bounds import held_on_bounds, into_box
+from testbed.estimators.box_bounds import held_on_bounds, into_box, on_bounds
 from testbed.estimators.base import (
     Callback,
     Estimate,
     Method,
     Options,
     Progress,
-    bounds_text,
+    bounds_message,
     Status,
     count_option,
     option,
@@ -543,7 +543,7 @@ def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale, box=None)
     region or its bounds are not finite."""
     prob, nf, nx = lik.prob, lik.nf, lik.nx
     noise, process, std, cost = {}, {}, np.full(nf, np.nan), np.nan
-    held = np.zeros(nf, dtype=bool) if box is None else (p[:nf] <= box[0]) | (p[:nf] >= box[1])
+    held = on_bounds(p[:nf], box)
     if status is not Status.DIVERGED:
         flt, nus = lik.run(p, S)
         try:
@@ -589,9 +589,7 @@ def _estimate(lik: _Likelihood, p, S, status, it, history, why, scale, box=None)
         initial_states=x0,
         process_noise_std=process if status is not Status.DIVERGED else None,
         at_bounds=at_bounds or None,
-        message=why
-        if status is Status.DIVERGED
-        else (f"on its bounds: {bounds_text(at_bounds)}" if at_bounds else ""),
+        message=why if status is Status.DIVERGED else bounds_message(at_bounds),
     )
 
 

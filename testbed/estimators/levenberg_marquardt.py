@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.estimators.base import Outcome, Progress, Status
-from testbed.estimators.box_bounds import active_set_step, held_on_bounds, start_in_box
+from testbed.estimators.box_bounds import active_set_step, held_on_bounds, outcome_held, start_in_box
 from testbed.identification import bounds, likelihood, linear_objective
 from testbed.identification.objective import Objective, Point
 from testbed.identification.problem import Problem
@@ -38,8 +38,8 @@ def levenberg_marquardt(
     the free values (±inf: open), the box the fit keeps them in: a start outside it is moved onto
     it, a value on its bound with the descent pointing out is held there for the iteration (the
     bound's KKT condition, `box_bounds.held_on_bounds`: left out of the step and of the
-    convergence test), the others' step is stopped on the box (projected), and `Outcome.held`
-    marks those it ends held on."""
+    convergence test), the others' step is an active-set step in the box (`_damped_step`), and
+    `Outcome.held` marks those it ends held on."""
     obj = linear_objective.as_objective(prob)
     nf = obj.n_free
     p, box, at = start_in_box(p, nf, box, at)
@@ -76,11 +76,11 @@ def levenberg_marquardt(
                 break
             lam *= 10
             if lam > 1e12:
-                return _outcome(x, Status.STALLED, it, history, M, held, box)
+                return _outcome(x, Status.STALLED, it, history, M, held)
         history.append(x.p[:nf].copy())
         if callback is not None:
             callback(Progress(it + 1, x.p[:nf].copy(), x.J))
-    return _outcome(x, status, it, history, M, held, box)
+    return _outcome(x, status, it, history, M, held)
 
 
 def _damped_step(F, g, lam: float, keep: np.ndarray, theta: np.ndarray, box) -> np.ndarray:
@@ -98,8 +98,9 @@ def _damped_step(F, g, lam: float, keep: np.ndarray, theta: np.ndarray, box) -> 
     return active_set_step(solve, theta, keep, box)
 
 
-def _outcome(x: Point, status: Status, it: int, history: list, M, held: np.ndarray, box) -> Outcome:
+def _outcome(x: Point, status: Status, it: int, history: list, M, held: np.ndarray) -> Outcome:
     """Where it stopped: the point `x`, with M there and its states and residuals, and the values
-    `held` on a bound of the `box` (None where there is none)."""
-    held = held if box is not None and held.any() else None
-    return Outcome(x.p, status, it, np.array(history), M, cost=x.J, simulated=(x.xs, x.res), held=held)
+    `held` on a bound."""
+    return Outcome(
+        x.p, status, it, np.array(history), M, cost=x.J, simulated=(x.xs, x.res), held=outcome_held(held)
+    )

@@ -44,7 +44,7 @@ from testbed.estimators.base import (
     Outcome,
     Progress,
     Status,
-    bounds_text,
+    bounds_message,
     count_option,
     is_count,
     option,
@@ -146,7 +146,7 @@ def _estimate(
         crlb_corrected_std=coloured,
         initial_states=info.initial_states,
         at_bounds=at_bounds or None,
-        message=f"on its bounds: {bounds_text(at_bounds)}" if at_bounds else "",
+        message=bounds_message(at_bounds),
     )
 
 

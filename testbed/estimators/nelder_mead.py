@@ -11,7 +11,7 @@ import numpy as np
 
 from testbed.estimators import trust_region
 from testbed.estimators.base import Outcome, Progress, Status
-from testbed.estimators.box_bounds import into_box, start_in_box
+from testbed.estimators.box_bounds import into_box, on_bounds, outcome_held, start_in_box
 from testbed.estimators.newton_raphson import length_stages
 from testbed.estimators import simplex
 from testbed.estimators.simplex import STEPS, simplex_coefficients, simplex_run
@@ -100,10 +100,7 @@ def nelder_mead(
         prob, p, max_iter, callback, eps, step, restart_step, r_tol, max_relaxations, coefficients,
         first_length, stage_eps, restarts, coordinates, follow, box,
     )  # fmt: skip
-    if box is None:
-        return out
-    on = (out.p[: prob.n_free] <= box[0]) | (out.p[: prob.n_free] >= box[1])
-    return replace(out, held=on if on.any() else None)
+    return replace(out, held=outcome_held(on_bounds(out.p[: prob.n_free], box)))
 
 
 def _simplex(

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from testbed.estimators.base import Callback, Outcome, Progress, Status
-from testbed.estimators.box_bounds import active_set_step, held_on_bounds, start_in_box
+from testbed.estimators.box_bounds import active_set_step, held_on_bounds, outcome_held, start_in_box
 from testbed.identification import bounds, likelihood, recursions, scan
 from testbed.identification.problem import Problem
 
@@ -52,7 +52,7 @@ def newton_raphson(
     for it in range(max_iter + 1):
         sim = _simulated_residuals(prob, p)
         if sim is None:  # the step into an invalid model does not count; report the one before
-            return Outcome(last, Status.DIVERGED, it - 1, np.array(history[:it]), held=_on(held, box))
+            return Outcome(last, Status.DIVERGED, it - 1, np.array(history[:it]), held=outcome_held(held))
         xs, res = sim
         if it:
             _report_iteration(callback, prob, it, p, res)
@@ -78,16 +78,11 @@ def newton_raphson(
         try:  # θ kept in the box by an active set
             step = active_set_step(solve, p[:nf], keep, box)
         except np.linalg.LinAlgError:
-            return Outcome(p, Status.DIVERGED, it, np.array(history), held=_on(held, box))
+            return Outcome(p, Status.DIVERGED, it, np.array(history), held=outcome_held(held))
         last, p = p, p + step
         history.append(p[:nf].copy())
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
-    return Outcome(p, status, it, np.array(history), M, held=_on(held, box))
-
-
-def _on(held: np.ndarray, box) -> np.ndarray | None:
-    """`Outcome.held`: the values held on a bound of the `box`, None where none is."""
-    return held if box is not None and held.any() else None
+    return Outcome(p, status, it, np.array(history), M, held=outcome_held(held))
 
 
 def _normal_terms(prob: Problem, p: np.ndarray, xs, res):

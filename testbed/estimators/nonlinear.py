@@ -61,8 +61,8 @@ import numpy as np
 
 from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
-from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status, bounds_text
-from testbed.estimators.box_bounds import into_box
+from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status, bounds_message
+from testbed.estimators.box_bounds import into_box, on_bounds
 from testbed.estimators.multistart import Fit, best_fit, box_draws, starts_record, starts_summary
 from testbed.estimators.nonlinear_fit import fit as fit_from
 from testbed.estimators.nonlinear_fit import NonlinearFit, nonlinear_problem
@@ -304,7 +304,7 @@ def _output_error(
         crlb_corrected_std=coloured,
         information=H if not fit.at_bounds else None,
         at_bounds=dict(fit.at_bounds) or None,
-        message=f"on its bounds: {bounds_text(fit.at_bounds)}" if fit.at_bounds else "",
+        message=bounds_message(fit.at_bounds),
     )
 
 
@@ -419,7 +419,7 @@ def simplex(
                 break
     th = coefficients(x)
     # the values on a bound held: the others' σ with them held, theirs NaN (a bound is no estimate's σ)
-    on = {n: float(v) for n, v, a, b in zip(config.free, th[idx], *box) if v <= a or v >= b}
+    on = {config.free[k]: float(th[idx][k]) for k in np.flatnonzero(on_bounds(th[idx], box))}
     moving = [n for n in config.free if n not in on]
     std, coloured, H = np.full(nf, np.nan), np.full(nf, np.nan), None
     if moving:
@@ -446,5 +446,5 @@ def simplex(
         crlb_corrected_std=coloured,
         information=H if not on else None,
         at_bounds=on or None,
-        message=f"on its bounds: {bounds_text(on)}" if on else "",
+        message=bounds_message(on),
     )

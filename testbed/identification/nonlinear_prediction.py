@@ -149,11 +149,11 @@ def flights(
             states = fly_nonlinear(model, theta, e.t, x0, fins, substeps)
         bad = np.argwhere(~np.isfinite(states))
         if len(bad):
-            raise Unflyable(
-                f"{e.source or e.name}: {config.source or 'the config'}'s model flown from the record's "
-                f"first sample leaves the finite numbers at t = {e.t[bad[0][0]]:g} s; expected a model "
-                "whose flight stays bounded"
+            why = (
+                f"{config.source or 'the config'}'s model flown from the record's first sample leaves "
+                f"the finite numbers at t = {e.t[bad[0][0]]:g} s"
             )
+            raise Unflyable(f"{e.source or e.name}: {why}; expected a model whose flight stays bounded", why)
         with np.errstate(all="ignore"):
             out.append(
                 initial_state(
