@@ -26,7 +26,7 @@ the default ML optimiser over either model's likelihood (`trust_region`), the fi
 (`mekf`), equation error (`equation_error`) and the nonlinear model's start from it
 (`nonlinear_regression`), the nonlinear model's output-error methods (`nonlinear`), the other
 optimisers (`levenberg_marquardt`, `newton_raphson`, `nelder_mead`) and where the linear
-model's fits start (`starts`), the ML methods (`ml`) and the filter-error method (`fem`).
+model's fits start (`starts`), the ML methods (`ml`) and the filter-error method (`fem`, its likelihood `fem_likelihood`).
 """
 
 from __future__ import annotations
