@@ -326,7 +326,10 @@ def _cmd_replay(args) -> int:
 
 
 def _terminate(signum, frame):
-    raise KeyboardInterrupt  # `kill` cleans up like Ctrl-C: temporary outputs are removed
+    # `kill` cleans up like Ctrl-C: temporary outputs are removed; a second `kill` while they are
+    # is ignored, so that the cleanup runs to its end (Ctrl-C pressed again still stops it)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise KeyboardInterrupt
 
 
 INTERNAL_ERROR = 70  # a bug (sysexits' EX_SOFTWARE): not 1, which means "did not converge"

@@ -5,6 +5,7 @@ import json
 import math
 import os
 import shlex
+import shutil
 import signal
 import tomllib
 from dataclasses import replace
@@ -533,6 +534,27 @@ def test_kill_leaves_nothing(tmp_path, monkeypatch):
     monkeypatch.setattr(fl, "fly", killed)
     assert main(["simulate", "--scenario", "II", "--quiet", "--out", str(tmp_path / "run")]) == 130
     assert list(tmp_path.iterdir()) == []  # no run directory, no temporary one
+
+
+def test_a_second_kill_while_cleaning_up_is_ignored(tmp_path, monkeypatch):
+    """`kill` twice: the second SIGTERM arrives while the temporary run directory is being
+    removed, and the removal still runs to its end."""
+    rmtree = shutil.rmtree
+
+    def killed(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("SIGTERM did not stop the run")
+
+    def removed_under_fire(path, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        rmtree(path, *args, **kwargs)
+
+    monkeypatch.setattr(fl, "fly", killed)
+    monkeypatch.setattr(shutil, "rmtree", removed_under_fire)
+    before = signal.getsignal(signal.SIGTERM)
+    assert main(["simulate", "--scenario", "II", "--quiet", "--out", str(tmp_path / "run")]) == 130
+    assert list(tmp_path.iterdir()) == []
+    assert signal.getsignal(signal.SIGTERM) is before  # the handler restored
 
 
 def test_fins_logged_at_the_physics_rate_are_the_servos_steps_between_the_samples(tmp_path):
