@@ -179,7 +179,7 @@ def parser() -> argparse.ArgumentParser:
         "--method",
         default="ml-gn",
         help="ml-gn (default), ml-lm, ml-nr, ml-nm, ml-fem, mekf, ekf, equation-error; a nonlinear "
-        "model config ([terms]): ml-gn, ml-nm, mekf or ekf",
+        "model config ([terms]): ml-gn, ml-lm, ml-nm, mekf, ekf or equation-error",
     )
     s.add_argument(
         "--config", type=Path, help="model config TOML, linear or nonlinear (default: the run's model.toml)"

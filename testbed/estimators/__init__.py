@@ -13,7 +13,8 @@ a caller never guesses them from the name:
   `Estimate.iterations` counts the samples processed, and it returns a `FilterEstimate` with the
   estimate and σ histories.
 
-A method with none of them (`equation-error`) is solved at once: one iteration, no limit.
+A method with none of them (`equation-error`) is solved at once, no limit: one iteration (on a
+nonlinear model config, the few Gauss-Newton steps its rows' inertia terms take).
 
 Every method reports its progress to `callback(Progress)` after each iteration (or sample).
 
@@ -22,9 +23,9 @@ equation-error methods' intervals (`intervals`), the filters' algebra, model and
 (`square_root`, `filter_model`, `filter_options`), a box of bounds (`box_bounds`), fits from
 several starts (`multistart`),
 the default ML optimiser over either model's likelihood (`trust_region`), the filters' passes
-(`filter_passes`), the nonlinear model's fit by it (`nonlinear_fit`), the filters as methods
-(`mekf`), equation error (`equation_error`) and the nonlinear model's start from it
-(`nonlinear_regression`), the nonlinear model's output-error methods (`nonlinear`), the other
+(`filter_passes`), the nonlinear model's fit by it (`nonlinear_fit`), the nonlinear model's
+equation error (`nonlinear_regression`: output error's start and the method), the filters as
+methods (`mekf`), equation error (`equation_error`), the nonlinear model's output-error methods (`nonlinear`), the other
 optimisers (`levenberg_marquardt`, `newton_raphson`, `nelder_mead`) and where the linear
 model's fits start (`starts`), the ML methods (`ml`) and the filter-error method (`fem`, its likelihood `fem_likelihood`).
 """

@@ -1,13 +1,22 @@
 """A box of bounds on the free values, `(low, high)` arrays (±inf: open; None: no box), as the
 methods that keep `[identify] bounds` use it: a start moved into it, the values a bound holds at
-an iteration (the KKT condition), a step solved in it by an active set, and a point moved onto it.
+an iteration (the KKT condition), a step solved in it by an active set, a least-squares
+correction solved in it, and a point moved onto it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["active_set_step", "held_on_bounds", "into_box", "on_bounds", "outcome_held", "start_in_box"]
+__all__ = [
+    "active_set_step",
+    "held_on_bounds",
+    "into_box",
+    "least_squares_step",
+    "on_bounds",
+    "outcome_held",
+    "start_in_box",
+]
 
 
 def held_on_bounds(theta: np.ndarray, g: np.ndarray, box: tuple | None) -> np.ndarray:
@@ -71,3 +80,21 @@ def start_in_box(
     if np.array_equal(inside, p[:n_free]):
         return p, box, at
     return np.concatenate([inside, p[n_free:]]), box, None
+
+
+def least_squares_step(A: np.ndarray, b: np.ndarray, prior: np.ndarray, box: tuple | None) -> np.ndarray:
+    """The correction d of `prior` that minimises ‖A d − b‖, A's columns scaled to unit length
+    first (d's units do not count): the least-squares solution of least norm there, so directions
+    the data do not excite keep their prior values; where prior + d leaves the `box` (prior inside
+    it), the solution in the box instead (bounded least squares, `scipy.optimize.lsq_linear`)."""
+    scale = np.linalg.norm(A, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    d = np.linalg.lstsq(A / scale, b, rcond=1e-8)[0] / scale
+    if box is not None and not np.all(into_box(prior + d, box) == prior + d):
+        from scipy.optimize import lsq_linear  # only for a correction that leaves its box
+
+        # min ‖(A/D) z − b‖ with prior + z/D inside the box (D the columns' norms)
+        reach = ((box[0] - prior) * scale, (box[1] - prior) * scale)
+        d = lsq_linear(A / scale, b, bounds=reach, method="bvls").x / scale
+        d = into_box(prior + d, box) - prior
+    return d

@@ -1,7 +1,7 @@
 """The equation-error method `equation-error`: the linear model's rows regressed on smoothed
 derivatives of the measured states. No simulation, so no basin of attraction and no divergence
 along the record, but biased by the noise and by the smoothing; the ML methods start from it
-(`estimators.starts`).
+(`estimators.starts`). A nonlinear model config is regressed by `nonlinear_regression.fit`.
 """
 
 from __future__ import annotations
@@ -25,8 +25,9 @@ from testbed.estimators.base import (
     bounds_message,
     option,
 )
-from testbed.estimators.box_bounds import into_box, on_bounds
+from testbed.estimators.box_bounds import least_squares_step, on_bounds
 from testbed.estimators.intervals import between_present
+from testbed.estimators import nonlinear_regression
 from testbed.identification.bounds import assess, held_bounds
 from testbed.identification.likelihood import divergence, initial_states
 from testbed.identification.problem import Problem, base_name, check_mounting, problem
@@ -139,18 +140,9 @@ def regression(
             continue
         X, Y = np.vstack(X), np.concatenate(Y)
         prior = values[cols]
-        scale = np.linalg.norm(X, axis=0)
-        scale = np.where(scale > 0, scale, 1.0)
-        step = np.linalg.lstsq(X / scale, Y - X @ prior, rcond=1e-8)[0] / scale
-        if box is not None and not np.all(
-            into_box(prior + step, (box[0][cols], box[1][cols])) == prior + step
-        ):
-            from scipy.optimize import lsq_linear  # only for a row that leaves its box
-
-            # min ‖(X/D) z − (Y − X θ₀)‖ with θ = θ₀ + z/D inside the box (D the columns' norms)
-            reach = ((box[0][cols] - prior) * scale, (box[1][cols] - prior) * scale)
-            step = lsq_linear(X / scale, Y - X @ prior, bounds=reach, method="bvls").x / scale
-            step = into_box(prior + step, (box[0][cols], box[1][cols])) - prior
+        step = least_squares_step(
+            X, Y - X @ prior, prior, None if box is None else (box[0][cols], box[1][cols])
+        )
         values[cols] = prior + step
     return values, left
 
@@ -287,9 +279,11 @@ EQUATION_ERROR = Method(
     name="equation-error",
     fit=_fit,
     options=EquationErrorOptions,
-    summary="equation error: the linear model's rows regressed on smoothed derivatives of the measured states",
+    summary="equation error: the model's rows regressed on derivatives of the measured states (the linear "
+    "model's smoothed)",
     iterative=False,
     starts=False,
+    nonlinear=nonlinear_regression.fit,
     refuses=_refuses,
     bounds=True,
 )

@@ -65,8 +65,8 @@ from testbed.estimators.base import Callback, Estimate, OptionError, Options, Pr
 from testbed.estimators.box_bounds import into_box, on_bounds
 from testbed.estimators.multistart import Fit, best_fit, box_draws, starts_record, starts_summary
 from testbed.estimators.nonlinear_fit import fit as fit_from
-from testbed.estimators.nonlinear_fit import NonlinearFit, nonlinear_problem
-from testbed.estimators.nonlinear_regression import equation_error
+from testbed.estimators.nonlinear_fit import NonlinearFit, estimate_of, nonlinear_problem
+from testbed.estimators.nonlinear_regression import regressed
 from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficients, simplex_run
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
@@ -75,17 +75,12 @@ from testbed.identification.nonlinear_output_error import (
     pooled_noise,
     present_only,
     flight_residuals,
-    output_terms,
-    read_outputs,
-    record_fins,
+    fitted_initial_states,
     setup,
     start_states,
 )
-from testbed.identification.nonlinear_prediction import initial_state
-from testbed.identification.nonlinear_sensitivities import flight
-from testbed.identification.recursions import counting, simulated
-from testbed.models import log_mounting
-from testbed.models.linear import NX, STATES
+from testbed.identification.recursions import counting
+from testbed.models.linear import STATES
 
 __all__ = ["GN_STARTS", "STARTS", "gauss_newton", "levenberg_marquardt", "simplex"]
 
@@ -128,39 +123,11 @@ def _checked(method: str, options: Options, meant: Sequence[str], starts: Sequen
         raise OptionError(method, "start", options.start, f"{', '.join(starts)} for a nonlinear model config")
 
 
-def _estimate(config, experiments, channels, x0, t0: float, tally: int, **fields) -> Estimate:
-    """The `Estimate` of a fit of `config.free` to `experiments` (its other `fields` given), with
-    its wall time from `t0`, its evaluations from the samples simulated `tally` and each record's
-    fitted initial state `x0` (records, 10) in the measured `channels`."""
-    return Estimate(
-        free=tuple(config.free),
-        wall_time_s=time.perf_counter() - t0,
-        evaluations=-(-tally // sum(len(e.t) for e in experiments)),
-        initial_states={
-            e.name: {c: float(x[STATES.index(c)]) for c in channels} for e, x in zip(experiments, x0)
-        },
-        **fields,
-    )
-
-
 def _regressed(start: str, model, theta, recs, channels, free) -> np.ndarray | None:
-    """The equation-error start as θ ⊕ b ⊕ g ⊕ c ⊕ τ: θ's free coefficients fitted to the records less
-    their biases b, which it holds; None where the records cannot give it, `InputError` if
-    `start` names it."""
-    m, own = len(model.names), [n for n in free if n in model.names]
-    # the records less what their outputs add to a body at rest (the biases, the current), their
-    # fins advanced by the delay; a mounted log's velocities taken as the CG's (a start)
-    ch = [STATES.index(c) for c in channels]
-    unbiased = [
-        replace(
-            r,
-            y=r.y - read_outputs(np.zeros((len(r.t), NX)), theta, m, ch, r.heading),
-            fins=record_fins(r, theta, m, ch)[0],
-        )
-        for r in recs
-    ]
+    """The equation-error start (`nonlinear_regression.regressed`); None where the records cannot
+    give it, `InputError` if `start` names it."""
     try:
-        return np.concatenate([equation_error(model, theta[:m], unbiased, channels, own), theta[m:]])
+        return regressed(model, theta, recs, channels, free)[0]
     except InputError:
         if start == "equation-error":
             raise
@@ -283,7 +250,7 @@ def _output_error(
             std[at], coloured[at], _, H = coloured_bounds(
                 model, fit.theta, fit.initial_states, recs, channels, moving, R
             )
-    return _estimate(
+    return estimate_of(
         config,
         experiments,
         channels,
@@ -347,24 +314,6 @@ def simplex(
     def flown(th, x0):
         return flight_residuals(model, th, x0, recs, ch)
 
-    def relaxed(th, x0, R):
-        """Each record's initial state fitted at θ (R held where given) and its outputs'
-        sensitivities to the measured initial states there (N, k, k)."""
-        fitted, sens, m = [], [], len(model.names)
-        for r, x in zip(recs, x0):
-            # the flight fitted to the record less its output biases b, read by the log mounted as
-            # g over the ground, the current c along the record's heading (θ ⊕ b ⊕ g ⊕ c = th)
-            b, g, c = output_terms(th, m, ch)
-            current, fins = log_mounting.current_along(c, r.heading, len(r.t)), record_fins(r, th, m, ch)[0]
-            x, states = initial_state(
-                model, th[:m], r.t, fins, r.y - b, ch, range(len(ch)), x, R, None, None, g, current
-            )
-            fitted.append(x)
-            dx0 = flight(model, th[:m], r.t, x, fins, (), None).dx_dx0
-            sens.append(log_mounting.read_derivatives(g, dx0, ch)[:, :, ch])
-            simulated(len(r.t) * (1 + len(ch)))
-        return np.array(fitted), sens
-
     with counting() as tally:
         x0 = start_states(model, recs, ch)
         if flown(theta, x0) is None:
@@ -372,7 +321,7 @@ def simplex(
                 f"{config.source or 'config'}: the model's flight from the start values does not stay "
                 "finite over the records; expected a start whose flight does (or ml-gn, which halves them)"
             )
-        x0, sens = relaxed(theta, x0, None)
+        x0, sens = fitted_initial_states(model, theta, recs, ch, x0, None)
         R = pooled_noise(flown(theta, x0), held)
 
         def J(v: np.ndarray) -> float:
@@ -412,7 +361,7 @@ def simplex(
                 status = Status.MAX_ITERATIONS
                 break
             # the relaxation at the best corner: the initial states and their sensitivities, then R
-            x0, sens = relaxed(coefficients(x), x0, R)
+            x0, sens = fitted_initial_states(model, coefficients(x), recs, ch, x0, R)
             R, R_old = pooled_noise(flown(coefficients(x), x0), held), R
             if J_start - J_best <= tol and np.max(np.abs(R / R_old - 1)) < options.r_tol:
                 status = Status.CONVERGED
@@ -427,7 +376,7 @@ def simplex(
         std[at], coloured[at], res, H = coloured_bounds(model, th, x0, recs, channels, moving, R)
     else:
         res = flown(th, x0)
-    return _estimate(
+    return estimate_of(
         config,
         experiments,
         channels,

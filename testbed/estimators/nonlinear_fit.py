@@ -13,13 +13,14 @@ none (NaN), the others' are those with it held.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from testbed.errors import InputError
-from testbed.estimators.base import Outcome, Status
+from testbed.estimators.base import Estimate, Outcome, Status
 from testbed.estimators.levenberg_marquardt import levenberg_marquardt
 from testbed.estimators.trust_region import trust_region
 from testbed.identification.bounds import crlb
@@ -36,7 +37,7 @@ from testbed.identification.objective import Point
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import NonlinearModel
 
-__all__ = ["NonlinearFit", "fit", "fit_output_error", "nonlinear_problem", "result"]
+__all__ = ["NonlinearFit", "estimate_of", "fit", "fit_output_error", "nonlinear_problem", "result"]
 
 
 @dataclass(frozen=True)
@@ -196,3 +197,18 @@ def _box(bounds, p: int) -> tuple[np.ndarray, np.ndarray] | None:
     if low.shape != (p,) or high.shape != (p,) or not np.all(low < high):
         raise InputError(f"bounds {bounds!r}; expected (low, high), {p} each, low < high")
     return low, high
+
+
+def estimate_of(config, experiments, channels, x0, t0: float, tally: int, **fields) -> Estimate:
+    """The `Estimate` of a fit of `config.free` to `experiments` (its other `fields` given), with
+    its wall time from `t0`, its evaluations from the samples simulated `tally` and each record's
+    fitted initial state `x0` (records, 10) in the measured `channels`."""
+    return Estimate(
+        free=tuple(config.free),
+        wall_time_s=time.perf_counter() - t0,
+        evaluations=-(-tally // sum(len(e.t) for e in experiments)),
+        initial_states={
+            e.name: {c: float(x[STATES.index(c)]) for c in channels} for e, x in zip(experiments, x0)
+        },
+        **fields,
+    )

@@ -1,5 +1,7 @@
-"""The nonlinear model's equation-error start: its dynamics rows fitted to the measured states'
-difference quotients, with no flight, so no basin of attraction and no divergence along the record.
+"""The nonlinear model's equation error, as output error's start (`regressed`) and as the method
+`equation-error` on a nonlinear model config (`fit`): its dynamics rows fitted to the measured
+states' difference quotients, with no flight, so no basin of attraction and no divergence along
+the record.
 
 Every row of `M ν̇ = F(ν, η, δ; θ)` is linear in the terms' coefficients, and only M's inertia
 coefficients and the Munk terms enter through M⁻¹. Over each sample interval, where the fin
@@ -19,24 +21,44 @@ same samples, differenced and averaged), so it adds variance, not bias. Each ste
 least-squares solution of least norm in coordinates scaled by the Jacobian's columns, so
 directions the data do not excite keep their a-priori values. Noise in the regressors biases the
 estimate (errors in variables: on noisy Scenario I the lifts within 0.5 %, the blades' blunt drags
-off by −155 to +211 %), so it is a start for output error, not an estimate of its own.
+off by −155 to +211 %): as the linear model's regression, it is a start for output error, and as
+a method an estimate of that bias's size.
 
 It needs every state the rows involve measured: u v w p q r and the attitude φ θ.
 """
 
 from __future__ import annotations
 
+import time
+from dataclasses import fields, replace
 from typing import Sequence
 
 import numpy as np
 
+from testbed.data import Experiment, ModelConfig
 from testbed.errors import InputError
+from testbed.estimators.base import Callback, Estimate, OptionError, Options, Progress, Status, bounds_message
+from testbed.estimators.box_bounds import least_squares_step, on_bounds
+from testbed.estimators.nonlinear_fit import estimate_of
 from testbed.estimators.intervals import between_present
-from testbed.identification.nonlinear_output_error import FlightRecord
-from testbed.models.linear import STATES
+from testbed.identification.nonlinear_output_error import (
+    FlightRecord,
+    coloured_bounds,
+    fitted_initial_states,
+    flight_residuals,
+    neg_log_likelihood,
+    pooled_noise,
+    read_outputs,
+    record_fins,
+    setup,
+    start_states,
+)
+from testbed.identification.problem import check_mounting
+from testbed.identification.recursions import counting
+from testbed.models.linear import NX, STATES
 from testbed.models.nonlinear import NonlinearModel, rates, rate_sensitivities
 
-__all__ = ["NEEDED", "equation_error"]
+__all__ = ["NEEDED", "fit", "regressed"]
 
 NEEDED = ("u", "v", "w", "p", "q", "r", "phi", "theta")  # the states the dynamics rows involve
 _ROWS = 6  # ν̇'s rows of f
@@ -60,45 +82,135 @@ def _intervals(records: Sequence[FlightRecord], channels: Sequence[str]):
     return np.concatenate(nudot), np.concatenate(xbar), np.concatenate(fins)
 
 
-def equation_error(
+def regressed(
     model: NonlinearModel,
-    theta,
+    theta: np.ndarray,
     records: Sequence[FlightRecord],
     channels: Sequence[str],
     free: Sequence[str],
-) -> np.ndarray:
-    """θ with its `free` coefficients (names from `model.names`) fitted to the records' difference
-    quotients from `theta` (module doc); `InputError` naming the states the rows need that the
-    records do not measure, or where no interval has them all present."""
+    box: tuple | None = None,
+    role: str = "start",
+) -> tuple[np.ndarray, int]:
+    """θ ⊕ b ⊕ g ⊕ c ⊕ τ (`theta`) with θ's `free` coefficients (names from `model.names`; the
+    others of `free` held) fitted to the records' difference quotients (module doc), and the
+    Gauss-Newton steps taken. The records are taken less what their outputs add to a body at rest
+    (the biases b, the current c), their fins advanced by the delay τ; b, g, c and τ are held, and a
+    mounted log's velocities taken as the CG's. `box`: `(low, high)` of θ's free coefficients (None:
+    none), each step's least-squares correction solved in it (`box_bounds.least_squares_step`).
+    `InputError` naming the states the rows need that the records do not measure, or where no
+    interval has them all present, for the regression as output error's start (`role` "start")
+    or as the method (`role` "method")."""
+    name, instead = (
+        ("equation-error start", "start config") if role == "start" else ("equation-error", "ml-gn")
+    )
     missing = [c for c in NEEDED if c not in channels]
     if missing:
         raise InputError(
-            f"equation-error start: the records do not measure {', '.join(missing)}; the dynamics rows "
-            f"involve {' '.join(NEEDED)}: expected records measuring them, or start config"
+            f"{name}: the records do not measure {', '.join(missing)}; the dynamics rows "
+            f"involve {' '.join(NEEDED)}: expected records measuring them, or {instead}"
         )
-    nudot, x, fins = _intervals(records, channels)
+    m, ch = len(model.names), [STATES.index(c) for c in channels]
+    unbiased = [
+        replace(
+            r,
+            y=r.y - read_outputs(np.zeros((len(r.t), NX)), theta, m, ch, r.heading),
+            fins=record_fins(r, theta, m, ch)[0],
+        )
+        for r in records
+    ]
+    nudot, x, fins = _intervals(unbiased, channels)
     if not len(nudot):
         raise InputError(
-            "equation-error start: no interval between samples where every state the dynamics rows "
+            f"{name}: no interval between samples where every state the dynamics rows "
             f"involve ({' '.join(NEEDED)}) is present; expected records with rows measuring them all, "
-            "or start config"
+            f"or {instead}"
         )
-    idx = np.array([model.names.index(n) for n in free])
+    idx = np.array([model.names.index(n) for n in free if n in model.names])
     theta = np.array(theta, float)
-    for _ in range(_STEPS):
+    rows = theta[:m]  # a view: the dynamics rows' coefficients, stepped in place
+    for steps in range(1, _STEPS + 1):
         # e = Δν/Δt − f_ν(x̄, δ; θ), J = ∂f_ν/∂θ at the free coefficients
-        e = nudot - rates(model, theta, x, fins)[:, :_ROWS]
+        e = nudot - rates(model, rows, x, fins)[:, :_ROWS]
         if not np.all(np.isfinite(e)):
-            raise InputError("equation-error start: the model's rates are not finite at the records' states")
+            raise InputError(f"{name}: the model's rates are not finite at the records' states")
         # W = diag(1 / mean eᵢ²): each row weighted by its own error's scale
         W = 1.0 / np.maximum(np.mean(e**2, axis=0), np.finfo(float).tiny)
-        J = rate_sensitivities(model, theta, x, fins)[:, :_ROWS, idx]
+        J = rate_sensitivities(model, rows, x, fins)[:, :_ROWS, idx]
         A = (J * np.sqrt(W)[None, :, None]).reshape(-1, len(idx))
         b = (e * np.sqrt(W)).reshape(-1)
-        scale = np.linalg.norm(A, axis=0)
-        scale = np.where(scale > 0, scale, 1.0)
-        step = np.linalg.lstsq(A / scale, b, rcond=1e-8)[0]
-        theta[idx] += step / scale
-        if np.all(np.abs(step / scale) <= STEP_TOL * np.abs(theta[idx])):
+        step = least_squares_step(A, b, rows[idx], box)
+        rows[idx] += step
+        if np.all(np.abs(step) <= STEP_TOL * np.abs(rows[idx])):
             break
-    return theta
+    return theta, steps
+
+
+def fit(
+    experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
+) -> Estimate:
+    """`equation-error` on a nonlinear model config: the dynamics rows' free coefficients
+    regressed from the config's values (`regressed`, in the config's box: its `[identify] bounds`
+    and physical sides), then the output-error analysis at them, as the linear method's: each
+    record's initial state fitted by Gauss-Newton on its flight, R the residuals' mean square (or
+    the config's `noise_std` where given), the Cramér-Rao and coloured-residual bounds with the
+    initial states among the parameters (a coefficient on a bound: none, the others' with it held)
+    and the negative log-likelihood as the cost, so that the estimate compares with the other
+    methods'. `iterations`: the regression's Gauss-Newton steps. DIVERGED, the reason named,
+    where the model's flight at the estimate does not stay finite over the records; `InputError`
+    for a free output term or delay (in no dynamics row), a mounted velocity log, records without
+    the states the rows involve; `OptionError` for an option other than its default (the linear
+    regression's smoothing window: the quotients are not smoothed)."""
+    t0, name = time.perf_counter(), "equation-error"
+    where = f"{name} on a nonlinear model config"
+    for f in fields(options):
+        if getattr(options, f.name) != f.default:
+            raise OptionError(
+                name, f.name, getattr(options, f.name), "its default: " + where + " has no such option"
+            )
+    check_mounting(config, where)
+    channels, recs, model, theta, idx = setup(experiments, config, where)
+    outside = [n for n in config.free if n not in model.names]
+    if outside:
+        raise InputError(
+            f"{config.source or 'config'}: [identify] free lists {outside[0]}; equation-error regresses "
+            "the dynamics rows, which the outputs' biases, the current and the inputs' delay are not in: "
+            "expected them fixed (their given values are applied), or an output-error method (ml-gn, ml-lm, ml-nm)"
+        )
+    ch = [STATES.index(c) for c in channels]
+    given = config.noise_std or {}
+    held = np.array([given.get(c, np.nan) ** 2 for c in channels])
+    box = config.box(config.free)
+    with counting() as tally:
+        th, steps = regressed(model, theta, recs, channels, config.free, box, role="method")
+        values = th[idx]
+        history = np.vstack([theta[idx], values])
+        x0 = start_states(model, recs, ch)
+        flown = flight_residuals(model, th, x0, recs, ch) if np.all(np.isfinite(values)) else None
+        if flown is None:
+            return estimate_of(
+                config, experiments, channels, x0, t0, tally[0], method=name, status=Status.DIVERGED,
+                values=values, std=np.full(len(idx), np.nan), cost=np.nan, iterations=steps,
+                noise_std={}, history=history,
+                message="the model's flight at the regression's estimate does not stay finite over the records",
+            )  # fmt: skip
+        x0 = fitted_initial_states(model, th, recs, ch, x0, None, sensitivities=False)[0]
+        R = pooled_noise(flight_residuals(model, th, x0, recs, ch), held)
+        # the values on a bound: no σ, the others' with them held
+        on = {config.free[k]: float(values[k]) for k in np.flatnonzero(on_bounds(values, box))}
+        moving = [n for n in config.free if n not in on]
+        std, coloured, H = np.full(len(idx), np.nan), np.full(len(idx), np.nan), None
+        if moving:
+            at = [config.free.index(n) for n in moving]
+            std[at], coloured[at], res, H = coloured_bounds(model, th, x0, recs, channels, moving, R)
+        else:
+            res = flight_residuals(model, th, x0, recs, ch)
+    cost = neg_log_likelihood(res, R)
+    if callback is not None:
+        callback(Progress(1, values.copy(), cost))
+    return estimate_of(
+        config, experiments, channels, x0, t0, tally[0], method=name, status=Status.CONVERGED,
+        values=values, std=std, cost=cost, iterations=steps,
+        noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)}, history=history,
+        crlb_corrected_std=coloured, information=H if not on else None, at_bounds=on or None,
+        message=bounds_message(on),
+    )  # fmt: skip

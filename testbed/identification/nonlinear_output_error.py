@@ -36,7 +36,7 @@ import numpy as np
 from testbed.data import Experiment, ModelConfig, check_excited
 from testbed.errors import InputError
 from testbed.identification.bounds import coloured_term, crlb
-from testbed.identification.nonlinear_prediction import check_constant_interval
+from testbed.identification.nonlinear_prediction import check_constant_interval, initial_state
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.identification.problem import check_heading, measured_heading, shifted
 from testbed.identification.recursions import simulated
@@ -61,6 +61,7 @@ __all__ = [
     "present_only",
     "records",
     "flight_residuals",
+    "fitted_initial_states",
     "output_sensitivities",
     "setup",
     "fly_records",
@@ -264,6 +265,36 @@ def flight_residuals(
     missing) at θ ⊕ b ⊕ g ⊕ c ⊕ τ (`theta`; what it leaves out: 0), flown from its row of `x0` (records, 10); None
     where a flight does not stay finite. Tallied as `_simulate`'s."""
     return fly_records(model, theta, x0, records, ch, substeps)[1]
+
+
+def fitted_initial_states(
+    model: NonlinearModel,
+    theta: np.ndarray,
+    records: Sequence[FlightRecord],
+    ch,
+    x0: np.ndarray,
+    R: np.ndarray | None,
+    sensitivities: bool = True,
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """`(x0, S)`: each record's measured initial state fitted at θ ⊕ b ⊕ g ⊕ c ⊕ τ (`theta`) by
+    Gauss-Newton from its row of `x0` (records, 10) (`nonlinear_prediction.initial_state`: the
+    flight fitted to the record less its output biases b, read by the log mounted as g, the
+    current c along the record's heading), the noise variances `R` (per channel of `ch`) held, or
+    relaxed per record where None; with `sensitivities`, S per record: the outputs' sensitivities
+    to the measured initial state there (N, k, k), else None."""
+    fitted, sens, m = [], [], len(model.names)
+    b, g, c = output_terms(theta, m, ch)
+    for r, x in zip(records, x0):
+        current, fins = log_mounting.current_along(c, r.heading, len(r.t)), record_fins(r, theta, m, ch)[0]
+        x = initial_state(
+            model, theta[:m], r.t, fins, r.y - b, ch, range(len(ch)), x, R, None, None, g, current
+        )[0]
+        fitted.append(x)
+        if sensitivities:
+            dx0 = flight(model, theta[:m], r.t, x, fins, (), None).dx_dx0
+            sens.append(log_mounting.read_derivatives(g, dx0, ch)[:, :, ch])
+            simulated(len(r.t) * (1 + len(ch)))
+    return np.array(fitted), sens if sensitivities else None
 
 
 def start_states(model: NonlinearModel, records: Sequence[FlightRecord], ch) -> np.ndarray:
