@@ -1,7 +1,7 @@
 """The equation-error method `equation-error`: the linear model's rows regressed on smoothed
 derivatives of the measured states. No simulation, so no basin of attraction and no divergence
 along the record, but biased by the noise and by the smoothing; the ML methods start from it
-(`estimators.starts`). A nonlinear model config is regressed by `nonlinear_regression.fit`.
+(`estimators.starts`). A nonlinear model config is regressed by `nonlinear_regression.equation_error_estimate`.
 """
 
 from __future__ import annotations
@@ -283,7 +283,7 @@ EQUATION_ERROR = Method(
     "model's smoothed)",
     iterative=False,
     starts=False,
-    nonlinear=nonlinear_regression.fit,
+    nonlinear=nonlinear_regression.equation_error_estimate,
     refuses=_refuses,
     bounds=True,
 )

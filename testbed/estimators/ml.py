@@ -525,7 +525,7 @@ ML_LM = _method(
     levenberg_marquardt,
     GaussNewtonOptions,
     "maximum likelihood output error by Gauss-Newton with Levenberg-Marquardt damping",
-    nonlinear.levenberg_marquardt,
+    nonlinear.damped_gauss_newton,
     bounds=True,
 )
 

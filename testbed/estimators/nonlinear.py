@@ -82,7 +82,7 @@ from testbed.identification.nonlinear_output_error import (
 from testbed.identification.recursions import counting
 from testbed.models.linear import STATES
 
-__all__ = ["GN_STARTS", "STARTS", "gauss_newton", "levenberg_marquardt", "simplex"]
+__all__ = ["GN_STARTS", "STARTS", "damped_gauss_newton", "gauss_newton", "simplex"]
 
 STARTS = ("auto", "config", "equation-error")  # the starts a nonlinear model has (module doc)
 GN_STARTS = STARTS + ("global",)  # … and `ml-gn`'s global search
@@ -169,7 +169,7 @@ def gauss_newton(
     return _output_error("ml-gn", experiments, config, options, callback)
 
 
-def levenberg_marquardt(
+def damped_gauss_newton(
     experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
 ) -> Estimate:
     """`ml-lm` on a nonlinear model config (module doc)."""

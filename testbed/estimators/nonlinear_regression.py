@@ -1,5 +1,5 @@
 """The nonlinear model's equation error, as output error's start (`regressed`) and as the method
-`equation-error` on a nonlinear model config (`fit`): its dynamics rows fitted to the measured
+`equation-error` on a nonlinear model config (`equation_error_estimate`): its dynamics rows fitted to the measured
 states' difference quotients, with no flight, so no basin of attraction and no divergence along
 the record.
 
@@ -58,7 +58,7 @@ from testbed.identification.recursions import counting
 from testbed.models.linear import NX, STATES
 from testbed.models.nonlinear import NonlinearModel, rates, rate_sensitivities
 
-__all__ = ["NEEDED", "fit", "regressed"]
+__all__ = ["NEEDED", "equation_error_estimate", "regressed"]
 
 NEEDED = ("u", "v", "w", "p", "q", "r", "phi", "theta")  # the states the dynamics rows involve
 _ROWS = 6  # ν̇'s rows of f
@@ -145,7 +145,7 @@ def regressed(
     return theta, steps
 
 
-def fit(
+def equation_error_estimate(
     experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
 ) -> Estimate:
     """`equation-error` on a nonlinear model config: the dynamics rows' free coefficients

@@ -1,4 +1,4 @@
-"""`equation-error` on a nonlinear model config (`nonlinear_regression.fit`): the dynamics rows
+"""`equation-error` on a nonlinear model config (`nonlinear_regression.equation_error_estimate`): the dynamics rows
 regressed on the measured states' difference quotients, with the output-error analysis at the
 estimate, in the config's box; what it cannot regress refused in one line."""
 
