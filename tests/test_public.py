@@ -129,3 +129,28 @@ def test_the_checks_find_a_private_name_and_a_name_outside_all(tmp_path):
         ("testbed.data", "read_text"),
     }
     assert "read_text" not in importlib.import_module("testbed.data").__all__
+
+
+def _defined(path: Path) -> set[str]:
+    """The names a module defines at its top level (functions, classes, assignments), not those it
+    imports."""
+    names = set()
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names |= {t.id for t in targets if isinstance(t, ast.Name)}
+    return names
+
+
+def test_each_public_name_is_defined_in_one_module():
+    """A public name means one thing: no two modules define a name of the same spelling in their
+    `__all__` (a package re-exporting a submodule's name defines nothing)."""
+    where: dict[str, list[str]] = {}
+    for name, path in MODULES.items():
+        declared = declared_all(path)
+        public = set(ast.literal_eval(declared)) if isinstance(declared, (ast.List, ast.Tuple)) else set()
+        for n in sorted(public & _defined(path)):
+            where.setdefault(n, []).append(name)
+    assert {n: ms for n, ms in where.items() if len(ms) > 1} == {}
