@@ -18,10 +18,10 @@ nonlinear model config, the few Gauss-Newton steps its rows' inertia terms take)
 
 Every method reports its progress to `callback(Progress)` after each iteration (or sample).
 
-The modules, in layer order: the contract (`base`), the paper's simplex (`simplex`), the
-equation-error methods' intervals (`intervals`), the filters' algebra, model and options
-(`square_root`, `filter_model`, `filter_options`), a box of bounds (`box_bounds`), fits from
-several starts (`multistart`),
+The modules, in layer order: the contract (`base`), the equation-error methods' intervals
+(`intervals`), the filters' algebra, model and options (`square_root`, `filter_model`,
+`filter_options`), a box of bounds (`box_bounds`), fits from several starts (`multistart`), the
+paper's simplex and its coordinates (`simplex`),
 the default ML optimiser over either model's likelihood (`trust_region`), the filters' passes
 (`filter_passes`), the nonlinear model's fit by it (`nonlinear_fit`), the nonlinear model's
 equation error (`nonlinear_regression`: output error's start and the method), the filters as

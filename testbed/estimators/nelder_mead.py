@@ -5,16 +5,16 @@ until a run ends where it began, with the noise re-estimated between runs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from testbed.estimators import trust_region
 from testbed.estimators.base import Outcome, Progress, Status
-from testbed.estimators.box_bounds import into_box, on_bounds, outcome_held, start_in_box
+from testbed.estimators.box_bounds import on_bounds, outcome_held, start_in_box
 from testbed.estimators.newton_raphson import length_stages
 from testbed.estimators import simplex
-from testbed.estimators.simplex import STEPS, simplex_coefficients, simplex_run
+from testbed.estimators.simplex import STEPS, Frame, information_frame, simplex_coefficients, simplex_run
 from testbed.identification import bounds, concentrated, likelihood, recursions, scan
 from testbed.identification.problem import Problem
 from testbed.identification.linear_objective import point
@@ -91,7 +91,7 @@ def nelder_mead(
 
     `box`: `(low, high)` of the free values (±inf: open), the box the fit keeps them in: a start
     outside it is moved onto it, and a corner whose θ lies outside costs J_M at θ moved onto the
-    box plus its squared distance from there in the simplex's coordinates over N (`_Frame`), so
+    box plus its squared distance from there in the simplex's coordinates over N (`Frame`), so
     the simplex searches the box and comes back to it; `Outcome.held` marks the values that end
     on a bound.
     """
@@ -130,9 +130,9 @@ def _simplex(
                 return True
         return False
 
-    def framed(stage: Problem, theta: np.ndarray, R: np.ndarray) -> _Frame:
+    def framed(stage: Problem, theta: np.ndarray, R: np.ndarray) -> Frame:
         if coordinates == "scaled":
-            return _Frame(np.zeros(nf), scale, box)
+            return Frame(np.zeros(nf), scale, box)
         return replace(_information_frame(stage, theta, R, scale), box=box)
 
     if not restarts:
@@ -227,59 +227,16 @@ def _converged(prob: Problem, theta: np.ndarray, R: np.ndarray, it: int, history
     return Outcome(x.p, Status.CONVERGED, it, np.array(history), M, (theta.copy(), std))
 
 
-@dataclass(frozen=True)
-class _Frame:
-    """The simplex's coordinates x: θ = origin + T x, T a matrix or (a vector) a diagonal,
-    moved onto the `box` (None: none) where it lies outside."""
-
-    origin: np.ndarray
-    T: np.ndarray
-    box: tuple | None = None
-
-    def _raw(self, x: np.ndarray) -> np.ndarray:
-        return self.origin + (self.T * x if self.T.ndim == 1 else self.T @ x)
-
-    def theta(self, x: np.ndarray) -> np.ndarray:
-        return into_box(self._raw(x), self.box)
-
-    def x(self, theta: np.ndarray) -> np.ndarray:
-        d = theta - self.origin
-        return d / self.T if self.T.ndim == 1 else np.linalg.solve(self.T, d)
-
-    def outside(self, x: np.ndarray) -> float:
-        """‖x − x(θ on the box)‖²: how far outside the box the corner x lies, in the simplex's
-        units (Cramér-Rao σ in the information's frame), 0 inside."""
-        raw = self._raw(x)
-        inside = into_box(raw, self.box)
-        return 0.0 if np.array_equal(inside, raw) else float(np.sum((x - self.x(inside)) ** 2))
-
-
-def _information_frame(prob: Problem, theta: np.ndarray, R: np.ndarray, scale: np.ndarray) -> _Frame:
-    """Coordinates centred at θ in which the Gauss-Newton information there (initial states
-    solved for, R held) is the identity: a unit step is one Cramér-Rao σ along each principal
-    direction, so the cost's valleys are round for the simplex. With `D F D = V Λ Vᵀ`
-    (D = 1/√diag F), `T = D V Λ^-½`; a direction the data hardly determine is searched no
-    farther than its coefficients' own size (`scale`: T's column at most unit length in θ/scale).
-    The coordinates scaled by `scale` where the information is not finite there (the model
-    diverges)."""
-    fallback = _Frame(np.zeros(prob.n_free), scale)
+def _information_frame(prob: Problem, theta: np.ndarray, R: np.ndarray, scale: np.ndarray) -> Frame:
+    """`simplex.information_frame` at θ, the Gauss-Newton information there with the initial
+    states solved for and R held; the coordinates scaled by `scale` where it is not finite there
+    (the model diverges)."""
     found = _information(prob, theta, R, weigh=R)
-    if found is None:
-        return fallback
-    F = found[2]
-    if not np.all(np.isfinite(F)) or not np.all(np.diag(F) > 0):
-        return fallback
-    D = 1.0 / np.sqrt(np.diag(F))
-    lam, V = np.linalg.eigh(F * np.outer(D, D))
-    lam = np.maximum(lam, bounds.NULL * max(lam.max(), 1e-300))
-    T = D[:, None] * V / np.sqrt(lam)
-    # T = D V Λ^-½, each column at most as long as the coefficients' own size
-    T /= np.maximum(np.linalg.norm(T / scale[:, None], axis=0), 1.0)
-    return _Frame(theta.copy(), T)
+    return information_frame(None if found is None else found[2], theta, scale)
 
 
 def _one_simplex(
-    prob: Problem, frame: _Frame, R, coef, eps, step, r_tol, max_relaxations, max_iter, report, history
+    prob: Problem, frame: Frame, R, coef, eps, step, r_tol, max_relaxations, max_iter, report, history
 ) -> Outcome:
     """`nelder_mead` with `restarts=False`: one simplex from the start's first (in `frame`, R
     its first estimate), R relaxed whenever it stops by its rule, its corners re-evaluated under

@@ -10,8 +10,10 @@ contract and `Estimate` as the linear model's methods:
   stepping with θ, from `config`, `equation-error` or `auto` (both run to their end, the least
   cost kept), in the same box as `ml-gn` (`box_bounds`); no multiple shooting;
 - `ml-nm`: the paper's Nelder-Mead simplex (`simplex`) on the same likelihood,
-  `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients in coordinates scaled by the start
-  (θᵢ/|θᵢ,start|). Each record's initial state is concentrated out at every θ to first order:
+  `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients, each run in the coordinates at its start
+  (`coordinates`, as the linear model's: by default whitened by the flight's Gauss-Newton
+  information there, the initial states solved for, `simplex.information_frame`; or scaled by
+  the start, θᵢ/|θᵢ,start|). Each record's initial state is concentrated out at every θ to first order:
   the residual less its weighted least-squares fit by the outputs' sensitivities to the measured
   initial states, taken at the run's reference state (the linear `ml-nm` concentrates it
   exactly, its outputs being linear in it). R and that reference are held during a simplex run
@@ -31,7 +33,7 @@ What a linear method's option means here:
 - `max_iter`: the iteration limit (`ml-gn`: every stage of multiple shooting and every start
   counted as the linear model's; `ml-nm`: simplex iterations, default 500 per free coefficient);
 - `tol`, `segments` (`ml-gn`): as for the linear model;
-- `eps`, `step`, `restart_step`, `r_tol`, `max_relaxations`, `coefficients`, `coordinates` (`ml-nm`; only `scaled`): as for
+- `eps`, `step`, `restart_step`, `r_tol`, `max_relaxations`, `coefficients`, `coordinates` (`ml-nm`): as for
   the linear model;
 - `start`: `config` (the config's values), `equation-error` (the dynamics rows fitted to the
   measured states' difference quotients from the config's values, `nonlinear_regression`: no
@@ -67,13 +69,22 @@ from testbed.estimators.multistart import Fit, best_fit, box_draws, starts_recor
 from testbed.estimators.nonlinear_fit import fit as fit_from
 from testbed.estimators.nonlinear_fit import NonlinearFit, estimate_of, nonlinear_problem
 from testbed.estimators.nonlinear_regression import regressed
-from testbed.estimators.simplex import STEPS, fresh_simplex, simplex_coefficients, simplex_run
+from testbed.estimators.simplex import (
+    STEPS,
+    Frame,
+    fresh_simplex,
+    information_frame,
+    simplex_coefficients,
+    simplex_run,
+)
+from testbed.identification.likelihood import reduced
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
     sensitivity_bounds,
     neg_log_likelihood,
     pooled_noise,
     present_only,
+    flight_information,
     flight_residuals,
     fitted_initial_states,
     setup,
@@ -281,10 +292,7 @@ def simplex(
     """`ml-nm` on a nonlinear model config (module doc)."""
     t0, name = time.perf_counter(), "ml-nm"
     _checked(name, options, _NM)
-    if options.coordinates == "information":
-        raise OptionError(
-            name, "coordinates", options.coordinates, "scaled or None for a nonlinear model config"
-        )
+    coordinates = options.coordinates or "information"
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     ch = [STATES.index(c) for c in channels]
     given = config.noise_std or {}
@@ -298,18 +306,28 @@ def simplex(
     box = config.box(config.free)
     theta = theta.copy()
     theta[idx] = into_box(theta[idx], box)  # a start outside the box moved onto it
-    scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # θ[free] = scale·x
+    scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # the start's size
     history = [theta[idx].copy()]
 
-    def coefficients(x):
-        """θ ⊕ b ⊕ g ⊕ c ⊕ τ at the simplex's x, its free values moved onto the box."""
-        th = theta.copy()
-        th[idx] = into_box(scale * x, box)
-        return th
+    def framed(th, x0, R) -> Frame:
+        """The coordinates of a run from θ ⊕ b ⊕ g ⊕ c ⊕ τ `th`: scaled by the start's size, or
+        whitened by the information there (the initial states `x0` solved for, R held); scaled
+        where the flight's information is not finite there."""
+        if coordinates == "scaled":
+            return Frame(np.zeros(nf), scale, box)
+        try:
+            H = flight_information(model, th, x0, recs, channels, config.free, R)[0]
+        except InputError:  # the flight does not stay finite there
+            H = None
+        F = None if H is None else reduced(H, np.zeros(len(H)), nf)[0]
+        return replace(information_frame(F, th[idx], scale), box=box)
 
-    def outside(x) -> float:
-        """‖x − x(θ on the box)‖²: how far outside the box the corner x lies, 0 inside."""
-        return float(np.sum((x - coefficients(x)[idx] / scale) ** 2))
+    def coefficients(x):
+        """θ ⊕ b ⊕ g ⊕ c ⊕ τ at the simplex's x in the run's `frame`, its free values moved onto
+        the box."""
+        th = theta.copy()
+        th[idx] = frame.theta(x)
+        return th
 
     def flown(th, x0):
         return flight_residuals(model, th, x0, recs, ch)
@@ -340,7 +358,7 @@ def simplex(
                     0
                 ]
                 total += float(np.sum((e - S @ d) ** 2 / R))
-            return (total + outside(v)) / N
+            return (total + frame.outside(v)) / N
 
         def report(i: int, best: np.ndarray, cost: float) -> None:
             history.append(coefficients(best)[idx])
@@ -349,24 +367,28 @@ def simplex(
 
         coef = simplex_coefficients(options.coefficients, nf)
         tol = options.eps / N
-        steps = [d if v is None else v for v, d in zip((options.step, options.restart_step), STEPS["scaled"])]
-        x, size, it, status = theta[idx] / scale, steps[0], 0, Status.STALLED
+        steps = [
+            d if v is None else v for v, d in zip((options.step, options.restart_step), STEPS[coordinates])
+        ]
+        th, size, it, status = theta, steps[0], 0, Status.STALLED
         for _ in range(options.max_relaxations):
+            # each run in the coordinates at its start
+            frame = framed(th, x0, R)
+            x = frame.x(th[idx])
             J_start = J(x)
             corners, J_i, it, stopped = simplex_run(
                 J, fresh_simplex(x, size), coef, tol, it, max_iter, report
             )
-            x, J_best, size = corners[0], J_i[0], steps[1]
+            th, J_best, size = coefficients(corners[0]), J_i[0], steps[1]
             if not stopped:
                 status = Status.MAX_ITERATIONS
                 break
             # the relaxation at the best corner: the initial states and their sensitivities, then R
-            x0, sens = fitted_initial_states(model, coefficients(x), recs, ch, x0, R)
-            R, R_old = pooled_noise(flown(coefficients(x), x0), held), R
+            x0, sens = fitted_initial_states(model, th, recs, ch, x0, R)
+            R, R_old = pooled_noise(flown(th, x0), held), R
             if J_start - J_best <= tol and np.max(np.abs(R / R_old - 1)) < options.r_tol:
                 status = Status.CONVERGED
                 break
-    th = coefficients(x)
     # the values on a bound held: the others' σ with them held, theirs NaN (a bound is no estimate's σ)
     on = {config.free[k]: float(th[idx][k]) for k in np.flatnonzero(on_bounds(th[idx], box))}
     moving = [n for n in config.free if n not in on]

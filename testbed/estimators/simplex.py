@@ -1,11 +1,18 @@
-"""The paper's eight-step Nelder-Mead simplex (`simplex_run`), its coefficients and a fresh
-simplex: the search `ml-nm` runs on the linear model's likelihood and on the nonlinear model's."""
+"""The paper's eight-step Nelder-Mead simplex (`simplex_run`), its coefficients, a fresh
+simplex and the coordinates it moves in (`Frame`: scaled by the start, or whitened by the
+information, `information_frame`): the search `ml-nm` runs on the linear model's likelihood and
+on the nonlinear model's."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["STEPS", "fresh_simplex", "simplex_coefficients", "simplex_run"]
+from testbed.estimators.box_bounds import into_box
+from testbed.identification.bounds import NULL
+
+__all__ = ["Frame", "STEPS", "fresh_simplex", "information_frame", "simplex_coefficients", "simplex_run"]
 
 # the first simplex's edge and a later run's, per coordinates: Cramér-Rao σ (information) or
 # fractions of |θ_i,start| (scaled)
@@ -84,3 +91,48 @@ def simplex_run(
             break
     order = np.argsort(J_i, kind="stable")
     return simplex[order], J_i[order], it, stopped
+
+
+@dataclass(frozen=True)
+class Frame:
+    """The simplex's coordinates x: θ = origin + T x, T a matrix or (a vector) a diagonal,
+    moved onto the `box` (None: none) where it lies outside."""
+
+    origin: np.ndarray
+    T: np.ndarray
+    box: tuple | None = None
+
+    def _raw(self, x: np.ndarray) -> np.ndarray:
+        return self.origin + (self.T * x if self.T.ndim == 1 else self.T @ x)
+
+    def theta(self, x: np.ndarray) -> np.ndarray:
+        return into_box(self._raw(x), self.box)
+
+    def x(self, theta: np.ndarray) -> np.ndarray:
+        d = theta - self.origin
+        return d / self.T if self.T.ndim == 1 else np.linalg.solve(self.T, d)
+
+    def outside(self, x: np.ndarray) -> float:
+        """‖x − x(θ on the box)‖²: how far outside the box the corner x lies, in the simplex's
+        units (Cramér-Rao σ in the information's frame), 0 inside."""
+        raw = self._raw(x)
+        inside = into_box(raw, self.box)
+        return 0.0 if np.array_equal(inside, raw) else float(np.sum((x - self.x(inside)) ** 2))
+
+
+def information_frame(F: np.ndarray | None, theta: np.ndarray, scale: np.ndarray) -> Frame:
+    """Coordinates centred at θ in which the information `F` there (θ's, the initial states
+    solved for) is the identity: a unit step is one Cramér-Rao σ along each principal direction,
+    so the cost's valleys are round for the simplex. With `D F D = V Λ Vᵀ` (D = 1/√diag F),
+    `T = D V Λ^-½`; a direction the data hardly determine is searched no farther than its
+    coefficients' own size (`scale`: T's column at most unit length in θ/scale). The coordinates
+    scaled by `scale` (origin 0) where F is None or not finite with a positive diagonal."""
+    if F is None or not np.all(np.isfinite(F)) or not np.all(np.diag(F) > 0):
+        return Frame(np.zeros(len(theta)), scale)
+    D = 1.0 / np.sqrt(np.diag(F))
+    lam, V = np.linalg.eigh(F * np.outer(D, D))
+    lam = np.maximum(lam, NULL * max(lam.max(), 1e-300))
+    T = D[:, None] * V / np.sqrt(lam)
+    # T = D V Λ^-½, each column at most as long as the coefficients' own size
+    T /= np.maximum(np.linalg.norm(T / scale[:, None], axis=0), 1.0)
+    return Frame(theta.copy(), T)

@@ -171,20 +171,21 @@ def test_ml_nm_reports_through_the_contract_and_refuses_what_it_cannot_honour(tr
     assert np.all(np.isfinite(est.std)) and np.all(est.std > 0) and est.evaluations > 3
     assert set(est.initial_states["doublets"]) == set(STATES)
     refused = (({"restarts": False}, "restarts"), ({"first_length": 1.0}, "first_length"))
-    for options, name in refused + (({"coordinates": "information"}, "coordinates"),):
+    for options, name in refused:
         with pytest.raises(OptionError) as e:
             identify([noisy], start, "ml-nm", options)
         assert e.value.option == name
 
 
 @pytest.mark.slow
-def test_ml_nm_ends_at_ml_gns_optimum(truth):
-    """The simplex on the same likelihood, one free term, the first second of the record (about
-    2 minutes: every cost evaluation is a flight)."""
+@pytest.mark.parametrize("coordinates", ["information", "scaled"])
+def test_ml_nm_ends_at_ml_gns_optimum(truth, coordinates):
+    """The simplex on the same likelihood, one free term, the first second of the record, in
+    either coordinates (about 2 minutes: every cost evaluation is a flight)."""
     config, noisy, _ = truth
     start = replace(config.with_coefficients({"Y_uv": 0.8 * config.terms["Y_uv"]}), free=("Y_uv",))
     data = [_first(noisy, 50)]
-    nm, gn = identify(data, start, "ml-nm"), identify(data, start, "ml-gn")
+    nm, gn = identify(data, start, "ml-nm", coordinates=coordinates), identify(data, start, "ml-gn")
     assert nm.converged and gn.converged
     assert abs(nm.values[0] - gn.values[0]) <= 0.05 * gn.std[0], (nm.values, gn.values, gn.std)
     assert nm.std[0] == pytest.approx(gn.std[0], rel=0.01) and nm.cost == pytest.approx(gn.cost, abs=0.01)
