@@ -402,29 +402,30 @@ def report_html(
 
 def captive_html(captive: dict | None) -> list[str]:
     """The section "Scenario I against the captive reference" of the nonlinear cells (`captive`,
-    `results.captive_table`): per spread and coefficient, then per cell its fit and open-loop
+    `results.captive_table`): per arm, spread and coefficient, then per cell its fit and open-loop
     fit % per channel; nothing without nonlinear cells."""
     if not captive or not captive["cells"]:
         return []
     e = html.escape
     parts = [
-        "<h2>Scenario I against the captive reference</h2><p>ml-gn fitting the nonlinear model "
-        "(the captive reference of the plant's body: <code>testbed captive</code>) with its terms "
+        "<h2>Scenario I against the captive reference</h2><p>Each arm's method fitting the nonlinear "
+        "model (the captive reference of the plant's body: <code>testbed captive</code>) with its terms "
         "that have a slope at trim free, from the captive values perturbed as the linear arms' "
-        "a-priori model is; each estimate against the captive value, in its Cramér-Rao σ "
-        "(corrected for coloured residuals) and in %. Within: the cells whose estimate is within "
-        "max(3 σ, 10 %) of the captive value.</p><table><tr><th>spread</th><th>coefficient</th>"
+        "a-priori model is (one start per seed and spread for every arm); each estimate against the "
+        "captive value, in the data's Cramér-Rao σ (ml-gn-nonlinear's, corrected for coloured "
+        "residuals) and in %. Within: the cells whose estimate is within max(3 σ, 10 %) of the "
+        "captive value.</p><table><tr><th>arm</th><th>spread</th><th>coefficient</th>"
         "<th>captive</th><th>median estimate</th><th>median error (σ)</th><th>median error</th>"
         "<th>within</th></tr>"
     ]
     for r in captive["coefficients"]:
         parts.append(
-            f"<tr><td>{r['spread']:g}</td><td>{e(r['coefficient'])}</td><td>{r['captive']:.4g}</td>"
+            f"<tr><td>{e(r['arm'])}</td><td>{r['spread']:g}</td><td>{e(r['coefficient'])}</td><td>{r['captive']:.4g}</td>"
             f"<td>{r['median_estimate']:.4g}</td><td>{r['median_error_sigmas']:+.2f}</td>"
             f"<td>{r['median_error_percent']:+.2f} %</td><td>{r['within']}/{r['cells']}</td></tr>"
         )
     parts.append(
-        "</table><table><tr><th>seed</th><th>spread</th><th>status</th><th>iterations</th>"
+        "</table><table><tr><th>arm</th><th>seed</th><th>spread</th><th>status</th><th>iterations</th>"
         "<th>wall time (s)</th><th>open-loop fit per channel</th></tr>"
     )
     for d in captive["cells"]:
@@ -433,7 +434,7 @@ def captive_html(captive: dict | None) -> list[str]:
             for x, ch_fits in d["fit"].items()
         )
         parts.append(
-            f"<tr><td>{d['seed']}</td><td>{d['spread']:g}</td><td>{e(d['status'])}</td>"
+            f"<tr><td>{e(d['arm'])}</td><td>{d['seed']}</td><td>{d['spread']:g}</td><td>{e(d['status'])}</td>"
             f"<td>{d['iterations']}</td><td>{d['wall_time_s']:.1f}</td><td>{e(fits) or '–'}</td></tr>"
         )
     parts.append("</table>")

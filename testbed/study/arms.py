@@ -16,7 +16,17 @@ from typing import Mapping
 from testbed.errors import InputError
 from testbed.estimators.filter_options import PAPER_OPTIONS
 
-__all__ = ["ARMS", "Arm", "DEFAULT_ARMS", "DRIFT_ARMS", "FACTORIAL_ARMS", "arm", "arms"]
+__all__ = [
+    "ARMS",
+    "Arm",
+    "DEFAULT_ARMS",
+    "DRIFT_ARMS",
+    "FACTORIAL_ARMS",
+    "NONLINEAR_ARM",
+    "NONLINEAR_ARMS",
+    "arm",
+    "arms",
+]
 
 
 @dataclass(frozen=True)
@@ -26,8 +36,9 @@ class Arm:
     arm is about another start: the paired start is the point of the comparison.
 
     `free`: "screened" (the screen's free set at the cell's prior, shared by the judged arms),
-    "mt" (the candidates and the inertia terms, normalised) or "a" (the candidates as written,
-    the inertia known); only the screened arms are judged against the data's optimum.
+    "mt" (the candidates and the inertia terms, normalised), "a" (the candidates as written,
+    the inertia known) or "terms" (a `NONLINEAR_ARMS` arm: the nonlinear model's slope terms, on
+    Scenario I flown on the plant); only the screened arms are judged against the data's optimum.
 
     `budget`: the iteration limit in units of the method's own (`ml-nr` 100 iterations, `ml-nm`
     `SIMPLEX_ITERATIONS` per free coefficient): the paper states none for its methods, so the
@@ -128,24 +139,62 @@ ARMS: dict[str, Arm] = {
         Arm("drift-a", "ml-gn", "conclusion 1: the A-form, the inertia known", {"start": "config"}, "a"),
     )
 }
-# The paper's three methods as it ran them, the modern reference, and the drift arms.
-DEFAULT_ARMS = ("ml-nr", "ml-nm-paper", "mekf-paper", "ml-gn", "drift-mt", "drift-a")
+# The nonlinear model's methods on Scenario I flown on the plant, each from the captive values
+# perturbed as the linear arms' a-priori model is and judged against the captive reference
+# (`study.cells`); `NONLINEAR_ARM` runs wherever that data set does, the others where chosen.
+# No `ml-nr` (the flight has no second-order sensitivities) and no `ml-nm` here: every corner of
+# its simplex is a flight, about 20 minutes a cell on Scenario I's 60 s records.
+NONLINEAR_ARMS: dict[str, Arm] = {
+    a.name: a
+    for a in (
+        Arm(
+            "ml-gn-nonlinear",
+            "ml-gn",
+            "ml-gn on the nonlinear model (its reference fit)",
+            {"start": "config"},
+            "terms",
+        ),
+        Arm(
+            "ml-lm-nonlinear",
+            "ml-lm",
+            "Levenberg-Marquardt on the nonlinear model",
+            {"start": "config"},
+            "terms",
+        ),
+        Arm(
+            "mekf-nonlinear",
+            "mekf",
+            "the paper's MEKF on the nonlinear model: fixed model noise",
+            PAPER_OPTIONS,
+            "terms",
+        ),
+        Arm(
+            "equation-error-nonlinear", "equation-error", "the nonlinear model's rows regressed", {}, "terms"
+        ),
+    )
+}
+NONLINEAR_ARM = "ml-gn-nonlinear"  # the nonlinear cell every plan with Scenario I on the plant has
+# The paper's three methods as it ran them, the modern reference, the drift arms, and the paper's
+# MEKF on the nonlinear model.
+DEFAULT_ARMS = ("ml-nr", "ml-nm-paper", "mekf-paper", "ml-gn", "drift-mt", "drift-a", "mekf-nonlinear")
 FACTORIAL_ARMS = ("ml-gn",)  # the arms the input factorial's other inputs are fitted with (II: every arm)
 DRIFT_ARMS = ("drift-mt", "drift-a")
 
 
 def arm(name: str) -> Arm:
-    """The arm called `name`; `InputError` if there is none."""
-    if name not in ARMS:
-        raise InputError(f"arm {name!r} is unknown; expected one of {', '.join(ARMS)}, or all")
-    return ARMS[name]
+    """The arm called `name` (of `ARMS` or `NONLINEAR_ARMS`); `InputError` if there is none."""
+    if name not in ARMS and name not in NONLINEAR_ARMS:
+        raise InputError(
+            f"arm {name!r} is unknown; expected one of {', '.join([*ARMS, *NONLINEAR_ARMS])}, or all"
+        )
+    return ARMS.get(name) or NONLINEAR_ARMS[name]
 
 
 def arms(names) -> tuple[str, ...]:
-    """The arms `names` lists (`all`: every arm), checked, in `ARMS` order."""
+    """The arms `names` lists (`all`: every arm), checked, in `ARMS` then `NONLINEAR_ARMS` order."""
     names = tuple(names)
     if "all" in names:
-        return tuple(ARMS)
+        return (*ARMS, *NONLINEAR_ARMS)
     for n in names:
         arm(n)
-    return tuple(n for n in ARMS if n in names)
+    return tuple(n for n in (*ARMS, *NONLINEAR_ARMS) if n in names)

@@ -6,7 +6,8 @@ the input factorial (`FACTORIAL`: Scenario II's layout with PRBS, square, 3-2-1-
 inputs) on the plant. Per data set, seed and spread one a-priori model, screened at itself
 (`cells.start`), is where every arm (`arms.ARMS`) starts; the `OPTIMUM` cell looks for the data's
 best-likelihood optimum, against which each arm is judged (`results`); on Scenario I on the
-plant the `NONLINEAR_ARM` cell fits the nonlinear model, judged against the captive reference. The verdicts on the
+plant the nonlinear cells (`arms.NONLINEAR_ARMS`) fit the nonlinear model, judged against the
+captive reference. The verdicts on the
 paper's conclusions are `rules.conclusions` of results.csv, of the analytic model's open-loop
 fit per data set (`regime.json`) and of the drift measured per data set (`drift.json`).
 
@@ -47,9 +48,9 @@ from testbed.errors import InputError, is_number, one_line
 from testbed.memory import keep_freed_memory
 from testbed.presentation.figures import write_report
 from testbed.simulation.scenario import TRUTHS
-from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS
+from testbed.study.arms import ARMS, DEFAULT_ARMS, DRIFT_ARMS, FACTORIAL_ARMS, NONLINEAR_ARM, NONLINEAR_ARMS
 from testbed.study.arms import arms as checked_arms
-from testbed.study.cells import NONLINEAR_ARM, OPTIMUM, Cell, load_run, run_cell, start
+from testbed.study.cells import OPTIMUM, Cell, load_run, run_cell, start
 from testbed.study.results import (
     SUMMARY_COLUMNS,
     captive_table,
@@ -91,11 +92,11 @@ CONNECT_S = 10.0  # s a scheduler given by its address has to answer
 
 def run_order(cells: list[Cell]) -> list[Cell]:
     """`cells` in the order their tasks are prioritised: seed by seed (a campaign stopped early has
-    whole seeds), and in each seed its `NONLINEAR_ARM` cells first, the plan's order otherwise.
+    whole seeds), and in each seed its nonlinear cells first, the plan's order otherwise.
     Those cells are the longest by far and the first to compile the nonlinear model's kernels
     (`testbed reproduce --quick`: 47 of its 70 s from an empty compile cache): begun after the
     others, one runs alone at the end while the other workers wait."""
-    return sorted(cells, key=lambda c: (c.seed, c.arm != NONLINEAR_ARM))
+    return sorted(cells, key=lambda c: (c.seed, c.arm not in NONLINEAR_ARMS))
 
 
 def plan(
@@ -111,11 +112,13 @@ def plan(
     """The campaign's cells, seed by seed, spread by spread, data set by data set: the `OPTIMUM`
     cell, then `arms` (`all`: every arm); the input factorial's data sets with `FACTORIAL_ARMS`
     among them only, the drift arms on `scenarios` only; on Scenario I on the plant (with some
-    arm) the `NONLINEAR_ARM` cell after them. Seeds 1..N; `quick`: experiments of `QUICK_DURATION` s
+    arm) the `NONLINEAR_ARM` cell and the other `NONLINEAR_ARMS` among `arms` after them. Seeds 1..N; `quick`: experiments of `QUICK_DURATION` s
     (unless `duration` says otherwise)."""
     if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEEDS:
         raise InputError(f"seeds={seeds!r}; expected an integer from 1 to {MAX_SEEDS}")
     arms = checked_arms(arms)
+    nonlinear = tuple(a for a in arms if a in NONLINEAR_ARMS and a != NONLINEAR_ARM)
+    some, arms = bool(arms), tuple(a for a in arms if a in ARMS)
     spreads = tuple(dict.fromkeys(spreads))
     for s in spreads:
         if isinstance(s, bool) or not is_number(s) or not 0 <= s <= MAX_SPREAD:
@@ -138,14 +141,15 @@ def plan(
         for seed in range(1, seeds + 1)
         for sp in spreads
         for s, t, chosen in sets
-        for a in ((OPTIMUM, *chosen, *_nonlinear(s, t)) if chosen else ())
+        for a in ((OPTIMUM, *chosen) if chosen else ()) + (_nonlinear(s, t, nonlinear) if some else ())
     ]
 
 
-def _nonlinear(scenario: str, truth: str) -> tuple[str, ...]:
-    """The nonlinear cell where a data set has one: Scenario I on the plant (the captive
-    reference is the plant's; the linear truth has no nonlinear reference)."""
-    return (NONLINEAR_ARM,) if (scenario, truth) == ("I", "plant") else ()
+def _nonlinear(scenario: str, truth: str, chosen: tuple[str, ...]) -> tuple[str, ...]:
+    """The nonlinear cells where a data set has them: on Scenario I on the plant (the captive
+    reference is the plant's; the linear truth has no nonlinear reference) the `NONLINEAR_ARM`
+    cell and the `chosen` others."""
+    return (NONLINEAR_ARM, *chosen) if (scenario, truth) == ("I", "plant") else ()
 
 
 # -- the campaign (runs on the client) -------------------------------------------------------------

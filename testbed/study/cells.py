@@ -14,14 +14,15 @@ cell is judged against is the lowest cost of that search and every arm's end poi
 negative log-likelihood at its estimate (`likelihood_at`), one measure for every method, which
 the judge compares (`testbed.study.results`).
 
-On Scenario I flown on the plant one more fit per seed and spread, the `NONLINEAR_ARM` cell: `ml-gn`
-fitting the nonlinear model of the captive reference (`captive_config`, the plant's body at the
-run's trim speed) with its terms that have a slope at trim free (`captive.reference.slope_terms`),
-started from the captive values perturbed as the linear arms' a-priori model is
-(`priors.term_prior`). It is judged against the captive values: per coefficient the error in
-its Cramér-Rao σ (corrected for coloured residuals) and in % of the captive value, with the
-fitted model's open-loop fit % per measured channel (`validation.validate`, its fitted initial
-states).
+On Scenario I flown on the plant the nonlinear cells (`arms.NONLINEAR_ARMS`: `NONLINEAR_ARM`,
+`ml-gn`, in every plan, the others where chosen): each method fitting the nonlinear model of the
+captive reference (`captive_config`, the plant's body at the run's trim speed) with its terms
+that have a slope at trim free (`captive.reference.slope_terms`), started from the captive values
+perturbed as the linear arms' a-priori model is (`priors.term_prior`), the same start for every
+such arm of a seed and spread. Each is judged against the captive values: per coefficient the
+error in % of the captive value and in the Cramér-Rao σ of the data (the `NONLINEAR_ARM` cell's,
+corrected for coloured residuals: `testbed.study.results`), with the fitted model's open-loop fit
+% per measured channel (`validation.validate`, its fitted initial states where it has them).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ from testbed.models.linear import COEFFICIENTS
 from testbed.simulation.measurements import noise_from_data
 from testbed.simulation.runs import simulate
 from testbed.simulation.scenario import scenario, scenario_text
-from testbed.study.arms import ARMS
+from testbed.study.arms import ARMS, NONLINEAR_ARMS, arm
 from testbed.study.hashing import code_hash
 from testbed.study.priors import prior, term_prior
 
@@ -62,7 +63,6 @@ __all__ = [
     "Cell",
     "FORMAT",
     "HISTORY_POINTS",
-    "NONLINEAR_ARM",
     "OPTIMUM",
     "REFERENCE_SEARCH",
     "Start",
@@ -80,7 +80,6 @@ OPTIMUM = "optimum"  # the cell that looks for the data's best-likelihood optimu
 # estimate, the best `polish` of `samples` draws of the box a-priori × e^±1), the draws seeded
 # by the cell's seed
 REFERENCE_SEARCH = {"start": "global", "samples": 50, "polish": 2}
-NONLINEAR_ARM = "ml-gn-nonlinear"  # ml-gn on the nonlinear model, judged against the captive reference
 HISTORY_POINTS = 400  # the MEKF's per-sample history, thinned to this many points per cell
 
 
@@ -105,14 +104,14 @@ class Cell:
 
     @property
     def method(self) -> str:
-        return "ml-gn" if self.arm in (OPTIMUM, NONLINEAR_ARM) else ARMS[self.arm].method
+        return "ml-gn" if self.arm == OPTIMUM else arm(self.arm).method
 
     @functools.cached_property  # reads the scenario file: once per cell
     def key(self) -> str:
         """`<scenario>-<truth>-s<spread>-<arm>-seed<N>-<hash>`: the hash of every input the
         result depends on, the package's code among them."""
         flown = scenario(self.scenario).with_overrides(duration=self.duration)
-        a = ARMS.get(self.arm)
+        a = None if self.arm == OPTIMUM else arm(self.arm)
         doc = {
             "format": FORMAT,
             "scenario": scenario_text(replace(flown, source="")),
@@ -226,7 +225,7 @@ def _captive(speed: float):
 
 def captive_start(speed: float, spread: float, seed: int):
     """(the captive reference at trim speed `speed` with its slope terms free, it started from
-    their a-priori values of `spread` and `seed`): what the `NONLINEAR_ARM` cell is judged against,
+    their a-priori values of `spread` and `seed`): what the nonlinear cells are judged against,
     and where it starts."""
     captive, free = _captive(float(speed))
     captive = replace(captive, free=free)
@@ -234,21 +233,21 @@ def captive_start(speed: float, spread: float, seed: int):
 
 
 def _nonlinear_fit(doc: dict, cell: Cell, experiments, speed: float) -> None:
-    """The `NONLINEAR_ARM` cell's fit and its errors against the captive values, into `doc`."""
+    """A `NONLINEAR_ARMS` cell's fit and its errors against the captive values, into `doc`."""
     captive, config = captive_start(speed, cell.spread, cell.seed)
     costs = []
     est = identify(
         experiments,
         config,
-        method="ml-gn",
-        options={"start": "config"},
+        method=cell.method,
+        options=dict(NONLINEAR_ARMS[cell.arm].options),
         callback=lambda step: costs.append(float(step.cost)),
     )
     std = est.crlb_corrected_std if est.crlb_corrected_std is not None else est.std
     reference = {n: float(captive.terms[n]) for n in est.free}
     values = {n: float(v) for n, v in zip(est.free, est.values)}
     sigma = {n: _number(s) for n, s in zip(est.free, std)}
-    fits = validate(experiments, config.with_coefficients(values), initial=est.initial_states)
+    fits = validate(experiments, config.with_coefficients(values), initial=est.initial_states or None)
     doc.update(
         _status(est),
         free=list(est.free),
@@ -283,7 +282,7 @@ def run_cell(cell: Cell, data, begin: Start) -> dict:
     t0 = time.perf_counter()
     doc = {"key": cell.key, "cell": asdict(cell), "start_note": begin.note}
     try:
-        if cell.arm == NONLINEAR_ARM:
+        if cell.arm in NONLINEAR_ARMS:
             _nonlinear_fit(doc, cell, data[0], data[1].vehicle.speed)
             return doc
         experiments, analytic = data

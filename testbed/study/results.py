@@ -10,10 +10,12 @@ is then judged by `priors.judge`: success (inside the optimum's likelihood regio
 stalled at the limit or converged elsewhere; a cell whose fit failed is "failed"; the drift arms
 are not judged (their outcome is empty). `search_delta_cost` is a cell's cost less the search's:
 below −`SEARCH_TIE` the arm found what the search missed (`beat_search` in the summary counts
-those cells, which should be none: the search is then too small). The `NONLINEAR_ARM`
-cells are judged against the captive reference instead: their rows carry the captive value in
-the `analytic` column (the reference of `rules.accurate` and `rules.relative_error` in the
-summary) and the largest |θ − θ_captive|/σ in `sigmas`; their outcome is empty.
+those cells, which should be none: the search is then too small). The nonlinear cells
+(`NONLINEAR_ARMS`) are judged against the captive reference instead: their rows carry the
+captive value in the `analytic` column (the reference of `rules.accurate` and
+`rules.relative_error` in the summary), the data's σ in `optimum_std` (the nonlinear model's ML
+fit's, the `NONLINEAR_ARM` cell of the same seed and spread) and the largest |θ − θ_captive|/σ
+in `sigmas`; their outcome is empty.
 """
 
 from __future__ import annotations
@@ -26,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from testbed.estimators.base import Status
-from testbed.study.arms import ARMS
-from testbed.study.cells import NONLINEAR_ARM, OPTIMUM, Cell
+from testbed.study.arms import ARMS, NONLINEAR_ARM, NONLINEAR_ARMS
+from testbed.study.cells import OPTIMUM, Cell
 from testbed.study.priors import Judgement, judge
 from testbed.study.rules import accurate, cells, coefficient_ok, relative_error, wilson
 
@@ -165,11 +167,18 @@ def results_rows(docs: list[dict]) -> list[dict]:
     """One row per cell and coefficient (the `OPTIMUM` cells appear as the `optimum` column of
     the others); a cell without coefficients (failed) keeps one row with an empty coefficient."""
     verdicts = judgements(docs)
+    # the nonlinear model's σ of the data, per seed and spread: its ML fit's (the NONLINEAR_ARM cell's)
+    nonlinear_sigma = {
+        (d["cell"]["seed"], d["cell"]["spread"]): {n: _std(d, n) for n in d.get("free", [])}
+        for d in docs
+        if d["cell"]["arm"] == NONLINEAR_ARM and d.get("free")
+    }
     rows = []
     for d in docs:
         c = d["cell"]
         if c["arm"] == OPTIMUM:
             continue
+        nonlinear = c["arm"] in NONLINEAR_ARMS
         verdict = verdicts.get(d["key"])
         judged = ARMS[c["arm"]].judged if c["arm"] in ARMS else False
         outcome = (
@@ -177,16 +186,31 @@ def results_rows(docs: list[dict]) -> list[dict]:
         )
         if judged and outcome == "" and d["status"] != "failed":
             outcome = "unjudged"
-        reference = d.get("captive") if c["arm"] == NONLINEAR_ARM else d.get("analytic")
+        reference = d.get("captive") if nonlinear else d.get("analytic")
         sigmas = verdict[0].sigmas if verdict else math.nan
-        if c["arm"] == NONLINEAR_ARM and d.get("error_sigmas"):
-            sigmas = max(abs(v) if v is not None else math.inf for v in d["error_sigmas"].values())
+        # accuracy is judged in the data's Cramér-Rao σ: the optimum's; a nonlinear cell's, the
+        # nonlinear model's ML fit's of the same seed and spread (its own where there is none)
+        if verdict:
+            sigma = dict(zip(verdict[1].free, verdict[1].std))
+        elif nonlinear:
+            own = {n: _std(d, n) for n in d.get("free", [])}
+            sigma = {**own, **nonlinear_sigma.get((c["seed"], c["spread"]), {})}
+            if d.get("values"):
+                sigmas = max(
+                    (
+                        abs(d["values"][n] - reference[n]) / sigma[n] if sigma[n] > 0 else math.inf
+                        for n in d["values"]
+                    ),
+                    default=math.nan,
+                )
+        else:
+            sigma = {}
         base = {
             "scenario": c["scenario"],
             "truth": c["truth"],
             "spread": c["spread"],
             "arm": c["arm"],
-            "method": Cell(**c).method if c["arm"] in (*ARMS, NONLINEAR_ARM) else "",
+            "method": Cell(**c).method if c["arm"] in ARMS or nonlinear else "",
             "seed": c["seed"],
             "converged": d["converged"],
             "status": d["status"],
@@ -200,14 +224,6 @@ def results_rows(docs: list[dict]) -> list[dict]:
             "reason": d.get("reason", ""),
         }
         optimum = verdict[1].coefficients if verdict else {}
-        # accuracy is judged in the data's Cramér-Rao σ: the optimum's; a nonlinear cell's own
-        # (its fit is the only best-likelihood fit of the nonlinear model to these data)
-        if verdict:
-            sigma = dict(zip(verdict[1].free, verdict[1].std))
-        elif c["arm"] == NONLINEAR_ARM:
-            sigma = {n: _std(d, n) for n in d.get("free", [])}
-        else:
-            sigma = {}
         names = d.get("free") or [""]
         for n in names:
             rows.append(
@@ -299,21 +315,24 @@ def summary_table(rows: list[dict]) -> list[dict]:
 
 
 def captive_table(rows: list[dict], docs: list[dict]) -> dict[str, list[dict]]:
-    """The `NONLINEAR_ARM` cells against the captive reference: "coefficients", per spread and
-    coefficient (results.csv's rows, the captive value in `analytic`), the captive value, the
-    cells, the median estimate, the median error in σ ((θ − θ_captive)/σ) and in % of the
-    captive value, and the cells within `rules.coefficient_ok` (max(3 σ, 10 %) of the captive
-    value); "cells", per cell (`docs`) its seed, spread, status, iterations, wall time and
-    open-loop fit % per experiment and channel."""
+    """The nonlinear cells (`NONLINEAR_ARMS`) against the captive reference: "coefficients", per
+    arm, spread and coefficient (results.csv's rows, the captive value in `analytic`, σ the data's
+    in `optimum_std`), the captive value, the cells, the median estimate, the median error in σ
+    ((θ − θ_captive)/σ) and in % of the captive value, and the cells within
+    `rules.coefficient_ok` (max(3 σ, 10 %) of the captive value); "cells", per cell (`docs`) its
+    arm, seed, spread, status, iterations, wall time and open-loop fit % per experiment and
+    channel."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        if r["arm"] == NONLINEAR_ARM and r["coefficient"]:
-            groups.setdefault((r["spread"], r["coefficient"]), []).append(r)
+        if r["arm"] in NONLINEAR_ARMS and r["coefficient"]:
+            groups.setdefault((r["arm"], r["spread"], r["coefficient"]), []).append(r)
+    order = list(NONLINEAR_ARMS)
     out = []
-    for (sp, n), rs in groups.items():
-        sigmas = [(r["estimate"] - r["analytic"]) / r["std"] for r in rs]
+    for (a, sp, n), rs in sorted(groups.items(), key=lambda g: (order.index(g[0][0]), g[0][1])):
+        sigmas = [(r["estimate"] - r["analytic"]) / r["optimum_std"] for r in rs]
         out.append(
             {
+                "arm": a,
                 "spread": sp,
                 "coefficient": n,
                 "captive": rs[0]["analytic"],
@@ -328,11 +347,11 @@ def captive_table(rows: list[dict], docs: list[dict]) -> dict[str, list[dict]]:
         )
     fits = [
         {
-            **{k: d["cell"][k] for k in ("seed", "spread")},
+            **{k: d["cell"][k] for k in ("arm", "seed", "spread")},
             **{k: d[k] for k in ("status", "iterations", "wall_time_s")},
             "fit": d.get("fit", {}),
         }
         for d in docs
-        if d and d["cell"]["arm"] == NONLINEAR_ARM
+        if d and d["cell"]["arm"] in NONLINEAR_ARMS
     ]
     return {"coefficients": out, "cells": fits}

@@ -11,7 +11,8 @@ import pytest
 from testbed.presentation.figures import write_report
 from testbed.captive.config import captive_config
 from testbed.captive.reference import slope_terms
-from testbed.study.cells import NONLINEAR_ARM, Cell, Start, load_run, run_cell
+from testbed.study.arms import NONLINEAR_ARM, NONLINEAR_ARMS
+from testbed.study.cells import Cell, Start, load_run, run_cell
 from testbed.study.priors import SPREAD, term_class
 from testbed.study.results import captive_table, read_results, results_csv, results_rows, summary_table
 
@@ -97,3 +98,24 @@ def test_its_rows_summary_and_report_table_carry_the_captive_judgement(cell, tmp
         assert f"<td>{s:+.2f}</td>" in html
     assert f"u {doc['fit'][data[0][0].name]['u']:.2f} %" in html
     assert np.isfinite(list(sigmas.values())).all()
+
+
+@pytest.mark.parametrize("arm", ["mekf-nonlinear", "equation-error-nonlinear"])
+def test_each_nonlinear_arm_starts_where_ml_gn_does_and_is_judged_in_its_sigma(cell, arm, tmp_path):
+    """Another method on the nonlinear model: the same start as the `NONLINEAR_ARM` cell of its
+    seed and spread, its own method's estimate, and its rows judged in the data's σ (that cell's,
+    the nonlinear model's ML fit's), never its own."""
+    reference, data = cell
+    doc = run_cell(Cell("I", arm, 1, SPREAD_S, "plant", DURATION), data, Start(None, None, {}, ""))
+    assert doc["status"] != "failed", doc.get("traceback")
+    assert doc["start"] == reference["start"] and doc["captive"] == reference["captive"]
+    assert doc["values"] != reference["values"]
+    rows = results_rows([reference, doc])
+    mine = [r for r in rows if r["arm"] == arm]
+    assert {r["method"] for r in mine} == {NONLINEAR_ARMS[arm].method}
+    assert {r["coefficient"]: r["optimum_std"] for r in mine} == reference["std"]
+    errors = [abs(doc["values"][n] - doc["captive"][n]) / reference["std"][n] for n in doc["free"]]
+    assert mine[0]["sigmas"] == pytest.approx(max(errors), rel=1e-9)
+    table = captive_table(rows, [reference, doc])
+    assert [c["arm"] for c in table["cells"]] == [NONLINEAR_ARM, arm]
+    assert {r["arm"] for r in table["coefficients"]} == {NONLINEAR_ARM, arm}
