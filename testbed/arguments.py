@@ -399,8 +399,8 @@ def parser() -> argparse.ArgumentParser:
         nargs="+",
         default=None,
         metavar="ARM",
-        help="the arms fitted, or all (default: the paper's methods, ml-gn, the drift arms and the "
-        "paper's MEKF on the nonlinear model; docs/studies.md lists them)",
+        help="the arms fitted, or all (default: the paper's methods, ml-gn and the drift arms; "
+        "docs/studies.md lists them)",
     )
     s.add_argument(
         "--truth",
