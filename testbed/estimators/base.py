@@ -336,6 +336,10 @@ class Method:
         refuses: `refuses(config)` raises `InputError` for what the method cannot take in a
             linear model config, whatever the data (a free output term, values per record): checked
             before any fit, the screen's included. None: it takes any.
+        refuses_data: `refuses_data(experiments, config)` raises `InputError` for data the method
+            cannot run on in a linear model config whatever is free (records whose samples recur
+            at no fixed period, for a periodic filter): checked before any fit, the screen's
+            included. None: any data `problem.check_fit` takes.
         bounds: keeps the free values in the box of `[identify] bounds` (and a nonlinear model
             config's physical bounds); a method that does not refuses a config with bounds.
     """
@@ -349,6 +353,7 @@ class Method:
     online: bool = False
     nonlinear: Callable[[Sequence[Experiment], ModelConfig, Options, Callback | None], Estimate] | None = None
     refuses: Callable[[ModelConfig], None] | None = None
+    refuses_data: Callable[[Sequence[Experiment], ModelConfig], None] | None = None
     bounds: bool = False
 
     def __post_init__(self):

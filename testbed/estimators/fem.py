@@ -359,6 +359,12 @@ def _estimate(lik: Likelihood, p, S, status, it, history, why, scale, box=None) 
     )
 
 
+def _refuses_data(experiments: Sequence[Experiment], config: ModelConfig) -> None:
+    """`InputError` for records the periodic steady-state filter cannot run on
+    (`fem_likelihood.sampling_cycles`), whatever is free: before the screen's fit, not after it."""
+    sampling_cycles(problem(config.fitted(experiments), config))
+
+
 ML_FEM = Method(
     name="ml-fem",
     fit=_fit,
@@ -366,5 +372,6 @@ ML_FEM = Method(
     summary="maximum likelihood filter error: a steady-state Kalman filter in the likelihood, for data "
     "with process noise",
     refuses=lambda config: check_one_model(config, "ml-fem", terms=True),
+    refuses_data=_refuses_data,
     bounds=True,
 )

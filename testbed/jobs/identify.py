@@ -282,6 +282,8 @@ def identify_screened(
     m = lookup(method)
     built = m.options.build(m.name, options)  # what the method refuses, before the screen's fit
     check_method(m.name, config)
+    if config.terms is None and m.refuses_data is not None:
+        m.refuses_data(experiments, config)
     same = m.name == "ml-gn"
     steps = []
     s = screening(experiments, config, options if same else None, steps.append if same else None, model)

@@ -412,3 +412,22 @@ def test_with_coloured_turbulence_and_its_correlation_time_it_is_unbiased(config
             ratio = sigma / values.std(axis=0, ddof=1)
             assert np.all(bias[model] < 0.5) and np.all((ratio > 0.7) & (ratio < 1.4)), (bias, ratio)
     assert bias[tau].mean() < bias[0.0].mean(), bias
+
+
+def test_samples_missing_at_no_fixed_period_are_refused_before_the_screen_fits(config, monkeypatch):
+    """The command's screened fit refuses a record the periodic filter cannot run on before the
+    screen's own `ml-gn` fit (minutes on a long log), not after it, in the fit's own words."""
+    from testbed.jobs import identify as job
+
+    e = turbulent(config, seed=4)[0]
+    y = e.y.copy()
+    y[np.random.default_rng(3).random(y.shape) < 0.05] = np.nan  # dropouts, not a sensor's rate
+    gappy = dataclasses.replace(e, y=y)
+
+    def screened(*args, **kwargs):
+        raise AssertionError("the screen ran")
+
+    monkeypatch.setattr(job, "screening", screened)
+    with pytest.raises(InputError, match="missing samples at no fixed period") as exc:
+        job.identify_screened([gappy], dataclasses.replace(_start(config, 4), screen=True), "ml-fem")
+    assert "\n" not in str(exc.value)
