@@ -89,10 +89,12 @@ def lookup(name: str) -> Method:
 def check_method(method: str, config: ModelConfig) -> None:
     """`InputError` unless the named method fits the model of `config`: a method without a
     `nonlinear` fit refuses a nonlinear model config (`config.terms`), a linear one what it
-    `refuses`, and a method that keeps no bounds a config with `[identify] bounds`."""
+    `refuses`, a nonlinear one what it `refuses_nonlinear`, and a method that keeps no bounds a config with `[identify] bounds`."""
     m = lookup(method)
     if config.terms is None and m.refuses is not None:
         m.refuses(config)
+    if config.terms is not None and m.refuses_nonlinear is not None:
+        m.refuses_nonlinear(config)
     if config.terms is not None and m.nonlinear is None:
         takes = ", ".join(n for n, k in METHODS.items() if k.nonlinear is not None)
         raise InputError(

@@ -285,5 +285,6 @@ EQUATION_ERROR = Method(
     starts=False,
     nonlinear=nonlinear_regression.equation_error_estimate,
     refuses=_refuses,
+    refuses_nonlinear=nonlinear_regression.refuses,
     bounds=True,
 )

@@ -215,6 +215,20 @@ def _linear(experiments: Sequence[Experiment], config: ModelConfig, method: str,
     return experiments, config, theta, idx, lambda: DiscreteModel(s, theta, idx), why
 
 
+def _refuses_nonlinear(config: ModelConfig, method: str) -> None:
+    """`InputError` for what the filter cannot take in a nonlinear model config, whatever the data:
+    a mounted velocity log, a free parameter beside the terms (an output bias, the current, the
+    delay: taken off the data where given, estimated nowhere)."""
+    check_mounting(config, f"{method} on a nonlinear model config")
+    names = config.nonlinear()[0].names
+    biased = [n for n in config.free if n not in names]
+    if biased:
+        raise InputError(
+            f"{config.source or 'config'}: [identify] free names {biased[0]}; {method} on a nonlinear model "
+            "config takes the fixed output biases off the data and estimates none: expected ml-gn or ml-nm"
+        )
+
+
 def _nonlinear(experiments: Sequence[Experiment], config: ModelConfig, method: str, options: FilterOptions):
     """`_linear` for a nonlinear model config: its θ (`model.names` order), its transition the
     model's RK4 flight (`NonlinearTransition`), nothing unphysical; `OptionError` for an option
@@ -226,16 +240,9 @@ def _nonlinear(experiments: Sequence[Experiment], config: ModelConfig, method: s
             raise OptionError(
                 method, name, value, "its default: the filter on a nonlinear model config has no such option"
             )
-    check_mounting(config, f"{method} on a nonlinear model config")
+    _refuses_nonlinear(config, method)
     model, theta, idx = setup(experiments, config, f"{method} on a nonlinear model config")[2:]
-    m = len(model.names)
-    biased = [n for n, i in zip(config.free, idx) if i >= m]
-    if biased:
-        raise InputError(
-            f"{config.source or 'config'}: [identify] free names {biased[0]}; {method} on a nonlinear model "
-            "config takes the fixed output biases off the data and estimates none: expected ml-gn or ml-nm"
-        )
-    theta, idx = theta[:m], np.array(idx)
+    theta, idx = theta[: len(model.names)], np.array(idx)
     # the fixed output biases and current taken off the measured states, the fins advanced by the
     # fixed delay
     experiments = [replace(e, y=unread(e, config), inputs=delayed_inputs(e, config)) for e in experiments]
@@ -401,6 +408,7 @@ def _method(name: str, modified: bool, square_root: bool, summary: str) -> Metho
         online=True,
         nonlinear=fit,
         refuses=lambda config: check_one_model(config, name),
+        refuses_nonlinear=lambda config: _refuses_nonlinear(config, name),
     )
 
 

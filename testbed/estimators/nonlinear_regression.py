@@ -58,7 +58,7 @@ from testbed.identification.recursions import counting
 from testbed.models.linear import NX, STATES
 from testbed.models.nonlinear import NonlinearModel, rates, rate_sensitivities
 
-__all__ = ["NEEDED", "equation_error_estimate", "regressed"]
+__all__ = ["NEEDED", "equation_error_estimate", "regressed", "refuses"]
 
 NEEDED = ("u", "v", "w", "p", "q", "r", "phi", "theta")  # the states the dynamics rows involve
 _ROWS = 6  # ν̇'s rows of f
@@ -145,6 +145,20 @@ def regressed(
     return theta, steps
 
 
+def refuses(config: ModelConfig) -> None:
+    """`InputError` for what `equation-error` cannot take in a nonlinear model config, whatever the
+    data: a mounted velocity log, a free parameter beside the terms (an output bias, the current,
+    the delay: in no dynamics row)."""
+    check_mounting(config, "equation-error on a nonlinear model config")
+    outside = [n for n in config.free if n not in config.nonlinear()[0].names]
+    if outside:
+        raise InputError(
+            f"{config.source or 'config'}: [identify] free lists {outside[0]}; equation-error regresses "
+            "the dynamics rows, which the outputs' biases, the current and the inputs' delay are not in: "
+            "expected them fixed (their given values are applied), or an output-error method (ml-gn, ml-lm, ml-nm)"
+        )
+
+
 def equation_error_estimate(
     experiments: Sequence[Experiment], config: ModelConfig, options: Options, callback: Callback | None
 ) -> Estimate:
@@ -167,15 +181,8 @@ def equation_error_estimate(
             raise OptionError(
                 name, f.name, getattr(options, f.name), "its default: " + where + " has no such option"
             )
-    check_mounting(config, where)
+    refuses(config)
     channels, recs, model, theta, idx = setup(experiments, config, where)
-    outside = [n for n in config.free if n not in model.names]
-    if outside:
-        raise InputError(
-            f"{config.source or 'config'}: [identify] free lists {outside[0]}; equation-error regresses "
-            "the dynamics rows, which the outputs' biases, the current and the inputs' delay are not in: "
-            "expected them fixed (their given values are applied), or an output-error method (ml-gn, ml-lm, ml-nm)"
-        )
     ch = [STATES.index(c) for c in channels]
     given = config.noise_std or {}
     held = np.array([given.get(c, np.nan) ** 2 for c in channels])
