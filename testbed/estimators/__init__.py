@@ -86,15 +86,16 @@ def lookup(name: str) -> Method:
     return METHODS[name]
 
 
-def check_method(method: str, config: ModelConfig) -> None:
+def check_method(method: str, config: ModelConfig, options: Options | None = None) -> None:
     """`InputError` unless the named method fits the model of `config`: a method without a
     `nonlinear` fit refuses a nonlinear model config (`config.terms`), a linear one what it
-    `refuses`, a nonlinear one what it `refuses_nonlinear`, and a method that keeps no bounds a config with `[identify] bounds`."""
+    `refuses`, a nonlinear one what it `refuses_nonlinear` (with `options`, built; None: the
+    defaults), and a method that keeps no bounds a config with `[identify] bounds`."""
     m = lookup(method)
     if config.terms is None and m.refuses is not None:
         m.refuses(config)
     if config.terms is not None and m.refuses_nonlinear is not None:
-        m.refuses_nonlinear(config)
+        m.refuses_nonlinear(config, m.options.build(m.name, None) if options is None else options)
     if config.terms is not None and m.nonlinear is None:
         takes = ", ".join(n for n, k in METHODS.items() if k.nonlinear is not None)
         raise InputError(
@@ -127,7 +128,7 @@ def identify(
     """
     m = lookup(method)
     opts = m.options.build(m.name, options, **more)
-    check_method(m.name, config)
+    check_method(m.name, config, opts)
     if config.terms is not None:  # a record split at a dropout: its stretches (`data.split`)
         return m.nonlinear([p for e in config.fitted(experiments) for p in split(e)], config, opts, callback)
     experiments = config.fitted(experiments)

@@ -336,7 +336,8 @@ class Method:
         refuses: `refuses(config)` raises `InputError` for what the method cannot take in a
             linear model config, whatever the data (a free output term, values per record): checked
             before any fit, the screen's included. None: it takes any.
-        refuses_nonlinear: `refuses_nonlinear(config)`, the same for a nonlinear model config.
+        refuses_nonlinear: `refuses_nonlinear(config, options)`, the same for a nonlinear model
+            config, and its `options` (built) the nonlinear fit cannot honour (`OptionError`).
         refuses_data: `refuses_data(experiments, config)` raises `InputError` for data the method
             cannot run on in a linear model config whatever is free (records whose samples recur
             at no fixed period, for a periodic filter): checked before any fit, the screen's
@@ -354,7 +355,7 @@ class Method:
     online: bool = False
     nonlinear: Callable[[Sequence[Experiment], ModelConfig, Options, Callback | None], Estimate] | None = None
     refuses: Callable[[ModelConfig], None] | None = None
-    refuses_nonlinear: Callable[[ModelConfig], None] | None = None
+    refuses_nonlinear: Callable[[ModelConfig, Options], None] | None = None
     refuses_data: Callable[[Sequence[Experiment], ModelConfig], None] | None = None
     bounds: bool = False
 

@@ -215,10 +215,18 @@ def _linear(experiments: Sequence[Experiment], config: ModelConfig, method: str,
     return experiments, config, theta, idx, lambda: DiscreteModel(s, theta, idx), why
 
 
-def _refuses_nonlinear(config: ModelConfig, method: str) -> None:
-    """`InputError` for what the filter cannot take in a nonlinear model config, whatever the data:
-    a mounted velocity log, a free parameter beside the terms (an output bias, the current, the
-    delay: taken off the data where given, estimated nowhere)."""
+def _refuses_nonlinear(config: ModelConfig, method: str, options: FilterOptions) -> None:
+    """What the filter cannot take in a nonlinear model config, whatever the data: an option it has
+    no use for (`NONLINEAR_REFUSED`) given a value other than its default (`OptionError`); a
+    mounted velocity log, a free parameter beside the terms (an output bias, the current, the
+    delay: taken off the data where given, estimated nowhere) (`InputError`)."""
+    defaults = {f.name: f.default for f in fields(FilterOptions)}
+    for name in NONLINEAR_REFUSED:
+        value = getattr(options, name)
+        if value != defaults[name]:
+            raise OptionError(
+                method, name, value, "its default: the filter on a nonlinear model config has no such option"
+            )
     check_mounting(config, f"{method} on a nonlinear model config")
     names = config.nonlinear()[0].names
     biased = [n for n in config.free if n not in names]
@@ -233,14 +241,7 @@ def _nonlinear(experiments: Sequence[Experiment], config: ModelConfig, method: s
     """`_linear` for a nonlinear model config: its θ (`model.names` order), its transition the
     model's RK4 flight (`NonlinearTransition`), nothing unphysical; `OptionError` for an option
     it has no use for (`NONLINEAR_REFUSED`) given a value other than its default."""
-    defaults = {f.name: f.default for f in fields(FilterOptions)}
-    for name in NONLINEAR_REFUSED:
-        value = getattr(options, name)
-        if value != defaults[name]:
-            raise OptionError(
-                method, name, value, "its default: the filter on a nonlinear model config has no such option"
-            )
-    _refuses_nonlinear(config, method)
+    _refuses_nonlinear(config, method, options)
     model, theta, idx = setup(experiments, config, f"{method} on a nonlinear model config")[2:]
     theta, idx = theta[: len(model.names)], np.array(idx)
     # the fixed output biases and current taken off the measured states, the fins advanced by the
@@ -408,7 +409,7 @@ def _method(name: str, modified: bool, square_root: bool, summary: str) -> Metho
         online=True,
         nonlinear=fit,
         refuses=lambda config: check_one_model(config, name),
-        refuses_nonlinear=lambda config: _refuses_nonlinear(config, name),
+        refuses_nonlinear=lambda config, options: _refuses_nonlinear(config, name, options),
     )
 
 

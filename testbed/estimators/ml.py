@@ -496,6 +496,9 @@ class SimplexOptions(Options):
 def _method(
     name: str, optimiser, options: type[Options], summary: str, on_nonlinear=None, refuses=None, bounds=False
 ) -> Method:
+    """The method `name` by `optimiser` (`on_nonlinear`: its fit of a nonlinear model config, whose
+    options `nonlinear.refused_options` checks)."""
+
     def fit(experiments, config, opts, callback):
         return _fit(name, optimiser, experiments, config, opts, callback)
 
@@ -506,6 +509,9 @@ def _method(
         summary=summary,
         nonlinear=on_nonlinear,
         refuses=refuses,
+        refuses_nonlinear=(lambda config, opts: nonlinear.refused_options(name, opts))
+        if on_nonlinear
+        else None,
         bounds=bounds,
     )
 

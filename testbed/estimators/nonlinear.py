@@ -93,7 +93,7 @@ from testbed.identification.nonlinear_output_error import (
 from testbed.identification.recursions import counting
 from testbed.models.linear import STATES
 
-__all__ = ["GN_STARTS", "STARTS", "damped_gauss_newton", "gauss_newton", "simplex"]
+__all__ = ["GN_STARTS", "STARTS", "damped_gauss_newton", "gauss_newton", "refused_options", "simplex"]
 
 STARTS = ("auto", "config", "equation-error")  # the starts a nonlinear model has (module doc)
 GN_STARTS = STARTS + ("global",)  # … and `ml-gn`'s global search
@@ -119,6 +119,16 @@ _NM = (
     "coefficients",
     "coordinates",
 )
+
+
+def refused_options(method: str, options: Options) -> None:
+    """`OptionError` for an option `method` (`ml-gn`, `ml-lm`, `ml-nm`) cannot honour on a
+    nonlinear model config (module doc), a start it does not have, or an iteration limit below 1
+    (`ml-gn`, `ml-lm`): checked before any fit, the command's screen's included."""
+    meant, starts = {"ml-gn": (_GN, GN_STARTS), "ml-lm": (_LM, STARTS), "ml-nm": (_NM, STARTS)}[method]
+    _checked(method, options, meant, starts)
+    if method != "ml-nm" and options.max_iter < 1:
+        raise OptionError(method, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
 
 
 def _checked(method: str, options: Options, meant: Sequence[str], starts: Sequence[str] = STARTS) -> None:
@@ -194,9 +204,7 @@ def _output_error(
     (`nonlinear_fit.fit` by that optimiser), the best kept."""
     t0 = time.perf_counter()
     gn = name == "ml-gn"
-    _checked(name, options, _GN if gn else _LM, GN_STARTS if gn else STARTS)
-    if options.max_iter < 1:
-        raise OptionError(name, "max_iter", options.max_iter, "an integer ≥ 1 for a nonlinear model config")
+    refused_options(name, options)
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     noise = {c: s for c, s in (config.noise_std or {}).items() if c in channels}
     box = config.box(config.free)
@@ -291,7 +299,7 @@ def simplex(
 ) -> Estimate:
     """`ml-nm` on a nonlinear model config (module doc)."""
     t0, name = time.perf_counter(), "ml-nm"
-    _checked(name, options, _NM)
+    refused_options(name, options)
     coordinates = options.coordinates or "information"
     channels, recs, model, theta, idx = setup(experiments, config, f"{name} on a nonlinear model config")
     ch = [STATES.index(c) for c in channels]

@@ -145,10 +145,17 @@ def regressed(
     return theta, steps
 
 
-def refuses(config: ModelConfig) -> None:
-    """`InputError` for what `equation-error` cannot take in a nonlinear model config, whatever the
-    data: a mounted velocity log, a free parameter beside the terms (an output bias, the current,
-    the delay: in no dynamics row)."""
+def refuses(config: ModelConfig, options: Options) -> None:
+    """What `equation-error` cannot take in a nonlinear model config, whatever the data: an option
+    other than its default (`OptionError`: the linear regression's smoothing window; the quotients
+    are not smoothed); a mounted velocity log, a free parameter beside the terms (an output bias,
+    the current, the delay: in no dynamics row) (`InputError`)."""
+    for f in fields(options):
+        if getattr(options, f.name) != f.default:
+            raise OptionError(
+                "equation-error", f.name, getattr(options, f.name),
+                "its default: equation-error on a nonlinear model config has no such option",
+            )  # fmt: skip
     check_mounting(config, "equation-error on a nonlinear model config")
     outside = [n for n in config.free if n not in config.nonlinear()[0].names]
     if outside:
@@ -176,12 +183,7 @@ def equation_error_estimate(
     regression's smoothing window: the quotients are not smoothed)."""
     t0, name = time.perf_counter(), "equation-error"
     where = f"{name} on a nonlinear model config"
-    for f in fields(options):
-        if getattr(options, f.name) != f.default:
-            raise OptionError(
-                name, f.name, getattr(options, f.name), "its default: " + where + " has no such option"
-            )
-    refuses(config)
+    refuses(config, options)
     channels, recs, model, theta, idx = setup(experiments, config, where)
     ch = [STATES.index(c) for c in channels]
     given = config.noise_std or {}

@@ -281,7 +281,7 @@ def identify_screened(
     apply = config.screen if apply is None else apply
     m = lookup(method)
     built = m.options.build(m.name, options)  # what the method refuses, before the screen's fit
-    check_method(m.name, config)
+    check_method(m.name, config, built)
     if config.terms is None and m.refuses_data is not None:
         m.refuses_data(experiments, config)
     same = m.name == "ml-gn"

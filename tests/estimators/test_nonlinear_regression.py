@@ -80,21 +80,3 @@ def test_what_the_regression_cannot_take_is_refused_in_one_line(truth):  # noqa:
     partial = replace(noisy, measured=tuple(noisy.measured[k] for k in keep), y=noisy.y[:, keep])
     with pytest.raises(InputError, match=r"^equation-error: the records do not measure phi.*or ml-gn$"):
         identify([partial], config, "equation-error")
-
-
-@pytest.mark.parametrize("method", ["equation-error", "mekf"])
-def test_a_free_output_bias_is_refused_before_the_screen_fits(truth, method, monkeypatch):  # noqa: F811
-    """What a method cannot take in a nonlinear model config whatever the data (a free output bias,
-    in no dynamics row and estimated by no filter) is refused before the command's screen fits
-    (a minute and more on a 60 s record), not after it."""
-    from testbed.jobs import identify as job
-
-    config, noisy, _ = truth
-
-    def screened(*args, **kwargs):
-        raise AssertionError("the screen ran")
-
-    monkeypatch.setattr(job, "screening", screened)
-    with pytest.raises(InputError, match=r"free (lists|names) b_phi") as e:
-        job.identify_screened([noisy], replace(config, free=(*FREE, "b_phi"), screen=True), method)
-    assert "\n" not in str(e.value)
