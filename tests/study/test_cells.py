@@ -100,9 +100,12 @@ def test_its_rows_summary_and_report_table_carry_the_captive_judgement(cell, tmp
     assert np.isfinite(list(sigmas.values())).all()
 
 
+# mekf-nonlinear takes the same path with the nonlinear filter's kernels, which this module's
+# worker would compile beside the others of the default run
 @pytest.mark.parametrize(
-    "arm", ["ml-lm-nonlinear", "equation-error-nonlinear"]
-)  # mekf-nonlinear: the same path, a filter of its own to compile
+    "arm",
+    ["ml-lm-nonlinear", "equation-error-nonlinear", pytest.param("mekf-nonlinear", marks=pytest.mark.slow)],
+)
 def test_each_nonlinear_arm_starts_where_ml_gn_does_and_is_judged_in_its_sigma(cell, arm, tmp_path):
     """Another method on the nonlinear model: the same start as the `NONLINEAR_ARM` cell of its
     seed and spread, its own method's estimate, and its rows judged in the data's σ (that cell's,
