@@ -14,7 +14,7 @@ from testbed.estimators.base import Outcome, Progress, Status
 from testbed.estimators.box_bounds import on_bounds, outcome_held, start_in_box
 from testbed.estimators.newton_raphson import length_stages
 from testbed.estimators import simplex
-from testbed.estimators.simplex import STEPS, Frame, information_frame, simplex_coefficients, simplex_run
+from testbed.estimators.simplex import STEPS, Frame, run_frame, simplex_coefficients, simplex_run
 from testbed.identification import bounds, concentrated, likelihood, recursions, scan
 from testbed.identification.problem import Problem
 from testbed.identification.linear_objective import point
@@ -52,7 +52,7 @@ def nelder_mead(
     heading integrates the yaw-rate error, so the cost's nonconvexity grows with record length):
 
     - Coordinates (`coordinates`): by default each run's simplex moves in coordinates in which
-      the Gauss-Newton information at its start is the identity (`_information_frame`): a unit
+      the Gauss-Newton information at its start is the identity (`simplex.run_frame`): a unit
       step is one Cramér-Rao σ along each principal direction, so the cost's valleys, long and
       narrow in the coefficients' own units (the drift groups), are round, and the simplex
       needs about a third of the iterations. `scaled`: x_i = θ_i/|θ_i,start| (θ_i where
@@ -131,9 +131,7 @@ def _simplex(
         return False
 
     def framed(stage: Problem, theta: np.ndarray, R: np.ndarray) -> Frame:
-        if coordinates == "scaled":
-            return Frame(np.zeros(nf), scale, box)
-        return replace(_information_frame(stage, theta, R, scale), box=box)
+        return run_frame(coordinates, theta, scale, box, lambda: _reduced_information(stage, theta, R))
 
     if not restarts:
         R = likelihood.noise_variance(
@@ -227,12 +225,11 @@ def _converged(prob: Problem, theta: np.ndarray, R: np.ndarray, it: int, history
     return Outcome(x.p, Status.CONVERGED, it, np.array(history), M, (theta.copy(), std))
 
 
-def _information_frame(prob: Problem, theta: np.ndarray, R: np.ndarray, scale: np.ndarray) -> Frame:
-    """`simplex.information_frame` at θ, the Gauss-Newton information there with the initial
-    states solved for and R held; the coordinates scaled by `scale` where it is not finite there
-    (the model diverges)."""
+def _reduced_information(prob: Problem, theta: np.ndarray, R: np.ndarray) -> np.ndarray | None:
+    """The Gauss-Newton information of θ there, the initial states solved for and R held; None
+    where the model diverges there."""
     found = _information(prob, theta, R, weigh=R)
-    return information_frame(None if found is None else found[2], theta, scale)
+    return None if found is None else found[2]
 
 
 def _one_simplex(

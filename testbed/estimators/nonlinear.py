@@ -12,7 +12,7 @@ contract and `Estimate` as the linear model's methods:
 - `ml-nm`: the paper's Nelder-Mead simplex (`simplex`) on the same likelihood,
   `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients, each run in the coordinates at its start
   (`coordinates`, as the linear model's: by default whitened by the flight's Gauss-Newton
-  information there, the initial states solved for, `simplex.information_frame`; or scaled by
+  information there, the initial states solved for, `simplex.run_frame`; or scaled by
   the start, θᵢ/|θᵢ,start|). Each record's initial state is concentrated out at every θ to first order:
   the residual less its weighted least-squares fit by the outputs' sensitivities to the measured
   initial states, taken at the run's reference state (the linear `ml-nm` concentrates it
@@ -69,17 +69,11 @@ from testbed.estimators.multistart import Fit, best_fit, box_draws, starts_recor
 from testbed.estimators.nonlinear_fit import fit as fit_from
 from testbed.estimators.nonlinear_fit import NonlinearFit, estimate_of, nonlinear_problem
 from testbed.estimators.nonlinear_regression import regressed
-from testbed.estimators.simplex import (
-    STEPS,
-    Frame,
-    fresh_simplex,
-    information_frame,
-    simplex_coefficients,
-    simplex_run,
-)
+from testbed.estimators.simplex import STEPS, fresh_simplex, run_frame, simplex_coefficients, simplex_run
 from testbed.identification.likelihood import reduced
 from testbed.identification.nonlinear_output_error import (
     coloured_bounds,
+    coloured_bounds_held,
     sensitivity_bounds,
     neg_log_likelihood,
     pooled_noise,
@@ -317,18 +311,14 @@ def simplex(
     scale = np.where(theta[idx] != 0, np.abs(theta[idx]), 1.0)  # the start's size
     history = [theta[idx].copy()]
 
-    def framed(th, x0, R) -> Frame:
-        """The coordinates of a run from θ ⊕ b ⊕ g ⊕ c ⊕ τ `th`: scaled by the start's size, or
-        whitened by the information there (the initial states `x0` solved for, R held); scaled
-        where the flight's information is not finite there."""
-        if coordinates == "scaled":
-            return Frame(np.zeros(nf), scale, box)
+    def information(th, x0, R) -> np.ndarray | None:
+        """The flight's information of the free values at θ ⊕ b ⊕ g ⊕ c ⊕ τ `th`, the initial
+        states `x0` solved for, R held; None where the flight does not stay finite there."""
         try:
             H = flight_information(model, th, x0, recs, channels, config.free, R)[0]
-        except InputError:  # the flight does not stay finite there
-            H = None
-        F = None if H is None else reduced(H, np.zeros(len(H)), nf)[0]
-        return replace(information_frame(F, th[idx], scale), box=box)
+        except InputError:
+            return None
+        return reduced(H, np.zeros(len(H)), nf)[0]
 
     def coefficients(x):
         """θ ⊕ b ⊕ g ⊕ c ⊕ τ at the simplex's x in the run's `frame`, its free values moved onto
@@ -381,7 +371,7 @@ def simplex(
         th, size, it, status = theta, steps[0], 0, Status.STALLED
         for _ in range(options.max_relaxations):
             # each run in the coordinates at its start
-            frame = framed(th, x0, R)
+            frame = run_frame(coordinates, th[idx], scale, box, lambda: information(th, x0, R))
             x = frame.x(th[idx])
             J_start = J(x)
             corners, J_i, it, stopped = simplex_run(
@@ -398,14 +388,9 @@ def simplex(
                 status = Status.CONVERGED
                 break
     # the values on a bound held: the others' σ with them held, theirs NaN (a bound is no estimate's σ)
-    on = {config.free[k]: float(th[idx][k]) for k in np.flatnonzero(on_bounds(th[idx], box))}
-    moving = [n for n in config.free if n not in on]
-    std, coloured, H = np.full(nf, np.nan), np.full(nf, np.nan), None
-    if moving:
-        at = [config.free.index(n) for n in moving]
-        std[at], coloured[at], res, H = coloured_bounds(model, th, x0, recs, channels, moving, R)
-    else:
-        res = flown(th, x0)
+    held_on = on_bounds(th[idx], box)
+    on = {config.free[k]: float(th[idx][k]) for k in np.flatnonzero(held_on)}
+    std, coloured, res, H = coloured_bounds_held(model, th, x0, recs, channels, config.free, R, held_on)
     return estimate_of(
         config,
         experiments,
@@ -423,7 +408,7 @@ def simplex(
         start=label,
         history=np.array(history),
         crlb_corrected_std=coloured,
-        information=H if not on else None,
+        information=H,
         at_bounds=on or None,
         message=bounds_message(on),
     )

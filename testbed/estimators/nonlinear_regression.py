@@ -43,7 +43,7 @@ from testbed.estimators.nonlinear_fit import estimate_of
 from testbed.estimators.intervals import between_present
 from testbed.identification.nonlinear_output_error import (
     FlightRecord,
-    coloured_bounds,
+    coloured_bounds_held,
     fitted_initial_states,
     flight_residuals,
     neg_log_likelihood,
@@ -205,14 +205,9 @@ def equation_error_estimate(
         x0 = fitted_initial_states(model, th, recs, ch, x0, None, sensitivities=False)[0]
         R = pooled_noise(flight_residuals(model, th, x0, recs, ch), held)
         # the values on a bound: no σ, the others' with them held
-        on = {config.free[k]: float(values[k]) for k in np.flatnonzero(on_bounds(values, box))}
-        moving = [n for n in config.free if n not in on]
-        std, coloured, H = np.full(len(idx), np.nan), np.full(len(idx), np.nan), None
-        if moving:
-            at = [config.free.index(n) for n in moving]
-            std[at], coloured[at], res, H = coloured_bounds(model, th, x0, recs, channels, moving, R)
-        else:
-            res = flight_residuals(model, th, x0, recs, ch)
+        held_on = on_bounds(values, box)
+        on = {config.free[k]: float(values[k]) for k in np.flatnonzero(held_on)}
+        std, coloured, res, H = coloured_bounds_held(model, th, x0, recs, channels, config.free, R, held_on)
     cost = neg_log_likelihood(res, R)
     if callback is not None:
         callback(Progress(1, values.copy(), cost))
@@ -220,6 +215,6 @@ def equation_error_estimate(
         config, experiments, channels, x0, t0, tally[0], method=name, status=Status.CONVERGED,
         values=values, std=std, cost=cost, iterations=steps,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)}, history=history,
-        crlb_corrected_std=coloured, information=H if not on else None, at_bounds=on or None,
+        crlb_corrected_std=coloured, information=H, at_bounds=on or None,
         message=bounds_message(on),
     )  # fmt: skip

@@ -1,18 +1,19 @@
 """The paper's eight-step Nelder-Mead simplex (`simplex_run`), its coefficients, a fresh
-simplex and the coordinates it moves in (`Frame`: scaled by the start, or whitened by the
-information, `information_frame`): the search `ml-nm` runs on the linear model's likelihood and
-on the nonlinear model's."""
+simplex and the coordinates a run moves in (`run_frame`: scaled by the start, or whitened by the
+information): the search `ml-nm` runs on the linear model's likelihood and on the nonlinear
+model's."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
 from testbed.estimators.box_bounds import into_box
 from testbed.identification.bounds import NULL
 
-__all__ = ["Frame", "STEPS", "fresh_simplex", "information_frame", "simplex_coefficients", "simplex_run"]
+__all__ = ["Frame", "STEPS", "fresh_simplex", "run_frame", "simplex_coefficients", "simplex_run"]
 
 # the first simplex's edge and a later run's, per coordinates: Cramér-Rao σ (information) or
 # fractions of |θ_i,start| (scaled)
@@ -120,7 +121,22 @@ class Frame:
         return 0.0 if np.array_equal(inside, raw) else float(np.sum((x - self.x(inside)) ** 2))
 
 
-def information_frame(F: np.ndarray | None, theta: np.ndarray, scale: np.ndarray) -> Frame:
+def run_frame(
+    coordinates: str,
+    theta: np.ndarray,
+    scale: np.ndarray,
+    box: tuple | None,
+    information: Callable[[], np.ndarray | None],
+) -> Frame:
+    """The coordinates of a simplex run from θ, moved onto `box`: "scaled", x = θ/`scale`; or
+    "information", whitened by `information()`, the information of θ there (the initial states
+    solved for; None where it cannot be computed), asked for only then (`_whitened`)."""
+    if coordinates == "scaled":
+        return Frame(np.zeros(len(theta)), scale, box)
+    return replace(_whitened(information(), theta, scale), box=box)
+
+
+def _whitened(F: np.ndarray | None, theta: np.ndarray, scale: np.ndarray) -> Frame:
     """Coordinates centred at θ in which the information `F` there (θ's, the initial states
     solved for) is the identity: a unit step is one Cramér-Rao σ along each principal direction,
     so the cost's valleys are round for the simplex. With `D F D = V Λ Vᵀ` (D = 1/√diag F),

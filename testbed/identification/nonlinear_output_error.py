@@ -49,6 +49,7 @@ __all__ = [
     "FlightRecord",
     "check_records",
     "coloured_bounds",
+    "coloured_bounds_held",
     "flight_information",
     "neg_log_likelihood",
     "normal_equations",
@@ -449,6 +450,33 @@ def coloured_bounds(
     (`bounds.coloured_covariance`, its per-record sum `bounds.coloured_term`), the residuals and
     the Fisher information H they come from (`flight_information`'s)."""
     return sensitivity_bounds(*_linearisation(model, theta, x0, records, channels, free, substeps), R)
+
+
+def coloured_bounds_held(
+    model: NonlinearModel,
+    theta,
+    x0: np.ndarray,
+    records: Sequence[FlightRecord],
+    channels: Sequence[str],
+    free: Sequence[str],
+    R: np.ndarray,
+    held: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray | None]:
+    """`coloured_bounds` of the `free` parameters where those `held` (bool per name) end on a
+    bound of a box: theirs NaN (a bound is no estimate's σ), the others' with them held; the
+    residuals, and H where none is held (None otherwise: the information of the others alone)."""
+    std, coloured = np.full(len(free), np.nan), np.full(len(free), np.nan)
+    at = np.flatnonzero(~held)
+    if not len(at):
+        return (
+            std,
+            coloured,
+            flight_residuals(model, theta, x0, records, [STATES.index(c) for c in channels]),
+            None,
+        )
+    moving = [free[k] for k in at]
+    std[at], coloured[at], res, H = coloured_bounds(model, theta, x0, records, channels, moving, R)
+    return std, coloured, res, None if held.any() else H
 
 
 def sensitivity_bounds(res: Sequence[np.ndarray], sens: Sequence[tuple], R) -> tuple:
