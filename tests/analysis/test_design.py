@@ -242,12 +242,12 @@ def test_sequential_design_is_made_at_the_estimate_and_its_noise(tmp_path):
         json.dumps({"coefficients": {n: {"value": v} for n, v in estimate.items()}, "noise_std": {"v": 0.03}})
     )
     values, noise = design_report.design_estimates(path)
-    d1 = D.design(120.0, "A", estimates=values, noise_std=noise, check=False)
+    d1 = D.design(60.0, "A", estimates=values, noise_std=noise, check=False)
     assert d1.source == "estimate" and set(d1.free) == set(free)
     assert np.allclose(d1.values, [estimate[n] for n in d1.free])
-    d2 = D.design(120.0, "A", estimates=values, noise_std={k: 2 * v for k, v in noise.items()}, check=False)
+    d2 = D.design(60.0, "A", estimates=values, noise_std={k: 2 * v for k, v in noise.items()}, check=False)
     assert d2.scenario == d1.scenario and np.allclose(d2.crlb, 2 * d1.crlb)
-    d0 = D.design(120.0, "A", free=free, check=False)  # at the analytic model
+    d0 = D.design(60.0, "A", free=free, check=False)  # at the analytic model
     assert not np.allclose(d0.crlb_base, d1.crlb_base)
 
 
