@@ -357,7 +357,7 @@ def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
         f = flight(model, theta[:m], r.t, x, fins, free[own], substeps, dfins)
         simulated(len(r.t) * (1 + int(own.sum()) + int(delay.any())))
         St = np.zeros((len(r.t), len(ch), len(free)))
-        St[:, :, own] = log_mounting.read_derivatives(g, f.dx_dtheta, ch)
+        St[:, :, _positions(own)] = log_mounting.read_derivatives(g, f.dx_dtheta, ch)
         if delay.any():  # the flight's own, through the fins it moves
             St[:, :, delay] = log_mounting.read_derivatives(g, f.dx_dinputs, ch)
         # ∂(x + b)/∂b = 1 on the bias's own channel, 0 on the others
@@ -374,6 +374,15 @@ def output_sensitivities(model, theta, x0, records, flown, ch, free, substeps):
                 St[:, velocity, j] = dc[free[j] - k - len(MOUNTING)][:, ch[velocity]]
         out.append((St, log_mounting.read_derivatives(g, f.dx_dx0, ch)[:, :, ch]))
     return out
+
+
+def _positions(mask: np.ndarray):
+    """Where `mask` is true: a slice where those places run on without a gap (numpy writes a
+    slice's block several times faster than it scatters along a mask), else their indices."""
+    at = np.flatnonzero(mask)
+    if len(at) and at[-1] - at[0] + 1 == len(at):
+        return slice(int(at[0]), int(at[-1]) + 1)
+    return at
 
 
 def flight_information(
@@ -411,10 +420,13 @@ def normal_equations(res, sens, R, free_initial):
     P = _columns(res, sens, free_initial)
     H, g = np.zeros((P, P)), np.zeros(P)
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
-        e, J = present_only(e, _jacobian(i, St, Sx, P, free_initial))
-        W = J / R[:, None]
-        H += np.einsum("nci,ncj->ij", W, J)
-        g += np.einsum("nci,nc->i", W, e)
+        cols = _record_columns(i, St, Sx, free_initial)
+        e, J = present_only(e, _jacobian(St, Sx, free_initial))
+        W, J = (J / R[:, None]).reshape(-1, len(cols)), J.reshape(-1, len(cols))
+        # on the record's own columns (θ[free] and its initial states; zero in the others'):
+        # H += Jᵢᵀ R⁻¹ Jᵢ, g += Jᵢᵀ R⁻¹ eᵢ
+        H[np.ix_(cols, cols)] += W.T @ J
+        g[cols] += W.T @ e.ravel()
     return H, g
 
 
@@ -423,15 +435,18 @@ def _columns(res, sens, free_initial) -> int:
     return sens[0][0].shape[2] + (len(res) * sens[0][1].shape[2] if free_initial else 0)
 
 
-def _jacobian(i, St, Sx, P, free_initial) -> np.ndarray:
-    """FlightRecord i's output sensitivities (N, C, P) to [θ[free] | each record's measured initial
-    states] from its sensitivities to θ[free] `St` and to its own initial states `Sx`."""
+def _record_columns(i, St, Sx, free_initial) -> np.ndarray:
+    """Where record i's sensitivities (`_jacobian`) sit among the columns [θ[free] | each record's
+    measured initial states]: θ[free]'s, and its own initial states' when free."""
     p, c = St.shape[2], Sx.shape[2]
-    J = np.zeros(St.shape[:2] + (P,))
-    J[:, :, :p] = St
-    if free_initial:
-        J[:, :, p + i * c : p + (i + 1) * c] = Sx
-    return J
+    own = np.arange(p + i * c, p + (i + 1) * c) if free_initial else np.arange(0)
+    return np.r_[np.arange(p), own]
+
+
+def _jacobian(St, Sx, free_initial) -> np.ndarray:
+    """A record's output sensitivities (N, C, ·) to θ[free] `St` and, when free, to its own
+    initial states `Sx`: its columns of the Jacobian (`_record_columns`), the others' zero."""
+    return np.concatenate([St, Sx], axis=2) if free_initial else St
 
 
 def coloured_bounds(
@@ -486,15 +501,15 @@ def sensitivity_bounds(res: Sequence[np.ndarray], sens: Sequence[tuple], R) -> t
     R = np.asarray(R, float)
     H, _ = normal_equations(res, sens, R, True)
     cov, std, _ = crlb(H)
-    p, P, scale = sens[0][0].shape[2], len(H), np.sqrt(R)
+    p, scale = sens[0][0].shape[2], np.sqrt(R)
     total = np.zeros((p, p))
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
         # the rows with no sample (fins logged between the samples) left out: the residuals'
         # autocorrelation is over the samples, its lags counted in them
         rows = ~np.isnan(e).all(axis=1)
         missing = np.isnan(e[rows])
-        e, J = present_only(e[rows], _jacobian(i, St[rows], Sx[rows], P, True))
-        Z = (J / scale[:, None]) @ cov[:p].T
+        e, J = present_only(e[rows], _jacobian(St[rows], Sx[rows], True))
+        Z = (J / scale[:, None]) @ cov[:p, _record_columns(i, St, Sx, True)].T
         total += coloured_term(Z, e / scale, ~missing if missing.any() else None)
     coloured = np.where(np.isinf(std[:p]), np.inf, np.sqrt(np.maximum(np.diag(total), 0.0)))
     return std[:p], coloured, res, H

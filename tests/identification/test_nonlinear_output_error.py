@@ -105,3 +105,38 @@ def noisy(model, theta, seed, seconds=10.0):
     for n in FREE:
         start[model.names.index(n)] *= np.exp(0.2 * rng.normal())
     return FlightRecord(t=t, fins=fins, y=y), start
+
+
+@pytest.mark.parametrize("free_initial", [True, False])
+def test_the_normal_equations_are_those_of_the_whole_jacobian_stacked(free_initial):
+    """`normal_equations` of several records with samples missing, against JᵀR⁻¹J and JᵀR⁻¹e of
+    the whole Jacobian written out here: every record's rows stacked, its initial states' columns
+    its own and zero in the others' rows, the missing samples' rows left out."""
+    from testbed.identification.nonlinear_output_error import normal_equations
+
+    rng = np.random.default_rng(3)
+    p, C, lengths = 4, 3, (40, 25, 31)
+    R = rng.uniform(0.5, 2.0, C)
+    res, sens = [], []
+    for n in lengths:
+        e = rng.standard_normal((n, C))
+        e[rng.random((n, C)) < 0.2] = np.nan
+        res.append(e)
+        sens.append((rng.standard_normal((n, C, p)), rng.standard_normal((n, C, C))))
+    P = p + (len(lengths) * C if free_initial else 0)
+    rows, values = [], []
+    for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
+        for k in range(len(e)):
+            for c in range(C):
+                if np.isnan(e[k, c]):
+                    continue
+                row = np.zeros(P)
+                row[:p] = St[k, c]
+                if free_initial:
+                    row[p + i * C : p + (i + 1) * C] = Sx[k, c]
+                rows.append(row / np.sqrt(R[c]))
+                values.append(e[k, c] / np.sqrt(R[c]))
+    J, e = np.array(rows), np.array(values)
+    H, g = normal_equations(res, sens, R, free_initial)
+    np.testing.assert_allclose(H, J.T @ J, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(g, J.T @ e, rtol=1e-12, atol=1e-12)
