@@ -421,12 +421,14 @@ def normal_equations(res, sens, R, free_initial):
     H, g = np.zeros((P, P)), np.zeros(P)
     for i, (e, (St, Sx)) in enumerate(zip(res, sens)):
         cols = _record_columns(i, St, Sx, free_initial)
-        e, J = present_only(e, _jacobian(St, Sx, free_initial))
-        W, J = (J / R[:, None]).reshape(-1, len(cols)), J.reshape(-1, len(cols))
-        # on the record's own columns (θ[free] and its initial states; zero in the others'):
+        # the rows (sample, channel) present, each a row of the record's own columns (θ[free] and
+        # its initial states; zero in the others')
+        present = ~np.isnan(e.ravel())
+        J = _jacobian(St, Sx, free_initial).reshape(-1, len(cols))[present]
+        W = J / np.broadcast_to(R, e.shape).ravel()[present, None]
         # H += Jᵢᵀ R⁻¹ Jᵢ, g += Jᵢᵀ R⁻¹ eᵢ
         H[np.ix_(cols, cols)] += W.T @ J
-        g[cols] += W.T @ e.ravel()
+        g[cols] += W.T @ e.ravel()[present]
     return H, g
 
 
