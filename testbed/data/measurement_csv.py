@@ -44,6 +44,10 @@ CLOCK_POINTS = 32
 
 CLOCK_DIVISIONS = 8
 
+# Rows per stamp that may lie off the clock of the median step, each read at its nearest tick
+# (`clock`): a logger's glitch, not a clock of its own
+OFF_CLOCK = 1000
+
 # The least share of a state column's values, in rows with a fresh sample, that repeat its
 # previous one for the column to be read as a sensor slower than the log (`stale`)
 SLOWER = 0.25
@@ -233,7 +237,9 @@ def clock(t: np.ndarray, dt: float) -> tuple[float, float, np.ndarray]:
 
     A logger stamps from a clock that ticks every h, and its rows are a whole number of ticks
     apart (0.4 s and 0.6 s alternately: h = 0.2 s; a jittered 50 Hz log stamped in
-    milliseconds: h = 1 ms). h is the coarsest of (least positive step)/k, k = 1, 2, …, on
+    milliseconds: h = 1 ms). Where all but a few stamps (at most one per `OFF_CLOCK` rows) lie
+    on the clock of the median step, that is the clock and those few go to their nearest ticks
+    (`_glitched`). Otherwise h is the coarsest of (least positive step)/k, k = 1, 2, …, on
     which every stamp lies within the rounding of a printed stamp (`uniform_step`'s tolerance),
     and (t0, h) the least-squares line through the stamps at their points: the grid holds every
     stamp exactly, and the record is the same as its stamps. The search stops where the grid
@@ -244,6 +250,9 @@ def clock(t: np.ndarray, dt: float) -> tuple[float, float, np.ndarray]:
     steps = np.diff(t)
     least = float(np.min(steps[steps > 0]))
     tol = 1e-6 * least + 1e-9 * float(np.max(np.abs(t)))
+    glitched = _glitched(t, dt, tol)
+    if glitched is not None:
+        return glitched
     most = CLOCK_POINTS * len(t)
     k = 1
     while (t[-1] - t[0]) * k / least < most:
@@ -252,6 +261,27 @@ def clock(t: np.ndarray, dt: float) -> tuple[float, float, np.ndarray]:
             return float(t[0]), h, j  # the first stamp as logged: the line's start is within tol of it
         k += 1
     return _line(t, dt / CLOCK_DIVISIONS)
+
+
+def _glitched(t: np.ndarray, dt: float, tol: float) -> tuple[float, float, np.ndarray] | None:
+    """`(t0, h, j)` of the clock of the median step `dt` where every stamp but a few (at least
+    one, at most one per `OFF_CLOCK` rows) lies on it, each of those few at its nearest tick (a
+    timing error of at most half a step on that row): a logger's glitch, which would otherwise
+    make the clock a common divisor of it and the step (one stamp 7 ms early in a 50 Hz log: a
+    1 ms clock, 20 ticks a row). None where the stamps are all on it, or more are off it."""
+    j = np.concatenate([[0.0], np.cumsum(np.rint(np.diff(t) / dt))])
+    r = t - j * dt
+    on = np.abs(r - np.median(r)) <= max(tol, 1e-3 * dt)  # on the clock up to its printing
+    if not 0 < np.count_nonzero(~on) <= max(1, len(t) // OFF_CLOCK) or np.ptp(j[on]) == 0:
+        return None
+    # the least-squares line through the stamps on it, which must hold each of them
+    jc, tc = j[on] - j[on].mean(), t[on] - t[on].mean()
+    h = float(jc @ tc / (jc @ jc))
+    start = float(t[on].mean() - h * j[on].mean())
+    if np.max(np.abs(t[on] - start - j[on] * h)) > tol:
+        return None
+    j = np.rint((t - start) / h).astype(np.int64)
+    return start + int(j[0]) * h, h, j - j[0]
 
 
 def _line(t: np.ndarray, h: float) -> tuple[float, float, np.ndarray]:

@@ -429,6 +429,34 @@ def test_stamps_with_no_clock_go_to_the_nearest_eighth_of_a_step(tmp_path):
     assert abs(np.median(np.diff(e.t)) - dt / 8) < 1e-3 * dt
 
 
+@pytest.mark.parametrize("glitches", [2, 4])
+def test_a_few_stamps_off_the_step_s_clock_go_to_its_nearest_ticks(tmp_path, glitches):
+    """A 50 Hz log of 3000 rows stamped in milliseconds, rows dropped, `glitches` stamps a few
+    ms off: up to one in a thousand rows (3) is a logger's glitch, read at its nearest tick of
+    the 20 ms clock, every other row at its own stamp; more, and the clock is the 1 ms one that
+    holds every stamp exactly, as for a jittered log."""
+    n, dt = 3000, 0.02
+    rng = np.random.default_rng(7)
+    t = np.round(10.0 + dt * np.arange(n), 3)
+    y = rng.normal(size=(n, 2))
+    d = np.zeros((n, 3))
+    odd = rng.choice(np.arange(100, n - 100), glitches, replace=False)
+    stamps = t.copy()
+    stamps[odd] += rng.choice([-0.007, 0.006], glitches)
+    keep = np.ones(n, dtype=bool)
+    keep[1000:1030] = False  # a dropout
+    e = read_csv(_log(tmp_path, stamps[keep], y[keep], d[keep]))
+    if glitches <= n // 1000:
+        np.testing.assert_allclose(np.diff(e.t), dt, rtol=0, atol=1e-9)
+        assert len(e.t) == n
+        k = _rows_at(e, t[keep])  # the glitched rows at their true ticks, the others at their stamps
+    else:
+        np.testing.assert_allclose(np.diff(e.t), 0.001, rtol=0, atol=1e-9)
+        k = _rows_at(e, stamps[keep])
+    np.testing.assert_array_equal(e.y[k], y[keep])
+    assert np.isnan(np.delete(e.y, k, axis=0)).all()
+
+
 def test_a_stale_stamp_takes_the_free_point_after_it_and_a_row_logged_twice_counts_once(tmp_path):
     """A row stamped like the row before it, where the next grid point has no row, is that
     point's sample (the logger repeated a stale stamp); a row repeated whole is one row."""
