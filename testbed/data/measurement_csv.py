@@ -274,27 +274,21 @@ def _glitched(t: np.ndarray, dt: float, tol: float) -> tuple[float, float, np.nd
     on = np.abs(r - np.median(r)) <= max(tol, 1e-3 * dt)  # on the clock up to its printing
     if not 0 < np.count_nonzero(~on) <= max(1, len(t) // OFF_CLOCK) or np.ptp(j[on]) == 0:
         return None
-    # the least-squares line through the stamps on it, which must hold each of them
-    jc, tc = j[on] - j[on].mean(), t[on] - t[on].mean()
-    h = float(jc @ tc / (jc @ jc))
-    start = float(t[on].mean() - h * j[on].mean())
-    if np.max(np.abs(t[on] - start - j[on] * h)) > tol:
-        return None
-    j = np.rint((t - start) / h).astype(np.int64)
-    return start + int(j[0]) * h, h, j - j[0]
+    start, h, j = _line(t, dt, on)  # the line through the stamps on it, which must hold each of them
+    return (start, h, j) if np.max(np.abs(t[on] - start - j[on] * h)) <= tol else None
 
 
-def _line(t: np.ndarray, h: float) -> tuple[float, float, np.ndarray]:
+def _line(t: np.ndarray, h: float, on=slice(None)) -> tuple[float, float, np.ndarray]:
     """`(t0, h', j)`: each step of `t` in whole steps of h (rounded), the least-squares line
-    `t0 + j h'` through the stamps at those points (a step's own error does not accumulate
-    along the record: the median of ±20 % jittered steps is 0.4 % off, 12 samples by the end of
-    3000 rows), and each stamp's nearest point of it, the first at 0."""
+    `t0 + j h'` through the stamps `on` (every one by default) at those points (a step's own
+    error does not accumulate along the record: the median of ±20 % jittered steps is 0.4 % off,
+    12 samples by the end of 3000 rows), and each stamp's nearest point of it, the first at 0."""
     j = np.concatenate([[0.0], np.cumsum(np.rint(np.diff(t) / h))])
     if j[-1] == 0:
         return float(t[0]), h, j.astype(np.int64)
-    jc, tc = j - j.mean(), t - t.mean()
+    jc, tc = j[on] - j[on].mean(), t[on] - t[on].mean()
     h = float(jc @ tc / (jc @ jc))
-    start = float(t.mean() - h * j.mean())
+    start = float(t[on].mean() - h * j[on].mean())
     j = np.rint((t - start) / h).astype(np.int64)
     return start + int(j[0]) * h, h, j - j[0]
 
