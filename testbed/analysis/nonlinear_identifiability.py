@@ -186,6 +186,8 @@ def _information(experiments, config: ModelConfig, problem: tuple, initial, subs
         H, segments = _on_segments(objective, channels, config.free, config.source or "the config")
         return H, segments, exc.reason
     m = len(model.names)  # the outputs: the states as read plus their biases
+    # each record's rows are among its experiment's (`flown_rows`): the flight's states there
+    flown = [x[np.searchsorted(e.t, r.t)] for e, r, x in zip(experiments, recs, flown)]
     R = pooled_noise([r.y - read_outputs(x, theta, m, ch) for r, x in zip(recs, flown)], held)
     x0 = np.array([x[0] for x in flown])
     return flight_information(model, theta, x0, recs, channels, config.free, R, substeps)[0], 0, ""

@@ -266,6 +266,7 @@ def _output_error(
     return estimate_of(
         config,
         experiments,
+        recs,
         channels,
         fit.initial_states,
         t0,
@@ -394,6 +395,7 @@ def simplex(
     return estimate_of(
         config,
         experiments,
+        recs,
         channels,
         x0,
         t0,

@@ -199,14 +199,15 @@ def _box(bounds, p: int) -> tuple[np.ndarray, np.ndarray] | None:
     return low, high
 
 
-def estimate_of(config, experiments, channels, x0, t0: float, tally: int, **fields) -> Estimate:
+def estimate_of(config, experiments, records, channels, x0, t0: float, tally: int, **fields) -> Estimate:
     """The `Estimate` of a fit of `config.free` to `experiments` (its other `fields` given), with
-    its wall time from `t0`, its evaluations from the samples simulated `tally` and each record's
-    fitted initial state `x0` (records, 10) in the measured `channels`."""
+    its wall time from `t0`, its evaluations from the samples simulated `tally` (flights of the
+    experiments' `records`) and each record's fitted initial state `x0` (records, 10) in the
+    measured `channels`."""
     return Estimate(
         free=tuple(config.free),
         wall_time_s=time.perf_counter() - t0,
-        evaluations=-(-tally // sum(len(e.t) for e in experiments)),
+        evaluations=-(-tally // sum(len(r.t) for r in records)),
         initial_states={
             e.name: {c: float(x[STATES.index(c)]) for c in channels} for e, x in zip(experiments, x0)
         },

@@ -197,7 +197,7 @@ def equation_error_estimate(
         flown = flight_residuals(model, th, x0, recs, ch) if np.all(np.isfinite(values)) else None
         if flown is None:
             return estimate_of(
-                config, experiments, channels, x0, t0, tally[0], method=name, status=Status.DIVERGED,
+                config, experiments, recs, channels, x0, t0, tally[0], method=name, status=Status.DIVERGED,
                 values=values, std=np.full(len(idx), np.nan), cost=np.nan, iterations=steps,
                 noise_std={}, history=history,
                 message="the model's flight at the regression's estimate does not stay finite over the records",
@@ -212,7 +212,7 @@ def equation_error_estimate(
     if callback is not None:
         callback(Progress(1, values.copy(), cost))
     return estimate_of(
-        config, experiments, channels, x0, t0, tally[0], method=name, status=Status.CONVERGED,
+        config, experiments, recs, channels, x0, t0, tally[0], method=name, status=Status.CONVERGED,
         values=values, std=std, cost=cost, iterations=steps,
         noise_std={c: float(np.sqrt(v)) for c, v in zip(channels, R)}, history=history,
         crlb_corrected_std=coloured, information=H, at_bounds=on or None,
