@@ -43,11 +43,10 @@ from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
 from testbed.models.linear import CURRENT, DELAY, MOUNTING, NU, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
-from testbed.models.nonlinear_flight import fly_nonlinear
+from testbed.models.nonlinear_flight import flown_rows, fly_nonlinear
 
 __all__ = [
     "FlightRecord",
-    "STRETCH",
     "check_records",
     "coloured_bounds",
     "coloured_bounds_held",
@@ -64,17 +63,11 @@ __all__ = [
     "records",
     "flight_residuals",
     "fitted_initial_states",
-    "flown_rows",
     "output_sensitivities",
     "setup",
     "fly_records",
     "start_states",
 ]
-
-
-# a flight's intervals between the rows it needs are at most this many times their median
-# (`flown_rows`): a dropout is flown in steps about as long as the record's own
-STRETCH = 1.5
 
 
 @dataclass(frozen=True)
@@ -97,33 +90,6 @@ class FlightRecord:
         """Its samples at `rows` (a slice or increasing indices)."""
         heading = None if self.heading is None else self.heading[rows]
         return FlightRecord(t=self.t[rows], fins=self.fins[rows], y=self.y[rows], heading=heading)
-
-
-def flown_rows(record: FlightRecord) -> np.ndarray:
-    """The rows (indices) a flight of `record` must stop at: the first, the last, each with a
-    sample and each where the fins change; and, where two of those lie further apart than
-    `STRETCH` times their median interval (a dropout), as few rows between them as keep every
-    interval within that. The fins are held from one row to the next, so the flight from one of
-    these rows to the next is the flight through the rows between, in fewer RK4 steps
-    (`nonlinear_flight.substeps_for` their median interval): a log read on its logger's
-    millisecond clock holds about 20 ticks a row, all but one without a sample or a fin change.
-    A record on its own step keeps every row."""
-    t, n = record.t, len(record.t)
-    needed = ~np.isnan(record.y).all(axis=1)
-    needed[1:] |= np.any(record.fins[1:] != record.fins[:-1], axis=1)
-    needed[[0, -1]] = True
-    rows = np.flatnonzero(needed)
-    if len(rows) == n:
-        return rows
-    limit = STRETCH * float(np.median(np.diff(t[rows])))
-    between = []
-    for k in np.flatnonzero(np.diff(t[rows]) > limit):
-        last = t[rows[k]]
-        for j in range(rows[k] + 1, rows[k + 1]):  # kept where leaving it out stretches the interval
-            if t[j + 1] - last > limit:
-                between.append(j)
-                last = t[j]
-    return np.union1d(rows, np.array(between, dtype=rows.dtype))
 
 
 def records(
@@ -228,7 +194,7 @@ def setup(
     if delay != 0 or DELAY in config.free:
         check_constant_interval(experiments, f"{DELAY} (free or not 0)")
     else:  # the delayed fins are interpolated on the constant interval: every row kept there
-        recs = [r.at(flown_rows(r)) for r in recs]
+        recs = [r.at(flown_rows(r.t, r.y, r.fins)) for r in recs]
     theta = np.concatenate(
         [theta, config.output_biases(channels), config.mounting(), config.current(), [delay]]
     )

@@ -30,7 +30,7 @@ from testbed.identification.recursions import simulated
 from testbed.models import log_mounting
 from testbed.models.linear import DELAY, MOUNTING, NX, STATES
 from testbed.models.nonlinear import NonlinearModel
-from testbed.models.nonlinear_flight import fly_nonlinear
+from testbed.models.nonlinear_flight import flown_rows, fly_nonlinear
 
 __all__ = [
     "ITERATIONS",
@@ -132,7 +132,9 @@ def flights(
     initial: Mapping[str, Mapping[str, float]] | None = None,
     substeps: int | None = None,
 ) -> list[np.ndarray]:
-    """`predict_nonlinear`'s flights: every state (N, 10) of each experiment, absolute u (no output bias)."""
+    """`predict_nonlinear`'s flights: every state (N, 10) of each experiment, absolute u (no output
+    bias). The initial state is fitted on the rows the flight must stop at (`flown_rows`), then
+    flown through every row."""
     model, theta = config.nonlinear()
     out = []
     for e in experiments:
@@ -144,35 +146,50 @@ def flights(
         for c, v in {**first_samples([e], config)[e.name], **given}.items():
             x0[STATES.index(c)] = v
         moved = [j for j, c in enumerate(e.measured) if c not in given]
-        fins = delayed_inputs(e, config)
+        fins, current = delayed_inputs(e, config), _current(e, config)
+        rows = flown_rows(e.t, y, fins)
+        t = e.t[rows]
         with np.errstate(all="ignore"):
-            states = fly_nonlinear(model, theta, e.t, x0, fins, substeps)
-        bad = np.argwhere(~np.isfinite(states))
-        if len(bad):
-            why = (
-                f"{config.source or 'the config'}'s model flown from the record's first sample leaves "
-                f"the finite numbers at t = {e.t[bad[0][0]]:g} s"
+            states = _finite(e, config, t, fly_nonlinear(model, theta, t, x0, fins[rows], substeps))
+            x0, states = initial_state(
+                model,
+                theta,
+                t,
+                fins[rows],
+                y[rows],
+                ch,
+                moved,
+                x0,
+                None,
+                substeps,
+                states,
+                config.mounting(),
+                None if current is None else current[rows],
             )
-            raise Unflyable(f"{e.source or e.name}: {why}; expected a model whose flight stays bounded", why)
-        with np.errstate(all="ignore"):
-            out.append(
-                initial_state(
-                    model,
-                    theta,
-                    e.t,
-                    fins,
-                    y,
-                    ch,
-                    moved,
-                    x0,
-                    None,
-                    substeps,
-                    states,
-                    config.mounting(),
-                    _current(e, config),
-                )[1]
-            )
+            if len(rows) < len(e.t):
+                states = fly_nonlinear(model, theta, e.t, x0, fins, substeps)
+                states = _finite(e, config, e.t, states, "from its fitted initial state")
+        out.append(states)
     return out
+
+
+def _finite(
+    e: Experiment,
+    config: ModelConfig,
+    t: np.ndarray,
+    states: np.ndarray,
+    start: str = "from the record's first sample",
+) -> np.ndarray:
+    """`states` flown `start` at the times `t` of record `e`; `Unflyable` naming the record and
+    the config where they leave the finite numbers."""
+    bad = np.argwhere(~np.isfinite(states))
+    if len(bad):
+        why = (
+            f"{config.source or 'the config'}'s model flown {start} leaves the finite numbers at "
+            f"t = {t[bad[0][0]]:g} s"
+        )
+        raise Unflyable(f"{e.source or e.name}: {why}; expected a model whose flight stays bounded", why)
+    return states
 
 
 def initial_state(

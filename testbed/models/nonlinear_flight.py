@@ -17,16 +17,46 @@ from testbed.errors import InputError
 from testbed.models.linear import NU, NX
 from testbed.models.nonlinear import NonlinearModel, packed
 
-__all__ = ["STEP", "fly_nonlinear", "fly_with_sensitivities", "substeps_for"]
+__all__ = ["STEP", "STRETCH", "flown_rows", "fly_nonlinear", "fly_with_sensitivities", "substeps_for"]
 
 
 STEP = 0.005  # s: the RK4 step a flight takes unless told (4 steps a 20 ms sample interval)
+# a flight's intervals between the rows it needs are at most this many times their median
+# (`flown_rows`): a dropout is flown in steps about as long as the record's own
+STRETCH = 1.5
 
 
 def substeps_for(t) -> int:
     """The RK4 steps per sample interval of the times `t` that make each about `STEP` s: the
     median interval over `STEP`, rounded, at least 1."""
     return max(1, int(round(float(np.median(np.diff(np.asarray(t, float)))) / STEP)))
+
+
+def flown_rows(t: np.ndarray, y: np.ndarray, fins: np.ndarray) -> np.ndarray:
+    """The rows (indices) a flight over the times `t` (N,) with the `fins` (N, 3) held from each
+    row to the next must stop at to read the measurements `y` (N, k; NaN where missing): the
+    first, the last, each with a sample and each where the fins change; and, where two of those
+    lie further apart than `STRETCH` times their median interval (a dropout), as few rows between
+    them as keep every interval within that. The flight from one of these rows to the next is the
+    flight through the rows between, in fewer RK4 steps (`substeps_for` their median interval): a
+    log read on its logger's millisecond clock holds about 20 ticks a row, all but one without a
+    sample or a fin change. A record on its own step keeps every row."""
+    n = len(t)
+    needed = ~np.isnan(y).all(axis=1)
+    needed[1:] |= np.any(fins[1:] != fins[:-1], axis=1)
+    needed[[0, -1]] = True
+    rows = np.flatnonzero(needed)
+    if len(rows) == n:
+        return rows
+    limit = STRETCH * float(np.median(np.diff(t[rows])))
+    between = []
+    for k in np.flatnonzero(np.diff(t[rows]) > limit):
+        last = t[rows[k]]
+        for j in range(rows[k] + 1, rows[k + 1]):  # kept where leaving it out stretches the interval
+            if t[j + 1] - last > limit:
+                between.append(j)
+                last = t[j]
+    return np.union1d(rows, np.array(between, dtype=rows.dtype))
 
 
 def _flown(

@@ -259,7 +259,8 @@ def test_a_log_on_its_logger_s_millisecond_clock_fits_as_flown_through_every_tic
     stamps with the sensors' noise and missing at the other ticks: `ml-gn` from 20 % off flies
     only from stamp to stamp (5 ms RK4 steps) and ends within 3 σ of the model that flew, and
     within 0.1 σ of the same fit flown through every tick in 1 ms steps; `analyze`'s Fisher
-    information is the one flown through every tick, to RK4's error."""
+    information and the prediction `validate` scores are those flown through every tick, to
+    RK4's error."""
     config = truth[0]
     model, theta = config.nonlinear()
     rng = np.random.default_rng(3)
@@ -289,8 +290,14 @@ def test_a_log_on_its_logger_s_millisecond_clock_fits_as_flown_through_every_tic
     for n, v, s in zip(est.free, est.values, est.std):
         assert abs(v - every.estimates[n]) <= 0.1 * s, (n, v, every.estimates[n], s)
     stamped = nonlinear_identifiability([log], config).fisher
-    monkeypatch.setattr(nonlinear_output_error, "flown_rows", lambda r: np.arange(len(r.t)))
+    predicted = nonlinear_prediction.predict_nonlinear([log], config)[0]
+    for module in (nonlinear_output_error, nonlinear_prediction):  # every tick flown
+        monkeypatch.setattr(module, "flown_rows", lambda t, y, fins: np.arange(len(t)))
     ticked = nonlinear_identifiability([log], config).fisher
+    # the prediction at every tick, its initial state fitted to 0.01 σ (`nonlinear_prediction`)
+    every = nonlinear_prediction.predict_nonlinear([log], config)[0]
+    assert predicted.shape == every.shape == (len(t), 10)
+    assert np.all(np.abs(predicted - every) <= 0.01 * SIGMA)
     scale = np.sqrt(np.outer(np.diag(ticked), np.diag(ticked)))  # each entry's: 0.1 % of it
     assert np.all(np.abs(stamped - ticked) <= 1e-3 * scale)
 

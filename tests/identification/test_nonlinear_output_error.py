@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed.identification.nonlinear_output_error import STRETCH, FlightRecord, flown_rows
+from testbed.identification.nonlinear_output_error import FlightRecord
 from testbed.identification.nonlinear_sensitivities import flight
 from testbed.models.linear import STATES
 from testbed.models.nonlinear import INERTIA, nonlinear_model, nonlinear_theta
@@ -140,39 +140,3 @@ def test_the_normal_equations_are_those_of_the_whole_jacobian_stacked(free_initi
     H, g = normal_equations(res, sens, R, free_initial)
     np.testing.assert_allclose(H, J.T @ J, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(g, J.T @ e, rtol=1e-12, atol=1e-12)
-
-
-def test_a_flight_stops_at_the_rows_with_a_sample_or_a_fin_change(truth):
-    """A 50 Hz log read on its logger's 1 ms clock (19 ticks in 20 without a sample), with a fin
-    change at a tick without states and a 0.2 s dropout: the flight keeps the first and the last
-    tick, every tick with a sample or a fin change and, in the dropout, ticks no further apart
-    than `STRETCH` times the median interval (20 ms), as few as that takes. Flown from kept tick
-    to kept tick in 20 RK4 steps an interval, the first second's states are those of the flight
-    through every tick in one step a tick. A record on its own step keeps every row, its
-    dropout's too."""
-    model, theta = truth
-    t50, fins50, x0 = manoeuvre(2.0)
-    t = np.arange(2001) * 0.001
-    fins = fins50[np.arange(2001) // 20]  # each row's fins held over its 20 ticks
-    fins[1010:1020] += 0.01  # logged at a tick without states
-    states = fly_nonlinear(model, theta, t, x0, fins, substeps=1)
-    y = np.full_like(states, np.nan)
-    sampled = np.setdiff1d(np.arange(0, 2001, 20), np.arange(1420, 1600, 20))
-    y[sampled] = states[sampled]
-    record = FlightRecord(t=t, fins=fins, y=y)
-    rows = flown_rows(record)
-    assert set(sampled) | {1010} <= set(rows)
-    # in the dropout: the rudder's reversal at 1.5 s, and from 1.4 s and from it every 30 ms
-    assert set(rows) - set(sampled) - {1010} == {1430, 1460, 1490, 1500, 1530, 1560, 1590}
-    assert np.max(np.diff(t[rows])) <= STRETCH * 0.020 + 1e-12
-    first = record.at(rows[rows <= 1000])
-    np.testing.assert_allclose(
-        fly_nonlinear(model, theta, first.t, x0, first.fins, substeps=20),
-        states[rows[rows <= 1000]],
-        rtol=0,
-        atol=1e-12 * np.abs(states).max(),
-    )
-    own = FlightRecord(
-        t=t50, fins=fins50, y=np.where(np.isin(np.arange(101), [40, 41, 42])[:, None], np.nan, 0.0)
-    )
-    assert np.array_equal(flown_rows(own), np.arange(101))
