@@ -435,7 +435,7 @@ def captive_html(captive: dict | None) -> list[str]:
         )
         parts.append(
             f"<tr><td>{e(d['arm'])}</td><td>{d['seed']}</td><td>{d['spread']:g}</td><td>{e(d['status'])}</td>"
-            f"<td>{d['iterations']}</td><td>{d['wall_time_s']:.1f}</td><td>{e(fits) or '–'}</td></tr>"
+            f"<td>{d['iterations']}</td><td>{d['wall_time_s']:.1f}</td><td>{e(fits or d['fit_note']) or '–'}</td></tr>"
         )
     parts.append("</table>")
     return parts

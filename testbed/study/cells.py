@@ -45,7 +45,7 @@ from testbed.analysis.validation import validate
 from testbed.captive.config import captive_config
 from testbed.captive.reference import slope_terms
 from testbed.data import load_data
-from testbed.errors import InputError, one_line
+from testbed.errors import InputError, Unflyable, one_line
 from testbed.estimators import FilterEstimate, identify, lookup
 from testbed.estimators.nelder_mead import SIMPLEX_ITERATIONS
 from testbed.identification import likelihood, recursions, scan
@@ -233,7 +233,9 @@ def captive_start(speed: float, spread: float, seed: int):
 
 
 def _nonlinear_fit(doc: dict, cell: Cell, experiments, speed: float) -> None:
-    """A `NONLINEAR_ARMS` cell's fit and its errors against the captive values, into `doc`."""
+    """A `NONLINEAR_ARMS` cell's fit and its errors against the captive values, into `doc`, with
+    its open-loop fit % per record and channel (`fit`; none where the estimate's flight leaves
+    the finite numbers, `fit_note` says where)."""
     captive, config = captive_start(speed, cell.spread, cell.seed)
     costs = []
     est = identify(
@@ -247,7 +249,14 @@ def _nonlinear_fit(doc: dict, cell: Cell, experiments, speed: float) -> None:
     reference = {n: float(captive.terms[n]) for n in est.free}
     values = {n: float(v) for n, v in zip(est.free, est.values)}
     sigma = {n: _number(s) for n, s in zip(est.free, std)}
-    fits = validate(experiments, config.with_coefficients(values), initial=est.initial_states or None)
+    try:
+        fits = validate(experiments, config.with_coefficients(values), initial=est.initial_states or None)
+        fit, note = (
+            {x: {c: _number(m.fit_percent) for c, m in ch.items()} for x, ch in fits.experiments.items()},
+            "",
+        )
+    except Unflyable as exc:  # the estimate flown open loop diverges: a result, with no fit %
+        fit, note = {}, one_line(exc)
     doc.update(
         _status(est),
         free=list(est.free),
@@ -259,7 +268,8 @@ def _nonlinear_fit(doc: dict, cell: Cell, experiments, speed: float) -> None:
             n: _number((values[n] - reference[n]) / sigma[n]) if sigma[n] else None for n in values
         },
         error_percent={n: 100 * (values[n] - reference[n]) / reference[n] for n in values},
-        fit={x: {c: _number(m.fit_percent) for c, m in ch.items()} for x, ch in fits.experiments.items()},
+        fit=fit,
+        fit_note=note,
         history=_history(est, np.array([reference[n] for n in est.free]), costs),
     )
 

@@ -350,6 +350,7 @@ def captive_table(rows: list[dict], docs: list[dict]) -> dict[str, list[dict]]:
             **{k: d["cell"][k] for k in ("arm", "seed", "spread")},
             **{k: d[k] for k in ("status", "iterations", "wall_time_s")},
             "fit": d.get("fit", {}),
+            "fit_note": d.get("fit_note", ""),
         }
         for d in docs
         if d and d["cell"]["arm"] in NONLINEAR_ARMS

@@ -3,6 +3,7 @@ plant, from the captive values perturbed as the linear arms' prior is, judged ag
 reference (`testbed captive`'s config, read here on its own), its rows in results.csv and the
 summary, and its table in the report."""
 
+from html import escape
 import math
 
 import numpy as np
@@ -12,6 +13,8 @@ from testbed.presentation.figures import write_report
 from testbed.captive.config import captive_config
 from testbed.captive.reference import slope_terms
 from testbed.study.arms import NONLINEAR_ARM, NONLINEAR_ARMS
+from testbed.errors import Unflyable
+from testbed.study import cells
 from testbed.study.cells import Cell, Start, load_run, run_cell
 from testbed.study.priors import SPREAD, term_class
 from testbed.study.results import captive_table, read_results, results_csv, results_rows, summary_table
@@ -124,3 +127,28 @@ def test_each_nonlinear_arm_starts_where_ml_gn_does_and_is_judged_in_its_sigma(c
     table = captive_table(rows, [reference, doc])
     assert [c["arm"] for c in table["cells"]] == [NONLINEAR_ARM, arm]
     assert {r["arm"] for r in table["coefficients"]} == {NONLINEAR_ARM, arm}
+
+
+def test_an_estimate_whose_open_loop_flight_diverges_is_a_result_without_a_fit(cell, monkeypatch, tmp_path):
+    """A nonlinear arm's estimate whose open-loop flight leaves the finite numbers (a filter's
+    last coefficients: `mekf-nonlinear` from a 0.5-spread start, Scenario I seed 4) is recorded,
+    its values and σ judged as any other's, with no fit % and the reason in the report; the cell
+    does not fail."""
+    reference, data = cell
+    why = "scenario-I.csv: the config's model flown from the record's first sample leaves the finite numbers at t = 2.3 s"
+
+    def diverges(*args, **kwargs):
+        raise Unflyable(why + "; expected a model whose flight stays bounded", why)
+
+    monkeypatch.setattr(cells, "validate", diverges)
+    arm = "equation-error-nonlinear"
+    doc = run_cell(Cell("I", arm, 1, SPREAD_S, "plant", DURATION), data, Start(None, None, {}, ""))
+    assert doc["status"] != "failed", doc.get("traceback")
+    assert doc["fit"] == {} and why in doc["fit_note"]
+    assert set(doc["values"]) == set(reference["values"]) and all(map(math.isfinite, doc["values"].values()))
+    rows = results_rows([reference, doc])
+    table = captive_table(rows, [reference, doc])
+    assert [c["fit_note"] for c in table["cells"]] == ["", doc["fit_note"]]
+    (summary, *_) = summary_table(rows)
+    write_report(tmp_path, [reference, doc], rows, {}, {}, [summary], {}, {}, (), table)
+    assert escape(why) in (tmp_path / "report.html").read_text(encoding="utf-8")
