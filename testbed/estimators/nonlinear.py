@@ -8,7 +8,8 @@ contract and `Estimate` as the linear model's methods:
   below, kept as the linear model's are (`multistart.best_fit`);
 - `ml-lm`: the linear model's `levenberg_marquardt` on the same objective, the initial states
   stepping with θ, from `config`, `equation-error` or `auto` (both run to their end, the least
-  cost kept), in the same box as `ml-gn` (`box_bounds`); no multiple shooting;
+  cost kept), in the same box as `ml-gn` (`box_bounds`); multiple shooting only from a start
+  whose flight diverges over the whole record (as the linear model's `ml-lm`);
 - `ml-nm`: the paper's Nelder-Mead simplex (`simplex`) on the same likelihood,
   `J_M = 1/N Σ eᵀR⁻¹e` over the free coefficients, each run in the coordinates at its start
   (`coordinates`, as the linear model's: by default whitened by the flight's Gauss-Newton

@@ -14,7 +14,7 @@ none (NaN), the others' are those with it held.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -22,9 +22,9 @@ import numpy as np
 from testbed.errors import InputError
 from testbed.estimators.base import Estimate, Outcome, Status
 from testbed.estimators.levenberg_marquardt import levenberg_marquardt
-from testbed.estimators.trust_region import trust_region
+from testbed.estimators.trust_region import STAGE_TOL, shooting_stages, trust_region
 from testbed.identification.bounds import crlb
-from testbed.identification.likelihood import SEGMENTS
+from testbed.identification.likelihood import FEWEST_SEGMENT, SEGMENTS
 from testbed.identification.nonlinear_objective import NonlinearObjective
 from testbed.identification.nonlinear_output_error import (
     FlightRecord,
@@ -160,7 +160,8 @@ def fit(
     (`Outcome.joined`), its σ NaN (the earlier fit's are the caller's).
     `segments`: multiple shooting's first stage, pieces per record (1: none). `optimiser`:
     `ml-gn` (`trust_region`, all of the above) or `ml-lm` (`levenberg_marquardt`: the bounds,
-    no multiple shooting; `follow` is then unused)."""
+    multiple shooting only from a start whose flight diverges, `_levenberg_marquardt`; `follow`
+    is then unused)."""
     if not (isinstance(max_iterations, int) and max_iterations >= 1 and tolerance > 0):
         raise InputError(
             f"tolerance={tolerance!r}, max_iterations={max_iterations!r}; expected a tolerance > 0 "
@@ -171,10 +172,7 @@ def fit(
     x0 = prob.first_states()[:, list(prob.ch)].ravel() if prob.free_initial else []
     at = prob.point(values) if at is None else at
     if optimiser == "ml-lm":
-        out = levenberg_marquardt(
-            prob, np.concatenate([values, x0]), max_iter=max_iterations, tol=tolerance, callback=report,
-            at=at, box=box,
-        )  # fmt: skip
+        out = _levenberg_marquardt(prob, values, at, max_iterations, tolerance, report, box)
     else:
         out = trust_region(
             prob, np.concatenate([values, x0]), max_iter=max_iterations, tol=tolerance, callback=report,
@@ -186,6 +184,41 @@ def fit(
             "the shortest segments; expected a start whose flight does"
         )
     return result(prob, out)
+
+
+def _levenberg_marquardt(
+    prob: NonlinearObjective, values, at, max_iterations, tolerance, report, box
+) -> Outcome:
+    """`levenberg_marquardt` from the free `values` (`at`: `prob.point` there, None where the
+    flight leaves the finite numbers over the whole record); from such a start multiple shooting
+    first, as `ml-gn`'s: on the records cut into the fewest segments on which the flight stays
+    bounded (`NonlinearObjective.shooting`), then on a quarter as many, …, then on the whole
+    record, each stage from the one before's values (each segment's initial state its first
+    sample) and, before the last, converged within `STAGE_TOL` σ; `max_iterations` for all of
+    them together."""
+    stages, nf = [], prob.n_free
+    if at is None:
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is an answer here
+            count = prob.shooting(values, FEWEST_SEGMENT)
+        stages = shooting_stages(prob, count, FEWEST_SEGMENT)
+    used, history = 0, [np.asarray(values, float)[None, :]]
+    for stage in [*stages, prob]:
+        x0 = stage.first_states()[:, list(stage.ch)].ravel() if stage.free_initial else []
+
+        def stepped(step, used=used):
+            report(replace(step, iteration=used + step.iteration))
+
+        out = levenberg_marquardt(
+            stage, np.concatenate([values, x0]), max_iter=max(max_iterations - used, 1),
+            tol=tolerance if stage is prob else max(tolerance, STAGE_TOL),
+            callback=stepped if report is not None else None, at=at if stage is prob else None, box=box,
+        )  # fmt: skip
+        used += out.iterations
+        history.append(out.history[1:])
+        if stage is not prob and out.status is Status.DIVERGED:
+            continue  # a stage the values diverge on is passed over
+        values = out.p[:nf]
+    return replace(out, iterations=used, history=np.concatenate(history))
 
 
 def _box(bounds, p: int) -> tuple[np.ndarray, np.ndarray] | None:

@@ -85,6 +85,7 @@ __all__ = [
     "STAGE_TOL",
     "bounded_step",
     "second_order",
+    "shooting_stages",
     "subproblem",
     "trust_region",
 ]
@@ -392,7 +393,7 @@ def trust_region(
         if callback is not None:
             callback(Progress(len(history) - 1, x.p[:nf].copy(), x.J))
 
-    stages = _shooting_stages(prob, segments, likelihood.LEAST_SEGMENT)
+    stages = shooting_stages(prob, segments, likelihood.LEAST_SEGMENT)
 
     def left() -> int:
         return max_iter - (len(history) - 1)
@@ -407,7 +408,7 @@ def trust_region(
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging start is an answer here
             count = prob.shooting(p[:nf], likelihood.FEWEST_SEGMENT)
     if segments > 1 and count > 1:  # the start's response grows beyond bound: segments first
-        out = run(_shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, SEGMENT_RADIUS)
+        out = run(shooting_stages(prob, count, likelihood.FEWEST_SEGMENT), p, max_iter, SEGMENT_RADIUS)
         return _outcome(prob, p, out, history)
     direct = run([], p, min(max_iter, DIRECT) if stages else max_iter, radius, at)
     if direct.status is Status.MAX_ITERATIONS and direct.step < min(_NEAR, direct.earlier / 2) and stages:
@@ -415,7 +416,7 @@ def trust_region(
         # else (a step that stays near one size is a slow crawl in a poor basin's valley)
         direct = run([], direct.point.p, min(left(), DIRECT), radius)
     if direct.point is None:  # the model diverges from `p`: segments as short as the records need
-        stages = _shooting_stages(prob, segments, likelihood.FEWEST_SEGMENT)
+        stages = shooting_stages(prob, segments, likelihood.FEWEST_SEGMENT)
     out = direct
     if direct.status is not Status.CONVERGED and stages and left() // 2:
         # multiple shooting gets half of what is left; the rest goes on from the lower of the
@@ -458,7 +459,7 @@ def _outcome(prob: Objective, p: np.ndarray, out: Descent, history: list) -> Out
     )
 
 
-def _shooting_stages(prob: Objective, segments: int, least: int) -> list[Objective]:
+def shooting_stages(prob: Objective, segments: int, least: int) -> list[Objective]:
     """The multiple-shooting stages: `segments`, `segments`/`SHRINK`, … pieces per record of at
     least `least` samples (`Objective.segmented`), each with fewer than the one before and more
     than the records themselves."""

@@ -14,7 +14,7 @@ import pytest
 from testbed.analysis.nonlinear_identifiability import forward, nonlinear_identifiability
 from testbed.cli import main
 from testbed.data import Experiment, read_config, write_config, write_csv
-from testbed.errors import InputError
+from testbed.errors import InputError, Unflyable
 from testbed.estimators import OptionError, identify
 from testbed.estimators.nonlinear_fit import fit_output_error
 from testbed.estimators.nonlinear_regression import regressed
@@ -1003,3 +1003,19 @@ def _complex_step_bounds(columns, n: int, p: int) -> np.ndarray:
     W = np.tile(1 / SIGMA**2, n)
     F = reduced(J.T @ (W[:, None] * J), np.zeros(p + 10), p)[0]
     return np.sqrt(np.diag(np.linalg.inv(F)))
+
+
+def test_ml_lm_takes_a_start_whose_flight_diverges_on_segments_first(truth):
+    """With N_uv (the yaw moment of sideslip) of the wrong sign the a-priori model's flight from
+    the record's first sample leaves the finite numbers within its 4 s: `ml-lm` fits the record
+    cut into segments first, as `ml-gn` does, and ends at `ml-gn`'s optimum (within 0.01 σ), every
+    coefficient within 3 σ of the model that flew."""
+    config, noisy, _ = truth
+    prior = config.with_coefficients({"N_uv": -config.terms["N_uv"]})
+    with pytest.raises(Unflyable):
+        nonlinear_prediction.flights([noisy], prior, nonlinear_prediction.first_samples([noisy], prior))
+    lm, gn = (identify([noisy], prior, m, start="config") for m in ("ml-lm", "ml-gn"))
+    assert lm.converged and gn.converged
+    assert np.all(np.abs(lm.values - gn.values) <= 0.01 * gn.std)
+    for n, v, s in zip(lm.free, lm.values, lm.std):
+        assert abs(v - config.terms[n]) <= 3 * s, (n, v, config.terms[n], s)
