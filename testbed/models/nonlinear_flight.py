@@ -48,9 +48,10 @@ def flown_rows(t: np.ndarray, y: np.ndarray, fins: np.ndarray) -> np.ndarray:
     rows = np.flatnonzero(needed)
     if len(rows) == n:
         return rows
-    limit = STRETCH * float(np.median(np.diff(t[rows])))
+    steps = np.diff(t[rows])
+    limit = STRETCH * float(np.median(steps))
     between = []
-    for k in np.flatnonzero(np.diff(t[rows]) > limit):
+    for k in np.flatnonzero(steps > limit):
         last = t[rows[k]]
         for j in range(rows[k] + 1, rows[k + 1]):  # kept where leaving it out stretches the interval
             if t[j + 1] - last > limit:

@@ -249,14 +249,13 @@ def _nonlinear_fit(doc: dict, cell: Cell, experiments, speed: float) -> None:
     reference = {n: float(captive.terms[n]) for n in est.free}
     values = {n: float(v) for n, v in zip(est.free, est.values)}
     sigma = {n: _number(s) for n, s in zip(est.free, std)}
+    fit, note = {}, ""
     try:
         fits = validate(experiments, config.with_coefficients(values), initial=est.initial_states or None)
-        fit, note = (
-            {x: {c: _number(m.fit_percent) for c, m in ch.items()} for x, ch in fits.experiments.items()},
-            "",
-        )
     except Unflyable as exc:  # the estimate flown open loop diverges: a result, with no fit %
-        fit, note = {}, one_line(exc)
+        note = one_line(exc)
+    else:
+        fit = {x: {c: _number(m.fit_percent) for c, m in ch.items()} for x, ch in fits.experiments.items()}
     doc.update(
         _status(est),
         free=list(est.free),
